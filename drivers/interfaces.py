@@ -1,0 +1,82 @@
+"""The device interfaces the campaign sees. Real clients and test doubles implement them.
+
+Units: millimetres, degrees, degrees Celsius, hPa, percent relative humidity, seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+
+@dataclass(frozen=True)
+class Environment:
+    temperature_c: float
+    pressure_hpa: float
+    humidity_pct: float
+
+
+@dataclass(frozen=True)
+class TrackerMeasurement:
+    """One stationary measurement of the reflector centre in the tracker (station) frame."""
+
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    std_x_mm: float
+    std_y_mm: float
+    std_z_mm: float
+    environment: Environment
+
+
+@dataclass(frozen=True)
+class TrackerStatus:
+    initialized: bool
+    reflector_locked: bool
+    busy: bool
+    detail: str = ""
+
+
+@runtime_checkable
+class Tracker(Protocol):
+    def connect(self) -> None: ...
+    def initialize(self) -> None: ...
+    def set_environment(self, env: Environment) -> None: ...
+    def set_reflector(self, reflector_id: int) -> None: ...
+    def set_stationary_averaging(self, n_samples: int) -> None: ...
+    def find_reflector(self, x_mm: float, y_mm: float, z_mm: float, search_radius_mm: float) -> None: ...
+    def measure(self) -> TrackerMeasurement: ...
+    def status(self) -> TrackerStatus: ...
+    def go_birdbath(self) -> None: ...
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class Robot(Protocol):
+    def connect(self) -> None: ...
+    def read_joints(self) -> tuple[float, ...]:
+        """Actual joint angles in degrees, at the controller's precision (0.0001 deg)."""
+        ...
+    def move_ptp(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
+        """Check the target (joint limits, cell box) and move there; returns once the move is done."""
+        ...
+    def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
+        """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them."""
+        ...
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class CellIO(Protocol):
+    def connect(self) -> None: ...
+    def door_closed(self) -> bool: ...
+    def acknowledge_pressed(self) -> bool: ...
+    def set_request_lamp(self, on: bool) -> None: ...
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class Meteo(Protocol):
+    def connect(self) -> None: ...
+    def read(self) -> Environment: ...
+    def close(self) -> None: ...
