@@ -1,0 +1,161 @@
+"""Serial chains of revolute joints: description, YAML and URDF sources.
+
+A chain is T(q) = T_base . prod_j [ R_{e_j}(s_j (q_j + dq_j)) . Trans(t_j) . R_err,j . R_nom,j ]
+with, per joint j, the axis e_j (x, y or z of the joint's frame, sign s_j), the nominal link translation
+t_j expressed in the frame right after the joint rotation, and an optional fixed nominal rotation
+R_nom,j from that frame to the next joint's frame. Lengths in mm, angles in rad inside `calib`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .rigid import AXIS_INDEX, homogeneous, rpy_matrix
+
+
+class ChainError(ValueError):
+    """A chain description that cannot be used (bad axis, non-aligned axes, bad numbers)."""
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    axis: int  # 0, 1, 2 = x, y, z of the joint's frame
+    sign: float  # +1 or -1
+    translation: np.ndarray  # nominal link translation (mm), frame after the joint rotation
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # fixed R_nom to the next frame
+    limits: tuple[float, float] | None = None  # rad
+    mass_kg: float = 0.0  # body moved by this joint (for gravity work)
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, frame after the joint rotation
+
+
+@dataclass(frozen=True)
+class Chain:
+    name: str
+    base: np.ndarray  # 4x4 nominal base transform (robot base frame -> first joint frame), mm
+    joints: tuple[Joint, ...]
+
+    @property
+    def dof(self) -> int:
+        return len(self.joints)
+
+    def limits_array(self) -> np.ndarray:
+        """(n, 2) joint limits in rad; +-inf where none is given."""
+        out = np.tile([-np.inf, np.inf], (self.dof, 1))
+        for j, joint in enumerate(self.joints):
+            if joint.limits is not None:
+                out[j] = joint.limits
+        return out
+
+
+def _parse_axis(text: str, where: str) -> tuple[int, float]:
+    t = str(text).strip().lower()
+    sign = 1.0
+    if t[:1] in "+-":
+        sign = -1.0 if t[0] == "-" else 1.0
+        t = t[1:]
+    if t not in AXIS_INDEX:
+        raise ChainError(f"{where}: axis must be x, y or z (optionally signed), got {text!r}")
+    return AXIS_INDEX[t], sign
+
+
+def _vec3(value, where: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ChainError(f"{where}: expected 3 numbers, got {value!r}") from exc
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ChainError(f"{where}: expected 3 finite numbers, got {value!r}")
+    return v
+
+
+def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
+    """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg)."""
+    if not isinstance(doc, dict) or "joints" not in doc:
+        raise ChainError(f"{source}: a robot needs a 'joints' list")
+    base_doc = doc.get("base") or {}
+    base = homogeneous(
+        rpy_matrix(*np.radians(_vec3(base_doc.get("rpy_deg", [0, 0, 0]), f"{source}: base.rpy_deg"))),
+        _vec3(base_doc.get("translation_mm", [0, 0, 0]), f"{source}: base.translation_mm"),
+    )
+    joints = []
+    for k, jd in enumerate(doc["joints"]):
+        where = f"{source}: joint {k + 1}"
+        if not isinstance(jd, dict) or "axis" not in jd:
+            raise ChainError(f"{where}: needs at least 'axis'")
+        axis, sign = _parse_axis(jd["axis"], where)
+        limits = None
+        if jd.get("limits_deg") is not None:
+            lo, hi = (float(v) for v in jd["limits_deg"])
+            if not lo < hi:
+                raise ChainError(f"{where}: limits_deg must be [min, max] with min < max")
+            limits = (np.radians(lo), np.radians(hi))
+        joints.append(
+            Joint(
+                name=str(jd.get("name", f"A{k + 1}")),
+                axis=axis,
+                sign=sign,
+                translation=_vec3(jd.get("link_mm", [0, 0, 0]), f"{where}: link_mm"),
+                rotation=rpy_matrix(*np.radians(_vec3(jd.get("link_rpy_deg", [0, 0, 0]), f"{where}: rpy"))),
+                limits=limits,
+                mass_kg=float(jd.get("mass_kg", 0.0)),
+                com=_vec3(jd.get("com_mm", [0, 0, 0]), f"{where}: com_mm"),
+            )
+        )
+    if not joints:
+        raise ChainError(f"{source}: the chain has no joints")
+    return Chain(name=str(doc.get("name", source)), base=base, joints=tuple(joints))
+
+
+def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
+    """Load a serial chain of revolute joints from a URDF through pinocchio (metres -> mm).
+
+    Joint i's placement in its parent joint frame becomes the link block of joint i-1 (translation
+    and fixed rotation); the first placement is the base transform. Inertias give the mass model.
+    """
+    import pinocchio as pin
+
+    try:
+        model = pin.buildModelFromUrdf(str(path))
+    except Exception as exc:  # pinocchio raises ValueError / RuntimeError with its own text
+        raise ChainError(f"{path}: cannot load URDF ({exc})") from exc
+    names = list(model.names)[1:]
+    last = len(names) if tip_joint is None else names.index(tip_joint) + 1
+    axes = []
+    for i in range(1, last + 1):
+        jm = model.joints[i]
+        short = jm.shortname()
+        if short in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+            axes.append((AXIS_INDEX[short[-1].lower()], 1.0))
+        elif short == "JointModelRevoluteUnaligned":
+            a = np.asarray(jm.axis, dtype=float)
+            k = int(np.argmax(np.abs(a)))
+            if abs(abs(a[k]) - 1.0) > 1e-9:
+                raise ChainError(f"{path}: joint {names[i - 1]} axis {a} is not along x, y or z")
+            axes.append((k, float(np.sign(a[k]))))
+        else:
+            raise ChainError(f"{path}: joint {names[i - 1]} is {short}; only revolute joints are supported")
+        if model.parents[i] != i - 1:
+            raise ChainError(f"{path}: joint {names[i - 1]} is not in a serial chain")
+    placements = [model.jointPlacements[i] for i in range(1, last + 1)]
+    base = homogeneous(placements[0].rotation, 1000.0 * placements[0].translation)
+    joints = []
+    for j in range(last):
+        nxt = placements[j + 1] if j + 1 < last else None
+        lo, hi = model.lowerPositionLimit[j], model.upperPositionLimit[j]
+        inertia = model.inertias[j + 1]
+        joints.append(
+            Joint(
+                name=names[j],
+                axis=axes[j][0],
+                sign=axes[j][1],
+                translation=np.zeros(3) if nxt is None else 1000.0 * np.asarray(nxt.translation),
+                rotation=np.eye(3) if nxt is None else np.asarray(nxt.rotation),
+                limits=(float(lo), float(hi)) if np.isfinite(lo) and np.isfinite(hi) and lo < hi else None,
+                mass_kg=float(inertia.mass),
+                com=1000.0 * np.asarray(inertia.lever),
+            )
+        )
+    return Chain(name=str(model.name), base=base, joints=tuple(joints))

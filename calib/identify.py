@@ -1,0 +1,300 @@
+"""Joint identification of robot parameters, tracker stations and reference points (paper eq. 13).
+
+Unknowns: the deviations of the chosen robot parameters, one 6-dof transform per tracker station
+(station <- robot base, x_s = R_s p + t_s) and the position of every reference point in the last joint
+frame. Stations start from a closed-form Kabsch fit on nominal predictions; then Levenberg-Marquardt on
+the analytic Jacobian of `calib.kinematics` solves the whole non-linear problem at once (the paper's
+two-step alternation, eqs. 17-22, is kept in bench/ as a baseline).
+
+Weighting: i.i.d. by default, or a `TrackerNoise` model (eqs. 23-24). Uncertainty: eq. (27) with the
+variance factor estimated from the residuals, Student-t 95 % intervals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .chain import Chain
+from .kinematics import Kinematics
+from .noise import TrackerNoise
+from .params import Param
+from .rigid import exp_so3, kabsch, skew
+from .table import MeasurementTable
+
+
+class IdentificationError(ValueError):
+    """A set-up that cannot be identified; the message says what is missing."""
+
+
+@dataclass
+class Station:
+    rotation: np.ndarray  # R_s: station <- robot base
+    translation: np.ndarray  # t_s, mm
+
+    def apply(self, p: np.ndarray) -> np.ndarray:
+        return p @ self.rotation.T + self.translation
+
+
+@dataclass
+class Identification:
+    chain: Chain
+    params: list[Param]
+    dev: np.ndarray  # deviations from nominal (mm, rad), ordered as params
+    stations: dict[str, Station]
+    points: dict[str, np.ndarray]
+    cov: np.ndarray  # covariance of [dev, station perturbations (v, w) x S, points x P]
+    station_ids: list[str]
+    point_ids: list[str]
+    residuals: np.ndarray  # (N, 3) measured - predicted, mm, station frames
+    variance_factor: float  # s^2 (a-posteriori), 1 if the noise model holds
+    dof: int
+    iterations: int
+    noise: TrackerNoise | None
+
+    @property
+    def t95(self) -> float:
+        return float(stats.t.ppf(0.975, self.dof))
+
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+    def param_ci95(self) -> np.ndarray:
+        return self.t95 * self.std()[: len(self.params)]
+
+    def station_ci95(self, sid: str) -> np.ndarray:
+        k = len(self.params) + 6 * self.station_ids.index(sid)
+        return self.t95 * self.std()[k : k + 6]
+
+    def point_ci95(self, pid: str) -> np.ndarray:
+        k = len(self.params) + 6 * len(self.station_ids) + 3 * self.point_ids.index(pid)
+        return self.t95 * self.std()[k : k + 3]
+
+    @property
+    def sigma_mm(self) -> float:
+        """A-posteriori standard deviation of one coordinate (i.i.d. weighting) or the variance-factor root."""
+        return float(np.sqrt(self.variance_factor))
+
+    def param_cov(self) -> np.ndarray:
+        k = len(self.params)
+        return self.cov[:k, :k]
+
+
+def _init_stations(kin, q, tool_rows, xyz, st_idx, station_ids, source) -> list[Station]:
+    p_nom = kin.points(q, tool_rows)
+    out = []
+    for s, sid in enumerate(station_ids):
+        rows = np.flatnonzero(st_idx == s)
+        if len(rows) < 3:
+            raise IdentificationError(
+                f"{source}: station {sid!r} has {len(rows)} measurement(s); at least 3 non-collinear "
+                "points are needed to place a station"
+            )
+        try:
+            r, t = kabsch(p_nom[rows], xyz[rows])
+        except ValueError as exc:
+            raise IdentificationError(f"{source}: station {sid!r}: {exc}") from None
+        out.append(Station(r, t))
+    return out
+
+
+def identify(
+    chain: Chain,
+    table: MeasurementTable,
+    tool_points: dict[str, np.ndarray],
+    params: list[Param],
+    noise: TrackerNoise | None = None,
+    dev0: np.ndarray | None = None,
+    max_iter: int = 100,
+) -> Identification:
+    """Identify `params` (deviations from nominal), every station and every reference point."""
+    source = table.source
+    if table.xyz is None:
+        raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
+    if table.n_joints != chain.dof:
+        raise IdentificationError(
+            f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof} joints"
+        )
+    for i, pid in enumerate(table.point):
+        if pid not in tool_points:
+            raise IdentificationError(
+                f"{source}: row {i + 2}: column point: unknown point id {pid!r} "
+                f"(the tool defines {', '.join(sorted(tool_points))})"
+            )
+    station_ids = sorted(set(table.station), key=table.station.index)
+    point_ids = sorted(set(table.point), key=table.point.index)
+    st_idx = np.array([station_ids.index(s) for s in table.station])
+    pt_idx = np.array([point_ids.index(p) for p in table.point])
+    q = np.radians(table.q_deg)
+    xyz = table.xyz
+    n_rows, k, n_st, n_pt = len(table), len(params), len(station_ids), len(point_ids)
+    n_cols = k + 6 * n_st + 3 * n_pt
+    if 3 * n_rows <= n_cols:
+        raise IdentificationError(
+            f"{source}: {n_rows} measurements give {3 * n_rows} equations for {n_cols} unknowns; measure more poses"
+        )
+
+    kin = Kinematics(chain, params)
+    dev = np.zeros(k) if dev0 is None else np.array(dev0, dtype=float)
+    pts = np.array([np.asarray(tool_points[p], dtype=float) for p in point_ids])
+    stations = _init_stations(kin, q, pts[pt_idx], xyz, st_idx, station_ids, source)
+    w = None if noise is None else noise.whitening(xyz)
+    rows3 = np.arange(n_rows)
+
+    def evaluate(dev, stations, pts, with_jac=True):
+        rs = np.array([s.rotation for s in stations])[st_idx]
+        ts = np.array([s.translation for s in stations])[st_idx]
+        if with_jac:
+            jac = kin.jacobian(q, pts[pt_idx], dev)
+            pb = jac.p
+        else:
+            pb = kin.points(q, pts[pt_idx], dev)
+        xs = np.einsum("nij,nj->ni", rs, pb) + ts
+        r = xyz - xs
+        if w is not None:
+            r = np.einsum("nij,nj->ni", w, r)
+        if not with_jac:
+            return r.ravel(), None
+        jm = np.zeros((n_rows, 3, n_cols))
+        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, jac.d_params)
+        c0 = k + 6 * st_idx
+        for a in range(3):
+            jm[rows3, a, c0 + a] = 1.0
+        jm[rows3[:, None], :, (c0[:, None] + 3 + np.arange(3))] = np.transpose(-skew(xs), (0, 2, 1))
+        c1 = k + 6 * n_st + 3 * pt_idx
+        jm[rows3[:, None], :, (c1[:, None] + np.arange(3))] = np.transpose(
+            np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
+        )
+        if w is not None:
+            jm = np.einsum("nij,njk->nik", w, jm)
+        return r.ravel(), jm.reshape(3 * n_rows, n_cols)
+
+    def step(dev, stations, pts, delta):
+        new_st = []
+        for s, st in enumerate(stations):
+            v, om = delta[k + 6 * s : k + 6 * s + 3], delta[k + 6 * s + 3 : k + 6 * s + 6]
+            e = exp_so3(om)
+            new_st.append(Station(e @ st.rotation, e @ st.translation + v))
+        return dev + delta[:k], new_st, pts + delta[k + 6 * n_st :].reshape(n_pt, 3)
+
+    r, jm = evaluate(dev, stations, pts)
+    cost = float(r @ r)
+    lam = 1e-8
+    iterations = 1
+    for _ in range(max_iter):
+        scale = np.linalg.norm(jm, axis=0)
+        scale[scale == 0] = 1.0
+        js = jm / scale
+        a = np.vstack([js, np.sqrt(lam) * np.eye(n_cols)])
+        b = np.concatenate([r, np.zeros(n_cols)])
+        ds = np.linalg.lstsq(a, b, rcond=None)[0]
+        delta = ds / scale
+        cand = step(dev, stations, pts, delta)
+        r_new, _ = evaluate(*cand, with_jac=False)
+        cost_new = float(r_new @ r_new)
+        if cost_new <= cost:
+            dev, stations, pts = cand
+            small = cost - cost_new <= 1e-13 * cost + 1e-30 or np.max(np.abs(ds)) < 1e-13
+            r, jm = evaluate(dev, stations, pts)
+            iterations += 1
+            cost = float(r @ r)
+            lam = max(lam / 10.0, 1e-12)
+            if small:
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e8:
+                break
+
+    scale = np.linalg.norm(jm, axis=0)
+    scale[scale == 0] = 1.0
+    u, sv, vt = np.linalg.svd(jm / scale, full_matrices=False)
+    if sv[-1] < 1e-9 * sv[0]:
+        null = np.abs(vt[-1])
+        names = _unknown_names(params, station_ids, point_ids)
+        worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
+        raise IdentificationError(
+            f"{source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
+            "(add poses, reference points or stations, or identify fewer parameters)"
+        )
+    dof = 3 * n_rows - n_cols
+    s2 = cost / dof
+    inv = (vt.T / sv**2) @ vt
+    cov = s2 * inv / np.outer(scale, scale)
+    rs = np.array([s.rotation for s in stations])[st_idx]
+    ts = np.array([s.translation for s in stations])[st_idx]
+    resid = xyz - (np.einsum("nij,nj->ni", rs, kin.points(q, pts[pt_idx], dev)) + ts)
+    return Identification(
+        chain=chain,
+        params=list(params),
+        dev=dev,
+        stations=dict(zip(station_ids, stations, strict=True)),
+        points={p: pts[i] for i, p in enumerate(point_ids)},
+        cov=cov,
+        station_ids=station_ids,
+        point_ids=point_ids,
+        residuals=resid,
+        variance_factor=s2,
+        dof=dof,
+        iterations=iterations,
+        noise=noise,
+    )
+
+
+def _unknown_names(params, station_ids, point_ids) -> list[str]:
+    names = [p.name for p in params]
+    for s in station_ids:
+        names += [f"station {s} {c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
+    for p in point_ids:
+        names += [f"point {p} {c}" for c in "xyz"]
+    return names
+
+
+def predict_points(
+    result_chain: Chain,
+    params: list[Param],
+    dev: np.ndarray,
+    stations: dict[str, Station],
+    points: dict[str, np.ndarray],
+    table: MeasurementTable,
+) -> np.ndarray:
+    """Predicted reflector positions (N, 3) in each row's station frame."""
+    for i, (sid, pid) in enumerate(zip(table.station, table.point, strict=True)):
+        if sid not in stations:
+            raise IdentificationError(f"{table.source}: row {i + 2}: column station: unknown station {sid!r}")
+        if pid not in points:
+            raise IdentificationError(f"{table.source}: row {i + 2}: column point: unknown point {pid!r}")
+    kin = Kinematics(result_chain, params)
+    tool = np.array([points[p] for p in table.point])
+    pb = kin.points(np.radians(table.q_deg), tool, dev)
+    rs = np.array([stations[s].rotation for s in table.station])
+    ts = np.array([stations[s].translation for s in table.station])
+    return np.einsum("nij,nj->ni", rs, pb) + ts
+
+
+def residual_stats(residuals: np.ndarray) -> dict[str, float]:
+    """Table 9: coordinate-based (every x, y, z) and distance-based (3-D norm) residuals, max and RMS."""
+    coord = np.abs(residuals).ravel()
+    dist = np.linalg.norm(residuals, axis=1)
+    return {
+        "coord_max_mm": float(coord.max()),
+        "coord_rms_mm": float(np.sqrt(np.mean(coord**2))),
+        "dist_max_mm": float(dist.max()),
+        "dist_rms_mm": float(np.sqrt(np.mean(dist**2))),
+    }
+
+
+def significance(
+    chain: Chain, params: list[Param], dev: np.ndarray, q0: np.ndarray, tcp: np.ndarray
+) -> list[tuple[str, float]]:
+    """Section 7.3: TCP position error at the test pose q0 (rad) when one parameter is reset to nominal."""
+    kin = Kinematics(chain, params)
+    ref = kin.points(q0[None], tcp, dev)[0]
+    out = []
+    for i, p in enumerate(params):
+        d = dev.copy()
+        d[i] = 0.0
+        out.append((p.name, float(np.linalg.norm(kin.points(q0[None], tcp, d)[0] - ref))))
+    return out

@@ -1,0 +1,117 @@
+"""model.json: everything `predict` needs, in boundary units (mm, deg).
+
+{"format": "trackcal-model/1", "robot": <configs/robots schema>, "extension": {"cause": "none"},
+ "parameters": {name: {"value": deviation, "ci95": half-width, "unit": "mm"|"deg", "nominal": value}},
+ "stations": {id: {"rotation": 3x3 station<-base, "translation_mm": [..], "ci95_translation_mm": [..],
+                   "ci95_rotation_deg": [..]}},
+ "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
+ "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
+ "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting", ...}
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .chain import Chain, ChainError, chain_from_dict
+from .chain_io import chain_to_dict
+from .identify import Identification, Station
+from .params import Param, param_by_name
+
+FORMAT = "trackcal-model/1"
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used."""
+
+
+def nominal_value(chain: Chain, p: Param) -> float:
+    return float(chain.joints[p.joint].translation[p.axis]) if p.kind == "p" else 0.0
+
+
+def to_boundary(p: Param, v: float) -> float:
+    return float(v) if p.is_length else float(np.degrees(v))
+
+
+def identification_to_doc(res: Identification, extra: dict | None = None) -> dict:
+    ci = res.param_ci95()
+    unit = np.array([1.0 if p.is_length else np.degrees(1.0) for p in res.params])
+    cov = res.param_cov() * np.outer(unit, unit)
+    doc = {
+        "format": FORMAT,
+        "robot": chain_to_dict(res.chain),
+        "extension": {"cause": "none"},
+        "parameters": {
+            p.name: {
+                "value": to_boundary(p, v),
+                "ci95": to_boundary(p, c),
+                "unit": "mm" if p.is_length else "deg",
+                "nominal": nominal_value(res.chain, p),
+            }
+            for p, v, c in zip(res.params, res.dev, ci, strict=True)
+        },
+        "stations": {},
+        "tool_points": {},
+        "covariance_order": [p.name for p in res.params],
+        "covariance": cov.tolist(),
+        "sigma_mm": res.sigma_mm if res.noise is None else None,
+        "variance_factor": res.variance_factor,
+        "dof": res.dof,
+        "iterations": res.iterations,
+        "weighting": "iid" if res.noise is None else "tracker",
+    }
+    for sid, st in res.stations.items():
+        c = res.station_ci95(sid)
+        doc["stations"][sid] = {
+            "rotation": st.rotation.tolist(),
+            "translation_mm": st.translation.tolist(),
+            "ci95_translation_mm": c[:3].tolist(),
+            "ci95_rotation_deg": np.degrees(c[3:]).tolist(),
+        }
+    for pid, x in res.points.items():
+        doc["tool_points"][pid] = {"xyz_mm": x.tolist(), "ci95_mm": res.point_ci95(pid).tolist()}
+    doc.update(extra or {})
+    return doc
+
+
+@dataclass
+class Model:
+    chain: Chain
+    params: list[Param]
+    dev: np.ndarray  # mm, rad
+    stations: dict[str, Station]
+    points: dict[str, np.ndarray]
+    doc: dict
+
+
+def load_model(path: str | Path) -> Model:
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ModelError(f"{path}: no such file") from None
+    except (OSError, ValueError) as exc:
+        raise ModelError(f"{path}: not a JSON model ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ModelError(f"{path}: not a trackcal model (expected format {FORMAT!r})")
+    try:
+        chain = chain_from_dict(doc["robot"], f"{path}: robot")
+        params = [param_by_name(chain, n) for n in doc["parameters"]]
+        dev = np.array(
+            [
+                doc["parameters"][p.name]["value"] * (1.0 if p.is_length else np.pi / 180.0)
+                for p in params
+            ]
+        )
+        stations = {
+            sid: Station(np.asarray(s["rotation"], dtype=float), np.asarray(s["translation_mm"], dtype=float))
+            for sid, s in doc["stations"].items()
+        }
+        points = {pid: np.asarray(p["xyz_mm"], dtype=float) for pid, p in doc["tool_points"].items()}
+    except (KeyError, TypeError, ValueError, ChainError) as exc:
+        raise ModelError(f"{path}: incomplete or malformed model ({exc})") from None
+    return Model(chain, params, dev, stations, points, doc)

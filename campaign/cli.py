@@ -1,0 +1,189 @@
+"""The trackcal command line. Every user mistake ends in one clear line and exit code 2."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from calib.cell import CellError, load_cell
+from calib.chain import ChainError
+from calib.identify import IdentificationError
+from calib.model import ModelError, load_model
+from calib.poses import random_poses
+from calib.table import TableError, read_table, write_table
+
+from .jobs import IdentifyOutcome, UsageError, choose_params, run_identify, run_predict, summary_of
+
+USER_ERRORS = (UsageError, TableError, CellError, ChainError, IdentificationError, ModelError)
+console = Console(stderr=False, highlight=False)
+
+
+def _write_json(path: str, doc: dict) -> None:
+    try:
+        Path(path).write_text(json.dumps(doc, indent=2) + "\n")
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:
+    doc = outcome.doc
+    t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations)")
+    for col in ("parameter", "unit", "nominal", "deviation", "95 % CI"):
+        t.add_column(col, justify="right")
+    if truth is not None:
+        t.add_column("truth (twin)", justify="right")
+        t.add_column("inside CI", justify="center")
+    for name, p in doc["parameters"].items():
+        row = [name, p["unit"], f"{p['nominal']:.1f}", f"{p['value']:+.4f}", f"±{p['ci95']:.4f}"]
+        if truth is not None:
+            tv = truth.get(name, 0.0)
+            row += [f"{tv:+.4f}", "yes" if abs(tv - p["value"]) <= p["ci95"] else "NO"]
+        t.add_row(*row)
+    console.print(t)
+    r = doc["residuals"]
+    rt = Table(title="Residuals (paper Table 9 style), mm")
+    for col in ("", "before", "after", "factor"):
+        rt.add_column(col, justify="right")
+    for key, label in (("coord_max_mm", "coordinate max"), ("coord_rms_mm", "coordinate RMS"),
+                       ("dist_max_mm", "distance max"), ("dist_rms_mm", "distance RMS")):
+        b, a = r["before"][key], r["after"][key]
+        rt.add_row(label, f"{b:.4f}", f"{a:.4f}", f"{b / a:.1f}" if a > 0 else "-")
+    console.print(rt)
+    if "significance_mm" in doc:
+        sig = sorted(doc["significance_mm"].items(), key=lambda kv: -kv[1])
+        console.print(
+            "TCP error at the test pose when one parameter is left at nominal (section 7.3): "
+            + ", ".join(f"{k} {v * 1000:.0f} um" for k, v in sig)
+        )
+    for sid, s in doc["stations"].items():
+        ci = s["ci95_translation_mm"]
+        console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
+
+
+def cmd_identify(args) -> int:
+    cell = load_cell(args.cell)
+    table = read_table(args.data, n_joints=cell.chain.dof)
+    outcome = run_identify(cell, table, choose_params(cell, args.params), args.weighting, args.extend)
+    print_identification(outcome)
+    _write_json(args.out, outcome.doc)
+    if args.json:
+        _write_json(args.json, summary_of(outcome))
+    console.print(f"model written to {args.out}")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    model = load_model(args.model)
+    rows = read_table(args.rows, require_xyz=False)
+    pred = run_predict(model, rows)
+    try:
+        write_table(pred, args.out)
+    except OSError as exc:
+        raise UsageError(f"{args.out}: cannot write ({exc.strerror})") from None
+    console.print(f"{len(pred)} predictions written to {args.out}")
+    return 0
+
+
+def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free: bool = False):
+    from mocks.synth import simulate_campaign
+    from mocks.twin import Twin
+
+    cell = load_cell(cell_ref)
+    if n_poses < 1 or repeat < 1:
+        raise UsageError("--poses and --repeat must be at least 1")
+    try:
+        poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    twin = Twin(cell, seed=seed)
+    return cell, twin, simulate_campaign(twin, poses, repeat=repeat, noise_free=noise_free)
+
+
+def cmd_simulate(args) -> int:
+    _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free)
+    write_table(table, args.out)
+    console.print(f"{len(table)} simulated measurements written to {args.out}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    console.rule("trackcal demo: a simulated KR-270 campaign on the digital twin, identified")
+    cell, twin, table = simulate(args.cell, args.poses, args.seed)
+    write_table(table, out / "table.csv")
+    console.print(
+        f"cell {cell.name}: {args.poses} random feasible poses, {len(cell.tool_points)} reference points, "
+        f"{len(cell.stations)} tracker stations -> {len(table)} visible measurements ({out / 'table.csv'})"
+    )
+    table = read_table(out / "table.csv", n_joints=cell.chain.dof)
+    outcome = run_identify(cell, table, choose_params(cell, None), "tracker")
+    truth = {
+        p.name: (v if p.is_length else float(np.degrees(v)))
+        for p, v in zip(twin.params, twin.true_dev, strict=True)
+    }
+    print_identification(outcome, truth)
+    _write_json(str(out / "model.json"), outcome.doc)
+    console.print(f"model written to {out / 'model.json'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="trackcal", description="Robot calibration with a laser tracker.")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("identify", help="identify robot parameters, stations and points from a measurement table")
+    p.add_argument("data", help="measurement table (CSV, see DESIGN.md)")
+    p.add_argument("--cell", required=True, help="cell name (configs/cells/NAME.yaml) or path")
+    p.add_argument("--params", help="comma-separated parameter names (default: the irreducible set)")
+    p.add_argument("--weighting", choices=("iid", "tracker"), default="iid",
+                   help="i.i.d. least squares, or the AT901 radial/transverse noise model")
+    p.add_argument("--extend", default="none", help="model extension (none = purely geometric)")
+    p.add_argument("--out", required=True, help="model.json to write")
+    p.add_argument("--json", help="summary JSON to write")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("predict", help="predict reflector positions with a model")
+    p.add_argument("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)")
+    p.add_argument("--model", required=True)
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("simulate", help="simulate a campaign of random feasible poses on the digital twin")
+    p.add_argument("--cell", default="kr270")
+    p.add_argument("--poses", type=int, default=30)
+    p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--noise-free", action="store_true")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("demo", help="simulate a KR-270 campaign on the twin, identify it, print the report")
+    p.add_argument("--cell", default="kr270")
+    p.add_argument("--poses", type=int, default=40)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", default="out/demo")
+    p.set_defaults(func=cmd_demo)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except USER_ERRORS as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""The analysis jobs behind the CLI: identify a table against a cell, predict with a model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.cell import Cell
+from calib.identify import Identification, identify, predict_points, residual_stats, significance
+from calib.model import Model, identification_to_doc, to_boundary
+from calib.noise import TrackerNoise
+from calib.params import Param, irreducible_params, param_by_name
+from calib.table import MeasurementTable
+
+
+class UsageError(ValueError):
+    """A user mistake on the command line."""
+
+
+def choose_params(cell: Cell, names: str | None) -> list[Param]:
+    kept, _ = irreducible_params(cell.chain)
+    if not names:
+        return kept
+    try:
+        return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
+    except ValueError as exc:
+        raise UsageError(f"--params: {exc}; the irreducible set is {' '.join(p.name for p in kept)}") from None
+
+
+@dataclass
+class IdentifyOutcome:
+    result: Identification
+    before: Identification
+    doc: dict
+
+
+def run_identify(
+    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = "iid", extend: str = "none"
+) -> IdentifyOutcome:
+    if extend != "none":
+        raise UsageError(f"--extend {extend}: only 'none' (the purely geometric model) is available")
+    noise = None if weighting == "iid" else TrackerNoise()
+    before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
+    res = identify(cell.chain, table, cell.tool_points, params, noise=noise)
+    extra: dict = {
+        "cell": cell.name,
+        "data": table.source,
+        "n_measurements": len(table),
+        "residuals": {"before": residual_stats(before.residuals), "after": residual_stats(res.residuals)},
+    }
+    if cell.test_pose is not None and cell.tcp is not None:
+        extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
+        extra["tcp_mm"] = cell.tcp.tolist()
+        extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
+    return IdentifyOutcome(result=res, before=before, doc=identification_to_doc(res, extra))
+
+
+def summary_of(outcome: IdentifyOutcome) -> dict:
+    res = outcome.result
+    keys = ("cell", "data", "n_measurements", "residuals", "significance_mm")
+    out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
+    out.update(
+        {
+            "parameters": outcome.doc["parameters"],
+            "sigma_mm": outcome.doc["sigma_mm"],
+            "iterations": res.iterations,
+            "dof": res.dof,
+            "stations": list(res.stations),
+        }
+    )
+    return out
+
+
+def run_predict(model: Model, rows: MeasurementTable) -> MeasurementTable:
+    if rows.n_joints != model.chain.dof:
+        raise UsageError(
+            f"{rows.source}: {rows.n_joints} joint columns, the model's robot has {model.chain.dof} joints"
+        )
+    xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, rows)
+    out = rows.subset(np.arange(len(rows)))
+    out.xyz = xyz
+    return out
+
+
+def truth_in_boundary_units(params: list[Param], values: np.ndarray) -> list[float]:
+    return [to_boundary(p, v) for p, v in zip(params, values, strict=True)]
