@@ -1,0 +1,84 @@
+"""Forward kinematics against pinocchio, analytic Jacobians against finite differences."""
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from calib.kinematics import Kinematics
+from calib.params import complete_params
+
+TOOL = np.array([277.0, -47.0, -94.0])
+
+
+def pinocchio_model(chain, tool):
+    """An independent model of the nominal chain built with pinocchio's own joints and placements."""
+    model = pin.Model()
+    parent = 0
+    placement = pin.SE3(chain.base[:3, :3].copy(), chain.base[:3, 3].copy())
+    for jt in chain.joints:
+        if jt.sign > 0:
+            jm = [pin.JointModelRX, pin.JointModelRY, pin.JointModelRZ][jt.axis]()
+        else:
+            jm = pin.JointModelRevoluteUnaligned(-np.eye(3)[jt.axis])
+        parent = model.addJoint(parent, jm, placement, jt.name)
+        placement = pin.SE3(jt.rotation.copy(), jt.translation.copy())
+    model.addFrame(pin.Frame("tip", parent, pin.SE3(np.eye(3), tool), pin.FrameType.OP_FRAME))
+    return model
+
+
+def test_nominal_fk_matches_pinocchio(kr270):
+    model = pinocchio_model(kr270.chain, TOOL)
+    data = model.createData()
+    kin = Kinematics(kr270.chain, [])
+    q = np.random.default_rng(3).uniform(-np.pi, np.pi, size=(50, 6))
+    ours = kin.points(q, TOOL)
+    for qi, p in zip(q, ours, strict=True):
+        pin.framesForwardKinematics(model, data, qi)
+        np.testing.assert_allclose(p, data.oMf[model.getFrameId("tip")].translation, atol=1e-9)
+
+
+def test_urdf_chain_matches_pinocchio_urdf():
+    from calib.chain import chain_from_urdf
+
+    path = Path(__file__).parent / "data" / "ur_like_dh.urdf"
+    chain = chain_from_urdf(str(path))
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    q = np.random.default_rng(4).uniform(-np.pi, np.pi, size=(20, 6))
+    ours = Kinematics(chain, []).end_frames(q)
+    for qi, r, o in zip(q, *ours, strict=True):
+        pin.forwardKinematics(model, data, qi)
+        np.testing.assert_allclose(o, 1000.0 * data.oMi[6].translation, atol=1e-9)
+        np.testing.assert_allclose(r, data.oMi[6].rotation, atol=1e-12)
+
+
+finite = st.floats(-np.pi, np.pi, allow_nan=False)
+
+
+@settings(max_examples=30, deadline=None)
+@given(q=st.lists(finite, min_size=6, max_size=6), seed=st.integers(0, 2**31))
+def test_jacobians_match_central_differences(kr270, q, seed):
+    """Every column (all 30 complete parameters, away from nominal; tool point; joints) vs central FD."""
+    params = complete_params(kr270.chain)
+    kin = Kinematics(kr270.chain, params)
+    rng = np.random.default_rng(seed)
+    dev = np.array([rng.normal(0, 1.0) if p.is_length else rng.normal(0, 0.01) for p in params])
+    q = np.array(q)[None]
+    jac = kin.jacobian(q, TOOL, dev)
+    h = 1e-6
+
+    def fd(f, x):
+        cols = []
+        for i in range(len(x)):
+            e = np.zeros(len(x))
+            e[i] = h
+            cols.append((f(x + e) - f(x - e)) / (2 * h))
+        return np.array(cols).T
+
+    # O(h^2) truncation with ~2000 mm lever arms: ~1e-8 mm; rounding ~1e-16 * 2000 / 1e-6 ~ 2e-7 mm
+    np.testing.assert_allclose(jac.d_params[0], fd(lambda d: kin.points(q, TOOL, d)[0], dev), atol=2e-6)
+    np.testing.assert_allclose(jac.d_point[0], fd(lambda t: kin.points(q, t, dev)[0], TOOL), atol=2e-6)
+    np.testing.assert_allclose(jac.d_q[0], fd(lambda qq: kin.points(qq[None], TOOL, dev)[0], q[0]), atol=2e-6)
