@@ -1,0 +1,134 @@
+"""Identification: exact recovery, invariances, honest confidence intervals, clear errors."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from calib.identify import IdentificationError, identify, residual_stats, significance
+from calib.noise import TrackerNoise
+from calib.rigid import exp_so3
+from tests.conftest import kr270_campaign, truth_of
+
+
+def test_noise_free_campaign_is_recovered_exactly(kr270, kr270_params):
+    twin, table = kr270_campaign(kr270, seed=11, noise_free=True)
+    res = identify(kr270.chain, table, kr270.tool_points, kr270_params)
+    # 1e-9 mm for lengths; angles times the ~2 m reach of the arm must be below 1e-9 mm too
+    err = res.dev - truth_of(twin, kr270_params)
+    scale = np.array([1.0 if p.is_length else 2000.0 for p in kr270_params])
+    assert np.max(np.abs(err * scale)) < 1e-9
+    for pid, x in res.points.items():
+        np.testing.assert_allclose(x, twin.true_points[pid], atol=1e-9)
+    for sid, s in res.stations.items():
+        np.testing.assert_allclose(s.translation, twin.true_stations[sid].translation, atol=1e-9)
+    assert np.max(np.abs(res.residuals)) < 1e-9
+    assert res.iterations < 20  # the paper's alternating scheme needed 280
+
+
+def test_complete_model_deviations_are_absorbed_exactly(kr270, kr270_params):
+    """Completeness: deviations in *every* parameter of the complete model (including the 12 eliminated
+    ones) are explained exactly by the irreducible set plus stations and points."""
+    from calib.params import complete_params
+
+    devs = {p.name: (0.3 if p.is_length else 0.02) * (-1) ** i for i, p in enumerate(complete_params(kr270.chain))}
+    _, table = kr270_campaign(kr270, seed=12, noise_free=True, deviations=devs)
+    res = identify(kr270.chain, table, kr270.tool_points, kr270_params)
+    assert np.max(np.abs(res.residuals)) < 1e-8
+
+
+def test_paper_like_campaign_within_its_confidence_intervals(kr270, kr270_params):
+    """18+ poses, 3 points, 2 stations, AT901 noise, Table 8 deviations (twin default)."""
+    twin, table = kr270_campaign(kr270, seed=5, n_poses=60)
+    assert len(set(table.pose)) >= 18 and set(table.station) == {"S1", "S2"}
+    res = identify(kr270.chain, table, kr270.tool_points, kr270_params, noise=TrackerNoise())
+    err = res.dev - truth_of(twin, kr270_params)
+    # whole vector: e^T C^-1 e / k is F(k, dof)-distributed under the model; 99.9 % quantile
+    f = err @ np.linalg.solve(res.param_cov(), err) / len(err)
+    assert f < stats.f.ppf(0.999, len(err), res.dof)
+    # variance factor ~ 1 when the weighting is the true noise model: chi2(dof)/dof, 99.9 % band
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], res.dof) / res.dof
+    assert lo < res.variance_factor < hi
+
+
+def _station_moved(table, sid, r, t):
+    moved = table.subset(np.arange(len(table)))
+    rows = np.array([s == sid for s in table.station])
+    moved.xyz = table.xyz.copy()
+    moved.xyz[rows] = table.xyz[rows] @ r.T + t
+    return moved
+
+
+@pytest.fixture(scope="module")
+def noisy(kr270, kr270_params):
+    _, table = kr270_campaign(kr270, seed=7)
+    return table, identify(kr270.chain, table, kr270.tool_points, kr270_params)
+
+
+@settings(max_examples=10, deadline=None)
+@given(
+    w=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    t=st.lists(st.floats(-5000.0, 5000.0), min_size=3, max_size=3),
+)
+def test_station_frame_change_leaves_robot_unchanged(kr270, kr270_params, noisy, w, t):
+    table, ref = noisy
+    r = exp_so3(np.array(w))
+    res = identify(kr270.chain, _station_moved(table, "S2", r, np.array(t)), kr270.tool_points, kr270_params)
+    np.testing.assert_allclose(res.dev, ref.dev, atol=1e-9)
+    np.testing.assert_allclose(res.stations["S2"].rotation, r @ ref.stations["S2"].rotation, atol=1e-9)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_row_permutation_leaves_everything_unchanged(kr270, kr270_params, noisy, seed):
+    table, ref = noisy
+    perm = np.random.default_rng(seed).permutation(len(table))
+    res = identify(kr270.chain, table.subset(perm), kr270.tool_points, kr270_params)
+    np.testing.assert_allclose(res.dev, ref.dev, atol=1e-9)
+    np.testing.assert_allclose(res.param_ci95(), ref.param_ci95(), rtol=1e-6)
+
+
+def test_residual_statistics_definitions():
+    r = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
+    s = residual_stats(r)
+    assert s["coord_max_mm"] == 4.0 and s["dist_max_mm"] == 5.0
+    assert s["coord_rms_mm"] == pytest.approx(np.sqrt(25 / 6)) and s["dist_rms_mm"] == pytest.approx(np.sqrt(25 / 2))
+
+
+def test_significance_is_the_exact_effect_of_one_parameter(kr270, kr270_params):
+    """Resetting dq2 moves the TCP by |dq2| times the distance of the TCP from axis 2 (lever arm)."""
+    dev = np.zeros(len(kr270_params))
+    i = [p.name for p in kr270_params].index("dq2")
+    dev[i] = np.radians(0.01)
+    q0 = np.zeros(6)  # stretched arm: TCP at 1150 + 1200 + 277 mm along x from axis 2, 41 mm below... in y-z
+    sig = dict(significance(kr270.chain, kr270_params, dev, q0, kr270.tcp))
+    lever = np.hypot(1150 + 1200 + kr270.tcp[0], -41 + kr270.tcp[2])
+    assert sig["dq2"] == pytest.approx(2 * lever * np.sin(dev[i] / 2), rel=1e-9)
+    assert all(v == 0.0 for k, v in sig.items() if k != "dq2")
+
+
+def test_unknown_point_is_named_with_row_and_column(kr270, kr270_params):
+    _, table = kr270_campaign(kr270, seed=3)
+    table.point[4] = "P9"
+    with pytest.raises(IdentificationError, match=r"row 6: column point: unknown point id 'P9'"):
+        identify(kr270.chain, table, kr270.tool_points, kr270_params)
+
+
+def test_station_with_too_few_rows(kr270, kr270_params):
+    _, table = kr270_campaign(kr270, seed=3)
+    table.station[0] = "S3"
+    with pytest.raises(IdentificationError, match=r"station 'S3' has 1 measurement"):
+        identify(kr270.chain, table, kr270.tool_points, kr270_params)
+
+
+def test_unidentifiable_setup_is_refused(kr270, kr270_params):
+    """Three poses that differ only in joint 1 cannot reveal the other links' parameters."""
+    from mocks.synth import simulate_campaign
+    from mocks.twin import Twin
+
+    base = np.array([10.0, -60.0, 80.0, 10.0, 40.0, 0.0])
+    poses = np.array([base + [d, 0, 0, 0, 0, 0] for d in np.linspace(0, 40, 12)])
+    table = simulate_campaign(Twin(kr270, seed=1, noise=TrackerNoise.isotropic(0.001)), poses, stations=["S1"])
+    with pytest.raises(IdentificationError, match="unidentifiable set-up"):
+        identify(kr270.chain, table, kr270.tool_points, kr270_params)
