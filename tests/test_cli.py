@@ -1,0 +1,87 @@
+"""The command line end to end: identify, predict, simulate; user mistakes end in one line, exit 2."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.table import read_table, write_table
+from campaign.cli import main
+from tests.conftest import kr270_campaign
+
+
+@pytest.fixture(scope="module")
+def campaign_csv(tmp_path_factory, kr270):
+    twin, table = kr270_campaign(kr270, seed=21, n_poses=40)
+    path = tmp_path_factory.mktemp("cli") / "table.csv"
+    write_table(table, path)
+    return twin, path
+
+
+def test_identify_then_predict_reproduces_the_measurements(tmp_path, campaign_csv, capsys):
+    twin, data = campaign_csv
+    model, summary, pred = tmp_path / "model.json", tmp_path / "summary.json", tmp_path / "pred.csv"
+    assert main(["identify", str(data), "--cell", "kr270", "--out", str(model), "--json", str(summary)]) == 0
+    doc = json.loads(model.read_text())
+    assert list(doc["parameters"])[:3] == ["px1", "py1", "phix1"]
+    p = doc["parameters"]["px2"]
+    assert p["unit"] == "mm" and p["nominal"] == 1150.0 and p["ci95"] > 0
+    assert doc["parameters"]["dq2"]["unit"] == "deg"
+    assert doc["extension"] == {"cause": "none"}
+    s = json.loads(summary.read_text())
+    assert s["residuals"]["after"]["coord_rms_mm"] < s["residuals"]["before"]["coord_rms_mm"]
+    assert main(["predict", "--model", str(model), str(data), "--out", str(pred)]) == 0
+    measured, predicted = read_table(data), read_table(pred)
+    # predictions differ from measurements by the residuals only: tracker noise, ~0.01 mm per coordinate
+    assert np.sqrt(np.mean((measured.xyz - predicted.xyz) ** 2)) < 0.02
+    assert predicted.pose == measured.pose
+
+
+def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
+    """predict honours every field of model.json: the twin's own truth written as a model predicts the
+    noise-free positions exactly."""
+    from calib.identify import Identification
+    from calib.model import identification_to_doc
+    from calib.params import irreducible_params
+
+    twin, data = campaign_csv
+    params = irreducible_params(twin.cell.chain)[0]
+    k = len(params)
+    res = Identification(
+        chain=twin.cell.chain, params=params, dev=np.array([twin.true_dev[twin.params.index(p)] for p in params]),
+        stations=twin.true_stations, points=twin.true_points, cov=np.eye(k + 6 * 2 + 9), station_ids=["S1", "S2"],
+        point_ids=sorted(twin.true_points), residuals=np.zeros((1, 3)), variance_factor=1.0, dof=10, iterations=0,
+        noise=None,
+    )
+    model = tmp_path / "truth.json"
+    model.write_text(json.dumps(identification_to_doc(res)))
+    pred = tmp_path / "pred.csv"
+    assert main(["predict", "--model", str(model), str(data), "--out", str(pred)]) == 0
+    rows = read_table(data)
+    exact = np.array([twin.exact(q, pt, s) for q, pt, s in zip(rows.q_deg, rows.point, rows.station, strict=True)])
+    np.testing.assert_allclose(read_table(pred).xyz, exact, atol=1e-4)  # 1e-4 mm: CSV precision
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["identify", "missing.csv", "--cell", "kr270", "--out", "m.json"], "missing.csv: cannot read"),
+        (["identify", "DATA", "--cell", "nocell", "--out", "m.json"], "nocell.yaml: no such file"),
+        (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
+        (["identify", "DATA", "--cell", "kr270", "--extend", "backlash", "--out", "m.json"], "--extend backlash"),
+        (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "not a JSON model"),
+    ],
+)
+def test_user_mistakes_end_in_one_line(tmp_path, campaign_csv, capsys, argv, message, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = [str(campaign_csv[1]) if a == "DATA" else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_simulate_writes_a_table(tmp_path):
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", "--cell", "kr270", "--poses", "10", "--seed", "3", "--out", str(out)]) == 0
+    t = read_table(out)
+    assert len(t) > 0 and set(t.point) <= {"P1", "P2", "P3"}
