@@ -100,6 +100,150 @@ def _init_stations(kin, q, tool_rows, xyz, st_idx, station_ids, source) -> list[
     return out
 
 
+@dataclass
+class State:
+    dev: np.ndarray  # robot parameter deviations (mm, rad)
+    stations: list[Station]
+    points: np.ndarray  # (P, 3) in the last joint frame
+
+
+class Problem:
+    """The least-squares problem of eq. (13) for one table: residuals, Jacobian, retraction.
+
+    Unknowns, in order: robot deviations (k), per station a translation and a rotation perturbation
+    (v, w) in the station frame (x' = Exp(w) x + v), per reference point its 3 coordinates.
+    """
+
+    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None):
+        source = table.source
+        if table.xyz is None:
+            raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
+        if table.n_joints != chain.dof:
+            raise IdentificationError(
+                f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof}"
+            )
+        for i, pid in enumerate(table.point):
+            if pid not in tool_points:
+                raise IdentificationError(
+                    f"{source}: row {i + 2}: column point: unknown point id {pid!r} "
+                    f"(the tool defines {', '.join(sorted(tool_points))})"
+                )
+        self.chain, self.params, self.noise, self.source = chain, list(params), noise, source
+        self.station_ids = sorted(set(table.station), key=table.station.index)
+        self.point_ids = sorted(set(table.point), key=table.point.index)
+        self.st_idx = np.array([self.station_ids.index(s) for s in table.station])
+        self.pt_idx = np.array([self.point_ids.index(p) for p in table.point])
+        self.q = np.radians(table.q_deg)
+        self.xyz = table.xyz
+        self.n_rows, self.k = len(table), len(self.params)
+        self.n_st, self.n_pt = len(self.station_ids), len(self.point_ids)
+        self.n_cols = self.k + 6 * self.n_st + 3 * self.n_pt
+        if 3 * self.n_rows <= self.n_cols:
+            raise IdentificationError(
+                f"{source}: {self.n_rows} measurements give {3 * self.n_rows} equations for {self.n_cols} "
+                "unknowns; measure more poses"
+            )
+        self.kin = Kinematics(chain, self.params)
+        self.w = None if noise is None else noise.whitening(self.xyz)
+        dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
+        pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
+        stations = _init_stations(self.kin, self.q, pts[self.pt_idx], self.xyz, self.st_idx, self.station_ids, source)
+        self.initial = State(dev, stations, pts)
+
+    def _station_arrays(self, s: State):
+        rs = np.array([st.rotation for st in s.stations])[self.st_idx]
+        ts = np.array([st.translation for st in s.stations])[self.st_idx]
+        return rs, ts
+
+    def _whiten(self, r: np.ndarray) -> np.ndarray:
+        return r if self.w is None else np.einsum("nij,nj...->ni...", self.w, r)
+
+    def predicted(self, s: State) -> np.ndarray:
+        rs, ts = self._station_arrays(s)
+        return np.einsum("nij,nj->ni", rs, self.kin.points(self.q, s.points[self.pt_idx], s.dev)) + ts
+
+    def residual(self, s: State) -> np.ndarray:
+        """Whitened residuals (measured - predicted), flattened (3N,)."""
+        return self._whiten(self.xyz - self.predicted(s)).ravel()
+
+    def residual_and_jacobian(self, s: State) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r)."""
+        n, k = self.n_rows, self.k
+        rows = np.arange(n)
+        rs, ts = self._station_arrays(s)
+        jac = self.kin.jacobian(self.q, s.points[self.pt_idx], s.dev)
+        xs = np.einsum("nij,nj->ni", rs, jac.p) + ts
+        jm = np.zeros((n, 3, self.n_cols))
+        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, jac.d_params)
+        c0 = k + 6 * self.st_idx
+        for a in range(3):
+            jm[rows, a, c0 + a] = 1.0
+        # fancy indices (n, 3) around a slice put the indexed axes first: [row, column, coordinate]
+        jm[rows[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
+        c1 = k + 6 * self.n_st + 3 * self.pt_idx
+        jm[rows[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
+            np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
+        )
+        return self._whiten(self.xyz - xs).ravel(), self._whiten(jm).reshape(3 * n, self.n_cols)
+
+    def retract(self, s: State, delta: np.ndarray) -> State:
+        k = self.k
+        stations = []
+        for i, st in enumerate(s.stations):
+            v, om = delta[k + 6 * i : k + 6 * i + 3], delta[k + 6 * i + 3 : k + 6 * i + 6]
+            e = exp_so3(om)
+            stations.append(Station(e @ st.rotation, e @ st.translation + v))
+        return State(s.dev + delta[:k], stations, s.points + delta[k + 6 * self.n_st :].reshape(self.n_pt, 3))
+
+    def unknown_names(self) -> list[str]:
+        names = [p.name for p in self.params]
+        for s in self.station_ids:
+            names += [f"station {s} {c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
+        for p in self.point_ids:
+            names += [f"point {p} {c}" for c in "xyz"]
+        return names
+
+
+def solve(problem: Problem, state: State, max_iter: int = 100) -> tuple[State, np.ndarray, np.ndarray, int]:
+    """Levenberg-Marquardt (column-scaled, QR-based) from `state`; returns (state, r, J, iterations)."""
+    r, jm = problem.residual_and_jacobian(state)
+    cost = float(r @ r)
+    dof = max(3 * problem.n_rows - problem.n_cols, 1)
+    # rounding floor of the residual vector: coordinates carry ~1e-16 relative error each
+    floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
+    lam, iterations = 1e-8, 1
+    for _ in range(max_iter):
+        scale = np.linalg.norm(jm, axis=0)
+        scale[scale == 0] = 1.0
+        js = jm / scale
+        a = np.vstack([js, np.sqrt(lam) * np.eye(problem.n_cols)])
+        ds = np.linalg.lstsq(a, np.concatenate([r, np.zeros(problem.n_cols)]), rcond=None)[0]
+        cand = problem.retract(state, ds / scale)
+        r_new = problem.residual(cand)
+        cost_new = float(r_new @ r_new)
+        # Near the minimum the decrease a step predicts falls below the rounding noise of the cost
+        # (residuals of ~0.01 mm from coordinates of ~5000 mm): such a step is taken on trust, since
+        # a comparison of costs can no longer judge it.
+        jd = js @ ds
+        predicted = 2.0 * float(r @ jd) - float(jd @ jd)
+        if cost_new <= cost or predicted <= 1e-10 * cost:
+            state = cand
+            # converged when an (almost undamped) step moves the fit by < 1e-9 of the noise level, so
+            # parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor
+            small = lam <= 1e-6 and float(np.linalg.norm(jd)) <= 1e-9 * np.sqrt(cost_new / dof) + floor
+            r, jm = problem.residual_and_jacobian(state)
+            iterations += 1
+            cost = float(r @ r)
+            lam = max(lam / 10.0, 1e-12)
+            if small:
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e8:
+                break
+    return state, r, jm, iterations
+
+
 def identify(
     chain: Chain,
     table: MeasurementTable,
@@ -110,157 +254,37 @@ def identify(
     max_iter: int = 100,
 ) -> Identification:
     """Identify `params` (deviations from nominal), every station and every reference point."""
-    source = table.source
-    if table.xyz is None:
-        raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
-    if table.n_joints != chain.dof:
-        raise IdentificationError(
-            f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof} joints"
-        )
-    for i, pid in enumerate(table.point):
-        if pid not in tool_points:
-            raise IdentificationError(
-                f"{source}: row {i + 2}: column point: unknown point id {pid!r} "
-                f"(the tool defines {', '.join(sorted(tool_points))})"
-            )
-    station_ids = sorted(set(table.station), key=table.station.index)
-    point_ids = sorted(set(table.point), key=table.point.index)
-    st_idx = np.array([station_ids.index(s) for s in table.station])
-    pt_idx = np.array([point_ids.index(p) for p in table.point])
-    q = np.radians(table.q_deg)
-    xyz = table.xyz
-    n_rows, k, n_st, n_pt = len(table), len(params), len(station_ids), len(point_ids)
-    n_cols = k + 6 * n_st + 3 * n_pt
-    if 3 * n_rows <= n_cols:
-        raise IdentificationError(
-            f"{source}: {n_rows} measurements give {3 * n_rows} equations for {n_cols} unknowns; measure more poses"
-        )
-
-    kin = Kinematics(chain, params)
-    dev = np.zeros(k) if dev0 is None else np.array(dev0, dtype=float)
-    pts = np.array([np.asarray(tool_points[p], dtype=float) for p in point_ids])
-    stations = _init_stations(kin, q, pts[pt_idx], xyz, st_idx, station_ids, source)
-    w = None if noise is None else noise.whitening(xyz)
-    rows3 = np.arange(n_rows)
-
-    def evaluate(dev, stations, pts, with_jac=True):
-        rs = np.array([s.rotation for s in stations])[st_idx]
-        ts = np.array([s.translation for s in stations])[st_idx]
-        if with_jac:
-            jac = kin.jacobian(q, pts[pt_idx], dev)
-            pb = jac.p
-        else:
-            pb = kin.points(q, pts[pt_idx], dev)
-        xs = np.einsum("nij,nj->ni", rs, pb) + ts
-        r = xyz - xs
-        if w is not None:
-            r = np.einsum("nij,nj->ni", w, r)
-        if not with_jac:
-            return r.ravel(), None
-        jm = np.zeros((n_rows, 3, n_cols))
-        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, jac.d_params)
-        c0 = k + 6 * st_idx
-        for a in range(3):
-            jm[rows3, a, c0 + a] = 1.0
-        jm[rows3[:, None], :, (c0[:, None] + 3 + np.arange(3))] = np.transpose(-skew(xs), (0, 2, 1))
-        c1 = k + 6 * n_st + 3 * pt_idx
-        jm[rows3[:, None], :, (c1[:, None] + np.arange(3))] = np.transpose(
-            np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
-        )
-        if w is not None:
-            jm = np.einsum("nij,njk->nik", w, jm)
-        return r.ravel(), jm.reshape(3 * n_rows, n_cols)
-
-    def step(dev, stations, pts, delta):
-        new_st = []
-        for s, st in enumerate(stations):
-            v, om = delta[k + 6 * s : k + 6 * s + 3], delta[k + 6 * s + 3 : k + 6 * s + 6]
-            e = exp_so3(om)
-            new_st.append(Station(e @ st.rotation, e @ st.translation + v))
-        return dev + delta[:k], new_st, pts + delta[k + 6 * n_st :].reshape(n_pt, 3)
-
-    r, jm = evaluate(dev, stations, pts)
-    cost = float(r @ r)
-    # rounding floor of the residual vector: coordinates carry ~1e-16 relative error each
-    floor = 1e-15 * float(np.linalg.norm(xyz if w is None else np.einsum("nij,nj->ni", w, xyz)))
-    lam = 1e-8
-    iterations = 1
-    for _ in range(max_iter):
-        scale = np.linalg.norm(jm, axis=0)
-        scale[scale == 0] = 1.0
-        js = jm / scale
-        a = np.vstack([js, np.sqrt(lam) * np.eye(n_cols)])
-        b = np.concatenate([r, np.zeros(n_cols)])
-        ds = np.linalg.lstsq(a, b, rcond=None)[0]
-        delta = ds / scale
-        cand = step(dev, stations, pts, delta)
-        r_new, _ = evaluate(*cand, with_jac=False)
-        cost_new = float(r_new @ r_new)
-        # Near the minimum the decrease a step predicts falls below the rounding noise of the cost
-        # (residuals of ~0.01 mm from coordinates of ~5000 mm): such a step is taken on trust, since
-        # a comparison of costs can no longer judge it.
-        jd = js @ ds
-        predicted = 2.0 * float(r @ jd) - float(jd @ jd)
-        if cost_new <= cost or predicted <= 1e-10 * cost:
-            dev, stations, pts = cand
-            # converged when the step moves the fit by < 1e-9 of the noise level (parameters move by
-            # ~1e-9 of their standard deviation), or by less than the rounding floor for noise-free data
-            # (judged on nearly undamped steps only: a heavily damped step is short, not converged)
-            moved = float(np.linalg.norm(jd))
-            small = lam <= 1e-6 and moved <= 1e-9 * np.sqrt(cost_new / max(3 * n_rows - n_cols, 1)) + floor
-            r, jm = evaluate(dev, stations, pts)
-            iterations += 1
-            cost = float(r @ r)
-            lam = max(lam / 10.0, 1e-12)
-            if small:
-                break
-        else:
-            lam *= 10.0
-            if lam > 1e8:
-                break
-
+    problem = Problem(chain, table, tool_points, params, noise, dev0)
+    state, r, jm, iterations = solve(problem, problem.initial, max_iter)
     scale = np.linalg.norm(jm, axis=0)
     scale[scale == 0] = 1.0
-    u, sv, vt = np.linalg.svd(jm / scale, full_matrices=False)
+    _, sv, vt = np.linalg.svd(jm / scale, full_matrices=False)
     if sv[-1] < 1e-9 * sv[0]:
         null = np.abs(vt[-1])
-        names = _unknown_names(params, station_ids, point_ids)
+        names = problem.unknown_names()
         worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
         raise IdentificationError(
-            f"{source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
+            f"{problem.source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
             "(add poses, reference points or stations, or identify fewer parameters)"
         )
-    dof = 3 * n_rows - n_cols
-    s2 = cost / dof
-    inv = (vt.T / sv**2) @ vt
-    cov = s2 * inv / np.outer(scale, scale)
-    rs = np.array([s.rotation for s in stations])[st_idx]
-    ts = np.array([s.translation for s in stations])[st_idx]
-    resid = xyz - (np.einsum("nij,nj->ni", rs, kin.points(q, pts[pt_idx], dev)) + ts)
+    dof = 3 * problem.n_rows - problem.n_cols
+    s2 = float(r @ r) / dof
+    cov = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
     return Identification(
         chain=chain,
         params=list(params),
-        dev=dev,
-        stations=dict(zip(station_ids, stations, strict=True)),
-        points={p: pts[i] for i, p in enumerate(point_ids)},
+        dev=state.dev,
+        stations=dict(zip(problem.station_ids, state.stations, strict=True)),
+        points={p: state.points[i] for i, p in enumerate(problem.point_ids)},
         cov=cov,
-        station_ids=station_ids,
-        point_ids=point_ids,
-        residuals=resid,
+        station_ids=problem.station_ids,
+        point_ids=problem.point_ids,
+        residuals=problem.xyz - problem.predicted(state),
         variance_factor=s2,
         dof=dof,
         iterations=iterations,
         noise=noise,
     )
-
-
-def _unknown_names(params, station_ids, point_ids) -> list[str]:
-    names = [p.name for p in params]
-    for s in station_ids:
-        names += [f"station {s} {c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
-    for p in point_ids:
-        names += [f"point {p} {c}" for c in "xyz"]
-    return names
 
 
 def predict_points(
