@@ -95,19 +95,28 @@ class Kinematics:
         tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
         p = o + np.einsum("nij,nj->ni", r, tool)
         n_rows = q.shape[0]
+        # one vectorised cross product for every rotational column: w x (p - o)
+        rot_cols, axes, origins = [], [], []
         d_params = np.zeros((n_rows, 3, len(self.params)))
         for i, par in enumerate(self.params):
-            if par.kind == "dq":
-                w, org = frames[(par.joint, "dq")]
-                d_params[:, :, i] = np.cross(w, p - org)
-            elif par.kind == "p":
-                rot, _ = frames[(par.joint, "p")]
-                d_params[:, :, i] = rot[:, :, par.axis]
+            if par.kind == "p":
+                d_params[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
             else:
-                w, org = frames[(par.joint, "phi", par.axis)]
-                d_params[:, :, i] = np.cross(w, p - org)
-        d_q = np.zeros((n_rows, 3, self.chain.dof))
+                w, org = frames[(par.joint, "dq")] if par.kind == "dq" else frames[(par.joint, "phi", par.axis)]
+                rot_cols.append(i)
+                axes.append(w)
+                origins.append(org)
         for j in range(self.chain.dof):
             w, org = frames[(j, "dq")]
-            d_q[:, :, j] = np.cross(w, p - org)
+            axes.append(w)
+            origins.append(org)
+        w = np.stack(axes, axis=2)
+        d = p[:, :, None] - np.stack(origins, axis=2)
+        cross = np.stack(
+            [w[:, 1] * d[:, 2] - w[:, 2] * d[:, 1], w[:, 2] * d[:, 0] - w[:, 0] * d[:, 2],
+             w[:, 0] * d[:, 1] - w[:, 1] * d[:, 0]],
+            axis=1,
+        )  # fmt: skip
+        d_params[:, :, rot_cols] = cross[:, :, : len(rot_cols)]
+        d_q = cross[:, :, len(rot_cols) :]
         return PointJacobian(p=p, d_params=d_params, d_point=r, d_q=d_q)
