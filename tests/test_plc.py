@@ -1,0 +1,226 @@
+"""Cell PLC: ModbusCellIO against the pymodbus MockPlc over real TCP sockets on 127.0.0.1."""
+
+from __future__ import annotations
+
+import contextlib
+import random
+import socket
+import time
+
+import pytest
+
+from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
+from drivers.interfaces import CellIO
+from drivers.plc import ModbusCellIO, PlcRegisterMap
+from mocks.clock import VirtualClock
+from mocks.plc_server import MockPlc, PlcFault
+
+TIMEOUT_S = 0.25
+
+
+@pytest.fixture(scope="module")
+def plc():
+    mock = MockPlc(clock=VirtualClock()).start()
+    yield mock
+    mock.stop()
+
+
+@pytest.fixture
+def cell(plc):
+    plc.clear_fault()
+    plc.open_door()
+    plc.release_acknowledge()
+    plc.set_estop(False)
+    io = ModbusCellIO(*plc.address, unit_id=1, timeout_s=TIMEOUT_S)
+    io.connect()
+    yield io
+    io.close()
+    plc.clear_fault()
+
+
+def test_implements_cellio(cell):
+    assert isinstance(cell, CellIO)
+
+
+def test_door_follows_the_plc(plc, cell):
+    assert cell.door_closed() is False  # the mock cell starts with its door open
+    plc.close_door()
+    assert cell.door_closed() is True
+    plc.open_door()
+    assert cell.door_closed() is False
+
+
+def test_acknowledge_button(plc, cell):
+    assert cell.acknowledge_pressed() is False
+    plc.press_acknowledge()
+    assert cell.acknowledge_pressed() is True
+    plc.release_acknowledge()
+    assert cell.acknowledge_pressed() is False
+
+
+def test_request_lamp(plc, cell):
+    cell.set_request_lamp(True)
+    assert plc.lamp is True
+    cell.set_request_lamp(False)
+    assert plc.lamp is False
+
+
+def test_door_and_ack_are_independent_bits(plc, cell):
+    plc.press_acknowledge()
+    assert cell.door_closed() is False
+    plc.release_acknowledge()
+    plc.close_door()
+    assert cell.acknowledge_pressed() is False
+
+
+def test_heartbeat_and_watchdog(plc, cell):
+    assert cell.heartbeat() == plc.heartbeat
+    status = cell.read_status()
+    assert status.running and status.estop_ok and not status.watchdog_expired
+    plc.clock.advance(plc.watchdog_s + 0.1)  # heartbeat now stale in PLC time
+    assert cell.read_status().watchdog_expired
+    cell.heartbeat()
+    assert not cell.read_status().watchdog_expired
+    plc.set_estop(True)
+    assert not cell.read_status().estop_ok
+
+
+def test_remapped_plc_program():
+    # Every signal moved except MAP_VERSION, which stays at IR 1 in every map version (cell-plc-registers.md).
+    remap = PlcRegisterMap(
+        door_closed_di=17,
+        acknowledge_di=3,
+        request_lamp_coil=5,
+        heartbeat_hr=10,
+        status_ir=4,
+        map_version=0x0201,
+    )
+    with MockPlc(register_map=remap) as mock:
+        with ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=remap) as io:
+            mock.close_door()
+            assert io.door_closed() is True and io.acknowledge_pressed() is False
+            io.set_request_lamp(True)
+            assert mock.lamp is True
+        # a client that expects the default map refuses this PLC program at connect
+        with pytest.raises(ProtocolError, match="0x0201"):
+            ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S).connect()
+
+
+# ---------------------------------------------------------------- faults
+def test_silent_plc_times_out_and_door_reads_open(plc, cell):
+    plc.close_door()
+    assert cell.door_closed() is True
+    plc.inject(PlcFault.SILENT)
+    t0 = time.monotonic()
+    assert cell.door_closed() is False  # SAFETY: unreadable door is OPEN
+    assert time.monotonic() - t0 < TIMEOUT_S + 0.5
+    assert isinstance(cell.last_door_error, DeviceTimeout)
+    with pytest.raises(DeviceTimeout, match=r"127\.0\.0\.1:\d+.*acknowledge"):
+        cell.acknowledge_pressed()
+    with pytest.raises(DeviceTimeout, match="request lamp"):
+        cell.set_request_lamp(True)
+    plc.clear_fault()
+    assert cell.door_closed() is True  # reconnects by itself on the next call
+    assert cell.last_door_error is None
+
+
+def test_dropped_connection_is_connection_lost_and_door_reads_open(plc, cell):
+    plc.close_door()
+    plc.inject(PlcFault.DROP)
+    assert cell.door_closed() is False
+    assert isinstance(cell.last_door_error, ConnectionLost)
+    with pytest.raises(ConnectionLost, match=rf"{plc.address[0]}:{plc.address[1]}.*acknowledge"):
+        cell.acknowledge_pressed()
+    plc.clear_fault()
+    assert cell.door_closed() is True
+
+
+@pytest.mark.parametrize("code", [0x04, 0x06, 0x0B])
+def test_plc_refusal_is_device_fault_with_code(plc, cell, code):
+    plc.close_door()
+    plc.inject(PlcFault.EXCEPTION, code=code)
+    assert cell.door_closed() is False
+    assert isinstance(cell.last_door_error, DeviceFault) and cell.last_door_error.code == code
+    with pytest.raises(DeviceFault) as info:
+        cell.set_request_lamp(True)
+    assert info.value.code == code
+    plc.clear_fault()
+    assert cell.door_closed() is True
+
+
+@pytest.mark.parametrize("code", [0x01, 0x02, 0x03])
+def test_request_mismatch_exception_is_protocol_error(plc, cell, code):
+    plc.close_door()
+    plc.inject(PlcFault.EXCEPTION, code=code)
+    assert cell.door_closed() is False
+    assert isinstance(cell.last_door_error, ProtocolError)
+    with pytest.raises(ProtocolError, match=f"0x{code:02X}"):
+        cell.acknowledge_pressed()
+
+
+def test_unmapped_address_is_protocol_error(plc):
+    # The client believes the lamp is coil 40; the PLC program has no such coil: ILLEGAL DATA ADDRESS (02).
+    wrong = PlcRegisterMap(request_lamp_coil=40)
+    with (
+        ModbusCellIO(*plc.address, timeout_s=TIMEOUT_S, register_map=wrong) as io,
+        pytest.raises(ProtocolError, match="0x02"),
+    ):
+        io.set_request_lamp(True)
+
+
+def test_no_server_connection_lost_and_door_open():
+    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    io = ModbusCellIO("127.0.0.1", port, timeout_s=TIMEOUT_S)
+    with pytest.raises(ConnectionLost, match=rf"127\.0\.0\.1:{port}.*connect"):
+        io.connect()
+    assert io.door_closed() is False
+    assert isinstance(io.last_door_error, ConnectionLost)
+    with pytest.raises(ConnectionLost, match="acknowledge"):
+        io.acknowledge_pressed()
+
+
+def test_not_connected_door_reads_open():
+    io = ModbusCellIO("127.0.0.1", 1, timeout_s=TIMEOUT_S)
+    assert io.door_closed() is False
+    with pytest.raises(ConnectionLost, match="not connected"):
+        io.set_request_lamp(True)
+
+
+def test_stopped_plc_door_reads_open():
+    mock = MockPlc().start()
+    mock.close_door()
+    io = ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S)
+    io.connect()
+    assert io.door_closed() is True
+    mock.stop()
+    assert io.door_closed() is False
+    assert isinstance(io.last_door_error, ConnectionLost | DeviceTimeout)
+    io.close()
+
+
+def test_garbage_connections_never_take_the_server_down(plc, cell):
+    rng = random.Random(20240611)  # fixed seed: the same garbage every run
+    for i in range(40):
+        with socket.create_connection(plc.address, timeout=1.0) as raw:
+            if i % 2:
+                raw.sendall(bytes(rng.randrange(256) for _ in range(rng.randint(1, 700))))
+            else:
+                # a valid MBAP header (protocol id 0) around a random PDU: unknown function codes, bad lengths
+                pdu = bytes(rng.randrange(256) for _ in range(rng.randint(1, 20)))
+                raw.sendall(
+                    rng.randrange(65536).to_bytes(2, "big")
+                    + b"\x00\x00"
+                    + (len(pdu) + 1).to_bytes(2, "big")
+                    + b"\x01"
+                    + pdu
+                )
+            if i % 5 == 0:
+                raw.settimeout(0.05)
+                with contextlib.suppress(OSError):
+                    raw.recv(260)
+    plc.close_door()
+    assert cell.door_closed() is True
+    cell.set_request_lamp(True)
+    assert plc.lamp is True
