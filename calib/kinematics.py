@@ -26,6 +26,17 @@ class PointJacobian:
     d_params: np.ndarray  # (N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)
     d_point: np.ndarray  # (N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)
     d_q: np.ndarray  # (N, 3, n) derivative w.r.t. the joint angles (mm/rad)
+    joint_axes: np.ndarray  # (N, 3, n) unit axis of each joint in the base frame (signed)
+    rot_axes: np.ndarray  # (N, 3, k) axis of each rotational parameter (zeros for translations)
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product along axis 1 with broadcasting (faster than np.cross for small batched arrays)."""
+    return np.stack(
+        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+         a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]],
+        axis=1,
+    )  # fmt: skip
 
 
 class Kinematics:
@@ -111,12 +122,32 @@ class Kinematics:
             axes.append(w)
             origins.append(org)
         w = np.stack(axes, axis=2)
-        d = p[:, :, None] - np.stack(origins, axis=2)
-        cross = np.stack(
-            [w[:, 1] * d[:, 2] - w[:, 2] * d[:, 1], w[:, 2] * d[:, 0] - w[:, 0] * d[:, 2],
-             w[:, 0] * d[:, 1] - w[:, 1] * d[:, 0]],
-            axis=1,
-        )  # fmt: skip
+        cross = cross3(w, p[:, :, None] - np.stack(origins, axis=2))
         d_params[:, :, rot_cols] = cross[:, :, : len(rot_cols)]
         d_q = cross[:, :, len(rot_cols) :]
-        return PointJacobian(p=p, d_params=d_params, d_point=r, d_q=d_q)
+        rot_axes = np.zeros_like(d_params)
+        rot_axes[:, :, rot_cols] = w[:, :, : len(rot_cols)]
+        return PointJacobian(
+            p=p, d_params=d_params, d_point=r, d_q=d_q, joint_axes=w[:, :, len(rot_cols) :], rot_axes=rot_axes
+        )
+
+    def upstream(self) -> np.ndarray:
+        """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""
+        out = np.zeros((len(self.params), self.chain.dof), dtype=bool)
+        for i, par in enumerate(self.params):
+            first = par.joint if par.kind == "dq" else par.joint + 1
+            out[i, first:] = True
+        return out
+
+    def d_params_dq(self, jac: PointJacobian) -> np.ndarray:
+        """(N, 3, k, n): derivative of the identification Jacobian w.r.t. the joint angles.
+
+        A rotation of joint j turns everything downstream of it about its axis w_j, so a downstream
+        column c changes by w_j x c; for a parameter upstream of joint j only the point moves, so a
+        rotation column w x (p - o) changes by w x (dp/dq_j) and a translation column not at all.
+        """
+        wj = jac.joint_axes[:, :, None, :]
+        out = cross3(wj, jac.d_params[:, :, :, None])
+        up = cross3(jac.rot_axes[:, :, :, None], jac.d_q[:, :, None, :])
+        mask = self.upstream()[None, None]
+        return np.where(mask, up, out)

@@ -82,3 +82,21 @@ def test_jacobians_match_central_differences(kr270, q, seed):
     np.testing.assert_allclose(jac.d_params[0], fd(lambda d: kin.points(q, TOOL, d)[0], dev), atol=2e-6)
     np.testing.assert_allclose(jac.d_point[0], fd(lambda t: kin.points(q, t, dev)[0], TOOL), atol=2e-6)
     np.testing.assert_allclose(jac.d_q[0], fd(lambda qq: kin.points(qq[None], TOOL, dev)[0], q[0]), atol=2e-6)
+
+
+@settings(max_examples=20, deadline=None)
+@given(q=st.lists(finite, min_size=6, max_size=6), seed=st.integers(0, 2**31))
+def test_jacobian_derivative_wrt_joints_matches_central_differences(kr270, q, seed):
+    """d(identification Jacobian)/dq, used by the planner's analytic gradient, against central FD."""
+    params = complete_params(kr270.chain)
+    kin = Kinematics(kr270.chain, params)
+    rng = np.random.default_rng(seed)
+    dev = np.array([rng.normal(0, 1.0) if p.is_length else rng.normal(0, 0.01) for p in params])
+    q = np.array(q)
+    dd = kin.d_params_dq(kin.jacobian(q[None], TOOL, dev))[0]
+    h = 1e-6
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = h
+        fd = (kin.jacobian((q + e)[None], TOOL, dev).d_params[0] - kin.jacobian((q - e)[None], TOOL, dev).d_params[0])
+        np.testing.assert_allclose(dd[:, :, j], fd / (2 * h), atol=2e-6)
