@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf
+from .chain_io import chain_to_dict
 from .rigid import rot_axis
 
 CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS", Path(__file__).resolve().parents[1] / "configs"))
@@ -44,6 +45,7 @@ class Cell:
     tcp: np.ndarray | None = None  # last joint frame, mm
     stations: dict[str, StationPlacement] = field(default_factory=dict)
     acceptance_deg: float = 90.0
+    plan_params: list[str] | None = None  # parameters the planner targets (paper section 7.2: nine)
     source: str = ""
 
 
@@ -73,8 +75,6 @@ def load_robot(ref: str, base_dir: Path | None = None) -> tuple[Chain, dict]:
     try:
         if path.suffix == ".urdf":
             chain = chain_from_urdf(str(path))
-            from .chain_io import chain_to_dict
-
             return chain, chain_to_dict(chain)
         doc = load_yaml(path)
         return chain_from_dict(doc, str(path)), doc
@@ -137,4 +137,8 @@ def load_cell(ref: str) -> Cell:
             rotation=rot_axis(2, np.radians(float(sd.get("yaw_deg", 0.0)))), position=_vec(sd, "position_mm", sw)
         )
     cell.acceptance_deg = float(doc.get("acceptance_deg", 90.0))
+    if doc.get("plan_params") is not None:
+        if not isinstance(doc["plan_params"], list) or not all(isinstance(p, str) for p in doc["plan_params"]):
+            raise CellError(f"{where}: plan_params must be a list of parameter names")
+        cell.plan_params = list(doc["plan_params"])
     return cell

@@ -134,6 +134,30 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_plan(args) -> int:
+    from rich.progress import Progress
+
+    from .planning import build_design, evaluate_doc, read_plan_csv, search_doc, write_plan_csv
+
+    cell = load_cell(args.cell)
+    design = build_design(cell, args)
+    if args.evaluate:
+        doc = evaluate_doc(design, read_plan_csv(args.evaluate, cell.chain.dof))
+        if doc["infeasible_rows"]:
+            console.print(f"warning: rows {doc['infeasible_rows']} leave the cell box or are not visible")
+    else:
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task(f"searching {args.configs} configurations ({args.criterion})", total=args.refined)
+            doc = search_doc(design, args, lambda done, total: bar.update(task, completed=done, total=total))
+        if args.csv:
+            write_plan_csv(Path(args.csv), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
+        for q in doc["poses_deg"]:
+            console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
+    console.print(f"rho0 at the test pose: {doc['rho0_mm'] * 1000:.2f} um  (parameters: {' '.join(doc['params'])})")
+    _write_json(args.json, doc)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -154,6 +178,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", required=True)
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("plan", help="optimal measurement poses for the cell's test pose (or evaluate a plan)")
+    p.add_argument("--cell", required=True)
+    p.add_argument("--test-pose", help="Q1,..,Qn in degrees (default: the cell's test pose)")
+    p.add_argument("--configs", type=int, default=6, help="number of distinct configurations M")
+    p.add_argument("--repeat", type=int, default=1, help="each configuration measured K times")
+    p.add_argument("--sigma-mm", type=float, help="tracker noise, one coordinate (default 0.01)")
+    p.add_argument("--noise", choices=("iid", "tracker"), default="iid", help="i.i.d. or the AT901 model")
+    p.add_argument("--params", help="parameters targeted (default: the cell's plan_params)")
+    p.add_argument("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison")
+    p.add_argument("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--starts", type=int, default=400, help="random feasible starting plans scored")
+    p.add_argument("--refined", type=int, default=8, help="best starts refined by L-BFGS-B")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: local process pool)")
+    p.add_argument("--evaluate", help="CSV of poses (q1_deg..qn_deg, one row per measurement) to evaluate")
+    p.add_argument("--csv", help="also write the plan as a CSV of rows (repetitions included)")
+    p.add_argument("--json", required=True)
+    p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("simulate", help="simulate a campaign of random feasible poses on the digital twin")
     p.add_argument("--cell", default="kr270")
