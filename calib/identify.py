@@ -12,12 +12,13 @@ variance factor estimated from the residuals, Student-t 95 % intervals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 
 from .chain import Chain
+from .extensions import Extension
 from .kinematics import Kinematics
 from .noise import TrackerNoise
 from .params import Param
@@ -45,7 +46,7 @@ class Identification:
     dev: np.ndarray  # deviations from nominal (mm, rad), ordered as params
     stations: dict[str, Station]
     points: dict[str, np.ndarray]
-    cov: np.ndarray  # covariance of [dev, station perturbations (v, w) x S, points x P]
+    cov: np.ndarray  # covariance of [dev, ext, station perturbations (v, w) x S, points x P]
     station_ids: list[str]
     point_ids: list[str]
     residuals: np.ndarray  # (N, 3) measured - predicted, mm, station frames
@@ -53,6 +54,12 @@ class Identification:
     dof: int
     iterations: int
     noise: TrackerNoise | None
+    extension: Extension | None = None
+    ext: np.ndarray = field(default_factory=lambda: np.zeros(0))  # extension parameters (internal units)
+
+    @property
+    def _c_st(self) -> int:
+        return len(self.params) + len(self.ext)
 
     @property
     def t95(self) -> float:
@@ -64,12 +71,15 @@ class Identification:
     def param_ci95(self) -> np.ndarray:
         return self.t95 * self.std()[: len(self.params)]
 
+    def ext_ci95(self) -> np.ndarray:
+        return self.t95 * self.std()[len(self.params) : self._c_st]
+
     def station_ci95(self, sid: str) -> np.ndarray:
-        k = len(self.params) + 6 * self.station_ids.index(sid)
+        k = self._c_st + 6 * self.station_ids.index(sid)
         return self.t95 * self.std()[k : k + 6]
 
     def point_ci95(self, pid: str) -> np.ndarray:
-        k = len(self.params) + 6 * len(self.station_ids) + 3 * self.point_ids.index(pid)
+        k = self._c_st + 6 * len(self.station_ids) + 3 * self.point_ids.index(pid)
         return self.t95 * self.std()[k : k + 3]
 
     @property
@@ -105,16 +115,18 @@ class State:
     dev: np.ndarray  # robot parameter deviations (mm, rad)
     stations: list[Station]
     points: np.ndarray  # (P, 3) in the last joint frame
+    ext: np.ndarray = field(default_factory=lambda: np.zeros(0))  # model extension parameters
 
 
 class Problem:
     """The least-squares problem of eq. (13) for one table: residuals, Jacobian, retraction.
 
-    Unknowns, in order: robot deviations (k), per station a translation and a rotation perturbation
-    (v, w) in the station frame (x' = Exp(w) x + v), per reference point its 3 coordinates.
+    Unknowns, in order: robot deviations (k), model-extension parameters (e), per station a translation
+    and a rotation perturbation (v, w) in the station frame (x' = Exp(w) x + v), per reference point its
+    3 coordinates.
     """
 
-    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None):
+    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None, extension: Extension | None = None):
         source = table.source
         if table.xyz is None:
             raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
@@ -135,9 +147,12 @@ class Problem:
         self.pt_idx = np.array([self.point_ids.index(p) for p in table.point])
         self.q = np.radians(table.q_deg)
         self.xyz = table.xyz
+        self.ext = extension
         self.n_rows, self.k = len(table), len(self.params)
+        self.e = 0 if extension is None else extension.size
         self.n_st, self.n_pt = len(self.station_ids), len(self.point_ids)
-        self.n_cols = self.k + 6 * self.n_st + 3 * self.n_pt
+        self.c_st = self.k + self.e  # first station column
+        self.n_cols = self.c_st + 6 * self.n_st + 3 * self.n_pt
         if 3 * self.n_rows <= self.n_cols:
             raise IdentificationError(
                 f"{source}: {self.n_rows} measurements give {3 * self.n_rows} equations for {self.n_cols} "
@@ -148,7 +163,7 @@ class Problem:
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
         stations = _init_stations(self.kin, self.q, pts[self.pt_idx], self.xyz, self.st_idx, self.station_ids, source)
-        self.initial = State(dev, stations, pts)
+        self.initial = State(dev, stations, pts, np.zeros(self.e))
 
     def _station_arrays(self, s: State):
         rs = np.array([st.rotation for st in s.stations])[self.st_idx]
@@ -158,9 +173,25 @@ class Problem:
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         return r if self.w is None else np.einsum("nij,nj...->ni...", self.w, r)
 
+    def _q(self, s: State) -> np.ndarray:
+        off = None if self.ext is None else self.ext.joint_offsets(s.ext)
+        return self.q if off is None else self.q + off
+
+    def _arm_scale(self, s: State) -> np.ndarray | None:
+        if self.ext is None or self.ext.arm_scale is None:
+            return None
+        return s.ext[0] * self.ext.arm_scale
+
     def predicted(self, s: State) -> np.ndarray:
         rs, ts = self._station_arrays(s)
-        return np.einsum("nij,nj->ni", rs, self.kin.points(self.q, s.points[self.pt_idx], s.dev)) + ts
+        tool = s.points[self.pt_idx]
+        q = self._q(s)
+        pb = self.kin.points(q, tool, s.dev)
+        scale = self._arm_scale(s)
+        if scale is not None:  # thermal: the arm (base to last joint frame) grows, the tool does not
+            _, o_end = self.kin.end_frames(q, s.dev)
+            pb = pb + scale[:, None] * (o_end - self.chain.base[:3, 3])
+        return np.einsum("nij,nj->ni", rs, pb) + ts
 
     def residual(self, s: State) -> np.ndarray:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
@@ -171,32 +202,44 @@ class Problem:
         n, k = self.n_rows, self.k
         rows = np.arange(n)
         rs, ts = self._station_arrays(s)
-        jac = self.kin.jacobian(self.q, s.points[self.pt_idx], s.dev)
-        xs = np.einsum("nij,nj->ni", rs, jac.p) + ts
+        q = self._q(s)
+        jac = self.kin.jacobian(q, s.points[self.pt_idx], s.dev)
+        p, d_params, d_q = jac.p, jac.d_params, jac.d_q
         jm = np.zeros((n, 3, self.n_cols))
-        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, jac.d_params)
-        c0 = k + 6 * self.st_idx
+        scale = self._arm_scale(s)
+        if scale is not None:  # p = p_arm_tool + scale * (o_end - o_base): exact derivatives of the extra term
+            arm = self.kin.jacobian(q, np.zeros(3), s.dev)
+            p = p + scale[:, None] * (arm.p - self.chain.base[:3, 3])
+            d_params = d_params + scale[:, None, None] * arm.d_params
+            d_q = d_q + scale[:, None, None] * arm.d_q
+            jm[:, :, k] = np.einsum("nij,nj->ni", rs, self.ext.arm_scale[:, None] * (arm.p - self.chain.base[:3, 3]))
+        if self.ext is not None and self.ext.joint_features is not None:
+            jm[:, :, k : k + self.e] = np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features)
+        xs = np.einsum("nij,nj->ni", rs, p) + ts
+        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, d_params)
+        c0 = self.c_st + 6 * self.st_idx
         for a in range(3):
             jm[rows, a, c0 + a] = 1.0
         # fancy indices (n, 3) around a slice put the indexed axes first: [row, column, coordinate]
         jm[rows[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
-        c1 = k + 6 * self.n_st + 3 * self.pt_idx
+        c1 = self.c_st + 6 * self.n_st + 3 * self.pt_idx
         jm[rows[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
             np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
         )
         return self._whiten(self.xyz - xs).ravel(), self._whiten(jm).reshape(3 * n, self.n_cols)
 
     def retract(self, s: State, delta: np.ndarray) -> State:
-        k = self.k
+        k, c = self.k, self.c_st
         stations = []
         for i, st in enumerate(s.stations):
-            v, om = delta[k + 6 * i : k + 6 * i + 3], delta[k + 6 * i + 3 : k + 6 * i + 6]
+            v, om = delta[c + 6 * i : c + 6 * i + 3], delta[c + 6 * i + 3 : c + 6 * i + 6]
             e = exp_so3(om)
             stations.append(Station(e @ st.rotation, e @ st.translation + v))
-        return State(s.dev + delta[:k], stations, s.points + delta[k + 6 * self.n_st :].reshape(self.n_pt, 3))
+        points = s.points + delta[c + 6 * self.n_st :].reshape(self.n_pt, 3)
+        return State(s.dev + delta[:k], stations, points, s.ext + delta[k:c])
 
     def unknown_names(self) -> list[str]:
-        names = [p.name for p in self.params]
+        names = [p.name for p in self.params] + ([] if self.ext is None else list(self.ext.names))
         for s in self.station_ids:
             names += [f"station {s} {c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
         for p in self.point_ids:
@@ -256,9 +299,11 @@ def identify(
     noise: TrackerNoise | None = None,
     dev0: np.ndarray | None = None,
     max_iter: int = 100,
+    extension: Extension | None = None,
 ) -> Identification:
-    """Identify `params` (deviations from nominal), every station and every reference point."""
-    problem = Problem(chain, table, tool_points, params, noise, dev0)
+    """Identify `params` (deviations from nominal), the extension's parameters, every station and every
+    reference point."""
+    problem = Problem(chain, table, tool_points, params, noise, dev0, extension)
     state, r, jm, iterations = solve(problem, problem.initial, max_iter)
     scale = np.linalg.norm(jm, axis=0)
     scale[scale == 0] = 1.0
@@ -288,6 +333,8 @@ def identify(
         dof=dof,
         iterations=iterations,
         noise=noise,
+        extension=extension,
+        ext=state.ext,
     )
 
 

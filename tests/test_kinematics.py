@@ -9,24 +9,9 @@ from hypothesis import strategies as st
 
 from calib.kinematics import Kinematics
 from calib.params import complete_params
+from calib.pinmodel import pinocchio_model
 
 TOOL = np.array([277.0, -47.0, -94.0])
-
-
-def pinocchio_model(chain, tool):
-    """An independent model of the nominal chain built with pinocchio's own joints and placements."""
-    model = pin.Model()
-    parent = 0
-    placement = pin.SE3(chain.base[:3, :3].copy(), chain.base[:3, 3].copy())
-    for jt in chain.joints:
-        if jt.sign > 0:
-            jm = [pin.JointModelRX, pin.JointModelRY, pin.JointModelRZ][jt.axis]()
-        else:
-            jm = pin.JointModelRevoluteUnaligned(-np.eye(3)[jt.axis])
-        parent = model.addJoint(parent, jm, placement, jt.name)
-        placement = pin.SE3(jt.rotation.copy(), jt.translation.copy())
-    model.addFrame(pin.Frame("tip", parent, pin.SE3(np.eye(3), tool), pin.FrameType.OP_FRAME))
-    return model
 
 
 def test_nominal_fk_matches_pinocchio(kr270):
@@ -37,7 +22,7 @@ def test_nominal_fk_matches_pinocchio(kr270):
     ours = kin.points(q, TOOL)
     for qi, p in zip(q, ours, strict=True):
         pin.framesForwardKinematics(model, data, qi)
-        np.testing.assert_allclose(p, data.oMf[model.getFrameId("tip")].translation, atol=1e-9)
+        np.testing.assert_allclose(p, 1000.0 * data.oMf[model.getFrameId("tip")].translation, atol=1e-9)
 
 
 def test_urdf_chain_matches_pinocchio_urdf():
