@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from calib.table import MeasurementTable
 
-from .twin import Twin
+if TYPE_CHECKING:
+    from .twin import Twin
 
 
 def simulate_campaign(
@@ -21,7 +24,8 @@ def simulate_campaign(
     """Measure every pose (repeated `repeat` times) with every point from every station that sees it.
 
     Rows come in campaign order: station by station, point by point (the operator moves the reflector
-    once per point), poses in plan order. Joint values are rounded to the controller's 0.0001 deg.
+    once per point), poses in plan order. Joint values are rounded to the controller's 0.0001 deg. The
+    twin's robot state follows the motions (backlash), time advances per measurement (thermal drift).
     """
     stations = stations or sorted(twin.true_stations)
     points = points or sorted(twin.true_points)
@@ -33,13 +37,15 @@ def simulate_campaign(
                 for i, q in enumerate(poses):
                     if not twin.visible(q, pt, s):
                         continue
+                    twin.move_to(q)
+                    t = len(rows) * seconds_per_measurement
                     key = f"{s}/{pt}/pose{i}/rep{k}"
-                    x = twin.exact(q, pt, s) if noise_free else twin.measure(q, pt, s, key)
-                    rows.append((f"Q{i + 1}", s, pt, q, x))
+                    x = twin.exact(q, pt, s, t) if noise_free else twin.measure(q, pt, s, key, t)
+                    rows.append((f"Q{i + 1}", s, pt, q, x, t))
     n = len(rows)
     return MeasurementTable(
         seq=np.arange(1, n + 1),
-        t_s=np.arange(n) * seconds_per_measurement,
+        t_s=np.array([r[5] for r in rows], dtype=float),
         pose=[r[0] for r in rows],
         station=[r[1] for r in rows],
         point=[r[2] for r in rows],

@@ -2,8 +2,13 @@
 
 One deterministic world for the whole project: the true chain is the nominal one plus hidden deviations
 (any parameter of the complete model), the true reference points and station placements differ from
-the nominal ones, and every measurement's noise is a pure function of (seed, identity of the step), so
-a campaign resumed after a crash sees exactly the numbers an uninterrupted one sees.
+the nominal ones, optional hidden non-geometric effects (`mocks.effects`) act on the real joint angles,
+the arm's size or a station, and every measurement's noise is a pure function of (seed, identity of
+the step), so a campaign resumed after a crash sees exactly the numbers an uninterrupted one sees.
+
+The twin is a small stateful world: `move_to` tells it where the robot was commanded (the direction each
+joint last moved in matters for backlash), `measure` takes the time since the campaign start (thermal
+drift, station shift).
 """
 
 from __future__ import annotations
@@ -14,11 +19,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.cell import Cell
-from calib.identify import Station
+from calib.identify import Problem, Station
 from calib.kinematics import Kinematics
 from calib.noise import TrackerNoise
-from calib.params import complete_params, param_by_name
+from calib.params import complete_params, irreducible_params, param_by_name
+from calib.poses import random_poses
 from calib.rigid import exp_so3
+
+from .effects import Effects, unit_effect
+from .synth import simulate_campaign
 
 # Paper Table 8: the KR-270's identified deviations (mm, deg), the default hidden truth of the twin.
 PAPER_TABLE8 = {
@@ -26,6 +35,9 @@ PAPER_TABLE8 = {
     "phiz2": -0.023, "dq3": -0.023, "px3": -0.214, "pz3": -0.508, "phiz3": -0.011, "dq4": 0.001,
     "py4": -0.167, "pz4": -0.018, "phiz4": 0.025, "dq5": -0.011, "pz5": 0.016, "phiz5": -0.008,
 }  # fmt: skip
+
+SECONDS_PER_MEASUREMENT = 20.0
+REFERENCE_POSES = 40
 
 
 def stable_seed(seed: int, key: str) -> np.random.Generator:
@@ -42,6 +54,7 @@ class Twin:
     noise: TrackerNoise = field(default_factory=TrackerNoise)
     point_offset_mm: float = 0.5  # std of the true points around the tool drawing
     station_error_mm: float = 20.0  # std of the true station positions around the cell's nominal ones
+    effects: dict[str, float] = field(default_factory=dict)  # hidden effect -> magnitude (mm, see effects.py)
 
     def __post_init__(self) -> None:
         chain = self.cell.chain
@@ -63,17 +76,40 @@ class Twin:
             r = pl.rotation @ exp_so3(rng.normal(0.0, np.radians(0.5), 3))
             pos = pl.position + rng.normal(0.0, self.station_error_mm, 3)
             self.true_stations[sid] = Station(rotation=r.T, translation=-r.T @ pos)
+        self.hidden = Effects()
+        self._last_q: np.ndarray | None = None
+        self.approach = np.zeros(chain.dof)
+        for name, magnitude in sorted(self.effects.items()):
+            self._add_effect(name, magnitude)
 
-    def point_in_base(self, q_deg: np.ndarray, point: str) -> np.ndarray:
-        return self.kin.points(np.radians(np.atleast_2d(q_deg)), self.true_points[point], self.true_dev)[0]
+    # ------------------------------------------------------------------ robot state
+    def move_to(self, q_deg: np.ndarray) -> None:
+        """The robot was commanded to q_deg (reported angles); joints that moved set their approach sign."""
+        q = np.asarray(q_deg, dtype=float)
+        if self._last_q is not None:
+            d = q - self._last_q
+            self.approach = np.where(np.abs(d) > 1e-7, np.sign(d), self.approach)
+        self._last_q = q.copy()
 
-    def exact(self, q_deg: np.ndarray, point: str, station: str) -> np.ndarray:
-        """Noise-free reflector position in the station frame."""
-        return self.true_stations[station].apply(self.point_in_base(q_deg, point))
+    # ------------------------------------------------------------------ measurements
+    def point_in_base(self, q_deg: np.ndarray, point: str, t_s: float = 0.0) -> np.ndarray:
+        q = np.radians(np.atleast_2d(np.asarray(q_deg, dtype=float)))
+        q_true = q + self.hidden.joint_errors(q, self.approach[None])
+        r, o = self.kin.end_frames(q_true, self.true_dev)
+        if self.hidden.thermal_per_s:
+            o0 = self.cell.chain.base[:3, 3]
+            o = o0 + (1.0 + self.hidden.thermal_per_s * t_s) * (o - o0)
+        return o[0] + r[0] @ self.true_points[point]
 
-    def measure(self, q_deg: np.ndarray, point: str, station: str, key: str) -> np.ndarray:
+    def exact(self, q_deg: np.ndarray, point: str, station: str, t_s: float = 0.0) -> np.ndarray:
+        """Noise-free reflector position in the station frame (robot state as set by `move_to`)."""
+        x = self.true_stations[station].apply(self.point_in_base(q_deg, point, t_s))
+        shift = self.hidden.station_shift(station, t_s)
+        return x if shift is None else shift[0] @ x + shift[1]
+
+    def measure(self, q_deg: np.ndarray, point: str, station: str, key: str, t_s: float = 0.0) -> np.ndarray:
         """One tracker measurement; the noise depends only on (seed, key)."""
-        x = self.exact(q_deg, point, station)
+        x = self.exact(q_deg, point, station, t_s)
         return x + self.noise.sample(x[None], stable_seed(self.seed, f"noise/{key}"))[0]
 
     def visible(self, q_deg: np.ndarray, point: str, station: str) -> bool:
@@ -86,3 +122,34 @@ class Twin:
         d = tracker - p
         cosang = float(r[0] @ self.cell.tool_normals[point] @ d / np.linalg.norm(d))
         return cosang >= np.cos(np.radians(self.cell.acceptance_deg))
+
+    # ------------------------------------------------------------------ hidden effects
+    def _add_effect(self, name: str, magnitude_mm: float) -> None:
+        """Scale the effect so that what a geometric calibration cannot absorb has RMS `magnitude_mm`."""
+        rng = stable_seed(self.seed, f"effect/{name}")
+        poses = np.degrees(random_poses(self.cell, REFERENCE_POSES, stable_seed(self.seed, "twin/reference")))
+        saved, self.hidden = self.hidden, Effects()
+        base = simulate_campaign(self, poses, noise_free=True)
+        first = sorted(self.true_stations)[0]  # a station shift happens halfway through this station's block
+        t_mid = float(np.median(base.t_s[np.array(base.station) == first]))
+        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid)
+        self.hidden = unit
+        shifted = simulate_campaign(self, poses, noise_free=True)
+        self.hidden = saved
+        d = (shifted.xyz - base.xyz).ravel()
+        problem = Problem(self.cell.chain, base, self.cell.tool_points, irreducible_params(self.cell.chain)[0])
+        _, jm = problem.residual_and_jacobian(problem.initial)
+        resid = d - jm @ np.linalg.lstsq(jm, d, rcond=None)[0]
+        rms = float(np.sqrt(np.mean(resid**2)))
+        if rms <= 0:
+            raise ValueError(f"effect {name} is invisible to this cell's reference campaign")
+        scaled = unit.scaled(magnitude_mm / rms)
+        merged = self.hidden
+        for key in ("compliance", "backlash", "encoder_scale"):
+            if getattr(scaled, key) is not None:
+                setattr(merged, key, getattr(scaled, key))
+        if scaled.mass_chain is not None:
+            merged.mass_chain = scaled.mass_chain
+        merged.cyclic += scaled.cyclic
+        merged.thermal_per_s += scaled.thermal_per_s
+        merged.shift = scaled.shift or merged.shift

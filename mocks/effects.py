@@ -1,0 +1,92 @@
+"""Hidden non-geometric effects of the twin, each a physical model with a seed and a magnitude.
+
+The magnitude (mm) is what a geometric calibration cannot absorb: the effect's displacement of the
+reflectors over a reference campaign (the cell's points and stations, 40 random feasible poses in
+campaign order, 20 s per measurement) minus its least-squares projection on the geometric model
+(irreducible parameters, station transforms, point positions), as an RMS per coordinate. So "2x the
+noise" means a residual structure of twice the tracker noise, whatever the effect.
+
+Joint effects act on the angle the joint really has: q_true = q_read + dq(q_read, approach, ...). The
+controller reports q_read (its encoders), which is what the measurement table holds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from calib.chain import Chain
+from calib.extensions import CAUSES
+from calib.pinmodel import gravity_torques
+from calib.rigid import exp_so3
+
+
+@dataclass
+class Effects:
+    """The true hidden effects (internal units: rad, N m, s, mm)."""
+
+    compliance: np.ndarray | None = None  # (n,) rad per N m
+    mass_chain: Chain | None = None  # the true mass model (the config's is only rough)
+    backlash: np.ndarray | None = None  # (n,) rad, full width
+    encoder_scale: np.ndarray | None = None  # (n,)
+    cyclic: list[tuple[int, int, float, float]] = field(default_factory=list)  # (joint, harmonic, rad, phase)
+    thermal_per_s: float = 0.0  # arm growth rate
+    shift: tuple[str, float, np.ndarray, np.ndarray] | None = None  # (station, after t_s, rotation, translation)
+
+    def joint_errors(self, q: np.ndarray, approach: np.ndarray) -> np.ndarray:
+        """(N, n) rad: true minus reported joint angles for reported q (N, n) and approach signs (N, n)."""
+        dq = np.zeros_like(q)
+        if self.compliance is not None:
+            dq += self.compliance * gravity_torques(self.mass_chain, q)
+        if self.backlash is not None:
+            dq += 0.5 * self.backlash * approach
+        if self.encoder_scale is not None:
+            dq += self.encoder_scale * q
+        for j, h, amp, phase in self.cyclic:
+            dq[:, j] += amp * np.sin(h * q[:, j] + phase)
+        return dq
+
+    def scaled(self, factor: float) -> Effects:
+        def mul(v):
+            return None if v is None else v * factor
+
+        shift = None
+        if self.shift is not None:
+            sid, t, rvec, tvec = self.shift
+            shift = (sid, t, rvec * factor, tvec * factor)
+        return replace(
+            self, compliance=mul(self.compliance), backlash=mul(self.backlash), encoder_scale=mul(self.encoder_scale),
+            cyclic=[(j, h, a * factor, p) for j, h, a, p in self.cyclic], thermal_per_s=self.thermal_per_s * factor,
+            shift=shift,
+        )  # fmt: skip
+
+    def station_shift(self, station: str, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(rotation, translation) applied to the station's measurements after the change point."""
+        if self.shift is None or station != self.shift[0] or t_s <= self.shift[1]:
+            return None
+        return exp_so3(self.shift[2]), self.shift[3]
+
+
+def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: list[str], t_mid: float) -> Effects:
+    """The shape of each effect at an arbitrary scale (then scaled to the requested magnitude)."""
+    n = chain.dof
+    if name == "joint_compliance":
+        # the true masses differ from the config's rough model by ~15 %; wrist joints are softer
+        joints = tuple(
+            replace(j, mass_kg=j.mass_kg * (1 + 0.15 * rng.standard_normal()), com=j.com + rng.normal(0, 20.0, 3))
+            for j in chain.joints
+        )
+        shape = np.array([1.0, 1.0, 1.0] + [2.0] * (n - 3))[:n]
+        return Effects(compliance=1e-7 * shape, mass_chain=replace(chain, joints=joints))
+    if name == "backlash":
+        return Effects(backlash=np.radians(0.001) * np.array([1.0] * 3 + [1.5] * (n - 3))[:n])
+    if name == "encoder_scale":
+        return Effects(encoder_scale=1e-5 * rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 1.0, n))
+    if name == "cyclic_error":
+        return Effects(cyclic=[(j, 2, np.radians(0.001), rng.uniform(0, 2 * np.pi)) for j in range(1, min(n, 3))])
+    if name == "thermal_drift":
+        return Effects(thermal_per_s=1e-9)
+    if name == "station_shift":
+        return Effects(shift=(stations[0], t_mid, rng.normal(0, 1e-5, 3), rng.normal(0, 0.1, 3)))
+    raise ValueError(f"unknown effect {name!r}; choose from {', '.join(CAUSES)}")
