@@ -184,13 +184,7 @@ class Problem:
 
     def predicted(self, s: State) -> np.ndarray:
         rs, ts = self._station_arrays(s)
-        tool = s.points[self.pt_idx]
-        q = self._q(s)
-        pb = self.kin.points(q, tool, s.dev)
-        scale = self._arm_scale(s)
-        if scale is not None:  # thermal: the arm (base to last joint frame) grows, the tool does not
-            _, o_end = self.kin.end_frames(q, s.dev)
-            pb = pb + scale[:, None] * (o_end - self.chain.base[:3, 3])
+        pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext)
         return np.einsum("nij,nj->ni", rs, pb) + ts
 
     def residual(self, s: State) -> np.ndarray:
@@ -338,6 +332,20 @@ def identify(
     )
 
 
+def model_points(
+    kin: Kinematics, q: np.ndarray, tool: np.ndarray, dev: np.ndarray, ext: Extension | None, theta: np.ndarray
+) -> np.ndarray:
+    """Reflector positions (N, 3) in the robot base frame, geometric model plus extension."""
+    off = None if ext is None else ext.joint_offsets(theta)
+    if off is not None:
+        q = q + off
+    pb = kin.points(q, tool, dev)
+    if ext is not None and ext.arm_scale is not None:  # thermal: the arm grows, the tool does not
+        _, o_end = kin.end_frames(q, dev)
+        pb = pb + (theta[0] * ext.arm_scale)[:, None] * (o_end - kin.chain.base[:3, 3])
+    return pb
+
+
 def predict_points(
     result_chain: Chain,
     params: list[Param],
@@ -345,6 +353,8 @@ def predict_points(
     stations: dict[str, Station],
     points: dict[str, np.ndarray],
     table: MeasurementTable,
+    ext: Extension | None = None,
+    theta: np.ndarray | None = None,
 ) -> np.ndarray:
     """Predicted reflector positions (N, 3) in each row's station frame."""
     for i, (sid, pid) in enumerate(zip(table.station, table.point, strict=True)):
@@ -352,9 +362,8 @@ def predict_points(
             raise IdentificationError(f"{table.source}: row {i + 2}: column station: unknown station {sid!r}")
         if pid not in points:
             raise IdentificationError(f"{table.source}: row {i + 2}: column point: unknown point {pid!r}")
-    kin = Kinematics(result_chain, params)
     tool = np.array([points[p] for p in table.point])
-    pb = kin.points(np.radians(table.q_deg), tool, dev)
+    pb = model_points(Kinematics(result_chain, params), np.radians(table.q_deg), tool, dev, ext, theta)
     rs = np.array([stations[s].rotation for s in table.station])
     ts = np.array([stations[s].translation for s in table.station])
     return np.einsum("nij,nj->ni", rs, pb) + ts
