@@ -120,6 +120,23 @@ def best_shift(chain, table, tool, params, noise, min_rows: int = 6, grid: int =
     return best
 
 
+def fit_cause(chain, table, tool, params, noise, cause: str):
+    """Fit the geometric model extended by `cause`: (result, extension, table as fitted, shift, n_extra).
+    Returns None when the cause cannot be fitted to this table (e.g. too few rows for a change point)."""
+    if cause == "none":
+        return _fit(chain, table, tool, params, noise, None), None, table, None, 0
+    if cause == "station_shift":
+        found = best_shift(chain, table, tool, params, noise)
+        if found is None:
+            return None
+        _, sid, t_star, res, relabelled = found
+        return res, None, relabelled, {"station": sid, "after_t_s": t_star}, 7
+    ext = build_extension(cause, chain, table)
+    if ext.size == 0:
+        return None
+    return _fit(chain, table, tool, params, noise, ext), ext, table, None, ext.size
+
+
 def _holdout(chain, table, tool, params, noise, cause, folds, rng, full_ext) -> float:
     """RMS (mm, per coordinate) of held-out poses predicted from fits on the other poses."""
     poses = np.array(sorted(set(table.pose)))
@@ -178,21 +195,12 @@ def diagnose(
     alpha = ALPHA / len(causes)
     for cause in causes:
         try:
-            if cause == "station_shift":
-                found = best_shift(chain, table, tool_points, params, noise)
-                if found is None:
-                    continue
-                _, sid, t_star, res, relabelled = found
-                ext, n_extra, shift = None, 7, {"station": sid, "after_t_s": t_star}
-                tab = relabelled
-            else:
-                ext = build_extension(cause, chain, table)
-                if ext.size == 0:
-                    continue
-                res = _fit(chain, table, tool_points, params, noise, ext)
-                n_extra, shift, tab = ext.size, None, table
+            fit = fit_cause(chain, table, tool_points, params, noise, cause)
         except IdentificationError:
             continue
+        if fit is None:
+            continue
+        res, ext, tab, shift, n_extra = fit
         rss_e = _rss(res)
         dof_e = n_obs - (geo.cov.shape[0] + n_extra)
         f = ((rss_g - rss_e) / n_extra) / (rss_e / dof_e) if rss_e > 0 else np.inf

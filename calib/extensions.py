@@ -31,6 +31,9 @@ from .table import MeasurementTable
 
 CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift")
 JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error")
+# boundary unit -> factor from internal units (rad, N m, s)
+UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
+                "ppm/h": 1e6 * 3600.0}  # fmt: skip
 
 
 @dataclass
@@ -72,51 +75,55 @@ def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
     return out
 
 
-def _keep_varying(features: np.ndarray, names: list[str], rel_tol: float = 1e-6) -> tuple[np.ndarray, list[str]]:
-    """Drop feature columns that do not vary over the rows (a constant is a joint offset, not a cause)."""
-    std = features.std(axis=0)  # (n, e) -> per feature, but features are per (joint, e): use the column
-    col_std = np.array([std[:, e].max() for e in range(features.shape[2])])
-    keep = col_std > rel_tol * max(col_std.max(), 1e-300)
+def _select(features: np.ndarray, names: list[str], wanted: list[str] | None, rel_tol: float = 1e-6):
+    """Keep the wanted columns by name, or (None) those that vary over the rows: a constant feature is a
+    joint offset, not a cause."""
+    if wanted is not None:
+        unknown = [w for w in wanted if w not in names]
+        if unknown:
+            raise ValueError(f"unknown extension parameter(s) {', '.join(unknown)}")
+        keep = np.array([n in wanted for n in names])
+    else:
+        col_std = features.std(axis=0).max(axis=0)
+        keep = col_std > rel_tol * max(col_std.max(), 1e-300)
     return features[:, :, keep], [n for n, k in zip(names, keep, strict=True) if k]
 
 
-def build_extension(cause: str, chain: Chain, table: MeasurementTable, harmonics: int = 2) -> Extension:
-    """The extension `cause` for the rows of `table` (time order), in internal units (rad, N m, s)."""
+def build_extension(
+    cause: str, chain: Chain, table: MeasurementTable, harmonics: int = 2, names: list[str] | None = None
+) -> Extension:
+    """The extension `cause` for the rows of `table` (time order), in internal units (rad, N m, s).
+    `names` selects the parameters (as a fitted model lists them) instead of keeping every varying one."""
     q = np.radians(table.q_deg)
     n_rows, n = q.shape
-    deg = np.degrees(1.0)
-    if cause == "joint_compliance":
-        tau = gravity_torques(chain, q)  # N m
+    if cause in ("joint_compliance", "backlash", "encoder_scale"):
+        signature = {
+            "joint_compliance": lambda: gravity_torques(chain, q),  # N m
+            "backlash": lambda: 0.5 * approach_signs(q),
+            "encoder_scale": lambda: q,
+        }[cause]()
         feats = np.zeros((n_rows, n, n))
         for j in range(n):
-            feats[:, j, j] = tau[:, j]
-        feats, names = _keep_varying(feats, [f"c{j + 1}" for j in range(n)])
-        # boundary: deg per kN m
-        return Extension(cause, names, ["deg/kNm"] * len(names), np.full(len(names), deg * 1000.0), feats)
-    if cause == "backlash":
-        s = approach_signs(q)
-        feats = np.zeros((n_rows, n, n))
-        for j in range(n):
-            feats[:, j, j] = 0.5 * s[:, j]
-        feats, names = _keep_varying(feats, [f"b{j + 1}" for j in range(n)])
-        return Extension(cause, names, ["deg"] * len(names), np.full(len(names), deg), feats)
-    if cause == "encoder_scale":
-        feats = np.zeros((n_rows, n, n))
-        for j in range(n):
-            feats[:, j, j] = q[:, j]
-        feats, names = _keep_varying(feats, [f"k{j + 1}" for j in range(n)])
-        return Extension(cause, names, ["ppm"] * len(names), np.full(len(names), 1e6), feats)
+            feats[:, j, j] = signature[:, j]
+        letter, unit, factor = {
+            "joint_compliance": ("c", "deg/kNm", UNIT_FACTORS["deg/kNm"]),
+            "backlash": ("b", "deg", UNIT_FACTORS["deg"]),
+            "encoder_scale": ("k", "ppm", UNIT_FACTORS["ppm"]),
+        }[cause]
+        feats, kept = _select(feats, [f"{letter}{j + 1}" for j in range(n)], names)
+        return Extension(cause, kept, [unit] * len(kept), np.full(len(kept), factor), feats)
     if cause == "cyclic_error":
-        cols, names = [], []
+        cols, all_names = [], []
         for j in range(n):
             for h in range(1, harmonics + 1):
                 for fn, label in ((np.sin, "s"), (np.cos, "c")):
                     f = np.zeros((n_rows, n))
                     f[:, j] = fn(h * q[:, j])
                     cols.append(f)
-                    names.append(f"{label}{h}_{j + 1}")
-        feats, names = _keep_varying(np.stack(cols, axis=2), names)
-        return Extension(cause, names, ["deg"] * len(names), np.full(len(names), deg), feats)
+                    all_names.append(f"{label}{h}_{j + 1}")
+        feats, kept = _select(np.stack(cols, axis=2), all_names, names)
+        return Extension(cause, kept, ["deg"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg"]), feats)
     if cause == "thermal_drift":
-        return Extension(cause, ["e"], ["ppm/h"], np.array([1e6 * 3600.0]), arm_scale=np.asarray(table.t_s, float))
+        scale = np.array([UNIT_FACTORS["ppm/h"]])
+        return Extension(cause, ["e"], ["ppm/h"], scale, arm_scale=np.asarray(table.t_s, float))
     raise ValueError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")

@@ -37,14 +37,32 @@ def to_boundary(p: Param, v: float) -> float:
     return float(v) if p.is_length else float(np.degrees(v))
 
 
-def identification_to_doc(res: Identification, extra: dict | None = None) -> dict:
+def extension_doc(res: Identification, shift: dict | None = None) -> dict:
+    """{"cause": ..., "parameters": {name: {value, ci95, unit}}} in boundary units; station_shift adds
+    {"station", "after_t_s"} (the moved station's later transform is the station "<id>~shift")."""
+    if shift is not None:
+        return {"cause": "station_shift", **shift, "parameters": {}}
+    ext = res.extension
+    if ext is None:
+        return {"cause": "none"}
+    ci = res.ext_ci95()
+    return {
+        "cause": ext.cause,
+        "parameters": {
+            n: {"value": float(v * f), "ci95": float(c * f), "unit": u}
+            for n, v, c, f, u in zip(ext.names, res.ext, ci, ext.to_boundary, ext.units, strict=True)
+        },
+    }
+
+
+def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None) -> dict:
     ci = res.param_ci95()
     unit = np.array([1.0 if p.is_length else np.degrees(1.0) for p in res.params])
     cov = res.param_cov() * np.outer(unit, unit)
     doc = {
         "format": FORMAT,
         "robot": chain_to_dict(res.chain),
-        "extension": {"cause": "none"},
+        "extension": extension_doc(res, shift),
         "parameters": {
             p.name: {
                 "value": to_boundary(p, v),
@@ -86,6 +104,18 @@ class Model:
     stations: dict[str, Station]
     points: dict[str, np.ndarray]
     doc: dict
+
+    @property
+    def cause(self) -> str:
+        return self.doc.get("extension", {}).get("cause", "none")
+
+    def extension_values(self) -> tuple[list[str], np.ndarray]:
+        """Extension parameter names and values in internal units (rad, N m, s)."""
+        from .extensions import UNIT_FACTORS
+
+        pars = self.doc.get("extension", {}).get("parameters", {})
+        names = list(pars)
+        return names, np.array([pars[n]["value"] / UNIT_FACTORS[pars[n]["unit"]] for n in names])
 
 
 def load_model(path: str | Path) -> Model:

@@ -158,6 +158,41 @@ def cmd_plan(args) -> int:
     return 0
 
 
+def cmd_diagnose(args) -> int:
+    from calib.diagnose import diagnose
+    from calib.noise import TrackerNoise
+
+    from .diagnose_report import plots, verdict_doc
+    from .jobs import model_doc
+
+    cell = load_cell(args.cell)
+    table = read_table(args.data, n_joints=cell.chain.dof)
+    params = choose_params(cell, args.params)
+    noise = TrackerNoise() if args.weighting == "tracker" else None
+    with console.status("fitting the geometric model and every candidate cause (cross-validated by pose)"):
+        d = diagnose(cell.chain, table, cell.tool_points, params, noise, folds=args.folds, seed=args.seed)
+    doc = verdict_doc(cell, d)
+    t = Table(title=f"Diagnosis: {d.cause}")
+    for col in ("candidate", "params", "held-out RMS um", "fit RMS um", "F-test p", "dBIC", "significant"):
+        t.add_column(col, justify="right")
+    t.add_row("geometric", "-", f"{d.holdout_geometric_mm * 1000:.1f}", f"{doc['geometric']['rms_mm'] * 1000:.1f}",
+              "-", "-", "-")  # fmt: skip
+    for c in doc["candidates"]:
+        t.add_row(c["cause"], str(c["n_params"]), f"{c['holdout_rms_mm'] * 1000:.1f}", f"{c['rms_mm'] * 1000:.1f}",
+                  f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}", "yes" if c["significant"] else "no")  # fmt: skip
+    console.print(t)
+    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); held-out RMS "
+                  f"{d.holdout_geometric_mm * 1000:.1f} -> {d.holdout_extended_mm * 1000:.1f} um")  # fmt: skip
+    if args.plots:
+        for p in plots(cell, d, Path(args.plots)):
+            console.print(f"plot written to {p}")
+    _write_json(args.json, doc)
+    if args.out:
+        _write_json(args.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift))
+    console.print(f"verdict written to {args.json}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -168,10 +203,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="comma-separated parameter names (default: the irreducible set)")
     p.add_argument("--weighting", choices=("iid", "tracker"), default="iid",
                    help="i.i.d. least squares, or the AT901 radial/transverse noise model")
-    p.add_argument("--extend", default="none", help="model extension (none = purely geometric)")
+    p.add_argument("--extend", default="none",
+                   help="none (purely geometric), auto (diagnose's choice) or a cause: joint_compliance, "
+                        "backlash, encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
     p.add_argument("--out", required=True, help="model.json to write")
     p.add_argument("--json", help="summary JSON to write")
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("diagnose", help="what the geometric model gets wrong: the physical cause and the gain")
+    p.add_argument("data", help="measurement table (CSV, see DESIGN.md)")
+    p.add_argument("--cell", required=True)
+    p.add_argument("--params", help="geometric parameters (default: the irreducible set)")
+    p.add_argument("--weighting", choices=("iid", "tracker"), default="tracker")
+    p.add_argument("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--plots", help="directory for the residual plots")
+    p.add_argument("--json", required=True, help="verdict JSON to write")
+    p.add_argument("--out", help="model.json of the chosen model (usable by predict)")
+    p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("predict", help="predict reflector positions with a model")
     p.add_argument("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)")

@@ -7,8 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.cell import Cell
+from calib.diagnose import diagnose, fit_cause, relabel_shift
+from calib.extensions import CAUSES, build_extension
 from calib.identify import Identification, identify, predict_points, residual_stats, significance
-from calib.model import Model, identification_to_doc, to_boundary
+from calib.model import Model, identification_to_doc
 from calib.noise import TrackerNoise
 from calib.params import Param, irreducible_params, param_by_name
 from calib.table import MeasurementTable
@@ -38,11 +40,23 @@ class IdentifyOutcome:
 def run_identify(
     cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = "iid", extend: str = "none"
 ) -> IdentifyOutcome:
-    if extend != "none":
-        raise UsageError(f"--extend {extend}: only 'none' (the purely geometric model) is available")
+    """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's)."""
+    if extend not in ("none", "auto", *CAUSES):
+        raise UsageError(f"--extend {extend}: choose none, auto or one of {', '.join(CAUSES)}")
     noise = None if weighting == "iid" else TrackerNoise()
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
-    res = identify(cell.chain, table, cell.tool_points, params, noise=noise)
+    if extend == "auto":
+        extend = diagnose(cell.chain, table, cell.tool_points, params, noise).cause
+        extend = "none" if extend == "unexplained" else extend
+    fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
+    if fit is None:
+        raise UsageError(f"--extend {extend}: this table cannot reveal it (too few rows or no variation)")
+    res, _, _, shift, _ = fit
+    return IdentifyOutcome(result=res, before=before, doc=model_doc(cell, table, res, before, shift))
+
+
+def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: Identification, shift) -> dict:
+    params = res.params
     extra: dict = {
         "cell": cell.name,
         "data": table.source,
@@ -53,7 +67,7 @@ def run_identify(
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
         extra["tcp_mm"] = cell.tcp.tolist()
         extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
-    return IdentifyOutcome(result=res, before=before, doc=identification_to_doc(res, extra))
+    return identification_to_doc(res, extra, shift)
 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
@@ -77,11 +91,14 @@ def run_predict(model: Model, rows: MeasurementTable) -> MeasurementTable:
         raise UsageError(
             f"{rows.source}: {rows.n_joints} joint columns, the model's robot has {model.chain.dof} joints"
         )
-    xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, rows)
+    ext, theta, labelled = None, None, rows
+    if model.cause == "station_shift":
+        info = model.doc["extension"]
+        labelled = relabel_shift(rows, info["station"], float(info["after_t_s"]))
+    elif model.cause != "none":
+        names, theta = model.extension_values()
+        ext = build_extension(model.cause, model.chain, rows, names=names)
+    xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, labelled, ext, theta)
     out = rows.subset(np.arange(len(rows)))
     out.xyz = xyz
     return out
-
-
-def truth_in_boundary_units(params: list[Param], values: np.ndarray) -> list[float]:
-    return [to_boundary(p, v) for p, v in zip(params, values, strict=True)]

@@ -68,7 +68,7 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
         (["identify", "missing.csv", "--cell", "kr270", "--out", "m.json"], "missing.csv: cannot read"),
         (["identify", "DATA", "--cell", "nocell", "--out", "m.json"], "nocell.yaml: no such file"),
         (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
-        (["identify", "DATA", "--cell", "kr270", "--extend", "backlash", "--out", "m.json"], "--extend backlash"),
+        (["identify", "DATA", "--cell", "kr270", "--extend", "gravity", "--out", "m.json"], "--extend gravity"),
         (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "not a JSON model"),
     ],
 )
