@@ -90,7 +90,25 @@ def cmd_predict(args) -> int:
     return 0
 
 
-def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free: bool = False):
+def parse_effects(items: list[str] | None) -> dict[str, float]:
+    from calib.extensions import CAUSES
+
+    out = {}
+    for item in items or []:
+        name, _, mag = item.partition(":")
+        if name not in CAUSES:
+            raise UsageError(f"--effect {item}: unknown effect; choose from {', '.join(CAUSES)}")
+        try:
+            out[name] = float(mag) if mag else 0.05
+        except ValueError:
+            raise UsageError(f"--effect {item}: the magnitude must be a number of mm") from None
+        if not out[name] > 0:
+            raise UsageError(f"--effect {item}: the magnitude must be positive")
+    return out
+
+
+def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free: bool = False,
+             effects: dict[str, float] | None = None):  # fmt: skip
     from mocks.synth import simulate_campaign
     from mocks.twin import Twin
 
@@ -101,12 +119,12 @@ def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free
         poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    twin = Twin(cell, seed=seed)
+    twin = Twin(cell, seed=seed, effects=effects or {})
     return cell, twin, simulate_campaign(twin, poses, repeat=repeat, noise_free=noise_free)
 
 
 def cmd_simulate(args) -> int:
-    _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free)
+    _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free, parse_effects(args.effect))
     write_table(table, args.out)
     console.print(f"{len(table)} simulated measurements written to {args.out}")
     return 0
@@ -253,6 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=1)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--noise-free", action="store_true")
+    p.add_argument("--effect", action="append", help="hidden effect NAME:MAGNITUDE_MM (repeatable)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_simulate)
 
