@@ -1,0 +1,191 @@
+"""The campaign engine on the simulated world (in-process devices): order, safety, crash, resume, replay."""
+
+import numpy as np
+import pytest
+
+from calib.cell import load_cell
+from calib.doe import design_for_cell, random_feasible_poses
+from calib.identify import identify
+from calib.params import irreducible_params
+from campaign.engine import CampaignStopped
+from campaign.recording import ReplayDivergence
+from campaign.runner import Live, replay_session, run_campaign
+from campaign.session import create_session, export_table, write_export
+from campaign.steps import PlanError, campaign_steps
+from campaign.store import SessionStore
+from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+from mocks.twin import Twin
+from mocks.world import World
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell("kr270")
+
+
+@pytest.fixture(scope="module")
+def plan(cell):
+    design = design_for_cell(cell, [])
+    poses = np.degrees(random_feasible_poses(design, 10, np.random.default_rng(11)))
+    return {"poses_deg": poses.round(4).tolist(), "repeat": 2}
+
+
+def live(cell, seed=3, store=None, operator=None):
+    world = World(Twin(cell, seed=seed))
+    if store is not None:
+        world.restore_counts([(e.data["station"], e.data["point"], tuple(e.data["q_deg"]))
+                              for e in store.events("measurement")])  # fmt: skip
+    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
+                       InprocCellIO(world))  # fmt: skip
+
+
+def test_step_order_groups_operator_actions(cell, plan):
+    steps = list(campaign_steps(cell, np.array(plan["poses_deg"]), plan["repeat"]))
+    prompts = [s for s in steps if s.kind in ("change_station", "move_reflector")]
+    # one tracker move per station, one reflector move per (station, point) that has visible poses
+    assert [s.kind for s in prompts].count("change_station") == 2
+    assert len(prompts) <= 2 + 2 * 3
+    # every prompt is followed by an explicit resume before any motion
+    for i, s in enumerate(steps):
+        if s.kind in ("change_station", "move_reflector"):
+            assert steps[i + 1].kind == "resume"
+    # passes alternate: the second pass visits the poses in reverse order
+    block = [s.pose for s in steps if s.kind == "measure" and s.station == "S1" and s.point == "P1" and not s.drift]
+    half = len(block) // 2
+    assert block[:half] == block[half:][::-1]
+    # drift checks at the start and end of each point block
+    drift = [s for s in steps if s.kind == "measure" and s.drift]
+    assert len(drift) >= 2 and len(drift) % 2 == 0
+
+
+def test_a_point_no_station_sees_is_refused_before_the_start(cell, plan):
+    import dataclasses
+
+    blind = dataclasses.replace(cell, tool_normals={k: -np.array([0.0, 0.0, 1.0]) * 0 + np.array([-1.0, 0, 0])
+                                                    for k in cell.tool_normals}, acceptance_deg=1.0)  # fmt: skip
+    with pytest.raises(PlanError, match="not visible from any station"):
+        list(campaign_steps(blind, np.array(plan["poses_deg"]), 1))
+
+
+def test_full_campaign_then_identification(tmp_path, cell, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    world, devices = live(cell)
+    run_campaign(store, devices)
+    table = export_table(store)
+    assert set(table.station) == {"S1", "S2"} and set(table.point) == {"P1", "P2", "P3"}
+    assert np.all(np.diff(table.t_s) >= 0)
+    res = identify(cell.chain, table, cell.tool_points, irreducible_params(cell.chain)[0])
+    # the AT901-like noise of the twin: ~15 um per coordinate (calib/noise.py at 2-4 m)
+    assert np.sqrt(np.mean(res.residuals**2)) < 0.025
+    # the engine never moved while a prompt was outstanding: each move follows a resume since the last prompt
+    steps = [e.data["step"]["kind"] for e in store.events("step_started")]
+    pending = False
+    for k in steps:
+        if k in ("change_station", "move_reflector"):
+            pending = True
+        elif k == "resume":
+            pending = False
+        elif k == "move":
+            assert not pending
+
+
+class Crash(Exception):
+    """Stands for kill -9: the process dies between two calls (the subprocess test does it for real)."""
+
+
+@pytest.mark.parametrize("fraction", [0.02, 0.5, 0.97])
+def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, fraction):
+    ref = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
+    run_campaign(ref, live(cell)[1])
+    after_calls = max(1, int(fraction * len(ref.events("measurement"))))
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    _, devices = live(cell)
+    count = {"n": 0}
+    measure = devices.tracker.measure
+
+    def dying_measure():
+        count["n"] += 1
+        if count["n"] == after_calls:
+            raise Crash()
+        return measure()
+
+    devices.tracker.measure = dying_measure
+    with pytest.raises(Crash):
+        run_campaign(store, devices)
+    store.close()
+    store = SessionStore.open(tmp_path / "s")
+    run_campaign(store, live(cell, store=store)[1])
+    a, b = export_table(ref), export_table(store)
+    assert a.pose == b.pose and a.station == b.station and a.point == b.point
+    np.testing.assert_array_equal(a.q_deg, b.q_deg)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    # the replay of the interrupted-and-resumed session gives the same table, byte for byte
+    write_export(store, tmp_path / "s.csv")
+    write_export(replay_session(store, tmp_path / "replay"), tmp_path / "r.csv")
+    assert (tmp_path / "s.csv").read_bytes() == (tmp_path / "r.csv").read_bytes()
+
+
+def test_device_fault_stops_safely_and_resume_continues(tmp_path, cell, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    world, devices = live(cell)
+    devices.robot.faults = []
+    calls = {"n": 0}
+    move = devices.robot.move_ptp
+
+    def estop_once(target, speed):
+        calls["n"] += 1
+        if calls["n"] == 7:
+            devices.robot.faults.append("estop")
+        return move(target, speed)
+
+    devices.robot.move_ptp = estop_once
+    with pytest.raises(CampaignStopped, match="estop"):
+        run_campaign(store, devices)
+    assert store.events("error")[-1].data["type"] == "DeviceFault"
+    run_campaign(store, live(cell, store=store)[1])
+    assert store.events("campaign_done")
+
+
+def test_beam_break_skips_the_measurement_there(tmp_path, cell, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    world, devices = live(cell)
+    devices.tracker.faults = ["beam broken", "beam broken"]
+    run_campaign(store, devices)
+    warnings = [e.data["message"] for e in store.events("warning")]
+    assert sum("beam broken" in w for w in warnings) == 2 and store.events("campaign_done")
+
+
+class DoorLeftOpen(SimOperator):
+    """An operator who forgets to close the door the first time he acknowledges a resume."""
+
+    def __init__(self, world):
+        super().__init__(world)
+        self.forgot = False
+
+    def ask(self, kind, target, text):
+        answer = super().ask(kind, target, text)
+        if kind == "resume" and not self.forgot:
+            self.forgot = True
+            self.world.door_closed = False
+        return answer
+
+
+def test_door_left_open_blocks_motion_until_closed(tmp_path, cell, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    world = World(Twin(cell, seed=3))
+    operator = DoorLeftOpen(world)
+    devices = Live(InprocTracker(world), InprocRobot(world), operator, world.clock, InprocCellIO(world))
+    run_campaign(store, devices)
+    kinds = [(e.kind, e.data.get("op")) for e in store.events() if e.kind in ("warning", "call")]
+    first_warning = next(i for i, k in enumerate(kinds) if k[0] == "warning")
+    first_move = next(i for i, k in enumerate(kinds) if k == ("call", "move_ptp"))
+    assert first_warning < first_move  # the open door was noticed before the robot ever moved
+    assert "door is open" in store.events("warning")[0].data["message"]
+
+
+def test_replay_of_a_changed_plan_stops_at_the_first_divergent_step(tmp_path, cell, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    run_campaign(store, live(cell)[1])
+    changed = {"poses_deg": [list(plan["poses_deg"][1]), *plan["poses_deg"][1:]], "repeat": plan["repeat"]}
+    with pytest.raises(ReplayDivergence, match=r"step \d+: this run asks robot.move_ptp"):
+        replay_session(store, tmp_path / "r", plan_doc=changed)
