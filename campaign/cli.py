@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from calib.cell import CellError, load_cell
@@ -18,10 +17,10 @@ from calib.model import ModelError, load_model
 from calib.poses import random_poses
 from calib.table import TableError, read_table, write_table
 
-from .jobs import IdentifyOutcome, UsageError, choose_params, run_identify, run_predict, summary_of
+from .console import console
+from .jobs import IdentifyOutcome, UsageError, choose_params, parse_effects, run_identify, run_predict, summary_of
 
-USER_ERRORS = (UsageError, TableError, CellError, ChainError, IdentificationError, ModelError)
-console = Console(stderr=False, highlight=False)
+USER_ERRORS = (UsageError, TableError, CellError, ChainError, IdentificationError, ModelError)  # one line, exit 2
 
 
 def _write_json(path: str, doc: dict) -> None:
@@ -88,23 +87,6 @@ def cmd_predict(args) -> int:
         raise UsageError(f"{args.out}: cannot write ({exc.strerror})") from None
     console.print(f"{len(pred)} predictions written to {args.out}")
     return 0
-
-
-def parse_effects(items: list[str] | None) -> dict[str, float]:
-    from calib.extensions import CAUSES
-
-    out = {}
-    for item in items or []:
-        name, _, mag = item.partition(":")
-        if name not in CAUSES:
-            raise UsageError(f"--effect {item}: unknown effect; choose from {', '.join(CAUSES)}")
-        try:
-            out[name] = float(mag) if mag else 0.05
-        except ValueError:
-            raise UsageError(f"--effect {item}: the magnitude must be a number of mm") from None
-        if not out[name] > 0:
-            raise UsageError(f"--effect {item}: the magnitude must be positive")
-    return out
 
 
 def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free: bool = False,
@@ -281,6 +263,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="out/demo")
     p.set_defaults(func=cmd_demo)
+    from .run_cmd import register as register_campaign
+
+    register_campaign(sub)
     return ap
 
 

@@ -102,3 +102,18 @@ def run_predict(model: Model, rows: MeasurementTable) -> MeasurementTable:
     out = rows.subset(np.arange(len(rows)))
     out.xyz = xyz
     return out
+
+
+def parse_effects(items: list[str] | None) -> dict[str, float]:
+    out = {}
+    for item in items or []:
+        name, _, mag = item.partition(":")
+        if name not in CAUSES:
+            raise UsageError(f"--effect {item}: unknown effect; choose from {', '.join(CAUSES)}")
+        try:
+            out[name] = float(mag) if mag else 0.05
+        except ValueError:
+            raise UsageError(f"--effect {item}: the magnitude must be a number of mm") from None
+        if not out[name] > 0:
+            raise UsageError(f"--effect {item}: the magnitude must be positive")
+    return out

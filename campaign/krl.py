@@ -1,0 +1,83 @@
+"""KUKA KR C2 (KSS 5.x) programs of axis-specific PTP motions: NAME.src and NAME.dat.
+
+What the generated text relies on (checked against public material, not against a controller):
+- a KRL program is a pair of files with the same name, the motions in NAME.src (DEF NAME() ... END) and
+  the permanent data in NAME.dat (DEFDAT NAME PUBLIC ... ENDDAT) (Wikipedia "KUKA Robot Language");
+- axis positions as the E6AXIS structure {A1 .., A6 .., E1 .., E6 ..}, the robot axes A1-A6 and the external
+  axes E1-E6 (same article; a KSS 5.x inline-form generator writes `DECL E6AXIS X..={A1 ..,..,A6 ..,E1 0.0,
+  E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}` in the .dat and `PTP X..` in the .src, and declares
+  `EXT BAS (BAS_COMMAND :IN,REAL :IN )` in the .dat as the KUKA template does);
+- `BAS(#INITMOV,0)` initialises the motion parameters, after which `$VEL_AXIS[i]` / `$ACC_AXIS[i]` (integer
+  percentages of the axis maxima) override the PTP speed and acceleration: the KRL post-processor of
+  visose/Robots (Robots/RobotKUKA.cs) writes exactly this sequence for KUKA controllers.
+- KRL names: at most 24 characters, a letter first, then letters, digits and underscores (KUKA system
+  software naming rule, as given to this project; KRL is not case-sensitive).
+Files are written with CR LF line ends, as the Windows-based KR C2 editor saves them.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
+AXES = 6
+EOL = "\r\n"
+
+
+class KrlError(ValueError):
+    """A program that cannot be written; the message says why."""
+
+
+def check_name(name: str) -> str:
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+        raise KrlError(
+            f"KRL program name {name!r} is not valid: at most 24 characters, a letter first, then letters, digits or _"
+        )
+    return name
+
+
+def _angle(v: float) -> str:
+    text = f"{v:.4f}"
+    return "0.0000" if text == "-0.0000" else text
+
+
+def krl_texts(name: str, q_deg, speed_pct: int = 10) -> tuple[str, str]:
+    """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees."""
+    check_name(name)
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    if q.ndim != 2 or q.shape[1] != AXES or len(q) == 0:
+        raise KrlError(f"a KR C2 program needs rows of {AXES} axis angles A1..A6, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise KrlError("axis angles must be finite numbers")
+    if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
+        raise KrlError(f"the axis speed override must be an integer percentage 1..100, got {speed_pct!r}")
+    pct = int(speed_pct)
+    src = [f"DEF {name}()", f"; trackcal: {len(q)} compensated joint targets, PTP at {pct} % axis speed",
+           "BAS(#INITMOV,0)"]  # fmt: skip
+    src += [f"$VEL_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
+    src += [f"$ACC_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
+    src += [f"PTP XP{k + 1}" for k in range(len(q))]
+    src.append("END")
+    dat = [f"DEFDAT {name} PUBLIC", "EXT BAS (BAS_COMMAND :IN,REAL :IN )"]
+    for k, row in enumerate(q):
+        axes = ",".join(f"A{i + 1} {_angle(v)}" for i, v in enumerate(row))
+        dat.append(f"DECL E6AXIS XP{k + 1}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+    dat.append("ENDDAT")
+    return EOL.join(src) + EOL, EOL.join(dat) + EOL
+
+
+def write_krl(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10) -> tuple[Path, Path]:
+    """Write NAME.src and NAME.dat into out_dir (created if needed); returns their paths."""
+    src, dat = krl_texts(name, q_deg, speed_pct)
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        src_path, dat_path = out / f"{name}.src", out / f"{name}.dat"
+        src_path.write_bytes(src.encode("ascii"))
+        dat_path.write_bytes(dat.encode("ascii"))
+    except OSError as exc:
+        raise KrlError(f"{out}: cannot write the KRL program ({exc.strerror or exc})") from None
+    return src_path, dat_path

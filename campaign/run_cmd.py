@@ -1,0 +1,162 @@
+"""`trackcal run | resume | replay | export`: campaigns on the shop floor or on the simulated cell."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from calib.diagnose import diagnose
+from calib.identify import IdentificationError
+from calib.noise import TrackerNoise
+from calib.table import read_table
+
+from .console import console
+from .devices import sim_live
+from .diagnose_report import verdict_doc
+from .engine import CampaignStopped
+from .jobs import UsageError, choose_params, parse_effects, run_identify
+from .recording import ReplayDivergence
+from .runner import replay_session, run_campaign
+from .session import create_session, session_cell, write_export
+from .steps import PlanError
+from .store import SessionStore, StoreError
+
+
+def _progress():
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                   TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
+    task = bar.add_task("measurements", total=None, next="")
+
+    def update(done: int, total: int, nxt: str) -> None:
+        bar.update(task, completed=done, total=total, next=nxt or "-")
+
+    return bar, update
+
+
+def _live_for(store: SessionStore):
+    meta = store.meta()
+    cell = session_cell(store)
+    if meta["mode"] == "sim":
+        effects = json.loads(meta.get("effects", "{}") or "{}")
+        return sim_live(cell, int(meta["seed"] or 0), store, effects)[1]
+    raise UsageError(f"{store.directory}: hardware sessions need the tracker and robot drivers configured "
+                     f"({meta['mode']})")  # fmt: skip
+
+
+def _drive(store: SessionStore) -> None:
+    bar, update = _progress()
+    try:
+        with bar:
+            run_campaign(store, _live_for(store), progress=update)
+    except CampaignStopped as exc:
+        raise UsageError(f"{exc}. Fix the cause, then: trackcal resume {store.directory}") from None
+
+
+def analyse(store: SessionStore) -> None:
+    """End of a campaign: export, identification, diagnosis, into the session directory."""
+    d = store.directory
+    n = write_export(store, d / "table.csv")
+    cell = session_cell(store)
+    table = read_table(d / "table.csv", n_joints=cell.chain.dof)
+    params = choose_params(cell, None)
+    try:
+        outcome = run_identify(cell, table, params, "tracker")
+        (d / "model.json").write_text(json.dumps(outcome.doc, indent=2) + "\n")
+        dg = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise())
+        (d / "verdict.json").write_text(json.dumps(verdict_doc(cell, dg), indent=2) + "\n")
+    except IdentificationError as exc:
+        console.print(f"[yellow]identification not possible yet[/]: {exc}")
+        return
+    after = outcome.doc["residuals"]["after"]
+    console.print(f"{n} measurements -> {d / 'table.csv'}; model {d / 'model.json'} (coordinate RMS "
+                  f"{after['coord_rms_mm'] * 1000:.1f} um); diagnosis: {dg.cause} ({d / 'verdict.json'})")  # fmt: skip
+
+
+def cmd_run(args) -> int:
+    if bool(args.sim) == bool(args.hardware):
+        raise UsageError("give exactly one of --sim or --hardware FILE")
+    try:
+        plan_doc = json.loads(Path(args.plan).read_text())
+    except OSError as exc:
+        raise UsageError(f"{args.plan}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise UsageError(f"{args.plan}: not a JSON plan ({exc})") from None
+    try:
+        store = create_session(Path(args.session), args.cell, plan_doc, "sim" if args.sim else "hardware",
+                               args.seed if args.sim else None)  # fmt: skip
+        if args.sim and args.effect:
+            store.conn.execute("INSERT INTO meta VALUES ('effects', ?)", (json.dumps(parse_effects(args.effect)),))
+        _drive(store)
+    except (StoreError, PlanError) as exc:
+        raise UsageError(str(exc)) from None
+    if not args.no_analysis:
+        analyse(store)
+    return 0
+
+
+def cmd_resume(args) -> int:
+    try:
+        store = SessionStore.open(args.session)
+        if store.events("campaign_done"):
+            console.print(f"{args.session}: the campaign is already complete")
+        else:
+            _drive(store)
+    except (StoreError, PlanError) as exc:
+        raise UsageError(str(exc)) from None
+    if not args.no_analysis:
+        analyse(store)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    try:
+        recording = SessionStore.open(args.session, readonly=True)
+        plan_doc = json.loads(Path(args.plan).read_text()) if args.plan else None
+        store = replay_session(recording, Path(args.into), args.cell, plan_doc)
+    except (StoreError, PlanError, OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    except ReplayDivergence as exc:
+        raise UsageError(f"replay diverges from the recording at {exc}") from None
+    n = write_export(store, Path(args.into) / "table.csv")
+    console.print(f"replayed {n} measurements into {args.into} (the recording is unchanged)")
+    return 0
+
+
+def cmd_export(args) -> int:
+    try:
+        n = write_export(SessionStore.open(args.session, readonly=True), Path(args.csv))
+    except StoreError as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"{args.csv}: cannot write ({exc.strerror})") from None
+    console.print(f"{n} measurements written to {args.csv}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a measurement campaign (simulated cell or hardware)")
+    p.add_argument("--cell", required=True)
+    p.add_argument("--plan", required=True, help="plan.json from `trackcal plan`")
+    p.add_argument("--sim", action="store_true", help="the digital twin's cell")
+    p.add_argument("--hardware", help="hardware config (configs/hardware/NAME.yaml)")
+    p.add_argument("--seed", type=int, default=1, help="--sim: the twin's seed")
+    p.add_argument("--effect", action="append", help="--sim: hidden effect NAME:MAGNITUDE_MM")
+    p.add_argument("--session", required=True, help="session directory to create")
+    p.add_argument("--no-analysis", action="store_true", help="skip identification and diagnosis at the end")
+    p.set_defaults(func=cmd_run)
+    p = sub.add_parser("resume", help="continue an interrupted campaign")
+    p.add_argument("session")
+    p.add_argument("--no-analysis", action="store_true")
+    p.set_defaults(func=cmd_resume)
+    p = sub.add_parser("replay", help="re-run a recorded campaign into a new session")
+    p.add_argument("session")
+    p.add_argument("--into", required=True)
+    p.add_argument("--cell", help="replay with this cell instead of the recorded one")
+    p.add_argument("--plan", help="replay with this plan instead of the recorded one")
+    p.set_defaults(func=cmd_replay)
+    p = sub.add_parser("export", help="the measurement table of a session")
+    p.add_argument("session")
+    p.add_argument("--csv", required=True)
+    p.set_defaults(func=cmd_export)
