@@ -113,24 +113,37 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    """Plan + simulated campaign (2 stations, 3 points, operator prompts) + identification + diagnosis."""
+    import shutil
+    from types import SimpleNamespace
+
+    from mocks.twin import Twin
+
+    from .planning import build_design, search_doc
+    from .run_cmd import analyse, drive
+    from .session import create_session
+
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    console.rule("trackcal demo: a simulated KR-270 campaign on the digital twin, identified")
-    cell, twin, table = simulate(args.cell, args.poses, args.seed)
-    write_table(table, out / "table.csv")
-    console.print(
-        f"cell {cell.name}: {args.poses} random feasible poses, {len(cell.tool_points)} reference points, "
-        f"{len(cell.stations)} tracker stations -> {len(table)} visible measurements ({out / 'table.csv'})"
-    )
-    table = read_table(out / "table.csv", n_joints=cell.chain.dof)
-    outcome = run_identify(cell, table, choose_params(cell, None), "tracker")
-    truth = {
-        p.name: (v if p.is_length else float(np.degrees(v)))
-        for p, v in zip(twin.params, twin.true_dev, strict=True)
-    }
-    print_identification(outcome, truth)
-    _write_json(str(out / "model.json"), outcome.doc)
-    console.print(f"model written to {out / 'model.json'}")
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    cell = load_cell(args.cell)
+    console.rule(f"trackcal demo: cell {cell.name} on the digital twin")
+    plan_args = SimpleNamespace(params=None, test_pose=None, sigma_mm=None, noise="iid", no_visibility=False,
+                                configs=6, repeat=3, criterion="rho0", starts=1000, refined=16, seed=args.seed,
+                                scheduler=None)  # fmt: skip
+    with console.status("planning: test-pose optimal poses (paper section 6)"):
+        plan = search_doc(build_design(cell, plan_args), plan_args)
+    _write_json(str(out / "plan.json"), plan)
+    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {plan['rho0_mm'] * 1000:.2f} um "
+                  f"({out / 'plan.json'})")  # fmt: skip
+    store = create_session(out / "session", args.cell, plan, "sim", args.seed)
+    drive(store)
+    analyse(store)
+    twin = Twin(cell, seed=args.seed)
+    truth = {p.name: (v if p.is_length else float(np.degrees(v))) for p, v in zip(twin.params, twin.true_dev,
+                                                                                  strict=True)}  # fmt: skip
+    table = read_table(out / "session" / "table.csv", n_joints=cell.chain.dof)
+    print_identification(run_identify(cell, table, choose_params(cell, None), "tracker"), truth)
     return 0
 
 
@@ -257,9 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("demo", help="simulate a KR-270 campaign on the twin, identify it, print the report")
+    p = sub.add_parser("demo", help="plan, simulated campaign, identification, diagnosis on the embedded defaults")
     p.add_argument("--cell", default="kr270")
-    p.add_argument("--poses", type=int, default=40)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="out/demo")
     p.set_defaults(func=cmd_demo)

@@ -45,7 +45,7 @@ def _live_for(store: SessionStore):
                      f"({meta['mode']})")  # fmt: skip
 
 
-def _drive(store: SessionStore) -> None:
+def drive(store: SessionStore) -> None:
     bar, update = _progress()
     try:
         with bar:
@@ -88,7 +88,7 @@ def cmd_run(args) -> int:
                                args.seed if args.sim else None)  # fmt: skip
         if args.sim and args.effect:
             store.conn.execute("INSERT INTO meta VALUES ('effects', ?)", (json.dumps(parse_effects(args.effect)),))
-        _drive(store)
+        drive(store)
     except (StoreError, PlanError) as exc:
         raise UsageError(str(exc)) from None
     if not args.no_analysis:
@@ -102,7 +102,7 @@ def cmd_resume(args) -> int:
         if store.events("campaign_done"):
             console.print(f"{args.session}: the campaign is already complete")
         else:
-            _drive(store)
+            drive(store)
     except (StoreError, PlanError) as exc:
         raise UsageError(str(exc)) from None
     if not args.no_analysis:
