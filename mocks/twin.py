@@ -123,6 +123,15 @@ class Twin:
         cosang = float(r[0] @ self.cell.tool_normals[point] @ d / np.linalg.norm(d))
         return cosang >= np.cos(np.radians(self.cell.acceptance_deg))
 
+    def _exact_rows(self, table) -> np.ndarray:
+        """Noise-free positions of the rows of a campaign table, replaying its motions from a fresh state."""
+        self._last_q, self.approach = None, np.zeros(self.cell.chain.dof)
+        out = []
+        for q, pt, st, t in zip(table.q_deg, table.point, table.station, table.t_s, strict=True):
+            self.move_to(q)
+            out.append(self.exact(q, pt, st, t))
+        return np.array(out)
+
     # ------------------------------------------------------------------ hidden effects
     def _add_effect(self, name: str, magnitude_mm: float) -> None:
         """Scale the effect so that what a geometric calibration cannot absorb has RMS `magnitude_mm`."""
@@ -134,9 +143,10 @@ class Twin:
         t_mid = float(np.median(base.t_s[np.array(base.station) == first]))
         unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid)
         self.hidden = unit
-        shifted = simulate_campaign(self, poses, noise_free=True)
+        shifted = self._exact_rows(base)
         self.hidden = saved
-        d = (shifted.xyz - base.xyz).ravel()
+        self._last_q, self.approach = None, np.zeros(self.cell.chain.dof)
+        d = (shifted - base.xyz).ravel()
         problem = Problem(self.cell.chain, base, self.cell.tool_points, irreducible_params(self.cell.chain)[0])
         _, jm = problem.residual_and_jacobian(problem.initial)
         resid = d - jm @ np.linalg.lstsq(jm, d, rcond=None)[0]
