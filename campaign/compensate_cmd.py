@@ -3,10 +3,11 @@
     trackcal compensate --model model.json TARGETS.csv --out OUT.csv [--krl NAME --krl-dir DIR] [--tcp X,Y,Z]
 
 TARGETS.csv: columns q1_deg..qn_deg (n = the model's joints), optional `name`, other columns ignored.
-OUT.csv: name (if given), q1_deg..qn_deg (nominal), q1_comp_deg..qn_comp_deg (compensated, 1e-4 deg as the
-controller takes them), dq1_deg..dqn_deg (correction), position_error_mm and orientation_error_deg (the
-identified model at the compensated targets against the intended pose), uncompensated_position_mm (the
-identified model at the nominal targets), iterations.
+OUT.csv: name (if given), q1_deg..qn_deg (nominal), q1_comp_deg..qn_comp_deg (compensated, 1e-6 deg),
+dq1_deg..dqn_deg (correction), position_error_mm and orientation_error_deg (the identified model at the
+compensated targets against the intended pose), uncompensated_position_mm (the identified model at the
+nominal targets), iterations, rounded_position_error_mm (the TCP error of the targets rounded to the 1e-4 deg
+the KRL program carries).
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.compensate import NEAR_SINGULAR, CompensationError, compensate
+from calib.compensate import NEAR_SINGULAR, CompensationError, compensate, pose_error
 from calib.model import load_model
 
 from .jobs import UsageError
 from .krl import KrlError, check_name, write_krl
+
+COMP_DECIMALS = 6
 
 
 def read_targets(path: str, dof: int) -> tuple[np.ndarray, list[str] | None]:
@@ -89,21 +92,23 @@ def _row_labels(path: str, names: list[str] | None, n: int) -> list[str]:
     return [f"{path}: row {i + 2}" + (f" ({names[i]})" if names and names[i] else "") for i in range(n)]
 
 
-def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report) -> None:
+def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report, rounded_mm: np.ndarray) -> None:
     n = q_deg.shape[1]
     header = (["name"] if names is not None else []) + [f"q{j + 1}_deg" for j in range(n)]
     header += [f"q{j + 1}_comp_deg" for j in range(n)] + [f"dq{j + 1}_deg" for j in range(n)]
     header += ["position_error_mm", "orientation_error_deg", "uncompensated_position_mm", "iterations"]
+    header += ["rounded_position_error_mm"]
     try:
         with open(path, "w", newline="") as fh:
             w = csv.writer(fh, lineterminator="\n")
             w.writerow(header)
             for i in range(len(q_deg)):
                 row = [names[i]] if names is not None else []
-                row += [f"{v:.4f}" for v in q_deg[i]] + [f"{v:.4f}" for v in qc_deg[i]]
+                row += [f"{v:.4f}" for v in q_deg[i]] + [f"{v:.{COMP_DECIMALS}f}" for v in qc_deg[i]]
                 row += [f"{v:.6f}" for v in qc_deg[i] - q_deg[i]]
                 row += [f"{report.position_error_mm[i]:.3e}", f"{report.orientation_error_deg[i]:.3e}",
-                        f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i]))]  # fmt: skip
+                        f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i])),
+                        f"{rounded_mm[i]:.4f}"]  # fmt: skip
                 w.writerow(row)
     except OSError as exc:
         raise UsageError(f"{path}: cannot write ({exc.strerror or exc})") from None
@@ -128,9 +133,11 @@ def cmd_compensate(args) -> int:
         qc, report = compensate(model, np.radians(q_deg), tcp, labels=_row_labels(args.targets, names, len(q_deg)))
     except CompensationError as exc:
         raise UsageError(str(exc)) from None
-    # the controller takes 1e-4 deg: what is written is what will be commanded
-    qc_deg = np.round(np.degrees(qc), 4)
-    write_output(args.out, names, q_deg, qc_deg, report)
+    qc_deg = np.degrees(qc)
+    # the KRL program carries 1e-4 deg (as the controller reports angles): what rounding costs at the TCP
+    krl_deg = np.round(qc_deg, 4)
+    rounded_mm, _ = pose_error(model, np.radians(krl_deg), np.radians(q_deg), tcp)
+    write_output(args.out, names, q_deg, qc_deg, report, rounded_mm)
     for warning in report.ignored:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:
@@ -145,13 +152,14 @@ def cmd_compensate(args) -> int:
         f"{doc['targets']} targets compensated (model extension: {doc['cause']}); TCP error of the identified "
         f"model before compensation up to {doc['max_uncompensated_position_mm']:.3f} mm, after "
         f"{doc['max_position_error_mm']:.1e} mm / {doc['max_orientation_error_deg']:.1e} deg; largest correction "
-        f"{doc['max_correction_deg']:.4f} deg, at most {doc['max_iterations']} iterations"
+        f"{doc['max_correction_deg']:.4f} deg, at most {doc['max_iterations']} iterations; rounded to 1e-4 deg "
+        f"(KRL) up to {rounded_mm.max():.4f} mm"
     )
     print(f"compensated targets written to {args.out}")
     if args.krl:
         krl_dir = args.krl_dir or str(Path(args.out).parent)
         try:
-            src, dat = write_krl(args.krl, qc_deg, krl_dir, args.speed)
+            src, dat = write_krl(args.krl, krl_deg, krl_dir, args.speed)
         except KrlError as exc:
             raise UsageError(f"--krl: {exc}") from None
         print(f"KRL program written to {src} and {dat}")

@@ -83,29 +83,26 @@ def cmd_run(args) -> int:
         raise UsageError(f"{args.plan}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
         raise UsageError(f"{args.plan}: not a JSON plan ({exc})") from None
-    try:
-        store = create_session(Path(args.session), args.cell, plan_doc, "sim" if args.sim else "hardware",
-                               args.seed if args.sim else None)  # fmt: skip
-        if args.sim and args.effect:
-            store.conn.execute("INSERT INTO meta VALUES ('effects', ?)", (json.dumps(parse_effects(args.effect)),))
-        drive(store)
-    except (StoreError, PlanError) as exc:
-        raise UsageError(str(exc)) from None
-    if not args.no_analysis:
-        analyse(store)
-    return 0
+    effects = parse_effects(args.effect) if args.sim else {}
+    mode, seed = ("sim", args.seed) if args.sim else ("hardware", None)
+    return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects),
+                     args.no_analysis)  # fmt: skip
 
 
 def cmd_resume(args) -> int:
+    return _campaign(lambda: SessionStore.open(args.session), args.no_analysis)
+
+
+def _campaign(open_store, no_analysis: bool) -> int:
     try:
-        store = SessionStore.open(args.session)
+        store = open_store()
         if store.events("campaign_done"):
-            console.print(f"{args.session}: the campaign is already complete")
+            console.print(f"{store.directory}: the campaign is already complete")
         else:
             drive(store)
     except (StoreError, PlanError) as exc:
         raise UsageError(str(exc)) from None
-    if not args.no_analysis:
+    if not no_analysis:
         analyse(store)
     return 0
 
