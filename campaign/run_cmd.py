@@ -40,7 +40,8 @@ def _live_for(store: SessionStore):
     cell = session_cell(store)
     if meta["mode"] == "sim":
         effects = json.loads(meta.get("effects", "{}") or "{}")
-        return sim_live(cell, int(meta["seed"] or 0), store, effects)[1]
+        speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
+        return sim_live(cell, int(meta["seed"] or 0), store, effects, speed)[1]
     raise UsageError(f"{store.directory}: hardware sessions need the tracker and robot drivers configured "
                      f"({meta['mode']})")  # fmt: skip
 
@@ -85,8 +86,11 @@ def cmd_run(args) -> int:
         raise UsageError(f"{args.plan}: not a JSON plan ({exc})") from None
     effects = parse_effects(args.effect) if args.sim else {}
     mode, seed = ("sim", args.seed) if args.sim else ("hardware", None)
-    return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects),
-                     args.no_analysis)  # fmt: skip
+    if args.sim_speed is not None and not args.sim_speed > 0:
+        raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
+    extra = {"sim_speed": str(args.sim_speed)} if args.sim and args.sim_speed else {}
+    return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects,
+                                            extra=extra), args.no_analysis)  # fmt: skip
 
 
 def cmd_resume(args) -> int:
@@ -140,6 +144,7 @@ def register(sub) -> None:
     p.add_argument("--hardware", help="hardware config (configs/hardware/NAME.yaml)")
     p.add_argument("--seed", type=int, default=1, help="--sim: the twin's seed")
     p.add_argument("--effect", action="append", help="--sim: hidden effect NAME:MAGNITUDE_MM")
+    p.add_argument("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)")
     p.add_argument("--session", required=True, help="session directory to create")
     p.add_argument("--no-analysis", action="store_true", help="skip identification and diagnosis at the end")
     p.set_defaults(func=cmd_run)

@@ -51,7 +51,8 @@ def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
 
 
 def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
-                   hardware: dict | None = None, effects: dict[str, float] | None = None) -> SessionStore:  # fmt: skip
+                   hardware: dict | None = None, effects: dict[str, float] | None = None,
+                   extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
     if (directory / "session.sqlite").exists():
         raise StoreError(f"{directory}: already holds a session (use `trackcal resume {directory}`)")
     directory.mkdir(parents=True, exist_ok=True)
@@ -59,7 +60,7 @@ def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, se
     (directory / "plan.json").write_text(json.dumps(plan_doc, indent=2) + "\n")
     meta = {"cell": str(cell_copy.relative_to(directory)), "cell_ref": cell_ref, "mode": mode,
             "seed": "" if seed is None else str(seed), "hardware": json.dumps(hardware or {}),
-            "effects": json.dumps(effects or {})}  # fmt: skip
+            "effects": json.dumps(effects or {}), **(extra or {})}  # fmt: skip
     return SessionStore.create(directory, meta)
 
 

@@ -48,10 +48,11 @@ def count_events(db):
 @pytest.mark.parametrize("fraction", [0.1, 0.45, 0.9])
 def test_kill_9_then_resume_loses_and_duplicates_nothing(plan, reference, tmp_path, fraction):
     """kill -9 once a given share of the measurements is stored (polled from outside, so the process dies at
-    whatever instruction it is executing then), then `trackcal resume`."""
+    whatever instruction it is executing then), then `trackcal resume`. The simulated cell runs at 2000x real
+    time so that the campaign (about an hour of simulated time) lasts a few seconds and is caught midway."""
     d = tmp_path / "session"
     proc = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "4",
-                             "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
+                             "--session", str(d), "--no-analysis", "--sim-speed", "2000"], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)  # fmt: skip
     target = int(fraction * len(reference))
     deadline = time.monotonic() + 60
