@@ -126,6 +126,12 @@ def load_model(path: str | Path) -> Model:
         raise ModelError(f"{path}: no such file") from None
     except (OSError, ValueError) as exc:
         raise ModelError(f"{path}: not a JSON model ({exc})") from None
+    return model_from_doc(doc, str(path))
+
+
+def model_from_doc(doc: dict, source: str = "model") -> Model:
+    """A Model from a model.json document; errors name `source`."""
+    path = source
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ModelError(f"{path}: not a trackcal model (expected format {FORMAT!r})")
     try:

@@ -275,9 +275,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="out/demo")
     p.set_defaults(func=cmd_demo)
+    from .compensate_cmd import register_compensate
+    from .report import register_report
     from .run_cmd import register as register_campaign
 
     register_campaign(sub)
+    register_compensate(sub)
+    register_report(sub)
     return ap
 
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import html
 import json
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import numpy as np
 
 from calib.cell import Cell, load_cell
 from calib.identify import identify, residual_stats
-from calib.model import Model, load_model
+from calib.model import load_model, model_from_doc
 from calib.noise import TrackerNoise
 from calib.table import MeasurementTable, read_table
 
@@ -63,14 +62,6 @@ class Residuals:
     after: np.ndarray  # (N, 3) mm: measured - predicted by the model
     stats_before: dict[str, float]
     stats_after: dict[str, float]
-
-
-def model_from_doc(doc: dict) -> Model:
-    """A Model from a model.json document (through calib.model.load_model, the one parser of the format)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "model.json"
-        path.write_text(json.dumps(doc))
-        return load_model(path)
 
 
 def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> Residuals:
@@ -439,7 +430,27 @@ def _read_json(path: str | None, what: str) -> dict | None:
     return doc
 
 
+def _session_defaults(args) -> None:
+    """`trackcal report SESSION`: the session's table, model, plan, verdict, cell and a report/ folder."""
+    if args.session is None:
+        if not (args.table and args.model and args.out):
+            raise UsageError("give a SESSION directory, or --table, --model and --out")
+        return
+    d = Path(args.session)
+    if not (d / "session.sqlite").exists():
+        raise UsageError(f"{d}: not a trackcal session")
+    if not (d / "model.json").exists():
+        raise UsageError(f"{d}: no model.json yet (the campaign has not been analysed: trackcal resume {d})")
+    args.table = args.table or str(d / "table.csv")
+    args.model = args.model or str(d / "model.json")
+    args.plan = args.plan or str(d / "plan.json")
+    args.verdict = args.verdict or (str(d / "verdict.json") if (d / "verdict.json").exists() else None)
+    args.cell = args.cell or str(d / "config" / "cell.yaml")
+    args.out = args.out or str(d / "report")
+
+
 def cmd_report(args) -> int:
+    _session_defaults(args)
     model_path = Path(args.model)
     load_model(model_path)  # validates the model file with the model's own messages
     model_doc = json.loads(model_path.read_text())
@@ -463,12 +474,13 @@ def cmd_report(args) -> int:
 
 def register_report(subparsers) -> None:
     p = subparsers.add_parser("report", help="HTML report of a campaign: plan, residuals, parameters, diagnosis")
-    p.add_argument("--table", required=True, help="measurement table (CSV, see DESIGN.md)")
-    p.add_argument("--model", required=True, help="model.json from identify or diagnose")
+    p.add_argument("session", nargs="?", help="session directory (its table, model, plan, verdict)")
+    p.add_argument("--table", help="measurement table (CSV, see DESIGN.md)")
+    p.add_argument("--model", help="model.json from identify or diagnose")
     p.add_argument("--plan", help="plan.json from trackcal plan")
     p.add_argument("--verdict", help="verdict.json from trackcal diagnose")
     p.add_argument("--plots", help="directory of PNG plots to include (e.g. trackcal diagnose --plots)")
     p.add_argument("--cell", help="cell (default: the one the model names)")
     p.add_argument("--title", help="report title")
-    p.add_argument("--out", required=True, help="directory for report.html and its PNG plots")
+    p.add_argument("--out", help="directory for report.html and its PNG plots (default: SESSION/report)")
     p.set_defaults(func=cmd_report)

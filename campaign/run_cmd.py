@@ -18,8 +18,9 @@ from .diagnose_report import verdict_doc
 from .engine import CampaignStopped
 from .jobs import UsageError, choose_params, parse_effects, run_identify
 from .recording import ReplayDivergence
+from .report import write_report
 from .runner import replay_session, run_campaign
-from .session import create_session, session_cell, write_export
+from .session import create_session, session_cell, session_plan, write_export
 from .steps import PlanError
 from .store import SessionStore, StoreError
 
@@ -66,13 +67,17 @@ def analyse(store: SessionStore) -> None:
         outcome = run_identify(cell, table, params, "tracker")
         (d / "model.json").write_text(json.dumps(outcome.doc, indent=2) + "\n")
         dg = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise())
-        (d / "verdict.json").write_text(json.dumps(verdict_doc(cell, dg), indent=2) + "\n")
+        verdict = verdict_doc(cell, dg)
+        (d / "verdict.json").write_text(json.dumps(verdict, indent=2) + "\n")
     except IdentificationError as exc:
         console.print(f"[yellow]identification not possible yet[/]: {exc}")
         return
+    report = write_report(d / "report", cell, table, outcome.doc, session_plan(store), verdict,
+                          f"trackcal campaign {d.name}: cell {cell.name}", diagnosis=dg)  # fmt: skip
     after = outcome.doc["residuals"]["after"]
     console.print(f"{n} measurements -> {d / 'table.csv'}; model {d / 'model.json'} (coordinate RMS "
-                  f"{after['coord_rms_mm'] * 1000:.1f} um); diagnosis: {dg.cause} ({d / 'verdict.json'})")  # fmt: skip
+                  f"{after['coord_rms_mm'] * 1000:.1f} um); diagnosis: {dg.cause} ({d / 'verdict.json'}); "
+                  f"report {report}")  # fmt: skip
 
 
 def cmd_run(args) -> int:

@@ -1,0 +1,257 @@
+"""Off-line error compensation (paper section 3, step 5): joint targets corrected for the identified model.
+
+For every nominal joint target q_nom the nominal model (nominal chain, all deviations zero) says where the
+programmer meant the tool to be: the TCP and the orientation of the last joint frame. The identified model
+(the deviations of model.json, plus a joint-type extension q_true = q_cmd + Phi(q_cmd) theta when it has
+one) puts the tool elsewhere at q_nom. `compensate` finds the commanded angles q_c with which the
+identified model reaches the intended pose:
+
+    g_id(q_c + Phi(q_c) theta, x_k) = g_nom(q_nom, x_k)   for three points x_k rigidly attached to the tool
+
+x_0 the TCP, x_1 and x_2 the TCP offset by `lever_mm` along the x and y axes of the last joint frame: three
+non-collinear points fix position and orientation (9 equations). Gauss-Newton on these points with the
+analytic joint Jacobians of `calib.kinematics` (times dq_true/dq_cmd for an extension) converges
+quadratically; the corrections are small (deviations of tenths of a mm), so two to four iterations reach
+rounding level.
+
+Extensions with a static compensation: joint_compliance (the gravity torque at the commanded pose),
+encoder_scale, cyclic_error. backlash depends on the approach direction and thermal_drift on time: no
+static correction exists for them; they are ignored and reported in `CompensationReport.ignored`.
+station_shift is a tracker matter and leaves the robot model purely geometric.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .extensions import build_extension
+from .kinematics import Kinematics
+from .model import Model
+from .table import MeasurementTable
+
+STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error")
+NO_STATIC_COMPENSATION = {
+    "backlash": "backlash depends on the direction each joint approaches the target from; it has no static "
+    "compensation and is ignored (approach every target from the same side to make it repeatable)",
+    "thermal_drift": "thermal drift depends on the time since the campaign start; it has no static compensation "
+    "and is ignored (compensate a warm robot, or re-measure)",
+}
+GEOMETRIC_ONLY = {
+    "station_shift": "station_shift concerns a tracker station, not the robot: the compensation is geometric",
+}
+# below this conditioning a pose is close to a singularity: small Cartesian errors need large joint corrections
+# (on the KR-270 ~1e-3 is where corrections of Table 8 size deviations exceed one degree)
+NEAR_SINGULAR = 2e-3
+FD_STEP_RAD = 1e-6  # central differences of the extension's joint offsets (smooth in q)
+
+
+class CompensationError(ValueError):
+    """Targets that cannot be compensated; the message names them."""
+
+
+@dataclass
+class CompensationReport:
+    position_error_mm: np.ndarray  # (N,) TCP distance between the identified model at q_c and the intended pose
+    orientation_error_deg: np.ndarray  # (N,) angle between the identified and the intended last-frame orientation
+    iterations: np.ndarray  # (N,) Gauss-Newton iterations to convergence
+    correction_rad: np.ndarray  # (N, n) q_c - q_nom
+    uncompensated_position_mm: np.ndarray  # (N,) TCP error of the identified model at q_nom (what is corrected)
+    uncompensated_orientation_deg: np.ndarray  # (N,)
+    conditioning: np.ndarray  # (N,) smallest / largest singular value of the 9 x n tool-point Jacobian at q_c
+    cause: str  # the model's extension, "none" if purely geometric
+    ignored: list[str] = field(default_factory=list)  # effects without a static compensation (warnings)
+    notes: list[str] = field(default_factory=list)
+    tcp_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    lever_mm: float = 100.0
+
+    def to_doc(self) -> dict:
+        """Summary in boundary units (mm, deg)."""
+        return {
+            "cause": self.cause,
+            "ignored": list(self.ignored),
+            "notes": list(self.notes),
+            "tcp_mm": self.tcp_mm.tolist(),
+            "targets": len(self.iterations),
+            "max_position_error_mm": float(self.position_error_mm.max(initial=0.0)),
+            "max_orientation_error_deg": float(self.orientation_error_deg.max(initial=0.0)),
+            "max_iterations": int(self.iterations.max(initial=0)),
+            "max_correction_deg": float(np.degrees(np.abs(self.correction_rad)).max(initial=0.0)),
+            "max_uncompensated_position_mm": float(self.uncompensated_position_mm.max(initial=0.0)),
+            "near_singular_targets": int(np.sum(self.conditioning < NEAR_SINGULAR)),
+        }
+
+
+def rotation_angle(ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
+    """(N,) angle (rad) of ra^T rb, accurate near zero (atan2 of the skew and symmetric parts)."""
+    r = np.einsum("nji,njk->nik", ra, rb)
+    s = 0.5 * np.linalg.norm(np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]],
+                                      axis=1), axis=1)  # fmt: skip
+    c = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
+    return np.arctan2(s, c)
+
+
+def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarray] | None, list[str], list[str]]:
+    """(offsets(q_cmd) -> (N, n) rad or None, ignored warnings, notes) for the model's extension.
+
+    The offsets are computed by `calib.extensions.build_extension`, the same features identification and
+    `predict` use, so the compensated targets agree with the model exactly."""
+    cause = model.cause
+    if cause in ("none", "unexplained"):
+        return None, [], []
+    if cause in NO_STATIC_COMPENSATION:
+        return None, [NO_STATIC_COMPENSATION[cause]], []
+    if cause in GEOMETRIC_ONLY:
+        return None, [], [GEOMETRIC_ONLY[cause]]
+    if cause not in STATIC_JOINT_CAUSES:
+        raise CompensationError(f"model extension {cause!r} is unknown; cannot compensate it")
+    names, theta = model.extension_values()
+    chain = model.chain
+
+    def offsets(q: np.ndarray) -> np.ndarray:
+        n_rows = len(q)
+        rows = MeasurementTable(
+            seq=np.arange(n_rows), t_s=np.zeros(n_rows), pose=["c"] * n_rows, station=["-"] * n_rows,
+            point=["-"] * n_rows, q_deg=np.degrees(q), xyz=None, source="compensation targets",
+        )  # fmt: skip
+        return build_extension(cause, chain, rows, names=names).joint_offsets(theta)
+
+    return offsets, [], []
+
+
+def _true_joints(offsets, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q_true (N, n) and dq_true/dq_cmd (N, n, n)."""
+    n_rows, n = q.shape
+    eye = np.broadcast_to(np.eye(n), (n_rows, n, n))
+    if offsets is None:
+        return q, eye
+    # one batched call: the rows, then each joint stepped up and down
+    steps = FD_STEP_RAD * np.eye(n)
+    stacked = np.concatenate([q, *(q + s for s in steps), *(q - s for s in steps)])
+    off = offsets(stacked).reshape(2 * n + 1, n_rows, n)
+    deriv = (off[1 : n + 1] - off[n + 1 :]) / (2.0 * FD_STEP_RAD)  # (n_step, N, n_out)
+    return q + off[0], eye + np.transpose(deriv, (1, 2, 0))
+
+
+def _limit_violations(q: np.ndarray, limits: np.ndarray, labels: list[str], joint_names: list[str]) -> list[str]:
+    out = []
+    for i, j in zip(*np.nonzero((q < limits[:, 0]) | (q > limits[:, 1])), strict=True):
+        lo, hi = np.degrees(limits[j])
+        out.append(f"{labels[i]}: {joint_names[j]} = {np.degrees(q[i, j]):.4f} deg not in [{lo:g}, {hi:g}]")
+    return out
+
+
+def _summarise(problems: list[str], limit: int = 3) -> str:
+    more = f" (and {len(problems) - limit} more)" if len(problems) > limit else ""
+    return "; ".join(problems[:limit]) + more
+
+
+def pose_error(
+    model: Model, q_cmd: np.ndarray, q_nominal: np.ndarray, tcp_mm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) TCP distance (mm) and (N,) orientation angle (deg) between the identified model commanded to q_cmd
+    (extension honoured) and the nominal model at q_nominal: e.g. the cost of rounding compensated targets."""
+    q_cmd, q_nominal = np.atleast_2d(q_cmd), np.atleast_2d(q_nominal)
+    offsets, _, _ = joint_error_function(model)
+    kin = Kinematics(model.chain, model.params)
+    qt, _ = _true_joints(offsets, q_cmd)
+    r_id, o_id = kin.end_frames(qt, model.dev)
+    r_nom, o_nom = kin.end_frames(q_nominal)
+    tcp = np.asarray(tcp_mm, dtype=float)
+    d = (o_id + r_id @ tcp) - (o_nom + r_nom @ tcp)
+    return np.linalg.norm(d, axis=1), np.degrees(rotation_angle(r_nom, r_id))
+
+
+def compensate(
+    model: Model,
+    q_nominal_rad: np.ndarray,
+    tcp_mm: np.ndarray,
+    lever_mm: float = 100.0,
+    tol_mm: float = 1e-10,
+    max_iter: int = 20,
+    labels: list[str] | None = None,
+) -> tuple[np.ndarray, CompensationReport]:
+    """Joint targets (N, n) rad with which `model` reaches the pose the nominal model reaches at q_nominal.
+
+    Converged when each of the three tool points is within `tol_mm` of its intended position. Raises
+    CompensationError for targets outside the joint limits, targets whose compensated angles leave the
+    limits, and targets that do not converge (singular poses, chains that cannot reach an arbitrary pose).
+    `labels` name the targets in messages (default "target 1", "target 2", ...).
+    """
+    chain = model.chain
+    n = chain.dof
+    q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
+    if q0.ndim != 2 or q0.shape[1] != n:
+        raise CompensationError(f"expected joint targets with {n} angles per row, got shape {q0.shape}")
+    if not np.all(np.isfinite(q0)):
+        raise CompensationError("joint targets must be finite numbers")
+    tcp = np.asarray(tcp_mm, dtype=float)
+    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)):
+        raise CompensationError(f"the TCP must be 3 finite coordinates (mm), got {tcp_mm!r}")
+    if not lever_mm > 0:
+        raise CompensationError("lever_mm must be positive")
+    n_rows = len(q0)
+    labels = labels or [f"target {i + 1}" for i in range(n_rows)]
+    limits = chain.limits_array()
+    joint_names = [j.name for j in chain.joints]
+    bad = _limit_violations(q0, limits, labels, joint_names)
+    if bad:
+        raise CompensationError(f"nominal target(s) outside the joint limits: {_summarise(bad)}")
+    offsets, ignored, notes = joint_error_function(model)
+
+    tools = tcp + np.array([[0.0, 0.0, 0.0], [lever_mm, 0.0, 0.0], [0.0, lever_mm, 0.0]])  # last joint frame
+    tool_rows = np.tile(tools, (n_rows, 1))
+    kin = Kinematics(chain, model.params)
+    target = kin.points(np.repeat(q0, 3, axis=0), tool_rows).reshape(n_rows, 3, 3)
+
+    q = q0.copy()
+    iterations = np.zeros(n_rows, dtype=int)
+    done = np.zeros(n_rows, dtype=bool)
+    for it in range(max_iter + 1):
+        active = np.flatnonzero(~done)
+        qt, dqt = _true_joints(offsets, q[active])
+        jac = kin.jacobian(np.repeat(qt, 3, axis=0), np.tile(tools, (len(active), 1)), model.dev)
+        err = target[active] - jac.p.reshape(len(active), 3, 3)
+        converged = np.linalg.norm(err, axis=2).max(axis=1) <= tol_mm
+        done[active[converged]] = True
+        iterations[active[converged]] = it
+        if converged.all() or it == max_iter:
+            break
+        keep = ~converged
+        jq = np.einsum("nij,njk->nik", jac.d_q.reshape(len(active), 9, n), dqt)[keep]
+        step = np.einsum("nji,ni->nj", np.linalg.pinv(jq, rcond=1e-12), err[keep].reshape(-1, 9))
+        q[active[keep]] += step
+
+    if not done.all():
+        failed = [labels[i] for i in np.flatnonzero(~done)]
+        raise CompensationError(
+            f"compensation did not converge in {max_iter} iterations for {_summarise(failed)}: a singular pose or a "
+            "chain that cannot reach the intended pose (move the target away from the singularity)"
+        )
+    bad = _limit_violations(q, limits, labels, joint_names)
+    if bad:
+        raise CompensationError(f"compensated target(s) leave the joint limits: {_summarise(bad)}")
+
+    pos_err, ori_err = pose_error(model, q, q0, tcp)
+    pos_err0, ori_err0 = pose_error(model, q0, q0, tcp)
+    qt, dqt = _true_joints(offsets, q)
+    d_q = kin.jacobian(np.repeat(qt, 3, axis=0), tool_rows, model.dev).d_q.reshape(n_rows, 9, n)
+    jq = np.einsum("nij,njk->nik", d_q, dqt)
+    sv = np.linalg.svd(jq, compute_uv=False)
+    report = CompensationReport(
+        position_error_mm=pos_err,
+        orientation_error_deg=ori_err,
+        iterations=iterations,
+        correction_rad=q - q0,
+        uncompensated_position_mm=pos_err0,
+        uncompensated_orientation_deg=ori_err0,
+        conditioning=sv[:, -1] / sv[:, 0],
+        cause=model.cause,
+        ignored=ignored,
+        notes=notes,
+        tcp_mm=tcp,
+        lever_mm=float(lever_mm),
+    )
+    return q, report
