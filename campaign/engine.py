@@ -20,13 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers.errors import DeviceError, DeviceFault
+from drivers.errors import DeviceError, TargetNotVisible
 
 from .steps import Step
 from .store import SessionStore
-
-# emScon faults that mean "the reflector cannot be measured from here" (see drivers/emscon_codec.py)
-NOT_VISIBLE_WORDS = ("reflector", "beam")
 
 
 class CampaignStopped(RuntimeError):
@@ -196,12 +193,10 @@ class Engine:
             if expected is not None:
                 self.dev.tracker.find_reflector(*expected, self.settings.search_radius_mm)
             m = self.dev.tracker.measure()
-        except DeviceFault as exc:
-            if any(w in str(exc).lower() for w in NOT_VISIBLE_WORDS):
-                self._append("warning", {"message": f"{step.point} not measurable from {step.station} at {step.pose}: "
-                                                    f"{exc}; skipped here"})  # fmt: skip
-                return
-            raise
+        except TargetNotVisible as exc:
+            self._append("warning", {"message": f"{step.point} not measurable from {step.station} at {step.pose}: "
+                                                f"{exc}; skipped here"})  # fmt: skip
+            return
         env = env or m.environment
         self.tick()
         data = {

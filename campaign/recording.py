@@ -22,7 +22,7 @@ TYPES = {cls.__name__: cls for cls in (Environment, TrackerMeasurement, TrackerS
 ERRORS = {
     cls.__name__: cls
     for cls in (derr.DeviceError, derr.DeviceTimeout, derr.ConnectionLost, derr.ProtocolError, derr.DeviceFault,
-                derr.MotionRefused)  # fmt: skip
+                derr.MotionRefused, derr.TargetNotVisible)  # fmt: skip
 }
 
 

@@ -5,7 +5,8 @@ DeviceError
 ├── ConnectionLost     the peer closed or reset the connection / could not be reached
 ├── ProtocolError      bytes that do not parse, or an answer that does not fit the request
 └── DeviceFault        the device itself reports a fault, with its own code
-    └── MotionRefused  a motion target rejected before anything was sent (limits, cell box)
+    ├── MotionRefused  a motion target rejected before anything was sent (limits, cell box)
+    └── TargetNotVisible  the tracker cannot see the reflector from where it stands (no lock, beam broken)
 """
 
 from __future__ import annotations
@@ -41,3 +42,7 @@ class DeviceFault(DeviceError):
 
 class MotionRefused(DeviceFault):
     """A motion target outside the joint limits or the cell box: refused before anything was sent."""
+
+
+class TargetNotVisible(DeviceFault):
+    """The tracker cannot measure the reflector from its station: not found, not locked, or beam broken."""

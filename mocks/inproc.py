@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.errors import DeviceFault, MotionRefused
+from drivers.errors import DeviceFault, MotionRefused, TargetNotVisible
 from drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
 
 from .world import NotVisible, World
@@ -40,11 +40,12 @@ class InprocTracker:
             raise DeviceFault("tracker not initialised", code="not_initialized", device="tracker (in-process)")
         if self.faults:
             fault = self.faults.pop(0)
-            raise DeviceFault(f"injected fault: {fault}", code=fault, device="tracker (in-process)")
+            cls = TargetNotVisible if "beam" in fault else DeviceFault
+            raise cls(f"injected fault: {fault}", code=fault, device="tracker (in-process)")
         try:
             x, y, z, sx, sy, sz = self.world.measure()
         except NotVisible as exc:  # the real tracker's answer when it finds no reflector
-            raise DeviceFault(f"no reflector: {exc}", code="no_reflector", device="tracker (in-process)") from exc
+            raise TargetNotVisible(f"no reflector: {exc}", code="no_reflector", device="tracker (in-process)") from exc
         return TrackerMeasurement(x, y, z, sx, sy, sz, ENV)
 
     def status(self) -> TrackerStatus:
