@@ -1,0 +1,294 @@
+"""drivers.kuka.KukaKrc2 against mocks.krc2.MockKrc2 over real loopback sockets, on a virtual clock."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
+from drivers.interfaces import Robot
+from drivers.kuka import KukaKrc2
+from drivers.kuka_eki_codec import ERR_DRIVES_OFF, ERR_ESTOP, ERR_RSI_STOPPED, ERR_SOFT_LIMIT
+from mocks.clock import VirtualClock
+from mocks.krc2 import MockKrc2
+
+HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # kuka_experimental KR_C2/ros_rsi.src HOME
+TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
+KR270_LIMITS = ((-180, 180), (-145, 0), (-110, 155), (-180, 180), (-125, 125), (-180, 180))  # paper Table 4
+
+
+class Cell:
+    def __init__(self, client: KukaKrc2, mock: MockKrc2, clock: VirtualClock, seen: list) -> None:
+        self.client, self.mock, self.clock, self.seen = client, mock, clock, seen
+
+
+def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, **mock_kw) -> Cell:
+    client = client_cls(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol=protocol,
+        joint_limits_deg=KR270_LIMITS,
+        cell_box_check=cell_box_check,
+        connect_timeout_s=5.0,
+        move_timeout_s=10.0,
+    )
+    client.listen()
+    clock, seen = VirtualClock(), []
+    mock = MockKrc2(
+        client.eki_address,
+        client.rsi_address,
+        clock,
+        HOME,
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        on_joints=seen.append,
+        seed=seed,
+        rsi_protocol=protocol,
+        **mock_kw,
+    )
+    mock.start()
+    client.connect()
+    return Cell(client, mock, clock, seen)
+
+
+@pytest.fixture
+def cell():
+    c = open_cell()
+    yield c
+    c.client.close()
+    c.mock.stop()
+    assert c.mock.crashed is None
+
+
+def wait_for(pred, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return False
+
+
+def test_move_settle_read(cell):
+    assert isinstance(cell.client, Robot)
+    start = cell.client.read_joints()
+    assert start == HOME
+    t0 = cell.clock.now()
+    cell.client.move_ptp(TARGET, 50.0)
+    # synchronous PTP at 50 % of 100 deg/s over the largest axis move (15 deg): 1.875 * 15 / 50 = 0.5625 s,
+    # plus the 0.3 s dwell; the virtual clock moved at least that far (12 ms cycles)
+    assert cell.clock.now() - t0 >= 0.5625 + 0.3 - 0.024
+    q = cell.client.wait_settled(tolerance_deg=0.0005, window_s=0.2, timeout_s=5.0)
+    assert all(abs(a - b) <= 0.001 for a, b in zip(q, TARGET, strict=True))
+    assert cell.client.read_joints() == pytest.approx(TARGET, abs=0.001)
+    assert all(round(v, 4) == v for v in cell.client.read_joints())  # 0.0001 deg resolution
+    assert cell.mock.late_packets == 0
+    assert [c.speed_pct for c in cell.mock.commands] == [50]
+    assert cell.seen[-1] == pytest.approx(TARGET, abs=0.001)  # the twin callback saw the motion
+    assert len(cell.seen) > 10
+
+
+def test_wait_settled_waits_for_the_residual_oscillation(cell):
+    cell.client.move_ptp(TARGET, 100.0)
+    cell.mock.reset_faults()
+    # a second move, then settle with a tight tolerance: the mock's residual (<= 0.02 deg, tau = settle_s/5)
+    # must decay below 0.0002 deg before the window can complete
+    cell.client.move_ptp(HOME, 100.0)
+    q = cell.client.wait_settled(tolerance_deg=0.0002, window_s=0.1, timeout_s=5.0)
+    assert q == pytest.approx(HOME, abs=0.0005)
+
+
+def test_wait_settled_times_out_in_controller_time(cell):
+    with pytest.raises(DeviceTimeout, match="not settled"):
+        cell.client.wait_settled(tolerance_deg=1.0, window_s=10.0, timeout_s=1.0)
+
+
+def test_limits_and_cell_box_refuse_before_sending():
+    c = open_cell(cell_box_check=lambda q: "tool below the table" if q[1] > -20 else None)
+    try:
+        with pytest.raises(MotionRefused, match="A2=5.0") as exc:
+            c.client.move_ptp((0, 5.0, 90, 0, 90, 0), 10)
+        assert exc.value.code == "joint_limits"
+        with pytest.raises(MotionRefused, match="below the table") as exc:
+            c.client.move_ptp((0, -10.0, 90, 0, 90, 0), 10)
+        assert exc.value.code == "cell_box"
+        with pytest.raises(MotionRefused):
+            c.client.move_ptp(HOME, 0.0)
+        with pytest.raises(MotionRefused):
+            c.client.move_ptp(HOME[:5], 10)
+        time.sleep(0.05)
+        assert c.mock.commands == []
+    finally:
+        c.client.close()
+        c.mock.stop()
+
+
+@pytest.mark.parametrize("inject, code", [("estop", ERR_ESTOP), ("drives_off", ERR_DRIVES_OFF)])
+def test_controller_faults_become_device_faults(cell, inject, code):
+    getattr(cell.mock, inject)()
+    with pytest.raises(DeviceFault) as exc:
+        cell.client.move_ptp(TARGET, 50)
+    assert exc.value.code == code
+    cell.mock.reset_faults()
+    cell.client.move_ptp(TARGET, 50)  # acknowledged again after the reset
+
+
+def test_estop_during_motion_halts_and_reports(cell):
+    # slow move (1 % of 100 deg/s: 28 s of virtual time); stop it while it runs
+    import threading
+
+    result = {}
+
+    def move():
+        try:
+            cell.client.move_ptp(TARGET, 1)
+        except DeviceFault as exc:
+            result["code"] = exc.code
+
+    t = threading.Thread(target=move)
+    t.start()
+    assert wait_for(lambda: cell.mock.commands and cell.mock.joints_deg != HOME)
+    cell.mock.estop()
+    t.join(5.0)
+    assert result == {"code": ERR_ESTOP}
+    halted = cell.mock.joints_deg
+    assert halted != TARGET
+    assert cell.client.wait_settled(0.0005, 0.1, 2.0) == pytest.approx(halted, abs=0.0001)
+
+
+def test_soft_limit_of_the_controller():
+    c = open_cell(soft_limits_deg=((-5, 5),) + ((-360, 360),) * 5)
+    try:
+        with pytest.raises(DeviceFault) as exc:
+            c.client.move_ptp(TARGET, 50)
+        assert exc.value.code == ERR_SOFT_LIMIT
+    finally:
+        c.client.close()
+        c.mock.stop()
+
+
+def test_dropped_eki_connection(cell):
+    cell.mock.drop_connection("eki")
+    with pytest.raises(ConnectionLost):
+        cell.client.move_ptp(TARGET, 50)
+
+
+def test_dropped_rsi_connection(cell):
+    cell.mock.drop_connection("rsi")
+    assert wait_for(lambda: cell.client._rsi_error is not None)
+    with pytest.raises(ConnectionLost):
+        cell.client.read_joints()
+    with pytest.raises(ConnectionLost):
+        cell.client.move_ptp(TARGET, 50)  # never move without the monitor
+
+
+def test_malformed_rsi_frame_is_a_protocol_error(cell):
+    cell.mock.send_garbage("rsi")
+    assert wait_for(lambda: cell.client._rsi_error is not None)
+    with pytest.raises(ProtocolError):
+        cell.client.read_joints()
+
+
+def test_malformed_eki_answer_is_a_protocol_error(cell):
+    cell.mock.send_garbage("eki", b"<RobotState><Pos A1='x'/></RobotState>")
+    with pytest.raises(ProtocolError):
+        cell.client.move_ptp(TARGET, 50)
+
+
+class SlowClient(KukaKrc2):
+    """Answers RSI frames far too late, like a PC without real-time priority."""
+
+    def _answer_rsi(self, frame):
+        time.sleep(0.03)
+        super()._answer_rsi(frame)
+
+
+def test_late_rsi_answers_stop_the_robot():
+    c = open_cell(client_cls=SlowClient, answer_budget_s=0.01)
+    try:
+        with pytest.raises((DeviceFault, ConnectionLost)) as exc:
+            c.client.move_ptp(TARGET, 20)
+        if isinstance(exc.value, DeviceFault):
+            assert exc.value.code == ERR_RSI_STOPPED
+        assert c.mock.rsi_stopped
+        # the controller stops after MORE than eERXmaxLatePackages = 10 late answers in a row
+        assert c.mock.consecutive_late == 11
+        assert any("eERXmaxLatePackages=10" in e for e in c.mock.errors)
+        assert wait_for(lambda: c.client._rsi_error is not None)
+        with pytest.raises(ConnectionLost):
+            c.client.read_joints()
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
+
+
+def test_udp_rsi():
+    c = open_cell(protocol="udp")
+    try:
+        c.client.move_ptp(TARGET, 80)
+        assert c.client.wait_settled(0.0005, 0.1, 5.0) == pytest.approx(TARGET, abs=0.001)
+        assert c.mock.late_packets == 0
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
+
+
+def test_connect_timeout_names_what_it_waited_for():
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, connect_timeout_s=0.2)
+    try:
+        host, port = client.eki_address
+        with pytest.raises(DeviceTimeout, match=f"EKI.*{host}:{port}"):
+            client.connect()
+    finally:
+        client.close()
+
+
+def test_mock_survives_a_garbage_peer():
+    with socket.socket() as eki_srv, socket.socket() as rsi_srv:
+        for s in (eki_srv, rsi_srv):
+            s.bind(("127.0.0.1", 0))
+            s.listen(1)
+        mock = MockKrc2(
+            eki_srv.getsockname(), rsi_srv.getsockname(), VirtualClock(), HOME, answer_budget_s=0.01
+        )
+        mock.start()
+        eki, _ = eki_srv.accept()
+        rsi, _ = rsi_srv.accept()
+        with eki, rsi:
+            eki.sendall(b'<RobotCommand ID="3" Speed="500"><Pos/></RobotCommand>')  # framed but invalid
+            assert wait_for(lambda: mock.eki_sent)
+            assert b'ID="3"' in mock.eki_sent[0] and b'Error="5"' in mock.eki_sent[0]
+            rsi.sendall(b"\x00\xffnot xml at all" * 50)
+            eki.sendall(b"<<<>>>" * 100)
+            assert wait_for(lambda: not mock._thread.is_alive())
+    assert mock.crashed is None
+    assert any("EKI: unreadable" in e for e in mock.errors)
+
+
+def test_mock_connect_retries_are_bounded():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        addr = s.getsockname()  # bound but not listening: connections are refused
+        mock = MockKrc2(addr, addr, VirtualClock(), HOME, connect_timeout_s=0.2).start()
+        assert mock.join(3.0)
+    assert any("could not connect" in e for e in mock.errors)
+
+
+def test_same_seed_same_bytes():
+    runs = []
+    for _ in range(2):
+        c = open_cell(seed=7)
+        try:
+            c.client.move_ptp(TARGET, 30)
+            c.client.move_ptp(HOME, 70)
+            runs.append(list(c.mock.eki_sent))
+        finally:
+            c.client.close()
+            c.mock.stop()
+    assert runs[0] == runs[1] and len(runs[0]) == 2
