@@ -24,10 +24,14 @@ class PlcOperator:
 
     Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console."""
 
-    def __init__(self, cellio, console: Console, poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep):
+    def __init__(self, cellio, console: Console, poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep,
+                 display=None):  # fmt: skip
         self.cellio, self.console, self.poll_s, self.remind_s, self.sleep = cellio, console, poll_s, remind_s, sleep
+        self.display = display  # another place the request is shown (the simulated operator reads it there)
 
     def ask(self, kind: str, target: str, text: str) -> str:
+        if self.display is not None:
+            self.display(kind, target, text)
         self.cellio.set_request_lamp(True)
         self.console.print(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
         waited = 0.0

@@ -13,7 +13,7 @@ from calib.noise import TrackerNoise
 from calib.table import read_table
 
 from .console import console
-from .devices import sim_live
+from .devices import SimCell
 from .diagnose_report import verdict_doc
 from .engine import CampaignStopped
 from .jobs import UsageError, choose_params, parse_effects, run_identify
@@ -42,7 +42,7 @@ def _live_for(store: SessionStore):
     if meta["mode"] == "sim":
         effects = json.loads(meta.get("effects", "{}") or "{}")
         speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
-        return sim_live(cell, int(meta["seed"] or 0), store, effects, speed)[1]
+        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed).live
     raise UsageError(f"{store.directory}: hardware sessions need the tracker and robot drivers configured "
                      f"({meta['mode']})")  # fmt: skip
 

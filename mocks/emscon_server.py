@@ -113,7 +113,7 @@ class EmsconMockServer:
         port: int = 0,
         *,
         environment: Environment = STANDARD_ENVIRONMENT,
-        reflector_present: bool = True,
+        reflector_present: bool | Callable[[], bool] = True,
         motion_time_s: float = 2.0,
         serial_number: int = 0,
         dribble: bool = False,
@@ -373,10 +373,10 @@ class EmsconMockServer:
             scale = _MM_PER_UNIT[self.units.length]
             with self._state_lock:
                 self.expected_mm = (request.x * scale, request.y * scale, request.z * scale)
-                self.locked = self.reflector_present and request.use_adm
+                self.locked = self._present() and request.use_adm
             return answer(ResultStatus.ALL_OK)
         if isinstance(request, FindReflector):
-            if not self.reflector_present:
+            if not self._present():
                 self.clock.sleep(self.search_timeout_ms / 1000.0)
                 return answer(ResultStatus.MEASUREMENT_STATUS_NOT_READY)
             self.clock.sleep(self.motion_time_s)
@@ -386,11 +386,15 @@ class EmsconMockServer:
         if isinstance(request, GoBirdBath):
             self.clock.sleep(self.motion_time_s)
             with self._state_lock:
-                self.expected_mm, self.locked = None, self.reflector_present
+                self.expected_mm, self.locked = None, self._present()
             return answer(ResultStatus.ALL_OK)
         if isinstance(request, StartMeasurement):
             return self._measure(conn, out)
         return answer(ResultStatus.NOT_IMPLEMENTED)
+
+    def _present(self) -> bool:
+        """A reflector the tracker can see: a fixed flag, or asked of the simulated world each time."""
+        return bool(self.reflector_present() if callable(self.reflector_present) else self.reflector_present)
 
     def _measure(self, conn: socket.socket, out: list[bytes]) -> list[Message]:
         cmd = StartMeasurement.COMMAND
@@ -402,7 +406,7 @@ class EmsconMockServer:
             self._send(conn, list(out))
             out.clear()
         self.clock.sleep(self.meas_time_ms / 1000.0)
-        if self._take_fault(EmsconFault.BEAM_BREAK):
+        if self._take_fault(EmsconFault.BEAM_BREAK) or not self._present():  # injected, or the world hides it
             with self._state_lock:
                 self.locked = False
                 self.last_result_status = ResultStatus.NO_STATIONARY_RESULT

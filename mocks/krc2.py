@@ -431,19 +431,20 @@ class MockKrc2:
             self._q_set = list(self._q)
             if self._k >= self._n_move:
                 self._mode, self._k, self._since_arrival = "dwell", 0, 0
-        elif self._since_arrival is not None:
+            return
+        if self._since_arrival is not None:  # the residual oscillation decays, dwelling or not
             self._since_arrival += 1
             r = self._residual(self._since_arrival)
             self._q = [t + d * r for t, d in zip(self._target, self._dirs, strict=True)]
             self._q_set = list(self._target)
             if r == 0.0:
                 self._since_arrival = None
-            if self._mode == "dwell":
-                self._k += 1
-                if self._k >= self._n_dwell:  # WAIT SEC 0 + dwell done: report $AXIS_ACT
-                    assert self._cmd is not None
-                    self._report(self._cmd.command_id, done=True, error=0)
-                    self._mode, self._cmd = "idle", None
+        if self._mode == "dwell":  # counted apart from the oscillation: without overshoot it still ends
+            self._k += 1
+            if self._k >= self._n_dwell:  # WAIT SEC 0 + dwell done: report $AXIS_ACT
+                assert self._cmd is not None
+                self._report(self._cmd.command_id, done=True, error=0)
+                self._mode, self._cmd = "idle", None
 
     def _begin(self, cmd: MoveCommand) -> None:
         start = tuple(self._q)

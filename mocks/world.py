@@ -35,10 +35,16 @@ class World:
         self.lock = threading.Lock()
 
     def robot_at(self, q_deg) -> None:
-        """The robot reached (and reports) q_deg."""
+        """The robot is at (and reports) q_deg; called at every controller cycle while it moves."""
         with self.lock:
             self.q_deg = np.round(np.asarray(q_deg, dtype=float), 4)
             self.twin.move_to(self.q_deg)
+
+    def reflector_visible(self) -> bool:
+        with self.lock:
+            if self.station is None or self.point is None:
+                return False
+            return self.twin.visible(self.q_deg, self.point, self.station)
 
     def key(self) -> tuple[str, str, tuple[float, ...]]:
         return (str(self.station), str(self.point), tuple(float(v) for v in self.q_deg))

@@ -292,3 +292,16 @@ def test_same_seed_same_bytes():
             c.client.close()
             c.mock.stop()
     assert runs[0] == runs[1] and len(runs[0]) == 2
+
+
+def test_move_completes_without_overshoot():
+    # regression: with overshoot_deg=0 the residual is zero at once, and the dwell must still end (the
+    # simulated campaign runs the controller without overshoot)
+    c = open_cell(overshoot_deg=0.0)
+    try:
+        c.client.move_ptp((10.0, -90.0, 90.0, 0.0, 90.0, 0.0), 100.0)
+        assert c.client.read_joints() == (10.0, -90.0, 90.0, 0.0, 90.0, 0.0)
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
