@@ -54,6 +54,7 @@ class Settings:
     settle_window_s: float = 1.0
     settle_timeout_s: float = 60.0
     search_radius_mm: float = 50.0
+    measure_attempts: int = 2  # a beam broken by someone walking through it is transient: look again once
     drift_warn_mm: float = 0.05
 
 
@@ -189,14 +190,18 @@ class Engine:
         q = self.dev.robot.read_joints()
         env = self.dev.meteo.read() if self.dev.meteo is not None else None
         expected = self.dev.expected(step) if self.dev.expected is not None else None
-        try:
-            if expected is not None:
-                self.dev.tracker.find_reflector(*expected, self.settings.search_radius_mm)
-            m = self.dev.tracker.measure()
-        except TargetNotVisible as exc:
-            self._append("warning", {"message": f"{step.point} not measurable from {step.station} at {step.pose}: "
-                                                f"{exc}; skipped here"})  # fmt: skip
-            return
+        for attempt in range(1, self.settings.measure_attempts + 1):
+            try:
+                if expected is not None:
+                    self.dev.tracker.find_reflector(*expected, self.settings.search_radius_mm)
+                m = self.dev.tracker.measure()
+                break
+            except TargetNotVisible as exc:
+                last = attempt == self.settings.measure_attempts
+                self._append("warning", {"message": f"{step.point} not measurable from {step.station} at {step.pose}: "
+                                                    f"{exc}; {'skipped here' if last else 'looking again'}"})  # fmt: skip
+                if last:
+                    return
         env = env or m.environment
         self.tick()
         data = {

@@ -146,13 +146,19 @@ def test_device_fault_stops_safely_and_resume_continues(tmp_path, cell, plan):
     assert store.events("campaign_done")
 
 
-def test_beam_break_skips_the_measurement_there(tmp_path, cell, plan):
+def test_beam_break_looks_again_then_skips(tmp_path, cell, plan):
+    """Three broken beams in a row: the first measurement fails twice (looked at again, then skipped there), the
+    second fails once and the second look succeeds. Exactly one measurement is missing from the table."""
+    reference = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
+    run_campaign(reference, live(cell)[1])
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
-    devices.tracker.faults = ["beam broken", "beam broken"]
+    devices.tracker.faults = ["beam broken"] * 3
     run_campaign(store, devices)
-    warnings = [e.data["message"] for e in store.events("warning")]
-    assert sum("beam broken" in w for w in warnings) == 2 and store.events("campaign_done")
+    warnings = [e.data["message"] for e in store.events("warning") if "beam broken" in e.data["message"]]
+    assert [w.endswith("skipped here") for w in warnings] == [False, True, False]
+    assert store.events("campaign_done")
+    assert len(store.events("measurement")) == len(reference.events("measurement")) - 1
 
 
 class DoorLeftOpen(SimOperator):
