@@ -8,6 +8,10 @@ two-step alternation, eqs. 17-22, is kept in bench/ as a baseline).
 
 Weighting: i.i.d. by default, or a `TrackerNoise` model (eqs. 23-24). Uncertainty: eq. (27) with the
 variance factor estimated from the residuals, Student-t 95 % intervals.
+
+`fixed` holds groups of unknowns at their given values: ("robot", "points") re-estimates only the stations,
+the shop-floor check of a calibrated model after the tracker was set up again (validation on a series
+measured from another station).
 """
 
 from __future__ import annotations
@@ -123,10 +127,13 @@ class Problem:
 
     Unknowns, in order: robot deviations (k), model-extension parameters (e), per station a translation
     and a rotation perturbation (v, w) in the station frame (x' = Exp(w) x + v), per reference point its
-    3 coordinates.
+    3 coordinates. `fixed` removes groups from the unknowns: "robot" (deviations and extension parameters,
+    held at dev0 / ext0) and "points" (held at tool_points); `n_cols` counts the free unknowns, and the
+    Jacobian and steps have only their columns.
     """
 
-    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None, extension: Extension | None = None):
+    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None, extension: Extension | None = None,
+                 ext0=None, fixed: tuple[str, ...] = ()):  # fmt: skip
         source = table.source
         if table.xyz is None:
             raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
@@ -152,7 +159,16 @@ class Problem:
         self.e = 0 if extension is None else extension.size
         self.n_st, self.n_pt = len(self.station_ids), len(self.point_ids)
         self.c_st = self.k + self.e  # first station column
-        self.n_cols = self.c_st + 6 * self.n_st + 3 * self.n_pt
+        self.n_all = self.c_st + 6 * self.n_st + 3 * self.n_pt
+        unknown = set(fixed) - {"robot", "points"}
+        if unknown:
+            raise ValueError(f"fixed: {', '.join(sorted(unknown))}; choose from robot, points")
+        self.free = np.ones(self.n_all, dtype=bool)
+        if "robot" in fixed:
+            self.free[: self.c_st] = False
+        if "points" in fixed:
+            self.free[self.c_st + 6 * self.n_st :] = False
+        self.n_cols = int(self.free.sum())
         if 3 * self.n_rows <= self.n_cols:
             raise IdentificationError(
                 f"{source}: {self.n_rows} measurements give {3 * self.n_rows} equations for {self.n_cols} "
@@ -161,9 +177,10 @@ class Problem:
         self.kin = Kinematics(chain, self.params)
         self.w = None if noise is None else noise.whitening(self.xyz)
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
+        ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
         stations = _init_stations(self.kin, self.q, pts[self.pt_idx], self.xyz, self.st_idx, self.station_ids, source)
-        self.initial = State(dev, stations, pts, np.zeros(self.e))
+        self.initial = State(dev, stations, pts, ext)
 
     def _station_arrays(self, s: State):
         rs = np.array([st.rotation for st in s.stations])[self.st_idx]
@@ -199,7 +216,7 @@ class Problem:
         q = self._q(s)
         jac = self.kin.jacobian(q, s.points[self.pt_idx], s.dev)
         p, d_params, d_q = jac.p, jac.d_params, jac.d_q
-        jm = np.zeros((n, 3, self.n_cols))
+        jm = np.zeros((n, 3, self.n_all))
         scale = self._arm_scale(s)
         if scale is not None:  # p = p_arm_tool + scale * (o_end - o_base): exact derivatives of the extra term
             arm = self.kin.jacobian(q, np.zeros(3), s.dev)
@@ -220,10 +237,15 @@ class Problem:
         jm[rows[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
             np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
         )
-        return self._whiten(self.xyz - xs).ravel(), self._whiten(jm).reshape(3 * n, self.n_cols)
+        return self._whiten(self.xyz - xs).ravel(), self._whiten(jm[:, :, self.free]).reshape(3 * n, self.n_cols)
 
     def retract(self, s: State, delta: np.ndarray) -> State:
+        """The state moved by a step `delta` in the free unknowns."""
         k, c = self.k, self.c_st
+        if self.n_cols < self.n_all:
+            full = np.zeros(self.n_all)
+            full[self.free] = delta
+            delta = full
         stations = []
         for i, st in enumerate(s.stations):
             v, om = delta[c + 6 * i : c + 6 * i + 3], delta[c + 6 * i + 3 : c + 6 * i + 6]
@@ -238,7 +260,7 @@ class Problem:
             names += [f"station {s} {c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
         for p in self.point_ids:
             names += [f"point {p} {c}" for c in "xyz"]
-        return names
+        return [n for n, f in zip(names, self.free, strict=True) if f]
 
 
 def solve(problem: Problem, state: State, max_iter: int = 100) -> tuple[State, np.ndarray, np.ndarray, int]:
@@ -294,10 +316,13 @@ def identify(
     dev0: np.ndarray | None = None,
     max_iter: int = 100,
     extension: Extension | None = None,
+    ext0: np.ndarray | None = None,
+    fixed: tuple[str, ...] = (),
 ) -> Identification:
     """Identify `params` (deviations from nominal), the extension's parameters, every station and every
-    reference point."""
-    problem = Problem(chain, table, tool_points, params, noise, dev0, extension)
+    reference point; `fixed` ("robot", "points") holds those at dev0 / ext0 / tool_points (their rows and
+    columns of the covariance are zero)."""
+    problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     state, r, jm, iterations = solve(problem, problem.initial, max_iter)
     scale = np.linalg.norm(jm, axis=0)
     scale[scale == 0] = 1.0
@@ -312,7 +337,8 @@ def identify(
         )
     dof = 3 * problem.n_rows - problem.n_cols
     s2 = float(r @ r) / dof
-    cov = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
+    cov = np.zeros((problem.n_all, problem.n_all))
+    cov[np.ix_(problem.free, problem.free)] = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
     return Identification(
         chain=chain,
         params=list(params),

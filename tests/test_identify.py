@@ -8,7 +8,7 @@ from scipy import stats
 
 from calib.identify import IdentificationError, identify, residual_stats, significance
 from calib.noise import TrackerNoise
-from calib.rigid import exp_so3
+from calib.rigid import exp_so3, kabsch
 from tests.conftest import kr270_campaign, truth_of
 
 
@@ -87,6 +87,36 @@ def test_row_permutation_leaves_everything_unchanged(kr270, kr270_params, noisy,
     res = identify(kr270.chain, table.subset(perm), kr270.tool_points, kr270_params)
     np.testing.assert_allclose(res.dev, ref.dev, atol=1e-9)
     np.testing.assert_allclose(res.param_ci95(), ref.param_ci95(), rtol=1e-6)
+
+
+def test_station_only_reestimation_keeps_robot_and_points(kr270, kr270_params, noisy):
+    """fixed=("robot", "points"): a calibrated model checked from new tracker set-ups fits only the stations."""
+    table, ref = noisy
+    moves = {"S1": (exp_so3(np.array([0.3, -1.2, 2.0])), np.array([1500.0, -800.0, 40.0])),
+             "S2": (exp_so3(np.array([-0.7, 0.1, 0.4])), np.array([-300.0, 2500.0, -90.0]))}  # fmt: skip
+    moved = table
+    for sid, (r, t) in moves.items():
+        moved = _station_moved(moved, sid, r, t)
+    res = identify(kr270.chain, moved, ref.points, kr270_params, dev0=ref.dev, fixed=("robot", "points"))
+    assert np.array_equal(res.dev, ref.dev)
+    assert all(np.array_equal(res.points[p], ref.points[p]) for p in ref.points)
+    # the stations that were optimal with this robot model, carried along with the tracker
+    for sid, (r, t) in moves.items():
+        np.testing.assert_allclose(res.stations[sid].rotation, r @ ref.stations[sid].rotation, atol=1e-9)
+        np.testing.assert_allclose(res.stations[sid].translation, r @ ref.stations[sid].translation + t, atol=1e-6)
+        rows = np.array(table.station) == sid
+        np.testing.assert_allclose(res.residuals[rows], ref.residuals[rows] @ r.T, atol=1e-6)
+        # i.i.d. weights: each station is the closed-form rigid fit of the model's base-frame points
+        pb = np.linalg.solve(ref.stations[sid].rotation, (table.xyz[rows] - ref.residuals[rows]
+                                                          - ref.stations[sid].translation).T).T  # fmt: skip
+        rk, tk = kabsch(pb, moved.xyz[rows])
+        np.testing.assert_allclose(res.stations[sid].rotation, rk, atol=1e-9)
+    # only 12 unknowns: the fixed ones have no variance, the degrees of freedom count the stations alone
+    assert res.dof == 3 * len(table) - 12
+    assert np.all(res.param_ci95() == 0) and np.all(res.point_ci95("P1") == 0)
+    assert np.all(res.station_ci95("S1") > 0)
+    with pytest.raises(ValueError, match="fixed: stations"):
+        identify(kr270.chain, moved, ref.points, kr270_params, fixed=("stations",))
 
 
 def test_residual_statistics_definitions():
