@@ -110,7 +110,7 @@ class SimCell:
         except BaseException:
             self.close()
             raise
-        operator = PlcOperator(cellio, console, poll_s=0.005, display=self.human.show)
+        operator = PlcOperator(cellio, console, poll_s=0.005)
         self.live = Live(tracker, robot, operator, self.clock, cellio, meteo, close=self.close)
 
     def _up(self, device):

@@ -6,6 +6,8 @@ import time
 
 from rich.console import Console
 
+from drivers.errors import ProtocolError
+
 
 class ConsoleOperator:
     """Shows the request and waits for Enter (the operator's acknowledgement)."""
@@ -20,22 +22,23 @@ class ConsoleOperator:
 
 
 class PlcOperator:
-    """Request lamp on, the text on the console, wait for the acknowledge button, lamp off.
+    """The request on the cell HMI (the PLC's request registers) and the request lamp on, the text on the
+    console, wait for the acknowledge button, lamp off, request cleared.
 
-    Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console."""
+    Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console. A PLC program
+    without the request registers (it answers with a Modbus exception) still gets lamp and button: the HMI
+    display is dropped with one warning."""
 
-    def __init__(self, cellio, console: Console, poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep,
-                 display=None):  # fmt: skip
+    def __init__(self, cellio, console: Console, poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep):
         self.cellio, self.console, self.poll_s, self.remind_s, self.sleep = cellio, console, poll_s, remind_s, sleep
-        self.display = display  # another place the request is shown (the simulated operator reads it there)
+        self.hmi = hasattr(cellio, "show_request")
 
     def ask(self, kind: str, target: str, text: str) -> str:
-        if self.display is not None:
-            self.display(kind, target, text)
-        self.cellio.set_request_lamp(True)
-        self.console.print(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
-        waited = 0.0
+        self._hmi(self.cellio.show_request if self.hmi else None, kind, target)
         try:
+            self.cellio.set_request_lamp(True)
+            self.console.print(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
+            waited = 0.0
             while not self.cellio.acknowledge_pressed():
                 self.sleep(self.poll_s)
                 waited += self.poll_s
@@ -45,5 +48,18 @@ class PlcOperator:
             while self.cellio.acknowledge_pressed():  # released: one press, one acknowledgement
                 self.sleep(self.poll_s)
         finally:
-            self.cellio.set_request_lamp(False)
+            try:
+                self.cellio.set_request_lamp(False)
+            finally:
+                self._hmi(self.cellio.clear_request if self.hmi else None)
         return "plc"
+
+    def _hmi(self, fn, *args) -> None:
+        if fn is None:
+            return
+        try:
+            fn(*args)
+        except ProtocolError as exc:
+            self.hmi = False
+            self.console.print(f"[yellow]warning[/]: the cell HMI shows no requests ({exc}); "
+                               "lamp and acknowledge button only")  # fmt: skip

@@ -59,6 +59,14 @@ STATUS_RUN = 1 << 0
 STATUS_ESTOP_OK = 1 << 1
 STATUS_WATCHDOG_EXPIRED = 1 << 2
 
+# The operator request shown on the cell HMI (configs/hardware/cell-plc-registers.md, "HMI request"):
+# REQUEST_REGISTERS holding registers from PlcRegisterMap.request_hr: kind code, sequence number, then the
+# target's name in ASCII, 2 characters per register (first character in the high byte), NUL-padded.
+REQUEST_KINDS = {"move_reflector": 1, "change_station": 2, "resume": 3}  # 0: no request pending
+REQUEST_KIND_NAMES = {code: kind for kind, code in REQUEST_KINDS.items()}
+REQUEST_TARGET_CHARS = 16
+REQUEST_REGISTERS = 2 + REQUEST_TARGET_CHARS // 2
+
 
 @dataclass(frozen=True)
 class PlcRegisterMap:
@@ -68,12 +76,53 @@ class PlcRegisterMap:
     acknowledge_di: int = 1  # discrete input, 1 = operator acknowledge button pressed
     request_lamp_coil: int = 0  # coil, 1 = request lamp on
     heartbeat_hr: int = 0  # holding register, host heartbeat counter (PLC watchdog)
+    request_hr: int = 1  # first of REQUEST_REGISTERS holding registers: the pending operator request (HMI)
     status_ir: int = 0  # input register, PLC status word (STATUS_* bits)
     map_version_ir: int = 1  # input register, map version implemented by the PLC (IR 1 in every version)
     map_version: int = 0x0100  # the version this map describes (major.minor in the high/low byte)
 
+    def __post_init__(self) -> None:
+        if self.request_hr <= self.heartbeat_hr < self.request_hr + REQUEST_REGISTERS:
+            raise ValueError(f"heartbeat HR {self.heartbeat_hr} inside the operator request block "
+                             f"HR {self.request_hr}..{self.request_hr + REQUEST_REGISTERS - 1}")  # fmt: skip
+
 
 DEFAULT_REGISTER_MAP = PlcRegisterMap()
+
+
+@dataclass(frozen=True)
+class OperatorRequest:
+    """What the HMI shows: `kind` None when no request is pending; `seq` changes with every new request."""
+
+    kind: str | None
+    seq: int
+    target: str
+
+
+def encode_request(kind: str | None, seq: int, target: str = "") -> list[int]:
+    """The REQUEST_REGISTERS register values of a request (kind None: no request pending).
+
+    The target is sent as ASCII ('?' for any other character) and cut to REQUEST_TARGET_CHARS: the HMI shows
+    what fits; the full text is on the trackcal console."""
+    if kind is not None and kind not in REQUEST_KINDS:
+        raise ValueError(f"unknown operator request kind {kind!r} (known: {', '.join(REQUEST_KINDS)})")
+    raw = target.encode("ascii", errors="replace")[:REQUEST_TARGET_CHARS] if kind is not None else b""
+    raw = raw.replace(b"\0", b"?").ljust(REQUEST_TARGET_CHARS, b"\0")
+    chars = [(raw[i] << 8) | raw[i + 1] for i in range(0, REQUEST_TARGET_CHARS, 2)]
+    return [REQUEST_KINDS[kind] if kind is not None else 0, seq & 0xFFFF, *chars]
+
+
+def decode_request(registers) -> OperatorRequest:
+    """Inverse of encode_request; raises ValueError for an unknown kind code or a wrong register count."""
+    regs = [int(v) for v in registers]
+    if len(regs) != REQUEST_REGISTERS:
+        raise ValueError(f"an operator request is {REQUEST_REGISTERS} registers, got {len(regs)}")
+    code = regs[0]
+    if code != 0 and code not in REQUEST_KIND_NAMES:
+        raise ValueError(f"unknown operator request kind code {code}")
+    raw = b"".join(bytes(((v >> 8) & 0xFF, v & 0xFF)) for v in regs[2:])
+    target = raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
+    return OperatorRequest(REQUEST_KIND_NAMES.get(code), regs[1], target)
 
 
 @dataclass(frozen=True)
@@ -114,6 +163,7 @@ class ModbusCellIO:
         self.device = f"cell PLC {host}:{port}"
         self.last_door_error: DeviceError | None = None
         self._heartbeat = 0
+        self._request_seq = 0
         self._client: ModbusTcpClient | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -202,6 +252,54 @@ class ModbusCellIO:
         self._heartbeat = value
         return value
 
+    def show_request(self, kind: str, target: str = "") -> int:
+        """Publish the pending operator request on the HMI registers (HR request_hr ..): reads the PLC's
+        request sequence number and writes kind, sequence + 1 and target in one request, so a new request is
+        always told apart from the previous one, even one written by an earlier trackcal process. Returns the
+        sequence number written. Call before lighting the request lamp; `clear_request()` after."""
+        first = self.map.request_hr
+        rr = self._call(
+            f"reading the operator request sequence (HR {first + 1})",
+            self._read_holding_registers,
+            first + 1,
+        )
+        seq = (self._first(rr.registers, "request sequence") + 1) & 0xFFFF
+        values = encode_request(kind, seq, target)
+        self._call(
+            f"writing the operator request {kind} {target!r} (HR {first}..{first + REQUEST_REGISTERS - 1})",
+            self._write_registers,
+            first,
+            values,
+        )
+        self._request_seq = seq
+        return seq
+
+    def clear_request(self) -> None:
+        """No request pending any more (kind 0); the sequence number stays."""
+        first = self.map.request_hr
+        self._call(
+            f"clearing the operator request (HR {first}..{first + REQUEST_REGISTERS - 1})",
+            self._write_registers,
+            first,
+            encode_request(None, self._request_seq),
+        )
+
+    def read_request(self) -> OperatorRequest:
+        """The request the HMI shows now (what the PLC holds)."""
+        first = self.map.request_hr
+        rr = self._call(
+            f"reading the operator request (HR {first}..{first + REQUEST_REGISTERS - 1})",
+            self._read_holding_registers,
+            first,
+            REQUEST_REGISTERS,
+        )
+        if len(rr.registers) != REQUEST_REGISTERS:
+            raise ProtocolError(f"operator request: {len(rr.registers)} registers in the answer", device=self.device)
+        try:
+            return decode_request(rr.registers)
+        except ValueError as exc:
+            raise ProtocolError(f"operator request: {exc}", device=self.device) from None
+
     def read_status(self) -> PlcStatus:
         rr = self._call(
             f"reading status word (IR {self.map.status_ir})",
@@ -216,6 +314,12 @@ class ModbusCellIO:
 
     def _read_input_registers(self, address: int):
         return self._require_client().read_input_registers(address, count=1, device_id=self.unit_id)
+
+    def _read_holding_registers(self, address: int, count: int = 1):
+        return self._require_client().read_holding_registers(address, count=count, device_id=self.unit_id)
+
+    def _write_registers(self, address: int, values: list[int]):
+        return self._require_client().write_registers(address, values, device_id=self.unit_id)
 
     def _write_coil(self, address: int, value: bool):
         return self._require_client().write_coil(address, value, device_id=self.unit_id)

@@ -1,5 +1,7 @@
-"""The simulated operator of `--sim`: reads the request shown to him, does it in the world, closes the door
-and presses the acknowledge button of the (mock) cell PLC, exactly as a person at the cell would."""
+"""The simulated operator of the twin's cell: reads the request trackcal shows on the HMI (the request registers
+of the mock cell PLC), does it in the world, closes the door and presses the acknowledge button, exactly as a
+person at the cell would. The PLC is the only channel, so the same operator serves a campaign in this process
+(`trackcal run --sim`) and one in another process (`trackcal mock` + `trackcal run --hardware`)."""
 
 from __future__ import annotations
 
@@ -11,17 +13,16 @@ from .world import World
 
 
 class SimHuman:
+    """`hold_s`: how long he holds the acknowledge button (wall time; longer than the host's poll period of the
+    button, or the press goes unseen). `action_s`: how long the action takes (world time)."""
+
     def __init__(self, world: World, plc: MockPlc, hold_s: float = 0.05, action_s: float = 60.0):
         self.world, self.plc, self.hold_s, self.action_s = world, plc, hold_s, action_s
-        self.request: tuple[str, str] | None = None
-        self.log: list[tuple[str, str, str]] = []
+        self.log: list[tuple[str, str, str]] = []  # (kind, target, what the HMI showed), one per request done
+        self.errors: list[str] = []
+        self._seen: int | None = None  # sequence number of the last request done
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sim-operator", daemon=True)
-
-    def show(self, kind: str, target: str, text: str) -> None:
-        """What the operator reads on the console when the request lamp lights."""
-        self.log.append((kind, target, text))
-        self.request = (kind, target)
 
     def start(self) -> SimHuman:
         self._thread.start()
@@ -33,17 +34,26 @@ class SimHuman:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            if self.plc.lamp and self.request is not None:
-                kind, target = self.request
-                self.request = None
-                self.plc.open_door()  # he walks into the cell
-                if kind == "change_station":
-                    self.world.station = target
-                elif kind == "move_reflector":
-                    self.world.point = target
-                self.world.clock.sleep(self.action_s)
-                self.plc.close_door()  # and out again
-                self.plc.press_acknowledge()
-                time.sleep(self.hold_s)
-                self.plc.release_acknowledge()
+            try:
+                request = self.plc.operator_request
+            except ValueError as exc:  # a kind code he does not know: he waits for one he does
+                if not self.errors or self.errors[-1] != str(exc):
+                    self.errors.append(str(exc))
+                request = None
+            if request is not None and request.kind is not None and request.seq != self._seen and self.plc.lamp:
+                self._seen = request.seq
+                self._do(request.kind, request.target)
             time.sleep(0.002)
+
+    def _do(self, kind: str, target: str) -> None:
+        self.log.append((kind, target, f"{kind.replace('_', ' ')} {target}".strip()))
+        self.plc.open_door()  # he walks into the cell
+        if kind == "change_station":
+            self.world.station = target
+        elif kind == "move_reflector":
+            self.world.point = target
+        self.world.clock.sleep(self.action_s)
+        self.plc.close_door()  # and out again
+        self.plc.press_acknowledge()
+        time.sleep(self.hold_s)
+        self.plc.release_acknowledge()

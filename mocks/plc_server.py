@@ -38,10 +38,14 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.plc import (
     DEFAULT_REGISTER_MAP,
+    REQUEST_REGISTERS,
     STATUS_ESTOP_OK,
     STATUS_RUN,
     STATUS_WATCHDOG_EXPIRED,
+    OperatorRequest,
     PlcRegisterMap,
+    decode_request,
+    encode_request,
 )
 from mocks.clock import RealClock, VirtualClock
 
@@ -98,6 +102,7 @@ class MockPlc:
         self._estop_ok = True
         self._heartbeat = 0
         self._heartbeat_changed_at = self.clock.now()
+        self._request = encode_request(None, 0)  # the HMI request registers (drivers.plc.encode_request)
         self._fault = PlcFault.NONE
         self._fault_code = ExcCodes.DEVICE_FAILURE
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -180,7 +185,9 @@ class MockPlc:
             simdata=(
                 [SimData(address=m.request_lamp_coil, values=[False], datatype=DataType.BITS)],
                 [SimData(address=di_lo, values=[False] * (di_hi - di_lo + 1), datatype=DataType.BITS)],
-                [SimData(address=m.heartbeat_hr, values=[0], datatype=DataType.REGISTERS)],
+                sorted([SimData(address=m.heartbeat_hr, values=[0], datatype=DataType.REGISTERS),
+                        SimData(address=m.request_hr, values=[0] * REQUEST_REGISTERS, datatype=DataType.REGISTERS)],
+                       key=lambda d: d.address),  # fmt: skip
                 [SimData(address=ir_lo, values=[0] * (ir_hi - ir_lo + 1), datatype=DataType.REGISTERS)],
             ),
             action=self._action,
@@ -211,6 +218,12 @@ class MockPlc:
     def lamp(self) -> bool:
         with self._lock:
             return self._lamp
+
+    @property
+    def operator_request(self) -> OperatorRequest:
+        """The operator request trackcal shows on the HMI (kind None: none pending)."""
+        with self._lock:
+            return decode_request(self._request)
 
     @property
     def heartbeat(self) -> int:
@@ -269,6 +282,12 @@ class MockPlc:
                     if address + i == m.heartbeat_hr and value != self._heartbeat:
                         self._heartbeat = int(value)
                         self._heartbeat_changed_at = self.clock.now()
+                    elif 0 <= address + i - m.request_hr < REQUEST_REGISTERS:
+                        self._request[address + i - m.request_hr] = int(value)
+            elif fc == FC_READ_HR:
+                for i, value in enumerate(self._request):
+                    if 0 <= m.request_hr + i - start_address < len(registers):
+                        registers[m.request_hr + i - start_address] = value
             elif fc == FC_READ_IR:
                 registers[m.status_ir - start_address] = self._status_word_locked()
                 registers[m.map_version_ir - start_address] = m.map_version

@@ -6,12 +6,22 @@ import contextlib
 import random
 import socket
 import time
+from io import StringIO
 
 import pytest
+from rich.console import Console
 
 from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.interfaces import CellIO
-from drivers.plc import ModbusCellIO, PlcRegisterMap
+from drivers.plc import (
+    REQUEST_REGISTERS,
+    REQUEST_TARGET_CHARS,
+    ModbusCellIO,
+    OperatorRequest,
+    PlcRegisterMap,
+    decode_request,
+    encode_request,
+)
 from mocks.clock import VirtualClock
 from mocks.plc_server import MockPlc, PlcFault
 
@@ -92,6 +102,7 @@ def test_remapped_plc_program():
         acknowledge_di=3,
         request_lamp_coil=5,
         heartbeat_hr=10,
+        request_hr=20,
         status_ir=4,
         map_version=0x0201,
     )
@@ -101,9 +112,115 @@ def test_remapped_plc_program():
             assert io.door_closed() is True and io.acknowledge_pressed() is False
             io.set_request_lamp(True)
             assert mock.lamp is True
+            io.show_request("move_reflector", "P2")
+            assert mock.operator_request == OperatorRequest("move_reflector", 1, "P2")
         # a client that expects the default map refuses this PLC program at connect
         with pytest.raises(ProtocolError, match="0x0201"):
             ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S).connect()
+
+
+def test_request_map_must_not_overlap_the_heartbeat():
+    with pytest.raises(ValueError, match="heartbeat HR 5 inside the operator request block HR 1..10"):
+        PlcRegisterMap(heartbeat_hr=5)
+
+
+# ---------------------------------------------------------------- HMI request (cell-plc-registers.md)
+def test_request_encoding_is_the_documented_layout():
+    # 'P2' = 0x50 0x32, first character in the high byte; move_reflector = kind 1; NUL padding to 16 characters
+    assert encode_request("move_reflector", 7, "P2") == [1, 7, 0x5032] + [0] * 7
+    assert encode_request("change_station", 1, "S1") == [2, 1, 0x5331] + [0] * 7
+    assert encode_request("resume", 65536, "") == [3, 0] + [0] * 8  # the sequence number wraps mod 65536
+    assert encode_request(None, 9) == [0, 9] + [0] * 8
+    assert len(encode_request("resume", 0)) == REQUEST_REGISTERS
+    with pytest.raises(ValueError, match="unknown operator request kind"):
+        encode_request("dance", 1, "P1")
+
+
+def test_request_target_round_trip_and_what_does_not_fit():
+    for name in ("P1", "S2", "TMAC_X+", "E", "ABCDEFGHIJKLMNOP"):
+        assert decode_request(encode_request("move_reflector", 3, name)).target == name
+    long = "a-very-long-reference-point-name"
+    assert decode_request(encode_request("move_reflector", 3, long)).target == long[:REQUEST_TARGET_CHARS]
+    assert decode_request(encode_request("change_station", 3, "Süd")).target == "S?d"  # ASCII only
+    with pytest.raises(ValueError, match="kind code 9"):
+        decode_request([9, 1] + [0] * 8)
+    with pytest.raises(ValueError, match="10 registers"):
+        decode_request([1, 1, 0])
+
+
+def test_show_and_clear_request_through_the_mock(plc, cell):
+    before = plc.operator_request.seq
+    seq = cell.show_request("change_station", "S2")
+    assert seq == (before + 1) & 0xFFFF
+    assert plc.operator_request == OperatorRequest("change_station", seq, "S2")
+    assert cell.read_request() == plc.operator_request  # the same registers read back over the wire
+    cell.clear_request()
+    assert plc.operator_request == OperatorRequest(None, seq, "")  # cleared, the sequence number stays
+    cell.show_request("move_reflector", "P1")
+    assert plc.operator_request == OperatorRequest("move_reflector", seq + 1, "P1")
+
+
+def test_a_new_client_continues_the_sequence(plc, cell):
+    """A trackcal process restarted after a crash must publish a request the HMI tells from the last one, even
+    when the lamp is still on from the crashed process: the sequence number comes from the PLC."""
+    last = cell.show_request("move_reflector", "P3")
+    with ModbusCellIO(*plc.address, timeout_s=TIMEOUT_S) as again:
+        assert again.show_request("move_reflector", "P3") == last + 1
+    assert plc.operator_request.seq == last + 1
+
+
+def test_request_write_failures_are_device_errors(plc, cell):
+    plc.inject(PlcFault.EXCEPTION, code=0x02)  # a PLC program without the request registers
+    with pytest.raises(ProtocolError, match="request sequence.*map mismatch"):
+        cell.show_request("resume")
+    plc.inject(PlcFault.SILENT)
+    with pytest.raises(DeviceTimeout, match="request"):
+        cell.clear_request()
+    plc.clear_fault()
+
+
+def operator_at(mock: MockPlc, seen: list):
+    """A `sleep` for PlcOperator: the person at the cell, who presses the button (for one poll) once the lamp
+    is on and notes what the HMI showed him then."""
+    state = {"pressed": False}
+
+    def sleep(_s: float) -> None:
+        req = mock.operator_request
+        if mock.lamp and not state["pressed"]:
+            seen.append((req.kind, req.target))
+            state["pressed"] = True
+            mock.press_acknowledge()
+        else:
+            mock.release_acknowledge()
+
+    return sleep
+
+
+def test_plc_operator_shows_the_request_while_the_lamp_is_on():
+    from campaign.operator import PlcOperator
+
+    with MockPlc(clock=VirtualClock()) as mock, ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S) as io:
+        seen: list = []
+        op = PlcOperator(io, Console(file=StringIO()), poll_s=0.0, sleep=operator_at(mock, seen))
+        assert op.ask("move_reflector", "P2", "put the reflector on P2") == "plc"
+        assert seen == [("move_reflector", "P2")]  # written before the lamp lit
+        assert mock.lamp is False and mock.operator_request.kind is None  # both off afterwards
+
+
+def test_plc_operator_without_request_registers_keeps_lamp_and_button():
+    """A PLC program without the request registers (here: the client looks for them where this PLC has none,
+    so it answers ILLEGAL DATA ADDRESS): one warning, then lamp and acknowledge button as before."""
+    from campaign.operator import PlcOperator
+
+    with MockPlc(clock=VirtualClock()) as mock, \
+            ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=PlcRegisterMap(request_hr=40)) as io:
+        seen: list = []
+        out = StringIO()
+        op = PlcOperator(io, Console(file=out, width=200), poll_s=0.0, sleep=operator_at(mock, seen))
+        assert op.ask("change_station", "S1", "move the tracker to station S1") == "plc"
+        assert seen == [(None, "")] and mock.lamp is False
+        assert "HMI shows no requests" in out.getvalue() and "ILLEGAL DATA ADDRESS" in out.getvalue()
+        assert op.hmi is False
 
 
 # ---------------------------------------------------------------- faults
