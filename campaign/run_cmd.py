@@ -16,6 +16,7 @@ from .console import console
 from .devices import SimCell
 from .diagnose_report import verdict_doc
 from .engine import CampaignStopped
+from .hardware import connect_hardware, load_hardware
 from .jobs import UsageError, choose_params, parse_effects, run_identify
 from .recording import ReplayDivergence
 from .report import write_report
@@ -23,6 +24,8 @@ from .runner import replay_session, run_campaign
 from .session import create_session, session_cell, session_plan, write_export
 from .steps import PlanError
 from .store import SessionStore, StoreError
+
+HARDWARE_COPY = "config/hardware.yaml"  # a hardware session's copy of its hardware config (resume reads it)
 
 
 def _progress():
@@ -43,8 +46,15 @@ def _live_for(store: SessionStore):
         effects = json.loads(meta.get("effects", "{}") or "{}")
         speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
         return SimCell(cell, int(meta["seed"] or 0), store, effects, speed).live
-    raise UsageError(f"{store.directory}: hardware sessions need the tracker and robot drivers configured "
-                     f"({meta['mode']})")  # fmt: skip
+    if meta["mode"] == "hardware":
+        copy = store.directory / HARDWARE_COPY
+        hw = load_hardware(copy)
+        try:
+            return connect_hardware(hw, cell)
+        except UsageError as exc:
+            raise UsageError(f"{exc}\n(the session uses its copy {copy}: fix the cell or that file, then "
+                             f"`trackcal resume {store.directory}`)") from None
+    raise UsageError(f"{store.directory}: a {meta['mode']} session cannot be run live")
 
 
 def drive(store: SessionStore) -> None:
@@ -89,13 +99,34 @@ def cmd_run(args) -> int:
         raise UsageError(f"{args.plan}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
         raise UsageError(f"{args.plan}: not a JSON plan ({exc})") from None
+    if args.hardware and (args.effect or args.sim_speed is not None):
+        raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
     effects = parse_effects(args.effect) if args.sim else {}
     mode, seed = ("sim", args.seed) if args.sim else ("hardware", None)
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
     extra = {"sim_speed": str(args.sim_speed)} if args.sim and args.sim_speed else {}
+    if args.hardware:
+        return _campaign(lambda: _hardware_session(Path(args.session), args.cell, plan_doc, args.hardware),
+                         args.no_analysis)  # fmt: skip
     return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects,
                                             extra=extra), args.no_analysis)  # fmt: skip
+
+
+def _hardware_session(directory: Path, cell_ref: str, plan_doc: dict, hardware: str) -> SessionStore:
+    """A new session that keeps a copy of the hardware config (validated first: a broken file makes no session)."""
+    try:
+        text = Path(hardware).read_text()
+    except OSError as exc:
+        raise UsageError(f"{hardware}: cannot read the hardware config ({exc.strerror})") from None
+    load_hardware(hardware, text)
+    store = create_session(directory, cell_ref, plan_doc, "hardware", None,
+                           hardware={"file": HARDWARE_COPY, "source": str(Path(hardware).resolve())})  # fmt: skip
+    try:
+        (directory / HARDWARE_COPY).write_text(text)
+    except OSError as exc:
+        raise UsageError(f"{directory / HARDWARE_COPY}: cannot write ({exc.strerror})") from None
+    return store
 
 
 def cmd_resume(args) -> int:
@@ -146,7 +177,7 @@ def register(sub) -> None:
     p.add_argument("--cell", required=True)
     p.add_argument("--plan", required=True, help="plan.json from `trackcal plan`")
     p.add_argument("--sim", action="store_true", help="the digital twin's cell")
-    p.add_argument("--hardware", help="hardware config (configs/hardware/NAME.yaml)")
+    p.add_argument("--hardware", help="hardware config (configs/hardware/README.md); copied into the session")
     p.add_argument("--seed", type=int, default=1, help="--sim: the twin's seed")
     p.add_argument("--effect", action="append", help="--sim: hidden effect NAME:MAGNITUDE_MM")
     p.add_argument("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)")
