@@ -276,10 +276,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo")
     p.set_defaults(func=cmd_demo)
     from .compensate_cmd import register_compensate
+    from .mock_cmd import register_mock
     from .report import register_report
     from .run_cmd import register as register_campaign
 
     register_campaign(sub)
+    register_mock(sub)
     register_compensate(sub)
     register_report(sub)
     return ap
