@@ -276,6 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo")
     p.set_defaults(func=cmd_demo)
     from .compensate_cmd import register_compensate
+    from .import_ipa import register_import_ipa
     from .mock_cmd import register_mock
     from .report import register_report
     from .run_cmd import register as register_campaign
@@ -284,6 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_mock(sub)
     register_compensate(sub)
     register_report(sub)
+    register_import_ipa(sub)
     return ap
 
 
