@@ -51,8 +51,8 @@ class TwinMocks:
 
     `measured`: (station, point, joints) of the measurements a resumed session already holds, so every
     measurement keeps its noise (a pure function of the seed and the step's identity). `speed`: simulated
-    seconds per real second (None: as fast as the machine goes). `hold_s`: how long the simulated operator
-    holds the acknowledge button (longer than the host polls it)."""
+    seconds per real second (None: as fast as the machine goes). `hold_s`: the least time the simulated operator
+    holds the acknowledge button (he holds it until the request lamp goes out)."""
 
     def __init__(self, cell: Cell, seed: int, effects: dict[str, float] | None = None, speed: float | None = None,
                  measured=None, hold_s: float = 0.05) -> None:  # fmt: skip
@@ -74,6 +74,7 @@ class TwinMocks:
             self.world.restore_counts(measured)
         self.controller = None
         self.controllers_started = 0
+        self._connected = 0  # controllers (before the current one) that did connect
         self._supervisor: threading.Thread | None = None
         self._stopping = threading.Event()
         self._started: list = []
@@ -101,6 +102,8 @@ class TwinMocks:
                        joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed + self.controllers_started,
                        overshoot_deg=0.0, connect_timeout_s=connect_timeout_s)  # fmt: skip
         self.controllers_started += 1
+        if self.controller is not None and self.controller.connected.is_set():
+            self._connected += 1
         self.controller = ctl
         return ctl.start()
 
@@ -122,6 +125,10 @@ class TwinMocks:
 
         self._supervisor = threading.Thread(target=supervise, name="mock-krc2-supervisor", daemon=True)
         self._supervisor.start()
+
+    def controllers_connected(self) -> int:
+        """How many times a controller connected to trackcal (one per `run` / `resume` served)."""
+        return self._connected + (self.controller is not None and self.controller.connected.is_set())
 
     def addresses(self) -> dict[str, str]:
         """Where each mock serves (for people)."""

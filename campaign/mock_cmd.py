@@ -33,9 +33,8 @@ from .console import console
 from .devices import TwinMocks
 from .jobs import UsageError, parse_effects
 
-# The simulated operator holds the acknowledge button this long (wall time): several of the polls of a PlcOperator
-# at the poll_s written into the hardware file, even on a loaded machine.
-HOLD_S = 0.3
+# How often trackcal reads the acknowledge button (written into the hardware file); the simulated operator holds
+# it until the request lamp goes out, as a person would, so no press is missed at any poll period.
 POLL_S = 0.05
 # The controller retries its connection this long before giving up (and the supervisor starts a fresh one).
 CONTROLLER_CONNECT_S = 24 * 3600.0
@@ -88,7 +87,7 @@ def cmd_mock(args) -> int:
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     mocks = None
     try:
-        mocks = TwinMocks(cell, args.seed, effects, args.sim_speed, hold_s=HOLD_S)
+        mocks = TwinMocks(cell, args.seed, effects, args.sim_speed)
         eki, rsi = ("127.0.0.1", free_port()), ("127.0.0.1", free_port())
         mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S, restart=True)
         doc = hardware_doc(mocks, eki, rsi)
@@ -110,7 +109,7 @@ def cmd_mock(args) -> int:
         console.print("serving; Ctrl-C (SIGINT) or SIGTERM stops")
         while not stop.wait(0.2):
             pass
-        console.print(f"stopping ({mocks.controllers_started} controller session(s) served)")
+        console.print(f"stopping (the KR C2 mock connected {mocks.controllers_connected()} time(s))")
     finally:
         if mocks is not None:
             mocks.close()

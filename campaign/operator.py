@@ -23,7 +23,10 @@ class ConsoleOperator:
 
 class PlcOperator:
     """The request on the cell HMI (the PLC's request registers) and the request lamp on, the text on the
-    console, wait for the acknowledge button, lamp off, request cleared.
+    console; when the acknowledge button is pressed: lamp off, request cleared; then wait for the button's
+    release (one press, one acknowledgement). The lamp going out while the button is held is the operator's
+    feedback, and a press is never missed however slowly the button is polled, as long as it is held until
+    the lamp goes out.
 
     Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console. A PLC program
     without the request registers (it answers with a Modbus exception) still gets lamp and button: the HMI
@@ -45,13 +48,13 @@ class PlcOperator:
                 if waited >= self.remind_s:
                     self.console.print(f"[yellow]still waiting[/]: {text}")
                     waited = 0.0
-            while self.cellio.acknowledge_pressed():  # released: one press, one acknowledgement
-                self.sleep(self.poll_s)
         finally:
             try:
-                self.cellio.set_request_lamp(False)
+                self.cellio.set_request_lamp(False)  # the lamp going out tells the operator he was heard
             finally:
                 self._hmi(self.cellio.clear_request if self.hmi else None)
+        while self.cellio.acknowledge_pressed():  # released: one press, one acknowledgement
+            self.sleep(self.poll_s)
         return "plc"
 
     def _hmi(self, fn, *args) -> None:

@@ -13,11 +13,14 @@ from .world import World
 
 
 class SimHuman:
-    """`hold_s`: how long he holds the acknowledge button (wall time; longer than the host's poll period of the
-    button, or the press goes unseen). `action_s`: how long the action takes (world time)."""
+    """He holds the acknowledge button until the request lamp goes out (at least `hold_s`, at most `max_hold_s`
+    of wall time), so trackcal sees the press however slowly it polls. `action_s`: how long the action takes
+    (world time)."""
 
-    def __init__(self, world: World, plc: MockPlc, hold_s: float = 0.05, action_s: float = 60.0):
+    def __init__(self, world: World, plc: MockPlc, hold_s: float = 0.05, action_s: float = 60.0,
+                 max_hold_s: float = 30.0):  # fmt: skip
         self.world, self.plc, self.hold_s, self.action_s = world, plc, hold_s, action_s
+        self.max_hold_s = max_hold_s
         self.log: list[tuple[str, str, str]] = []  # (kind, target, what the HMI showed), one per request done
         self.errors: list[str] = []
         self._seen: int | None = None  # sequence number of the last request done
@@ -56,4 +59,7 @@ class SimHuman:
         self.plc.close_door()  # and out again
         self.plc.press_acknowledge()
         time.sleep(self.hold_s)
+        deadline = time.monotonic() + self.max_hold_s
+        while self.plc.lamp and time.monotonic() < deadline and not self._stop.is_set():
+            time.sleep(0.002)
         self.plc.release_acknowledge()
