@@ -42,7 +42,7 @@ ANGLES = ("measurement_rx", "measurement_ry", "measurement_rz")
 STD_POSITION = ("measurement_std_x", "measurement_std_y", "measurement_std_z")
 STD_ANGLES = ("measurement_std_rx", "measurement_std_ry", "measurement_std_rz")
 TEMPERATURE = "measurement_temperature"
-# optional source columns -> extra table columns (all or none of each group must be present)
+# optional source columns -> extra table columns (copied when present)
 EXTRAS = {
     TEMPERATURE: "temp_c",
     **dict(zip(STD_POSITION, ("std_x_mm", "std_y_mm", "std_z_mm"), strict=True)),
@@ -103,13 +103,10 @@ def pose_covariance(
     sa2 = np.radians(np.asarray(std_angles_deg, dtype=float)) ** 2
     r = euler_xyz_matrix(angles_deg)
     e = euler_xyz_rates(angles_deg)
-    blocks = [np.eye(3)] + [-skew(r @ v) @ e for v in offsets_mm]  # dP_k / d(angles); T-Mac: 0
-    n = len(offsets_mm) + 1
-    a = np.zeros((3 * n, 6))
-    for k in range(n):
-        a[3 * k : 3 * k + 3, :3] = np.eye(3)
-        if k > 0:
-            a[3 * k : 3 * k + 3, 3:] = blocks[k]
+    # d[p, P_1..P_K] / d[position, angles]: every point moves with the position; P_k also turns with R
+    a = np.tile(np.hstack([np.eye(3), np.zeros((3, 3))]), (len(offsets_mm) + 1, 1))
+    for k, v in enumerate(offsets_mm, start=1):
+        a[3 * k : 3 * k + 3, 3:] = -skew(r @ v) @ e
     return a @ np.diag(np.concatenate([sp2, sa2])) @ a.T
 
 

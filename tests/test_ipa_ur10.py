@@ -19,6 +19,7 @@ from campaign.import_ipa import (
     POINT,
     IpaFormatError,
     euler_xyz_matrix,
+    euler_xyz_rates,
     pose_covariance,
     read_ipa_series,
     table_covariances,
@@ -100,6 +101,18 @@ def test_conventions_hold_on_the_data():
     spread = conv["euler_spread_deg"]
     assert spread["XYZ"] < 0.2
     assert min(v for k, v in spread.items() if k != "XYZ") > 2.0
+
+
+def test_euler_rates_are_the_derivative_of_the_rotation():
+    # omega = E d(angles) with dR R^T = [omega]x: central differences at a generic orientation
+    angles, h = np.array([-88.8, -78.9, 1.0]), 1e-5
+    e = euler_xyz_rates(angles)
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = h
+        dr = (euler_xyz_matrix(angles + d) - euler_xyz_matrix(angles - d)) / (2 * math.radians(h))
+        w = dr @ euler_xyz_matrix(angles).T
+        assert [w[2, 1], w[0, 2], w[1, 0]] == pytest.approx(e[:, i], abs=1e-8)
 
 
 def test_virtual_point_noise_model():
