@@ -124,7 +124,9 @@ class SessionStore:
         return [Event(r[0], r[1], r[2], r[3], r[4], json.loads(r[5])) for r in rows]
 
     def done_steps(self) -> set[int]:
-        return {r[0] for r in self.conn.execute("SELECT step FROM events WHERE kind='step_done'")}
+        """Steps that need not run again: ended, or whose measurement is committed (a kill between the
+        measurement and the step's end must not measure the pose twice)."""
+        return {r[0] for r in self.conn.execute("SELECT step FROM events WHERE kind IN ('step_done', 'measurement')")}
 
     def close(self) -> None:
         self.conn.close()

@@ -93,15 +93,16 @@ class Crash(Exception):
     """Stands for kill -9: the process dies between two calls (the subprocess test does it for real)."""
 
 
+@pytest.mark.parametrize("when", ["while measuring", "just after the measurement is stored"])
 @pytest.mark.parametrize("fraction", [0.02, 0.5, 0.97])
-def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, fraction):
+def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, fraction, when):
     ref = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
     run_campaign(ref, live(cell)[1])
     after_calls = max(1, int(fraction * len(ref.events("measurement"))))
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     _, devices = live(cell)
     count = {"n": 0}
-    measure = devices.tracker.measure
+    measure, append = devices.tracker.measure, store.append
 
     def dying_measure():
         count["n"] += 1
@@ -109,7 +110,15 @@ def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, f
             raise Crash()
         return measure()
 
-    devices.tracker.measure = dying_measure
+    def dying_append(kind, *args):  # the measurement is committed, the step's end is not: a kill -9 there
+        append(kind, *args)
+        if kind == "measurement" and len(store.events("measurement")) == after_calls:
+            raise Crash()
+
+    if when == "while measuring":
+        devices.tracker.measure = dying_measure
+    else:
+        store.append = dying_append
     with pytest.raises(Crash):
         run_campaign(store, devices)
     store.close()
