@@ -432,8 +432,8 @@ def report(study: Study, out: Path, images: list[Path]) -> str:
         "",
         "Held-out accuracy is measured on the T-Mac point only, the same for every row. With two virtual points at",
         f"100 mm the held-out error on D is {rms3(k2['after_d'].residuals):.3f} mm against {d_after:.3f} "
-        f"({100 * (1 - rms3(k2['after_d'].residuals) / d_after):.0f} % better): the two wrist parameters",
-        "a single point cannot see are small on this robot.",
+        f"({100 * (1 - rms3(k2['after_d'].residuals) / d_after):.0f} % better); more points or a longer lever add"
+        " nothing, as the noise model's rank says.",
         "",
         "## Diagnosis: what the geometric model gets wrong",
         "`trackcal diagnose` on the imported Series B (`--weighting iid --params "
