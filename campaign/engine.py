@@ -198,8 +198,9 @@ class Engine:
                 break
             except TargetNotVisible as exc:
                 last = attempt == self.settings.measure_attempts
-                self._append("warning", {"message": f"{step.point} not measurable from {step.station} at {step.pose}: "
-                                                    f"{exc}; {'skipped here' if last else 'looking again'}"})  # fmt: skip
+                then = "skipped here" if last else "looking again"
+                where = f"{step.point} not measurable from {step.station} at {step.pose}"
+                self._append("warning", {"message": f"{where}: {exc}; {then}"})
                 if last:
                     return
         env = env or m.environment
