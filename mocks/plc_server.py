@@ -220,6 +220,11 @@ class MockPlc:
             return self._lamp
 
     @property
+    def door_closed(self) -> bool:
+        with self._lock:
+            return self._door_closed
+
+    @property
     def operator_request(self) -> OperatorRequest:
         """The operator request trackcal shows on the HMI (kind None: none pending)."""
         with self._lock:

@@ -19,7 +19,7 @@ TRACKCAL = [sys.executable, "-m", "campaign.cli"]
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
     path = tmp_path_factory.mktemp("plan") / "plan.json"
-    subprocess.run([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "2", "--starts", "200",
+    subprocess.run([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "5", "--repeat", "1", "--starts", "200",
                     "--refined", "2", "--json", str(path)], check=True, capture_output=True)  # fmt: skip
     return path
 
@@ -29,11 +29,16 @@ def run(*args, check=True):
 
 
 @pytest.fixture(scope="module")
-def reference(plan, tmp_path_factory):
+def reference_session(plan, tmp_path_factory):
     d = tmp_path_factory.mktemp("ref") / "session"
     run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "4", "--session", str(d), "--no-analysis")
-    run("export", str(d), "--csv", str(d.parent / "table.csv"))
-    return read_table(d.parent / "table.csv")
+    return d
+
+
+@pytest.fixture(scope="module")
+def reference(reference_session):
+    run("export", str(reference_session), "--csv", str(reference_session.parent / "table.csv"))
+    return read_table(reference_session.parent / "table.csv")
 
 
 def count_events(db):
@@ -90,13 +95,13 @@ def test_run_analyses_and_replay_is_byte_identical(plan, tmp_path):
         json.loads((tmp_path / "m2.json").read_text())["parameters"]
 
 
-def test_user_mistakes(plan, tmp_path):
+def test_user_mistakes(plan, reference_session, tmp_path):
     d = tmp_path / "s"
     out = run("run", "--cell", "kr270", "--plan", str(plan), "--session", str(d), check=False)
     assert out.returncode == 2 and "exactly one of --sim or --hardware" in out.stderr
     out = run("resume", str(tmp_path / "nothing"), check=False)
     assert out.returncode == 2 and "not a trackcal session" in out.stderr
-    run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--session", str(d), "--no-analysis")
+    d = reference_session  # a complete session
     out = run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--session", str(d), check=False)
     assert out.returncode == 2 and "already holds a session" in out.stderr
     out = run("replay", str(d), "--into", str(d), check=False)
