@@ -304,6 +304,13 @@ def optimize_plan(
     return Plan(q_best, repeat, criterion, design.criteria(q_best, repeat), starts, refined)
 
 
+# Plans are written at the controller's precision (4 decimals of a degree) and optimal poses sit on the box
+# boundary. Rounding moves each joint by at most 5e-5 deg; a point up to 3.5 m from every axis (KR 270 reach
+# 2.7 m plus the tool) moves by at most 6 * 5e-5 * pi/180 * 3500 mm = 0.018 mm. Planning in a box 0.1 mm
+# smaller keeps every rounded pose inside the real one (the robot client refuses targets outside it).
+PLAN_BOX_MARGIN_MM = 0.1
+
+
 def design_for_cell(
     cell,
     params: list[Param],
@@ -323,7 +330,8 @@ def design_for_cell(
         chain=cell.chain, params=params, tool=np.array([cell.tool_points[p] for p in pids]), q0=np.asarray(q0),
         tcp=cell.tcp, sigma_mm=sigma_mm, noise=noise, trackers=trackers,
         normals=np.array([cell.tool_normals[p] for p in pids]), acceptance_deg=cell.acceptance_deg,
-        box_min=cell.box_min, box_max=cell.box_max,
+        box_min=None if cell.box_min is None else cell.box_min + PLAN_BOX_MARGIN_MM,
+        box_max=None if cell.box_max is None else cell.box_max - PLAN_BOX_MARGIN_MM,
     )  # fmt: skip
 
 

@@ -85,3 +85,16 @@ def test_simulate_writes_a_table(tmp_path):
     assert main(["simulate", "--cell", "kr270", "--poses", "10", "--seed", "3", "--out", str(out)]) == 0
     t = read_table(out)
     assert len(t) > 0 and set(t.point) <= {"P1", "P2", "P3"}
+
+
+def test_planned_poses_at_controller_precision_stay_in_the_cell_box(tmp_path):
+    # regression: optimal poses sit on the box boundary, and plan.json holds them at 4 decimals of a degree;
+    # this case (seed 0) once put P2 0.0001 mm outside the box, and the robot client refused the move
+    from calib.cell import load_cell
+    from calib.poses import points_in_box
+
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--cell", "kr270", "--configs", "3", "--repeat", "1", "--starts", "50", "--refined", "1",
+                 "--json", str(out)]) == 0  # fmt: skip
+    q = np.radians(np.array(json.loads(out.read_text())["poses_deg"]))
+    assert points_in_box(load_cell("kr270"), q).all()
