@@ -20,6 +20,7 @@ cross-validates every candidate on 1495 poses).
 from __future__ import annotations
 
 import argparse
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +38,9 @@ from calib.table import MeasurementTable
 
 from .import_ipa import ANGLES, JOINTS, POINT, read_columns, read_ipa_series, table_covariances
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipa-robot-accuracy"
+# The data set lives next to the repository (../shared/data); TRACKCAL_IPA_DATA points elsewhere.
+DATA = Path(os.environ.get("TRACKCAL_IPA_DATA")
+            or Path(__file__).resolve().parents[2] / "shared" / "data" / "ipa-robot-accuracy")  # fmt: skip
 SERIES = {"B": "Series_B/measurements_joint_configurations.csv", "D": "Series_D/measurements_iso_cubes.csv"}
 TRAFO = "Series_B/Trafo_TM_F_init.txt"
 CITATION = ("Landgraf, Ernst, Schleth, Fabritius, Huber, \"A Hybrid Neural Network Approach for Increasing the "
