@@ -107,8 +107,7 @@ def cmd_mock(args) -> int:
         console.print(table)
         console.print(f"hardware config: {out}" if out is not None else text, markup=False)
         console.print("serving; Ctrl-C (SIGINT) or SIGTERM stops")
-        while not stop.wait(0.2):
-            pass
+        stop.wait()  # the SIGINT/SIGTERM handler sets it (lock waits are interruptible by signals on POSIX)
         console.print(f"stopping (the KR C2 mock connected {mocks.controllers_connected()} time(s))")
     finally:
         if mocks is not None:
