@@ -58,20 +58,28 @@ def joint_columns(n: int) -> list[str]:
     return [f"q{j + 1}_deg" for j in range(n)]
 
 
+def read_csv(path: Path, delimiter: str = ",", error: type[TableError] = TableError) -> list[list[str]]:
+    """The rows of a delimited text file whose first row is a header of distinct names (stripped); every
+    failure is `error` naming the file (and row 1 for the header)."""
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh, delimiter=delimiter))
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise error(f"{path}: not a {delimiter!r}-separated text file ({exc})") from None
+    if not rows:
+        raise error(f"{path}: empty file, expected a header row")
+    rows[0] = [h.strip() for h in rows[0]]
+    if len(set(rows[0])) != len(rows[0]):
+        raise error(f"{path}: row 1: duplicate column names")
+    return rows
+
+
 def read_table(path: str | Path, require_xyz: bool = True, n_joints: int | None = None) -> MeasurementTable:
     path = Path(path)
-    try:
-        with path.open(newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise TableError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise TableError(f"{path}: not a CSV text file ({exc})") from exc
-    if not rows:
-        raise TableError(f"{path}: empty file, expected a header row")
-    header = [h.strip() for h in rows[0]]
-    if len(set(header)) != len(header):
-        raise TableError(f"{path}: row 1: duplicate column names")
+    rows = read_csv(path)
+    header = rows[0]
     qcols = []
     while f"q{len(qcols) + 1}_deg" in header:
         qcols.append(f"q{len(qcols) + 1}_deg")

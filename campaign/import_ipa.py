@@ -26,14 +26,13 @@ the lever moves nothing): beyond K = 2 the points repeat what the first two alre
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
 from calib.rigid import rot_axis, skew
-from calib.table import MeasurementTable, TableError, write_table
+from calib.table import MeasurementTable, TableError, read_csv, write_table
 
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint")  # fmt: skip
@@ -111,20 +110,12 @@ def pose_covariance(
 
 
 def _cells(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh, delimiter=";"))
-    except OSError as exc:
-        raise IpaFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise IpaFormatError(f"{path}: not a semicolon-separated text file ({exc})") from None
-    if not rows:
-        raise IpaFormatError(f"{path}: empty file, expected the IPA header row")
-    header = [h.strip() for h in rows[0]]
+    """Header and (row number, cells) of the data rows, trailing blank rows dropped."""
+    rows = read_csv(path, delimiter=";", error=IpaFormatError)
     data = [(k + 2, r) for k, r in enumerate(rows[1:])]
     while data and not any(c.strip() for c in data[-1][1]):
         data.pop()
-    return header, data
+    return rows[0], data
 
 
 def read_columns(path: str | Path, required: list[str], optional: list[str] = ()) -> dict[str, np.ndarray]:
@@ -132,8 +123,6 @@ def read_columns(path: str | Path, required: list[str], optional: list[str] = ()
     Errors name the file, the row (header = row 1) and the column."""
     path = Path(path)
     header, data = _cells(path)
-    if len(set(header)) != len(header):
-        raise IpaFormatError(f"{path}: row 1: duplicate column names")
     missing = [c for c in required if c not in header]
     if missing:
         raise IpaFormatError(f"{path}: row 1: missing column(s) {', '.join(missing)}")
