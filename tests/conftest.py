@@ -27,3 +27,39 @@ def truth_of(twin, params):
 @pytest.fixture(scope="session")
 def kr270_params(kr270):
     return irreducible_params(kr270.chain)[0]
+
+
+def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
+    """A campaign plan (plan.json form) of n random poses satisfying limits, box and visibility."""
+    from calib.doe import design_for_cell, random_feasible_poses
+
+    poses = np.degrees(random_feasible_poses(design_for_cell(cell, []), n_poses, np.random.default_rng(seed)))
+    return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
+
+
+def inproc_live(cell, seed: int = 3, store=None, operator=None):
+    """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
+    measurements the session holds (a resume sees the noise an uninterrupted run would)."""
+    from campaign.runner import Live
+    from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+    from mocks.world import World
+
+    world = World(Twin(cell, seed=seed))
+    if store is not None:
+        world.restore_counts([(e.data["station"], e.data["point"], tuple(e.data["q_deg"]))
+                              for e in store.events("measurement")])  # fmt: skip
+    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
+                       InprocCellIO(world))  # fmt: skip
+
+
+def before_call(obj, name: str, n: int, action) -> None:
+    """Make obj.name run `action()` just before its n-th call (fault injection at a chosen moment)."""
+    original, calls = getattr(obj, name), []
+
+    def wrapped(*args, **kw):
+        calls.append(1)
+        if len(calls) == n:
+            action()
+        return original(*args, **kw)
+
+    setattr(obj, name, wrapped)

@@ -3,8 +3,6 @@
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.doe import design_for_cell, random_feasible_poses
 from calib.identify import identify
 from calib.params import irreducible_params
 from campaign.engine import CampaignStopped
@@ -16,27 +14,20 @@ from campaign.store import SessionStore
 from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
 from mocks.twin import Twin
 from mocks.world import World
+from tests.conftest import before_call, feasible_plan, inproc_live
 
 
 @pytest.fixture(scope="module")
-def cell():
-    return load_cell("kr270")
+def cell(kr270):
+    return kr270
 
 
 @pytest.fixture(scope="module")
 def plan(cell):
-    design = design_for_cell(cell, [])
-    poses = np.degrees(random_feasible_poses(design, 10, np.random.default_rng(11)))
-    return {"poses_deg": poses.round(4).tolist(), "repeat": 2}
+    return feasible_plan(cell, 10, seed=11, repeat=2)
 
 
-def live(cell, seed=3, store=None, operator=None):
-    world = World(Twin(cell, seed=seed))
-    if store is not None:
-        world.restore_counts([(e.data["station"], e.data["point"], tuple(e.data["q_deg"]))
-                              for e in store.events("measurement")])  # fmt: skip
-    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
-                       InprocCellIO(world))  # fmt: skip
+live = inproc_live
 
 
 def test_step_order_groups_operator_actions(cell, plan):
@@ -101,14 +92,10 @@ def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, f
     after_calls = max(1, int(fraction * len(ref.events("measurement"))))
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     _, devices = live(cell)
-    count = {"n": 0}
-    measure, append = devices.tracker.measure, store.append
+    append = store.append
 
-    def dying_measure():
-        count["n"] += 1
-        if count["n"] == after_calls:
-            raise Crash()
-        return measure()
+    def crash():
+        raise Crash()
 
     def dying_append(kind, *args):  # the measurement is committed, the step's end is not: a kill -9 there
         append(kind, *args)
@@ -116,7 +103,7 @@ def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, f
             raise Crash()
 
     if when == "while measuring":
-        devices.tracker.measure = dying_measure
+        before_call(devices.tracker, "measure", after_calls, crash)
     else:
         store.append = dying_append
     with pytest.raises(Crash):
@@ -138,16 +125,7 @@ def test_device_fault_stops_safely_and_resume_continues(tmp_path, cell, plan):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.robot.faults = []
-    calls = {"n": 0}
-    move = devices.robot.move_ptp
-
-    def estop_once(target, speed):
-        calls["n"] += 1
-        if calls["n"] == 7:
-            devices.robot.faults.append("estop")
-        return move(target, speed)
-
-    devices.robot.move_ptp = estop_once
+    before_call(devices.robot, "move_ptp", 7, lambda: devices.robot.faults.append("estop"))
     with pytest.raises(CampaignStopped, match="estop"):
         run_campaign(store, devices)
     assert store.events("error")[-1].data["type"] == "DeviceFault"

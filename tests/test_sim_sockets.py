@@ -13,38 +13,25 @@ moves while the mock PLC reports the cell door open.
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.doe import design_for_cell, random_feasible_poses
 from campaign.devices import SimCell
 from campaign.engine import CampaignStopped
-from campaign.runner import Live, run_campaign
+from campaign.runner import run_campaign
 from campaign.session import create_session, export_table
 from mocks.emscon_server import EmsconFault
-from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-from mocks.twin import Twin
-from mocks.world import World
+from tests.conftest import before_call, feasible_plan, inproc_live
 
 SEED = 3
 
 
 @pytest.fixture(scope="module")
-def cell():
-    return load_cell("kr270")
+def plan(kr270):
+    return feasible_plan(kr270, 4, seed=5, repeat=1)
 
 
 @pytest.fixture(scope="module")
-def plan(cell):
-    design = design_for_cell(cell, [])
-    poses = np.degrees(random_feasible_poses(design, 4, np.random.default_rng(5)))
-    return {"poses_deg": poses.round(4).tolist(), "repeat": 1}
-
-
-@pytest.fixture(scope="module")
-def reference(cell, plan, tmp_path_factory):
+def reference(kr270, plan, tmp_path_factory):
     store = create_session(tmp_path_factory.mktemp("ref") / "s", "kr270", plan, "sim", SEED)
-    world = World(Twin(cell, seed=SEED))
-    run_campaign(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
-                             InprocCellIO(world)))  # fmt: skip
+    run_campaign(store, inproc_live(kr270, SEED)[1])
     return export_table(store)
 
 
@@ -68,9 +55,9 @@ def same_table(a, b) -> None:
     np.testing.assert_array_equal(a.xyz, b.xyz)
 
 
-def test_campaign_over_sockets_gives_the_in_process_table(tmp_path, cell, plan, reference):
+def test_campaign_over_sockets_gives_the_in_process_table(tmp_path, kr270, plan, reference):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
-    sim = SimCell(cell, SEED, store)
+    sim = SimCell(kr270, SEED, store)
     moved_with_door_open = watched(sim)
     run_campaign(store, sim.live)
     assert store.events("campaign_done") and not moved_with_door_open
@@ -81,36 +68,22 @@ def test_campaign_over_sockets_gives_the_in_process_table(tmp_path, cell, plan, 
     assert sim.controller.crashed is None and not sim.controller.errors
 
 
-def test_beam_break_mid_campaign_is_looked_at_again_and_nothing_is_lost(tmp_path, cell, plan, reference):
+def test_beam_break_mid_campaign_is_looked_at_again_and_nothing_is_lost(tmp_path, kr270, plan, reference):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
-    sim = SimCell(cell, SEED, store)
-    measure, calls = sim.live.tracker.measure, []
-
-    def measure_with_a_walker(*args, **kw):
-        calls.append(1)
-        if len(calls) == 5:  # someone walks through the beam during the fifth measurement
-            sim.tracker_mock.inject(EmsconFault.BEAM_BREAK)
-        return measure(*args, **kw)
-
-    sim.live.tracker.measure = measure_with_a_walker
+    sim = SimCell(kr270, SEED, store)
+    # someone walks through the beam during the fifth measurement
+    before_call(sim.live.tracker, "measure", 5, lambda: sim.tracker_mock.inject(EmsconFault.BEAM_BREAK))
     run_campaign(store, sim.live)
     warnings = [e.data["message"] for e in store.events("warning")]
     assert len([w for w in warnings if w.endswith("looking again")]) == 1
     same_table(export_table(store), reference)
 
 
-def test_controller_estop_stops_safely_and_resume_completes(tmp_path, cell, plan, reference):
+def test_controller_estop_stops_safely_and_resume_completes(tmp_path, kr270, plan, reference):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
-    sim = SimCell(cell, SEED, store)
-    move, calls = sim.live.robot.move_ptp, []
-
-    def move_then_estop(*args, **kw):
-        calls.append(1)
-        if len(calls) == 4:
-            sim.controller.estop()  # pressed while the command travels: the controller refuses it
-        return move(*args, **kw)
-
-    sim.live.robot.move_ptp = move_then_estop
+    sim = SimCell(kr270, SEED, store)
+    # pressed while the fourth command travels: the controller refuses it
+    before_call(sim.live.robot, "move_ptp", 4, sim.controller.estop)
     with pytest.raises(CampaignStopped, match="(?i)emergency stop"):
         run_campaign(store, sim.live)
     error = store.events("error")[-1].data
@@ -118,14 +91,14 @@ def test_controller_estop_stops_safely_and_resume_completes(tmp_path, cell, plan
     stored = len(store.events("measurement"))
     assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
     # a new process (new mocks, the fault reset) resumes the session: nothing lost, nothing measured twice
-    run_campaign(store, SimCell(cell, SEED, store).live)
+    run_campaign(store, SimCell(kr270, SEED, store).live)
     assert store.events("campaign_done")
     same_table(export_table(store), reference)
 
 
-def test_door_left_open_at_resume_blocks_motion_until_closed(tmp_path, cell, plan, reference):
+def test_door_left_open_at_resume_blocks_motion_until_closed(tmp_path, kr270, plan, reference):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
-    sim = SimCell(cell, SEED, store)
+    sim = SimCell(kr270, SEED, store)
     moved_with_door_open = watched(sim)
     close, closes = sim.plc.close_door, []
 
