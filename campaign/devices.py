@@ -19,6 +19,7 @@ from .console import console
 from .jobs import UsageError
 from .operator import PlcOperator
 from .runner import Live
+from .session import measured_keys
 from .store import SessionStore
 
 HOME_DEG = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # KR C2 HOME of the KRL program (configs/krc2)
@@ -173,11 +174,7 @@ class SimCell:
 
     def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
                  effects: dict[str, float] | None = None, speed: float | None = None) -> None:  # fmt: skip
-        measured = None
-        if store is not None:
-            measured = [(e.data["station"], e.data["point"], tuple(e.data["q_deg"]))
-                        for e in store.events("measurement")]  # fmt: skip
-        self.mocks = TwinMocks(cell, seed, effects, speed, measured)
+        self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store))
         m = self.mocks
         self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
         self.meteo_mock, self.human = m.meteo_mock, m.human

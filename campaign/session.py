@@ -82,6 +82,12 @@ def session_steps(cell: Cell, plan_doc: dict) -> list[Step]:
     return list(campaign_steps(cell, poses, repeat))
 
 
+def measured_keys(store: SessionStore) -> list[tuple[str, str, tuple[float, ...]]]:
+    """(station, point, joints) of every stored measurement: what a simulated world needs on resume so that
+    each measurement keeps the noise of an uninterrupted run."""
+    return [(e.data["station"], e.data["point"], tuple(e.data["q_deg"])) for e in store.events("measurement")]
+
+
 def export_table(store: SessionStore, source: str = "session") -> MeasurementTable:
     events = store.events("measurement")
     n = len(events)

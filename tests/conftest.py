@@ -41,13 +41,13 @@ def inproc_live(cell, seed: int = 3, store=None, operator=None):
     """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
     measurements the session holds (a resume sees the noise an uninterrupted run would)."""
     from campaign.runner import Live
+    from campaign.session import measured_keys
     from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
     from mocks.world import World
 
     world = World(Twin(cell, seed=seed))
     if store is not None:
-        world.restore_counts([(e.data["station"], e.data["point"], tuple(e.data["q_deg"]))
-                              for e in store.events("measurement")])  # fmt: skip
+        world.restore_counts(measured_keys(store))
     return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
                        InprocCellIO(world))  # fmt: skip
 
