@@ -1,4 +1,4 @@
-"""Round-trip overhead of one stationary measurement through EmsconTracker + EmsconMockServer over loopback.
+"""Round-trip overhead of one stationary measurement through EmsconTracker + MockEmscon over loopback.
 
 The mock runs on a VirtualClock, so the simulated measurement time costs nothing: what is timed is the
 client's encode/frame/decode, the mock's thread hand-off and two TCP exchanges (acknowledgement, then result).
@@ -14,16 +14,16 @@ import statistics
 import threading
 import time
 
-from drivers.emscon import EmsconTracker
+from drivers.emscon.client import EmsconTracker
 from mocks.clock import VirtualClock
-from mocks.emscon_server import EmsconMockServer
+from mocks.servers.emscon import MockEmscon
 
 N = 500
 WARMUP = 20
 
 
 def _ours(n: int) -> list[float]:
-    server = EmsconMockServer(lambda e: (1000.0, 0.0, 0.0, 0.01, 0.01, 0.01), VirtualClock()).start()
+    server = MockEmscon(lambda e: (1000.0, 0.0, 0.0, 0.01, 0.01, 0.01), VirtualClock()).start()
     tracker = EmsconTracker(*server.address, timeout_s=5.0, measure_timeout_s=5.0)
     try:
         tracker.connect()

@@ -8,19 +8,22 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf
-from .chain_io import chain_to_dict
+from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
+from .errors import CalibError
 from .rigid import rot_axis
 
-CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS", Path(__file__).resolve().parents[1] / "configs"))
+# The shipped configs are package data (a wheel installed anywhere resolves `--cell kr270`); TRACKCAL_CONFIGS
+# points at another tree with the same layout.
+CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS") or str(resources.files("configs")))
 
 
-class CellError(ValueError):
+class CellError(CalibError):
     """A configuration that cannot be used; the message names the file."""
 
 

@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .rigid import AXIS_INDEX, homogeneous, rpy_matrix
+from .errors import CalibError
+from .rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
 
 
-class ChainError(ValueError):
+class ChainError(CalibError):
     """A chain description that cannot be used (bad axis, non-aligned axes, bad numbers)."""
 
 
@@ -159,3 +160,37 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
             )
         )
     return Chain(name=str(model.name), base=base, joints=tuple(joints))
+
+
+# ---------------------------------------------------------------- back to the YAML schema of configs/robots
+def _rpy_deg(r: np.ndarray) -> list[float]:
+    """URDF rpy (R = Rz(y) Ry(p) Rx(r)) of a rotation matrix, deg."""
+    pitch = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
+    if abs(np.cos(pitch)) > 1e-9:
+        roll, yaw = np.arctan2(r[2, 1], r[2, 2]), np.arctan2(r[1, 0], r[0, 0])
+    else:
+        roll, yaw = np.arctan2(-r[1, 2], r[1, 1]), 0.0
+    return [float(np.degrees(v)) for v in (roll, pitch, yaw)]
+
+
+def chain_to_dict(chain: Chain) -> dict:
+    joints = []
+    for jt in chain.joints:
+        jd = {
+            "name": jt.name,
+            "axis": ("-" if jt.sign < 0 else "") + AXIS_NAME[jt.axis],
+            "link_mm": [float(v) for v in jt.translation],
+        }
+        if not np.allclose(jt.rotation, np.eye(3)):
+            jd["link_rpy_deg"] = _rpy_deg(jt.rotation)
+        if jt.limits is not None:
+            jd["limits_deg"] = [float(np.degrees(v)) for v in jt.limits]
+        if jt.mass_kg:
+            jd["mass_kg"] = jt.mass_kg
+            jd["com_mm"] = [float(v) for v in jt.com]
+        joints.append(jd)
+    return {
+        "name": chain.name,
+        "base": {"translation_mm": [float(v) for v in chain.base[:3, 3]], "rpy_deg": _rpy_deg(chain.base[:3, :3])},
+        "joints": joints,
+    }

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import CalibError
 from .extensions import build_extension
 from .kinematics import Kinematics
 from .model import Model
@@ -48,7 +49,7 @@ NEAR_SINGULAR = 2e-3
 FD_STEP_RAD = 1e-6  # central differences of the extension's joint offsets (smooth in q)
 
 
-class CompensationError(ValueError):
+class CompensationError(CalibError):
     """Targets that cannot be compensated; the message names them."""
 
 

@@ -19,6 +19,7 @@ above the floor) that no candidate explains, or the best one removes less than h
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -120,21 +121,31 @@ def best_shift(chain, table, tool, params, noise, min_rows: int = 6, grid: int =
     return best
 
 
-def fit_cause(chain, table, tool, params, noise, cause: str):
-    """Fit the geometric model extended by `cause`: (result, extension, table as fitted, shift, n_extra).
-    Returns None when the cause cannot be fitted to this table (e.g. too few rows for a change point)."""
+class CauseFit(NamedTuple):
+    """The geometric model fitted with one cause."""
+
+    result: Identification
+    extension: Extension | None
+    table: MeasurementTable  # as fitted (station_shift relabels the rows after the change point)
+    shift: dict | None  # station_shift: {"station", "after_t_s"}
+    n_extra: int  # parameters the cause adds
+
+
+def fit_cause(chain, table, tool, params, noise, cause: str) -> CauseFit | None:
+    """Fit the geometric model extended by `cause`; None when the cause cannot be fitted to this table (e.g. too
+    few rows for a change point)."""
     if cause == "none":
-        return _fit(chain, table, tool, params, noise, None), None, table, None, 0
+        return CauseFit(_fit(chain, table, tool, params, noise, None), None, table, None, 0)
     if cause == "station_shift":
         found = best_shift(chain, table, tool, params, noise)
         if found is None:
             return None
         _, sid, t_star, res, relabelled = found
-        return res, None, relabelled, {"station": sid, "after_t_s": t_star}, 7
+        return CauseFit(res, None, relabelled, {"station": sid, "after_t_s": t_star}, 7)
     ext = build_extension(cause, chain, table)
     if ext.size == 0:
         return None
-    return _fit(chain, table, tool, params, noise, ext), ext, table, None, ext.size
+    return CauseFit(_fit(chain, table, tool, params, noise, ext), ext, table, None, ext.size)
 
 
 def _holdout(chain, table, tool, params, noise, cause, folds, rng, full_ext) -> float:

@@ -22,6 +22,7 @@ import numpy as np
 from scipy import stats
 
 from .chain import Chain
+from .errors import CalibError
 from .extensions import Extension
 from .kinematics import Kinematics
 from .noise import TrackerNoise
@@ -30,7 +31,7 @@ from .rigid import exp_so3, kabsch, skew
 from .table import MeasurementTable
 
 
-class IdentificationError(ValueError):
+class IdentificationError(CalibError):
     """A set-up that cannot be identified; the message says what is missing."""
 
 
@@ -60,6 +61,8 @@ class Identification:
     noise: TrackerNoise | None
     extension: Extension | None = None
     ext: np.ndarray = field(default_factory=lambda: np.zeros(0))  # extension parameters (internal units)
+    converged: bool = True  # the solver's stopping test was met (scipy OptimizeResult's `success`)
+    message: str = ""  # why the solver stopped
 
     @property
     def _c_st(self) -> int:
@@ -263,14 +266,27 @@ class Problem:
         return [n for n, f in zip(names, self.free, strict=True) if f]
 
 
-def solve(problem: Problem, state: State, max_iter: int = 100) -> tuple[State, np.ndarray, np.ndarray, int]:
-    """Levenberg-Marquardt on column-scaled normal equations from `state`; returns (state, r, J, iterations)."""
+@dataclass
+class Solution:
+    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit)."""
+
+    state: State
+    r: np.ndarray  # whitened residuals at `state`
+    jm: np.ndarray  # their Jacobian in the free unknowns
+    nit: int
+    converged: bool
+    message: str
+
+
+def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
+    """Levenberg-Marquardt on column-scaled normal equations from `state`."""
     r, jm = problem.residual_and_jacobian(state)
     cost = float(r @ r)
     dof = max(3 * problem.n_rows - problem.n_cols, 1)
     # rounding floor of the residual vector: coordinates carry ~1e-16 relative error each
     floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
     lam, iterations = 1e-8, 1
+    converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
     for _ in range(max_iter):
         scale = np.linalg.norm(jm, axis=0)
         scale[scale == 0] = 1.0
@@ -286,6 +302,7 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> tuple[State, n
             state = problem.retract(state, ds / scale)
             r, jm = problem.residual_and_jacobian(state)
             iterations += 1
+            converged, message = True, "the undamped step is below the noise and rounding floor"
             break
         cand = problem.retract(state, ds / scale)
         r_new = problem.residual(cand)
@@ -303,8 +320,9 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> tuple[State, n
         else:
             lam *= 10.0
             if lam > 1e8:
+                message = "the damping exceeded 1e8: no step decreases the cost"
                 break
-    return state, r, jm, iterations
+    return Solution(state, r, jm, iterations, converged, message)
 
 
 def identify(
@@ -323,7 +341,8 @@ def identify(
     reference point; `fixed` ("robot", "points") holds those at dev0 / ext0 / tool_points (their rows and
     columns of the covariance are zero)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
-    state, r, jm, iterations = solve(problem, problem.initial, max_iter)
+    sol = solve(problem, problem.initial, max_iter)
+    state, r, jm = sol.state, sol.r, sol.jm
     scale = np.linalg.norm(jm, axis=0)
     scale[scale == 0] = 1.0
     _, sv, vt = np.linalg.svd(jm / scale, full_matrices=False)
@@ -351,10 +370,12 @@ def identify(
         residuals=problem.xyz - problem.predicted(state),
         variance_factor=s2,
         dof=dof,
-        iterations=iterations,
+        iterations=sol.nit,
         noise=noise,
         extension=extension,
         ext=state.ext,
+        converged=sol.converged,
+        message=sol.message,
     )
 
 

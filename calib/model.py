@@ -17,15 +17,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .chain import Chain, ChainError, chain_from_dict
-from .chain_io import chain_to_dict
-from .identify import Identification, Station
+from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
+from .diagnose import relabel_shift
+from .errors import CalibError
+from .extensions import UNIT_FACTORS, build_extension
+from .identify import Identification, Station, predict_points
 from .params import Param, param_by_name
+from .table import MeasurementTable
 
 FORMAT = "trackcal-model/1"
 
 
-class ModelError(ValueError):
+class ModelError(CalibError):
     """A model file that cannot be used."""
 
 
@@ -111,7 +114,6 @@ class Model:
 
     def extension_values(self) -> tuple[list[str], np.ndarray]:
         """Extension parameter names and values in internal units (rad, N m, s)."""
-        from .extensions import UNIT_FACTORS
 
         pars = self.doc.get("extension", {}).get("parameters", {})
         names = list(pars)
@@ -151,3 +153,22 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     except (KeyError, TypeError, ValueError, ChainError) as exc:
         raise ModelError(f"{path}: incomplete or malformed model ({exc})") from None
     return Model(chain, params, dev, stations, points, doc)
+
+
+def predict_table(model: Model, rows: MeasurementTable) -> MeasurementTable:
+    """`rows` with x, y, z set to the reflector centre the model predicts in each row's station frame."""
+    if rows.n_joints != model.chain.dof:
+        raise ModelError(
+            f"{rows.source}: {rows.n_joints} joint columns, the model's robot has {model.chain.dof} joints"
+        )
+    ext, theta, labelled = None, None, rows
+    if model.cause == "station_shift":
+        info = model.doc["extension"]
+        labelled = relabel_shift(rows, info["station"], float(info["after_t_s"]))
+    elif model.cause != "none":
+        names, theta = model.extension_values()
+        ext = build_extension(model.cause, model.chain, rows, names=names)
+    xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, labelled, ext, theta)
+    out = rows.subset(np.arange(len(rows)))
+    out.xyz = xyz
+    return out

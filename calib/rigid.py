@@ -42,22 +42,6 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(theta) / theta * k + (1.0 - np.cos(theta)) / theta**2 * k @ k
 
 
-def log_so3(r: np.ndarray) -> np.ndarray:
-    """Rotation vector (rad) of a rotation matrix."""
-    c = np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)
-    theta = float(np.arccos(c))
-    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if theta < 1e-9:
-        return 0.5 * v
-    if np.pi - theta < 1e-6:
-        # near pi: axis from the symmetric part
-        b = (r + np.eye(3)) / 2.0
-        axis = b[:, int(np.argmax(np.diag(b)))]
-        axis = axis / np.linalg.norm(axis)
-        return theta * axis
-    return theta / (2.0 * np.sin(theta)) * v
-
-
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll) (rad)."""
     return rot_axis(2, yaw) @ rot_axis(1, pitch) @ rot_axis(0, roll)

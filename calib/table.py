@@ -13,10 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import CalibError
+
 XYZ = ("x_mm", "y_mm", "z_mm")
 
 
-class TableError(ValueError):
+class TableError(CalibError):
     """A measurement table that cannot be used; the message names file, row and column."""
 
 
@@ -165,3 +167,41 @@ def write_table(table: MeasurementTable, path: str | Path) -> None:
                 row += [_fmt(v, 4) for v in table.xyz[i]]
             row += [table.extra[h][i] for h in table.extra]
             w.writerow(row)
+
+
+def read_joint_rows(path: str | Path, dof: int, what: str = "rows") -> tuple[np.ndarray, dict[str, list[str]]]:
+    """Joint rows (N, dof) in degrees from a CSV with columns q1_deg..q{dof}_deg (a plan's poses, compensation
+    targets), and its other columns as text; blank lines are skipped. A q{dof+1}_deg column is refused: the
+    file was written for another robot."""
+    path = Path(path)
+    rows = read_csv(path)
+    header, cols = rows[0], joint_columns(dof)
+    missing = [c for c in cols if c not in header]
+    if missing:
+        raise TableError(f"{path}: row 1: missing column(s) {', '.join(missing)} (the robot has {dof} joints)")
+    if f"q{dof + 1}_deg" in header:
+        raise TableError(f"{path}: row 1: column q{dof + 1}_deg: the robot has only {dof} joints")
+    idx = [header.index(c) for c in cols]
+    others = {h: [] for h in header if h not in cols}
+    q = []
+    for k, row in enumerate(rows[1:]):
+        if not any(cell.strip() for cell in row):
+            continue
+        r = k + 2
+        if len(row) != len(header):
+            raise TableError(f"{path}: row {r}: {len(row)} fields, the header has {len(header)}")
+        values = []
+        for c, i in zip(cols, idx, strict=True):
+            try:
+                v = float(row[i])
+            except ValueError:
+                raise TableError(f"{path}: row {r}: column {c}: not a number: {row[i]!r}") from None
+            if not math.isfinite(v):
+                raise TableError(f"{path}: row {r}: column {c}: not a finite number: {row[i]!r}")
+            values.append(v)
+        q.append(values)
+        for h in others:
+            others[h].append(row[header.index(h)].strip())
+    if not q:
+        raise TableError(f"{path}: no {what}")
+    return np.array(q), others

@@ -22,12 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
+from campaign.errors import CampaignError
+
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6
 EOL = "\r\n"
 
 
-class KrlError(ValueError):
+class KrlError(CampaignError):
     """A program that cannot be written; the message says why."""
 
 

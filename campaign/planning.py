@@ -1,4 +1,4 @@
-"""`trackcal plan`: search or evaluate a measurement plan for a cell (calib.doe behind an executor)."""
+"""Planning on typed options: search or evaluate a measurement plan for a cell (calib.doe behind an executor)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import csv
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +16,26 @@ from calib.cell import Cell
 from calib.doe import CRITERIA, Design, design_for_cell, optimize_plan
 from calib.noise import TrackerNoise
 from calib.params import Param, irreducible_params, param_by_name
+from calib.table import joint_columns, read_joint_rows
+from campaign.errors import InputError
 
-from .jobs import UsageError
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """What `trackcal plan` is asked: the design (parameters, test pose, noise, visibility) and the search."""
+
+    params: str | None = None  # comma-separated names; None: the cell's plan_params
+    test_pose: str | None = None  # "Q1,..,Qn" in degrees; None: the cell's test pose
+    sigma_mm: float | None = None  # tracker noise, one coordinate; None: 0.01
+    noise: str = "iid"  # or "tracker" (the AT901 model)
+    visibility: bool = True
+    configs: int = 6
+    repeat: int = 1
+    criterion: str = "rho0"
+    starts: int = 1000
+    refined: int = 16
+    seed: int = 0
+    scheduler: str | None = None  # Dask scheduler address; None: a local process pool
 
 
 def plan_params(cell: Cell, names: str | None) -> list[Param]:
@@ -27,30 +46,30 @@ def plan_params(cell: Cell, names: str | None) -> list[Param]:
     try:
         return [param_by_name(cell.chain, n.strip()) for n in chosen if n.strip()]
     except ValueError as exc:
-        raise UsageError(f"--params: {exc}") from None
+        raise InputError(f"--params: {exc}") from None
 
 
 def parse_test_pose(cell: Cell, text: str | None) -> np.ndarray:
     if text is None:
         if cell.test_pose is None:
-            raise UsageError(f"cell {cell.name} has no test_pose_deg: give --test-pose=Q1,..,Q{cell.chain.dof}")
+            raise InputError(f"cell {cell.name} has no test_pose_deg: give --test-pose=Q1,..,Q{cell.chain.dof}")
         return cell.test_pose
     try:
         q = np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise UsageError(f"--test-pose: expected {cell.chain.dof} comma-separated angles in degrees") from None
+        raise InputError(f"--test-pose: expected {cell.chain.dof} comma-separated angles in degrees") from None
     if q.shape != (cell.chain.dof,) or not np.all(np.isfinite(q)):
-        raise UsageError(f"--test-pose: expected {cell.chain.dof} angles, got {text!r}")
+        raise InputError(f"--test-pose: expected {cell.chain.dof} angles, got {text!r}")
     return np.radians(q)
 
 
-def build_design(cell: Cell, args) -> Design:
-    if args.sigma_mm is not None and args.sigma_mm <= 0:
-        raise UsageError("--sigma-mm must be positive")
-    noise = TrackerNoise() if args.noise == "tracker" else None
+def build_design(cell: Cell, opts: PlanOptions) -> Design:
+    if opts.sigma_mm is not None and opts.sigma_mm <= 0:
+        raise InputError("--sigma-mm must be positive")
+    noise = TrackerNoise() if opts.noise == "tracker" else None
     return design_for_cell(
-        cell, plan_params(cell, args.params), parse_test_pose(cell, args.test_pose),
-        sigma_mm=args.sigma_mm if args.sigma_mm is not None else 0.01, noise=noise, visibility=not args.no_visibility,
+        cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
+        sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
     )  # fmt: skip
 
 
@@ -59,13 +78,13 @@ def executor_for(scheduler: str | None) -> Iterator[Executor]:
     """A local process pool by default; a Dask distributed cluster when given its scheduler address."""
     if scheduler:
         try:
-            from distributed import Client
+            from distributed import Client  # optional dependency (trackcal[dask]): only with --scheduler
         except ImportError:
-            raise UsageError("--scheduler needs Dask: pip install 'trackcal[dask]'") from None
+            raise InputError("--scheduler needs Dask: pip install 'trackcal[dask]'") from None
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as exc:
-            raise UsageError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
+            raise InputError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
         try:
             yield client.get_executor()
         finally:
@@ -76,33 +95,14 @@ def executor_for(scheduler: str | None) -> Iterator[Executor]:
 
 
 def read_plan_csv(path: str, dof: int) -> np.ndarray:
-    cols = [f"q{j + 1}_deg" for j in range(dof)]
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot read ({exc.strerror})") from None
-    if not rows:
-        raise UsageError(f"{path}: no poses")
-    missing = [c for c in cols if c not in rows[0]]
-    if missing:
-        raise UsageError(f"{path}: row 1: missing column(s) {', '.join(missing)}")
-    out = []
-    for i, row in enumerate(rows):
-        try:
-            out.append([float(row[c]) for c in cols])
-        except (TypeError, ValueError):
-            raise UsageError(f"{path}: row {i + 2}: joint values must be numbers") from None
-    q = np.radians(np.array(out))
-    if not np.all(np.isfinite(q)):
-        raise UsageError(f"{path}: joint values must be finite")
-    return q
+    """A plan given as rows of joint angles (repeated rows are repetitions), rad."""
+    return np.radians(read_joint_rows(path, dof, what="poses")[0])
 
 
 def write_plan_csv(path: Path, poses_rad: np.ndarray, repeat: int) -> None:
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
-        w.writerow([f"q{j + 1}_deg" for j in range(poses_rad.shape[1])])
+        w.writerow(joint_columns(poses_rad.shape[1]))
         for _ in range(repeat):
             for q in np.degrees(poses_rad):
                 w.writerow([f"{v:.4f}" for v in q])
@@ -120,19 +120,19 @@ def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
     }
 
 
-def search_doc(design: Design, args, progress: Callable[[int, int], None] | None = None) -> dict:
-    if args.configs < 1 or args.repeat < 1:
-        raise UsageError("--configs and --repeat must be at least 1")
-    if args.criterion not in CRITERIA:
-        raise UsageError(f"--criterion must be one of {', '.join(CRITERIA)}")
+def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int], None] | None = None) -> dict:
+    if opts.configs < 1 or opts.repeat < 1:
+        raise InputError("--configs and --repeat must be at least 1")
+    if opts.criterion not in CRITERIA:
+        raise InputError(f"--criterion must be one of {', '.join(CRITERIA)}")
     try:
-        with executor_for(args.scheduler) as ex:
+        with executor_for(opts.scheduler) as ex:
             plan = optimize_plan(
-                design, args.configs, args.repeat, args.criterion, starts=args.starts, refined=args.refined,
-                seed=args.seed, executor=ex, progress=progress,
+                design, opts.configs, opts.repeat, opts.criterion, starts=opts.starts, refined=opts.refined,
+                seed=opts.seed, executor=ex, progress=progress,
             )  # fmt: skip
     except ValueError as exc:
-        raise UsageError(str(exc)) from None
+        raise InputError(str(exc)) from None
     return {
         "rho0_mm": plan.criteria["rho0_mm"],
         "poses_deg": np.degrees(plan.poses).round(4).tolist(),

@@ -5,6 +5,7 @@ Units: millimetres, degrees, degrees Celsius, hPa, percent relative humidity, se
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -80,3 +81,30 @@ class Meteo(Protocol):
     def connect(self) -> None: ...
     def read(self) -> Environment: ...
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Campaign and device time in seconds (monotonic); mocks and tests run a virtual one."""
+
+    def now(self) -> float: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+@runtime_checkable
+class Operator(Protocol):
+    def ask(self, kind: str, target: str, text: str) -> str:
+        """Show the request (kind: change_station, move_reflector or resume; target: station or point id) and
+        block until the operator acknowledges; returns the answer."""
+        ...
+
+
+class RealClock:
+    """The wall clock a real cell runs on (time.monotonic)."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)

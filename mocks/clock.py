@@ -1,4 +1,5 @@
-"""Clocks for the mocks: a real one and a virtual one that tests can run fast.
+"""The virtual clock of the mocks: tests and simulations run as fast as the machine goes (the real one is
+drivers.interfaces.RealClock).
 
 Everything in `mocks/` that waits or stamps time takes a clock, never `time` directly, so the same
 seed gives the same bytes whatever the machine load.
@@ -8,15 +9,6 @@ from __future__ import annotations
 
 import threading
 import time
-
-
-class RealClock:
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
 
 
 class VirtualClock:

@@ -10,8 +10,7 @@ import numpy as np
 
 from drivers.errors import DeviceFault, MotionRefused, TargetNotVisible
 from drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
-
-from .world import NotVisible, World
+from mocks.cell import NotVisible, World
 
 ENV = Environment(20.0, 1013.25, 45.0)
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import threading
 import time
 
-from .plc_server import MockPlc
-from .world import World
+from mocks.cell import World
+from mocks.servers.plc import MockPlc
 
 
 class SimHuman:

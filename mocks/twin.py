@@ -36,7 +36,6 @@ PAPER_TABLE8 = {
     "py4": -0.167, "pz4": -0.018, "phiz4": 0.025, "dq5": -0.011, "pz5": 0.016, "phiz5": -0.008,
 }  # fmt: skip
 
-SECONDS_PER_MEASUREMENT = 20.0
 REFERENCE_POSES = 40
 
 

@@ -2,8 +2,13 @@ import numpy as np
 import pytest
 
 from calib.cell import load_cell
+from calib.doe import design_for_cell, random_feasible_poses
 from calib.params import irreducible_params
 from calib.poses import random_poses
+from campaign.engine.runner import Live
+from campaign.session.session import measured_keys
+from mocks.cell import World
+from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
 from mocks.synth import simulate_campaign
 from mocks.twin import Twin
 
@@ -31,7 +36,6 @@ def kr270_params(kr270):
 
 def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
     """A campaign plan (plan.json form) of n random poses satisfying limits, box and visibility."""
-    from calib.doe import design_for_cell, random_feasible_poses
 
     poses = np.degrees(random_feasible_poses(design_for_cell(cell, []), n_poses, np.random.default_rng(seed)))
     return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
@@ -40,10 +44,6 @@ def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
 def inproc_live(cell, seed: int = 3, store=None, operator=None):
     """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
     measurements the session holds (a resume sees the noise an uninterrupted run would)."""
-    from campaign.runner import Live
-    from campaign.session import measured_keys
-    from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-    from mocks.world import World
 
     world = World(Twin(cell, seed=seed))
     if store is not None:

@@ -5,6 +5,11 @@ import json
 import numpy as np
 import pytest
 
+from calib.cell import load_cell
+from calib.identify import Identification
+from calib.model import identification_to_doc
+from calib.params import irreducible_params
+from calib.poses import points_in_box
 from calib.table import read_table, write_table
 from campaign.cli import main
 from tests.conftest import kr270_campaign
@@ -40,9 +45,6 @@ def test_identify_then_predict_reproduces_the_measurements(tmp_path, campaign_cs
 def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
     """predict honours every field of model.json: the twin's own truth written as a model predicts the
     noise-free positions exactly."""
-    from calib.identify import Identification
-    from calib.model import identification_to_doc
-    from calib.params import irreducible_params
 
     twin, data = campaign_csv
     params = irreducible_params(twin.cell.chain)[0]
@@ -90,8 +92,6 @@ def test_simulate_writes_a_table(tmp_path):
 def test_planned_poses_at_controller_precision_stay_in_the_cell_box(tmp_path):
     # regression: optimal poses sit on the box boundary, and plan.json holds them at 4 decimals of a degree;
     # this case (seed 0) once put P2 0.0001 mm outside the box, and the robot client refused the move
-    from calib.cell import load_cell
-    from calib.poses import points_in_box
 
     out = tmp_path / "plan.json"
     assert main(["plan", "--cell", "kr270", "--configs", "3", "--repeat", "1", "--starts", "50", "--refined", "1",

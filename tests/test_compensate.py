@@ -5,17 +5,16 @@ expectations come from the model's definition: a joint offset dq_j enters as q_j
 k_j as q_j (1 + k_j), a compliance c_j as q_j + c_j tau_j(q) (calib/extensions.py).
 """
 
-import argparse
 import csv
 import json
 import re
-import sys
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from calib.cell import load_cell
 from calib.compensate import CompensationError, compensate
 from calib.extensions import UNIT_FACTORS
 from calib.kinematics import Kinematics
@@ -23,9 +22,8 @@ from calib.model import Model, load_model
 from calib.params import irreducible_params, param_by_name
 from calib.pinmodel import gravity_torques
 from calib.poses import random_poses
-from campaign.cli import USER_ERRORS
-from campaign.compensate_cmd import register_compensate
-from campaign.jobs import choose_params, run_identify
+from campaign.analysis import choose_params, run_identify
+from campaign.cli import main
 from campaign.krl import KrlError, krl_texts, write_krl
 from mocks.twin import PAPER_TABLE8
 from tests.conftest import kr270_campaign
@@ -203,7 +201,6 @@ def test_targets_outside_the_joint_limits_are_refused(kr270):
 
 def test_a_pose_the_identified_robot_cannot_reach_is_refused():
     # a planar 2R arm with a longer first link reaches the intended TCP only with another end orientation
-    from calib.cell import load_cell
 
     cell = load_cell("planar2r")
     model = make_model(cell, {"px1": 0.5})
@@ -281,18 +278,6 @@ def test_krl_rows_and_speed_are_checked():
 
 
 # ---------------------------------------------------------------------------------------------------- CLI
-def run_cli(argv) -> int:
-    """`trackcal compensate` as campaign.cli.main runs a sub-command (the lead wires register_compensate)."""
-    ap = argparse.ArgumentParser(prog="trackcal")
-    register_compensate(ap.add_subparsers(dest="command", required=True))
-    args = ap.parse_args(argv)
-    try:
-        return args.func(args)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-
-
 @pytest.fixture()
 def model_file(kr270, tmp_path):
     model = table8_model(kr270)
@@ -327,7 +312,7 @@ def test_cli_writes_compensated_targets_and_krl(kr270, tmp_path, model_file, cap
     write_targets(targets, q0_deg)
     out = tmp_path / "out.csv"
     argv = ["compensate", "--model", str(path), str(targets), "--out", str(out), "--krl", "CELL1", "--speed", "15"]
-    assert run_cli(argv) == 0
+    assert main(argv) == 0
     rows = list(csv.DictReader(out.read_text().splitlines()))
     assert [r["name"] for r in rows] == ["T1", "T2", "T3", "T4", "T5"]
     qc = np.array([[float(r[f"q{j + 1}_comp_deg"]) for j in range(6)] for r in rows])
@@ -366,7 +351,7 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(kr270, tmp_path, model_fil
         (["--model", str(path), str(tmp_path / "missing.csv")], "cannot read"),
     ]
     for argv, message in cases:
-        assert run_cli(["compensate", *argv, "--out", out]) == 2, argv
+        assert main(["compensate", *argv, "--out", out]) == 2, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("error: "), err
         assert re.search(message, err), (message, err)

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.emscon_codec import (
+from drivers.emscon.codec import (
     HEADER_SIZE,
     MAX_PACKET_BYTES,
     ADMStatus,

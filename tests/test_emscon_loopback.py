@@ -1,4 +1,4 @@
-"""EmsconTracker against EmsconMockServer over real loopback sockets: the campaign sequence, partial reads,
+"""EmsconTracker against MockEmscon over real loopback sockets: the campaign sequence, partial reads,
 coalesced packets, time-outs and every injected fault.
 
 Numbers:
@@ -20,8 +20,8 @@ import time
 
 import pytest
 
-from drivers.emscon import EmsconTracker
-from drivers.emscon_codec import (
+from drivers.emscon.client import EmsconTracker
+from drivers.emscon.codec import (
     Command,
     ErrorResponse,
     FindReflector,
@@ -40,7 +40,7 @@ from drivers.emscon_codec import (
 from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.interfaces import Environment, Tracker
 from mocks.clock import VirtualClock
-from mocks.emscon_server import EmsconFault, EmsconMockServer
+from mocks.servers.emscon import EmsconFault, MockEmscon
 
 POINT = (2500.0, -400.0, 900.0)
 OFFSET = (2**-7, -(2**-6), 2**-8)
@@ -62,7 +62,7 @@ def clock():
 
 @pytest.fixture
 def server(clock):
-    srv = EmsconMockServer(measure_fn, clock, motion_time_s=MOTION_S).start()
+    srv = MockEmscon(measure_fn, clock, motion_time_s=MOTION_S).start()
     yield srv
     srv.stop()
 
@@ -238,7 +238,7 @@ def test_silent_tracker_times_out_in_bounded_time(server):
 def test_measurement_result_that_never_comes_times_out():
     # real_fraction=1: the mock's 1 s stationary measurement takes 1 s of wall time; the client allows 0.2 s
     clock = VirtualClock(real_fraction=1.0)
-    srv = EmsconMockServer(measure_fn, clock, motion_time_s=0.0).start()
+    srv = MockEmscon(measure_fn, clock, motion_time_s=0.0).start()
     try:
         trk = client_for(srv, measure_timeout_s=0.2)
         ready(trk)
@@ -296,7 +296,7 @@ def test_same_requests_give_the_same_bytes():
     requests = [SetUnits(), Initialize(), GoPosition(*POINT), FindReflector(2700.0), StartMeasurement()]
 
     def session() -> bytes:
-        srv = EmsconMockServer(measure_fn, VirtualClock(), motion_time_s=MOTION_S).start()
+        srv = MockEmscon(measure_fn, VirtualClock(), motion_time_s=MOTION_S).start()
         try:
             with socket.create_connection(srv.address, timeout=2.0) as raw:
                 raw.sendall(b"".join(encode_command(r) for r in requests))

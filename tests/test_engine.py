@@ -1,19 +1,21 @@
 """The campaign engine on the simulated world (in-process devices): order, safety, crash, resume, replay."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from calib.identify import identify
 from calib.params import irreducible_params
-from campaign.engine import CampaignStopped
-from campaign.recording import ReplayDivergence
-from campaign.runner import Live, replay_session, run_campaign
-from campaign.session import create_session, export_table, write_export
-from campaign.steps import PlanError, campaign_steps
-from campaign.store import SessionStore
+from campaign.engine.engine import CampaignStopped
+from campaign.engine.recording import ReplayDivergence
+from campaign.engine.runner import Live, replay_session, run_campaign
+from campaign.engine.steps import PlanError, campaign_steps
+from campaign.session.session import create_session, export_table, write_export
+from campaign.session.store import SessionStore
+from mocks.cell import World
 from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
 from mocks.twin import Twin
-from mocks.world import World
 from tests.conftest import before_call, feasible_plan, inproc_live
 
 
@@ -50,8 +52,6 @@ def test_step_order_groups_operator_actions(cell, plan):
 
 
 def test_a_point_no_station_sees_is_refused_before_the_start(cell, plan):
-    import dataclasses
-
     blind = dataclasses.replace(cell, tool_normals={k: -np.array([0.0, 0.0, 1.0]) * 0 + np.array([-1.0, 0, 0])
                                                     for k in cell.tool_normals}, acceptance_deg=1.0)  # fmt: skip
     with pytest.raises(PlanError, match="not visible from any station"):

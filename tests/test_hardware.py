@@ -1,4 +1,4 @@
-"""The hardware mode: the hardware config (campaign/hardware.py, configs/hardware/README.md), `trackcal mock`
+"""The hardware mode: the hardware config (campaign/cells/hardware.py, configs/hardware/README.md), `trackcal mock`
 and `trackcal run --hardware` against it in separate processes, as on the shop floor with the real cell."""
 
 import json
@@ -17,9 +17,9 @@ import yaml
 
 from calib.cell import load_cell
 from calib.table import read_table
-from campaign.hardware import load_hardware
-from campaign.jobs import UsageError
-from campaign.session import session_steps
+from campaign.cells.hardware import load_hardware
+from campaign.errors import InputError
+from campaign.session.session import session_steps
 
 TRACKCAL = [sys.executable, "-m", "campaign.cli"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,12 +92,12 @@ BAD = [  # (document or raw YAML text, what the message must say after "FILE: ")
 def test_bad_hardware_files_are_named_with_the_key(tmp_path, doc, message):
     path = tmp_path / "cell.yaml"
     path.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc))
-    with pytest.raises(UsageError, match=rf"^{re.escape(str(path))}: {message}"):
+    with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: {message}"):
         load_hardware(path)
 
 
 def test_unreadable_file(tmp_path):
-    with pytest.raises(UsageError, match=r"nothing\.yaml: cannot read the hardware config"):
+    with pytest.raises(InputError, match=r"nothing\.yaml: cannot read the hardware config"):
         load_hardware(tmp_path / "nothing.yaml")
 
 
@@ -106,7 +106,7 @@ def test_defaults_are_the_drivers_and_optional_sections(tmp_path):
     path.write_text(yaml.safe_dump({"tracker": {"protocol": "emscon", "host": "at901"},
                                     "robot": {"protocol": "krc2", "eki": {"port": 54600}, "rsi": {"port": 49152}}}))
     hw = load_hardware(path)
-    # drivers.emscon.EmsconTracker and drivers.kuka.KukaKrc2 defaults; emScon TPI port 700
+    # drivers.emscon.client.EmsconTracker and drivers.kuka.client.KukaKrc2 defaults; emScon TPI port 700
     assert hw.tracker == {"protocol": "emscon", "host": "at901", "port": 700, "timeout_s": 5.0,
                           "measure_timeout_s": 60.0, "motion_timeout_s": 120.0, "search_timeout_s": 10.0,
                           "samples_per_second": 1000.0}  # fmt: skip

@@ -8,7 +8,10 @@ from scipy import stats
 
 from calib.identify import IdentificationError, identify, residual_stats, significance
 from calib.noise import TrackerNoise
+from calib.params import complete_params
 from calib.rigid import exp_so3, kabsch
+from mocks.synth import simulate_campaign
+from mocks.twin import Twin
 from tests.conftest import kr270_campaign, truth_of
 
 
@@ -30,7 +33,6 @@ def test_noise_free_campaign_is_recovered_exactly(kr270, kr270_params):
 def test_complete_model_deviations_are_absorbed_exactly(kr270, kr270_params):
     """Completeness: deviations in *every* parameter of the complete model (including the 12 eliminated
     ones) are explained exactly by the irreducible set plus stations and points."""
-    from calib.params import complete_params
 
     devs = {p.name: (0.3 if p.is_length else 0.02) * (-1) ** i for i, p in enumerate(complete_params(kr270.chain))}
     _, table = kr270_campaign(kr270, seed=12, noise_free=True, deviations=devs)
@@ -154,8 +156,6 @@ def test_station_with_too_few_rows(kr270, kr270_params):
 
 def test_unidentifiable_setup_is_refused(kr270, kr270_params):
     """Three poses that differ only in joint 1 cannot reveal the other links' parameters."""
-    from mocks.synth import simulate_campaign
-    from mocks.twin import Twin
 
     base = np.array([10.0, -60.0, 80.0, 10.0, 40.0, 0.0])
     poses = np.array([base + [d, 0, 0, 0, 0, 0] for d in np.linspace(0, 40, 12)])

@@ -15,7 +15,7 @@ from calib.params import irreducible_params
 from calib.subset import identifiable_subset
 from calib.table import read_table
 from campaign.cli import main
-from campaign.import_ipa import (
+from campaign.importers.ipa_ur10 import (
     POINT,
     IpaFormatError,
     euler_xyz_matrix,
@@ -25,7 +25,7 @@ from campaign.import_ipa import (
     table_covariances,
     virtual_offsets,
 )
-from campaign.ur10_study import DATA, SERIES, conventions, rms3
+from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
 
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="IPA data set not present")
 B_CSV, D_CSV = DATA / SERIES["B"], DATA / SERIES["D"]

@@ -7,6 +7,7 @@ import pinocchio as pin
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from calib.chain import chain_from_urdf
 from calib.kinematics import Kinematics
 from calib.params import complete_params
 from calib.pinmodel import pinocchio_model
@@ -26,8 +27,6 @@ def test_nominal_fk_matches_pinocchio(kr270):
 
 
 def test_urdf_chain_matches_pinocchio_urdf():
-    from calib.chain import chain_from_urdf
-
     path = Path(__file__).parent / "data" / "ur_like_dh.urdf"
     chain = chain_from_urdf(str(path))
     model = pin.buildModelFromUrdf(str(path))

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.errors import ProtocolError
-from drivers.kuka_eki_codec import (
+from drivers.kuka.eki_codec import (
     COMMAND_TAGS,
     MAX_DOC_BYTES,
     STATE_TAGS,
@@ -21,7 +21,7 @@ from drivers.kuka_eki_codec import (
     parse_command,
     parse_state,
 )
-from drivers.kuka_rsi_codec import (
+from drivers.kuka.rsi_codec import (
     RobFrame,
     SenFrame,
     encode_rob,
@@ -30,7 +30,7 @@ from drivers.kuka_rsi_codec import (
     parse_sen,
     rob_framer,
 )
-from mocks.krc2 import check_configs, eki_config_tags, rsi_config
+from mocks.servers.kuka import CONFIG_DIR, check_configs, eki_config_tags, rsi_config
 
 # --- golden bytes -------------------------------------------------------------------------------------------
 
@@ -306,8 +306,6 @@ def test_rsi_config_matches_codec():
 
 
 def test_krl_program_uses_the_configured_names():
-    from mocks.krc2 import CONFIG_DIR
-
     src = (CONFIG_DIR / "trackcal_eki.src").read_text()
     assert 'EKX_Open("TrackcalEki")' in src and '"trackcal_rsi.xml"' in src
     for tag in COMMAND_TAGS:

@@ -1,18 +1,19 @@
-"""drivers.kuka.KukaKrc2 against mocks.krc2.MockKrc2 over real loopback sockets, on a virtual clock."""
+"""drivers.kuka.client.KukaKrc2 against mocks.servers.kuka.MockKrc2 over real loopback sockets, on a virtual clock."""
 
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import pytest
 
 from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
 from drivers.interfaces import Robot
-from drivers.kuka import KukaKrc2
-from drivers.kuka_eki_codec import ERR_DRIVES_OFF, ERR_ESTOP, ERR_RSI_STOPPED, ERR_SOFT_LIMIT
+from drivers.kuka.client import KukaKrc2
+from drivers.kuka.eki_codec import ERR_DRIVES_OFF, ERR_ESTOP, ERR_RSI_STOPPED, ERR_SOFT_LIMIT
 from mocks.clock import VirtualClock
-from mocks.krc2 import MockKrc2
+from mocks.servers.kuka import MockKrc2
 
 HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # kuka_experimental KR_C2/ros_rsi.src HOME
 TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
@@ -139,7 +140,6 @@ def test_controller_faults_become_device_faults(cell, inject, code):
 
 def test_estop_during_motion_halts_and_reports(cell):
     # slow move (1 % of 100 deg/s: 28 s of virtual time); stop it while it runs
-    import threading
 
     result = {}
 

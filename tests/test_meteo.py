@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 
 from drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
 from drivers.interfaces import Environment, Meteo
-from drivers.meteo import SerialMeteo
-from drivers.meteo_codec import MAX_LINE_BYTES, Reading, checksum, encode_reading, parse_line
+from drivers.meteo.client import SerialMeteo
+from drivers.meteo.codec import MAX_LINE_BYTES, Reading, checksum, encode_reading, parse_line
 from mocks.clock import VirtualClock
-from mocks.meteo_pty import MeteoFault, MockMeteo, reading_for
+from mocks.servers.meteo import MeteoFault, MockMeteo, reading_for
 
 # ---------------------------------------------------------------- golden lines, checksums computed by hand
 #
@@ -163,7 +163,7 @@ def test_mock_readings_pure_in_seed_and_request_count():
     assert reading_for(3, 17) != reading_for(4, 17)
     assert reading_for(3, 17) != reading_for(3, 18)
     # Drift + noise stay close to the base: |drift| <= 0.3 degC / 0.5 hPa / 2 %RH, noise sigma 0.01/0.02/0.1
-    # (mocks/meteo_pty.py); 6 sigma bound on the noise over 1000 draws.
+    # (mocks/servers/meteo.py); 6 sigma bound on the noise over 1000 draws.
     for n in range(1000):
         r = reading_for(3, n)
         assert abs(r.temperature_c - 20.0) <= 0.3 + 6 * 0.01

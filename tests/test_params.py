@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.chain import ChainError, chain_from_dict
+from calib.cell import load_robot
+from calib.chain import ChainError, chain_from_dict, chain_from_urdf
 from calib.identifiability import identification_jacobian, numerical_rank, random_configuration
 from calib.params import complete_params, irreducible_params
 
@@ -48,8 +49,6 @@ def test_kr270_numerically_irreducible(kr270):
 
 
 def test_ur_like_yaml_three_parallel_axes(tmp_path):
-    from calib.cell import load_robot
-
     chain, _ = load_robot("ur-like")
     kept, eliminated = assert_irreducible(chain, seed=1)
     # 6R robot, position-only with free base and tool: 30 - 6 - 6 = 18 (Zhuang's count, paper footnote 1)
@@ -60,8 +59,6 @@ def test_ur_like_yaml_three_parallel_axes(tmp_path):
 
 
 def test_urdf_dh_frames_through_pinocchio(tmp_path):
-    from calib.chain import chain_from_urdf
-
     chain = chain_from_urdf(str(UR_LIKE_URDF))
     assert chain.dof == 6 and all(j.axis == 2 for j in chain.joints)
     kept, _ = assert_irreducible(chain, seed=2)

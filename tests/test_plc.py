@@ -11,19 +11,20 @@ from io import StringIO
 import pytest
 from rich.console import Console
 
+from campaign.engine.operator import PlcOperator
 from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from drivers.interfaces import CellIO
-from drivers.plc import (
+from drivers.plc.client import ModbusCellIO
+from drivers.plc.codec import (
     REQUEST_REGISTERS,
     REQUEST_TARGET_CHARS,
-    ModbusCellIO,
     OperatorRequest,
     PlcRegisterMap,
     decode_request,
     encode_request,
 )
 from mocks.clock import VirtualClock
-from mocks.plc_server import MockPlc, PlcFault
+from mocks.servers.plc import MockPlc, PlcFault
 
 TIMEOUT_S = 0.25
 
@@ -197,8 +198,6 @@ def operator_at(mock: MockPlc, seen: list):
 
 
 def test_plc_operator_shows_the_request_while_the_lamp_is_on():
-    from campaign.operator import PlcOperator
-
     with MockPlc(clock=VirtualClock()) as mock, ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S) as io:
         seen: list = []
         op = PlcOperator(io, Console(file=StringIO()), poll_s=0.0, sleep=operator_at(mock, seen))
@@ -210,7 +209,6 @@ def test_plc_operator_shows_the_request_while_the_lamp_is_on():
 def test_plc_operator_without_request_registers_keeps_lamp_and_button():
     """A PLC program without the request registers (here: the client looks for them where this PLC has none,
     so it answers ILLEGAL DATA ADDRESS): one warning, then lamp and acknowledge button as before."""
-    from campaign.operator import PlcOperator
 
     with MockPlc(clock=VirtualClock()) as mock, \
             ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=PlcRegisterMap(request_hr=40)) as io:

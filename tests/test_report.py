@@ -1,19 +1,21 @@
 """The campaign report: report.html with its PNG plots, Table 8 and Table 9 content, escaping, the CLI."""
 
-import argparse
 import json
 import re
-import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from calib.diagnose import diagnose
+from calib.noise import TrackerNoise
 from calib.table import read_table, write_table
-from campaign.cli import USER_ERRORS
-from campaign.jobs import choose_params, run_identify
-from campaign.report import register_report, write_report
+from campaign.analysis import choose_params, run_identify, verdict_doc
+from campaign.cli import main
+from campaign.report.html import write_report
 from tests.conftest import kr270_campaign
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
@@ -109,10 +111,7 @@ def test_text_is_escaped(kr270, campaign, tmp_path):
 
 
 def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, tmp_path):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     d, table, outcome, _, _ = campaign
     extra = tmp_path / "parameters.png"  # same name as one of the report's own plots: must not replace it
@@ -128,24 +127,12 @@ def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, t
     assert (out / "parameters.png").read_bytes() != extra.read_bytes()
 
 
-def run_cli(argv) -> int:
-    """`trackcal report` as campaign.cli.main runs a sub-command (the lead wires register_report)."""
-    ap = argparse.ArgumentParser(prog="trackcal")
-    register_report(ap.add_subparsers(dest="command", required=True))
-    args = ap.parse_args(argv)
-    try:
-        return args.func(args)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-
-
 def test_cli_report(campaign, tmp_path, capsys):
     d, *_ = campaign
     out = tmp_path / "cli"
     argv = ["report", "--table", str(d / "table.csv"), "--model", str(d / "model.json"), "--plan", str(d / "plan.json"),
             "--verdict", str(d / "verdict.json"), "--out", str(out)]  # fmt: skip
-    assert run_cli(argv) == 0
+    assert main(argv) == 0
     assert "report written to" in capsys.readouterr().out
     text = (out / "report.html").read_text()
     assert "kr270" in text and all((out / src).is_file() for src in re.findall(r'src="([^"]+)"', text))
@@ -168,17 +155,13 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(campaign, tmp_path, capsys
         (["--model", str(d / "model.json"), "--plots", str(tmp_path / "nodir")], "not a directory"),
     ]
     for extra, message in cases:
-        assert run_cli(base + extra) == 2, extra
+        assert main(base + extra) == 2, extra
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
     assert not Path(tmp_path / "o" / "report.html").exists()
 
 
 def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
-    from calib.diagnose import diagnose
-    from calib.noise import TrackerNoise
-    from campaign.diagnose_report import verdict_doc
-
     d, table, outcome, plan, _ = campaign
     diag = diagnose(kr270.chain, table, kr270.tool_points, choose_params(kr270, None), TrackerNoise(), folds=3)
     out = tmp_path / "rep"

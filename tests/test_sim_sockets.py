@@ -13,11 +13,11 @@ moves while the mock PLC reports the cell door open.
 import numpy as np
 import pytest
 
-from campaign.devices import SimCell
-from campaign.engine import CampaignStopped
-from campaign.runner import run_campaign
-from campaign.session import create_session, export_table
-from mocks.emscon_server import EmsconFault
+from campaign.cells.sim import SimCell
+from campaign.engine.engine import CampaignStopped
+from campaign.engine.runner import run_campaign
+from campaign.session.session import create_session, export_table
+from mocks.servers.emscon import EmsconFault
 from tests.conftest import before_call, feasible_plan, inproc_live
 
 SEED = 3

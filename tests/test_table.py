@@ -6,6 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calib.table import TableError, read_table, write_table
+from tests.conftest import kr270_campaign
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm"
 ROW = "1,0.0,Q1,S1,P1,10,-60,80,10,40,0,1000.5,200.25,-300.125"
@@ -18,8 +19,6 @@ def write(tmp_path, text, name="t.csv"):
 
 
 def test_round_trip_keeps_values_and_extra_columns(tmp_path, kr270):
-    from tests.conftest import kr270_campaign
-
     _, table = kr270_campaign(kr270, seed=2)
     table.extra["temp_c"] = [f"{20 + 0.01 * i:.2f}" for i in range(len(table))]
     path = tmp_path / "t.csv"

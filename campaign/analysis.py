@@ -1,0 +1,196 @@
+"""The analysis pipeline on typed options: identify a table against a cell, diagnose it, predict with a model,
+simulate a table on the twin, and the end-of-campaign analysis of a session (export, model, verdict, report)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.cell import Cell, load_cell
+from calib.diagnose import Diagnosis, diagnose, fit_cause, rms
+from calib.extensions import CAUSES, build_extension
+from calib.identify import Identification, IdentificationError, identify, residual_stats, significance
+from calib.kinematics import Kinematics
+from calib.model import identification_to_doc
+from calib.noise import TrackerNoise
+from calib.params import Param, irreducible_params, param_by_name
+from calib.poses import random_poses
+from calib.table import MeasurementTable, read_table
+from campaign.console import console
+from campaign.errors import InputError
+from campaign.output import write_json
+from campaign.report.html import write_report
+from campaign.session.session import session_cell, session_plan, write_export
+from campaign.session.store import SessionStore
+from mocks.synth import simulate_campaign
+from mocks.twin import Twin
+
+
+def choose_params(cell: Cell, names: str | None) -> list[Param]:
+    kept, _ = irreducible_params(cell.chain)
+    if not names:
+        return kept
+    try:
+        return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
+    except ValueError as exc:
+        raise InputError(f"--params: {exc}; the irreducible set is {' '.join(p.name for p in kept)}") from None
+
+
+@dataclass
+class IdentifyOutcome:
+    result: Identification
+    before: Identification
+    doc: dict
+
+
+def run_identify(
+    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = "iid", extend: str = "none"
+) -> IdentifyOutcome:
+    """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's)."""
+    if extend not in ("none", "auto", *CAUSES):
+        raise InputError(f"--extend {extend}: choose none, auto or one of {', '.join(CAUSES)}")
+    noise = None if weighting == "iid" else TrackerNoise()
+    before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
+    if extend == "auto":
+        extend = diagnose(cell.chain, table, cell.tool_points, params, noise).cause
+        extend = "none" if extend == "unexplained" else extend
+    fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
+    if fit is None:
+        raise InputError(f"--extend {extend}: this table cannot reveal it (too few rows or no variation)")
+    return IdentifyOutcome(result=fit.result, before=before, doc=model_doc(cell, table, fit.result, before, fit.shift))
+
+
+def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: Identification, shift) -> dict:
+    params = res.params
+    extra: dict = {
+        "cell": cell.name,
+        "data": table.source,
+        "n_measurements": len(table),
+        "residuals": {"before": residual_stats(before.residuals), "after": residual_stats(res.residuals)},
+    }
+    if cell.test_pose is not None and cell.tcp is not None:
+        extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
+        extra["tcp_mm"] = cell.tcp.tolist()
+        extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
+    return identification_to_doc(res, extra, shift)
+
+
+def summary_of(outcome: IdentifyOutcome) -> dict:
+    res = outcome.result
+    keys = ("cell", "data", "n_measurements", "residuals", "significance_mm")
+    out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
+    out.update(
+        {
+            "parameters": outcome.doc["parameters"],
+            "sigma_mm": outcome.doc["sigma_mm"],
+            "iterations": res.iterations,
+            "dof": res.dof,
+            "stations": list(res.stations),
+        }
+    )
+    return out
+
+
+def parse_effects(items: list[str] | None) -> dict[str, float]:
+    out = {}
+    for item in items or []:
+        name, _, mag = item.partition(":")
+        if name not in CAUSES:
+            raise InputError(f"--effect {item}: unknown effect; choose from {', '.join(CAUSES)}")
+        try:
+            out[name] = float(mag) if mag else 0.05
+        except ValueError:
+            raise InputError(f"--effect {item}: the magnitude must be a number of mm") from None
+        if not out[name] > 0:
+            raise InputError(f"--effect {item}: the magnitude must be positive")
+    return out
+
+
+def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free: bool = False,
+             effects: dict[str, float] | None = None) -> tuple[Cell, Twin, MeasurementTable]:  # fmt: skip
+    """A table of `n_poses` random feasible poses measured by the twin of `seed`."""
+    cell = load_cell(cell_ref)
+    if n_poses < 1 or repeat < 1:
+        raise InputError("--poses and --repeat must be at least 1")
+    try:
+        poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    twin = Twin(cell, seed=seed, effects=effects or {})
+    return cell, twin, simulate_campaign(twin, poses, repeat=repeat, noise_free=noise_free)
+
+
+def twin_truth(cell: Cell, seed: int) -> dict[str, float]:
+    """The twin's true parameter deviations in boundary units (mm, deg)."""
+    twin = Twin(cell, seed=seed)
+    return {p.name: (v if p.is_length else float(np.degrees(v))) for p, v in zip(twin.params, twin.true_dev,
+                                                                                strict=True)}  # fmt: skip
+
+
+def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
+    """TCP at the cell's test pose with a fitted model (extension at its neutral context: no approach
+    history, campaign start)."""
+    if cell.test_pose is None:
+        return None
+    q0 = cell.test_pose[None]
+    ext = res.extension
+    if ext is not None and ext.joint_features is not None:
+        row = MeasurementTable(np.array([1]), np.zeros(1), ["q0"], ["-"], ["-"], np.degrees(q0), None)
+        q0 = q0 + build_extension(ext.cause, cell.chain, row, names=ext.names).joint_offsets(res.ext)
+    return Kinematics(cell.chain, res.params).points(q0, cell.tcp, res.dev)[0]
+
+
+def verdict_doc(cell: Cell, d: Diagnosis) -> dict:
+    """verdict.json: the cause, every candidate with its evidence, the residuals and the gain."""
+    geo = d.geometric
+    doc = {
+        "cause": d.cause,
+        "candidates": [
+            {
+                "cause": c.cause, "score": c.score(), "holdout_rms_mm": c.holdout_rms_mm, "rms_mm": c.rms_mm,
+                "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic, "n_params": c.n_params,
+                "significant": c.significant, **c.detail,
+            }
+            for c in sorted(d.candidates, key=lambda c: c.score())
+        ],
+        "geometric": {"rms_mm": rms(geo.residuals), "variance_factor": geo.variance_factor,
+                      "p_at_noise_floor": d.variance_factor_pvalue},
+        "noise_floor_mm": d.noise_floor_mm,
+        "noise_floor_source": d.floor_source,
+        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm},
+    }  # fmt: skip
+    ext = d.extended or geo
+    doc["extended"] = {"rms_mm": rms(ext.residuals)}
+    if d.extended is not None:
+        tcp_g, tcp_e = tcp_at_test_pose(cell, geo), tcp_at_test_pose(cell, d.extended)
+        if tcp_g is not None:
+            doc["test_pose"] = {
+                "tcp_difference_mm": float(np.linalg.norm(tcp_e - tcp_g)),
+                "note": "how far the geometric model's TCP at the test pose is from the extended model's",
+            }
+    return doc
+
+
+def analyse_session(store: SessionStore) -> None:
+    """End of a campaign: export, identification, diagnosis and report, into the session directory."""
+    d = store.directory
+    n = write_export(store, d / "table.csv")
+    cell = session_cell(store)
+    table = read_table(d / "table.csv", n_joints=cell.chain.dof)
+    params = choose_params(cell, None)
+    try:
+        outcome = run_identify(cell, table, params, "tracker")
+        write_json(d / "model.json", outcome.doc)
+        dg = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise())
+        verdict = verdict_doc(cell, dg)
+        write_json(d / "verdict.json", verdict)
+    except IdentificationError as exc:
+        console.print(f"[yellow]identification not possible yet[/]: {exc}")
+        return
+    report = write_report(d / "report", cell, table, outcome.doc, session_plan(store), verdict,
+                          f"trackcal campaign {d.name}: cell {cell.name}", diagnosis=dg)  # fmt: skip
+    after = outcome.doc["residuals"]["after"]
+    console.print(f"{n} measurements -> {d / 'table.csv'}; model {d / 'model.json'} (coordinate RMS "
+                  f"{after['coord_rms_mm'] * 1000:.1f} um); diagnosis: {dg.cause} ({d / 'verdict.json'}); "
+                  f"report {report}")  # fmt: skip

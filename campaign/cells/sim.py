@@ -1,0 +1,220 @@
+"""The digital twin's cell: its mock servers on loopback (shared by `run --sim` and `trackcal mock`) and, for
+`run --sim`, the real clients talking to them. The real cell: campaign/cells/hardware.py."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+
+from calib.cell import Cell
+from campaign.cells.checks import cell_box_check, joint_limits_deg
+from campaign.console import console
+from campaign.engine.operator import PlcOperator
+from campaign.engine.runner import Live
+from campaign.errors import InputError
+from campaign.session.session import measured_keys
+from campaign.session.store import SessionStore
+from drivers.emscon.client import EmsconTracker
+from drivers.kuka.client import KukaKrc2
+from drivers.meteo.client import SerialMeteo
+from drivers.plc.client import ModbusCellIO
+from mocks.cell import World
+from mocks.clock import VirtualClock
+from mocks.operator import SimHuman
+from mocks.servers.emscon import MockEmscon
+from mocks.servers.kuka import MockKrc2
+from mocks.servers.meteo import MockMeteo
+from mocks.servers.plc import MockPlc
+from mocks.twin import Twin
+
+HOME_DEG = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # KR C2 HOME of the KRL program (configs/krc2)
+# Rated axis speeds of a KR 270 are about 100 deg/s for A1-A3 (KUKA KR QUANTEC data sheet: A1 105, A2 101,
+# A3 96 deg/s); the slowest of them sets the simulated PTP duration at 100 % override.
+SIM_JOINT_SPEED_DEG_S = 96.0
+
+
+class TwinMocks:
+    """The digital twin's cell behind the real protocols, for `run --sim` (SimCell, same process) and `trackcal
+    mock` (another process): emScon tracker server, Modbus cell PLC with the simulated operator at its lamp (he
+    reads the request registers: the PLC is his only channel), serial meteo on a pseudo-terminal, all on
+    loopback, and the KR C2 controller, which like the real one is a client: `serve_controller` points it at
+    the EKI and RSI ports trackcal listens on.
+
+    `measured`: (station, point, joints) of the measurements a resumed session already holds, so every
+    measurement keeps its noise (a pure function of the seed and the step's identity). `speed`: simulated
+    seconds per real second (None: as fast as the machine goes). `hold_s`: the least time the simulated operator
+    holds the acknowledge button (he holds it until the request lamp goes out)."""
+
+    def __init__(self, cell: Cell, seed: int, effects: dict[str, float] | None = None, speed: float | None = None,
+                 measured=None, hold_s: float = 0.05) -> None:  # fmt: skip
+        if cell.chain.dof != len(HOME_DEG):
+            raise InputError(f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has "
+                             f"{cell.chain.dof}")  # fmt: skip
+        self.cell, self.seed = cell, seed
+        self.clock = VirtualClock(real_fraction=0.0 if not speed else 1.0 / speed)
+        self.world = World(Twin(cell, seed=seed, effects=effects or {}), self.clock)
+        if measured:
+            self.world.restore_counts(measured)
+        self.controller = None
+        self.controllers_started = 0
+        self._connected = 0  # controllers (before the current one) that did connect
+        self._supervisor: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._started: list = []
+        try:
+            self.tracker_mock = self._up(
+                MockEmscon(
+                    lambda expected: self.world.measure(), self.clock, reflector_present=self.world.reflector_visible
+                ).start()
+            )
+            self.plc = self._up(MockPlc(clock=self.clock).start())
+            self.meteo_mock = self._up(MockMeteo(seed, self.clock).start())
+            self.human = self._up(SimHuman(self.world, self.plc, hold_s=hold_s).start())
+        except BaseException:
+            self.close()
+            raise
+
+    def _up(self, device):
+        self._started.append(device)
+        return device
+
+    def _new_controller(self, eki_addr, rsi_addr, connect_timeout_s: float, joints_deg):
+        ctl = MockKrc2(eki_addr, rsi_addr, self.clock, joints_deg, on_joints=self.world.robot_at,
+                       joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed + self.controllers_started,
+                       overshoot_deg=0.0, connect_timeout_s=connect_timeout_s)  # fmt: skip
+        self.controllers_started += 1
+        if self.controller is not None and self.controller.connected.is_set():
+            self._connected += 1
+        self.controller = ctl
+        return ctl.start()
+
+    def serve_controller(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int], connect_timeout_s: float = 20.0,
+                         restart: bool = False) -> None:  # fmt: skip
+        """Start the mock KR C2, connecting (and retrying for connect_timeout_s) to trackcal's EKI and RSI ports.
+        `restart`: whenever the controller's connection ends (trackcal exited or was killed), a fresh one starts
+        where the robot stands and waits for the next trackcal, as a real controller restarting its program."""
+        self._new_controller(eki_addr, rsi_addr, connect_timeout_s, HOME_DEG)
+        if not restart:
+            return
+
+        def supervise() -> None:
+            while not self._stopping.is_set():
+                ctl = self.controller
+                if ctl.join(0.1) and not self._stopping.is_set():
+                    ctl.stop()
+                    self._new_controller(eki_addr, rsi_addr, connect_timeout_s, ctl.joints_deg)
+
+        self._supervisor = threading.Thread(target=supervise, name="mock-krc2-supervisor", daemon=True)
+        self._supervisor.start()
+
+    def controllers_connected(self) -> int:
+        """How many times a controller connected to trackcal (one per `run` / `resume` served)."""
+        return self._connected + (self.controller is not None and self.controller.connected.is_set())
+
+    def addresses(self) -> dict[str, str]:
+        """Where each mock serves (for people)."""
+        host, port = self.tracker_mock.address
+        phost, pport = self.plc.address
+        out = {"tracker (emScon)": f"{host}:{port}",
+               "cell PLC (Modbus TCP)": f"{phost}:{pport} unit {self.plc.unit_id}",
+               "meteo (serial)": self.meteo_mock.port_path}  # fmt: skip
+        if self.controller is not None:
+            out["KR C2 connects to EKI"] = "{}:{}".format(*self.controller.eki_addr)
+            out["KR C2 connects to RSI"] = "{} {}:{}".format(self.controller.rsi_protocol, *self.controller.rsi_addr)
+        return out
+
+    def stop_controller(self) -> None:
+        """The controller stops (and is not restarted): its connections end as a controller switched off."""
+        self._stopping.set()
+        if self._supervisor is not None:
+            self._supervisor.join(timeout=2.0)
+            self._supervisor = None
+        if self.controller is not None:
+            with contextlib.suppress(Exception):
+                self.controller.stop()
+
+    def close(self) -> None:
+        """The controller first, then the other mocks in reverse order of start; one failing stop never keeps
+        the others up."""
+        self.stop_controller()
+        for dev in reversed(self._started):
+            with contextlib.suppress(Exception):
+                dev.stop()
+        self._started = []
+
+
+class SimCell:
+    """The digital twin's cell (TwinMocks) with the real clients talking to it over loopback in `live`. The
+    mocks stay reachable (tracker_mock, controller, plc, meteo_mock, human, world, clock) so tests can inject
+    faults mid-campaign.
+
+    On resume the world learns which measurements the session already holds, so every measurement keeps its
+    noise (a pure function of the seed and the step's identity). `speed`: simulated seconds per real second
+    (None: as fast as the machine goes)."""
+
+    def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
+                 effects: dict[str, float] | None = None, speed: float | None = None) -> None:  # fmt: skip
+        self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store))
+        m = self.mocks
+        self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
+        self.meteo_mock, self.human = m.meteo_mock, m.human
+        self._clients: list = []
+        try:
+            tracker = self._client(EmsconTracker(*self.tracker_mock.address, timeout_s=10.0))
+            robot = self._client(KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, joint_limits_deg=joint_limits_deg(cell),
+                                          cell_box_check=cell_box_check(cell), connect_timeout_s=20.0))  # fmt: skip
+            robot.listen()
+            m.serve_controller(robot.eki_address, robot.rsi_address)
+            self.controller = m.controller
+            cellio = self._client(ModbusCellIO(*self.plc.address, timeout_s=5.0))
+            meteo = self._client(SerialMeteo(self.meteo_mock.port_path, timeout_s=5.0))
+            for dev in (tracker, robot, cellio, meteo):
+                dev.connect()
+        except BaseException:
+            self.close()
+            raise
+        operator = PlcOperator(cellio, console, poll_s=0.005)
+        self.live = Live(tracker, robot, operator, self.clock, cellio, meteo, close=self.close)
+
+    def _client(self, device):
+        self._clients.append(device)
+        return device
+
+    def close(self) -> None:
+        """The controller first (it is the one that hangs up, not trackcal), then the clients, then the other
+        mocks; one failing close never keeps the others up."""
+        self.mocks.stop_controller()
+        for dev in reversed(self._clients):
+            with contextlib.suppress(Exception):
+                dev.close()
+        self._clients = []
+        self.mocks.close()
+
+
+# How often trackcal reads the acknowledge button (written into the hardware file); the simulated operator holds
+# it until the request lamp goes out, as a person would, so no press is missed at any poll period.
+POLL_S = 0.05
+# The controller retries its connection this long before giving up (and the supervisor starts a fresh one).
+CONTROLLER_CONNECT_S = 24 * 3600.0
+
+
+def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
+    """A port nobody listens on now (the OS picks it); trackcal binds it later with SO_REUSEADDR."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -> dict:
+    """The hardware config (campaign/cells/hardware.py schema) of the running mocks."""
+    thost, tport = mocks.tracker_mock.address
+    phost, pport = mocks.plc.address
+    return {
+        "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
+        "robot": {"protocol": "krc2", "eki": {"host": eki[0], "port": eki[1]},
+                  "rsi": {"protocol": "tcp", "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
+        "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
+                "poll_s": POLL_S},
+        "meteo": {"protocol": "serial", "port": mocks.meteo_mock.port_path, "baudrate": 9600, "timeout_s": 2.0},
+    }  # fmt: skip

@@ -1,0 +1,55 @@
+"""The trackcal command line: the command table (campaign.cli.commands) as argparse, and the one place that
+turns an error into a line on stderr.
+
+Every user mistake ends in one line and exit code 2. The command line catches one error base per layer:
+calib.errors.CalibError (the mathematics refuses its input), campaign.errors.CampaignError (a file, plan,
+session or option the campaign cannot use) and drivers.errors.DeviceError (a device that cannot be reached).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from calib.errors import CalibError
+from campaign.errors import CampaignError
+from drivers.errors import DeviceError
+
+from .commands import COMMANDS, GROUPS
+
+USER_ERRORS = (CalibError, CampaignError, DeviceError)  # one line, exit 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="trackcal", description="Robot calibration with a laser tracker.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for cmd in COMMANDS:
+        where = sub
+        if cmd.group is not None:
+            if cmd.group not in groups:
+                g = sub.add_parser(cmd.group, help=GROUPS[cmd.group])
+                groups[cmd.group] = g.add_subparsers(dest="format", required=True)
+            where = groups[cmd.group]
+        p = where.add_parser(cmd.name, help=cmd.help, description=cmd.description)
+        for flags, options in cmd.args:
+            p.add_argument(*flags, **options)
+        p.set_defaults(handler=cmd.handler)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    module, _, function = args.handler.partition(":")
+    try:
+        # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)
+        handler = getattr(importlib.import_module(module), function)
+        return handler(args)
+    except USER_ERRORS as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+

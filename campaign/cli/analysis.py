@@ -1,0 +1,146 @@
+"""`trackcal identify | diagnose | predict | simulate | demo`: thin commands over campaign.analysis."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from rich.table import Table
+
+from calib.cell import load_cell
+from calib.diagnose import diagnose
+from calib.model import load_model, predict_table
+from calib.noise import TrackerNoise
+from calib.table import read_table, write_table
+from campaign.analysis import (
+    IdentifyOutcome,
+    analyse_session,
+    choose_params,
+    model_doc,
+    parse_effects,
+    run_identify,
+    simulate,
+    summary_of,
+    twin_truth,
+    verdict_doc,
+)
+from campaign.console import console
+from campaign.output import write_json, write_output_table
+from campaign.planning import PlanOptions, build_design, search_doc
+from campaign.report.diagnosis_plots import plots
+from campaign.session.session import create_session
+
+from .campaign import drive
+
+
+def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:
+    doc = outcome.doc
+    t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations)")
+    for col in ("parameter", "unit", "nominal", "deviation", "95 % CI"):
+        t.add_column(col, justify="right")
+    if truth is not None:
+        t.add_column("truth (twin)", justify="right")
+        t.add_column("inside CI", justify="center")
+    for name, p in doc["parameters"].items():
+        row = [name, p["unit"], f"{p['nominal']:.1f}", f"{p['value']:+.4f}", f"±{p['ci95']:.4f}"]
+        if truth is not None:
+            tv = truth.get(name, 0.0)
+            row += [f"{tv:+.4f}", "yes" if abs(tv - p["value"]) <= p["ci95"] else "NO"]
+        t.add_row(*row)
+    console.print(t)
+    r = doc["residuals"]
+    rt = Table(title="Residuals (paper Table 9 style), mm")
+    for col in ("", "before", "after", "factor"):
+        rt.add_column(col, justify="right")
+    for key, label in (("coord_max_mm", "coordinate max"), ("coord_rms_mm", "coordinate RMS"),
+                       ("dist_max_mm", "distance max"), ("dist_rms_mm", "distance RMS")):
+        b, a = r["before"][key], r["after"][key]
+        rt.add_row(label, f"{b:.4f}", f"{a:.4f}", f"{b / a:.1f}" if a > 0 else "-")
+    console.print(rt)
+    if "significance_mm" in doc:
+        sig = sorted(doc["significance_mm"].items(), key=lambda kv: -kv[1])
+        console.print(
+            "TCP error at the test pose when one parameter is left at nominal (section 7.3): "
+            + ", ".join(f"{k} {v * 1000:.0f} um" for k, v in sig)
+        )
+    for sid, s in doc["stations"].items():
+        ci = s["ci95_translation_mm"]
+        console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
+
+
+def cmd_identify(args) -> int:
+    cell = load_cell(args.cell)
+    table = read_table(args.data, n_joints=cell.chain.dof)
+    outcome = run_identify(cell, table, choose_params(cell, args.params), args.weighting, args.extend)
+    print_identification(outcome)
+    write_json(args.out, outcome.doc)
+    if args.json:
+        write_json(args.json, summary_of(outcome))
+    console.print(f"model written to {args.out}")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    model = load_model(args.model)
+    rows = read_table(args.rows, require_xyz=False)
+    pred = predict_table(model, rows)
+    write_output_table(pred, args.out)
+    console.print(f"{len(pred)} predictions written to {args.out}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free, parse_effects(args.effect))
+    write_table(table, args.out)
+    console.print(f"{len(table)} simulated measurements written to {args.out}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """Plan + simulated campaign (2 stations, 3 points, operator prompts) + identification + diagnosis."""
+    out = Path(args.out)
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    cell = load_cell(args.cell)
+    console.rule(f"trackcal demo: cell {cell.name} on the digital twin")
+    options = PlanOptions(configs=6, repeat=3, seed=args.seed)
+    with console.status("planning: test-pose optimal poses (paper section 6)"):
+        plan = search_doc(build_design(cell, options), options)
+    write_json(str(out / "plan.json"), plan)
+    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {plan['rho0_mm'] * 1000:.2f} um "
+                  f"({out / 'plan.json'})")  # fmt: skip
+    store = create_session(out / "session", args.cell, plan, "sim", args.seed)
+    drive(store)
+    analyse_session(store)
+    table = read_table(out / "session" / "table.csv", n_joints=cell.chain.dof)
+    print_identification(run_identify(cell, table, choose_params(cell, None), "tracker"), twin_truth(cell, args.seed))
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    cell = load_cell(args.cell)
+    table = read_table(args.data, n_joints=cell.chain.dof)
+    params = choose_params(cell, args.params)
+    noise = TrackerNoise() if args.weighting == "tracker" else None
+    with console.status("fitting the geometric model and every candidate cause (cross-validated by pose)"):
+        d = diagnose(cell.chain, table, cell.tool_points, params, noise, folds=args.folds, seed=args.seed)
+    doc = verdict_doc(cell, d)
+    t = Table(title=f"Diagnosis: {d.cause}")
+    for col in ("candidate", "params", "held-out RMS um", "fit RMS um", "F-test p", "dBIC", "significant"):
+        t.add_column(col, justify="right")
+    t.add_row("geometric", "-", f"{d.holdout_geometric_mm * 1000:.1f}", f"{doc['geometric']['rms_mm'] * 1000:.1f}",
+              "-", "-", "-")  # fmt: skip
+    for c in doc["candidates"]:
+        t.add_row(c["cause"], str(c["n_params"]), f"{c['holdout_rms_mm'] * 1000:.1f}", f"{c['rms_mm'] * 1000:.1f}",
+                  f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}", "yes" if c["significant"] else "no")  # fmt: skip
+    console.print(t)
+    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); held-out RMS "
+                  f"{d.holdout_geometric_mm * 1000:.1f} -> {d.holdout_extended_mm * 1000:.1f} um")  # fmt: skip
+    if args.plots:
+        for p in plots(cell, d, Path(args.plots)):
+            console.print(f"plot written to {p}")
+    write_json(args.json, doc)
+    if args.out:
+        write_json(args.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift))
+    console.print(f"verdict written to {args.json}")
+    return 0

@@ -1,0 +1,125 @@
+"""`trackcal run | resume | replay`: campaigns on the shop floor or on the simulated cell."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from campaign.analysis import analyse_session, parse_effects
+from campaign.cells.hardware import connect_hardware, load_hardware
+from campaign.cells.sim import SimCell
+from campaign.console import console
+from campaign.engine.engine import CampaignStopped
+from campaign.engine.recording import ReplayDivergence
+from campaign.engine.runner import replay_session, run_campaign
+from campaign.errors import CampaignError, InputError, UsageError
+from campaign.session.session import HARDWARE_COPY, create_session, session_cell, write_export
+from campaign.session.store import SessionStore
+
+
+def _progress():
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                   TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
+    task = bar.add_task("measurements", total=None, next="")
+
+    def update(done: int, total: int, nxt: str) -> None:
+        bar.update(task, completed=done, total=total, next=nxt or "-")
+
+    return bar, update
+
+
+def _live_for(store: SessionStore):
+    meta = store.meta()
+    cell = session_cell(store)
+    if meta["mode"] == "sim":
+        effects = json.loads(meta.get("effects", "{}") or "{}")
+        speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
+        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed).live
+    if meta["mode"] == "hardware":
+        copy = store.directory / HARDWARE_COPY
+        hw = load_hardware(copy)
+        try:
+            return connect_hardware(hw, cell)
+        except CampaignError as exc:
+            raise InputError(f"{exc}\n(the session uses its copy {copy}: fix the cell or that file, then "
+                             f"`trackcal resume {store.directory}`)") from None
+    raise InputError(f"{store.directory}: a {meta['mode']} session cannot be run live")
+
+
+def drive(store: SessionStore) -> None:
+    bar, update = _progress()
+    try:
+        with bar:
+            run_campaign(store, _live_for(store), progress=update)
+    except CampaignStopped as exc:
+        raise CampaignError(f"{exc}. Fix the cause, then: trackcal resume {store.directory}") from None
+
+
+def cmd_run(args) -> int:
+    if bool(args.sim) == bool(args.hardware):
+        raise UsageError("give exactly one of --sim or --hardware FILE")
+    try:
+        plan_doc = json.loads(Path(args.plan).read_text())
+    except OSError as exc:
+        raise InputError(f"{args.plan}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise InputError(f"{args.plan}: not a JSON plan ({exc})") from None
+    if args.hardware and (args.effect or args.sim_speed is not None):
+        raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
+    effects = parse_effects(args.effect) if args.sim else {}
+    mode, seed = ("sim", args.seed) if args.sim else ("hardware", None)
+    if args.sim_speed is not None and not args.sim_speed > 0:
+        raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
+    extra = {"sim_speed": str(args.sim_speed)} if args.sim and args.sim_speed else {}
+    if args.hardware:
+        return _campaign(lambda: _hardware_session(Path(args.session), args.cell, plan_doc, args.hardware),
+                         args.no_analysis)  # fmt: skip
+    return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects,
+                                            extra=extra), args.no_analysis)  # fmt: skip
+
+
+def _hardware_session(directory: Path, cell_ref: str, plan_doc: dict, hardware: str) -> SessionStore:
+    """A new session that keeps a copy of the hardware config (validated first: a broken file makes no session)."""
+    try:
+        text = Path(hardware).read_text()
+    except OSError as exc:
+        raise InputError(f"{hardware}: cannot read the hardware config ({exc.strerror})") from None
+    load_hardware(hardware, text)
+    store = create_session(directory, cell_ref, plan_doc, "hardware", None,
+                           hardware={"file": HARDWARE_COPY, "source": str(Path(hardware).resolve())})  # fmt: skip
+    try:
+        (directory / HARDWARE_COPY).write_text(text)
+    except OSError as exc:
+        raise InputError(f"{directory / HARDWARE_COPY}: cannot write ({exc.strerror})") from None
+    return store
+
+
+def cmd_resume(args) -> int:
+    return _campaign(lambda: SessionStore.open(args.session), args.no_analysis)
+
+
+def _campaign(open_store, no_analysis: bool) -> int:
+    store = open_store()
+    if store.events("campaign_done"):
+        console.print(f"{store.directory}: the campaign is already complete")
+    else:
+        drive(store)
+    if not no_analysis:
+        analyse_session(store)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    try:
+        recording = SessionStore.open(args.session, readonly=True)
+        plan_doc = json.loads(Path(args.plan).read_text()) if args.plan else None
+        store = replay_session(recording, Path(args.into), args.cell, plan_doc)
+    except (OSError, ValueError) as exc:
+        raise InputError(str(exc)) from None
+    except ReplayDivergence as exc:
+        raise InputError(f"replay diverges from the recording at {exc}") from None
+    n = write_export(store, Path(args.into) / "table.csv")
+    console.print(f"replayed {n} measurements into {args.into} (the recording is unchanged)")
+    return 0

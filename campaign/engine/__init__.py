@@ -1,0 +1,1 @@
+"""The campaign engine: steps, the engine that executes them, recording and playback, wiring, the operator."""

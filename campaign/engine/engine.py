@@ -1,0 +1,248 @@
+"""The campaign engine: runs plan steps against the device interfaces, records everything, resumes.
+
+Rules it keeps:
+- every device call, operator answer and measurement is stored (committed) as it happens; a step is
+  marked done only after its events are stored, and the next motion is never commanded before the
+  previous measurement is durably stored;
+- no motion while the cell door is open or an operator prompt is outstanding: after any prompt, motion
+  resumes only after door closed + acknowledge + the plan's explicit `resume` step;
+- a point the tracker cannot see from the current station (no reflector, beam broken) is skipped there
+  and covered from another station; any other device fault stops the campaign safely (`CampaignStopped`)
+  and `resume` continues it: steps already done are skipped, the operator context (station, reflector)
+  is re-confirmed, and an interrupted measurement is re-measured after moving to its pose again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from campaign.engine.steps import PROMPTS, Step, StepKind
+from campaign.errors import CampaignError
+from campaign.session.store import SessionStore
+from drivers.errors import DeviceError, TargetNotVisible
+from drivers.interfaces import CellIO, Clock, Meteo, Operator, Robot, Tracker
+
+
+class CampaignStopped(CampaignError):
+    """The campaign stopped safely at a step; `trackcal resume` continues it."""
+
+    def __init__(self, step: int, message: str):
+        self.step = step
+        super().__init__(f"stopped safely at step {step}: {message}")
+
+
+@dataclass
+class Devices:
+    """What the engine talks to (real clients, recorders around them, or players of a recording)."""
+
+    tracker: Tracker
+    robot: Robot
+    operator: Operator
+    clock: Clock  # recorded, so that replay reproduces times
+    cellio: CellIO | None = None  # the door (None: a cell without a PLC, the console operator only)
+    meteo: Meteo | None = None
+    expected: Callable[[Step], tuple[float, float, float] | None] | None = None  # where to look for the reflector
+
+
+class DoorInterlock:
+    """No motion while the cell door is open or an operator prompt is outstanding (after Bluesky's suspenders).
+
+    Any prompt closes it; only the explicit resume step (door closed + acknowledge) opens it again."""
+
+    def __init__(self, door_closed: Callable[[], bool]) -> None:
+        self.door_closed = door_closed  # reads the door now (True in a cell without a PLC)
+        self.released = False
+
+    def close(self) -> None:
+        self.released = False
+
+    def release(self) -> bool:
+        """After an acknowledge: motion may resume if the door is closed; returns whether it may."""
+        self.released = self.door_closed()
+        return self.released
+
+
+@dataclass
+class Settings:
+    speed_pct: float = 30.0
+    settle_tolerance_deg: float = 0.001
+    settle_window_s: float = 1.0
+    settle_timeout_s: float = 60.0
+    search_radius_mm: float = 50.0
+    measure_attempts: int = 2  # a beam broken by someone walking through it is transient: look again once
+    drift_warn_mm: float = 0.05
+
+
+class Engine:
+    def __init__(self, store: SessionStore, devices: Devices, settings: Settings | None = None,
+                 progress: Callable[[int, int, str], None] | None = None):  # fmt: skip
+        self.store = store
+        self.dev = devices
+        self.settings = settings or Settings()
+        self.progress = progress
+        self.step_index = -1
+        self.t0 = 0.0
+        self.offset = 0.0
+        self.t_last = 0.0
+        self.interlock = DoorInterlock(lambda: self.dev.cellio is None or self.dev.cellio.door_closed())
+        self.handlers: dict[StepKind, Callable[[Step], None]] = {
+            StepKind.CHANGE_STATION: self._change_station,
+            StepKind.MOVE_REFLECTOR: self._move_reflector,
+            StepKind.RESUME: lambda step: self._resume_motion(),
+            StepKind.MOVE: self._move,
+            StepKind.SETTLE: lambda step: self._settle(),
+            StepKind.MEASURE: self._measure,
+        }
+
+    # ------------------------------------------------------------------ time and recording context
+    def tick(self) -> float:
+        """Read the (recorded) campaign clock: seconds since the campaign start, continuing across resumes."""
+        self.t_last = self.offset + (self.dev.clock.now() - self.t0)
+        return self.t_last
+
+    def context(self) -> tuple[int, float]:
+        return self.step_index, self.t_last
+
+    def _append(self, kind: str, data: dict) -> None:
+        self.store.append(kind, data, self.step_index, self.t_last)
+
+    # ------------------------------------------------------------------ running
+    def run(self, steps: list[Step]) -> None:
+        done = self.store.done_steps()
+        previous = self.store.events("campaign_started")
+        last = self.store.events()
+        self.offset = self.t_last = last[-1].t_campaign if last else 0.0
+        self._append("campaign_started", {"resumed": bool(previous), "steps": len(steps), "done": len(done)})
+        self.t0 = self.dev.clock.now()
+        first = next((i for i in range(len(steps)) if i not in done), len(steps))
+        if previous and first < len(steps):
+            self._restore_context(steps, first)
+        measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
+        for i in range(first, len(steps)):
+            if i in done:
+                continue
+            self._execute(i, steps[i])
+            if self.progress:
+                n_done = sum(1 for k in measures if k <= i)
+                nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
+                self.progress(n_done, len(measures), nxt)
+        self.step_index = -1
+        self._append("campaign_done", {})
+
+    def _restore_context(self, steps: list[Step], first: int) -> None:
+        """Re-confirm the physical state a crash may have changed, then continue at `first`."""
+        before = steps[:first]
+        ctx = [s for s in before if s.kind == StepKind.CHANGE_STATION][-1:] + [
+            s for s in before if s.kind == StepKind.MOVE_REFLECTOR and s.station == steps[first].station][-1:]
+        self.step_index = first
+        self._append("warning", {"message": f"resuming at step {first}: re-confirming the operator context"})
+        for s in ctx:
+            self._prompt(s.kind, s.station if s.kind == StepKind.CHANGE_STATION else s.point, f"Resuming: {s.label}")
+            if s.kind == StepKind.CHANGE_STATION:
+                self._set_up_tracker()  # a restarted process talks to a tracker it has not initialised
+        if ctx:
+            self._resume_motion()
+        if steps[first].kind in (StepKind.SETTLE, StepKind.MEASURE):
+            move = next(s for s in reversed(before) if s.kind == StepKind.MOVE)
+            self._move(move)
+            if steps[first].kind == StepKind.MEASURE:
+                self._settle()
+
+    def _execute(self, i: int, step: Step) -> None:
+        self.step_index = i
+        self.tick()
+        self._append("step_started", {"step": step.to_dict()})
+        try:
+            self.handlers[step.kind](step)
+        except DeviceError as exc:
+            self._append("error", {"type": type(exc).__name__, "message": str(exc)})
+            raise CampaignStopped(i, str(exc)) from exc
+        self._append("step_done", {})
+
+    # ------------------------------------------------------------------ step kinds
+    def _change_station(self, step: Step) -> None:
+        self._prompt(step.kind, step.station, step.label)
+        self._set_up_tracker()
+
+    def _move_reflector(self, step: Step) -> None:
+        self._prompt(step.kind, step.point, step.label)
+
+    def _prompt(self, kind: str, target: str, text: str) -> None:
+        self.interlock.close()
+        self._append("prompt", {"kind": kind, "target": target, "text": text})
+        answer = self.dev.operator.ask(kind, target, text)
+        self._append("operator", {"answer": answer})
+
+    def _resume_motion(self) -> None:
+        """Door closed + acknowledge: only then may the robot move again."""
+        text = "Leave the cell, close the door and acknowledge to resume motion"
+        while True:
+            self._append("prompt", {"kind": StepKind.RESUME, "target": "", "text": text})
+            answer = self.dev.operator.ask(StepKind.RESUME, "", text)
+            self._append("operator", {"answer": answer})
+            if self.interlock.release():
+                return
+            self._append("warning", {"message": "the cell door is open: motion stays blocked"})
+
+    def _set_up_tracker(self) -> None:
+        self.dev.tracker.initialize()
+        if self.dev.meteo is not None:
+            self.dev.tracker.set_environment(self.dev.meteo.read())
+
+    def _move(self, step: Step) -> None:
+        if not self.interlock.released:
+            raise CampaignStopped(self.step_index, "motion requested without an acknowledged resume")
+        if not self.interlock.door_closed():
+            self._append("warning", {"message": "the cell door opened: motion blocked until resumed"})
+            self.interlock.close()
+            self._resume_motion()
+        self.dev.robot.move_ptp(tuple(step.q_deg), self.settings.speed_pct)
+
+    def _settle(self) -> None:
+        s = self.settings
+        self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
+
+    def _measure(self, step: Step) -> None:
+        q = self.dev.robot.read_joints()
+        env = self.dev.meteo.read() if self.dev.meteo is not None else None
+        expected = self.dev.expected(step) if self.dev.expected is not None else None
+        for attempt in range(1, self.settings.measure_attempts + 1):
+            try:
+                if expected is not None:
+                    self.dev.tracker.find_reflector(*expected, self.settings.search_radius_mm)
+                m = self.dev.tracker.measure()
+                break
+            except TargetNotVisible as exc:
+                last = attempt == self.settings.measure_attempts
+                then = "skipped here" if last else "looking again"
+                where = f"{step.point} not measurable from {step.station} at {step.pose}"
+                self._append("warning", {"message": f"{where}: {exc}; {then}"})
+                if last:
+                    return
+        env = env or m.environment
+        self.tick()
+        data = {
+            "pose": step.pose, "station": step.station, "point": step.point, "drift": step.drift,
+            "q_deg": [round(float(v), 4) for v in q], "xyz_mm": [m.x_mm, m.y_mm, m.z_mm],
+            "std_mm": [m.std_x_mm, m.std_y_mm, m.std_z_mm],
+            "env": [env.temperature_c, env.pressure_hpa, env.humidity_pct],
+        }  # fmt: skip
+        self._append("measurement", data)
+        if step.drift:
+            self._check_drift(data)
+
+    def _check_drift(self, data: dict) -> None:
+        first = next(
+            (e.data for e in self.store.events("measurement")
+             if e.data["drift"] and (e.data["station"], e.data["point"], e.data["pose"]) ==
+             (data["station"], data["point"], data["pose"])), None,
+        )  # fmt: skip
+        if first is None:
+            return
+        moved = float(np.linalg.norm(np.subtract(data["xyz_mm"], first["xyz_mm"])))
+        if moved > self.settings.drift_warn_mm:
+            self._append("warning", {"message": f"drift check: {data['point']} at {data['pose']} moved {moved:.3f} mm "
+                                                f"since the start of the block: has station {data['station']} moved?"})

@@ -1,0 +1,133 @@
+"""Campaign plans: a deterministic generator of steps from a cell and a measurement plan.
+
+Ordering for few operator interventions: station by station (the operator moves the tracker once per
+station), point by point within a station (the reflector is moved once per point), every visible pose
+of the plan per point. Between passes over the poses the order alternates (each joint approaches from
+both directions: backlash becomes visible), and a reference pose is revisited at the start and the end
+of every point block, i.e. at the start, middle and end of each station block (drift checks: thermal
+drift and moved stations become visible). After every operator prompt comes an explicit `resume` step:
+motion only resumes once the operator has left the cell, closed the door and acknowledged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from calib.cell import Cell
+from calib.doe import design_for_cell
+from campaign.errors import CampaignError
+
+
+class StepKind(StrEnum):
+    """What a step does; the value is what the session store records."""
+
+    CHANGE_STATION = "change_station"  # operator: set the tracker up at a station
+    MOVE_REFLECTOR = "move_reflector"  # operator: put the reflector on a reference point
+    RESUME = "resume"  # operator: leave the cell, close the door, acknowledge
+    MOVE = "move"
+    SETTLE = "settle"
+    MEASURE = "measure"
+
+
+PROMPTS = (StepKind.CHANGE_STATION, StepKind.MOVE_REFLECTOR)  # the steps that ask the operator to act in the cell
+
+
+@dataclass(frozen=True)
+class Step:
+    kind: StepKind
+    station: str = ""
+    point: str = ""
+    pose: str = ""
+    q_deg: tuple[float, ...] = ()
+    drift: bool = False  # a drift-check measurement of the block's reference pose
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["kind"] = str(self.kind)
+        d["q_deg"] = list(self.q_deg)
+        return d
+
+    @property
+    def label(self) -> str:
+        if self.kind == StepKind.CHANGE_STATION:
+            return f"move the tracker to station {self.station}"
+        if self.kind == StepKind.MOVE_REFLECTOR:
+            return f"put the reflector on {self.point}"
+        if self.kind == StepKind.RESUME:
+            return "leave the cell, close the door, acknowledge"
+        measure = f" ({self.point} from {self.station})" if self.kind == StepKind.MEASURE else ""
+        return f"{self.kind} {self.pose}{measure}"
+
+
+class PlanError(CampaignError):
+    """A plan that cannot be carried out in this cell (e.g. a point no station can see)."""
+
+
+def visibility(cell: Cell, poses_deg: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
+    """(station, point) -> (m,) bool: the nominal model says the reflector faces the station."""
+    design = design_for_cell(cell, [], q0=np.zeros(cell.chain.dof), visibility=True)
+    q = np.radians(np.atleast_2d(poses_deg))
+    margins = design.visibility_margins(q)  # (m * P, S) in design order: pose-major, points sorted
+    pids = sorted(cell.tool_points)
+    sids = list(cell.stations)
+    out = {}
+    for s, sid in enumerate(sids):
+        m = margins[:, s].reshape(len(q), len(pids)) >= 0.0
+        for k, pid in enumerate(pids):
+            out[(sid, pid)] = m[:, k]
+    return out
+
+
+def check_plan(cell: Cell, poses_deg: np.ndarray) -> list[str]:
+    """Problems that stop a campaign before it starts: no stations, a point no station sees."""
+    if not cell.stations:
+        raise PlanError(f"cell {cell.name} lists no tracker stations")
+    vis = visibility(cell, poses_deg)
+    problems = []
+    for pid in sorted(cell.tool_points):
+        if not any(vis[(sid, pid)].any() for sid in cell.stations):
+            problems.append(f"point {pid} is not visible from any station at any pose of the plan")
+    return problems
+
+
+def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterator[Step]:
+    poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)
+    problems = check_plan(cell, poses)
+    if problems:
+        raise PlanError("; ".join(problems))
+    vis = visibility(cell, poses)
+    ids = [f"Q{i + 1}" for i in range(len(poses))]
+    pids = sorted(cell.tool_points)
+    for sid in cell.stations:
+        seen = {pid: vis[(sid, pid)] for pid in pids}
+        if not any(v.any() for v in seen.values()):
+            continue
+        # reference pose of the block: the pose this station sees the most points from (first on ties)
+        ref = int(np.argmax(sum(v.astype(int) for v in seen.values())))
+        yield Step(StepKind.CHANGE_STATION, station=sid)
+        yield Step(StepKind.RESUME, station=sid)
+        for pid in pids:
+            if not seen[pid].any():
+                continue
+            yield Step(StepKind.MOVE_REFLECTOR, station=sid, point=pid)
+            yield Step(StepKind.RESUME, station=sid, point=pid)
+            order = list(range(len(poses)))
+            blocks = []
+            if seen[pid][ref]:
+                blocks.append(([ref], True))
+            for k in range(repeat):
+                blocks.append((order if k % 2 == 0 else order[::-1], False))
+            if seen[pid][ref]:
+                blocks.append(([ref], True))
+            for block, drift in blocks:
+                for i in block:
+                    if not seen[pid][i]:
+                        continue
+                    q = tuple(float(v) for v in poses[i])
+                    yield Step(StepKind.MOVE, station=sid, point=pid, pose=ids[i], q_deg=q)
+                    yield Step(StepKind.SETTLE, station=sid, point=pid, pose=ids[i], q_deg=q)
+                    yield Step(StepKind.MEASURE, station=sid, point=pid, pose=ids[i], q_deg=q, drift=drift)

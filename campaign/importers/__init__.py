@@ -1,0 +1,1 @@
+"""Importers of measurement series recorded by other software."""

@@ -1,0 +1,1 @@
+"""The campaign report: HTML page and the diagnosis plots."""

@@ -1,0 +1,103 @@
+"""The diagnosis plots: the residuals against the winning cause's signature, every joint angle and time."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from calib.cell import Cell
+from calib.diagnose import Diagnosis, rms
+from calib.extensions import approach_signs
+from calib.identify import Identification
+from calib.kinematics import Kinematics
+from calib.pinmodel import gravity_torques
+from campaign.report.figures import pyplot
+
+
+def signature(cell: Cell, d: Diagnosis) -> tuple[str, np.ndarray, int | None]:
+    """(label, x, joint): what the winning cause's error depends on, per row."""
+    q = np.radians(d.table.q_deg)
+    ext = d.extended.extension if d.extended is not None else None
+    if d.cause == "thermal_drift" or d.cause == "station_shift":
+        return "time since campaign start (s)", d.table.t_s, None
+    if ext is None or ext.joint_features is None:
+        return "time since campaign start (s)", d.table.t_s, None
+    # the joint whose extension moves the reflectors most
+    offsets = np.einsum("rje,e->rj", ext.joint_features, d.extended.ext)
+    j = int(np.argmax(offsets.std(axis=0)))
+    if d.cause == "joint_compliance":
+        return f"gravity torque on joint {j + 1} (N m)", gravity_torques(cell.chain, q)[:, j], j
+    if d.cause == "backlash":
+        return f"approach direction of joint {j + 1}", approach_signs(q)[:, j], j
+    return f"joint {j + 1} angle (deg)", d.table.q_deg[:, j], j
+
+
+def implied_joint_error(cell: Cell, res: Identification, table, residuals: np.ndarray, j: int) -> np.ndarray:
+    """Residuals read as an error of joint j (deg): least squares along the reflector's motion for q_j."""
+    kin = Kinematics(cell.chain, res.params)
+    jac = kin.jacobian(np.radians(table.q_deg), np.array([res.points[p] for p in table.point]), res.dev)
+    rot = np.array([res.stations[s].rotation for s in table.station])
+    col = np.einsum("rij,rj->ri", rot, jac.d_q[:, :, j])
+    return np.degrees(np.einsum("ri,ri->r", col, residuals) / np.einsum("ri,ri->r", col, col))
+
+
+def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
+    plt = pyplot()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    label, x, j = signature(cell, d)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    after = d.extended or d.geometric
+    if j is not None:
+        # component + residual: the extension's fitted error of joint j plus what is left, against the signature
+        ext = d.extended.extension
+        fitted = np.degrees(np.einsum("re,e->r", ext.joint_features[:, j, :], d.extended.ext)) * 1000.0
+        left = implied_joint_error(cell, after, d.table, after.residuals, j) * 1000.0
+        panels = ((axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
+                  (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} um"))  # fmt: skip
+        ylabel = f"joint {j + 1} error (mdeg)"
+    else:
+        panels = ((axes[0], np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0,
+                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} um"),
+                  (axes[1], np.linalg.norm(after.residuals, axis=1) * 1000.0,
+                   f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} um"))  # fmt: skip
+        ylabel = "|residual| (um)"
+    for ax, y, title in panels:
+        for sid in sorted(set(d.table.station)):
+            m = np.array(d.table.station) == sid
+            ax.plot(x[m], y[m], ".", label=sid)
+        ax.set_xlabel(label)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle(f"diagnosis: {d.cause} (noise floor {d.noise_floor_mm * 1000:.1f} um, {d.floor_source})")
+    fig.tight_layout()
+    path = out_dir / "signature.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(path)
+    # residual structure against every joint angle and time, geometric model
+    n = cell.chain.dof
+    fig, axes = plt.subplots(2, (n + 2) // 2, figsize=(14, 6))
+    norm = np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0
+    for k, ax in enumerate(axes.ravel()):
+        if k < n:
+            ax.plot(d.table.q_deg[:, k], norm, ".", ms=3)
+            ax.set_xlabel(f"q{k + 1} (deg)")
+        elif k == n:
+            ax.plot(d.table.t_s, norm, ".", ms=3)
+            ax.set_xlabel("t (s)")
+        else:
+            ax.axis("off")
+            continue
+        ax.set_ylabel("|residual| (um)")
+        ax.grid(alpha=0.3)
+    fig.suptitle("geometric residuals against joint angles and time")
+    fig.tight_layout()
+    path = out_dir / "structure.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(path)
+    return written

@@ -1,0 +1,1 @@
+"""Sessions: the store and the only code that knows a session folder's files."""

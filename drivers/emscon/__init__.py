@@ -1,0 +1,1 @@
+"""Leica emScon TPI (binary C variant): codec (pure) and client (interfaces.Tracker)."""

@@ -1,0 +1,500 @@
+"""KUKA KR C2 client (drivers.interfaces.Robot): EKI for motion, RSI 2.x as a passive joint monitor.
+
+On the KR C2 both interfaces have the controller as the network *client*: trackcal listens on two ports and
+the robot connects (Ethernet KRL XML 1.2: external system = server, ros-industrial/kuka_experimental issue
+#196; RSI: ST_ETHERNET connects to IP_NUMBER/PORT of its XML config, kuka_experimental
+kuka_rsi_hw_interface/krl/KR_C2/ros_rsi_ethernet.xml). The programs and configs the controller needs are in
+configs/krc2/ (see configs/krc2/README.md).
+
+- EKI (TCP): one <RobotCommand> per move; the KRL program answers one <RobotState> once the robot stands
+  still (drivers.kuka.eki_codec). The echoed ID is the acknowledgement; Error != 0 -> DeviceFault (its code).
+- RSI (TCP or UDP, as configs/krc2/trackcal_rsi.xml says): a background thread answers every <Rob> at once
+  with <Sen Type="ImFree">, zero corrections and the same IPOC (drivers.kuka.rsi_codec), and keeps the latest
+  AIPos (0.0001 deg). A controller stops the robot after more than eERXmaxLatePackages late answers, so the
+  thread does nothing but parse, answer and store.
+- Settling (`wait_settled`) is judged on RSI frames, in controller time: one frame = one 12 ms interpolation
+  cycle. The same code is then right for the real robot and for mocks/servers/kuka.py on a virtual clock. A real-time
+  guard (timeout_s + rsi_stale_s) still bounds the wait if frames stop coming.
+
+Targets are checked before anything is sent (joint limits, then the optional cell-box callable):
+MotionRefused.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import math
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+
+from drivers.errors import (
+    ConnectionLost,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    MotionRefused,
+    ProtocolError,
+)
+from drivers.kuka.eki_codec import (
+    AXES,
+    ERROR_TEXT,
+    MAX_ID,
+    STATE_ROOT,
+    MoveCommand,
+    RobotState,
+    XmlStreamFramer,
+    encode_command,
+    parse_state,
+)
+from drivers.kuka.rsi_codec import (
+    CYCLE_S,
+    MAX_FRAME_BYTES,
+    RobFrame,
+    SenFrame,
+    encode_sen,
+    parse_rob,
+    rob_framer,
+)
+
+_POLL_S = 0.05  # socket timeout slice of the background thread and of blocking reads
+_RECV_BYTES = 4096
+_FRAME_HISTORY = 8192  # RSI frames kept for wait_settled (~98 s of 12 ms cycles)
+
+CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
+
+
+class KukaKrc2:
+    """A KUKA KR C2 with the trackcal KRL program (EKI) and the RSI passive monitor running."""
+
+    def __init__(
+        self,
+        eki_host: str,
+        eki_port: int,
+        rsi_host: str,
+        rsi_port: int,
+        rsi_protocol: str = "tcp",
+        joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
+        cell_box_check: CellBoxCheck | None = None,
+        connect_timeout_s: float = 60.0,
+        move_timeout_s: float = 300.0,
+        io_timeout_s: float = 5.0,
+        rsi_stale_s: float = 1.0,
+        rsi_cycle_s: float = CYCLE_S,
+    ) -> None:
+        if rsi_protocol not in ("tcp", "udp"):
+            raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
+        for name, v in (
+            ("connect_timeout_s", connect_timeout_s),
+            ("move_timeout_s", move_timeout_s),
+            ("io_timeout_s", io_timeout_s),
+            ("rsi_stale_s", rsi_stale_s),
+            ("rsi_cycle_s", rsi_cycle_s),
+        ):
+            if not v > 0:
+                raise ValueError(f"{name} must be positive: nothing waits forever")
+        limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
+        if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
+            raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
+        self.eki_host, self.eki_port = eki_host, int(eki_port)
+        self.rsi_host, self.rsi_port = rsi_host, int(rsi_port)
+        self.rsi_protocol = rsi_protocol
+        self.joint_limits_deg = limits
+        self.cell_box_check = cell_box_check
+        self.connect_timeout_s = connect_timeout_s
+        self.move_timeout_s = move_timeout_s
+        self.io_timeout_s = io_timeout_s
+        self.rsi_stale_s = rsi_stale_s
+        self.rsi_cycle_s = rsi_cycle_s
+        self.device = f"KR C2 eki {eki_host}:{eki_port} rsi {rsi_protocol} {rsi_host}:{rsi_port}"
+
+        self._eki_listener: socket.socket | None = None
+        self._rsi_listener: socket.socket | None = None  # TCP listener, or the bound UDP socket
+        self._eki: socket.socket | None = None
+        self._rsi: socket.socket | None = None
+        self._rsi_peer: tuple | None = None  # UDP: where the controller sends from
+        self._eki_framer = XmlStreamFramer(STATE_ROOT)
+        self._ids = itertools.count(1)
+
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._rsi_error: DeviceError | None = None
+        self._frames: deque[tuple[int, tuple[float, ...]]] = deque(maxlen=_FRAME_HISTORY)
+        self._seq = 0
+        self._latest: tuple[float, ...] | None = None
+        self._latest_at = 0.0
+        self.rsi_frames_answered = 0
+
+    # --- addresses and connection ---------------------------------------------------------------------------
+
+    @property
+    def eki_address(self) -> tuple[str, int]:
+        self.listen()
+        assert self._eki_listener is not None
+        return self._eki_listener.getsockname()[:2]
+
+    @property
+    def rsi_address(self) -> tuple[str, int]:
+        self.listen()
+        assert self._rsi_listener is not None
+        return self._rsi_listener.getsockname()[:2]
+
+    def listen(self) -> None:
+        """Open both listening ports (port 0 picks a free one; see eki_address / rsi_address). Idempotent."""
+        if self._eki_listener is None:
+            self._eki_listener = self._bind(socket.SOCK_STREAM, self.eki_host, self.eki_port, "EKI")
+        if self._rsi_listener is None:
+            kind = socket.SOCK_STREAM if self.rsi_protocol == "tcp" else socket.SOCK_DGRAM
+            self._rsi_listener = self._bind(kind, self.rsi_host, self.rsi_port, "RSI")
+
+    def _bind(self, kind: int, host: str, port: int, what: str) -> socket.socket:
+        try:
+            infos = socket.getaddrinfo(host, port, type=kind)
+            family, _, _, _, addr = infos[0]
+            sock = socket.socket(family, kind)
+        except OSError as exc:
+            raise ConnectionLost(
+                f"cannot resolve {what} address {host}:{port}: {exc}", device=self.device
+            ) from exc
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind(addr)
+            if kind == socket.SOCK_STREAM:
+                sock.listen(1)
+        except OSError as exc:
+            sock.close()
+            raise ConnectionLost(
+                f"cannot listen for {what} on {host}:{port}: {exc}", device=self.device
+            ) from exc
+        return sock
+
+    def connect(self) -> None:
+        """Listen; accept the controller's EKI connection and first RSI frame within connect_timeout_s."""
+        if self._eki is not None:
+            return
+        self.listen()
+        deadline = time.monotonic() + self.connect_timeout_s
+        try:
+            eki_host, eki_port = self.eki_address
+            self._eki = self._accept(
+                self._eki_listener,
+                deadline,
+                f"the KR C2's EKI connection (EKX_Open of trackcal_eki) on {eki_host}:{eki_port}",
+            )
+            self._eki.settimeout(self.io_timeout_s)
+            rsi_host, rsi_port = self.rsi_address
+            what = f"the KR C2's RSI {self.rsi_protocol.upper()} stream (ST_ETHERNET of trackcal_rsi.xml) on "
+            what += f"{rsi_host}:{rsi_port}"
+            if self.rsi_protocol == "tcp":
+                self._rsi = self._accept(self._rsi_listener, deadline, what)
+            else:
+                self._rsi = self._first_datagram(deadline, what)
+        except BaseException:
+            self.close()
+            raise
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._rsi_loop, name="krc2-rsi", daemon=True)
+        self._thread.start()
+
+    def _accept(self, listener: socket.socket | None, deadline: float, what: str) -> socket.socket:
+        assert listener is not None
+        listener.settimeout(max(0.0, deadline - time.monotonic()))
+        try:
+            conn, _ = listener.accept()
+        except TimeoutError:
+            raise DeviceTimeout(
+                f"no connection within {self.connect_timeout_s} s: waited for {what}", device=self.device
+            ) from None
+        except OSError as exc:
+            raise ConnectionLost(
+                f"accept failed while waiting for {what}: {exc}", device=self.device
+            ) from exc
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return conn
+
+    def _first_datagram(self, deadline: float, what: str) -> socket.socket:
+        sock = self._rsi_listener
+        assert sock is not None
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DeviceTimeout(
+                    f"no datagram within {self.connect_timeout_s} s: waited for {what}", device=self.device
+                )
+            sock.settimeout(remaining)
+            try:
+                data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
+            except TimeoutError:
+                continue
+            except OSError as exc:
+                raise ConnectionLost(
+                    f"UDP receive failed while waiting for {what}: {exc}", device=self.device
+                ) from exc
+            self._rsi_peer, self._rsi = peer, sock
+            self._handle_rsi_doc(data)  # the KR C2's first frame (empty IPOC) normally
+            return sock
+
+    # --- RSI background thread ------------------------------------------------------------------------------
+
+    def _rsi_loop(self) -> None:
+        sock = self._rsi
+        assert sock is not None
+        framer = rob_framer()
+        sock.settimeout(_POLL_S)
+        try:
+            while not self._stop.is_set():
+                try:
+                    if self.rsi_protocol == "tcp":
+                        data = sock.recv(_RECV_BYTES)
+                        if not data:
+                            raise ConnectionLost(
+                                "the controller closed the RSI connection", device=self.device
+                            )
+                        docs = framer.feed(data)
+                    else:
+                        data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
+                        if peer != self._rsi_peer:
+                            continue  # not our controller
+                        docs = [data]
+                except TimeoutError:
+                    continue
+                for doc in docs:
+                    self._handle_rsi_doc(doc)
+        except DeviceError as exc:
+            if not exc.device:  # e.g. the framer's ProtocolError: name the device and the interface
+                exc = type(exc)(f"RSI: {exc}", device=self.device)
+            self._set_rsi_error(exc)
+        except OSError as exc:
+            if not self._stop.is_set():
+                self._set_rsi_error(ConnectionLost(f"RSI connection failed: {exc}", device=self.device))
+
+    def _handle_rsi_doc(self, doc: bytes) -> None:
+        try:
+            frame = parse_rob(doc)
+        except ProtocolError as exc:
+            raise ProtocolError(f"RSI: {exc}", device=self.device) from None
+        if frame.ipoc is None:
+            return  # KR C2 first frame: nothing to echo
+        self._answer_rsi(frame)
+        assert frame.aipos is not None
+        joints = tuple(round(v, 4) for v in frame.aipos)
+        with self._cond:
+            self._seq += 1
+            self._frames.append((self._seq, joints))
+            self._latest = joints
+            self._latest_at = time.monotonic()
+            self._cond.notify_all()
+
+    def _answer_rsi(self, frame: RobFrame) -> None:
+        """Echo the IPOC with zero corrections, at once (the controller allows about 10 ms)."""
+        assert frame.ipoc is not None
+        answer = encode_sen(SenFrame(ipoc=frame.ipoc))
+        sock = self._rsi
+        if sock is None:
+            return  # closing
+        if self.rsi_protocol == "tcp":
+            sock.sendall(answer)
+        else:
+            sock.sendto(answer, self._rsi_peer)
+        self.rsi_frames_answered += 1
+
+    def _set_rsi_error(self, exc: DeviceError) -> None:
+        with self._cond:
+            if self._rsi_error is None:
+                self._rsi_error = exc
+            self._cond.notify_all()
+
+    def _raise_rsi_error(self) -> None:
+        if self._rsi_error is not None:
+            raise self._rsi_error
+
+    # --- Robot protocol -------------------------------------------------------------------------------------
+
+    def read_joints(self) -> tuple[float, ...]:
+        self._require_connected()
+        with self._cond:
+            deadline = time.monotonic() + self.rsi_stale_s
+            while self._latest is None and self._rsi_error is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            self._raise_rsi_error()
+            if self._latest is None:
+                raise DeviceTimeout(
+                    f"no RSI frame with joint values within {self.rsi_stale_s} s", device=self.device
+                )
+            age = time.monotonic() - self._latest_at
+            if age > self.rsi_stale_s:
+                raise DeviceTimeout(
+                    f"last RSI frame is {age:.2f} s old (limit {self.rsi_stale_s} s)", device=self.device
+                )
+            return self._latest
+
+    def check_target(self, target_deg: Sequence[float]) -> tuple[float, ...]:
+        """The target as a tuple, or MotionRefused (joint limits first, then the cell box)."""
+        target = tuple(float(v) for v in target_deg)
+        if len(target) != len(AXES):
+            raise MotionRefused(
+                f"target needs {len(AXES)} joint values, got {len(target)}", code="arity", device=self.device
+            )
+        for name, v, (lo, hi) in zip(AXES, target, self.joint_limits_deg, strict=True):
+            if not math.isfinite(v) or not lo <= v <= hi:
+                raise MotionRefused(
+                    f"{name}={v} deg outside the joint limits [{lo}, {hi}] deg",
+                    code="joint_limits",
+                    device=self.device,
+                )
+        if self.cell_box_check is not None:
+            reason = self.cell_box_check(target)
+            if reason:
+                raise MotionRefused(
+                    f"target {target} leaves the cell box: {reason}", code="cell_box", device=self.device
+                )
+        return target
+
+    def move_ptp(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
+        target = self.check_target(target_deg)
+        speed = float(speed_override_pct)
+        if not (math.isfinite(speed) and 1 <= round(speed) <= 100):
+            raise MotionRefused(
+                f"speed override {speed_override_pct} % outside 1..100 %", code="speed", device=self.device
+            )
+        self._require_connected()
+        with self._cond:
+            self._raise_rsi_error()  # never move without the monitor
+        command_id = next(self._ids) % MAX_ID or next(self._ids)
+        payload = encode_command(MoveCommand(command_id, target, int(round(speed))))
+        eki = self._eki
+        assert eki is not None
+        try:
+            eki.settimeout(self.io_timeout_s)
+            eki.sendall(payload)
+        except TimeoutError:
+            raise DeviceTimeout(
+                f"move command not sent within {self.io_timeout_s} s", device=self.device
+            ) from None
+        except OSError as exc:
+            self._drop_eki()
+            raise ConnectionLost(f"EKI send failed: {exc}", device=self.device) from exc
+        state = self._await_state(command_id)
+        if state.error:
+            text = ERROR_TEXT.get(state.error, "controller fault")
+            raise DeviceFault(
+                f"move {command_id} to {target} failed: {text}", code=state.error, device=self.device
+            )
+        if not state.done:
+            raise ProtocolError(
+                f"move {command_id} acknowledged without Done and without an error code", device=self.device
+            )
+
+    def _await_state(self, command_id: int) -> RobotState:
+        eki = self._eki
+        assert eki is not None
+        deadline = time.monotonic() + self.move_timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DeviceTimeout(
+                    f"move {command_id} not acknowledged within {self.move_timeout_s} s", device=self.device
+                )
+            eki.settimeout(min(remaining, _POLL_S * 4))
+            try:
+                data = eki.recv(_RECV_BYTES)
+            except TimeoutError:
+                continue
+            except OSError as exc:
+                self._drop_eki()
+                raise ConnectionLost(f"EKI receive failed: {exc}", device=self.device) from exc
+            if not data:
+                self._drop_eki()
+                raise ConnectionLost(
+                    f"the controller closed the EKI connection during move {command_id}", device=self.device
+                )
+            try:
+                docs = self._eki_framer.feed(data)
+                states = [parse_state(doc) for doc in docs]
+            except ProtocolError as exc:
+                self._drop_eki()
+                raise ProtocolError(f"EKI: {exc}", device=self.device) from None
+            for state in states:
+                if state.command_id == command_id or (state.command_id == 0 and state.error):
+                    return state
+                # an answer to an earlier command that timed out here: stale, skip it
+
+    def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
+        """Joints from RSI frames arriving after the call that stay within tolerance_deg of the window's first
+        frame for window_s of controller time; returns the last of them."""
+        if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
+            raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
+        self._require_connected()
+        cycle = self.rsi_cycle_s
+        real_deadline = time.monotonic() + timeout_s + self.rsi_stale_s
+        with self._cond:
+            start_seq = next_seq = self._seq + 1
+            anchor: tuple[float, ...] | None = None
+            anchor_seq = 0
+            while True:
+                self._raise_rsi_error()
+                first_seq = self._frames[0][0] if self._frames else next_seq
+                if next_seq < first_seq:  # fell behind the history: restart the window
+                    next_seq, anchor = first_seq, None
+                for seq, joints in itertools.islice(self._frames, next_seq - first_seq, None):
+                    next_seq = seq + 1
+                    if anchor is None or any(
+                        abs(a - b) > tolerance_deg for a, b in zip(joints, anchor, strict=True)
+                    ):
+                        anchor, anchor_seq = joints, seq
+                    if (seq - anchor_seq) * cycle >= window_s - 1e-9:
+                        return joints
+                    if (seq - start_seq + 1) * cycle > timeout_s:
+                        raise DeviceTimeout(
+                            f"joints not settled within {tolerance_deg} deg over {window_s} s "
+                            f"after {timeout_s} s of controller time",
+                            device=self.device,
+                        )
+                remaining = real_deadline - time.monotonic()
+                if remaining <= 0:
+                    raise DeviceTimeout(
+                        f"RSI frames stopped coming while waiting to settle ({timeout_s} s)",
+                        device=self.device,
+                    )
+                self._cond.wait(min(remaining, _POLL_S))
+
+    def _require_connected(self) -> None:
+        if self._eki is None or self._rsi is None:
+            raise ConnectionLost("not connected (call connect() first)", device=self.device)
+
+    def _drop_eki(self) -> None:
+        eki, self._eki = self._eki, None
+        if eki is not None:
+            with contextlib.suppress(OSError):
+                eki.close()
+
+    def close(self) -> None:
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        rsi = self._rsi
+        if rsi is not None and rsi is not self._rsi_listener:
+            with contextlib.suppress(OSError):
+                rsi.shutdown(socket.SHUT_RDWR)
+        if thread is not None:
+            thread.join(timeout=2.0)
+        self._rsi = None
+        self._drop_eki()
+        for sock in (rsi, self._eki_listener, self._rsi_listener):
+            if sock is not None:
+                with contextlib.suppress(OSError):
+                    sock.close()
+        self._eki_listener = self._rsi_listener = None
+
+    def __enter__(self) -> KukaKrc2:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

@@ -1,0 +1,165 @@
+"""KUKA RSI 2.x "Ethernet RSI XML" (ST_ETHERNET object, KR C2) frame codec: pure functions, no I/O.
+
+Every interpolation cycle (12 ms on a KR C2) the controller - the TCP or UDP *client* - sends one document:
+
+    <Rob TYPE="KUKA"><RIst X=".." Y=".." Z=".." A=".." B=".." C=".."/><RSol X=".." .. C=".."/>
+     <AIPos A1=".." .. A6=".."/><ASPos A1=".." .. A6=".."/><Delay D="0"/><IPOC>123645634563</IPOC></Rob>
+
+(RIst/RSol: actual/set Cartesian pose; AIPos/ASPos: actual/set axis positions in degrees, 4 decimals; Delay D:
+late packets counted by the controller; IPOC: the controller's interpolation-cycle timestamp). The external
+side must answer within about 10 ms with the same IPOC:
+
+    <Sen Type="ImFree"><AK A1="0.0000" A2="0.0000" A3="0.0000" A4="0.0000" A5="0.0000" A6="0.0000"/>
+     <IPOC>123645634563</IPOC></Sen>
+
+Sources: ros-industrial/kuka_experimental, kuka_rsi_hw_interface/include/kuka_rsi_hw_interface/rsi_state.h
+(reads RIst, RSol, AIPos, ASPos, IPOC out of <Rob>) and rsi_command.h (writes <Sen Type="ImFree"><AK
+A1..A6/><IPOC/>); kuka_rsi_simulator/scripts/kuka_rsi_simulator (writes <Rob TYPE="KUKA"> with RIst, RSol,
+AIPos, ASPos, <Delay D=..>, IPOC); kuka_rsi_hw_interface/krl/KR_C2/ros_rsi_ethernet.xml (the KR C2 config:
+DEF_RIst, DEF_RSol, DEF_AIPos, DEF_ASPos, DEF_Delay sent, AK.A1..AK.A6 received, SENTYPE ImFree); the ~10 ms
+answer budget is quoted from the "KUKA.Ethernet RSI XML" manual in kuka_rsi_hw_interface/krl/KR_C2/README.md.
+KR C2 quirk (kuka_experimental pull request #74, "Support for KR C2 with RSI 2",
+https://github.com/ros-industrial/kuka_experimental/pull/74): the first <Rob> after ST_ETHERNET holds only an
+empty <IPOC/>; it parses here to a RobFrame with every field None.
+
+The XML is parsed through drivers.kuka.eki_codec.parse_document (size cap, no DOCTYPE/entities).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.errors import ProtocolError
+from drivers.kuka.eki_codec import (
+    AXES,
+    XmlStreamFramer,
+    fmt4,
+    parse_attrs,
+    parse_document,
+    parse_int,
+)
+
+ROB_ROOT = "Rob"
+SEN_ROOT = "Sen"
+SEN_TYPE = "ImFree"
+CART = ("X", "Y", "Z", "A", "B", "C")
+ROB_ELEMENTS = ("RIst", "RSol", "AIPos", "ASPos", "Delay", "IPOC")  # in the order the controller writes them
+CORRECTION_ELEMENT = "AK"  # axis corrections, received as AK.A1..AK.A6
+MAX_FRAME_BYTES = 2048  # a full <Rob> is ~450 bytes
+TCP_TERMINATOR = b"\n\n"  # the KR C2 ends every <Rob> on TCP with two LF
+MAX_IPOC = 2**63 - 1
+CART_LIMIT = 1.0e6  # mm / deg, plausibility bound
+AXIS_LIMIT = 1.0e4  # deg
+CYCLE_S = 0.012  # KR C2 interpolation cycle
+
+
+@dataclass(frozen=True)
+class RobFrame:
+    """One controller frame. `ipoc` None is the KR C2's first frame (empty <IPOC/>), with nothing else."""
+
+    ipoc: int | None
+    aipos: tuple[float, ...] | None = None
+    aspos: tuple[float, ...] | None = None
+    rist: tuple[float, ...] | None = None
+    rsol: tuple[float, ...] | None = None
+    delay: int | None = None
+
+
+@dataclass(frozen=True)
+class SenFrame:
+    ipoc: int
+    corrections: tuple[float, ...] = (0.0,) * 6
+    sen_type: str = SEN_TYPE
+
+
+def _xml_attrs(tag: str, names: tuple[str, ...], values: tuple[float, ...]) -> str:
+    if len(values) != len(names):
+        raise ValueError(f"<{tag}> needs {len(names)} values, got {len(values)}")
+    return f"<{tag} " + " ".join(f'{n}="{fmt4(float(v))}"' for n, v in zip(names, values, strict=True)) + "/>"
+
+
+def encode_rob(frame: RobFrame, tcp: bool = True) -> bytes:
+    """The controller side (used by the mock). `tcp` appends the KR C2's two LF."""
+    if frame.ipoc is None:
+        text = f'<{ROB_ROOT} TYPE="KUKA"><IPOC/></{ROB_ROOT}>'
+    else:
+        if not 0 <= frame.ipoc <= MAX_IPOC:
+            raise ValueError(f"IPOC {frame.ipoc} out of range")
+        zero = (0.0,) * 6
+        parts = [
+            _xml_attrs("RIst", CART, frame.rist or zero),
+            _xml_attrs("RSol", CART, frame.rsol or zero),
+            _xml_attrs("AIPos", AXES, frame.aipos or zero),
+            _xml_attrs("ASPos", AXES, frame.aspos or frame.aipos or zero),
+            f'<Delay D="{int(frame.delay or 0)}"/>',
+            f"<IPOC>{int(frame.ipoc)}</IPOC>",
+        ]
+        text = f'<{ROB_ROOT} TYPE="KUKA">' + "".join(parts) + f"</{ROB_ROOT}>"
+    return text.encode("ascii") + (TCP_TERMINATOR if tcp else b"")
+
+
+def _ipoc(text: str | None, where: str) -> int | None:
+    if text is None or not text.strip():
+        return None
+    return parse_int(text, f"{where}/IPOC", 0, MAX_IPOC)
+
+
+def parse_rob(data: bytes) -> RobFrame:
+    root = parse_document(bytes(data).strip(), ROB_ROOT, MAX_FRAME_BYTES)
+    ipoc_el = root.find("IPOC")
+    if ipoc_el is None:
+        raise ProtocolError("<Rob> without <IPOC>")
+    ipoc = _ipoc(ipoc_el.text, ROB_ROOT)
+    if ipoc is None:
+        return RobFrame(ipoc=None)
+
+    def opt(tag: str, names: tuple[str, ...], limit: float) -> tuple[float, ...] | None:
+        el = root.find(tag)
+        return None if el is None else parse_attrs(el, names, f"Rob/{tag}", limit)
+
+    delay_el = root.find("Delay")
+    return RobFrame(
+        ipoc=ipoc,
+        aipos=parse_attrs(root.find("AIPos"), AXES, "Rob/AIPos", AXIS_LIMIT),
+        aspos=opt("ASPos", AXES, AXIS_LIMIT),
+        rist=opt("RIst", CART, CART_LIMIT),
+        rsol=opt("RSol", CART, CART_LIMIT),
+        delay=None if delay_el is None else parse_int(delay_el.get("D"), "Rob/Delay/@D", 0, 2**31 - 1),
+    )
+
+
+def encode_sen(frame: SenFrame) -> bytes:
+    """The external side's answer: same IPOC, axis corrections (zero for a passive monitor)."""
+    if not 0 <= frame.ipoc <= MAX_IPOC:
+        raise ValueError(f"IPOC {frame.ipoc} out of range")
+    if not frame.sen_type.isidentifier():
+        raise ValueError(f"Sen Type {frame.sen_type!r} is not a plain name")
+    text = (
+        f'<{SEN_ROOT} Type="{frame.sen_type}">{_xml_attrs(CORRECTION_ELEMENT, AXES, frame.corrections)}'
+        f"<IPOC>{int(frame.ipoc)}</IPOC></{SEN_ROOT}>"
+    )
+    return text.encode("ascii")
+
+
+def parse_sen(data: bytes) -> SenFrame:
+    root = parse_document(bytes(data).strip(), SEN_ROOT, MAX_FRAME_BYTES)
+    sen_type = root.get("Type")
+    if not sen_type:
+        raise ProtocolError("<Sen> without Type attribute")
+    ipoc_el = root.find("IPOC")
+    ipoc = _ipoc(None if ipoc_el is None else ipoc_el.text, SEN_ROOT)
+    if ipoc is None:
+        raise ProtocolError("<Sen> without an IPOC value")
+    return SenFrame(
+        ipoc=ipoc,
+        corrections=parse_attrs(root.find(CORRECTION_ELEMENT), AXES, "Sen/AK", AXIS_LIMIT),
+        sen_type=sen_type,
+    )
+
+
+def rob_framer() -> XmlStreamFramer:
+    return XmlStreamFramer(ROB_ROOT, MAX_FRAME_BYTES)
+
+
+def sen_framer() -> XmlStreamFramer:
+    return XmlStreamFramer(SEN_ROOT, MAX_FRAME_BYTES)

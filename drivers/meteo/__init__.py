@@ -1,0 +1,1 @@
+"""Serial meteo sensor: line codec (pure) and client (interfaces.Meteo)."""

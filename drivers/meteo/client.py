@@ -1,0 +1,105 @@
+"""Serial meteo sensor client (pyserial) implementing drivers.interfaces.Meteo.
+
+One `read()` = flush stale input, send the request b"M\\r\\n", collect bytes until CR LF or the deadline,
+parse the line with drivers.meteo.codec. Nothing waits longer than `timeout_s` (plus one poll slice).
+
+pyserial notes (installed pyserial 3.5, serial/serialutil.py and serial/serialposix.py):
+- `serial.serial_for_url(url, ...)` opens plain device paths too (a pty slave such as /dev/pts/5 in tests)
+  and URLs such as socket://host:port or rfc2217:// for serial-over-LAN adapters.
+- `Serial.read_until` restarts a full `timeout` for every byte it reads (serialutil.py, read_until calls
+  read(1), each with its own Timeout), so a slow trickle can stretch it to twice the timeout; this client
+  therefore reads with a short per-read timeout against its own monotonic deadline instead.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import serial
+
+from drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
+from drivers.interfaces import Environment
+from drivers.meteo.codec import MAX_LINE_BYTES, REQUEST, parse_line
+
+_POLL_S = 0.02  # per-read timeout slice; the overall deadline is timeout_s
+
+
+class SerialMeteo:
+    """A T/P/H sensor on a serial line. `port` is a device path or a pyserial URL."""
+
+    def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0) -> None:
+        if timeout_s <= 0:
+            raise ValueError("timeout_s must be positive: nothing waits forever")
+        self.port = port
+        self.baudrate = baudrate
+        self.timeout_s = timeout_s
+        self.device = f"meteo {port}"
+        self._serial: serial.SerialBase | None = None
+
+    def connect(self) -> None:
+        if self._serial is not None:
+            return
+        try:
+            self._serial = serial.serial_for_url(
+                self.port,
+                baudrate=self.baudrate,
+                bytesize=serial.EIGHTBITS,
+                parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE,
+                timeout=min(_POLL_S, self.timeout_s),
+                write_timeout=self.timeout_s,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise ConnectionLost(
+                f"cannot open serial port while connecting: {exc}", device=self.device
+            ) from exc
+
+    def read(self) -> Environment:
+        port = self._serial
+        if port is None:
+            raise ConnectionLost("not connected (call connect() first) while reading", device=self.device)
+        try:
+            port.reset_input_buffer()  # a late answer to an earlier, timed-out request is stale: drop it
+            port.write(REQUEST)
+            port.flush()
+            line = self._read_line(port)
+        except serial.SerialTimeoutException as exc:
+            raise DeviceTimeout(f"request not written within {self.timeout_s} s", device=self.device) from exc
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise ConnectionLost(f"serial I/O failed while reading: {exc}", device=self.device) from exc
+        try:
+            return parse_line(line).to_environment()
+        except ProtocolError as exc:
+            raise ProtocolError(str(exc), device=self.device) from exc
+
+    def _read_line(self, port: serial.SerialBase) -> bytes:
+        deadline = time.monotonic() + self.timeout_s
+        buffer = bytearray()
+        while True:
+            newline = buffer.find(b"\n")
+            if newline >= 0:
+                return bytes(buffer[: newline + 1])
+            if len(buffer) > MAX_LINE_BYTES:
+                raise ProtocolError(
+                    f"no line end within {MAX_LINE_BYTES} bytes (got {bytes(buffer[:40])!r}...)",
+                    device=self.device,
+                )
+            if time.monotonic() >= deadline:
+                got = f"; partial line {bytes(buffer)!r}" if buffer else ""
+                raise DeviceTimeout(f"no complete answer within {self.timeout_s} s{got}", device=self.device)
+            buffer += port.read(max(1, min(port.in_waiting, MAX_LINE_BYTES + 1)))
+
+    def close(self) -> None:
+        port, self._serial = self._serial, None
+        if port is not None:
+            with contextlib.suppress(serial.SerialException, OSError):
+                port.close()
+
+    def __enter__(self) -> SerialMeteo:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

@@ -1,0 +1,467 @@
+"""Mock Leica emScon TPI server (AT901-like) on a real loopback TCP socket, speaking drivers.emscon.codec bytes.
+
+    server = MockEmscon(measure_fn, VirtualClock()).start()
+    host, port = server.address
+    server.inject(EmsconFault.BEAM_BREAK)      # one-shot faults, in order of injection
+    server.silent = True                       # persistent: never answer
+    server.stop()
+
+`measure_fn(expected_xyz_mm_or_None) -> (x, y, z, sx, sy, sz)` in mm gives every measured value (the digital
+twin plugs in here); `expected` is the last GoPosition target in mm (None after GoBirdBath or before any).
+The stationary measurement takes `meas_time_ms` of simulated time on the injected clock; Initialize,
+GoPosition, FindReflector and GoBirdBath take `motion_time_s` (VirtualClock in tests: instant).
+
+Behaviour (what a real server answers is assumed where the public headers do not say; see drivers/emscon/client.py):
+- a refused command is answered with its own *RT and a non-OK ES_ResultStatus: StartMeasurement, GoPosition,
+  FindReflector, GoBirdBath before Initialize -> ES_RS_TrackerNotInitialized (39); StartMeasurement without a
+  locked reflector -> ES_RS_MeasurementStatusNotReady (10004); FindReflector when no reflector is there
+  (`reflector_present = False`) -> ES_RS_MeasurementStatusNotReady (10004) after the search time-out;
+- a beam break during a measurement: the acknowledgement, then a SystemStatusChange
+  ES_SSC_MeasStatus_NotReady, then an ErrorResponseT {StartMeasurement, ES_RS_NoStationaryResult (10009)};
+  the lock is lost;
+- every accepted setting is followed by the matching SystemStatusChange (ES_SSC_UnitsChanged, ...), sent after
+  the answer, so clients always meet status changes between answers;
+- units: the server starts in metres (an assumption); lengths are converted for mm/m/micron, other length
+  units, Fahrenheit and non-hPa/mbar pressures are refused with ES_RS_WrongParameter (3). Only ES_CS_RHR and
+  the stationary mode are implemented (others: ES_RS_NotImplemented (2)).
+- garbage (a size field out of range, an unknown type or command, a wrong length) closes that connection only;
+  the server keeps accepting.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import enum
+import math
+import socket
+import threading
+from collections.abc import Callable
+
+from drivers.emscon.codec import (
+    ADMStatus,
+    CommandAnswer,
+    CoordinateSystemType,
+    Direction,
+    ErrorResponse,
+    FindReflector,
+    GetMeasurementStatusInfo,
+    GetSystemStatus,
+    GetTrackerStatus,
+    GoBirdBath,
+    GoPosition,
+    Initialize,
+    LaserProcessorStatus,
+    LengthUnit,
+    MeasMode,
+    MeasurementStatusInfo,
+    MeasurementStatusInfoAnswer,
+    Message,
+    PacketReader,
+    PressureUnit,
+    Request,
+    ResultStatus,
+    SetCoordinateSystemType,
+    SetEnvironmentParams,
+    SetMeasurementMode,
+    SetReflector,
+    SetSearchParams,
+    SetStationaryModeParams,
+    SetUnits,
+    SingleMeasResult,
+    StartMeasurement,
+    StatusChange,
+    SystemStatusAnswer,
+    SystemStatusChange,
+    TemperatureUnit,
+    TrackerProcessorStatus,
+    TrackerStatus,
+    TrackerStatusAnswer,
+    WeatherMonitorStatus,
+    decode_packet,
+    encode,
+)
+from drivers.errors import ProtocolError
+from drivers.interfaces import Environment, RealClock
+from mocks.clock import VirtualClock
+
+MeasureFn = Callable[[tuple[float, float, float] | None], tuple[float, float, float, float, float, float]]
+
+# mm per unit of the lengths the mock converts (exact by definition of the SI prefixes)
+_MM_PER_UNIT = {LengthUnit.METER: 1000.0, LengthUnit.MILLIMETER: 1.0, LengthUnit.MICRON: 0.001}
+# ESVersionNumberT reported: the TPI version of the headers the codec follows (V3.6)
+_VERSION = (3, 6, 0)
+_POLL_S = 0.05  # how often blocked threads look at the stop flag
+# ISO 2533 standard atmosphere at sea level (20 degC is the ISO 1 reference temperature), 50 %RH mid-range
+STANDARD_ENVIRONMENT = Environment(20.0, 1013.25, 50.0)
+
+
+class EmsconFault(enum.Enum):
+    BEAM_BREAK = "beam_break"  # next StartMeasurement: ack, status change, ErrorResponseT NoStationaryResult
+    DROP_CONNECTION = "drop"  # next request: the connection is closed without an answer
+    MALFORMED_PACKET = "malformed"  # next request: answered by a packet whose lPacketSize is absurd
+    STATUS_CHANGE = "status_change"  # next request: an unsolicited SystemStatusChange before the answer
+    ASYNC_ERROR = "async_error"  # next request: an ErrorResponseT for another command before the answer
+
+
+class MockEmscon:
+    def __init__(
+        self,
+        measure_fn: MeasureFn,
+        clock: VirtualClock | RealClock,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        environment: Environment = STANDARD_ENVIRONMENT,
+        reflector_present: bool | Callable[[], bool] = True,
+        motion_time_s: float = 2.0,
+        serial_number: int = 0,
+        dribble: bool = False,
+        coalesce: bool = False,
+    ) -> None:
+        self.measure_fn = measure_fn
+        self.clock = clock
+        self._bind = (host, port)
+        self.reflector_present = reflector_present
+        self.motion_time_s = motion_time_s
+        self.serial_number = serial_number
+        self.dribble = dribble  # send every byte in its own segment
+        self.coalesce = coalesce  # send everything a request causes in a single segment
+        self.silent = False  # read requests, never answer
+        self.environment = environment
+        # tracker state (shared by all connections: there is one tracker)
+        self.initialized = False
+        self.locked = False
+        self.units = SetUnits(LengthUnit.METER)
+        self.coordinate_system = CoordinateSystemType.RHR
+        self.meas_mode = MeasMode.STATIONARY
+        self.meas_time_ms = 1000
+        self.reflector_id = 0
+        self.search_radius = 0.0
+        self.search_timeout_ms = 10000
+        self.expected_mm: tuple[float, float, float] | None = None
+        self.last_result_status = ResultStatus.ALL_OK
+        # observation hooks for tests
+        self.received: list[Request] = []
+        self.connections_accepted = 0
+        self.connections_dropped_on_garbage = 0
+        self._faults: collections.deque[EmsconFault] = collections.deque()
+        self._state_lock = threading.RLock()
+        self._stop = threading.Event()
+        self._listener: socket.socket | None = None
+        self._threads: list[threading.Thread] = []
+        self._conns: set[socket.socket] = set()
+
+    # -------------------- lifecycle
+    @property
+    def address(self) -> tuple[str, int]:
+        if self._listener is None:
+            raise RuntimeError("server not started")
+        host, port = self._listener.getsockname()[:2]
+        return host, port
+
+    def start(self) -> MockEmscon:
+        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(self._bind)
+        listener.listen(8)
+        listener.settimeout(_POLL_S)
+        self._listener = listener
+        self._spawn(self._accept_loop, "emscon-mock-accept")
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._state_lock:
+            conns = list(self._conns)
+        for conn in conns:
+            _close(conn)
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        if self._listener is not None:
+            _close(self._listener)
+
+    def __enter__(self) -> MockEmscon:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    # -------------------- test hooks
+    def inject(self, fault: EmsconFault) -> None:
+        """Arm a one-shot fault; several are consumed in the order they were injected."""
+        with self._state_lock:
+            self._faults.append(fault)
+
+    def set_environment(self, env: Environment) -> None:
+        with self._state_lock:
+            self.environment = env
+
+    def _take_fault(self, *kinds: EmsconFault) -> EmsconFault | None:
+        with self._state_lock:
+            if self._faults and self._faults[0] in kinds:
+                return self._faults.popleft()
+        return None
+
+    # -------------------- threads
+    def _spawn(self, target, name: str, *args) -> None:
+        thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def _accept_loop(self) -> None:
+        assert self._listener is not None
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn.settimeout(_POLL_S)
+            with self._state_lock:
+                self._conns.add(conn)
+                self.connections_accepted += 1
+            self._spawn(self._serve, f"emscon-mock-conn-{self.connections_accepted}", conn)
+
+    def _serve(self, conn: socket.socket) -> None:
+        reader = PacketReader()
+        try:
+            while not self._stop.is_set():
+                try:
+                    data = conn.recv(65536)
+                except TimeoutError:
+                    continue
+                if not data:
+                    return
+                try:
+                    requests = [decode_packet(p, Direction.TO_TRACKER) for p in reader.feed(data)]
+                except ProtocolError:
+                    with self._state_lock:
+                        self.connections_dropped_on_garbage += 1
+                    return
+                for request in requests:
+                    assert isinstance(request, Request)
+                    if not self._handle(conn, request):
+                        return
+        except OSError:
+            return
+        finally:
+            with self._state_lock:
+                self._conns.discard(conn)
+            _close(conn)
+
+    # -------------------- protocol
+    def _handle(self, conn: socket.socket, request: Request) -> bool:
+        """Answer one request. Returns False when the connection is to be closed."""
+        with self._state_lock:
+            self.received.append(request)
+        if self.silent:
+            return True
+        if self._take_fault(EmsconFault.DROP_CONNECTION):
+            return False
+        out: list[bytes] = []
+        if self._take_fault(EmsconFault.MALFORMED_PACKET):
+            # lPacketSize = 3 is below the header size: no client can frame past it
+            self._send(conn, [(3).to_bytes(4, "little") + bytes(12)])
+            return True
+        if self._take_fault(EmsconFault.STATUS_CHANGE):
+            out.append(encode(StatusChange(SystemStatusChange.MEAS_STATUS_BUSY)))
+        if self._take_fault(EmsconFault.ASYNC_ERROR):
+            out.append(encode(ErrorResponse(GetSystemStatus.COMMAND, ResultStatus.UNKNOWN)))
+        for message in self._respond(request, conn, out):
+            out.append(encode(message))
+        self._send(conn, out)
+        return True
+
+    def _respond(self, request: Request, conn: socket.socket, out: list[bytes]) -> list[Message]:
+        """The packets answering `request`. Long operations advance the clock; StartMeasurement flushes its
+        acknowledgement before the measurement time passes (unless coalescing)."""
+        cmd = request.COMMAND
+
+        def answer(status: ResultStatus, *after: Message) -> list[Message]:
+            self.last_result_status = status
+            return [CommandAnswer(cmd, status), *after]
+
+        needs_init = (StartMeasurement, GoPosition, FindReflector, GoBirdBath)
+        if isinstance(request, needs_init) and not self.initialized:
+            return answer(ResultStatus.TRACKER_NOT_INITIALIZED)
+
+        if isinstance(request, Initialize):
+            self.clock.sleep(self.motion_time_s)
+            with self._state_lock:
+                self.initialized, self.locked = True, False
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.INITIALIZATION_STATUS_CHANGED))
+        if isinstance(request, GetSystemStatus):
+            processor = (
+                TrackerProcessorStatus.INITIALIZED
+                if self.initialized
+                else TrackerProcessorStatus.COMPENSATION_SET
+            )
+            return [
+                SystemStatusAnswer(
+                    ResultStatus.ALL_OK,
+                    self.last_result_status,
+                    processor,
+                    LaserProcessorStatus.LASER_READY,
+                    ADMStatus.ADM_READY,
+                    _VERSION,
+                    WeatherMonitorStatus.NOT_CONNECTED,
+                    0,
+                    self.serial_number,
+                )
+            ]
+        if isinstance(request, GetTrackerStatus):
+            state = TrackerStatus.READY if self.initialized else TrackerStatus.NOT_READY
+            return [TrackerStatusAnswer(ResultStatus.ALL_OK, state)]
+        if isinstance(request, GetMeasurementStatusInfo):
+            flags = (
+                MeasurementStatusInfo.TRACKER_FOUND
+                | MeasurementStatusInfo.TRACKER_COMPENSATION_FOUND
+                | MeasurementStatusInfo.ADM_FOUND
+                | MeasurementStatusInfo.ADM_COMPENSATION_FOUND
+            )
+            if self.locked:
+                flags |= MeasurementStatusInfo.REFLECTOR_FOUND
+            if self.initialized:
+                flags |= MeasurementStatusInfo.INITIALIZED
+            return [MeasurementStatusInfoAnswer(ResultStatus.ALL_OK, self.last_result_status, int(flags))]
+        if isinstance(request, SetUnits):
+            if (
+                request.length not in _MM_PER_UNIT
+                or request.temperature != TemperatureUnit.CELSIUS
+                or request.pressure not in (PressureUnit.MBAR, PressureUnit.HPASCAL)
+            ):
+                return answer(ResultStatus.WRONG_PARAMETER)
+            self.units = request
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.UNITS_CHANGED))
+        if isinstance(request, SetCoordinateSystemType):
+            if request.coordinate_system != CoordinateSystemType.RHR:
+                return answer(ResultStatus.NOT_IMPLEMENTED)
+            self.coordinate_system = request.coordinate_system
+            return answer(
+                ResultStatus.ALL_OK, StatusChange(SystemStatusChange.COORDINATE_SYSTEM_TYPE_CHANGED)
+            )
+        if isinstance(request, SetMeasurementMode):
+            if request.mode != MeasMode.STATIONARY:
+                return answer(ResultStatus.NOT_IMPLEMENTED)
+            self.meas_mode = request.mode
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.MEASUREMENT_MODE_CHANGED))
+        if isinstance(request, SetStationaryModeParams):
+            if request.meas_time_ms <= 0:
+                return answer(ResultStatus.PARAMETER1_OUT_OF_RANGE_NOK)
+            self.meas_time_ms = request.meas_time_ms
+            return answer(
+                ResultStatus.ALL_OK, StatusChange(SystemStatusChange.STATIONARY_MODE_PARAMS_CHANGED)
+            )
+        if isinstance(request, SetEnvironmentParams):
+            self.set_environment(Environment(request.temperature, request.pressure, request.humidity))
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.ENVIRONMENT_PARAMS_CHANGED))
+        if isinstance(request, SetReflector):
+            if request.reflector_id < 0:
+                return answer(ResultStatus.WRONG_PARAMETER1)
+            self.reflector_id = request.reflector_id
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.REFLECTOR_CHANGED))
+        if isinstance(request, SetSearchParams):
+            if request.search_radius <= 0 or request.timeout_ms <= 0:
+                return answer(ResultStatus.WRONG_PARAMETER)
+            self.search_radius, self.search_timeout_ms = request.search_radius, request.timeout_ms
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.SEARCH_PARAMS_CHANGED))
+        if isinstance(request, GoPosition):
+            self.clock.sleep(self.motion_time_s)
+            scale = _MM_PER_UNIT[self.units.length]
+            with self._state_lock:
+                self.expected_mm = (request.x * scale, request.y * scale, request.z * scale)
+                self.locked = self._present() and request.use_adm
+            return answer(ResultStatus.ALL_OK)
+        if isinstance(request, FindReflector):
+            if not self._present():
+                self.clock.sleep(self.search_timeout_ms / 1000.0)
+                return answer(ResultStatus.MEASUREMENT_STATUS_NOT_READY)
+            self.clock.sleep(self.motion_time_s)
+            with self._state_lock:
+                self.locked = True
+            return answer(ResultStatus.ALL_OK)
+        if isinstance(request, GoBirdBath):
+            self.clock.sleep(self.motion_time_s)
+            with self._state_lock:
+                self.expected_mm, self.locked = None, self._present()
+            return answer(ResultStatus.ALL_OK)
+        if isinstance(request, StartMeasurement):
+            return self._measure(conn, out)
+        return answer(ResultStatus.NOT_IMPLEMENTED)
+
+    def _present(self) -> bool:
+        """A reflector the tracker can see: a fixed flag, or asked of the simulated world each time."""
+        return bool(self.reflector_present() if callable(self.reflector_present) else self.reflector_present)
+
+    def _measure(self, conn: socket.socket, out: list[bytes]) -> list[Message]:
+        cmd = StartMeasurement.COMMAND
+        if not self.locked:
+            self.last_result_status = ResultStatus.MEASUREMENT_STATUS_NOT_READY
+            return [CommandAnswer(cmd, ResultStatus.MEASUREMENT_STATUS_NOT_READY)]
+        out.append(encode(CommandAnswer(cmd, ResultStatus.ALL_OK)))
+        if not self.coalesce:  # the acknowledgement goes out before the measurement time passes
+            self._send(conn, list(out))
+            out.clear()
+        self.clock.sleep(self.meas_time_ms / 1000.0)
+        if self._take_fault(EmsconFault.BEAM_BREAK) or not self._present():  # injected, or the world hides it
+            with self._state_lock:
+                self.locked = False
+                self.last_result_status = ResultStatus.NO_STATIONARY_RESULT
+            return [
+                StatusChange(SystemStatusChange.MEAS_STATUS_NOT_READY),
+                ErrorResponse(cmd, ResultStatus.NO_STATIONARY_RESULT),
+            ]
+        x, y, z, sx, sy, sz = (float(v) for v in self.measure_fn(self.expected_mm))
+        scale = 1.0 / _MM_PER_UNIT[self.units.length]
+        env = self.environment
+        self.last_result_status = ResultStatus.ALL_OK
+        return [
+            SingleMeasResult(
+                ResultStatus.ALL_OK,
+                MeasMode.STATIONARY,
+                False,
+                x * scale,
+                y * scale,
+                z * scale,
+                sx * scale,
+                sy * scale,
+                sz * scale,
+                math.sqrt(sx * sx + sy * sy + sz * sz) * scale,
+                0.0,
+                0.0,
+                0.0,
+                sx * scale,
+                sy * scale,
+                sz * scale,
+                math.sqrt(sx * sx + sy * sy + sz * sz) * scale,
+                env.temperature_c,
+                env.pressure_hpa,
+                env.humidity_pct,
+            )
+        ]
+
+    def _send(self, conn: socket.socket, chunks: list[bytes]) -> None:
+        if not chunks:
+            return
+        data = b"".join(chunks)
+        try:
+            if self.dribble:
+                for i in range(len(data)):
+                    conn.sendall(data[i : i + 1])
+            elif self.coalesce:
+                conn.sendall(data)
+            else:
+                for chunk in chunks:
+                    conn.sendall(chunk)
+        except OSError:
+            pass  # the client went away; the serve loop notices on its next read
+
+
+def _close(sock: socket.socket) -> None:
+    with contextlib.suppress(OSError):
+        sock.shutdown(socket.SHUT_RDWR)
+    with contextlib.suppress(OSError):
+        sock.close()

@@ -1,0 +1,1 @@
+"""One-off studies on real data (outside the installed package)."""

@@ -1,0 +1,46 @@
+"""The installed package stands on its own: a wheel built from the repository, installed elsewhere, resolves the
+shipped configs (`--cell kr270`) from its package data, from a directory that is not the repository."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
+    wheels, site, work = tmp_path / "wheels", tmp_path / "site", tmp_path / "work"
+    work.mkdir()
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                   cwd=tmp_path)  # fmt: skip
+    (wheel,) = wheels.glob("trackcal-*.whl")
+    subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, cwd=tmp_path)
+    assert (site / "configs" / "cells" / "kr270.yaml").is_file()
+    assert not (site / "studies").exists() and not (site / "tests").exists()
+    env = {k: v for k, v in os.environ.items() if k not in ("TRACKCAL_CONFIGS", "PYTHONPATH")}
+    env["PYTHONPATH"] = str(site)  # the wheel's copy first; numpy, scipy, ... from this interpreter
+    code = ("import sys, campaign, calib.cell; from campaign.cli import main; "
+            "print(campaign.__file__, calib.cell.CONFIGS); sys.exit(main(sys.argv[1:]))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code, "plan", "--cell", "kr270", "--configs", "3", "--repeat", "1",
+                          "--starts", "20", "--refined", "1", "--json", "plan.json"],
+                         cwd=work, env=env, capture_output=True, text=True)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    module_file, configs = out.stdout.splitlines()[0].split()
+    assert module_file.startswith(str(site)) and configs.startswith(str(site)), out.stdout
+    plan = json.loads((work / "plan.json").read_text())
+    assert len(plan["poses_deg"]) == 3 and plan["rho0_mm"] > 0
+
+
+def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):
+    """Start-up time: the command table is light; a command's module is imported only when it runs."""
+    code = ("import sys; from campaign.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('pinocchio', 'matplotlib') if m in sys.modules))")  # fmt: skip
+    for argv in (["--help"], ["export", str(tmp_path / "no-session"), "--csv", str(tmp_path / "t.csv")]):
+        out = subprocess.run([sys.executable, "-c", code, *argv], cwd=ROOT, capture_output=True, text=True)
+        assert out.stdout.strip().splitlines()[-1] == "[]", (argv, out.stdout, out.stderr)
