@@ -25,8 +25,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.emscon.codec import (
+    _ANSWER_STRUCTS,
+    _REQUEST_STRUCTS,
     HEADER_SIZE,
     MAX_PACKET_BYTES,
+    READBACK,
+    REQUEST_TYPES,
     ADMStatus,
     AngleUnit,
     Command,
@@ -37,8 +41,10 @@ from drivers.emscon.codec import (
     ErrorResponse,
     FindReflector,
     GetMeasurementStatusInfo,
+    GetSystemSettings,
     GetSystemStatus,
     GetTrackerStatus,
+    GetUnits,
     GoBirdBath,
     GoPosition,
     HumidityUnit,
@@ -57,9 +63,14 @@ from drivers.emscon.codec import (
     SetReflector,
     SetSearchParams,
     SetStationaryModeParams,
+    SetStatisticMode,
+    SetSystemSettings,
+    SettingAnswer,
     SetUnits,
     SingleMeasResult,
+    SingleMeasResult2,
     StartMeasurement,
+    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
     SystemStatusChange,
@@ -71,7 +82,9 @@ from drivers.emscon.codec import (
     decode_packet,
     encode,
     encode_command,
+    encode_refusal,
 )
+from drivers.emscon.layouts import LAYOUTS
 from drivers.errors import ProtocolError
 
 TO, FROM = Direction.TO_TRACKER, Direction.FROM_TRACKER
@@ -108,6 +121,26 @@ GOLDEN_TO_TRACKER = [
     # SetStationaryModeParamsCT {20; 0; ES_C_SetStationaryModeParams 28 = 0x1c; lMeasTime 1000 = 0x3e8;
     #                            bUseADM 0}
     (SetStationaryModeParams(1000, False), h("14000000 00000000 1c000000 e8030000 00000000")),
+    # SetStatisticModeCT {20 = 0x14; 0; ES_C_SetStatisticMode 80 = 0x50; stationaryMeasurements ES_SM_Extended 1;
+    #                     continuousMeasurements ES_SM_Standard 0}
+    (
+        SetStatisticMode(StatisticMode.EXTENDED, StatisticMode.STANDARD),
+        h("14000000 00000000 50000000 01000000 00000000"),
+    ),
+    # SetSystemSettingsCT {48 = 0x30; 0; ES_C_SetSystemSettings 47 = 0x2f; SystemSettingsDataT {weatherMonitorStatus
+    #   ES_WMS_ReadAndCalculateRefractions 2; bApplyTransformationParams 0; bApplyStationOrientationParams 1;
+    #   bKeepLastPosition 1; bSendUnsolicitedMessages 1; bSendReflectorPositionData 0; bTryMeasurementMode 0;
+    #   bHasNivel 1; bHasVideoCamera 1}}: the settings of MuffinSpawn/Leica bin/command-example.py
+    (
+        SetSystemSettings(WeatherMonitorStatus.READ_AND_CALCULATE_REFRACTIONS, False, True, True, True, False,
+                          False, True, True),  # fmt: skip
+        h(
+            "30000000 00000000 2f000000 02000000 00000000 01000000 01000000 01000000 00000000 00000000"
+            " 01000000 01000000"
+        ),
+    ),
+    # GetUnitsCT {12; 0; ES_C_GetUnits 6}
+    (GetUnits(), h("0c000000 00000000 06000000")),
 ]
 
 GOLDEN_FROM_TRACKER = [
@@ -162,6 +195,30 @@ GOLDEN_FROM_TRACKER = [
         TrackerStatusAnswer(ResultStatus.ALL_OK, TrackerStatus.READY),
         h("14000000 00000000 02000000 00000000 02000000"),
     ),
+    # GetUnitsRT {BasicCommandRT {36 = 0x24; 0; ES_C_GetUnits 6; ES_RS_AllOK 0}; SystemUnitsDataT {ES_LU_Micron 2;
+    #   ES_AU_Radian 0; ES_TU_Fahrenheit 1; ES_PU_Psi 4; ES_HU_RH 0}}
+    (
+        SettingAnswer(
+            Command.GET_UNITS,
+            ResultStatus.ALL_OK,
+            SetUnits(LengthUnit.MICRON, AngleUnit.RADIAN, TemperatureUnit.FAHRENHEIT, PressureUnit.PSI),
+        ),
+        h("24000000 00000000 06000000 00000000 02000000 00000000 01000000 04000000 00000000"),
+    ),
+    # SingleMeasResult2T {ReturnDataT {204 = 0xcc; ES_DT_SingleMeasResult2 9; ES_RS_AllOK 0}; measMode 0;
+    #   bIsTryMode 0; dVal1..3; dStd1..3; dStdTotal; dCovar12, 13, 23; dPointingErrorH, V, D; dAprioriStd1..3;
+    #   dAprioriStdTotal; dAprioriCovar12, 13, 23; dTemperature; dPressure; dHumidity}   12 + 8 + 23 * 8 = 204
+    (
+        SingleMeasResult2(
+            ResultStatus.ALL_OK, MeasMode.STATIONARY, False, 1000.0, -500.0, 250.0, 2**-7, 2**-7, 2**-6, 2**-5,
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2**-7, 2**-7, 2**-6, 2**-5, 0.0, 0.0, 0.0, 20.0, 1013.25, 50.0,
+        ),  # fmt: skip
+        h(
+            f"cc000000 09000000 00000000 00000000 00000000 {D_1000} {D_M500} {D_250}"
+            f" {D_2M7} {D_2M7} {D_2M6} {D_2M5} {D_0} {D_0} {D_0} {D_0} {D_0} {D_0}"
+            f" {D_2M7} {D_2M7} {D_2M6} {D_2M5} {D_0} {D_0} {D_0} {D_20} {D_1013_25} {D_50}"
+        ),
+    ),
 ]
 
 
@@ -196,6 +253,45 @@ def test_golden_sizes_match_header_layouts():
     )
     assert len(encode(answer)) == 56
     assert len(encode(ReflectorPosResult(ResultStatus.ALL_OK, 0.0, 0.0, 0.0))) == 12 + 3 * 8
+
+
+def test_layout_table_sizes_from_the_header():
+    # sizeof() of a few *RT structs of ES_C_API_Def.h worked out by hand (pack 4, 4-byte long/enum/ES_BOOL):
+    # GetReflectorsRT: 16 + 3 * 4 + double 8 + unsigned short[32] 64 = 100
+    assert LAYOUTS[42].answer_size == 100
+    # GetTrackerInfoRT: 16 + enum 4 + name 64 + 2 long + 3 ES_BOOL 20 + 3 doubles 24 + 2 int 8 + 2 doubles 16
+    #                   + enum + 2 int 12 = 164
+    assert LAYOUTS[132].answer_size == 164
+    # SetSystemSettingsCT: BasicCommandCT 12 + SystemSettingsDataT (enum + 8 ES_BOOL) 36 = 48
+    assert LAYOUTS[47].request_size == 48
+    assert set(LAYOUTS) == set(range(143)) - {50, 64, 141}  # every ES_Command value with structs
+
+
+def test_codec_structs_agree_with_the_layout_table():
+    for command, st_ in _REQUEST_STRUCTS.items():
+        assert st_.size == LAYOUTS[command].request_size, command.name
+    for command in Command:
+        size = _ANSWER_STRUCTS[command].size if command in _ANSWER_STRUCTS else 16
+        assert size == LAYOUTS[command].answer_size, command.name
+    assert set(READBACK) <= set(_ANSWER_STRUCTS)
+
+
+def test_full_size_refusals():
+    # the *RT of ES_C_GetTrackerInfo (132 = 0x84), 164 = 0xa4 bytes, ES_RS_NotImplemented 2, zero payload
+    assert encode_refusal(132, ResultStatus.NOT_IMPLEMENTED) == h("a4000000 00000000 84000000 02000000") + bytes(148)
+    # an id that is no ES_Command (50 = 0x32): a bare BasicCommandRT
+    assert encode_refusal(50, ResultStatus.NOT_IMPLEMENTED) == h("10000000 00000000 32000000 02000000")
+    # a refused Get* of the subset decodes as its answer with the status and zero values
+    refused = decode_packet(encode_refusal(Command.GET_SYSTEM_SETTINGS, ResultStatus.NOT_IMPLEMENTED))
+    assert refused == SettingAnswer(
+        Command.GET_SYSTEM_SETTINGS,
+        ResultStatus.NOT_IMPLEMENTED,
+        SetSystemSettings(WeatherMonitorStatus.NOT_CONNECTED, *([False] * 8)),
+    )
+    with pytest.raises(ValueError, match="payload"):
+        encode_refusal(Command.GET_UNITS, ResultStatus.ALL_OK)
+    with pytest.raises(ValueError):
+        encode(SettingAnswer(Command.GET_UNITS, ResultStatus.ALL_OK, GetSystemSettings()))
 
 
 def test_request_and_answer_of_same_size_need_the_direction():
@@ -266,21 +362,18 @@ requests = st.one_of(
     st.builds(SetSearchParams, finite, int32),
     st.builds(GoPosition, finite, finite, finite, st.booleans()),
     st.builds(FindReflector, finite),
+    st.builds(SetStatisticMode, members(StatisticMode), members(StatisticMode)),
+    st.builds(SetSystemSettings, members(WeatherMonitorStatus), *([st.booleans()] * 8)),
+    st.sampled_from([cls() for cmd, cls in REQUEST_TYPES.items() if cmd.name.startswith("GET_")]),
 )
 statuses = members(ResultStatus)
 from_tracker = st.one_of(
     st.builds(CommandAnswer, members(Command), statuses).filter(
-        lambda a: (
-            not (
-                a.status == ResultStatus.ALL_OK
-                and a.command
-                in (
-                    Command.GET_SYSTEM_STATUS,
-                    Command.GET_TRACKER_STATUS,
-                    Command.GET_MEASUREMENT_STATUS_INFO,
-                )
-            )
-        )
+        lambda a: not (a.status == ResultStatus.ALL_OK and a.command in _ANSWER_STRUCTS)
+    ),
+    st.sampled_from(list(READBACK.items())).flatmap(
+        lambda item: st.builds(SettingAnswer, st.just(item[0]), statuses, requests.filter(
+            lambda r: type(r) is item[1]))  # fmt: skip
     ),
     st.builds(
         SystemStatusAnswer,
@@ -299,6 +392,7 @@ from_tracker = st.one_of(
     st.builds(ErrorResponse, members(Command), statuses),
     st.builds(StatusChange, members(SystemStatusChange)),
     st.builds(SingleMeasResult, statuses, members(MeasMode), st.booleans(), *([finite] * 17)),
+    st.builds(SingleMeasResult2, statuses, members(MeasMode), st.booleans(), *([finite] * 23)),
     st.builds(ReflectorPosResult, statuses, finite, finite, finite),
 )
 packets = st.one_of(requests.map(encode_command), from_tracker.map(encode))

@@ -13,6 +13,7 @@ Numbers:
 
 from __future__ import annotations
 
+import math
 import random
 import socket
 import struct
@@ -22,18 +23,29 @@ import pytest
 
 from drivers.emscon.client import EmsconTracker
 from drivers.emscon.codec import (
+    AngleUnit,
     Command,
+    CoordinateSystemType,
     ErrorResponse,
     FindReflector,
+    GetUnits,
     GoPosition,
     Initialize,
     LengthUnit,
     PacketReader,
+    PressureUnit,
     ResultStatus,
+    SetCoordinateSystemType,
+    SetStatisticMode,
+    SetSystemSettings,
     SetUnits,
     SingleMeasResult,
     StartMeasurement,
+    StatisticMode,
+    StatusChange,
     SystemStatusChange,
+    TemperatureUnit,
+    WeatherMonitorStatus,
     decode_packet,
     encode_command,
 )
@@ -118,7 +130,9 @@ def test_campaign_sequence(server, tracker, clock):
     # Initialize, GoPosition, FindReflector, GoBirdBath: 4 motions; plus 2 s of measurement
     assert clock.now() == 4 * MOTION_S + 2.0
     commands = [type(r).__name__ for r in server.received]
-    assert commands[:3] == ["SetUnits", "SetCoordinateSystemType", "SetMeasurementMode"]
+    settings = ["SetUnits", "SetCoordinateSystemType", "SetMeasurementMode", "SetStatisticMode", "SetSystemSettings"]
+    assert commands[: len(settings) + 1] == ["GetSystemSettings", *settings]
+    assert commands[len(settings) + 1 : 2 * len(settings) + 1] == [f"Get{c[3:]}" for c in settings]
     assert commands[-1] == "GoBirdBath"
     assert server.received[commands.index("GoPosition")] == GoPosition(*POINT, use_adm=True)
     # every setting was followed by a status-change packet between answers: all recorded, none mistaken
@@ -230,7 +244,7 @@ def test_silent_tracker_times_out_in_bounded_time(server):
     trk = client_for(server, timeout_s=0.3)
     host, port = server.address
     t0 = time.monotonic()
-    with pytest.raises(DeviceTimeout, match=f"{host}:{port}.*0.3 s while setting units"):
+    with pytest.raises(DeviceTimeout, match=f"{host}:{port}.*0.3 s while reading the system settings"):
         trk.connect()
     assert time.monotonic() - t0 < 2.0
 
@@ -262,11 +276,92 @@ def test_connection_refused_names_host_port_and_action():
         trk.measure()
 
 
-def test_units_the_mock_does_not_support_are_refused(server, tracker):
+# -------------------- whatever a previous program left on the tracker
+LEFT_BEHIND = [
+    SetUnits(LengthUnit.INCH, AngleUnit.GON, TemperatureUnit.FAHRENHEIT, PressureUnit.PSI),
+    SetCoordinateSystemType(CoordinateSystemType.SCW),
+    SetStatisticMode(StatisticMode.EXTENDED, StatisticMode.EXTENDED),
+    SetSystemSettings(WeatherMonitorStatus.READ_ONLY, True, True, False, False, True, True, False, False),
+]
+
+
+def send_as_another_client(server, *requests) -> list:
+    """Another program on the tracker's network changes its settings (its own connection, raw packets)."""
+    with socket.create_connection(server.address, timeout=2.0) as raw:
+        raw.sendall(b"".join(encode_command(r) for r in requests))
+        reader, answers = PacketReader(), []
+        while len(answers) < len(requests):
+            data = raw.recv(4096)
+            assert data, "the mock closed the connection"
+            answers += [m for m in map(decode_packet, reader.feed(data)) if not isinstance(m, StatusChange)]
+    return answers
+
+
+def test_configure_undoes_what_another_program_left(server, tracker):
+    send_as_another_client(server, *LEFT_BEHIND)
+    ready(tracker)  # connect() configures
+    assert (server.units, server.coordinate_system) == (SetUnits(), CoordinateSystemType.RHR)
+    assert server.statistic == SetStatisticMode(StatisticMode.STANDARD, StatisticMode.STANDARD)
+    assert not server.system_settings.try_mode and not server.system_settings.apply_transformation
+    assert tracker.measure().z_mm == expected_measurement()[2]
+
+
+def test_settings_changed_mid_session_are_undone_by_configure(server, tracker):
+    ready(tracker)
+    send_as_another_client(server, SetUnits(LengthUnit.MICRON))
+    # 1 mm is 1000 um: the same reflector now reads 1000 times larger
+    assert tracker.measure().z_mm == pytest.approx(expected_measurement()[2] * 1000, rel=1e-12)
+    tracker.configure()
+    assert tracker.measure().z_mm == expected_measurement()[2]
+
+
+def test_extended_statistic_mode_results_are_read(server, tracker):
+    ready(tracker)
+    send_as_another_client(server, SetStatisticMode(StatisticMode.EXTENDED, StatisticMode.STANDARD))
+    m = tracker.measure()  # a SingleMeasResult2T (type 9, 204 bytes): the same position and deviations
+    assert (m.x_mm, m.y_mm, m.z_mm) == expected_measurement()
+    assert (m.std_x_mm, m.std_y_mm, m.std_z_mm) == STD
+
+
+def test_try_mode_result_is_refused(server, tracker):
+    ready(tracker)
+    try_mode = SetSystemSettings(WeatherMonitorStatus.NOT_CONNECTED, False, False, True, True, False, True,
+                                 False, False)  # fmt: skip
+    send_as_another_client(server, try_mode)
+    with pytest.raises(DeviceFault, match="try-mode"):
+        tracker.measure()
+
+
+def test_a_setting_that_does_not_read_back_is_a_fault(server, tracker, monkeypatch):
     tracker.connect()
-    with pytest.raises(DeviceFault) as info:
-        tracker._command(SetUnits(LengthUnit.INCH), "setting inches")
-    assert info.value.code == ResultStatus.WRONG_PARAMETER
+    readback = server._readback
+    monkeypatch.setattr(server, "_readback", lambda r: SetUnits(LengthUnit.MICRON) if isinstance(r, GetUnits)
+                        else readback(r))  # fmt: skip
+    with pytest.raises(DeviceFault, match="reports SetUnits") as info:
+        tracker.configure()
+    assert info.value.code == "readback"
+
+
+@pytest.mark.parametrize(
+    ("unit", "mm_per_unit"),  # exact by definition: international yard of 1959 (0.9144 m = 3 ft = 36 in)
+    [(LengthUnit.METER, 1000.0), (LengthUnit.MICRON, 1e-3), (LengthUnit.FOOT, 304.8), (LengthUnit.INCH, 25.4),
+     (LengthUnit.YARD, 914.4)],  # fmt: skip
+)
+def test_mock_lengths_in_every_unit(server, tracker, unit, mm_per_unit):
+    ready(tracker)
+    send_as_another_client(server, SetUnits(unit))
+    m = tracker.measure()
+    assert m.z_mm * mm_per_unit == pytest.approx(expected_measurement()[2], rel=1e-12)
+
+
+def test_mock_spherical_coordinates(server, tracker):
+    ready(tracker)
+    send_as_another_client(server, SetUnits(angle=AngleUnit.RADIAN), SetCoordinateSystemType(CoordinateSystemType.SCC))
+    m = tracker.measure()  # (horizontal angle, zenith angle, distance): the conventions assumed in the mock
+    x, y, z = expected_measurement()
+    assert m.x_mm == pytest.approx(math.atan2(y, x), rel=1e-12)
+    assert m.y_mm == pytest.approx(math.acos(z / math.dist((0, 0, 0), (x, y, z))), rel=1e-12)
+    assert m.z_mm == pytest.approx(math.dist((0, 0, 0), (x, y, z)), rel=1e-12)
 
 
 # -------------------- server robustness
@@ -274,21 +369,42 @@ def test_garbage_or_dropped_clients_do_not_take_the_server_down(server, tracker)
     host, port = server.address
     rng = random.Random(20240611)  # fixed seed: the same garbage every run
     garbage = [
-        rng.randbytes(512),
+        rng.randbytes(512),  # its size field is out of range (a random int32 almost surely is)
         struct.pack("<ii", 2**31 - 1, 0),  # absurd size
-        struct.pack("<iii", 12, 99, 49),  # unknown ES_DataType
-        struct.pack("<iii", 12, 0, 50),  # ES_Command 50 does not exist in the header
         encode_command(StartMeasurement())[:7],  # half a packet, then the client vanishes
     ]
     for payload in garbage:
         with socket.create_connection((host, port), timeout=1.0) as raw:
             raw.sendall(payload)
     deadline = time.monotonic() + 2.0
-    while server.connections_dropped_on_garbage < 4 and time.monotonic() < deadline:
+    while server.connections_dropped_on_garbage < 2 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert server.connections_dropped_on_garbage == 4
+    assert server.connections_dropped_on_garbage == 2
     ready(tracker)
     assert (tracker.measure().z_mm) == expected_measurement()[2]
+
+
+def test_packets_it_cannot_read_are_answered_and_the_connection_kept(server):
+    # (packet, answer): ES_RS_NotImplemented 2, ES_RS_WrongParameter 3 (ES_C_API_Def.h ES_ResultStatus)
+    cases = [
+        (struct.pack("<iii", 12, 99, 49), struct.pack("<iiii", 16, 0, 49, 2)),  # unknown ES_DataType 99
+        (struct.pack("<iii", 12, 0, 50), struct.pack("<iiii", 16, 0, 50, 2)),  # ES_Command 50 does not exist
+        (struct.pack("<ii", 8, 0), struct.pack("<iiii", 16, 0, 64, 2)),  # no command at all: ES_C_Unknown 64
+        # GetTrackerInfo (132) is not implemented: its whole 164-byte GetTrackerInfoRT, zeroed
+        (struct.pack("<iii", 12, 0, 132), struct.pack("<iiii", 164, 0, 132, 2) + bytes(148)),
+        # SetUnits with ES_LengthUnit 9 (no such unit): SetUnitsRT (16 bytes) with ES_RS_WrongParameter
+        (struct.pack("<iii5i", 32, 0, 5, 9, 1, 0, 1, 0), struct.pack("<iiii", 16, 0, 5, 3)),
+    ]
+    with socket.create_connection(server.address, timeout=2.0) as raw:
+        for packet, answer in cases:
+            raw.sendall(packet)
+            got = b""
+            while len(got) < len(answer):
+                data = raw.recv(4096)
+                assert data, "the mock closed the connection"
+                got += data
+            assert got == answer
+    assert server.connections_dropped_on_garbage == 0
 
 
 def test_same_requests_give_the_same_bytes():

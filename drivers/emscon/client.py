@@ -5,7 +5,8 @@ ES_C_API_Def.h / Enum.h in beckjac/emscon_ros and MuffinSpawn/Leica, and the CES
 
 Conversation (one command at a time, under a lock):
 - every command is answered by a packet of type ES_DT_Command with the same command id and an ES_ResultStatus
-  (a *RT struct); StartMeasurement is answered twice: the acknowledgement, then a separate SingleMeasResultT;
+  (a *RT struct); StartMeasurement is answered twice: the acknowledgement, then a separate SingleMeasResultT
+  (SingleMeasResult2T, type 9, if the tracker is in the extended statistic mode: both are read);
 - error packets (ErrorResponseT) and system-status-change packets (SystemStatusChangeT) may arrive at any
   time, between or before answers. An error naming the pending command raises DeviceFault(code=status);
   an error naming another command is kept in `async_errors`; status changes are kept in `status_changes` and
@@ -18,15 +19,25 @@ Every socket read runs against a deadline (DeviceTimeout names host:port and the
 connection loss or bytes that do not parse, the connection is closed: its byte stream can no longer be trusted
 (a late answer would be taken for the next one). Call connect() again to resume.
 
-On every connect() the client sets the units (mm, degrees, Celsius, hPa, %RH), the Cartesian right-handed
-coordinate system type (ES_CS_RHR) and the stationary measurement mode, so that measurements are always in mm
-whatever a previous session left on the tracker.
+`configure()` (on every connect(), and again whenever the campaign asks: at every station set-up and before
+every point block) sets everything a measurement depends on, whatever a previous session or another client
+left on the tracker, then reads each one back (Get*) and raises DeviceFault if the tracker reports something
+else: the units (mm, degrees, Celsius, hPa, %RH), the Cartesian right-handed coordinate system type (ES_CS_RHR),
+the stationary measurement mode, the standard statistic mode, the stationary measurement time once
+set_stationary_averaging chose one, and the system settings: no user transformation and no station
+orientation applied (results in the tracker's own frame), no try mode, unsolicited errors on, no reflector
+position stream, the beam kept where it was when it is broken, the weather monitor as `weather_monitor` says,
+bHasNivel / bHasVideoCamera left as the tracker reports them (they describe its hardware). A result still in
+try mode or in another measurement mode is refused.
 
 Not confirmed against a real AT901 (see also the codec's docstring):
 - the unit of StationaryModeDataT.lMeasTime is not written in the header; it is taken as milliseconds, the
   unit the same header gives for SearchParamsDataT.lTimeOut. `set_stationary_averaging(n)` asks for
   n / samples_per_second seconds (samples_per_second defaults to 1000, an assumption, not a datasheet value).
 - whether a refusal comes as the *RT with a non-OK status or as an ErrorResponseT: both are handled.
+- weather monitor: with ES_WMS_NotConnected (the default) the tracker is taken to compute refraction from the
+  environment trackcal sets (SetEnvironmentParams, from its own meteo sensor); without one, configure
+  ES_WMS_ReadAndCalculateRefractions. The header names the modes, not what each does with SetEnvironmentParams.
 """
 
 from __future__ import annotations
@@ -47,9 +58,15 @@ from drivers.emscon.codec import (
     ErrorResponse,
     FindReflector,
     FromTracker,
+    GetCoordinateSystemType,
+    GetMeasurementMode,
     GetMeasurementStatusInfo,
+    GetStationaryModeParams,
+    GetStatisticMode,
+    GetSystemSettings,
     GetSystemStatus,
     GetTrackerStatus,
+    GetUnits,
     GoBirdBath,
     GoPosition,
     Initialize,
@@ -66,15 +83,21 @@ from drivers.emscon.codec import (
     SetReflector,
     SetSearchParams,
     SetStationaryModeParams,
+    SetStatisticMode,
+    SetSystemSettings,
+    SettingAnswer,
     SetUnits,
     SingleMeasResult,
+    SingleMeasResult2,
     StartMeasurement,
+    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
     SystemStatusChange,
     TrackerProcessorStatus,
     TrackerStatus,
     TrackerStatusAnswer,
+    WeatherMonitorStatus,
     decode_packet,
     encode_command,
 )
@@ -113,6 +136,16 @@ _ACCEPTED = frozenset(
 )
 
 
+# Each setting configure() makes and the Get* command that reads it back (their payloads are the same struct).
+_READ_BACK: dict[type[Request], type[Request]] = {
+    SetUnits: GetUnits,
+    SetCoordinateSystemType: GetCoordinateSystemType,
+    SetMeasurementMode: GetMeasurementMode,
+    SetStatisticMode: GetStatisticMode,
+    SetSystemSettings: GetSystemSettings,
+    SetStationaryModeParams: GetStationaryModeParams,
+}
+
 # the statuses that mean "the reflector cannot be seen from here" (a campaign measures it from elsewhere)
 _NOT_VISIBLE = frozenset(
     {ResultStatus.MEASUREMENT_STATUS_NOT_READY, ResultStatus.NO_STATIONARY_RESULT, ResultStatus.NO_DISTANCE_SET}
@@ -141,6 +174,7 @@ class EmsconTracker:
         motion_timeout_s: float = 120.0,
         search_timeout_s: float = 10.0,
         samples_per_second: float = 1000.0,
+        weather_monitor: str = "not_connected",
     ) -> None:
         for name, value in (
             ("timeout_s", timeout_s),
@@ -151,6 +185,11 @@ class EmsconTracker:
         ):
             if not value > 0:
                 raise ValueError(f"{name} must be positive: nothing waits forever")
+        try:
+            self.weather_monitor = WeatherMonitorStatus[weather_monitor.upper()]
+        except KeyError:
+            names = ", ".join(m.name.lower() for m in WeatherMonitorStatus)
+            raise ValueError(f"weather_monitor must be one of {names}, got {weather_monitor!r}") from None
         self.host = host
         self.port = port
         self.timeout_s = timeout_s
@@ -164,6 +203,7 @@ class EmsconTracker:
         self.async_errors: collections.deque[ErrorResponse] = collections.deque(maxlen=256)
         self.warnings: collections.deque[tuple[str, ResultStatus]] = collections.deque(maxlen=256)
         self.last_reflector_position: tuple[float, float, float] | None = None
+        self.meas_time_ms: int | None = None  # the stationary measurement time chosen, re-set by configure()
         self._sock: socket.socket | None = None
         self._reader = PacketReader()
         self._inbox: collections.deque[FromTracker] = collections.deque()
@@ -185,11 +225,40 @@ class EmsconTracker:
             self._sock = sock
             self._reader = PacketReader()
             self._inbox.clear()
-            self._command(SetUnits(), "setting units (mm, deg, Celsius, hPa, %RH)")
-            self._command(
-                SetCoordinateSystemType(CoordinateSystemType.RHR), "setting the Cartesian coordinate system"
-            )
-            self._command(SetMeasurementMode(MeasMode.STATIONARY), "setting the stationary measurement mode")
+            self.configure()
+
+    def configure(self) -> None:
+        """Set everything a measurement depends on and read it back (see the module docstring)."""
+        with self._lock:
+            current = self._command(GetSystemSettings(), "reading the system settings")
+            assert isinstance(current, SettingAnswer) and isinstance(current.setting, SetSystemSettings)
+            hardware = current.setting
+            wanted: list[tuple[Request, str]] = [
+                (SetUnits(), "the units (mm, deg, Celsius, hPa, %RH)"),
+                (SetCoordinateSystemType(CoordinateSystemType.RHR), "the Cartesian coordinate system (RHR)"),
+                (SetMeasurementMode(MeasMode.STATIONARY), "the stationary measurement mode"),
+                (SetStatisticMode(StatisticMode.STANDARD, StatisticMode.STANDARD), "the standard statistic mode"),
+                (
+                    SetSystemSettings(self.weather_monitor, False, False, True, True, False, False,
+                                      hardware.has_nivel, hardware.has_video_camera),  # fmt: skip
+                    f"the system settings (weather monitor {self.weather_monitor.name}, no transformation, "
+                    "no station orientation, no try mode)",
+                ),
+            ]
+            if self.meas_time_ms is not None:
+                wanted.append((SetStationaryModeParams(self.meas_time_ms, use_adm=False),
+                               f"the stationary measurement time ({self.meas_time_ms} ms)"))  # fmt: skip
+            for request, what in wanted:
+                self._command(request, f"setting {what}")
+            for request, what in wanted:
+                answer = self._command(_READ_BACK[type(request)](), f"reading back {what}")
+                assert isinstance(answer, SettingAnswer)
+                if answer.setting != request:
+                    raise DeviceFault(
+                        f"the tracker reports {answer.setting} after setting {what} ({request})",
+                        code="readback",
+                        device=self.device,
+                    )
 
     def initialize(self) -> None:
         self._command(Initialize(), "initialising the tracker", self.motion_timeout_s)
@@ -211,6 +280,7 @@ class EmsconTracker:
             SetStationaryModeParams(meas_time_ms, use_adm=False),
             f"setting the stationary measurement time to {meas_time_ms} ms",
         )
+        self.meas_time_ms = meas_time_ms
 
     def find_reflector(self, x_mm: float, y_mm: float, z_mm: float, search_radius_mm: float) -> None:
         """Point the beam at the expected reflector position (GoPosition, with ADM) and search around it."""
@@ -237,12 +307,12 @@ class EmsconTracker:
             self._transact(StartMeasurement(), what, self.timeout_s)  # the acknowledgement
             result = self._wait_for(
                 StartMeasurement.COMMAND,
-                (SingleMeasResult,),
+                (SingleMeasResult, SingleMeasResult2),
                 time.monotonic() + self.measure_timeout_s,
                 what,
                 self.measure_timeout_s,
             )
-        assert isinstance(result, SingleMeasResult)
+        assert isinstance(result, SingleMeasResult | SingleMeasResult2)
         if result.status not in _ACCEPTED:
             raise fault(result.status, what, self.device)
         if result.status != ResultStatus.ALL_OK:
@@ -250,6 +320,12 @@ class EmsconTracker:
         if result.meas_mode != MeasMode.STATIONARY:
             self._fail(
                 ProtocolError(f"measurement result in mode {result.meas_mode.name}, expected STATIONARY")
+            )
+        if result.is_try_mode:
+            raise DeviceFault(
+                "the tracker sent a try-mode result (bTryMeasurementMode set by another client?) while measuring",
+                code="try_mode",
+                device=self.device,
             )
         return TrackerMeasurement(
             result.val1,
@@ -315,7 +391,7 @@ class EmsconTracker:
             raise ConnectionLost(f"send failed while {what}: {exc}", device=self.device) from exc
         answer = self._wait_for(
             request.COMMAND,
-            (CommandAnswer, SystemStatusAnswer, TrackerStatusAnswer, MeasurementStatusInfoAnswer),
+            (CommandAnswer, SystemStatusAnswer, TrackerStatusAnswer, MeasurementStatusInfoAnswer, SettingAnswer),
             time.monotonic() + timeout_s,
             what,
             timeout_s,

@@ -14,12 +14,20 @@ the project's code index; every enum value and struct layout below was written f
   [A]  MuffinSpawn/Leica  Include/ES_C_API_Def.h  (AT4xx extract of the same header; same layouts).
   [K]  shohty/Leica_KEK  CESAPI/packet.py  (CESAPI Python client): PacketHeaderT packed as '<i I' (8 bytes),
        BasicCommandCT 12 bytes, BasicCommandRT 16 bytes -- i.e. `long` is 32 bits on the wire (the header is
-       written for MSVC, where long is 32 bits).  NOTE: the older MuffinSpawn/Leica CESAPI/packet.py packs
-       lPacketSize as '<q' (a 12-byte header, from generating on 64-bit Linux); we follow [H]/[K] and
-       the issue, which state int32.
+       written for MSVC, where long is 32 bits; [H] even `#define long int32_t` for this reason).
+       MuffinSpawn/Leica's CESAPI packs lPacketSize in 4 bytes too at its current head (its CESAPI/sniff.py
+       frames `PACKET_HEADER_SIZE = 8  # lPacketSize, type`); only early commits of its CESAPI/packet.py,
+       generated on 64-bit Linux, packed it as '<q' (a 12-byte header).
   [C]  MuffinSpawn/Leica  CESAPI/command.py: StartMeasurement is answered by the command acknowledgement and
-       then a separate ES_DT_SingleMeasResult packet; ES_DT_Error packets (ErrorResponseT) report a failed
-       command.
+       then a separate ES_DT_SingleMeasResult packet, or an ES_DT_SingleMeasResult2 one (it accepts both);
+       ES_DT_Error packets (ErrorResponseT) report a failed command.
+  [L]  drivers/emscon/layouts.py: the CT/RT layout of every ES_Command of [H], for the sizes of answers to
+       commands outside the subset decoded here.
+
+A refusal (a status other than ES_RS_AllOK) comes in one of two forms, and [H] gives the layouts, not which
+one a server sends: just BasicCommandRT's 16 bytes (a CommandAnswer), or the full *RT of that command with a
+zeroed payload (`encode_refusal`; it decodes as that command's answer with zero values), which a client that
+unpacks the fixed struct of each answer can read. Both decode.
 
 Frame: every packet starts with PacketHeaderT {int32 lPacketSize (whole packet, bytes); int32 type
 (ES_DataType)}, little-endian.  Command requests and their answers share ES_DT_Command and the command id and
@@ -39,6 +47,7 @@ import struct
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
+from drivers.emscon.layouts import LAYOUTS
 from drivers.errors import ProtocolError
 
 DEFAULT_PORT = 700
@@ -69,17 +78,25 @@ class Command(enum.IntEnum):  # ES_Command: the subset this driver speaks
     GET_SYSTEM_STATUS = 1
     GET_TRACKER_STATUS = 2
     SET_UNITS = 5
+    GET_UNITS = 6
     INITIALIZE = 7
     SET_ENVIRONMENT_PARAMS = 20
     SET_MEASUREMENT_MODE = 24
+    GET_MEASUREMENT_MODE = 25
     SET_COORDINATE_SYSTEM_TYPE = 26
+    GET_COORDINATE_SYSTEM_TYPE = 27
     SET_STATIONARY_MODE_PARAMS = 28
+    GET_STATIONARY_MODE_PARAMS = 29
     SET_REFLECTOR = 40
     SET_SEARCH_PARAMS = 43
+    SET_SYSTEM_SETTINGS = 47
+    GET_SYSTEM_SETTINGS = 48
     START_MEASUREMENT = 49
     GO_BIRD_BATH = 54
     GO_POSITION = 55
     FIND_REFLECTOR = 63
+    SET_STATISTIC_MODE = 80
+    GET_STATISTIC_MODE = 81
     GET_MEASUREMENT_STATUS_INFO = 122
 
 
@@ -141,6 +158,11 @@ class CoordinateSystemType(enum.IntEnum):  # ES_CoordinateSystemType [E]
     CCC = 5
     SCW = 6
     SCC = 7
+
+
+class StatisticMode(enum.IntEnum):  # ES_StatisticMode [H]
+    STANDARD = 0  # stationary results as SingleMeasResultT (ES_DT_SingleMeasResult, 156 bytes)
+    EXTENDED = 1  # ... as SingleMeasResult2T (ES_DT_SingleMeasResult2, 204 bytes, with covariances)
 
 
 class TrackerStatus(enum.IntEnum):  # ES_TrackerStatus
@@ -628,6 +650,72 @@ class FindReflector(Request):  # FindReflectorCT {BasicCommandCT; double dAproxD
         return cls(_finite(values[0], "FindReflector.dAproxDistance"))
 
 
+@dataclass(frozen=True)
+class SetSystemSettings(Request):  # SetSystemSettingsCT {BasicCommandCT; SystemSettingsDataT {enum; 8 ES_BOOL}}
+    COMMAND: ClassVar[Command] = Command.SET_SYSTEM_SETTINGS
+    PAYLOAD: ClassVar[str] = "iiiiiiiii"
+    weather_monitor: WeatherMonitorStatus  # weatherMonitorStatus
+    apply_transformation: bool  # bApplyTransformationParams: results in the user's transformed frame
+    apply_station_orientation: bool  # bApplyStationOrientationParams
+    keep_last_position: bool  # bKeepLastPosition: the beam stays where it was when it is broken
+    send_unsolicited_messages: bool  # bSendUnsolicitedMessages
+    send_reflector_position: bool  # bSendReflectorPositionData: ReflectorPosResultT while locked
+    try_mode: bool  # bTryMeasurementMode: every result delivered in try mode
+    has_nivel: bool  # bHasNivel
+    has_video_camera: bool  # bHasVideoCamera
+
+    @classmethod
+    def from_payload(cls, values: tuple) -> SetSystemSettings:
+        names = [f.name for f in fields(cls)]
+        flags = (_bool(v, f"SystemSettingsDataT.{n}") for v, n in zip(values[1:], names[1:], strict=True))
+        return cls(_enum(WeatherMonitorStatus, values[0], "SystemSettingsDataT.weatherMonitorStatus"), *flags)
+
+
+@dataclass(frozen=True)
+class SetStatisticMode(Request):  # SetStatisticModeCT {BasicCommandCT; ES_StatisticMode stationary, continuous}
+    COMMAND: ClassVar[Command] = Command.SET_STATISTIC_MODE
+    PAYLOAD: ClassVar[str] = "ii"
+    stationary: StatisticMode = StatisticMode.STANDARD
+    continuous: StatisticMode = StatisticMode.STANDARD
+
+    @classmethod
+    def from_payload(cls, values: tuple) -> SetStatisticMode:
+        return cls(
+            _enum(StatisticMode, values[0], "SetStatisticMode.stationaryMeasurements"),
+            _enum(StatisticMode, values[1], "SetStatisticMode.continuousMeasurements"),
+        )
+
+
+@dataclass(frozen=True)
+class GetUnits(Request):  # GetUnitsCT
+    COMMAND: ClassVar[Command] = Command.GET_UNITS
+
+
+@dataclass(frozen=True)
+class GetMeasurementMode(Request):  # GetMeasurementModeCT
+    COMMAND: ClassVar[Command] = Command.GET_MEASUREMENT_MODE
+
+
+@dataclass(frozen=True)
+class GetCoordinateSystemType(Request):  # GetCoordinateSystemTypeCT
+    COMMAND: ClassVar[Command] = Command.GET_COORDINATE_SYSTEM_TYPE
+
+
+@dataclass(frozen=True)
+class GetStationaryModeParams(Request):  # GetStationaryModeParamsCT
+    COMMAND: ClassVar[Command] = Command.GET_STATIONARY_MODE_PARAMS
+
+
+@dataclass(frozen=True)
+class GetSystemSettings(Request):  # GetSystemSettingsCT
+    COMMAND: ClassVar[Command] = Command.GET_SYSTEM_SETTINGS
+
+
+@dataclass(frozen=True)
+class GetStatisticMode(Request):  # GetStatisticModeCT
+    COMMAND: ClassVar[Command] = Command.GET_STATISTIC_MODE
+
+
 REQUEST_TYPES: dict[Command, type[Request]] = {
     cls.COMMAND: cls
     for cls in (
@@ -646,7 +734,25 @@ REQUEST_TYPES: dict[Command, type[Request]] = {
         SetSearchParams,
         GoPosition,
         FindReflector,
+        SetSystemSettings,
+        SetStatisticMode,
+        GetUnits,
+        GetMeasurementMode,
+        GetCoordinateSystemType,
+        GetStationaryModeParams,
+        GetSystemSettings,
+        GetStatisticMode,
     )
+}
+# Get*RT of a setting carries the payload of the matching Set*CT ([H]: SystemUnitsDataT, coordSysType, measMode,
+# StationaryModeDataT, SystemSettingsDataT, the two ES_StatisticMode), so it is read as that request.
+READBACK: dict[Command, type[Request]] = {
+    Command.GET_UNITS: SetUnits,
+    Command.GET_COORDINATE_SYSTEM_TYPE: SetCoordinateSystemType,
+    Command.GET_MEASUREMENT_MODE: SetMeasurementMode,
+    Command.GET_STATIONARY_MODE_PARAMS: SetStationaryModeParams,
+    Command.GET_SYSTEM_SETTINGS: SetSystemSettings,
+    Command.GET_STATISTIC_MODE: SetStatisticMode,
 }
 _REQUEST_STRUCTS = {cmd: struct.Struct(_CT_PREFIX + cls.PAYLOAD) for cmd, cls in REQUEST_TYPES.items()}
 
@@ -697,6 +803,15 @@ class MeasurementStatusInfoAnswer:
 
 
 @dataclass(frozen=True)
+class SettingAnswer:
+    """Get*RT of a setting (READBACK): the setting as the Set* request that would set it."""
+
+    command: Command
+    status: ResultStatus
+    setting: Request
+
+
+@dataclass(frozen=True)
 class ErrorResponse:
     """ErrorResponseT (type ES_DT_Error): the command that failed and why."""
 
@@ -741,6 +856,39 @@ class SingleMeasResult:
 
 
 @dataclass(frozen=True)
+class SingleMeasResult2:
+    """SingleMeasResult2T (type ES_DT_SingleMeasResult2): a stationary result in the extended statistic mode
+    (ES_SM_Extended), with the covariances of the result and of its a-priori accuracy."""
+
+    status: ResultStatus
+    meas_mode: MeasMode
+    is_try_mode: bool
+    val1: float
+    val2: float
+    val3: float
+    std1: float
+    std2: float
+    std3: float
+    std_total: float
+    covar12: float
+    covar13: float
+    covar23: float
+    pointing_error_h: float
+    pointing_error_v: float
+    pointing_error_d: float
+    apriori_std1: float
+    apriori_std2: float
+    apriori_std3: float
+    apriori_std_total: float
+    apriori_covar12: float
+    apriori_covar13: float
+    apriori_covar23: float
+    temperature: float
+    pressure: float
+    humidity: float
+
+
+@dataclass(frozen=True)
 class ReflectorPosResult:
     """ReflectorPosResultT (type ES_DT_ReflectorPosResult): unsolicited position while locked (if enabled)."""
 
@@ -750,8 +898,9 @@ class ReflectorPosResult:
     val3: float
 
 
-Answer = CommandAnswer | SystemStatusAnswer | TrackerStatusAnswer | MeasurementStatusInfoAnswer
-FromTracker = Answer | ErrorResponse | StatusChange | SingleMeasResult | ReflectorPosResult
+Answer = CommandAnswer | SystemStatusAnswer | TrackerStatusAnswer | MeasurementStatusInfoAnswer | SettingAnswer
+MeasResult = SingleMeasResult | SingleMeasResult2
+FromTracker = Answer | ErrorResponse | StatusChange | MeasResult | ReflectorPosResult
 Message = Request | FromTracker
 
 _BASIC_RT = struct.Struct(_RT_PREFIX)  # 16
@@ -761,13 +910,19 @@ _MEAS_STATUS_INFO_RT = struct.Struct(_RT_PREFIX + "ii")  # 24
 _ERROR = struct.Struct("<iiii")  # ErrorResponseT, 16
 _STATUS_CHANGE = struct.Struct("<iii")  # SystemStatusChangeT, 12
 _SINGLE_MEAS = struct.Struct("<iii" + "ii" + "d" * 17)  # SingleMeasResultT, 156
+_SINGLE_MEAS2 = struct.Struct("<iii" + "ii" + "d" * 23)  # SingleMeasResult2T, 204
 _REFLECTOR_POS = struct.Struct("<iii" + "ddd")  # ReflectorPosResultT, 36
 _ANSWER_STRUCTS: dict[Command, struct.Struct] = {
     Command.GET_SYSTEM_STATUS: _SYSTEM_STATUS_RT,
     Command.GET_TRACKER_STATUS: _TRACKER_STATUS_RT,
     Command.GET_MEASUREMENT_STATUS_INFO: _MEAS_STATUS_INFO_RT,
+    **{cmd: struct.Struct(_RT_PREFIX + cls.PAYLOAD) for cmd, cls in READBACK.items()},
 }
-_SINGLE_MEAS_FLOATS = tuple(f.name for f in fields(SingleMeasResult))[3:]
+_MEAS_TYPES: dict[type, tuple[DataType, struct.Struct]] = {
+    SingleMeasResult: (DataType.SINGLE_MEAS_RESULT, _SINGLE_MEAS),
+    SingleMeasResult2: (DataType.SINGLE_MEAS_RESULT2, _SINGLE_MEAS2),
+}
+_MEAS_FLOATS = {cls: tuple(f.name for f in fields(cls))[3:] for cls in _MEAS_TYPES}
 
 
 # -------------------- encode
@@ -785,6 +940,17 @@ def encode_command(request: Request) -> bytes:
     return _pack(st, st.size, DataType.COMMAND, request.COMMAND, *request.payload())
 
 
+def encode_refusal(command_id: int, status: ResultStatus) -> bytes:
+    """The answer (*RT) to any command id with `status` and a zeroed payload, as long as that command's *RT is
+    in [H] (LAYOUTS); a bare BasicCommandRT for an id that is no ES_Command. ALL_OK only where the *RT has
+    no payload."""
+    layout = LAYOUTS.get(command_id)
+    size = layout.answer_size if layout is not None else _BASIC_RT.size
+    if status == ResultStatus.ALL_OK and size != _BASIC_RT.size:
+        raise ValueError(f"an ALL_OK answer to command {command_id} carries a payload: use its own type")
+    return _pack(_BASIC_RT, size, DataType.COMMAND, command_id, status) + bytes(size - _BASIC_RT.size)
+
+
 def encode(message: Message) -> bytes:
     """The bytes of any message, in its own direction (requests -> tracker, everything else -> client)."""
     if isinstance(message, Request):
@@ -795,6 +961,12 @@ def encode(message: Message) -> bytes:
                 f"an ALL_OK answer to {message.command.name} carries a payload: use its own type"
             )
         return _pack(_BASIC_RT, _BASIC_RT.size, DataType.COMMAND, message.command, message.status)
+    if isinstance(message, SettingAnswer):
+        m = message
+        if type(m.setting) is not READBACK.get(m.command):
+            raise ValueError(f"{type(m.setting).__name__} is not what {m.command.name} answers")
+        st = _ANSWER_STRUCTS[m.command]
+        return _pack(st, st.size, DataType.COMMAND, m.command, m.status, *m.setting.payload())
     if isinstance(message, SystemStatusAnswer):
         m, st = message, _SYSTEM_STATUS_RT
         return _pack(
@@ -822,18 +994,11 @@ def encode(message: Message) -> bytes:
         return _pack(_ERROR, _ERROR.size, DataType.ERROR, message.command, message.status)
     if isinstance(message, StatusChange):
         return _pack(_STATUS_CHANGE, _STATUS_CHANGE.size, DataType.SYSTEM_STATUS_CHANGE, message.change)
-    if isinstance(message, SingleMeasResult):
+    if isinstance(message, SingleMeasResult | SingleMeasResult2):
         m = message
-        floats = tuple(getattr(m, n) for n in _SINGLE_MEAS_FLOATS)
-        return _pack(
-            _SINGLE_MEAS,
-            _SINGLE_MEAS.size,
-            DataType.SINGLE_MEAS_RESULT,
-            m.status,
-            m.meas_mode,
-            int(m.is_try_mode),
-            *floats,
-        )
+        data_type, st = _MEAS_TYPES[type(m)]
+        floats = tuple(getattr(m, n) for n in _MEAS_FLOATS[type(m)])
+        return _pack(st, st.size, data_type, m.status, m.meas_mode, int(m.is_try_mode), *floats)
     if isinstance(message, ReflectorPosResult):
         m = message
         return _pack(
@@ -884,6 +1049,8 @@ def _decode_answer(buf: bytes) -> Answer:
         _expect_size(buf, _BASIC_RT, f"answer to {command.name}")
         return CommandAnswer(command, status)
     v = _expect_size(buf, st, f"answer to {command.name}")[4:]
+    if command in READBACK:
+        return SettingAnswer(command, status, READBACK[command].from_payload(v))
     if command == Command.GET_SYSTEM_STATUS:
         return SystemStatusAnswer(
             status,
@@ -914,15 +1081,15 @@ def _decode_from_tracker(buf: bytes, data_type: DataType) -> FromTracker:
     if data_type == DataType.SYSTEM_STATUS_CHANGE:
         _, _, change = _expect_size(buf, _STATUS_CHANGE, "status-change packet (SystemStatusChangeT)")
         return StatusChange(_enum(SystemStatusChange, change, "status-change packet"))
-    if data_type == DataType.SINGLE_MEAS_RESULT:
-        v = _expect_size(buf, _SINGLE_MEAS, "measurement result (SingleMeasResultT)")
-        floats = tuple(
-            _finite(x, f"SingleMeasResult.{n}") for x, n in zip(v[5:], _SINGLE_MEAS_FLOATS, strict=True)
-        )
-        return SingleMeasResult(
-            _status(v[2], "SingleMeasResult.status"),
-            _enum(MeasMode, v[3], "SingleMeasResult.measMode"),
-            _bool(v[4], "SingleMeasResult.bIsTryMode"),
+    meas = next((cls for cls, (t, _) in _MEAS_TYPES.items() if t == data_type), None)
+    if meas is not None:
+        name = meas.__name__
+        v = _expect_size(buf, _MEAS_TYPES[meas][1], f"measurement result ({name}T)")
+        floats = tuple(_finite(x, f"{name}.{n}") for x, n in zip(v[5:], _MEAS_FLOATS[meas], strict=True))
+        return meas(
+            _status(v[2], f"{name}.status"),
+            _enum(MeasMode, v[3], f"{name}.measMode"),
+            _bool(v[4], f"{name}.bIsTryMode"),
             *floats,
         )
     if data_type == DataType.REFLECTOR_POS_RESULT:

@@ -21,11 +21,21 @@ Behaviour (what a real server answers is assumed where the public headers do not
   the lock is lost;
 - every accepted setting is followed by the matching SystemStatusChange (ES_SSC_UnitsChanged, ...), sent after
   the answer, so clients always meet status changes between answers;
-- units: the server starts in metres (an assumption); lengths are converted for mm/m/micron, other length
-  units, Fahrenheit and non-hPa/mbar pressures are refused with ES_RS_WrongParameter (3). Only ES_CS_RHR and
-  the stationary mode are implemented (others: ES_RS_NotImplemented (2)).
-- garbage (a size field out of range, an unknown type or command, a wrong length) closes that connection only;
-  the server keeps accepting.
+- units and coordinate system types: the server starts in metres (an assumption) and converts every length,
+  angle, temperature and pressure it reads or sends for every unit of SetUnits and every ES_CoordinateSystemType
+  (mocks/servers/emscon_units.py; the conventions of the non-rectangular types are assumed there);
+- statistic mode: ES_SM_Standard stationary results are SingleMeasResultT (type 2), ES_SM_Extended ones
+  SingleMeasResult2T (type 9, 204 bytes); the system settings are kept, and bTryMeasurementMode marks every
+  result as a try-mode result; the Get* commands of these settings read them back;
+- only the stationary measurement mode is implemented: SetMeasurementMode of another is ES_RS_NotImplemented;
+- a command the mock does not implement is answered, and the connection kept, with ES_RS_NotImplemented (2) in
+  that command's *RT, full size, zeroed payload (drivers/emscon/codec.encode_refusal: the layouts of every
+  ES_Command in drivers/emscon/layouts.py); a request it implements but cannot read (a wrong size, a value
+  outside its enum) with ES_RS_WrongParameter (3) the same way; a packet that is no command, or an id that is
+  no ES_Command, with a bare BasicCommandRT carrying the id it had (ES_C_Unknown, 64, if it had none) and
+  ES_RS_NotImplemented. [H] gives the layouts and the status values, not this behaviour: assumed;
+- only a size field out of range (below the 8-byte header or above MAX_PACKET_BYTES) closes that connection,
+  since no reader can find the next packet after it; the server keeps accepting.
 """
 
 from __future__ import annotations
@@ -35,19 +45,28 @@ import contextlib
 import enum
 import math
 import socket
+import struct
 import threading
 from collections.abc import Callable
 
 from drivers.emscon.codec import (
+    REQUEST_TYPES,
     ADMStatus,
     CommandAnswer,
     CoordinateSystemType,
+    DataType,
     Direction,
     ErrorResponse,
     FindReflector,
+    GetCoordinateSystemType,
+    GetMeasurementMode,
     GetMeasurementStatusInfo,
+    GetStationaryModeParams,
+    GetStatisticMode,
+    GetSystemSettings,
     GetSystemStatus,
     GetTrackerStatus,
+    GetUnits,
     GoBirdBath,
     GoPosition,
     Initialize,
@@ -58,7 +77,6 @@ from drivers.emscon.codec import (
     MeasurementStatusInfoAnswer,
     Message,
     PacketReader,
-    PressureUnit,
     Request,
     ResultStatus,
     SetCoordinateSystemType,
@@ -67,28 +85,34 @@ from drivers.emscon.codec import (
     SetReflector,
     SetSearchParams,
     SetStationaryModeParams,
+    SetStatisticMode,
+    SetSystemSettings,
+    SettingAnswer,
     SetUnits,
     SingleMeasResult,
+    SingleMeasResult2,
     StartMeasurement,
+    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
     SystemStatusChange,
-    TemperatureUnit,
     TrackerProcessorStatus,
     TrackerStatus,
     TrackerStatusAnswer,
     WeatherMonitorStatus,
     decode_packet,
     encode,
+    encode_refusal,
 )
 from drivers.errors import ProtocolError
 from drivers.interfaces import Environment, RealClock
 from mocks.clock import VirtualClock
+from mocks.servers import emscon_units as units
 
 MeasureFn = Callable[[tuple[float, float, float] | None], tuple[float, float, float, float, float, float]]
 
-# mm per unit of the lengths the mock converts (exact by definition of the SI prefixes)
-_MM_PER_UNIT = {LengthUnit.METER: 1000.0, LengthUnit.MILLIMETER: 1.0, LengthUnit.MICRON: 0.001}
+_COMMANDS_READ = frozenset(int(c) for c in REQUEST_TYPES)  # the commands whose requests the mock decodes
+_UNKNOWN_COMMAND = 64  # ES_C_Unknown [H]
 # ESVersionNumberT reported: the TPI version of the headers the codec follows (V3.6)
 _VERSION = (3, 6, 0)
 _POLL_S = 0.05  # how often blocked threads look at the stop flag
@@ -135,6 +159,11 @@ class MockEmscon:
         self.units = SetUnits(LengthUnit.METER)
         self.coordinate_system = CoordinateSystemType.RHR
         self.meas_mode = MeasMode.STATIONARY
+        self.statistic = SetStatisticMode(StatisticMode.STANDARD, StatisticMode.STANDARD)
+        # a plausible power-on state (an assumption): no weather monitor, raw station frame, errors reported
+        self.system_settings = SetSystemSettings(
+            WeatherMonitorStatus.NOT_CONNECTED, False, False, True, True, False, False, False, False
+        )
         self.meas_time_ms = 1000
         self.reflector_id = 0
         self.search_radius = 0.0
@@ -143,6 +172,7 @@ class MockEmscon:
         self.last_result_status = ResultStatus.ALL_OK
         # observation hooks for tests
         self.received: list[Request] = []
+        self.refused: list[tuple[int, ResultStatus]] = []  # (command id, status) of packets it could not read
         self.connections_accepted = 0
         self.connections_dropped_on_garbage = 0
         self._faults: collections.deque[EmsconFault] = collections.deque()
@@ -236,12 +266,17 @@ class MockEmscon:
                 if not data:
                     return
                 try:
-                    requests = [decode_packet(p, Direction.TO_TRACKER) for p in reader.feed(data)]
-                except ProtocolError:
+                    packets = reader.feed(data)
+                except ProtocolError:  # a size field out of range: the stream cannot be framed any more
                     with self._state_lock:
                         self.connections_dropped_on_garbage += 1
                     return
-                for request in requests:
+                for packet in packets:
+                    try:
+                        request = decode_packet(packet, Direction.TO_TRACKER)
+                    except ProtocolError:
+                        self._refuse(conn, packet)
+                        continue
                     assert isinstance(request, Request)
                     if not self._handle(conn, request):
                         return
@@ -253,6 +288,18 @@ class MockEmscon:
             _close(conn)
 
     # -------------------- protocol
+    def _refuse(self, conn: socket.socket, packet: bytes) -> None:
+        """Answer a framed packet the codec cannot read (see the module docstring) and keep the connection."""
+        data_type = struct.unpack_from("<i", packet, 4)[0]
+        command_id = struct.unpack_from("<i", packet, 8)[0] if len(packet) >= 12 else _UNKNOWN_COMMAND
+        is_read = data_type == DataType.COMMAND and command_id in _COMMANDS_READ
+        status = ResultStatus.WRONG_PARAMETER if is_read else ResultStatus.NOT_IMPLEMENTED
+        with self._state_lock:
+            self.refused.append((command_id, status))
+            self.last_result_status = status
+        if not self.silent:
+            self._send(conn, [encode_refusal(command_id, status)])
+
     def _handle(self, conn: socket.socket, request: Request) -> bool:
         """Answer one request. Returns False when the connection is to be closed."""
         with self._state_lock:
@@ -307,7 +354,7 @@ class MockEmscon:
                     LaserProcessorStatus.LASER_READY,
                     ADMStatus.ADM_READY,
                     _VERSION,
-                    WeatherMonitorStatus.NOT_CONNECTED,
+                    self.system_settings.weather_monitor,
                     0,
                     self.serial_number,
                 )
@@ -327,19 +374,16 @@ class MockEmscon:
             if self.initialized:
                 flags |= MeasurementStatusInfo.INITIALIZED
             return [MeasurementStatusInfoAnswer(ResultStatus.ALL_OK, self.last_result_status, int(flags))]
+        readback = self._readback(request)
+        if readback is not None:
+            return [SettingAnswer(cmd, ResultStatus.ALL_OK, readback)]
         if isinstance(request, SetUnits):
-            if (
-                request.length not in _MM_PER_UNIT
-                or request.temperature != TemperatureUnit.CELSIUS
-                or request.pressure not in (PressureUnit.MBAR, PressureUnit.HPASCAL)
-            ):
-                return answer(ResultStatus.WRONG_PARAMETER)
-            self.units = request
+            with self._state_lock:
+                self.units = request
             return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.UNITS_CHANGED))
         if isinstance(request, SetCoordinateSystemType):
-            if request.coordinate_system != CoordinateSystemType.RHR:
-                return answer(ResultStatus.NOT_IMPLEMENTED)
-            self.coordinate_system = request.coordinate_system
+            with self._state_lock:
+                self.coordinate_system = request.coordinate_system
             return answer(
                 ResultStatus.ALL_OK, StatusChange(SystemStatusChange.COORDINATE_SYSTEM_TYPE_CHANGED)
             )
@@ -348,6 +392,14 @@ class MockEmscon:
                 return answer(ResultStatus.NOT_IMPLEMENTED)
             self.meas_mode = request.mode
             return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.MEASUREMENT_MODE_CHANGED))
+        if isinstance(request, SetStatisticMode):
+            with self._state_lock:
+                self.statistic = request
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.STATISTIC_MODE_CHANGED))
+        if isinstance(request, SetSystemSettings):
+            with self._state_lock:
+                self.system_settings = request
+            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.SYSTEM_SETTINGS_CHANGED))
         if isinstance(request, SetStationaryModeParams):
             if request.meas_time_ms <= 0:
                 return answer(ResultStatus.PARAMETER1_OUT_OF_RANGE_NOK)
@@ -356,7 +408,9 @@ class MockEmscon:
                 ResultStatus.ALL_OK, StatusChange(SystemStatusChange.STATIONARY_MODE_PARAMS_CHANGED)
             )
         if isinstance(request, SetEnvironmentParams):
-            self.set_environment(Environment(request.temperature, request.pressure, request.humidity))
+            u = self.units
+            t, p = units.temperature_from_units(u, request.temperature), units.pressure_from_units(u, request.pressure)
+            self.set_environment(Environment(t, p, request.humidity))
             return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.ENVIRONMENT_PARAMS_CHANGED))
         if isinstance(request, SetReflector):
             if request.reflector_id < 0:
@@ -366,13 +420,14 @@ class MockEmscon:
         if isinstance(request, SetSearchParams):
             if request.search_radius <= 0 or request.timeout_ms <= 0:
                 return answer(ResultStatus.WRONG_PARAMETER)
-            self.search_radius, self.search_timeout_ms = request.search_radius, request.timeout_ms
+            self.search_radius = request.search_radius * units.MM_PER_LENGTH[self.units.length]
+            self.search_timeout_ms = request.timeout_ms
             return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.SEARCH_PARAMS_CHANGED))
         if isinstance(request, GoPosition):
             self.clock.sleep(self.motion_time_s)
-            scale = _MM_PER_UNIT[self.units.length]
+            values = units.from_units(self.units, self.coordinate_system, (request.x, request.y, request.z))
             with self._state_lock:
-                self.expected_mm = (request.x * scale, request.y * scale, request.z * scale)
+                self.expected_mm = units.from_type(self.coordinate_system, values)
                 self.locked = self._present() and request.use_adm
             return answer(ResultStatus.ALL_OK)
         if isinstance(request, FindReflector):
@@ -388,9 +443,24 @@ class MockEmscon:
             with self._state_lock:
                 self.expected_mm, self.locked = None, self._present()
             return answer(ResultStatus.ALL_OK)
-        if isinstance(request, StartMeasurement):
-            return self._measure(conn, out)
-        return answer(ResultStatus.NOT_IMPLEMENTED)
+        assert isinstance(request, StartMeasurement), f"no answer for {request}"
+        return self._measure(conn, out)
+
+    def _readback(self, request: Request) -> Request | None:
+        """The current setting a Get* request asks for, as the Set* request that would set it (or None)."""
+        if isinstance(request, GetUnits):
+            return self.units
+        if isinstance(request, GetCoordinateSystemType):
+            return SetCoordinateSystemType(self.coordinate_system)
+        if isinstance(request, GetMeasurementMode):
+            return SetMeasurementMode(self.meas_mode)
+        if isinstance(request, GetStationaryModeParams):
+            return SetStationaryModeParams(self.meas_time_ms, False)
+        if isinstance(request, GetStatisticMode):
+            return self.statistic
+        if isinstance(request, GetSystemSettings):
+            return self.system_settings
+        return None
 
     def _present(self) -> bool:
         """A reflector the tracker can see: a fixed flag, or asked of the simulated world each time."""
@@ -415,33 +485,20 @@ class MockEmscon:
                 ErrorResponse(cmd, ResultStatus.NO_STATIONARY_RESULT),
             ]
         x, y, z, sx, sy, sz = (float(v) for v in self.measure_fn(self.expected_mm))
-        scale = 1.0 / _MM_PER_UNIT[self.units.length]
-        env = self.environment
         self.last_result_status = ResultStatus.ALL_OK
-        return [
-            SingleMeasResult(
-                ResultStatus.ALL_OK,
-                MeasMode.STATIONARY,
-                False,
-                x * scale,
-                y * scale,
-                z * scale,
-                sx * scale,
-                sy * scale,
-                sz * scale,
-                math.sqrt(sx * sx + sy * sy + sz * sz) * scale,
-                0.0,
-                0.0,
-                0.0,
-                sx * scale,
-                sy * scale,
-                sz * scale,
-                math.sqrt(sx * sx + sy * sy + sz * sz) * scale,
-                env.temperature_c,
-                env.pressure_hpa,
-                env.humidity_pct,
-            )
-        ]
+        with self._state_lock:  # the settings as they are when the result is sent
+            u, cs, extended = self.units, self.coordinate_system, self.statistic.stationary
+            try_mode = self.system_settings.try_mode
+            env = self.environment
+        v1, v2, v3 = units.to_units(u, cs, units.to_type(cs, (x, y, z)))
+        s1, s2, s3 = units.stds_to_units(u, cs, (sx, sy, sz), math.sqrt(x * x + y * y + z * z))
+        total = math.sqrt(sx * sx + sy * sy + sz * sz) / units.MM_PER_LENGTH[u.length]
+        head = (ResultStatus.ALL_OK, MeasMode.STATIONARY, try_mode, v1, v2, v3, s1, s2, s3, total)
+        meteo = (units.temperature_to_units(u, env.temperature_c), units.pressure_to_units(u, env.pressure_hpa),
+                 env.humidity_pct)  # fmt: skip
+        if extended == StatisticMode.EXTENDED:  # uncorrelated coordinates, no pointing error (an ideal tracker)
+            return [SingleMeasResult2(*head, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s1, s2, s3, total, 0.0, 0.0, 0.0, *meteo)]
+        return [SingleMeasResult(*head, 0.0, 0.0, 0.0, s1, s2, s3, total, *meteo)]
 
     def _send(self, conn: socket.socket, chunks: list[bytes]) -> None:
         if not chunks:
