@@ -27,8 +27,8 @@ EXAMPLE = ROOT / "configs" / "hardware" / "example-cell.yaml"
 
 GOOD = {
     "tracker": {"protocol": "emscon", "host": "192.168.0.10", "port": 700, "timeout_s": 10},
-    "robot": {"protocol": "krc2", "eki": {"host": "0.0.0.0", "port": 54600},
-              "rsi": {"protocol": "tcp", "host": "0.0.0.0", "port": 49152}},
+    "robot": {"protocol": "krc2", "controller_host": "192.168.0.5", "eki": {"host": "192.168.0.2", "port": 54600},
+              "rsi": {"protocol": "tcp", "host": "192.168.0.2", "port": 49152}},
     "plc": {"protocol": "modbus", "host": "192.168.0.20", "port": 502, "unit_id": 1, "timeout_s": 1},
     "meteo": {"protocol": "serial", "port": "/dev/ttyUSB0", "baudrate": 9600},
 }  # fmt: skip
@@ -58,6 +58,10 @@ BAD = [  # (document or raw YAML text, what the message must say after "FILE: ")
     (variant("tracker.timeout", 5), r"tracker\.timeout: unknown key \(did you mean timeout_s\?\)"),
     (variant("plc.unit", 1), r"plc\.unit: unknown key \(did you mean unit_id\?\)"),
     (variant("tracker.port", "700"), r"tracker\.port: expected an integer in 1\.\.65535, got '700'"),
+    # trust: the controller's address and this PC's listening address are named, never defaulted
+    (variant("robot.controller_host", DELETE), r"robot\.controller_host: missing \(required\)"),
+    (variant("robot.eki.host", DELETE), r"robot\.eki\.host: missing \(required\)"),
+    (variant("robot.rsi.host", DELETE), r"robot\.rsi\.host: missing \(required\)"),
     (variant("tracker.port", True), r"tracker\.port: expected an integer"),
     (variant("tracker.port", 70000), r"tracker\.port: 70000 out of range 1\.\.65535"),
     (variant("robot.eki.port", 0), r"robot\.eki\.port: 0 out of range 1\.\.65535"),
@@ -104,14 +108,16 @@ def test_unreadable_file(tmp_path):
 def test_defaults_are_the_drivers_and_optional_sections(tmp_path):
     path = tmp_path / "cell.yaml"
     path.write_text(yaml.safe_dump({"tracker": {"protocol": "emscon", "host": "at901"},
-                                    "robot": {"protocol": "krc2", "eki": {"port": 54600}, "rsi": {"port": 49152}}}))
+                                    "robot": {"protocol": "krc2", "controller_host": "krc2",
+                                              "eki": {"host": "pc", "port": 54600},
+                                              "rsi": {"host": "pc", "port": 49152}}}))  # fmt: skip
     hw = load_hardware(path)
     # drivers.emscon.client.EmsconTracker and drivers.kuka.client.KukaKrc2 defaults; emScon TPI port 700
     assert hw.tracker == {"protocol": "emscon", "host": "at901", "port": 700, "timeout_s": 5.0,
                           "measure_timeout_s": 60.0, "motion_timeout_s": 120.0, "search_timeout_s": 10.0,
                           "samples_per_second": 1000.0}  # fmt: skip
-    assert hw.robot["eki"] == {"host": "0.0.0.0", "port": 54600}
-    assert hw.robot["rsi"] == {"protocol": "tcp", "host": "0.0.0.0", "port": 49152}
+    assert hw.robot["eki"] == {"host": "pc", "port": 54600}
+    assert hw.robot["rsi"] == {"protocol": "tcp", "host": "pc", "port": 49152}
     assert hw.robot["connect_timeout_s"] == 60.0 and hw.robot["move_timeout_s"] == 300.0
     assert hw.plc is None and hw.meteo is None  # the operator is asked on the console
     assert "console" in hw.describe()["operator"]

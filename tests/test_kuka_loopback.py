@@ -12,6 +12,7 @@ from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRef
 from drivers.interfaces import Robot
 from drivers.kuka.client import KukaKrc2
 from drivers.kuka.eki_codec import ERR_DRIVES_OFF, ERR_ESTOP, ERR_RSI_STOPPED, ERR_SOFT_LIMIT
+from drivers.kuka.rsi_codec import RobFrame, encode_rob
 from mocks.clock import VirtualClock
 from mocks.servers.kuka import MockKrc2
 
@@ -32,6 +33,7 @@ def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, 
         "127.0.0.1",
         0,
         rsi_protocol=protocol,
+        controller_host="127.0.0.1",
         joint_limits_deg=KR270_LIMITS,
         cell_box_check=cell_box_check,
         connect_timeout_s=5.0,
@@ -240,10 +242,59 @@ def test_udp_rsi():
 
 
 def test_connect_timeout_names_what_it_waited_for():
-    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, connect_timeout_s=0.2)
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1", connect_timeout_s=0.2)
     try:
         host, port = client.eki_address
         with pytest.raises(DeviceTimeout, match=f"EKI.*{host}:{port}"):
+            client.connect()
+    finally:
+        client.close()
+
+
+@pytest.mark.parametrize("protocol", ["tcp", "udp"])
+def test_only_the_controller_is_served(protocol):
+    """A fake controller on another address (127.0.0.2: loopback, but not the controller's) connects first on
+    both channels and feeds invented joints: it is refused, the real controller (127.0.0.1) is served."""
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol=protocol, controller_host="127.0.0.1",
+                      joint_limits_deg=KR270_LIMITS, connect_timeout_s=5.0, move_timeout_s=10.0)  # fmt: skip
+    client.listen()
+    invented = encode_rob(RobFrame(ipoc=1, aipos=(11.0, -22.0, 33.0, 0.0, 0.0, 0.0)), tcp=protocol == "tcp")
+    fakes = []
+    eki = socket.create_connection(client.eki_address, source_address=("127.0.0.2", 0))
+    if protocol == "tcp":
+        rsi = socket.create_connection(client.rsi_address, source_address=("127.0.0.2", 0))
+        rsi.sendall(invented)
+    else:
+        rsi = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        rsi.bind(("127.0.0.2", 0))
+        rsi.sendto(invented, client.rsi_address)
+    fakes += [eki, rsi]
+    clock = VirtualClock()
+    mock = MockKrc2(client.eki_address, client.rsi_address, clock, HOME, rsi_protocol=protocol).start()
+    try:
+        client.connect()
+        assert {a for a, _ in client.refused_peers} == {"127.0.0.2"}
+        eki.settimeout(2.0)
+        assert eki.recv(16) == b""  # closed by trackcal, never answered
+        assert client.read_joints() == pytest.approx(HOME)  # the controller's joints, not the invented ones
+        client.move_ptp(TARGET, 80)
+        assert client.read_joints() == pytest.approx(TARGET, abs=0.01)
+    finally:
+        for f in fakes:
+            f.close()
+        client.close()
+        mock.stop()
+    assert mock.crashed is None
+
+
+def test_a_refused_peer_is_named_when_the_controller_never_comes():
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1", connect_timeout_s=0.5)
+    try:
+        refused = "refused 1 from 127.0.0.2: not the controller 127.0.0.1"
+        with (
+            socket.create_connection(client.eki_address, source_address=("127.0.0.2", 0)),
+            pytest.raises(DeviceTimeout, match=refused),
+        ):
             client.connect()
     finally:
         client.close()

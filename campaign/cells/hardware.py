@@ -48,6 +48,7 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
     },
     "robot": {
         "protocol": ("protocol", _REQUIRED),
+        "controller_host": ("host", _REQUIRED),  # the only peer served on the EKI and RSI ports
         "eki": ("section", _REQUIRED),
         "rsi": ("section", _REQUIRED),
         "connect_timeout_s": ("timeout", 60.0),
@@ -56,12 +57,12 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "rsi_stale_s": ("timeout", 1.0),
     },
     "robot.eki": {
-        "host": ("host", "0.0.0.0"),
+        "host": ("host", _REQUIRED),  # this PC's address on the robot network: no listening on every interface
         "port": ("port", _REQUIRED),
     },
     "robot.rsi": {
         "protocol": ("protocol", "tcp"),
-        "host": ("host", "0.0.0.0"),
+        "host": ("host", _REQUIRED),
         "port": ("port", _REQUIRED),
     },
     "plc": {
@@ -217,9 +218,12 @@ def connect_hardware(hw: Hardware, cell: Cell, console=None):
             raise
         return dev
 
+    # with trackcal's own meteo sensor the tracker takes the environment trackcal sets; without one, its own
+    # weather monitor reads it and computes the refraction (drivers.emscon.client: weather_monitor)
+    weather_monitor = "not_connected" if m is not None else "read_and_calculate_refractions"
     tracker = EmsconTracker(t["host"], t["port"], timeout_s=t["timeout_s"], measure_timeout_s=t["measure_timeout_s"],
                             motion_timeout_s=t["motion_timeout_s"], search_timeout_s=t["search_timeout_s"],
-                            samples_per_second=t["samples_per_second"])  # fmt: skip
+                            samples_per_second=t["samples_per_second"], weather_monitor=weather_monitor)  # fmt: skip
     up("tracker", tracker, f"emScon {t['host']}:{t['port']}")
     cellio = meteo = None
     if p is not None:
@@ -230,10 +234,12 @@ def connect_hardware(hw: Hardware, cell: Cell, console=None):
         up("meteo sensor", meteo, f"serial {m['port']}")
     eki, rsi = r["eki"], r["rsi"]
     robot = KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
+                     controller_host=r["controller_host"],
                      joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
                      connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
                      io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
-    where = f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}"
+    where = (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
+             f"for the controller at {r['controller_host']} only")  # fmt: skip
     console.print(f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where}; start "
                   "trackcal_eki on the controller)")  # fmt: skip
     up("robot controller", robot, where)

@@ -162,7 +162,8 @@ class SimCell:
         self._clients: list = []
         try:
             tracker = self._client(EmsconTracker(*self.tracker_mock.address, timeout_s=10.0))
-            robot = self._client(KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, joint_limits_deg=joint_limits_deg(cell),
+            robot = self._client(KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1",
+                                          joint_limits_deg=joint_limits_deg(cell),
                                           cell_box_check=cell_box_check(cell), connect_timeout_s=20.0))  # fmt: skip
             robot.listen()
             m.serve_controller(robot.eki_address, robot.rsi_address)
@@ -212,7 +213,7 @@ def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -
     phost, pport = mocks.plc.address
     return {
         "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
-        "robot": {"protocol": "krc2", "eki": {"host": eki[0], "port": eki[1]},
+        "robot": {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
                   "rsi": {"protocol": "tcp", "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
         "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
                 "poll_s": POLL_S},

@@ -16,6 +16,12 @@ configs/krc2/ (see configs/krc2/README.md).
   cycle. The same code is then right for the real robot and for mocks/servers/kuka.py on a virtual clock. A real-time
   guard (timeout_s + rsi_stale_s) still bounds the wait if frames stop coming.
 
+Trust: only the controller is served. Both listeners bind to the configured local address (the hardware
+config names it: there is no 0.0.0.0 default), a TCP connection from any other address than
+`controller_host`'s is closed at once (counted in `refused_peers`) and the accept goes on until the controller
+comes, a UDP datagram from elsewhere is ignored; each channel serves one connection, the first from the
+controller, and accepts no other while it lasts.
+
 Targets are checked before anything is sent (joint limits, then the optional cell-box callable):
 MotionRefused.
 """
@@ -77,6 +83,8 @@ class KukaKrc2:
         rsi_host: str,
         rsi_port: int,
         rsi_protocol: str = "tcp",
+        *,
+        controller_host: str,
         joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
         cell_box_check: CellBoxCheck | None = None,
         connect_timeout_s: float = 60.0,
@@ -102,6 +110,9 @@ class KukaKrc2:
         self.eki_host, self.eki_port = eki_host, int(eki_port)
         self.rsi_host, self.rsi_port = rsi_host, int(rsi_port)
         self.rsi_protocol = rsi_protocol
+        self.controller_host = controller_host
+        self.refused_peers: list[tuple[str, int]] = []  # (address, port) of connections and datagrams refused
+        self._controller_ips: frozenset[str] | None = None
         self.joint_limits_deg = limits
         self.cell_box_check = cell_box_check
         self.connect_timeout_s = connect_timeout_s
@@ -145,11 +156,35 @@ class KukaKrc2:
 
     def listen(self) -> None:
         """Open both listening ports (port 0 picks a free one; see eki_address / rsi_address). Idempotent."""
+        if self._controller_ips is None:
+            self._controller_ips = self._resolve_controller()
         if self._eki_listener is None:
             self._eki_listener = self._bind(socket.SOCK_STREAM, self.eki_host, self.eki_port, "EKI")
         if self._rsi_listener is None:
             kind = socket.SOCK_STREAM if self.rsi_protocol == "tcp" else socket.SOCK_DGRAM
             self._rsi_listener = self._bind(kind, self.rsi_host, self.rsi_port, "RSI")
+
+    def _resolve_controller(self) -> frozenset[str]:
+        try:
+            infos = socket.getaddrinfo(self.controller_host, None)
+        except OSError as exc:
+            raise ConnectionLost(
+                f"cannot resolve the controller's address {self.controller_host}: {exc}", device=self.device
+            ) from exc
+        return frozenset(_plain_ip(info[4][0]) for info in infos)
+
+    def _from_controller(self, peer: tuple) -> bool:
+        assert self._controller_ips is not None
+        if _plain_ip(peer[0]) in self._controller_ips:
+            return True
+        self.refused_peers.append((peer[0], peer[1]))
+        return False
+
+    def _refused(self) -> str:
+        if not self.refused_peers:
+            return ""
+        who = ", ".join(sorted({a for a, _ in self.refused_peers}))
+        return f" (refused {len(self.refused_peers)} from {who}: not the controller {self.controller_host})"
 
     def _bind(self, kind: int, host: str, port: int, what: str) -> socket.socket:
         try:
@@ -201,20 +236,29 @@ class KukaKrc2:
         self._thread.start()
 
     def _accept(self, listener: socket.socket | None, deadline: float, what: str) -> socket.socket:
+        """The first connection from the controller; any other is closed at once."""
         assert listener is not None
-        listener.settimeout(max(0.0, deadline - time.monotonic()))
-        try:
-            conn, _ = listener.accept()
-        except TimeoutError:
-            raise DeviceTimeout(
-                f"no connection within {self.connect_timeout_s} s: waited for {what}", device=self.device
-            ) from None
-        except OSError as exc:
-            raise ConnectionLost(
-                f"accept failed while waiting for {what}: {exc}", device=self.device
-            ) from exc
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        return conn
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DeviceTimeout(
+                    f"no connection within {self.connect_timeout_s} s: waited for {what}{self._refused()}",
+                    device=self.device,
+                )
+            listener.settimeout(remaining)
+            try:
+                conn, peer = listener.accept()
+            except TimeoutError:
+                continue
+            except OSError as exc:
+                raise ConnectionLost(
+                    f"accept failed while waiting for {what}: {exc}", device=self.device
+                ) from exc
+            if self._from_controller(peer):
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                return conn
+            with contextlib.suppress(OSError):
+                conn.close()
 
     def _first_datagram(self, deadline: float, what: str) -> socket.socket:
         sock = self._rsi_listener
@@ -223,7 +267,8 @@ class KukaKrc2:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise DeviceTimeout(
-                    f"no datagram within {self.connect_timeout_s} s: waited for {what}", device=self.device
+                    f"no datagram within {self.connect_timeout_s} s: waited for {what}{self._refused()}",
+                    device=self.device,
                 )
             sock.settimeout(remaining)
             try:
@@ -234,6 +279,8 @@ class KukaKrc2:
                 raise ConnectionLost(
                     f"UDP receive failed while waiting for {what}: {exc}", device=self.device
                 ) from exc
+            if not self._from_controller(peer):
+                continue
             self._rsi_peer, self._rsi = peer, sock
             self._handle_rsi_doc(data)  # the KR C2's first frame (empty IPOC) normally
             return sock
@@ -498,3 +545,8 @@ class KukaKrc2:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _plain_ip(address: str) -> str:
+    """An IPv4 address seen through an IPv6 socket (::ffff:a.b.c.d) as itself."""
+    return address.removeprefix("::ffff:")
