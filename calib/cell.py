@@ -18,6 +18,10 @@ from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to
 from .errors import CalibError
 from .rigid import rot_axis
 
+# Joint angles travel to and from the controller at 4 decimals of a degree (KR C2 EKI and RSI: drivers/kuka):
+# rounding a planned pose moves each joint by up to half a step.
+CONTROLLER_STEP_DEG = 1e-4
+
 # The shipped configs are package data (a wheel installed anywhere resolves `--cell kr270`); TRACKCAL_CONFIGS
 # points at another tree with the same layout.
 CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS") or str(resources.files("configs")))
@@ -49,7 +53,22 @@ class Cell:
     stations: dict[str, StationPlacement] = field(default_factory=dict)
     acceptance_deg: float = 90.0
     plan_params: list[str] | None = None  # parameters the planner targets (paper section 7.2: nine)
+    joint_margin_deg: float = 1.0  # plans keep this far inside every joint limit
+    measurement_tolerance_mm: float | None = None  # None: from the station set-up uncertainty (campaign.engine.runner)
     source: str = ""
+
+
+def usable_limits_deg(cell: Cell, margin_deg: float | None = None) -> np.ndarray:
+    """(n, 2) deg: the robot's joint limits less `margin_deg` on each side (default: the cell's joint_margin_deg,
+    the limits every pose of a campaign must keep); +-inf where the robot has none."""
+    margin = cell.joint_margin_deg if margin_deg is None else margin_deg
+    return np.degrees(cell.chain.limits_array()) + np.array([margin, -margin])
+
+
+def plan_joint_bounds(cell: Cell) -> np.ndarray:
+    """(n, 2) rad, the planner's bounds: the usable joint limits less half a controller step, so that a planned
+    pose rounded to the controller's 4 decimals is still inside usable_limits_deg(cell)."""
+    return np.radians(usable_limits_deg(cell, cell.joint_margin_deg + CONTROLLER_STEP_DEG / 2))
 
 
 def resolve(kind: str, ref: str, base_dir: Path | None = None) -> Path:
@@ -93,6 +112,13 @@ def _vec(doc, key, where, n=3) -> np.ndarray:
     if v.shape != (n,) or not np.all(np.isfinite(v)):
         raise CellError(f"{where}: '{key}' must be a list of {n} finite numbers")
     return v
+
+
+def _non_negative(doc: dict, key: str, where: str, default: float) -> float:
+    v = doc.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or v < 0:
+        raise CellError(f"{where}: '{key}' must be a non-negative number, got {v!r}")
+    return float(v)
 
 
 def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -140,6 +166,14 @@ def load_cell(ref: str) -> Cell:
             rotation=rot_axis(2, np.radians(float(sd.get("yaw_deg", 0.0)))), position=_vec(sd, "position_mm", sw)
         )
     cell.acceptance_deg = float(doc.get("acceptance_deg", 90.0))
+    cell.joint_margin_deg = _non_negative(doc, "joint_margin_deg", where, 1.0)
+    narrow = [j.name for j, (lo, hi) in zip(chain.joints, plan_joint_bounds(cell), strict=True) if not lo < hi]
+    if narrow:
+        raise CellError(f"{where}: joint_margin_deg {cell.joint_margin_deg:g} leaves no range for {', '.join(narrow)}")
+    if doc.get("measurement_tolerance_mm") is not None:
+        cell.measurement_tolerance_mm = _non_negative(doc, "measurement_tolerance_mm", where, 0.0)
+        if cell.measurement_tolerance_mm == 0:
+            raise CellError(f"{where}: 'measurement_tolerance_mm' must be positive")
     if doc.get("plan_params") is not None:
         if not isinstance(doc["plan_params"], list) or not all(isinstance(p, str) for p in doc["plan_params"]):
             raise CellError(f"{where}: plan_params must be a list of parameter names")

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
+from .cell import plan_joint_bounds
 from .chain import Chain
 from .kinematics import Kinematics
 from .noise import TrackerNoise
@@ -59,13 +60,14 @@ class Design:
     box_min: np.ndarray | None = None
     box_max: np.ndarray | None = None
     length_scale_mm: float = 1000.0
+    joint_bounds: np.ndarray | None = None  # (n, 2) rad; default the chain's joint limits
 
     def __post_init__(self) -> None:
         self.kin = Kinematics(self.chain, self.params)
         self.tool = np.atleast_2d(np.asarray(self.tool, dtype=float))
         if self.normals is None:
             self.normals = np.tile([1.0, 0.0, 0.0], (len(self.tool), 1))
-        lim = self.chain.limits_array()
+        lim = self.chain.limits_array() if self.joint_bounds is None else np.asarray(self.joint_bounds, dtype=float)
         self.limits = np.where(np.isfinite(lim), lim, np.array([-np.pi, np.pi]))
         self.j0 = self.kin.jacobian(self.q0[None], self.tcp).d_params[0]
         self.scale = np.array([1.0 if p.is_length else self.length_scale_mm for p in self.params])
@@ -332,6 +334,7 @@ def design_for_cell(
         normals=np.array([cell.tool_normals[p] for p in pids]), acceptance_deg=cell.acceptance_deg,
         box_min=None if cell.box_min is None else cell.box_min + PLAN_BOX_MARGIN_MM,
         box_max=None if cell.box_max is None else cell.box_max - PLAN_BOX_MARGIN_MM,
+        joint_bounds=plan_joint_bounds(cell),
     )  # fmt: skip
 
 

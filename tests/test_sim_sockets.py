@@ -10,13 +10,18 @@ Every test also checks the safety invariant from the outside: the robot (the moc
 moves while the mock PLC reports the cell door open.
 """
 
+import contextlib
+import socket
+
 import numpy as np
 import pytest
 
-from campaign.cells.sim import SimCell
+from campaign.cells.sim import SimCell, TwinMocks
 from campaign.engine.engine import CampaignStopped
 from campaign.engine.runner import run_campaign
 from campaign.session.session import create_session, export_table
+from drivers.emscon.codec import LengthUnit, PacketReader, SetUnits, encode_command
+from drivers.kuka.rsi_codec import RobFrame, encode_rob
 from mocks.servers.emscon import EmsconFault
 from tests.conftest import before_call, feasible_plan, inproc_live
 
@@ -111,4 +116,79 @@ def test_door_left_open_at_resume_blocks_motion_until_closed(tmp_path, kr270, pl
     run_campaign(store, sim.live)
     assert any("door is open" in e.data["message"] for e in store.events("warning"))
     assert not moved_with_door_open
+    same_table(export_table(store), reference)
+
+
+def another_program_sets_micrometres(sim: SimCell) -> None:
+    """A second emScon client on the tracker (another program, its own connection) switches it to micrometres."""
+    with socket.create_connection(sim.tracker_mock.address, timeout=5.0) as raw:
+        raw.sendall(encode_command(SetUnits(LengthUnit.MICRON)))
+        reader, packets = PacketReader(), []
+        while not packets:  # the SetUnitsRT comes first, its status change after it
+            packets += reader.feed(raw.recv(4096))
+
+
+def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing_wrong_is_stored(
+    tmp_path, kr270, plan, reference
+):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    sim = SimCell(kr270, SEED, store)
+    before_call(sim.world, "measure", 6, lambda: another_program_sets_micrometres(sim))
+    with pytest.raises(CampaignStopped, match="units"):
+        run_campaign(store, sim.live)
+    error = store.events("error")[-1].data
+    assert error["type"] == "ImplausibleMeasurement"
+    # the sixth measurement came 1000 times too large (1 mm = 1000 um) and was not stored
+    assert np.linalg.norm(error["xyz_mm"]) == pytest.approx(1000 * np.linalg.norm(reference.xyz[5]), rel=1e-3)
+    stored = np.array([e.data["xyz_mm"] for e in store.events("measurement")])
+    assert len(stored) == 5
+    np.testing.assert_array_equal(stored, reference.xyz[:5])
+    # a new process resumes: the tracker is configured again, the sixth point measured again, nothing lost
+    run_campaign(store, SimCell(kr270, SEED, store).live)
+    same_table(export_table(store), reference)
+
+
+def test_units_changed_by_another_client_between_blocks_are_set_again_before_the_next(
+    tmp_path, kr270, plan, reference
+):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    sim = SimCell(kr270, SEED, store)
+    # after the first point block, while the operator is asked to move the reflector on (his fifth prompt)
+    before_call(sim.live.operator, "ask", 5, lambda: another_program_sets_micrometres(sim))
+    run_campaign(store, sim.live)
+    units = [r for r in sim.tracker_mock.received if isinstance(r, SetUnits)]
+    assert SetUnits(LengthUnit.MICRON) in units and units[-1] == SetUnits()  # trackcal set mm again after it
+    same_table(export_table(store), reference)
+
+
+def test_a_fake_controller_connecting_first_is_refused_and_the_real_one_runs_the_campaign(
+    tmp_path, kr270, plan, reference, monkeypatch
+):
+    """Someone on the cell network (127.0.0.2: loopback, but not the controller's address 127.0.0.1) connects to
+    trackcal's EKI and RSI ports before the controller and feeds joints the robot never had."""
+    fakes: list[socket.socket] = []
+    serve = TwinMocks.serve_controller
+
+    def fake_first(self, eki_addr, rsi_addr, *args, **kw):
+        fakes.append(socket.create_connection(eki_addr, source_address=("127.0.0.2", 0)))
+        invented = encode_rob(RobFrame(ipoc=1, aipos=(10.0, -80.0, 80.0, 0.0, 45.0, 0.0)))
+        rsi = socket.create_connection(rsi_addr, source_address=("127.0.0.2", 0))
+        rsi.sendall(invented)
+        fakes.append(rsi)
+        serve(self, eki_addr, rsi_addr, *args, **kw)
+
+    monkeypatch.setattr(TwinMocks, "serve_controller", fake_first)
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    sim = SimCell(kr270, SEED, store)
+    try:
+        robot = sim.live.robot
+        assert [a for a, _ in robot.refused_peers] == ["127.0.0.2", "127.0.0.2"]
+        for fake in fakes:  # closed by trackcal (a reset where it had sent unread bytes), never answered
+            fake.settimeout(2.0)
+            with contextlib.suppress(ConnectionResetError):
+                assert fake.recv(16) == b""
+        run_campaign(store, sim.live)
+    finally:
+        for fake in fakes:
+            fake.close()
     same_table(export_table(store), reference)

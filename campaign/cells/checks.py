@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.cell import Cell
+from calib.cell import Cell, usable_limits_deg
 from calib.poses import points_in_box
 
 
@@ -20,4 +20,5 @@ def cell_box_check(cell: Cell):
 
 
 def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
-    return [(float(lo), float(hi)) for lo, hi in np.degrees(cell.chain.limits_array())]
+    """The robot client's pre-send check: the joint limits less the cell's margin, as the whole-plan check."""
+    return [(float(lo), float(hi)) for lo, hi in usable_limits_deg(cell)]

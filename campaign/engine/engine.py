@@ -6,6 +6,12 @@ Rules it keeps:
   previous measurement is durably stored;
 - no motion while the cell door is open or an operator prompt is outstanding: after any prompt, motion
   resumes only after door closed + acknowledge + the plan's explicit `resume` step;
+- at every station set-up and before every point block the tracker is configured again (units, coordinate
+  system type, measurement and statistic mode, system settings, read back: Tracker.configure) and given the
+  environment, so that nothing another program changed on it in between reaches a measurement;
+- every measurement is compared with where the nominal model expects the reflector (the position FindReflector
+  is given); one farther than the cell's tolerance is not stored as a measurement: the campaign stops safely
+  with the likely causes (units changed, wrong reflector, station moved);
 - a point the tracker cannot see from the current station (no reflector, beam broken) is skipped there
   and covered from another station; any other device fault stops the campaign safely (`CampaignStopped`)
   and `resume` continues it: steps already done are skipped, the operator context (station, reflector)
@@ -45,6 +51,7 @@ class Devices:
     cellio: CellIO | None = None  # the door (None: a cell without a PLC, the console operator only)
     meteo: Meteo | None = None
     expected: Callable[[Step], tuple[float, float, float] | None] | None = None  # where to look for the reflector
+    tolerance: Callable[[float], float] | None = None  # mm a measurement may lie from `expected`, given its range
 
 
 class DoorInterlock:
@@ -169,6 +176,7 @@ class Engine:
 
     def _move_reflector(self, step: Step) -> None:
         self._prompt(step.kind, step.point, step.label)
+        self._configure_tracker()
 
     def _prompt(self, kind: str, target: str, text: str) -> None:
         self.interlock.close()
@@ -189,6 +197,11 @@ class Engine:
 
     def _set_up_tracker(self) -> None:
         self.dev.tracker.initialize()
+        self._configure_tracker()
+
+    def _configure_tracker(self) -> None:
+        """Everything a measurement depends on, set again (another program may have changed it meanwhile)."""
+        self.dev.tracker.configure()
         if self.dev.meteo is not None:
             self.dev.tracker.set_environment(self.dev.meteo.read())
 
@@ -222,6 +235,8 @@ class Engine:
                 self._append("warning", {"message": f"{where}: {exc}; {then}"})
                 if last:
                     return
+        if expected is not None and self.dev.tolerance is not None:
+            self._check_plausible(step, expected, m)
         env = env or m.environment
         self.tick()
         data = {
@@ -233,6 +248,21 @@ class Engine:
         self._append("measurement", data)
         if step.drift:
             self._check_drift(data)
+
+    def _check_plausible(self, step: Step, expected: tuple[float, float, float], m) -> None:
+        e, x = np.asarray(expected, dtype=float), np.array([m.x_mm, m.y_mm, m.z_mm])
+        off, reach = float(np.linalg.norm(x - e)), float(np.linalg.norm(e))
+        tolerance = self.dev.tolerance(reach)
+        if off <= tolerance:
+            return
+        message = (f"{step.point} from {step.station} at {step.pose} was measured {off:.1f} mm from where the nominal "
+                   f"model expects it (tolerance {tolerance:.0f} mm; {float(np.linalg.norm(x)) / reach:.4g} times "
+                   "the expected distance from the tracker), so it is not stored as a measurement. Likely causes: the "
+                   "tracker's units or coordinate system were changed (by another program?), the wrong reflector, "
+                   f"or station {step.station} moved")  # fmt: skip
+        self._append("error", {"type": "ImplausibleMeasurement", "message": message, "xyz_mm": x.tolist(),
+                               "expected_mm": e.tolist()})  # fmt: skip
+        raise CampaignStopped(self.step_index, message)
 
     def _check_drift(self, data: dict) -> None:
         first = next(

@@ -17,8 +17,9 @@ from enum import StrEnum
 
 import numpy as np
 
-from calib.cell import Cell
+from calib.cell import Cell, usable_limits_deg
 from calib.doe import design_for_cell
+from calib.poses import points_in_box
 from campaign.errors import CampaignError
 
 
@@ -82,12 +83,36 @@ def visibility(cell: Cell, poses_deg: np.ndarray) -> dict[tuple[str, str], np.nd
     return out
 
 
+def _poses(rows: np.ndarray) -> str:
+    names = [f"Q{i + 1}" for i in rows[:3]]
+    more = f" and {len(rows) - 3} more" if len(rows) > 3 else ""
+    return ("pose " if len(rows) == 1 else "poses ") + ", ".join(names) + more
+
+
 def check_plan(cell: Cell, poses_deg: np.ndarray) -> list[str]:
-    """Problems that stop a campaign before it starts: no stations, a point no station sees."""
+    """Problems that stop a campaign before its first prompt, for the whole plan as the controller gets it
+    (4 decimals): no stations; a pose the robot cannot take (not a finite joint vector of its joints, or a joint
+    outside its limits less the cell's joint_margin_deg); a pose putting a reference point outside the cell box;
+    a point no station sees."""
     if not cell.stations:
         raise PlanError(f"cell {cell.name} lists no tracker stations")
-    vis = visibility(cell, poses_deg)
+    poses = np.atleast_2d(np.asarray(poses_deg, dtype=float))
+    if poses.shape[1] != cell.chain.dof or not np.all(np.isfinite(poses)):
+        return [f"every pose needs {cell.chain.dof} finite joint angles (the plan has rows of {poses.shape[1]})"]
     problems = []
+    lim = usable_limits_deg(cell)
+    outside = (poses < lim[:, 0]) | (poses > lim[:, 1])
+    rows = np.flatnonzero(outside.any(axis=1))
+    if rows.size:
+        i = rows[0]
+        j = int(np.flatnonzero(outside[i])[0])
+        name = cell.chain.joints[j].name
+        problems.append(f"{_poses(rows)} outside the joint limits less the {cell.joint_margin_deg:g} deg margin "
+                        f"(Q{i + 1}: {name} = {poses[i, j]:g} deg, usable {lim[j, 0]:g}..{lim[j, 1]:g})")  # fmt: skip
+    rows = np.flatnonzero(~points_in_box(cell, np.radians(poses)))
+    if rows.size:
+        problems.append(f"{_poses(rows)} put a reference point outside the cell box")
+    vis = visibility(cell, poses)
     for pid in sorted(cell.tool_points):
         if not any(vis[(sid, pid)].any() for sid in cell.stations):
             problems.append(f"point {pid} is not visible from any station at any pose of the plan")
@@ -95,10 +120,10 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> list[str]:
 
 
 def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterator[Step]:
-    poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)
+    poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)  # as the controller gets them
     problems = check_plan(cell, poses)
     if problems:
-        raise PlanError("; ".join(problems))
+        raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     vis = visibility(cell, poses)
     ids = [f"Q{i + 1}" for i in range(len(poses))]
     pids = sorted(cell.tool_points)

@@ -57,6 +57,7 @@ def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, se
                    extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
     if (directory / "session.sqlite").exists():
         raise StoreError(f"{directory}: already holds a session (use `trackcal resume {directory}`)")
+    session_steps(load_cell(cell_ref), plan_doc)  # the whole plan is checked (PlanError) before a session exists
     directory.mkdir(parents=True, exist_ok=True)
     cell_copy = snapshot_config(cell_ref, directory)
     (directory / "plan.json").write_text(json.dumps(plan_doc, indent=2) + "\n")
