@@ -84,3 +84,17 @@ def test_a_measurement_far_from_the_expected_position_stops_the_campaign(tmp_pat
     assert not store.events("measurement")  # nothing wrong is stored
     assert store.events("error")[-1].data["type"] == "ImplausibleMeasurement"
 
+
+
+def test_the_tracker_is_configured_at_every_station_and_before_every_point_block(tmp_path, kr270, plan):
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    run_campaign(store, inproc_live(kr270, 3)[1])
+    # the recorded device calls, in order: each prompt for a station or a point is followed by configure()
+    calls = [e.data["op"] for e in store.events("call") if e.data["device"] in ("tracker", "operator")]
+    blocks = [e.data["args"][0] for e in store.events("call") if e.data["op"] == "ask"]
+    for i, op in enumerate(calls):
+        if op == "ask" and blocks.pop(0) in ("change_station", "move_reflector"):
+            nxt = calls[i + 1 : i + 3]
+            assert "configure" in nxt, nxt  # after initialize() for a station, at once for a point
+    n_blocks = len([e for e in store.events("prompt") if e.data["kind"] in ("change_station", "move_reflector")])
+    assert calls.count("configure") == n_blocks

@@ -148,6 +148,7 @@ def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing
     same_table(export_table(store), reference)
 
 
+@pytest.mark.slow  # a whole campaign over sockets; the fast check is test_plan_check's in-process one
 def test_units_changed_by_another_client_between_blocks_are_set_again_before_the_next(
     tmp_path, kr270, plan, reference
 ):

@@ -230,9 +230,8 @@ class EmsconTracker:
     def configure(self) -> None:
         """Set everything a measurement depends on and read it back (see the module docstring)."""
         with self._lock:
-            current = self._command(GetSystemSettings(), "reading the system settings")
-            assert isinstance(current, SettingAnswer) and isinstance(current.setting, SetSystemSettings)
-            hardware = current.setting
+            hardware = self._read_setting(GetSystemSettings(), "reading the system settings")
+            assert isinstance(hardware, SetSystemSettings)
             wanted: list[tuple[Request, str]] = [
                 (SetUnits(), "the units (mm, deg, Celsius, hPa, %RH)"),
                 (SetCoordinateSystemType(CoordinateSystemType.RHR), "the Cartesian coordinate system (RHR)"),
@@ -251,14 +250,20 @@ class EmsconTracker:
             for request, what in wanted:
                 self._command(request, f"setting {what}")
             for request, what in wanted:
-                answer = self._command(_READ_BACK[type(request)](), f"reading back {what}")
-                assert isinstance(answer, SettingAnswer)
-                if answer.setting != request:
+                setting = self._read_setting(_READ_BACK[type(request)](), f"reading back {what}")
+                if setting != request:
                     raise DeviceFault(
-                        f"the tracker reports {answer.setting} after setting {what} ({request})",
+                        f"the tracker reports {setting} after setting {what} ({request})",
                         code="readback",
                         device=self.device,
                     )
+
+    def _read_setting(self, request: Request, what: str) -> Request:
+        """A Get* of a setting: the setting, as the Set* request that would set it."""
+        answer = self._command(request, what)
+        if not isinstance(answer, SettingAnswer):  # an accepted status without the payload
+            self._fail(ProtocolError(f"answer to {request.COMMAND.name} without its setting while {what}"))
+        return answer.setting
 
     def initialize(self) -> None:
         self._command(Initialize(), "initialising the tracker", self.motion_timeout_s)
