@@ -27,8 +27,10 @@ import struct
 
 import pytest
 
+from campaign.cells.hardware import load_hardware
 from mocks.clock import VirtualClock
 from mocks.servers.emscon import MockEmscon
+from tests.test_hardware import mock_cell  # noqa: F401 (the fixture: `trackcal mock` in its own process)
 
 # ES_DataType
 ES_DT_COMMAND, ES_DT_ERROR, ES_DT_SINGLE_MEAS, ES_DT_SYSTEM_STATUS_CHANGE, ES_DT_SINGLE_MEAS2 = 0, 1, 2, 8, 9
@@ -95,7 +97,8 @@ class CommandSync:
         return out
 
     def execute(self, command: int, fmt: str, values: tuple) -> tuple[bytes, bytes | None]:
-        """(the *RT, the measurement result for StartMeasurement)."""
+        """(the *RT, the measurement result for StartMeasurement). A StartMeasurement refused in its *RT ends
+        there (CommandSync would wait out its time-out for a result that cannot come)."""
         ct = struct.pack("<iii" + fmt, struct.calcsize("<iii" + fmt), ES_DT_COMMAND, command, *values)
         self.sock.sendall(ct)
         answer = None
@@ -104,7 +107,7 @@ class CommandSync:
             size, data_type = struct.unpack_from("<ii", p)
             assert data_type != ES_DT_ERROR, f"ErrorResponseT {struct.unpack_from('<ii', p, 8)} for {command}"
             if data_type == ES_DT_COMMAND and struct.unpack_from("<i", p, 8)[0] == command:
-                if command != ES_C_START_MEASUREMENT:
+                if command != ES_C_START_MEASUREMENT or struct.unpack_from("<i", p, 12)[0] != ES_RS_ALL_OK:
                     return p, None
                 answer = p
             elif data_type in (ES_DT_SINGLE_MEAS, ES_DT_SINGLE_MEAS2):
@@ -148,6 +151,20 @@ def test_muffinspawn_sequence_is_answered_command_by_command(server):
     assert len(extended) == struct.calcsize(SINGLE_MEAS2) == 204
     assert struct.unpack_from("<ii", extended) == (204, ES_DT_SINGLE_MEAS2)
     assert struct.unpack_from("<d", extended, 36)[0] == pytest.approx(1500.0, rel=1e-12)  # dVal3
+
+
+@pytest.mark.slow  # a process start; the same sequence runs against the mock server above in every `make test`
+def test_muffinspawn_sequence_against_trackcal_mock(mock_cell):  # noqa: F811 (the imported fixture)
+    """The same sequence against `trackcal mock` in its own process (the twin's tracker: no reflector on a nest
+    and no station yet, so its measurements are refused with ES_RS_MeasurementStatusNotReady, 10004)."""
+    _, hw = mock_cell
+    tracker = load_hardware(hw).tracker
+    with socket.create_connection((tracker["host"], tracker["port"]), timeout=5.0) as sock:
+        client = CommandSync(sock)
+        for command, name, fmt, values, rt in SEQUENCE:
+            answer, _ = client.execute(command, fmt, values)
+            assert len(answer) == struct.calcsize("<iiii" + rt), name
+            assert struct.unpack_from("<i", answer, 12)[0] in (ES_RS_ALL_OK, ES_RS_NOT_IMPLEMENTED, 10004), name
 
 
 def test_every_command_of_the_header_is_answered_in_its_own_answer_packet(server):
