@@ -6,9 +6,10 @@ the project's code index; every enum value and struct layout below was written f
   [H]  beckjac/emscon_ros  include/emscon_ros/ES_C_API_Def.h   (full-featured V3.6 header, all tracker types
        incl. ES_LTS_AT901_B/MR/LR): ES_DataType, ES_Command, ES_MeasMode, ES_ResultStatus, ES_TrackerStatus,
        ES_TrackerProcessorStatus, ES_LaserProcessorStatus, ES_ADMStatus, ES_WeatherMonitorStatus,
-       ES_SystemStatusChange, ES_MeasurementStatusInfo, and the structs PacketHeaderT, ReturnDataT,
-       BasicCommandCT/RT, ErrorResponseT, SystemStatusChangeT, SingleMeasResultT, ReflectorPosResultT and the
-       *CT/*RT command structs used here.  `#pragma pack (push, 4)`: no padding before the doubles.
+       ES_SystemStatusChange, ES_MeasurementStatusInfo, ES_StatisticMode, and the structs PacketHeaderT,
+       ReturnDataT, BasicCommandCT/RT, ErrorResponseT, SystemStatusChangeT, SingleMeasResultT,
+       SingleMeasResult2T, ReflectorPosResultT, SystemUnitsDataT, SystemSettingsDataT, StationaryModeDataT and
+       the *CT/*RT command structs used here.  `#pragma pack (push, 4)`: no padding before the doubles.
   [E]  beckjac/emscon_ros  include/emscon_ros/Enum.h   ES_LengthUnit, ES_AngleUnit, ES_TemperatureUnit,
        ES_PressureUnit, ES_HumidityUnit, ES_CoordinateSystemType.
   [A]  MuffinSpawn/Leica  Include/ES_C_API_Def.h  (AT4xx extract of the same header; same layouts).
