@@ -57,8 +57,8 @@ class ErrorMapFit:
     tau_rad: float  # chosen prior RMS of a coefficient
     ridge: float  # lambda, in the units of the whitened residuals squared per rad^2
     effective_params: float  # trace of the hat matrix of the map columns (what the F test and BIC should count)
-    cv_rms_mm: float  # cross-validated RMS of one coordinate (mm) at the chosen (H, tau); nan without a search
-    cv_rms_without_mm: float  # the same without the map (geometry + base)
+    cv_rms_mm: float | None  # cross-validated RMS of one coordinate (mm) at the chosen (H, tau); None: no search
+    cv_rms_without_mm: float | None  # the same without the map (geometry + base)
     not_identifiable: dict[int, str]  # joint -> why it is not mapped
     cv_table: list[dict] = field(default_factory=list)  # every (order, tau) tried with its CV RMS
     n_base: int = 0  # how many of identification.ext belong to the base extension
@@ -66,6 +66,21 @@ class ErrorMapFit:
     @property
     def coefficients(self) -> np.ndarray:
         return self.identification.ext[self.n_base :]
+
+    @property
+    def extension(self) -> Extension:
+        return self.identification.extension
+
+    def to_doc(self) -> dict:
+        """Summary in boundary units (deg, mm), strict JSON."""
+        return {
+            "joints": {f"joint_{j + 1}": {"order": self.orders[j], **self.arcs[j].to_doc()} for j in sorted(self.arcs)},
+            "not_identifiable": {f"joint_{j + 1}": why for j, why in sorted(self.not_identifiable.items())},
+            "tau_deg": float(np.degrees(self.tau_rad)),
+            "effective_params": self.effective_params,
+            "cv_rms_mm": self.cv_rms_mm,
+            "cv_rms_without_mm": self.cv_rms_without_mm,
+        }
 
     def curve(self, joint: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(value, standard deviation) of joint's map (rad) at angles q (rad), clamped to its arc."""
@@ -106,6 +121,7 @@ def _cv_scores(jm, r, unwhiten, pen_cols, fold, orders_cols, lambdas):
     unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm; pen_cols the penalised columns at the
     largest order; orders_cols[i] the subset of them kept at order i."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
+    lam = np.asarray(lambdas, dtype=float)
     row_fold = np.repeat(fold, 3)
     gram, rhs = jm.T @ jm, jm.T @ r
     ss = np.zeros((len(orders_cols), len(lambdas)))
@@ -124,12 +140,13 @@ def _cv_scores(jm, r, unwhiten, pen_cols, fold, orders_cols, lambdas):
             schur = g[np.ix_(cols, cols)] - gaf.T @ gaa_inv @ gaf
             mu, v = np.linalg.eigh(0.5 * (schur + schur.T))
             vg = v.T @ (b[cols] - gaf.T @ gaa_inv @ b[free])
-            for li, lam in enumerate(lambdas):
-                c = v @ (vg / (np.maximum(mu, 0.0) + lam))
-                e = rk - jk[:, free] @ (gaa_inv @ (b[free] - gaf @ c)) - jk[:, cols] @ c
-                ss[i, li] += float(e @ e)
-                e_mm = e if unwhiten is None else np.einsum("nij,nj->ni", unwhiten[fold == k], e.reshape(-1, 3))
-                ss_mm[i, li] += float(np.sum(e_mm**2))
+            c = v @ (vg[:, None] / (np.maximum(mu, 0.0)[:, None] + lam[None]))  # (p, L): every ridge at once
+            a = gaa_inv @ (b[free][:, None] - gaf @ c)
+            e = rk[:, None] - jk[:, free] @ a - jk[:, cols] @ c  # (3 n_k, L)
+            ss[i] += np.sum(e**2, axis=0)
+            if unwhiten is not None:
+                e = np.einsum("nij,njl->nil", unwhiten[fold == k], e.reshape(-1, 3, len(lam))).reshape(e.shape)
+            ss_mm[i] += np.sum(e**2, axis=0)
     return ss, ss_mm
 
 
@@ -178,7 +195,7 @@ def fit_error_map(
     pen_all = len(params) + n_base + np.arange(len(names_max))
     s2 = float(r @ r) / max(len(r) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     n_coord = 3 * len(table)
-    cv_table, cv_rms, cv_without = [], float("nan"), float("nan")
+    cv_table, cv_rms, cv_without = [], None, None
     order, tau = max(orders), float(taus_rad[0])
     if search:
         fold = _fold_ids(table, folds, seed)

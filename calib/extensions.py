@@ -212,3 +212,18 @@ def build_extension(
         return Extension(cause, list(forms), ["ppm/h"], np.array([UNIT_FACTORS["ppm/h"]]),
                          growth=np.asarray(table.t_s, float)[:, None], pivot=pivot)  # fmt: skip
     raise ValueError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
+
+
+def build_parts(
+    parts: list[tuple[str, list[str]]], chain: Chain, table: MeasurementTable, arcs: dict[int, Arc] | None = None,
+    cause: str | None = None,
+) -> Extension:
+    """The extension made of `parts` ((cause, parameter names), as `Extension.parts` lists them) for the rows of
+    `table`; `arcs` are the joint error map's fitted arcs, `cause` the main cause (default: the first part's)."""
+    return combine([build_extension(c, chain, table, names=list(n), arcs=arcs if c == "cyclic_error" else None)
+                    for c, n in parts], cause)  # fmt: skip
+
+
+def rebuild(ext: Extension, chain: Chain, table: MeasurementTable) -> Extension:
+    """A fitted extension's features for the rows of another table (same parameters, same fitted arcs)."""
+    return build_parts(ext.parts(), chain, table, ext.meta.get("arcs"), ext.cause)

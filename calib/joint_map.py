@@ -82,3 +82,18 @@ def outside_arcs(q: np.ndarray, arcs: dict[int, Arc]) -> np.ndarray:
     for j, arc in arcs.items():
         out[:, j] = arc.clamp(q[:, j])[1]
     return out
+
+
+def range_warning(q: np.ndarray, arcs: dict[int, Arc]) -> str | None:
+    """One line saying which rows leave the fitted arcs (None when none does), for predict and compensate."""
+    out = outside_arcs(q, arcs)
+    rows = int(out.any(axis=1).sum())
+    if rows == 0:
+        return None
+    per_joint = ", ".join(
+        f"joint {j + 1}: {int(out[:, j].sum())} (fitted {arcs[j].to_doc()['from_deg']:.1f} .. "
+        f"{arcs[j].to_doc()['to_deg']:.1f} deg)"
+        for j in sorted(arcs) if out[:, j].any()
+    )  # fmt: skip
+    return (f"{rows} of {len(q)} rows leave the joint error map's fitted range ({per_joint}); the map's value at "
+            "the nearest covered angle is used there")  # fmt: skip
