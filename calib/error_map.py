@@ -83,17 +83,27 @@ class ErrorMapFit:
         }
 
     def curve(self, joint: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(value, standard deviation) of joint's map (rad) at angles q (rad), clamped to its arc."""
-        res = self.identification
-        sel = [i for i, nm in enumerate(self.names) if parse_name(nm)[2] == joint]
-        rows = np.zeros((len(q), res.chain.dof))
-        rows[:, joint] = q
-        phi = map_features(rows, [self.names[i] for i in sel], {joint: self.arcs[joint]})[:, joint, :]
-        k0 = len(res.params) + self.n_base
-        idx = np.array([k0 + i for i in sel], dtype=int)
-        cov = res.cov[np.ix_(idx, idx)]
-        value = phi @ self.coefficients[sel]
-        return value, np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", phi, cov, phi), 0.0))
+        return map_curve(self.identification, joint, q)
+
+
+def map_curve(res: Identification, joint: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(value, standard deviation) of a fitted joint error map of `joint` (0-based) at angles q (rad), clamped
+    to its fitted arc; from an identification whose extension carries cyclic_error (alone or combined)."""
+    ext = res.extension
+    at = 0
+    for cause, names in ext.parts():
+        if cause == CAUSE:
+            break
+        at += len(names)
+    else:
+        raise ValueError("the fitted model has no joint error map")
+    sel = [at + i for i, nm in enumerate(names) if parse_name(nm)[2] == joint]
+    rows = np.zeros((len(q), res.chain.dof))
+    rows[:, joint] = q
+    phi = map_features(rows, [ext.names[i] for i in sel], {joint: ext.meta["arcs"][joint]})[:, joint, :]
+    idx = len(res.params) + np.array(sel, dtype=int)
+    cov = res.cov[np.ix_(idx, idx)]
+    return phi @ res.ext[sel], np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", phi, cov, phi), 0.0))
 
 
 def _levers(problem: Problem, state: State) -> np.ndarray:
