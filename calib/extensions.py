@@ -80,10 +80,6 @@ class Extension:
             return None
         return np.einsum("rje,e->rj", self.joint_features, theta)
 
-    @property
-    def arm_scale(self) -> np.ndarray | None:  # BRIDGE: removed when identify.py reads `growth` (after the move)
-        return None if self.growth is None else self.growth[:, 0]
-
     def growth_of(self, theta: np.ndarray) -> np.ndarray | None:
         """(N,) fractional growth of the arm, or None without growth features."""
         return None if self.growth is None else self.growth @ theta

@@ -197,10 +197,8 @@ class Problem:
         off = None if self.ext is None else self.ext.joint_offsets(s.ext)
         return self.q if off is None else self.q + off
 
-    def _arm_scale(self, s: State) -> np.ndarray | None:
-        if self.ext is None or self.ext.arm_scale is None:
-            return None
-        return s.ext[0] * self.ext.arm_scale
+    def _growth(self, s: State) -> np.ndarray | None:
+        return None if self.ext is None else self.ext.growth_of(s.ext)
 
     def predicted(self, s: State) -> np.ndarray:
         rs, ts = self._station_arrays(s)
@@ -219,16 +217,16 @@ class Problem:
         q = self._q(s)
         jac = self.kin.jacobian(q, s.points[self.pt_idx], s.dev)
         p, d_params, d_q = jac.p, jac.d_params, jac.d_q
+        d_point = jac.d_point
         jm = np.zeros((n, 3, self.n_all))
-        scale = self._arm_scale(s)
-        if scale is not None:  # p = p_arm_tool + scale * (o_end - o_base): exact derivatives of the extra term
-            arm = self.kin.jacobian(q, np.zeros(3), s.dev)
-            p = p + scale[:, None] * (arm.p - self.chain.base[:3, 3])
-            d_params = d_params + scale[:, None, None] * arm.d_params
-            d_q = d_q + scale[:, None, None] * arm.d_q
-            jm[:, :, k] = np.einsum("nij,nj->ni", rs, self.ext.arm_scale[:, None] * (arm.p - self.chain.base[:3, 3]))
+        g = self._growth(s)
+        if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
+            rel = p - self.ext.pivot
+            jm[:, :, k : k + self.e] = np.einsum("nij,nj,ne->nie", rs, rel, self.ext.growth)
+            p = self.ext.pivot + (1.0 + g)[:, None] * rel
+            d_params, d_q, d_point = ((1.0 + g)[:, None, None] * x for x in (d_params, d_q, d_point))
         if self.ext is not None and self.ext.joint_features is not None:
-            jm[:, :, k : k + self.e] = np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features)
+            jm[:, :, k : k + self.e] += np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features)
         xs = np.einsum("nij,nj->ni", rs, p) + ts
         jm[:, :, :k] = np.einsum("nij,njk->nik", rs, d_params)
         c0 = self.c_st + 6 * self.st_idx
@@ -238,7 +236,7 @@ class Problem:
         jm[rows[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
         c1 = self.c_st + 6 * self.n_st + 3 * self.pt_idx
         jm[rows[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
-            np.einsum("nij,njk->nik", rs, jac.d_point), (0, 2, 1)
+            np.einsum("nij,njk->nik", rs, d_point), (0, 2, 1)
         )
         return self._whiten(self.xyz - xs).ravel(), self._whiten(jm[:, :, self.free]).reshape(3 * n, self.n_cols)
 
@@ -387,9 +385,9 @@ def model_points(
     if off is not None:
         q = q + off
     pb = kin.points(q, tool, dev)
-    if ext is not None and ext.arm_scale is not None:  # thermal: the arm grows, the tool does not
-        _, o_end = kin.end_frames(q, dev)
-        pb = pb + (theta[0] * ext.arm_scale)[:, None] * (o_end - kin.chain.base[:3, 3])
+    g = None if ext is None else ext.growth_of(theta)
+    if g is not None:  # thermal: every length grows about the pivot
+        pb = ext.pivot + (1.0 + g)[:, None] * (pb - ext.pivot)
     return pb
 
 
