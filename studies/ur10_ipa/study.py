@@ -134,7 +134,8 @@ def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> d
     rb = base_frame(fit)
     corr = {f"{a}": float(np.corrcoef(temp, rb[:, i])[0, 1]) for i, a in enumerate("xyz")}
     corr["norm"] = float(np.corrcoef(temp, np.linalg.norm(rb, axis=1))[0, 1])
-    ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), arm_scale=temp - temp.mean())
+    ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
+                    pivot=chain.base[:3, 3].copy())
     res = identify(chain, table, fit.points, fit.params, extension=ext)
     return {"range_c": (float(temp.min()), float(temp.max())), "levels": int(len(np.unique(temp))),
             "corr": corr, "alpha_ppm_k": float(res.ext[0] * 1e6), "alpha_ci95": float(res.ext_ci95()[0] * 1e6),
