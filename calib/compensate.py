@@ -15,8 +15,10 @@ quadratically; the corrections are small (deviations of tenths of a mm), so two 
 rounding level.
 
 Extensions with a static compensation: joint_compliance (the gravity torque at the commanded pose),
-encoder_scale, cyclic_error. backlash depends on the approach direction and thermal_drift on time: no
-static correction exists for them; they are ignored and reported in `CompensationReport.ignored`.
+encoder_scale, cyclic_error (the joint error map; outside the angles it was fitted over it keeps its value
+at the nearest fitted angle, and the report warns: `CompensationReport.warnings`). backlash depends on the
+approach direction and thermal_drift on time: no static correction exists for them; they are ignored and
+reported in `CompensationReport.ignored`.
 station_shift is a tracker matter and leaves the robot model purely geometric.
 """
 
@@ -28,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import CalibError
-from .extensions import build_extension
+from .extensions import build_parts
 from .kinematics import Kinematics
 from .model import Model
 from .table import MeasurementTable
@@ -64,6 +66,7 @@ class CompensationReport:
     conditioning: np.ndarray  # (N,) smallest / largest singular value of the 9 x n tool-point Jacobian at q_c
     cause: str  # the model's extension, "none" if purely geometric
     ignored: list[str] = field(default_factory=list)  # effects without a static compensation (warnings)
+    warnings: list[str] = field(default_factory=list)  # e.g. targets outside the joint error map's fitted range
     notes: list[str] = field(default_factory=list)
     tcp_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lever_mm: float = 100.0
@@ -73,6 +76,7 @@ class CompensationReport:
         return {
             "cause": self.cause,
             "ignored": list(self.ignored),
+            "warnings": list(self.warnings),
             "notes": list(self.notes),
             "tcp_mm": self.tcp_mm.tolist(),
             "targets": len(self.iterations),
@@ -97,19 +101,24 @@ def rotation_angle(ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
 def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarray] | None, list[str], list[str]]:
     """(offsets(q_cmd) -> (N, n) rad or None, ignored warnings, notes) for the model's extension.
 
-    The offsets are computed by `calib.extensions.build_extension`, the same features identification and
-    `predict` use, so the compensated targets agree with the model exactly."""
+    The offsets are computed by `Model.extension_for` from the causes with a static compensation, the same
+    features identification and `predict` use, so the compensated targets agree with the model exactly."""
     cause = model.cause
     if cause in ("none", "unexplained"):
         return None, [], []
-    if cause in NO_STATIC_COMPENSATION:
-        return None, [NO_STATIC_COMPENSATION[cause]], []
     if cause in GEOMETRIC_ONLY:
         return None, [], [GEOMETRIC_ONLY[cause]]
-    if cause not in STATIC_JOINT_CAUSES:
-        raise CompensationError(f"model extension {cause!r} is unknown; cannot compensate it")
+    parts = model.parts()
+    unknown = [c for c, _ in parts if c not in STATIC_JOINT_CAUSES and c not in NO_STATIC_COMPENSATION]
+    if unknown:
+        raise CompensationError(f"model extension {unknown[0]!r} is unknown; cannot compensate it")
+    ignored = [NO_STATIC_COMPENSATION[c] for c, _ in parts if c in NO_STATIC_COMPENSATION]
     names, theta = model.extension_values()
-    chain = model.chain
+    static = [(c, n) for c, n in parts if c in STATIC_JOINT_CAUSES]
+    if not static:
+        return None, ignored, []
+    keep = np.array([names.index(nm) for _, n in static for nm in n], dtype=int)
+    chain, arcs = model.chain, model.arcs()
 
     def offsets(q: np.ndarray) -> np.ndarray:
         n_rows = len(q)
@@ -117,9 +126,9 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
             seq=np.arange(n_rows), t_s=np.zeros(n_rows), pose=["c"] * n_rows, station=["-"] * n_rows,
             point=["-"] * n_rows, q_deg=np.degrees(q), xyz=None, source="compensation targets",
         )  # fmt: skip
-        return build_extension(cause, chain, rows, names=names).joint_offsets(theta)
+        return build_parts(static, chain, rows, arcs).joint_offsets(theta[keep])
 
-    return offsets, [], []
+    return offsets, ignored, []
 
 
 def _true_joints(offsets, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,6 +260,7 @@ def compensate(
         conditioning=sv[:, -1] / sv[:, 0],
         cause=model.cause,
         ignored=ignored,
+        warnings=[w for w in [model.range_warning(q)] if w],  # the map is evaluated at the commanded angles
         notes=notes,
         tcp_mm=tcp,
         lever_mm=float(lever_mm),

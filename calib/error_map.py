@@ -241,6 +241,7 @@ def _penalised_fit(chain, table, geo, params, noise, base, names, arcs, lam):
     k0 = len(params) + n_base
     pen = np.zeros(problem.n_cols)
     pen[k0 : k0 + len(names)] = lam
+    converged = False
     for _ in range(GN_ITERATIONS):
         r, jm = problem.residual_and_jacobian(state)
         scale = np.linalg.norm(jm, axis=0)
@@ -251,6 +252,7 @@ def _penalised_fit(chain, table, geo, params, noise, base, names, arcs, lam):
         ds = np.linalg.solve(js.T @ js + np.diag(pen / scale**2), js.T @ r - pen * x / scale)
         state = problem.retract(state, ds / scale)
         if float(np.linalg.norm(js @ ds)) <= 1e-9 * float(np.linalg.norm(r)):
+            converged = True
             break
     r, jm = problem.residual_and_jacobian(state)
     scale = np.linalg.norm(jm, axis=0)
@@ -268,5 +270,7 @@ def _penalised_fit(chain, table, geo, params, noise, base, names, arcs, lam):
         strict=True)), points={p: state.points[i] for i, p in enumerate(problem.point_ids)}, cov=cov,
         station_ids=problem.station_ids, point_ids=problem.point_ids, residuals=problem.xyz - problem.predicted(state),
         variance_factor=s2, dof=dof, iterations=GN_ITERATIONS, noise=noise, extension=ext, ext=state.ext,
+        converged=converged, message="the Gauss-Newton step is below 1e-9 of the residual" if converged else
+        f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",
     )  # fmt: skip
     return res, float(hat[k0 : k0 + len(names)].sum())

@@ -1,6 +1,8 @@
 """model.json: everything `predict` needs, in boundary units (mm, deg).
 
 {"format": "trackcal-model/1", "robot": <configs/robots schema>, "extension": {"cause": "none"},
+ (an extension: {"cause", "parameters": {name: {value, ci95, unit}}, "parts": [{"cause", "parameters": [names]}]
+  when it carries several causes, "arcs": {"joint_<j>": {"from_deg", "to_deg"}} for the joint error map},
  "parameters": {name: {"value": deviation, "ci95": half-width, "unit": "mm"|"deg", "nominal": value}},
  "stations": {id: {"rotation": 3x3 station<-base, "translation_mm": [..], "ci95_translation_mm": [..],
                    "ci95_rotation_deg": [..]}},
@@ -20,8 +22,9 @@ import numpy as np
 from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from .diagnose import relabel_shift
 from .errors import CalibError
-from .extensions import UNIT_FACTORS, build_extension
+from .extensions import UNIT_FACTORS, Extension, build_parts
 from .identify import Identification, Station, predict_points
+from .joint_map import Arc, range_warning
 from .params import Param, param_by_name
 from .table import MeasurementTable
 
@@ -49,13 +52,18 @@ def extension_doc(res: Identification, shift: dict | None = None) -> dict:
     if ext is None:
         return {"cause": "none"}
     ci = res.ext_ci95()
-    return {
+    doc = {
         "cause": ext.cause,
         "parameters": {
             n: {"value": float(v * f), "ci95": float(c * f), "unit": u}
             for n, v, c, f, u in zip(ext.names, res.ext, ci, ext.to_boundary, ext.units, strict=True)
         },
     }
+    if len(ext.parts()) > 1:
+        doc["parts"] = [{"cause": c, "parameters": list(names)} for c, names in ext.parts()]
+    if "arcs" in ext.meta:
+        doc["arcs"] = {f"joint_{j + 1}": arc.to_doc() for j, arc in sorted(ext.meta["arcs"].items())}
+    return doc
 
 
 def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None) -> dict:
@@ -114,10 +122,36 @@ class Model:
 
     def extension_values(self) -> tuple[list[str], np.ndarray]:
         """Extension parameter names and values in internal units (rad, N m, s)."""
-
         pars = self.doc.get("extension", {}).get("parameters", {})
         names = list(pars)
         return names, np.array([pars[n]["value"] / UNIT_FACTORS[pars[n]["unit"]] for n in names])
+
+    def parts(self) -> list[tuple[str, list[str]]]:
+        """(cause, parameter names) of every cause the extension carries ([] for none and station_shift)."""
+        info = self.doc.get("extension", {})
+        if self.cause in ("none", "unexplained", "station_shift"):
+            return []
+        if "parts" in info:
+            return [(p["cause"], list(p["parameters"])) for p in info["parts"]]
+        return [(self.cause, list(info.get("parameters", {})))]
+
+    def arcs(self) -> dict[int, Arc]:
+        """The joint error map's fitted arcs (joint index from 0), empty without a map."""
+        arcs = self.doc.get("extension", {}).get("arcs", {})
+        return {int(k.split("_")[1]) - 1: Arc.from_doc(v) for k, v in arcs.items()}
+
+    def extension_for(self, rows: MeasurementTable) -> tuple[Extension | None, np.ndarray | None]:
+        """(extension features for `rows`, parameter values) as identified; (None, None) without one."""
+        parts = self.parts()
+        if not parts:
+            return None, None
+        _, theta = self.extension_values()
+        return build_parts(parts, self.chain, rows, self.arcs(), self.cause), theta
+
+    def range_warning(self, q: np.ndarray) -> str | None:
+        """One line when joint angles q (N, n) rad leave the joint error map's fitted range, else None."""
+        arcs = self.arcs()
+        return range_warning(q, arcs) if arcs else None
 
 
 def load_model(path: str | Path) -> Model:
@@ -150,9 +184,11 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
             for sid, s in doc["stations"].items()
         }
         points = {pid: np.asarray(p["xyz_mm"], dtype=float) for pid, p in doc["tool_points"].items()}
-    except (KeyError, TypeError, ValueError, ChainError) as exc:
+        model = Model(chain, params, dev, stations, points, doc)
+        model.parts(), model.arcs(), model.extension_values()  # the extension is readable
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ChainError) as exc:
         raise ModelError(f"{path}: incomplete or malformed model ({exc})") from None
-    return Model(chain, params, dev, stations, points, doc)
+    return model
 
 
 def predict_table(model: Model, rows: MeasurementTable) -> MeasurementTable:
@@ -165,9 +201,8 @@ def predict_table(model: Model, rows: MeasurementTable) -> MeasurementTable:
     if model.cause == "station_shift":
         info = model.doc["extension"]
         labelled = relabel_shift(rows, info["station"], float(info["after_t_s"]))
-    elif model.cause != "none":
-        names, theta = model.extension_values()
-        ext = build_extension(model.cause, model.chain, rows, names=names)
+    else:
+        ext, theta = model.extension_for(rows)
     xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, labelled, ext, theta)
     out = rows.subset(np.arange(len(rows)))
     out.xyz = xyz

@@ -9,7 +9,7 @@ import numpy as np
 
 from calib.cell import Cell, load_cell
 from calib.diagnose import Diagnosis, diagnose, fit_cause, rms
-from calib.extensions import CAUSES, build_extension
+from calib.extensions import CAUSES, rebuild
 from calib.identify import Identification, IdentificationError, identify, residual_stats, significance
 from calib.kinematics import Kinematics
 from calib.model import identification_to_doc
@@ -137,7 +137,7 @@ def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
     ext = res.extension
     if ext is not None and ext.joint_features is not None:
         row = MeasurementTable(np.array([1]), np.zeros(1), ["q0"], ["-"], ["-"], np.degrees(q0), None)
-        q0 = q0 + build_extension(ext.cause, cell.chain, row, names=ext.names).joint_offsets(res.ext)
+        q0 = q0 + rebuild(ext, cell.chain, row).joint_offsets(res.ext)
     return Kinematics(cell.chain, res.params).points(q0, cell.tcp, res.dev)[0]
 
 

@@ -15,15 +15,19 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from calib.cell import load_cell
+from calib.compensate import compensate
 from calib.error_map import fit_error_map
 from calib.extensions import build_extension
 from calib.identify import identify, predict_points
 from calib.joint_map import Arc, outside_arcs
 from calib.kinematics import Kinematics
+from calib.model import identification_to_doc, load_model, predict_table
 from calib.params import irreducible_params
 from calib.poses import random_poses
 from calib.subset import identifiable_subset
-from calib.table import MeasurementTable
+from calib.table import MeasurementTable, write_table
+from campaign.cli import main
+from campaign.output import write_json
 from mocks.synth import simulate_campaign
 from mocks.twin import Twin
 
@@ -148,3 +152,32 @@ def test_arc_covers_its_angles_and_clamps_to_the_nearest_end(angles, q):
         ends = np.array([arc.start, arc.start + arc.length])
         dist = np.abs(np.angle(np.exp(1j * (q - ends))))
         assert np.isclose(np.angle(np.exp(1j * (c[0] - ends[np.argmin(dist)]))), 0.0, atol=1e-9)
+
+
+def test_model_file_carries_the_map_and_predict_and_compensate_warn_outside_it(twin_fit, tmp_path, capsys):
+    cell, train, held, geo, fit = twin_fit
+    res = fit.identification
+    path = tmp_path / "model.json"
+    write_json(path, identification_to_doc(res))
+    model = load_model(path)
+    assert set(model.arcs()) == set(fit.arcs)
+    ext = build_extension("cyclic_error", cell.chain, held, names=fit.names, arcs=fit.arcs)
+    direct = predict_points(cell.chain, res.params, res.dev, res.stations, res.points, held, ext, res.ext)
+    # the file holds mm and deg as decimal floats: the prediction comes back to rounding
+    np.testing.assert_allclose(predict_table(model, held).xyz, direct, atol=1e-9)
+    q = np.radians(held.q_deg)
+    assert (model.range_warning(q) is None) == (not outside_arcs(q, fit.arcs).any())
+    # a target beyond joint 1's fitted arc: compensate converges, keeps the end value, and warns
+    arc = fit.arcs[0]
+    q_out = cell.test_pose[None].copy()
+    q_out[0, 0] = np.angle(np.exp(1j * (arc.start + arc.length + 0.5 * (2 * np.pi - arc.length))))  # mid-gap
+    _, report = compensate(model, q_out, cell.tcp)
+    assert report.position_error_mm.max() < 1e-6
+    assert len(report.warnings) == 1 and "joint 1" in report.warnings[0]
+    _, inside = compensate(model, cell.test_pose[None], cell.tcp)
+    assert len(inside.warnings) == int(outside_arcs(cell.test_pose[None], fit.arcs).any())
+    rows = tmp_path / "rows.csv"
+    write_table(held, rows)
+    assert main(["predict", "--model", str(path), str(rows), "--out", str(tmp_path / "p.csv")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning:") == (1 if outside_arcs(q, fit.arcs).any() else 0)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
+import numpy as np
 from rich.table import Table
 
 from calib.cell import load_cell
@@ -84,6 +86,9 @@ def cmd_predict(args) -> int:
     model = load_model(args.model)
     rows = read_table(args.rows, require_xyz=False)
     pred = predict_table(model, rows)
+    warning = model.range_warning(np.radians(rows.q_deg))
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     write_output_table(pred, args.out)
     console.print(f"{len(pred)} predictions written to {args.out}")
     return 0

@@ -49,7 +49,7 @@ def cmd_compensate(args) -> int:
     krl_deg = np.round(qc_deg, 4)
     rounded_mm, _ = pose_error(model, np.radians(krl_deg), np.radians(q_deg), tcp)
     write_output(args.out, names, q_deg, qc_deg, report, rounded_mm)
-    for warning in report.ignored:
+    for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:
         print(f"note: {note}")
