@@ -1,4 +1,5 @@
-"""The diagnosis plots: the residuals against the winning cause's signature, every joint angle and time."""
+"""The diagnosis plots: the residuals against the winning cause's signature, every joint angle and time, and the
+joint error map's curves with their uncertainty bands."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import numpy as np
 
 from calib.cell import Cell
 from calib.diagnose import Diagnosis, rms
+from calib.error_map import map_curve
 from calib.extensions import approach_signs
 from calib.identify import Identification
 from calib.kinematics import Kinematics
@@ -101,3 +103,33 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
     plt.close(fig)
     written.append(path)
     return written
+
+
+def error_map_curves(fits: dict[str, Identification], path: Path, joint_names: list[str] | None = None) -> Path:
+    """Each mapped joint's fitted error curve (mdeg) with its 95 % band over the arc it was fitted on, one panel
+    per joint, one line per fit (e.g. two series, to see where they agree)."""
+    plt = pyplot()
+    joints = sorted({j for res in fits.values() for j in res.extension.meta["arcs"]})
+    fig, axes = plt.subplots(len(joints), 1, figsize=(11, 2.4 * len(joints)), squeeze=False)
+    for ax, j in zip(axes[:, 0], joints, strict=True):
+        arcs = {label: res.extension.meta["arcs"][j] for label, res in fits.items() if j in res.extension.meta["arcs"]}
+        ref = min(a.to_doc()["from_deg"] for a in arcs.values())  # every fit drawn on the window ref .. ref + 360
+        for label, arc in arcs.items():
+            q = arc.start + np.linspace(0.0, arc.length, 1500)
+            value, sd = map_curve(fits[label], j, q)
+            x = np.mod(np.degrees(q) - ref, 360.0) + ref
+            cut = np.flatnonzero(np.diff(x) < 0) + 1  # where the arc wraps past the window's end: break the line
+            x, value, sd = (np.insert(v, cut, np.nan) for v in (x, value, sd))
+            (line,) = ax.plot(x, np.degrees(value) * 1000.0, lw=1.0, label=label)
+            ax.fill_between(x, np.degrees(value - 1.96 * sd) * 1000.0, np.degrees(value + 1.96 * sd) * 1000.0,
+                            color=line.get_color(), alpha=0.25, lw=0)  # fmt: skip
+        ax.set_ylabel(f"{joint_names[j] if joint_names else f'joint {j + 1}'}\nerror (mdeg)")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="upper right")
+    axes[-1, 0].set_xlabel("joint angle (deg)")
+    fig.suptitle("joint error map: fitted curve of each joint, 95 % band")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

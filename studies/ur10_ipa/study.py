@@ -23,6 +23,7 @@ import argparse
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from string import Template
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -31,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from calib.cell import Cell, load_cell
 from calib.diagnose import Diagnosis, diagnose, fit_cause
-from calib.extensions import JOINT_CAUSES, Extension, build_extension
+from calib.extensions import JOINT_CAUSES, Extension
 from calib.identify import Identification, identify, residual_stats
 from calib.kinematics import Kinematics
 from calib.params import Param, irreducible_params
@@ -39,6 +40,9 @@ from calib.rigid import rot_axis
 from calib.subset import identifiable_subset
 from calib.table import MeasurementTable
 from campaign.importers.ipa_ur10 import ANGLES, JOINTS, POINT, read_columns, read_ipa_series, table_covariances
+from campaign.report.diagnosis_plots import error_map_curves
+
+from .error_map_check import STATION_ONLY, MapCheck, error_map_check, on_other_series
 
 # The data set lives next to the repository (../shared/data); TRACKCAL_IPA_DATA points elsewhere.
 DATA = Path(os.environ.get("TRACKCAL_IPA_DATA")
@@ -47,7 +51,7 @@ SERIES = {"B": "Series_B/measurements_joint_configurations.csv", "D": "Series_D/
 TRAFO = "Series_B/Trafo_TM_F_init.txt"
 CITATION = ("Landgraf, Ernst, Schleth, Fabritius, Huber, \"A Hybrid Neural Network Approach for Increasing the "
             "Absolute Accuracy of Industrial Robots\", IEEE CASE 2021, pp. 468-474")  # fmt: skip
-STATION_ONLY = ("robot", "points")
+TEMPLATE = Path(__file__).with_name("report.md")
 BASE_LINK = rot_axis(2, np.pi)  # ROS base_link <- DH base: a half turn about z
 
 
@@ -60,12 +64,6 @@ def base_frame(res: Identification) -> np.ndarray:
     """Residuals (N, 3) of a one-station fit turned from the station frame into the robot base frame."""
     (station,) = res.stations.values()
     return res.residuals @ station.rotation  # R_s^T r, row by row
-
-
-def validate(chain, fit: Identification, table: MeasurementTable, extension: Extension | None = None):
-    """`fit`'s robot model and tool points on another table, its station alone re-estimated."""
-    return identify(chain, table, fit.points, fit.params, dev0=fit.dev, extension=extension, ext0=fit.ext,
-                    fixed=STATION_ONLY)  # fmt: skip
 
 
 def tmac_rows(table: MeasurementTable) -> np.ndarray:
@@ -125,6 +123,8 @@ class Study:
     diagnosis: Diagnosis
     candidates: list[CandidateCheck]
     temperature: dict = field(default_factory=dict)
+    diagnosis_d: Identification | None = None  # diagnose's chosen model on D, D's station alone re-estimated
+    error_map: MapCheck | None = None
 
 
 def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> dict:
@@ -151,14 +151,15 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
     irr, _ = irreducible_params(chain)
     params, dropped = identifiable_subset(chain, irr, np.radians(b.q_deg), tmac)
     fit_b = identify(chain, b, tmac, params)
-    fit_d = identify(chain, d, tmac, identifiable_subset(chain, irr, np.radians(d.q_deg), tmac)[0])
+    params_d = identifiable_subset(chain, irr, np.radians(d.q_deg), tmac)[0]
+    fit_d = identify(chain, d, tmac, params_d)
     virt = []
     for k, lever in [(k, 100.0) for k in virtual] + [(2, lev) for lev in levers]:
         bv = read_ipa_series(data / SERIES["B"], station="B", virtual_points=k, lever_mm=lever)
         scale = lever / 100.0  # the tool file's virtual points sit at 100 mm: start from the scaled offsets
         pts = {p: tmac[POINT] + scale * (cell.tool_points[p] - tmac[POINT]) for p in dict.fromkeys(bv.point)}
         fit = identify(chain, bv, pts, irr)  # the virtual points make the whole irreducible set identifiable
-        virt.append({"k": k, "lever_mm": lever, "n_params": len(irr), "after_d": validate(chain, fit, d),
+        virt.append({"k": k, "lever_mm": lever, "n_params": len(irr), "after_d": on_other_series(chain, fit, d),
                      "fit_b_tmac_rms": rms3(fit.residuals[tmac_rows(bv)]), "fit_b_all_rms": rms3(fit.residuals),
                      "point": fit.points[POINT]})  # fmt: skip
     covs = table_covariances(read_ipa_series(data / SERIES["B"], station="B", virtual_points=1))
@@ -171,19 +172,22 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
         if c.cause in JOINT_CAUSES:
             cf = fit_cause(chain, b, tmac, params, None, c.cause)
             res, ext = cf.result, cf.extension
-            ext_d = build_extension(c.cause, chain, d, names=ext.names)
-            check.d_rms3_mm = rms3(validate(chain, res, d, ext_d).residuals)
+            check.d_rms3_mm = rms3(on_other_series(chain, res, d).residuals)
             check.values = dict(zip(ext.names, (res.ext * ext.to_boundary).tolist(), strict=True))
             check.unit = ext.units[0]
         checks.append(check)
     checks.sort(key=lambda c: c.cv_rms3_mm)
+    # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
+    chosen = diag.extended if diag.extended is not None and diag.shift is None else diag.geometric
+    diagnosis_d = on_other_series(chain, chosen, d)
     return Study(
         cell=cell, params=params, dropped=dropped, b=b, d=d, conv=conventions(data, chain, tmac[POINT]),
         fit_b=fit_b, nominal_b=identify(chain, b, tmac, [], fixed=STATION_ONLY),
         nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=identify(chain, d, tmac, [], fixed=STATION_ONLY),
-        after_d=validate(chain, fit_b, d), fit_d=fit_d, after_b=validate(chain, fit_d, b), virtual=virt,
-        correlation=float(np.median(rho)), diagnosis=diag, candidates=checks,
-        temperature=temperature_effect(chain, b, fit_b),
+        after_d=on_other_series(chain, fit_b, d), fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
+        virtual=virt, correlation=float(np.median(rho)), diagnosis=diag, candidates=checks,
+        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d,
+        error_map=error_map_check(chain, b, d, tmac, params, params_d),
     )  # fmt: skip
 
 
@@ -283,6 +287,10 @@ def plots(study: Study, img_dir: Path) -> list[Path]:
     axes[1].set_xlabel("row (measurement order)")
     fig.suptitle("Residuals (robot base frame) in measurement order, and the temperature column")
     save(fig, "ur10-residuals-vs-order.png")
+    if study.error_map is not None:
+        m = study.error_map
+        written.append(error_map_curves({"fitted on B": m.fit_b.identification, "fitted on D": m.fit_d.identification},
+                                        img_dir / "ur10-joint-error-map.png", NAMES))  # fmt: skip
     return written
 
 
@@ -296,228 +304,112 @@ def _deg_or_mm(p: Param, v: float) -> str:
     return f"{v:+.4f} mm" if p.is_length else f"{np.degrees(v):+.4f} deg"
 
 
-def _values_note(study: Study) -> str:
-    """What the joint-type candidates' fitted values say, in words, from the fits on all of B."""
-    by = {c.cause: c for c in study.candidates}
-    off_axis = float(np.hypot(*study.fit_b.points[POINT][:2]))
-    notes = []
-    if "joint_compliance" in by and {"c2", "c3"} <= set(by["joint_compliance"].values):
-        v = by["joint_compliance"].values
-        k = [1.0 / abs(np.radians(v[n]) / 1000.0) for n in ("c2", "c3")]
-        notes.append(f"the compliances of shoulder and elbow ({v['c2']:+.2f}, {v['c3']:+.2f} deg/kNm, stiffness"
-                     f" {k[0] / 1e3:.0f} and {k[1] / 1e3:.0f} kNm/rad) are of the order of a harmonic drive's, and"
-                     " yet do not transfer")  # fmt: skip
-    if "encoder_scale" in by and by["encoder_scale"].values:
-        v = [x for n, x in by["encoder_scale"].values.items() if not n.endswith("6")]
-        notes.append(f"encoder scales of {min(v):+.0f} to {max(v):+.0f} ppm are far beyond any encoder error")
-    if "cyclic_error" in by and by["cyclic_error"].values:
-        v = [abs(x) for n, x in by["cyclic_error"].values.items() if not n.endswith("_6")]
-        notes.append(f"cyclic amplitudes up to {max(v):.2f} deg would be centimetres at the probe")
-    sixth = [n for c in study.candidates for n in c.values if n.endswith("6")]
-    text = "; ".join(notes) + "."
-    if sixth:
-        text += (f" Parameters of joint 6 ({', '.join(sixth)}) are kept by `diagnose` although wrist_3 moves the"
-                 f" T-Mac by its {off_axis:.2f} mm offset from the axis only: their values are meaningless.")
-    return text
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |",
+                      *["| " + " | ".join(r) + " |" for r in rows]])  # fmt: skip
+
+
+def _range(x: np.ndarray) -> str:
+    return f"{x.min():.0f}..{x.max():.0f}"
+
+
+def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
+    """The template's placeholders, every one computed from the study."""
+    fb, dg, tmp, cv, m = study.fit_b, study.diagnosis, study.temperature, study.conv, study.error_map
+    rel = [p.relative_to(out.parent).as_posix() if p.is_relative_to(out.parent) else str(p) for p in images]
+    yb, yd = _tmac_base(study, study.b)[:, 1], _tmac_base(study, study.d)[:, 1]
+    ry = np.array(study.d.extra["ry_deg"], dtype=float)
+    temp_d = np.array(study.d.extra["temp_c"], dtype=float)
+    d_geo, d_nom = rms3(study.after_d.residuals), rms3(study.nominal_d.residuals)
+    geo_cv = np.sqrt(3) * dg.holdout_geometric_mm
+    s3 = float(np.sqrt(3))
+
+    def mm(x: float | None) -> str:
+        return "-" if x is None else f"{x:.3f}"
+
+    candidates = _table(["model", "extra parameters", "B cross-validated", "D held out", "significant on B"],
+                        [["geometric", "-", mm(geo_cv), mm(d_geo), "-"]]
+                        + [[c.cause, str(c.n_params), mm(c.cv_rms3_mm), mm(c.d_rms3_mm),
+                            "yes" if c.significant else "no"] for c in study.candidates])  # fmt: skip
+    virtual = _table(["points per pose", "lever mm", "parameters", "B fit, T-Mac", "B fit, all points", "D held out"],
+                     [["1 (T-Mac)", "-", str(len(study.params)), mm(rms3(fb.residuals)), mm(rms3(fb.residuals)),
+                       mm(d_geo)]]
+                     + [[f"1 + {v['k']} virtual", f"{v['lever_mm']:.0f}", str(v["n_params"]), mm(v["fit_b_tmac_rms"]),
+                         mm(v["fit_b_all_rms"]), mm(rms3(v["after_d"].residuals))] for v in study.virtual])  # fmt: skip
+    fit_b, fit_d = m.fit_b, m.fit_d
+    arcs = _table(["joint", "B: fitted arc (deg)", "D: fitted arc (deg)"],
+                  [[NAMES[j]] + [f"{f.arcs[j].to_doc()['from_deg']:.1f} .. {f.arcs[j].to_doc()['to_deg']:.1f}"
+                                 if j in f.arcs else "not mapped" for f in (fit_b, fit_d)]
+                   for j in range(study.cell.chain.dof)])  # fmt: skip
+    agreement = _table(["joint", "angles both measured (deg)", "correlation of the curves"],
+                       [[NAMES[a["joint"] - 1], f"{a['overlap_deg']:.0f}",
+                         "-" if a["correlation"] is None else f"{a['correlation']:.2f}"]
+                        for a in m.agreement])  # fmt: skip
+    return {
+        "citation": CITATION, "b_poses": str(len(study.b)), "d_poses": str(len(study.d)),
+        "d_nominal": mm(d_nom), "d_geometric": mm(d_geo), "d_compliance": mm(rms3(m.compliance_d.residuals)),
+        "d_map": mm(rms3(m.after_d.residuals)), "verdict": dg.cause,
+        "d_diagnose": mm(rms3(study.diagnosis_d.residuals)),
+        "holdout_poses": str(m.holdout_b["poses"]), "holdout_geometric": mm(m.holdout_b["geometric_mm"]),
+        "holdout_map": mm(m.holdout_b["map_mm"]),
+        "goal_rms": mm(cv["goal_rms_mm"]), "goal_max": mm(cv["goal_max_mm"]),
+        "point_z": f"{fb.points[POINT][2]:.2f}", "point_z_ci": f"{fb.point_ci95(POINT)[2]:.2f}",
+        "nominal_b": mm(rms3(study.nominal_b.residuals)),
+        "nominal_b_free_point": mm(rms3(study.nominal_b_free_point.residuals)),
+        "euler_xyz": f"{cv['euler_spread_deg']['XYZ']:.3f}",
+        "euler_others": ", ".join(f"{v:.1f} deg for '{k}'" for k, v in cv["euler_spread_deg"].items() if k != "XYZ"),
+        "temp_b_range": f"{tmp['range_c'][0]:.2f}-{tmp['range_c'][1]:.2f}", "temp_levels": str(tmp["levels"]),
+        "temp_d_range": f"{temp_d.min():.2f}-{temp_d.max():.2f}",
+        "n_irreducible": str(len(study.params) + len(study.dropped)), "n_params": str(len(study.params)),
+        "param_names": " ".join(p.name for p in study.params), "param_list": ",".join(p.name for p in study.params),
+        "dropped": "\n".join(f"- `{p.name}`: {why}" for p, why in study.dropped),
+        "b_fit": mm(rms3(fb.residuals)), "b_fit_max": mm(residual_stats(fb.residuals)["dist_max_mm"]),
+        "b_iterations": str(fb.iterations),
+        "parameter_table": _table(["parameter", "deviation", "95 % CI"],
+                                  [[p.name, _deg_or_mm(p, v), "+-" + _deg_or_mm(p, c)[1:]]
+                                   for p, v, c in zip(fb.params, fb.dev, fb.param_ci95(), strict=True)]),
+        "validation_table": "\n".join([
+            "| model | x | y | z | 3-D RMS | 3-D max |", "| --- | --- | --- | --- | --- | --- |",
+            _row("B, nominal (Trafo tool point)", study.nominal_b), _row("B, calibrated on B (fit)", fb),
+            _row("D, nominal (Trafo tool point)", study.nominal_d), _row("D, calibrated on B", study.after_d)]),
+        "d_gain": f"{d_nom / d_geo:.2f}", "yb_range": _range(yb), "yd_range": _range(yd),
+        "d_fit": mm(rms3(study.fit_d.residuals)), "d_n_params": str(len(study.fit_d.params)),
+        "b_after": mm(rms3(study.after_b.residuals)), "d_ry": f"{ry.mean():.1f} +- {ry.std():.1f}",
+        "d_point_z": f"{study.fit_d.points[POINT][2]:.1f} +- {study.fit_d.point_ci95(POINT)[2]:.1f}",
+        "virtual_correlation": f"{study.correlation:.3f}", "virtual_table": virtual,
+        "candidate_table": candidates, "noise_floor": mm(s3 * dg.noise_floor_mm), "floor_source": dg.floor_source,
+        "cv_folds": "5", "b_order": str(max(fit_b.orders.values())),
+        "b_tau_mdeg": f"{1000 * np.degrees(fit_b.tau_rad):.2f}",
+        "b_edf": f"{fit_b.effective_params:.0f}", "b_cv_without": mm(s3 * fit_b.cv_rms_without_mm),
+        "b_cv": mm(s3 * fit_b.cv_rms_mm), "b_map_fit": mm(rms3(fit_b.identification.residuals)),
+        "b_map_seconds": f"{m.fit_seconds:.1f}",
+        "b_not_identifiable": "; ".join(f"{NAMES[j]} ({why})" for j, why in fit_b.not_identifiable.items()) or "none",
+        "d_order": str(max(fit_d.orders.values())), "d_cv_without": mm(s3 * fit_d.cv_rms_without_mm),
+        "d_cv": mm(s3 * fit_d.cv_rms_mm), "arc_table": arcs, "agreement_table": agreement,
+        "temp_b_span": f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f}",
+        "temp_corr": ", ".join(f"{k} {v:+.2f}" for k, v in tmp["corr"].items()),
+        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}",
+        "temp_without": f"{tmp['rms3_without']:.4f}", "temp_with": f"{tmp['rms3_with']:.4f}",
+        "plots": "\n".join(f"![{p.stem}]({r})" for p, r in zip(images, rel, strict=True)),
+    }  # fmt: skip
 
 
 def report(study: Study, out: Path, images: list[Path]) -> str:
-    fb, dg, tmp, cv = study.fit_b, study.diagnosis, study.temperature, study.conv
-    b_fit, d_after, d_nom = rms3(fb.residuals), rms3(study.after_d.residuals), rms3(study.nominal_d.residuals)
-    rel = [p.relative_to(out.parent).as_posix() if p.is_relative_to(out.parent) else str(p) for p in images]
-    yb, yd = _tmac_base(study, study.b)[:, 1], _tmac_base(study, study.d)[:, 1]
-    best = study.candidates[0]
-    shift = next((c.detail for c in study.candidates if c.cause == "station_shift" and c.detail), None)
-    geo_cv = np.sqrt(3) * dg.holdout_geometric_mm
-    ry = np.array(study.d.extra["ry_deg"], dtype=float)
-    k2 = next(v for v in study.virtual if v["k"] == 2 and v["lever_mm"] == 100.0)
-    lines = [
-        "# UR10 on real laser-tracker data (IPA series B and D)",
-        "",
-        "Generated by `python -m studies.ur10_ipa.study`. Data: the public data set "
-        "christianlandgraf/ipa-robot-accuracy",
-        f"(MIT licence) of {CITATION}. A UR10 carries a Leica T-Mac 6-DoF probe; a Leica laser tracker measures",
-        "it. Series B (1495 poses, November 2020) calibrates, Series D (632 poses on ISO 9283-style cubes,",
-        "March 2021, tracker set up elsewhere) validates. All errors are 3-D RMS in mm unless said otherwise.",
-        "",
-        "## Conventions checked on the data",
-        "- Robot: `configs/robots/ur10.yaml`, Universal Robots' DH values (UR10, CB3) written as joint rotations",
-        "  about z, link translations (a, 0, d) and fixed `link_rpy_deg` rotations; joint values are the ROS",
-        "  joint_states one to one. The commanded `Goal x/y/z` agree with our forward kinematics of the T-Mac",
-        f"  point at (0, 0, 109) mm to {cv['goal_rms_mm']:.3f} mm RMS (max {cv['goal_max_mm']:.3f}; ROS base_link = DH",
-        "  base turned 180 deg about z), which pins the joint conventions and says the cell was programmed with",
-        "  these nominal values and that tool point.",
-        "- T-Mac point: `Trafo_TM_F_init.txt` read as flange-in-T-Mac puts the T-Mac centre at (0, 0, 109) mm in the",
-        f"  flange frame. The measurements put it at {fb.points[POINT][2]:.2f} mm along the flange axis (B fit, 95 % CI"
-        f" +-{fb.point_ci95(POINT)[2]:.2f} mm):",
-        "  the file's value is an initial one (its name says so). Left at 109 mm, it leaves",
-        f"  {rms3(study.nominal_b.residuals):.2f} mm on B with the nominal robot; fitting the station and the point"
-        f" gives {rms3(study.nominal_b_free_point.residuals):.2f} mm.",
-        "- Orientation: `measurement_rx/ry/rz` are intrinsic X-Y-Z Euler angles (scipy 'XYZ', R = Rx Ry Rz), as the",
-        "  data set's own `dataset.py` reads them: the tracker-to-base rotation implied by every row of B is",
-        f"  constant to {cv['euler_spread_deg']['XYZ']:.3f} deg RMS with 'XYZ' (T-Mac axes = columns of the Trafo"
-        " rotation), against "
-        + ", ".join(f"{v:.1f} deg for '{k}'" for k, v in cv["euler_spread_deg"].items() if k != "XYZ") + ".",
-        "- Time: the `Timestamp` column was mangled by a spreadsheet (2,02011E+13); `t_s` in the imported tables is",
-        "  the row index times a nominal 10 s, not a measured time. The temperature column is quantised to",
-        f"  0.125 degC: B {tmp['range_c'][0]:.2f}-{tmp['range_c'][1]:.2f} degC ({tmp['levels']} levels), D"
-        f" {min(map(float, study.d.extra['temp_c'])):.2f}-{max(map(float, study.d.extra['temp_c'])):.2f} degC.",
-        "",
-        "## Identifiable parameters with one point per pose",
-        f"The irreducible set of the chain has {len(study.params) + len(study.dropped)} parameters (the three "
-        "parallel axes handled by the elimination rules). The T-Mac centre lies on the wrist_3 axis,",
-        f"so with its position alone `calib.subset.identifiable_subset` keeps {len(study.params)}:",
-        f"{' '.join(p.name for p in study.params)}; dropped:",
-        *[f"- `{p.name}`: {why}" for p, why in study.dropped],
-        "",
-        "## Calibration on B",
-        f"B fit ({len(fb.params)} parameters + station + tool point, i.i.d.): {b_fit:.3f} mm RMS 3-D "
-        f"(max {residual_stats(fb.residuals)['dist_max_mm']:.3f} mm), {fb.iterations} iterations.",
-        f"Nominal robot, station only: {rms3(study.nominal_b.residuals):.3f} mm.",
-        "",
-        "| parameter | deviation | 95 % CI |",
-        "| --- | --- | --- |",
-        *[
-            f"| {p.name} | {_deg_or_mm(p, v)} | +-{_deg_or_mm(p, c)[1:]} |"
-            for p, v, c in zip(fb.params, fb.dev, fb.param_ci95(), strict=True)
-        ],  # fmt: skip
-        "",
-        "## Validation on D (held out, station re-estimated only)",
-        "Robot parameters and tool point from B; only D's station is fitted (`identify(..., fixed=(\"robot\",",
-        "\"points\"))`, as a shop-floor check after setting the tracker up again would). Per-axis RMS in the robot",
-        "base frame, mm:",
-        "",
-        "| model | x | y | z | 3-D RMS | 3-D max |",
-        "| --- | --- | --- | --- | --- | --- |",
-        _row("B, nominal (Trafo tool point)", study.nominal_b),
-        _row("B, calibrated on B (fit)", fb),
-        _row("D, nominal (Trafo tool point)", study.nominal_d),
-        _row("D, calibrated on B", study.after_d),
-        "",
-        f"Held-out gain on D: {d_nom:.3f} -> {d_after:.3f} mm RMS (factor {d_nom / d_after:.2f}). The residual on D",
-        f"is {100 * (d_after / b_fit - 1):.0f} % above B's own fit: D reaches where B hardly goes (T-Mac y in the DH"
-        f" base: B {yb.min():.0f}..{yb.max():.0f} mm,",
-        f"D {yd.min():.0f}..{yd.max():.0f} mm), and four months lie between the series. Neither tracker noise (T-Mac",
-        "std columns ~0.01 mm) nor repeatability (UR10 datasheet +-0.1 mm) accounts for it: it is what the",
-        "geometric model cannot describe (see the diagnosis below).",
-        "",
-        "## Reverse direction (calibrate on D, validate on B)",
-        f"D fit: {rms3(study.fit_d.residuals):.3f} mm RMS with {len(study.fit_d.params)} parameters; B held out: "
-        f"{rms3(study.nominal_b.residuals):.3f} (nominal) -> {rms3(study.after_b.residuals):.3f} mm RMS.",
-        f"D's poses keep the probe's orientation almost fixed (tracker ry {ry.mean():.1f} +- {ry.std():.1f} deg), so"
-        " the tool point's",
-        f"position along the flange axis is hardly observable from D (fitted {study.fit_d.points[POINT][2]:.1f} +-"
-        f" {study.fit_d.point_ci95(POINT)[2]:.1f} mm, B says {fb.points[POINT][2]:.1f} mm)",
-        "and the model transfers badly to B's varied orientations: calibrate on orientation-rich data.",
-        "",
-        "## Virtual reference points from the probe's orientation",
-        "The paper's enhanced partial-pose idea (several reference points per pose) applied to the T-Mac: K points",
-        "at a lever along the probe's axes, computed from the measured position and orientation",
-        "(`trackcal import ipa-ur10 --virtual-points K --lever-mm L`). With them the whole irreducible set is",
-        "identifiable. Noise model (`campaign.importers.ipa_ur10.pose_covariance`): P_k = p + R v_k, so the "
-        "position noise",
-        "is common to all points and only lever x angle noise is new; with the file's std columns (position",
-        "~0.01 mm, angles ~0.002 deg, 3.5 um at 100 mm) the median correlation of a virtual point's coordinate",
-        f"with the T-Mac point's is {study.correlation:.3f}. Six noise sources drive all 3(K+1) coordinates: the",
-        "covariance has rank 5 for K = 1 and 6 beyond, so two virtual points carry all the orientation there is",
-        "and more only repeat it. The covariance cannot whiten (it is singular) and the std columns are the",
-        "scatter within one tracker reading, not its accuracy, so the fits use i.i.d. weights; then the lever",
-        "sets how much orientation counts against position.",
-        "",
-        "| points per pose | lever mm | parameters | B fit, T-Mac | B fit, all points | D held out | D max |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-        f"| 1 (T-Mac) | - | {len(study.params)} | {b_fit:.3f} | {b_fit:.3f} | {d_after:.3f} | "
-        f"{residual_stats(study.after_d.residuals)['dist_max_mm']:.3f} |",
-        *[
-            f"| 1 + {v['k']} virtual | {v['lever_mm']:.0f} | {v['n_params']} | {v['fit_b_tmac_rms']:.3f} | "
-            f"{v['fit_b_all_rms']:.3f} | {rms3(v['after_d'].residuals):.3f} | "
-            f"{residual_stats(v['after_d'].residuals)['dist_max_mm']:.3f} |"
-            for v in study.virtual
-        ],
-        "",
-        "Held-out accuracy is measured on the T-Mac point only, the same for every row. With two virtual points at",
-        f"100 mm the held-out error on D is {rms3(k2['after_d'].residuals):.3f} mm against {d_after:.3f} "
-        f"({100 * (1 - rms3(k2['after_d'].residuals) / d_after):.0f} % better); more points or a longer lever add"
-        " nothing, as the noise model's rank says.",
-        "",
-        "## Diagnosis: what the geometric model gets wrong",
-        "`trackcal diagnose` on the imported Series B (`--weighting iid --params "
-        + ",".join(p.name for p in study.params) + "`; the same call",
-        "`calib.diagnose.diagnose` this study makes). Every candidate cause is fitted jointly with the geometric",
-        "model and cross-validated by pose (5 folds of whole poses); the joint-type candidates are also fitted on",
-        "all of B and validated on D with D's station alone re-estimated. 3-D RMS in mm (the CLI prints",
-        "per-coordinate um, a factor sqrt(3) smaller):",
-        "",
-        "| model | extra parameters | B cross-validated | D held out | significant on B |",
-        "| --- | --- | --- | --- | --- |",
-        f"| geometric | - | {geo_cv:.3f} | {d_after:.3f} | - |",
-        *[
-            f"| {c.cause} | {c.n_params} | {c.cv_rms3_mm:.3f} | "
-            f"{'-' if c.d_rms3_mm is None else f'{c.d_rms3_mm:.3f}'} | {'yes' if c.significant else 'no'} |"
-            for c in study.candidates
-        ],
-        "",
-        f"Verdict: **{dg.cause}**. The tracker noise floor is {np.sqrt(3) * dg.noise_floor_mm:.3f} mm"
-        f" ({dg.floor_source}); the geometric fit leaves {b_fit:.3f}.",
-        f"Every candidate is significant on B (F test, BIC, cross-validation), the best, {best.cause}, lowering the",
-        f"cross-validated error from {geo_cv:.3f} to {best.cv_rms3_mm:.3f} mm, but none removes half of the excess"
-        " over the floor,",
-        "which `diagnose` asks before naming a cause. And none carries over to the other series: every joint-type",
-        f"candidate predicts D worse than the geometric model ({d_after:.3f} mm): "
-        + ", ".join(f"{c.cause} {c.d_rms3_mm:.3f}" for c in study.candidates if c.d_rms3_mm is not None) + ".",
-        "B's folds hold out poses among poses like them; D is a different workspace (see above), and there the",
-        "candidates' parameters show what they are: "
-        + _values_note(study) + " They absorb B-specific structure",
-        "together with the geometric parameters over B's joint ranges, and extrapolate badly. The time-based",
-        "candidates (thermal_drift, station_shift) run on the row order, the files keeping no clock: a slow",
-        "change during B's recording"
-        + (f" (best change point after row {int(shift['after_t_s'] / 10) + 1})" if shift else "")
-        + " is worth a few percent; it cannot be carried to D, whose rows start again at zero.",
-        "",
-        "Temperature: the column spans only "
-        f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f} degC on B, in {tmp['levels']} quantised levels that wander up"
-        " and down over the rows, higher in the second half.",
-        "Its correlation with the base-frame residuals: "
-        + ", ".join(f"{k} {v:+.2f}" for k, v in tmp["corr"].items()) + ". An arm that grows with the measured",
-        f"temperature (one coefficient, fitted with the geometry) comes out at {tmp['alpha_ppm_k']:.0f} +-"
-        f" {tmp['alpha_ci95']:.0f} ppm/K and moves the fit",
-        f"from {tmp['rms3_without']:.4f} to {tmp['rms3_with']:.4f} mm. Aluminium grows +23 ppm/K: a coefficient of"
-        " that sign and size",
-        "would change the 1.3 m reach by"
-        f" {23e-6 * 1300 * (tmp['range_c'][1] - tmp['range_c'][0]) * 1000:.0f} um over B's range, and the fitted one"
-        " is not thermal growth but",
-        "the temperature used as one more regressor of B's drift. The temperature explains none of the residual.",
-        "",
-        "What remains is shown in the last two plots: B's residuals against every joint angle, and both series'",
-        "residuals in measurement order with the temperature. The residual depends on the pose, with structure",
-        "over tens of degrees of the first three joints that is neither linear in the angle nor in the gravity",
-        "torque nor one or two periods per turn, and shows at most a slow drift with the row order. A rigid",
-        "chain with constant parameters cannot produce it; the candidates here cannot describe it in a way that",
-        "transfers. Describing it needs a richer error model per joint, measured over each joint's whole range",
-        "(B and D each cover parts), or a data-driven residual model such as the hybrid neural-network approach",
-        "of the CASE 2021 paper these data come from.",
-        "",
-        "## Against the CASE 2021 paper",
-        "The numbers the paper reports for this robot could not be found: the search tools available here hold",
-        "the data set's repository (README, `dataset.py`) but not the paper's text or tables, and no secondary",
-        "source quoting them. They are therefore not reproduced here rather than guessed; the comparison is left",
-        "open.",
-        "",
-        "## Plots",
-        *[f"![{p.stem}]({r})" for p, r in zip(images, rel, strict=True)],
-        "",
-    ]
-    text = "\n".join(lines)
+    """The template filled with the study's numbers, written to `out` (atomically)."""
+    text = Template(TEMPLATE.read_text()).substitute(values(study, out, images))
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(out)
     return text
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="UR10 real-data study (IPA series B and D)")
     ap.add_argument("--data", type=Path, default=DATA, help="ipa-robot-accuracy directory")
-    ap.add_argument("--out", type=Path, default=Path("docs/ur10-real-data.md"))
-    ap.add_argument("--img", type=Path, default=None, help="plot directory (default: docs/img next to --out)")
+    ap.add_argument("--out", type=Path, default=Path("build/ur10-study/ur10-real-data.md"),
+                    help="report (default under build/, untracked; --out docs/ur10-real-data.md updates the docs)")
+    ap.add_argument("--img", type=Path, default=None, help="plot directory (default: img next to --out)")
     args = ap.parse_args(argv)
     study = run(args.data)
     images = plots(study, args.img or args.out.parent / "img")
