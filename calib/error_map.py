@@ -8,9 +8,16 @@ the signature of an output-side encoder or a transmission error (a gear mesh giv
 tooth counts per joint revolution). On real arms the spectrum is broad, tens of harmonics, so H is
 chosen from the data, and the coefficients are ridge regularised: the prior says each coefficient is a
 draw of RMS tau (rad), the penalty is lambda |c|^2 with lambda = s^2 / tau^2, s^2 the residual variance
-of the model without the map. H and tau are chosen by K-fold cross-validation by pose on the table
-being fitted (nothing else is looked at); the geometric parameters, the stations, the reference points
-and an optional unpenalised extension (e.g. joint_compliance) are fitted jointly and are not penalised.
+of the model without the map. One order H for every joint (harmonics a joint does not need are held near
+zero by the ridge) and tau are chosen by K-fold cross-validation by pose over the grids ORDERS x TAUS_RAD,
+on the table being fitted alone; the geometric parameters, the stations, the reference points and an
+optional unpenalised extension (e.g. joint_compliance) are fitted jointly and are not penalised. The
+uncertainty of the map is the posterior covariance s^2 (J^T J + lambda P)^-1, and `effective_params` (the
+trace of the hat matrix over the map's columns) is what it costs in degrees of freedom.
+
+Design notes (UR10 Series B, calib on B, D's station alone refitted): per-joint orders chosen greedily by
+the same cross-validation moved B -> D from 0.250 to 0.229 mm for ~4x the time; orders 96 and 128
+cross-validate worse than 64 on B.
 
 Coverage: a joint's map is only known over the arc of angles the table covers (the complement of the
 largest gap between the sorted angles on the circle). Outside it the map takes its value at the
