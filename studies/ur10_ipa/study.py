@@ -98,8 +98,6 @@ class CandidateCheck:
     cv_rms3_mm: float  # diagnose's pose-wise cross-validation on B, 3-D
     d_rms3_mm: float | None  # held out on D, station re-estimated only (joint-type causes)
     significant: bool
-    values: dict[str, float] = field(default_factory=dict)  # fitted on all of B, boundary units
-    unit: str = ""
     detail: dict = field(default_factory=dict)  # station_shift: station and change time
 
 
@@ -171,10 +169,7 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
                                detail=dict(c.detail))  # fmt: skip
         if c.cause in JOINT_CAUSES:
             cf = fit_cause(chain, b, tmac, params, None, c.cause)
-            res, ext = cf.result, cf.extension
-            check.d_rms3_mm = rms3(on_other_series(chain, res, d).residuals)
-            check.values = dict(zip(ext.names, (res.ext * ext.to_boundary).tolist(), strict=True))
-            check.unit = ext.units[0]
+            check.d_rms3_mm = rms3(on_other_series(chain, cf.result, d).residuals)
         checks.append(check)
     checks.sort(key=lambda c: c.cv_rms3_mm)
     # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
@@ -383,7 +378,7 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
         "b_edf": f"{fit_b.effective_params:.0f}", "b_cv_without": mm(s3 * fit_b.cv_rms_without_mm),
         "b_cv": mm(s3 * fit_b.cv_rms_mm), "b_map_fit": mm(rms3(fit_b.identification.residuals)),
         "b_map_seconds": f"{m.fit_seconds:.1f}",
-        "b_not_identifiable": "; ".join(f"{NAMES[j]} ({why})" for j, why in fit_b.not_identifiable.items()) or "none",
+        "b_not_identifiable": "; ".join(f"{NAMES[j]}: {why}" for j, why in fit_b.not_identifiable.items()) or "none",
         "d_order": str(max(fit_d.orders.values())), "d_cv_without": mm(s3 * fit_d.cv_rms_without_mm),
         "d_cv": mm(s3 * fit_d.cv_rms_mm), "arc_table": arcs, "agreement_table": agreement,
         "temp_b_span": f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f}",
