@@ -1,17 +1,22 @@
-"""Sessions: a directory with the store, a snapshot of the configuration and the plan.
+"""Sessions: a directory whose database is the record, and the copies beside it that people read.
 
 SESSION/
-  session.sqlite     the event store (campaign/session/store.py)
-  config/            copies of the cell, robot and tool YAML as they were when the session started
-  config/hardware.yaml  a hardware session's copy of its hardware config (resume reads it)
+  session.sqlite     the event store (campaign/session/store.py), which also holds the documents below as they were
+                     when the session was created
+  session.lock       the lock of the one process writing the session (store.SessionLock)
+  config/            cell.yaml, robot.yaml (or .urdf), tool.yaml, and hardware.yaml in a hardware session
   plan.json          the plan the campaign executes
-The measurement table is derived from the stored `measurement` events (`export_table`).
+Resume and replay read the stored documents, never the files beside the database: an edited plan.json or cell
+cannot change a campaign under way (`changed_copies` names the files that differ from the stored ones). The
+measurement table is derived from the stored `measurement` events (`export_table`).
 """
 
 from __future__ import annotations
 
 import json
-import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -20,25 +25,52 @@ import yaml
 from calib.cell import Cell, load_cell, load_yaml, resolve
 from calib.table import MeasurementTable, write_table
 from campaign.engine.steps import Step, campaign_steps
+from campaign.output import write_atomically
 from campaign.session.store import SessionStore, StoreError
 
-HARDWARE_COPY = "config/hardware.yaml"  # a hardware session's copy of its hardware config
+PLAN_DOC = "plan.json"
+CELL_DOC = "config/cell.yaml"
+HARDWARE_COPY = "config/hardware.yaml"  # a hardware session's config
 
 
-def snapshot_config(cell_ref: str, directory: Path) -> Path:
-    """Copy the cell and the robot and tool it names into directory/config; returns the cell copy."""
-    cfg = directory / "config"
-    cfg.mkdir(parents=True, exist_ok=True)
+def config_documents(cell_ref: str) -> dict[str, str]:
+    """The cell and the robot and tool it names, as texts under their session names (config/...); the cell's
+    robot and tool point at their neighbours."""
     cell_path = resolve("cells", cell_ref)
     doc = load_yaml(cell_path)
+    docs = {}
     for key, kind in (("robot", "robots"), ("tool", "tools")):
         src = resolve(kind, str(doc[key]), cell_path.parent)
-        dst = cfg / f"{key}{src.suffix}"
-        shutil.copyfile(src, dst)
-        doc[key] = dst.name
-    out = cfg / "cell.yaml"
-    out.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return out
+        name = f"config/{key}{src.suffix}"
+        docs[name] = src.read_text()
+        doc[key] = Path(name).name
+    docs[CELL_DOC] = yaml.safe_dump(doc, sort_keys=False)
+    return docs
+
+
+@contextmanager
+def stored_config(store: SessionStore) -> Iterator[Path]:
+    """The session's stored config documents written out in a temporary directory; yields the cell file."""
+    with tempfile.TemporaryDirectory(prefix="trackcal-config-") as tmp:
+        for name, text in store.documents().items():
+            if name.startswith("config/"):
+                path = Path(tmp) / name
+                path.parent.mkdir(exist_ok=True)
+                path.write_text(text)
+        yield Path(tmp) / CELL_DOC
+
+
+def changed_copies(store: SessionStore) -> list[str]:
+    """The documents whose file beside the database is missing or differs from the stored copy."""
+    changed = []
+    for name, text in store.documents().items():
+        try:
+            same = (store.directory / name).read_bytes() == text.encode()
+        except OSError:
+            same = False
+        if not same:
+            changed.append(name)
+    return changed
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
@@ -53,29 +85,39 @@ def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
 
 
 def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
-                   hardware: dict | None = None, effects: dict[str, float] | None = None,
+                   hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
                    extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
-    if (directory / "session.sqlite").exists():
-        raise StoreError(f"{directory}: already holds a session (use `trackcal resume {directory}`)")
+    """A new session holding its lock, with the cell, robot, tool, plan and (`hardware`: text, source path) the
+    hardware config stored in it. A cell or plan that cannot run makes no session."""
     session_steps(load_cell(cell_ref), plan_doc)  # the whole plan is checked (PlanError) before a session exists
-    directory.mkdir(parents=True, exist_ok=True)
-    cell_copy = snapshot_config(cell_ref, directory)
-    (directory / "plan.json").write_text(json.dumps(plan_doc, indent=2) + "\n")
-    meta = {"cell": str(cell_copy.relative_to(directory)), "cell_ref": cell_ref, "mode": mode,
-            "seed": "" if seed is None else str(seed), "hardware": json.dumps(hardware or {}),
-            "effects": json.dumps(effects or {}), **(extra or {})}  # fmt: skip
-    return SessionStore.create(directory, meta)
+    documents = {**config_documents(cell_ref), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
+    meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
+            **(extra or {})}  # fmt: skip
+    if hardware is not None:
+        documents[HARDWARE_COPY], meta["hardware_source"] = hardware
+    store = SessionStore.create(directory, meta, documents)
+    for name, text in documents.items():
+        path = store.directory / name
+        try:
+            write_atomically(path, text)
+        except OSError as exc:
+            store.close()
+            raise StoreError(f"{path}: cannot write ({exc.strerror})") from None
+    return store
 
 
 def session_cell(store: SessionStore) -> Cell:
-    return load_cell(str(store.directory / store.meta()["cell"]))
+    with stored_config(store) as cell_path:
+        return load_cell(str(cell_path))
 
 
 def session_plan(store: SessionStore) -> dict:
-    try:
-        return json.loads((store.directory / "plan.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise StoreError(f"{store.directory}: plan.json unreadable ({exc})") from None
+    return json.loads(store.documents()[PLAN_DOC])
+
+
+def session_hardware(store: SessionStore) -> str:
+    """The hardware config a hardware session was created with (its text)."""
+    return store.documents()[HARDWARE_COPY]
 
 
 def session_steps(cell: Cell, plan_doc: dict) -> list[Step]:
