@@ -15,7 +15,14 @@ from campaign.engine.engine import CampaignStopped
 from campaign.engine.recording import ReplayDivergence
 from campaign.engine.runner import replay_session, run_campaign
 from campaign.errors import CampaignError, InputError, UsageError
-from campaign.session.session import HARDWARE_COPY, create_session, session_cell, write_export
+from campaign.session.session import (
+    HARDWARE_COPY,
+    changed_copies,
+    create_session,
+    session_cell,
+    session_hardware,
+    write_export,
+)
 from campaign.session.store import SessionStore
 
 
@@ -38,12 +45,12 @@ def _live_for(store: SessionStore):
         speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
         return SimCell(cell, int(meta["seed"] or 0), store, effects, speed).live
     if meta["mode"] == "hardware":
-        copy = store.directory / HARDWARE_COPY
-        hw = load_hardware(copy)
+        hw = load_hardware(store.directory / HARDWARE_COPY, session_hardware(store))
         try:
             return connect_hardware(hw, cell)
         except CampaignError as exc:
-            raise InputError(f"{exc}\n(the session uses its copy {copy}: fix the cell or that file, then "
+            raise InputError(f"{exc} (the session uses the hardware config stored at its creation, copied in "
+                             f"{store.directory / HARDWARE_COPY}: make the devices reachable there, then "
                              f"`trackcal resume {store.directory}`)") from None
     raise InputError(f"{store.directory}: a {meta['mode']} session cannot be run live")
 
@@ -81,23 +88,26 @@ def cmd_run(args) -> int:
 
 
 def _hardware_session(directory: Path, cell_ref: str, plan_doc: dict, hardware: str) -> SessionStore:
-    """A new session that keeps a copy of the hardware config (validated first: a broken file makes no session)."""
+    """A new session that stores the hardware config (validated first: a broken file makes no session)."""
     try:
         text = Path(hardware).read_text()
     except OSError as exc:
         raise InputError(f"{hardware}: cannot read the hardware config ({exc.strerror})") from None
     load_hardware(hardware, text)
-    store = create_session(directory, cell_ref, plan_doc, "hardware", None,
-                           hardware={"file": HARDWARE_COPY, "source": str(Path(hardware).resolve())})  # fmt: skip
-    try:
-        (directory / HARDWARE_COPY).write_text(text)
-    except OSError as exc:
-        raise InputError(f"{directory / HARDWARE_COPY}: cannot write ({exc.strerror})") from None
-    return store
+    source = str(Path(hardware).resolve())
+    return create_session(directory, cell_ref, plan_doc, "hardware", None, hardware=(text, source))
 
 
 def cmd_resume(args) -> int:
-    return _campaign(lambda: SessionStore.open(args.session), args.no_analysis)
+    def open_store() -> SessionStore:
+        store = SessionStore.open(args.session)
+        changed = changed_copies(store)
+        if changed:
+            console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
+                          "at the session's creation: resume uses the stored copies", soft_wrap=True)  # fmt: skip
+        return store
+
+    return _campaign(open_store, args.no_analysis)
 
 
 def _campaign(open_store, no_analysis: bool) -> int:

@@ -100,7 +100,7 @@ COMMANDS = [
         arg("--cell", required=True),
         arg("--plan", required=True, help="plan.json from `trackcal plan`"),
         arg("--sim", action="store_true", help="the digital twin's cell"),
-        arg("--hardware", help="hardware config (configs/hardware/README.md); copied into the session"),
+        arg("--hardware", help="hardware config (configs/hardware/README.md); stored in the session"),
         arg("--seed", type=int, default=1, help="--sim: the twin's seed"),
         arg("--effect", action="append", help="--sim: hidden effect NAME:MAGNITUDE_MM"),
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
@@ -121,6 +121,10 @@ COMMANDS = [
         arg("session"),
         arg("--csv", required=True),
     ]),
+    Command("check", "verify a session: database integrity, hash chain, stored plan and config",
+            "campaign.cli.session:cmd_check", [
+                arg("session"),
+            ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
             "campaign.cli.mock:cmd_mock", [
                 arg("--cell", required=True),

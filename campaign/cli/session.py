@@ -1,4 +1,5 @@
-"""`trackcal export`: a session's measurement table (light: no pinocchio, no matplotlib)."""
+"""`trackcal export | check`: a session's measurement table, and its verification (light: no pinocchio, no
+matplotlib)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from pathlib import Path
 
 from campaign.console import console
 from campaign.errors import InputError
-from campaign.session.session import write_export
+from campaign.session.session import changed_copies, write_export
 from campaign.session.store import SessionStore
 
 
@@ -16,4 +17,17 @@ def cmd_export(args) -> int:
     except OSError as exc:
         raise InputError(f"{args.csv}: cannot write ({exc.strerror})") from None
     console.print(f"{n} measurements written to {args.csv}")
+    return 0
+
+
+def cmd_check(args) -> int:
+    store = SessionStore.open(args.session, readonly=True)  # refuses a damaged session or a broken chain
+    events = store.events()
+    n = sum(e.kind == "measurement" for e in events)
+    console.print(f"{store.directory}: sound (SQLite integrity check ok; {len(events)} events, {n} measurements, "
+                  f"in an unbroken hash chain; head {store.head})", soft_wrap=True)  # fmt: skip
+    changed = changed_copies(store)
+    if changed:
+        console.print(f"[yellow]note[/]: {', '.join(changed)} beside the database differ from the stored copies "
+                      "(the stored copies are the record)", soft_wrap=True)  # fmt: skip
     return 0

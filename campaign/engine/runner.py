@@ -13,7 +13,7 @@ from calib.kinematics import Kinematics
 from campaign.engine.engine import CampaignStopped, Devices, Engine
 from campaign.engine.recording import EndOfSegment, Playback, Recorder
 from campaign.engine.steps import Step
-from campaign.session.session import create_session, session_cell, session_plan, session_steps
+from campaign.session.session import create_session, session_cell, session_plan, session_steps, stored_config
 from campaign.session.store import SessionStore
 
 
@@ -111,9 +111,13 @@ def replay_session(recording: SessionStore, into: Path, cell_ref: str | None = N
     and the next run resumes exactly as the recorded one did. `cell_ref` / `plan_doc` replace the recorded
     ones (a changed config): the replay then stops at the first step whose device calls differ."""
     meta = recording.meta()
-    cell_ref = cell_ref or str(recording.directory / meta["cell"])
     plan_doc = plan_doc or session_plan(recording)
-    store = create_session(into, cell_ref, plan_doc, "replay", int(meta["seed"]) if meta["seed"] else None)
+    seed = int(meta["seed"]) if meta["seed"] else None
+    if cell_ref is not None:
+        store = create_session(into, cell_ref, plan_doc, "replay", seed)
+    else:
+        with stored_config(recording) as cell_path:
+            store = create_session(into, str(cell_path), plan_doc, "replay", seed)
     cell = session_cell(store)
     steps = session_steps(cell, plan_doc)
     for run, abrupt in segments(recording.events()):
