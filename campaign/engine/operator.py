@@ -6,18 +6,23 @@ import time
 
 from rich.console import Console
 
-from drivers.errors import ProtocolError
+from drivers.errors import ConnectionLost, ProtocolError
 
 
 class ConsoleOperator:
-    """Shows the request and waits for Enter (the operator's acknowledgement)."""
+    """Shows the request and waits for Enter (the operator's acknowledgement). A console at the end of its
+    input (stdin closed, or a file that ran out) has no operator behind it: the campaign stops safely there,
+    as for a lost device, and `trackcal resume` asks again."""
 
     def __init__(self, console: Console):
         self.console = console
 
     def ask(self, kind: str, target: str, text: str) -> str:
         self.console.print(f"[bold yellow]OPERATOR[/]: {text}")
-        self.console.input("press Enter when done ")
+        try:
+            self.console.input("press Enter when done ")
+        except EOFError:
+            raise ConnectionLost("end of input, nobody can acknowledge", device="operator console") from None
         return "console"
 
 
