@@ -43,8 +43,8 @@ def reference(reference_session):
 
 def count_events(db):
     """(measurements, campaign_done) stored so far, or None before the store exists."""
-    try:
-        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as conn:
+    try:  # mode=rw: never creates the file, and rolls back a write the kill cut short (read-only cannot)
+        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
             return conn.execute("SELECT sum(kind='measurement'), sum(kind='campaign_done') FROM events").fetchone()
     except sqlite3.Error:
         return None

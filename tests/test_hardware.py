@@ -240,8 +240,8 @@ def test_mock_and_run_hardware_in_separate_processes(plan, mock_cell, tmp_path):
 
 
 def count_measurements(db: Path) -> int:
-    try:
-        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as conn:
+    try:  # mode=rw: never creates the file, and rolls back a write the kill cut short (read-only cannot)
+        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
             return conn.execute("SELECT count(*) FROM events WHERE kind='measurement'").fetchone()[0]
     except sqlite3.Error:
         return 0
