@@ -133,7 +133,7 @@ def case(n_rows: int, repeats: int) -> None:
     x0 = np.zeros(problem.n_cols)
 
     def ours():
-        state = solve(problem, problem.initial)[0]
+        state = solve(problem, problem.initial).state
         r = problem.residual(state)
         return float(r @ r), "-"
 
