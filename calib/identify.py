@@ -17,6 +17,7 @@ measured from another station).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.special import stdtrit
@@ -308,12 +309,24 @@ class Problem:
 
 @dataclass
 class Solution:
-    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit)."""
+    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit). The residuals and the
+    whole Jacobian at `state` are computed when first asked for: the solver itself never holds the Jacobian."""
 
     state: State
     nit: int
     converged: bool
     message: str
+    problem: Problem = field(repr=False)
+
+    @cached_property
+    def r(self) -> np.ndarray:
+        """Whitened residuals at `state`."""
+        return self.problem.residual(self.state)
+
+    @cached_property
+    def jm(self) -> np.ndarray:
+        """Their Jacobian in the free unknowns (3N, n_cols)."""
+        return self.problem.residual_and_jacobian(self.state)[1]
 
 
 def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
@@ -364,7 +377,7 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             if lam > 1e8:
                 message = "the damping exceeded 1e8: no step decreases the cost"
                 break
-    return Solution(state, iterations, converged, message)
+    return Solution(state, iterations, converged, message, problem)
 
 
 def identify(
@@ -384,8 +397,7 @@ def identify(
     columns of the covariance are zero)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     sol = solve(problem, problem.initial, max_iter)
-    state = sol.state
-    r = problem.residual(state)
+    state, r = sol.state, sol.r
     rf = problem.r_factor(state)
     scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
     scale[scale == 0] = 1.0
