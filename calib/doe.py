@@ -30,7 +30,6 @@ from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from .cell import plan_joint_bounds
 from .chain import Chain
@@ -319,6 +318,8 @@ def refine(design: Design, q: np.ndarray, criterion: str, maxiter: int = 200) ->
     """Local refinement of one feasible plan by SLSQP with the analytic gradient: joint limits as bounds, the
     box and the visibility of every (point, station) pair seen at the start as smooth constraints, the row
     weights of the start held fixed. Returns the refined poses if they are feasible and better, else q."""
+    from scipy.optimize import minimize  # lazy: ~0.3 s at start-up of every command that imports calib.doe
+
     m, n = q.shape
     x0 = q.ravel()
     p, nw = design._points_and_normals(q)
