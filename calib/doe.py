@@ -193,10 +193,14 @@ class Design:
         return np.sum(y**2, axis=(1, 2))
 
     # ------------------------------------------------------------------ smooth problem for the refinement
-    def objective(self, x: np.ndarray, m: int, criterion: str, w: np.ndarray, jac=None) -> tuple[float, np.ndarray]:
+    def objective(
+        self, x: np.ndarray, m: int, criterion: str, w: np.ndarray, jac=None, d_weight: float = 0.0
+    ) -> tuple[float, np.ndarray]:
         """log(criterion) of the plan x = (m*n,) rad with the row weights w (m*P, 3, 3) held fixed, and its
         gradient: with df = trace(G dM), df/dq_rj = 2 <W_r J_r G, dJ_r/dq_j>. Returns (inf, 0) if singular.
-        `jac` is the plan's `_rows` when the caller has it."""
+        `jac` is the plan's `_rows` when the caller has it. `d_weight` adds d_weight * log(D), D the geometric
+        mean of the covariance eigenvalues, which keeps a plan away from losing a parameter where the
+        criterion itself is flat (rho0 stays flat while poses gather at the test pose)."""
         n = self.chain.dof
         jac = self._rows(x.reshape(m, n)) if jac is None else jac
         j = jac.d_params
@@ -222,9 +226,13 @@ class Design:
             g = -np.outer(v, v) * f**2
         else:
             raise ValueError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
+        value, g = float(np.log(f)), g / f
+        if d_weight:  # d log D = -(1/k) trace(M^-1 dM)
+            value -= d_weight * float(np.mean(np.log(lam)))
+            g = g - d_weight * (vs / lam) @ vs.T / len(lam)
         dd = self.kin.d_params_dq(jac)
-        grad_rows = 2.0 * np.einsum("rak,kl,ralj->rj", wj, g, dd) / f
-        return float(np.log(f)), grad_rows.reshape(m, len(self.tool), n).sum(axis=1).ravel()
+        grad_rows = 2.0 * np.einsum("rak,kl,ralj->rj", wj, g, dd)
+        return value, grad_rows.reshape(m, len(self.tool), n).sum(axis=1).ravel()
 
     def constraints(self, x: np.ndarray, m: int, seen: np.ndarray, jac=None, inset=(1e-3, 1e-6)):
         """Smooth inequality constraints g(x) >= 0 of a plan and their Jacobian (c, m*n): every reference
@@ -314,6 +322,12 @@ def exchange(design: Design, infos: np.ndarray, plan: np.ndarray, criterion: str
     return plan
 
 
+# Weight of log(D) in the refinement of the other criteria: rho0 is flat along plans whose poses gather at the
+# test pose, where the parameters that do not act there become inseparable and a campaign measured with the
+# plan cannot be identified; a small D term keeps the refinement off that valley.
+D_WEIGHT = 0.02
+
+
 def refine(design: Design, q: np.ndarray, criterion: str, maxiter: int = 200) -> np.ndarray:
     """Local refinement of one feasible plan by SLSQP with the analytic gradient: joint limits as bounds, the
     box and the visibility of every (point, station) pair seen at the start as smooth constraints, the row
@@ -331,7 +345,8 @@ def refine(design: Design, q: np.ndarray, criterion: str, maxiter: int = 200) ->
         if key not in last:
             jac = design._rows(x.reshape(m, n))
             last.clear()
-            last[key] = (design.objective(x, m, criterion, w, jac), design.constraints(x, m, seen, jac=jac))
+            value = design.objective(x, m, criterion, w, jac, 0.0 if criterion == "D" else D_WEIGHT)
+            last[key] = (value, design.constraints(x, m, seen, jac=jac))
         return last[key]
 
     res = minimize(

@@ -8,8 +8,11 @@ from scipy import stats
 
 from calib.cell import load_cell
 from calib.doe import design_for_cell, exchange, monte_carlo_rho0, optimize_plan, random_feasible_poses, refine
+from calib.identify import identify
 from calib.noise import TrackerNoise
-from calib.params import param_by_name
+from calib.params import irreducible_params, param_by_name
+from mocks.synth import simulate_campaign
+from mocks.twin import Twin
 
 
 @pytest.fixture(scope="module")
@@ -229,3 +232,16 @@ def test_monte_carlo_agrees_with_rho0(noise, kr_design):
     assert abs(e2.mean() - rho2) < 4 * np.sqrt(2 * np.sum(lam**2) / n)
     # and the spread is the predicted one: the variance of |dp|^2 is 2 sum lambda^2
     assert stats.chi2.ppf(1e-4, n - 1) / (n - 1) < e2.var() / (2 * np.sum(lam**2)) < 2.0
+
+
+def test_a_refined_rho0_plan_can_be_identified_in_full(kr_design):
+    """rho0 is flat along plans whose poses gather at the test pose, where the joints no longer move and the
+    parameters that do not act at the test pose become inseparable. A campaign measured with a refined plan
+    (5 configurations, every point from every station that sees it) must still identify the whole irreducible
+    set with the stations and points (what `trackcal run` does with it)."""
+    cell = load_cell("kr270")
+    plan = optimize_plan(kr_design, 5, starts=200, refined=2, seed=0)
+    twin = Twin(cell, seed=5)
+    table = simulate_campaign(twin, np.degrees(plan.poses), noise_free=True)
+    res = identify(cell.chain, table, cell.tool_points, irreducible_params(cell.chain)[0])
+    assert np.max(np.abs(res.residuals)) < 1e-8
