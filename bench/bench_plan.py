@@ -1,67 +1,93 @@
-"""Planning the KR-270 section 7.2 case: ours against multi-start L-BFGS-B with finite-difference gradients.
+"""Planning on the KR-270 cell: ours against a plain rho0 Fedorov exchange given the same CPU time.
 
-Ours: `optimize_plan` (cheap scoring of random feasible plans, analytic-gradient L-BFGS-B on the best,
-process pool). Baseline: random feasible starts refined one after another by L-BFGS-B with scipy's
-finite-difference gradient of the same objective, given our wall time and then 10x our wall time.
-Printed: the exact rho0 of the best feasible plan each finds, and the whole-process time of `trackcal plan`.
+Ours: `optimize_plan` with the CLI's defaults (screening of 1000 plans over a 2000-pose pool, modified Fedorov
+exchange of the best 16, SLSQP refinement), in one process so that its CPU time is that of one process; each
+case runs in a fresh subprocess, which also gives its peak memory. Baseline, in this process: the same
+exchange (`calib.doe.exchange`) over a pool of 2000 random feasible poses, restarted from random plans until
+it has used our CPU time, keeping its best plan (FIGAROH-style pool selection, with the rho0 criterion).
+Cases: paper section 7.2 (6 configurations x 3) without and with visibility, then 12, 24 and 48 x 3.
+Goals (issue 16): rho0 at least 10 % below the baseline in every case; section 7.2 without visibility at
+most 2.40 um in under 10 s whole process (`trackcal plan`); under 300 MB at M=48.
 """
 
 from __future__ import annotations
 
+import json
+import resource
 import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
-from scipy.optimize import minimize
 
 from calib.cell import load_cell
-from calib.doe import design_for_cell, optimize_plan, random_feasible_poses
+from calib.doe import design_for_cell, exchange, optimize_plan, random_feasible_poses
 from calib.params import param_by_name
 
-M, K = 6, 3
+CASES = [(6, 3, False), (6, 3, True), (12, 3, True), (24, 3, True), (48, 3, True)]
+POOL = 2000
 
 
-def baseline(design, budget_s: float, seed: int) -> tuple[float, int]:
+def design(visibility: bool):
+    cell = load_cell("kr270")
+    params = [param_by_name(cell.chain, p) for p in cell.plan_params]
+    return design_for_cell(cell, params, sigma_mm=0.01, visibility=visibility)
+
+
+def ours(m: int, k: int, visibility: bool) -> dict:
+    """Run in a fresh process: rho0, CPU seconds of the search, peak resident memory."""
+    d = design(visibility)
+    t0 = time.process_time()
+    plan = optimize_plan(d, m, k, seed=0)
+    cpu = time.process_time() - t0
+    return {"rho0_mm": plan.criteria["rho0_mm"], "cpu_s": cpu,
+            "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}  # fmt: skip
+
+
+def plain_exchange(d, m: int, k: int, budget_cpu_s: float, seed: int) -> tuple[float, int]:
+    """Best exact rho0 of exchanges from random plans over one random pool, within a CPU budget."""
+    t_end = time.process_time() + budget_cpu_s
     rng = np.random.default_rng(seed)
-    best, n = np.inf, 0
-    bounds = np.tile(design.limits, (M, 1))
-    t_end = time.perf_counter() + budget_s
-    while time.perf_counter() < t_end:
-        q = random_feasible_poses(design, M, rng)
-        res = minimize(lambda x: design.objective(x, M, "rho0")[0], q.ravel(), method="L-BFGS-B", bounds=bounds,
-                       options={"maxiter": 300, "maxfun": 20000})  # fmt: skip
-        n += 1
-        qq = res.x.reshape(M, -1)
-        if design.feasible(qq).all():
-            best = min(best, design.rho0(qq, K))
-    return best, n
+    pool = random_feasible_poses(d, POOL, rng)
+    infos = d.pose_information(pool)
+    best, runs = np.inf, 0
+    while time.process_time() < t_end or runs == 0:
+        plan = exchange(d, infos, rng.choice(POOL, m, replace=False), "rho0")
+        best = min(best, d.rho0(pool[plan], k))
+        runs += 1
+    return best, runs
+
+
+def goal(ok: bool) -> str:
+    return "met" if ok else "NOT met"
 
 
 def main() -> None:
-    cell = load_cell("kr270")
-    design = design_for_cell(cell, [param_by_name(cell.chain, p) for p in cell.plan_params], sigma_mm=0.01)
-    with ProcessPoolExecutor(max_workers=2) as ex:
-        ex.submit(int, 0).result()  # pool started outside the timing, as in a long study
-        results = []
-        for seed in range(3):
-            t0 = time.perf_counter()
-            plan = optimize_plan(design, M, K, seed=seed, executor=ex)
-            results.append((time.perf_counter() - t0, plan.criteria["rho0_mm"]))
-    t_ours = max(t for t, _ in results)
-    ours = [r for _, r in results]
-    print(f"ours: rho0 {', '.join(f'{1e3 * r:.3f}' for r in ours)} um over 3 seeds, {t_ours:.2f} s each at most")
-    for factor in (1, 10):
-        b, n = baseline(design, factor * t_ours, seed=10 + factor)
-        print(f"baseline FD-gradient multi-start, {factor:2d}x our time ({n} local searches): best rho0 "
-              f"{1e3 * b:.3f} um -> ours/baseline {max(ours) / b:.3f}")
+    if sys.argv[1:2] == ["--case"]:
+        m, k, vis = (int(v) for v in sys.argv[2:5])
+        print(json.dumps(ours(m, k, bool(vis))))
+        return
+    for m, k, vis in CASES:
+        out = subprocess.run([sys.executable, "-m", "bench.bench_plan", "--case", str(m), str(k), str(int(vis))],
+                             check=True, capture_output=True, text=True).stdout  # fmt: skip
+        r = json.loads(out.splitlines()[-1])
+        base, runs = plain_exchange(design(vis), m, k, r["cpu_s"], seed=m + vis)
+        ratio = r["rho0_mm"] / base
+        print(f"M={m:2d} x {k} {'with' if vis else 'no  '} visibility: ours rho0 {1e3 * r['rho0_mm']:.3f} um in "
+              f"{r['cpu_s']:.1f} s CPU ({r['maxrss_mb']:.0f} MB); plain exchange, same CPU ({runs} runs): "
+              f"{1e3 * base:.3f} um -> ours/exchange {ratio:.3f} (goal <= 0.90: {goal(ratio <= 0.9)})")
+        if m == 48:
+            print(f"  memory at M=48: {r['maxrss_mb']:.0f} MB (goal < 300 MB: {goal(r['maxrss_mb'] < 300)})")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "campaign.cli", "plan", "--cell", "kr270", "--configs", str(M),
-                        "--repeat", str(K), "--json", f"{tmp}/plan.json"], check=True, capture_output=True)  # fmt: skip
-        print(f"whole process `trackcal plan --cell kr270 --configs 6 --repeat 3`: {time.perf_counter() - t0:.1f} s")
+        cmd = ["plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--no-visibility", "--json", f"{tmp}/p"]
+        subprocess.run([sys.executable, "-m", "campaign.cli", *cmd], check=True, capture_output=True)
+        wall = time.perf_counter() - t0
+        with open(f"{tmp}/p") as fh:
+            rho = json.load(fh)["rho0_mm"]
+    print(f"whole process `trackcal plan --cell kr270 --configs 6 --repeat 3 --no-visibility`: {wall:.1f} s, rho0 "
+          f"{1e3 * rho:.3f} um (goal <= 2.40 um in < 10 s: {goal(rho <= 2.4e-3 and wall < 10)})")
 
 
 if __name__ == "__main__":

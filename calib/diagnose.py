@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc, fdtrc  # survival functions of F and chi2 (scipy.stats: ~1 s to import)
 
 from .chain import Chain
 from .extensions import JOINT_CAUSES, Extension, build_extension
@@ -215,7 +215,7 @@ def diagnose(
         rss_e = _rss(res)
         dof_e = n_obs - (geo.cov.shape[0] + n_extra)
         f = ((rss_g - rss_e) / n_extra) / (rss_e / dof_e) if rss_e > 0 else np.inf
-        p = float(stats.f.sf(f, n_extra, dof_e)) if np.isfinite(f) else 0.0
+        p = float(fdtrc(n_extra, dof_e, f)) if np.isfinite(f) else 0.0
         d_bic = n_obs * np.log(rss_e / rss_g) + n_extra * np.log(n_obs)
         hold = _holdout(chain, table, tool_points, params, noise, cause, folds, np.random.default_rng(seed), ext)
         cand = Candidate(cause, n_extra, rss_e, dof_e, p, float(d_bic), hold, rms(res.residuals),
@@ -227,9 +227,9 @@ def diagnose(
     # is the geometric model at the noise floor?  variance factor against chi2 (tracker model weighting),
     # or the residual RMS against the floor from repeated measurements / the noise model
     if noise is not None and floor_source == "tracker noise model":
-        p_floor = float(stats.chi2.sf(rss_g, geo.dof))
+        p_floor = float(chdtrc(geo.dof, rss_g))
     else:
-        p_floor = float(stats.chi2.sf(geo.dof * rms(geo.residuals) ** 2 / floor**2, geo.dof))
+        p_floor = float(chdtrc(geo.dof, geo.dof * rms(geo.residuals) ** 2 / floor**2))
     significant = sorted((c for c in candidates if c.significant), key=Candidate.score)
     if not significant:
         cause = "none" if p_floor >= ALPHA else "unexplained"

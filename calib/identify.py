@@ -17,9 +17,10 @@ measured from another station).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
-from scipy import stats
+from scipy.special import stdtrit
 
 from .chain import Chain
 from .errors import CalibError
@@ -29,6 +30,8 @@ from .noise import TrackerNoise
 from .params import Param
 from .rigid import exp_so3, kabsch, skew
 from .table import MeasurementTable
+
+CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
 
 
 class IdentificationError(CalibError):
@@ -70,7 +73,7 @@ class Identification:
 
     @property
     def t95(self) -> float:
-        return float(stats.t.ppf(0.975, self.dof))
+        return float(stdtrit(self.dof, 0.975))  # Student t quantile (scipy.stats costs ~1 s to import)
 
     def std(self) -> np.ndarray:
         return np.sqrt(np.diag(self.cov))
@@ -178,6 +181,15 @@ class Problem:
                 "unknowns; measure more poses"
             )
         self.kin = Kinematics(chain, self.params)
+        # rows share poses (several points, several stations): the chain is walked once per distinct pose
+        # (and joint-offset features, which make the extended joint angles of a row)
+        feats = None if extension is None or extension.joint_features is None else extension.joint_features
+        key = self.q if feats is None else np.hstack([self.q, feats.reshape(self.n_rows, -1)])
+        _, self.pose_first, self.row_pose = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        self.row_pose = self.row_pose.ravel()
+        # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
+        order = np.argsort(self.row_pose, kind="stable")
+        self.chunks = np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS)))
         self.w = None if noise is None else noise.whitening(self.xyz)
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
@@ -202,43 +214,74 @@ class Problem:
 
     def predicted(self, s: State) -> np.ndarray:
         rs, ts = self._station_arrays(s)
-        pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext)
+        pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
+                          (self.pose_first, self.row_pose))  # fmt: skip
         return np.einsum("nij,nj->ni", rs, pb) + ts
 
     def residual(self, s: State) -> np.ndarray:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
         return self._whiten(self.xyz - self.predicted(s)).ravel()
 
-    def residual_and_jacobian(self, s: State) -> tuple[np.ndarray, np.ndarray]:
-        """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r)."""
-        n, k = self.n_rows, self.k
-        rows = np.arange(n)
-        rs, ts = self._station_arrays(s)
-        q = self._q(s)
-        jac = self.kin.jacobian(q, s.points[self.pt_idx], s.dev)
+    def residual_and_jacobian(self, s: State, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
+        of the given `rows` (their residuals and Jacobian rows, in that order)."""
+        rows = np.arange(self.n_rows) if rows is None else rows
+        n, k = len(rows), self.k
+        ar = np.arange(n)
+        poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
+        st_idx, pt_idx = self.st_idx[rows], self.pt_idx[rows]
+        rs = np.array([st.rotation for st in s.stations])[st_idx]
+        ts = np.array([st.translation for st in s.stations])[st_idx]
+        q = self._q(s)[self.pose_first[poses]]
+        jac = self.kin.jacobian(q, s.points[pt_idx], s.dev, rows=of_row)
         p, d_params, d_q = jac.p, jac.d_params, jac.d_q
         d_point = jac.d_point
         jm = np.zeros((n, 3, self.n_all))
         g = self._growth(s)
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
+            g = g[rows]
             rel = p - self.ext.pivot
-            jm[:, :, k : k + self.e] = np.einsum("nij,nj,ne->nie", rs, rel, self.ext.growth)
+            jm[:, :, k : k + self.e] = np.einsum("nij,nj,ne->nie", rs, rel, self.ext.growth[rows])
             p = self.ext.pivot + (1.0 + g)[:, None] * rel
             d_params, d_q, d_point = ((1.0 + g)[:, None, None] * x for x in (d_params, d_q, d_point))
         if self.ext is not None and self.ext.joint_features is not None:
-            jm[:, :, k : k + self.e] += np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features)
+            jm[:, :, k : k + self.e] += np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features[rows])
         xs = np.einsum("nij,nj->ni", rs, p) + ts
         jm[:, :, :k] = np.einsum("nij,njk->nik", rs, d_params)
-        c0 = self.c_st + 6 * self.st_idx
+        c0 = self.c_st + 6 * st_idx
         for a in range(3):
-            jm[rows, a, c0 + a] = 1.0
+            jm[ar, a, c0 + a] = 1.0
         # fancy indices (n, 3) around a slice put the indexed axes first: [row, column, coordinate]
-        jm[rows[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
-        c1 = self.c_st + 6 * self.n_st + 3 * self.pt_idx
-        jm[rows[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
+        jm[ar[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
+        c1 = self.c_st + 6 * self.n_st + 3 * pt_idx
+        jm[ar[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
             np.einsum("nij,njk->nik", rs, d_point), (0, 2, 1)
         )
-        return self._whiten(self.xyz - xs).ravel(), self._whiten(jm[:, :, self.free]).reshape(3 * n, self.n_cols)
+        w = None if self.w is None else self.w[rows]
+        r = self.xyz[rows] - xs
+        if w is not None:
+            r, jm = np.einsum("nij,nj->ni", w, r), np.einsum("nij,nj...->ni...", w, jm[:, :, self.free])
+        else:
+            jm = jm[:, :, self.free]
+        return r.ravel(), jm.reshape(3 * n, self.n_cols)
+
+    def normal_equations(self, s: State) -> tuple[np.ndarray, np.ndarray, float]:
+        """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks (no whole Jacobian)."""
+        info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
+        for rows in self.chunks:
+            r, jm = self.residual_and_jacobian(s, rows)
+            info += jm.T @ jm
+            grad += jm.T @ r
+            cost += float(r @ r)
+        return info, grad, cost
+
+    def r_factor(self, s: State) -> np.ndarray:
+        """R (n_cols, n_cols) of J = QR, accumulated over row chunks (TSQR): J and R share their singular
+        values and right singular vectors, and R^T R = J^T J."""
+        r_acc = np.zeros((0, self.n_cols))
+        for rows in self.chunks:
+            r_acc = np.linalg.qr(np.vstack([r_acc, self.residual_and_jacobian(s, rows)[1]]), mode="r")
+        return r_acc
 
     def retract(self, s: State, delta: np.ndarray) -> State:
         """The state moved by a step `delta` in the free unknowns."""
@@ -266,39 +309,53 @@ class Problem:
 
 @dataclass
 class Solution:
-    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit)."""
+    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit). The residuals and the
+    whole Jacobian at `state` are computed when first asked for: the solver itself never holds the Jacobian."""
 
     state: State
-    r: np.ndarray  # whitened residuals at `state`
-    jm: np.ndarray  # their Jacobian in the free unknowns
     nit: int
     converged: bool
     message: str
+    problem: Problem = field(repr=False)
+
+    @cached_property
+    def r(self) -> np.ndarray:
+        """Whitened residuals at `state`."""
+        return self.problem.residual(self.state)
+
+    @cached_property
+    def jm(self) -> np.ndarray:
+        """Their Jacobian in the free unknowns (3N, n_cols)."""
+        return self.problem.residual_and_jacobian(self.state)[1]
 
 
 def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
-    """Levenberg-Marquardt on column-scaled normal equations from `state`."""
-    r, jm = problem.residual_and_jacobian(state)
-    cost = float(r @ r)
+    """Levenberg-Marquardt on column-scaled normal equations from `state`.
+
+    The normal equations are accumulated once per Jacobian (`Problem.normal_equations`, by row chunks, pose
+    by pose) and reused for every damping step tried at that point."""
+    info, g, cost = problem.normal_equations(state)
     dof = max(3 * problem.n_rows - problem.n_cols, 1)
     # rounding floor of the residual vector: coordinates carry ~1e-16 relative error each
     floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
     lam, iterations = 1e-8, 1
     converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
+    eye = np.eye(problem.n_cols)
+    scale = info_s = gs = None
     for _ in range(max_iter):
-        scale = np.linalg.norm(jm, axis=0)
-        scale[scale == 0] = 1.0
-        js = jm / scale
-        # normal equations of the column-scaled problem: its condition number is modest (tens to
-        # thousands for calibration set-ups), and any step error is corrected by the next iteration
-        # because residuals and Jacobian are exact; identifiability is judged by the SVD afterwards
-        ds = np.linalg.solve(js.T @ js + lam * np.eye(problem.n_cols), js.T @ r)
-        jd = js @ ds
+        if info_s is None:
+            scale = np.sqrt(np.diag(info))  # the column norms of J
+            scale[scale == 0] = 1.0
+            # normal equations of the column-scaled problem: its condition number is modest (tens to
+            # thousands for calibration set-ups), and any step error is corrected by the next iteration
+            # because residuals and Jacobian are exact; identifiability is judged by the SVD afterwards
+            info_s, gs = info / np.outer(scale, scale), g / scale
+        ds = np.linalg.solve(info_s + lam * eye, gs)
+        jd2 = float(ds @ info_s @ ds)  # |J_s ds|^2
         # converged when an (almost undamped) step would move the fit by < 1e-9 of the noise level,
         # so parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor
-        if lam <= 1e-6 and float(np.linalg.norm(jd)) <= 1e-9 * np.sqrt(cost / dof) + floor:
+        if lam <= 1e-6 and np.sqrt(jd2) <= 1e-9 * np.sqrt(cost / dof) + floor:
             state = problem.retract(state, ds / scale)
-            r, jm = problem.residual_and_jacobian(state)
             iterations += 1
             converged, message = True, "the undamped step is below the noise and rounding floor"
             break
@@ -308,19 +365,19 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
         # Near the minimum the decrease a step predicts falls below the rounding noise of the cost
         # (residuals of ~0.01 mm from coordinates of ~5000 mm): such a step is taken on trust, since
         # a comparison of costs can no longer judge it.
-        predicted = 2.0 * float(r @ jd) - float(jd @ jd)
+        predicted = 2.0 * float(gs @ ds) - jd2
         if cost_new <= cost or predicted <= 1e-10 * cost:
             state = cand
-            r, jm = problem.residual_and_jacobian(state)
+            info, g, cost = problem.normal_equations(state)
+            info_s = None
             iterations += 1
-            cost = float(r @ r)
             lam = max(lam / 10.0, 1e-12)
         else:
             lam *= 10.0
             if lam > 1e8:
                 message = "the damping exceeded 1e8: no step decreases the cost"
                 break
-    return Solution(state, r, jm, iterations, converged, message)
+    return Solution(state, iterations, converged, message, problem)
 
 
 def identify(
@@ -340,10 +397,11 @@ def identify(
     columns of the covariance are zero)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     sol = solve(problem, problem.initial, max_iter)
-    state, r, jm = sol.state, sol.r, sol.jm
-    scale = np.linalg.norm(jm, axis=0)
+    state, r = sol.state, sol.r
+    rf = problem.r_factor(state)
+    scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
     scale[scale == 0] = 1.0
-    _, sv, vt = np.linalg.svd(jm / scale, full_matrices=False)
+    _, sv, vt = np.linalg.svd(rf / scale)
     if sv[-1] < 1e-9 * sv[0]:
         null = np.abs(vt[-1])
         names = problem.unknown_names()
@@ -378,13 +436,16 @@ def identify(
 
 
 def model_points(
-    kin: Kinematics, q: np.ndarray, tool: np.ndarray, dev: np.ndarray, ext: Extension | None, theta: np.ndarray
+    kin: Kinematics, q: np.ndarray, tool: np.ndarray, dev: np.ndarray, ext: Extension | None, theta: np.ndarray,
+    poses: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Reflector positions (N, 3) in the robot base frame, geometric model plus extension."""
+    """Reflector positions (N, 3) in the robot base frame, geometric model plus extension. `poses` (first
+    row of each distinct pose, pose of each row) lets rows that share a pose share its forward kinematics."""
     off = None if ext is None else ext.joint_offsets(theta)
     if off is not None:
         q = q + off
-    pb = kin.points(q, tool, dev)
+    first, rows = poses if poses is not None else (np.arange(len(q)), None)
+    pb = kin.points(q[first], tool, dev, rows=rows)
     g = None if ext is None else ext.growth_of(theta)
     if g is not None:  # thermal: every length grows about the pivot
         pb = ext.pivot + (1.0 + g)[:, None] * (pb - ext.pivot)

@@ -94,24 +94,32 @@ class Kinematics:
             r = r @ joint.rotation
         return r, o, frames
 
-    def points(self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None) -> np.ndarray:
-        """Points (N, 3) in the base frame; q (N, n) rad, tool (N, 3) or (3,) in the last joint frame."""
+    def points(
+        self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Points (N, 3) in the base frame; q (N, n) rad, tool (N, 3) or (3,) in the last joint frame; with
+        `rows` (N,) q holds the distinct poses and rows[i] is the pose of row i, as in `jacobian`."""
         r, o = self.end_frames(q, dev)
+        if rows is not None:
+            r, o = r[rows], o[rows]
         tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
         return o + np.einsum("nij,nj->ni", r, tool)
 
-    def jacobian(self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None) -> PointJacobian:
+    def jacobian(
+        self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None, rows: np.ndarray | None = None
+    ) -> PointJacobian:
+        """Point and Jacobians of N rows. q (N, n) rad, one pose per row; or, with `rows` (N,) giving each
+        row's pose, q (M, n) holds the M distinct poses and the chain is walked once per pose (rows measuring
+        several points of one pose, or one point from several stations, share its frames)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
-        p = o + np.einsum("nij,nj->ni", r, tool)
-        n_rows = q.shape[0]
-        # one vectorised cross product for every rotational column: w x (p - o)
-        rot_cols, axes, origins = [], [], []
-        d_params = np.zeros((n_rows, 3, len(self.params)))
+        # per pose: translation columns, and axis + origin of every rotational column then of every joint
+        trans_cols, trans, axes, origins = [], [], [], []
+        rot_cols = []
         for i, par in enumerate(self.params):
             if par.kind == "p":
-                d_params[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
+                trans_cols.append(i)
+                trans.append(frames[(par.joint, "p")][0][:, :, par.axis])
             else:
                 w, org = frames[(par.joint, "dq")] if par.kind == "dq" else frames[(par.joint, "phi", par.axis)]
                 rot_cols.append(i)
@@ -121,8 +129,17 @@ class Kinematics:
             w, org = frames[(j, "dq")]
             axes.append(w)
             origins.append(org)
-        w = np.stack(axes, axis=2)
-        cross = cross3(w, p[:, :, None] - np.stack(origins, axis=2))
+        w, org = np.stack(axes, axis=2), np.stack(origins, axis=2)
+        t_cols = np.stack(trans, axis=2) if trans else np.zeros((len(q), 3, 0))
+        if rows is not None:
+            r, o, w, org, t_cols = r[rows], o[rows], w[rows], org[rows], t_cols[rows]
+        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
+        p = o + np.einsum("nij,nj->ni", r, tool)
+        n_rows = len(p)
+        # one vectorised cross product for every rotational column: w x (p - o)
+        cross = cross3(w, p[:, :, None] - org)
+        d_params = np.zeros((n_rows, 3, len(self.params)))
+        d_params[:, :, trans_cols] = t_cols
         d_params[:, :, rot_cols] = cross[:, :, : len(rot_cols)]
         d_q = cross[:, :, len(rot_cols) :]
         rot_axes = np.zeros_like(d_params)

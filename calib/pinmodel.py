@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pinocchio as pin
 
 from .chain import Chain
+
+if TYPE_CHECKING:
+    import pinocchio as pin
 
 G = 9.80665  # standard gravity, m/s^2
 
 
 def pinocchio_model(chain: Chain, tool_mm: np.ndarray | None = None) -> pin.Model:
     """Nominal chain with point-mass bodies (mass model of the robot config); optional frame "tip"."""
+    import pinocchio as pin  # lazy: ~0.3 s at start-up, for the few commands that need gravity torques
+
     model = pin.Model()
     model.gravity = pin.Motion(np.array([0.0, 0.0, -G]), np.zeros(3))
     parent = 0
@@ -32,6 +38,8 @@ def pinocchio_model(chain: Chain, tool_mm: np.ndarray | None = None) -> pin.Mode
 
 def gravity_torques(chain: Chain, q: np.ndarray) -> np.ndarray:
     """(N, n) joint torques (N m) that hold the arm against gravity at each pose q (N, n) rad."""
+    import pinocchio as pin  # lazy, as in pinocchio_model
+
     model = pinocchio_model(chain)
     data = model.createData()
     return np.array([pin.computeGeneralizedGravity(model, data, qi).copy() for qi in np.atleast_2d(q)])

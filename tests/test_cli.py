@@ -1,10 +1,13 @@
 """The command line end to end: identify, predict, simulate; user mistakes end in one line, exit 2."""
 
 import json
+import os
 
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info
 
+import campaign.cli.analysis
 from calib.cell import load_cell
 from calib.identify import Identification
 from calib.model import identification_to_doc
@@ -98,3 +101,33 @@ def test_planned_poses_at_controller_precision_stay_in_the_cell_box(tmp_path):
                  "--json", str(out)]) == 0  # fmt: skip
     q = np.radians(np.array(json.loads(out.read_text())["poses_deg"]))
     assert points_in_box(load_cell("kr270"), q).all()
+
+
+@pytest.mark.parametrize(("setting", "threads"), [(None, 1), ("2", 2)])
+def test_commands_run_blas_on_one_thread_unless_told(monkeypatch, tmp_path, setting, threads):
+    """Every command runs with TRACKCAL_BLAS_THREADS BLAS threads, one by default (parallelism comes from
+    processes); child processes inherit it through the BLAS libraries' environment variables."""
+    seen = {}
+
+    def record(args):
+        seen["blas"] = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+        seen["env"] = os.environ["OPENBLAS_NUM_THREADS"]
+        return 0
+
+    if setting is None:
+        monkeypatch.delenv("TRACKCAL_BLAS_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("TRACKCAL_BLAS_THREADS", setting)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")  # restored after the test; the command overrides it
+    monkeypatch.setattr(campaign.cli.analysis, "cmd_simulate", record)
+    assert main(["simulate", "--cell", "kr270", "--poses", "3", "--out", str(tmp_path / "t.csv")]) == 0
+    assert seen["blas"] and all(n == threads for n in seen["blas"]) and seen["env"] == str(threads)
+
+
+@pytest.mark.parametrize("setting", ["0", "two", "-1"])
+def test_a_bad_blas_thread_count_is_one_line(monkeypatch, capsys, setting):
+    monkeypatch.setenv("TRACKCAL_BLAS_THREADS", setting)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    assert main(["simulate", "--cell", "kr270", "--poses", "3", "--out", "unused.csv"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "TRACKCAL_BLAS_THREADS" in err

@@ -7,9 +7,12 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from calib.cell import load_cell
-from calib.doe import design_for_cell, monte_carlo_rho0, optimize_plan, random_feasible_poses
+from calib.doe import design_for_cell, exchange, monte_carlo_rho0, optimize_plan, random_feasible_poses, refine
+from calib.identify import identify
 from calib.noise import TrackerNoise
-from calib.params import param_by_name
+from calib.params import irreducible_params, param_by_name
+from mocks.synth import simulate_campaign
+from mocks.twin import Twin
 
 
 @pytest.fixture(scope="module")
@@ -113,15 +116,77 @@ def kr_design():
 
 @pytest.mark.parametrize("criterion", ["rho0", "D", "A", "E"])
 def test_objective_gradient_matches_finite_differences(kr_design, criterion):
-    """Analytic gradient of log(criterion) + box and visibility penalties, on plans that violate both."""
+    """Analytic gradient of log(criterion) with arbitrary symmetric positive row weights held fixed."""
     rng = np.random.default_rng(7)
     x = rng.uniform(-2.0, 2.0, 6 * 6)
-    f, g = kr_design.objective(x, 6, criterion)
-    assert kr_design.objective(x, 6, criterion)[0] > np.log(1e-12)  # penalties active at a random plan
+    b = rng.normal(size=(18, 3, 3))
+    w = b @ np.transpose(b, (0, 2, 1)) + np.eye(3)
+    f, g = kr_design.objective(x, 6, criterion, w)
     h = 1e-6
-    fd = np.array([(kr_design.objective(x + h * e, 6, criterion)[0] - kr_design.objective(x - h * e, 6, criterion)[0])
-                   / (2 * h) for e in np.eye(len(x))])  # fmt: skip
+
+    def value(y):
+        return kr_design.objective(y, 6, criterion, w)[0]
+
+    fd = np.array([(value(x + h * e) - value(x - h * e)) / (2 * h) for e in np.eye(len(x))])
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-5 * np.max(np.abs(fd)))
+
+
+def test_constraint_jacobian_matches_finite_differences(kr_design):
+    """Box and visibility constraints of the refinement: their Jacobian against central differences."""
+    x = np.random.default_rng(8).uniform(-2.0, 2.0, 4 * 6)
+    seen = np.ones((4 * 3, len(kr_design.trackers)), dtype=bool)
+    seen[::2, 0] = False
+    g, dg = kr_design.constraints(x, 4, seen)
+    assert dg.shape == (len(g), len(x)) and len(g) == 4 * 3 * 6 + seen.sum()
+    h = 1e-6
+    fd = np.stack([(kr_design.constraints(x + h * e, 4, seen)[0] - kr_design.constraints(x - h * e, 4, seen)[0])
+                   / (2 * h) for e in np.eye(len(x))], axis=1)  # fmt: skip
+    np.testing.assert_allclose(dg, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
+
+
+@pytest.mark.parametrize("criterion", ["rho0", "D", "A", "E"])
+def test_batched_criterion_values_agree_with_criteria(kr_design, criterion):
+    """The Cholesky forms used by screening and exchange equal the eigen-decomposition forms of `criteria`:
+    rho0^2, trace C_s, det(C_s)^(1/k) = exp(D / k), lambda_max C_s."""
+    plans = random_feasible_poses(kr_design, 6 * 5, np.random.default_rng(9)).reshape(5, 6, 6)
+    values = kr_design.criterion_values(np.stack([kr_design.information(q) for q in plans]), criterion)
+    k = len(kr_design.params)
+    for v, q in zip(values, plans, strict=True):
+        c = kr_design.criteria(q)
+        expected = {"rho0": c["rho0_mm"] ** 2, "A": c["A_trace_cov_mm2"], "D": np.exp(c["D_logdet_cov"] / k),
+                    "E": c["E_max_eig_cov_mm2"]}[criterion]  # fmt: skip
+        assert v == pytest.approx(expected, rel=1e-8)
+
+
+def test_exchange_ends_where_no_single_swap_improves(kr_design):
+    """Modified Fedorov exchange: never worse than its start, and at its end no (plan pose, pool pose) swap
+    lowers rho0, checked by trying every swap."""
+    rng = np.random.default_rng(10)
+    pool = random_feasible_poses(kr_design, 150, rng)
+    infos = kr_design.pose_information(pool)
+    start = rng.choice(len(pool), 6, replace=False)
+    plan = exchange(kr_design, infos, start, "rho0")
+    assert len(set(plan)) == 6
+    value = kr_design.criterion_values(infos[plan].sum(axis=0)[None], "rho0")[0]
+    assert value <= kr_design.criterion_values(infos[start].sum(axis=0)[None], "rho0")[0]
+    for i in range(6):
+        for c in np.setdiff1d(np.arange(len(pool)), plan):
+            swapped = plan.copy()
+            swapped[i] = c
+            assert kr_design.criterion_values(infos[swapped].sum(axis=0)[None], "rho0")[0] >= value * (1 - 1e-9)
+
+
+def test_refinement_is_feasible_and_improves_on_the_exchange(kr_design):
+    """The continuous refinement (SLSQP: joint limits, box, visibility as constraints) keeps the plan
+    feasible and lowers rho0 below the best plan of a 300-pose pool: a pool is a coarse grid of the
+    6-dimensional joint space, so a local optimum of the continuous problem lies below it."""
+    rng = np.random.default_rng(11)
+    pool = random_feasible_poses(kr_design, 300, rng)
+    infos = kr_design.pose_information(pool)
+    q = pool[exchange(kr_design, infos, rng.choice(len(pool), 6, replace=False), "rho0")]
+    out = refine(kr_design, q, "rho0")
+    assert kr_design.feasible(out).all()
+    assert kr_design.rho0(out) < kr_design.rho0(q)
 
 
 def test_kr270_section72_plan(kr_design):
@@ -167,3 +232,16 @@ def test_monte_carlo_agrees_with_rho0(noise, kr_design):
     assert abs(e2.mean() - rho2) < 4 * np.sqrt(2 * np.sum(lam**2) / n)
     # and the spread is the predicted one: the variance of |dp|^2 is 2 sum lambda^2
     assert stats.chi2.ppf(1e-4, n - 1) / (n - 1) < e2.var() / (2 * np.sum(lam**2)) < 2.0
+
+
+def test_a_refined_rho0_plan_can_be_identified_in_full(kr_design):
+    """rho0 is flat along plans whose poses gather at the test pose, where the joints no longer move and the
+    parameters that do not act at the test pose become inseparable. A campaign measured with a refined plan
+    (5 configurations, every point from every station that sees it) must still identify the whole irreducible
+    set with the stations and points (what `trackcal run` does with it)."""
+    cell = load_cell("kr270")
+    plan = optimize_plan(kr_design, 5, starts=200, refined=2, seed=0)
+    twin = Twin(cell, seed=5)
+    table = simulate_campaign(twin, np.degrees(plan.poses), noise_free=True)
+    res = identify(cell.chain, table, cell.tool_points, irreducible_params(cell.chain)[0])
+    assert np.max(np.abs(res.residuals)) < 1e-8

@@ -162,3 +162,42 @@ def test_unidentifiable_setup_is_refused(kr270, kr270_params):
     table = simulate_campaign(Twin(kr270, seed=1, noise=TrackerNoise.isotropic(0.001)), poses, stations=["S1"])
     with pytest.raises(IdentificationError, match="unidentifiable set-up"):
         identify(kr270.chain, table, kr270.tool_points, kr270_params)
+
+
+@pytest.mark.parametrize("cause", ["thermal_drift", "backlash"])
+def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
+    """The solver works on normal equations summed over row chunks, pose by pose, and reads the covariance
+    from a chunked QR (TSQR). On a random problem with an extension (a per-row arm growth, or per-row joint
+    offsets that differ between rows of one pose) and the tracker noise model: those sums equal J^T J and
+    J^T r of the dense Jacobian, R^T R = J^T J with the singular values of J, whatever the chunking, and the
+    solution is the one dense Gauss-Newton reaches."""
+    from calib.extensions import build_extension
+    from calib.identify import Problem, solve
+
+    twin, table = kr270_campaign(kr270, seed=21, n_poses=25)
+    ext = build_extension(cause, kr270.chain, table)
+    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, TrackerNoise(), extension=ext)
+    rng = np.random.default_rng(22)
+    state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
+    r, jm = problem.residual_and_jacobian(state)
+    for chunks in (1, 7):
+        problem.chunks = np.array_split(rng.permutation(problem.n_rows), chunks)
+        info, g, cost = problem.normal_equations(state)
+        np.testing.assert_allclose(info, jm.T @ jm, rtol=1e-10, atol=1e-12 * np.abs(info).max())
+        np.testing.assert_allclose(g, jm.T @ r, rtol=1e-9, atol=1e-12 * np.abs(g).max())
+        assert cost == pytest.approx(float(r @ r), rel=1e-12)
+        rf = problem.r_factor(state)
+        np.testing.assert_allclose(rf.T @ rf, jm.T @ jm, rtol=1e-9, atol=1e-12 * np.abs(info).max())
+        np.testing.assert_allclose(np.linalg.svd(rf, compute_uv=False), np.linalg.svd(jm, compute_uv=False),
+                                   rtol=1e-8)  # fmt: skip
+    ours = solve(problem, problem.initial).state
+    ref = problem.initial
+    for _ in range(20):  # dense Gauss-Newton by least squares on the whole Jacobian
+        r, jm = problem.residual_and_jacobian(ref)
+        step = np.linalg.lstsq(jm, r, rcond=None)[0]
+        ref = problem.retract(ref, step)
+    info, _, cost = problem.normal_equations(ref)
+    std = np.sqrt(np.diag(np.linalg.inv(info)) * cost / (3 * problem.n_rows - problem.n_cols))
+    k = problem.k + problem.e
+    # solver tolerance: steps below 1e-9 of the noise level move parameters by ~1e-9 of their std
+    assert np.all(np.abs(np.r_[ours.dev, ours.ext] - np.r_[ref.dev, ref.ext]) < 1e-6 * std[:k])

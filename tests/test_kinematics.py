@@ -84,3 +84,17 @@ def test_jacobian_derivative_wrt_joints_matches_central_differences(kr270, q, se
         e[j] = h
         fd = (kin.jacobian((q + e)[None], TOOL, dev).d_params[0] - kin.jacobian((q - e)[None], TOOL, dev).d_params[0])
         np.testing.assert_allclose(dd[:, :, j], fd / (2 * h), atol=2e-6)
+
+
+def test_rows_sharing_a_pose_give_the_per_row_result(kr270):
+    """jacobian/points on the distinct poses with each row's pose index equal the per-row computation."""
+    params = complete_params(kr270.chain)
+    kin = Kinematics(kr270.chain, params)
+    rng = np.random.default_rng(31)
+    poses, dev = rng.uniform(-np.pi, np.pi, size=(5, 6)), rng.normal(0, 1e-3, len(params))
+    rows = rng.integers(0, 5, 17)
+    tool = rng.normal(0, 300, (17, 3))
+    a, b = kin.jacobian(poses, tool, dev, rows=rows), kin.jacobian(poses[rows], tool, dev)
+    for name in ("p", "d_params", "d_point", "d_q", "joint_axes", "rot_axes"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(kin.points(poses, tool, dev, rows=rows), kin.points(poses[rows], tool, dev))

@@ -16,6 +16,7 @@ from calib.errors import CalibError
 from campaign.errors import CampaignError
 from drivers.errors import DeviceError
 
+from .blas import limited_blas
 from .commands import COMMANDS, GROUPS
 
 USER_ERRORS = (CalibError, CampaignError, DeviceError)  # one line, exit 2
@@ -44,8 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     module, _, function = args.handler.partition(":")
     try:
         # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)
-        handler = getattr(importlib.import_module(module), function)
-        return handler(args)
+        with limited_blas():
+            handler = getattr(importlib.import_module(module), function)
+            return handler(args)
     except USER_ERRORS as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
