@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
-from .diagnose import relabel_shift
+from .changepoint import relabel_shift
 from .errors import CalibError
 from .extensions import UNIT_FACTORS, Extension, build_parts
 from .identify import Identification, Station, predict_points
@@ -45,12 +45,11 @@ def to_boundary(p: Param, v: float) -> float:
 
 def extension_doc(res: Identification, shift: dict | None = None) -> dict:
     """{"cause": ..., "parameters": {name: {value, ci95, unit}}} in boundary units; station_shift adds
-    {"station", "after_t_s"} (the moved station's later transform is the station "<id>~shift")."""
-    if shift is not None:
-        return {"cause": "station_shift", **shift, "parameters": {}}
+    {"station", "after_t_s"} (the moved station's later transform is the station "<id>~shift"), also next to
+    the parameters of other causes."""
     ext = res.extension
     if ext is None:
-        return {"cause": "none"}
+        return {"cause": "none"} if shift is None else {"cause": "station_shift", **shift, "parameters": {}}
     ci = res.ext_ci95()
     doc = {
         "cause": ext.cause,
@@ -63,7 +62,7 @@ def extension_doc(res: Identification, shift: dict | None = None) -> dict:
         doc["parts"] = [{"cause": c, "parameters": list(names)} for c, names in ext.parts()]
     if "arcs" in ext.meta:
         doc["arcs"] = {f"joint_{j + 1}": arc.to_doc() for j, arc in sorted(ext.meta["arcs"].items())}
-    return doc
+    return doc if shift is None else {**doc, **shift}
 
 
 def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None) -> dict:
@@ -198,10 +197,10 @@ def predict_table(model: Model, rows: MeasurementTable) -> MeasurementTable:
             f"{rows.source}: {rows.n_joints} joint columns, the model's robot has {model.chain.dof} joints"
         )
     ext, theta, labelled = None, None, rows
-    if model.cause == "station_shift":
-        info = model.doc["extension"]
+    info = model.doc["extension"]
+    if "after_t_s" in info:  # a moved station, alone or with other causes
         labelled = relabel_shift(rows, info["station"], float(info["after_t_s"]))
-    else:
+    if model.cause != "station_shift":
         ext, theta = model.extension_for(rows)
     xyz = predict_points(model.chain, model.params, model.dev, model.stations, model.points, labelled, ext, theta)
     out = rows.subset(np.arange(len(rows)))

@@ -48,13 +48,13 @@ def run_identify(
     cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = "iid", extend: str = "none"
 ) -> IdentifyOutcome:
     """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's)."""
-    if extend not in ("none", "auto", *CAUSES):
-        raise InputError(f"--extend {extend}: choose none, auto or one of {', '.join(CAUSES)}")
+    if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
+        raise InputError(f"--extend {extend}: choose none, auto or causes joined by + from {', '.join(CAUSES)}")
     noise = None if weighting == "iid" else TrackerNoise()
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
-        extend = diagnose(cell.chain, table, cell.tool_points, params, noise).cause
-        extend = "none" if extend == "unexplained" else extend
+        extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise).causes)
+        extend = extend or "none"
     fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
     if fit is None:
         raise InputError(f"--extend {extend}: this table cannot reveal it (too few rows or no variation)")
@@ -142,23 +142,31 @@ def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
 
 
 def verdict_doc(cell: Cell, d: Diagnosis) -> dict:
-    """verdict.json: the cause, every candidate with its evidence, the residuals and the gain."""
+    """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
+    their structure and the gain. A figure that cannot be computed is null, with a note saying why."""
     geo = d.geometric
     doc = {
         "cause": d.cause,
+        "causes": d.causes,
         "candidates": [
             {
-                "cause": c.cause, "score": c.score(), "holdout_rms_mm": c.holdout_rms_mm, "rms_mm": c.rms_mm,
-                "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic, "n_params": c.n_params,
-                "significant": c.significant, **c.detail,
+                "cause": c.cause, "step": c.step, "score": c.holdout_rms_mm, "holdout_rms_mm": c.holdout_rms_mm,
+                "holdout_base_mm": c.holdout_base_mm, "gain_mm": c.gain_mm, "cv_scheme": c.cv_scheme,
+                "cv_note": c.cv_note, "rms_mm": c.rms_mm, "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic,
+                "n_params": c.n_params, "significant": c.significant, **c.detail,
             }
-            for c in sorted(d.candidates, key=lambda c: c.score())
+            for c in sorted(d.candidates, key=lambda c: (c.step, c.holdout_rms_mm is None, c.score()))
         ],
         "geometric": {"rms_mm": rms(geo.residuals), "variance_factor": geo.variance_factor,
                       "p_at_noise_floor": d.variance_factor_pvalue},
         "noise_floor_mm": d.noise_floor_mm,
         "noise_floor_source": d.floor_source,
-        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm},
+        "noise_scale": d.noise_scale,
+        "noise_note": noise_note(d),
+        "structure": d.structure,
+        "not_identifiable": d.not_identifiable,
+        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm,
+                    "folds": d.cv_scheme, "note": d.cv_note},
     }  # fmt: skip
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}
@@ -170,6 +178,14 @@ def verdict_doc(cell: Cell, d: Diagnosis) -> dict:
                 "note": "how far the geometric model's TCP at the test pose is from the extended model's",
             }
     return doc
+
+
+def noise_note(d: Diagnosis) -> str:
+    """How far the chosen model's residuals sit from the noise floor: a scale, not a cause."""
+    pct = 100.0 * (d.noise_scale - 1.0)
+    model = "extended" if d.extended is not None else "geometric"
+    return (f"the {model} model's residuals are {abs(pct):.0f} % {'above' if pct >= 0 else 'below'} the noise "
+            f"floor ({d.floor_source})")  # fmt: skip
 
 
 def analyse_session(store: SessionStore) -> None:

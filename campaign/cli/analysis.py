@@ -122,25 +122,34 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _um(mm: float | None) -> str:
+    """mm as um for the console, '-' for a figure that cannot be computed."""
+    return "-" if mm is None else f"{mm * 1000:.1f}"
+
+
 def cmd_diagnose(args) -> int:
     cell = load_cell(args.cell)
     table = read_table(args.data, n_joints=cell.chain.dof)
     params = choose_params(cell, args.params)
     noise = TrackerNoise() if args.weighting == "tracker" else None
-    with console.status("fitting the geometric model and every candidate cause (cross-validated by pose)"):
+    with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
         d = diagnose(cell.chain, table, cell.tool_points, params, noise, folds=args.folds, seed=args.seed)
     doc = verdict_doc(cell, d)
-    t = Table(title=f"Diagnosis: {d.cause}")
-    for col in ("candidate", "params", "held-out RMS um", "fit RMS um", "F-test p", "dBIC", "significant"):
+    t = Table(title=f"Diagnosis: {d.cause}" + (f" (causes: {', '.join(c['cause'] for c in d.causes)})"
+                                               if len(d.causes) > 1 else ""))  # fmt: skip
+    for col in ("step", "candidate", "params", "held-out RMS um", "gain um", "fit RMS um", "F-test p", "dBIC",
+                "significant"):  # fmt: skip
         t.add_column(col, justify="right")
-    t.add_row("geometric", "-", f"{d.holdout_geometric_mm * 1000:.1f}", f"{doc['geometric']['rms_mm'] * 1000:.1f}",
-              "-", "-", "-")  # fmt: skip
+    t.add_row("-", "geometric", "-", _um(d.holdout_geometric_mm), "-", _um(doc["geometric"]["rms_mm"]), "-", "-",
+              "-")  # fmt: skip
     for c in doc["candidates"]:
-        t.add_row(c["cause"], str(c["n_params"]), f"{c['holdout_rms_mm'] * 1000:.1f}", f"{c['rms_mm'] * 1000:.1f}",
-                  f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}", "yes" if c["significant"] else "no")  # fmt: skip
+        t.add_row(str(c["step"]), c["cause"], str(c["n_params"]), _um(c["holdout_rms_mm"]), _um(c["gain_mm"]),
+                  _um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
+                  "yes" if c["significant"] else "no")  # fmt: skip
     console.print(t)
-    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); held-out RMS "
-                  f"{d.holdout_geometric_mm * 1000:.1f} -> {d.holdout_extended_mm * 1000:.1f} um")  # fmt: skip
+    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); {doc['noise_note']}; held-out "
+                  f"RMS {_um(d.holdout_geometric_mm)} -> {_um(d.holdout_extended_mm)} um"
+                  + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip
     if args.plots:
         for p in plots(cell, d, Path(args.plots)):
             console.print(f"plot written to {p}")

@@ -17,6 +17,14 @@ from calib.pinmodel import gravity_torques
 from campaign.report.figures import pyplot
 
 
+def main_cause_theta(d: Diagnosis) -> np.ndarray:
+    """The extended model's parameters with every cause but the main one zeroed (`Extension.parts`, in
+    parameter order)."""
+    ext, theta = d.extended.extension, d.extended.ext
+    main = [c == d.cause for c, names in ext.parts() for _ in names]
+    return np.where(main, theta, 0.0)
+
+
 def signature(cell: Cell, d: Diagnosis) -> tuple[str, np.ndarray, int | None]:
     """(label, x, joint): what the winning cause's error depends on, per row."""
     q = np.radians(d.table.q_deg)
@@ -26,7 +34,7 @@ def signature(cell: Cell, d: Diagnosis) -> tuple[str, np.ndarray, int | None]:
     if ext is None or ext.joint_features is None:
         return "time since campaign start (s)", d.table.t_s, None
     # the joint whose extension moves the reflectors most
-    offsets = np.einsum("rje,e->rj", ext.joint_features, d.extended.ext)
+    offsets = np.einsum("rje,e->rj", ext.joint_features, main_cause_theta(d))
     j = int(np.argmax(offsets.std(axis=0)))
     if d.cause == "joint_compliance":
         return f"gravity torque on joint {j + 1} (N m)", gravity_torques(cell.chain, q)[:, j], j
@@ -54,7 +62,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
     if j is not None:
         # component + residual: the extension's fitted error of joint j plus what is left, against the signature
         ext = d.extended.extension
-        fitted = np.degrees(np.einsum("re,e->r", ext.joint_features[:, j, :], d.extended.ext)) * 1000.0
+        fitted = np.degrees(np.einsum("re,e->r", ext.joint_features[:, j, :], main_cause_theta(d))) * 1000.0
         left = implied_joint_error(cell, after, d.table, after.residuals, j) * 1000.0
         panels = ((axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
                   (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} um"))  # fmt: skip

@@ -292,6 +292,9 @@ def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
     parts = ["<h2>Diagnosis</h2>"]
     if verdict_doc:
         parts.append(f"<p>Cause: <b>{esc(verdict_doc.get('cause', '?'))}</b></p>")
+        causes = [c.get("cause", "?") for c in verdict_doc.get("causes", [])]
+        if len(causes) > 1:
+            parts.append(f"<p>Causes, in the order forward selection added them: {esc(', '.join(causes))}</p>")
         hold = verdict_doc.get("holdout", {})
 
         def um(v):
@@ -305,6 +308,9 @@ def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
             ("held-out RMS, geometric (um)", um(hold.get("rms_geometric_mm"))),
             ("held-out RMS, extended (um)", um(hold.get("rms_extended_mm"))),
         ]
+        facts += [(label, verdict_doc[key]) for label, key in (("noise", "noise_note"),) if verdict_doc.get(key)]
+        if hold.get("note"):
+            facts.append(("held-out figures", hold["note"]))
         if "test_pose" in verdict_doc:
             facts.append(("TCP difference at the test pose (um)", um(verdict_doc["test_pose"]["tcp_difference_mm"])))
         parts.append(table_html(["", "value"], [list(f) for f in facts], left=2))

@@ -95,7 +95,7 @@ def conventions(data: Path, chain, point_mm: np.ndarray) -> dict:
 class CandidateCheck:
     cause: str
     n_params: int
-    cv_rms3_mm: float  # diagnose's pose-wise cross-validation on B, 3-D
+    cv_rms3_mm: float | None  # diagnose's cross-validation on B, 3-D (None: not cross-validated)
     d_rms3_mm: float | None  # held out on D, station re-estimated only (joint-type causes)
     significant: bool
     detail: dict = field(default_factory=dict)  # station_shift: station and change time
@@ -164,14 +164,14 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
     rho = np.array([c[0, 3] / np.sqrt(c[0, 0] * c[3, 3]) for _, c in covs])
     diag = diagnose(chain, b, tmac, params, None)
     checks = []
-    for c in diag.candidates:
-        check = CandidateCheck(c.cause, c.n_params, np.sqrt(3) * c.holdout_rms_mm, None, c.significant,
-                               detail=dict(c.detail))  # fmt: skip
+    for c in (c for c in diag.candidates if c.step == 1):  # each cause against the geometric model
+        cv = None if c.holdout_rms_mm is None else np.sqrt(3) * c.holdout_rms_mm
+        check = CandidateCheck(c.cause, c.n_params, cv, None, c.significant, detail=dict(c.detail))
         if c.cause in JOINT_CAUSES:
             cf = fit_cause(chain, b, tmac, params, None, c.cause)
             check.d_rms3_mm = rms3(on_other_series(chain, cf.result, d).residuals)
         checks.append(check)
-    checks.sort(key=lambda c: c.cv_rms3_mm)
+    checks.sort(key=lambda c: (c.cv_rms3_mm is None, c.cv_rms3_mm or 0.0))
     # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
     chosen = diag.extended if diag.extended is not None and diag.shift is None else diag.geometric
     diagnosis_d = on_other_series(chain, chosen, d)

@@ -1,0 +1,283 @@
+"""Candidate models fitted fast: whole-table fits without covariance, and their cross-validation.
+
+A model is the geometric one plus a tuple of causes. Its whole-table fit starts from the geometric
+solution (a moved station where it was) and skips the covariance. A fold's fit is one Gauss-Newton step
+from the whole-table fit on the training rows (the Gram matrix of the whole table minus the fold's
+rows): the fold's solution is about a standard deviation away, where the model is linear to far below
+the noise. Folds are whole poses, passes of the plan, or blocks of time within each station; a scheme
+whose training sets cannot identify the model gives None, and the comparison moves to the next.
+Candidate parameters the data cannot see are dropped before any fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .chain import Chain
+from .changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
+from .extensions import Extension, build_extension, combine
+from .identify import Identification, IdentificationError, Problem, State, Station, predict_points, solve
+from .kinematics import Kinematics
+from .noise import TrackerNoise
+from .params import Param
+from .table import MeasurementTable
+
+TIME_CAUSES = ("thermal_drift", SHIFT)
+SINGULAR = 1e-7  # smallest / largest singular value of the column-scaled Jacobian of an identifiable fit
+VISIBLE = 1e-6  # an extension column whose part independent of the geometric ones is below this is dropped
+LEVER_RATIO = 1e-3  # a joint moving the points less than this fraction of the most moving joint is not seen
+FOLD_ITERATIONS = 30
+
+
+def rms(residuals: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(residuals**2)))
+
+
+@dataclass
+class Fit:
+    """A fitted model (no covariance): enough to predict rows and to compare residual sums."""
+
+    dev: np.ndarray
+    stations: dict[str, Station]
+    points: dict[str, np.ndarray]
+    ext: np.ndarray
+    extension: Extension | None
+    rss: float  # whitened
+    n_cols: int
+    residuals: np.ndarray
+    r: np.ndarray  # whitened residual vector (3N,) at the solution
+    jm: np.ndarray  # whitened Jacobian of the prediction (3N, n_cols) at the solution
+    shift: dict | None = None  # {"station", "after_t_s"}
+
+
+@dataclass
+class Context:
+    chain: Chain
+    table: MeasurementTable
+    params: list[Param]
+    noise: TrackerNoise | None
+    geo: Identification
+    features: dict[str, Extension]  # cause -> its extension on the whole table (visible parameters only)
+    geo_base: np.ndarray  # (N, 3) geometric prediction in the robot base frame (the change-point scan)
+    dropped: dict[str, list[str]] = field(default_factory=dict)  # cause -> parameters the data cannot see
+    fits: dict[tuple, Fit] = field(default_factory=dict)  # whole-table fits by sorted causes
+    unwhiten: np.ndarray | None = None  # (N, 3, 3) inverse whitening of each row (tracker weighting)
+
+
+def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int) -> Fit:
+    """Levenberg-Marquardt from the geometric solution (a moved station starts where it was)."""
+    problem = Problem(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, ctx.geo.dev, ext)
+    st = ctx.geo.stations
+    problem.initial = State(ctx.geo.dev.copy(), [st[s.removesuffix(SHIFT_SUFFIX)] for s in problem.station_ids],
+                            np.array([ctx.geo.points[p] for p in problem.point_ids]),
+                            np.zeros(0 if ext is None else ext.size))  # fmt: skip
+    sol = solve(problem, problem.initial, max_iter)
+    state, r, jm = sol.state, sol.r, sol.jm
+    if not _identifiable(jm.T @ jm):
+        raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
+    return Fit(state.dev, dict(zip(problem.station_ids, state.stations, strict=True)),
+               {p: state.points[i] for i, p in enumerate(problem.point_ids)}, state.ext, ext, float(r @ r),
+               problem.n_cols, problem.xyz - problem.predicted(state), r=r, jm=jm)  # fmt: skip
+
+
+def _identifiable(gram: np.ndarray) -> bool:
+    """Whether a Gram matrix J^T J is regular (smallest / largest singular value of the column-scaled J
+    above SINGULAR)."""
+    d = np.sqrt(np.diag(gram))
+    if np.any(d == 0):
+        return False
+    ev = np.linalg.eigvalsh(gram / np.outer(d, d))
+    return bool(ev[0] >= SINGULAR**2 * ev[-1])
+
+
+def fit_model(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None, max_iter: int = 100) -> Fit:
+    """Fit the geometric model plus `causes` on `rows` of the table (all by default), warm-started at the
+    geometric solution; station_shift is found by the scan on those rows, then fitted with the rest."""
+    table = ctx.table if rows is None else ctx.table.subset(rows)
+    base = ctx.geo_base if rows is None else ctx.geo_base[rows]
+    shift = None
+    if SHIFT in causes:
+        found = shift_scan(base, table)
+        if found is None:
+            raise IdentificationError(f"{table.source}: too few rows for a change point")
+        shift = {"station": found[0], "after_t_s": found[1]}
+        table = relabel_shift(table, *found)
+    ext = extension_of(ctx, causes, rows)
+    fit = _whole_fit(ctx, table, ext, max_iter)
+    fit.shift = shift
+    return fit
+
+
+def whole_fit(ctx: Context, causes: tuple[str, ...]) -> Fit:
+    key = tuple(sorted(causes))
+    if key not in ctx.fits:
+        ctx.fits[key] = fit_model(ctx, causes)
+    return ctx.fits[key]
+
+
+def extension_of(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None,
+                 main: str | None = None) -> Extension | None:  # fmt: skip
+    """The causes' extensions combined (station_shift has none), `main` naming it (default: the first)."""
+    parts = [ctx.features[c] for c in causes if c != SHIFT]
+    if not parts:
+        return None
+    ext = combine(parts, main if main in causes and main != SHIFT else None)
+    return ext if rows is None else ext.subset(rows)
+
+
+def predict_rows(ctx: Context, fit: Fit, rows: np.ndarray, ext: Extension | None) -> np.ndarray | None:
+    """Predictions of `rows` (station frames) with a fit; None when a row's station is unknown to it."""
+    table = ctx.table.subset(rows)
+    if fit.shift is not None:
+        table = relabel_shift(table, fit.shift["station"], fit.shift["after_t_s"])
+    if any(s not in fit.stations for s in table.station) or any(p not in fit.points for p in table.point):
+        return None
+    return predict_points(ctx.chain, ctx.params, fit.dev, fit.stations, fit.points, table, ext, fit.ext)
+
+
+def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int) -> list[np.ndarray] | None:
+    """Held-out rows of each fold: whole poses ("pose"), passes of the plan ("pass": the k-th measurement
+    of each pose, station and point) or blocks of time within each station ("time"); None when the
+    table has fewer than two groups."""
+    n = len(table)
+    if scheme == "pose":
+        poses = np.array(sorted(set(table.pose)))
+        if len(poses) < 2:
+            return None
+        np.random.default_rng(seed).shuffle(poses)
+        pose_arr = np.array(table.pose)
+        return [np.flatnonzero(np.isin(pose_arr, g)) for g in np.array_split(poses, min(folds, len(poses)))]
+    if scheme == "pass":
+        seen: dict[tuple, int] = {}
+        passes = np.zeros(n, dtype=int)
+        for i in np.argsort(table.t_s, kind="stable"):
+            key = (table.pose[i], table.station[i], table.point[i])
+            passes[i] = seen.get(key, 0)
+            seen[key] = passes[i] + 1
+        labels = np.unique(passes)
+        if len(labels) < 2:
+            return None
+        return [np.flatnonzero(np.isin(passes, g)) for g in np.array_split(labels, min(folds, len(labels)))]
+    block = np.zeros(n, dtype=int)
+    stations = np.array(table.station)
+    for sid in set(table.station):
+        rows = np.flatnonzero(stations == sid)
+        rows = rows[np.argsort(table.t_s[rows], kind="stable")]
+        for k, part in enumerate(np.array_split(rows, folds)):
+            block[part] = k
+    groups = [np.flatnonzero(block == k) for k in range(folds)]
+    groups = [g for g in groups if len(g)]
+    return groups if len(groups) > 1 else None
+
+
+def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray]) -> float | None:
+    """Held-out RMS (mm, per coordinate) of the model `causes` over the folds; None when a training set
+    cannot be identified or a held-out row cannot be predicted.
+
+    Each fold's fit is one Gauss-Newton step from the whole-table solution on the training rows (the
+    Gram matrix of the whole table minus the fold's rows): the fold's solution differs from the whole
+    one by about a standard deviation, where the model is linear to far below the noise. A change point
+    is searched again on the training rows; when it moves, that fold is fitted in full."""
+    try:
+        full = whole_fit(ctx, causes)
+    except IdentificationError:
+        return None
+    n = len(ctx.table)
+    gram, grad = full.jm.T @ full.jm, full.jm.T @ full.r
+    errs = []
+    for test in folds:
+        train = np.setdiff1d(np.arange(n), test)
+        if full.shift is not None and shift_scan(ctx.geo_base[train], ctx.table.subset(train)) != (
+                full.shift["station"], full.shift["after_t_s"]):  # fmt: skip
+            try:
+                fit = fit_model(ctx, causes, train, FOLD_ITERATIONS)
+            except IdentificationError:
+                return None
+            pred = predict_rows(ctx, fit, test, extension_of(ctx, causes, test))
+            if pred is None:
+                return None
+            errs.append(ctx.table.xyz[test] - pred)
+            continue
+        te3 = (3 * test[:, None] + np.arange(3)).ravel()
+        jt, rt = full.jm[te3], full.r[te3]
+        g = gram - jt.T @ jt
+        if not _identifiable(g):
+            return None
+        d = np.sqrt(np.diag(g))
+        step = np.linalg.solve(g / np.outer(d, d), (grad - jt.T @ rt) / d) / d
+        e = (rt - jt @ step).reshape(-1, 3)
+        errs.append(e if ctx.unwhiten is None else np.einsum("nij,nj->ni", ctx.unwhiten[test], e))
+    return rms(np.concatenate(errs))
+
+
+class Validator:
+    """Held-out comparisons of two models on the same folds, the scheme chosen per comparison."""
+
+    def __init__(self, ctx: Context, folds: int, seed: int):
+        self.ctx, self.folds, self.seed = ctx, folds, seed
+        self.cache: dict[tuple, float | None] = {}
+        self.fold_sets = {s: fold_rows(ctx.table, s, folds, seed) for s in ("pose", "pass", "time")}
+
+    def cv(self, causes: tuple[str, ...], scheme: str) -> float | None:
+        key = (tuple(sorted(causes)), scheme)
+        if key not in self.cache:
+            folds = self.fold_sets[scheme]
+            self.cache[key] = None if folds is None else cross_validate(self.ctx, causes, folds)
+        return self.cache[key]
+
+    def compare(self, base: tuple[str, ...], model: tuple[str, ...]) -> tuple[str | None, float | None, float | None]:
+        """(scheme, held-out RMS of base, of model): time blocks first for a time-dependent cause."""
+        order = ("time", "pose", "pass") if set(model) & set(TIME_CAUSES) else ("pose", "pass", "time")
+        for scheme in order:
+            hb = self.cv(base, scheme)
+            if hb is None:
+                continue
+            hm = self.cv(model, scheme)
+            if hm is not None:
+                return scheme, hb, hm
+        return None, None, None
+
+
+def visible_extension(chain, table, geo: Identification, noise, params, cause: str) -> tuple[Extension | None, list]:
+    """The extension `cause` keeping only parameters the data can see: acting on a joint whose rotation
+    moves the measured points (lever above LEVER_RATIO of the largest joint's), with Jacobian columns (at
+    the geometric fit) that have a part independent of the geometric, station and point columns and of
+    each other. Returns it and the dropped names."""
+    ext = build_extension(cause, chain, table)
+    if ext.size == 0:
+        return None, []
+    seen = np.ones(ext.size, dtype=bool)
+    if ext.joint_features is not None:
+        tool = np.array([geo.points[p] for p in table.point])
+        d_q = Kinematics(chain, params).jacobian(np.radians(table.q_deg), tool, geo.dev).d_q
+        lever = np.sqrt(np.mean(np.sum(d_q**2, axis=1), axis=0))  # (n,) mm per rad
+        acts = np.abs(ext.joint_features).max(axis=0) > 0  # (n, e): which joints each parameter moves
+        seen = acts[lever >= LEVER_RATIO * lever.max()].any(axis=0)
+    problem = Problem(chain, table, geo.points, params, noise, geo.dev, ext)
+    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
+                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(ext.size))  # fmt: skip
+    _, jm = problem.residual_and_jacobian(state)
+    k, e = len(params), ext.size
+    cols = np.r_[np.arange(k), np.arange(k + e, jm.shape[1])]
+    base = jm[:, cols]
+    base = base / np.where(np.linalg.norm(base, axis=0) > 0, np.linalg.norm(base, axis=0), 1.0)
+    q, _ = np.linalg.qr(base)
+    je = jm[:, k : k + e]
+    norms = np.linalg.norm(je, axis=0)
+    free = je - q @ (q.T @ je)
+    keep: list[int] = []
+    basis = np.zeros((jm.shape[0], 0))
+    for i in np.argsort(-np.linalg.norm(free, axis=0) / np.where(norms > 0, norms, 1.0)):
+        v = free[:, i] - basis @ (basis.T @ free[:, i])
+        if seen[i] and norms[i] > 0 and np.linalg.norm(v) > VISIBLE * norms[i]:
+            keep.append(int(i))
+            basis = np.column_stack([basis, v / np.linalg.norm(v)])
+    keep.sort()
+    dropped = [n for i, n in enumerate(ext.names) if i not in keep]
+    if not keep:
+        return None, dropped
+    if not dropped:
+        return ext, []
+    return build_extension(cause, chain, table, names=[ext.names[i] for i in keep]), dropped

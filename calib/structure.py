@@ -1,0 +1,189 @@
+"""Residual structure: can the residuals of a fitted model be predicted at all, whatever the cause?
+
+Two tests, each at alpha / 2 (the caller's alpha):
+- an end-frame error per pose: a free 6-dof perturbation of the robot's end frame at every pose seen
+  with three points, F test against the rest of the residuals (any error of the arm at a pose, whatever
+  its form; a ratio of variances, so the noise model's scale cancels);
+- a generic smoother: ridge regression on joint-angle harmonics and approach directions through the
+  joint Jacobian, time, station drift, and random Fourier features of angles and time, cross-validated
+  by pose against predicting zero (one-sided t test over poses), the ridge chosen by an inner
+  cross-validation over the training poses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from .crossval import Context, Fit
+from .extensions import approach_signs
+from .kinematics import Kinematics
+from .rigid import skew
+from .table import MeasurementTable
+
+STRUCTURE_HARMONICS = 6
+RANDOM_FEATURES = 48
+RANK_TOL = 1e-9  # relative singular value below which a column direction counts as dependent
+RIDGES = np.geomspace(1e-4, 1e4, 17)  # ridge values (relative to the mean squared feature times their count)
+
+
+def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: int) -> np.ndarray:
+    """(3N, p) whitened regressors a residual with structure would correlate with."""
+    q = np.radians(table.q_deg)
+    n_rows, n = q.shape
+    tool = np.array([fit.points[p] for p in table.point])
+    off = None if fit.extension is None else fit.extension.joint_offsets(fit.ext)
+    jac = Kinematics(ctx.chain, ctx.params).jacobian(q if off is None else q + off, tool, fit.dev)
+    rot = np.array([fit.stations[s].rotation for s in table.station])
+    dq = np.einsum("nij,njk->nik", rot, jac.d_q)  # (N, 3, n): a joint error seen in the station frame
+    t = table.t_s - table.t_s.min()
+    t = t / max(float(t.max()), 1e-300)
+    signs = approach_signs(q)
+    cols = []
+    for j in range(n):
+        h = np.arange(1, STRUCTURE_HARMONICS + 1)
+        basis = np.column_stack([np.sin(np.outer(q[:, j], h)), np.cos(np.outer(q[:, j], h)), signs[:, j], t])
+        cols.append(dq[:, :, j, None] * basis[:, None, :])
+    for sid in sorted(set(table.station)):
+        m = (np.array(table.station) == sid).astype(float) * t
+        cols.append(m[:, None, None] * np.eye(3)[None])
+    x = np.column_stack([np.sin(q), np.cos(q), t])
+    rng = np.random.default_rng(seed)
+    w = rng.standard_normal((x.shape[1], RANDOM_FEATURES))
+    phase = rng.uniform(0, 2 * np.pi, RANDOM_FEATURES)
+    rff = np.cos(x @ w + phase)
+    cols.append(np.einsum("nm,ab->nabm", rff, np.eye(3)).reshape(n_rows, 3, 3 * RANDOM_FEATURES))
+    feats = np.concatenate(cols, axis=2)
+    if ctx.noise is not None:
+        feats = np.einsum("nij,njp->nip", ctx.noise.whitening(table.xyz), feats)
+    feats = feats.reshape(3 * n_rows, -1)
+    norm = np.linalg.norm(feats, axis=0)
+    return feats[:, norm > 0] / norm[norm > 0]
+
+
+def _ridge_fit(x: np.ndarray, y: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """(len(lams), p) ridge coefficients for every ridge value, one SVD."""
+    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    uy = u.T @ y
+    return np.array([vt.T @ (s / (s**2 + lam) * uy) for lam in lams])
+
+
+def _ridge_predict(x_tr: np.ndarray, y_tr: np.ndarray, x_te: np.ndarray, pose_tr: np.ndarray) -> np.ndarray:
+    """Ridge regression, the ridge chosen by an inner 3-fold cross-validation over the training poses
+    (rows of a pose share their error, so rows are not independent enough for leave-one-out or GCV)."""
+    lams = RIDGES * float(np.mean(x_tr**2)) * x_tr.shape[1]
+    poses = np.unique(pose_tr)
+    sse = np.zeros(len(lams))
+    for g in np.array_split(poses, 3):
+        inner = np.isin(pose_tr, g)
+        coef = _ridge_fit(x_tr[~inner], y_tr[~inner], lams)
+        sse += np.sum((y_tr[inner][None] - coef @ x_tr[inner].T) ** 2, axis=1)
+    return x_te @ _ridge_fit(x_tr, y_tr, lams[[int(np.argmin(sse))]])[0]
+
+
+def smoother_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None,
+                  seed: int) -> dict | None:  # fmt: skip
+    """Can the residuals be predicted from joint angles, approach directions, time or station? A ridge
+    regression on generic features, cross-validated against predicting zero, paired over poses, one-sided
+    t test. None with fewer than 10 poses."""
+    if folds is None or len(set(table.pose)) < 10:
+        return None
+    y = fit.r
+    x = _structure_features(ctx, fit, table, seed)
+    pose_idx = np.unique(np.array(table.pose), return_inverse=True)[1]
+    gain = np.zeros(len(table))
+    for test in folds:
+        train = np.setdiff1d(np.arange(len(table)), test)
+        tr3 = (3 * train[:, None] + np.arange(3)).ravel()
+        te3 = (3 * test[:, None] + np.arange(3)).ravel()
+        pred = _ridge_predict(x[tr3], y[tr3], x[te3], np.repeat(pose_idx[train], 3))
+        gain[test] = np.sum((y[te3] ** 2 - (y[te3] - pred) ** 2).reshape(-1, 3), axis=1)
+    pose_arr = np.array(table.pose)
+    per_pose = np.array([gain[pose_arr == p].sum() for p in sorted(set(table.pose))])
+    sd = float(per_pose.std(ddof=1))
+    tval = float(per_pose.mean()) / (sd / np.sqrt(len(per_pose))) if sd > 0 else 0.0
+    return {"test": "cross-validated smoother", "pvalue": float(stats.t.sf(tval, len(per_pose) - 1)),
+            "predictable_fraction": float(gain.sum() / float(y @ y))}  # fmt: skip
+
+
+def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | None:
+    """Do the residuals of each pose share an error of the robot's end frame (6 dof per pose: any error
+    of the arm at that pose, whatever its form)? F test of the residuals explained by a free end-frame
+    perturbation per pose (beyond what the fitted model can absorb) against the rest. Scale-free: the
+    residuals' radial and transverse scales (tracker line of sight) are estimated from the residuals and
+    divided out first, so a tracker noisier than its model, in either direction, does not pass for
+    structure. Needs poses seen with three points; None with fewer than 5 such poses."""
+    n_rows = len(table)
+    poses: dict[str, list[int]] = {}
+    for i, p in enumerate(table.pose):
+        poses.setdefault(p, []).append(i)
+    usable = [np.array(rows) for rows in poses.values() if len({table.point[i] for i in rows}) >= 3]
+    if len(usable) < 5:
+        return None
+    q = np.radians(table.q_deg)
+    off = None if fit.extension is None else fit.extension.joint_offsets(fit.ext)
+    q = q if off is None else q + off
+    tool = np.array([fit.points[p] for p in table.point])
+    kin = Kinematics(ctx.chain, ctx.params)
+    _, o_end = kin.end_frames(q, fit.dev)
+    p_base = kin.points(q, tool, fit.dev)
+    rot = np.array([fit.stations[s].rotation for s in table.station])
+    frame = np.concatenate([np.broadcast_to(np.eye(3), (n_rows, 3, 3)), -skew(p_base - o_end)], axis=2)
+    cols = np.einsum("nij,njk->nik", rot, frame)  # (N, 3, 6): end-frame translation and rotation
+    if ctx.noise is not None:
+        cols = np.einsum("nij,njk->nik", ctx.noise.whitening(table.xyz), cols)
+    r, jm = fit.r.reshape(n_rows, 3), fit.jm.reshape(n_rows, 3, -1)
+    # the line of sight stays an eigen-direction of the tracker-model whitening: rescale along and across it
+    los = table.xyz / np.linalg.norm(table.xyz, axis=1)[:, None]
+    along = np.einsum("ni,ni->n", los, r)
+    k_along = np.sqrt(np.mean(along**2))
+    k_across = np.sqrt(np.mean(np.sum(r**2, axis=1) - along**2) / 2.0)
+
+    def rescale(v: np.ndarray) -> np.ndarray:
+        a = np.einsum("ni,ni...->n...", los, v)
+        return (v - np.einsum("ni,n...->ni...", los, a)) / k_across + np.einsum("ni,n...->ni...", los, a) / k_along
+
+    r, jm, cols = rescale(r), rescale(jm), rescale(cols)
+    rss0 = _orthogonal_rss(r.ravel(), _basis(jm.reshape(3 * n_rows, -1)))
+    rank_b = 0
+    for rows in usable:
+        b = cols[rows].reshape(-1, 6)
+        u, sv, _ = np.linalg.svd(b, full_matrices=False)
+        u = u[:, sv > RANK_TOL * sv[0]]
+        rank_b += u.shape[1]
+        rp, jp = r[rows].ravel(), jm[rows].reshape(-1, jm.shape[2])
+        r[rows] = (rp - u @ (u.T @ rp)).reshape(-1, 3)
+        jm[rows] = (jp - u @ (u.T @ jp)).reshape(len(rows), 3, -1)
+    basis = _basis(jm.reshape(3 * n_rows, -1))
+    rss1, rank_mj = _orthogonal_rss(r.ravel(), basis), basis.shape[1]
+    df1 = rank_b + rank_mj - fit.n_cols
+    df2 = 3 * n_rows - rank_b - rank_mj
+    if df1 <= 0 or df2 <= 0 or rss1 <= 0:
+        return None
+    f = ((rss0 - rss1) / df1) / (rss1 / df2)
+    return {"test": "end-frame error per pose", "pvalue": float(stats.f.sf(f, df1, df2)),
+            "predictable_fraction": float((rss0 - rss1) / rss0), "dof": [int(df1), int(df2)],
+            "scale_along_line_of_sight": float(k_along), "scale_across": float(k_across)}  # fmt: skip
+
+
+def _basis(m: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the column space of m (columns scaled to unit norm first)."""
+    m = m / np.where(np.linalg.norm(m, axis=0) > 0, np.linalg.norm(m, axis=0), 1.0)
+    u, sv, _ = np.linalg.svd(m, full_matrices=False)
+    return u[:, sv > RANK_TOL * sv[0]]
+
+
+def _orthogonal_rss(r: np.ndarray, basis: np.ndarray) -> float:
+    """Residual sum of squares of r after least squares on an orthonormal basis."""
+    return float(r @ r - np.sum((basis.T @ r) ** 2))
+
+
+def structure_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None,
+                   seed: int, alpha: float) -> dict:  # fmt: skip
+    """Residual structure of `fit`: the tests that apply to this table, each at alpha / (number of tests)."""
+    tests = [t for t in (pose_frame_test(ctx, fit, table), smoother_test(ctx, fit, table, folds, seed)) if t]
+    if not tests:
+        return {"structure": False, "pvalue": None, "tests": [],
+                "note": "too few poses to test the residuals for structure"}  # fmt: skip
+    p = min(1.0, len(tests) * min(t["pvalue"] for t in tests))
+    return {"structure": p < alpha, "pvalue": p, "tests": tests}

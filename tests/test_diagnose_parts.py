@@ -1,0 +1,90 @@
+"""The pieces of diagnose checked against slow references: the change-point scan's closed-form rigid fits
+against Kabsch per prefix, the linearised folds against full refits, invisible joints, comparable repeats."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from calib import crossval as dg
+from calib import diagnose
+from calib.cell import load_cell
+from calib.changepoint import rigid_prefix_rss
+from calib.identify import identify
+from calib.kinematics import Kinematics
+from calib.noise import TrackerNoise
+from calib.noise_floor import comparable_repeats
+from calib.params import irreducible_params
+from calib.poses import random_poses
+from calib.rigid import exp_so3, kabsch
+from calib.subset import identifiable_subset
+from calib.table import MeasurementTable
+from mocks.synth import simulate_campaign
+from mocks.twin import Twin
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(8, 40))
+def test_prefix_rigid_rss_equals_kabsch(seed, m):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(0, 1000.0, (m, 3))
+    x = p @ exp_so3(rng.normal(0, 1, 3)).T + rng.normal(0, 500, 3) + rng.normal(0, 0.05, (m, 3))
+    counts = np.arange(3, m + 1)
+    fast = rigid_prefix_rss(p, x, counts)
+    for c, f in zip(counts, fast, strict=True):
+        r, t = kabsch(p[:c], x[:c])
+        slow = float(np.sum((x[:c] - p[:c] @ r.T - t) ** 2))
+        # cumulative sums of ~1e6 mm^2 terms: rounding ~1e-16 * 1e6 * m, far below the 0.05 mm noise
+        assert abs(f - slow) <= 1e-6 * max(slow, 1.0)
+
+
+def kr270_context(effects, seed=11, n_poses=25):
+    cell = load_cell("kr270")
+    params = irreducible_params(cell.chain)[0]
+    table = simulate_campaign(Twin(cell, seed=seed, effects=effects),
+                              np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed))))  # fmt: skip
+    geo = identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
+    return diagnose.context(cell.chain, table, params, TrackerNoise(), geo, ("backlash",))
+
+
+def test_linearised_folds_match_full_refits():
+    ctx = kr270_context({"backlash": 0.05})
+    folds = dg.fold_rows(ctx.table, "pose", 5, 0)
+    for causes in ((), ("backlash",)):
+        fast = dg.cross_validate(ctx, causes, folds)
+        errs = []
+        for test in folds:
+            fit = dg.fit_model(ctx, causes, np.setdiff1d(np.arange(len(ctx.table)), test))
+            errs.append(ctx.table.xyz[test] - dg.predict_rows(ctx, fit, test, dg.extension_of(ctx, causes, test)))
+        slow = dg.rms(np.concatenate(errs))
+        # one Gauss-Newton step from a solution ~1 sigma away: the second-order error is ~(sigma/lever)^2
+        # of the held-out error, parts per million here
+        assert abs(fast - slow) <= 1e-3 * slow
+
+
+def test_joint_that_does_not_move_the_point_is_dropped():
+    # UR10 with the T-Mac centre on the wrist_3 axis: joint 6 cannot move the measured point
+    cell = load_cell("ur10-ipa")
+    point = {"tmac": np.array([0.0, 0.0, 120.0])}
+    params = irreducible_params(cell.chain)[0]
+    rng = np.random.default_rng(3)
+    q = random_poses(cell, 60, rng)
+    x = Kinematics(cell.chain, []).points(q, point["tmac"]) + rng.normal(0, 0.01, (60, 3))
+    table = MeasurementTable(np.arange(60), np.arange(60) * 10.0, [f"Q{i}" for i in range(60)], ["S"] * 60,
+                             ["tmac"] * 60, np.degrees(q), x)  # fmt: skip
+    params = identifiable_subset(cell.chain, params, q, point)[0]
+    geo = identify(cell.chain, table, point, params)
+    ext, dropped = dg.visible_extension(cell.chain, table, geo, None, params, "encoder_scale")
+    assert "k6" in dropped and "k6" not in ext.names
+
+
+def test_repeats_from_another_approach_direction_are_not_comparable():
+    q = np.array([[0, 0], [10, 10], [0, 0], [-10, -10], [0, 0], [10, 10], [0, 0], [50, 50], [0, 0]], dtype=float)
+    t = np.array([0, 1, 2, 3, 4, 5, 6, 50, 100], dtype=float)
+    n = len(q)
+    table = MeasurementTable(np.arange(n), t, ["A", "B", "A", "C", "A", "B", "A", "D", "A"], ["S"] * n,
+                             ["p"] * n, q, np.zeros((n, 3)))  # fmt: skip
+    groups = [sorted(g.tolist()) for g in comparable_repeats(table)]
+    # pose A from above (moving down: rows 2, 6, and 8, which is 94 s later: not close in time, over 10 %
+    # of the 100 s campaign), from below (row 4) and with no approach yet (row 0); pose B twice from below
+    assert groups == [[1, 5], [2, 6]]
+
