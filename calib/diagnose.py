@@ -36,7 +36,9 @@ from scipy.special import chdtrc, fdtrc  # survival functions of F and chi2 (sci
 
 from .chain import Chain
 from .changepoint import SHIFT, relabel_shift, shift_scan
-from .crossval import Context, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
+from .crossval import Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
+from .error_map import CAUSE as MAP
+from .error_map import ORDERS, ErrorMapFit, fit_error_map
 from .extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
 from .identify import Identification, IdentificationError, identify, model_points
 from .kinematics import Kinematics
@@ -169,6 +171,63 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
     return forms[int(np.argmin(rss))]
 
 
+def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
+                   step: int, folds: int, seed: int) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
+    """The joint error map on top of the model `fitted` (`calib.error_map`: order and ridge by its own
+    cross-validation by pose, which also gives the held-out gain; the F test and BIC count its effective
+    number of parameters)."""
+    table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
+                                                                   current.shift["after_t_s"])  # fmt: skip
+    # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
+    top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
+    orders = tuple(h for h in ORDERS if h <= top)
+    if not orders:
+        return None
+    try:
+        mf = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
+                           folds=folds, seed=seed, orders=orders)  # fmt: skip
+    except IdentificationError:
+        return None
+    res = mf.identification
+    rss, n_extra = res.variance_factor * res.dof, mf.effective_params
+    dof = n_obs - n_base - _n_extra(ctx, fitted) - n_extra
+    if dof <= 0 or n_extra <= 0:
+        return None
+    f = ((current.rss - rss) / n_extra) / (rss / dof)
+    p = float(stats.f.sf(f, n_extra, dof)) if f > 0 else 1.0
+    d_bic = float(n_obs * np.log(rss / current.rss) + n_extra * np.log(n_obs))
+    cand = Candidate(MAP, int(round(n_extra)), rss, int(dof), p, d_bic, mf.cv_rms_mm, rms(res.residuals),
+                     {"error_map": mf.to_doc(), **(current.shift or {})}, step=step,
+                     holdout_base_mm=mf.cv_rms_without_mm, cv_scheme="pose")  # fmt: skip
+    hold_ok = mf.cv_rms_mm is not None and mf.cv_rms_mm < mf.cv_rms_without_mm
+    cand.significant = bool(p < alpha and d_bic < 0 and hold_ok)
+    return cand, mf
+
+
+def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTable:
+    """The table with every joint angle moved by the fitted map (q_true = q_read + e_j(q_read))."""
+    ext, theta = mf.extension, mf.identification.ext
+    offsets = np.einsum("rje,e->rj", ext.joint_features[:, :, mf.n_base :], theta[mf.n_base :])
+    out = table.subset(np.arange(len(table)))
+    out.q_deg = table.q_deg + np.degrees(offsets)
+    return out
+
+
+def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...], mf: ErrorMapFit, folds: int,
+                   seed: int):  # fmt: skip
+    """The chosen model with the map, identified jointly (the map's order and ridge as chosen)."""
+    ctx.table = table  # the rows as measured
+    shift = None
+    if SHIFT in fitted:
+        found = shift_scan(ctx.geo_base, table)
+        shift = {"station": found[0], "after_t_s": found[1]}
+        table = relabel_shift(table, *found)
+    order = max(mf.orders.values())
+    final = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
+                          folds=folds, seed=seed, orders=(order,), taus_rad=(mf.tau_rad,))  # fmt: skip
+    return final.identification, final.extension, table, shift
+
+
 def _n_extra(ctx: Context, causes: tuple[str, ...]) -> int:
     return sum(7 if c == SHIFT else ctx.features[c].size for c in causes)
 
@@ -191,7 +250,9 @@ def diagnose(
     ctx = context(chain, table, params, noise, geo, causes)
     val = Validator(ctx, folds, seed)
     open_causes = [c for c in causes if c == SHIFT or c in ctx.features]
-    chosen: tuple[str, ...] = ()
+    chosen: tuple[str, ...] = ()  # the selected causes
+    fitted: tuple[str, ...] = ()  # those fitted by crossval (the joint error map is held at its own fit)
+    map_fit, map_edf = None, 0.0
     current = whole_fit(ctx, ())
     candidates: list[Candidate] = []
     selected: list[Candidate] = []
@@ -201,19 +262,21 @@ def diagnose(
         alpha = ALPHA / len(open_causes)
         trial = []
         for cause in open_causes:
-            model = (*chosen, cause)
+            if cause == MAP:
+                continue  # the generic map comes after the physical causes, for what they leave
+            model = (*fitted, cause)
             try:
                 fit = whole_fit(ctx, model)
             except IdentificationError:
                 continue
-            n_extra = _n_extra(ctx, model) - _n_extra(ctx, chosen)
-            dof = n_obs - n_geo - _n_extra(ctx, model)
+            n_extra = _n_extra(ctx, model) - _n_extra(ctx, fitted)
+            dof = n_obs - n_geo - map_edf - _n_extra(ctx, model)
             if dof <= 0:
                 continue
             f = ((current.rss - fit.rss) / n_extra) / (fit.rss / dof) if fit.rss > 0 else 0.0
             p = float(stats.f.sf(f, n_extra, dof)) if f > 0 else 1.0
             d_bic = float(n_obs * np.log(max(fit.rss, 1e-300) / current.rss) + n_extra * np.log(n_obs))
-            scheme, hold_b, hold_m = val.compare(chosen, model) if p < alpha and d_bic < 0 else (None, None, None)
+            scheme, hold_b, hold_m = val.compare(fitted, model) if p < alpha and d_bic < 0 else (None, None, None)
             cand = Candidate(cause, n_extra, fit.rss, dof, p, d_bic, hold_m, rms(fit.residuals), dict(fit.shift or {}),
                              step=step, holdout_base_mm=hold_b, cv_scheme=scheme)  # fmt: skip
             if cause in ctx.dropped:
@@ -224,6 +287,9 @@ def diagnose(
                 cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if rejected
                                 else "cross-validation not possible on this design")  # fmt: skip
             trial.append((cand, fit))
+        if MAP in open_causes and not any(c.significant for c, _ in trial):
+            cand = _map_candidate(ctx, fitted, current, n_obs, n_geo + map_edf, alpha, step, folds, seed)
+            trial += [] if cand is None else [cand]
         candidates.extend(c for c, _ in trial)
         winners = [t for t in trial if t[0].significant]
         if not winners:
@@ -231,16 +297,28 @@ def diagnose(
         best, fit = max(winners, key=lambda t: (t[0].gain_mm if t[0].gain_mm is not None else -t[0].delta_bic))
         selected.append(best)
         chosen = (*chosen, best.cause)
-        current = fit
         open_causes.remove(best.cause)
+        if best.cause == MAP:  # later steps hold the map at this fit: the rows' angles corrected by it
+            map_fit, map_edf = fit, fit.effective_params
+            ctx.table = corrected_by_map(ctx.table, fit)
+            ctx.fits.clear()
+            val.cache.clear()
+            current = whole_fit(ctx, fitted)
+        else:
+            fitted = (*fitted, best.cause)
+            current = fit
 
-    structure = structure_test(ctx, current, table if current.shift is None else relabel_shift(
-        table, current.shift["station"], current.shift["after_t_s"]), val.fold_sets["pose"], seed, ALPHA)  # fmt: skip
+    structure = structure_test(ctx, current, ctx.table if current.shift is None else relabel_shift(
+        ctx.table, current.shift["station"], current.shift["after_t_s"]), val.fold_sets["pose"], seed,
+        ALPHA)  # fmt: skip
     # the held-out figures of the verdict: the chosen model against the geometric one, on the same folds
-    scheme, hold_g, hold_e = val.compare((), chosen) if selected else next(
-        ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
-        (None, None, None))  # fmt: skip
-    cv_note = None if scheme is not None else (
+    if map_fit is not None:  # the geometric model on the first step's folds, the chosen one on the last's
+        scheme, hold_g, hold_e = "per step", selected[0].holdout_base_mm, selected[-1].holdout_rms_mm
+    else:
+        scheme, hold_g, hold_e = val.compare((), chosen) if selected else next(
+            ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
+            (None, None, None))  # fmt: skip
+    cv_note = None if hold_g is not None else (
         "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves "
         "a training set that cannot be identified; the verdict rests on the F test and BIC")  # fmt: skip
     doc = dict(geometric=geo, candidates=candidates, holdout_geometric_mm=hold_g, holdout_extended_mm=hold_e,
@@ -252,7 +330,10 @@ def diagnose(
     by_gain = sorted(selected, key=lambda c: c.gain_mm if c.gain_mm is not None else -c.delta_bic, reverse=True)
     main = by_gain[0]
     # model.json names its extension after the main cause that carries parameters
-    res, ext, tab, shift, _ = final_fit(ctx, chosen, next((c.cause for c in by_gain if c.cause != SHIFT), None))
+    if map_fit is None:
+        res, ext, tab, shift, _ = final_fit(ctx, chosen, next((c.cause for c in by_gain if c.cause != SHIFT), None))
+    else:
+        res, ext, tab, shift = _final_map_fit(ctx, table, fitted, map_fit, folds, seed)
     causes = [{"cause": c.cause, "gain_mm": c.gain_mm, "holdout_rms_mm": c.holdout_rms_mm, "f_pvalue": c.f_pvalue,
                "delta_bic": c.delta_bic, "n_params": c.n_params, "cv_scheme": c.cv_scheme, **c.detail}
               for c in selected]  # fmt: skip

@@ -229,11 +229,6 @@ def test_out_of_form_effect_is_named_by_its_nearest_cause(names):
     assert check(5001, names) is None
 
 
-NEEDS_MAP = pytest.mark.xfail(strict=True, reason="cyclic_error stops at harmonic 2 until the joint error map "
-                              "(issue 13, helper h13a) replaces it; strict: remove the mark when it passes")
-
-
-@NEEDS_MAP
 def test_harmonic_3_4_joint_error_is_cyclic_error():
     assert check(5001, ("harmonic34",)) is None
 
@@ -244,13 +239,11 @@ def test_two_effects_are_both_named(names):
 
 
 def test_high_order_joint_error_is_never_noise():
-    # a joint error at 12-30 cycles per revolution is beyond a low-order candidate; it must not pass for
-    # noise: detected structure (an end-frame error per pose), so `unexplained` unless a map names it
+    # a joint error at 12-30 cycles per revolution must never pass for noise: named, or detected structure
     d, named = verdict(5003, ("high_order",))
     assert d.cause != "none" and (d.causes or d.structure["structure"]), (d.cause, named)
 
 
-@NEEDS_MAP
 def test_high_order_joint_error_is_cyclic_error():
     assert check(5003, ("high_order",)) is None
 
@@ -324,7 +317,7 @@ def test_floor_from_comparable_repeats_ignores_backlash():
     assert d.cause == "backlash"
 
 
-EFFECTS = ("none", "tanh_backlash", "payload_off", "warm_up", "drifting_station")
+EFFECTS = ("none", "tanh_backlash", "payload_off", "warm_up", "drifting_station", "harmonic34", "high_order")
 PAIRS = (("payload_off", "tanh_backlash"), ("encoder", "warm_up"))
 
 
