@@ -189,8 +189,10 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     except IdentificationError:
         return None
     res = mf.identification
-    rss, n_extra = res.variance_factor * res.dof, mf.effective_params
-    dof = n_obs - n_base - _n_extra(ctx, fitted) - n_extra
+    in_current = current.extension is not None and MAP in [c for c, _ in current.extension.parts()]
+    low = ctx.features[MAP].size if in_current else 0  # the low-order cyclic_error it would replace
+    rss, n_extra = res.variance_factor * res.dof, mf.effective_params - low
+    dof = n_obs - n_base - _n_extra(ctx, fitted) - mf.effective_params
     if dof <= 0 or n_extra <= 0:
         return None
     f = ((current.rss - rss) / n_extra) / (rss / dof)
@@ -252,18 +254,17 @@ def diagnose(
     open_causes = [c for c in causes if c == SHIFT or c in ctx.features]
     chosen: tuple[str, ...] = ()  # the selected causes
     fitted: tuple[str, ...] = ()  # those fitted by crossval (the joint error map is held at its own fit)
-    map_fit, map_edf = None, 0.0
+    map_fit, map_edf, hold_first = None, 0.0, None
     current = whole_fit(ctx, ())
     candidates: list[Candidate] = []
     selected: list[Candidate] = []
     step = 0
-    while open_causes:
+    map_open = MAP in open_causes  # the full joint error map: tried once the low-order causes are exhausted
+    while open_causes or map_open:
         step += 1
-        alpha = ALPHA / len(open_causes)
+        alpha = ALPHA / max(len(open_causes), 1)
         trial = []
         for cause in open_causes:
-            if cause == MAP:
-                continue  # the generic map comes after the physical causes, for what they leave
             model = (*fitted, cause)
             try:
                 fit = whole_fit(ctx, model)
@@ -287,24 +288,36 @@ def diagnose(
                 cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if rejected
                                 else "cross-validation not possible on this design")  # fmt: skip
             trial.append((cand, fit))
-        if MAP in open_causes and not any(c.significant for c, _ in trial):
-            cand = _map_candidate(ctx, fitted, current, n_obs, n_geo + map_edf, alpha, step, folds, seed)
+        if map_open and not any(c.significant for c, _ in trial):
+            # cyclic_error's low-order form (if chosen) gives way to the map of any order; judged last, since a
+            # generic map would absorb a compliance or an encoder scale of few parameters
+            map_open = False
+            base = tuple(c for c in fitted if c != MAP)
+            cand = _map_candidate(ctx, base, current, n_obs, n_geo, alpha, step, folds, seed)
             trial += [] if cand is None else [cand]
         candidates.extend(c for c, _ in trial)
         winners = [t for t in trial if t[0].significant]
         if not winners:
             break
         best, fit = max(winners, key=lambda t: (t[0].gain_mm if t[0].gain_mm is not None else -t[0].delta_bic))
-        selected.append(best)
-        chosen = (*chosen, best.cause)
-        open_causes.remove(best.cause)
-        if best.cause == MAP:  # later steps hold the map at this fit: the rows' angles corrected by it
+        hold_first = best.holdout_base_mm if step == 1 else hold_first  # the geometric model, step 1's folds
+        if isinstance(fit, ErrorMapFit):  # later steps hold the map at this fit: the rows' angles corrected by it
+            low = next((c for c in selected if c.cause == MAP), None)
+            if low is not None:  # the map replaces the low-order cyclic_error
+                best.detail["replaces"] = {"n_params": low.n_params, "holdout_rms_mm": low.holdout_rms_mm}
+                selected.remove(low)
+            selected.append(best)
+            chosen = (*tuple(c for c in chosen if c != MAP), MAP)
+            fitted = tuple(c for c in fitted if c != MAP)
             map_fit, map_edf = fit, fit.effective_params
             ctx.table = corrected_by_map(ctx.table, fit)
             ctx.fits.clear()
             val.cache.clear()
             current = whole_fit(ctx, fitted)
         else:
+            selected.append(best)
+            chosen = (*chosen, best.cause)
+            open_causes.remove(best.cause)
             fitted = (*fitted, best.cause)
             current = fit
 
@@ -313,7 +326,7 @@ def diagnose(
         ALPHA)  # fmt: skip
     # the held-out figures of the verdict: the chosen model against the geometric one, on the same folds
     if map_fit is not None:  # the geometric model on the first step's folds, the chosen one on the last's
-        scheme, hold_g, hold_e = "per step", selected[0].holdout_base_mm, selected[-1].holdout_rms_mm
+        scheme, hold_g, hold_e = "per step", hold_first, selected[-1].holdout_rms_mm
     else:
         scheme, hold_g, hold_e = val.compare((), chosen) if selected else next(
             ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
