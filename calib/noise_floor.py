@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc, fdtrc  # F and chi2 tails (scipy.stats: ~1 s to import)
 
 from .extensions import approach_signs
 from .identify import Identification
@@ -74,8 +74,8 @@ def floor_test(geo: Identification, floor: Floor) -> float:
     """p-value that the geometric residuals are at the floor: an F test against a floor from repeats
     (itself estimated with floor.dof degrees of freedom), chi-square against the noise model."""
     if floor.dof is None and geo.noise is not None:
-        return float(stats.chi2.sf(geo.variance_factor * geo.dof, geo.dof))
+        return float(chdtrc(geo.dof, geo.variance_factor * geo.dof))
     ratio = float(np.sum(geo.residuals**2)) / geo.dof / floor.sigma_mm**2
     if floor.dof is None:
-        return float(stats.chi2.sf(ratio * geo.dof, geo.dof))
-    return float(stats.f.sf(ratio, geo.dof, floor.dof))
+        return float(chdtrc(geo.dof, ratio * geo.dof))
+    return float(fdtrc(geo.dof, floor.dof, ratio))
