@@ -69,6 +69,10 @@ class Robot(Protocol):
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them."""
         ...
+    def reset_faults(self) -> None:
+        """Clear the controller's latched faults (E-stop seen, drives off) once the operator acknowledged;
+        DeviceFault if one is still active."""
+        ...
     def close(self) -> None: ...
 
 

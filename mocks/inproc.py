@@ -85,6 +85,8 @@ class InprocRobot:
         self.world.clock.sleep(window_s)
         return self.read_joints()
 
+    def reset_faults(self) -> None: ...
+
     def close(self) -> None: ...
 
 

@@ -75,6 +75,8 @@ BAD = [  # (document or raw YAML text, what the message must say after "FILE: ")
     (variant("tracker.protocol", DELETE), r"tracker\.protocol: missing"),
     (variant("robot.protocol", "krc4"), r"robot\.protocol: unknown protocol 'krc4' \(supported: krc2\)"),
     (variant("robot.rsi.protocol", "serial"), r"robot\.rsi\.protocol: unknown protocol 'serial' \(supported: tcp, udp"),
+    (variant("robot.rsi.passive", "yes"), r"robot\.rsi\.passive: expected true or false, got 'yes'"),
+    (variant("robot.rsi.cycle_s", 0), r"robot\.rsi\.cycle_s: expected a positive number, got 0"),
     (variant("plc.protocol", "profinet"), r"plc\.protocol: unknown protocol 'profinet' \(supported: modbus\)"),
     (variant("meteo.protocol", 5), r"meteo\.protocol: unknown protocol 5"),
     (variant("tracker.host", ""), r"tracker\.host: expected a host name or IP address, got ''"),
@@ -117,7 +119,8 @@ def test_defaults_are_the_drivers_and_optional_sections(tmp_path):
                           "measure_timeout_s": 60.0, "motion_timeout_s": 120.0, "search_timeout_s": 10.0,
                           "samples_per_second": 1000.0}  # fmt: skip
     assert hw.robot["eki"] == {"host": "pc", "port": 54600}
-    assert hw.robot["rsi"] == {"protocol": "tcp", "host": "pc", "port": 49152}
+    # RSI: the shipped configs/krc2/trackcal_rsi.xml (UDP, passive) and the KR C2's 12 ms cycle
+    assert hw.robot["rsi"] == {"protocol": "udp", "passive": True, "cycle_s": 0.012, "host": "pc", "port": 49152}
     assert hw.robot["connect_timeout_s"] == 60.0 and hw.robot["move_timeout_s"] == 300.0
     assert hw.plc is None and hw.meteo is None  # the operator is asked on the console
     assert "console" in hw.describe()["operator"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import xml.etree.ElementTree as ET
 
 import pytest
 from hypothesis import given, settings
@@ -10,35 +11,43 @@ from hypothesis import strategies as st
 
 from drivers.errors import ProtocolError
 from drivers.kuka.eki_codec import (
-    COMMAND_TAGS,
+    COMMAND,
+    KIND_MOVE,
+    KIND_RESET,
+    KIND_STOP,
     MAX_DOC_BYTES,
-    STATE_TAGS,
-    MoveCommand,
+    STATE,
+    Command,
     RobotState,
     XmlStreamFramer,
+    config_text,
     encode_command,
     encode_state,
     parse_command,
     parse_state,
+    read_elements,
+    read_template,
 )
 from drivers.kuka.rsi_codec import (
+    SHIPPED,
     RobFrame,
     SenFrame,
     encode_rob,
     encode_sen,
+    ipoc_of,
     parse_rob,
     parse_sen,
+    read_config,
     rob_framer,
 )
-from mocks.servers.kuka import CONFIG_DIR, check_configs, eki_config_tags, rsi_config
 
 # --- golden bytes -------------------------------------------------------------------------------------------
 
-# The command/state documents of the trackcal issue (ID 17, angles in degrees); the KR C2 start pose
+# The command/state documents of configs/krc2/README.md (ID 17, angles in degrees); the KR C2 start pose
 # {A1 0, A2 -90, A3 90, A4 0, A5 90, A6 0} is the HOME of kuka_experimental
 # kuka_rsi_hw_interface/krl/KR_C2/ros_rsi.src.
 GOLDEN_COMMAND = (
-    b'<RobotCommand ID="17" Speed="20"><Pos A1="0.0000" A2="-90.0000" A3="90.0000" A4="0.0000" A5="90.0000" '
+    b'<RobotCommand ID="17" Kind="1" Speed="20"><Pos A1="0.0000" A2="-90.0000" A3="90.0000" A4="0.0000" A5="90.0000" '
     b'A6="0.0000"/></RobotCommand>'
 )
 GOLDEN_STATE = (
@@ -65,8 +74,8 @@ HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)
 
 
 def test_golden_command():
-    assert encode_command(MoveCommand(17, HOME, 20)) == GOLDEN_COMMAND
-    assert parse_command(GOLDEN_COMMAND) == MoveCommand(17, HOME, 20)
+    assert encode_command(Command(17, KIND_MOVE, HOME, 20)) == GOLDEN_COMMAND
+    assert parse_command(GOLDEN_COMMAND) == Command(17, KIND_MOVE, HOME, 20)
 
 
 def test_golden_state():
@@ -94,7 +103,7 @@ def test_golden_sen():
 
 
 def test_negative_zero_is_written_as_zero():
-    assert b'A1="0.0000"' in encode_command(MoveCommand(1, (-0.00001, 0, 0, 0, 0, 0), 5))
+    assert b'A1="0.0000"' in encode_command(Command(1, KIND_MOVE, (-0.00001, 0, 0, 0, 0, 0), 5))
 
 
 @pytest.mark.parametrize(
@@ -124,8 +133,7 @@ def test_bad_state_documents_are_protocol_errors(data):
 
 def test_billion_laughs_is_refused_before_parsing():
     lol = b'<!DOCTYPE lolz [<!ENTITY lol "lol">' + b"".join(
-        b'<!ENTITY lol%d "%s">' % (i, (b"&lol%d;" % (i - 1) if i > 1 else b"&lol;") * 10)
-        for i in range(1, 10)
+        b'<!ENTITY lol%d "%s">' % (i, (b"&lol%d;" % (i - 1) if i > 1 else b"&lol;") * 10) for i in range(1, 10)
     )
     with pytest.raises(ProtocolError, match="DOCTYPE"):
         parse_rob(lol + b"]><Rob><IPOC>&lol9;</IPOC></Rob>")
@@ -138,8 +146,20 @@ def test_bad_command_values():
         parse_command(GOLDEN_COMMAND.replace(b'ID="17"', b'ID="0"'))
     with pytest.raises(ProtocolError, match="A6"):
         parse_command(GOLDEN_COMMAND.replace(b' A6="0.0000"', b""))
+    with pytest.raises(ProtocolError, match="Kind"):
+        parse_command(GOLDEN_COMMAND.replace(b'Kind="1"', b'Kind="4"'))
     with pytest.raises(ValueError):
-        encode_command(MoveCommand(1, HOME, 0))
+        encode_command(Command(1, KIND_MOVE, HOME, 0))  # a move needs a speed
+    with pytest.raises(ValueError):
+        encode_command(Command(1, 7))
+
+
+def test_stop_and_reset_carry_every_element():
+    # every declared element in every document (configs/krc2/TrackcalEki.xml): a stop names the move it stops
+    for kind in (KIND_STOP, KIND_RESET):
+        doc = encode_command(Command(17, kind))
+        assert doc.startswith(f'<RobotCommand ID="17" Kind="{kind}" Speed="0"><Pos A1="0.0000"'.encode())
+        assert parse_command(doc) == Command(17, kind)
 
 
 def test_rob_needs_aipos_when_ipoc_given():
@@ -161,7 +181,7 @@ def rounded(q):
 
 @given(st.integers(1, 2**31 - 1), joints, st.integers(1, 100))
 def test_command_round_trip(cid, q, speed):
-    back = parse_command(encode_command(MoveCommand(cid, q, speed)))
+    back = parse_command(encode_command(Command(cid, KIND_MOVE, q, speed)))
     assert back.command_id == cid and back.speed_pct == speed
     assert all(abs(a - b) <= 0.00005 + 1e-9 for a, b in zip(back.target_deg, q, strict=True))
 
@@ -287,30 +307,60 @@ def test_framer_quoted_gt_and_self_closing_root():
     ]
 
 
-# --- the shipped controller configs speak what the codecs speak ---------------------------------------------
+# --- the shipped controller configs are the codecs' source of truth ---------------------------------------
 
 
-def test_ekx_structure_file_matches_codec():
-    receive, send = eki_config_tags()
-    assert receive == COMMAND_TAGS
-    assert send == STATE_TAGS
+def test_the_codec_reads_its_names_from_the_channel_files():
+    assert COMMAND.tags == tuple(e.get("Tag") for e in _elements() if e.get("Type") != "STRUCTTAG")
+    assert STATE.tags == (*(f"RobotState.Pos.A{i}" for i in range(1, 7)), "RobotState.RobotCommand.ID",
+                          "RobotState.RobotCommand.Done", "RobotState.RobotCommand.Error")  # fmt: skip
+    # a renamed attribute in the file renames it on the wire: the file, not the code, holds the names
+    renamed = config_text("TrackcalEki.xml").replace("RobotCommand.Speed", "RobotCommand.Override")
+    assert read_elements(renamed.encode()).attrs == ("ID", "Kind", "Override")
 
 
-def test_rsi_config_matches_codec():
-    cfg = rsi_config()
-    assert cfg["protocol"] in ("TCP", "UDP")
-    assert cfg["sentype"] == "ImFree"
-    assert cfg["onlysend"] == "FALSE"  # the controller expects (and counts late) answers
-    assert cfg["send"] == ("DEF_RIst", "DEF_RSol", "DEF_AIPos", "DEF_ASPos", "DEF_Delay")
-    assert check_configs() == "ImFree"
+def _elements():
+    return list(ET.fromstring(config_text("TrackcalEki.xml")).iter("Element"))
 
 
-def test_krl_program_uses_the_configured_names():
-    src = (CONFIG_DIR / "trackcal_eki.src").read_text()
-    assert 'EKX_Open("TrackcalEki")' in src and '"trackcal_rsi.xml"' in src
-    for tag in COMMAND_TAGS:
-        assert f'"{tag}"' in src, tag
-    for part in ("<RobotState><Pos A1=", "<RobotCommand ID=", "Done=", "Error=", "</RobotState>"):
-        assert part in src
-    assert "PTP xTarget\n" in src.replace("          ;", "\n;") and "C_PTP" not in src  # no approximation
-    assert "WAIT SEC 0" in src
+@pytest.mark.parametrize(
+    "xml, why",
+    [
+        (b'<Elements><Element Tag="A.B" Type="REAL"/></Elements>', "no declared STRUCTTAG"),
+        (b'<Elements><Element Tag="A" Type="STRUCTTAG"/><Element Tag="A.B" Type="TEXT"/></Elements>', "type"),
+        (b"<Other/>", "expected <Elements>"),
+    ],
+)
+def test_bad_element_files_are_refused(xml, why):
+    with pytest.raises(ValueError, match=why):
+        read_elements(xml)
+    with pytest.raises(ValueError, match="two levels"):
+        read_template(b'<R><P><Q a=""/></P></R>')
+
+
+def test_the_shipped_rsi_config():
+    # UDP as ros-industrial/kuka_experimental KR_C2/ros_rsi_ethernet.xml; passive by default (configs/krc2/README.md)
+    assert (SHIPPED.protocol, SHIPPED.passive, SHIPPED.sen_type) == ("udp", True, "ImFree")
+    assert SHIPPED.rob_elements == ("RIst", "RSol", "AIPos", "ASPos", "Delay", "IPOC")
+    answered = config_text("trackcal_rsi.xml").replace("<ONLYSEND>TRUE", "<ONLYSEND>FALSE")
+    assert read_config(answered.encode()).passive is False
+    with pytest.raises(ValueError, match="PROTOCOL"):
+        read_config(config_text("trackcal_rsi.xml").replace("<PROTOCOL>UDP", "<PROTOCOL>SCTP").encode())
+
+
+def test_ipoc_of_finds_the_frames_ipoc_without_parsing():
+    assert ipoc_of(GOLDEN_ROB) == 4208163
+    assert ipoc_of(GOLDEN_FIRST_ROB) is None
+    assert ipoc_of(b"<Rob><IPOC> 12 </IPOC>garbage") == 12  # the answer thread answers; the monitor refuses
+
+
+@given(st.binary(max_size=600))
+def test_ipoc_of_never_raises(data):
+    value = ipoc_of(data)
+    assert value is None or 0 <= value <= 2**63 - 1
+
+
+@given(st.integers(0, 2**63 - 1), joints)
+def test_ipoc_of_agrees_with_the_parser(ipoc, q):
+    frame = encode_rob(RobFrame(ipoc=ipoc, aipos=rounded(q)), tcp=False)
+    assert ipoc_of(frame) == parse_rob(frame).ipoc == ipoc

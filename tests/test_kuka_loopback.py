@@ -1,4 +1,7 @@
-"""drivers.kuka.client.KukaKrc2 against mocks.servers.kuka.MockKrc2 over real loopback sockets, on a virtual clock."""
+"""drivers.kuka.client.KukaKrc2 against mocks.servers.kuka.MockKrc2 over real loopback sockets, on a virtual clock.
+
+Most tests run the RSI answered over TCP: the answers pace the mock controller through virtual time. The shipped
+default (UDP, passive) has its own tests, as do the stop request, the stale RSI refusal and the reconnection."""
 
 from __future__ import annotations
 
@@ -9,10 +12,18 @@ import time
 import pytest
 
 from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
-from drivers.interfaces import Robot
-from drivers.kuka.client import KukaKrc2
-from drivers.kuka.eki_codec import ERR_DRIVES_OFF, ERR_ESTOP, ERR_RSI_STOPPED, ERR_SOFT_LIMIT
-from drivers.kuka.rsi_codec import RobFrame, encode_rob
+from drivers.interfaces import RealClock, Robot
+from drivers.kuka.client import GUARD_S, STALE_CYCLES, KukaKrc2
+from drivers.kuka.eki_codec import (
+    ERR_DRIVES_OFF,
+    ERR_ESTOP,
+    ERR_RSI_STOPPED,
+    ERR_SOFT_LIMIT,
+    ERR_STOPPED,
+    KIND_STOP,
+    Command,
+)
+from drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
 from mocks.clock import VirtualClock
 from mocks.servers.kuka import MockKrc2
 
@@ -26,7 +37,8 @@ class Cell:
         self.client, self.mock, self.clock, self.seen = client, mock, clock, seen
 
 
-def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, **mock_kw) -> Cell:
+def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, passive=False, guard=None,
+              clock=None, **mock_kw) -> Cell:  # fmt: skip
     client = client_cls(
         "127.0.0.1",
         0,
@@ -34,13 +46,15 @@ def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, 
         0,
         rsi_protocol=protocol,
         controller_host="127.0.0.1",
+        rsi_passive=passive,
+        motion_guard=guard,
         joint_limits_deg=KR270_LIMITS,
         cell_box_check=cell_box_check,
         connect_timeout_s=5.0,
         move_timeout_s=10.0,
     )
     client.listen()
-    clock, seen = VirtualClock(), []
+    clock, seen = clock or VirtualClock(), []
     mock = MockKrc2(
         client.eki_address,
         client.rsi_address,
@@ -51,6 +65,7 @@ def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, 
         on_joints=seen.append,
         seed=seed,
         rsi_protocol=protocol,
+        rsi_passive=passive,
         **mock_kw,
     )
     mock.start()
@@ -97,7 +112,6 @@ def test_move_settle_read(cell):
 
 def test_wait_settled_waits_for_the_residual_oscillation(cell):
     cell.client.move_ptp(TARGET, 100.0)
-    cell.mock.reset_faults()
     # a second move, then settle with a tight tolerance: the mock's residual (<= 0.02 deg, tau = settle_s/5)
     # must decay below 0.0002 deg before the window can complete
     cell.client.move_ptp(HOME, 100.0)
@@ -136,8 +150,11 @@ def test_controller_faults_become_device_faults(cell, inject, code):
     with pytest.raises(DeviceFault) as exc:
         cell.client.move_ptp(TARGET, 50)
     assert exc.value.code == code
-    cell.mock.reset_faults()
-    cell.client.move_ptp(TARGET, 50)  # acknowledged again after the reset
+    with pytest.raises(DeviceFault):
+        cell.client.move_ptp(TARGET, 50)  # latched: every request answers the fault until a reset
+    cell.client.reset_faults()  # the operator acknowledged (issue 11: the old program never reset bEstop)
+    cell.client.move_ptp(TARGET, 50)
+    assert [c.kind for c in cell.mock.commands] == [1, 1, 3, 1]
 
 
 def test_estop_during_motion_halts_and_reports(cell):
@@ -204,9 +221,9 @@ def test_malformed_eki_answer_is_a_protocol_error(cell):
 class SlowClient(KukaKrc2):
     """Answers RSI frames far too late, like a PC without real-time priority."""
 
-    def _answer_rsi(self, frame):
+    def _take(self, sock, doc):
         time.sleep(0.03)
-        super()._answer_rsi(frame)
+        super()._take(sock, doc)
 
 
 def test_late_rsi_answers_stop_the_robot():
@@ -300,25 +317,27 @@ def test_a_refused_peer_is_named_when_the_controller_never_comes():
         client.close()
 
 
-def test_mock_survives_a_garbage_peer():
+def test_mock_survives_a_garbage_peer_and_connects_again():
     with socket.socket() as eki_srv, socket.socket() as rsi_srv:
-        for s in (eki_srv, rsi_srv):
-            s.bind(("127.0.0.1", 0))
-            s.listen(1)
-        mock = MockKrc2(
-            eki_srv.getsockname(), rsi_srv.getsockname(), VirtualClock(), HOME, answer_budget_s=0.01
-        )
+        for srv in (eki_srv, rsi_srv):
+            srv.bind(("127.0.0.1", 0))
+            srv.listen(1)
+            srv.settimeout(5.0)
+        mock = MockKrc2(eki_srv.getsockname(), rsi_srv.getsockname(), VirtualClock(), HOME, answer_budget_s=0.01,
+                        rsi_protocol="tcp", rsi_passive=False)  # fmt: skip
         mock.start()
         eki, _ = eki_srv.accept()
         rsi, _ = rsi_srv.accept()
         with eki, rsi:
-            eki.sendall(b'<RobotCommand ID="3" Speed="500"><Pos/></RobotCommand>')  # framed but invalid
+            eki.sendall(b'<RobotCommand ID="3" Kind="1" Speed="500"><Pos/></RobotCommand>')  # framed, invalid
             assert wait_for(lambda: mock.eki_sent)
             assert b'ID="3"' in mock.eki_sent[0] and b'Error="5"' in mock.eki_sent[0]
             rsi.sendall(b"\x00\xffnot xml at all" * 50)
             eki.sendall(b"<<<>>>" * 100)
-            assert wait_for(lambda: not mock._thread.is_alive())
-    assert mock.crashed is None
+            again, _ = eki_srv.accept()  # the program closed the channel and opened it again
+            again.close()
+        mock.stop()
+    assert mock.crashed is None and mock.connections >= 2
     assert any("EKI: unreadable" in e for e in mock.errors)
 
 
@@ -356,3 +375,162 @@ def test_move_completes_without_overshoot():
         c.client.close()
         c.mock.stop()
     assert c.mock.crashed is None
+
+
+# --- the shipped default: UDP, passive ----------------------------------------------------------------------
+
+
+def test_passive_udp_rsi_needs_no_answers():
+    c = open_cell(protocol="udp", passive=True)
+    try:
+        c.client.move_ptp(TARGET, 80)
+        assert c.client.wait_settled(0.0005, 0.1, 5.0) == pytest.approx(TARGET, abs=0.001)
+        assert c.client.rsi_frames_answered == 0 and c.mock.late_packets == 0 and not c.mock.rsi_stopped
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
+
+
+# --- the stop request: the KRL brakes ------------------------------------------------------------------------
+
+
+def test_the_guard_stops_a_move_within_the_braking_distance():
+    door = threading.Event()
+    c = open_cell(guard=lambda: "the cell door opened" if door.is_set() else None, brake_deg_s2=50.0)
+    try:
+        threading.Thread(target=lambda: wait_for(lambda: c.mock.moving, 5.0) and door.set(), daemon=True).start()
+        with pytest.raises(DeviceFault, match="stopped: the cell door opened") as exc:
+            c.client.move_ptp(TARGET, 2)  # 2 % of 100 deg/s: 14 s of controller time, stopped long before
+        assert exc.value.code == ERR_STOPPED
+        [(q_stop, v_stop, q_rest)] = c.mock.stops
+        t_stop = max(abs(v) for v in v_stop) / 50.0 + KRC2_CYCLE_S
+        for a, v, b in zip(q_stop, v_stop, q_rest, strict=True):
+            # all axes decelerate uniformly to rest together, in the time the fastest needs at a = 50 deg/s^2,
+            # rounded up to whole 12 ms cycles (< v_max / a + cycle): each travels v t / 2; plus 0.0001 deg
+            # of wire rounding
+            assert abs(b - a) <= abs(v) * t_stop / 2 + 1e-4
+        assert q_rest != pytest.approx(TARGET, abs=0.01)  # it did not reach the target
+        assert [cmd.kind for cmd in c.mock.commands] == [1, 2]
+        door.clear()
+        assert c.client.wait_settled(0.0005, 0.1, 2.0) == pytest.approx(q_rest, abs=0.0001)  # and stands
+        c.client.move_ptp(TARGET, 100)  # the next move is served as usual
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
+
+
+def test_a_stop_for_another_move_is_ignored():
+    # a stop that arrives after its move ended (the door opened just as it finished): nothing to stop, no answer
+    c = open_cell()
+    try:
+        c.client.move_ptp(TARGET, 100)
+        c.client._send(Command(1, KIND_STOP))
+        c.client.move_ptp(HOME, 100)
+        assert [cmd.kind for cmd in c.mock.commands] == [1, 2, 1] and c.mock.stops == []
+    finally:
+        c.client.close()
+        c.mock.stop()
+
+
+def test_the_guard_ends_settling():
+    c = open_cell(guard=lambda: "the cell door opened")
+    try:
+        with pytest.raises(DeviceFault, match="settling stopped: the cell door opened") as exc:
+            c.client.wait_settled(0.0005, 0.1, 2.0)
+        assert exc.value.code == ERR_STOPPED
+    finally:
+        c.client.close()
+        c.mock.stop()
+
+
+def test_the_guard_is_polled_at_least_at_20_hz():
+    assert GUARD_S <= 1 / 20  # issue 11: the door polled at 20 Hz or faster during every move and settle
+
+
+# --- a stale RSI stream refuses the move ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("protocol", ["udp", "tcp"])
+def test_a_stale_rsi_stream_refuses_the_move_before_sending(protocol):
+    """A controller whose RSI stream is there but never delivers a complete frame: the move is refused with a
+    clear error, bounded by rsi_stale_s (1 s), and nothing is sent on EKI."""
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol=protocol, rsi_passive=True,
+                      controller_host="127.0.0.1", connect_timeout_s=5.0)  # fmt: skip
+    client.listen()
+    stop = threading.Event()
+    eki = socket.create_connection(client.eki_address)
+    kind = socket.SOCK_DGRAM if protocol == "udp" else socket.SOCK_STREAM
+    rsi = socket.socket(socket.AF_INET, kind)
+    rsi.connect(client.rsi_address)
+
+    def controller():  # the first frame, then frames cut short: every cycle (UDP) or one that never ends (TCP)
+        rsi.send(encode_rob(RobFrame(ipoc=None), tcp=protocol == "tcp"))
+        while not stop.wait(KRC2_CYCLE_S):
+            rsi.send(b'<Rob TYPE="KUKA"><AIPos A1="1.0')
+            if protocol == "tcp":
+                stop.wait()
+
+    sender = threading.Thread(target=controller, daemon=True)
+    sender.start()
+    try:
+        client.connect()
+        with pytest.raises(MotionRefused, match=f"RSI stream stale.*more than {STALE_CYCLES} cycles") as exc:
+            client.move_ptp(TARGET, 10)
+        assert exc.value.code == "rsi_stale"
+        assert ("unreadable frames" if protocol == "udp" else "without a complete <Rob>") in str(exc.value)
+        eki.settimeout(0.1)
+        with pytest.raises(TimeoutError):
+            eki.recv(100)  # no move was sent
+    finally:
+        stop.set()
+        sender.join(2.0)
+        client.close()
+        eki.close()
+        rsi.close()
+
+
+# --- trackcal restarts: the controller finds it again ------------------------------------------------------
+
+
+def test_a_restarted_trackcal_finds_the_controller_again():
+    """The mock, like trackcal_eki.src, opens its channel again when the PC disconnects; a new trackcal on the
+    same ports gets the same robot where it stands (passive UDP RSI: nobody had to answer meanwhile)."""
+    first = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol="udp",
+        rsi_passive=True,
+        controller_host="127.0.0.1",
+        connect_timeout_s=5.0,
+    )
+    first.listen()
+    eki_addr, rsi_addr = first.eki_address, first.rsi_address
+    mock = MockKrc2(eki_addr, rsi_addr, RealClock(), HOME, joint_speed_deg_s=100.0, settle_s=0.05,
+                    rsi_protocol="udp", rsi_passive=True).start()  # fmt: skip
+    second = None
+    try:
+        first.connect()
+        first.move_ptp(TARGET, 100)
+        first.close()  # trackcal exits
+        second = KukaKrc2(
+            *eki_addr,
+            *rsi_addr,
+            rsi_protocol="udp",
+            rsi_passive=True,
+            controller_host="127.0.0.1",
+            connect_timeout_s=5.0,
+        )
+        second.connect()
+        assert second.read_joints() == pytest.approx(TARGET, abs=0.001)
+        second.move_ptp(HOME, 100)
+        assert mock.connections == 2 and not mock.rsi_stopped
+    finally:
+        if second is not None:
+            second.close()
+        first.close()
+        mock.stop()
+    assert mock.crashed is None

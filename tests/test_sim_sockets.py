@@ -12,6 +12,8 @@ moves while the mock PLC reports the cell door open.
 
 import contextlib
 import socket
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -172,9 +174,10 @@ def test_a_fake_controller_connecting_first_is_refused_and_the_real_one_runs_the
 
     def fake_first(self, eki_addr, rsi_addr, *args, **kw):
         fakes.append(socket.create_connection(eki_addr, source_address=("127.0.0.2", 0)))
-        invented = encode_rob(RobFrame(ipoc=1, aipos=(10.0, -80.0, 80.0, 0.0, 45.0, 0.0)))
-        rsi = socket.create_connection(rsi_addr, source_address=("127.0.0.2", 0))
-        rsi.sendall(invented)
+        invented = encode_rob(RobFrame(ipoc=1, aipos=(10.0, -80.0, 80.0, 0.0, 45.0, 0.0)), tcp=False)
+        rsi = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the twin's RSI is the shipped UDP
+        rsi.bind(("127.0.0.2", 0))
+        rsi.sendto(invented, rsi_addr)
         fakes.append(rsi)
         serve(self, eki_addr, rsi_addr, *args, **kw)
 
@@ -184,12 +187,57 @@ def test_a_fake_controller_connecting_first_is_refused_and_the_real_one_runs_the
     try:
         robot = sim.live.robot
         assert [a for a, _ in robot.refused_peers] == ["127.0.0.2", "127.0.0.2"]
-        for fake in fakes:  # closed by trackcal (a reset where it had sent unread bytes), never answered
-            fake.settimeout(2.0)
-            with contextlib.suppress(ConnectionResetError):
-                assert fake.recv(16) == b""
+        fakes[0].settimeout(2.0)  # the EKI connection: closed by trackcal, never answered
+        with contextlib.suppress(ConnectionResetError):
+            assert fakes[0].recv(16) == b""
         run_campaign(store, sim.live)
     finally:
         for fake in fakes:
             fake.close()
+    same_table(export_table(store), reference)
+
+
+def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_path, kr270, plan, reference):
+    """Issue 11: a door opened 20 ms into a move. trackcal's robot client polls the door at 25 Hz, sends the stop
+    request, the controller brakes (no motion beyond its braking distance after the stop), the campaign stops
+    safely and a resume (door closed + acknowledge) gives the table of an uninterrupted run."""
+    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    sim = SimCell(kr270, SEED, store)
+    ctl = sim.controller
+    after_stop: list[tuple[float, ...]] = []
+    report = ctl.on_joints
+
+    def on_joints(q):
+        if ctl.stops:  # recorded once the robot came to rest
+            after_stop.append(q)
+        report(q)
+
+    ctl.on_joints = on_joints
+
+    def open_the_door_20_ms_in():
+        wait_until = time.monotonic() + 10.0
+        while not ctl.moving and time.monotonic() < wait_until:
+            time.sleep(0.001)
+        time.sleep(0.020)
+        sim.plc.open_door()
+
+    def in_real_time():  # this move runs at the pace of the real clock, as trackcal's 25 Hz poll does
+        sim.clock.real_fraction = 1.0
+        threading.Thread(target=open_the_door_20_ms_in, daemon=True).start()
+
+    before_call(sim.live.robot, "move_ptp", 5, in_real_time)
+    with pytest.raises(CampaignStopped, match="stopped: the cell door opened"):
+        run_campaign(store, sim.live)
+    [(q_stop, v_stop, q_rest)] = ctl.stops
+    t_stop = max(abs(v) for v in v_stop) / ctl.brake_deg_s2 + ctl.cycle_s
+    for a, v, b in zip(q_stop, v_stop, q_rest, strict=True):
+        # all axes decelerate uniformly to rest together, in the time the fastest needs at the braking deceleration
+        # rounded up to whole cycles (< v_max / a + cycle): each travels v t / 2; plus the controller's 0.0001 deg
+        assert abs(b - a) <= abs(v) * t_stop / 2 + 1e-4
+    assert after_stop == [] and ctl.joints_deg == q_rest  # and then it stands: no joint change after rest
+    assert store.events("error")[-1].data["type"] == "DeviceFault"
+    stored = len(store.events("measurement"))
+    assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
+    run_campaign(store, SimCell(kr270, SEED, store).live)
+    assert store.events("campaign_done")
     same_table(export_table(store), reference)

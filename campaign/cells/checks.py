@@ -1,4 +1,4 @@
-"""The robot client's checks from the cell config, the same for the real cell and the twin's."""
+"""The robot client's checks from the cell config and the cell PLC, the same for the real cell and the twin's."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import numpy as np
 
 from calib.cell import Cell, usable_limits_deg
 from calib.poses import points_in_box
+from drivers.errors import DeviceError
+from drivers.plc.client import ModbusCellIO
 
 
 def cell_box_check(cell: Cell):
@@ -22,3 +24,21 @@ def cell_box_check(cell: Cell):
 def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
     """The robot client's pre-send check: the joint limits less the cell's margin, as the whole-plan check."""
     return [(float(lo), float(hi)) for lo, hi in usable_limits_deg(cell)]
+
+
+def motion_guard(cellio: ModbusCellIO):
+    """The robot client's guard during moves and settling (drivers.kuka.client polls it at 25 Hz): why the robot
+    must stop now, or None. The door (an unreadable door reads as open, drivers.plc.client) and the PLC's
+    emergency-stop input; a PLC that cannot be read stops the robot too."""
+
+    def guard() -> str | None:
+        if not cellio.door_closed():
+            return "the cell door opened"
+        try:
+            if not cellio.read_status().estop_ok:
+                return "the cell's emergency stop is pressed"
+        except DeviceError as exc:
+            return f"the cell PLC cannot be read ({exc})"
+        return None
+
+    return guard

@@ -20,7 +20,7 @@ from typing import Any
 import yaml
 
 from calib.cell import Cell
-from campaign.cells.checks import cell_box_check, joint_limits_deg
+from campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
 from campaign.console import console as default_console
 from campaign.engine.operator import ConsoleOperator, PlcOperator
 from campaign.engine.runner import Live
@@ -29,6 +29,8 @@ from drivers.emscon.client import EmsconTracker
 from drivers.errors import DeviceError
 from drivers.interfaces import RealClock
 from drivers.kuka.client import KukaKrc2
+from drivers.kuka.rsi_codec import KRC2_CYCLE_S
+from drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
 from drivers.meteo.client import SerialMeteo
 from drivers.plc.client import ModbusCellIO
 
@@ -61,7 +63,9 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "port": ("port", _REQUIRED),
     },
     "robot.rsi": {
-        "protocol": ("protocol", "tcp"),
+        "protocol": ("protocol", RSI_SHIPPED.protocol),  # protocol and passive: configs/krc2/trackcal_rsi.xml's
+        "passive": ("bool", RSI_SHIPPED.passive),
+        "cycle_s": ("positive", KRC2_CYCLE_S),  # the controller's interpolation cycle: 12 ms KR C2, 4 ms KR C4
         "host": ("host", _REQUIRED),
         "port": ("port", _REQUIRED),
     },
@@ -100,7 +104,8 @@ class Hardware:
         r = self.robot
         out = {"tracker": f"emScon {self.tracker['host']}:{self.tracker['port']}",
                "robot": f"KR C2, listening for EKI on {r['eki']['host']}:{r['eki']['port']} and RSI "
-                        f"{r['rsi']['protocol']} on {r['rsi']['host']}:{r['rsi']['port']}",
+                        f"{r['rsi']['protocol']} ({'passive' if r['rsi']['passive'] else 'answered'}, "
+                        f"{r['rsi']['cycle_s'] * 1000:g} ms) on {r['rsi']['host']}:{r['rsi']['port']}",
                "operator": (f"cell PLC {self.plc['host']}:{self.plc['port']} unit {self.plc['unit_id']}"
                             if self.plc else "console (no PLC configured)")}  # fmt: skip
         if self.meteo:
@@ -180,6 +185,10 @@ def _section(path: Path, name: str, doc) -> dict:
             if not lo <= v <= hi:
                 raise InputError(f"{path}: {where}: {v} out of range {lo}..{hi}")
             out[key] = v
+        elif kind == "bool":
+            if not isinstance(v, bool):
+                raise InputError(f"{path}: {where}: expected true or false, got {v!r}")
+            out[key] = v
         elif kind in ("timeout", "positive"):
             if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"{path}: {where}: expected a positive number, got {v!r}")
@@ -235,7 +244,9 @@ def connect_hardware(hw: Hardware, cell: Cell, console=None):
     eki, rsi = r["eki"], r["rsi"]
     robot = KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
                      controller_host=r["controller_host"],
+                     rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
                      joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
+                     motion_guard=None if cellio is None else motion_guard(cellio),
                      connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
                      io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
     where = (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "

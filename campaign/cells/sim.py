@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import socket
-import threading
 
 from calib.cell import Cell
-from campaign.cells.checks import cell_box_check, joint_limits_deg
+from campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
 from campaign.console import console
 from campaign.engine.operator import PlcOperator
 from campaign.engine.runner import Live
@@ -56,11 +55,7 @@ class TwinMocks:
         self.world = World(Twin(cell, seed=seed, effects=effects or {}), self.clock)
         if measured:
             self.world.restore_counts(measured)
-        self.controller = None
-        self.controllers_started = 0
-        self._connected = 0  # controllers (before the current one) that did connect
-        self._supervisor: threading.Thread | None = None
-        self._stopping = threading.Event()
+        self.controller: MockKrc2 | None = None
         self._started: list = []
         try:
             self.tracker_mock = self._up(
@@ -79,38 +74,19 @@ class TwinMocks:
         self._started.append(device)
         return device
 
-    def _new_controller(self, eki_addr, rsi_addr, connect_timeout_s: float, joints_deg):
-        ctl = MockKrc2(eki_addr, rsi_addr, self.clock, joints_deg, on_joints=self.world.robot_at,
-                       joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed + self.controllers_started,
-                       overshoot_deg=0.0, connect_timeout_s=connect_timeout_s)  # fmt: skip
-        self.controllers_started += 1
-        if self.controller is not None and self.controller.connected.is_set():
-            self._connected += 1
-        self.controller = ctl
-        return ctl.start()
-
-    def serve_controller(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int], connect_timeout_s: float = 20.0,
-                         restart: bool = False) -> None:  # fmt: skip
+    def serve_controller(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int],
+                         connect_timeout_s: float = 20.0) -> None:  # fmt: skip
         """Start the mock KR C2, connecting (and retrying for connect_timeout_s) to trackcal's EKI and RSI ports.
-        `restart`: whenever the controller's connection ends (trackcal exited or was killed), a fresh one starts
-        where the robot stands and waits for the next trackcal, as a real controller restarting its program."""
-        self._new_controller(eki_addr, rsi_addr, connect_timeout_s, HOME_DEG)
-        if not restart:
-            return
-
-        def supervise() -> None:
-            while not self._stopping.is_set():
-                ctl = self.controller
-                if ctl.join(0.1) and not self._stopping.is_set():
-                    ctl.stop()
-                    self._new_controller(eki_addr, rsi_addr, connect_timeout_s, ctl.joints_deg)
-
-        self._supervisor = threading.Thread(target=supervise, name="mock-krc2-supervisor", daemon=True)
-        self._supervisor.start()
+        Whenever trackcal goes away (exited, killed) the controller keeps the robot where it stands and connects
+        again, as trackcal_eki.src closes and reopens its channel: the next trackcal finds it. The RSI stream is
+        the shipped configuration's (configs/krc2/trackcal_rsi.xml)."""
+        self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
+                                   joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
+                                   connect_timeout_s=connect_timeout_s).start()  # fmt: skip
 
     def controllers_connected(self) -> int:
-        """How many times a controller connected to trackcal (one per `run` / `resume` served)."""
-        return self._connected + (self.controller is not None and self.controller.connected.is_set())
+        """How many times the controller connected to trackcal (one per `run` / `resume` served)."""
+        return 0 if self.controller is None else self.controller.connections
 
     def addresses(self) -> dict[str, str]:
         """Where each mock serves (for people)."""
@@ -125,11 +101,7 @@ class TwinMocks:
         return out
 
     def stop_controller(self) -> None:
-        """The controller stops (and is not restarted): its connections end as a controller switched off."""
-        self._stopping.set()
-        if self._supervisor is not None:
-            self._supervisor.join(timeout=2.0)
-            self._supervisor = None
+        """The controller stops: its connections end as a controller switched off."""
         if self.controller is not None:
             with contextlib.suppress(Exception):
                 self.controller.stop()
@@ -162,13 +134,14 @@ class SimCell:
         self._clients: list = []
         try:
             tracker = self._client(EmsconTracker(*self.tracker_mock.address, timeout_s=10.0))
+            cellio = self._client(ModbusCellIO(*self.plc.address, timeout_s=5.0))
             robot = self._client(KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1",
                                           joint_limits_deg=joint_limits_deg(cell),
-                                          cell_box_check=cell_box_check(cell), connect_timeout_s=20.0))  # fmt: skip
+                                          cell_box_check=cell_box_check(cell), motion_guard=motion_guard(cellio),
+                                          connect_timeout_s=20.0))  # fmt: skip
             robot.listen()
             m.serve_controller(robot.eki_address, robot.rsi_address)
             self.controller = m.controller
-            cellio = self._client(ModbusCellIO(*self.plc.address, timeout_s=5.0))
             meteo = self._client(SerialMeteo(self.meteo_mock.port_path, timeout_s=5.0))
             for dev in (tracker, robot, cellio, meteo):
                 dev.connect()
@@ -196,7 +169,7 @@ class SimCell:
 # How often trackcal reads the acknowledge button (written into the hardware file); the simulated operator holds
 # it until the request lamp goes out, as a person would, so no press is missed at any poll period.
 POLL_S = 0.05
-# The controller retries its connection this long before giving up (and the supervisor starts a fresh one).
+# The controller retries its first connection this long before giving up.
 CONTROLLER_CONNECT_S = 24 * 3600.0
 
 
@@ -214,7 +187,8 @@ def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -
     return {
         "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
         "robot": {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
-                  "rsi": {"protocol": "tcp", "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
+                  "rsi": {"protocol": mocks.controller.rsi_protocol, "passive": mocks.controller.rsi_passive,
+                          "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
         "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
                 "poll_s": POLL_S},
         "meteo": {"protocol": "serial", "port": mocks.meteo_mock.port_path, "baudrate": 9600, "timeout_s": 2.0},

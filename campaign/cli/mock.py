@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import threading
 from pathlib import Path
 
@@ -45,8 +46,8 @@ def cmd_mock(args) -> int:
     mocks = None
     try:
         mocks = TwinMocks(cell, args.seed, effects, args.sim_speed)
-        eki, rsi = ("127.0.0.1", free_port()), ("127.0.0.1", free_port())
-        mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S, restart=True)
+        eki, rsi = ("127.0.0.1", free_port()), ("127.0.0.1", free_port(socket.SOCK_DGRAM))
+        mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S)
         doc = hardware_doc(mocks, eki, rsi)
         text = (f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
                 f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip

@@ -5,7 +5,10 @@ Rules it keeps:
   marked done only after its events are stored, and the next motion is never commanded before the
   previous measurement is durably stored;
 - no motion while the cell door is open or an operator prompt is outstanding: after any prompt, motion
-  resumes only after door closed + acknowledge + the plan's explicit `resume` step;
+  resumes only after door closed + acknowledge + the plan's explicit `resume` step, which also resets the
+  controller's latched faults; during every move and settle the robot client itself polls the door
+  (campaign/cells/checks.motion_guard): a door opened mid-motion brakes the robot and the step fails, so the
+  campaign stops safely there;
 - at every station set-up and before every point block the tracker is configured again (units, coordinate
   system type, measurement and statistic mode, system settings, read back: Tracker.configure) and given the
   environment, so that nothing another program changed on it in between reaches a measurement;
@@ -192,6 +195,7 @@ class Engine:
             answer = self.dev.operator.ask(StepKind.RESUME, "", text)
             self._append("operator", {"answer": answer})
             if self.interlock.release():
+                self.dev.robot.reset_faults()  # the operator acknowledged: the controller's latched faults go
                 return
             self._append("warning", {"message": "the cell door is open: motion stays blocked"})
 

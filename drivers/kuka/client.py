@@ -1,20 +1,29 @@
-"""KUKA KR C2 client (drivers.interfaces.Robot): EKI for motion, RSI 2.x as a passive joint monitor.
+"""KUKA KR C2 client (drivers.interfaces.Robot): EKI for motion, RSI 2.x as a joint monitor.
 
 On the KR C2 both interfaces have the controller as the network *client*: trackcal listens on two ports and
-the robot connects (Ethernet KRL XML 1.2: external system = server, ros-industrial/kuka_experimental issue
-#196; RSI: ST_ETHERNET connects to IP_NUMBER/PORT of its XML config, kuka_experimental
-kuka_rsi_hw_interface/krl/KR_C2/ros_rsi_ethernet.xml). The programs and configs the controller needs are in
-configs/krc2/ (see configs/krc2/README.md).
+the robot connects (Ethernet KRL XML 1.2: external system = server, ros-industrial/kuka_experimental pull request
+#205's PC side accepts the controller's connection; RSI: ST_ETHERNET connects to IP_NUMBER/PORT of its XML config,
+kuka_experimental kuka_rsi_hw_interface/krl/KR_C2/ros_rsi_ethernet.xml). The programs and configs the controller
+needs are in configs/krc2/ (see configs/krc2/README.md); the RSI defaults (protocol, passive) are the shipped
+configs/krc2/trackcal_rsi.xml's.
 
-- EKI (TCP): one <RobotCommand> per move; the KRL program answers one <RobotState> once the robot stands
-  still (drivers.kuka.eki_codec). The echoed ID is the acknowledgement; Error != 0 -> DeviceFault (its code).
-- RSI (TCP or UDP, as configs/krc2/trackcal_rsi.xml says): a background thread answers every <Rob> at once
-  with <Sen Type="ImFree">, zero corrections and the same IPOC (drivers.kuka.rsi_codec), and keeps the latest
-  AIPos (0.0001 deg). A controller stops the robot after more than eERXmaxLatePackages late answers, so the
-  thread does nothing but parse, answer and store.
-- Settling (`wait_settled`) is judged on RSI frames, in controller time: one frame = one 12 ms interpolation
-  cycle. The same code is then right for the real robot and for mocks/servers/kuka.py on a virtual clock. A real-time
-  guard (timeout_s + rsi_stale_s) still bounds the wait if frames stop coming.
+- EKI (TCP): one <RobotCommand> per request (drivers.kuka.eki_codec): a move, a stop of the running move, a
+  reset of the fault flags; the KRL program answers moves and resets with one <RobotState>. The echoed ID is the
+  acknowledgement; Error != 0 -> DeviceFault (its code).
+- RSI (UDP by default, as on a KR C2; TCP available): one thread receives the <Rob> frames and, unless passive
+  (ONLYSEND TRUE: the controller expects no answer), answers each at once with <Sen>, zero corrections and the same
+  IPOC, found without parsing the frame (drivers.kuka.rsi_codec.ipoc_of). That thread does nothing else: a second
+  one parses the frames and keeps the latest AIPos (0.0001 deg), because a controller in answered mode stops the
+  robot after more than eERXmaxLatePackages late answers.
+- A move is refused when the RSI stream is stale: no complete frame for more than STALE_CYCLES cycles; the
+  client waits at most rsi_stale_s for a fresh one before it refuses, and never sends the move.
+- `motion_guard` (a callable returning None, or why the robot must stop) is polled at least every GUARD_S
+  (25 Hz) during every move and settle: during a move it makes the client send the stop request (the KRL
+  brakes) and the move end in DeviceFault code ERR_STOPPED; during settling it ends the wait the same way.
+- Settling (`wait_settled`) is judged on RSI frames in controller time: one frame = one interpolation cycle of
+  rsi_cycle_s (12 ms on a KR C2, 4 ms on a KR C4: the hardware file says which). The same code is then right for
+  the real robot and for the mock controller on a virtual clock. A real-time guard (timeout_s + rsi_stale_s)
+  still bounds the wait if frames stop coming.
 
 Trust: only the controller is served. Both listeners bind to the configured local address (the hardware
 config names it: there is no 0.0.0.0 default), a TCP connection from any other address than
@@ -31,6 +40,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
+import queue
 import socket
 import threading
 import time
@@ -47,34 +57,42 @@ from drivers.errors import (
 )
 from drivers.kuka.eki_codec import (
     AXES,
+    ERR_STOPPED,
     ERROR_TEXT,
+    KIND_MOVE,
+    KIND_RESET,
+    KIND_STOP,
     MAX_ID,
     STATE_ROOT,
-    MoveCommand,
+    Command,
     RobotState,
     XmlStreamFramer,
     encode_command,
     parse_state,
 )
 from drivers.kuka.rsi_codec import (
-    CYCLE_S,
+    KRC2_CYCLE_S,
     MAX_FRAME_BYTES,
-    RobFrame,
+    SHIPPED,
     SenFrame,
     encode_sen,
+    ipoc_of,
     parse_rob,
     rob_framer,
 )
 
-_POLL_S = 0.05  # socket timeout slice of the background thread and of blocking reads
+_POLL_S = 0.05  # socket timeout slice of the background threads and of blocking reads
+GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
+STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more than this many cycles
 _RECV_BYTES = 4096
 _FRAME_HISTORY = 8192  # RSI frames kept for wait_settled (~98 s of 12 ms cycles)
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
+MotionGuard = Callable[[], "str | None"]
 
 
 class KukaKrc2:
-    """A KUKA KR C2 with the trackcal KRL program (EKI) and the RSI passive monitor running."""
+    """A KUKA KR C2 with the trackcal KRL program (EKI) and the RSI monitor running."""
 
     def __init__(
         self,
@@ -82,16 +100,18 @@ class KukaKrc2:
         eki_port: int,
         rsi_host: str,
         rsi_port: int,
-        rsi_protocol: str = "tcp",
+        rsi_protocol: str = SHIPPED.protocol,
         *,
         controller_host: str,
+        rsi_passive: bool = SHIPPED.passive,
+        rsi_cycle_s: float = KRC2_CYCLE_S,
         joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
         cell_box_check: CellBoxCheck | None = None,
+        motion_guard: MotionGuard | None = None,
         connect_timeout_s: float = 60.0,
         move_timeout_s: float = 300.0,
         io_timeout_s: float = 5.0,
         rsi_stale_s: float = 1.0,
-        rsi_cycle_s: float = CYCLE_S,
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
@@ -113,14 +133,17 @@ class KukaKrc2:
         self.controller_host = controller_host
         self.refused_peers: list[tuple[str, int]] = []  # (address, port) of connections and datagrams refused
         self._controller_ips: frozenset[str] | None = None
+        self.rsi_passive = bool(rsi_passive)
+        self.rsi_cycle_s = float(rsi_cycle_s)
         self.joint_limits_deg = limits
         self.cell_box_check = cell_box_check
+        self.motion_guard = motion_guard
         self.connect_timeout_s = connect_timeout_s
         self.move_timeout_s = move_timeout_s
         self.io_timeout_s = io_timeout_s
         self.rsi_stale_s = rsi_stale_s
-        self.rsi_cycle_s = rsi_cycle_s
-        self.device = f"KR C2 eki {eki_host}:{eki_port} rsi {rsi_protocol} {rsi_host}:{rsi_port}"
+        mode = "passive" if self.rsi_passive else "answered"
+        self.device = f"KR C2 eki {eki_host}:{eki_port} rsi {rsi_protocol} {mode} {rsi_host}:{rsi_port}"
 
         self._eki_listener: socket.socket | None = None
         self._rsi_listener: socket.socket | None = None  # TCP listener, or the bound UDP socket
@@ -132,13 +155,17 @@ class KukaKrc2:
 
         self._cond = threading.Condition()
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()  # (arrival time, frame) from answer to monitor
         self._rsi_error: DeviceError | None = None
         self._frames: deque[tuple[int, tuple[float, ...]]] = deque(maxlen=_FRAME_HISTORY)
         self._seq = 0
         self._latest: tuple[float, ...] | None = None
-        self._latest_at = 0.0
+        self._latest_at: float | None = None
+        self._last_bad = ""
+        self._framer_pending = 0
         self.rsi_frames_answered = 0
+        self.rsi_frames_unreadable = 0
 
     # --- addresses and connection ---------------------------------------------------------------------------
 
@@ -192,9 +219,7 @@ class KukaKrc2:
             family, _, _, _, addr = infos[0]
             sock = socket.socket(family, kind)
         except OSError as exc:
-            raise ConnectionLost(
-                f"cannot resolve {what} address {host}:{port}: {exc}", device=self.device
-            ) from exc
+            raise ConnectionLost(f"cannot resolve {what} address {host}:{port}: {exc}", device=self.device) from exc
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.bind(addr)
@@ -202,9 +227,7 @@ class KukaKrc2:
                 sock.listen(1)
         except OSError as exc:
             sock.close()
-            raise ConnectionLost(
-                f"cannot listen for {what} on {host}:{port}: {exc}", device=self.device
-            ) from exc
+            raise ConnectionLost(f"cannot listen for {what} on {host}:{port}: {exc}", device=self.device) from exc
         return sock
 
     def connect(self) -> None:
@@ -232,8 +255,12 @@ class KukaKrc2:
             self.close()
             raise
         self._stop.clear()
-        self._thread = threading.Thread(target=self._rsi_loop, name="krc2-rsi", daemon=True)
-        self._thread.start()
+        self._threads = [
+            threading.Thread(target=self._rsi_answer_loop, name="krc2-rsi-answer", daemon=True),
+            threading.Thread(target=self._rsi_monitor_loop, name="krc2-rsi-monitor", daemon=True),
+        ]
+        for thread in self._threads:
+            thread.start()
 
     def _accept(self, listener: socket.socket | None, deadline: float, what: str) -> socket.socket:
         """The first connection from the controller; any other is closed at once."""
@@ -251,9 +278,7 @@ class KukaKrc2:
             except TimeoutError:
                 continue
             except OSError as exc:
-                raise ConnectionLost(
-                    f"accept failed while waiting for {what}: {exc}", device=self.device
-                ) from exc
+                raise ConnectionLost(f"accept failed while waiting for {what}: {exc}", device=self.device) from exc
             if self._from_controller(peer):
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return conn
@@ -276,18 +301,16 @@ class KukaKrc2:
             except TimeoutError:
                 continue
             except OSError as exc:
-                raise ConnectionLost(
-                    f"UDP receive failed while waiting for {what}: {exc}", device=self.device
-                ) from exc
+                raise ConnectionLost(f"UDP receive failed while waiting for {what}: {exc}", device=self.device) from exc
             if not self._from_controller(peer):
                 continue
             self._rsi_peer, self._rsi = peer, sock
-            self._handle_rsi_doc(data)  # the KR C2's first frame (empty IPOC) normally
+            self._take(sock, data)  # the KR C2's first frame (empty IPOC) normally
             return sock
 
-    # --- RSI background thread ------------------------------------------------------------------------------
+    # --- RSI: the answering thread (nothing else) and the monitor thread ---------------------------------------
 
-    def _rsi_loop(self) -> None:
+    def _rsi_answer_loop(self) -> None:
         sock = self._rsi
         assert sock is not None
         framer = rob_framer()
@@ -298,56 +321,66 @@ class KukaKrc2:
                     if self.rsi_protocol == "tcp":
                         data = sock.recv(_RECV_BYTES)
                         if not data:
-                            raise ConnectionLost(
-                                "the controller closed the RSI connection", device=self.device
-                            )
-                        docs = framer.feed(data)
+                            raise ConnectionLost("the controller closed the RSI connection", device=self.device)
+                        for doc in framer.feed(data):
+                            self._take(sock, doc)
+                        self._framer_pending = framer.pending
                     else:
                         data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
-                        if peer != self._rsi_peer:
-                            continue  # not our controller
-                        docs = [data]
+                        if peer == self._rsi_peer:  # anything else is not our controller
+                            self._take(sock, data)
                 except TimeoutError:
                     continue
-                for doc in docs:
-                    self._handle_rsi_doc(doc)
         except DeviceError as exc:
             if not exc.device:  # e.g. the framer's ProtocolError: name the device and the interface
                 exc = type(exc)(f"RSI: {exc}", device=self.device)
-            self._set_rsi_error(exc)
+            self._inbox.put((time.monotonic(), exc))
         except OSError as exc:
             if not self._stop.is_set():
-                self._set_rsi_error(ConnectionLost(f"RSI connection failed: {exc}", device=self.device))
+                self._inbox.put((time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device)))
 
-    def _handle_rsi_doc(self, doc: bytes) -> None:
-        try:
-            frame = parse_rob(doc)
-        except ProtocolError as exc:
-            raise ProtocolError(f"RSI: {exc}", device=self.device) from None
-        if frame.ipoc is None:
-            return  # KR C2 first frame: nothing to echo
-        self._answer_rsi(frame)
-        assert frame.aipos is not None
-        joints = tuple(round(v, 4) for v in frame.aipos)
-        with self._cond:
-            self._seq += 1
-            self._frames.append((self._seq, joints))
-            self._latest = joints
-            self._latest_at = time.monotonic()
-            self._cond.notify_all()
+    def _take(self, sock: socket.socket, doc: bytes) -> None:
+        """Answer a frame at once (unless passive) and hand it to the monitor thread."""
+        arrived = time.monotonic()
+        if not self.rsi_passive:
+            ipoc = ipoc_of(doc)
+            if ipoc is not None:
+                answer = encode_sen(SenFrame(ipoc=ipoc))
+                if self.rsi_protocol == "tcp":
+                    sock.sendall(answer)
+                else:
+                    sock.sendto(answer, self._rsi_peer)
+                self.rsi_frames_answered += 1
+        self._inbox.put((arrived, doc))
 
-    def _answer_rsi(self, frame: RobFrame) -> None:
-        """Echo the IPOC with zero corrections, at once (the controller allows about 10 ms)."""
-        assert frame.ipoc is not None
-        answer = encode_sen(SenFrame(ipoc=frame.ipoc))
-        sock = self._rsi
-        if sock is None:
-            return  # closing
-        if self.rsi_protocol == "tcp":
-            sock.sendall(answer)
-        else:
-            sock.sendto(answer, self._rsi_peer)
-        self.rsi_frames_answered += 1
+    def _rsi_monitor_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                arrived, item = self._inbox.get(timeout=_POLL_S)
+            except queue.Empty:
+                continue
+            if isinstance(item, DeviceError):
+                self._set_rsi_error(item)
+                return
+            try:
+                frame = parse_rob(item)
+            except ProtocolError as exc:
+                if self.rsi_protocol == "tcp":  # a byte stream cannot be resynchronised
+                    self._set_rsi_error(ProtocolError(f"RSI: {exc}", device=self.device))
+                    return
+                with self._cond:  # one bad datagram is not the end of the stream: the stale check decides
+                    self.rsi_frames_unreadable += 1
+                    self._last_bad = str(exc)
+                continue
+            if frame.ipoc is None:
+                continue  # KR C2 first frame: nothing in it
+            assert frame.aipos is not None
+            joints = tuple(round(v, 4) for v in frame.aipos)
+            with self._cond:
+                self._seq += 1
+                self._frames.append((self._seq, joints))
+                self._latest, self._latest_at = joints, arrived
+                self._cond.notify_all()
 
     def _set_rsi_error(self, exc: DeviceError) -> None:
         with self._cond:
@@ -358,6 +391,33 @@ class KukaKrc2:
     def _raise_rsi_error(self) -> None:
         if self._rsi_error is not None:
             raise self._rsi_error
+
+    def _require_fresh_rsi(self) -> None:
+        """Return once a complete RSI frame is at most STALE_CYCLES cycles old; waits for one at most rsi_stale_s,
+        then refuses (MotionRefused, code rsi_stale): no move is sent without a live monitor."""
+        limit = STALE_CYCLES * self.rsi_cycle_s
+        deadline = time.monotonic() + self.rsi_stale_s
+        with self._cond:
+            while True:
+                self._raise_rsi_error()
+                now = time.monotonic()
+                if self._latest_at is not None and now - self._latest_at <= limit:
+                    return
+                if now >= deadline:
+                    break
+                self._cond.wait(min(deadline - now, limit))
+            age = "ever" if self._latest_at is None else f"{now - self._latest_at:.3f} s"
+            why = []
+            if self.rsi_frames_unreadable:
+                why.append(f"{self.rsi_frames_unreadable} unreadable frames, the last: {self._last_bad}")
+            if self._framer_pending:
+                why.append(f"{self._framer_pending} bytes received without a complete <Rob>")
+        raise MotionRefused(
+            f"RSI stream stale: no complete frame for {age} (more than {STALE_CYCLES} cycles of "
+            f"{self.rsi_cycle_s * 1000:g} ms){': ' + '; '.join(why) if why else ''}; the move is not sent",
+            code="rsi_stale",
+            device=self.device,
+        )
 
     # --- Robot protocol -------------------------------------------------------------------------------------
 
@@ -371,10 +431,8 @@ class KukaKrc2:
                     break
                 self._cond.wait(remaining)
             self._raise_rsi_error()
-            if self._latest is None:
-                raise DeviceTimeout(
-                    f"no RSI frame with joint values within {self.rsi_stale_s} s", device=self.device
-                )
+            if self._latest is None or self._latest_at is None:
+                raise DeviceTimeout(f"no RSI frame with joint values within {self.rsi_stale_s} s", device=self.device)
             age = time.monotonic() - self._latest_at
             if age > self.rsi_stale_s:
                 raise DeviceTimeout(
@@ -412,44 +470,77 @@ class KukaKrc2:
                 f"speed override {speed_override_pct} % outside 1..100 %", code="speed", device=self.device
             )
         self._require_connected()
-        with self._cond:
-            self._raise_rsi_error()  # never move without the monitor
-        command_id = next(self._ids) % MAX_ID or next(self._ids)
-        payload = encode_command(MoveCommand(command_id, target, int(round(speed))))
-        eki = self._eki
-        assert eki is not None
-        try:
-            eki.settimeout(self.io_timeout_s)
-            eki.sendall(payload)
-        except TimeoutError:
-            raise DeviceTimeout(
-                f"move command not sent within {self.io_timeout_s} s", device=self.device
-            ) from None
-        except OSError as exc:
-            self._drop_eki()
-            raise ConnectionLost(f"EKI send failed: {exc}", device=self.device) from exc
-        state = self._await_state(command_id)
+        self._require_fresh_rsi()  # never move without the monitor
+        command_id = self._next_id()
+        self._send(Command(command_id, KIND_MOVE, target, int(round(speed))))
+        state, stopped = self._await_state(command_id, guarded=True)
+        if stopped:
+            raise DeviceFault(f"move {command_id} to {target} stopped: {stopped}", code=ERR_STOPPED, device=self.device)
         if state.error:
             text = ERROR_TEXT.get(state.error, "controller fault")
-            raise DeviceFault(
-                f"move {command_id} to {target} failed: {text}", code=state.error, device=self.device
-            )
+            raise DeviceFault(f"move {command_id} to {target} failed: {text}", code=state.error, device=self.device)
         if not state.done:
             raise ProtocolError(
                 f"move {command_id} acknowledged without Done and without an error code", device=self.device
             )
 
-    def _await_state(self, command_id: int) -> RobotState:
+    def reset_faults(self) -> None:
+        """Clear the controller's fault flags (after the operator acknowledged); DeviceFault if one is still
+        active (e.g. the emergency stop not released)."""
+        self._require_connected()
+        command_id = self._next_id()
+        self._send(Command(command_id, KIND_RESET))
+        state, _ = self._await_state(command_id, guarded=False)
+        if state.error:
+            text = ERROR_TEXT.get(state.error, "controller fault")
+            raise DeviceFault(f"fault reset {command_id}: {text} still active", code=state.error, device=self.device)
+
+    def _next_id(self) -> int:
+        return next(self._ids) % MAX_ID or next(self._ids)
+
+    def _send(self, command: Command) -> None:
+        eki = self._eki
+        assert eki is not None
+        try:
+            eki.settimeout(self.io_timeout_s)
+            eki.sendall(encode_command(command))
+        except TimeoutError:
+            raise DeviceTimeout(
+                f"request {command.command_id} not sent within {self.io_timeout_s} s", device=self.device
+            ) from None
+        except OSError as exc:
+            self._drop_eki()
+            raise ConnectionLost(f"EKI send failed: {exc}", device=self.device) from exc
+
+    def _guard(self) -> str | None:
+        return None if self.motion_guard is None else self.motion_guard()
+
+    def _await_state(self, command_id: int, guarded: bool) -> tuple[RobotState, str | None]:
+        """The controller's answer to `command_id`, and why it was stopped (None if it was not). While
+        `guarded`, the motion guard is polled every GUARD_S; when it names a reason the stop request is sent
+        and the answer awaited io_timeout_s more (the robot brakes)."""
         eki = self._eki
         assert eki is not None
         deadline = time.monotonic() + self.move_timeout_s
+        stopped: str | None = None
+        next_guard = time.monotonic()
         while True:
+            now = time.monotonic()
+            if guarded and stopped is None and now >= next_guard:
+                stopped = self._guard()
+                next_guard = now + GUARD_S
+                if stopped:
+                    self._send(Command(command_id, KIND_STOP))
+                    deadline = time.monotonic() + self.io_timeout_s
             remaining = deadline - time.monotonic()
             if remaining <= 0:
+                what = "stop" if stopped else "request"
                 raise DeviceTimeout(
-                    f"move {command_id} not acknowledged within {self.move_timeout_s} s", device=self.device
+                    f"{what} {command_id} not acknowledged within "
+                    f"{self.io_timeout_s if stopped else self.move_timeout_s} s",
+                    device=self.device,
                 )
-            eki.settimeout(min(remaining, _POLL_S * 4))
+            eki.settimeout(min(remaining, GUARD_S if guarded else _POLL_S * 4))
             try:
                 data = eki.recv(_RECV_BYTES)
             except TimeoutError:
@@ -460,7 +551,7 @@ class KukaKrc2:
             if not data:
                 self._drop_eki()
                 raise ConnectionLost(
-                    f"the controller closed the EKI connection during move {command_id}", device=self.device
+                    f"the controller closed the EKI connection during request {command_id}", device=self.device
                 )
             try:
                 docs = self._eki_framer.feed(data)
@@ -470,12 +561,13 @@ class KukaKrc2:
                 raise ProtocolError(f"EKI: {exc}", device=self.device) from None
             for state in states:
                 if state.command_id == command_id or (state.command_id == 0 and state.error):
-                    return state
-                # an answer to an earlier command that timed out here: stale, skip it
+                    return state, stopped
+                # an answer to an earlier request that timed out here: stale, skip it
 
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         """Joints from RSI frames arriving after the call that stay within tolerance_deg of the window's first
-        frame for window_s of controller time; returns the last of them."""
+        frame for window_s of controller time; returns the last of them. The motion guard is polled every
+        GUARD_S: a reason ends the wait (DeviceFault code ERR_STOPPED)."""
         if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
             raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
         self._require_connected()
@@ -483,18 +575,23 @@ class KukaKrc2:
         real_deadline = time.monotonic() + timeout_s + self.rsi_stale_s
         with self._cond:
             start_seq = next_seq = self._seq + 1
-            anchor: tuple[float, ...] | None = None
-            anchor_seq = 0
-            while True:
+        anchor: tuple[float, ...] | None = None
+        anchor_seq = 0
+        next_guard = time.monotonic()
+        while True:
+            if time.monotonic() >= next_guard:
+                reason = self._guard()
+                if reason:
+                    raise DeviceFault(f"settling stopped: {reason}", code=ERR_STOPPED, device=self.device)
+                next_guard = time.monotonic() + GUARD_S
+            with self._cond:
                 self._raise_rsi_error()
                 first_seq = self._frames[0][0] if self._frames else next_seq
                 if next_seq < first_seq:  # fell behind the history: restart the window
                     next_seq, anchor = first_seq, None
                 for seq, joints in itertools.islice(self._frames, next_seq - first_seq, None):
                     next_seq = seq + 1
-                    if anchor is None or any(
-                        abs(a - b) > tolerance_deg for a, b in zip(joints, anchor, strict=True)
-                    ):
+                    if anchor is None or any(abs(a - b) > tolerance_deg for a, b in zip(joints, anchor, strict=True)):
                         anchor, anchor_seq = joints, seq
                     if (seq - anchor_seq) * cycle >= window_s - 1e-9:
                         return joints
@@ -510,7 +607,7 @@ class KukaKrc2:
                         f"RSI frames stopped coming while waiting to settle ({timeout_s} s)",
                         device=self.device,
                     )
-                self._cond.wait(min(remaining, _POLL_S))
+                self._cond.wait(min(remaining, GUARD_S))
 
     def _require_connected(self) -> None:
         if self._eki is None or self._rsi is None:
@@ -524,12 +621,12 @@ class KukaKrc2:
 
     def close(self) -> None:
         self._stop.set()
-        thread, self._thread = self._thread, None
+        threads, self._threads = self._threads, []
         rsi = self._rsi
         if rsi is not None and rsi is not self._rsi_listener:
             with contextlib.suppress(OSError):
                 rsi.shutdown(socket.SHUT_RDWR)
-        if thread is not None:
+        for thread in threads:
             thread.join(timeout=2.0)
         self._rsi = None
         self._drop_eki()

@@ -1,28 +1,22 @@
-"""KUKA KR C2 "Ethernet KRL XML 1.2" (KRL API EKX_*) codec of trackcal's move/acknowledge exchange.
+"""KUKA KR C2 "Ethernet KRL XML 1.2" (KRL API EKX_*) codec of trackcal's requests and the controller's answers.
 
-Pure functions, no I/O. trackcal -> robot (one XML document per send, angles in degrees, 4 decimals; Speed =
-axis speed override in %):
+Pure functions, no I/O. The documents are the ones configs/krc2 declares, read from there at import (xml.etree,
+importlib.resources): what the controller receives from configs/krc2/TrackcalEki.xml (typed <Elements>, one
+STRUCTTAG root, a STRUCTTAG is an element and every other type an attribute of its prefix), what it sends from
+the template configs/krc2/TrackcalEki+.xml. That layout is the one of ros-industrial/kuka_experimental pull
+request #205 ("KRC2 port for kuka_eki_hw_interface", commit fb5999d, kuka_eki_hw_interface/krl/EkiHwInterface.xml
+and EkiHwInterface+.xml), whose KRL addresses values as "Channel.Element.Attribute". The codec binds its fields
+to the declared names (COMMAND_FIELDS, STATE_FIELDS) and refuses to import if the files declare anything it does
+not bind or miss anything it does: the files are the one source of truth, for the KRL program
+(tests/test_krl_static.py), this codec and the mock controller. trackcal -> robot, every element always present:
 
-    <RobotCommand ID="17" Speed="20"><Pos A1="0.0000" A2="-90.0000" A3="90.0000" A4="0.0000" A5="90.0000"
-     A6="0.0000"/></RobotCommand>
+    <RobotCommand ID="17" Kind="1" Speed="20"><Pos A1="0.0000" A2="-90.0000" A3="90.0000" A4="0.0000"
+     A5="90.0000" A6="0.0000"/></RobotCommand>
 
-robot -> trackcal, after PTP without approximation, WAIT SEC 0 (advance-run stop) and the dwell; Pos is
-$AXIS_ACT at standstill, the echoed ID is the acknowledgement, Done/Error say how the command ended:
+Kind 1 = PTP move to Pos at Speed % axis override; 2 = stop the running move with this ID (the KRL brakes; the
+move's answer then says Error 6); 3 = reset the fault flags. robot -> trackcal, once per move or reset:
 
-    <RobotState><Pos A1=".." A2=".." A3=".." A4=".." A5=".." A6=".."/>
-     <RobotCommand ID="17" Done="1" Error="0"/></RobotState>
-
-The element/attribute paths are listed once, in COMMAND_TAGS and STATE_TAGS, in the XPath notation of the EKI
-configuration files ("Root/Elem/@Attr", KUKA.EthernetKRL 2.2 manual, sec. 6.1.4 "Configuration according to
-the XPath schema", https://www.easymanua.ls/kuka/kuka-ethernetkrl-2-2/manual?p=27);
-configs/krc2/TrackcalEki+.xml declares the same paths and tests/test_kuka_codecs.py checks that they agree.
-
-What the KR C2 variant changes (ros-industrial/kuka_experimental issue #196, "kuka_eki_hw_interface for KRC2",
-https://github.com/ros-industrial/kuka_experimental/issues/196): Ethernet KRL XML 1.2 names its functions
-EKX_* instead of EKI_*, they return an INT instead of EKI_STATUS, there is no
-EKI_Init/EKI_Clear/EKI_CheckBuffer, and the configuration is split into NAME.xml, NAME+.xml and
-XmlApiConfig.xml; the EKX_Get*Element functions take a first INT parameter choosing FIFO (0) or "current
-value" (1). The controller is the TCP client, trackcal the server.
+    <RobotState><Pos A1=".." ... A6=".."/><RobotCommand ID="17" Done="1" Error="0"/></RobotState>
 
 Safety of the XML parsing (every parser here and in drivers.kuka.rsi_codec goes through `parse_document`):
 - a size cap per document (MAX_DOC_BYTES) before anything is parsed;
@@ -30,6 +24,7 @@ Safety of the XML parsing (every parser here and in drivers.kuka.rsi_codec goes 
   defined: no XXE, no "billion laughs" (Python docs, "XML vulnerabilities": xml.etree does not fetch external
   entities but expands internal ones; refusing the DOCTYPE removes both);
 - every failure of the stdlib parser becomes drivers.errors.ProtocolError; nothing else escapes.
+The shipped configuration files are trusted input (package data), parsed with xml.etree directly.
 """
 
 from __future__ import annotations
@@ -38,44 +33,40 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from importlib import resources
 
 from drivers.errors import ProtocolError
 
-AXES = ("A1", "A2", "A3", "A4", "A5", "A6")
-COMMAND_ROOT = "RobotCommand"
-STATE_ROOT = "RobotState"
+CONFIG_PACKAGE = "configs"  # configs/krc2 is package data
+CHANNEL = "TrackcalEki"  # the channel name: EKX_Open("TrackcalEki") and every path's first part
+ELEMENTS_FILE = f"{CHANNEL}.xml"
+TEMPLATE_FILE = f"{CHANNEL}+.xml"
 MAX_DOC_BYTES = 4096  # a command or a state is ~250 bytes; the cap bounds parsing time and memory
 MAX_ID = 2**31 - 1  # a KRL INT is a 32-bit signed integer
-ANGLE_LIMIT_DEG = (
-    10_000.0  # plausibility bound on the wire (KRL axis values are a few hundred degrees at most)
-)
+ANGLE_LIMIT_DEG = 10_000.0  # plausibility bound on the wire (KRL axis values are a few hundred degrees at most)
+
+# RobotCommand/@Kind, as configs/krc2/trackcal_eki.src serves it
+KIND_MOVE = 1
+KIND_STOP = 2
+KIND_RESET = 3
+KINDS = (KIND_MOVE, KIND_STOP, KIND_RESET)
 
 # Error codes of RobotState/RobotCommand/@Error, set by configs/krc2/trackcal_eki.src.
 ERR_NONE = 0
-ERR_ESTOP = 1  # $STOPMESS with an emergency stop active
+ERR_ESTOP = 1  # an emergency stop was seen and no reset has found it released
 ERR_DRIVES_OFF = 2  # drives not ready ($PERI_RDY false)
 ERR_SOFT_LIMIT = 3  # target outside $SOFTN_END/$SOFTP_END, or a software limit switch reached
 ERR_RSI_STOPPED = 4  # the RSI monitor stopped the robot (more than eERXmaxLatePackages late answers)
-ERR_BAD_COMMAND = 5  # the command could not be read (missing element, speed out of range)
+ERR_BAD_COMMAND = 5  # the command could not be read (unknown kind, speed out of range)
+ERR_STOPPED = 6  # the move was stopped by a Kind 2 request (BRAKE)
 ERROR_TEXT = {
     ERR_ESTOP: "emergency stop",
     ERR_DRIVES_OFF: "drives off",
     ERR_SOFT_LIMIT: "software limit switch / target outside the axis limits",
     ERR_RSI_STOPPED: "RSI stopped the robot (too many late answers)",
     ERR_BAD_COMMAND: "command rejected by the robot program",
+    ERR_STOPPED: "stopped on request (BRAKE)",
 }
-
-COMMAND_TAGS = (
-    f"{COMMAND_ROOT}/@ID",
-    f"{COMMAND_ROOT}/@Speed",
-    *(f"{COMMAND_ROOT}/Pos/@{a}" for a in AXES),
-)
-STATE_TAGS = (
-    *(f"{STATE_ROOT}/Pos/@{a}" for a in AXES),
-    f"{STATE_ROOT}/{COMMAND_ROOT}/@ID",
-    f"{STATE_ROOT}/{COMMAND_ROOT}/@Done",
-    f"{STATE_ROOT}/{COMMAND_ROOT}/@Error",
-)
 
 # Numbers on the wire: a decimal with an optional exponent, at most 40 characters; no nan/inf/underscores.
 _REAL_RE = re.compile(r"[-+]?(?:[0-9]{1,12}(?:\.[0-9]{0,12})?|\.[0-9]{1,12})(?:[eE][-+]?[0-9]{1,3})?")
@@ -83,11 +74,110 @@ _INT_RE = re.compile(r"[-+]?[0-9]{1,19}")
 _WS = b" \t\r\n"
 
 
+# --- the channel TrackcalEki, as configs/krc2 declares it ---------------------------------------------------
+
+
 @dataclass(frozen=True)
-class MoveCommand:
+class Structure:
+    """One XML document of the channel: its root element, the root's attributes and its child elements with
+    theirs (two levels, as both of trackcal's documents), each attribute's type ("" in a send template)."""
+
+    root: str
+    attrs: tuple[str, ...]
+    children: tuple[tuple[str, tuple[str, ...]], ...]
+    types: tuple[tuple[str, str], ...]
+
+    @property
+    def tags(self) -> tuple[str, ...]:
+        """Every value of the document as an EKX path without the channel: "Root.Attr", "Root.Child.Attr"."""
+        return tuple(tag for tag, _ in self.types)
+
+    def child(self, name: str) -> tuple[str, ...]:
+        return dict(self.children)[name]
+
+
+def read_elements(xml: bytes, what: str = "elements") -> Structure:
+    """The typed <Elements> list of what the controller receives (configs/krc2/TrackcalEki.xml)."""
+    root = ET.fromstring(xml)
+    if root.tag != "Elements":
+        raise ValueError(f"{what}: root <{root.tag}>, expected <Elements>")
+    name, attrs, children, types = "", [], {}, []
+    for el in root.iter("Element"):
+        tag, kind = el.get("Tag", ""), el.get("Type", "")
+        parts = tag.split(".")
+        if kind == "STRUCTTAG":
+            if len(parts) == 1 and not name:
+                name = tag
+            elif len(parts) == 2 and parts[0] == name and parts[1] not in children:
+                children[parts[1]] = []
+            else:
+                raise ValueError(f"{what}: STRUCTTAG {tag!r} is not the one root or a child of it")
+        elif kind in ("INTEGER", "REAL"):
+            if len(parts) == 2 and parts[0] == name:
+                attrs.append(parts[1])
+            elif len(parts) == 3 and parts[0] == name and parts[1] in children:
+                children[parts[1]].append(parts[2])
+            else:
+                raise ValueError(f"{what}: {tag!r} belongs to no declared STRUCTTAG")
+            types.append((tag, kind))
+        else:
+            raise ValueError(f"{what}: {tag!r} has type {kind!r}, expected STRUCTTAG, INTEGER or REAL")
+    if not name:
+        raise ValueError(f"{what}: no root STRUCTTAG")
+    return Structure(name, tuple(attrs), tuple((c, tuple(a)) for c, a in children.items()), tuple(types))
+
+
+def read_template(xml: bytes, what: str = "template") -> Structure:
+    """The document the controller sends, as a template with empty values (configs/krc2/TrackcalEki+.xml)."""
+    root = ET.fromstring(xml)
+    children, types = [], [(f"{root.tag}.{a}", "") for a in root.attrib]
+    for el in root:
+        if len(el):
+            raise ValueError(f"{what}: <{el.tag}> has children: two levels only")
+        children.append((el.tag, tuple(el.attrib)))
+        types += [(f"{root.tag}.{el.tag}.{a}", "") for a in el.attrib]
+    return Structure(root.tag, tuple(root.attrib), tuple(children), tuple(types))
+
+
+def config_text(name: str) -> str:
+    """A shipped file of configs/krc2 (package data)."""
+    return resources.files(CONFIG_PACKAGE).joinpath("krc2", name).read_text(encoding="utf-8")
+
+
+# The codec's fields, bound to the declared names (the files hold the names, the order and the types).
+AXES_ELEMENT = "Pos"  # the STRUCTTAG child whose REAL attributes are the axis values, in both documents
+COMMAND_FIELDS = ("ID", "Kind", "Speed")  # RobotCommand's INTEGER attributes
+STATE_ANSWER = "RobotCommand"  # RobotState's child echoing the request
+STATE_FIELDS = ("ID", "Done", "Error")
+
+
+def _bind(command: Structure, state: Structure) -> tuple[str, ...]:
+    """The axis names; ValueError if a file and the codec's fields disagree."""
+    axes = command.child(AXES_ELEMENT) if AXES_ELEMENT in dict(command.children) else ()
+    want = {f"{command.root}.{f}": "INTEGER" for f in COMMAND_FIELDS}
+    want |= {f"{command.root}.{AXES_ELEMENT}.{a}": "REAL" for a in axes}
+    if len(axes) != 6 or dict(command.types) != want or len(command.types) != len(want):
+        raise ValueError(f"{ELEMENTS_FILE}: expected INTEGER {COMMAND_FIELDS} and 6 REAL {AXES_ELEMENT} axes, "
+                         f"declared {command.types}")  # fmt: skip
+    if state.attrs or dict(state.children) != {AXES_ELEMENT: axes, STATE_ANSWER: STATE_FIELDS}:
+        raise ValueError(f"{TEMPLATE_FILE}: expected <{AXES_ELEMENT} {' '.join(axes)}> and "
+                         f"<{STATE_ANSWER} {' '.join(STATE_FIELDS)}>, found {state.children}")  # fmt: skip
+    return axes
+
+
+COMMAND = read_elements(config_text(ELEMENTS_FILE).encode(), ELEMENTS_FILE)
+STATE = read_template(config_text(TEMPLATE_FILE).encode(), TEMPLATE_FILE)
+AXES = _bind(COMMAND, STATE)
+COMMAND_ROOT = COMMAND.root
+STATE_ROOT = STATE.root
+
+
+@dataclass(frozen=True)
+class Command:
     command_id: int
-    target_deg: tuple[float, ...]
-    speed_pct: int
+    kind: int = KIND_MOVE
+    target_deg: tuple[float, ...] = (0.0,) * 6
+    speed_pct: int = 0  # 1..100 for a move; 0 for a stop or a reset
 
 
 @dataclass(frozen=True)
@@ -153,9 +243,7 @@ def parse_bool(text: str | None, what: str) -> bool:
     raise ProtocolError(f"{what}={text[:40]!r} is not a boolean (1/0/TRUE/FALSE)")
 
 
-def parse_attrs(
-    element: ET.Element | None, names: tuple[str, ...], what: str, limit: float
-) -> tuple[float, ...]:
+def parse_attrs(element: ET.Element | None, names: tuple[str, ...], what: str, limit: float) -> tuple[float, ...]:
     if element is None:
         raise ProtocolError(f"<{what}> is missing")
     return tuple(parse_real(element.get(n), f"{what}/@{n}", limit) for n in names)
@@ -291,29 +379,34 @@ class XmlStreamFramer:
 # --- RobotCommand -------------------------------------------------------------------------------------------
 
 
-def encode_command(cmd: MoveCommand) -> bytes:
+def _speed_range(kind: int) -> tuple[int, int]:
+    return (1, 100) if kind == KIND_MOVE else (0, 100)
+
+
+def encode_command(cmd: Command) -> bytes:
     if isinstance(cmd.command_id, bool) or not 1 <= int(cmd.command_id) <= MAX_ID:
         raise ValueError(f"command id {cmd.command_id!r} outside 1..{MAX_ID}")
-    if (
-        isinstance(cmd.speed_pct, bool)
-        or int(cmd.speed_pct) != cmd.speed_pct
-        or not 1 <= cmd.speed_pct <= 100
-    ):
-        raise ValueError(f"speed override {cmd.speed_pct!r} is not an integer percentage 1..100")
+    if cmd.kind not in KINDS:
+        raise ValueError(f"command kind {cmd.kind!r} is not one of {KINDS}")
+    low, high = _speed_range(cmd.kind)
+    if isinstance(cmd.speed_pct, bool) or int(cmd.speed_pct) != cmd.speed_pct or not low <= cmd.speed_pct <= high:
+        raise ValueError(f"speed override {cmd.speed_pct!r} is not an integer percentage {low}..{high}")
     target = _check_axes(cmd.target_deg, "target")
-    text = (
-        f'<{COMMAND_ROOT} ID="{int(cmd.command_id)}" Speed="{int(cmd.speed_pct)}">'
-        f"{_axes_xml('Pos', target)}</{COMMAND_ROOT}>"
-    )
-    return text.encode("ascii")
+    values = dict(zip(COMMAND_FIELDS, (int(cmd.command_id), cmd.kind, int(cmd.speed_pct)), strict=True))
+    attrs = " ".join(f'{name}="{values[name]}"' for name in COMMAND.attrs)
+    return f"<{COMMAND_ROOT} {attrs}>{_axes_xml(AXES_ELEMENT, target)}</{COMMAND_ROOT}>".encode("ascii")
 
 
-def parse_command(data: bytes) -> MoveCommand:
+def parse_command(data: bytes) -> Command:
     root = parse_document(data, COMMAND_ROOT)
-    return MoveCommand(
-        command_id=parse_int(root.get("ID"), f"{COMMAND_ROOT}/@ID", 1, MAX_ID),
-        target_deg=parse_attrs(root.find("Pos"), AXES, f"{COMMAND_ROOT}/Pos", ANGLE_LIMIT_DEG),
-        speed_pct=parse_int(root.get("Speed"), f"{COMMAND_ROOT}/@Speed", 1, 100),
+    where = COMMAND_ROOT
+    command_id = parse_int(root.get("ID"), f"{where}/@ID", 1, MAX_ID)
+    kind = parse_int(root.get("Kind"), f"{where}/@Kind", min(KINDS), max(KINDS))
+    return Command(
+        command_id=command_id,
+        kind=kind,
+        target_deg=parse_attrs(root.find(AXES_ELEMENT), AXES, f"{where}/{AXES_ELEMENT}", ANGLE_LIMIT_DEG),
+        speed_pct=parse_int(root.get("Speed"), f"{where}/@Speed", *_speed_range(kind)),
     )
 
 
@@ -334,23 +427,24 @@ def encode_state(state: RobotState) -> bytes:
     if isinstance(state.error, bool) or not 0 <= int(state.error) <= MAX_ID:
         raise ValueError(f"error code {state.error!r} outside 0..{MAX_ID}")
     joints = _check_axes(state.joints_deg, "joints")
-    text = (
-        f"<{STATE_ROOT}>{_axes_xml('Pos', joints)}"
-        f'<{COMMAND_ROOT} ID="{int(state.command_id)}" Done="{1 if state.done else 0}" '
-        f'Error="{int(state.error)}"/>'
-        f"</{STATE_ROOT}>"
-    )
-    return text.encode("ascii")
+    values = dict(zip(STATE_FIELDS, (int(state.command_id), 1 if state.done else 0, int(state.error)), strict=True))
+    parts = []
+    for child, attrs in STATE.children:
+        if child == AXES_ELEMENT:
+            parts.append(_axes_xml(AXES_ELEMENT, joints))
+        else:
+            parts.append(f"<{child} " + " ".join(f'{a}="{values[a]}"' for a in attrs) + "/>")
+    return f"<{STATE_ROOT}>{''.join(parts)}</{STATE_ROOT}>".encode("ascii")
 
 
 def parse_state(data: bytes) -> RobotState:
     root = parse_document(data, STATE_ROOT)
-    ack = root.find(COMMAND_ROOT)
+    ack = root.find(STATE_ANSWER)
     if ack is None:
-        raise ProtocolError(f"<{STATE_ROOT}> without <{COMMAND_ROOT}> acknowledgement")
-    where = f"{STATE_ROOT}/{COMMAND_ROOT}"
+        raise ProtocolError(f"<{STATE_ROOT}> without <{STATE_ANSWER}> acknowledgement")
+    where = f"{STATE_ROOT}/{STATE_ANSWER}"
     return RobotState(
-        joints_deg=parse_attrs(root.find("Pos"), AXES, f"{STATE_ROOT}/Pos", ANGLE_LIMIT_DEG),
+        joints_deg=parse_attrs(root.find(AXES_ELEMENT), AXES, f"{STATE_ROOT}/{AXES_ELEMENT}", ANGLE_LIMIT_DEG),
         command_id=parse_int(ack.get("ID"), f"{where}/@ID", 0, MAX_ID),
         done=parse_bool(ack.get("Done"), f"{where}/@Done"),
         error=parse_int(ack.get("Error"), f"{where}/@Error", 0, MAX_ID),

@@ -1,13 +1,16 @@
 """KUKA RSI 2.x "Ethernet RSI XML" (ST_ETHERNET object, KR C2) frame codec: pure functions, no I/O.
 
-Every interpolation cycle (12 ms on a KR C2) the controller - the TCP or UDP *client* - sends one document:
+Every interpolation cycle (12 ms on a KR C2, 4 ms on a KR C4: the cycle_time of ros-industrial/kuka_experimental
+kuka_rsi_simulator; trackcal takes it from the hardware file) the controller - the UDP (default) or TCP *client* -
+sends one document:
 
     <Rob TYPE="KUKA"><RIst X=".." Y=".." Z=".." A=".." B=".." C=".."/><RSol X=".." .. C=".."/>
      <AIPos A1=".." .. A6=".."/><ASPos A1=".." .. A6=".."/><Delay D="0"/><IPOC>123645634563</IPOC></Rob>
 
 (RIst/RSol: actual/set Cartesian pose; AIPos/ASPos: actual/set axis positions in degrees, 4 decimals; Delay D:
 late packets counted by the controller; IPOC: the controller's interpolation-cycle timestamp). The external
-side must answer within about 10 ms with the same IPOC:
+side must answer within about 10 ms with the same IPOC, unless the config says ONLYSEND TRUE (passive: the
+controller expects no answer, "TRUE means the client don't expect answers", ros_rsi_ethernet.xml):
 
     <Sen Type="ImFree"><AK A1="0.0000" A2="0.0000" A3="0.0000" A4="0.0000" A5="0.0000" A6="0.0000"/>
      <IPOC>123645634563</IPOC></Sen>
@@ -22,35 +25,81 @@ KR C2 quirk (kuka_experimental pull request #74, "Support for KR C2 with RSI 2",
 https://github.com/ros-industrial/kuka_experimental/pull/74): the first <Rob> after ST_ETHERNET holds only an
 empty <IPOC/>; it parses here to a RobFrame with every field None.
 
+The shipped configs/krc2/trackcal_rsi.xml is read at import (SHIPPED): protocol, SENTYPE, ONLYSEND, the SEND
+tags (DEF_<element> -> the <Rob> elements) and the RECEIVE tags (<element>.<attribute> -> the <Sen> corrections):
+the file is the one source of truth for the client's defaults and for the mock controller. `ipoc_of` finds the
+IPOC of a frame without parsing it, for the thread that answers (it does nothing else).
 The XML is parsed through drivers.kuka.eki_codec.parse_document (size cap, no DOCTYPE/entities).
 """
 
 from __future__ import annotations
 
+import re
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 from drivers.errors import ProtocolError
 from drivers.kuka.eki_codec import (
     AXES,
     XmlStreamFramer,
+    config_text,
     fmt4,
     parse_attrs,
     parse_document,
     parse_int,
 )
 
+CONFIG_FILE = "trackcal_rsi.xml"
+
 ROB_ROOT = "Rob"
 SEN_ROOT = "Sen"
-SEN_TYPE = "ImFree"
 CART = ("X", "Y", "Z", "A", "B", "C")
-ROB_ELEMENTS = ("RIst", "RSol", "AIPos", "ASPos", "Delay", "IPOC")  # in the order the controller writes them
-CORRECTION_ELEMENT = "AK"  # axis corrections, received as AK.A1..AK.A6
 MAX_FRAME_BYTES = 2048  # a full <Rob> is ~450 bytes
 TCP_TERMINATOR = b"\n\n"  # the KR C2 ends every <Rob> on TCP with two LF
 MAX_IPOC = 2**63 - 1
 CART_LIMIT = 1.0e6  # mm / deg, plausibility bound
 AXIS_LIMIT = 1.0e4  # deg
-CYCLE_S = 0.012  # KR C2 interpolation cycle
+KRC2_CYCLE_S = 0.012  # KR C2 interpolation cycle (the default of the hardware file's rsi.cycle_s)
+_IPOC_RE = re.compile(rb"<IPOC>\s*([0-9]{1,19})\s*</IPOC>")
+
+
+@dataclass(frozen=True)
+class RsiConfig:
+    """What an ST_ETHERNET config file says: protocol ("udp"/"tcp"), the <Sen Type>, whether the controller
+    expects answers, the <Rob> elements it sends (SEND DEF_<name>) and the correction it reads (RECEIVE)."""
+
+    protocol: str
+    sen_type: str
+    passive: bool
+    rob_elements: tuple[str, ...]
+    correction: str
+    correction_axes: tuple[str, ...]
+
+
+def read_config(xml: bytes, what: str = CONFIG_FILE) -> RsiConfig:
+    root = ET.fromstring(xml)
+    protocol = (root.findtext("CONFIG/PROTOCOL") or "").strip().lower()
+    onlysend = (root.findtext("CONFIG/ONLYSEND") or "").strip().upper()
+    sen_type = (root.findtext("CONFIG/SENTYPE") or "").strip()
+    send = [e.get("TAG", "") for e in root.iterfind("SEND/ELEMENTS/ELEMENT")]
+    receive = [e.get("TAG", "").split(".") for e in root.iterfind("RECEIVE/ELEMENTS/ELEMENT")]
+    if protocol not in ("udp", "tcp") or onlysend not in ("TRUE", "FALSE") or not sen_type.isidentifier():
+        raise ValueError(f"{what}: PROTOCOL {protocol!r}, ONLYSEND {onlysend!r}, SENTYPE {sen_type!r}")
+    if not send or any(not t.startswith("DEF_") for t in send):
+        raise ValueError(f"{what}: SEND tags must be DEF_<element>, got {send}")
+    if not receive or any(len(r) != 2 or r[0] != receive[0][0] for r in receive):
+        raise ValueError(f"{what}: RECEIVE tags must be one <element>.<attribute> family")
+    return RsiConfig(protocol, sen_type, onlysend == "TRUE", tuple(t[4:] for t in send) + ("IPOC",),
+                     receive[0][0], tuple(r[1] for r in receive))  # fmt: skip
+
+
+SHIPPED = read_config(config_text(CONFIG_FILE).encode())
+SEN_TYPE = SHIPPED.sen_type
+ROB_ELEMENTS = SHIPPED.rob_elements  # in the order the controller writes them
+CORRECTION_ELEMENT = SHIPPED.correction  # axis corrections, received as AK.A1..AK.A6
+if SHIPPED.correction_axes != AXES or set(ROB_ELEMENTS) != {"RIst", "RSol", "AIPos", "ASPos", "Delay", "IPOC"}:
+    raise ValueError(f"{CONFIG_FILE}: the codec reads RIst RSol AIPos ASPos Delay and answers "
+                     f"{CORRECTION_ELEMENT}.{'/'.join(AXES)}; the file declares {SHIPPED}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -126,6 +175,16 @@ def parse_rob(data: bytes) -> RobFrame:
         rsol=opt("RSol", CART, CART_LIMIT),
         delay=None if delay_el is None else parse_int(delay_el.get("D"), "Rob/Delay/@D", 0, 2**31 - 1),
     )
+
+
+def ipoc_of(data: bytes) -> int | None:
+    """The IPOC of a frame, without parsing it (None: no IPOC value, e.g. the KR C2's first frame). For the
+    answering thread; the frame itself is parsed (and may be refused) afterwards, elsewhere."""
+    m = _IPOC_RE.search(data, 0, MAX_FRAME_BYTES)
+    if m is None:
+        return None
+    value = int(m[1])
+    return value if value <= MAX_IPOC else None
 
 
 def encode_sen(frame: SenFrame) -> bytes:

@@ -1,13 +1,23 @@
-"""Deterministic mock of a KUKA KR C2 running configs/krc2 (trackcal_eki.src + the RSI passive monitor).
+"""Deterministic mock of a KUKA KR C2 running configs/krc2 (trackcal_eki.src + the RSI monitor).
 
-Like the real controller it is the network *client*: it connects to the EKI and RSI ports where trackcal
-listens, retrying (bounded by connect_timeout_s of wall time) until they are up. Then one thread runs the
-controller:
+Like the real controller it is the network *client*: it connects to the EKI (and, over TCP, the RSI) port where
+trackcal listens, retrying (the first time bounded by connect_timeout_s of wall time) until they are up. Then one
+thread runs the controller until stop():
 
-    every 12 ms interpolation cycle (on the injected clock; the mock advances it with clock.sleep):
-      read the EKI commands that arrived (FIFO, like the EKX buffer), step the motion, send one RSI <Rob>, and
-      wait for the <Sen> answer with the same IPOC; an answer that misses the budget is late, and more than
-      max_late_packages late answers in a row stop the robot (RSI error) as eERXmaxLatePackages does.
+    every interpolation cycle (cycle_s, 12 ms on a KR C2; on the injected clock, advanced with clock.sleep):
+      read the EKI requests that arrived (FIFO, like the EKX buffer), step the motion, send one RSI <Rob> and,
+      unless passive (ONLYSEND TRUE), wait for the <Sen> answer with the same IPOC; an answer that misses the
+      budget is late, and more than max_late_packages late answers in a row stop the robot (RSI error) as
+      eERXmaxLatePackages does.
+
+When trackcal disconnects (EKI end of stream) the controller keeps its state and its RSI stream, and connects
+again, as trackcal_eki.src closes and reopens its channel: a restarted trackcal finds it (`connections` counts).
+
+Requests (drivers.kuka.eki_codec, element names from configs/krc2 through it): Kind 1 moves, answered when done;
+Kind 2 stops the running move with that ID: the axes decelerate at brake_deg_s2 (all at the same rate relative
+to their speed, so they stop together, as a synchronous PTP) and the move is answered with Error 6; a stop for
+any other ID is ignored, as the KRL ignores it. Kind 3 resets the latched faults (E-stop, drives off), not an
+RSI stop. `stops` records (joints, axis speeds, joints at standstill) for every braking.
 
 Motion is a synchronous PTP (all axes start and stop together) with a quintic profile
 s(u) = 10u^3 - 15u^4 + 6u^5, whose peak speed is 1.875x the mean, so the duration is
@@ -20,15 +30,13 @@ many idle cycles run between commands depends on the wall-clock pace of the peer
 
 The answer budget is wall time (answer_budget_s, default 0.25 s): the real controller allows ~10 ms, which a
 loaded CI machine running Python cannot promise; tests that need lateness set a small budget and a slow
-client.
+client. In passive mode no answer paces the controller: on a virtual clock it leaves PASSIVE_PACE_S of wall
+time between cycles.
 
 Fault injection: estop(), drives_off() (reported as RobotState Error 1/2, see drivers.kuka.eki_codec), a
 target outside soft_limits_deg (Error 3), RSI stop after late answers (Error 4), drop_connection("eki"|"rsi"),
 send_garbage("eki"|"rsi"). Garbage from the peer never raises out of the thread: it is recorded in `errors`
 and the connection it came on is dropped (a stream cannot be resynchronised).
-
-The element and attribute names come from the codecs; at construction the mock checks that the shipped EKX
-config (configs/krc2/TrackcalEki+.xml) and RSI config (configs/krc2/trackcal_rsi.xml) declare exactly those.
 """
 
 from __future__ import annotations
@@ -39,25 +47,24 @@ import random
 import select
 import socket
 import threading
-import xml.etree.ElementTree as ET
 from collections import deque
 from collections.abc import Callable, Sequence
-from importlib import resources
-from pathlib import Path
 
 from drivers.errors import ProtocolError
 from drivers.interfaces import RealClock
 from drivers.kuka.eki_codec import (
     AXES,
     COMMAND_ROOT,
-    COMMAND_TAGS,
     ERR_BAD_COMMAND,
     ERR_DRIVES_OFF,
     ERR_ESTOP,
     ERR_RSI_STOPPED,
     ERR_SOFT_LIMIT,
-    STATE_TAGS,
-    MoveCommand,
+    ERR_STOPPED,
+    KIND_MOVE,
+    KIND_RESET,
+    KIND_STOP,
+    Command,
     RobotState,
     XmlStreamFramer,
     command_id_of,
@@ -66,18 +73,15 @@ from drivers.kuka.eki_codec import (
 )
 from drivers.kuka.rsi_codec import (
     CART,
-    CORRECTION_ELEMENT,
-    CYCLE_S,
+    KRC2_CYCLE_S,
     MAX_FRAME_BYTES,
+    SHIPPED,
     RobFrame,
     encode_rob,
     parse_sen,
     sen_framer,
 )
 
-CONFIG_DIR = Path(str(resources.files("configs") / "krc2"))  # shipped as package data
-EKX_STRUCTURE_FILE = "TrackcalEki+.xml"
-RSI_CONFIG_FILE = "trackcal_rsi.xml"
 DEFAULT_SOFT_LIMITS_DEG = (
     (-185.0, 185.0),
     (-146.0, 0.0),
@@ -86,53 +90,20 @@ DEFAULT_SOFT_LIMITS_DEG = (
     (-125.0, 125.0),
     (-350.0, 350.0),
 )
-IPOC_STEP_MS = 12
 _QUEUE_LIMIT = 16
 _RESIDUAL_HZ = 1.5
-
-
-def eki_config_tags(config_dir: Path = CONFIG_DIR) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """(RECEIVE tags, SEND tags) declared by the shipped EKX structure file, in file order."""
-    root = ET.parse(config_dir / EKX_STRUCTURE_FILE).getroot()
-    receive = tuple(e.get("Tag", "") for e in root.iterfind("RECEIVE/XML/ELEMENT"))
-    send = tuple(e.get("Tag", "") for e in root.iterfind("SEND/XML/ELEMENT"))
-    return receive, send
-
-
-def rsi_config(config_dir: Path = CONFIG_DIR) -> dict:
-    """The shipped RSI XML config: protocol, Sen type, SEND and RECEIVE element tags."""
-    root = ET.parse(config_dir / RSI_CONFIG_FILE).getroot()
-    return {
-        "protocol": (root.findtext("CONFIG/PROTOCOL") or "").strip().upper(),
-        "sentype": (root.findtext("CONFIG/SENTYPE") or "").strip(),
-        "onlysend": (root.findtext("CONFIG/ONLYSEND") or "").strip().upper(),
-        "port": int((root.findtext("CONFIG/PORT") or "0").strip()),
-        "send": tuple(e.get("TAG", "") for e in root.iterfind("SEND/ELEMENTS/ELEMENT")),
-        "receive": tuple(e.get("TAG", "") for e in root.iterfind("RECEIVE/ELEMENTS/ELEMENT")),
-    }
-
-
-def check_configs(config_dir: Path = CONFIG_DIR) -> str:
-    """Raise ValueError if the shipped configs and the codecs disagree; returns the configured Sen type."""
-    receive, send = eki_config_tags(config_dir)
-    if set(receive) != set(COMMAND_TAGS) or len(receive) != len(COMMAND_TAGS):
-        raise ValueError(f"{EKX_STRUCTURE_FILE} RECEIVE {receive} != codec {COMMAND_TAGS}")
-    if set(send) != set(STATE_TAGS) or len(send) != len(STATE_TAGS):
-        raise ValueError(f"{EKX_STRUCTURE_FILE} SEND {send} != codec {STATE_TAGS}")
-    rsi = rsi_config(config_dir)
-    expected_send = ("DEF_RIst", "DEF_RSol", "DEF_AIPos", "DEF_ASPos", "DEF_Delay")
-    if rsi["send"] != expected_send:
-        raise ValueError(f"{RSI_CONFIG_FILE} SEND {rsi['send']} != {expected_send}")
-    expected_receive = tuple(f"{CORRECTION_ELEMENT}.{a}" for a in AXES)
-    if rsi["receive"] != expected_receive:
-        raise ValueError(f"{RSI_CONFIG_FILE} RECEIVE {rsi['receive']} != {expected_receive}")
-    if not rsi["sentype"]:
-        raise ValueError(f"{RSI_CONFIG_FILE} has no SENTYPE")
-    return rsi["sentype"]
+_RECONNECT_S = 0.05  # wall time between connection attempts while trackcal is away
+# A passive controller waits for no answer, so on a virtual clock nothing would pace it: it leaves at least this
+# much wall time between cycles (2000 frames/s at most, 24x real time at 12 ms), or it would flood the receiver.
+PASSIVE_PACE_S = 0.0005
 
 
 def _quintic(u: float) -> float:
     return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
+
+
+def _quintic_rate(u: float) -> float:
+    return 30.0 * u * u * (1.0 - u) * (1.0 - u)
 
 
 class MockKrc2:
@@ -146,21 +117,25 @@ class MockKrc2:
         settle_s: float = 0.5,
         on_joints: Callable[[tuple[float, ...]], None] | None = None,
         seed: int = 0,
-        rsi_protocol: str = "tcp",
+        rsi_protocol: str = SHIPPED.protocol,
+        rsi_passive: bool = SHIPPED.passive,
+        cycle_s: float = KRC2_CYCLE_S,
         soft_limits_deg: Sequence[tuple[float, float]] = DEFAULT_SOFT_LIMITS_DEG,
         max_late_packages: int = 10,
         answer_budget_s: float = 0.25,
         connect_timeout_s: float = 10.0,
         overshoot_deg: float = 0.02,
+        brake_deg_s2: float = 200.0,
         wall_clock=None,
-        config_dir: Path = CONFIG_DIR,
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError("rsi_protocol must be 'tcp' or 'udp'")
         q0 = tuple(float(v) for v in initial_joints_deg)
         if len(q0) != len(AXES):
             raise ValueError(f"initial_joints_deg needs {len(AXES)} values")
-        self.sen_type = check_configs(config_dir)
+        if not (cycle_s > 0 and brake_deg_s2 > 0):
+            raise ValueError("cycle_s and brake_deg_s2 must be positive")
+        self.sen_type = SHIPPED.sen_type
         self.eki_addr, self.rsi_addr = eki_addr, rsi_addr
         self.clock = clock
         self.wall = wall_clock or RealClock()  # network waits are real; the controller's own time is `clock`
@@ -168,27 +143,34 @@ class MockKrc2:
         self.settle_s = float(settle_s)
         self.on_joints = on_joints
         self.rsi_protocol = rsi_protocol
+        self.rsi_passive = bool(rsi_passive)
+        self.cycle_s = float(cycle_s)
         self.soft_limits_deg = tuple((float(lo), float(hi)) for lo, hi in soft_limits_deg)
         self.max_late_packages = int(max_late_packages)
         self.answer_budget_s = float(answer_budget_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.overshoot_deg = float(overshoot_deg)
+        self.brake_deg_s2 = float(brake_deg_s2)
         self._rng = random.Random(seed)
-        self._ipoc = IPOC_STEP_MS * self._rng.randrange(10**6, 10**7)
+        self._ipoc_step = max(1, round(self.cycle_s * 1000))  # IPOC counts milliseconds (kuka_rsi_simulator)
+        self._ipoc = self._ipoc_step * self._rng.randrange(10**6, 10**7)
 
         self._q = list(q0)  # actual joints
         self._q_set = list(q0)  # set point
-        self._mode = "idle"
-        self._cmd: MoveCommand | None = None
+        self._mode = "idle"  # idle, moving, braking, dwell
+        self._cmd: Command | None = None
         self._start: tuple[float, ...] = q0
         self._target: tuple[float, ...] = q0
         self._dirs = (0.0,) * 6
         self._amp = 0.0
         self._k = 0  # cycles into the current motion phase
         self._n_move = 0
-        self._n_dwell = max(1, math.ceil(self.settle_s / CYCLE_S - 1e-9))
+        self._n_dwell = max(1, math.ceil(self.settle_s / self.cycle_s - 1e-9))
+        self._brake_from: tuple[float, ...] = q0
+        self._brake_v: tuple[float, ...] = (0.0,) * 6
+        self._n_brake = 0
         self._since_arrival: int | None = None
-        self._queue: deque[MoveCommand] = deque()
+        self._queue: deque[Command] = deque()
         self._fault = 0
         self._last_reported: tuple[float, ...] | None = None
 
@@ -198,6 +180,8 @@ class MockKrc2:
         self._thread: threading.Thread | None = None
         self._eki: socket.socket | None = None
         self._rsi: socket.socket | None = None
+        self._next_attempt = 0.0
+        self._last_cycle = 0.0  # wall time of the last cycle's end (passive pacing)
         self._eki_framer = XmlStreamFramer(COMMAND_ROOT)
         self._sen_framer = sen_framer()
 
@@ -207,10 +191,12 @@ class MockKrc2:
         self.consecutive_late = 0
         self.rsi_stopped = False
         self.errors: list[str] = []
-        self.commands: list[MoveCommand] = []
+        self.commands: list[Command] = []
         self.eki_sent: list[bytes] = []
+        self.stops: list[tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]] = []
         self.crashed: BaseException | None = None
         self.connected = threading.Event()
+        self.connections = 0
 
     # --- control --------------------------------------------------------------------------------------------
 
@@ -237,6 +223,10 @@ class MockKrc2:
     def joints_deg(self) -> tuple[float, ...]:
         return tuple(round(v, 4) for v in self._q)
 
+    @property
+    def moving(self) -> bool:
+        return self._mode in ("moving", "braking")
+
     # --- fault injection (any thread) -----------------------------------------------------------------------
 
     def estop(self) -> None:
@@ -245,15 +235,10 @@ class MockKrc2:
     def drives_off(self) -> None:
         self._inject("fault", ERR_DRIVES_OFF)
 
-    def reset_faults(self) -> None:
-        self._inject("fault", 0)
-
     def drop_connection(self, channel: str = "eki") -> None:
         self._inject("drop", channel)
 
-    def send_garbage(
-        self, channel: str = "rsi", data: bytes = b'<Rob TYPE="KUKA"><AIPos A1=\x00\xff garbage'
-    ) -> None:
+    def send_garbage(self, channel: str = "rsi", data: bytes = b'<Rob TYPE="KUKA"><AIPos A1=\x00\xff garbage') -> None:
         self._inject("garbage", (channel, data))
 
     def _inject(self, what: str, arg: object) -> None:
@@ -264,10 +249,9 @@ class MockKrc2:
 
     def _run(self) -> None:
         try:
-            if not self._connect():
+            if not self._connect_first():
                 return
-            self.connected.set()
-            while not self._stop.is_set() and (self._eki is not None or self._rsi is not None):
+            while not self._stop.is_set():
                 self._cycle()
         except BaseException as exc:  # a mock must never die silently: tests assert crashed is None
             self.crashed = exc
@@ -276,43 +260,57 @@ class MockKrc2:
             self._close("eki", None)
             self._close("rsi", None)
 
-    def _connect(self) -> bool:
+    def _connect_first(self) -> bool:
         deadline = self.wall.now() + self.connect_timeout_s
-        self._eki = self._connect_tcp(self.eki_addr, deadline, "EKI")
-        if self._eki is None:
-            return False
-        if self.rsi_protocol == "tcp":
-            self._rsi = self._connect_tcp(self.rsi_addr, deadline, "RSI")
-            if self._rsi is None:
-                return False
-        else:
-            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            sock.connect(self.rsi_addr)
-            self._rsi = sock
-        self._send_rsi(
-            encode_rob(RobFrame(ipoc=None), tcp=self.rsi_protocol == "tcp")
-        )  # KR C2: empty IPOC first
-        return True
-
-    def _connect_tcp(self, addr: tuple[str, int], deadline: float, what: str) -> socket.socket | None:
         last: OSError | None = None
         while not self._stop.is_set() and self.wall.now() < deadline:
+            last = self._reconnect()
+            if self._eki is not None and (self._rsi is not None or self.rsi_protocol == "udp"):
+                if self._rsi is None:
+                    self._open_udp()
+                return True
+            self.wall.sleep(0.02)
+        self.errors.append(f"could not connect to trackcal within {self.connect_timeout_s} s ({last})")
+        return False
+
+    def _reconnect(self) -> OSError | None:
+        """One attempt at each missing connection (EKI; RSI over TCP); the last failure, if any."""
+        failure = None
+        for channel, addr in (("eki", self.eki_addr), ("rsi", self.rsi_addr)):
+            if getattr(self, f"_{channel}") is not None or (channel == "rsi" and self.rsi_protocol == "udp"):
+                continue
             try:
-                sock = socket.create_connection(addr, timeout=max(0.05, min(1.0, deadline - self.wall.now())))
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                sock.settimeout(None)
-                return sock
+                sock = socket.create_connection(addr, timeout=1.0)
             except OSError as exc:
-                last = exc
-                self.wall.sleep(0.02)
-        self.errors.append(
-            f"{what}: could not connect to {addr[0]}:{addr[1]} within {self.connect_timeout_s} s ({last})"
-        )
-        return None
+                failure = exc
+                continue
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.settimeout(None)
+            setattr(self, f"_{channel}", sock)
+            if channel == "eki":
+                self._eki_framer = XmlStreamFramer(COMMAND_ROOT)
+                self.connections += 1
+                self.connected.set()
+            else:
+                self._sen_framer = sen_framer()
+                self._send_rsi(encode_rob(RobFrame(ipoc=None), tcp=True))  # KR C2: empty IPOC first
+        return failure
+
+    def _open_udp(self) -> None:
+        self._rsi = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._rsi.connect(self.rsi_addr)
+        self._send_rsi(encode_rob(RobFrame(ipoc=None), tcp=False))  # KR C2: empty IPOC first
 
     def _cycle(self) -> None:
         self._apply_injections()
-        self._poll_eki(0.0 if self._rsi is not None else CYCLE_S)
+        if self._eki is None or (self._rsi is None and self.rsi_protocol == "tcp" and not self.rsi_stopped):
+            now = self.wall.now()
+            if now >= self._next_attempt:  # trackcal is away: EKX_Open again, as trackcal_eki.src does
+                self._next_attempt = now + _RECONNECT_S
+                self._reconnect()
+            if self._eki is None:
+                self.wall.sleep(self.cycle_s)  # nobody to serve: do not spin through virtual time
+        self._poll_eki(0.0 if self._rsi is not None else self.cycle_s)
         self._step()
         q = self.joints_deg
         if self.on_joints is not None and q != self._last_reported:
@@ -320,7 +318,12 @@ class MockKrc2:
             self.on_joints(q)
         if self._rsi is not None:
             self._rsi_exchange()
-        self.clock.sleep(CYCLE_S)
+        self.clock.sleep(self.cycle_s)
+        if self.rsi_passive:
+            rest = self._last_cycle + PASSIVE_PACE_S - self.wall.now()
+            if rest > 0:
+                self.wall.sleep(rest)
+            self._last_cycle = self.wall.now()
         self.cycles += 1
 
     def _apply_injections(self) -> None:
@@ -328,11 +331,7 @@ class MockKrc2:
             pending, self._pending = self._pending, []
         for what, arg in pending:
             if what == "fault":
-                if arg == 0:
-                    if not self.rsi_stopped:
-                        self._fault = 0
-                else:
-                    self._fault = int(arg)  # type: ignore[arg-type]
+                self._fault = int(arg)  # type: ignore[arg-type]
             elif what == "drop":
                 for channel in ("eki", "rsi") if arg == "both" else (str(arg),):
                     self._close(channel, f"{channel.upper()} connection dropped (injected)")
@@ -360,7 +359,7 @@ class MockKrc2:
             self._close("eki", f"EKI receive failed: {exc}")
             return
         if not data:
-            self._close("eki", "trackcal closed the EKI connection")
+            self._close("eki", None)  # trackcal went away: the program closes the channel and opens it again
             return
         try:
             docs = self._eki_framer.feed(data)
@@ -375,7 +374,10 @@ class MockKrc2:
                 self._report(command_id_of(doc) or 0, done=False, error=ERR_BAD_COMMAND)
                 continue
             self.commands.append(cmd)
-            if len(self._queue) >= _QUEUE_LIMIT:
+            if cmd.kind == KIND_STOP:  # StopPoll: only the running move can be stopped
+                if self._cmd is not None and self._mode == "moving" and cmd.command_id == self._cmd.command_id:
+                    self._brake()
+            elif len(self._queue) >= _QUEUE_LIMIT:
                 self.errors.append(f"EKI: buffer full, command {cmd.command_id} rejected")
                 self._report(cmd.command_id, done=False, error=ERR_BAD_COMMAND)
             else:
@@ -397,8 +399,8 @@ class MockKrc2:
     # --- motion ---------------------------------------------------------------------------------------------
 
     def _residual(self, k: int) -> float:
-        t = k * CYCLE_S
-        tau = max(self.settle_s / 5.0, CYCLE_S)
+        t = k * self.cycle_s
+        tau = max(self.settle_s / 5.0, self.cycle_s)
         if t / tau > 40.0:
             return 0.0
         return self._amp * math.exp(-t / tau) * math.cos(2.0 * math.pi * _RESIDUAL_HZ * t)
@@ -411,16 +413,31 @@ class MockKrc2:
         if cmd is not None:
             self._report(cmd.command_id, done=False, error=error)
 
+    def _brake(self) -> None:
+        """BRAKE: every axis decelerates from its speed now, all at the rate that stops the fastest one at
+        brake_deg_s2, so they stop together after v_max / brake_deg_s2 (braking distance v^2 / (2 a))."""
+        duration = self._n_move * self.cycle_s
+        rate = _quintic_rate(self._k / self._n_move) / duration
+        self._brake_v = tuple((b - a) * rate for a, b in zip(self._start, self._target, strict=True))
+        self._brake_from = tuple(self._q)
+        v_max = max(abs(v) for v in self._brake_v)
+        self._n_brake = max(1, math.ceil(v_max / self.brake_deg_s2 / self.cycle_s - 1e-9))
+        self._mode, self._k = "braking", 0
+
     def _step(self) -> None:
         if self._mode != "idle" and self._fault:
             self._halt(self._fault)
         if self._mode == "idle" and self._queue:
             cmd = self._queue.popleft()
-            if self._fault:
+            if cmd.kind == KIND_RESET:
+                if self._fault != ERR_RSI_STOPPED:  # E-stop released, drives on: only an RSI stop stays
+                    self._fault = 0
+                self._report(cmd.command_id, done=not self._fault, error=self._fault)
+            elif cmd.kind != KIND_MOVE:
+                self._report(cmd.command_id, done=False, error=ERR_BAD_COMMAND)
+            elif self._fault:
                 self._report(cmd.command_id, done=False, error=self._fault)
-            elif any(
-                not lo <= v <= hi for v, (lo, hi) in zip(cmd.target_deg, self.soft_limits_deg, strict=True)
-            ):
+            elif any(not lo <= v <= hi for v, (lo, hi) in zip(cmd.target_deg, self.soft_limits_deg, strict=True)):
                 self._report(cmd.command_id, done=False, error=ERR_SOFT_LIMIT)
             else:
                 self._begin(cmd)
@@ -432,6 +449,17 @@ class MockKrc2:
             self._q_set = list(self._q)
             if self._k >= self._n_move:
                 self._mode, self._k, self._since_arrival = "dwell", 0, 0
+            return
+        if self._mode == "braking":
+            self._k += 1
+            t, t_stop = self._k * self.cycle_s, self._n_brake * self.cycle_s
+            t = min(t, t_stop)
+            travel = t - 0.5 * t * t / t_stop  # v(t) = v0 (1 - t / t_stop): constant deceleration
+            self._q = [q0 + v * travel for q0, v in zip(self._brake_from, self._brake_v, strict=True)]
+            self._q_set = list(self._q)
+            if self._k >= self._n_brake:
+                self.stops.append((self._brake_from, self._brake_v, self.joints_deg))
+                self._halt(ERR_STOPPED)
             return
         if self._since_arrival is not None:  # the residual oscillation decays, dwelling or not
             self._since_arrival += 1
@@ -447,7 +475,7 @@ class MockKrc2:
                 self._report(self._cmd.command_id, done=True, error=0)
                 self._mode, self._cmd = "idle", None
 
-    def _begin(self, cmd: MoveCommand) -> None:
+    def _begin(self, cmd: Command) -> None:
         start = tuple(self._q)
         deltas = [b - a for a, b in zip(start, cmd.target_deg, strict=True)]
         span = max(abs(d) for d in deltas)
@@ -455,7 +483,7 @@ class MockKrc2:
         self._cmd, self._start, self._target = cmd, start, tuple(cmd.target_deg)
         self._dirs = tuple(d / span for d in deltas) if span > 0 else (0.0,) * 6
         self._amp = self.overshoot_deg * (0.5 + 0.5 * self._rng.random()) if span > 0 else 0.0
-        self._n_move = math.ceil(1.875 * span / speed / CYCLE_S - 1e-9) if span > 0 else 0
+        self._n_move = math.ceil(1.875 * span / speed / self.cycle_s - 1e-9) if span > 0 else 0
         self._k = 0
         if self._n_move == 0:
             self._mode, self._since_arrival = "dwell", 0
@@ -470,13 +498,15 @@ class MockKrc2:
         try:
             self._rsi.sendall(data) if self.rsi_protocol == "tcp" else self._rsi.send(data)
             return True
+        except ConnectionRefusedError:
+            return self.rsi_protocol == "udp"  # nobody listens (yet) on the UDP port: the datagram is lost
         except OSError as exc:
             self._close("rsi", f"RSI send failed: {exc}")
             return False
 
     def _rsi_exchange(self) -> None:
         ipoc = self._ipoc
-        self._ipoc += IPOC_STEP_MS
+        self._ipoc += self._ipoc_step
         frame = RobFrame(
             ipoc=ipoc,
             aipos=self.joints_deg,
@@ -485,7 +515,7 @@ class MockKrc2:
             rsol=(0.0,) * len(CART),
             delay=self.late_packets,
         )
-        if not self._send_rsi(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
+        if not self._send_rsi(encode_rob(frame, tcp=self.rsi_protocol == "tcp")) or self.rsi_passive:
             return
         if self._await_answer(ipoc):
             self.consecutive_late = 0
@@ -515,6 +545,8 @@ class MockKrc2:
                 if not readable:
                     continue
                 data = sock.recv(4096 if self.rsi_protocol == "tcp" else MAX_FRAME_BYTES + 1)
+            except ConnectionRefusedError:
+                return False  # UDP: nobody listens; the answer is late
             except OSError as exc:
                 self._close("rsi", f"RSI receive failed: {exc}")
                 return False
