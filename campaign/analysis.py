@@ -10,6 +10,7 @@ import numpy as np
 from calib.cell import Cell, load_cell
 from calib.diagnose import Diagnosis, diagnose, fit_cause, rms
 from calib.extensions import CAUSES, rebuild
+from calib.files import finite_or_null
 from calib.identify import Identification, IdentificationError, identify, residual_stats, significance
 from calib.kinematics import Kinematics
 from calib.model import identification_to_doc
@@ -141,24 +142,29 @@ def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
     return Kinematics(cell.chain, res.params).points(q0, cell.tcp, res.dev)[0]
 
 
+# calib.diagnose scores a candidate whose held-out poses cannot be predicted as infinitely bad
+HOLDOUT_FAILED = "a held-out fold could not be predicted: its fit failed or it needs a station no other fold has"
+
+
 def verdict_doc(cell: Cell, d: Diagnosis) -> dict:
     """verdict.json: the cause, every candidate with its evidence, the residuals and the gain."""
     geo = d.geometric
     doc = {
         "cause": d.cause,
         "candidates": [
-            {
+            finite_or_null({
                 "cause": c.cause, "score": c.score(), "holdout_rms_mm": c.holdout_rms_mm, "rms_mm": c.rms_mm,
                 "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic, "n_params": c.n_params,
                 "significant": c.significant, **c.detail,
-            }
+            }, HOLDOUT_FAILED)
             for c in sorted(d.candidates, key=lambda c: c.score())
         ],
         "geometric": {"rms_mm": rms(geo.residuals), "variance_factor": geo.variance_factor,
                       "p_at_noise_floor": d.variance_factor_pvalue},
         "noise_floor_mm": d.noise_floor_mm,
         "noise_floor_source": d.floor_source,
-        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm},
+        "holdout": finite_or_null({"rms_geometric_mm": d.holdout_geometric_mm,
+                                   "rms_extended_mm": d.holdout_extended_mm}, HOLDOUT_FAILED),
     }  # fmt: skip
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}
@@ -177,7 +183,7 @@ def analyse_session(store: SessionStore) -> None:
     d = store.directory
     n = write_export(store, d / "table.csv")
     cell = session_cell(store)
-    table = read_table(d / "table.csv", n_joints=cell.chain.dof)
+    table = read_table(d / "table.csv", chain=cell.chain)
     params = choose_params(cell, None)
     try:
         outcome = run_identify(cell, table, params, "tracker")
