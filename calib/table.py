@@ -11,21 +11,19 @@ is one string however many rows share it) and extra columns are numpy variable-w
 from __future__ import annotations
 
 import codecs
-import contextlib
 import csv
 import itertools
 import math
-import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 
+from .chain import Chain
 from .errors import CalibError
+from .files import atomic_open
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")
@@ -273,13 +271,13 @@ class _Columns:
 
 
 def read_table(
-    path: str | Path, require_xyz: bool = True, n_joints: int | None = None, limits_deg: np.ndarray | None = None
+    path: str | Path, require_xyz: bool = True, n_joints: int | None = None, chain: Chain | None = None
 ) -> MeasurementTable:
-    """The table at `path`; `limits_deg` ((n, 2), the robot's joint limits) also refuses joint values
-    more than JOINT_LIMIT_MARGIN_DEG outside them."""
+    """The table at `path`; with the robot's `chain`, its joint count is required and joint values more than
+    JOINT_LIMIT_MARGIN_DEG outside its limits are refused."""
     path = Path(path)
-    if limits_deg is not None:
-        n_joints = len(limits_deg)
+    if chain is not None:
+        n_joints = chain.dof
     blocks = read_lines(path)
     first = next(blocks, None)
     if first is None:
@@ -325,8 +323,8 @@ def read_table(
     if not rows:
         raise TableError(f"{path}: no data rows")
     table = columns.table(len(qcols), has_xyz)
-    if limits_deg is not None:
-        check_limits(table, np.asarray(limits_deg, dtype=float), qcols)
+    if chain is not None:
+        check_limits(table, np.degrees(chain.limits_array()), qcols)
     return table
 
 
@@ -340,40 +338,6 @@ def check_limits(table: MeasurementTable, limits_deg: np.ndarray, qcols: list[st
             f"{table.source}: row {k + 2}: column {qcols[j]}: {table.q_deg[k, j]:g} deg is outside the joint's "
             f"limits [{limits_deg[j, 0]:g}, {limits_deg[j, 1]:g}] deg (+-{JOINT_LIMIT_MARGIN_DEG:g} deg margin)"
         )
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-@contextlib.contextmanager
-def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
-    """A file object ("w" text, UTF-8 unless told, or "wb") whose content replaces `path` only when the block
-    ends without an exception: it is a temporary file in the same directory, flushed to disk, then renamed
-    over `path` (atomic on POSIX). A crash, a full disk or a kill leaves the previous file or none, never a
-    truncated one; on failure the temporary file is removed."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # what open() would have made, not mkstemp's 0600
-        if "b" not in mode:
-            kwargs.setdefault("encoding", "utf-8")
-        with os.fdopen(fd, mode, **kwargs) as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    dirfd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dirfd)  # the rename itself reaches the disk
-    finally:
-        os.close(dirfd)
 
 
 def _fmt(v: float, digits: int) -> str:

@@ -1,6 +1,7 @@
 """The measurement table: round trip, one clear line for each kind of bad input, streaming in blocks, and
 writes that leave the previous file or none."""
 
+import dataclasses
 import errno
 import os
 from unittest import mock
@@ -10,13 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import calib.files as files_mod
 import calib.table as table_mod
-from calib.table import TableError, atomic_open, read_table, write_table
+from calib.table import TableError, read_table, write_table
 from tests.conftest import kr270_campaign
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm"
 ROW = "1,0.0,Q1,S1,P1,10,-60,80,10,40,0,1000.5,200.25,-300.125"
-KR270_LIMITS_DEG = np.array([[-180, 180], [-145, 0], [-110, 155], [-180, 180], [-125, 125], [-180, 180]])  # Table 4
 
 
 def write(tmp_path, text, name="t.csv"):
@@ -89,14 +90,16 @@ def test_non_utf8_names_the_row(tmp_path):
         read_table(path)
 
 
-def test_joint_limits_name_row_and_column(tmp_path):
+def test_joint_limits_name_row_and_column(tmp_path, kr270):
+    # configs/robots/kr270.yaml: paper Table 4, A6 in [-180, 180] deg
+    seven_joints = dataclasses.replace(kr270.chain, joints=(*kr270.chain.joints, kr270.chain.joints[0]))
     ok = ROW.replace(",0,1000.5", ",180.9,1000.5")  # within the 1 deg margin of A6's 180 deg
     bad = ROW.replace("1,", "2,", 1).replace(",0,1000.5", ",1e300,1000.5")  # issue 12
-    assert len(read_table(write(tmp_path, f"{HEADER}\n{ok}\n"), limits_deg=KR270_LIMITS_DEG)) == 1
+    assert len(read_table(write(tmp_path, f"{HEADER}\n{ok}\n"), chain=kr270.chain)) == 1
     with pytest.raises(TableError, match=r"row 3: column q6_deg: 1e\+300 deg is outside the joint's limits"):
-        read_table(write(tmp_path, f"{HEADER}\n{ok}\n{bad}\n"), limits_deg=KR270_LIMITS_DEG)
+        read_table(write(tmp_path, f"{HEADER}\n{ok}\n{bad}\n"), chain=kr270.chain)
     with pytest.raises(TableError, match=r"row 1: expected joint columns q1_deg..q7_deg, found 6"):
-        read_table(write(tmp_path, f"{HEADER}\n{ok}\n"), limits_deg=np.vstack([KR270_LIMITS_DEG, [[0, 1]]]))
+        read_table(write(tmp_path, f"{HEADER}\n{ok}\n"), chain=seven_joints)
 
 
 def test_too_large_a_table_is_refused_with_the_limit(tmp_path):
@@ -149,7 +152,7 @@ DEFECTS = {
     where=st.floats(0, 1, exclude_max=True),
     values=st.lists(st.floats(-100, 0, allow_subnormal=False), min_size=1, max_size=40),
 )
-def test_one_defect_is_named_wherever_the_blocks_fall(tmp_path_factory, n, block, kind, where, values):
+def test_one_defect_is_named_wherever_the_blocks_fall(tmp_path_factory, kr270, n, block, kind, where, values):
     path = tmp_path_factory.mktemp("defect") / "t.csv"
     cols = HEADER.split(",")
     q = np.resize([float(f"{v:.4f}") for v in values], (n, 6))  # inside every KR-270 limit
@@ -181,13 +184,13 @@ def test_one_defect_is_named_wherever_the_blocks_fall(tmp_path_factory, n, block
     path.write_bytes(data)
     with mock.patch.object(table_mod, "BLOCK_BYTES", block):
         if message is None:
-            t = read_table(path, limits_deg=KR270_LIMITS_DEG)
+            t = read_table(path, chain=kr270.chain)
             assert t.seq.tolist() == list(range(1, n + 1))
             np.testing.assert_array_equal(t.q_deg, q)  # exact: the same decimal text, correctly rounded both ways
             assert t.pose == [r[2] for r in rows]
         else:
             with pytest.raises(TableError, match=message) as exc:
-                read_table(path, limits_deg=KR270_LIMITS_DEG)
+                read_table(path, chain=kr270.chain)
             assert str(exc.value).startswith(f"{path}: ") and "\n" not in str(exc.value)
 
 
@@ -248,19 +251,12 @@ def test_a_full_disk_mid_write_leaves_the_previous_file(tmp_path, kr270, room):
     path.write_text("previous\n")
     real = os.fdopen
     with (
-        mock.patch.object(table_mod.os, "fdopen", lambda *a, **k: FullDisk(real(*a, **k), room)),
+        mock.patch.object(files_mod.os, "fdopen", lambda *a, **k: FullDisk(real(*a, **k), room)),
         pytest.raises(OSError, match="No space left"),
     ):
         write_table(table, path)
     assert path.read_text() == "previous\n" and os.listdir(tmp_path) == ["t.csv"]
     write_table(table, tmp_path / "new.csv")
-    with mock.patch.object(table_mod.os, "fsync", side_effect=OSError(errno.EIO, "I/O error")), pytest.raises(OSError):
+    with mock.patch.object(files_mod.os, "fsync", side_effect=OSError(errno.EIO, "I/O error")), pytest.raises(OSError):
         write_table(table, path)  # the data may not be on the disk: the rename must not happen
     assert path.read_text() == "previous\n" and sorted(os.listdir(tmp_path)) == ["new.csv", "t.csv"]
-
-
-def test_atomic_open_gives_the_permissions_open_would(tmp_path):
-    with atomic_open(tmp_path / "a.txt") as fh:
-        fh.write("x")
-    open(tmp_path / "b.txt", "w").close()
-    assert os.stat(tmp_path / "a.txt").st_mode == os.stat(tmp_path / "b.txt").st_mode

@@ -2,28 +2,18 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from calib.cell import load_cell
+from calib.files import read_json
 from calib.model import load_model
 from calib.table import read_table
 from campaign.errors import InputError, UsageError
 from campaign.report.html import write_report
 
 
-def _read_json(path: str | None, what: str) -> dict | None:
-    if path is None:
-        return None
-    try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a JSON {what} ({exc})") from None
-    if not isinstance(doc, dict):
-        raise InputError(f"{path}: not a JSON {what} (expected an object)")
-    return doc
+def _read_json(path: str | None) -> dict | None:
+    return None if path is None else read_json(path, InputError)
 
 
 def _session_defaults(args) -> None:
@@ -47,14 +37,12 @@ def _session_defaults(args) -> None:
 
 def cmd_report(args) -> int:
     _session_defaults(args)
-    model_path = Path(args.model)
-    load_model(model_path)  # validates the model file with the model's own messages
-    model_doc = json.loads(model_path.read_text())
+    model_doc = load_model(args.model).doc
     cell_ref = args.cell or model_doc.get("cell")
     if not cell_ref:
         raise InputError(f"{args.model}: the model names no cell: give --cell NAME")
     cell = load_cell(cell_ref)
-    table = read_table(args.table, n_joints=cell.chain.dof)
+    table = read_table(args.table, chain=cell.chain)
     images = []
     if args.plots:
         d = Path(args.plots)
@@ -62,7 +50,7 @@ def cmd_report(args) -> int:
             raise UsageError(f"--plots {args.plots}: not a directory")
         images = sorted(d.glob("*.png"))
     title = args.title or f"trackcal calibration report: {cell.name}, {Path(args.table).name}"
-    path = write_report(Path(args.out), cell, table, model_doc, _read_json(args.plan, "plan"),
-                        _read_json(args.verdict, "verdict"), title, extra_images=images)  # fmt: skip
+    path = write_report(Path(args.out), cell, table, model_doc, _read_json(args.plan),
+                        _read_json(args.verdict), title, extra_images=images)  # fmt: skip
     print(f"report written to {path}")
     return 0
