@@ -22,7 +22,7 @@ from . import fields
 from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from .diagnose import relabel_shift
 from .errors import CalibError
-from .extensions import UNIT_FACTORS, Extension, build_parts
+from .extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
 from .files import read_json
 from .identify import Identification, Station, predict_points
 from .joint_map import Arc, range_warning
@@ -194,6 +194,9 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     for pid, pt in fields.mapping(doc["tool_points"], f"{path}: tool_points", ModelError).items():
         where = f"{path}: tool_points.{pid}"
         points[pid] = fields.vector(fields.mapping(pt, where, ModelError).get("xyz_mm"), f"{where}.xyz_mm", ModelError)
+    ext = fields.mapping(doc.get("extension", {"cause": "none"}), f"{path}: extension", ModelError)
+    if ext.get("cause", "none") not in ("none", *CAUSES):
+        raise ModelError(f"{path}: extension.cause: {ext.get('cause')!r} is not none or one of {', '.join(CAUSES)}")
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable
