@@ -12,10 +12,11 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from . import fields
 from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
 from .errors import CalibError
+from .files import read_yaml
 from .rigid import rot_axis
 
 # Joint angles travel to and from the controller at 4 decimals of a degree (KR C2 EKI and RSI: drivers/kuka):
@@ -81,15 +82,7 @@ def resolve(kind: str, ref: str, base_dir: Path | None = None) -> Path:
 
 
 def load_yaml(path: Path) -> dict:
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise CellError(f"{path}: no such file") from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise CellError(f"{path}: cannot read YAML ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CellError(f"{path}: expected a mapping at the top level")
-    return doc
+    return read_yaml(path, CellError)
 
 
 def load_robot(ref: str, base_dir: Path | None = None) -> tuple[Chain, dict]:
@@ -104,35 +97,27 @@ def load_robot(ref: str, base_dir: Path | None = None) -> tuple[Chain, dict]:
         raise CellError(str(exc)) from None
 
 
-def _vec(doc, key, where, n=3) -> np.ndarray:
-    try:
-        v = np.asarray(doc[key], dtype=float)
-    except (KeyError, TypeError, ValueError):
-        raise CellError(f"{where}: '{key}' must be a list of {n} numbers") from None
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise CellError(f"{where}: '{key}' must be a list of {n} finite numbers")
-    return v
-
-
 def _non_negative(doc: dict, key: str, where: str, default: float) -> float:
-    v = doc.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or v < 0:
-        raise CellError(f"{where}: '{key}' must be a non-negative number, got {v!r}")
-    return float(v)
+    v = fields.number(doc.get(key, default), f"{where}: {key}", CellError)
+    if v < 0:
+        raise CellError(f"{where}: {key}: must be a non-negative number, got {v:g}")
+    return v
 
 
 def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     path = resolve("tools", ref, base_dir)
     doc = load_yaml(path)
     pts, normals = {}, {}
-    if not isinstance(doc.get("points"), dict) or not doc["points"]:
-        raise CellError(f"{path}: a tool needs a 'points' mapping id -> {{xyz_mm: [x, y, z]}}")
-    for pid, pd in doc["points"].items():
-        where = f"{path}: point {pid}"
-        if not isinstance(pd, dict):
-            raise CellError(f"{where}: expected a mapping with xyz_mm")
-        pts[str(pid)] = _vec(pd, "xyz_mm", where)
-        n = _vec(pd, "normal", where) if "normal" in pd else np.array([1.0, 0.0, 0.0])
+    points = fields.mapping(doc.get("points"), f"{path}: points", CellError)
+    if not points:
+        raise CellError(f"{path}: points: a tool needs at least one point id -> {{xyz_mm: [x, y, z]}}")
+    for pid, pd in points.items():
+        where = f"{path}: points.{pid}"
+        pd = fields.mapping(pd, where, CellError)
+        pts[str(pid)] = fields.vector(pd.get("xyz_mm"), f"{where}.xyz_mm", CellError)
+        n = fields.vector(pd.get("normal", [1.0, 0.0, 0.0]), f"{where}.normal", CellError)
+        if not np.linalg.norm(n) > 0:
+            raise CellError(f"{where}.normal: a direction cannot be zero")
         normals[str(pid)] = n / np.linalg.norm(n)
     return pts, normals
 
@@ -143,29 +128,35 @@ def load_cell(ref: str) -> Cell:
     where = str(path)
     for key in ("robot", "tool"):
         if key not in doc:
-            raise CellError(f"{where}: missing '{key}'")
-    chain, robot_doc = load_robot(str(doc["robot"]), path.parent)
-    pts, normals = load_tool(str(doc["tool"]), path.parent)
-    cell = Cell(name=str(doc.get("name", path.stem)), chain=chain, robot_doc=robot_doc, tool_points=pts,
-                tool_normals=normals, source=where)
+            raise CellError(f"{where}: {key}: missing")
+    chain, robot_doc = load_robot(fields.text(doc["robot"], f"{where}: robot", CellError), path.parent)
+    pts, normals = load_tool(fields.text(doc["tool"], f"{where}: tool", CellError), path.parent)
+    name = fields.text(doc.get("name", path.stem), f"{where}: name", CellError)
+    cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where)
     if "box_mm" in doc:
-        cell.box_min = _vec(doc["box_mm"], "min", f"{where}: box_mm")
-        cell.box_max = _vec(doc["box_mm"], "max", f"{where}: box_mm")
+        box = fields.mapping(doc["box_mm"], f"{where}: box_mm", CellError)
+        cell.box_min = fields.vector(box.get("min"), f"{where}: box_mm.min", CellError)
+        cell.box_max = fields.vector(box.get("max"), f"{where}: box_mm.max", CellError)
         if np.any(cell.box_min >= cell.box_max):
-            raise CellError(f"{where}: box_mm min must be below max on every axis")
+            raise CellError(f"{where}: box_mm: min must be below max on every axis")
     if "test_pose_deg" in doc:
-        cell.test_pose = np.radians(_vec(doc, "test_pose_deg", where, chain.dof))
+        q0 = fields.vector(doc["test_pose_deg"], f"{where}: test_pose_deg", CellError, chain.dof)
+        cell.test_pose = np.radians(q0)
     tcp = doc.get("tcp", "centroid")
     if tcp == "centroid":
         cell.tcp = np.mean(list(pts.values()), axis=0)
     else:
-        cell.tcp = _vec(doc, "tcp", where)
-    for sid, sd in (doc.get("stations") or {}).items():
-        sw = f"{where}: station {sid}"
-        cell.stations[str(sid)] = StationPlacement(
-            rotation=rot_axis(2, np.radians(float(sd.get("yaw_deg", 0.0)))), position=_vec(sd, "position_mm", sw)
-        )
-    cell.acceptance_deg = float(doc.get("acceptance_deg", 90.0))
+        cell.tcp = fields.vector(tcp, f"{where}: tcp (centroid or [x, y, z] mm)", CellError)
+    stations = fields.mapping(doc.get("stations") or {}, f"{where}: stations (id -> position_mm, yaw_deg)", CellError)
+    for sid, sd in stations.items():
+        sw = f"{where}: stations.{sid}"
+        sd = fields.mapping(sd, sw, CellError)
+        yaw = fields.number(sd.get("yaw_deg", 0.0), f"{sw}.yaw_deg", CellError)
+        position = fields.vector(sd.get("position_mm"), f"{sw}.position_mm", CellError)
+        cell.stations[str(sid)] = StationPlacement(rotation=rot_axis(2, np.radians(yaw)), position=position)
+    cell.acceptance_deg = fields.number(doc.get("acceptance_deg", 90.0), f"{where}: acceptance_deg", CellError)
+    if not 0 < cell.acceptance_deg <= 180:
+        raise CellError(f"{where}: acceptance_deg: {cell.acceptance_deg:g} is not an angle in (0, 180] deg")
     cell.joint_margin_deg = _non_negative(doc, "joint_margin_deg", where, 1.0)
     narrow = [j.name for j, (lo, hi) in zip(chain.joints, plan_joint_bounds(cell), strict=True) if not lo < hi]
     if narrow:
@@ -173,9 +164,8 @@ def load_cell(ref: str) -> Cell:
     if doc.get("measurement_tolerance_mm") is not None:
         cell.measurement_tolerance_mm = _non_negative(doc, "measurement_tolerance_mm", where, 0.0)
         if cell.measurement_tolerance_mm == 0:
-            raise CellError(f"{where}: 'measurement_tolerance_mm' must be positive")
+            raise CellError(f"{where}: measurement_tolerance_mm: must be positive")
     if doc.get("plan_params") is not None:
-        if not isinstance(doc["plan_params"], list) or not all(isinstance(p, str) for p in doc["plan_params"]):
-            raise CellError(f"{where}: plan_params must be a list of parameter names")
-        cell.plan_params = list(doc["plan_params"])
+        names = fields.sequence(doc["plan_params"], f"{where}: plan_params", CellError)
+        cell.plan_params = [fields.text(n, f"{where}: plan_params[{k}]", CellError) for k, n in enumerate(names)]
     return cell

@@ -8,10 +8,15 @@ R_nom,j from that frame to the next joint's frame. Lengths in mm, angles in rad 
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from . import fields
 from .errors import CalibError
 from .rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
 
@@ -62,52 +67,76 @@ def _parse_axis(text: str, where: str) -> tuple[int, float]:
     return AXIS_INDEX[t], sign
 
 
-def _vec3(value, where: str) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ChainError(f"{where}: expected 3 numbers, got {value!r}") from exc
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ChainError(f"{where}: expected 3 finite numbers, got {value!r}")
-    return v
-
-
 def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
     """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg)."""
     if not isinstance(doc, dict) or "joints" not in doc:
         raise ChainError(f"{source}: a robot needs a 'joints' list")
-    base_doc = doc.get("base") or {}
+    base_doc = fields.mapping(doc.get("base") or {}, f"{source}: base", ChainError)
+
+    def vec3(d: dict, key: str, where: str) -> np.ndarray:
+        return fields.vector(d.get(key, [0, 0, 0]), f"{where}.{key}", ChainError)
+
     base = homogeneous(
-        rpy_matrix(*np.radians(_vec3(base_doc.get("rpy_deg", [0, 0, 0]), f"{source}: base.rpy_deg"))),
-        _vec3(base_doc.get("translation_mm", [0, 0, 0]), f"{source}: base.translation_mm"),
+        rpy_matrix(*np.radians(vec3(base_doc, "rpy_deg", f"{source}: base"))),
+        vec3(base_doc, "translation_mm", f"{source}: base"),
     )
     joints = []
-    for k, jd in enumerate(doc["joints"]):
-        where = f"{source}: joint {k + 1}"
+    for k, jd in enumerate(fields.sequence(doc["joints"], f"{source}: joints", ChainError)):
+        where = f"{source}: joints[{k}]"
         if not isinstance(jd, dict) or "axis" not in jd:
             raise ChainError(f"{where}: needs at least 'axis'")
         axis, sign = _parse_axis(jd["axis"], where)
         limits = None
         if jd.get("limits_deg") is not None:
-            lo, hi = (float(v) for v in jd["limits_deg"])
+            lo, hi = fields.vector(jd["limits_deg"], f"{where}.limits_deg", ChainError, 2)
             if not lo < hi:
-                raise ChainError(f"{where}: limits_deg must be [min, max] with min < max")
+                raise ChainError(f"{where}.limits_deg: must be [min, max] with min < max")
             limits = (np.radians(lo), np.radians(hi))
         joints.append(
             Joint(
-                name=str(jd.get("name", f"A{k + 1}")),
+                name=fields.text(jd.get("name", f"A{k + 1}"), f"{where}.name", ChainError),
                 axis=axis,
                 sign=sign,
-                translation=_vec3(jd.get("link_mm", [0, 0, 0]), f"{where}: link_mm"),
-                rotation=rpy_matrix(*np.radians(_vec3(jd.get("link_rpy_deg", [0, 0, 0]), f"{where}: rpy"))),
+                translation=vec3(jd, "link_mm", where),
+                rotation=rpy_matrix(*np.radians(vec3(jd, "link_rpy_deg", where))),
                 limits=limits,
-                mass_kg=float(jd.get("mass_kg", 0.0)),
-                com=_vec3(jd.get("com_mm", [0, 0, 0]), f"{where}: com_mm"),
+                mass_kg=fields.number(jd.get("mass_kg", 0.0), f"{where}.mass_kg", ChainError),
+                com=vec3(jd, "com_mm", where),
             )
         )
     if not joints:
-        raise ChainError(f"{source}: the chain has no joints")
-    return Chain(name=str(doc.get("name", source)), base=base, joints=tuple(joints))
+        raise ChainError(f"{source}: joints: the chain has no joints")
+    name = fields.text(doc.get("name", source), f"{source}: name", ChainError)
+    return Chain(name=name, base=base, joints=tuple(joints))
+
+
+def _urdf_model(path: str):
+    """pinocchio's model of a URDF file. Its parser (urdfdom) reports problems on the C stdout/stderr, which
+    no Python redirection reaches: file descriptors 1 and 2 point at a temporary file during the load, and
+    its first line goes into the one-line error."""
+    import pinocchio as pin  # lazy: pinocchio costs ~0.5 s at start-up and only URDF robots need it
+
+    if not Path(path).is_file():
+        raise ChainError(f"{path}: no such file")
+    with tempfile.TemporaryFile() as sink:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = [os.dup(1), os.dup(2)]
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            try:
+                return pin.buildModelFromUrdf(str(path))
+            except Exception as exc:  # pinocchio raises ValueError / RuntimeError with its own text
+                failure = str(exc)
+        finally:
+            for fd, copy in ((1, saved[0]), (2, saved[1])):
+                os.dup2(copy, fd)
+                os.close(copy)
+        sink.seek(0)
+        said = next((line.strip() for line in sink.read().decode(errors="replace").splitlines() if line.strip()), "")
+    detail = said.removeprefix("Error:").strip() or failure
+    raise ChainError(f"{path}: not a valid URDF ({detail})")
 
 
 def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
@@ -116,13 +145,12 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
     Joint i's placement in its parent joint frame becomes the link block of joint i-1 (translation
     and fixed rotation); the first placement is the base transform. Inertias give the mass model.
     """
-    import pinocchio as pin
-
-    try:
-        model = pin.buildModelFromUrdf(str(path))
-    except Exception as exc:  # pinocchio raises ValueError / RuntimeError with its own text
-        raise ChainError(f"{path}: cannot load URDF ({exc})") from exc
+    model = _urdf_model(path)
     names = list(model.names)[1:]
+    if not names:
+        raise ChainError(f"{path}: the URDF has no movable joints")
+    if tip_joint is not None and tip_joint not in names:
+        raise ChainError(f"{path}: no joint {tip_joint!r} (joints: {', '.join(names)})")
     last = len(names) if tip_joint is None else names.index(tip_joint) + 1
     axes = []
     for i in range(1, last + 1):

@@ -13,16 +13,17 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import fields
 from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from .changepoint import relabel_shift
 from .errors import CalibError
-from .extensions import UNIT_FACTORS, Extension, build_parts
+from .extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
+from .files import read_json
 from .identify import Identification, Station, predict_points
 from .joint_map import Arc, range_warning
 from .params import Param, param_by_name
@@ -154,39 +155,52 @@ class Model:
 
 
 def load_model(path: str | Path) -> Model:
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ModelError(f"{path}: no such file") from None
-    except (OSError, ValueError) as exc:
-        raise ModelError(f"{path}: not a JSON model ({exc})") from None
-    return model_from_doc(doc, str(path))
+    return model_from_doc(read_json(path, ModelError), str(path))
 
 
 def model_from_doc(doc: dict, source: str = "model") -> Model:
-    """A Model from a model.json document; errors name `source`."""
+    """A Model from a model.json document; every missing, mistyped or non-finite field is a ModelError naming
+    `source` and the key."""
     path = source
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ModelError(f"{path}: not a trackcal model (expected format {FORMAT!r})")
+    for key in ("robot", "parameters", "stations", "tool_points"):
+        if key not in doc:
+            raise ModelError(f"{path}: {key}: missing")
     try:
         chain = chain_from_dict(doc["robot"], f"{path}: robot")
-        params = [param_by_name(chain, n) for n in doc["parameters"]]
-        dev = np.array(
-            [
-                doc["parameters"][p.name]["value"] * (1.0 if p.is_length else np.pi / 180.0)
-                for p in params
-            ]
-        )
-        stations = {
-            sid: Station(np.asarray(s["rotation"], dtype=float), np.asarray(s["translation_mm"], dtype=float))
-            for sid, s in doc["stations"].items()
-        }
-        points = {pid: np.asarray(p["xyz_mm"], dtype=float) for pid, p in doc["tool_points"].items()}
-        model = Model(chain, params, dev, stations, points, doc)
+    except ChainError as exc:
+        raise ModelError(str(exc)) from None
+    pars = fields.mapping(doc["parameters"], f"{path}: parameters", ModelError)
+    try:
+        params = [param_by_name(chain, n) for n in pars]
+    except ChainError as exc:
+        raise ModelError(f"{path}: parameters: {exc}") from None
+    dev = np.array(
+        [
+            fields.number(fields.mapping(pars[p.name], f"{path}: parameters.{p.name}", ModelError).get("value"),
+                          f"{path}: parameters.{p.name}.value", ModelError) * (1.0 if p.is_length else np.pi / 180.0)
+            for p in params
+        ]
+    )  # fmt: skip
+    stations = {}
+    for sid, st in fields.mapping(doc["stations"], f"{path}: stations", ModelError).items():
+        where = f"{path}: stations.{sid}"
+        st = fields.mapping(st, where, ModelError)
+        stations[sid] = Station(fields.matrix(st.get("rotation"), f"{where}.rotation", ModelError, (3, 3)),
+                                fields.vector(st.get("translation_mm"), f"{where}.translation_mm", ModelError))
+    points = {}
+    for pid, pt in fields.mapping(doc["tool_points"], f"{path}: tool_points", ModelError).items():
+        where = f"{path}: tool_points.{pid}"
+        points[pid] = fields.vector(fields.mapping(pt, where, ModelError).get("xyz_mm"), f"{where}.xyz_mm", ModelError)
+    ext = fields.mapping(doc.get("extension", {"cause": "none"}), f"{path}: extension", ModelError)
+    if ext.get("cause", "none") not in ("none", *CAUSES):
+        raise ModelError(f"{path}: extension.cause: {ext.get('cause')!r} is not none or one of {', '.join(CAUSES)}")
+    model = Model(chain, params, dev, stations, points, doc)
+    try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ChainError) as exc:
-        raise ModelError(f"{path}: incomplete or malformed model ({exc})") from None
+        raise ModelError(f"{path}: extension: incomplete or malformed ({exc})") from None
     return model
 
 

@@ -2,20 +2,44 @@
 
 seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm[,extra columns ignored by readers]
 Every bad input is reported as one line naming the file, the row (1-based, header = row 1) and the column.
+
+Reading streams the file in blocks of whole lines and parses each block with numpy's C tokenizer (loadtxt),
+so memory is the table itself plus one block, and no Python code runs per cell. Ids are interned (a pose id
+is one string however many rows share it) and extra columns are numpy variable-width strings.
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
+import itertools
 import math
+import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .chain import Chain
 from .errors import CalibError
+from .files import atomic_open
 
 XYZ = ("x_mm", "y_mm", "z_mm")
+IDS = ("pose", "station", "point")
+TEXT = np.dtypes.StringDType()
+
+BLOCK_BYTES = 1 << 23  # 8 MiB of whole lines per parse: ~80k rows of the DESIGN layout
+MAX_LINE_BYTES = 1 << 20  # no table row is a megabyte; a longer "line" is not a table (and would fill memory)
+# At most 8 bytes per float cell and 16 per id or extra cell (a numpy string of up to 15 bytes is stored in
+# place; longer ones add their own bytes), so 30 M cells keep a table under 0.5 GB, 1 GB with the parse
+# temporaries; that is 2.1 M rows of the 14-column layout (58 hours of measurements at 10 Hz).
+MAX_CELLS = 30_000_000
+# Joint values are controller readings at rest, inside its software limits; the limits in the robot files
+# are datasheet figures in whole degrees (paper Table 4), so a reading may lie up to 0.5 deg past the
+# rounded figure. 1 deg covers that with room, and the mistakes this check is for (a shifted column, a
+# value in the wrong unit, 1e300) are far larger.
+JOINT_LIMIT_MARGIN_DEG = 1.0
 
 
 class TableError(CalibError):
@@ -31,8 +55,11 @@ class MeasurementTable:
     point: list[str]
     q_deg: np.ndarray  # (N, n)
     xyz: np.ndarray | None  # (N, 3) or None when the table has no measurements (predict input)
-    extra: dict[str, list[str]] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)  # name -> (N,) strings, as written
     source: str = "table"
+
+    def __post_init__(self) -> None:
+        self.extra = {k: np.asarray(v, dtype=TEXT) for k, v in self.extra.items()}
 
     def __len__(self) -> int:
         return len(self.seq)
@@ -51,7 +78,7 @@ class MeasurementTable:
             point=[self.point[i] for i in rows],
             q_deg=self.q_deg[rows],
             xyz=None if self.xyz is None else self.xyz[rows],
-            extra={k: [v[i] for i in rows] for k, v in self.extra.items()},
+            extra={k: v[rows] for k, v in self.extra.items()},
             source=self.source,
         )
 
@@ -60,90 +87,257 @@ def joint_columns(n: int) -> list[str]:
     return [f"q{j + 1}_deg" for j in range(n)]
 
 
-def read_csv(path: Path, delimiter: str = ",", error: type[TableError] = TableError) -> list[list[str]]:
-    """The rows of a delimited text file whose first row is a header of distinct names (stripped); every
-    failure is `error` naming the file (and row 1 for the header)."""
+def read_lines(path: Path, error: type[TableError] = TableError) -> Iterator[tuple[int, list[str]]]:
+    """(row number of the first line, lines) blocks of a UTF-8 text file (a leading BOM dropped, line ends
+    removed), in bounded memory; an unreadable or non-UTF-8 file or an overlong line is `error` naming
+    the file and the row."""
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh, delimiter=delimiter))
+        fh = path.open("rb")
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise error(f"{path}: not a {delimiter!r}-separated text file ({exc})") from None
-    if not rows:
-        raise error(f"{path}: empty file, expected a header row")
-    rows[0] = [h.strip() for h in rows[0]]
-    if len(set(rows[0])) != len(rows[0]):
+    with fh:
+        row, rest, first = 1, b"", True
+        while True:
+            try:
+                chunk = fh.read(BLOCK_BYTES)
+            except OSError as exc:
+                raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+            data = rest + chunk
+            if first:
+                data, first = data.removeprefix(codecs.BOM_UTF8), False
+            end = len(data) if not chunk else data.rfind(b"\n") + 1
+            whole, rest = data[:end], data[end:]
+            if len(rest) > MAX_LINE_BYTES:
+                r = row + whole.count(b"\n")
+                raise error(f"{path}: row {r}: longer than {MAX_LINE_BYTES} bytes, not a table row")
+            try:
+                text = whole.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                r = row + whole.count(b"\n", 0, exc.start)
+                bad = whole[exc.start]
+                raise error(f"{path}: row {r}: not UTF-8 text (byte 0x{bad:02x}); save the file as UTF-8") from None
+            lines = (text.replace("\r\n", "\n") if "\r" in text else text).split("\n")
+            if lines[-1] == "":
+                lines.pop()
+            if lines:
+                yield row, lines
+                row += len(lines)
+            if not chunk:
+                return
+
+
+def split_header(path: Path, line: str, delimiter: str, error: type[TableError]) -> list[str]:
+    """Row 1: distinct column names, stripped."""
+    try:
+        header = [h.strip() for h in next(csv.reader([line], delimiter=delimiter))]
+    except csv.Error as exc:
+        raise error(f"{path}: row 1: not a {delimiter!r}-separated header ({exc})") from None
+    if len(set(header)) != len(header):
         raise error(f"{path}: row 1: duplicate column names")
+    return header
+
+
+def read_csv(path: Path, delimiter: str = ",", error: type[TableError] = TableError) -> list[list[str]]:
+    """The rows of a small delimited text file whose first row is a header of distinct names (stripped);
+    every failure is `error` naming the file (and the row)."""
+    lines = [line for _, block in read_lines(path, error) for line in block]
+    if not lines:
+        raise error(f"{path}: empty file, expected a header row")
+    try:
+        rows = list(csv.reader(lines, delimiter=delimiter))
+    except csv.Error as exc:
+        raise error(f"{path}: not a {delimiter!r}-separated text file ({exc})") from None
+    rows[0] = split_header(path, lines[0], delimiter, error)
     return rows
 
 
-def read_table(path: str | Path, require_xyz: bool = True, n_joints: int | None = None) -> MeasurementTable:
+def _fields(line: str) -> list[str]:
+    try:
+        return next(csv.reader([line]), [])
+    except csv.Error:
+        return line.split(",")
+
+
+def _parse(lines: list[str], cols: list[int], dtype) -> np.ndarray:
+    return np.loadtxt(lines, delimiter=",", quotechar='"', comments=None, usecols=cols, dtype=dtype, ndmin=2)
+
+
+def _first_bad_cell(lines: list[str], cols: list[int], dtype) -> tuple[int, int]:
+    """(line index, index into cols) of the first cell that does not parse (the block is known to fail)."""
+    lo, hi = 0, len(lines)  # the first bad line is in [lo, hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        try:
+            _parse(lines[lo:mid], cols, dtype)
+        except ValueError:
+            hi = mid
+        else:
+            lo = mid
+    for k, c in enumerate(cols):
+        try:
+            _parse(lines[lo : lo + 1], [c], dtype)
+        except ValueError:
+            return lo, k
+    return lo, 0  # the line as a whole does not tokenize (a stray quote)
+
+
+class _Columns:
+    """Where each required column is, and the growing result."""
+
+    def __init__(self, path: Path, header: list[str], qcols: list[str], has_xyz: bool):
+        self.path, self.header = path, header
+        col = {h: i for i, h in enumerate(header)}
+        self.numeric = ["seq", "t_s", *qcols, *(XYZ if has_xyz else ())]
+        self.num_idx = [col[c] for c in self.numeric]
+        self.extra = [h for h in header if h not in self.numeric and h not in IDS]
+        self.text = [*IDS, *self.extra]
+        self.text_idx = [col[c] for c in self.text]
+        self.numbers: list[np.ndarray] = []
+        self.texts: list[np.ndarray] = []
+        self.ids: list[list[str]] = [[] for _ in IDS]
+
+    def add(self, row: int, lines: list[str]) -> None:
+        path = self.path
+        joined = "\n".join(lines)
+        if '"' in joined or joined.count(",") != len(lines) * (len(self.header) - 1):
+            self.check_counts(row, lines)
+        try:
+            num = _parse(lines, self.num_idx, np.float64)
+        except ValueError:
+            self.check_counts(row, lines)  # a short row and a long one leave the comma count right
+            k, c = _first_bad_cell(lines, self.num_idx, np.float64)
+            text = _fields(lines[k])[self.num_idx[c]].strip()
+            raise TableError(f"{path}: row {row + k}: column {self.numeric[c]}: not a number: {text!r}") from None
+        try:
+            txt = _parse(lines, self.text_idx, TEXT)
+        except ValueError:
+            self.check_counts(row, lines)
+            k, c = _first_bad_cell(lines, self.text_idx, TEXT)
+            raise TableError(f"{path}: row {row + k}: column {self.text[c]}: not a CSV field") from None
+        finite = np.isfinite(num)
+        if not finite.all():
+            k, c = np.argwhere(~finite)[0]
+            text = _fields(lines[k])[self.num_idx[c]].strip()
+            raise TableError(f"{path}: row {row + k}: column {self.numeric[c]}: not a finite number: {text!r}")
+        seq = num[:, 0]
+        not_int = np.flatnonzero((seq != np.rint(seq)) | (np.abs(seq) > 2**53))
+        if not_int.size:
+            k = not_int[0]
+            text = _fields(lines[k])[self.num_idx[0]].strip()
+            raise TableError(f"{path}: row {row + k}: column seq: not an integer: {text!r}")
+        ids = np.strings.strip(txt[:, : len(IDS)])
+        empty = np.argwhere(np.strings.str_len(ids) == 0)
+        if empty.size:
+            k, c = empty[0]
+            raise TableError(f"{path}: row {row + k}: column {IDS[c]}: empty id")
+        for dst, column in zip(self.ids, ids.T, strict=True):
+            dst.extend(map(sys.intern, column.tolist()))  # one string per distinct id, however many rows
+        self.numbers.append(num)
+        self.texts.append(txt[:, len(IDS) :])
+
+    def check_counts(self, row: int, lines: list[str]) -> None:
+        n = len(self.header)
+        counts = [len(_fields(line)) for line in lines]
+        bad = next((k for k, c in enumerate(counts) if c != n), None)
+        if bad is not None and not lines[bad].strip():
+            raise TableError(f"{self.path}: row {row + bad}: empty row")
+        if bad is not None:
+            raise TableError(f"{self.path}: row {row + bad}: {counts[bad]} fields, the header has {n}")
+
+    def table(self, n_joints: int, has_xyz: bool) -> MeasurementTable:
+        num = np.concatenate(self.numbers)
+        txt = np.concatenate(self.texts)
+        seq = num[:, 0].astype(np.int64)
+        order = np.argsort(seq, kind="stable")
+        repeat = np.flatnonzero(seq[order][1:] == seq[order][:-1])
+        if repeat.size:
+            later = order[repeat + 1]
+            k = int(np.argmin(later))
+            first = int(order[repeat[k]])
+            raise TableError(
+                f"{self.path}: row {later[k] + 2}: column seq: {seq[first]} already used in row {first + 2}"
+            )
+        return MeasurementTable(
+            seq=seq,
+            t_s=num[:, 1].copy(),
+            pose=self.ids[0],
+            station=self.ids[1],
+            point=self.ids[2],
+            q_deg=num[:, 2 : 2 + n_joints].copy(),
+            xyz=num[:, 2 + n_joints :].copy() if has_xyz else None,
+            extra={h: txt[:, k] for k, h in enumerate(self.extra)},
+            source=str(self.path),
+        )
+
+
+def read_table(
+    path: str | Path, require_xyz: bool = True, n_joints: int | None = None, chain: Chain | None = None
+) -> MeasurementTable:
+    """The table at `path`; with the robot's `chain`, its joint count is required and joint values more than
+    JOINT_LIMIT_MARGIN_DEG outside its limits are refused."""
     path = Path(path)
-    rows = read_csv(path)
-    header = rows[0]
+    if chain is not None:
+        n_joints = chain.dof
+    blocks = read_lines(path)
+    first = next(blocks, None)
+    if first is None:
+        raise TableError(f"{path}: empty file, expected a header row")
+    _, lines = first
+    header = split_header(path, lines[0], ",", TableError)
     qcols = []
     while f"q{len(qcols) + 1}_deg" in header:
         qcols.append(f"q{len(qcols) + 1}_deg")
     if n_joints is not None and len(qcols) != n_joints:
         raise TableError(f"{path}: row 1: expected joint columns q1_deg..q{n_joints}_deg, found {len(qcols)}")
-    required = ["seq", "t_s", "pose", "station", "point", *qcols] + (list(XYZ) if require_xyz else [])
+    required = ["seq", "t_s", *IDS, *qcols] + (list(XYZ) if require_xyz else [])
     missing = [c for c in required if c not in header]
     if not qcols:
         missing.append("q1_deg")
     if missing:
         raise TableError(f"{path}: row 1: missing column(s) {', '.join(missing)}")
     has_xyz = all(c in header for c in XYZ)
-    col = {h: i for i, h in enumerate(header)}
-    data = rows[1:]
-    while data and not any(cell.strip() for cell in data[-1]):
-        data.pop()
-    if not data:
+    columns = _Columns(path, header, qcols, has_xyz)
+    max_rows = MAX_CELLS // len(header)
+    trailing_blank: int | None = None  # the first row of the blank rows seen last: allowed only at the end
+    rows = 0
+    for row, block in itertools.chain([(2, lines[1:])], blocks):
+        n = len(block)
+        while n and not block[n - 1].strip():
+            n -= 1
+        if n and trailing_blank is not None:
+            raise TableError(f"{path}: row {trailing_blank}: empty row")
+        if n < len(block) and trailing_blank is None:
+            trailing_blank = row + n
+        block = block[:n]
+        if "" in block:
+            raise TableError(f"{path}: row {row + block.index('')}: empty row")
+        if not block:
+            continue
+        rows += len(block)
+        if rows > max_rows:
+            raise TableError(
+                f"{path}: more than {max_rows} rows, the limit for {len(header)} columns ({MAX_CELLS} cells, "
+                "to stay under 1 GB of memory); split the table"
+            )
+        columns.add(row, block)
+    if not rows:
         raise TableError(f"{path}: no data rows")
+    table = columns.table(len(qcols), has_xyz)
+    if chain is not None:
+        check_limits(table, np.degrees(chain.limits_array()), qcols)
+    return table
 
-    def number(r: int, row: list[str], name: str) -> float:
-        text = row[col[name]].strip()
-        try:
-            v = float(text)
-        except ValueError:
-            raise TableError(f"{path}: row {r}: column {name}: not a number: {text!r}") from None
-        if not math.isfinite(v):
-            raise TableError(f"{path}: row {r}: column {name}: not a finite number: {text!r}")
-        return v
 
-    seq, t, pose, station, point, q, xyz = [], [], [], [], [], [], []
-    extra_cols = [h for h in header if h not in required and h not in XYZ]
-    extra: dict[str, list[str]] = {h: [] for h in extra_cols}
-    for k, row in enumerate(data):
-        r = k + 2
-        if len(row) != len(header):
-            raise TableError(f"{path}: row {r}: {len(row)} fields, the header has {len(header)}")
-        s = number(r, row, "seq")
-        if s != int(s):
-            raise TableError(f"{path}: row {r}: column seq: not an integer: {row[col['seq']]!r}")
-        seq.append(int(s))
-        t.append(number(r, row, "t_s"))
-        for name, dst in (("pose", pose), ("station", station), ("point", point)):
-            v = row[col[name]].strip()
-            if not v:
-                raise TableError(f"{path}: row {r}: column {name}: empty id")
-            dst.append(v)
-        q.append([number(r, row, c) for c in qcols])
-        if has_xyz:
-            xyz.append([number(r, row, c) for c in XYZ])
-        for h in extra_cols:
-            extra[h].append(row[col[h]])
-    return MeasurementTable(
-        seq=np.array(seq, dtype=int),
-        t_s=np.array(t),
-        pose=pose,
-        station=station,
-        point=point,
-        q_deg=np.array(q, dtype=float),
-        xyz=np.array(xyz, dtype=float) if has_xyz else None,
-        extra=extra,
-        source=str(path),
-    )
+def check_limits(table: MeasurementTable, limits_deg: np.ndarray, qcols: list[str]) -> None:
+    lo = limits_deg[:, 0] - JOINT_LIMIT_MARGIN_DEG
+    hi = limits_deg[:, 1] + JOINT_LIMIT_MARGIN_DEG
+    outside = np.argwhere((table.q_deg < lo) | (table.q_deg > hi))
+    if outside.size:
+        k, j = outside[0]
+        raise TableError(
+            f"{table.source}: row {k + 2}: column {qcols[j]}: {table.q_deg[k, j]:g} deg is outside the joint's "
+            f"limits [{limits_deg[j, 0]:g}, {limits_deg[j, 1]:g}] deg (+-{JOINT_LIMIT_MARGIN_DEG:g} deg margin)"
+        )
 
 
 def _fmt(v: float, digits: int) -> str:
@@ -151,13 +345,12 @@ def _fmt(v: float, digits: int) -> str:
 
 
 def write_table(table: MeasurementTable, path: str | Path) -> None:
-    """Write in the DESIGN.md layout (q to 1e-4 deg as the controller reports, xyz to 1e-4 mm)."""
-    path = Path(path)
-    header = ["seq", "t_s", "pose", "station", "point", *joint_columns(table.n_joints)]
+    """Write in the DESIGN.md layout (q to 1e-4 deg as the controller reports, xyz to 1e-4 mm), atomically."""
+    header = ["seq", "t_s", *IDS, *joint_columns(table.n_joints)]
     if table.xyz is not None:
         header += list(XYZ)
     header += list(table.extra)
-    with path.open("w", newline="") as fh:
+    with atomic_open(path, "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(header)
         for i in range(len(table)):

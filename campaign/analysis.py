@@ -193,7 +193,7 @@ def analyse_session(store: SessionStore) -> None:
     d = store.directory
     n = write_export(store, d / "table.csv")
     cell = session_cell(store)
-    table = read_table(d / "table.csv", n_joints=cell.chain.dof)
+    table = read_table(d / "table.csv", chain=cell.chain)
     params = choose_params(cell, None)
     try:
         outcome = run_identify(cell, table, params, "tracker")

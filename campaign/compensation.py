@@ -17,7 +17,7 @@ import csv
 import numpy as np
 
 from calib.table import joint_columns, read_joint_rows
-from campaign.errors import InputError
+from campaign.output import output_file
 
 COMP_DECIMALS = 6
 
@@ -39,17 +39,14 @@ def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report
     header += [f"q{j + 1}_comp_deg" for j in range(n)] + [f"dq{j + 1}_deg" for j in range(n)]
     header += ["position_error_mm", "orientation_error_deg", "uncompensated_position_mm", "iterations"]
     header += ["rounded_position_error_mm"]
-    try:
-        with open(path, "w", newline="") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(header)
-            for i in range(len(q_deg)):
-                row = [names[i]] if names is not None else []
-                row += [f"{v:.4f}" for v in q_deg[i]] + [f"{v:.{COMP_DECIMALS}f}" for v in qc_deg[i]]
-                row += [f"{v:.6f}" for v in qc_deg[i] - q_deg[i]]
-                row += [f"{report.position_error_mm[i]:.3e}", f"{report.orientation_error_deg[i]:.3e}",
-                        f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i])),
-                        f"{rounded_mm[i]:.4f}"]  # fmt: skip
-                w.writerow(row)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    with output_file(path, newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for i in range(len(q_deg)):
+            row = [names[i]] if names is not None else []
+            row += [f"{v:.4f}" for v in q_deg[i]] + [f"{v:.{COMP_DECIMALS}f}" for v in qc_deg[i]]
+            row += [f"{v:.6f}" for v in qc_deg[i] - q_deg[i]]
+            row += [f"{report.position_error_mm[i]:.3e}", f"{report.orientation_error_deg[i]:.3e}",
+                    f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i])),
+                    f"{rounded_mm[i]:.4f}"]  # fmt: skip
+            w.writerow(row)

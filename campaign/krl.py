@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.files import atomic_open
 from campaign.errors import CampaignError
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
@@ -78,8 +79,9 @@ def write_krl(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10) -> tup
     try:
         out.mkdir(parents=True, exist_ok=True)
         src_path, dat_path = out / f"{name}.src", out / f"{name}.dat"
-        src_path.write_bytes(src.encode("ascii"))
-        dat_path.write_bytes(dat.encode("ascii"))
+        for p, text in ((src_path, src), (dat_path, dat)):
+            with atomic_open(p, "wb") as fh:
+                fh.write(text.encode("ascii"))
     except OSError as exc:
         raise KrlError(f"{out}: cannot write the KRL program ({exc.strerror or exc})") from None
     return src_path, dat_path

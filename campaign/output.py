@@ -1,40 +1,43 @@
-"""Writing the files a command produces: a write that fails is one line naming the file."""
+"""Writing the files a command produces: atomically (calib.files.atomic_open), JSON strict, and a write that
+fails (a full disk, a read-only directory) as one line naming the file."""
 
 from __future__ import annotations
 
 import contextlib
-import json
-import os
-import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
+from calib.files import atomic_open, dumps_json
 from calib.table import MeasurementTable, write_table
 from campaign.errors import InputError
 
 
-def write_json(path: str | Path, doc: dict) -> None:
+@contextlib.contextmanager
+def writing(path: str | Path) -> Iterator[None]:
+    """An OSError in the block is an InputError naming `path`."""
     try:
-        Path(path).write_text(json.dumps(doc, indent=2) + "\n")
+        yield
     except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
+        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
+def output_file(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
+    """atomic_open for a command's output (figures: mode "wb")."""
+    with writing(path), atomic_open(path, mode, **kwargs) as fh:
+        yield fh
+
+
+def write_text(path: str | Path, text: str) -> None:
+    with output_file(path) as fh:
+        fh.write(text)
+
+
+def write_json(path: str | Path, doc: dict) -> None:
+    write_text(path, dumps_json(doc))
 
 
 def write_output_table(table: MeasurementTable, path: str | Path) -> None:
-    try:
+    with writing(path):
         write_table(table, path)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Whoever waits for the file never reads half of it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise

@@ -14,10 +14,12 @@ import numpy as np
 
 from calib.cell import Cell
 from calib.doe import CRITERIA, Design, design_for_cell, optimize_plan
+from calib.files import finite_or_null
 from calib.noise import TrackerNoise
 from calib.params import Param, irreducible_params, param_by_name
 from calib.table import joint_columns, read_joint_rows
 from campaign.errors import InputError
+from campaign.output import output_file
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ def read_plan_csv(path: str, dof: int) -> np.ndarray:
 
 
 def write_plan_csv(path: Path, poses_rad: np.ndarray, repeat: int) -> None:
-    with open(path, "w", newline="") as fh:
+    with output_file(path, newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(joint_columns(poses_rad.shape[1]))
         for _ in range(repeat):
@@ -108,9 +110,13 @@ def write_plan_csv(path: Path, poses_rad: np.ndarray, repeat: int) -> None:
                 w.writerow([f"{v:.4f}" for v in q])
 
 
+# calib.doe scores a plan whose information matrix is singular as infinitely bad
+NOT_IDENTIFIABLE = "not identifiable: the plan's information matrix is singular"
+
+
 def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
     """Criteria of a plan given as rows (repeated rows are repetitions)."""
-    crit = design.criteria(poses)
+    crit = finite_or_null(design.criteria(poses), NOT_IDENTIFIABLE)
     feasible = design.feasible(poses)
     return {
         **crit,
@@ -133,8 +139,9 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
             )  # fmt: skip
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    criteria = finite_or_null(plan.criteria, NOT_IDENTIFIABLE)
     return {
-        "rho0_mm": plan.criteria["rho0_mm"],
+        **{k: v for k, v in criteria.items() if k.startswith("rho0_")},
         "poses_deg": np.degrees(plan.poses).round(4).tolist(),
         "repeat": plan.repeat,
         "criterion": plan.criterion,
@@ -143,7 +150,7 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
         "sigma_mm": design.sigma_mm,
         "noise": "tracker" if design.noise is not None else "iid",
         "visibility": bool(design.trackers),
-        "criteria": plan.criteria,
+        "criteria": criteria,
         "starts": plan.starts,
         "refined": plan.refined,
     }

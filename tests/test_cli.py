@@ -74,7 +74,7 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
         (["identify", "DATA", "--cell", "nocell", "--out", "m.json"], "nocell.yaml: no such file"),
         (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
         (["identify", "DATA", "--cell", "kr270", "--extend", "gravity", "--out", "m.json"], "--extend gravity"),
-        (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "not a JSON model"),
+        (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "line 1: not JSON"),
     ],
 )
 def test_user_mistakes_end_in_one_line(tmp_path, campaign_csv, capsys, argv, message, monkeypatch):

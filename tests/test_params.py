@@ -72,7 +72,7 @@ def test_non_aligned_axes_are_refused():
 
 
 def test_bad_axis_is_a_clear_error():
-    with pytest.raises(ChainError, match="joint 1: axis must be x, y or z"):
+    with pytest.raises(ChainError, match=r"joints\[0\]: axis must be x, y or z"):
         chain_from_dict({"joints": [{"axis": "w"}]})
 
 

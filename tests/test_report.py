@@ -150,7 +150,7 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(campaign, tmp_path, capsys
     cases = [
         (["--model", str(tmp_path / "missing.json")], "no such file"),
         (["--model", str(nocell)], "--cell"),
-        (["--model", str(d / "model.json"), "--plan", str(notjson)], "not a JSON plan"),
+        (["--model", str(d / "model.json"), "--plan", str(notjson)], "line 1: not JSON"),
         (["--model", str(d / "model.json"), "--verdict", str(tmp_path / "v.json")], "no such file"),
         (["--model", str(d / "model.json"), "--plots", str(tmp_path / "nodir")], "not a directory"),
     ]

@@ -17,9 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from calib.cell import Cell
+from calib.files import read_yaml
 from campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
 from campaign.console import console as default_console
 from campaign.engine.operator import ConsoleOperator, PlcOperator
@@ -117,19 +116,7 @@ def load_hardware(path: str | Path, text: str | None = None) -> Hardware:
     """Read and validate a hardware config; every mistake is an InputError naming the file and the key.
     `text`: the file's content when the caller already read it."""
     path = Path(path)
-    if text is None:
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise InputError(f"{path}: cannot read the hardware config ({exc.strerror})") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = getattr(exc, "problem_mark", None)
-        line = f" (line {where.line + 1})" if where is not None else ""
-        raise InputError(f"{path}: not valid YAML{line}: {getattr(exc, 'problem', None) or exc}") from None
-    if not isinstance(doc, dict):
-        raise InputError(f"{path}: expected a mapping with the sections {', '.join(SECTIONS)}")
+    doc = read_yaml(path, InputError, text)
     _unknown(path, doc, SECTIONS, "")
     out: dict[str, dict | None] = {}
     for name in SECTIONS:

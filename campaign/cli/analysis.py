@@ -72,7 +72,7 @@ def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | Non
 
 def cmd_identify(args) -> int:
     cell = load_cell(args.cell)
-    table = read_table(args.data, n_joints=cell.chain.dof)
+    table = read_table(args.data, chain=cell.chain)
     outcome = run_identify(cell, table, choose_params(cell, args.params), args.weighting, args.extend)
     print_identification(outcome)
     write_json(args.out, outcome.doc)
@@ -84,7 +84,7 @@ def cmd_identify(args) -> int:
 
 def cmd_predict(args) -> int:
     model = load_model(args.model)
-    rows = read_table(args.rows, require_xyz=False)
+    rows = read_table(args.rows, require_xyz=False, chain=model.chain)
     pred = predict_table(model, rows)
     warning = model.range_warning(np.radians(rows.q_deg))
     if warning:
@@ -112,24 +112,24 @@ def cmd_demo(args) -> int:
     with console.status("planning: test-pose optimal poses (paper section 6)"):
         plan = search_doc(build_design(cell, options), options)
     write_json(str(out / "plan.json"), plan)
-    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {plan['rho0_mm'] * 1000:.2f} um "
+    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} um "
                   f"({out / 'plan.json'})")  # fmt: skip
     store = create_session(out / "session", args.cell, plan, "sim", args.seed)
     drive(store)
     analyse_session(store)
-    table = read_table(out / "session" / "table.csv", n_joints=cell.chain.dof)
+    table = read_table(out / "session" / "table.csv", chain=cell.chain)
     print_identification(run_identify(cell, table, choose_params(cell, None), "tracker"), twin_truth(cell, args.seed))
     return 0
 
 
-def _um(mm: float | None) -> str:
-    """mm as um for the console, '-' for a figure that cannot be computed."""
-    return "-" if mm is None else f"{mm * 1000:.1f}"
+def um(mm: float | None, digits: int = 1) -> str:
+    """mm as um for the console; "-" for a figure that cannot be computed (the JSON holds null and says why)."""
+    return "-" if mm is None else f"{mm * 1000:.{digits}f}"
 
 
 def cmd_diagnose(args) -> int:
     cell = load_cell(args.cell)
-    table = read_table(args.data, n_joints=cell.chain.dof)
+    table = read_table(args.data, chain=cell.chain)
     params = choose_params(cell, args.params)
     noise = TrackerNoise() if args.weighting == "tracker" else None
     with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
@@ -140,15 +140,15 @@ def cmd_diagnose(args) -> int:
     for col in ("step", "candidate", "params", "held-out RMS um", "gain um", "fit RMS um", "F-test p", "dBIC",
                 "significant"):  # fmt: skip
         t.add_column(col, justify="right")
-    t.add_row("-", "geometric", "-", _um(d.holdout_geometric_mm), "-", _um(doc["geometric"]["rms_mm"]), "-", "-",
+    t.add_row("-", "geometric", "-", um(d.holdout_geometric_mm), "-", um(doc["geometric"]["rms_mm"]), "-", "-",
               "-")  # fmt: skip
     for c in doc["candidates"]:
-        t.add_row(str(c["step"]), c["cause"], str(c["n_params"]), _um(c["holdout_rms_mm"]), _um(c["gain_mm"]),
-                  _um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
+        t.add_row(str(c["step"]), c["cause"], str(c["n_params"]), um(c["holdout_rms_mm"]), um(c["gain_mm"]),
+                  um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
                   "yes" if c["significant"] else "no")  # fmt: skip
     console.print(t)
     console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); {doc['noise_note']}; held-out "
-                  f"RMS {_um(d.holdout_geometric_mm)} -> {_um(d.holdout_extended_mm)} um"
+                  f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} um"
                   + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip
     if args.plots:
         for p in plots(cell, d, Path(args.plots)):

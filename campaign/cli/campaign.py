@@ -7,6 +7,7 @@ from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from calib.files import read_json, read_text
 from campaign.analysis import analyse_session, parse_effects
 from campaign.cells.hardware import connect_hardware, load_hardware
 from campaign.cells.sim import SimCell
@@ -67,12 +68,7 @@ def drive(store: SessionStore) -> None:
 def cmd_run(args) -> int:
     if bool(args.sim) == bool(args.hardware):
         raise UsageError("give exactly one of --sim or --hardware FILE")
-    try:
-        plan_doc = json.loads(Path(args.plan).read_text())
-    except OSError as exc:
-        raise InputError(f"{args.plan}: cannot read ({exc.strerror})") from None
-    except ValueError as exc:
-        raise InputError(f"{args.plan}: not a JSON plan ({exc})") from None
+    plan_doc = read_json(args.plan, InputError)
     if args.hardware and (args.effect or args.sim_speed is not None):
         raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
     effects = parse_effects(args.effect) if args.sim else {}
@@ -89,10 +85,7 @@ def cmd_run(args) -> int:
 
 def _hardware_session(directory: Path, cell_ref: str, plan_doc: dict, hardware: str) -> SessionStore:
     """A new session that stores the hardware config (validated first: a broken file makes no session)."""
-    try:
-        text = Path(hardware).read_text()
-    except OSError as exc:
-        raise InputError(f"{hardware}: cannot read the hardware config ({exc.strerror})") from None
+    text = read_text(hardware, InputError)
     load_hardware(hardware, text)
     source = str(Path(hardware).resolve())
     return create_session(directory, cell_ref, plan_doc, "hardware", None, hardware=(text, source))
@@ -123,8 +116,8 @@ def _campaign(open_store, no_analysis: bool) -> int:
 
 def cmd_replay(args) -> int:
     try:
+        plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        plan_doc = json.loads(Path(args.plan).read_text()) if args.plan else None
         store = replay_session(recording, Path(args.into), args.cell, plan_doc)
     except (OSError, ValueError) as exc:
         raise InputError(str(exc)) from None

@@ -29,8 +29,8 @@ from calib.cell import load_cell
 from campaign.analysis import parse_effects
 from campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
 from campaign.console import console
-from campaign.errors import InputError, UsageError
-from campaign.output import write_atomically
+from campaign.errors import UsageError
+from campaign.output import write_text
 
 
 def cmd_mock(args) -> int:
@@ -52,10 +52,7 @@ def cmd_mock(args) -> int:
         text = (f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
                 f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
         if out is not None:
-            try:
-                write_atomically(out, text)
-            except OSError as exc:
-                raise InputError(f"--write-hardware {out}: cannot write ({exc.strerror})") from None
+            write_text(out, text)
         table = Table(title=f"trackcal mock: cell {cell.name}, seed {args.seed}"
                             + (f", effects {effects}" if effects else ""))  # fmt: skip
         table.add_column("device")

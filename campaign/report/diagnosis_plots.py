@@ -14,7 +14,7 @@ from calib.extensions import approach_signs
 from calib.identify import Identification
 from calib.kinematics import Kinematics
 from calib.pinmodel import gravity_torques
-from campaign.report.figures import pyplot
+from campaign.report.figures import pyplot, save_png
 
 
 def main_cause_theta(d: Diagnosis) -> np.ndarray:
@@ -84,10 +84,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
     axes[0].legend()
     fig.suptitle(f"diagnosis: {d.cause} (noise floor {d.noise_floor_mm * 1000:.1f} um, {d.floor_source})")
     fig.tight_layout()
-    path = out_dir / "signature.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(path)
+    written.append(save_png(fig, out_dir / "signature.png", dpi=110))
     # residual structure against every joint angle and time, geometric model
     n = cell.chain.dof
     fig, axes = plt.subplots(2, (n + 2) // 2, figsize=(14, 6))
@@ -106,10 +103,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ax.grid(alpha=0.3)
     fig.suptitle("geometric residuals against joint angles and time")
     fig.tight_layout()
-    path = out_dir / "structure.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(path)
+    written.append(save_png(fig, out_dir / "structure.png", dpi=110))
     return written
 
 

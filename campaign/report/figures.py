@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from campaign.output import output_file
+
 
 def pyplot():
     """matplotlib.pyplot with the off-screen backend; imported on first use (start-up time of the commands
@@ -12,3 +16,11 @@ def pyplot():
     import matplotlib.pyplot as plt  # lazy: pyplot costs ~0.3 s at start-up
 
     return plt
+
+
+def save_png(fig, path: Path, dpi: int) -> Path:
+    """The figure as a PNG at `path`, written atomically, then closed."""
+    with output_file(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
+    pyplot().close(fig)
+    return path

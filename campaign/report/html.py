@@ -32,8 +32,9 @@ from calib.model import model_from_doc, predict_table
 from calib.noise import TrackerNoise
 from calib.table import MeasurementTable
 from campaign.errors import InputError
+from campaign.output import write_text
 from campaign.report.diagnosis_plots import plots
-from campaign.report.figures import pyplot
+from campaign.report.figures import pyplot, save_png
 
 TABLE9_ROWS = (
     ("coord_max_mm", "coordinate-based, max"),
@@ -95,9 +96,7 @@ def plot_histograms(res: Residuals, path: Path) -> Path:
     axes[0].set_ylabel("measurements")
     fig.suptitle("residuals after calibration, per axis (station frames), with the fitted normal")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def pose_order(table: MeasurementTable) -> list[str]:
@@ -128,9 +127,7 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     axes[1].set_xticklabels([poses[i].replace("$", r"\$") for i in x[::step]], rotation=90, fontsize=7)
     axes[1].set_xlabel("configuration (pose id)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def plot_parameters(model_doc: dict, path: Path) -> Path | None:
@@ -153,9 +150,7 @@ def plot_parameters(model_doc: dict, path: Path) -> Path | None:
         ax.grid(alpha=0.3)
     fig.suptitle("identified parameters")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
@@ -183,9 +178,7 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
     rho = plan_doc.get("rho0_mm")
     ax.set_title("measurement plan" + (f": rho0 = {rho * 1000:.2f} um at the test pose" if rho is not None else ""))
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 # ------------------------------------------------------------------------------------------------- html
@@ -403,8 +396,5 @@ def write_report(
             f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")  # fmt: skip
     path = out_dir / "report.html"
-    try:
-        path.write_text(page, encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    write_text(path, page)
     return path

@@ -23,9 +23,9 @@ import numpy as np
 import yaml
 
 from calib.cell import Cell, load_cell, load_yaml, resolve
+from calib.files import write_text
 from calib.table import MeasurementTable, write_table
 from campaign.engine.steps import Step, campaign_steps
-from campaign.output import write_atomically
 from campaign.session.store import SessionStore, StoreError
 
 PLAN_DOC = "plan.json"
@@ -99,7 +99,8 @@ def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, se
     for name, text in documents.items():
         path = store.directory / name
         try:
-            write_atomically(path, text)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_text(path, text)
         except OSError as exc:
             store.close()
             raise StoreError(f"{path}: cannot write ({exc.strerror})") from None

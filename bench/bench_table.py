@@ -1,0 +1,70 @@
+"""Reading measurement tables (issues 12 and 16): CPU time at 100k rows against the per-cell reader it replaced
+(csv.reader and one Python float() per cell, rebuilt here as the baseline), medians of interleaved repeats;
+and the peak memory of a child process reading a 1e6-row table (its max RSS, and above its RSS after imports)."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calib.table import read_table
+
+HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
+CHILD = """
+import resource, sys
+from calib.table import read_table
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+table = read_table(sys.argv[1])
+print(len(table), base, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+
+
+def write_rows(path: Path, n: int, seed: int = 0) -> None:
+    """A DESIGN.md table: 9 rows per pose (3 points, 3 stations), q to 1e-4 deg, xyz to 1e-4 mm."""
+    rng = np.random.default_rng(seed)
+    with path.open("w") as fh:
+        fh.write(HEADER)
+        for start in range(0, n, 100_000):
+            i = np.arange(start, min(start + 100_000, n))
+            num = np.column_stack([rng.uniform(-100, 0, (len(i), 6)), rng.uniform(-3000, 3000, (len(i), 3))])
+            fh.write("".join(
+                f"{a + 1},{0.1 * a:.3f},Q{a // 9},S{a % 3 + 1},P{a // 3 % 3 + 1}," + ",".join(f"{v:.4f}" for v in r)
+                + "\n" for a, r in zip(i.tolist(), num.tolist(), strict=True)))  # fmt: skip
+
+
+def per_cell_reader(path: Path) -> int:
+    """The baseline: every numeric cell through Python's float()."""
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    numeric = [0, 1, *range(5, 14)]
+    values = [[float(row[c]) for c in numeric] for row in rows[1:]]
+    return len(values)
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        small, large = Path(tmp) / "t100k.csv", Path(tmp) / "t1m.csv"
+        write_rows(small, 100_000)
+        new, old = [], []
+        for _ in range(5):
+            for reader, times in ((read_table, new), (per_cell_reader, old)):
+                t0 = time.process_time()
+                reader(small)
+                times.append(time.process_time() - t0)
+        print(f"read 100k rows ({small.stat().st_size / 1e6:.0f} MB): {np.median(new):.3f} s CPU, per-cell baseline "
+              f"{np.median(old):.3f} s: {np.median(old) / np.median(new):.1f}x (goal: under 0.3 s)")  # fmt: skip
+        write_rows(large, 1_000_000)
+        out = subprocess.run([sys.executable, "-c", CHILD, str(large)], capture_output=True, text=True, check=True)
+        n, base, peak = map(int, out.stdout.split())
+        print(f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak / 1024:.0f} MB, "
+              f"{(peak - base) / 1024:.0f} MB above the imports (goal: under 1 GB)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""Typed values of YAML and JSON documents (cells, robots, tools, hardware, models, plans).
+
+`where` names the file and the key path ("configs/cells/kr270.yaml: stations.S1.yaw_deg"); every mistake is
+the caller's error class with one line: where, what was expected, what was found.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _got(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def mapping(value, where: str, error: type[Exception]) -> dict:
+    if not isinstance(value, dict):
+        raise error(f"{where}: expected a mapping of keys, got {_got(value)}")
+    return value
+
+
+def sequence(value, where: str, error: type[Exception]) -> list:
+    if not isinstance(value, list):
+        raise error(f"{where}: expected a list, got {_got(value)}")
+    return value
+
+
+def text(value, where: str, error: type[Exception]) -> str:
+    if not isinstance(value, str | int | float) or isinstance(value, bool):
+        raise error(f"{where}: expected a name, got {_got(value)}")
+    return str(value)
+
+
+def number(value, where: str, error: type[Exception]) -> float:
+    """A finite number; a numeric string is taken too (YAML 1.1 reads `1e3` as a string)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise error(f"{where}: expected a number, got {_got(value)}")
+    try:
+        v = float(value)
+    except (ValueError, OverflowError):
+        raise error(f"{where}: expected a number, got {_got(value)}") from None
+    if not math.isfinite(v):
+        raise error(f"{where}: expected a finite number, got {_got(value)}")
+    return v
+
+
+def integer(value, where: str, error: type[Exception]) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise error(f"{where}: expected an integer, got {_got(value)}")
+    return value
+
+
+def vector(value, where: str, error: type[Exception], n: int = 3) -> np.ndarray:
+    """A list of n finite numbers."""
+    if not isinstance(value, list | tuple) or len(value) != n:
+        raise error(f"{where}: expected a list of {n} numbers, got {_got(value)}")
+    return np.array([number(v, f"{where}[{k}]", error) for k, v in enumerate(value)])
+
+
+def matrix(value, where: str, error: type[Exception], shape: tuple[int, int]) -> np.ndarray:
+    if not isinstance(value, list | tuple) or len(value) != shape[0]:
+        raise error(f"{where}: expected {shape[0]} rows of {shape[1]} numbers, got {_got(value)}")
+    return np.array([vector(row, f"{where}[{k}]", error, shape[1]) for k, row in enumerate(value)])

@@ -1,0 +1,117 @@
+"""The user mistakes issue 12 lists, each through the command line: one line on stderr naming the file and the
+key (or row and column), exit 2, nothing else on the console."""
+
+import json
+import re
+import shutil
+
+import pytest
+import yaml
+
+from calib.cell import CONFIGS
+from campaign.cli import main
+
+
+@pytest.fixture
+def cell_dir(tmp_path):
+    """configs/cells/kr270.yaml with its robot and tool beside it, to be spoiled one key at a time."""
+    shutil.copyfile(CONFIGS / "robots" / "kr270.yaml", tmp_path / "robot.yaml")
+    shutil.copyfile(CONFIGS / "tools" / "kr270-3point.yaml", tmp_path / "tool.yaml")
+    doc = yaml.safe_load((CONFIGS / "cells" / "kr270.yaml").read_text())
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump({**doc, "robot": "robot.yaml", "tool": "tool.yaml"}))
+    return tmp_path
+
+
+def spoil(path, change):
+    doc = yaml.safe_load(path.read_text())
+    change(doc)
+    path.write_text(yaml.safe_dump(doc))
+
+
+def one_line_error(capfd, argv) -> str:
+    assert main([str(a) for a in argv]) == 2
+    out, err = capfd.readouterr()
+    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize(
+    "file, change, message",
+    [
+        ("cell.yaml", lambda d: d["stations"]["S1"].update(yaw_deg="abc"), r"stations\.S1\.yaw_deg: expected a number"),
+        ("cell.yaml", lambda d: d.update(acceptance_deg="wide"), r"acceptance_deg: expected a number, got 'wide'"),
+        ("cell.yaml", lambda d: d.update(stations=[1, 2]), r"stations .*: expected a mapping of keys, got \[1, 2\]"),
+        ("cell.yaml", lambda d: d["box_mm"].update(min="low"), r"box_mm\.min: expected a list of 3 numbers"),
+        ("robot.yaml", lambda d: d.update(joints=5), r"robot\.yaml: joints: expected a list, got 5"),
+        ("robot.yaml", lambda d: d["joints"][1].update(limits_deg="all"), r"joints\[1\]\.limits_deg: expected a list"),
+        ("tool.yaml", lambda d: d["points"]["P1"].update(xyz_mm=[1, "x", 3]), r"points\.P1\.xyz_mm\[1\]: expected a"),
+    ],
+)
+def test_config_values_of_the_wrong_type(cell_dir, capfd, file, change, message):
+    spoil(cell_dir / file, change)
+    argv = ["simulate", "--cell", cell_dir / "cell.yaml", "--poses", 2, "--out", cell_dir / "t.csv"]
+    err = one_line_error(capfd, argv)
+    assert str(cell_dir / file) in err
+    assert re.search(message, err), err
+    assert not (cell_dir / "t.csv").exists()
+
+
+@pytest.mark.parametrize("name", ["cell.yaml", "robot.yaml", "tool.yaml"])
+def test_a_non_utf8_config_names_the_line(cell_dir, capfd, name):
+    path = cell_dir / name
+    path.write_bytes(path.read_bytes().replace(b"\n", "\n# K\xf6ln\n".encode("latin-1"), 1))  # line 2
+    err = one_line_error(capfd, ["simulate", "--cell", cell_dir / "cell.yaml", "--out", cell_dir / "t.csv"])
+    assert f"{path}: line 2: not UTF-8 text (byte 0xf6)" in err
+
+
+@pytest.mark.parametrize("text", ["", "<robot name='r'><link name='a'/>", "not xml at all"])
+def test_a_malformed_urdf_is_one_line_and_pinocchio_stays_quiet(cell_dir, capfd, text):
+    (cell_dir / "r.urdf").write_text(text)
+    spoil(cell_dir / "cell.yaml", lambda d: d.update(robot="r.urdf"))
+    err = one_line_error(capfd, ["simulate", "--cell", cell_dir / "cell.yaml", "--out", cell_dir / "t.csv"])
+    assert f"{cell_dir / 'r.urdf'}: " in err  # and nothing of urdfdom's own report on fd 1 or 2 (one_line_error)
+
+
+@pytest.fixture(scope="module")
+def model_json(tmp_path_factory):
+    d = tmp_path_factory.mktemp("model")
+    assert main(["simulate", "--cell", "kr270", "--poses", "8", "--seed", "3", "--out", str(d / "t.csv")]) == 0
+    assert main(["identify", str(d / "t.csv"), "--cell", "kr270", "--out", str(d / "model.json")]) == 0
+    (d / "targets.csv").write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n10,-60,80,10,40,0\n")
+    return d
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d["parameters"]["px2"].update(value=float("nan")), r"NaN is not JSON"),
+        (lambda d: d["stations"]["S1"].update(translation_mm=[0, 0]), r"stations\.S1\.translation_mm: expected a list"),
+        (lambda d: d.pop("tool_points"), r"model\.json: tool_points: missing"),
+        (lambda d: d["parameters"]["dq2"].pop("value"), r"parameters\.dq2\.value: expected a number, got None"),
+        (lambda d: d.update(extension={"cause": "gremlins"}), r"extension\.cause: 'gremlins' is not none or one of"),
+    ],
+)
+@pytest.mark.parametrize("command", ["predict", "compensate"])
+def test_a_bad_model_json(model_json, tmp_path, capfd, change, message, command):
+    doc = json.loads((model_json / "model.json").read_text())
+    change(doc)
+    bad = tmp_path / "model.json"
+    bad.write_text(json.dumps(doc))  # json.dumps writes NaN as the non-standard token
+    rows = model_json / ("t.csv" if command == "predict" else "targets.csv")
+    err = one_line_error(capfd, [command, rows, "--model", bad, "--out", tmp_path / "out.csv"])
+    assert str(bad) in err and re.search(message, err), err
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_non_utf8_plan_and_hardware_files(model_json, cell_dir, tmp_path, capfd):
+    plan = tmp_path / "plan.json"
+    plan.write_bytes('{"poses_deg": [], "note": "K\xf6ln"}'.encode("latin-1"))
+    err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", plan, "--sim", "--session", tmp_path / "s"])
+    assert f"{plan}: line 1: not UTF-8 text" in err
+    hw = tmp_path / "hw.yaml"
+    hw.write_bytes((CONFIGS / "hardware" / "example-cell.yaml").read_bytes() + b"# \xff\n")
+    good_plan = tmp_path / "good.json"
+    good_plan.write_text(json.dumps({"poses_deg": [[10, -60, 80, 10, 40, 0]], "repeat": 1}))
+    err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", good_plan, "--hardware", hw,
+                                 "--session", tmp_path / "s2"])  # fmt: skip
+    assert f"{hw}: line " in err and "not UTF-8 text (byte 0xff)" in err
