@@ -8,12 +8,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from calib.noise import DEFAULT_WEIGHTING, WEIGHTINGS
 from campaign.importers.ipa_ur10 import DEFAULT_PERIOD_S, VIRTUAL_DIRECTIONS
 
 CAUSE_HELP = ("none (purely geometric), auto (diagnose's choice) or a cause: joint_compliance, backlash, "
               "encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
 TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm)"
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
+WEIGHTING_HELP = "the AT901 radial/transverse noise model (calib/noise.py), or i.i.d. least squares"
+EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 
 
 def arg(*flags: str, **options) -> tuple[tuple[str, ...], dict]:
@@ -38,32 +41,31 @@ COMMANDS = [
                 arg("data", help=TABLE_HELP),
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--params", help="comma-separated parameter names (default: the irreducible set)"),
-                arg("--weighting", choices=("iid", "tracker"), default="iid",
-                    help="i.i.d. least squares, or the AT901 radial/transverse noise model"),
+                arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--extend", default="none", help=CAUSE_HELP),
                 arg("--out", required=True, help="model.json to write"),
-                arg("--json", help="summary JSON to write"),
+                arg("--json", help="summary JSON to write (residuals, fit against the noise floor, parameters)"),
             ]),
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
             "campaign.cli.analysis:cmd_diagnose", [
                 arg("data", help=TABLE_HELP),
-                arg("--cell", required=True),
+                arg("--cell", required=True, help=CELL_HELP),
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
-                arg("--weighting", choices=("iid", "tracker"), default="tracker"),
+                arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)"),
-                arg("--seed", type=int, default=0),
+                arg("--seed", type=int, default=0, help="seed of the assignment of poses to folds"),
                 arg("--plots", help="directory for the residual plots"),
                 arg("--json", required=True, help="verdict JSON to write"),
                 arg("--out", help="model.json of the chosen model (usable by predict)"),
             ]),
     Command("predict", "predict reflector positions with a model", "campaign.cli.analysis:cmd_predict", [
         arg("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)"),
-        arg("--model", required=True),
-        arg("--out", required=True),
+        arg("--model", required=True, help="model.json from identify or diagnose"),
+        arg("--out", required=True, help="CSV to write: the rows with x_mm, y_mm, z_mm predicted"),
     ]),
     Command("plan", "optimal measurement poses for the cell's test pose (or evaluate a plan)",
             "campaign.cli.plan:cmd_plan", [
-                arg("--cell", required=True),
+                arg("--cell", required=True, help=CELL_HELP),
                 arg("--test-pose", help="Q1,..,Qn in degrees (default: the cell's test pose)"),
                 arg("--configs", type=int, default=6, help="number of distinct configurations M"),
                 arg("--repeat", type=int, default=1, help="each configuration measured K times"),
@@ -72,54 +74,55 @@ COMMANDS = [
                 arg("--params", help="parameters targeted (default: the cell's plan_params)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),
-                arg("--seed", type=int, default=0),
+                arg("--seed", type=int, default=0, help="seed of the random starting plans"),
                 arg("--starts", type=int, default=1000, help="random plans of the candidate pool scored (screening)"),
                 arg("--refined", type=int, default=16, help="best screened plans exchanged, then refined"),
                 arg("--scheduler", help="Dask scheduler address (default: local process pool)"),
                 arg("--evaluate", help="CSV of poses (q1_deg..qn_deg, one row per measurement) to evaluate"),
                 arg("--csv", help="also write the plan as a CSV of rows (repetitions included)"),
-                arg("--json", required=True),
+                arg("--json", default="plan.json", help="plan JSON to write"),
             ]),
     Command("simulate", "simulate a campaign of random feasible poses on the digital twin",
             "campaign.cli.analysis:cmd_simulate", [
-                arg("--cell", default="kr270"),
-                arg("--poses", type=int, default=30),
-                arg("--repeat", type=int, default=1),
-                arg("--seed", type=int, default=1),
-                arg("--noise-free", action="store_true"),
-                arg("--effect", action="append", help="hidden effect NAME:MAGNITUDE_MM (repeatable)"),
-                arg("--out", required=True),
+                arg("--cell", default="kr270", help=CELL_HELP),
+                arg("--poses", type=int, default=30, help="random feasible poses"),
+                arg("--repeat", type=int, default=1, help="each pose measured K times"),
+                arg("--seed", type=int, default=1, help="the twin's seed (its true robot, stations and noise)"),
+                arg("--noise-free", action="store_true", help="no tracker noise"),
+                arg("--effect", action="append", help=EFFECT_HELP),
+                arg("--out", required=True, help="measurement table to write"),
             ]),
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
             "campaign.cli.analysis:cmd_demo", [
-                arg("--cell", default="kr270"),
-                arg("--seed", type=int, default=1),
-                arg("--out", default="out/demo"),
+                arg("--cell", default="kr270", help=CELL_HELP),
+                arg("--seed", type=int, default=1, help="the twin's seed"),
+                arg("--out", default="out/demo", help="directory of the plan and the session"),
             ]),
     Command("run", "run a measurement campaign (simulated cell or hardware)", "campaign.cli.campaign:cmd_run", [
-        arg("--cell", required=True),
+        arg("--cell", required=True, help=CELL_HELP),
         arg("--plan", required=True, help="plan.json from `trackcal plan`"),
         arg("--sim", action="store_true", help="the digital twin's cell"),
         arg("--hardware", help="hardware config (configs/hardware/README.md); stored in the session"),
         arg("--seed", type=int, default=1, help="--sim: the twin's seed"),
-        arg("--effect", action="append", help="--sim: hidden effect NAME:MAGNITUDE_MM"),
+        arg("--effect", action="append", help="--sim: " + EFFECT_HELP),
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
         arg("--session", required=True, help="session directory to create"),
-        arg("--no-analysis", action="store_true", help="skip identification and diagnosis at the end"),
+        arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
     ]),
     Command("resume", "continue an interrupted campaign", "campaign.cli.campaign:cmd_resume", [
-        arg("session"),
-        arg("--no-analysis", action="store_true"),
+        arg("session", help="session directory"),
+        arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
+        arg("--analyse", action="store_true", help="analyse a campaign that is already complete again"),
     ]),
     Command("replay", "re-run a recorded campaign into a new session", "campaign.cli.campaign:cmd_replay", [
-        arg("session"),
-        arg("--into", required=True),
+        arg("session", help="session directory of the recording (never modified)"),
+        arg("--into", required=True, help="new session directory for the replay"),
         arg("--cell", help="replay with this cell instead of the recorded one"),
         arg("--plan", help="replay with this plan instead of the recorded one"),
     ]),
     Command("export", "the measurement table of a session", "campaign.cli.session:cmd_export", [
-        arg("session"),
-        arg("--csv", required=True),
+        arg("session", help="session directory"),
+        arg("--csv", required=True, help="measurement table to write"),
     ]),
     Command("check", "verify a session: database integrity, hash chain, stored plan and config",
             "campaign.cli.session:cmd_check", [
@@ -127,7 +130,7 @@ COMMANDS = [
             ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
             "campaign.cli.mock:cmd_mock", [
-                arg("--cell", required=True),
+                arg("--cell", required=True, help=CELL_HELP),
                 arg("--seed", type=int, default=1, help="the twin's seed"),
                 arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable)"),
                 arg("--write-hardware", metavar="FILE", help="write the hardware config of the mocks here"),
@@ -146,27 +149,26 @@ COMMANDS = [
     Command("report", "HTML report of a campaign: plan, residuals, parameters, diagnosis",
             "campaign.cli.report:cmd_report", [
                 arg("session", nargs="?", help="session directory (its table, model, plan, verdict)"),
-                arg("--table", help="measurement table (CSV, see DESIGN.md)"),
+                arg("--table", help=TABLE_HELP),
                 arg("--model", help="model.json from identify or diagnose"),
                 arg("--plan", help="plan.json from trackcal plan"),
                 arg("--verdict", help="verdict.json from trackcal diagnose"),
                 arg("--plots", help="directory of PNG plots to include (e.g. trackcal diagnose --plots)"),
                 arg("--cell", help="cell (default: the one the model names)"),
-                arg("--title", help="report title"),
                 arg("--out", help="directory for report.html and its PNG plots (default: SESSION/report)"),
             ]),
     Command("ipa-ur10", "IPA UR10 + Leica T-Mac series (Landgraf et al., CASE 2021)",
             "campaign.cli.importers:cmd_import_ipa", [
                 arg("file", help="series CSV (semicolon-separated, decimal commas)"),
-                arg("--out", required=True, help="measurement table to write (DESIGN.md CSV)"),
-                arg("--station", default="T1", help="station id (default T1)"),
+                arg("--out", required=True, help="measurement table to write"),
+                arg("--station", default="T1", help="station id"),
                 arg("--virtual-points", type=int, default=0, choices=range(len(VIRTUAL_DIRECTIONS) + 1), metavar="K",
                     help="virtual reference points on the probe from its measured orientation (0..6; 2 carry it "
                          "all)"),
                 arg("--lever-mm", type=float, default=100.0,
                     help="distance of the virtual points from the T-Mac centre (mm; the ur10-tmac tool expects 100)"),
                 arg("--period-s", type=float, default=DEFAULT_PERIOD_S,
-                    help="nominal time between poses: the file's timestamps are unusable (default 10)"),
+                    help="nominal time between poses (s): the file's timestamps are unusable"),
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),

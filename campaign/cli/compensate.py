@@ -49,12 +49,14 @@ def cmd_compensate(args) -> int:
     krl_deg = np.round(qc_deg, 4)
     rounded_mm, _ = pose_error(model, np.radians(krl_deg), np.radians(q_deg), tcp)
     write_output(args.out, names, q_deg, qc_deg, report, rounded_mm)
+    ok = report.ok
+    if not ok.any():
+        first = report.failures[0]
+        raise InputError(f"{args.targets}: no target could be compensated (row 2: {first}; {args.out} has each row's "
+                         "reason)")  # fmt: skip
     for label, failure in zip(row_labels(args.targets, names, len(q_deg)), report.failures, strict=True):
         if failure:
             print(f"warning: {label}: not compensated: {failure}", file=sys.stderr)
-    ok = report.ok
-    if not ok.any():
-        raise InputError(f"{args.targets}: no target could be compensated (each row of {args.out} says why)")
     for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:

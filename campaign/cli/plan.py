@@ -36,6 +36,7 @@ def cmd_plan(args) -> int:
             write_plan_csv(Path(args.csv), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
         for q in doc["poses_deg"]:
             console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
-    console.print(f"rho0 at the test pose: {doc['rho0_mm'] * 1000:.2f} um  (parameters: {' '.join(doc['params'])})")
+    console.print(f"rho0 at the test pose: {doc['rho0_mm'] * 1000:.2f} µm  (parameters: {' '.join(doc['params'])})")
     write_json(args.json, doc)
+    console.print(f"plan written to {args.json}")
     return 0

@@ -2,67 +2,35 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from calib.cell import load_cell
-from calib.model import load_model
-from calib.table import read_table
 from campaign.errors import InputError, UsageError
-from campaign.report.html import write_report
-
-
-def _read_json(path: str | None, what: str) -> dict | None:
-    if path is None:
-        return None
-    try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a JSON {what} ({exc})") from None
-    if not isinstance(doc, dict):
-        raise InputError(f"{path}: not a JSON {what} (expected an object)")
-    return doc
-
-
-def _session_defaults(args) -> None:
-    """`trackcal report SESSION`: the session's table, model, plan, verdict, cell and a report/ folder."""
-    if args.session is None:
-        if not (args.table and args.model and args.out):
-            raise UsageError("give a SESSION directory, or --table, --model and --out")
-        return
-    d = Path(args.session)
-    if not (d / "session.sqlite").exists():
-        raise InputError(f"{d}: not a trackcal session")
-    if not (d / "model.json").exists():
-        raise InputError(f"{d}: no model.json yet (the campaign has not been analysed: trackcal resume {d})")
-    args.table = args.table or str(d / "table.csv")
-    args.model = args.model or str(d / "model.json")
-    args.plan = args.plan or str(d / "plan.json")
-    args.verdict = args.verdict or (str(d / "verdict.json") if (d / "verdict.json").exists() else None)
-    args.cell = args.cell or str(d / "config" / "cell.yaml")
-    args.out = args.out or str(d / "report")
+from campaign.report.html import Provenance
+from campaign.report.inputs import read_json, report_files, report_session
 
 
 def cmd_report(args) -> int:
-    _session_defaults(args)
-    model_path = Path(args.model)
-    load_model(model_path)  # validates the model file with the model's own messages
-    model_doc = json.loads(model_path.read_text())
-    cell_ref = args.cell or model_doc.get("cell")
-    if not cell_ref:
-        raise InputError(f"{args.model}: the model names no cell: give --cell NAME")
-    cell = load_cell(cell_ref)
-    table = read_table(args.table, n_joints=cell.chain.dof)
     images = []
     if args.plots:
         d = Path(args.plots)
         if not d.is_dir():
             raise UsageError(f"--plots {args.plots}: not a directory")
         images = sorted(d.glob("*.png"))
-    title = args.title or f"trackcal calibration report: {cell.name}, {Path(args.table).name}"
-    path = write_report(Path(args.out), cell, table, model_doc, _read_json(args.plan, "plan"),
-                        _read_json(args.verdict, "verdict"), title, extra_images=images)  # fmt: skip
+    if args.session is not None:
+        if args.table or args.model or args.plan or args.verdict or args.cell:
+            raise UsageError("give a SESSION directory or --table, --model, --plan, --verdict, --cell; not both")
+        if not (Path(args.session) / "session.sqlite").exists():
+            raise InputError(f"{args.session}: not a trackcal session")
+        path = report_session(Path(args.session), Path(args.out) if args.out else None, extra_images=images)
+    else:
+        if not (args.table and args.model and args.out):
+            raise UsageError("give a SESSION directory, or --table, --model and --out")
+        cell_ref = args.cell or (read_json(args.model, "model") or {}).get("cell")
+        if not cell_ref:
+            raise InputError(f"{args.model}: the model names no cell: give --cell NAME")
+        prov = Provenance(model_path=args.model, cell_ref=cell_ref)
+        path = report_files(load_cell(cell_ref), args.table, args.model, args.plan, args.verdict, args.out, prov,
+                            images)  # fmt: skip
     print(f"report written to {path}")
     return 0
