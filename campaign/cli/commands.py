@@ -126,7 +126,7 @@ COMMANDS = [
     ]),
     Command("check", "verify a session: database integrity, hash chain, stored plan and config",
             "campaign.cli.session:cmd_check", [
-                arg("session"),
+                arg("session", help="session directory"),
             ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
             "campaign.cli.mock:cmd_mock", [
