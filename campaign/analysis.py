@@ -70,7 +70,8 @@ def run_identify(
 def fit_quality(table: MeasurementTable, res: Identification) -> dict:
     """Does the model reach the noise floor? The residual RMS of one coordinate (over the degrees of freedom)
     against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model)."""
-    floor, source = noise_floor(table, res.noise)
+    found = noise_floor(table, res.noise)
+    floor, source = found.sigma_mm, found.source
     rms_dof = float(np.sqrt(np.sum(res.residuals**2) / max(res.dof, 1)))
     ratio = rms_dof / floor
     return {"fit": "poor" if ratio > POOR_FIT_RATIO else "good", "fit_ratio": ratio, "residual_rms_mm": rms_dof,

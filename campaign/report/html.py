@@ -103,7 +103,8 @@ def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> R
     after = table.xyz - predict_table(model, table).xyz
     noise = noise_for(model_doc.get("weighting", "iid"))
     before = identify(model.chain, table, cell.tool_points, [], noise=noise).residuals
-    floor, source = noise_floor(table, noise)
+    found = noise_floor(table, noise)
+    floor, source = found.sigma_mm, found.source
     return Residuals(before, after, residual_stats(before), residual_stats(after), floor, source)
 
 
