@@ -124,6 +124,9 @@ def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndar
 
 def load_cell(ref: str) -> Cell:
     path = resolve("cells", ref)
+    if not path.exists() and path.parent == CONFIGS / "cells":  # a name, not a path: say which names there are
+        known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
+        raise CellError(f"cell {ref!r}: no such cell; the cells are {known} (or give the path of a cell YAML)")
     doc = load_yaml(path)
     where = str(path)
     for key in ("robot", "tool"):

@@ -52,7 +52,7 @@ FD_STEP_RAD = 1e-6  # central differences of the extension's joint offsets (smoo
 
 
 class CompensationError(CalibError):
-    """Targets that cannot be compensated; the message names them."""
+    """A request that cannot be compensated at all (shapes, TCP, lever); the message says why."""
 
 
 @dataclass
@@ -65,6 +65,7 @@ class CompensationReport:
     uncompensated_orientation_deg: np.ndarray  # (N,)
     conditioning: np.ndarray  # (N,) smallest / largest singular value of the 9 x n tool-point Jacobian at q_c
     cause: str  # the model's extension, "none" if purely geometric
+    failures: list[str]  # (N,) why a target could not be compensated, "" when it was (its angles are then valid)
     ignored: list[str] = field(default_factory=list)  # effects without a static compensation (warnings)
     warnings: list[str] = field(default_factory=list)  # e.g. targets outside the joint error map's fitted range
     notes: list[str] = field(default_factory=list)
@@ -72,7 +73,8 @@ class CompensationReport:
     lever_mm: float = 100.0
 
     def to_doc(self) -> dict:
-        """Summary in boundary units (mm, deg)."""
+        """Summary in boundary units (mm, deg), over the targets that were compensated."""
+        ok = self.ok
         return {
             "cause": self.cause,
             "ignored": list(self.ignored),
@@ -80,13 +82,19 @@ class CompensationReport:
             "notes": list(self.notes),
             "tcp_mm": self.tcp_mm.tolist(),
             "targets": len(self.iterations),
-            "max_position_error_mm": float(self.position_error_mm.max(initial=0.0)),
-            "max_orientation_error_deg": float(self.orientation_error_deg.max(initial=0.0)),
-            "max_iterations": int(self.iterations.max(initial=0)),
-            "max_correction_deg": float(np.degrees(np.abs(self.correction_rad)).max(initial=0.0)),
+            "compensated": int(np.sum(ok)),
+            "max_position_error_mm": float(self.position_error_mm[ok].max(initial=0.0)),
+            "max_orientation_error_deg": float(self.orientation_error_deg[ok].max(initial=0.0)),
+            "max_iterations": int(self.iterations[ok].max(initial=0)),
+            "max_correction_deg": float(np.degrees(np.abs(self.correction_rad[ok])).max(initial=0.0)),
             "max_uncompensated_position_mm": float(self.uncompensated_position_mm.max(initial=0.0)),
-            "near_singular_targets": int(np.sum(self.conditioning < NEAR_SINGULAR)),
+            "near_singular_targets": int(np.sum(ok & (self.conditioning < NEAR_SINGULAR))),
         }
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(N,) True for the targets that were compensated."""
+        return np.array([not f for f in self.failures], dtype=bool)
 
 
 def rotation_angle(ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
@@ -145,17 +153,13 @@ def _true_joints(offsets, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q + off[0], eye + np.transpose(deriv, (1, 2, 0))
 
 
-def _limit_violations(q: np.ndarray, limits: np.ndarray, labels: list[str], joint_names: list[str]) -> list[str]:
-    out = []
+def _limit_violations(q: np.ndarray, limits: np.ndarray, joint_names: list[str]) -> list[str]:
+    """(N,) the joints of each row outside the limits, "" for a row inside them."""
+    out = [""] * len(q)
     for i, j in zip(*np.nonzero((q < limits[:, 0]) | (q > limits[:, 1])), strict=True):
         lo, hi = np.degrees(limits[j])
-        out.append(f"{labels[i]}: {joint_names[j]} = {np.degrees(q[i, j]):.4f} deg not in [{lo:g}, {hi:g}]")
+        out[i] += ("; " if out[i] else "") + f"{joint_names[j]} = {np.degrees(q[i, j]):.4f} deg not in [{lo:g}, {hi:g}]"
     return out
-
-
-def _summarise(problems: list[str], limit: int = 3) -> str:
-    more = f" (and {len(problems) - limit} more)" if len(problems) > limit else ""
-    return "; ".join(problems[:limit]) + more
 
 
 def pose_error(
@@ -181,15 +185,14 @@ def compensate(
     lever_mm: float = 100.0,
     tol_mm: float = 1e-10,
     max_iter: int = 20,
-    labels: list[str] | None = None,
 ) -> tuple[np.ndarray, CompensationReport]:
     """Joint targets (N, n) rad with which `model` reaches the pose the nominal model reaches at q_nominal.
 
-    Converged when each of the three tool points is within `tol_mm` of its intended position. Raises
-    CompensationError for targets outside the joint limits, targets whose compensated angles leave the
-    limits, and targets that do not converge (singular poses, chains that cannot reach an arbitrary pose).
-    `labels` name the targets in messages (default "target 1", "target 2", ...).
-    """
+    Converged when each of the three tool points is within `tol_mm` of its intended position. Each target is
+    compensated on its own: one outside the joint limits, one whose compensated angles leave them, and one that
+    does not converge (a singular pose such as the KUKA HOME with A5 = 0, a chain that cannot reach the pose) keeps
+    its nominal angles and its reason in `report.failures`; the others are compensated. CompensationError only for
+    a request that cannot be run at all (shapes, TCP, lever)."""
     chain = model.chain
     n = chain.dof
     q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
@@ -203,12 +206,10 @@ def compensate(
     if not lever_mm > 0:
         raise CompensationError("lever_mm must be positive")
     n_rows = len(q0)
-    labels = labels or [f"target {i + 1}" for i in range(n_rows)]
     limits = chain.limits_array()
     joint_names = [j.name for j in chain.joints]
-    bad = _limit_violations(q0, limits, labels, joint_names)
-    if bad:
-        raise CompensationError(f"nominal target(s) outside the joint limits: {_summarise(bad)}")
+    failures = [f"nominal target outside the joint limits: {v}" if v else "" for v in
+                _limit_violations(q0, limits, joint_names)]  # fmt: skip
     offsets, ignored, notes = joint_error_function(model)
 
     tools = tcp + np.array([[0.0, 0.0, 0.0], [lever_mm, 0.0, 0.0], [0.0, lever_mm, 0.0]])  # last joint frame
@@ -218,9 +219,12 @@ def compensate(
 
     q = q0.copy()
     iterations = np.zeros(n_rows, dtype=int)
-    done = np.zeros(n_rows, dtype=bool)
+    done = np.array([bool(f) for f in failures])  # targets outside the limits are not iterated
+    lost = np.zeros(n_rows, dtype=bool)  # diverged to non-finite angles: not converged
     for it in range(max_iter + 1):
         active = np.flatnonzero(~done)
+        if len(active) == 0:
+            break
         qt, dqt = _true_joints(offsets, q[active])
         jac = kin.jacobian(np.repeat(qt, 3, axis=0), np.tile(tools, (len(active), 1)), model.dev)
         err = target[active] - jac.p.reshape(len(active), 3, 3)
@@ -233,16 +237,17 @@ def compensate(
         jq = np.einsum("nij,njk->nik", jac.d_q.reshape(len(active), 9, n), dqt)[keep]
         step = np.einsum("nji,ni->nj", np.linalg.pinv(jq, rcond=1e-12), err[keep].reshape(-1, 9))
         q[active[keep]] += step
+        gone = active[keep][~np.all(np.isfinite(q[active[keep]]), axis=1)]
+        q[gone], done[gone], lost[gone] = q0[gone], True, True
 
-    if not done.all():
-        failed = [labels[i] for i in np.flatnonzero(~done)]
-        raise CompensationError(
-            f"compensation did not converge in {max_iter} iterations for {_summarise(failed)}: a singular pose or a "
-            "chain that cannot reach the intended pose (move the target away from the singularity)"
-        )
-    bad = _limit_violations(q, limits, labels, joint_names)
-    if bad:
-        raise CompensationError(f"compensated target(s) leave the joint limits: {_summarise(bad)}")
+    for i in np.flatnonzero(~done | lost):
+        failures[i] = (f"did not converge in {max_iter} iterations: a singular pose or a chain that cannot reach the "
+                       "intended pose (move the target away from the singularity)")  # fmt: skip
+    for i, v in enumerate(_limit_violations(q, limits, joint_names)):
+        if v and not failures[i]:
+            failures[i] = f"the compensated target leaves the joint limits: {v}"
+    failed = np.array([bool(f) for f in failures])
+    q[failed] = q0[failed]
 
     pos_err, ori_err = pose_error(model, q, q0, tcp)
     pos_err0, ori_err0 = pose_error(model, q0, q0, tcp)
@@ -259,6 +264,7 @@ def compensate(
         uncompensated_orientation_deg=ori_err0,
         conditioning=sv[:, -1] / sv[:, 0],
         cause=model.cause,
+        failures=failures,
         ignored=ignored,
         warnings=[w for w in [model.range_warning(q)] if w],  # the map is evaluated at the commanded angles
         notes=notes,

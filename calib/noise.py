@@ -45,3 +45,20 @@ class TrackerNoise:
         uu, perp, st = self._parts(xyz)
         z = rng.standard_normal((uu.shape[0], 3))
         return self.radial_mm * np.einsum("nij,nj->ni", uu, z) + st[:, None] * np.einsum("nij,nj->ni", perp, z)
+
+
+# The one default weighting of identify, diagnose, run and the demo: this noise model. A laser tracker measures the
+# range by interferometer/ADM (5 µm) and the direction by angle encoders (7.5 µm + 3 µm/m of range), so the noise of
+# a point is anisotropic and grows with its distance. Weighting by the inverse covariance is the best linear
+# unbiased estimate (Gauss-Markov; paper eqs. 23-24); equal weights ("iid") give the transverse components of far
+# points the weight of the radial ones, and intervals too narrow in some directions, too wide in others. iid stays
+# for trackers whose noise model is not known.
+WEIGHTINGS = ("tracker", "iid")
+DEFAULT_WEIGHTING = "tracker"
+
+
+def noise_for(weighting: str) -> TrackerNoise | None:
+    """The noise model of a weighting name (WEIGHTINGS): None is i.i.d. least squares."""
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting {weighting!r}: choose one of {', '.join(WEIGHTINGS)}")
+    return TrackerNoise() if weighting == "tracker" else None

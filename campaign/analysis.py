@@ -8,23 +8,28 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.cell import Cell, load_cell
-from calib.diagnose import Diagnosis, diagnose, fit_cause, rms
+from calib.diagnose import Diagnosis, diagnose, fit_cause, noise_floor, rms
 from calib.extensions import CAUSES, rebuild
 from calib.identify import Identification, IdentificationError, identify, residual_stats, significance
 from calib.kinematics import Kinematics
 from calib.model import identification_to_doc
-from calib.noise import TrackerNoise
+from calib.noise import DEFAULT_WEIGHTING, noise_for
 from calib.params import Param, irreducible_params, param_by_name
 from calib.poses import random_poses
 from calib.table import MeasurementTable, read_table
 from campaign.console import console
 from campaign.errors import InputError
 from campaign.output import write_json
-from campaign.report.html import write_report
-from campaign.session.session import session_cell, session_plan, write_export
+from campaign.report.inputs import GEOMETRIC_MODEL, report_session, table_sha256
+from campaign.session.session import campaign_warnings, session_cell, write_export
 from campaign.session.store import SessionStore
 from mocks.synth import simulate_campaign
 from mocks.twin import Twin
+
+# Above twice the noise floor three quarters of the residual variance (1 - 1/2^2) is something the model does not
+# describe; the intervals assume what is left is tracker noise, so they cannot be trusted (a parameter subset or a
+# non-geometric effect then biases the parameters far outside them: issue 15, 5 of 6 true values outside at 30x).
+POOR_FIT_RATIO = 2.0
 
 
 def choose_params(cell: Cell, names: str | None) -> list[Param]:
@@ -45,12 +50,13 @@ class IdentifyOutcome:
 
 
 def run_identify(
-    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = "iid", extend: str = "none"
-) -> IdentifyOutcome:
+    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
+    extend: str = "none",
+) -> IdentifyOutcome:  # fmt: skip
     """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's)."""
     if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
         raise InputError(f"--extend {extend}: choose none, auto or causes joined by + from {', '.join(CAUSES)}")
-    noise = None if weighting == "iid" else TrackerNoise()
+    noise = noise_for(weighting)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
         extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise).causes)
@@ -61,13 +67,42 @@ def run_identify(
     return IdentifyOutcome(result=fit.result, before=before, doc=model_doc(cell, table, fit.result, before, fit.shift))
 
 
+def fit_quality(table: MeasurementTable, res: Identification) -> dict:
+    """Does the model reach the noise floor? The residual RMS of one coordinate (over the degrees of freedom)
+    against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model)."""
+    found = noise_floor(table, res.noise)
+    floor, source = found.sigma_mm, found.source
+    rms_dof = float(np.sqrt(np.sum(res.residuals**2) / max(res.dof, 1)))
+    ratio = rms_dof / floor
+    return {"fit": "poor" if ratio > POOR_FIT_RATIO else "good", "fit_ratio": ratio, "residual_rms_mm": rms_dof,
+            "noise_floor_mm": floor, "noise_floor_source": source}  # fmt: skip
+
+
+def left_out(cell: Cell, params: list[Param]) -> list[str]:
+    """The irreducible parameters a subset leaves at nominal."""
+    chosen = {p.name for p in params}
+    return [p.name for p in irreducible_params(cell.chain)[0] if p.name not in chosen]
+
+
+def fit_warning(doc: dict, missing: list[str]) -> str | None:
+    """One line when the model's intervals cannot be trusted, saying where to look; None for a good fit."""
+    if doc["fit"] != "poor":
+        return None
+    where = f"add the parameters left out ({' '.join(missing)}) or run" if missing else "run"
+    return (f"poor fit: the residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm is {doc['fit_ratio']:.1f}x the "
+            f"noise floor {doc['noise_floor_mm'] * 1000:.1f} µm ({doc['noise_floor_source']}), so the intervals "
+            f"cannot be trusted: {where} `trackcal diagnose` to see what the model misses")  # fmt: skip
+
+
 def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: Identification, shift) -> dict:
     params = res.params
     extra: dict = {
         "cell": cell.name,
         "data": table.source,
+        "table_sha256": table_sha256(table),
         "n_measurements": len(table),
         "residuals": {"before": residual_stats(before.residuals), "after": residual_stats(res.residuals)},
+        **fit_quality(table, res),
     }
     if cell.test_pose is not None and cell.tcp is not None:
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
@@ -78,7 +113,8 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
-    keys = ("cell", "data", "n_measurements", "residuals", "significance_mm")
+    keys = ("cell", "data", "table_sha256", "n_measurements", "weighting", "fit", "fit_ratio", "residual_rms_mm",
+            "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {
@@ -143,11 +179,14 @@ def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
 
 def verdict_doc(cell: Cell, d: Diagnosis) -> dict:
     """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
-    their structure and the gain. A figure that cannot be computed is null, with a note saying why."""
+    their structure and the gain; the cell and the sha256 of the table it was made from (a report refuses files of
+    different campaigns). A figure that cannot be computed is null, with a note saying why."""
     geo = d.geometric
     doc = {
         "cause": d.cause,
         "causes": d.causes,
+        "cell": cell.name,
+        "table_sha256": table_sha256(d.table),
         "candidates": [
             {
                 "cause": c.cause, "step": c.step, "score": c.holdout_rms_mm, "holdout_rms_mm": c.holdout_rms_mm,
@@ -189,24 +228,36 @@ def noise_note(d: Diagnosis) -> str:
 
 
 def analyse_session(store: SessionStore) -> None:
-    """End of a campaign: export, identification, diagnosis and report, into the session directory."""
+    """End of a campaign: export, identification, diagnosis and report, into the session directory. When the
+    diagnosis names a cause, model.json is the model extended by it and model-geometric.json the geometric one."""
     d = store.directory
     n = write_export(store, d / "table.csv")
     cell = session_cell(store)
     table = read_table(d / "table.csv", chain=cell.chain)
     params = choose_params(cell, None)
     try:
-        outcome = run_identify(cell, table, params, "tracker")
-        write_json(d / "model.json", outcome.doc)
-        dg = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise())
-        verdict = verdict_doc(cell, dg)
-        write_json(d / "verdict.json", verdict)
+        outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING)
+        dg = diagnose(cell.chain, table, cell.tool_points, params, noise_for(DEFAULT_WEIGHTING))
     except IdentificationError as exc:
         console.print(f"[yellow]identification not possible yet[/]: {exc}")
         return
-    report = write_report(d / "report", cell, table, outcome.doc, session_plan(store), verdict,
-                          f"trackcal campaign {d.name}: cell {cell.name}", diagnosis=dg)  # fmt: skip
-    after = outcome.doc["residuals"]["after"]
-    console.print(f"{n} measurements -> {d / 'table.csv'}; model {d / 'model.json'} (coordinate RMS "
-                  f"{after['coord_rms_mm'] * 1000:.1f} um); diagnosis: {dg.cause} ({d / 'verdict.json'}); "
-                  f"report {report}")  # fmt: skip
+    write_json(d / "verdict.json", verdict_doc(cell, dg))
+    geometric = d / GEOMETRIC_MODEL
+    if dg.extended is not None:
+        model = model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift)
+        write_json(geometric, outcome.doc)
+        what = f"model {d / 'model.json'} extended by {dg.cause} (the geometric one: {geometric})"
+    else:
+        model = outcome.doc
+        geometric.unlink(missing_ok=True)
+        what = f"model {d / 'model.json'} (geometric)"
+    write_json(d / "model.json", model)
+    report = report_session(d, diagnosis=dg)
+    console.print(f"{n} measurements -> {d / 'table.csv'}; {what}: coordinate RMS "
+                  f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
+                  f"{dg.cause} ({d / 'verdict.json'}); report {report}")  # fmt: skip
+    warnings = campaign_warnings(store)
+    if warnings:
+        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/] (also in the report):", highlight=False)
+        for w in warnings:
+            console.print(f"  {w}", markup=False, highlight=False)

@@ -42,13 +42,32 @@ def check_name(name: str) -> str:
     return name
 
 
+def point_names(names: list[str] | None, n: int) -> list[str]:
+    """KRL names of the targets' E6AXIS data: X (the prefix KSS inline forms give point data) and the target's
+    name made a KRL name (other characters -> _, at most 24 characters, unique without regard to case), or
+    XP1..XPn for targets without a name."""
+    out: list[str] = []
+    seen: set[str] = set()
+    for k in range(n):
+        raw = (names[k] if names else "").strip()
+        base = ("X" + re.sub(r"[^A-Za-z0-9_]", "_", raw))[:24] if raw else f"XP{k + 1}"
+        name, i = base, 2
+        while name.upper() in seen:
+            suffix = f"_{i}"
+            name, i = base[: 24 - len(suffix)] + suffix, i + 1
+        seen.add(name.upper())
+        out.append(name)
+    return out
+
+
 def _angle(v: float) -> str:
     text = f"{v:.4f}"
     return "0.0000" if text == "-0.0000" else text
 
 
-def krl_texts(name: str, q_deg, speed_pct: int = 10) -> tuple[str, str]:
-    """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees."""
+def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> tuple[str, str]:
+    """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees; `points` are the
+    rows' KRL names (`point_names`; default XP1..XPn)."""
     check_name(name)
     q = np.atleast_2d(np.asarray(q_deg, dtype=float))
     if q.ndim != 2 or q.shape[1] != AXES or len(q) == 0:
@@ -58,23 +77,27 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10) -> tuple[str, str]:
     if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
         raise KrlError(f"the axis speed override must be an integer percentage 1..100, got {speed_pct!r}")
     pct = int(speed_pct)
+    points = points or point_names(None, len(q))
+    if len(points) != len(q) or not all(NAME_RE.fullmatch(p) for p in points):
+        raise KrlError(f"one valid KRL name per target expected, got {points!r}")
     src = [f"DEF {name}()", f"; trackcal: {len(q)} compensated joint targets, PTP at {pct} % axis speed",
            "BAS(#INITMOV,0)"]  # fmt: skip
     src += [f"$VEL_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
     src += [f"$ACC_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
-    src += [f"PTP XP{k + 1}" for k in range(len(q))]
+    src += [f"PTP {p}" for p in points]
     src.append("END")
     dat = [f"DEFDAT {name} PUBLIC", "EXT BAS (BAS_COMMAND :IN,REAL :IN )"]
-    for k, row in enumerate(q):
+    for p, row in zip(points, q, strict=True):
         axes = ",".join(f"A{i + 1} {_angle(v)}" for i, v in enumerate(row))
-        dat.append(f"DECL E6AXIS XP{k + 1}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+        dat.append(f"DECL E6AXIS {p}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
     dat.append("ENDDAT")
     return EOL.join(src) + EOL, EOL.join(dat) + EOL
 
 
-def write_krl(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10) -> tuple[Path, Path]:
+def write_krl(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
+              points: list[str] | None = None) -> tuple[Path, Path]:  # fmt: skip
     """Write NAME.src and NAME.dat into out_dir (created if needed); returns their paths."""
-    src, dat = krl_texts(name, q_deg, speed_pct)
+    src, dat = krl_texts(name, q_deg, speed_pct, points)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,9 @@
-"""The campaign commands end to end, in subprocesses: run, kill -9, resume, export, replay."""
+"""The campaign commands end to end, in subprocesses: run, kill -9, resume, export, replay, report; and the end of
+a campaign whose diagnosis names a cause (in process)."""
 
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -12,6 +14,14 @@ import numpy as np
 import pytest
 
 from calib.table import read_table
+from campaign.analysis import analyse_session
+from campaign.engine.runner import Live, run_campaign
+from campaign.report.inputs import report_session
+from campaign.session.session import create_session
+from mocks.cell import World
+from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+from mocks.twin import Twin
+from tests.conftest import feasible_plan
 
 TRACKCAL = [sys.executable, "-m", "campaign.cli"]
 
@@ -93,6 +103,27 @@ def test_run_analyses_and_replay_is_byte_identical(plan, tmp_path):
     assert r1.returncode == r2.returncode == 0
     assert json.loads((tmp_path / "m1.json").read_text())["parameters"] == \
         json.loads((tmp_path / "m2.json").read_text())["parameters"]
+    # `trackcal report SESSION` writes the page the run wrote (but the moment it was written)
+    first = (d / "report" / "report.html").read_text()
+    assert run("report", str(d)).returncode == 0
+    again = (d / "report" / "report.html").read_text()
+
+    def timeless(page):
+        return re.sub(r"<td class=\"l\">report written</td><td class=\"l\">[^<]*</td>", "", page)
+
+    assert timeless(again) == timeless(first) and len(re.findall("<img ", first)) >= 6
+    # resume on a complete campaign does not analyse it again unless asked
+    stamp = (d / "model.json").stat().st_mtime_ns
+    out = run("resume", str(d))
+    assert "already complete" in out.stdout and (d / "model.json").stat().st_mtime_ns == stamp
+    out = run("resume", str(d), "--analyse")
+    assert "diagnosis: none" in out.stdout and (d / "model.json").stat().st_mtime_ns != stamp
+    # a replay that diverges leaves no directory behind
+    changed = tmp_path / "changed.json"
+    doc = json.loads(plan.read_text())
+    changed.write_text(json.dumps(doc | {"poses_deg": doc["poses_deg"][1:]}))
+    out = run("replay", str(d), "--into", str(tmp_path / "bad"), "--plan", str(changed), check=False)
+    assert out.returncode == 2 and "diverges" in out.stderr and not (tmp_path / "bad").exists()
 
 
 def test_user_mistakes(plan, reference_session, tmp_path):
@@ -106,3 +137,24 @@ def test_user_mistakes(plan, reference_session, tmp_path):
     assert out.returncode == 2 and "already holds a session" in out.stderr
     out = run("replay", str(d), "--into", str(d), check=False)
     assert out.returncode == 2 and "Traceback" not in out.stderr
+
+
+def test_a_campaign_whose_diagnosis_names_a_cause_keeps_the_extended_model(kr270, tmp_path, capsys):
+    # backlash of 0.05 mm, ~3x the tracker's 15 µm noise: inside the 2x-5x range test_diagnose names correctly;
+    # the plan's two passes alternate the order, so every joint approaches from both directions
+    plan = feasible_plan(kr270, 10, seed=11, repeat=2)
+    d = tmp_path / "s"
+    store = create_session(d, "kr270", plan, "sim", 3, effects={"backlash": 0.05})
+    world = World(Twin(kr270, seed=3, effects={"backlash": 0.05}))
+    run_campaign(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
+                             InprocCellIO(world)))  # fmt: skip
+    analyse_session(store)
+    out = "".join(capsys.readouterr().out.split())  # rich wraps long paths anywhere
+    assert json.loads((d / "verdict.json").read_text())["cause"] == "backlash"
+    model, geometric = (json.loads((d / f).read_text()) for f in ("model.json", "model-geometric.json"))
+    assert model["extension"]["cause"] == "backlash" and geometric["extension"] == {"cause": "none"}
+    assert "extendedbybacklash" in out and "model-geometric.json" in out
+    page = (d / "report" / "report.html").read_text()
+    assert "shows backlash" in page and "model-geometric.json" in page and "both directions" in page
+    # the report of the session written again is the same page
+    assert report_session(d).read_text().count("<img ") == page.count("<img ")

@@ -1,7 +1,11 @@
-"""The command line end to end: identify, predict, simulate; user mistakes end in one line, exit 2."""
+"""The command line end to end: identify, predict, simulate; user mistakes end in one line, exit 2; every option
+has its help and its default."""
 
+import argparse
 import json
 import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +18,7 @@ from calib.model import identification_to_doc
 from calib.params import irreducible_params
 from calib.poses import points_in_box
 from calib.table import read_table, write_table
-from campaign.cli import main
+from campaign.cli import build_parser, main
 from tests.conftest import kr270_campaign
 
 
@@ -71,7 +75,7 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
     "argv, message",
     [
         (["identify", "missing.csv", "--cell", "kr270", "--out", "m.json"], "missing.csv: cannot read"),
-        (["identify", "DATA", "--cell", "nocell", "--out", "m.json"], "nocell.yaml: no such file"),
+        (["identify", "DATA", "--cell", "nocell", "--out", "m.json"], "no such cell; the cells are kr270, planar2r"),
         (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
         (["identify", "DATA", "--cell", "kr270", "--extend", "gravity", "--out", "m.json"], "--extend gravity"),
         (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "line 1: not JSON"),
@@ -131,3 +135,73 @@ def test_a_bad_blas_thread_count_is_one_line(monkeypatch, capsys, setting):
     assert main(["simulate", "--cell", "kr270", "--poses", "3", "--out", "unused.csv"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "TRACKCAL_BLAS_THREADS" in err
+
+
+def test_identify_says_which_weighting_and_whether_the_fit_can_be_trusted(tmp_path, campaign_csv, capsys):
+    _, data = campaign_csv
+    summary = tmp_path / "s.json"
+    assert main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json",
+                 str(summary)]) == 0  # fmt: skip
+    out = capsys.readouterr()
+    s = json.loads(summary.read_text())
+    # the whole model on the twin: what is left is the tracker's noise, at the floor
+    assert s["weighting"] == "tracker" and "tracker weighting" in out.out
+    assert s["fit"] == "good" and "warning" not in out.err
+    # Table 8 deviations of tenths of a mm left at nominal: far above 2x the ~15 µm floor
+    assert main(["identify", str(data), "--cell", "kr270", "--params", "px1,px2,px3,pz3,dq2,dq3", "--out",
+                 str(tmp_path / "m.json"), "--json", str(summary)]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    s = json.loads(summary.read_text())
+    assert s["fit"] == "poor" and s["fit_ratio"] > 2
+    assert err.count("\n") == 1 and err.startswith("warning: poor fit") and "trackcal diagnose" in err
+    assert "parameters left out (py1 phix1" in err
+
+
+def test_extend_prints_the_cause_and_its_parameters(tmp_path, campaign_csv, capsys):
+    _, data = campaign_csv
+    assert main(["identify", str(data), "--cell", "kr270", "--extend", "encoder_scale", "--out",
+                 str(tmp_path / "m.json")]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    ext = json.loads((tmp_path / "m.json").read_text())["extension"]
+    assert ext["cause"] == "encoder_scale" and "Model extension: encoder_scale" in out
+    assert all(name in out for name in ext["parameters"])
+
+
+def leaf_parsers(parser: argparse.ArgumentParser):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):
+                yield from leaf_parsers(sub) if any(isinstance(a, argparse._SubParsersAction) for a in sub._actions) \
+                    else [sub]
+
+
+def test_every_option_has_help_and_shows_its_default():
+    root = Path(__file__).resolve().parents[1]
+    for parser in leaf_parsers(build_parser()):
+        text = parser.format_help()
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"{parser.prog}: {action.dest} has no help"
+            if action.option_strings and action.default not in (None, False):
+                assert f"(default: {action.default})" in " ".join(text.split()), (parser.prog, action.dest)
+        for doc in re.findall(r"[\w/.-]+\.md\b", text):  # every file the help points at exists
+            assert (root / doc).exists(), f"{parser.prog} --help names {doc}, which is not in the repository"
+
+
+@pytest.mark.parametrize("argv, prog", [
+    (["identify", "t.csv", "--cell", "kr270", "--out", "m.json", "--bogus"], "trackcal identify"),
+    (["plan", "--cell"], "trackcal plan"),
+    (["import", "ipa-ur10", "f.csv"], "trackcal import ipa-ur10"),
+    (["nosuchcommand"], "trackcal"),
+])  # fmt: skip
+def test_option_mistakes_are_one_line_naming_the_command(argv, prog, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1 and err.startswith(f"{prog}: error: "), err
+
+
+def test_plan_writes_plan_json_by_default():
+    args = build_parser().parse_args(["plan", "--cell", "kr270"])
+    assert args.json == "plan.json"

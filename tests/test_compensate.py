@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from calib.cell import load_cell
-from calib.compensate import CompensationError, compensate
+from calib.compensate import compensate
 from calib.extensions import UNIT_FACTORS
 from calib.kinematics import Kinematics
 from calib.model import Model, load_model
@@ -24,7 +24,7 @@ from calib.pinmodel import gravity_torques
 from calib.poses import random_poses
 from campaign.analysis import choose_params, run_identify
 from campaign.cli import main
-from campaign.krl import KrlError, krl_texts, write_krl
+from campaign.krl import KrlError, krl_texts, point_names, write_krl
 from mocks.twin import PAPER_TABLE8
 from tests.conftest import kr270_campaign
 
@@ -132,11 +132,10 @@ def test_converges_for_random_targets(kr270, u, scale):
     values = {p.name: scale * PAPER_TABLE8[p.name] for p in irreducible_params(kr270.chain)[0]}
     model = make_model(kr270, values)
     assume(conditioning(kr270, q0)[0] > 5e-3)  # away from singularities: a well-posed target
-    try:
-        qc, rep = compensate(model, q0, kr270.tcp)
-    except CompensationError as exc:
-        assume("joint limits" not in str(exc))  # a target 5 deg inside a limit may be corrected past it: refused
-        raise
+    qc, rep = compensate(model, q0, kr270.tcp)
+    if rep.failures[0]:
+        assume("joint limits" not in rep.failures[0])  # a target 5 deg inside a limit may be corrected past it
+    assert not rep.failures[0]
     assert rep.iterations[0] <= 6
     assert np.abs(pose_points(model, qc, kr270.tcp) - pose_points(model, q0, kr270.tcp, nominal=True)).max() < 1e-9
 
@@ -188,24 +187,38 @@ def test_backlash_has_no_static_compensation(kr270):
     assert len(rep.ignored) == 1 and "backlash" in rep.ignored[0]
 
 
-def test_targets_outside_the_joint_limits_are_refused(kr270):
+def test_targets_outside_the_joint_limits_are_reported_in_their_row(kr270):
     model = make_model(kr270, {"dq4": 0.05})
-    q0 = np.radians([[10.0, -90.0, 90.0, 0.0, 45.0, 0.0], [10.0, -150.0, 90.0, 0.0, 45.0, 0.0]])
-    with pytest.raises(CompensationError, match=r"target 2: A2 = -150\.0000 deg not in \[-145, 0\]"):
-        compensate(model, q0, kr270.tcp)
     # A4 at -179.99 deg: the +0.05 deg offset is compensated to -180.04 deg, past the limit
-    q0 = np.radians([[10.0, -90.0, 90.0, -179.99, 45.0, 0.0]])
-    with pytest.raises(CompensationError, match="compensated target.*A4 = -180.0400"):
-        compensate(model, q0, kr270.tcp)
+    q0 = np.radians([[10.0, -90.0, 90.0, 0.0, 45.0, 0.0], [10.0, -150.0, 90.0, 0.0, 45.0, 0.0],
+                     [10.0, -90.0, 90.0, -179.99, 45.0, 0.0]])  # fmt: skip
+    qc, rep = compensate(model, q0, kr270.tcp)
+    assert rep.failures[0] == "" and np.degrees(qc[0, 3]) == pytest.approx(-0.05, abs=1e-9)  # A4 offset undone
+    assert re.fullmatch(r"nominal target outside the joint limits: A2 = -150\.0000 deg not in \[-145, 0\]",
+                        rep.failures[1])  # fmt: skip
+    assert re.match(r"the compensated target leaves the joint limits: A4 = -180\.0400", rep.failures[2])
+    np.testing.assert_array_equal(qc[1:], q0[1:])  # the failed ones keep their nominal angles
+    assert rep.ok.tolist() == [True, False, False] and rep.to_doc()["compensated"] == 1
 
 
-def test_a_pose_the_identified_robot_cannot_reach_is_refused():
+def test_a_pose_the_identified_robot_cannot_reach_is_reported():
     # a planar 2R arm with a longer first link reaches the intended TCP only with another end orientation
-
     cell = load_cell("planar2r")
     model = make_model(cell, {"px1": 0.5})
-    with pytest.raises(CompensationError, match="did not converge.*target 1"):
-        compensate(model, np.radians([[-45.0, 20.0]]), cell.tcp)
+    _, rep = compensate(model, np.radians([[-45.0, 20.0]]), cell.tcp)
+    assert rep.failures[0].startswith("did not converge")
+
+
+def test_the_kuka_home_is_reported_and_the_other_targets_are_compensated(kr270):
+    # HOME (0, -90, 90, 0, 0, 0): A5 = 0 aligns the A4 and A6 axes, a wrist singularity where no joint
+    # correction reaches an arbitrary small orientation error
+    model = table8_model(kr270)
+    q0 = np.vstack([np.radians([[0.0, -90.0, 90.0, 0.0, 0.0, 0.0]]),
+                    inner_targets(kr270, 3, seed=5, min_conditioning=5e-3)])  # fmt: skip
+    qc, rep = compensate(model, q0, kr270.tcp)
+    assert rep.failures[0].startswith("did not converge") and not any(rep.failures[1:])
+    assert rep.position_error_mm[1:].max() < 1e-9
+    np.testing.assert_array_equal(qc[0], q0[0])
 
 
 def test_compensation_of_an_identified_twin_brings_the_true_robot_to_the_intended_pose(kr270, tmp_path):
@@ -314,7 +327,7 @@ def test_cli_writes_compensated_targets_and_krl(kr270, tmp_path, model_file, cap
     argv = ["compensate", "--model", str(path), str(targets), "--out", str(out), "--krl", "CELL1", "--speed", "15"]
     assert main(argv) == 0
     rows = list(csv.DictReader(out.read_text().splitlines()))
-    assert [r["name"] for r in rows] == ["T1", "T2", "T3", "T4", "T5"]
+    assert [r["name"] for r in rows] == ["T1", "T2", "T3", "T4", "T5"] and {r["status"] for r in rows} == {"ok"}
     qc = np.array([[float(r[f"q{j + 1}_comp_deg"]) for j in range(6)] for r in rows])
     # same as the library (default TCP: the points centroid), to the 1e-6 deg the file carries
     expected, _ = compensate(model, np.radians(q0_deg), np.mean(list(kr270.tool_points.values()), axis=0))
@@ -324,9 +337,36 @@ def test_cli_writes_compensated_targets_and_krl(kr270, tmp_path, model_file, cap
     assert all(float(r["rounded_position_error_mm"]) < 0.016 for r in rows)
     dat = (tmp_path / "CELL1.dat").read_text()
     krl = np.round(np.degrees(expected), 4)
-    assert dat.count("DECL E6AXIS") == 5 and f"XP1={{A1 {krl[0, 0]:.4f},A2 {krl[0, 1]:.4f}," in dat
+    assert dat.count("DECL E6AXIS") == 5 and f"XT1={{A1 {krl[0, 0]:.4f},A2 {krl[0, 1]:.4f}," in dat  # T1 -> XT1
     assert "$VEL_AXIS[6]=15" in (tmp_path / "CELL1.src").read_text()
-    assert "5 targets compensated" in capsys.readouterr().out
+    assert "5 of 5 targets compensated" in capsys.readouterr().out
+
+
+def test_cli_reports_a_singular_target_in_its_row_and_writes_the_others(kr270, tmp_path, model_file, capsys):
+    path, _ = model_file
+    targets = tmp_path / "targets.csv"
+    targets.write_text("name,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\nHOME,0,-90,90,0,0,0\n"
+                       "weld 1,10,-80,80,10,40,5\nweld-1,20,-80,80,10,40,5\n")  # fmt: skip
+    out = tmp_path / "out.csv"
+    assert main(["compensate", "--model", str(path), str(targets), "--out", str(out), "--krl", "P"]) == 0
+    rows = list(csv.DictReader(out.read_text().splitlines()))
+    assert rows[0]["status"].startswith("did not converge") and rows[0]["q1_comp_deg"] == ""
+    assert rows[1]["status"] == rows[2]["status"] == "ok"
+    captured = capsys.readouterr()
+    assert "row 2 (HOME): not compensated" in captured.err and "2 of 3 targets compensated" in captured.out
+    # the CSV names as KRL names: other characters -> _, made unique
+    src = (tmp_path / "P.src").read_bytes().decode("ascii")
+    assert "PTP Xweld_1\r\nPTP Xweld_1_2\r\n" in src and "HOME" not in src
+
+
+@pytest.mark.parametrize("names, expected", [
+    (None, ["XP1", "XP2"]),
+    (["HOME", ""], ["XHOME", "XP2"]),
+    (["a" * 30, "a" * 30], ["X" + "a" * 23, "X" + "a" * 21 + "_2"]),  # KRL names: at most 24 characters
+    (["pt", "PT"], ["Xpt", "XPT_2"]),  # KRL is not case-sensitive
+])  # fmt: skip
+def test_krl_point_names(names, expected):
+    assert point_names(names, 2) == expected
 
 
 def test_cli_user_mistakes_end_in_one_line_and_exit_2(kr270, tmp_path, model_file, capsys):
@@ -334,14 +374,14 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(kr270, tmp_path, model_fil
     good = tmp_path / "good.csv"
     write_targets(good, [[10.0, -90.0, 90.0, 0.0, 45.0, 0.0]], names=False)
     bad_limits = tmp_path / "limits.csv"
-    write_targets(bad_limits, [[10.0, -90.0, 90.0, 0.0, 45.0, 0.0], [10.0, -150.0, 90.0, 0.0, 45.0, 0.0]])
+    write_targets(bad_limits, [[10.0, -150.0, 90.0, 0.0, 45.0, 0.0]])
     bad_number = tmp_path / "number.csv"
     bad_number.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n1,2,x,4,5,6\n")
     short = tmp_path / "short.csv"
     short.write_text("q1_deg,q2_deg\n1,2\n")
     out = str(tmp_path / "o.csv")
     cases = [
-        (["--model", str(path), str(bad_limits)], r"row 3 \(T2\): A2 = -150\.0000 deg"),
+        (["--model", str(path), str(bad_limits)], r"no target could be compensated"),
         (["--model", str(path), str(bad_number)], "row 2: column q3_deg: not a number"),
         (["--model", str(path), str(short)], "missing column"),
         (["--model", str(tmp_path / "none.json"), str(good)], "no such file"),

@@ -137,15 +137,24 @@ def test_beam_break_looks_again_then_skips(tmp_path, cell, plan):
     """Three broken beams in a row: the first measurement fails twice (looked at again, then skipped there), the
     second fails once and the second look succeeds. Exactly one measurement is missing from the table."""
     reference = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
-    run_campaign(reference, live(cell)[1])
+    seen = []
+    run_campaign(reference, live(cell)[1], progress=seen.append)
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.tracker.faults = ["beam broken"] * 3
-    run_campaign(store, devices)
+    told, progress = [], []
+    run_campaign(store, devices, progress=progress.append, notify=told.append)
     warnings = [e.data["message"] for e in store.events("warning") if "beam broken" in e.data["message"]]
     assert [w.endswith("skipped here") for w in warnings] == [False, True, False]
     assert store.events("campaign_done")
-    assert len(store.events("measurement")) == len(reference.events("measurement")) - 1
+    n = len(reference.events("measurement"))
+    assert len(store.events("measurement")) == n - 1
+    # the operator is told every warning as it is stored, and the progress counts the skipped one as done
+    assert told == [e.data["message"] for e in store.events("warning")]
+    last, ref = progress[-1], seen[-1]  # the reference skips too: points a station does not see at a pose
+    assert (ref.measured, ref.measured + ref.skipped) == (n, ref.planned)
+    assert (last.measured, last.skipped, last.planned) == (n - 1, ref.skipped + 1, ref.planned)
+    assert all(p.measured + p.skipped <= p.planned for p in progress)
 
 
 class DoorLeftOpen(SimOperator):

@@ -1,7 +1,11 @@
-"""The campaign report: report.html with its PNG plots, Table 8 and Table 9 content, escaping, the CLI."""
+"""The campaign report: report.html with its PNG plots, header, Table 8 and Table 9 content, escaping, files of
+different campaigns refused, the CLI, and the page as headless Chromium renders it."""
 
 import json
+import os
 import re
+import shutil
+import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -15,11 +19,14 @@ from calib.noise import TrackerNoise
 from calib.table import read_table, write_table
 from campaign.analysis import choose_params, run_identify, verdict_doc
 from campaign.cli import main
-from campaign.report.html import write_report
+from campaign.report.html import Provenance, write_report
+from campaign.report.inputs import table_sha256
 from tests.conftest import kr270_campaign
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
-TITLE = "KR-270 <script>alert('x')</script> & co"
+SESSION = "KR-270 <script>alert('x')</script> & co"  # a session directory name HTML must escape
+PROV = Provenance(session=SESSION, campaign_started="2026-12-01 10:00 UTC", model_path="model.json", cell_ref="kr270",
+                  warnings=["t = 748 s: P2 not measurable from S1 at Q5: beam broken; skipped here"])  # fmt: skip
 
 
 class Page(HTMLParser):
@@ -47,10 +54,11 @@ def campaign(kr270, tmp_path_factory):
     table = read_table(d / "table.csv", n_joints=kr270.chain.dof)
     outcome = run_identify(kr270, table, choose_params(kr270, None), "tracker")
     (d / "model.json").write_text(json.dumps(outcome.doc))
-    plan = {"rho0_mm": 0.00231, "repeat": 3, "criterion": "rho0", "params": ["px1", "px2"],
-            "poses_deg": [[10.0, -90.0, 90.0, 0.0, 45.0, 0.0], [-30.0, -60.0, 40.0, 90.0, -30.0, 10.0]],
-            "test_pose_deg": [76.7, -56.9, 89.3, 45.1, 76, 57.2]}  # fmt: skip
-    verdict = {"cause": "none", "candidates": [{"cause": "backlash", "n_params": 5, "holdout_rms_mm": 0.0161,
+    configurations = list(dict.fromkeys(tuple(q) for q in table.q_deg.tolist()))  # the table's, in order
+    plan = {"rho0_mm": 0.00231, "repeat": 1, "criterion": "rho0", "params": ["px1", "px2"],
+            "poses_deg": [list(q) for q in configurations], "test_pose_deg": [76.7, -56.9, 89.3, 45.1, 76, 57.2]}
+    verdict = {"cause": "none", "cell": "kr270", "table_sha256": table_sha256(table),
+               "candidates": [{"cause": "backlash", "n_params": 5, "holdout_rms_mm": 0.0161,
                "rms_mm": 0.0149, "f_pvalue": 0.41, "delta_bic": 12.0, "significant": False}],
                "geometric": {"rms_mm": 0.0150}, "extended": {"rms_mm": 0.0150}, "noise_floor_mm": 0.0151,
                "noise_floor_source": "tracker noise model",
@@ -67,12 +75,12 @@ def table9_expected(before: np.ndarray, after: np.ndarray) -> list[str]:
         coord = np.abs(r).ravel()
         dist = np.sqrt((r**2).sum(axis=1))
         out += [coord.max(), np.sqrt((coord**2).mean()), dist.max(), np.sqrt((dist**2).mean())]
-    return [f"{v:.4f}" for v in out]
+    return [f"{1000 * v:.1f}" for v in out]  # the report gives them in µm
 
 
 def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    path = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, TITLE)
+    path = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV)
     assert path == tmp_path / "rep" / "report.html"
     text = path.read_text()
     page = Page()
@@ -95,13 +103,43 @@ def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
     ratio = np.sqrt((np.abs(b) ** 2).mean()) / np.sqrt((np.abs(a) ** 2).mean())
     assert f"{ratio:.1f}" in section
     # the plan and the diagnosis
-    assert "2.310" in text and "-90.00" in text
+    assert "2.310" in text and f"{plan['poses_deg'][0][1]:.2f}" in text
     assert "backlash" in cells and "16.1" in cells
+
+
+def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path):
+    d, table, outcome, plan, verdict = campaign
+    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV).read_text()
+    page = Page()
+    page.feed(text)
+    cells = [c.strip() for c in page.cells]
+    for fact in ("session", "campaign started", "report written", "trackcal version", "cell"):
+        assert fact in cells, fact
+    assert "2026-12-01 10:00 UTC" in cells and "kr270" in cells
+    sentence = text.split("id='verdict'>")[1].split("</p>")[0]
+    assert "fits to the noise floor" in sentence and "no non-geometric effect" in sentence
+    assert "trackcal compensate --model model.json" in text.split("What next")[1]
+    assert "re-plan" not in text  # the verdict names no cause the plan could have missed
+    assert "P2 not measurable from S1 at Q5" in text.split("Campaign warnings (1)")[1]
+    assert "(um)" not in text and " um " not in text
+
+
+def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):
+    d, table, outcome, plan, verdict = campaign
+    backlash = dict(verdict, cause="backlash", extended={"rms_mm": 0.0149})
+    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, backlash, PROV).read_text()
+    sentence = text.split("id='verdict'>")[1].split("</p>")[0]
+    assert "shows backlash" in sentence and "15.0" in sentence and "14.9" in sentence
+    advice = text.split("What next")[1].split("<h2")[0]
+    assert "backlash has no static compensation" in advice
+    # twice the plan's configurations, same repeat: `trackcal plan` for the cell the session used
+    assert f"trackcal plan --cell kr270 --configs {2 * len(plan['poses_deg'])} --repeat 1" in advice
+    assert "both directions" in advice
 
 
 def test_text_is_escaped(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, TITLE).read_text()
+    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV).read_text()
     assert "<script>" not in text and ODD_STATION not in text
     assert "KR-270 &lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; &amp; co" in text
     assert "S&quot;1&lt;&amp;&gt;" in text
@@ -120,7 +158,7 @@ def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, t
     fig.savefig(extra)
     plt.close(fig)
     out = tmp_path / "rep"
-    text = write_report(out, kr270, table, outcome.doc, None, None, "t", extra_images=[extra]).read_text()
+    text = write_report(out, kr270, table, outcome.doc, None, None, Provenance(), extra_images=[extra]).read_text()
     assert "No plan given" in text
     assert 'src="extra/parameters.png"' in text and 'src="parameters.png"' in text
     assert (out / "extra" / "parameters.png").read_bytes() == extra.read_bytes()
@@ -165,7 +203,69 @@ def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
     d, table, outcome, plan, _ = campaign
     diag = diagnose(kr270.chain, table, kr270.tool_points, choose_params(kr270, None), TrackerNoise(), folds=3)
     out = tmp_path / "rep"
-    text = write_report(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag), "t", diagnosis=diag).read_text()
+    text = write_report(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag), Provenance(),
+                        diagnosis=diag).read_text()  # fmt: skip
     for name in ("diagnosis/signature.png", "diagnosis/structure.png"):
         assert f'src="{name}"' in text and (out / name).is_file()
     assert f"Cause: <b>{diag.cause}</b>" in text
+
+
+def test_files_of_different_campaigns_are_refused(kr270, campaign, tmp_path, capsys):
+    d, table, *_ = campaign
+    _, other = kr270_campaign(kr270, seed=42, n_poses=30)  # another campaign: other poses, other noise
+    write_table(other, tmp_path / "other.csv")
+    other_plan = tmp_path / "other-plan.json"
+    other_plan.write_text(json.dumps({"poses_deg": [[0.0, -90.0, 90.0, 0.0, 45.0, 0.0]], "repeat": 1}))
+    other_cell = json.loads((d / "verdict.json").read_text()) | {"cell": "ur10-ipa", "table_sha256": None}
+    (tmp_path / "v-cell.json").write_text(json.dumps(other_cell))
+    files = {"--table": str(d / "table.csv"), "--model": str(d / "model.json"), "--out": str(tmp_path / "o")}
+    cases = [
+        ({"--table": str(tmp_path / "other.csv")}, "model.json: made from another table"),
+        ({"--verdict": str(d / "verdict.json"), "--table": str(tmp_path / "other.csv")}, "made from another table"),
+        ({"--plan": str(other_plan)}, "is no pose of this plan"),
+        ({"--verdict": str(tmp_path / "v-cell.json")}, "made for cell ur10-ipa, not for kr270"),
+    ]  # fmt: skip
+    for change, message in cases:
+        argv = ["report", *[x for kv in (files | change).items() for x in kv]]
+        assert main(argv) == 2, change
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "o" / "report.html").exists()
+
+
+# Debian's chromium (.ci/run installs it); the flags keep it off the network and out of any profile
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                  "--virtual-time-budget=20000")  # fmt: skip
+# appended to a copy of the page: after the load event each image says whether it decoded (naturalWidth > 0)
+MARK_IMAGES = ("<script>window.addEventListener('load', () => { for (const i of document.images) "
+               "i.setAttribute('data-loaded', String(i.complete && i.naturalWidth > 0)); "
+               "document.body.setAttribute('data-checked', 'yes'); });</script>")  # fmt: skip
+
+
+def rendered_dom(html_path: Path, tmp_path: Path) -> str:
+    chromium = shutil.which("chromium")
+    if chromium is None:
+        if os.environ.get("CI") == "true":
+            pytest.fail("chromium is missing in CI: .ci/run installs Debian's chromium")
+        pytest.skip("chromium is not installed (apt-get install chromium; CI installs it)")
+    probe = html_path.with_name("rendered.html")  # beside the report: same relative image paths
+    page = html_path.read_text(encoding="utf-8")
+    probe.write_text(page.replace("</body>", MARK_IMAGES + "</body>"), encoding="utf-8")
+    profile = tmp_path / "chromium-profile"
+    done = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--dump-dom", probe.as_uri()],
+                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout
+
+
+def test_the_report_renders_in_chromium_with_its_header_verdict_and_every_image(kr270, campaign, tmp_path):
+    d, table, outcome, plan, verdict = campaign
+    path = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV)
+    dom = rendered_dom(path, tmp_path)
+    assert 'data-checked="yes"' in dom  # the page loaded and the marking ran
+    assert re.search(r"<h1>Calibration report: KR-270 &lt;script&gt;.*cell kr270</h1>", dom)
+    assert re.search(r"id=\"verdict\">The geometric calibration fits to the noise floor", dom)
+    images = re.findall(r"<img [^>]*>", dom)
+    assert len(images) >= 6  # plan, 2 residual plots, parameters, 2 diagnosis plots
+    assert all('data-loaded="true"' in img for img in images), [i for i in images if 'data-loaded="true"' not in i]

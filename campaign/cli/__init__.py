@@ -22,8 +22,31 @@ from .commands import COMMANDS, GROUPS
 USER_ERRORS = (CalibError, CampaignError, DeviceError)  # one line, exit 2
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="trackcal", description="Robot calibration with a laser tracker.")
+class HelpWithDefaults(argparse.HelpFormatter):
+    """Each option's help ends with its default, when it has one worth showing (not None, not a flag's False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if "%(default)" in text or not action.option_strings or default is None or default is False \
+                or default == argparse.SUPPRESS:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class Parser(argparse.ArgumentParser):
+    """An option mistake is one line naming the command it belongs to (`trackcal plan: error: ...`), exit 2."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpWithDefaults)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> Parser:
+    ap = Parser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
     groups: dict[str, argparse._SubParsersAction] = {}
     for cmd in COMMANDS:
@@ -36,12 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
         p = where.add_parser(cmd.name, help=cmd.help, description=cmd.description)
         for flags, options in cmd.args:
             p.add_argument(*flags, **options)
-        p.set_defaults(handler=cmd.handler)
+        p.set_defaults(handler=cmd.handler, parser=p)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args, unknown = ap.parse_known_args(argv)
+    if unknown:  # argparse would report them for `trackcal`, not for the command they were given to
+        args.parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     module, _, function = args.handler.partition(":")
     try:
         # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)

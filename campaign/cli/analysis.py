@@ -12,12 +12,14 @@ from rich.table import Table
 from calib.cell import load_cell
 from calib.diagnose import diagnose
 from calib.model import load_model, predict_table
-from calib.noise import TrackerNoise
+from calib.noise import DEFAULT_WEIGHTING, noise_for
 from calib.table import read_table, write_table
 from campaign.analysis import (
     IdentifyOutcome,
     analyse_session,
     choose_params,
+    fit_warning,
+    left_out,
     model_doc,
     parse_effects,
     run_identify,
@@ -37,7 +39,8 @@ from .campaign import drive
 
 def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:
     doc = outcome.doc
-    t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations)")
+    t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations, "
+                    f"{doc['weighting']} weighting)")  # fmt: skip
     for col in ("parameter", "unit", "nominal", "deviation", "95 % CI"):
         t.add_column(col, justify="right")
     if truth is not None:
@@ -63,18 +66,48 @@ def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | Non
         sig = sorted(doc["significance_mm"].items(), key=lambda kv: -kv[1])
         console.print(
             "TCP error at the test pose when one parameter is left at nominal (section 7.3): "
-            + ", ".join(f"{k} {v * 1000:.0f} um" for k, v in sig)
+            + ", ".join(f"{k} {v * 1000:.0f} µm" for k, v in sig)
         )
     for sid, s in doc["stations"].items():
         ci = s["ci95_translation_mm"]
         console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
+    print_extension(doc["extension"])
+    console.print(f"weighting {doc['weighting']}; residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm per coordinate, "
+                  f"{doc['fit_ratio']:.1f}x the noise floor {doc['noise_floor_mm'] * 1000:.1f} µm "
+                  f"({doc['noise_floor_source']}): fit {doc['fit']}")  # fmt: skip
+
+
+def print_extension(ext: dict) -> None:
+    """The model's extension: its cause and its parameters with 95 % intervals."""
+    cause = ext.get("cause", "none")
+    if cause == "none":
+        console.print("model extension: none (purely geometric)")
+        return
+    if cause == "station_shift":
+        console.print(f"model extension: station_shift: station {ext['station']} moved after t = "
+                      f"{ext['after_t_s']:.1f} s; its later transform is identified as a separate station")  # fmt: skip
+        return
+    t = Table(title=f"Model extension: {cause}")
+    for col in ("parameter", "unit", "value", "95 % CI"):
+        t.add_column(col, justify="right")
+    for name, p in ext.get("parameters", {}).items():
+        t.add_row(name, p["unit"], f"{p['value']:+.4g}", f"±{p['ci95']:.3g}")
+    console.print(t)
 
 
 def cmd_identify(args) -> int:
     cell = load_cell(args.cell)
     table = read_table(args.data, chain=cell.chain)
-    outcome = run_identify(cell, table, choose_params(cell, args.params), args.weighting, args.extend)
+    params = choose_params(cell, args.params)
+    outcome = run_identify(cell, table, params, args.weighting, args.extend)
     print_identification(outcome)
+    if args.extend == "auto":
+        cause = outcome.doc["extension"]["cause"]
+        console.print(f"--extend auto: diagnose chose {cause}" + (" (the model stays geometric)" if cause == "none"
+                                                                   else ""))  # fmt: skip
+    warning = fit_warning(outcome.doc, left_out(cell, params))
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     write_json(args.out, outcome.doc)
     if args.json:
         write_json(args.json, summary_of(outcome))
@@ -112,18 +145,19 @@ def cmd_demo(args) -> int:
     with console.status("planning: test-pose optimal poses (paper section 6)"):
         plan = search_doc(build_design(cell, options), options)
     write_json(str(out / "plan.json"), plan)
-    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} um "
+    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} µm "
                   f"({out / 'plan.json'})")  # fmt: skip
     store = create_session(out / "session", args.cell, plan, "sim", args.seed)
     drive(store)
     analyse_session(store)
     table = read_table(out / "session" / "table.csv", chain=cell.chain)
-    print_identification(run_identify(cell, table, choose_params(cell, None), "tracker"), twin_truth(cell, args.seed))
+    print_identification(run_identify(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING),
+                         twin_truth(cell, args.seed))  # fmt: skip
     return 0
 
 
 def um(mm: float | None, digits: int = 1) -> str:
-    """mm as um for the console; "-" for a figure that cannot be computed (the JSON holds null and says why)."""
+    """mm as µm for the console; "-" for a figure that cannot be computed (the JSON holds null and says why)."""
     return "-" if mm is None else f"{mm * 1000:.{digits}f}"
 
 
@@ -131,13 +165,13 @@ def cmd_diagnose(args) -> int:
     cell = load_cell(args.cell)
     table = read_table(args.data, chain=cell.chain)
     params = choose_params(cell, args.params)
-    noise = TrackerNoise() if args.weighting == "tracker" else None
+    noise = noise_for(args.weighting)
     with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
         d = diagnose(cell.chain, table, cell.tool_points, params, noise, folds=args.folds, seed=args.seed)
     doc = verdict_doc(cell, d)
     t = Table(title=f"Diagnosis: {d.cause}" + (f" (causes: {', '.join(c['cause'] for c in d.causes)})"
                                                if len(d.causes) > 1 else ""))  # fmt: skip
-    for col in ("step", "candidate", "params", "held-out RMS um", "gain um", "fit RMS um", "F-test p", "dBIC",
+    for col in ("step", "candidate", "params", "held-out RMS µm", "gain µm", "fit RMS µm", "F-test p", "dBIC",
                 "significant"):  # fmt: skip
         t.add_column(col, justify="right")
     t.add_row("-", "geometric", "-", um(d.holdout_geometric_mm), "-", um(doc["geometric"]["rms_mm"]), "-", "-",
@@ -147,8 +181,8 @@ def cmd_diagnose(args) -> int:
                   um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
                   "yes" if c["significant"] else "no")  # fmt: skip
     console.print(t)
-    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} um ({d.floor_source}); {doc['noise_note']}; held-out "
-                  f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} um"
+    console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} µm ({d.floor_source}); {doc['noise_note']}; held-out "
+                  f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} µm"
                   + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip
     if args.plots:
         for p in plots(cell, d, Path(args.plots)):

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from calib.files import read_json, read_text
@@ -13,6 +15,7 @@ from campaign.cells.hardware import connect_hardware, load_hardware
 from campaign.cells.sim import SimCell
 from campaign.console import console
 from campaign.engine.engine import CampaignStopped
+from campaign.engine.engine import Progress as CampaignProgress
 from campaign.engine.recording import ReplayDivergence
 from campaign.engine.runner import replay_session, run_campaign
 from campaign.errors import CampaignError, InputError, UsageError
@@ -28,14 +31,22 @@ from campaign.session.store import SessionStore
 
 
 def _progress():
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+    """The campaign's bar: planned measurements done (measured or skipped), how many skipped, the next action."""
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("({task.fields[skipped]} skipped)"), TimeRemainingColumn(),
                    TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
-    task = bar.add_task("measurements", total=None, next="")
+    task = bar.add_task("measurements", total=None, next="", skipped=0)
 
-    def update(done: int, total: int, nxt: str) -> None:
-        bar.update(task, completed=done, total=total, next=nxt or "-")
+    def update(p: CampaignProgress) -> None:
+        bar.update(task, completed=p.measured + p.skipped, total=p.planned, skipped=p.skipped,
+                   next=p.next_action or "-")  # fmt: skip
 
     return bar, update
+
+
+def _warn_operator(message: str) -> None:
+    """A campaign warning on the console as it happens (above the progress bar)."""
+    console.print(f"[yellow]warning[/]: {escape(message)}", highlight=False)
 
 
 def _live_for(store: SessionStore):
@@ -60,7 +71,7 @@ def drive(store: SessionStore) -> None:
     bar, update = _progress()
     try:
         with bar:
-            run_campaign(store, _live_for(store), progress=update)
+            run_campaign(store, _live_for(store), progress=update, notify=_warn_operator)
     except CampaignStopped as exc:
         raise CampaignError(f"{exc}. Fix the cause, then: trackcal resume {store.directory}") from None
 
@@ -100,13 +111,17 @@ def cmd_resume(args) -> int:
                           "at the session's creation: resume uses the stored copies", soft_wrap=True)  # fmt: skip
         return store
 
-    return _campaign(open_store, args.no_analysis)
+    return _campaign(open_store, args.no_analysis, args.analyse)
 
 
-def _campaign(open_store, no_analysis: bool) -> int:
+def _campaign(open_store, no_analysis: bool, reanalyse: bool = False) -> int:
+    """Drive the campaign to its end and analyse it; a campaign already complete is analysed again only on request."""
     store = open_store()
     if store.events("campaign_done"):
-        console.print(f"{store.directory}: the campaign is already complete")
+        console.print(f"{store.directory}: the campaign is already complete"
+                      + ("" if reanalyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
+        if not reanalyse:
+            return 0
     else:
         drive(store)
     if not no_analysis:
@@ -115,14 +130,20 @@ def _campaign(open_store, no_analysis: bool) -> int:
 
 
 def cmd_replay(args) -> int:
+    into = Path(args.into)
+    fresh = not into.exists()
     try:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        store = replay_session(recording, Path(args.into), args.cell, plan_doc)
-    except (OSError, ValueError) as exc:
+        store = replay_session(recording, into, args.cell, plan_doc)
+    except (CampaignError, OSError, ValueError) as exc:
+        if fresh:  # a failed replay leaves no directory that resume or a second replay would stumble over
+            shutil.rmtree(into, ignore_errors=True)
+        if isinstance(exc, ReplayDivergence):
+            raise InputError(f"replay diverges from the recording at {exc} ({into} not kept)") from None
+        if isinstance(exc, CampaignError):
+            raise
         raise InputError(str(exc)) from None
-    except ReplayDivergence as exc:
-        raise InputError(f"replay diverges from the recording at {exc}") from None
     n = write_export(store, Path(args.into) / "table.csv")
     console.print(f"replayed {n} measurements into {args.into} (the recording is unchanged)")
     return 0

@@ -36,7 +36,8 @@ def cmd_plan(args) -> int:
             write_plan_csv(Path(args.csv), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
         for q in doc["poses_deg"]:
             console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
-    rho0 = f"{doc['rho0_mm'] * 1000:.2f} um" if doc["rho0_mm"] is not None else doc["rho0_why"]
+    rho0 = f"{doc['rho0_mm'] * 1000:.2f} µm" if doc["rho0_mm"] is not None else doc["rho0_why"]
     console.print(f"rho0 at the test pose: {rho0}  (parameters: {' '.join(doc['params'])})")
     write_json(args.json, doc)
+    console.print(f"plan written to {args.json}")
     return 0

@@ -76,6 +76,17 @@ class DoorInterlock:
 
 
 @dataclass
+class Progress:
+    """Where a campaign is: measurements stored and skipped (the point not visible from the station) of those
+    planned, and the next operator action."""
+
+    measured: int
+    skipped: int
+    planned: int
+    next_action: str
+
+
+@dataclass
 class Settings:
     speed_pct: float = 30.0
     settle_tolerance_deg: float = 0.001
@@ -88,11 +99,14 @@ class Settings:
 
 class Engine:
     def __init__(self, store: SessionStore, devices: Devices, settings: Settings | None = None,
-                 progress: Callable[[int, int, str], None] | None = None):  # fmt: skip
+                 progress: Callable[[Progress], None] | None = None,
+                 notify: Callable[[str], None] | None = None):  # fmt: skip
         self.store = store
         self.dev = devices
         self.settings = settings or Settings()
         self.progress = progress
+        self.notify = notify  # told each warning as it is stored: the operator sees it when it happens
+        self.measured = 0
         self.step_index = -1
         self.t0 = 0.0
         self.offset = 0.0
@@ -119,6 +133,11 @@ class Engine:
     def _append(self, kind: str, data: dict) -> None:
         self.store.append(kind, data, self.step_index, self.t_last)
 
+    def _warn(self, message: str) -> None:
+        self._append("warning", {"message": message})
+        if self.notify is not None:
+            self.notify(message)
+
     # ------------------------------------------------------------------ running
     def run(self, steps: list[Step]) -> None:
         done = self.store.done_steps()
@@ -131,14 +150,15 @@ class Engine:
         if previous and first < len(steps):
             self._restore_context(steps, first)
         measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
+        self.measured = len(self.store.events("measurement"))
         for i in range(first, len(steps)):
             if i in done:
                 continue
             self._execute(i, steps[i])
             if self.progress:
-                n_done = sum(1 for k in measures if k <= i)
+                n_done = sum(1 for k in measures if k <= i)  # measured or skipped
                 nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
-                self.progress(n_done, len(measures), nxt)
+                self.progress(Progress(self.measured, max(0, n_done - self.measured), len(measures), nxt))
         self.step_index = -1
         self._append("campaign_done", {})
 
@@ -148,7 +168,7 @@ class Engine:
         ctx = [s for s in before if s.kind == StepKind.CHANGE_STATION][-1:] + [
             s for s in before if s.kind == StepKind.MOVE_REFLECTOR and s.station == steps[first].station][-1:]
         self.step_index = first
-        self._append("warning", {"message": f"resuming at step {first}: re-confirming the operator context"})
+        self._warn(f"resuming at step {first}: re-confirming the operator context")
         for s in ctx:
             self._prompt(s.kind, s.station if s.kind == StepKind.CHANGE_STATION else s.point, f"Resuming: {s.label}")
             if s.kind == StepKind.CHANGE_STATION:
@@ -197,7 +217,7 @@ class Engine:
             if self.interlock.release():
                 self.dev.robot.reset_faults()  # the operator acknowledged: the controller's latched faults go
                 return
-            self._append("warning", {"message": "the cell door is open: motion stays blocked"})
+            self._warn("the cell door is open: motion stays blocked")
 
     def _set_up_tracker(self) -> None:
         self.dev.tracker.initialize()
@@ -213,7 +233,7 @@ class Engine:
         if not self.interlock.released:
             raise CampaignStopped(self.step_index, "motion requested without an acknowledged resume")
         if not self.interlock.door_closed():
-            self._append("warning", {"message": "the cell door opened: motion blocked until resumed"})
+            self._warn("the cell door opened: motion blocked until resumed")
             self.interlock.close()
             self._resume_motion()
         self.dev.robot.move_ptp(tuple(step.q_deg), self.settings.speed_pct)
@@ -236,7 +256,7 @@ class Engine:
                 last = attempt == self.settings.measure_attempts
                 then = "skipped here" if last else "looking again"
                 where = f"{step.point} not measurable from {step.station} at {step.pose}"
-                self._append("warning", {"message": f"{where}: {exc}; {then}"})
+                self._warn(f"{where}: {exc}; {then}")
                 if last:
                     return
         if expected is not None and self.dev.tolerance is not None:
@@ -250,6 +270,7 @@ class Engine:
             "env": [env.temperature_c, env.pressure_hpa, env.humidity_pct],
         }  # fmt: skip
         self._append("measurement", data)
+        self.measured += 1
         if step.drift:
             self._check_drift(data)
 
@@ -278,5 +299,5 @@ class Engine:
             return
         moved = float(np.linalg.norm(np.subtract(data["xyz_mm"], first["xyz_mm"])))
         if moved > self.settings.drift_warn_mm:
-            self._append("warning", {"message": f"drift check: {data['point']} at {data['pose']} moved {moved:.3f} mm "
-                                                f"since the start of the block: has station {data['station']} moved?"})
+            self._warn(f"drift check: {data['point']} at {data['pose']} moved {moved:.3f} mm since the start of the "
+                       f"block: has station {data['station']} moved?")

@@ -81,10 +81,11 @@ def recorded(store: SessionStore, live: Live, engine_context) -> Devices:
     )  # fmt: skip
 
 
-def run_campaign(store: SessionStore, live: Live, progress=None) -> Engine:
+def run_campaign(store: SessionStore, live: Live, progress=None, notify=None) -> Engine:
+    """Run (or resume) the session's campaign on live devices; `progress` and `notify` as for Engine."""
     cell = session_cell(store)
     steps = session_steps(cell, session_plan(store))
-    engine = Engine(store, Devices(None, None, None, None), progress=progress)
+    engine = Engine(store, Devices(None, None, None, None), progress=progress, notify=notify)
     engine.dev = recorded(store, live, engine.context)
     engine.dev.expected, engine.dev.tolerance = expected_position(cell), measurement_tolerance(cell)
     try:

@@ -65,14 +65,14 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         fitted = np.degrees(np.einsum("re,e->r", ext.joint_features[:, j, :], main_cause_theta(d))) * 1000.0
         left = implied_joint_error(cell, after, d.table, after.residuals, j) * 1000.0
         panels = ((axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
-                  (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} um"))  # fmt: skip
+                  (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} µm"))  # fmt: skip
         ylabel = f"joint {j + 1} error (mdeg)"
     else:
         panels = ((axes[0], np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0,
-                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} um"),
+                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} µm"),
                   (axes[1], np.linalg.norm(after.residuals, axis=1) * 1000.0,
-                   f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} um"))  # fmt: skip
-        ylabel = "|residual| (um)"
+                   f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} µm"))  # fmt: skip
+        ylabel = "|residual| (µm)"
     for ax, y, title in panels:
         for sid in sorted(set(d.table.station)):
             m = np.array(d.table.station) == sid
@@ -82,7 +82,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ax.set_title(title)
         ax.grid(alpha=0.3)
     axes[0].legend()
-    fig.suptitle(f"diagnosis: {d.cause} (noise floor {d.noise_floor_mm * 1000:.1f} um, {d.floor_source})")
+    fig.suptitle(f"diagnosis: {d.cause} (noise floor {d.noise_floor_mm * 1000:.1f} µm, {d.floor_source})")
     fig.tight_layout()
     written.append(save_png(fig, out_dir / "signature.png", dpi=110))
     # residual structure against every joint angle and time, geometric model
@@ -99,7 +99,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         else:
             ax.axis("off")
             continue
-        ax.set_ylabel("|residual| (um)")
+        ax.set_ylabel("|residual| (µm)")
         ax.grid(alpha=0.3)
     fig.suptitle("geometric residuals against joint angles and time")
     fig.tight_layout()

@@ -1,9 +1,9 @@
-"""`trackcal report`: one self-contained HTML page for a campaign, PNG plots next to it.
+"""The campaign report: one self-contained HTML page, PNG plots next to it (campaign.report.inputs gathers and
+checks what goes in; `trackcal run` and `trackcal report` both write it through there).
 
-    trackcal report --table T.csv --model model.json [--plan plan.json] [--verdict verdict.json]
-                    [--plots DIR] [--cell NAME] [--title TEXT] --out DIR
-
-What it shows, after the paper (Wu, Klimchik et al., RCIM 2015, section 7): the plan (its poses and
+Its header: the session, the campaign's date, the trackcal version, the cell and the outcome in one sentence, then
+"what next" (the compensate command; a re-plan when the verdict names a cause the plan was not made to reveal)
+and the campaign's warnings. Then, after the paper (Wu, Klimchik et al., RCIM 2015, section 7): the plan (its poses and
 rho0), the residuals after calibration per axis with a fitted normal (Fig. 10), the residual distance per
 configuration before and after (Fig. 11), the parameters with 95 % confidence intervals (Table 8), the
 residual statistics before and after (Table 9: coordinate- and distance-based, max and RMS, improvement
@@ -21,15 +21,19 @@ from __future__ import annotations
 
 import html
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
 from calib.cell import Cell
+from calib.diagnose import diagnose, noise_floor
 from calib.identify import identify, residual_stats
 from calib.model import model_from_doc, predict_table
-from calib.noise import TrackerNoise
+from calib.noise import noise_for
+from calib.params import param_by_name
 from calib.table import MeasurementTable
 from campaign.errors import InputError
 from campaign.output import write_text
@@ -50,7 +54,33 @@ th, td { border: 1px solid #bbb; padding: 0.2em 0.6em; text-align: right; }
 th { background: #eee; } td.l, th.l { text-align: left; }
 img { max-width: 100%; border: 1px solid #ddd; margin: 0.4em 0; }
 .note { color: #555; font-size: 0.9em; } .warn { color: #a40; }
+p.verdict { font-size: 1.15em; background: #f4f4f4; border-left: 4px solid #444; padding: 0.5em 0.8em; }
+code { background: #f4f4f4; padding: 0.1em 0.3em; }
 """
+# what a campaign must contain to reveal each cause (README, `trackcal diagnose`): the re-plan advice
+CAUSE_NEEDS = {
+    "joint_compliance": "poses with different gravity loads (arm stretched and folded)",
+    "backlash": "each joint approaching the poses from both directions",
+    "encoder_scale": "a wide range of each joint angle",
+    "cyclic_error": "joint angles spread over the period",
+    "thermal_drift": "repeated poses at different times (drift checks over a longer campaign)",
+    "station_shift": "drift-check poses revisited within each station block",
+}
+NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
+
+
+@dataclass
+class Provenance:
+    """Where the report's inputs come from: the header and the "what next" section."""
+
+    session: str | None = None  # the session directory, None for a report from files
+    campaign_started: str | None = None  # UTC, of the first recorded event
+    model_path: str = "model.json"
+    cell_ref: str = ""
+    warnings: list[str] | None = None  # the campaign's warnings in order (None: no session, not known)
+    table_sha256: str | None = None
+    notes: list[str] = field(default_factory=list)  # e.g. which file is the extended and which the geometric model
+
 
 
 def esc(value) -> str:
@@ -63,6 +93,8 @@ class Residuals:
     after: np.ndarray  # (N, 3) mm: measured - predicted by the model
     stats_before: dict[str, float]
     stats_after: dict[str, float]
+    floor_mm: float  # expected RMS of one coordinate from the tracker alone (calib.diagnose.noise_floor)
+    floor_source: str
 
 
 def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> Residuals:
@@ -70,9 +102,11 @@ def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> R
         raise InputError(f"{table.source}: the table has no x_mm, y_mm, z_mm: nothing to report residuals of")
     model = model_from_doc(model_doc)
     after = table.xyz - predict_table(model, table).xyz
-    noise = TrackerNoise() if model_doc.get("weighting") == "tracker" else None
+    noise = noise_for(model_doc.get("weighting", "iid"))
     before = identify(model.chain, table, cell.tool_points, [], noise=noise).residuals
-    return Residuals(before, after, residual_stats(before), residual_stats(after))
+    found = noise_floor(table, noise)
+    floor, source = found.sigma_mm, found.source
+    return Residuals(before, after, residual_stats(before), residual_stats(after), floor, source)
 
 
 # ------------------------------------------------------------------------------------------------ plots
@@ -89,9 +123,12 @@ def plot_histograms(res: Residuals, path: Path) -> Path:
             x = np.linspace(edges[0], edges[-1], 200)
             density = np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2.0 * np.pi))  # the normal pdf
             ax.plot(x, len(r) * (edges[1] - edges[0]) * density, "k-", lw=1.5,
-                    label=f"N({mu:.1f}, {sd:.1f}) um")  # fmt: skip
-            ax.legend(loc="upper right", fontsize=8)
-        ax.set_xlabel(f"residual {'xyz'[a]} (um)")
+                    label=f"N({mu:.1f}, {sd:.1f}) µm")  # fmt: skip
+        for sign in (-1, 1):
+            ax.axvline(sign * res.floor_mm * 1000.0, color="#c0504d", ls="--", lw=1.2,
+                       label=f"± noise floor {res.floor_mm * 1000:.1f} µm" if sign > 0 else None)  # fmt: skip
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_xlabel(f"residual {'xyz'[a]} (µm)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("measurements")
     fig.suptitle("residuals after calibration, per axis (station frames), with the fitted normal")
@@ -119,7 +156,11 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     for ax, r, label, color in ((axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
                                 (axes[1], res.after, "after calibration", "#4a7ebb")):  # fmt: skip
         ax.bar(x, per_pose_rms(table, r) * 1000.0, color=color)
-        ax.set_ylabel("RMS distance (um)")
+        # the RMS 3-D distance that tracker noise alone gives: sqrt(3) x the floor of one coordinate
+        ax.axhline(np.sqrt(3.0) * res.floor_mm * 1000.0, color="k", ls="--", lw=1.2,
+                   label=f"noise floor {np.sqrt(3.0) * res.floor_mm * 1000:.1f} µm ({res.floor_source})")  # fmt: skip
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_ylabel("RMS distance (µm)")
         ax.set_title(f"{label}: residual distance per configuration", fontsize=10)
         ax.grid(alpha=0.3, axis="y")
     step = max(1, len(poses) // 40)
@@ -176,7 +217,7 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
     ax.legend(fontsize=7, ncol=2, loc="best")
     ax.grid(alpha=0.3)
     rho = plan_doc.get("rho0_mm")
-    ax.set_title("measurement plan" + (f": rho0 = {rho * 1000:.2f} um at the test pose" if rho is not None else ""))
+    ax.set_title("measurement plan" + (f": rho0 = {rho * 1000:.2f} µm at the test pose" if rho is not None else ""))
     fig.tight_layout()
     return save_png(fig, path, dpi=100)
 
@@ -211,7 +252,7 @@ def table9_rows(res: Residuals) -> list[list[str]]:
     rows = []
     for key, label in TABLE9_ROWS:
         b, a = res.stats_before[key], res.stats_after[key]
-        rows.append([label, fmt(b), fmt(a), f"{b / a:.1f}" if a > 0 else "-"])
+        rows.append([label, fmt(1000 * b, 1), fmt(1000 * a, 1), f"{b / a:.1f}" if a > 0 else "-"])
     return rows
 
 
@@ -230,7 +271,7 @@ def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
     parts = ["<h2>Measurement plan</h2>"]
     rho = plan_doc.get("rho0_mm")
     facts = [("criterion", plan_doc.get("criterion", "-")), ("repeat", plan_doc.get("repeat", "-")),
-             ("rho0 at the test pose (um)", f"{rho * 1000:.3f}" if rho is not None else "-"),
+             ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
              ("parameters", " ".join(plan_doc.get("params", []))),
              ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []))]  # fmt: skip
     parts.append(table_html(["", "value"], [list(f) for f in facts], left=2))
@@ -290,40 +331,97 @@ def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
             parts.append(f"<p>Causes, in the order forward selection added them: {esc(', '.join(causes))}</p>")
         hold = verdict_doc.get("holdout", {})
 
-        def um(v):
+        def micro(v):  # mm -> µm text
             return fmt(1000 * float(v), 1) if v is not None else "-"
 
         facts = [
-            ("noise floor (um)", um(verdict_doc.get("noise_floor_mm"))),
+            ("noise floor (µm)", micro(verdict_doc.get("noise_floor_mm"))),
             ("noise floor from", verdict_doc.get("noise_floor_source", "-")),
-            ("geometric model RMS (um)", um(verdict_doc.get("geometric", {}).get("rms_mm"))),
-            ("extended model RMS (um)", um(verdict_doc.get("extended", {}).get("rms_mm"))),
-            ("held-out RMS, geometric (um)", um(hold.get("rms_geometric_mm"))),
-            ("held-out RMS, extended (um)", um(hold.get("rms_extended_mm"))),
+            ("geometric model RMS (µm)", micro(verdict_doc.get("geometric", {}).get("rms_mm"))),
+            ("extended model RMS (µm)", micro(verdict_doc.get("extended", {}).get("rms_mm"))),
+            ("held-out RMS, geometric (µm)", micro(hold.get("rms_geometric_mm"))),
+            ("held-out RMS, extended (µm)", micro(hold.get("rms_extended_mm"))),
         ]
         facts += [(label, verdict_doc[key]) for label, key in (("noise", "noise_note"),) if verdict_doc.get(key)]
         if hold.get("note"):
             facts.append(("held-out figures", hold["note"]))
         if "test_pose" in verdict_doc:
-            facts.append(("TCP difference at the test pose (um)", um(verdict_doc["test_pose"]["tcp_difference_mm"])))
+            facts.append(("TCP difference at the test pose (µm)", micro(verdict_doc["test_pose"]["tcp_difference_mm"])))
         parts.append(table_html(["", "value"], [list(f) for f in facts], left=2))
         rows = []
         for c in verdict_doc.get("candidates", []):
-            rows.append([c.get("cause", "?"), str(c.get("n_params", "-")), um(c.get("holdout_rms_mm")),
-                         um(c.get("rms_mm")), f"{float(c.get('f_pvalue', np.nan)):.2g}",
+            rows.append([c.get("cause", "?"), str(c.get("n_params", "-")), micro(c.get("holdout_rms_mm")),
+                         micro(c.get("rms_mm")), f"{float(c.get('f_pvalue', np.nan)):.2g}",
                          fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no"])  # fmt: skip
         if rows:
-            parts.append(table_html(["candidate", "params", "held-out RMS (um)", "fit RMS (um)", "F-test p", "dBIC",
+            parts.append(table_html(["candidate", "params", "held-out RMS (µm)", "fit RMS (µm)", "F-test p", "dBIC",
                                      "significant"], rows))  # fmt: skip
     parts += [img_html(name, "diagnosis plot") for name in images]
     return "".join(parts)
 
 
-def _collect_images(out_dir: Path, extra_images, diagnosis, cell) -> list[str]:
-    names: list[str] = []
-    if diagnosis is not None:
-        names += [p.name for p in plots(cell, diagnosis, out_dir / "diagnosis")]
-        names = [f"diagnosis/{n}" for n in names]
+def verdict_sentence(model_doc: dict, verdict_doc: dict | None, res: Residuals) -> str:
+    """The outcome of the campaign in one sentence."""
+    fit = f"{res.stats_after['coord_rms_mm'] * 1000:.1f} µm RMS against a noise floor of {res.floor_mm * 1000:.1f} µm"
+    cause = (verdict_doc or {}).get("cause")
+    if cause is None:
+        quality = model_doc.get("fit", "?")
+        return (f"The model leaves {fit}: fit {quality}" + (" (no diagnosis given: run trackcal diagnose)."
+                                                             if quality == "poor" else "; no diagnosis given."))
+    if cause == "none":
+        return f"The geometric calibration fits to the noise floor ({fit}); no non-geometric effect was found."
+    geo = 1000 * float(verdict_doc.get("geometric", {}).get("rms_mm", np.nan))
+    if cause == "unexplained":
+        return (f"The geometric model leaves {geo:.1f} µm against a noise floor of {res.floor_mm * 1000:.1f} µm and no "
+                "candidate cause explains it: the residual structure is unexplained.")  # fmt: skip
+    ext = 1000 * float(verdict_doc.get("extended", {}).get("rms_mm", np.nan))
+    return (f"The robot shows {cause.replace('_', ' ')}: the geometric model leaves {geo:.1f} µm, the model extended "
+            f"by {cause} {ext:.1f} µm, against a noise floor of {res.floor_mm * 1000:.1f} µm.")  # fmt: skip
+
+
+def what_next(model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, prov: Provenance) -> list[str]:
+    """The next steps, as HTML paragraphs (commands in <code>)."""
+    cause = (verdict_doc or {}).get("cause")
+    steps = []
+    if model_doc.get("fit") == "poor" and cause in (None, "unexplained"):
+        steps.append("The model does not reach the noise floor, so its intervals cannot be trusted: look at the "
+                     "diagnosis plots, the parameters left out and the set-up before compensating.")  # fmt: skip
+    ignored = f" ({esc(cause)} has no static compensation and is ignored)" if cause in NO_STATIC_COMPENSATION else ""
+    steps.append(f"Correct the robot's joint targets{ignored}: <code>trackcal compensate --model "
+                 f"{esc(prov.model_path)} TARGETS.csv --out corrected.csv --krl CALPOS</code> (TARGETS.csv: "
+                 "columns name, q1_deg..qn_deg).")  # fmt: skip
+    if cause in CAUSE_NEEDS:
+        configs = len((plan_doc or {}).get("poses_deg") or []) or 6
+        repeat = (plan_doc or {}).get("repeat", 3)
+        planned = " ".join((plan_doc or {}).get("params", [])) or "the geometric parameters"
+        steps.append(f"The plan was optimised for {esc(planned)} only, not to reveal {esc(cause)}, which needs "
+                     f"{esc(CAUSE_NEEDS[cause])}. To pin it down, re-plan with more configurations and measure "
+                     f"again: <code>trackcal plan --cell {esc(prov.cell_ref)} --configs {2 * configs} --repeat "
+                     f"{repeat} --json plan-2.json</code>, then <code>trackcal run --cell {esc(prov.cell_ref)} "
+                     "--plan plan-2.json ...</code>.")  # fmt: skip
+    return steps
+
+
+def section_warnings(warnings: list[str] | None) -> str:
+    if warnings is None:
+        return ""
+    if not warnings:
+        return "<h2>Campaign warnings</h2><p>None: every planned measurement was made, no drift, no blocked motion.</p>"
+    items = "".join(f"<li>{esc(w)}</li>" for w in warnings)
+    return f"<h2>Campaign warnings ({len(warnings)})</h2><ul class='warn'>{items}</ul>"
+
+
+def diagnosis_images(out_dir: Path, cell: Cell, table: MeasurementTable, model_doc: dict, diagnosis) -> list[str]:
+    """The diagnosis plots (campaign.report.diagnosis_plots.plots); `diagnosis` None: diagnose the table again with the
+    model's parameters and weighting (deterministic: the same plots as the campaign's own report)."""
+    if diagnosis is None:
+        params = [param_by_name(cell.chain, n) for n in model_doc.get("covariance_order", [])]
+        diagnosis = diagnose(cell.chain, table, cell.tool_points, params, noise_for(model_doc.get("weighting", "iid")))
+    return [f"diagnosis/{p.name}" for p in plots(cell, diagnosis, out_dir / "diagnosis")]
+
+
+def _extra_images(out_dir: Path, extra_images) -> list[str]:
+    names = []
     for p in extra_images or []:
         p = Path(p)
         if not p.is_file():
@@ -343,14 +441,14 @@ def write_report(
     model_doc: dict,
     plan_doc: dict | None,
     verdict_doc: dict | None,
-    title: str,
+    prov: Provenance,
     extra_images: list[Path] | None = None,
     diagnosis=None,
 ) -> Path:
     """Write out_dir/report.html and its PNG plots; returns the HTML path.
 
-    `diagnosis` (a calib.diagnose.Diagnosis) adds campaign.report.diagnosis_plots' plots; `extra_images` are PNGs
-    copied next to the report and shown in the diagnosis section."""
+    With a verdict the diagnosis plots are drawn (from `diagnosis`, a calib.diagnose.Diagnosis, or by diagnosing
+    the table again); `extra_images` are PNGs copied next to the report and shown in the diagnosis section."""
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -360,28 +458,43 @@ def write_report(
     plot_histograms(res, out_dir / "residuals_xyz.png")
     plot_per_pose(table, res, out_dir / "residuals_per_pose.png")
     par_plot = plot_parameters(model_doc, out_dir / "parameters.png")
-    images = _collect_images(out_dir, extra_images, diagnosis, cell)
+    images = diagnosis_images(out_dir, cell, table, model_doc, diagnosis) if verdict_doc else []
+    images += _extra_images(out_dir, extra_images)
 
+    title = f"Calibration report: {prov.session or Path(table.source).name}, cell {cell.name}"
     n_poses = len(pose_order(table))
+    sigma = model_doc.get("sigma_mm")
     facts = [
+        ("session", prov.session or "none (a report from files)"),
+        ("campaign started", prov.campaign_started or "-"),
+        ("report written", datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")),
+        ("trackcal version", version("trackcal")),
         ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
-        ("measurement table", table.source), ("measurements", str(len(table))), ("configurations", str(n_poses)),
+        ("measurement table", table.source + (f" (sha256 {prov.table_sha256[:12]})" if prov.table_sha256 else "")),
+        ("measurements", str(len(table))), ("configurations", str(n_poses)),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
         ("weighting", model_doc.get("weighting", "-")), ("iterations", str(model_doc.get("iterations", "-"))),
-        ("a-posteriori sigma (mm)", fmt(model_doc.get("sigma_mm"), 4)),
+        ("a-posteriori sigma (µm)", fmt(1000 * sigma, 1) if sigma is not None else
+         f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)"),
         ("variance factor", fmt(model_doc.get("variance_factor"), 3)),
+        ("noise floor (µm)", f"{fmt(1000 * res.floor_mm, 1)} ({res.floor_source})"),
         ("model extension", (model_doc.get("extension") or {}).get("cause", "none")),
     ]  # fmt: skip
     body = [
         f"<h1>{esc(title)}</h1>",
+        f"<p class='verdict' id='verdict'>{esc(verdict_sentence(model_doc, verdict_doc, res))}</p>",
         table_html(["", ""], [list(f) for f in facts], left=2),
+        "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),
+        "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in
+                                                        what_next(model_doc, plan_doc, verdict_doc, prov)) + "</ul>",
+        section_warnings(prov.warnings),
         section_plan(plan_doc, cell, out_dir),
         "<h2>Residuals before and after calibration (Table 9)</h2>",
-        table_html(["residual (mm)", "before", "after", "improvement factor"], table9_rows(res)),
+        table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
         "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
         "After: this table minus the model's prediction. Coordinate-based: every x, y, z; distance-based: the "
-        "3-D distance of each measurement.</p>",
+        "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone gives.</p>",
         img_html("residuals_xyz.png", "residual histograms per axis"),
         img_html("residuals_per_pose.png", "residual distance per configuration"),
         "<h2>Identified parameters (Table 8)</h2>",
@@ -391,7 +504,7 @@ def write_report(
         section_stations_points(model_doc),
         section_extension(model_doc),
         section_diagnosis(verdict_doc, images),
-    ]
+    ]  # fmt: skip
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")  # fmt: skip

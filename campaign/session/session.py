@@ -44,6 +44,7 @@ def config_documents(cell_ref: str) -> dict[str, str]:
         name = f"config/{key}{src.suffix}"
         docs[name] = src.read_text()
         doc[key] = Path(name).name
+    doc.setdefault("name", cell_path.stem)  # the copy keeps the cell's name (not "cell", its file's)
     docs[CELL_DOC] = yaml.safe_dump(doc, sort_keys=False)
     return docs
 
@@ -132,6 +133,12 @@ def measured_keys(store: SessionStore) -> list[tuple[str, str, tuple[float, ...]
     """(station, point, joints) of every stored measurement: what a simulated world needs on resume so that
     each measurement keeps the noise of an uninterrupted run."""
     return [(e.data["station"], e.data["point"], tuple(e.data["q_deg"])) for e in store.events("measurement")]
+
+
+def campaign_warnings(store: SessionStore) -> list[str]:
+    """Every warning of the campaign in order (skipped points, drift checks, blocked motion, resumes), each with
+    the campaign time it was raised at."""
+    return [f"t = {e.t_campaign:.0f} s: {e.data['message']}" for e in store.events("warning")]
 
 
 def export_table(store: SessionStore, source: str = "session") -> MeasurementTable:

@@ -1,0 +1,103 @@
+"""Every ```sh example of README.md runs verbatim, in order, in one temporary directory, and makes the files it names.
+
+The examples build their own fixtures (the first simulates a small table on the digital twin), so a newcomer can
+paste them one after the other. A command line ending in `# not run by the README test: REASON` (hardware, a
+cluster, many minutes) is shown but skipped here; a block that uses $TRACKCAL_IPA_DATA runs only where the IPA
+data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+NOT_RUN = "# not run by the README test:"
+# options whose value is a file or directory the command writes (checked to exist after the example)
+OUTPUT_OPTIONS = ("--out", "--json", "--csv", "--session", "--into", "--plots", "--write-hardware", "--krl-dir")
+IPA_DATA = Path(os.environ.get("TRACKCAL_IPA_DATA") or ROOT.parent / "shared" / "data" / "ipa-robot-accuracy")
+
+
+@dataclass
+class Example:
+    line: int  # where the block starts in README.md
+    commands: list[str]  # logical command lines (continuations joined), skipped ones left out
+    skipped: list[str]
+
+
+def commands_of(block: str) -> tuple[list[str], list[str]]:
+    """The block's command lines (a trailing backslash joins the next line), and those marked not run."""
+    run, skipped, current = [], [], ""
+    for raw in block.splitlines():
+        current += raw[:-1] + " " if raw.endswith("\\") else raw
+        if raw.endswith("\\"):
+            continue
+        line, current = current.strip(), ""
+        if not line or line.startswith("#"):
+            continue
+        (skipped if NOT_RUN in line else run).append(line)
+    return run, skipped
+
+
+def examples() -> list[Example]:
+    text = README.read_text(encoding="utf-8")
+    out = []
+    for m in re.finditer(r"^```sh\n(.*?)^```", text, re.S | re.M):
+        run, skipped = commands_of(m.group(1))
+        out.append(Example(text.count("\n", 0, m.start()) + 1, run, skipped))
+    return out
+
+
+def outputs_of(command: str) -> list[str]:
+    """Files the command names as its outputs: values of OUTPUT_OPTIONS and `# -> PATH` comments."""
+    code, _, comment = command.partition(" #")
+    words = shlex.split(code)
+    named = [words[i + 1] for i, w in enumerate(words[:-1]) if w in OUTPUT_OPTIONS]
+    named += [w.split("=", 1)[1] for w in words if w.split("=", 1)[0] in OUTPUT_OPTIONS and "=" in w]
+    named += re.findall(r"->\s*(\S+)", comment)
+    if "--krl-dir" in words and "--krl" in words:
+        krl = words[words.index("--krl") + 1]
+        named.append(f"{words[words.index('--krl-dir') + 1]}/{krl}.src")
+    return named
+
+
+EXAMPLES = examples()
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("readme")
+
+
+def test_the_readme_has_examples_and_marks_the_ones_it_does_not_run():
+    assert len(EXAMPLES) >= 10
+    for ex in EXAMPLES:
+        for line in ex.skipped:
+            reason = line.split(NOT_RUN, 1)[1].strip()
+            assert reason, f"README.md:{ex.line}: say why it is not run: {line}"
+
+
+@pytest.mark.parametrize("example", EXAMPLES, ids=[f"README.md:{e.line}" for e in EXAMPLES])
+def test_example_runs_verbatim(example: Example, workdir: Path):
+    if not example.commands:
+        pytest.skip("every command of this block needs what the test does not have (see its comments)")
+    script = "\n".join(example.commands)
+    if "TRACKCAL_IPA_DATA" in script and not IPA_DATA.is_dir():
+        pytest.skip(f"the IPA data set is not at {IPA_DATA} (set TRACKCAL_IPA_DATA)")
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+               TRACKCAL_IPA_DATA=str(IPA_DATA), OPENBLAS_NUM_THREADS="1")  # fmt: skip
+    script = (f"set -eo pipefail\ntrap 'echo \"README.md:{example.line}: failed: $BASH_COMMAND\" >&2' ERR\n"
+              "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n" + script + "\n")  # fmt: skip
+    done = subprocess.run(["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True,
+                          stdin=subprocess.DEVNULL)  # fmt: skip
+    assert done.returncode == 0, f"README.md:{example.line}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
+    missing = [p for c in example.commands for p in outputs_of(c) if not (workdir / p).exists()]
+    assert not missing, f"README.md:{example.line}: the example did not make {missing}"
