@@ -9,6 +9,7 @@ import pytest
 
 from calib.cell import load_cell, load_robot
 from calib.chain import chain_from_urdf
+from calib.diagnose import diagnose
 from calib.error_map import fit_error_map
 from calib.extensions import build_extension
 from calib.identify import identify
@@ -246,3 +247,19 @@ def test_joint_error_map_carries_from_b_to_d(series_b, series_d):
     mapped = on_other_series(cell.chain, fit.identification, series_d)
     # issue 13: on B -> D (calibrate on B, D's station alone re-estimated) the model must reach 0.30 mm or less
     assert rms3(mapped.residuals) <= 0.30 < rms3(held.residuals)
+
+
+@needs_data
+def test_diagnose_names_the_joint_error_map_on_series_b(series_b):
+    """issue 13: on the real UR10 the residual of the geometric model is a repeatable error of each joint in its own
+    angle (a transmission error): diagnose must name cyclic_error, the joint error map, with a held-out gain."""
+    cell = load_cell("ur10-ipa")
+    tmac = {POINT: cell.tool_points[POINT]}
+    irr, _ = irreducible_params(cell.chain)
+    params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+    d = diagnose(cell.chain, series_b, tmac, params)
+    assert "cyclic_error" in [c["cause"] for c in d.causes]
+    # held out by pose, the chosen model must remove most of what lies above the noise floor (B's repeated
+    # configurations: ~0.02 mm, issue 13): at least half of the geometric model's excess over it
+    floor = d.noise_floor_mm
+    assert d.holdout_extended_mm - floor < 0.5 * (d.holdout_geometric_mm - floor)
