@@ -71,8 +71,10 @@ def _echo(sock: socket.socket) -> None:
 
 
 def _busy() -> None:
+    """A core kept busy (the load the answer thread must stand up to)."""
+    n = 0
     while True:
-        pass
+        n += 1
 
 
 def _load(kind: str) -> list:

@@ -11,6 +11,7 @@ with its ~20 device calls and step events), so the budget is 1000 ms per event. 
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import statistics
 import tempfile
@@ -37,8 +38,6 @@ def _ours(directory: Path) -> list[float]:
 
 
 def _wal(directory: Path, checkpoint: bool) -> list[float]:
-    import json
-
     conn = sqlite3.connect(str(directory / "wal.sqlite"), isolation_level=None)
     conn.execute("PRAGMA journal_mode=WAL")
     conn.execute("PRAGMA synchronous=FULL")

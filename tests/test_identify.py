@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from calib.identify import IdentificationError, identify, residual_stats, significance
+from calib.extensions import build_extension
+from calib.identify import IdentificationError, Problem, identify, residual_stats, significance, solve
 from calib.noise import TrackerNoise
 from calib.params import complete_params
 from calib.rigid import exp_so3, kabsch
@@ -171,8 +172,6 @@ def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
     offsets that differ between rows of one pose) and the tracker noise model: those sums equal J^T J and
     J^T r of the dense Jacobian, R^T R = J^T J with the singular values of J, whatever the chunking, and the
     solution is the one dense Gauss-Newton reaches."""
-    from calib.extensions import build_extension
-    from calib.identify import Problem, solve
 
     twin, table = kr270_campaign(kr270, seed=21, n_poses=25)
     ext = build_extension(cause, kr270.chain, table)
