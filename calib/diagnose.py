@@ -146,7 +146,10 @@ def context(chain, table, params, noise, geo, causes) -> Context:
     for c in causes:
         if c == SHIFT:
             continue
-        ext, dropped = visible_extension(chain, table, geo, noise, params, c)
+        try:
+            ext, dropped = visible_extension(chain, table, geo, noise, params, c)
+        except IdentificationError:  # more unknowns with this cause than the table has equations: not revealable
+            continue
         if c == "thermal_drift" and ext is not None:
             ext = thermal_form(ctx, ext)
         if dropped:

@@ -122,10 +122,12 @@ def good(tmp_path_factory, kr270):
     )
     (d / "poses.csv").write_text(poses)
     (d / "targets.csv").write_text(poses)
+    # report refuses files of different campaigns: its plan holds the poses the table was measured at
+    measured = list(dict.fromkeys(tuple(q) for q in table.q_deg.round(4).tolist()))
+    (d / "measured-plan.json").write_text(json.dumps({"poses_deg": [list(q) for q in measured], "repeat": 1}))
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["identify", str(d / "table.csv"), "--cell", str(d / "cell.yaml"), "--out", str(d / "m.json")]) == 0
-    model = json.loads((d / "m.json").read_text())
-    (d / "model.json").write_text(json.dumps({**model, "cell": str(d / "cell.yaml")}))
+    (d / "model.json").write_text((d / "m.json").read_text())  # it names its cell, kr270: report gets --cell
     verdict = {"cause": "none", "candidates": [], "geometric": {"rms_mm": 0.01}, "noise_floor_mm": 0.01,
                "holdout": {"rms_geometric_mm": 0.012, "rms_extended_mm": None, "rms_extended_why": "none"}}  # fmt: skip
     (d / "verdict.json").write_text(json.dumps(verdict))
@@ -149,8 +151,8 @@ CASES = {
                      "hardware.yaml"),
     "compensate": ("compensate {targets.csv} --model {model.json} --out {out}/c.csv --krl PROG",
                    "targets.csv model.json"),
-    "report": ("report --table {table.csv} --model {model.json} --plan {plan.json} --verdict {verdict.json} "
-               "--cell {cell.yaml} --out {out}/r", "table.csv model.json plan.json verdict.json"),
+    "report": ("report --table {table.csv} --model {model.json} --plan {measured-plan.json} --verdict {verdict.json} "
+               "--cell {cell.yaml} --out {out}/r", "table.csv model.json measured-plan.json verdict.json"),
     "import": ("import ipa-ur10 {ipa.csv} --out {out}/t.csv", "ipa.csv"),
     "diagnose": ("diagnose {table.csv} --cell {cell.yaml} --folds 2 --json {out}/v.json", "table.csv cell.yaml"),
 }  # fmt: skip
