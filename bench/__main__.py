@@ -5,6 +5,7 @@ import importlib
 import pkgutil
 from pathlib import Path
 
+from bench.goals import summary
 from campaign.cli.blas import limited_blas
 
 MODULES = sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if m.name.startswith("bench_"))
@@ -12,3 +13,4 @@ with limited_blas():
     for mod in MODULES:
         print(f"== {mod}", flush=True)
         importlib.import_module(f"bench.{mod}").main()
+print(summary())

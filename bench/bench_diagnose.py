@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goals import check
 from calib.cell import load_cell
 from calib.diagnose import diagnose
 from calib.noise import TrackerNoise
@@ -109,7 +110,9 @@ def main(repeat: int = 3) -> None:
         if base is not None:
             t, d_old = cpu(lambda: base.diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise()))
             old.append(t)
-    line = f"KR-270 {len(table)} rows: diagnose {statistics.median(ours):.2f} s CPU (goal < 3 s) -> {d.cause}"
+    t_med = statistics.median(ours)
+    ok = check(f"diagnose KR-270 {len(table)} rows < 3 s CPU", f"{t_med:.2f} s", t_med < 3)
+    line = f"KR-270 {len(table)} rows: diagnose {t_med:.2f} s CPU (goal < 3 s: {ok}) -> {d.cause}"
     if old:
         line += (f"; before issue 16 {statistics.median(old):.2f} s -> {d_old.cause}; "
                  f"{statistics.median(old) / statistics.median(ours):.1f}x faster")  # fmt: skip
@@ -125,8 +128,10 @@ def main(repeat: int = 3) -> None:
         line += f"; before issue 16 {t_old:.1f} s -> {d_old.cause}; {t_old / t_ours:.1f}x faster"
     print(line)
     wall, child, cause = whole_process_ur10()
+    ok16 = check("diagnose UR10 Series B whole process < 15 s wall (issue 16)", f"{wall:.1f} s", wall < 15)
+    ok13 = check("diagnose UR10 Series B whole process < 30 s wall (issue 13)", f"{wall:.1f} s", wall < 30)
     print(f"UR10 Series B whole process (fresh interpreter, 1 BLAS thread): {child:.1f} s CPU, {wall:.1f} s wall "
-          f"(goal < 15 s) -> {cause}")  # fmt: skip
+          f"(goal < 15 s: {ok16}; < 30 s: {ok13}) -> {cause}")  # fmt: skip
 
 
 def series_b_available() -> bool:

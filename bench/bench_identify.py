@@ -19,6 +19,7 @@ import tracemalloc
 import numpy as np
 from scipy.optimize import least_squares
 
+from bench.goals import check
 from calib.cell import load_cell
 from calib.identify import Problem, identify, solve
 from calib.params import irreducible_params
@@ -149,16 +150,18 @@ def case(n_rows: int, repeats: int) -> None:
     print(f"{n_rows} rows, {problem.n_cols} unknowns, CPU medians of {repeats} interleaved repeats:")
     for name, (t, (cost, note)) in res.items():
         ratio = "" if name == "ours" else f"  -> ours is {t / t_ours:.1f}x faster"
-        goal = "" if not name.startswith("scipy") else f" (goal >= {GOAL_SPEEDUP:.0f}x: " \
-            f"{'met' if t / t_ours >= GOAL_SPEEDUP else 'NOT met'})"  # fmt: skip
+        goal = "" if not name.startswith("scipy") else f" (goal >= {GOAL_SPEEDUP:.0f}x: " + check(
+            f"identify {n_rows} rows >= {GOAL_SPEEDUP:.0f}x faster than {name}", f"{t / t_ours:.1f}x",
+            t / t_ours >= GOAL_SPEEDUP) + ")"  # fmt: skip
         print(f"  {name:15s} {t * 1e3:9.1f} ms  cost {cost:.9e}  {note}{ratio}{goal}")
         assert abs(cost - cost_ours) <= 1e-6 * cost_ours, f"{name} reached another cost"
     per_row = bytes_per_row(cell, table, params)
     if n_rows < 100_000:  # the goal is the growth per row; a small table shows the fixed part
         print(f"  memory of identify: {per_row * n_rows / 1e6:.1f} MB peak")
     else:
-        print(f"  memory of identify: {per_row:.0f} bytes per row (goal < {GOAL_BYTES_PER_ROW}: "
-              f"{'met' if per_row < GOAL_BYTES_PER_ROW else 'NOT met'})")  # fmt: skip
+        ok = check(f"identify memory < {GOAL_BYTES_PER_ROW} bytes per row", f"{per_row:.0f} bytes per row",
+                   per_row < GOAL_BYTES_PER_ROW)
+        print(f"  memory of identify: {per_row:.0f} bytes per row (goal < {GOAL_BYTES_PER_ROW}: {ok})")
 
 
 def main() -> None:

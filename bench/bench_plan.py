@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from bench.goals import check
 from calib.cell import load_cell
 from calib.doe import design_for_cell, exchange, optimize_plan, random_feasible_poses
 from calib.params import param_by_name
@@ -59,10 +60,6 @@ def plain_exchange(d, m: int, k: int, budget_cpu_s: float, seed: int) -> tuple[f
     return best, runs
 
 
-def goal(ok: bool) -> str:
-    return "met" if ok else "NOT met"
-
-
 def main() -> None:
     if sys.argv[1:2] == ["--case"]:
         m, k, vis = (int(v) for v in sys.argv[2:5])
@@ -74,11 +71,14 @@ def main() -> None:
         r = json.loads(out.splitlines()[-1])
         base, runs = plain_exchange(design(vis), m, k, r["cpu_s"], seed=m + vis)
         ratio = r["rho0_mm"] / base
-        print(f"M={m:2d} x {k} {'with' if vis else 'no  '} visibility: ours rho0 {1e3 * r['rho0_mm']:.3f} um in "
+        tag = "with" if vis else "no"
+        print(f"M={m:2d} x {k} {tag:4s} visibility: ours rho0 {1e3 * r['rho0_mm']:.3f} um in "
               f"{r['cpu_s']:.1f} s CPU ({r['maxrss_mb']:.0f} MB); plain exchange, same CPU ({runs} runs): "
-              f"{1e3 * base:.3f} um -> ours/exchange {ratio:.3f} (goal <= 0.90: {goal(ratio <= 0.9)})")
+              f"{1e3 * base:.3f} um -> ours/exchange {ratio:.3f} (goal <= 0.90: "
+              f"{check(f'plan M={m} x {k} {tag} visibility rho0 <= 0.90 x exchange', f'{ratio:.3f}', ratio <= 0.9)})")
         if m == 48:
-            print(f"  memory at M=48: {r['maxrss_mb']:.0f} MB (goal < 300 MB: {goal(r['maxrss_mb'] < 300)})")
+            ok = check("plan memory at M=48 < 300 MB", f"{r['maxrss_mb']:.0f} MB", r["maxrss_mb"] < 300)
+            print(f"  memory at M=48: {r['maxrss_mb']:.0f} MB (goal < 300 MB: {ok})")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         cmd = ["plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--no-visibility", "--json", f"{tmp}/p"]
@@ -86,8 +86,10 @@ def main() -> None:
         wall = time.perf_counter() - t0
         with open(f"{tmp}/p") as fh:
             rho = json.load(fh)["rho0_mm"]
+    ok = check("plan 6 x 3 no visibility rho0 <= 2.40 um, < 10 s", f"{1e3 * rho:.3f} um, {wall:.1f} s",
+               rho <= 2.4e-3 and wall < 10)
     print(f"whole process `trackcal plan --cell kr270 --configs 6 --repeat 3 --no-visibility`: {wall:.1f} s, rho0 "
-          f"{1e3 * rho:.3f} um (goal <= 2.40 um in < 10 s: {goal(rho <= 2.4e-3 and wall < 10)})")
+          f"{1e3 * rho:.3f} um (goal <= 2.40 um in < 10 s: {ok})")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goals import check
 from calib.table import read_table
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
@@ -57,13 +58,16 @@ def main() -> None:
                 t0 = time.process_time()
                 reader(small)
                 times.append(time.process_time() - t0)
+        t_new = float(np.median(new))
+        ok = check("read 100k table rows < 0.3 s CPU", f"{t_new:.3f} s", t_new < 0.3)
         print(f"read 100k rows ({small.stat().st_size / 1e6:.0f} MB): {np.median(new):.3f} s CPU, per-cell baseline "
-              f"{np.median(old):.3f} s: {np.median(old) / np.median(new):.1f}x (goal: under 0.3 s)")  # fmt: skip
+              f"{np.median(old):.3f} s: {np.median(old) / np.median(new):.1f}x (goal under 0.3 s: {ok})")  # fmt: skip
         write_rows(large, 1_000_000)
         out = subprocess.run([sys.executable, "-c", CHILD, str(large)], capture_output=True, text=True, check=True)
         n, base, peak = map(int, out.stdout.split())
         print(f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak / 1024:.0f} MB, "
-              f"{(peak - base) / 1024:.0f} MB above the imports (goal: under 1 GB)")
+              f"{(peak - base) / 1024:.0f} MB above the imports (goal under 1 GB: "
+              f"{check('read 1M table rows < 1 GB', f'{peak / 1024:.0f} MB', peak < 1024**2)})")
 
 
 if __name__ == "__main__":

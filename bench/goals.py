@@ -1,0 +1,19 @@
+"""The goals the benchmarks check (issues 13 and 16), each printed where it is measured and again, all together,
+at the end of `python -m bench` (make bench)."""
+
+from __future__ import annotations
+
+RESULTS: list[tuple[str, str, bool]] = []
+
+
+def check(goal: str, measured: str, ok: bool) -> str:
+    """Record one goal with what was measured against it; "met" or "NOT met" for the caller's line."""
+    RESULTS.append((goal, measured, ok))
+    return "met" if ok else "NOT met"
+
+
+def summary() -> str:
+    width = max((len(g) for g, _, _ in RESULTS), default=0)
+    lines = [f"{'met    ' if ok else 'NOT met'}  {goal:{width}s}  {measured}" for goal, measured, ok in RESULTS]
+    met = sum(ok for _, _, ok in RESULTS)
+    return "\n".join([f"== goals: {met} of {len(RESULTS)} met", *lines])
