@@ -43,6 +43,7 @@ from campaign.importers.ipa_ur10 import ANGLES, JOINTS, POINT, read_columns, rea
 from campaign.report.diagnosis_plots import error_map_curves
 
 from .error_map_check import STATION_ONLY, MapCheck, error_map_check, on_other_series
+from .orientation import orientation_check
 
 # The data set lives next to the repository (../shared/data); TRACKCAL_IPA_DATA points elsewhere.
 DATA = Path(os.environ.get("TRACKCAL_IPA_DATA")
@@ -123,6 +124,7 @@ class Study:
     temperature: dict = field(default_factory=dict)
     diagnosis_d: Identification | None = None  # diagnose's chosen model on D, D's station alone re-estimated
     error_map: MapCheck | None = None
+    orientation: dict = field(default_factory=dict)  # model -> RMS angular residual (mrad), see .orientation
 
 
 def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> dict:
@@ -175,14 +177,18 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
     # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
     chosen = diag.extended if diag.extended is not None and diag.shift is None else diag.geometric
     diagnosis_d = on_other_series(chain, chosen, d)
+    nominal_b, after_d = identify(chain, b, tmac, [], fixed=STATION_ONLY), on_other_series(chain, fit_b, d)
+    nominal_d = on_other_series(chain, nominal_b, d)
+    m = error_map_check(chain, b, d, tmac, params, params_d)
+    series = {"nominal": (nominal_b, nominal_d), "geometric": (fit_b, after_d), "map": (m.fit_b.identification,
+                                                                                       m.after_d)}  # fmt: skip
     return Study(
         cell=cell, params=params, dropped=dropped, b=b, d=d, conv=conventions(data, chain, tmac[POINT]),
-        fit_b=fit_b, nominal_b=identify(chain, b, tmac, [], fixed=STATION_ONLY),
-        nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=identify(chain, d, tmac, [], fixed=STATION_ONLY),
-        after_d=on_other_series(chain, fit_b, d), fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
+        fit_b=fit_b, nominal_b=nominal_b, nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=nominal_d,
+        after_d=after_d, fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
         virtual=virt, correlation=float(np.median(rho)), diagnosis=diag, candidates=checks,
-        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d,
-        error_map=error_map_check(chain, b, d, tmac, params, params_d),
+        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d, error_map=m,
+        orientation=orientation_check(series, b, d, m.holdout_fits, *m.holdout_tables),
     )  # fmt: skip
 
 
@@ -340,7 +346,16 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
                        [[NAMES[a["joint"] - 1], f"{a['overlap_deg']:.0f}",
                          "-" if a["correlation"] is None else f"{a['correlation']:.2f}"]
                         for a in m.agreement])  # fmt: skip
+    orient = study.orientation
+    orientation = _table(["model", "B held out", "D, mount from B", "D, mount from D"],
+                         [[label, *(f"{orient[k][c]:.2f}" for c in ("b_held", "d", "d_own_mount"))]
+                          for k, label in (("nominal", "nominal robot"), ("geometric", "geometric (DH) calibration"),
+                                           ("map", "geometric + gravity compliance + joint error map"))])  # fmt: skip
     return {
+        "orientation_table": orientation, "mount_shift": f"{orient['map']['mount_shift']:.2f}",
+        "or_d_geometric": f"{orient['geometric']['d']:.2f}", "or_d_map": f"{orient['map']['d']:.2f}",
+        "or_d_own_geometric": f"{orient['geometric']['d_own_mount']:.2f}",
+        "or_d_own_map": f"{orient['map']['d_own_mount']:.2f}",
         "citation": CITATION, "b_poses": str(len(study.b)), "d_poses": str(len(study.d)),
         "d_nominal": mm(d_nom), "d_geometric": mm(d_geo), "d_compliance": mm(rms3(m.compliance_d.residuals)),
         "d_map": mm(rms3(m.after_d.residuals)), "verdict": dg.cause,
