@@ -174,8 +174,9 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
             check.d_rms3_mm = rms3(on_other_series(chain, cf.result, d).residuals)
         checks.append(check)
     checks.sort(key=lambda c: (c.cv_rms3_mm is None, c.cv_rms3_mm or 0.0))
-    # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
-    chosen = diag.extended if diag.extended is not None and diag.shift is None else diag.geometric
+    # diagnose's chosen model on D (the geometric one when it names no cause); a station shift within B moves only
+    # B's station, and D's station is re-estimated anyway: the robot-side causes carry over
+    chosen = diag.extended if diag.extended is not None else diag.geometric
     diagnosis_d = on_other_series(chain, chosen, d)
     nominal_b, after_d = identify(chain, b, tmac, [], fixed=STATION_ONLY), on_other_series(chain, fit_b, d)
     nominal_d = on_other_series(chain, nominal_b, d)
@@ -359,6 +360,7 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
         "citation": CITATION, "b_poses": str(len(study.b)), "d_poses": str(len(study.d)),
         "d_nominal": mm(d_nom), "d_geometric": mm(d_geo), "d_compliance": mm(rms3(m.compliance_d.residuals)),
         "d_map": mm(rms3(m.after_d.residuals)), "verdict": dg.cause,
+        "diagnose_causes": " + ".join(c["cause"] for c in dg.causes) or "none",
         "d_diagnose": mm(rms3(study.diagnosis_d.residuals)),
         "holdout_poses": str(m.holdout_b["poses"]), "holdout_geometric": mm(m.holdout_b["geometric_mm"]),
         "holdout_map": mm(m.holdout_b["map_mm"]),
