@@ -129,17 +129,23 @@ class Study:
 
 def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> dict:
     """Does the temperature column explain the residuals?  Correlations of the base-frame residuals with it,
-    and the thermal growth of the arm driven by the measured temperature (1 parameter, ppm/K) fitted jointly."""
+    and the thermal growth of every length driven by the measured temperature (1 parameter, ppm/K) fitted jointly,
+    about the first joint (the base column fixed) or the base origin (the whole robot), the lower residual
+    chosen (as calib.extensions.THERMAL_FORMS)."""
     temp = np.array(table.extra["temp_c"], dtype=float)
     rb = base_frame(fit)
     corr = {f"{a}": float(np.corrcoef(temp, rb[:, i])[0, 1]) for i, a in enumerate("xyz")}
     corr["norm"] = float(np.corrcoef(temp, np.linalg.norm(rb, axis=1))[0, 1])
-    ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
-                    pivot=chain.base[:3, 3].copy())
-    res = identify(chain, table, fit.points, fit.params, extension=ext)
+    fits = {}
+    for form, pivot in (("base column fixed", chain.base[:3, 3].copy()), ("whole robot", np.zeros(3))):
+        ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
+                        pivot=pivot)  # fmt: skip
+        fits[form] = identify(chain, table, fit.points, fit.params, extension=ext)
+    form = min(fits, key=lambda f: rms3(fits[f].residuals))
+    res = fits[form]
     return {"range_c": (float(temp.min()), float(temp.max())), "levels": int(len(np.unique(temp))),
             "corr": corr, "alpha_ppm_k": float(res.ext[0] * 1e6), "alpha_ci95": float(res.ext_ci95()[0] * 1e6),
-            "rms3_with": rms3(res.residuals), "rms3_without": rms3(fit.residuals)}  # fmt: skip
+            "form": form, "rms3_with": rms3(res.residuals), "rms3_without": rms3(fit.residuals)}  # fmt: skip
 
 
 def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[float, ...] = (50.0, 200.0)) -> Study:
@@ -400,7 +406,7 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
         "d_cv": mm(s3 * fit_d.cv_rms_mm), "arc_table": arcs, "agreement_table": agreement,
         "temp_b_span": f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f}",
         "temp_corr": ", ".join(f"{k} {v:+.2f}" for k, v in tmp["corr"].items()),
-        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}",
+        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}", "temp_form": tmp["form"],
         "temp_without": f"{tmp['rms3_without']:.4f}", "temp_with": f"{tmp['rms3_with']:.4f}",
         "plots": "\n".join(f"![{p.stem}]({r})" for p, r in zip(images, rel, strict=True)),
     }  # fmt: skip
