@@ -8,6 +8,13 @@ noise" means a residual structure of twice the tracker noise, whatever the effec
 
 Joint effects act on the angle the joint really has: q_true = q_read + dq(q_read, approach, ...). The
 controller reports q_read (its encoders), which is what the measurement table holds.
+
+Thermal growth is a uniform linear expansion of the whole robot: every length (base column, links, tool
+offsets) grows by the factor 1 + rate t. A rigid chain whose translations all scale by one factor scales every
+point of it about the chain's first frame, so the reflector moves to pivot + (1 + rate t) (p - pivot), the pivot
+(THERMAL_PIVOTS) a parameter of the effect: `base`, the robot bolted to its mount grows as a whole away from the
+base frame's origin; `first_joint`, the base column keeps its length (a massive casting that lags behind the
+warming motors, or a temperature-controlled pedestal) and the arm grows about the first joint's frame.
 """
 
 from __future__ import annotations
@@ -21,6 +28,13 @@ from calib.extensions import CAUSES
 from calib.pinmodel import gravity_torques
 from calib.rigid import exp_so3
 
+THERMAL_PIVOTS = ("base", "first_joint")
+# Linear expansion coefficients near 20 degC (CRC Handbook of Chemistry and Physics, "Thermal Expansion of
+# Solids"): iron 11.8e-6 /K (structural steels 11-13e-6), aluminium 23.1e-6 /K. A steel robot warming
+# 1 K per hour after power-on grows 11.8 ppm/h: the shape of the twin's growth before it is scaled.
+STEEL_PER_K = 11.8e-6
+WARMUP_K_PER_S = 1.0 / 3600.0
+
 
 @dataclass
 class Effects:
@@ -31,7 +45,8 @@ class Effects:
     backlash: np.ndarray | None = None  # (n,) rad, full width
     encoder_scale: np.ndarray | None = None  # (n,)
     cyclic: list[tuple[int, int, float, float]] = field(default_factory=list)  # (joint, harmonic, rad, phase)
-    thermal_per_s: float = 0.0  # arm growth rate
+    thermal_per_s: float = 0.0  # growth rate of every length
+    thermal_pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
     shift: tuple[str, float, np.ndarray, np.ndarray] | None = None  # (station, after t_s, rotation, translation)
 
     def joint_errors(self, q: np.ndarray, approach: np.ndarray) -> np.ndarray:
@@ -46,6 +61,10 @@ class Effects:
         for j, h, amp, phase in self.cyclic:
             dq[:, j] += amp * np.sin(h * q[:, j] + phase)
         return dq
+
+    def grown(self, p: np.ndarray, t_s: float) -> np.ndarray:
+        """Points p (..., 3) of the rigid robot (base frame, mm) after t_s of uniform thermal growth."""
+        return self.thermal_pivot + (1.0 + self.thermal_per_s * t_s) * (p - self.thermal_pivot)
 
     def scaled(self, factor: float) -> Effects:
         def mul(v):
@@ -68,8 +87,10 @@ class Effects:
         return exp_so3(self.shift[2]), self.shift[3]
 
 
-def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: list[str], t_mid: float) -> Effects:
-    """The shape of each effect at an arbitrary scale (then scaled to the requested magnitude)."""
+def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: list[str], t_mid: float,
+                thermal_pivot: str = "base") -> Effects:  # fmt: skip
+    """The shape of each effect at an arbitrary scale (then scaled to the requested magnitude); `thermal_pivot`
+    (THERMAL_PIVOTS) is the point thermal growth keeps fixed."""
     n = chain.dof
     if name == "joint_compliance":
         # the true masses differ from the config's rough model by ~15 %; wrist joints are softer
@@ -86,7 +107,10 @@ def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: lis
     if name == "cyclic_error":
         return Effects(cyclic=[(j, 2, np.radians(0.001), rng.uniform(0, 2 * np.pi)) for j in range(1, min(n, 3))])
     if name == "thermal_drift":
-        return Effects(thermal_per_s=1e-9)
+        if thermal_pivot not in THERMAL_PIVOTS:
+            raise ValueError(f"unknown thermal pivot {thermal_pivot!r}; choose from {', '.join(THERMAL_PIVOTS)}")
+        pivot = np.zeros(3) if thermal_pivot == "base" else np.array(chain.base[:3, 3], dtype=float)
+        return Effects(thermal_per_s=STEEL_PER_K * WARMUP_K_PER_S, thermal_pivot=pivot)
     if name == "station_shift":
         return Effects(shift=(stations[0], t_mid, rng.normal(0, 1e-5, 3), rng.normal(0, 0.1, 3)))
     raise ValueError(f"unknown effect {name!r}; choose from {', '.join(CAUSES)}")

@@ -8,7 +8,7 @@ the step), so a campaign resumed after a crash sees exactly the numbers an unint
 
 The twin is a small stateful world: `move_to` tells it where the robot was commanded (the direction each
 joint last moved in matters for backlash), `measure` takes the time since the campaign start (thermal
-drift, station shift).
+drift: every length grows, tool included, about the pivot `thermal_pivot`; station shift).
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ class Twin:
     point_offset_mm: float = 0.5  # std of the true points around the tool drawing
     station_error_mm: float = 20.0  # std of the true station positions around the cell's nominal ones
     effects: dict[str, float] = field(default_factory=dict)  # hidden effect -> magnitude (mm, see effects.py)
+    thermal_pivot: str = "base"  # what thermal growth keeps fixed (effects.THERMAL_PIVOTS)
 
     def __post_init__(self) -> None:
         chain = self.cell.chain
@@ -95,10 +96,7 @@ class Twin:
         q = np.radians(np.atleast_2d(np.asarray(q_deg, dtype=float)))
         q_true = q + self.hidden.joint_errors(q, self.approach[None])
         r, o = self.kin.end_frames(q_true, self.true_dev)
-        if self.hidden.thermal_per_s:
-            o0 = self.cell.chain.base[:3, 3]
-            o = o0 + (1.0 + self.hidden.thermal_per_s * t_s) * (o - o0)
-        return o[0] + r[0] @ self.true_points[point]
+        return self.hidden.grown(o[0] + r[0] @ self.true_points[point], t_s)
 
     def exact(self, q_deg: np.ndarray, point: str, station: str, t_s: float = 0.0) -> np.ndarray:
         """Noise-free reflector position in the station frame (robot state as set by `move_to`)."""
@@ -140,7 +138,7 @@ class Twin:
         base = simulate_campaign(self, poses, noise_free=True)
         first = sorted(self.true_stations)[0]  # a station shift happens halfway through this station's block
         t_mid = float(np.median(base.t_s[np.array(base.station) == first]))
-        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid)
+        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid, self.thermal_pivot)
         self.hidden = unit
         shifted = self._exact_rows(base)
         self.hidden = saved
@@ -160,5 +158,6 @@ class Twin:
         if scaled.mass_chain is not None:
             merged.mass_chain = scaled.mass_chain
         merged.cyclic += scaled.cyclic
-        merged.thermal_per_s += scaled.thermal_per_s
+        if scaled.thermal_per_s:
+            merged.thermal_per_s, merged.thermal_pivot = scaled.thermal_per_s, scaled.thermal_pivot
         merged.shift = scaled.shift or merged.shift

@@ -29,6 +29,7 @@ from campaign.importers.ipa_ur10 import (
     virtual_offsets,
 )
 from studies.ur10_ipa.error_map_check import on_other_series
+from studies.ur10_ipa.orientation import angular_rms_mrad
 from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
 
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="IPA data set not present")
@@ -263,3 +264,19 @@ def test_diagnose_names_the_joint_error_map_on_series_b(series_b):
     # configurations: ~0.02 mm, issue 13): at least half of the geometric model's excess over it
     floor = d.noise_floor_mm
     assert d.holdout_extended_mm - floor < 0.5 * (d.holdout_geometric_mm - floor)
+
+
+@needs_data
+def test_orientation_never_fitted_falls_with_the_joint_error_map_on_d(series_b, series_d):
+    """issue 13: with the joint error map, the T-Mac's orientation residuals fall too, although no model uses them
+    (studies/ur10_ipa/orientation.py: the station from D's positions, only the probe's mount from B's orientations)."""
+    cell = load_cell("ur10-ipa")
+    tmac = {POINT: cell.tool_points[POINT]}
+    irr, _ = irreducible_params(cell.chain)
+    params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+    geometric = identify(cell.chain, series_b, tmac, params)
+    compliance = build_extension("joint_compliance", cell.chain, series_b)
+    mapped = fit_error_map(cell.chain, series_b, tmac, params, base=compliance).identification
+    rms = {name: angular_rms_mrad(fit, series_b, on_other_series(cell.chain, fit, series_d), series_d)
+           for name, fit in (("geometric", geometric), ("map", mapped))}  # fmt: skip
+    assert rms["map"] < rms["geometric"]

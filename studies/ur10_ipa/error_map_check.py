@@ -3,7 +3,8 @@
 The chosen model is the geometric one plus gravity compliance (unpenalised) plus the joint error map
 (`calib.error_map.fit_error_map`: order and ridge by cross-validation by pose on the fitted series only).
 B -> D: the model fitted on all of B predicts D with only D's station re-estimated. B held out: a random fifth
-of B's poses, the order and ridge chosen on the other four fifths. Agreement: where both series measured a
+of B's poses, the order and ridge chosen on the other four fifths (the nominal, geometric and map models fitted
+on those four fifths are kept, for the orientation check). Agreement: where both series measured a
 joint (within 1 deg of a measured angle of each), the correlation of the two fitted curves.
 """
 
@@ -34,6 +35,8 @@ class MapCheck:
     fit_seconds: float  # wall time of fit_b: one map fit with its order and ridge search
     holdout_b: dict = field(default_factory=dict)  # random fifth of B's poses held out
     agreement: list[dict] = field(default_factory=list)  # per joint both series map
+    holdout_tables: tuple[MeasurementTable, MeasurementTable] | None = None  # (training four fifths, held fifth)
+    holdout_fits: dict[str, Identification] = field(default_factory=dict)  # nominal, geometric, map on the training
 
 
 def on_other_series(chain: Chain, fit: Identification, table: MeasurementTable) -> Identification:
@@ -80,6 +83,7 @@ def error_map_check(chain: Chain, b: MeasurementTable, d: MeasurementTable, tool
     held = set(np.random.default_rng(seed).choice(poses, len(poses) // 5, replace=False))
     test = np.array([p in held for p in b.pose])
     train, hold = b.subset(np.flatnonzero(~test)), b.subset(np.flatnonzero(test))
+    nominal = identify(chain, train, tool, [], fixed=STATION_ONLY)
     geo = identify(chain, train, tool, params_b)
     fit = fit_error_map(chain, train, tool, params_b, base=build_extension("joint_compliance", chain, train))
 
@@ -92,4 +96,5 @@ def error_map_check(chain: Chain, b: MeasurementTable, d: MeasurementTable, tool
                "outside_rows": int(outside_arcs(np.radians(hold.q_deg), fit.arcs).any(axis=1).sum()),
                "order": max(fit.orders.values()), "tau_deg": float(np.degrees(fit.tau_rad))}  # fmt: skip
     return MapCheck(fit_b, fit_d, on_other_series(chain, fit_b.identification, d), on_other_series(chain, comp_b, d),
-                    seconds, holdout, curve_agreement(fit_b, fit_d, b, d))  # fmt: skip
+                    seconds, holdout, curve_agreement(fit_b, fit_d, b, d), (train, hold),
+                    {"nominal": nominal, "geometric": geo, "map": fit.identification})  # fmt: skip

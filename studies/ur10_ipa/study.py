@@ -43,6 +43,7 @@ from campaign.importers.ipa_ur10 import ANGLES, JOINTS, POINT, read_columns, rea
 from campaign.report.diagnosis_plots import error_map_curves
 
 from .error_map_check import STATION_ONLY, MapCheck, error_map_check, on_other_series
+from .orientation import orientation_check
 
 # The data set lives next to the repository (../shared/data); TRACKCAL_IPA_DATA points elsewhere.
 DATA = Path(os.environ.get("TRACKCAL_IPA_DATA")
@@ -123,21 +124,28 @@ class Study:
     temperature: dict = field(default_factory=dict)
     diagnosis_d: Identification | None = None  # diagnose's chosen model on D, D's station alone re-estimated
     error_map: MapCheck | None = None
+    orientation: dict = field(default_factory=dict)  # model -> RMS angular residual (mrad), see .orientation
 
 
 def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> dict:
     """Does the temperature column explain the residuals?  Correlations of the base-frame residuals with it,
-    and the thermal growth of the arm driven by the measured temperature (1 parameter, ppm/K) fitted jointly."""
+    and the thermal growth of every length driven by the measured temperature (1 parameter, ppm/K) fitted jointly,
+    about the first joint (the base column fixed) or the base origin (the whole robot), the lower residual
+    chosen (as calib.extensions.THERMAL_FORMS)."""
     temp = np.array(table.extra["temp_c"], dtype=float)
     rb = base_frame(fit)
     corr = {f"{a}": float(np.corrcoef(temp, rb[:, i])[0, 1]) for i, a in enumerate("xyz")}
     corr["norm"] = float(np.corrcoef(temp, np.linalg.norm(rb, axis=1))[0, 1])
-    ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
-                    pivot=chain.base[:3, 3].copy())
-    res = identify(chain, table, fit.points, fit.params, extension=ext)
+    fits = {}
+    for form, pivot in (("base column fixed", chain.base[:3, 3].copy()), ("whole robot", np.zeros(3))):
+        ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
+                        pivot=pivot)  # fmt: skip
+        fits[form] = identify(chain, table, fit.points, fit.params, extension=ext)
+    form = min(fits, key=lambda f: rms3(fits[f].residuals))
+    res = fits[form]
     return {"range_c": (float(temp.min()), float(temp.max())), "levels": int(len(np.unique(temp))),
             "corr": corr, "alpha_ppm_k": float(res.ext[0] * 1e6), "alpha_ci95": float(res.ext_ci95()[0] * 1e6),
-            "rms3_with": rms3(res.residuals), "rms3_without": rms3(fit.residuals)}  # fmt: skip
+            "form": form, "rms3_with": rms3(res.residuals), "rms3_without": rms3(fit.residuals)}  # fmt: skip
 
 
 def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[float, ...] = (50.0, 200.0)) -> Study:
@@ -172,17 +180,22 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
             check.d_rms3_mm = rms3(on_other_series(chain, cf.result, d).residuals)
         checks.append(check)
     checks.sort(key=lambda c: (c.cv_rms3_mm is None, c.cv_rms3_mm or 0.0))
-    # diagnose's chosen model on D (the geometric one when it names no cause, or a tracker-side one)
-    chosen = diag.extended if diag.extended is not None and diag.shift is None else diag.geometric
+    # diagnose's chosen model on D (the geometric one when it names no cause); a station shift within B moves only
+    # B's station, and D's station is re-estimated anyway: the robot-side causes carry over
+    chosen = diag.extended if diag.extended is not None else diag.geometric
     diagnosis_d = on_other_series(chain, chosen, d)
+    nominal_b, after_d = identify(chain, b, tmac, [], fixed=STATION_ONLY), on_other_series(chain, fit_b, d)
+    nominal_d = on_other_series(chain, nominal_b, d)
+    m = error_map_check(chain, b, d, tmac, params, params_d)
+    series = {"nominal": (nominal_b, nominal_d), "geometric": (fit_b, after_d), "map": (m.fit_b.identification,
+                                                                                       m.after_d)}  # fmt: skip
     return Study(
         cell=cell, params=params, dropped=dropped, b=b, d=d, conv=conventions(data, chain, tmac[POINT]),
-        fit_b=fit_b, nominal_b=identify(chain, b, tmac, [], fixed=STATION_ONLY),
-        nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=identify(chain, d, tmac, [], fixed=STATION_ONLY),
-        after_d=on_other_series(chain, fit_b, d), fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
+        fit_b=fit_b, nominal_b=nominal_b, nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=nominal_d,
+        after_d=after_d, fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
         virtual=virt, correlation=float(np.median(rho)), diagnosis=diag, candidates=checks,
-        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d,
-        error_map=error_map_check(chain, b, d, tmac, params, params_d),
+        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d, error_map=m,
+        orientation=orientation_check(series, b, d, m.holdout_fits, *m.holdout_tables),
     )  # fmt: skip
 
 
@@ -340,10 +353,20 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
                        [[NAMES[a["joint"] - 1], f"{a['overlap_deg']:.0f}",
                          "-" if a["correlation"] is None else f"{a['correlation']:.2f}"]
                         for a in m.agreement])  # fmt: skip
+    orient = study.orientation
+    orientation = _table(["model", "B held out", "D, mount from B", "D, mount from D"],
+                         [[label, *(f"{orient[k][c]:.2f}" for c in ("b_held", "d", "d_own_mount"))]
+                          for k, label in (("nominal", "nominal robot"), ("geometric", "geometric (DH) calibration"),
+                                           ("map", "geometric + gravity compliance + joint error map"))])  # fmt: skip
     return {
+        "orientation_table": orientation, "mount_shift": f"{orient['map']['mount_shift']:.2f}",
+        "or_d_geometric": f"{orient['geometric']['d']:.2f}", "or_d_map": f"{orient['map']['d']:.2f}",
+        "or_d_own_geometric": f"{orient['geometric']['d_own_mount']:.2f}",
+        "or_d_own_map": f"{orient['map']['d_own_mount']:.2f}",
         "citation": CITATION, "b_poses": str(len(study.b)), "d_poses": str(len(study.d)),
         "d_nominal": mm(d_nom), "d_geometric": mm(d_geo), "d_compliance": mm(rms3(m.compliance_d.residuals)),
         "d_map": mm(rms3(m.after_d.residuals)), "verdict": dg.cause,
+        "diagnose_causes": " + ".join(c["cause"] for c in dg.causes) or "none",
         "d_diagnose": mm(rms3(study.diagnosis_d.residuals)),
         "holdout_poses": str(m.holdout_b["poses"]), "holdout_geometric": mm(m.holdout_b["geometric_mm"]),
         "holdout_map": mm(m.holdout_b["map_mm"]),
@@ -383,7 +406,7 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
         "d_cv": mm(s3 * fit_d.cv_rms_mm), "arc_table": arcs, "agreement_table": agreement,
         "temp_b_span": f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f}",
         "temp_corr": ", ".join(f"{k} {v:+.2f}" for k, v in tmp["corr"].items()),
-        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}",
+        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}", "temp_form": tmp["form"],
         "temp_without": f"{tmp['rms3_without']:.4f}", "temp_with": f"{tmp['rms3_with']:.4f}",
         "plots": "\n".join(f"![{p.stem}]({r})" for p, r in zip(images, rel, strict=True)),
     }  # fmt: skip
