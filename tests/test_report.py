@@ -199,6 +199,26 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(campaign, tmp_path, capsys
     assert not Path(tmp_path / "o" / "report.html").exists()
 
 
+@pytest.mark.parametrize(("change", "message"), [
+    ({"cause": False}, "cause: expected a name, got False"),  # found by test_cli_fuzz: it crashed the report
+    ({"cause": "bumped"}, "cause: expected one of"),
+    ({"cause": "backlash", "extended": {}}, "cause backlash without extended.rms_mm"),
+    ({"causes": [{"cause": "backlash", "gain_mm": "x"}]}, "causes[0].gain_mm: expected a number"),
+    ({"candidates": [{"cause": "backlash", "n_params": 2.5}]}, "candidates[0].n_params: expected an integer"),
+    ({"noise_note": ["a"]}, "noise_note: expected a name"),
+])
+def test_a_verdict_the_report_cannot_quote_is_refused_in_one_line(campaign, tmp_path, capsys, change, message):
+    d, *_, verdict = campaign
+    bad = tmp_path / "verdict.json"
+    bad.write_text(json.dumps({**verdict, **change}))
+    argv = ["report", "--table", str(d / "table.csv"), "--model", str(d / "model.json"), "--verdict", str(bad),
+            "--out", str(tmp_path / "o")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
+    assert not (tmp_path / "o" / "report.html").exists()
+
+
 def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
     d, table, outcome, plan, _ = campaign
     diag = diagnose(kr270.chain, table, kr270.tool_points, choose_params(kr270, None), TrackerNoise(), folds=3)

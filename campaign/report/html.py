@@ -238,6 +238,10 @@ def img_html(name: str, alt: str) -> str:
     return f'<p><img src="{esc(name)}" alt="{esc(alt)}"></p>'
 
 
+def pvalue_text(p) -> str:
+    return "-" if p is None else f"{float(p):.2g}"
+
+
 def fmt(v, digits: int = 4) -> str:
     if v is None:
         return "-"
@@ -351,7 +355,7 @@ def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
         rows = []
         for c in verdict_doc.get("candidates", []):
             rows.append([c.get("cause", "?"), str(c.get("n_params", "-")), micro(c.get("holdout_rms_mm")),
-                         micro(c.get("rms_mm")), f"{float(c.get('f_pvalue', np.nan)):.2g}",
+                         micro(c.get("rms_mm")), pvalue_text(c.get("f_pvalue")),
                          fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no"])  # fmt: skip
         if rows:
             parts.append(table_html(["candidate", "params", "held-out RMS (µm)", "fit RMS (µm)", "F-test p", "dBIC",

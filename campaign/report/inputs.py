@@ -12,6 +12,7 @@ import numpy as np
 
 from calib import fields
 from calib.cell import Cell, load_cell
+from calib.extensions import CAUSES
 from calib.files import read_json
 from calib.model import load_model
 from calib.table import MeasurementTable, read_table
@@ -56,19 +57,47 @@ def read_plan(path: str | None, dof: int) -> dict | None:
     return doc
 
 
+VERDICT_NAMES = (*CAUSES, "none", "unexplained")
+
+
+def _cause(value, where: str) -> str:
+    name = fields.text(value, where, InputError)
+    if name not in VERDICT_NAMES:
+        raise InputError(f"{where}: expected one of {', '.join(VERDICT_NAMES)}, got {name!r}")
+    return name
+
+
 def read_verdict(path: str | None) -> dict | None:
-    """verdict.json with the fields the report shows, each of the right type."""
+    """verdict.json with the fields the report shows, each of the right type; a cause names the numbers the
+    report's sentence quotes (the geometric RMS, and the extended one for a named cause)."""
     if path is None:
         return None
     doc = read_json(path, InputError)
     _numbers(doc, ("noise_floor_mm",), f"{path}: ")
+    for key in ("noise_note", "noise_floor_source"):
+        if doc.get(key) is not None:
+            fields.text(doc[key], f"{path}: {key}", InputError)
     for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)), ("test_pose", ("tcp_difference_mm",)),
                        ("holdout", ("rms_geometric_mm", "rms_extended_mm"))):  # fmt: skip
         _numbers(fields.mapping(doc.get(part, {}), f"{path}: {part}", InputError), keys, f"{path}: {part}.")
-    for k, c in enumerate(fields.sequence(doc.get("candidates", []), f"{path}: candidates", InputError)):
-        where = f"{path}: candidates[{k}]"
-        keys = ("holdout_rms_mm", "rms_mm", "f_pvalue", "delta_bic")
-        _numbers(fields.mapping(c, where, InputError), keys, f"{where}.")
+    if doc.get("holdout", {}).get("note") is not None:
+        fields.text(doc["holdout"]["note"], f"{path}: holdout.note", InputError)
+    cause = doc.get("cause")
+    if cause is not None:
+        _cause(cause, f"{path}: cause")
+        needs = () if cause == "none" else ("geometric",) if cause == "unexplained" else ("geometric", "extended")
+        for part in needs:
+            if doc.get(part, {}).get("rms_mm") is None:
+                raise InputError(f"{path}: cause {cause} without {part}.rms_mm")
+    lists = (("causes", ("gain_mm",)), ("candidates", ("holdout_rms_mm", "rms_mm", "f_pvalue", "delta_bic")))
+    for key, numbers in lists:
+        for k, c in enumerate(fields.sequence(doc.get(key, []), f"{path}: {key}", InputError)):
+            where = f"{path}: {key}[{k}]"
+            _numbers(fields.mapping(c, where, InputError), numbers, f"{where}.")
+            if c.get("cause") is not None:
+                _cause(c["cause"], f"{where}.cause")
+            if c.get("n_params") is not None:
+                fields.integer(c["n_params"], f"{where}.n_params", InputError)
     return doc
 
 
