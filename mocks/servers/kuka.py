@@ -180,7 +180,7 @@ class MockKrc2:
         self._delivered = delivered  # lockstep with a client on the same virtual clock (see the module docstring)
         self.skip_idle = bool(skip_idle)
         self._tick = 0  # index of the next cycle; its frame carries IPOC _ipoc0 + _ipoc_step * _tick
-        self._t_tick = clock.now()  # virtual time the next cycle is due (lockstep)
+        self._t0 = clock.now()  # lockstep: cycle n is due at _t0 + n * cycle_s (from the integer, never summed)
         self._syncs: list[list] = []  # [cycles still to run, threading.Event, answer list] (lockstep)
         self._ipoc_sent: int | None = None  # IPOC of the last frame sent, and of the last known received
         self._ipoc_received: int | None = None
@@ -371,7 +371,7 @@ class MockKrc2:
             return
         self._poll_eki(0.0 if self._rsi is not None else self.cycle_s)
         if self._delivered is not None:  # the cycle's time: advance the clock to it unless it is already there
-            self.clock.sleep(self._t_tick - self.clock.now())
+            self.clock.sleep(self._t0 + self._tick * self.cycle_s - self.clock.now())
         self._step()
         q = self.joints_deg
         if self.on_joints is not None and q != self._last_reported:
@@ -380,7 +380,6 @@ class MockKrc2:
         if self._rsi is not None:
             self._rsi_exchange()
         self._tick += 1
-        self._t_tick += self.cycle_s
         if self._delivered is None:
             self.clock.sleep(self.cycle_s)
             if self.rsi_passive:
@@ -419,19 +418,17 @@ class MockKrc2:
 
     def _follow_clock(self) -> None:
         """The cycles the clock passed while the robot stood: each exchanged, or with skip_idle only the last."""
-        due = math.floor((self.clock.now() - self._t_tick) / self.cycle_s + 1e-9) + 1
+        due = math.floor((self.clock.now() - self._t0) / self.cycle_s + 1e-9) + 1 - self._tick
         if due <= 0:
             return
         if self.skip_idle:
             self.idle_skipped += due - 1
             self._tick += due - 1
-            self._t_tick += (due - 1) * self.cycle_s
             due = 1
         for _ in range(due):
             if self._rsi is not None:
                 self._rsi_exchange()
             self._tick += 1
-            self._t_tick += self.cycle_s
             self.cycles += 1
 
     def _answer_syncs(self, ran_cycle: bool) -> None:
