@@ -76,6 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     root = Path(tempfile.mkdtemp(prefix="bench-sim-", dir=shm))
     times: dict[str, list[tuple[float, float]]] = {m: [] for m in MODES}
     tables: dict[str, bytes] = {}
+    free_t_s_differ = False  # the free-running controller's idle cycles advance the clock at the machine's pace
     try:
         for rep in range(args.repeats):
             for mode, kw in MODES.items():
@@ -83,8 +84,11 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 wall, cpu, table, counts = run(cell, plan, root, f"{len(times[mode])}-{mode[:4]}", **kw)
                 times[mode].append((wall, cpu))
-                if tables.setdefault(mode, table) != table:
-                    raise SystemExit(f"{mode}: two runs exported different tables")
+                first = tables.setdefault(mode, table)
+                if rep and first != table:
+                    if mode != "free (before)" or without_time(first) != without_time(table):
+                        raise SystemExit(f"{mode}: two runs exported different measurements")
+                    free_t_s_differ = True
                 print(f"  {mode:24s} wall {wall:6.1f} s  CPU {cpu:6.1f} s  {counts}", flush=True)
     finally:
         shutil.rmtree(root, ignore_errors=True)
@@ -96,7 +100,8 @@ def main(argv: list[str] | None = None) -> None:
     same_bytes = tables["lockstep, idle skipped"] == tables["lockstep, every cycle"]
     same_values = without_time(tables["lockstep, idle skipped"]) == without_time(tables["free (before)"])
     print(f"exported table, idle skipped vs every cycle exchanged: {'byte-identical' if same_bytes else 'DIFFERENT'}; "
-          f"vs free-running, every column but t_s: {'identical' if same_values else 'DIFFERENT'}")
+          f"vs free-running, every column but t_s: {'identical' if same_values else 'DIFFERENT'}; repeated "
+          f"lockstep runs byte-identical, free-running runs' t_s {'differ' if free_t_s_differ else 'agree'}")
     ratio = skip[0] / free[0]
     verdict = check(f"run --sim {n} measurements in half the time, table unchanged",
                     f"wall {skip[0]:.1f} vs {free[0]:.1f} s ({ratio:.2f}x), CPU {skip[1]:.1f} vs {free[1]:.1f} s, "

@@ -434,20 +434,20 @@ class KukaKrc2:
         deadline = time.monotonic() + self.rsi_stale_s
         lag = self._synced_lag() if self.rsi_sync is not None else None
         with self._cond:
-            while self.rsi_sync is None:
-                self._raise_rsi_error()
-                now = time.monotonic()
-                if self._latest_at is not None and now - self._latest_at <= limit:
-                    return
-                if now >= deadline:
-                    break
-                self._cond.wait(min(deadline - now, limit))
+            self._raise_rsi_error()
             if self.rsi_sync is not None:  # simulation: in controller time
-                self._raise_rsi_error()
                 if lag is not None and lag <= STALE_CYCLES:
                     return
                 age = "ever" if lag is None else f"{lag} cycles"
             else:
+                while True:
+                    self._raise_rsi_error()
+                    now = time.monotonic()
+                    if self._latest_at is not None and now - self._latest_at <= limit:
+                        return
+                    if now >= deadline:
+                        break
+                    self._cond.wait(min(deadline - now, limit))
                 age = "ever" if self._latest_at is None else f"{now - self._latest_at:.3f} s"
             why = []
             if self.rsi_frames_unreadable:

@@ -35,15 +35,15 @@ time between cycles.
 
 Lockstep (`delivered` given: `run --sim`, where trackcal's client runs in the same process on the same virtual
 clock). Cycle n is due at virtual time t0 + n * cycle_s and its frame carries IPOC ipoc0 + n * cycle in ms (the
-IPOC counts milliseconds of controller time: kuka_rsi_simulator adds the cycle time in ms to it every cycle,
-ros-industrial/kuka_experimental kuka_rsi_simulator/scripts/kuka_rsi_simulator). Each frame is received by the
-client before the next is sent (no wall pacing, no datagram lost). While the robot moves (or brakes, dwells,
-oscillates) the controller runs every cycle and advances the clock to it, as before. While it stands still with
-nothing queued it does not advance the clock: it follows it. Cycles the clock passes (the tracker measuring, the
-operator walking) are all exchanged, or with skip_idle (the default) skipped: the next frame sent carries the
-IPOC of its own cycle, so the client sees controller time jump, and a standing robot's frames carry nothing
-else that changes. The client asks for what it reads while the robot stands (`sync`: the current frame, or n
-more cycles for its settling window); whoever waits for time advances it, so the clock, and with it every
+IPOC counts milliseconds of controller time: kuka_rsi_simulator adds the cycle time in ms to it every cycle, ros-
+industrial/kuka_experimental kuka_rsi_simulator/scripts/kuka_rsi_simulator). The controller runs at most
+LOCKSTEP_AHEAD frames ahead of what the client received (no wall pacing, no datagram lost). While the robot moves
+(or brakes, dwells, oscillates) the controller runs every cycle and advances the clock to it, as before. While it
+stands still with nothing queued it does not advance the clock: it follows it. Cycles the clock passes (the tracker
+measuring, the operator walking) are all exchanged, or with skip_idle (the default) skipped: the next frame sent
+carries the IPOC of its own cycle, so the client sees controller time jump, and a standing robot's frames carry
+nothing else that changes. The client asks for what it reads while the robot stands (`sync`: the current frame, or
+n more cycles for its settling window); whoever waits for time advances it, so the clock, and with it every
 timestamp of the session, is a pure function of the commands, the same with and without skipping. EKI requests,
 injected faults and stops are served at once in both modes (the controller wakes on them).
 
@@ -219,8 +219,8 @@ class MockKrc2:
 
         # observable state for tests
         self.cycles = 0
-        self.frames_sent = 0
-        self.idle_skipped = 0
+        self.frames_sent = 0  # RSI frames sent
+        self.idle_skipped = 0  # lockstep with skip_idle: cycles the robot stood through, not exchanged
         self.late_packets = 0
         self.consecutive_late = 0
         self.rsi_stopped = False
@@ -291,14 +291,15 @@ class MockKrc2:
     def sync(self, cycles: int = 0) -> int | None:
         """Lockstep only (the client's rsi_sync hook): send the frames due on the clock (every one, or with
         skip_idle the current one), then run `cycles` more cycles; returns the IPOC of the last frame sent once
-        the client received it, None if the controller did not answer within LOCKSTEP_TIMEOUT_S."""
+        the client received it, None if the controller did not answer within LOCKSTEP_TIMEOUT_S (plus the real
+        time the cycles take when the clock is paced, --sim-speed)."""
         if self._delivered is None:
             raise RuntimeError("sync needs a lockstep controller (delivered given)")
         request: list = [int(cycles), threading.Event(), []]
         with self._lock:
             self._syncs.append(request)
         self._wake()
-        if not request[1].wait(LOCKSTEP_TIMEOUT_S):
+        if not request[1].wait(LOCKSTEP_TIMEOUT_S + cycles * self.cycle_s * self.clock.real_fraction):
             return None
         return request[2][0]
 
