@@ -12,6 +12,8 @@ from campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
 from campaign.engine.runner import run_campaign
 from campaign.planning import PlanOptions, build_design, search_doc
 from campaign.session.session import create_session, write_export
+from drivers.errors import MotionRefused
+from drivers.kuka.client import STALE_CYCLES
 from drivers.kuka.rsi_codec import ipoc_of
 from tests.conftest import feasible_plan
 
@@ -89,6 +91,27 @@ def test_every_cycle_of_a_move_is_exchanged_and_a_standing_robot_s_frames_jump(k
             assert len(seen) - moved == (1 if skip_idle else due)
         finally:
             sim.close()
+
+
+def test_a_stream_that_stopped_while_the_robot_stood_refuses_the_next_move_in_controller_time(kr270):
+    """The freshness check before a move (more than STALE_CYCLES cycles without a frame: refused, nothing sent)
+    holds in the simulation too, where it is judged on IPOCs: the controller's RSI socket goes, the clock goes on."""
+    target = tuple(feasible_plan(kr270, 1, seed=5, repeat=1)["poses_deg"][0])
+    sim = SimCell(kr270, SEED)
+    try:
+        robot, ctl = sim.live.robot, sim.controller
+        sim.plc.close_door()
+        robot.move_ptp(target, SPEED_PCT)
+        ctl.drop_connection("rsi")
+        sim.clock.sleep(STALE_CYCLES * ctl.cycle_s)  # exactly STALE_CYCLES cycles later: still fresh
+        assert robot.read_joints() == tuple(round(v, 4) for v in target)
+        sim.clock.sleep(ctl.cycle_s)  # one more: stale
+        sent = len(ctl.commands)
+        with pytest.raises(MotionRefused, match="RSI stream stale: no complete frame for 6 cycles") as refused:
+            robot.move_ptp(HOME_DEG, SPEED_PCT)
+        assert refused.value.code == "rsi_stale" and len(ctl.commands) == sent
+    finally:
+        sim.close()
 
 
 @pytest.mark.slow  # two whole campaigns of the README's plan over sockets, about a minute

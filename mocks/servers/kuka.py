@@ -290,9 +290,9 @@ class MockKrc2:
 
     def sync(self, cycles: int = 0) -> int | None:
         """Lockstep only (the client's rsi_sync hook): send the frames due on the clock (every one, or with
-        skip_idle the current one), then run `cycles` more cycles; returns the IPOC of the last frame sent once
-        the client received it, None if the controller did not answer within LOCKSTEP_TIMEOUT_S (plus the real
-        time the cycles take when the clock is paced, --sim-speed)."""
+        skip_idle the current one), then run `cycles` more cycles; returns the IPOC of the last cycle (its frame
+        received by the client, unless the stream is down), None if the controller did not answer within
+        LOCKSTEP_TIMEOUT_S (plus the real time the cycles take on a paced clock, --sim-speed)."""
         if self._delivered is None:
             raise RuntimeError("sync needs a lockstep controller (delivered given)")
         request: list = [int(cycles), threading.Event(), []]
@@ -400,9 +400,12 @@ class MockKrc2:
     def _work_arrived(self) -> bool:
         """A standing controller in lockstep: wait (wall, at most IDLE_WAKE_S) for an EKI request, an injection or
         a sync, follow the clock, answer what needs no cycle; True when a cycle must run (a request queued, a sync
-        that wants cycles). Injections are applied by the next call of _cycle, without running a cycle."""
+        that wants cycles). Injections come first: with one pending nothing else is done before the next call of
+        _cycle applies it (without running a cycle)."""
         with self._lock:
-            busy = bool(self._syncs) or bool(self._pending)
+            if self._pending:
+                return False
+            busy = bool(self._syncs)
         if not busy:
             socks = [self._wake_r] + ([self._eki] if self._eki is not None else [])
             readable, _, _ = select.select(socks, [], [], IDLE_WAKE_S)
@@ -442,7 +445,7 @@ class MockKrc2:
         if done and self._ipoc_sent is not None:
             self._await_delivery(self._ipoc_sent)
         for _, event, answer in done:
-            answer.append(self._ipoc_sent)
+            answer.append(self._ipoc0 + self._ipoc_step * (self._tick - 1))  # the last cycle's, sent or not
             event.set()
 
     def _await_delivery(self, ipoc: int) -> None:
