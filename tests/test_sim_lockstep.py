@@ -51,10 +51,13 @@ def exported(directory, cell, plan, seed: int, action_s: float | None = None, **
 
 
 def test_skipping_idle_cycles_changes_no_byte_of_the_table(tmp_path, kr270):
+    """With a hidden thermal drift every measured position depends on its time too, not only t_s."""
     plan = feasible_plan(kr270, 4, seed=5, repeat=1)
     # the operator quick (1 s per action, not 60): fewer idle cycles to exchange without skipping, a faster test
-    skipped, sim_skip = exported(tmp_path / "skip", kr270, plan, SEED, action_s=1.0)
-    every, sim_every = exported(tmp_path / "every", kr270, plan, SEED, action_s=1.0, skip_idle=False)
+    kw = {"action_s": 1.0, "effects": {"thermal_drift": 0.05}}
+    skipped, sim_skip = exported(tmp_path / "skip", kr270, plan, SEED, **kw)
+    every, sim_every = exported(tmp_path / "every", kr270, plan, SEED, skip_idle=False, **kw)
+    assert sim_skip.world.twin.hidden.thermal_per_s > 0
     assert skipped == every
     assert sim_skip.clock.now() == sim_every.clock.now()
     # without skipping every cycle of the virtual clock was exchanged; skipping, the same cycles less those skipped
