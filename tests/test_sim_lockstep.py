@@ -5,6 +5,7 @@ sockets (E-stop, door open at a resume and during a move, kill -9 and resume) ar
 tests/test_campaign_cli.py's, which run on this controller."""
 
 import math
+import time
 
 import pytest
 
@@ -106,6 +107,10 @@ def test_a_stream_that_stopped_while_the_robot_stood_refuses_the_next_move_in_co
         sim.plc.close_door()
         robot.move_ptp(target, SPEED_PCT)
         ctl.drop_connection("rsi")
+        gone_by = time.monotonic() + 10.0  # the controller applies it at its next wake-up
+        while not ctl.rsi_stopped and time.monotonic() < gone_by:
+            time.sleep(0.001)
+        assert ctl.rsi_stopped
         sim.clock.sleep(STALE_CYCLES * ctl.cycle_s)  # exactly STALE_CYCLES cycles later: still fresh
         assert robot.read_joints() == tuple(round(v, 4) for v in target)
         sim.clock.sleep(ctl.cycle_s)  # one more: stale

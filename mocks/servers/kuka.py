@@ -414,6 +414,9 @@ class MockKrc2:
                     self._wake_r.recv(4096)
             if self._eki is not None and self._eki in readable:
                 self._poll_eki(0.0)
+            with self._lock:
+                if self._pending:  # arrived while waiting: applied first
+                    return False
         self._follow_clock()
         self._answer_syncs(ran_cycle=False)
         with self._lock:
