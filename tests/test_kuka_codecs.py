@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from drivers.errors import ProtocolError
 from drivers.kuka.eki_codec import (
+    AXES,
     COMMAND,
     KIND_MOVE,
     KIND_RESET,
@@ -23,7 +24,9 @@ from drivers.kuka.eki_codec import (
     config_text,
     encode_command,
     encode_state,
+    parse_attrs,
     parse_command,
+    parse_real,
     parse_state,
     read_elements,
     read_template,
@@ -364,3 +367,32 @@ def test_ipoc_of_never_raises(data):
 def test_ipoc_of_agrees_with_the_parser(ipoc, q):
     frame = encode_rob(RobFrame(ipoc=ipoc, aipos=rounded(q)), tcp=False)
     assert ipoc_of(frame) == parse_rob(frame).ipoc == ipoc
+
+
+def _per_attribute(element, names, what, limit):
+    """parse_attrs as it was: parse_real on every attribute, each named (the reference of the fast path)."""
+    if element is None:
+        raise ProtocolError(f"<{what}> is missing")
+    return tuple(parse_real(element.get(n), f"{what}/@{n}", limit) for n in names)
+
+
+def _outcome(parse, *args):
+    try:
+        return parse(*args)
+    except ProtocolError as exc:
+        return f"ProtocolError: {exc}"
+
+
+attribute_text = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.floats(-1e5, 1e5).map(lambda v: f"{v:.4f}"),
+    st.text(alphabet=" +-.0123456789eEinfa", max_size=45),
+)
+
+
+@given(st.lists(st.one_of(st.none(), attribute_text), min_size=6, max_size=6), st.sampled_from([1e4, 1e6]))
+def test_parse_attrs_equals_parse_real_of_each_attribute(texts, limit):
+    element = ET.Element("AIPos", {n: t for n, t in zip(AXES, texts, strict=True) if t is not None})
+    assert _outcome(parse_attrs, element, AXES, "Rob/AIPos", limit) == _outcome(
+        _per_attribute, element, AXES, "Rob/AIPos", limit
+    )

@@ -75,14 +75,17 @@ class TwinMocks:
         return device
 
     def serve_controller(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int],
-                         connect_timeout_s: float = 20.0) -> None:  # fmt: skip
+                         connect_timeout_s: float = 20.0, delivered=None, skip_idle: bool = True) -> None:  # fmt: skip
         """Start the mock KR C2, connecting (and retrying for connect_timeout_s) to trackcal's EKI and RSI ports.
         Whenever trackcal goes away (exited, killed) the controller keeps the robot where it stands and connects
         again, as trackcal_eki.src closes and reopens its channel: the next trackcal finds it. The RSI stream is
-        the shipped configuration's (configs/krc2/trackcal_rsi.xml)."""
+        the shipped configuration's (configs/krc2/trackcal_rsi.xml). `delivered` (the client's frame_received,
+        when it runs in this process on this clock) puts the controller in lockstep with it, skipping the idle
+        cycles nobody reads unless not skip_idle (mocks.servers.kuka)."""
         self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
                                    joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
-                                   connect_timeout_s=connect_timeout_s).start()  # fmt: skip
+                                   connect_timeout_s=connect_timeout_s, delivered=delivered,
+                                   skip_idle=skip_idle).start()  # fmt: skip
 
     def controllers_connected(self) -> int:
         """How many times the controller connected to trackcal (one per `run` / `resume` served)."""
@@ -123,10 +126,17 @@ class SimCell:
 
     On resume the world learns which measurements the session already holds, so every measurement keeps its
     noise (a pure function of the seed and the step's identity). `speed`: simulated seconds per real second
-    (None: as fast as the machine goes)."""
+    (None: as fast as the machine goes).
+
+    The controller runs in lockstep with the robot client (both on the virtual clock): the clock, so every
+    timestamp, depends on the commands only, and the cycles the robot stands through unread are skipped;
+    `skip_idle=False` exchanges every one of them (the same session, byte for byte, only slower). `lockstep=False`
+    runs the controller free, as `trackcal mock` serves it to another process: every cycle, paced by wall time,
+    so the timestamps depend on the machine's pace (the measurements do not)."""
 
     def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
-                 effects: dict[str, float] | None = None, speed: float | None = None) -> None:  # fmt: skip
+                 effects: dict[str, float] | None = None, speed: float | None = None,
+                 skip_idle: bool = True, lockstep: bool = True) -> None:  # fmt: skip
         self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store))
         m = self.mocks
         self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
@@ -140,8 +150,11 @@ class SimCell:
                                           cell_box_check=cell_box_check(cell), motion_guard=motion_guard(cellio),
                                           connect_timeout_s=20.0))  # fmt: skip
             robot.listen()
-            m.serve_controller(robot.eki_address, robot.rsi_address)
+            m.serve_controller(robot.eki_address, robot.rsi_address,
+                               delivered=robot.frame_received if lockstep else None, skip_idle=skip_idle)  # fmt: skip
             self.controller = m.controller
+            if lockstep:
+                robot.rsi_sync = self.controller.sync
             meteo = self._client(SerialMeteo(self.meteo_mock.port_path, timeout_s=5.0))
             for dev in (tracker, robot, cellio, meteo):
                 dev.connect()

@@ -24,6 +24,14 @@ configs/krc2/trackcal_rsi.xml's.
   rsi_cycle_s (12 ms on a KR C2, 4 ms on a KR C4: the hardware file says which). The same code is then right for
   the real robot and for the mock controller on a virtual clock. A real-time guard (timeout_s + rsi_stale_s)
   still bounds the wait if frames stop coming.
+- Simulation only (`rsi_sync` given: `run --sim`, the mock controller in the same process on a virtual clock,
+  where a standing robot's controller time passes only when somebody waits for it): before reading what the
+  stream says while the robot stands (read_joints, the freshness check before a move, the settling window) the
+  client asks the controller for its frame of now, or for the cycles its window still needs, and judges
+  freshness in controller time: the latest frame's IPOC at most STALE_CYCLES cycles behind the controller's (the
+  IPOC counts milliseconds of controller time, kuka_rsi_simulator in ros-industrial/kuka_experimental).
+  Without `rsi_sync` (a real controller, `trackcal mock`) nothing of this runs: every cycle's frame is received
+  as it comes and freshness is wall time.
 
 Trust: only the controller is served. Both listeners bind to the configured local address (the hardware
 config names it: there is no 0.0.0.0 default), a TCP connection from any other address than
@@ -89,6 +97,7 @@ _FRAME_HISTORY = 8192  # RSI frames kept for wait_settled (~98 s of 12 ms cycles
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
+RsiSync = Callable[[int], "int | None"]  # run n more cycles (0: none), the IPOC of the controller's last frame
 
 
 class KukaKrc2:
@@ -112,6 +121,7 @@ class KukaKrc2:
         move_timeout_s: float = 300.0,
         io_timeout_s: float = 5.0,
         rsi_stale_s: float = 1.0,
+        rsi_sync: RsiSync | None = None,
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
@@ -142,6 +152,8 @@ class KukaKrc2:
         self.move_timeout_s = move_timeout_s
         self.io_timeout_s = io_timeout_s
         self.rsi_stale_s = rsi_stale_s
+        self.rsi_sync = rsi_sync
+        self._ipoc_step = max(1, round(self.rsi_cycle_s * 1000))  # IPOC: milliseconds of controller time
         mode = "passive" if self.rsi_passive else "answered"
         self.device = f"KR C2 eki {eki_host}:{eki_port} rsi {rsi_protocol} {mode} {rsi_host}:{rsi_port}"
 
@@ -162,6 +174,7 @@ class KukaKrc2:
         self._seq = 0
         self._latest: tuple[float, ...] | None = None
         self._latest_at: float | None = None
+        self._latest_ipoc: int | None = None
         self._last_bad = ""
         self._framer_pending = 0
         self.rsi_frames_answered = 0
@@ -379,8 +392,30 @@ class KukaKrc2:
             with self._cond:
                 self._seq += 1
                 self._frames.append((self._seq, joints))
-                self._latest, self._latest_at = joints, arrived
+                self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
                 self._cond.notify_all()
+
+    def frame_received(self, ipoc: int, timeout_s: float) -> bool:
+        """Simulation hook (the lockstep mock controller waits on it): True once a frame with this IPOC or a later
+        one was received, False after timeout_s or an RSI error."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._latest_ipoc is None or self._latest_ipoc < ipoc:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._rsi_error is not None or self._stop.is_set():
+                    return False
+                self._cond.wait(remaining)
+            return True
+
+    def _synced_lag(self) -> int | None:
+        """Simulation (rsi_sync): the controller's stream brought up to its clock, how many cycles the latest frame
+        received is behind the controller's last one (None: no frame received, or no answer from it)."""
+        assert self.rsi_sync is not None
+        current = self.rsi_sync(0)
+        with self._cond:
+            if current is None or self._latest_ipoc is None:
+                return None
+            return max(0, current - self._latest_ipoc) // self._ipoc_step
 
     def _set_rsi_error(self, exc: DeviceError) -> None:
         with self._cond:
@@ -397,16 +432,23 @@ class KukaKrc2:
         then refuses (MotionRefused, code rsi_stale): no move is sent without a live monitor."""
         limit = STALE_CYCLES * self.rsi_cycle_s
         deadline = time.monotonic() + self.rsi_stale_s
+        lag = self._synced_lag() if self.rsi_sync is not None else None
         with self._cond:
-            while True:
-                self._raise_rsi_error()
-                now = time.monotonic()
-                if self._latest_at is not None and now - self._latest_at <= limit:
+            self._raise_rsi_error()
+            if self.rsi_sync is not None:  # simulation: in controller time
+                if lag is not None and lag <= STALE_CYCLES:
                     return
-                if now >= deadline:
-                    break
-                self._cond.wait(min(deadline - now, limit))
-            age = "ever" if self._latest_at is None else f"{now - self._latest_at:.3f} s"
+                age = "ever" if lag is None else f"{lag} cycles"
+            else:
+                while True:
+                    self._raise_rsi_error()
+                    now = time.monotonic()
+                    if self._latest_at is not None and now - self._latest_at <= limit:
+                        return
+                    if now >= deadline:
+                        break
+                    self._cond.wait(min(deadline - now, limit))
+                age = "ever" if self._latest_at is None else f"{now - self._latest_at:.3f} s"
             why = []
             if self.rsi_frames_unreadable:
                 why.append(f"{self.rsi_frames_unreadable} unreadable frames, the last: {self._last_bad}")
@@ -423,6 +465,14 @@ class KukaKrc2:
 
     def read_joints(self) -> tuple[float, ...]:
         self._require_connected()
+        if self.rsi_sync is not None:  # simulation: the frame of now, freshness in controller time
+            lag = self._synced_lag()
+            with self._cond:
+                self._raise_rsi_error()
+                if lag is None or self._latest is None or lag > STALE_CYCLES:
+                    raise DeviceTimeout(f"no current RSI frame (the latest is {lag} cycles behind the "
+                                        "controller's)", device=self.device)  # fmt: skip
+                return self._latest
         with self._cond:
             deadline = time.monotonic() + self.rsi_stale_s
             while self._latest is None and self._rsi_error is None:
@@ -573,6 +623,8 @@ class KukaKrc2:
         self._require_connected()
         cycle = self.rsi_cycle_s
         real_deadline = time.monotonic() + timeout_s + self.rsi_stale_s
+        if self.rsi_sync is not None:  # simulation: every frame due before the call is in
+            self.rsi_sync(0)
         with self._cond:
             start_seq = next_seq = self._seq + 1
         anchor: tuple[float, ...] | None = None
@@ -607,7 +659,13 @@ class KukaKrc2:
                         f"RSI frames stopped coming while waiting to settle ({timeout_s} s)",
                         device=self.device,
                     )
-                self._cond.wait(min(remaining, GUARD_S))
+                if self.rsi_sync is None:
+                    self._cond.wait(min(remaining, GUARD_S))
+                    continue
+                # simulation: the cycles the window still needs, GUARD_S of controller time at most per request
+                have = 0 if anchor is None else next_seq - 1 - anchor_seq
+                wanted = math.ceil(window_s / cycle - 1e-9) - have + (1 if anchor is None else 0)
+            self.rsi_sync(max(1, min(wanted, math.ceil(GUARD_S / cycle))))
 
     def _require_connected(self) -> None:
         if self._eki is None or self._rsi is None:

@@ -244,9 +244,18 @@ def parse_bool(text: str | None, what: str) -> bool:
 
 
 def parse_attrs(element: ET.Element | None, names: tuple[str, ...], what: str, limit: float) -> tuple[float, ...]:
+    """parse_real of each attribute. A plain value (no blanks) is taken here without naming it first: the RSI
+    monitor reads 24 of them every cycle; anything else goes through parse_real, which says what is wrong."""
     if element is None:
         raise ProtocolError(f"<{what}> is missing")
-    return tuple(parse_real(element.get(n), f"{what}/@{n}", limit) for n in names)
+    values = []
+    for n in names:
+        text = element.get(n)
+        if text is not None and len(text) <= 40 and _REAL_RE.fullmatch(text) and abs(value := float(text)) <= limit:
+            values.append(value)
+        else:
+            values.append(parse_real(text, f"{what}/@{n}", limit))
+    return tuple(values)
 
 
 def fmt4(value: float) -> str:

@@ -33,6 +33,20 @@ loaded CI machine running Python cannot promise; tests that need lateness set a 
 client. In passive mode no answer paces the controller: on a virtual clock it leaves PASSIVE_PACE_S of wall
 time between cycles.
 
+Lockstep (`delivered` given: `run --sim`, where trackcal's client runs in the same process on the same virtual
+clock). Cycle n is due at virtual time t0 + n * cycle_s and its frame carries IPOC ipoc0 + n * cycle in ms (the
+IPOC counts milliseconds of controller time: kuka_rsi_simulator adds the cycle time in ms to it every cycle, ros-
+industrial/kuka_experimental kuka_rsi_simulator/scripts/kuka_rsi_simulator). The controller runs at most
+LOCKSTEP_AHEAD frames ahead of what the client received (no wall pacing, no datagram lost). While the robot moves
+(or brakes, dwells, oscillates) the controller runs every cycle and advances the clock to it, as before. While it
+stands still with nothing queued it does not advance the clock: it follows it. Cycles the clock passes (the tracker
+measuring, the operator walking) are all exchanged, or with skip_idle (the default) skipped: the next frame sent
+carries the IPOC of its own cycle, so the client sees controller time jump, and a standing robot's frames carry
+nothing else that changes. The client asks for what it reads while the robot stands (`sync`: the current frame, or
+n more cycles for its settling window); whoever waits for time advances it, so the clock, and with it every
+timestamp of the session, is a pure function of the commands, the same with and without skipping. EKI requests,
+injected faults and stops are served at once in both modes (the controller wakes on them).
+
 Fault injection: estop(), drives_off() (reported as RobotState Error 1/2, see drivers.kuka.eki_codec), a
 target outside soft_limits_deg (Error 3), RSI stop after late answers (Error 4), drop_connection("eki"|"rsi"),
 send_garbage("eki"|"rsi"). Garbage from the peer never raises out of the thread: it is recorded in `errors`
@@ -96,6 +110,13 @@ _RECONNECT_S = 0.05  # wall time between connection attempts while trackcal is a
 # A passive controller waits for no answer, so on a virtual clock nothing would pace it: it leaves at least this
 # much wall time between cycles (2000 frames/s at most, 24x real time at 12 ms), or it would flood the receiver.
 PASSIVE_PACE_S = 0.0005
+# Lockstep: a standing controller looks at the clock at least this often (wall time) when nothing wakes it.
+IDLE_WAKE_S = 0.05
+# Lockstep: how long (wall time) a sync request or a frame's delivery may take before it counts as lost.
+LOCKSTEP_TIMEOUT_S = 2.0
+# Lockstep: frames the controller may be ahead of the client (~30 KB of the receiver's UDP buffer, >= 200 KB on
+# Linux); waiting for each one would cost a thread switch per cycle on a loaded machine.
+LOCKSTEP_AHEAD = 64
 
 
 def _quintic(u: float) -> float:
@@ -127,6 +148,8 @@ class MockKrc2:
         overshoot_deg: float = 0.02,
         brake_deg_s2: float = 200.0,
         wall_clock=None,
+        delivered: Callable[[int, float], bool] | None = None,
+        skip_idle: bool = True,
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError("rsi_protocol must be 'tcp' or 'udp'")
@@ -153,7 +176,16 @@ class MockKrc2:
         self.brake_deg_s2 = float(brake_deg_s2)
         self._rng = random.Random(seed)
         self._ipoc_step = max(1, round(self.cycle_s * 1000))  # IPOC counts milliseconds (kuka_rsi_simulator)
-        self._ipoc = self._ipoc_step * self._rng.randrange(10**6, 10**7)
+        self._ipoc0 = self._ipoc_step * self._rng.randrange(10**6, 10**7)
+        self._delivered = delivered  # lockstep with a client on the same virtual clock (see the module docstring)
+        self.skip_idle = bool(skip_idle)
+        self._tick = 0  # index of the next cycle; its frame carries IPOC _ipoc0 + _ipoc_step * _tick
+        self._t0 = clock.now()  # lockstep: cycle n is due at _t0 + n * cycle_s (from the integer, never summed)
+        self._syncs: list[list] = []  # [cycles still to run, threading.Event, answer list] (lockstep)
+        self._ipoc_sent: int | None = None  # IPOC of the last frame sent, and of the last known received
+        self._ipoc_received: int | None = None
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
 
         self._q = list(q0)  # actual joints
         self._q_set = list(q0)  # set point
@@ -187,6 +219,8 @@ class MockKrc2:
 
         # observable state for tests
         self.cycles = 0
+        self.frames_sent = 0  # RSI frames sent
+        self.idle_skipped = 0  # lockstep with skip_idle: cycles the robot stood through, not exchanged
         self.late_packets = 0
         self.consecutive_late = 0
         self.rsi_stopped = False
@@ -211,6 +245,8 @@ class MockKrc2:
             self._thread.join(timeout=self.answer_budget_s + 2.0)
         self._close("eki", None)
         self._close("rsi", None)
+        for sock in (self._wake_r, self._wake_w):
+            sock.close()
 
     def join(self, timeout: float) -> bool:
         """Wait (wall time) for the controller thread to end; True if it did."""
@@ -244,6 +280,28 @@ class MockKrc2:
     def _inject(self, what: str, arg: object) -> None:
         with self._lock:
             self._pending.append((what, arg))
+        self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):  # full (it is already awake) or closed (stopped)
+            self._wake_w.send(b"w")
+
+    # --- lockstep (any thread) ------------------------------------------------------------------------------
+
+    def sync(self, cycles: int = 0) -> int | None:
+        """Lockstep only (the client's rsi_sync hook): send the frames due on the clock (every one, or with
+        skip_idle the current one), then run `cycles` more cycles; returns the IPOC of the last cycle (its frame
+        received by the client, unless the stream is down), None if the controller did not answer within
+        LOCKSTEP_TIMEOUT_S (plus the real time the cycles take on a paced clock, --sim-speed)."""
+        if self._delivered is None:
+            raise RuntimeError("sync needs a lockstep controller (delivered given)")
+        request: list = [int(cycles), threading.Event(), []]
+        with self._lock:
+            self._syncs.append(request)
+        self._wake()
+        if not request[1].wait(LOCKSTEP_TIMEOUT_S + cycles * self.cycle_s * self.clock.real_fraction):
+            return None
+        return request[2][0]
 
     # --- thread ---------------------------------------------------------------------------------------------
 
@@ -310,7 +368,11 @@ class MockKrc2:
                 self._reconnect()
             if self._eki is None:
                 self.wall.sleep(self.cycle_s)  # nobody to serve: do not spin through virtual time
+        if self._delivered is not None and self._standing_still() and not self._work_arrived():
+            return
         self._poll_eki(0.0 if self._rsi is not None else self.cycle_s)
+        if self._delivered is not None:  # the cycle's time: advance the clock to it unless it is already there
+            self.clock.sleep(self._t0 + self._tick * self.cycle_s - self.clock.now())
         self._step()
         q = self.joints_deg
         if self.on_joints is not None and q != self._last_reported:
@@ -318,13 +380,83 @@ class MockKrc2:
             self.on_joints(q)
         if self._rsi is not None:
             self._rsi_exchange()
-        self.clock.sleep(self.cycle_s)
-        if self.rsi_passive:
-            rest = self._last_cycle + PASSIVE_PACE_S - self.wall.now()
-            if rest > 0:
-                self.wall.sleep(rest)
-            self._last_cycle = self.wall.now()
+        self._tick += 1
+        if self._delivered is None:
+            self.clock.sleep(self.cycle_s)
+            if self.rsi_passive:
+                rest = self._last_cycle + PASSIVE_PACE_S - self.wall.now()
+                if rest > 0:
+                    self.wall.sleep(rest)
+                self._last_cycle = self.wall.now()
+        else:
+            self._answer_syncs(ran_cycle=True)
         self.cycles += 1
+
+    # --- lockstep (the controller thread) -------------------------------------------------------------------
+
+    def _standing_still(self) -> bool:
+        return self._mode == "idle" and not self._queue and self._since_arrival is None
+
+    def _work_arrived(self) -> bool:
+        """A standing controller in lockstep: wait (wall, at most IDLE_WAKE_S) for an EKI request, an injection or
+        a sync, follow the clock, answer what needs no cycle; True when a cycle must run (a request queued, a sync
+        that wants cycles). Injections come first: with one pending nothing else is done before the next call of
+        _cycle applies it (without running a cycle)."""
+        with self._lock:
+            if self._pending:
+                return False
+            busy = bool(self._syncs)
+        if not busy:
+            socks = [self._wake_r] + ([self._eki] if self._eki is not None else [])
+            readable, _, _ = select.select(socks, [], [], IDLE_WAKE_S)
+            if self._wake_r in readable:
+                with contextlib.suppress(OSError):
+                    self._wake_r.recv(4096)
+            if self._eki is not None and self._eki in readable:
+                self._poll_eki(0.0)
+            with self._lock:
+                if self._pending:  # arrived while waiting: applied first
+                    return False
+        self._follow_clock()
+        self._answer_syncs(ran_cycle=False)
+        with self._lock:
+            wanted = any(cycles > 0 for cycles, _, _ in self._syncs)
+        return wanted or not self._standing_still()
+
+    def _follow_clock(self) -> None:
+        """The cycles the clock passed while the robot stood: each exchanged, or with skip_idle only the last."""
+        due = math.floor((self.clock.now() - self._t0) / self.cycle_s + 1e-9) + 1 - self._tick
+        if due <= 0:
+            return
+        if self.skip_idle:
+            self.idle_skipped += due - 1
+            self._tick += due - 1
+            due = 1
+        for _ in range(due):
+            if self._rsi is not None:
+                self._rsi_exchange()
+            self._tick += 1
+            self.cycles += 1
+
+    def _answer_syncs(self, ran_cycle: bool) -> None:
+        with self._lock:
+            for request in self._syncs:
+                if ran_cycle and request[0] > 0:
+                    request[0] -= 1
+            done = [r for r in self._syncs if r[0] <= 0]
+            self._syncs = [r for r in self._syncs if r[0] > 0]
+        if done and self._ipoc_sent is not None:
+            self._await_delivery(self._ipoc_sent)
+        for _, event, answer in done:
+            answer.append(self._ipoc0 + self._ipoc_step * (self._tick - 1))  # the last cycle's, sent or not
+            event.set()
+
+    def _await_delivery(self, ipoc: int) -> None:
+        """Until the client received the frame with this IPOC (a frame not received in time is lost)."""
+        assert self._delivered is not None
+        if self._ipoc_received is None or self._ipoc_received < ipoc:
+            self._delivered(ipoc, LOCKSTEP_TIMEOUT_S)
+            self._ipoc_received = ipoc
 
     def _apply_injections(self) -> None:
         with self._lock:
@@ -505,8 +637,7 @@ class MockKrc2:
             return False
 
     def _rsi_exchange(self) -> None:
-        ipoc = self._ipoc
-        self._ipoc += self._ipoc_step
+        ipoc = self._ipoc0 + self._ipoc_step * self._tick
         frame = RobFrame(
             ipoc=ipoc,
             aipos=self.joints_deg,
@@ -515,7 +646,13 @@ class MockKrc2:
             rsol=(0.0,) * len(CART),
             delay=self.late_packets,
         )
-        if not self._send_rsi(encode_rob(frame, tcp=self.rsi_protocol == "tcp")) or self.rsi_passive:
+        if not self._send_rsi(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
+            return
+        self.frames_sent += 1
+        self._ipoc_sent = ipoc
+        if self._delivered is not None and ipoc - (self._ipoc_received or 0) > LOCKSTEP_AHEAD * self._ipoc_step:
+            self._await_delivery(ipoc - LOCKSTEP_AHEAD * self._ipoc_step)
+        if self.rsi_passive:
             return
         if self._await_answer(ipoc):
             self.consecutive_late = 0

@@ -1,0 +1,131 @@
+"""`run --sim` with the mock KR C2 in lockstep with trackcal's client on the virtual clock (issue 16): the cycles
+the robot stands through unread are skipped, every cycle of a move is exchanged, and the session is the same
+byte for byte with every idle cycle exchanged (skip_idle=False). The faults and the safety checks over the same
+sockets (E-stop, door open at a resume and during a move, kill -9 and resume) are tests/test_sim_sockets.py's and
+tests/test_campaign_cli.py's, which run on this controller."""
+
+import math
+import time
+
+import pytest
+
+from campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
+from campaign.engine.runner import run_campaign
+from campaign.planning import PlanOptions, build_design, search_doc
+from campaign.session.session import create_session, write_export
+from drivers.errors import MotionRefused
+from drivers.kuka.client import STALE_CYCLES
+from drivers.kuka.rsi_codec import ipoc_of
+from tests.conftest import feasible_plan
+
+SEED = 3
+SPEED_PCT = 30.0  # campaign.engine.engine.Settings' speed override
+
+
+def received_ipocs(sim: SimCell) -> list[int]:
+    """The IPOC of every frame trackcal's client receives from now on (its answering thread's input)."""
+    robot, seen = sim.live.robot, []
+    take = robot._take
+
+    def recording_take(sock, doc):
+        ipoc = ipoc_of(doc)
+        if ipoc is not None:
+            seen.append(ipoc)
+        take(sock, doc)
+
+    robot._take = recording_take
+    return seen
+
+
+def exported(directory, cell, plan, seed: int, action_s: float | None = None, **sim_kw) -> tuple[bytes, SimCell]:
+    store = create_session(directory / "s", "kr270", plan, "sim", seed)
+    sim = SimCell(cell, seed, store, **sim_kw)
+    if action_s is not None:
+        sim.human.action_s = action_s
+    try:
+        run_campaign(store, sim.live)
+    finally:
+        sim.close()
+    assert sim.controller.crashed is None and not sim.controller.errors
+    write_export(store, directory / "table.csv")
+    return (directory / "table.csv").read_bytes(), sim
+
+
+def test_skipping_idle_cycles_changes_no_byte_of_the_table(tmp_path, kr270):
+    """With a hidden thermal drift every measured position depends on its time too, not only t_s."""
+    plan = feasible_plan(kr270, 4, seed=5, repeat=1)
+    # the operator quick (1 s per action, not 60): fewer idle cycles to exchange without skipping, a faster test
+    kw = {"action_s": 1.0, "effects": {"thermal_drift": 0.05}}
+    skipped, sim_skip = exported(tmp_path / "skip", kr270, plan, SEED, **kw)
+    every, sim_every = exported(tmp_path / "every", kr270, plan, SEED, skip_idle=False, **kw)
+    assert sim_skip.world.twin.hidden.thermal_per_s > 0
+    assert skipped == every
+    assert sim_skip.clock.now() == sim_every.clock.now()
+    # without skipping every cycle of the virtual clock was exchanged; skipping, the same cycles less those skipped
+    skip, all_ = sim_skip.controller, sim_every.controller
+    assert all_.idle_skipped == 0 and skip.idle_skipped > skip.cycles / 10
+    assert all_.cycles == skip.cycles + skip.idle_skipped
+
+
+def test_every_cycle_of_a_move_is_exchanged_and_a_standing_robot_s_frames_jump(kr270):
+    target = tuple(feasible_plan(kr270, 1, seed=5, repeat=1)["poses_deg"][0])
+    for skip_idle in (True, False):
+        sim = SimCell(kr270, SEED, skip_idle=skip_idle)
+        try:
+            robot, ctl = sim.live.robot, sim.controller
+            sim.plc.close_door()  # the operator left the cell
+            seen = received_ipocs(sim)
+            robot.move_ptp(target, SPEED_PCT)
+            assert robot.read_joints() == tuple(round(v, 4) for v in target)
+            # the frame of now the freshness check asks for before the move, then the move: a synchronous quintic
+            # PTP lasts 1.875 max|dq| / speed (mocks.servers.kuka), then the program dwells settle_s; each of those
+            # cycles is one frame, 12 ms of IPOC after the one before
+            span = max(abs(b - a) for a, b in zip(HOME_DEG, target, strict=True))
+            moving = math.ceil(1.875 * span / (SIM_JOINT_SPEED_DEG_S * SPEED_PCT / 100) / ctl.cycle_s - 1e-9)
+            dwell = math.ceil(ctl.settle_s / ctl.cycle_s - 1e-9)
+            assert len(seen) == 1 + moving + dwell
+            assert all(b - a == 12 for a, b in zip(seen, seen[1:], strict=False))
+            # the robot stands while the tracker measures for 2 s: those cycles are skipped (or all exchanged), the
+            # next frame read carries the IPOC of its own cycle, the last one at most 2 s later
+            moved = len(seen)
+            sim.clock.sleep(2.0)
+            assert robot.read_joints() == tuple(round(v, 4) for v in target)
+            due = math.floor(2.0 / ctl.cycle_s)
+            assert seen[-1] - seen[moved - 1] == 12 * due
+            assert len(seen) - moved == (1 if skip_idle else due)
+        finally:
+            sim.close()
+
+
+def test_a_stream_that_stopped_while_the_robot_stood_refuses_the_next_move_in_controller_time(kr270):
+    """The freshness check before a move (more than STALE_CYCLES cycles without a frame: refused, nothing sent)
+    holds in the simulation too, where it is judged on IPOCs: the controller's RSI socket goes, the clock goes on."""
+    target = tuple(feasible_plan(kr270, 1, seed=5, repeat=1)["poses_deg"][0])
+    sim = SimCell(kr270, SEED)
+    try:
+        robot, ctl = sim.live.robot, sim.controller
+        sim.plc.close_door()
+        robot.move_ptp(target, SPEED_PCT)
+        ctl.drop_connection("rsi")
+        gone_by = time.monotonic() + 10.0  # the controller applies it at its next wake-up
+        while not ctl.rsi_stopped and time.monotonic() < gone_by:
+            time.sleep(0.001)
+        assert ctl.rsi_stopped
+        sim.clock.sleep(STALE_CYCLES * ctl.cycle_s)  # exactly STALE_CYCLES cycles later: still fresh
+        assert robot.read_joints() == tuple(round(v, 4) for v in target)
+        sim.clock.sleep(ctl.cycle_s)  # one more: stale
+        sent = len(ctl.commands)
+        with pytest.raises(MotionRefused, match="RSI stream stale: no complete frame for 6 cycles") as refused:
+            robot.move_ptp(HOME_DEG, SPEED_PCT)
+        assert refused.value.code == "rsi_stale" and len(ctl.commands) == sent
+    finally:
+        sim.close()
+
+
+@pytest.mark.slow  # two whole campaigns of the README's plan over sockets, about a minute
+def test_the_readme_campaign_is_byte_identical_with_and_without_skipping(tmp_path, kr270):
+    options = PlanOptions(configs=6, repeat=3, seed=0)  # `trackcal plan --cell kr270 --configs 6 --repeat 3`
+    plan = search_doc(build_design(kr270, options), options)
+    skipped, _ = exported(tmp_path / "skip", kr270, plan, 1)
+    every, _ = exported(tmp_path / "every", kr270, plan, 1, skip_idle=False)
+    assert skipped == every
