@@ -11,23 +11,58 @@ Jacobian column is the exact derivative at the current deviations (not only at n
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from .chain import Chain
 from .params import Param, complete_params
-from .rigid import rot_axis
+from .rigid import rot_axis, skew
 
 
-@dataclass
 class PointJacobian:
-    p: np.ndarray  # (N, 3) point in the robot base frame, mm
-    d_params: np.ndarray  # (N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)
-    d_point: np.ndarray  # (N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)
-    d_q: np.ndarray  # (N, 3, n) derivative w.r.t. the joint angles (mm/rad)
-    joint_axes: np.ndarray  # (N, 3, n) unit axis of each joint in the base frame (signed)
-    rot_axes: np.ndarray  # (N, 3, k) axis of each rotational parameter (zeros for translations)
+    """Point and Jacobians of N rows, built from the frames of their M distinct poses (`rows` gives each row's
+    pose). Every column is linear in the point p of its row: a rotation about axis w through o gives
+    w x (p - o) = (o x w) - [p]x w, so per pose the chain leaves (o x w) and w, and per row one batched
+    product [p]x w remains. The derivatives are computed when first asked for (identification never needs
+    the joint columns)."""
+
+    def __init__(self, p, r_end, pose_p, pose_w, joint_p, joint_w, rows):
+        self.p = p  # (N, 3) point in the robot base frame, mm
+        self._r_end, self._rows = r_end, rows
+        self._pose_p, self._pose_w = pose_p, pose_w  # (M, 3, k): translation axis | o x w; 0 | w
+        self._joint_p, self._joint_w = joint_p, joint_w  # (M, 3, n): the same for every joint
+
+    def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
+        return per_pose if self._rows is None else per_pose[self._rows]
+
+    def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
+        return self._per_row(pose_p) - skew(self.p) @ self._per_row(pose_w)
+
+    @cached_property
+    def d_params(self) -> np.ndarray:
+        """(N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)."""
+        return self._columns(self._pose_p, self._pose_w)
+
+    @cached_property
+    def d_point(self) -> np.ndarray:
+        """(N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)."""
+        return self._per_row(self._r_end)
+
+    @cached_property
+    def d_q(self) -> np.ndarray:
+        """(N, 3, n) derivative w.r.t. the joint angles (mm/rad)."""
+        return self._columns(self._joint_p, self._joint_w)
+
+    @cached_property
+    def joint_axes(self) -> np.ndarray:
+        """(N, 3, n) unit axis of each joint in the base frame (signed)."""
+        return self._per_row(self._joint_w)
+
+    @cached_property
+    def rot_axes(self) -> np.ndarray:
+        """(N, 3, k) axis of each rotational parameter (zeros for translations)."""
+        return self._per_row(self._pose_w)
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -113,40 +148,20 @@ class Kinematics:
         several points of one pose, or one point from several stations, share its frames)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
-        # per pose: translation columns, and axis + origin of every rotational column then of every joint
-        trans_cols, trans, axes, origins = [], [], [], []
-        rot_cols = []
+        k, n = len(self.params), self.chain.dof
+        pose_p, pose_w = np.zeros((len(q), 3, k)), np.zeros((len(q), 3, k))
         for i, par in enumerate(self.params):
             if par.kind == "p":
-                trans_cols.append(i)
-                trans.append(frames[(par.joint, "p")][0][:, :, par.axis])
+                pose_p[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
             else:
                 w, org = frames[(par.joint, "dq")] if par.kind == "dq" else frames[(par.joint, "phi", par.axis)]
-                rot_cols.append(i)
-                axes.append(w)
-                origins.append(org)
-        for j in range(self.chain.dof):
-            w, org = frames[(j, "dq")]
-            axes.append(w)
-            origins.append(org)
-        w, org = np.stack(axes, axis=2), np.stack(origins, axis=2)
-        t_cols = np.stack(trans, axis=2) if trans else np.zeros((len(q), 3, 0))
-        if rows is not None:
-            r, o, w, org, t_cols = r[rows], o[rows], w[rows], org[rows], t_cols[rows]
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
-        p = o + np.einsum("nij,nj->ni", r, tool)
-        n_rows = len(p)
-        # one vectorised cross product for every rotational column: w x (p - o)
-        cross = cross3(w, p[:, :, None] - org)
-        d_params = np.zeros((n_rows, 3, len(self.params)))
-        d_params[:, :, trans_cols] = t_cols
-        d_params[:, :, rot_cols] = cross[:, :, : len(rot_cols)]
-        d_q = cross[:, :, len(rot_cols) :]
-        rot_axes = np.zeros_like(d_params)
-        rot_axes[:, :, rot_cols] = w[:, :, : len(rot_cols)]
-        return PointJacobian(
-            p=p, d_params=d_params, d_point=r, d_q=d_q, joint_axes=w[:, :, len(rot_cols) :], rot_axes=rot_axes
-        )
+                pose_p[:, :, i], pose_w[:, :, i] = cross3(org, w), w
+        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=2)
+        joint_p = cross3(np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2), joint_w)
+        r_rows, o_rows = (r, o) if rows is None else (r[rows], o[rows])
+        tool = np.broadcast_to(np.asarray(tool, dtype=float), o_rows.shape)
+        p = o_rows + (r_rows @ tool[:, :, None])[:, :, 0]
+        return PointJacobian(p, r, pose_p, pose_w, joint_p, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""

@@ -180,7 +180,7 @@ def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
     state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
     r, jm = problem.residual_and_jacobian(state)
     for chunks in (1, 7):
-        problem.chunks = np.array_split(rng.permutation(problem.n_rows), chunks)
+        problem.set_chunks(np.array_split(rng.permutation(problem.n_rows), chunks))
         info, g, cost = problem.normal_equations(state)
         np.testing.assert_allclose(info, jm.T @ jm, rtol=1e-10, atol=1e-12 * np.abs(info).max())
         np.testing.assert_allclose(g, jm.T @ r, rtol=1e-9, atol=1e-12 * np.abs(g).max())
