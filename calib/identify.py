@@ -136,7 +136,8 @@ class _Chunk(NamedTuple):
     order: np.ndarray  # position of each among the rows the chunk was made from
     poses: np.ndarray  # the distinct poses of those rows
     of_row: np.ndarray  # index into poses of each row
-    groups: list[tuple[slice, np.ndarray]]  # rows of one (station, point) and their columns among all unknowns
+    groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
+    # unknowns, and the block of the normal matrix those columns make (np.ix_)
 
 
 class Problem:
@@ -224,8 +225,12 @@ class Problem:
         for a, b in zip(starts, ends, strict=True):
             s, p = divmod(int(group[a]), self.n_pt)
             cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
-            groups.append((slice(a, b), cols))
+            groups.append((slice(a, b), cols, np.ix_(cols, cols)))
         return _Chunk(rows, order, poses, of_row.ravel(), groups)
+
+    @cached_property
+    def _every_row(self) -> _Chunk:
+        return self._chunk(np.arange(self.n_rows))
 
     def _station_arrays(self, s: State):
         rs = np.array([st.rotation for st in s.stations])[self.st_idx]
@@ -274,10 +279,10 @@ class Problem:
             d_q = jac.d_q if g is None else grow * jac.d_q
             jc[:, :, k:c] += rs @ d_q @ self.ext.joint_features[rows]
         xs = (rs @ p[:, :, None])[:, :, 0] + ts
-        jc[:, :, :k] = rs @ d_params
+        np.matmul(rs, d_params, out=jc[:, :, :k])
         jc[:, :, c : c + 3] = np.eye(3)
         jc[:, :, c + 3 : c + 6] = -skew(xs)
-        jc[:, :, c + 6 :] = rs @ d_point
+        np.matmul(rs, d_point, out=jc[:, :, c + 6 :])
         r = self.xyz[rows] - xs
         if self.w is not None:
             w = self.w[rows]
@@ -287,14 +292,14 @@ class Problem:
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
         """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
         jm = np.zeros((len(ch.rows), 3, self.n_all))
-        for sl, cols in ch.groups:
+        for sl, cols, _ in ch.groups:
             jm[sl][:, :, cols] = jc[sl]
-        return jm[:, :, self.free].reshape(-1, self.n_cols)
+        return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
 
     def residual_and_jacobian(self, s: State, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
         of the given `rows` (their residuals and Jacobian rows, in that order)."""
-        ch = self._chunk(np.arange(self.n_rows) if rows is None else np.asarray(rows))
+        ch = self._every_row if rows is None else self._chunk(np.asarray(rows))
         rb, jc = self._blocks(s, ch)
         r, jm = np.empty_like(rb), np.empty((len(ch.rows), 3, self.n_cols))
         r[ch.order], jm[ch.order] = rb, self._dense(ch, jc).reshape(-1, 3, self.n_cols)
@@ -307,9 +312,9 @@ class Problem:
         info, grad, cost = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all), 0.0
         for ch in self.chunks:
             r, jc = self._blocks(s, ch)
-            for sl, cols in ch.groups:
+            for sl, cols, block in ch.groups:
                 jg, rg = jc[sl].reshape(-1, jc.shape[2]), r[sl].ravel()
-                info[np.ix_(cols, cols)] += jg.T @ jg
+                info[block] += jg.T @ jg
                 grad[cols] += jg.T @ rg
             cost += float(np.vdot(r, r))
         return info[np.ix_(self.free, self.free)], grad[self.free], cost

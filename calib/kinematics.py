@@ -17,7 +17,7 @@ import numpy as np
 
 from .chain import Chain
 from .params import Param, complete_params
-from .rigid import rot_axis, skew
+from .rigid import skew
 
 
 class PointJacobian:
@@ -27,11 +27,11 @@ class PointJacobian:
     product [p]x w remains. The derivatives are computed when first asked for (identification never needs
     the joint columns)."""
 
-    def __init__(self, p, r_end, pose_p, pose_w, joint_p, joint_w, rows):
+    def __init__(self, p, r_end, pose_p, pose_w, joint_o, joint_w, rows):
         self.p = p  # (N, 3) point in the robot base frame, mm
         self._r_end, self._rows = r_end, rows
         self._pose_p, self._pose_w = pose_p, pose_w  # (M, 3, k): translation axis | o x w; 0 | w
-        self._joint_p, self._joint_w = joint_p, joint_w  # (M, 3, n): the same for every joint
+        self._joint_o, self._joint_w = joint_o, joint_w  # (M, 3, n): origin and axis of every joint
 
     def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
         return per_pose if self._rows is None else per_pose[self._rows]
@@ -52,7 +52,7 @@ class PointJacobian:
     @cached_property
     def d_q(self) -> np.ndarray:
         """(N, 3, n) derivative w.r.t. the joint angles (mm/rad)."""
-        return self._columns(self._joint_p, self._joint_w)
+        return self._columns(cross3(self._joint_o, self._joint_w), self._joint_w)
 
     @cached_property
     def joint_axes(self) -> np.ndarray:
@@ -74,6 +74,17 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )  # fmt: skip
 
 
+def turned(r: np.ndarray, axis: int, cos, sin) -> np.ndarray:
+    """r @ rot_axis(axis, angle) for rotations r (N, 3, 3): the turn mixes two columns of r (cos, sin of the
+    angle: scalars or (N, 1))."""
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    out = np.empty_like(r)
+    out[:, :, axis] = r[:, :, axis]
+    out[:, :, i] = r[:, :, i] * cos + r[:, :, j] * sin
+    out[:, :, j] = r[:, :, j] * cos - r[:, :, i] * sin
+    return out
+
+
 class Kinematics:
     """Forward kinematics of `chain`; the deviation vector is laid out as `params`."""
 
@@ -81,6 +92,7 @@ class Kinematics:
         self.chain = chain
         self.params = list(params)
         self.index = {p: i for i, p in enumerate(self.params)}
+        self._plain = [np.array_equal(joint.rotation, np.eye(3)) for joint in chain.joints]  # no fixed rotation
         complete = set(complete_params(chain))
         for p in self.params:
             if p not in complete:
@@ -111,11 +123,13 @@ class Kinematics:
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
         r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
         o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
+        angles = (q + dq) * np.array([joint.sign for joint in chain.joints])
+        cos, sin = np.cos(angles), np.sin(angles)
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
                 frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o.copy())
-            r = r @ rot_axis(joint.axis, joint.sign * (q[:, j] + dq[j]))
+            r = turned(r, joint.axis, cos[:, j, None], sin[:, j, None])
             if record:
                 frames[(j, "p")] = (r, None)
             o = o + r @ (joint.translation + dt[j])
@@ -125,8 +139,9 @@ class Kinematics:
                 if record:
                     frames[(j, "phi", a)] = (r[:, :, a].copy(), o.copy())
                 if dphi[j, a] != 0.0:
-                    r = r @ rot_axis(a, dphi[j, a])
-            r = r @ joint.rotation
+                    r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
+            if not self._plain[j]:
+                r = r @ joint.rotation
         return r, o, frames
 
     def points(
@@ -149,19 +164,19 @@ class Kinematics:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
         k, n = len(self.params), self.chain.dof
-        pose_p, pose_w = np.zeros((len(q), 3, k)), np.zeros((len(q), 3, k))
+        pose_t, pose_w, pose_o = (np.zeros((len(q), 3, k)) for _ in range(3))
         for i, par in enumerate(self.params):
             if par.kind == "p":
-                pose_p[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
+                pose_t[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
             else:
-                w, org = frames[(par.joint, "dq")] if par.kind == "dq" else frames[(par.joint, "phi", par.axis)]
-                pose_p[:, :, i], pose_w[:, :, i] = cross3(org, w), w
+                key = (par.joint, "dq") if par.kind == "dq" else (par.joint, "phi", par.axis)
+                pose_w[:, :, i], pose_o[:, :, i] = frames[key]
         joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=2)
-        joint_p = cross3(np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2), joint_w)
+        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2)
         r_rows, o_rows = (r, o) if rows is None else (r[rows], o[rows])
         tool = np.broadcast_to(np.asarray(tool, dtype=float), o_rows.shape)
         p = o_rows + (r_rows @ tool[:, :, None])[:, :, 0]
-        return PointJacobian(p, r, pose_p, pose_w, joint_p, joint_w, rows)
+        return PointJacobian(p, r, pose_t + cross3(pose_o, pose_w), pose_w, joint_o, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""
