@@ -387,6 +387,7 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
     # after a taken step the next trial point is evaluated with its normal equations (steps are nearly always
     # taken: geometric calibration is close to linear), after a refused one by its residuals alone
     fused = True
+    prev = 0.0  # size of the last step taken almost undamped (0: none)
     converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
     eye = np.eye(problem.n_cols)
     scale = info_s = gs = None
@@ -400,12 +401,17 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             info_s, gs = info / np.outer(scale, scale), g / scale
         ds = np.linalg.solve(info_s + lam * eye, gs)
         jd2 = float(ds @ info_s @ ds)  # |J_s ds|^2
-        # converged when an (almost undamped) step would move the fit by < 1e-9 of the noise level,
-        # so parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor
-        if lam <= 1e-6 and np.sqrt(jd2) <= 1e-9 * np.sqrt(cost / dof) + floor:
+        step, tol = np.sqrt(jd2), 1e-9 * np.sqrt(cost / dof) + floor
+        # Converged when an (almost undamped) step would move the fit by < 1e-9 of the noise level, so
+        # parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor. Gauss-Newton
+        # converges linearly near the minimum: with the rate rho = step / previous step, the steps still to
+        # come after this one add up to rho / (1 - rho) * step, and when that is below the same tolerance the
+        # step is taken as the last one (MINPACK's lm likewise stops on the step it takes, xtol).
+        rate = step / prev if prev > 0 else 1.0
+        if lam <= 1e-6 and (step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol)):
             state = problem.retract(state, ds / scale)
             iterations += 1
-            converged, message = True, "the undamped step is below the noise and rounding floor"
+            converged, message = True, "the undamped step, or all steps after it, below the noise and rounding floor"
             break
         cand = problem.retract(state, ds / scale)
         if fused:  # one pass gives the trial cost and, if the step is taken, the next normal equations
@@ -422,6 +428,7 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             info, g, cost = (info_new, g_new, cost_new) if fused else problem.normal_equations(state)
             info_s = None
             iterations += 1
+            prev = step if lam <= 1e-6 else 0.0
             lam = max(lam / 10.0, 1e-12)
             fused = True
         else:
