@@ -125,10 +125,11 @@ class Kinematics:
         o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
         angles = (q + dq) * np.array([joint.sign for joint in chain.joints])
         cos, sin = np.cos(angles), np.sin(angles)
+        # r and o are replaced, never changed in place, so the recorded frames may share their memory
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
-                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o.copy())
+                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o)
             r = turned(r, joint.axis, cos[:, j, None], sin[:, j, None])
             if record:
                 frames[(j, "p")] = (r, None)
@@ -137,7 +138,7 @@ class Kinematics:
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[:, :, a].copy(), o.copy())
+                    frames[(j, "phi", a)] = (r[:, :, a], o)
                 if dphi[j, a] != 0.0:
                     r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
             if not self._plain[j]:
