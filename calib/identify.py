@@ -103,8 +103,10 @@ class Identification:
         return self.cov[:k, :k]
 
 
-def _init_stations(kin, q, tool_rows, xyz, st_idx, station_ids, source) -> list[Station]:
-    p_nom = kin.points(q, tool_rows)
+def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> list[Station]:
+    """Kabsch fits of every station on the nominal predictions; `poses` = (q of the distinct poses, pose of
+    each row)."""
+    p_nom = kin.points(poses[0], tool_rows, rows=poses[1])
     out = []
     for s, sid in enumerate(station_ids):
         rows = np.flatnonzero(st_idx == s)
@@ -206,7 +208,8 @@ class Problem:
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
-        stations = _init_stations(self.kin, self.q, pts[self.pt_idx], self.xyz, self.st_idx, self.station_ids, source)
+        stations = _init_stations(self.kin, (self.q[self.pose_first], self.row_pose), pts[self.pt_idx], self.xyz,
+                                  self.st_idx, self.station_ids, source)  # fmt: skip
         self.initial = State(dev, stations, pts, ext)
 
     def set_chunks(self, chunks: list[np.ndarray]) -> None:
@@ -232,11 +235,6 @@ class Problem:
     def _every_row(self) -> _Chunk:
         return self._chunk(np.arange(self.n_rows))
 
-    def _station_arrays(self, s: State):
-        rs = np.array([st.rotation for st in s.stations])[self.st_idx]
-        ts = np.array([st.translation for st in s.stations])[self.st_idx]
-        return rs, ts
-
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         return r if self.w is None else np.einsum("nij,nj...->ni...", self.w, r)
 
@@ -248,10 +246,12 @@ class Problem:
         return None if self.ext is None else self.ext.growth_of(s.ext)
 
     def predicted(self, s: State) -> np.ndarray:
-        rs, ts = self._station_arrays(s)
         pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
                           (self.pose_first, self.row_pose))  # fmt: skip
-        return np.einsum("nij,nj->ni", rs, pb) + ts
+        for i, st in enumerate(s.stations):  # station by station: no per-row rotations held
+            rows = self.st_idx == i
+            pb[rows] = st.apply(pb[rows])
+        return pb
 
     def residual(self, s: State) -> np.ndarray:
         """Whitened residuals (measured - predicted), flattened (3N,)."""

@@ -123,14 +123,13 @@ class Kinematics:
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
         r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
         o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
-        angles = (q + dq) * np.array([joint.sign for joint in chain.joints])
-        cos, sin = np.cos(angles), np.sin(angles)
         # r and o are replaced, never changed in place, so the recorded frames may share their memory
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
                 frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o)
-            r = turned(r, joint.axis, cos[:, j, None], sin[:, j, None])
+            angle = joint.sign * (q[:, j, None] + dq[j])
+            r = turned(r, joint.axis, np.cos(angle), np.sin(angle))
             if record:
                 frames[(j, "p")] = (r, None)
             o = o + r @ (joint.translation + dt[j])
