@@ -266,27 +266,31 @@ class Problem:
         ts = np.array([st.translation for st in s.stations])[st_idx]
         jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[pt_idx], s.dev, rows=ch.of_row)
         p, d_params, d_point = jac.p, jac.d_params, jac.d_point
+        w = None if self.w is None else self.w[rows]
+        m = rs if w is None else w @ rs  # station frame, then whitening: one product per row for both
         jc = np.empty((len(rows), 3, c + 9))
         jc[:, :, k:c] = 0.0
         g = self._growth(s)
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
             grow = (1.0 + g[rows])[:, None, None]
             rel = p - self.ext.pivot
-            jc[:, :, k:c] = (rs @ rel[:, :, None]) * self.ext.growth[rows][:, None, :]
+            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[rows][:, None, :]
             p = self.ext.pivot + grow[:, :, 0] * rel
             d_params, d_point = grow * d_params, grow * d_point
         if self.ext is not None and self.ext.joint_features is not None:
             d_q = jac.d_q if g is None else grow * jac.d_q
-            jc[:, :, k:c] += rs @ d_q @ self.ext.joint_features[rows]
+            jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[rows]
         xs = (rs @ p[:, :, None])[:, :, 0] + ts
-        np.matmul(rs, d_params, out=jc[:, :, :k])
-        jc[:, :, c : c + 3] = np.eye(3)
-        jc[:, :, c + 3 : c + 6] = -skew(xs)
-        np.matmul(rs, d_point, out=jc[:, :, c + 6 :])
+        np.matmul(m, d_params, out=jc[:, :, :k])
+        np.matmul(m, d_point, out=jc[:, :, c + 6 :])
         r = self.xyz[rows] - xs
-        if self.w is not None:
-            w = self.w[rows]
-            r, jc = (w @ r[:, :, None])[:, :, 0], w @ jc
+        if w is None:
+            jc[:, :, c : c + 3] = np.eye(3)
+            jc[:, :, c + 3 : c + 6] = -skew(xs)
+        else:
+            jc[:, :, c : c + 3] = w
+            np.matmul(w, -skew(xs), out=jc[:, :, c + 3 : c + 6])
+            r = (w @ r[:, :, None])[:, :, 0]
         return r, jc
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
