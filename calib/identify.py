@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import stdtrit
@@ -102,8 +103,10 @@ class Identification:
         return self.cov[:k, :k]
 
 
-def _init_stations(kin, q, tool_rows, xyz, st_idx, station_ids, source) -> list[Station]:
-    p_nom = kin.points(q, tool_rows)
+def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> list[Station]:
+    """Kabsch fits of every station on the nominal predictions; `poses` = (q of the distinct poses, pose of
+    each row)."""
+    p_nom = kin.points(poses[0], tool_rows, rows=poses[1])
     out = []
     for s, sid in enumerate(station_ids):
         rows = np.flatnonzero(st_idx == s)
@@ -126,6 +129,17 @@ class State:
     stations: list[Station]
     points: np.ndarray  # (P, 3) in the last joint frame
     ext: np.ndarray = field(default_factory=lambda: np.zeros(0))  # model extension parameters
+
+
+class _Chunk(NamedTuple):
+    """Rows of one chunk of the normal equations, ordered by (station, point), with what every pass reuses."""
+
+    rows: np.ndarray  # table rows
+    order: np.ndarray  # position of each among the rows the chunk was made from
+    poses: np.ndarray  # the distinct poses of those rows
+    of_row: np.ndarray  # index into poses of each row
+    groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
+    # unknowns, and the block of the normal matrix those columns make (np.ix_)
 
 
 class Problem:
@@ -189,18 +203,37 @@ class Problem:
         self.row_pose = self.row_pose.ravel()
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
         order = np.argsort(self.row_pose, kind="stable")
-        self.chunks = np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS)))
+        self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
         self.w = None if noise is None else noise.whitening(self.xyz)
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
-        stations = _init_stations(self.kin, self.q, pts[self.pt_idx], self.xyz, self.st_idx, self.station_ids, source)
+        stations = _init_stations(self.kin, (self.q[self.pose_first], self.row_pose), pts[self.pt_idx], self.xyz,
+                                  self.st_idx, self.station_ids, source)  # fmt: skip
         self.initial = State(dev, stations, pts, ext)
 
-    def _station_arrays(self, s: State):
-        rs = np.array([st.rotation for st in s.stations])[self.st_idx]
-        ts = np.array([st.translation for st in s.stations])[self.st_idx]
-        return rs, ts
+    def set_chunks(self, chunks: list[np.ndarray]) -> None:
+        """Split the rows into these chunks for the normal equations (any partition of the rows)."""
+        self.chunks = [self._chunk(rows) for rows in chunks]
+
+    def _chunk(self, rows: np.ndarray) -> _Chunk:
+        group = self.st_idx[rows] * self.n_pt + self.pt_idx[rows]
+        order = np.argsort(group, kind="stable")
+        rows, group = rows[order], group[order]
+        poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
+        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        ends = np.r_[starts[1:], len(rows)]
+        c_pt = self.c_st + 6 * self.n_st
+        groups = []
+        for a, b in zip(starts, ends, strict=True):
+            s, p = divmod(int(group[a]), self.n_pt)
+            cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
+            groups.append((slice(a, b), cols, np.ix_(cols, cols)))
+        return _Chunk(rows, order, poses, of_row.ravel(), groups)
+
+    @cached_property
+    def _every_row(self) -> _Chunk:
+        return self._chunk(np.arange(self.n_rows))
 
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         return r if self.w is None else np.einsum("nij,nj...->ni...", self.w, r)
@@ -213,74 +246,89 @@ class Problem:
         return None if self.ext is None else self.ext.growth_of(s.ext)
 
     def predicted(self, s: State) -> np.ndarray:
-        rs, ts = self._station_arrays(s)
         pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
                           (self.pose_first, self.row_pose))  # fmt: skip
-        return np.einsum("nij,nj->ni", rs, pb) + ts
+        for i, st in enumerate(s.stations):  # station by station: no per-row rotations held
+            rows = self.st_idx == i
+            pb[rows] = st.apply(pb[rows])
+        return pb
 
     def residual(self, s: State) -> np.ndarray:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
         return self._whiten(self.xyz - self.predicted(s)).ravel()
 
-    def residual_and_jacobian(self, s: State, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
-        of the given `rows` (their residuals and Jacobian rows, in that order)."""
-        rows = np.arange(self.n_rows) if rows is None else rows
-        n, k = len(rows), self.k
-        ar = np.arange(n)
-        poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
+    def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals (n, 3) of the chunk's rows and the non-zero blocks of their Jacobian (n, 3, m):
+        the columns of the robot and extension, of the row's station (v, w) and of its point, in that order."""
+        rows, k, c = ch.rows, self.k, self.c_st
         st_idx, pt_idx = self.st_idx[rows], self.pt_idx[rows]
         rs = np.array([st.rotation for st in s.stations])[st_idx]
         ts = np.array([st.translation for st in s.stations])[st_idx]
-        q = self._q(s)[self.pose_first[poses]]
-        jac = self.kin.jacobian(q, s.points[pt_idx], s.dev, rows=of_row)
-        p, d_params, d_q = jac.p, jac.d_params, jac.d_q
-        d_point = jac.d_point
-        jm = np.zeros((n, 3, self.n_all))
+        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[pt_idx], s.dev, rows=ch.of_row)
+        p, d_params, d_point = jac.p, jac.d_params, jac.d_point
+        w = None if self.w is None else self.w[rows]
+        m = rs if w is None else w @ rs  # station frame, then whitening: one product per row for both
+        jc = np.empty((len(rows), 3, c + 9))
+        jc[:, :, k:c] = 0.0
         g = self._growth(s)
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
-            g = g[rows]
+            grow = (1.0 + g[rows])[:, None, None]
             rel = p - self.ext.pivot
-            jm[:, :, k : k + self.e] = np.einsum("nij,nj,ne->nie", rs, rel, self.ext.growth[rows])
-            p = self.ext.pivot + (1.0 + g)[:, None] * rel
-            d_params, d_q, d_point = ((1.0 + g)[:, None, None] * x for x in (d_params, d_q, d_point))
+            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[rows][:, None, :]
+            p = self.ext.pivot + grow[:, :, 0] * rel
+            d_params, d_point = grow * d_params, grow * d_point
         if self.ext is not None and self.ext.joint_features is not None:
-            jm[:, :, k : k + self.e] += np.einsum("nij,njl,nle->nie", rs, d_q, self.ext.joint_features[rows])
-        xs = np.einsum("nij,nj->ni", rs, p) + ts
-        jm[:, :, :k] = np.einsum("nij,njk->nik", rs, d_params)
-        c0 = self.c_st + 6 * st_idx
-        for a in range(3):
-            jm[ar, a, c0 + a] = 1.0
-        # fancy indices (n, 3) around a slice put the indexed axes first: [row, column, coordinate]
-        jm[ar[:, None], :, c0[:, None] + 3 + np.arange(3)] = np.transpose(-skew(xs), (0, 2, 1))
-        c1 = self.c_st + 6 * self.n_st + 3 * pt_idx
-        jm[ar[:, None], :, c1[:, None] + np.arange(3)] = np.transpose(
-            np.einsum("nij,njk->nik", rs, d_point), (0, 2, 1)
-        )
-        w = None if self.w is None else self.w[rows]
+            d_q = jac.d_q if g is None else grow * jac.d_q
+            jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[rows]
+        xs = (rs @ p[:, :, None])[:, :, 0] + ts
+        np.matmul(m, d_params, out=jc[:, :, :k])
+        np.matmul(m, d_point, out=jc[:, :, c + 6 :])
         r = self.xyz[rows] - xs
-        if w is not None:
-            r, jm = np.einsum("nij,nj->ni", w, r), np.einsum("nij,nj...->ni...", w, jm[:, :, self.free])
+        if w is None:
+            jc[:, :, c : c + 3] = np.eye(3)
+            jc[:, :, c + 3 : c + 6] = -skew(xs)
         else:
-            jm = jm[:, :, self.free]
-        return r.ravel(), jm.reshape(3 * n, self.n_cols)
+            jc[:, :, c : c + 3] = w
+            np.matmul(w, -skew(xs), out=jc[:, :, c + 3 : c + 6])
+            r = (w @ r[:, :, None])[:, :, 0]
+        return r, jc
+
+    def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
+        """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
+        jm = np.zeros((len(ch.rows), 3, self.n_all))
+        for sl, cols, _ in ch.groups:
+            jm[sl][:, :, cols] = jc[sl]
+        return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
+
+    def residual_and_jacobian(self, s: State, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
+        of the given `rows` (their residuals and Jacobian rows, in that order)."""
+        ch = self._every_row if rows is None else self._chunk(np.asarray(rows))
+        rb, jc = self._blocks(s, ch)
+        r, jm = np.empty_like(rb), np.empty((len(ch.rows), 3, self.n_cols))
+        r[ch.order], jm[ch.order] = rb, self._dense(ch, jc).reshape(-1, 3, self.n_cols)
+        return r.ravel(), jm.reshape(-1, self.n_cols)
 
     def normal_equations(self, s: State) -> tuple[np.ndarray, np.ndarray, float]:
-        """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks (no whole Jacobian)."""
-        info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
-        for rows in self.chunks:
-            r, jm = self.residual_and_jacobian(s, rows)
-            info += jm.T @ jm
-            grad += jm.T @ r
-            cost += float(r @ r)
-        return info, grad, cost
+        """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks from the Jacobian's
+        non-zero blocks: the rows of one (station, point) pair touch only the robot's, that station's and that
+        point's columns (the whole Jacobian is never held)."""
+        info, grad, cost = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all), 0.0
+        for ch in self.chunks:
+            r, jc = self._blocks(s, ch)
+            for sl, cols, block in ch.groups:
+                jg, rg = jc[sl].reshape(-1, jc.shape[2]), r[sl].ravel()
+                info[block] += jg.T @ jg
+                grad[cols] += jg.T @ rg
+            cost += float(np.vdot(r, r))
+        return info[np.ix_(self.free, self.free)], grad[self.free], cost
 
     def r_factor(self, s: State) -> np.ndarray:
         """R (n_cols, n_cols) of J = QR, accumulated over row chunks (TSQR): J and R share their singular
         values and right singular vectors, and R^T R = J^T J."""
         r_acc = np.zeros((0, self.n_cols))
-        for rows in self.chunks:
-            r_acc = np.linalg.qr(np.vstack([r_acc, self.residual_and_jacobian(s, rows)[1]]), mode="r")
+        for ch in self.chunks:
+            r_acc = np.linalg.qr(np.vstack([r_acc, self._dense(ch, self._blocks(s, ch)[1])]), mode="r")
         return r_acc
 
     def retract(self, s: State, delta: np.ndarray) -> State:
@@ -333,12 +381,17 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
     """Levenberg-Marquardt on column-scaled normal equations from `state`.
 
     The normal equations are accumulated once per Jacobian (`Problem.normal_equations`, by row chunks, pose
-    by pose) and reused for every damping step tried at that point."""
+    by pose) and reused for every damping step tried at that point; the pass that forms them also gives the
+    cost that judges the step which led there."""
     info, g, cost = problem.normal_equations(state)
     dof = max(3 * problem.n_rows - problem.n_cols, 1)
     # rounding floor of the residual vector: coordinates carry ~1e-16 relative error each
     floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
     lam, iterations = 1e-8, 1
+    # after a taken step the next trial point is evaluated with its normal equations (steps are nearly always
+    # taken: geometric calibration is close to linear), after a refused one by its residuals alone
+    fused = True
+    prev = 0.0  # size of the last step taken almost undamped (0: none)
     converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
     eye = np.eye(problem.n_cols)
     scale = info_s = gs = None
@@ -352,28 +405,39 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             info_s, gs = info / np.outer(scale, scale), g / scale
         ds = np.linalg.solve(info_s + lam * eye, gs)
         jd2 = float(ds @ info_s @ ds)  # |J_s ds|^2
-        # converged when an (almost undamped) step would move the fit by < 1e-9 of the noise level,
-        # so parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor
-        if lam <= 1e-6 and np.sqrt(jd2) <= 1e-9 * np.sqrt(cost / dof) + floor:
+        step, tol = np.sqrt(jd2), 1e-9 * np.sqrt(cost / dof) + floor
+        # Converged when an (almost undamped) step would move the fit by < 1e-9 of the noise level, so
+        # parameters move by ~1e-9 of their standard deviation, or by less than the rounding floor. Gauss-Newton
+        # converges linearly near the minimum: with the rate rho = step / previous step, the steps still to
+        # come after this one add up to rho / (1 - rho) * step, and when that is below the same tolerance the
+        # step is taken as the last one (MINPACK's lm likewise stops on the step it takes, xtol).
+        rate = step / prev if prev > 0 else 1.0
+        if lam <= 1e-6 and (step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol)):
             state = problem.retract(state, ds / scale)
             iterations += 1
-            converged, message = True, "the undamped step is below the noise and rounding floor"
+            converged, message = True, "the undamped step, or all steps after it, below the noise and rounding floor"
             break
         cand = problem.retract(state, ds / scale)
-        r_new = problem.residual(cand)
-        cost_new = float(r_new @ r_new)
+        if fused:  # one pass gives the trial cost and, if the step is taken, the next normal equations
+            info_new, g_new, cost_new = problem.normal_equations(cand)
+        else:
+            r_new = problem.residual(cand)
+            cost_new = float(r_new @ r_new)
         # Near the minimum the decrease a step predicts falls below the rounding noise of the cost
         # (residuals of ~0.01 mm from coordinates of ~5000 mm): such a step is taken on trust, since
         # a comparison of costs can no longer judge it.
         predicted = 2.0 * float(gs @ ds) - jd2
         if cost_new <= cost or predicted <= 1e-10 * cost:
             state = cand
-            info, g, cost = problem.normal_equations(state)
+            info, g, cost = (info_new, g_new, cost_new) if fused else problem.normal_equations(state)
             info_s = None
             iterations += 1
+            prev = step if lam <= 1e-6 else 0.0
             lam = max(lam / 10.0, 1e-12)
+            fused = True
         else:
             lam *= 10.0
+            fused = False
             if lam > 1e8:
                 message = "the damping exceeded 1e8: no step decreases the cost"
                 break
@@ -397,7 +461,9 @@ def identify(
     columns of the covariance are zero)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     sol = solve(problem, problem.initial, max_iter)
-    state, r = sol.state, sol.r
+    state = sol.state
+    residuals = problem.xyz - problem.predicted(state)
+    r = problem._whiten(residuals).ravel()
     rf = problem.r_factor(state)
     scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
     scale[scale == 0] = 1.0
@@ -423,7 +489,7 @@ def identify(
         cov=cov,
         station_ids=problem.station_ids,
         point_ids=problem.point_ids,
-        residuals=problem.xyz - problem.predicted(state),
+        residuals=residuals,
         variance_factor=s2,
         dof=dof,
         iterations=sol.nit,

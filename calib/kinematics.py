@@ -11,23 +11,58 @@ Jacobian column is the exact derivative at the current deviations (not only at n
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from .chain import Chain
 from .params import Param, complete_params
-from .rigid import rot_axis
+from .rigid import skew
 
 
-@dataclass
 class PointJacobian:
-    p: np.ndarray  # (N, 3) point in the robot base frame, mm
-    d_params: np.ndarray  # (N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)
-    d_point: np.ndarray  # (N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)
-    d_q: np.ndarray  # (N, 3, n) derivative w.r.t. the joint angles (mm/rad)
-    joint_axes: np.ndarray  # (N, 3, n) unit axis of each joint in the base frame (signed)
-    rot_axes: np.ndarray  # (N, 3, k) axis of each rotational parameter (zeros for translations)
+    """Point and Jacobians of N rows, built from the frames of their M distinct poses (`rows` gives each row's
+    pose). Every column is linear in the point p of its row: a rotation about axis w through o gives
+    w x (p - o) = (o x w) - [p]x w, so per pose the chain leaves (o x w) and w, and per row one batched
+    product [p]x w remains. The derivatives are computed when first asked for (identification never needs
+    the joint columns)."""
+
+    def __init__(self, p, r_end, pose_p, pose_w, joint_o, joint_w, rows):
+        self.p = p  # (N, 3) point in the robot base frame, mm
+        self._r_end, self._rows = r_end, rows
+        self._pose_p, self._pose_w = pose_p, pose_w  # (M, 3, k): translation axis | o x w; 0 | w
+        self._joint_o, self._joint_w = joint_o, joint_w  # (M, 3, n): origin and axis of every joint
+
+    def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
+        return per_pose if self._rows is None else per_pose[self._rows]
+
+    def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
+        return self._per_row(pose_p) - skew(self.p) @ self._per_row(pose_w)
+
+    @cached_property
+    def d_params(self) -> np.ndarray:
+        """(N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)."""
+        return self._columns(self._pose_p, self._pose_w)
+
+    @cached_property
+    def d_point(self) -> np.ndarray:
+        """(N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)."""
+        return self._per_row(self._r_end)
+
+    @cached_property
+    def d_q(self) -> np.ndarray:
+        """(N, 3, n) derivative w.r.t. the joint angles (mm/rad)."""
+        return self._columns(cross3(self._joint_o, self._joint_w), self._joint_w)
+
+    @cached_property
+    def joint_axes(self) -> np.ndarray:
+        """(N, 3, n) unit axis of each joint in the base frame (signed)."""
+        return self._per_row(self._joint_w)
+
+    @cached_property
+    def rot_axes(self) -> np.ndarray:
+        """(N, 3, k) axis of each rotational parameter (zeros for translations)."""
+        return self._per_row(self._pose_w)
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -39,6 +74,17 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )  # fmt: skip
 
 
+def turned(r: np.ndarray, axis: int, cos, sin) -> np.ndarray:
+    """r @ rot_axis(axis, angle) for rotations r (N, 3, 3): the turn mixes two columns of r (cos, sin of the
+    angle: scalars or (N, 1))."""
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    out = np.empty_like(r)
+    out[:, :, axis] = r[:, :, axis]
+    out[:, :, i] = r[:, :, i] * cos + r[:, :, j] * sin
+    out[:, :, j] = r[:, :, j] * cos - r[:, :, i] * sin
+    return out
+
+
 class Kinematics:
     """Forward kinematics of `chain`; the deviation vector is laid out as `params`."""
 
@@ -46,6 +92,7 @@ class Kinematics:
         self.chain = chain
         self.params = list(params)
         self.index = {p: i for i, p in enumerate(self.params)}
+        self._plain = [np.array_equal(joint.rotation, np.eye(3)) for joint in chain.joints]  # no fixed rotation
         complete = set(complete_params(chain))
         for p in self.params:
             if p not in complete:
@@ -76,11 +123,13 @@ class Kinematics:
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
         r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
         o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
+        # r and o are replaced, never changed in place, so the recorded frames may share their memory
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
-                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o.copy())
-            r = r @ rot_axis(joint.axis, joint.sign * (q[:, j] + dq[j]))
+                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o)
+            angle = joint.sign * (q[:, j, None] + dq[j])
+            r = turned(r, joint.axis, np.cos(angle), np.sin(angle))
             if record:
                 frames[(j, "p")] = (r, None)
             o = o + r @ (joint.translation + dt[j])
@@ -88,10 +137,11 @@ class Kinematics:
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[:, :, a].copy(), o.copy())
+                    frames[(j, "phi", a)] = (r[:, :, a], o)
                 if dphi[j, a] != 0.0:
-                    r = r @ rot_axis(a, dphi[j, a])
-            r = r @ joint.rotation
+                    r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
+            if not self._plain[j]:
+                r = r @ joint.rotation
         return r, o, frames
 
     def points(
@@ -113,40 +163,20 @@ class Kinematics:
         several points of one pose, or one point from several stations, share its frames)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
-        # per pose: translation columns, and axis + origin of every rotational column then of every joint
-        trans_cols, trans, axes, origins = [], [], [], []
-        rot_cols = []
+        k, n = len(self.params), self.chain.dof
+        pose_t, pose_w, pose_o = (np.zeros((len(q), 3, k)) for _ in range(3))
         for i, par in enumerate(self.params):
             if par.kind == "p":
-                trans_cols.append(i)
-                trans.append(frames[(par.joint, "p")][0][:, :, par.axis])
+                pose_t[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
             else:
-                w, org = frames[(par.joint, "dq")] if par.kind == "dq" else frames[(par.joint, "phi", par.axis)]
-                rot_cols.append(i)
-                axes.append(w)
-                origins.append(org)
-        for j in range(self.chain.dof):
-            w, org = frames[(j, "dq")]
-            axes.append(w)
-            origins.append(org)
-        w, org = np.stack(axes, axis=2), np.stack(origins, axis=2)
-        t_cols = np.stack(trans, axis=2) if trans else np.zeros((len(q), 3, 0))
-        if rows is not None:
-            r, o, w, org, t_cols = r[rows], o[rows], w[rows], org[rows], t_cols[rows]
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
-        p = o + np.einsum("nij,nj->ni", r, tool)
-        n_rows = len(p)
-        # one vectorised cross product for every rotational column: w x (p - o)
-        cross = cross3(w, p[:, :, None] - org)
-        d_params = np.zeros((n_rows, 3, len(self.params)))
-        d_params[:, :, trans_cols] = t_cols
-        d_params[:, :, rot_cols] = cross[:, :, : len(rot_cols)]
-        d_q = cross[:, :, len(rot_cols) :]
-        rot_axes = np.zeros_like(d_params)
-        rot_axes[:, :, rot_cols] = w[:, :, : len(rot_cols)]
-        return PointJacobian(
-            p=p, d_params=d_params, d_point=r, d_q=d_q, joint_axes=w[:, :, len(rot_cols) :], rot_axes=rot_axes
-        )
+                key = (par.joint, "dq") if par.kind == "dq" else (par.joint, "phi", par.axis)
+                pose_w[:, :, i], pose_o[:, :, i] = frames[key]
+        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=2)
+        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2)
+        r_rows, o_rows = (r, o) if rows is None else (r[rows], o[rows])
+        tool = np.broadcast_to(np.asarray(tool, dtype=float), o_rows.shape)
+        p = o_rows + (r_rows @ tool[:, :, None])[:, :, 0]
+        return PointJacobian(p, r, pose_t + cross3(pose_o, pose_w), pose_w, joint_o, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from calib.extensions import build_extension
+from calib.extensions import build_extension, combine
 from calib.identify import IdentificationError, Problem, identify, residual_stats, significance, solve
 from calib.noise import TrackerNoise
 from calib.params import complete_params
@@ -180,7 +180,7 @@ def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
     state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
     r, jm = problem.residual_and_jacobian(state)
     for chunks in (1, 7):
-        problem.chunks = np.array_split(rng.permutation(problem.n_rows), chunks)
+        problem.set_chunks(np.array_split(rng.permutation(problem.n_rows), chunks))
         info, g, cost = problem.normal_equations(state)
         np.testing.assert_allclose(info, jm.T @ jm, rtol=1e-10, atol=1e-12 * np.abs(info).max())
         np.testing.assert_allclose(g, jm.T @ r, rtol=1e-9, atol=1e-12 * np.abs(g).max())
@@ -200,3 +200,50 @@ def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
     k = problem.k + problem.e
     # solver tolerance: steps below 1e-9 of the noise level move parameters by ~1e-9 of their std
     assert np.all(np.abs(np.r_[ours.dev, ours.ext] - np.r_[ref.dev, ref.ext]) < 1e-6 * std[:k])
+
+
+@pytest.fixture(scope="module")
+def extended(kr270, kr270_params):
+    """A problem with every kind of unknown: robot, a growth (thermal) and a joint-offset (backlash) extension,
+    two stations, three points, the tracker noise model, away from its start."""
+    _, table = kr270_campaign(kr270, seed=41, n_poses=8)
+    ext = combine([build_extension("backlash", kr270.chain, table), build_extension("thermal_drift", kr270.chain,
+                                                                                   table, names=["e_base"])])
+    return table, ext
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), fixed=st.sampled_from([(), ("points",), ("robot", "points")]))
+def test_jacobian_blocks_match_central_differences(kr270, kr270_params, extended, seed, fixed):
+    """The Jacobian, assembled from its non-zero blocks (robot and extension, one station, one point per row),
+    of any subset of rows in any order, against central differences of the residuals, every free column."""
+    table, ext = extended
+    rng = np.random.default_rng(seed)
+    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, TrackerNoise(), extension=ext,
+                      ext0=rng.normal(0.0, 1e-5, ext.size), fixed=fixed)  # fmt: skip
+    state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
+    rows = rng.permutation(problem.n_rows)[: rng.integers(1, problem.n_rows)]
+    r0, jm = problem.residual_and_jacobian(state, rows)
+    sel = (3 * rows[:, None] + np.arange(3)).ravel()
+    np.testing.assert_allclose(r0, problem.residual(state)[sel], atol=1e-9)
+    for c in range(problem.n_cols):
+        step = np.zeros(problem.n_cols)
+        h = 1e-4 / max(np.sqrt(np.mean(jm[:, c] ** 2)), 1e-3)  # moves the prediction by ~0.1 um
+        step[c] = h
+        diff = problem.residual(problem.retract(state, step)) - problem.residual(problem.retract(state, -step))
+        # the Jacobian is of the prediction (residual = measured - predicted); truncation O(h^2) and rounding
+        # ~1e-16 * 5000 mm / 1e-4 mm ~ 5e-9 relative to a column of unit scale
+        np.testing.assert_allclose(-diff[sel] / (2 * h), jm[:, c], rtol=1e-5, atol=1e-6 * np.abs(jm[:, c]).max())
+
+
+def test_normal_equations_pass_gives_the_residual_cost(kr270, kr270_params, extended):
+    """The solver judges a trial point by the cost of the pass that forms its normal equations: it equals the
+    cost of the residuals computed on their own (forward kinematics only), for any chunking."""
+    table, ext = extended
+    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, TrackerNoise(), extension=ext)
+    rng = np.random.default_rng(43)
+    state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
+    r = problem.residual(state)
+    for chunks in (1, 3):
+        problem.set_chunks(np.array_split(rng.permutation(problem.n_rows), chunks))
+        assert problem.normal_equations(state)[2] == pytest.approx(float(r @ r), rel=1e-12)

@@ -8,9 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calib.chain import chain_from_urdf
-from calib.kinematics import Kinematics
+from calib.kinematics import Kinematics, turned
 from calib.params import complete_params
 from calib.pinmodel import pinocchio_model
+from calib.rigid import exp_so3, rot_axis
 
 TOOL = np.array([277.0, -47.0, -94.0])
 
@@ -98,3 +99,14 @@ def test_rows_sharing_a_pose_give_the_per_row_result(kr270):
     for name in ("p", "d_params", "d_point", "d_q", "joint_axes", "rot_axes"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     np.testing.assert_array_equal(kin.points(poses, tool, dev, rows=rows), kin.points(poses[rows], tool, dev))
+
+
+@settings(max_examples=30, deadline=None)
+@given(axis=st.integers(0, 2), angles=st.lists(finite, min_size=1, max_size=5),
+       w=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3))  # fmt: skip
+def test_a_turn_is_the_product_with_the_axis_rotation(axis, angles, w):
+    """The forward kinematics turns a frame about one of its axes by mixing two columns: r @ rot_axis."""
+    angles = np.array(angles)
+    r = np.repeat(exp_so3(np.array(w))[None], len(angles), axis=0)
+    out = turned(r, axis, np.cos(angles)[:, None], np.sin(angles)[:, None])
+    np.testing.assert_allclose(out, r @ rot_axis(axis, angles), atol=1e-15)
