@@ -3,7 +3,8 @@ trackcal writes; the measurement-table reader (calib.table) falls back to its ge
 
 Plain means: no quote, NUL or CR byte, and every line the same number of fields. Then the cells are cut at the
 comma and newline bytes, and each column is parsed at once:
-- a number is [+-]digits[.digits] with at most 16 digits (no exponent, space, "nan" or "inf");
+- a number is [+-]digits[.digits] of up to 16 bytes after the sign whose digits, the dot read as a zero digit,
+  are below 2**53 (so any of up to 15 bytes; no exponent, space, "nan" or "inf");
 - an id is 1 to 64 bytes of printable ASCII without space (nothing to strip, never empty);
 - a text cell is up to 64 bytes, kept as written.
 A column with any other cell is None, and the caller gives the block to the general parser, which then reads
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-WIDE = 16  # digit bytes a number may have: 16 decimal digits stay below 2**53 after the checks below
+WIDE = 16  # bytes a number may have after its sign: 16 digits and a dot are 128 bits, two 64-bit words
 TEXT_BYTES = 64  # longest id or text cell parsed here
 _POW10 = 10.0 ** np.arange(WIDE + 1)  # exact doubles up to 1e22
 # _KEEP[w]: the last w of WIDE bytes set; masks a window of WIDE bytes ending a cell down to its w digits

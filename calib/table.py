@@ -244,10 +244,13 @@ class _Columns:
             text = _fields(lines[k])[self.num_idx[c]].strip()
             raise TableError(f"{path}: row {row + k}: column {self.numeric[c]}: not a number: {text!r}") from None
         try:
-            txt = _parse(lines, self.text_idx, TEXT)
+            # Read as Python strings, then made numpy strings: loadtxt straight into StringDType loses cells of 16
+            # bytes or more (numpy 2.4.6: MemoryError "Failed to load string" reading them back; shorter strings
+            # are stored inline and survive; found by tests/test_table_grid.py).
+            txt = _parse(lines, self.text_idx, object).astype(TEXT)
         except ValueError:
             self.check_counts(row, lines)
-            k, c = _first_bad_cell(lines, self.text_idx, TEXT)
+            k, c = _first_bad_cell(lines, self.text_idx, object)
             raise TableError(f"{path}: row {row + k}: column {self.text[c]}: not a CSV field") from None
         finite = np.isfinite(num)
         if not finite.all():
