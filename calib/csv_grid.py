@@ -35,14 +35,18 @@ TEXT = np.dtypes.StringDType()
 
 @dataclass
 class Grid:
-    """The cells of a plain block: start and end (exclusive) byte offsets into `buf`, (fields, rows) each."""
+    """The cells of a plain block: the offset into `buf` of the comma or newline ending each, (fields, rows)."""
 
     buf: np.ndarray  # uint8: WIDE newlines, the block, TEXT_BYTES NULs (so every window stays inside)
-    start: np.ndarray
     end: np.ndarray
 
     def __len__(self) -> int:
-        return self.start.shape[1]
+        return self.end.shape[1]
+
+    def bounds(self, c: int) -> tuple[np.ndarray, np.ndarray]:
+        """Start and end (exclusive) offsets of the cells of column c: a cell starts after the one before it."""
+        before = self.end[c - 1] if c else np.concatenate(([WIDE - 1], self.end[-1][:-1]))
+        return before + 1, self.end[c]
 
     def window(self, at: np.ndarray, width: int) -> np.ndarray:
         """(rows, width) uint8: the `width` bytes from each offset in `at`."""
@@ -51,7 +55,7 @@ class Grid:
 
     def numbers(self, c: int) -> np.ndarray | None:
         """Column c as float64, or None when a cell is not a plain decimal number."""
-        s, e = self.start[c], self.end[c]
+        s, e = self.bounds(c)
         first = self.buf[s]
         neg = first == ord("-")
         digits = e - s - (neg | (first == ord("+")))
@@ -83,7 +87,7 @@ class Grid:
     def cells(self, c: int, ids: bool) -> np.ndarray | None:
         """Column c as (rows, width) NUL-padded bytes, or None when a cell is too long (or, for ids, empty or
         not printable ASCII)."""
-        s, e = self.start[c], self.end[c]
+        s, e = self.bounds(c)
         w = e - s
         width = int(w.max())
         if width > TEXT_BYTES or (ids and w.min() < 1):
@@ -132,13 +136,12 @@ def split(data: bytes, fields: int) -> Grid | None:
     ending = b"" if data.endswith(b"\n") else b"\n"
     buf = np.frombuffer(b"\n" * WIDE + data + ending + b"\0" * TEXT_BYTES, np.uint8)
     body = buf[WIDE : len(buf) - TEXT_BYTES]
-    ends = np.flatnonzero((body == ord(",")) | (body == ord("\n"))) + WIDE
+    newline = body == ord("\n")
+    ends = np.flatnonzero(newline | (body == ord(","))) + WIDE
     rows = len(ends) // fields
-    if len(ends) != rows * fields or rows != data.count(b"\n") + len(ending):
+    if len(ends) != rows * fields or rows != np.count_nonzero(newline):
         return None
     grid = ends.reshape(rows, fields)
-    if not (buf[grid[:, -1]] == ord("\n")).all():
+    if not (buf[grid[:, -1]] == ord("\n")).all():  # so every other separator is a comma
         return None
-    starts = np.empty_like(ends)
-    starts[0], starts[1:] = WIDE, ends[:-1] + 1
-    return Grid(buf, np.ascontiguousarray(starts.reshape(rows, fields).T), np.ascontiguousarray(grid.T))
+    return Grid(buf, np.ascontiguousarray(grid.T))

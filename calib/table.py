@@ -282,10 +282,8 @@ class _Columns:
         if bad is not None:
             raise TableError(f"{self.path}: row {row + bad}: {counts[bad]} fields, the header has {n}")
 
-    def table(self, n_joints: int, has_xyz: bool) -> MeasurementTable:
-        num = np.concatenate(self.numbers)
-        txt = np.concatenate(self.texts)
-        seq = num[:, 0].astype(np.int64)
+    def check_repeats(self, seq: np.ndarray) -> None:
+        """The first row that repeats an earlier row's seq is an error naming both rows."""
         order = np.argsort(seq, kind="stable")
         repeat = np.flatnonzero(seq[order][1:] == seq[order][:-1])
         if repeat.size:
@@ -295,6 +293,13 @@ class _Columns:
             raise TableError(
                 f"{self.path}: row {later[k] + 2}: column seq: {seq[first]} already used in row {first + 2}"
             )
+
+    def table(self, n_joints: int, has_xyz: bool) -> MeasurementTable:
+        num = np.concatenate(self.numbers)
+        txt = np.concatenate(self.texts)
+        seq = num[:, 0].astype(np.int64)
+        if not (seq[1:] > seq[:-1]).all():  # not in order (as tables are written): look for a repeat
+            self.check_repeats(seq)
         return MeasurementTable(
             seq=seq,
             t_s=num[:, 1].copy(),
