@@ -110,7 +110,7 @@ class Grid:
             names = distinct.view("S8")
         else:
             names, inverse = np.unique(b.view(f"S{b.shape[1]}")[:, 0], return_inverse=True)
-        strings = np.array([sys.intern(n.decode("ascii")) for n in names.tolist()], dtype=object)
+        strings = np.array(list(map(sys.intern, names.astype(str).tolist())), dtype=object)
         return strings[inverse].tolist()
 
     def text(self, c: int) -> np.ndarray | None:
