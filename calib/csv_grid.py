@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-WIDE = 16  # bytes a number may have after its sign: 16 digits and a dot are 128 bits, two 64-bit words
+WIDE = 16  # bytes a number may have after its sign: two 64-bit words
 TEXT_BYTES = 64  # longest id or text cell parsed here
-_POW10 = 10.0 ** np.arange(WIDE + 1)  # exact doubles up to 1e22
+_POW10 = 10.0 ** np.arange(WIDE + 1)  # exact doubles (every power of ten up to 1e22 is one)
 # _KEEP[w]: the last w of WIDE bytes set; masks a window of WIDE bytes ending a cell down to its w digits
 _KEEP = ((np.arange(WIDE) >= WIDE - np.arange(WIDE + 1)[:, None]) * np.uint8(255)).view(f"V{WIDE}")[:, 0]
 _DOT = np.uint8(ord(".") - ord("0") + 256)  # a dot after subtracting "0" from every byte

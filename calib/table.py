@@ -25,12 +25,12 @@ import numpy as np
 
 from . import csv_grid
 from .chain import Chain
+from .csv_grid import TEXT
 from .errors import CalibError
 from .files import atomic_open
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")
-TEXT = np.dtypes.StringDType()
 
 BLOCK_BYTES = 1 << 23  # 8 MiB of whole lines per parse: ~80k rows of the DESIGN layout
 MAX_LINE_BYTES = 1 << 20  # no table row is a megabyte; a longer "line" is not a table (and would fill memory)
