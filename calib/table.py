@@ -3,9 +3,11 @@
 seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm[,extra columns ignored by readers]
 Every bad input is reported as one line naming the file, the row (1-based, header = row 1) and the column.
 
-Reading streams the file in blocks of whole lines and parses each block with numpy's C tokenizer (loadtxt),
-so memory is the table itself plus one block, and no Python code runs per cell. Ids are interned (a pose id
-is one string however many rows share it) and extra columns are numpy variable-width strings.
+Reading streams the file in blocks of whole lines, so memory is the table itself plus one block, and no Python
+code runs per cell. A plain block (every table trackcal writes) is parsed as one grid of cells by whole-array
+operations (calib.csv_grid); any other block, and any block with a bad cell, goes to the general parser, numpy's
+C tokenizer (loadtxt), which reads it or names the first bad cell. Ids are interned (a pose id is one string
+however many rows share it) and extra columns are numpy variable-width strings.
 """
 
 from __future__ import annotations
@@ -21,13 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import csv_grid
 from .chain import Chain
+from .csv_grid import TEXT
 from .errors import CalibError
 from .files import atomic_open
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")
-TEXT = np.dtypes.StringDType()
 
 BLOCK_BYTES = 1 << 23  # 8 MiB of whole lines per parse: ~80k rows of the DESIGN layout
 MAX_LINE_BYTES = 1 << 20  # no table row is a megabyte; a longer "line" is not a table (and would fill memory)
@@ -87,10 +90,10 @@ def joint_columns(n: int) -> list[str]:
     return [f"q{j + 1}_deg" for j in range(n)]
 
 
-def read_lines(path: Path, error: type[TableError] = TableError) -> Iterator[tuple[int, list[str]]]:
-    """(row number of the first line, lines) blocks of a UTF-8 text file (a leading BOM dropped, line ends
-    removed), in bounded memory; an unreadable or non-UTF-8 file or an overlong line is `error` naming
-    the file and the row."""
+def read_blocks(path: Path, error: type[TableError] = TableError) -> Iterator[tuple[int, bytes]]:
+    """(row number of the first line, whole lines) blocks of a UTF-8 text file (a leading BOM dropped, CRLF line
+    ends made LF; the last line may lack its newline), in bounded memory; an unreadable or non-UTF-8 file or an
+    overlong line is `error` naming the file and the row."""
     try:
         fh = path.open("rb")
     except OSError as exc:
@@ -110,20 +113,28 @@ def read_lines(path: Path, error: type[TableError] = TableError) -> Iterator[tup
             if len(rest) > MAX_LINE_BYTES:
                 r = row + whole.count(b"\n")
                 raise error(f"{path}: row {r}: longer than {MAX_LINE_BYTES} bytes, not a table row")
-            try:
-                text = whole.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                r = row + whole.count(b"\n", 0, exc.start)
-                bad = whole[exc.start]
-                raise error(f"{path}: row {r}: not UTF-8 text (byte 0x{bad:02x}); save the file as UTF-8") from None
-            lines = (text.replace("\r\n", "\n") if "\r" in text else text).split("\n")
-            if lines[-1] == "":
-                lines.pop()
-            if lines:
-                yield row, lines
-                row += len(lines)
+            if not whole.isascii():
+                try:
+                    whole.decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    r = row + whole.count(b"\n", 0, exc.start)
+                    bad = whole[exc.start]
+                    raise error(f"{path}: row {r}: not UTF-8 text (byte 0x{bad:02x}); save the file as UTF-8") from None
+            if b"\r" in whole:
+                whole = whole.replace(b"\r\n", b"\n")
+            if whole:
+                yield row, whole
+                row += whole.count(b"\n") + (not whole.endswith(b"\n"))
             if not chunk:
                 return
+
+
+def split_lines(data: bytes) -> list[str]:
+    """The lines of a block from read_blocks, line ends removed."""
+    lines = data.decode("utf-8").split("\n")
+    if lines[-1] == "":
+        lines.pop()
+    return lines
 
 
 def split_header(path: Path, line: str, delimiter: str, error: type[TableError]) -> list[str]:
@@ -140,7 +151,7 @@ def split_header(path: Path, line: str, delimiter: str, error: type[TableError])
 def read_csv(path: Path, delimiter: str = ",", error: type[TableError] = TableError) -> list[list[str]]:
     """The rows of a small delimited text file whose first row is a header of distinct names (stripped);
     every failure is `error` naming the file (and the row)."""
-    lines = [line for _, block in read_lines(path, error) for line in block]
+    lines = [line for _, block in read_blocks(path, error) for line in split_lines(block)]
     if not lines:
         raise error(f"{path}: empty file, expected a header row")
     try:
@@ -196,6 +207,30 @@ class _Columns:
         self.texts: list[np.ndarray] = []
         self.ids: list[list[str]] = [[] for _ in IDS]
 
+    def add_plain(self, data: bytes) -> int | None:
+        """Add a block through the grid parser: its row count, or None (nothing added) when a cell is not
+        plain or not valid, for `add` to read the block or name the cell."""
+        grid = csv_grid.split(data, len(self.header))
+        if grid is None:
+            return None
+        num = np.empty((len(grid), len(self.numeric)))
+        for k, c in enumerate(self.num_idx):
+            column = grid.numbers(c)
+            if column is None:
+                return None
+            num[:, k] = column
+        if (np.abs(num[:, 0]) > 2**53).any() or (num[:, 0] != np.rint(num[:, 0])).any():
+            return None  # seq not an integer
+        ids = [grid.ids(c) for c in self.text_idx[: len(IDS)]]
+        texts = [grid.text(c) for c in self.text_idx[len(IDS) :]]
+        if any(column is None for column in [*ids, *texts]):
+            return None
+        for dst, column in zip(self.ids, ids, strict=True):
+            dst.extend(column)
+        self.numbers.append(num)
+        self.texts.append(np.stack(texts, axis=1) if texts else np.empty((len(grid), 0), dtype=TEXT))
+        return len(grid)
+
     def add(self, row: int, lines: list[str]) -> None:
         path = self.path
         joined = "\n".join(lines)
@@ -209,10 +244,13 @@ class _Columns:
             text = _fields(lines[k])[self.num_idx[c]].strip()
             raise TableError(f"{path}: row {row + k}: column {self.numeric[c]}: not a number: {text!r}") from None
         try:
-            txt = _parse(lines, self.text_idx, TEXT)
+            # Read as Python strings, then made numpy strings: loadtxt straight into StringDType loses cells of 16
+            # bytes or more (numpy 2.4.6: MemoryError "Failed to load string" reading them back; shorter strings
+            # are stored inline and survive; found by tests/test_table_grid.py).
+            txt = _parse(lines, self.text_idx, object).astype(TEXT)
         except ValueError:
             self.check_counts(row, lines)
-            k, c = _first_bad_cell(lines, self.text_idx, TEXT)
+            k, c = _first_bad_cell(lines, self.text_idx, object)
             raise TableError(f"{path}: row {row + k}: column {self.text[c]}: not a CSV field") from None
         finite = np.isfinite(num)
         if not finite.all():
@@ -244,10 +282,8 @@ class _Columns:
         if bad is not None:
             raise TableError(f"{self.path}: row {row + bad}: {counts[bad]} fields, the header has {n}")
 
-    def table(self, n_joints: int, has_xyz: bool) -> MeasurementTable:
-        num = np.concatenate(self.numbers)
-        txt = np.concatenate(self.texts)
-        seq = num[:, 0].astype(np.int64)
+    def check_repeats(self, seq: np.ndarray) -> None:
+        """The first row that repeats an earlier row's seq is an error naming both rows."""
         order = np.argsort(seq, kind="stable")
         repeat = np.flatnonzero(seq[order][1:] == seq[order][:-1])
         if repeat.size:
@@ -257,6 +293,13 @@ class _Columns:
             raise TableError(
                 f"{self.path}: row {later[k] + 2}: column seq: {seq[first]} already used in row {first + 2}"
             )
+
+    def table(self, n_joints: int, has_xyz: bool) -> MeasurementTable:
+        num = np.concatenate(self.numbers)
+        txt = np.concatenate(self.texts)
+        seq = num[:, 0].astype(np.int64)
+        if not (seq[1:] > seq[:-1]).all():  # not in order (as tables are written): look for a repeat
+            self.check_repeats(seq)
         return MeasurementTable(
             seq=seq,
             t_s=num[:, 1].copy(),
@@ -278,12 +321,12 @@ def read_table(
     path = Path(path)
     if chain is not None:
         n_joints = chain.dof
-    blocks = read_lines(path)
+    blocks = read_blocks(path)
     first = next(blocks, None)
     if first is None:
         raise TableError(f"{path}: empty file, expected a header row")
-    _, lines = first
-    header = split_header(path, lines[0], ",", TableError)
+    line, _, body = first[1].partition(b"\n")
+    header = split_header(path, line.decode("utf-8"), ",", TableError)
     qcols = []
     while f"q{len(qcols) + 1}_deg" in header:
         qcols.append(f"q{len(qcols) + 1}_deg")
@@ -298,9 +341,27 @@ def read_table(
     has_xyz = all(c in header for c in XYZ)
     columns = _Columns(path, header, qcols, has_xyz)
     max_rows = MAX_CELLS // len(header)
+
+    def check_rows(rows: int) -> None:
+        if rows > max_rows:
+            raise TableError(
+                f"{path}: more than {max_rows} rows, the limit for {len(header)} columns ({MAX_CELLS} cells, "
+                "to stay under 1 GB of memory); split the table"
+            )
+
     trailing_blank: int | None = None  # the first row of the blank rows seen last: allowed only at the end
     rows = 0
-    for row, block in itertools.chain([(2, lines[1:])], blocks):
+    for row, data in itertools.chain([(2, body)], blocks):
+        if not data:
+            continue
+        n = columns.add_plain(data)
+        if n is not None:  # no blank row in it
+            if trailing_blank is not None:
+                raise TableError(f"{path}: row {trailing_blank}: empty row")
+            rows += n
+            check_rows(rows)
+            continue
+        block = split_lines(data)
         n = len(block)
         while n and not block[n - 1].strip():
             n -= 1
@@ -314,11 +375,7 @@ def read_table(
         if not block:
             continue
         rows += len(block)
-        if rows > max_rows:
-            raise TableError(
-                f"{path}: more than {max_rows} rows, the limit for {len(header)} columns ({MAX_CELLS} cells, "
-                "to stay under 1 GB of memory); split the table"
-            )
+        check_rows(rows)
         columns.add(row, block)
     if not rows:
         raise TableError(f"{path}: no data rows")

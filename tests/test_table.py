@@ -260,3 +260,11 @@ def test_a_full_disk_mid_write_leaves_the_previous_file(tmp_path, kr270, room):
     with mock.patch.object(files_mod.os, "fsync", side_effect=OSError(errno.EIO, "I/O error")), pytest.raises(OSError):
         write_table(table, path)  # the data may not be on the disk: the rename must not happen
     assert path.read_text() == "previous\n" and sorted(os.listdir(tmp_path)) == ["new.csv", "t.csv"]
+
+
+@pytest.mark.parametrize("quote", ["", '"'])  # a quoted cell sends the block to the general parser
+def test_long_ids_and_text_are_kept(tmp_path, quote):
+    pose, note = "pose_0001_station_A", "x" * 40  # past the 15 bytes numpy stores inline in a string
+    rows = [ROW.replace("Q1", pose).replace("1,", f"{i},", 1) + f",{quote}{note}{quote}" for i in range(1, 4)]
+    t = read_table(write(tmp_path, f"{HEADER},note\n" + "\n".join(rows) + "\n"))
+    assert t.pose == [pose] * 3 and t.extra["note"].tolist() == [note] * 3
