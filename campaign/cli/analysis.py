@@ -1,8 +1,7 @@
-"""`trackcal identify | diagnose | predict | simulate | demo`: thin commands over campaign.analysis."""
+"""`trackcal identify | diagnose | predict | simulate`: thin commands over campaign.analysis."""
 
 from __future__ import annotations
 
-import shutil
 import sys
 from pathlib import Path
 
@@ -12,11 +11,10 @@ from rich.table import Table
 from calib.cell import load_cell
 from calib.diagnose import diagnose
 from calib.model import load_model, predict_table
-from calib.noise import DEFAULT_WEIGHTING, noise_for
+from calib.noise import noise_for
 from calib.table import read_table, write_table
 from campaign.analysis import (
     IdentifyOutcome,
-    analyse_session,
     choose_params,
     fit_warning,
     left_out,
@@ -25,16 +23,11 @@ from campaign.analysis import (
     run_identify,
     simulate,
     summary_of,
-    twin_truth,
     verdict_doc,
 )
 from campaign.console import console
 from campaign.output import write_json, write_output_table
-from campaign.planning import PlanOptions, build_design, search_doc
 from campaign.report.diagnosis_plots import plots
-from campaign.session.session import create_session
-
-from .campaign import drive
 
 
 def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:
@@ -131,28 +124,6 @@ def cmd_simulate(args) -> int:
     _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free, parse_effects(args.effect))
     write_table(table, args.out)
     console.print(f"{len(table)} simulated measurements written to {args.out}")
-    return 0
-
-
-def cmd_demo(args) -> int:
-    """Plan + simulated campaign (2 stations, 3 points, operator prompts) + identification + diagnosis."""
-    out = Path(args.out)
-    shutil.rmtree(out, ignore_errors=True)
-    out.mkdir(parents=True)
-    cell = load_cell(args.cell)
-    console.rule(f"trackcal demo: cell {cell.name} on the digital twin")
-    options = PlanOptions(configs=6, repeat=3, seed=args.seed)
-    with console.status("planning: test-pose optimal poses (paper section 6)"):
-        plan = search_doc(build_design(cell, options), options)
-    write_json(str(out / "plan.json"), plan)
-    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} µm "
-                  f"({out / 'plan.json'})")  # fmt: skip
-    store = create_session(out / "session", args.cell, plan, "sim", args.seed)
-    drive(store)
-    analyse_session(store)
-    table = read_table(out / "session" / "table.csv", chain=cell.chain)
-    print_identification(run_identify(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING),
-                         twin_truth(cell, args.seed))  # fmt: skip
     return 0
 
 

@@ -93,7 +93,7 @@ COMMANDS = [
                 arg("--out", required=True, help="measurement table to write"),
             ]),
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
-            "campaign.cli.analysis:cmd_demo", [
+            "campaign.cli.demo:cmd_demo", [
                 arg("--cell", default="kr270", help=CELL_HELP),
                 arg("--seed", type=int, default=1, help="the twin's seed"),
                 arg("--out", default="out/demo", help="directory of the plan and the session"),
