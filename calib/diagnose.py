@@ -36,9 +36,9 @@ from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to
 
 from .chain import Chain
 from .changepoint import SHIFT, relabel_shift, shift_scan
-from .crossval import Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
+from .crossval import TIME_CAUSES, Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
 from .error_map import CAUSE as MAP
-from .error_map import ORDERS, ErrorMapFit, fit_error_map
+from .error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map, map_evidence
 from .extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
 from .identify import Identification, IdentificationError, identify, model_points
 from .kinematics import Kinematics
@@ -209,6 +209,54 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     return cand, mf
 
 
+def _rejudge(ctx: Context, val: Validator, fitted: tuple[str, ...], mf: ErrorMapFit, n_obs: int,
+             cache: dict) -> dict[str, dict]:  # fmt: skip
+    """Each cause chosen before the map judged again with the map in the model, by the evidence it joined on
+    (F test at alpha = ALPHA / causes judged, BIC, held-out gain on its folds), the map at its order and
+    ridge on both sides: cause -> {f_pvalue, delta_bic, ..., "significant"}. A cause that is a function of each
+    joint's own angle (encoder_scale) or shares much of the map's signal otherwise got its gain from what
+    the map now explains; kept, it only extrapolates beyond the angles the table covers. `cache` keeps the
+    evidence of every model judged (by causes) across calls."""
+    n = len(ctx.table)
+
+    def scheme_of(c: str) -> str | None:
+        order = ("time", "pose", "pass") if c in TIME_CAUSES else ("pose", "pass", "time")
+        return next((sc for sc in order if val.fold_sets[sc] is not None), None)
+
+    schemes = {sc for c in fitted if (sc := scheme_of(c)) is not None}
+
+    def evidence(causes: tuple[str, ...]) -> MapEvidence:
+        key = tuple(sorted(causes))
+        if key not in cache:
+            start = whole_fit(ctx, causes)
+            table = ctx.table if start.shift is None else relabel_shift(ctx.table, start.shift["station"],
+                                                                         start.shift["after_t_s"])  # fmt: skip
+            folds = {}
+            for sc in schemes:
+                folds[sc] = np.zeros(n, dtype=int)
+                for k, g in enumerate(val.fold_sets[sc]):
+                    folds[sc][g] = k
+            cache[key] = map_evidence(ctx.chain, table, ctx.params, ctx.noise, extension_of(ctx, causes), start, mf,
+                                      folds)  # fmt: skip
+        return cache[key]
+
+    full = evidence(fitted)
+    alpha = ALPHA / len(fitted)
+    out = {}
+    for c in fitted:
+        scheme = scheme_of(c)
+        rest = evidence(tuple(x for x in fitted if x != c))
+        k, dof = full.n_params - rest.n_params, n_obs - full.n_params
+        f = ((rest.rss - full.rss) / k) / (full.rss / dof) if k > 0 and dof > 0 and full.rss > 0 else 0.0
+        p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
+        d_bic = float(n_obs * np.log(full.rss / rest.rss) + max(k, 0.0) * np.log(n_obs))
+        hold, hold_without = (full.cv_rms_mm.get(scheme), rest.cv_rms_mm.get(scheme))
+        out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
+                  "holdout_without_mm": hold_without,
+                  "significant": bool(p < alpha and d_bic < 0 and (hold is None or hold < hold_without))}  # fmt: skip
+    return out
+
+
 def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTable:
     """The table with every joint angle moved by the fitted map (q_true = q_read + e_j(q_read))."""
     ext, theta = mf.extension, mf.identification.ext
@@ -219,14 +267,17 @@ def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTab
 
 
 def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...], mf: ErrorMapFit, folds: int,
-                   seed: int):  # fmt: skip
-    """The chosen model with the map, identified jointly (the map's order and ridge as chosen)."""
+                   seed: int, refit: bool):  # fmt: skip
+    """The chosen model with the map, identified jointly (the map's order and ridge as chosen); `mf` itself
+    unless `refit` (causes joined after the map)."""
     ctx.table = table  # the rows as measured
     shift = None
     if SHIFT in fitted:
         found = shift_scan(ctx.geo_base, table)
         shift = {"station": found[0], "after_t_s": found[1]}
         table = relabel_shift(table, *found)
+    if not refit:
+        return mf.identification, mf.extension, table, shift
     order = max(mf.orders.values())
     final = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
                           folds=folds, seed=seed, orders=(order,), taus_rad=(mf.tau_rad,))  # fmt: skip
@@ -257,7 +308,7 @@ def diagnose(
     open_causes = [c for c in causes if c == SHIFT or c in ctx.features]
     chosen: tuple[str, ...] = ()  # the selected causes
     fitted: tuple[str, ...] = ()  # those fitted by crossval (the joint error map is held at its own fit)
-    map_fit, map_edf, hold_first = None, 0.0, None
+    map_fit, map_edf, map_base, hold_first = None, 0.0, (), None
     current = whole_fit(ctx, ())
     candidates: list[Candidate] = []
     selected: list[Candidate] = []
@@ -306,13 +357,41 @@ def diagnose(
         hold_first = best.holdout_base_mm if step == 1 else hold_first  # the geometric model, step 1's folds
         if isinstance(fit, ErrorMapFit):  # later steps hold the map at this fit: the rows' angles corrected by it
             low = next((c for c in selected if c.cause == MAP), None)
+            selected = [c for c in selected if c is not low]
+            chosen = tuple(c for c in chosen if c != MAP)
+            fitted = tuple(c for c in fitted if c != MAP)
+            # causes chosen before the map that it makes redundant leave, one at a time (of those that no longer
+            # pass, the one whose BIC gains most by leaving), and are not tried again; the map is then judged
+            # again on what remains (if it would not pass, nothing leaves)
+            removed, cache, kept, judged = [], {}, fitted, {}
+            while fitted:
+                judged = _rejudge(ctx, val, fitted, fit, n_obs, cache)
+                weak = [c for c in fitted if not judged[c]["significant"]]
+                if not weak:
+                    break
+                gone = max(weak, key=lambda c: judged[c]["delta_bic"])
+                fitted = tuple(c for c in fitted if c != gone)
+                removed.append({"cause": gone, **judged.pop(gone)})
+            again = _map_candidate(ctx, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds,
+                                   seed) if removed else None  # fmt: skip
+            if removed and (again is None or not again[0].significant):
+                fitted, removed, judged = kept, [], {}
+            if removed:
+                candidates[candidates.index(best)] = again[0]
+                best, fit = again
+                best.detail["removed"] = removed
+                selected = [c for c in selected if c.cause in fitted]
+                chosen = tuple(c for c in chosen if c in fitted)
+            for c in selected:
+                if SHIFT not in fitted:  # their fits had the station shift that left
+                    c.detail = {k: v for k, v in c.detail.items() if k not in ("station", "after_t_s")}
+                if c.cause in judged:
+                    c.detail["with_map"] = judged[c.cause]
             if low is not None:  # the map replaces the low-order cyclic_error
                 best.detail["replaces"] = {"n_params": low.n_params, "holdout_rms_mm": low.holdout_rms_mm}
-                selected.remove(low)
             selected.append(best)
-            chosen = (*tuple(c for c in chosen if c != MAP), MAP)
-            fitted = tuple(c for c in fitted if c != MAP)
-            map_fit, map_edf = fit, fit.effective_params
+            chosen = (*chosen, MAP)
+            map_fit, map_edf, map_base = fit, fit.effective_params, fitted
             ctx.table = corrected_by_map(ctx.table, fit)
             ctx.fits.clear()
             val.cache.clear()
@@ -349,7 +428,8 @@ def diagnose(
     if map_fit is None:
         res, ext, tab, shift, _ = final_fit(ctx, chosen, next((c.cause for c in by_gain if c.cause != SHIFT), None))
     else:
-        res, ext, tab, shift = _final_map_fit(ctx, table, fitted, map_fit, folds, seed)
+        res, ext, tab, shift = _final_map_fit(ctx, table, fitted, map_fit, folds, seed,
+                                                      refit=fitted != map_base)
     causes = [{"cause": c.cause, "gain_mm": c.gain_mm, "holdout_rms_mm": c.holdout_rms_mm, "f_pvalue": c.f_pvalue,
                "delta_bic": c.delta_bic, "n_params": c.n_params, "cv_scheme": c.cv_scheme, **c.detail}
               for c in selected]  # fmt: skip

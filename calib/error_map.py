@@ -234,6 +234,45 @@ def fit_error_map(
     )  # fmt: skip
 
 
+@dataclass
+class MapEvidence:
+    """A model with the joint error map at a given order and ridge, on the problem linearised at its fit
+    without the map: what the F test, the BIC and a held-out comparison need."""
+
+    rss: float  # whitened residual sum of squares of the penalised fit (the penalty not included)
+    n_params: float  # unpenalised columns + the map's effective number of parameters
+    cv_rms_mm: dict[str, float]  # fold scheme -> held-out RMS of one coordinate (mm)
+
+
+def map_evidence(chain: Chain, table: MeasurementTable, params: list[Param], noise: TrackerNoise | None,
+                 base: Extension | None, start, fit: ErrorMapFit, folds: dict[str, np.ndarray]) -> MapEvidence:
+    """The geometric model + `base` + the joint error map with `fit`'s joints, arcs, order and ridge, fitted
+    on `table` (penalised least squares on the problem linearised at `start`, the fit without the map: an
+    Identification or anything with its dev, stations, points and ext) and cross-validated over each of
+    `folds` (scheme -> the fold of every row): how a model that differs from `fit`'s in its base compares."""
+    geo = start
+    order = max(fit.orders.values())
+    names = [nm for j in fit.arcs for nm in harmonic_names(j, order)]
+    ext = _with_base(base, build_extension(CAUSE, chain, table, names=names, arcs=fit.arcs))
+    problem = Problem(chain, table, geo.points, params, noise, extension=ext)
+    state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
+    r, jm = problem.residual_and_jacobian(state)
+    pen = len(params) + (0 if base is None else base.size) + np.arange(len(names))
+    unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
+    cv = {k: float(np.sqrt(_cv_scores(jm, r, unwhiten, pen, f, [pen], [fit.ridge])[1][0, 0] / (3 * len(table))))
+          for k, f in folds.items()}  # fmt: skip
+    scale = np.linalg.norm(jm, axis=0)
+    scale[scale == 0] = 1.0
+    js = jm / scale
+    gram = js.T @ js
+    ridge = np.zeros(problem.n_cols)
+    ridge[pen] = fit.ridge / scale[pen] ** 2
+    h_inv = np.linalg.inv(gram + np.diag(ridge))
+    step = h_inv @ (js.T @ r)
+    edf = float(np.einsum("ij,ji->i", h_inv, gram)[pen].sum())
+    return MapEvidence(float(np.sum((r - js @ step) ** 2)), problem.n_cols - len(pen) + edf, cv)
+
+
 def _with_base(base: Extension | None, ext: Extension) -> Extension:
     return ext if base is None else combine([base, ext], cause=CAUSE)
 
