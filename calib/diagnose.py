@@ -38,7 +38,7 @@ from .chain import Chain
 from .changepoint import SHIFT, relabel_shift, shift_scan
 from .crossval import TIME_CAUSES, Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
 from .error_map import CAUSE as MAP
-from .error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map, map_evidence
+from .error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
 from .extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
 from .identify import Identification, IdentificationError, identify, model_points
 from .kinematics import Kinematics
@@ -175,15 +175,16 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
 
 
 def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
-                   step: int, folds: int, seed: int) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
-    """The joint error map on top of the model `fitted` (`calib.error_map`: order and ridge by its own
-    cross-validation by pose, which also gives the held-out gain; the F test and BIC count its effective
-    number of parameters)."""
+                   step: int, folds: int, seed: int,
+                   orders: tuple[int, ...] = ORDERS) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
+    """The joint error map on top of the model `fitted` (`calib.error_map`: order (of `orders`) and ridge by
+    its own cross-validation by pose, which also gives the held-out gain; the F test and BIC count its
+    effective number of parameters)."""
     table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
                                                                    current.shift["after_t_s"])  # fmt: skip
     # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
     top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
-    orders = tuple(h for h in ORDERS if h <= top)
+    orders = tuple(h for h in orders if h <= top)
     if not orders:
         return None
     try:
@@ -209,52 +210,76 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     return cand, mf
 
 
-def _rejudge(ctx: Context, val: Validator, fitted: tuple[str, ...], mf: ErrorMapFit, n_obs: int,
-             cache: dict) -> dict[str, dict]:  # fmt: skip
-    """Each cause chosen before the map judged again with the map in the model, by the evidence it joined on
-    (F test at alpha = ALPHA / causes judged, BIC, held-out gain on its folds), the map at its order and
-    ridge on both sides: cause -> {f_pvalue, delta_bic, ..., "significant"}. A cause that is a function of each
-    joint's own angle (encoder_scale) or shares much of the map's signal otherwise got its gain from what
-    the map now explains; kept, it only extrapolates beyond the angles the table covers. `cache` keeps the
-    evidence of every model judged (by causes) across calls."""
-    n = len(ctx.table)
+class Rejudge:
+    """The causes chosen before the map judged again with the map in the model, by the evidence they joined on
+    (F test at alpha = ALPHA / causes judged, BIC, held-out gain on their folds), the map at its order and
+    ridge on both sides. A cause that is a function of each joint's own angle (encoder_scale) or shares much
+    of the map's signal otherwise got its gain from what the map now explains; kept, it only extrapolates
+    beyond the angles the table covers.
 
-    def scheme_of(c: str) -> str | None:
-        order = ("time", "pose", "pass") if c in TIME_CAUSES else ("pose", "pass", "time")
-        return next((sc for sc in order if val.fold_sets[sc] is not None), None)
+    Every model is one linearised problem (`calib.error_map.MapEvidence`) with some causes held at zero: one
+    problem with the station shift and one without, for the causes `chosen` (before the map) and every
+    subset of them; each figure is computed once."""
 
-    schemes = {sc for c in fitted if (sc := scheme_of(c)) is not None}
+    def __init__(self, ctx: Context, val: Validator, chosen: tuple[str, ...], mf: ErrorMapFit, n_obs: int):
+        self.ctx, self.val, self.mf, self.n_obs = ctx, val, mf, n_obs
+        self.causes = tuple(c for c in chosen if c != SHIFT)
+        self.base = extension_of(ctx, self.causes)
+        at, self.spans = 0, {}
+        for c, (_, names) in zip(self.causes, [] if self.base is None else self.base.parts(), strict=True):
+            self.spans[c] = tuple(range(at, at + len(names)))
+            at += len(names)
+        self.roots: dict[bool, MapEvidence] = {}
+        self.figures: dict[tuple, object] = {}
 
-    def evidence(causes: tuple[str, ...]) -> MapEvidence:
-        key = tuple(sorted(causes))
-        if key not in cache:
-            start = whole_fit(ctx, causes)
+    def scheme_of(self, cause: str) -> str | None:
+        order = ("time", "pose", "pass") if cause in TIME_CAUSES else ("pose", "pass", "time")
+        return next((sc for sc in order if self.val.fold_sets[sc] is not None), None)
+
+    def root(self, shifted: bool) -> MapEvidence:
+        if shifted not in self.roots:
+            ctx = self.ctx
+            start = whole_fit(ctx, (*self.causes, SHIFT) if shifted else self.causes)
             table = ctx.table if start.shift is None else relabel_shift(ctx.table, start.shift["station"],
                                                                          start.shift["after_t_s"])  # fmt: skip
-            folds = {}
-            for sc in schemes:
-                folds[sc] = np.zeros(n, dtype=int)
-                for k, g in enumerate(val.fold_sets[sc]):
-                    folds[sc][g] = k
-            cache[key] = map_evidence(ctx.chain, table, ctx.params, ctx.noise, extension_of(ctx, causes), start, mf,
-                                      folds)  # fmt: skip
-        return cache[key]
+            self.roots[shifted] = MapEvidence(ctx.chain, table, ctx.params, ctx.noise, self.base, start, self.mf)
+        return self.roots[shifted]
 
-    full = evidence(fitted)
-    alpha = ALPHA / len(fitted)
-    out = {}
-    for c in fitted:
-        scheme = scheme_of(c)
-        rest = evidence(tuple(x for x in fitted if x != c))
-        k, dof = full.n_params - rest.n_params, n_obs - full.n_params
-        f = ((rest.rss - full.rss) / k) / (full.rss / dof) if k > 0 and dof > 0 and full.rss > 0 else 0.0
-        p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
-        d_bic = float(n_obs * np.log(full.rss / rest.rss) + max(k, 0.0) * np.log(n_obs))
-        hold, hold_without = (full.cv_rms_mm.get(scheme), rest.cv_rms_mm.get(scheme))
-        out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
-                  "holdout_without_mm": hold_without,
-                  "significant": bool(p < alpha and d_bic < 0 and (hold is None or hold < hold_without))}  # fmt: skip
-    return out
+    def figure(self, causes: tuple[str, ...], scheme: str | None = None):
+        """(rss, number of parameters) of the model `causes`, or its held-out RMS on `scheme`'s folds."""
+        key = (tuple(sorted(causes)), scheme)
+        if key not in self.figures:
+            drop = tuple(i for c in self.causes if c not in causes for i in self.spans[c])
+            ev = self.root(SHIFT in causes)
+            if scheme is None:
+                self.figures[key] = ev.whole(drop)
+            else:
+                ids = np.zeros(len(self.ctx.table), dtype=int)
+                for k, g in enumerate(self.val.fold_sets[scheme]):
+                    ids[g] = k
+                self.figures[key] = ev.cv_rms_mm(ids, drop)
+        return self.figures[key]
+
+    def judge(self, fitted: tuple[str, ...]) -> dict[str, dict]:
+        """cause -> {f_pvalue, delta_bic, n_params, cv_scheme, holdout_rms_mm, holdout_without_mm, significant}
+        for every cause of `fitted` (a subset of those chosen before the map) against `fitted` without it."""
+        rss_full, n_full = self.figure(fitted)
+        alpha, n_obs = ALPHA / len(fitted), self.n_obs
+        out = {}
+        for c in fitted:
+            scheme = self.scheme_of(c)
+            rest = tuple(x for x in fitted if x != c)
+            rss_rest, n_rest = self.figure(rest)
+            k, dof = n_full - n_rest, n_obs - n_full
+            f = ((rss_rest - rss_full) / k) / (rss_full / dof) if k > 0 and dof > 0 and rss_full > 0 else 0.0
+            p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
+            d_bic = float(n_obs * np.log(rss_full / rss_rest) + max(k, 0.0) * np.log(n_obs))
+            passes = p < alpha and d_bic < 0
+            hold, without = (self.figure(fitted, scheme), self.figure(rest, scheme)) if passes and scheme else (
+                None, None)  # fmt: skip
+            out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
+                      "holdout_without_mm": without, "significant": bool(passes and (hold is None or hold < without))}
+        return out
 
 
 def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTable:
@@ -362,18 +387,19 @@ def diagnose(
             fitted = tuple(c for c in fitted if c != MAP)
             # causes chosen before the map that it makes redundant leave, one at a time (of those that no longer
             # pass, the one whose BIC gains most by leaving), and are not tried again; the map is then judged
-            # again on what remains (if it would not pass, nothing leaves)
-            removed, cache, kept, judged = [], {}, fitted, {}
+            # again on what remains, at its order, with its ridge chosen again (if it would not pass, nothing
+            # leaves)
+            removed, rejudge, kept, judged = [], Rejudge(ctx, val, fitted, fit, n_obs), fitted, {}
             while fitted:
-                judged = _rejudge(ctx, val, fitted, fit, n_obs, cache)
+                judged = rejudge.judge(fitted)
                 weak = [c for c in fitted if not judged[c]["significant"]]
                 if not weak:
                     break
                 gone = max(weak, key=lambda c: judged[c]["delta_bic"])
                 fitted = tuple(c for c in fitted if c != gone)
                 removed.append({"cause": gone, **judged.pop(gone)})
-            again = _map_candidate(ctx, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds,
-                                   seed) if removed else None  # fmt: skip
+            again = _map_candidate(ctx, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds, seed,
+                                   (max(fit.orders.values()),)) if removed else None
             if removed and (again is None or not again[0].significant):
                 fitted, removed, judged = kept, [], {}
             if removed:
