@@ -211,11 +211,14 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
 
 
 class Rejudge:
-    """The causes chosen before the map judged again with the map in the model, by the evidence they joined on
-    (F test at alpha = ALPHA / causes judged, BIC, held-out gain on their folds), the map at its order and
-    ridge on both sides. A cause that is a function of each joint's own angle (encoder_scale) or shares much
-    of the map's signal otherwise got its gain from what the map now explains; kept, it only extrapolates
-    beyond the angles the table covers.
+    """The causes chosen before the map judged again with the map in the model: a cause stays only while the
+    BIC and a held-out gain on its folds (by pose; by time block for a time-dependent cause) still agree, the
+    map at its order and ridge on both sides. A cause that is a function of each joint's own angle
+    (encoder_scale) or shares much of the map's signal otherwise got its gain from what the map now
+    explains; kept, it only extrapolates beyond the angles the table covers. The F test is reported, not
+    decisive here: against a ridge-penalised map the parameters a cause adds are a difference of effective
+    parameter counts (below one when the map takes its signal over), which no F distribution calibrates;
+    the BIC takes effective counts as they are.
 
     Every model is one linearised problem (`calib.error_map.MapEvidence`) with some causes held at zero: one
     problem with the station shift and one without, for the causes `chosen` (before the map) and every
@@ -264,7 +267,7 @@ class Rejudge:
         """cause -> {f_pvalue, delta_bic, n_params, cv_scheme, holdout_rms_mm, holdout_without_mm, significant}
         for every cause of `fitted` (a subset of those chosen before the map) against `fitted` without it."""
         rss_full, n_full = self.figure(fitted)
-        alpha, n_obs = ALPHA / len(fitted), self.n_obs
+        n_obs = self.n_obs
         out = {}
         for c in fitted:
             scheme = self.scheme_of(c)
@@ -274,7 +277,7 @@ class Rejudge:
             f = ((rss_rest - rss_full) / k) / (rss_full / dof) if k > 0 and dof > 0 and rss_full > 0 else 0.0
             p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
             d_bic = float(n_obs * np.log(rss_full / rss_rest) + max(k, 0.0) * np.log(n_obs))
-            passes = p < alpha and d_bic < 0
+            passes = d_bic < 0
             hold, without = (self.figure(fitted, scheme), self.figure(rest, scheme)) if passes and scheme else (
                 None, None)  # fmt: skip
             out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
