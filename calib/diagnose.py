@@ -16,6 +16,12 @@ current model by evidence that survives over-fitting:
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
 the one with the largest gain, `causes` the selected set in order.
 
+The joint error map (cyclic_error of any order, `calib.error_map`) is tried once the causes of few
+parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in
+the model (`Rejudge`: BIC and held-out gain); one whose gain the map now explains leaves, and is not
+tried again. On the real UR10 (Series B) an encoder scale and a station shift had joined a two-harmonic
+joint error and gained nothing beside the map; kept, they made its prediction of Series D worse.
+
 `none` or `unexplained` is decided by structure, not by the scale of the noise model
 (`calib.structure`): with no cause selected, residuals that can be predicted are `unexplained`, others
 `none`, with the noise scale reported: a tracker 18 % noisier than its model is not a cause. The noise
