@@ -16,6 +16,12 @@ current model by evidence that survives over-fitting:
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
 the one with the largest gain, `causes` the selected set in order.
 
+The joint error map (cyclic_error of any order, `calib.error_map`) is tried once the causes of few
+parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in
+the model (`Rejudge`: BIC and held-out gain); one whose gain the map now explains leaves, and is not
+tried again. On the real UR10 (Series B) an encoder scale and a station shift had joined a two-harmonic
+joint error and gained nothing beside the map; kept, they made its prediction of Series D worse.
+
 `none` or `unexplained` is decided by structure, not by the scale of the noise model
 (`calib.structure`): with no cause selected, residuals that can be predicted are `unexplained`, others
 `none`, with the noise scale reported: a tracker 18 % noisier than its model is not a cause. The noise
@@ -36,9 +42,9 @@ from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to
 
 from .chain import Chain
 from .changepoint import SHIFT, relabel_shift, shift_scan
-from .crossval import Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
+from .crossval import TIME_CAUSES, Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
 from .error_map import CAUSE as MAP
-from .error_map import ORDERS, ErrorMapFit, fit_error_map
+from .error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
 from .extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
 from .identify import Identification, IdentificationError, identify, model_points
 from .kinematics import Kinematics
@@ -175,15 +181,16 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
 
 
 def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
-                   step: int, folds: int, seed: int) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
-    """The joint error map on top of the model `fitted` (`calib.error_map`: order and ridge by its own
-    cross-validation by pose, which also gives the held-out gain; the F test and BIC count its effective
-    number of parameters)."""
+                   step: int, folds: int, seed: int,
+                   orders: tuple[int, ...] = ORDERS) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
+    """The joint error map on top of the model `fitted` (`calib.error_map`: order (of `orders`) and ridge by
+    its own cross-validation by pose, which also gives the held-out gain; the F test and BIC count its
+    effective number of parameters)."""
     table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
                                                                    current.shift["after_t_s"])  # fmt: skip
     # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
     top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
-    orders = tuple(h for h in ORDERS if h <= top)
+    orders = tuple(h for h in orders if h <= top)
     if not orders:
         return None
     try:
@@ -209,6 +216,81 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     return cand, mf
 
 
+class Rejudge:
+    """The causes chosen before the map judged again with the map in the model: a cause stays only while the
+    BIC and a held-out gain on its folds (by pose; by time block for a time-dependent cause) still agree, the
+    map at its order and ridge on both sides. A cause that is a function of each joint's own angle
+    (encoder_scale) or shares much of the map's signal otherwise got its gain from what the map now
+    explains; kept, it only extrapolates beyond the angles the table covers. The F test is reported, not
+    decisive here: against a ridge-penalised map the parameters a cause adds are a difference of effective
+    parameter counts (below one when the map takes its signal over), which no F distribution calibrates;
+    the BIC takes effective counts as they are.
+
+    Every model is one linearised problem (`calib.error_map.MapEvidence`) with some causes held at zero: one
+    problem with the station shift and one without, for the causes `chosen` (before the map) and every
+    subset of them; each figure is computed once."""
+
+    def __init__(self, ctx: Context, val: Validator, chosen: tuple[str, ...], mf: ErrorMapFit, n_obs: int):
+        self.ctx, self.val, self.mf, self.n_obs = ctx, val, mf, n_obs
+        self.causes = tuple(c for c in chosen if c != SHIFT)
+        self.base = extension_of(ctx, self.causes)
+        at, self.spans = 0, {}
+        for c, (_, names) in zip(self.causes, [] if self.base is None else self.base.parts(), strict=True):
+            self.spans[c] = tuple(range(at, at + len(names)))
+            at += len(names)
+        self.roots: dict[bool, MapEvidence] = {}
+        self.figures: dict[tuple, object] = {}
+
+    def scheme_of(self, cause: str) -> str | None:
+        order = ("time", "pose", "pass") if cause in TIME_CAUSES else ("pose", "pass", "time")
+        return next((sc for sc in order if self.val.fold_sets[sc] is not None), None)
+
+    def root(self, shifted: bool) -> MapEvidence:
+        if shifted not in self.roots:
+            ctx = self.ctx
+            start = whole_fit(ctx, (*self.causes, SHIFT) if shifted else self.causes)
+            table = ctx.table if start.shift is None else relabel_shift(ctx.table, start.shift["station"],
+                                                                         start.shift["after_t_s"])  # fmt: skip
+            self.roots[shifted] = MapEvidence(ctx.chain, table, ctx.params, ctx.noise, self.base, start, self.mf)
+        return self.roots[shifted]
+
+    def figure(self, causes: tuple[str, ...], scheme: str | None = None):
+        """(rss, number of parameters) of the model `causes`, or its held-out RMS on `scheme`'s folds."""
+        key = (tuple(sorted(causes)), scheme)
+        if key not in self.figures:
+            drop = tuple(i for c in self.causes if c not in causes for i in self.spans[c])
+            ev = self.root(SHIFT in causes)
+            if scheme is None:
+                self.figures[key] = ev.whole(drop)
+            else:
+                ids = np.zeros(len(self.ctx.table), dtype=int)
+                for k, g in enumerate(self.val.fold_sets[scheme]):
+                    ids[g] = k
+                self.figures[key] = ev.cv_rms_mm(ids, drop)
+        return self.figures[key]
+
+    def judge(self, fitted: tuple[str, ...]) -> dict[str, dict]:
+        """cause -> {f_pvalue, delta_bic, n_params, cv_scheme, holdout_rms_mm, holdout_without_mm, significant}
+        for every cause of `fitted` (a subset of those chosen before the map) against `fitted` without it."""
+        rss_full, n_full = self.figure(fitted)
+        n_obs = self.n_obs
+        out = {}
+        for c in fitted:
+            scheme = self.scheme_of(c)
+            rest = tuple(x for x in fitted if x != c)
+            rss_rest, n_rest = self.figure(rest)
+            k, dof = n_full - n_rest, n_obs - n_full
+            f = ((rss_rest - rss_full) / k) / (rss_full / dof) if k > 0 and dof > 0 and rss_full > 0 else 0.0
+            p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
+            d_bic = float(n_obs * np.log(rss_full / rss_rest) + max(k, 0.0) * np.log(n_obs))
+            passes = d_bic < 0
+            hold, without = (self.figure(fitted, scheme), self.figure(rest, scheme)) if passes and scheme else (
+                None, None)  # fmt: skip
+            out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
+                      "holdout_without_mm": without, "significant": bool(passes and (hold is None or hold < without))}
+        return out
+
+
 def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTable:
     """The table with every joint angle moved by the fitted map (q_true = q_read + e_j(q_read))."""
     ext, theta = mf.extension, mf.identification.ext
@@ -219,14 +301,17 @@ def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTab
 
 
 def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...], mf: ErrorMapFit, folds: int,
-                   seed: int):  # fmt: skip
-    """The chosen model with the map, identified jointly (the map's order and ridge as chosen)."""
+                   seed: int, refit: bool):  # fmt: skip
+    """The chosen model with the map, identified jointly (the map's order and ridge as chosen); `mf` itself
+    unless `refit` (causes joined after the map)."""
     ctx.table = table  # the rows as measured
     shift = None
     if SHIFT in fitted:
         found = shift_scan(ctx.geo_base, table)
         shift = {"station": found[0], "after_t_s": found[1]}
         table = relabel_shift(table, *found)
+    if not refit:
+        return mf.identification, mf.extension, table, shift
     order = max(mf.orders.values())
     final = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
                           folds=folds, seed=seed, orders=(order,), taus_rad=(mf.tau_rad,))  # fmt: skip
@@ -257,7 +342,7 @@ def diagnose(
     open_causes = [c for c in causes if c == SHIFT or c in ctx.features]
     chosen: tuple[str, ...] = ()  # the selected causes
     fitted: tuple[str, ...] = ()  # those fitted by crossval (the joint error map is held at its own fit)
-    map_fit, map_edf, hold_first = None, 0.0, None
+    map_fit, map_edf, map_base, hold_first = None, 0.0, (), None
     current = whole_fit(ctx, ())
     candidates: list[Candidate] = []
     selected: list[Candidate] = []
@@ -306,13 +391,42 @@ def diagnose(
         hold_first = best.holdout_base_mm if step == 1 else hold_first  # the geometric model, step 1's folds
         if isinstance(fit, ErrorMapFit):  # later steps hold the map at this fit: the rows' angles corrected by it
             low = next((c for c in selected if c.cause == MAP), None)
+            selected = [c for c in selected if c is not low]
+            chosen = tuple(c for c in chosen if c != MAP)
+            fitted = tuple(c for c in fitted if c != MAP)
+            # causes chosen before the map that it makes redundant leave, one at a time (of those that no longer
+            # pass, the one whose BIC gains most by leaving), and are not tried again; the map is then judged
+            # again on what remains, at its order, with its ridge chosen again (if it would not pass, nothing
+            # leaves)
+            removed, rejudge, kept, judged = [], Rejudge(ctx, val, fitted, fit, n_obs), fitted, {}
+            while fitted:
+                judged = rejudge.judge(fitted)
+                weak = [c for c in fitted if not judged[c]["significant"]]
+                if not weak:
+                    break
+                gone = max(weak, key=lambda c: judged[c]["delta_bic"])
+                fitted = tuple(c for c in fitted if c != gone)
+                removed.append({"cause": gone, **judged.pop(gone)})
+            again = _map_candidate(ctx, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds, seed,
+                                   (max(fit.orders.values()),)) if removed else None
+            if removed and (again is None or not again[0].significant):
+                fitted, removed, judged = kept, [], {}
+            if removed:
+                candidates[candidates.index(best)] = again[0]
+                best, fit = again
+                best.detail["removed"] = removed
+                selected = [c for c in selected if c.cause in fitted]
+                chosen = tuple(c for c in chosen if c in fitted)
+            for c in selected:
+                if SHIFT not in fitted:  # their fits had the station shift that left
+                    c.detail = {k: v for k, v in c.detail.items() if k not in ("station", "after_t_s")}
+                if c.cause in judged:
+                    c.detail["with_map"] = judged[c.cause]
             if low is not None:  # the map replaces the low-order cyclic_error
                 best.detail["replaces"] = {"n_params": low.n_params, "holdout_rms_mm": low.holdout_rms_mm}
-                selected.remove(low)
             selected.append(best)
-            chosen = (*tuple(c for c in chosen if c != MAP), MAP)
-            fitted = tuple(c for c in fitted if c != MAP)
-            map_fit, map_edf = fit, fit.effective_params
+            chosen = (*chosen, MAP)
+            map_fit, map_edf, map_base = fit, fit.effective_params, fitted
             ctx.table = corrected_by_map(ctx.table, fit)
             ctx.fits.clear()
             val.cache.clear()
@@ -349,7 +463,8 @@ def diagnose(
     if map_fit is None:
         res, ext, tab, shift, _ = final_fit(ctx, chosen, next((c.cause for c in by_gain if c.cause != SHIFT), None))
     else:
-        res, ext, tab, shift = _final_map_fit(ctx, table, fitted, map_fit, folds, seed)
+        res, ext, tab, shift = _final_map_fit(ctx, table, fitted, map_fit, folds, seed,
+                                                      refit=fitted != map_base)
     causes = [{"cause": c.cause, "gain_mm": c.gain_mm, "holdout_rms_mm": c.holdout_rms_mm, "f_pvalue": c.f_pvalue,
                "delta_bic": c.delta_bic, "n_params": c.n_params, "cv_scheme": c.cv_scheme, **c.detail}
               for c in selected]  # fmt: skip

@@ -132,15 +132,14 @@ def _fold_ids(table: MeasurementTable, folds: int, seed: int) -> np.ndarray:
     return np.array([fold_of[p] for p in table.pose])
 
 
-def _cv_scores(jm, r, unwhiten, pen_cols, fold, orders_cols, lambdas):
+def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas):
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
-    order and ridge on the problem linearised at (jm, r): jm (3N, m) Jacobian, r (3N,) residual, whitened;
-    unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm; pen_cols the penalised columns at the
-    largest order; orders_cols[i] the subset of them kept at order i."""
+    order and ridge on the problem linearised at (jm, r): jm (3N, m) Jacobian, r (3N,) residual, whitened,
+    gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
+    pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     row_fold = np.repeat(fold, 3)
-    gram, rhs = jm.T @ jm, jm.T @ r
     ss = np.zeros((len(orders_cols), len(lambdas)))
     ss_mm = np.zeros_like(ss)
     for k in np.unique(fold):
@@ -155,9 +154,12 @@ def _cv_scores(jm, r, unwhiten, pen_cols, fold, orders_cols, lambdas):
         for i, cols in enumerate(orders_cols):
             gaf = g[np.ix_(free, cols)]
             schur = g[np.ix_(cols, cols)] - gaf.T @ gaa_inv @ gaf
-            mu, v = np.linalg.eigh(0.5 * (schur + schur.T))
-            vg = v.T @ (b[cols] - gaf.T @ gaa_inv @ b[free])
-            c = v @ (vg[:, None] / (np.maximum(mu, 0.0)[:, None] + lam[None]))  # (p, L): every ridge at once
+            bf = b[cols] - gaf.T @ gaa_inv @ b[free]
+            if len(lam) == 1:  # one ridge: a solve is a fraction of the eigendecomposition's cost
+                c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
+            else:
+                mu, v = np.linalg.eigh(0.5 * (schur + schur.T))
+                c = v @ ((v.T @ bf)[:, None] / (np.maximum(mu, 0.0)[:, None] + lam[None]))  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
             e = rk[:, None] - jk[:, free] @ a - jk[:, cols] @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
@@ -218,8 +220,9 @@ def fit_error_map(
         fold = _fold_ids(table, folds, seed)
         unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
         orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in names_max]] for h in orders]
-        ss, ss_mm = _cv_scores(jm, r, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad])
-        _, without_mm = _cv_scores(jm, r, unwhiten, pen_all, fold, [pen_all[:0]], [1.0])
+        gram, rhs = jm.T @ jm, jm.T @ r
+        ss, ss_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad])
+        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0])
         i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
         order, tau = int(orders[i]), float(taus_rad[li])
         cv_rms, cv_without = float(np.sqrt(ss_mm[i, li] / n_coord)), float(np.sqrt(without_mm[0, 0] / n_coord))
@@ -232,6 +235,59 @@ def fit_error_map(
         effective_params=edf, cv_rms_mm=cv_rms, cv_rms_without_mm=cv_without, not_identifiable=not_identifiable,
         cv_table=cv_table, n_base=n_base,
     )  # fmt: skip
+
+
+class MapEvidence:
+    """Models with the joint error map at `fit`'s joints, arcs, order and ridge, on one problem linearised
+    at the fit of the geometric model + `base` without the map (`start`: an Identification or anything with
+    its dev, stations, points and ext): the model with all of `base`, or with some of its parameters
+    removed (held at zero: the residual moves by their columns times their fitted values). What the F
+    test, the BIC and a held-out comparison of models that differ in their base need, from one Jacobian."""
+
+    def __init__(self, chain: Chain, table: MeasurementTable, params: list[Param], noise: TrackerNoise | None,
+                 base: Extension | None, start, fit: ErrorMapFit):  # fmt: skip
+        names = [nm for j in fit.arcs for nm in harmonic_names(j, max(fit.orders.values()))]
+        ext = _with_base(base, build_extension(CAUSE, chain, table, names=names, arcs=fit.arcs))
+        problem = Problem(chain, table, start.points, params, noise, extension=ext)
+        state = _state_from(problem, start, np.concatenate([start.ext, np.zeros(len(names))]))
+        self.r, self.jm = problem.residual_and_jacobian(state)
+        self.k, self.x_base = len(params), np.asarray(start.ext, dtype=float)
+        self.n_pen = len(names)
+        self.unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
+        self.ridge = fit.ridge
+        self.gram, self.rhs = self.jm.T @ self.jm, self.jm.T @ self.r
+
+    def _model(self, drop: tuple[int, ...]):
+        """(kept columns, penalised positions among them, rhs, residual) with base parameters `drop` at zero."""
+        gone = self.k + np.asarray(drop, dtype=int)
+        keep = np.setdiff1d(np.arange(self.jm.shape[1]), gone)
+        pen = np.flatnonzero(np.isin(keep, self.k + len(self.x_base) + np.arange(self.n_pen)))
+        x = self.x_base[list(drop)]
+        r = self.r + self.jm[:, gone] @ x
+        rhs = self.rhs[keep] + self.gram[np.ix_(keep, gone)] @ x
+        return keep, pen, rhs, r
+
+    def whole(self, drop: tuple[int, ...] = ()) -> tuple[float, float]:
+        """(whitened residual sum of squares of the penalised fit, the penalty not included; unpenalised
+        columns + the map's effective number of parameters) with base parameters `drop` at zero."""
+        keep, pen, rhs, r = self._model(drop)
+        gram = self.gram[np.ix_(keep, keep)]
+        scale = np.sqrt(np.diag(gram))
+        scale[scale == 0] = 1.0
+        gs = gram / np.outer(scale, scale)
+        ridge = np.zeros(len(keep))
+        ridge[pen] = self.ridge / scale[pen] ** 2
+        h_inv = np.linalg.inv(gs + np.diag(ridge))
+        step = h_inv @ (rhs / scale)
+        rss = float(np.sum((r - self.jm[:, keep] @ (step / scale)) ** 2))
+        return rss, len(keep) - len(pen) + float(np.einsum("ij,ji->i", h_inv, gs)[pen].sum())
+
+    def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
+        """Held-out RMS of one coordinate (mm) over `fold` (the fold of every row), base parameters `drop` at 0."""
+        keep, pen, rhs, r = self._model(drop)
+        _, ss_mm = _cv_scores(self.jm[:, keep], r, self.gram[np.ix_(keep, keep)], rhs, self.unwhiten, pen, fold,
+                              [pen], [self.ridge])  # fmt: skip
+        return float(np.sqrt(ss_mm[0, 0] / len(r)))
 
 
 def _with_base(base: Extension | None, ext: Extension) -> Extension:

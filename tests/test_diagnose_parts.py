@@ -2,6 +2,7 @@
 against Kabsch per prefix, the linearised folds against full refits, invisible joints, comparable repeats."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -9,6 +10,8 @@ from calib import crossval as dg
 from calib import diagnose
 from calib.cell import load_cell
 from calib.changepoint import rigid_prefix_rss
+from calib.error_map import MapEvidence, fit_error_map
+from calib.extensions import build_extension
 from calib.identify import identify
 from calib.kinematics import Kinematics
 from calib.noise import TrackerNoise
@@ -88,3 +91,35 @@ def test_repeats_from_another_approach_direction_are_not_comparable():
     # of the 100 s campaign), from below (row 4) and with no approach yet (row 0); pose B twice from below
     assert groups == [[1, 5], [2, 6]]
 
+
+
+def test_map_evidence_matches_direct_penalised_fits():
+    # the re-judging's linearised problem against direct solves of the same problem: the penalised whole-table
+    # fit (an augmented least-squares system) and explicit fold-by-fold refits, with and without the base cause
+    ctx = kr270_context({"encoder_scale": 3e-4, "cyclic_error": 2e-4}, n_poses=30)
+    base = build_extension("encoder_scale", ctx.chain, ctx.table)
+    start = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
+    mf = fit_error_map(ctx.chain, ctx.table, ctx.geo.points, ctx.params, base=base, orders=(2, 4))
+    ev = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, mf)
+    fold = np.arange(len(ctx.table)) % 4
+    for drop in ((), tuple(range(base.size))):
+        gone = ev.k + np.array(drop, dtype=int)
+        keep = np.setdiff1d(np.arange(ev.jm.shape[1]), gone)
+        pen = np.isin(keep, ev.k + base.size + np.arange(ev.n_pen))
+        r = ev.r + ev.jm[:, gone] @ ev.x_base[list(drop)]
+        j = ev.jm[:, keep]
+
+        def solve(rows3, j=j, r=r, pen=pen):
+            aug = np.vstack([j[rows3], np.sqrt(ev.ridge) * np.eye(len(pen))[pen]])
+            return np.linalg.lstsq(aug, np.r_[r[rows3], np.zeros(pen.sum())], rcond=None)[0]
+
+        everything = np.arange(len(r))
+        rss, n_params = ev.whole(drop)
+        assert rss == pytest.approx(float(np.sum((r - j @ solve(everything)) ** 2)), rel=1e-8)
+        hat = np.linalg.solve(j.T @ j + ev.ridge * np.diag(pen.astype(float)), j.T @ j)
+        assert n_params == pytest.approx(float((~pen).sum() + np.trace(hat[np.ix_(pen, pen)])), rel=1e-8)
+        errs = []
+        for k in range(4):
+            test3 = np.flatnonzero(np.repeat(fold, 3) == k)
+            errs.append(r[test3] - j[test3] @ solve(np.setdiff1d(everything, test3)))
+        assert ev.cv_rms_mm(fold, drop) == pytest.approx(dg.rms(np.concatenate(errs)), rel=1e-6)
