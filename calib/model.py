@@ -26,6 +26,7 @@ from .extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
 from .files import read_json
 from .identify import Identification, Station, predict_points
 from .joint_map import Arc, range_warning
+from .noise import WEIGHTINGS
 from .params import Param, param_by_name
 from .table import MeasurementTable
 
@@ -167,6 +168,8 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     for key in ("robot", "parameters", "stations", "tool_points"):
         if key not in doc:
             raise ModelError(f"{path}: {key}: missing")
+    if "weighting" in doc and doc["weighting"] not in WEIGHTINGS:
+        raise ModelError(f"{path}: weighting: expected one of {', '.join(WEIGHTINGS)}, got {doc['weighting']!r}")
     try:
         chain = chain_from_dict(doc["robot"], f"{path}: robot")
     except ChainError as exc:

@@ -89,6 +89,8 @@ def model_json(tmp_path_factory):
         (lambda d: d.pop("tool_points"), r"model\.json: tool_points: missing"),
         (lambda d: d["parameters"]["dq2"].pop("value"), r"parameters\.dq2\.value: expected a number, got None"),
         (lambda d: d.update(extension={"cause": "gremlins"}), r"extension\.cause: 'gremlins' is not none or one of"),
+        # found by test_cli_fuzz: a null weighting crashed the report with a traceback
+        (lambda d: d.update(weighting=None), r"weighting: expected one of tracker, iid, got None"),
     ],
 )
 @pytest.mark.parametrize("command", ["predict", "compensate"])
