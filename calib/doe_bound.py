@@ -17,7 +17,7 @@ over the pool and every local maximum found.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,6 +31,12 @@ class Bound:
     n_measurements: int
     support: np.ndarray  # (s, n) rad, poses of the approximate design, heaviest first
     weights: np.ndarray  # (s,) their weights, summing to 1 over the whole design
+
+    def at(self, n_measurements: int) -> Bound:
+        """The same bound for another number of measurements: phi scales as 1 / N."""
+        f = float(np.sqrt(self.n_measurements / n_measurements))
+        return replace(self, rho0_mm=f * self.rho0_mm, design_rho0_mm=f * self.design_rho0_mm,
+                       n_measurements=n_measurements)  # fmt: skip
 
 
 def multiplicative_weights(design: Design, infos: np.ndarray, w: np.ndarray, iterations: int) -> np.ndarray:
