@@ -10,9 +10,12 @@ linear criterion see Atkinson, Donev and Tobias, Optimum Experimental Designs, 2
 
 with the maximum over every feasible pose x. The weights come from the multiplicative algorithm (Silvey,
 Titterington and Torsney 1978, exponent 1/2 as for A-optimality); the support moves continuously, each round
-adding the local maxima of d(x) (joint limits, box and the visibility of the pairs seen at the start as
-constraints, as in the refinement of `calib.doe.refine`). The bound is as sure as that maximum: it is taken
-over the pool and every local maximum found.
+adding the local maxima of d(x) (joint limits and box as constraints, as in `calib.doe.refine`). The bound is
+as sure as that maximum: it is taken over the pool and every local maximum found.
+
+Visibility is relaxed: every station sees every point (acceptance 180 deg). A pose's information can only
+grow and the feasible set only widen, so the relaxed bound holds for the real cell, and d(x) stays smooth: with
+visibility it jumps where a point leaves a station's cone, and a local search misses maxima behind the jumps.
 """
 
 from __future__ import annotations
@@ -71,8 +74,8 @@ def derivative(design: Design, x: np.ndarray, a: np.ndarray, w_rows: np.ndarray)
 def _local_max(design: Design, x0: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray] | None:
     from scipy.optimize import minimize  # lazy, as in calib.doe: scipy.optimize costs ~0.3 s at start-up
 
-    p, nw = design._points_and_normals(x0[None])
-    w_rows, seen = design._weights(p, nw), design._margins(p, nw) >= 0.0
+    w_rows = design._weights(*design._points_and_normals(x0[None]))
+    seen = np.zeros((len(design.tool), len(design.trackers)), dtype=bool)  # visibility relaxed: no constraint
 
     def cons(x):
         return design.constraints(x, 1, seen)
@@ -97,9 +100,10 @@ def rho0_lower_bound(
     local_starts: int = 40,
     iterations: int = 1500,
 ) -> Bound:
-    """The bound on rho0 of every plan of `n_measurements` pose measurements (module docstring): weights on a
-    pool of random feasible poses, then `rounds` of support moves from the `local_starts` poses of largest
-    d(x), re-weighting after each."""
+    """The bound on rho0 of every plan of `n_measurements` pose measurements (module docstring), visibility
+    relaxed: weights on a pool of random feasible poses, then `rounds` of support moves from the `local_starts`
+    poses of largest d(x), re-weighting after each."""
+    design = replace(design, acceptance_deg=180.0)
     pool = random_feasible_poses(design, pool_size, rng)
     infos = design.pose_information(pool)
     w = multiplicative_weights(design, infos, np.ones(len(pool)), iterations)
