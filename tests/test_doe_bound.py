@@ -47,7 +47,8 @@ def test_the_two_link_arm_bound_is_eq41(q20_deg, n):
 @settings(max_examples=25, deadline=None)
 @given(m=st.integers(6, 12), repeat=st.integers(1, 3), seed=st.integers(0, 2**31))
 def test_no_random_plan_beats_the_bound(kr, kr_bound, m, repeat, seed):
-    """Every plan of N = m * repeat measurements is a measure of mass N, so rho0 >= bound(18) sqrt(18 / N)."""
+    """Every plan of N = m * repeat measurements is a measure of mass N, so rho0 >= bound(18) sqrt(18 / N); the
+    bound relaxes the stations' visibility, under which the plan's information can only grow."""
     q = random_feasible_poses(kr, m, np.random.default_rng(seed))
     assert kr.rho0(q, repeat) >= kr_bound.rho0_mm * np.sqrt(18 / (m * repeat))
 
