@@ -35,12 +35,6 @@ class Bound:
     support: np.ndarray  # (s, n) rad, poses of the approximate design, heaviest first
     weights: np.ndarray  # (s,) their weights, summing to 1 over the whole design
 
-    def at(self, n_measurements: int) -> Bound:
-        """The same bound for another number of measurements: phi scales as 1 / N."""
-        f = float(np.sqrt(self.n_measurements / n_measurements))
-        return replace(self, rho0_mm=f * self.rho0_mm, design_rho0_mm=f * self.design_rho0_mm,
-                       n_measurements=n_measurements)  # fmt: skip
-
 
 def multiplicative_weights(design: Design, infos: np.ndarray, w: np.ndarray, iterations: int) -> np.ndarray:
     """Weights (summing to 1) on the poses with information `infos` (N, k, k) that lower trace(L M^-1):
