@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import minimize
 
 from .doe import Design, random_feasible_poses
 
@@ -66,8 +67,6 @@ def derivative(design: Design, x: np.ndarray, a: np.ndarray, w_rows: np.ndarray)
 
 
 def _local_max(design: Design, x0: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray] | None:
-    from scipy.optimize import minimize  # lazy, as in calib.doe: scipy.optimize costs ~0.3 s at start-up
-
     w_rows = design._weights(*design._points_and_normals(x0[None]))
     seen = np.zeros((len(design.tool), len(design.trackers)), dtype=bool)  # visibility relaxed: no constraint
 
