@@ -15,7 +15,6 @@ With each case, the lower bound on rho0 of every plan of the same number of meas
 from __future__ import annotations
 
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import time
 import numpy as np
 
 from bench.goals import check
+from bench.memory import peak_rss_mb
 from calib.cell import load_cell
 from calib.doe import design_for_cell, exchange, optimize_plan, random_feasible_poses
 from calib.doe_bound import rho0_lower_bound
@@ -46,7 +46,7 @@ def ours(m: int, k: int, visibility: bool) -> dict:
     plan = optimize_plan(d, m, k, seed=0)
     cpu = time.process_time() - t0
     return {"rho0_mm": plan.criteria["rho0_mm"], "cpu_s": cpu,
-            "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}  # fmt: skip
+            "maxrss_mb": peak_rss_mb()}  # fmt: skip
 
 
 def plain_exchange(d, m: int, k: int, budget_cpu_s: float, seed: int) -> tuple[float, int]:
@@ -64,7 +64,7 @@ def plain_exchange(d, m: int, k: int, budget_cpu_s: float, seed: int) -> tuple[f
 
 
 def lower_bound(visibility: bool) -> dict:
-    """Run in a fresh process too (a child's peak memory counts its parent's at the fork): the lower bound on
+    """Run in a fresh process too (it is a case of its own, not part of ours' CPU time): the lower bound on
     rho0 of every plan of 18 measurements and the approximate design's rho0."""
     b = rho0_lower_bound(design(visibility), 18, np.random.default_rng(100 + visibility))
     return {"rho0_mm": b.rho0_mm, "design_rho0_mm": b.design_rho0_mm}

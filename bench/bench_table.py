@@ -1,7 +1,8 @@
 """Reading measurement tables (issues 12 and 16): CPU time at 100k rows against the per-cell reader of issue 12
 (csv.reader and one Python float() per cell, rebuilt here as the baseline) and against the general parser alone
 (numpy's loadtxt per block, the reader before the grid parser of plain blocks), medians of interleaved repeats;
-and the peak memory of a child process reading a 1e6-row table (its max RSS, and above its RSS after imports)."""
+and the peak memory of a child process reading a 1e6-row table (its VmHWM, bench/memory.py, and above the
+imports' own)."""
 
 from __future__ import annotations
 
@@ -21,11 +22,12 @@ from calib.table import read_table
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
 CHILD = """
-import resource, sys
+import sys
+from bench.memory import peak_rss_mb
 from calib.table import read_table
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+base = peak_rss_mb()
 table = read_table(sys.argv[1])
-print(len(table), base, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+print(len(table), base, peak_rss_mb())
 """
 
 
@@ -74,10 +76,11 @@ def main() -> None:
               f"(goal under 0.3 s: {ok})")  # fmt: skip
         write_rows(large, 1_000_000)
         out = subprocess.run([sys.executable, "-c", CHILD, str(large)], capture_output=True, text=True, check=True)
-        n, base, peak = map(int, out.stdout.split())
-        print(f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak / 1024:.0f} MB, "
-              f"{(peak - base) / 1024:.0f} MB above the imports (goal under 1 GB: "
-              f"{check('read 1M table rows < 1 GB', f'{peak / 1024:.0f} MB', peak < 1024**2)})")
+        n, base, peak = out.stdout.split()
+        base, peak = float(base), float(peak)  # MB
+        print(f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak:.0f} MB, "
+              f"{peak - base:.0f} MB above the imports (goal under 1 GB: "
+              f"{check('read 1M table rows < 1 GB', f'{peak:.0f} MB', peak < 1024)})")
 
 
 if __name__ == "__main__":
