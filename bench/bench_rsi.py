@@ -110,7 +110,8 @@ def measure_baseline(frames: int, cycle_s: float, load: str) -> np.ndarray:
 
 
 def measure(frames: int, cycle_s: float, load: str) -> np.ndarray:
-    robot = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=False, rsi_cycle_s=cycle_s)
+    robot = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=False, rsi_cycle_s=cycle_s,
+                     controller_host="127.0.0.1")  # the emulated KR C2 sends from loopback
     robot.listen()
     eki = socket.create_connection(robot.eki_address)  # the EKI side only has to be connected
     mine, theirs = mp.Pipe(duplex=False)
