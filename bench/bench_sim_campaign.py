@@ -16,6 +16,7 @@ cycle exchanged) is compared byte for byte with the skipping one's, and the free
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import os
@@ -50,7 +51,8 @@ def run(cell, plan: dict, root: Path, name: str, **sim_kw) -> tuple[float, float
     sim = SimCell(cell, SEED, store, **sim_kw)
     try:
         w0, c0 = time.perf_counter(), time.process_time()
-        run_campaign(store, sim.live)
+        with contextlib.redirect_stdout(io.StringIO()):  # the simulated operator's prompts, 16 per run
+            run_campaign(store, sim.live)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         ctl = sim.controller
         counts = {"cycles": ctl.cycles, "frames": ctl.frames_sent, "skipped": ctl.idle_skipped}
