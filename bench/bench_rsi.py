@@ -90,22 +90,32 @@ def _load(kind: str) -> list:
     return []
 
 
-def measure_baseline(frames: int, cycle_s: float, load: str) -> np.ndarray:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    echo = mp.Process(target=_echo, args=(sock,), daemon=True)
+def _latencies(address, frames: int, cycle_s: float, load: str, on_start=lambda: None) -> np.ndarray:
+    """The emulated controller's answer latencies against `address`, the chosen load alongside; `on_start` runs
+    once the controller process has started (the client under test accepts it there)."""
     mine, theirs = mp.Pipe(duplex=False)
-    ctl = mp.Process(target=_controller, args=(sock.getsockname(), frames, cycle_s, theirs), daemon=True)
+    ctl = mp.Process(target=_controller, args=(address, frames, cycle_s, theirs), daemon=True)
     loads = _load(load)
     try:
-        echo.start()
         ctl.start()
+        on_start()
         latencies = mine.recv()
         ctl.join()
         return latencies
     finally:
-        for p in (*loads, echo):
+        for p in loads:
             p.kill()
+
+
+def measure_baseline(frames: int, cycle_s: float, load: str) -> np.ndarray:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    echo = mp.Process(target=_echo, args=(sock,), daemon=True)
+    echo.start()
+    try:
+        return _latencies(sock.getsockname(), frames, cycle_s, load)
+    finally:
+        echo.kill()
         sock.close()
 
 
@@ -114,18 +124,9 @@ def measure(frames: int, cycle_s: float, load: str) -> np.ndarray:
                      controller_host="127.0.0.1")  # the emulated KR C2 sends from loopback
     robot.listen()
     eki = socket.create_connection(robot.eki_address)  # the EKI side only has to be connected
-    mine, theirs = mp.Pipe(duplex=False)
-    ctl = mp.Process(target=_controller, args=(robot.rsi_address, frames, cycle_s, theirs), daemon=True)
-    loads = _load(load)
     try:
-        ctl.start()
-        robot.connect()
-        latencies = mine.recv()
-        ctl.join()
-        return latencies
+        return _latencies(robot.rsi_address, frames, cycle_s, load, on_start=robot.connect)
     finally:
-        for p in loads:
-            p.kill()
         eki.close()
         robot.close()
 

@@ -205,12 +205,19 @@ def test_ur10_config_is_the_dh_urdf_joint_by_joint():
     np.testing.assert_allclose(o_u + 92.2 * r_u[:, :, 2], o_c, atol=1e-9)
 
 
-@needs_data
-def test_calibrate_on_b_predicts_held_out_d(series_b, series_d):
+@pytest.fixture(scope="module")
+def b_setup(series_b):
+    """The UR10 cell, its T-Mac point and the parameters one point per pose of Series B can identify."""
     cell = load_cell("ur10-ipa")
     tmac = {POINT: cell.tool_points[POINT]}
     irr, _ = irreducible_params(cell.chain)
     params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+    return cell, tmac, params
+
+
+@needs_data
+def test_calibrate_on_b_predicts_held_out_d(series_b, series_d, b_setup):
+    cell, tmac, params = b_setup
     fit = identify(cell.chain, series_b, tmac, params)
     # D was measured months later from another tracker set-up: only its station is re-estimated
     nominal = identify(cell.chain, series_d, tmac, [], fixed=("robot", "points"))
@@ -234,11 +241,8 @@ def test_calibrate_on_b_predicts_held_out_d(series_b, series_d):
 
 
 @needs_data
-def test_joint_error_map_carries_from_b_to_d(series_b, series_d):
-    cell = load_cell("ur10-ipa")
-    tmac = {POINT: cell.tool_points[POINT]}
-    irr, _ = irreducible_params(cell.chain)
-    params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+def test_joint_error_map_carries_from_b_to_d(series_b, series_d, b_setup):
+    cell, tmac, params = b_setup
     fit = fit_error_map(cell.chain, series_b, tmac, params, base=build_extension("joint_compliance", cell.chain,
                                                                                   series_b))  # fmt: skip
     # the T-Mac centre lies on the wrist_3 axis: that joint cannot be mapped from positions alone
@@ -251,11 +255,8 @@ def test_joint_error_map_carries_from_b_to_d(series_b, series_d):
 
 
 @pytest.fixture(scope="module")
-def diagnosis_b(series_b):
-    cell = load_cell("ur10-ipa")
-    tmac = {POINT: cell.tool_points[POINT]}
-    irr, _ = irreducible_params(cell.chain)
-    params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+def diagnosis_b(series_b, b_setup):
+    cell, tmac, params = b_setup
     return diagnose(cell.chain, series_b, tmac, params)
 
 
@@ -272,13 +273,10 @@ def test_diagnose_names_the_joint_error_map_on_series_b(diagnosis_b):
 
 
 @needs_data
-def test_orientation_never_fitted_falls_with_the_joint_error_map_on_d(series_b, series_d):
+def test_orientation_never_fitted_falls_with_the_joint_error_map_on_d(series_b, series_d, b_setup):
     """issue 13: with the joint error map, the T-Mac's orientation residuals fall too, although no model uses them
     (studies/ur10_ipa/orientation.py: the station from D's positions, only the probe's mount from B's orientations)."""
-    cell = load_cell("ur10-ipa")
-    tmac = {POINT: cell.tool_points[POINT]}
-    irr, _ = irreducible_params(cell.chain)
-    params, _ = identifiable_subset(cell.chain, irr, np.radians(series_b.q_deg), tmac)
+    cell, tmac, params = b_setup
     geometric = identify(cell.chain, series_b, tmac, params)
     compliance = build_extension("joint_compliance", cell.chain, series_b)
     mapped = fit_error_map(cell.chain, series_b, tmac, params, base=compliance).identification
