@@ -6,7 +6,7 @@ import pkgutil
 from pathlib import Path
 
 from bench.goals import summary
-from campaign.cli.blas import limited_blas
+from trackcal.campaign.cli.blas import limited_blas
 
 MODULES = sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if m.name.startswith("bench_"))
 with limited_blas():

@@ -27,28 +27,34 @@ from pathlib import Path
 import numpy as np
 
 from bench.goals import check
-from calib.cell import load_cell
-from calib.diagnose import diagnose
-from calib.noise import TrackerNoise
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.subset import identifiable_subset
-from campaign.importers.ipa_ur10 import POINT, read_ipa_series
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
 from studies.ur10_ipa.study import DATA, SERIES
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.subset import identifiable_subset
+from trackcal.campaign.importers.ipa_ur10 import POINT, read_ipa_series
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
 BASELINE_COMMIT = "c29c288"
 ROOT = Path(__file__).resolve().parents[1]
 UR10_SCRIPT = """
 import time, numpy as np
 from bench.bench_diagnose import series_b
-from calib.diagnose import diagnose
+from trackcal.calib.diagnose.selection import diagnose
 chain, b, tmac, params = series_b()
 t = time.process_time()
 d = diagnose(chain, b, tmac, params, None)
 print(d.cause, time.process_time() - t)
 """
+
+
+# where the modules the baseline imports (relatively, from the flat calib/ of its time) live today
+BASELINE_IMPORTS = {".chain": "trackcal.calib.model.chain", ".extensions": "trackcal.calib.diagnose.extensions",
+                    ".identify": "trackcal.calib.identify.solver", ".noise": "trackcal.calib.identify.noise",
+                    ".params": "trackcal.calib.model.params", ".table": "trackcal.calib.io.table"}  # fmt: skip
 
 
 def baseline_module():
@@ -58,9 +64,10 @@ def baseline_module():
                              capture_output=True, text=True, check=True).stdout  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
         return None
-    spec = importlib.util.spec_from_loader("calib._diagnose_baseline", loader=None)
+    for relative, module in BASELINE_IMPORTS.items():
+        src = src.replace(f"from {relative} import ", f"from {module} import ")
+    spec = importlib.util.spec_from_loader("trackcal.calib._diagnose_baseline", loader=None)
     mod = importlib.util.module_from_spec(spec)
-    mod.__package__ = "calib"
     sys.modules[spec.name] = mod  # dataclasses look their module up
     exec(compile(src, f"{BASELINE_COMMIT}:calib/diagnose.py", "exec"), mod.__dict__)
     return mod

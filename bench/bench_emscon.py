@@ -14,9 +14,9 @@ import statistics
 import threading
 import time
 
-from drivers.emscon.client import EmsconTracker
-from mocks.clock import VirtualClock
-from mocks.servers.emscon import MockEmscon
+from trackcal.drivers.emscon.client import EmsconTracker
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.emscon import MockEmscon
 
 N = 500
 WARMUP = 20

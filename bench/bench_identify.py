@@ -1,6 +1,6 @@
 """Identification of KR-270 campaigns of 1k and 100k rows: ours against scipy with the same analytic Jacobian.
 
-- ours: `calib.identify.solve` (Levenberg-Marquardt) from the closed-form station initialisation;
+- ours: `calib.identify.solver.solve` (Levenberg-Marquardt) from the closed-form station initialisation;
 - scipy.optimize.least_squares, method "lm" (MINPACK) and "trf", given the residuals and the analytic
   Jacobian of `Problem.residual_and_jacobian` (with the chain rule of the station rotations, so it is the
   exact Jacobian of the function scipy minimises), default tolerances, from the same start;
@@ -26,13 +26,13 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from bench.goals import check
-from calib.cell import load_cell
-from calib.identify import Problem, identify, solve
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.rigid import skew
-from calib.table import MeasurementTable, write_table
-from mocks.twin import Twin
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.solver import Problem, identify, solve
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.rigid import skew
+from trackcal.mocks.twin import Twin
 
 GOAL_SPEEDUP = 3.0  # issue 16: at least 3x faster than scipy with the same Jacobian
 GOAL_BYTES_PER_ROW = 1500
@@ -175,7 +175,7 @@ def whole_process(n_rows: int = 100, repeats: int = 5) -> None:
     """`trackcal identify` on a small table as a user runs it: fresh processes, median wall time."""
     with tempfile.TemporaryDirectory() as tmp:
         write_table(campaign(n_rows)[1], f"{tmp}/t.csv")
-        argv = [sys.executable, "-m", "campaign.cli", "identify", f"{tmp}/t.csv", "--cell", "kr270", "--out",
+        argv = [sys.executable, "-m", "trackcal.campaign.cli", "identify", f"{tmp}/t.csv", "--cell", "kr270", "--out",
                 f"{tmp}/m.json"]  # fmt: skip
         walls, cpus = [], []
         for _ in range(repeats):

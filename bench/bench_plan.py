@@ -3,13 +3,13 @@
 Ours: `optimize_plan` with the CLI's defaults (screening of 1000 plans over a 2000-pose pool, modified Fedorov
 exchange of the best 16, SLSQP refinement), in one process so that its CPU time is that of one process; each
 case runs in a fresh subprocess, which also gives its peak memory. Baseline, in this process: the same
-exchange (`calib.doe.exchange`) over a pool of 2000 random feasible poses, restarted from random plans until
+exchange (`calib.doe.design.exchange`) over a pool of 2000 random feasible poses, restarted from random plans until
 it has used our CPU time, keeping its best plan (FIGAROH-style pool selection, with the rho0 criterion).
 Cases: paper section 7.2 (6 configurations x 3) without and with visibility, then 12, 24 and 48 x 3.
 Goals (issue 16): rho0 at least 10 % below the baseline in every case; section 7.2 without visibility at
 most 2.40 um in under 10 s whole process (`trackcal plan`); under 300 MB at M=48.
 With each case, the lower bound on rho0 of every plan of the same number of measurements
-(`calib.doe_bound`, the approximate design), and so the smallest ratio to this baseline any plan could reach.
+(`calib.doe.bound`, the approximate design), and so the smallest ratio to this baseline any plan could reach.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ import numpy as np
 
 from bench.goals import check
 from bench.memory import peak_rss_mb
-from calib.cell import load_cell
-from calib.doe import design_for_cell, exchange, optimize_plan, random_feasible_poses
-from calib.doe_bound import rho0_lower_bound
-from calib.params import param_by_name
+from trackcal.calib.doe.bound import rho0_lower_bound
+from trackcal.calib.doe.design import design_for_cell, exchange, optimize_plan, random_feasible_poses
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import param_by_name
 
 CASES = [(6, 3, False), (6, 3, True), (12, 3, True), (24, 3, True), (48, 3, True)]
 POOL = 2000
@@ -106,7 +106,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         cmd = ["plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--no-visibility", "--json", f"{tmp}/p"]
-        subprocess.run([sys.executable, "-m", "campaign.cli", *cmd], check=True, capture_output=True)
+        subprocess.run([sys.executable, "-m", "trackcal.campaign.cli", *cmd], check=True, capture_output=True)
         wall = time.perf_counter() - t0
         with open(f"{tmp}/p") as fh:
             rho = json.load(fh)["rho0_mm"]

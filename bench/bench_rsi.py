@@ -26,8 +26,8 @@ import time
 import numpy as np
 
 from bench.goals import check
-from drivers.kuka.client import KukaKrc2
-from drivers.kuka.rsi_codec import RobFrame, SenFrame, encode_rob, encode_sen, ipoc_of
+from trackcal.drivers.kuka.client import KukaKrc2
+from trackcal.drivers.kuka.rsi_codec import RobFrame, SenFrame, encode_rob, encode_sen, ipoc_of
 
 LATE_S = 0.010  # the controller's answer budget (see above)
 GOAL_P999_S = 0.002

@@ -27,11 +27,11 @@ import time
 from pathlib import Path
 
 from bench.goals import check
-from calib.cell import load_cell
-from campaign.cells.sim import SimCell
-from campaign.engine.runner import run_campaign
-from campaign.planning import PlanOptions, build_design, search_doc
-from campaign.session.session import create_session, write_export
+from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.cells.sim import SimCell
+from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.session.session import create_session, write_export
 
 SEED = 1
 MODES = {"free (before)": {"lockstep": False}, "lockstep, every cycle": {"skip_idle": False},

@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from campaign.session.store import SessionStore
+from trackcal.campaign.session.store import SessionStore
 
 N = 300
 EVENT = {"device": "tracker", "op": "measure", "args": [],

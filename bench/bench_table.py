@@ -17,14 +17,14 @@ from unittest import mock
 import numpy as np
 
 from bench.goals import check
-from calib import csv_grid
-from calib.table import read_table
+from trackcal.calib.io import csv_grid
+from trackcal.calib.io.table import read_table
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
 CHILD = """
 import sys
 from bench.memory import peak_rss_mb
-from calib.table import read_table
+from trackcal.calib.io.table import read_table
 base = peak_rss_mb()
 table = read_table(sys.argv[1])
 print(len(table), base, peak_rss_mb())

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from bench.bench_identify import campaign
-from calib.table import write_table
+from trackcal.calib.io.table import write_table
 
 REPEATS = 3
 
@@ -26,7 +26,7 @@ def run(argv: list[str], threads: int) -> tuple[float, float]:
     env["TRACKCAL_BLAS_THREADS"] = str(threads)
     t0 = time.perf_counter()
     before = os.times()
-    subprocess.run([sys.executable, "-m", "campaign.cli", *argv], check=True, capture_output=True, env=env)
+    subprocess.run([sys.executable, "-m", "trackcal.campaign.cli", *argv], check=True, capture_output=True, env=env)
     after = os.times()
     cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
     return time.perf_counter() - t0, cpu

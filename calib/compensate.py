@@ -10,7 +10,7 @@ identified model reaches the intended pose:
 
 x_0 the TCP, x_1 and x_2 the TCP offset by `lever_mm` along the x and y axes of the last joint frame: three
 non-collinear points fix position and orientation (9 equations). Gauss-Newton on these points with the
-analytic joint Jacobians of `calib.kinematics` (times dq_true/dq_cmd for an extension) converges
+analytic joint Jacobians of `calib.model.kinematics` (times dq_true/dq_cmd for an extension) converges
 quadratically; the corrections are small (deviations of tenths of a mm), so two to four iterations reach
 rounding level.
 
@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CalibError
-from .extensions import build_parts
-from .kinematics import Kinematics
-from .model import Model
-from .table import MeasurementTable
+from trackcal.calib.diagnose.extensions import build_parts
+from trackcal.calib.errors import CalibError
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model_file import Model
 
 STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error")
 NO_STATIC_COMPENSATION = {

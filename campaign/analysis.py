@@ -7,24 +7,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.cell import Cell, load_cell
-from calib.diagnose import Diagnosis, diagnose, fit_cause, noise_floor, rms
-from calib.extensions import CAUSES, rebuild
-from calib.identify import Identification, IdentificationError, identify, residual_stats, significance
-from calib.kinematics import Kinematics
-from calib.model import identification_to_doc
-from calib.noise import DEFAULT_WEIGHTING, noise_for
-from calib.params import Param, irreducible_params, param_by_name
-from calib.poses import random_poses
-from calib.table import MeasurementTable, read_table
-from campaign.console import console
-from campaign.errors import InputError
-from campaign.output import write_json
-from campaign.report.inputs import GEOMETRIC_MODEL, report_session, table_sha256
-from campaign.session.session import campaign_warnings, session_cell, write_export
-from campaign.session.store import SessionStore
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.diagnose.extensions import CAUSES, rebuild
+from trackcal.calib.diagnose.selection import Diagnosis, diagnose, fit_cause, noise_floor, rms
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.solver import Identification, IdentificationError, identify, residual_stats, significance
+from trackcal.calib.io.table import MeasurementTable, read_table
+from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param, irreducible_params, param_by_name
+from trackcal.calib.model_file import identification_to_doc
+from trackcal.campaign.console import console
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.output import write_json
+from trackcal.campaign.report.inputs import GEOMETRIC_MODEL, report_session, table_sha256
+from trackcal.campaign.session.session import campaign_warnings, session_cell, write_export
+from trackcal.campaign.session.store import SessionStore
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
 # Above twice the noise floor three quarters of the residual variance (1 - 1/2^2) is something the model does not
 # describe; the intervals assume what is left is tracker noise, so they cannot be trusted (a parameter subset or a

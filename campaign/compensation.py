@@ -18,8 +18,8 @@ import csv
 
 import numpy as np
 
-from calib.table import joint_columns, read_joint_rows
-from campaign.output import output_file
+from trackcal.calib.io.table import joint_columns, read_joint_rows
+from trackcal.campaign.output import output_file
 
 COMP_DECIMALS = 6
 

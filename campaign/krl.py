@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.files import atomic_open
-from campaign.errors import CampaignError
+from trackcal.calib.io.files import atomic_open
+from trackcal.campaign.errors import CampaignError
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6

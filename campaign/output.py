@@ -8,9 +8,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from calib.files import atomic_open, dumps_json
-from calib.table import MeasurementTable, write_table
-from campaign.errors import InputError
+from trackcal.calib.io.files import atomic_open, dumps_json
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.campaign.errors import InputError
 
 
 @contextlib.contextmanager

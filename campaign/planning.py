@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.cell import Cell
-from calib.doe import CRITERIA, Design, design_for_cell, optimize_plan
-from calib.files import finite_or_null
-from calib.noise import TrackerNoise
-from calib.params import Param, irreducible_params, param_by_name
-from calib.table import joint_columns, read_joint_rows
-from campaign.errors import InputError
-from campaign.output import output_file
+from trackcal.calib.doe.design import CRITERIA, Design, design_for_cell, optimize_plan
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.io.files import finite_or_null
+from trackcal.calib.io.table import joint_columns, read_joint_rows
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.params import Param, irreducible_params, param_by_name
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.output import output_file
 
 
 @dataclass(frozen=True)

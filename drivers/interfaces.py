@@ -57,18 +57,34 @@ class Tracker(Protocol):
     def close(self) -> None: ...
 
 
+@dataclass(frozen=True)
+class RobotState:
+    """What the controller says of the arm now: moving or standing, and the fault it holds ("" when none)."""
+
+    moving: bool
+    fault: str = ""
+
+
 @runtime_checkable
 class Robot(Protocol):
+    """What the campaign moves: any controller family (KR C2 over EKI + RSI, ...) implements it, and the engine
+    knows no other word of a controller."""
+
     def connect(self) -> None: ...
-    def read_joints(self) -> tuple[float, ...]:
+    def joints(self) -> tuple[float, ...]:
         """Actual joint angles in degrees, at the controller's precision (0.0001 deg)."""
         ...
-    def move_ptp(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
-        """Check the target (joint limits, cell box) and move there; returns once the move is done."""
+    def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
+        """Check the target (joint limits, cell box) and move there (joint interpolated); returns once the move is
+        done."""
         ...
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them."""
         ...
+    def stop(self) -> None:
+        """Brake the running move on its path (a controlled stop, drives stay on); returns once the arm stands."""
+        ...
+    def state(self) -> RobotState: ...
     def reset_faults(self) -> None:
         """Clear the controller's latched faults (E-stop seen, drives off) once the operator acknowledged;
         DeviceFault if one is still active."""

@@ -13,8 +13,8 @@ from collections import Counter
 
 import numpy as np
 
-from .clock import VirtualClock
-from .twin import Twin
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.twin import Twin
 
 
 class NotVisible(Exception):

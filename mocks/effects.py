@@ -23,10 +23,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.chain import Chain
-from calib.extensions import CAUSES
-from calib.pinmodel import gravity_torques
-from calib.rigid import exp_so3
+from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.pinmodel import gravity_torques
+from trackcal.calib.model.rigid import exp_so3
 
 THERMAL_PIVOTS = ("base", "first_joint")
 # Linear expansion coefficients near 20 degC (CRC Handbook of Chemistry and Physics, "Thermal Expansion of

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.errors import DeviceFault, MotionRefused, TargetNotVisible
-from drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
-from mocks.cell import NotVisible, World
+from trackcal.drivers.errors import DeviceFault, MotionRefused, TargetNotVisible
+from trackcal.drivers.interfaces import Environment, RobotState, TrackerMeasurement, TrackerStatus
+from trackcal.mocks.cell import NotVisible, World
 
 ENV = Environment(20.0, 1013.25, 45.0)
 
@@ -67,10 +67,10 @@ class InprocRobot:
 
     def connect(self) -> None: ...
 
-    def read_joints(self) -> tuple[float, ...]:
+    def joints(self) -> tuple[float, ...]:
         return tuple(float(v) for v in self.world.q_deg)
 
-    def move_ptp(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
+    def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         q = np.asarray(target_deg, dtype=float)
         if np.any(q < self.limits[:, 0]) or np.any(q > self.limits[:, 1]):
             raise MotionRefused("target outside the joint limits", device="robot (in-process)")
@@ -83,7 +83,12 @@ class InprocRobot:
 
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         self.world.clock.sleep(window_s)
-        return self.read_joints()
+        return self.joints()
+
+    def stop(self) -> None: ...  # a move here ends before its call returns: there is never one to stop
+
+    def state(self) -> RobotState:
+        return RobotState(moving=False, fault=self.faults[0] if self.faults else "")
 
     def reset_faults(self) -> None: ...
 

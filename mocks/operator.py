@@ -8,8 +8,8 @@ from __future__ import annotations
 import threading
 import time
 
-from mocks.cell import World
-from mocks.servers.plc import MockPlc
+from trackcal.mocks.cell import World
+from trackcal.mocks.servers.plc import MockPlc
 
 
 class SimHuman:

@@ -6,10 +6,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable
 
 if TYPE_CHECKING:
-    from .twin import Twin
+    from trackcal.mocks.twin import Twin
 
 
 def simulate_campaign(

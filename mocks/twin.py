@@ -18,16 +18,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.cell import Cell
-from calib.identify import Problem, Station
-from calib.kinematics import Kinematics
-from calib.noise import TrackerNoise
-from calib.params import complete_params, irreducible_params, param_by_name
-from calib.poses import random_poses
-from calib.rigid import exp_so3
-
-from .effects import Effects, unit_effect
-from .synth import simulate_campaign
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Problem, Station
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import complete_params, irreducible_params, param_by_name
+from trackcal.calib.model.rigid import exp_so3
+from trackcal.mocks.effects import Effects, unit_effect
+from trackcal.mocks.synth import simulate_campaign
 
 # Paper Table 8: the KR-270's identified deviations (mm, deg), the default hidden truth of the twin.
 PAPER_TABLE8 = {

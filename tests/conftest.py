@@ -1,16 +1,24 @@
-import numpy as np
-import pytest
+"""Fixtures shared by the test modules (helpers are in helpers.py) and the hypothesis profiles.
 
-from calib.cell import load_cell
-from calib.doe import design_for_cell, random_feasible_poses
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from campaign.engine.runner import Live
-from campaign.session.session import measured_keys
-from mocks.cell import World
-from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+HYPOTHESIS_PROFILE=ci (what .ci/run sets): derandomized, so CI runs the same examples every time; the default
+`dev` profile draws new examples on every run and keeps the failing ones in .hypothesis/. Neither has a deadline:
+no test may depend on how fast a loaded machine is.
+"""
+
+import os
+import signal
+import subprocess
+
+import pytest
+from hypothesis import settings
+
+from tests.helpers import ROOT, TRACKCAL, wait_for
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import irreducible_params
+
+settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
+settings.register_profile("dev", deadline=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 
 
 @pytest.fixture(scope="session")
@@ -18,48 +26,25 @@ def kr270():
     return load_cell("kr270")
 
 
-def kr270_campaign(cell, seed: int, n_poses: int = 30, noise_free: bool = False, **twin_kw):
-    """A paper-like campaign: random feasible poses, 3 points, 2 stations, AT901-like noise (twin defaults)."""
-    twin = Twin(cell, seed=seed, **twin_kw)
-    poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
-    return twin, simulate_campaign(twin, poses, noise_free=noise_free)
-
-
-def truth_of(twin, params):
-    return np.array([twin.true_dev[twin.params.index(p)] for p in params])
-
-
 @pytest.fixture(scope="session")
 def kr270_params(kr270):
     return irreducible_params(kr270.chain)[0]
 
 
-def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
-    """A campaign plan (plan.json form) of n random poses satisfying limits, box and visibility."""
-
-    poses = np.degrees(random_feasible_poses(design_for_cell(cell, []), n_poses, np.random.default_rng(seed)))
-    return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
-
-
-def inproc_live(cell, seed: int = 3, store=None, operator=None):
-    """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
-    measurements the session holds (a resume sees the noise an uninterrupted run would)."""
-
-    world = World(Twin(cell, seed=seed))
-    if store is not None:
-        world.restore_counts(measured_keys(store))
-    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
-                       InprocCellIO(world))  # fmt: skip
-
-
-def before_call(obj, name: str, n: int, action) -> None:
-    """Make obj.name run `action()` just before its n-th call (fault injection at a chosen moment)."""
-    original, calls = getattr(obj, name), []
-
-    def wrapped(*args, **kw):
-        calls.append(1)
-        if len(calls) == n:
-            action()
-        return original(*args, **kw)
-
-    setattr(obj, name, wrapped)
+@pytest.fixture
+def mock_cell(tmp_path):
+    """`trackcal mock` in its own process; yields (process, hardware file). Stopped by SIGINT if still running."""
+    hw = tmp_path / "H.yaml"
+    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    try:
+        wait_for(hw, proc)
+        yield proc, hw
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()

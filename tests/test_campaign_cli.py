@@ -7,23 +7,20 @@ import re
 import signal
 import sqlite3
 import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 
-from calib.table import read_table
-from campaign.analysis import analyse_session
-from campaign.engine.runner import Live, run_campaign
-from campaign.report.inputs import report_session
-from campaign.session.session import create_session
-from mocks.cell import World
-from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-from mocks.twin import Twin
-from tests.conftest import feasible_plan
-
-TRACKCAL = [sys.executable, "-m", "campaign.cli"]
+from tests.helpers import TRACKCAL, feasible_plan
+from trackcal.calib.io.table import read_table
+from trackcal.campaign.analysis import analyse_session
+from trackcal.campaign.engine.runner import Live, run_campaign
+from trackcal.campaign.report.inputs import report_session
+from trackcal.campaign.session.session import create_session
+from trackcal.mocks.cell import World
+from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+from trackcal.mocks.twin import Twin
 
 
 @pytest.fixture(scope="module")

@@ -11,15 +11,14 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-import campaign.cli.analysis
-from calib.cell import load_cell
-from calib.identify import Identification
-from calib.model import identification_to_doc
-from calib.params import irreducible_params
-from calib.poses import points_in_box
-from calib.table import read_table, write_table
-from campaign.cli import build_parser, main
-from tests.conftest import kr270_campaign
+import trackcal.campaign.cli.analysis
+from tests.helpers import kr270_campaign
+from trackcal.calib.doe.poses import points_in_box
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.io.table import read_table, write_table
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model_file import identification_to_doc
+from trackcal.campaign.cli import build_parser, main
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +95,7 @@ def test_simulate_writes_a_table(tmp_path):
     assert len(t) > 0 and set(t.point) <= {"P1", "P2", "P3"}
 
 
-def test_planned_poses_at_controller_precision_stay_in_the_cell_box(tmp_path):
+def test_planned_poses_at_controller_precision_stay_in_the_cell_box(kr270, tmp_path):
     # regression: optimal poses sit on the box boundary, and plan.json holds them at 4 decimals of a degree;
     # this case (seed 0) once put P2 0.0001 mm outside the box, and the robot client refused the move
 
@@ -104,7 +103,7 @@ def test_planned_poses_at_controller_precision_stay_in_the_cell_box(tmp_path):
     assert main(["plan", "--cell", "kr270", "--configs", "3", "--repeat", "1", "--starts", "50", "--refined", "1",
                  "--json", str(out)]) == 0  # fmt: skip
     q = np.radians(np.array(json.loads(out.read_text())["poses_deg"]))
-    assert points_in_box(load_cell("kr270"), q).all()
+    assert points_in_box(kr270, q).all()
 
 
 @pytest.mark.parametrize(("setting", "threads"), [(None, 1), ("2", 2)])
@@ -123,7 +122,7 @@ def test_commands_run_blas_on_one_thread_unless_told(monkeypatch, tmp_path, sett
     else:
         monkeypatch.setenv("TRACKCAL_BLAS_THREADS", setting)
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")  # restored after the test; the command overrides it
-    monkeypatch.setattr(campaign.cli.analysis, "cmd_simulate", record)
+    monkeypatch.setattr(trackcal.campaign.cli.analysis, "cmd_simulate", record)
     assert main(["simulate", "--cell", "kr270", "--poses", "3", "--out", str(tmp_path / "t.csv")]) == 0
     assert seen["blas"] and all(n == threads for n in seen["blas"]) and seen["env"] == str(threads)
 

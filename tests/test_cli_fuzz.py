@@ -22,12 +22,12 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from calib.cell import CONFIGS
-from calib.table import write_table
-from campaign.cli import main
-from drivers.errors import DeviceError
 from studies.ur10_ipa.study import DATA, SERIES
-from tests.conftest import feasible_plan, kr270_campaign
+from tests.helpers import feasible_plan, kr270_campaign
+from trackcal.calib.io.table import write_table
+from trackcal.calib.model.cell import CONFIGS
+from trackcal.campaign.cli import main
+from trackcal.drivers.errors import DeviceError
 
 # values of the wrong type, or of the right type and absurd
 JUNK = st.one_of(
@@ -176,7 +176,8 @@ def run_broken(good, tmp_path_factory, case, data) -> None:
     broken(data, d / target)
     argv = argv_for(template, d, out)
     err = io.StringIO()
-    refuse = mock.patch("campaign.cli.campaign.connect_hardware", side_effect=DeviceError("no cell in this test"))
+    refuse = mock.patch("trackcal.campaign.cli.campaign.connect_hardware",
+                        side_effect=DeviceError("no cell in this test"))
     with refuse, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = main(argv)
     lines = err.getvalue().splitlines()

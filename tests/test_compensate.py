@@ -2,7 +2,7 @@
 
 Deviations are the paper's Table 8 (the KR-270's identified values, as the twin uses them); the exact
 expectations come from the model's definition: a joint offset dq_j enters as q_j + dq_j, an encoder scale
-k_j as q_j (1 + k_j), a compliance c_j as q_j + c_j tau_j(q) (calib/extensions.py).
+k_j as q_j (1 + k_j), a compliance c_j as q_j + c_j tau_j(q) (calib/diagnose/extensions.py).
 """
 
 import csv
@@ -14,19 +14,19 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from calib.cell import load_cell
-from calib.compensate import compensate
-from calib.extensions import UNIT_FACTORS
-from calib.kinematics import Kinematics
-from calib.model import Model, load_model
-from calib.params import irreducible_params, param_by_name
-from calib.pinmodel import gravity_torques
-from calib.poses import random_poses
-from campaign.analysis import choose_params, run_identify
-from campaign.cli import main
-from campaign.krl import KrlError, krl_texts, point_names, write_krl
-from mocks.twin import PAPER_TABLE8
-from tests.conftest import kr270_campaign
+from tests.helpers import kr270_campaign
+from trackcal.calib.compensate import compensate
+from trackcal.calib.diagnose.extensions import UNIT_FACTORS
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params, param_by_name
+from trackcal.calib.model.pinmodel import gravity_torques
+from trackcal.calib.model_file import Model, load_model
+from trackcal.campaign.analysis import choose_params, run_identify
+from trackcal.campaign.cli import main
+from trackcal.campaign.krl import KrlError, krl_texts, point_names, write_krl
+from trackcal.mocks.twin import PAPER_TABLE8
 
 LEVER = 100.0  # mm, the tool points offset along x and y of the last frame (calib.compensate default)
 
@@ -96,7 +96,7 @@ def test_zero_deviations_leave_the_targets_unchanged(kr270):
 
 @pytest.mark.parametrize("name", ["dq2", "dq3", "dq5"])
 def test_a_pure_joint_offset_is_compensated_by_its_opposite(kr270, name):
-    # the chain rotates joint j by q_j + dq_j (calib/chain.py), so q_c,j = q_j - dq_j and nothing else moves
+    # the chain rotates joint j by q_j + dq_j (calib/model/chain.py), so q_c,j = q_j - dq_j and nothing else moves
     dq_deg = PAPER_TABLE8[name] * 10.0
     model = make_model(kr270, {name: dq_deg})
     q0 = inner_targets(kr270, 10, seed=5)

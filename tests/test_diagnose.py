@@ -12,18 +12,17 @@ import json
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.diagnose import diagnose
-from calib.extensions import CAUSES
-from calib.noise import TrackerNoise
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.table import read_table, write_table
-from campaign.cli import main
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.io.table import read_table, write_table
+from trackcal.calib.model.params import irreducible_params
+from trackcal.campaign.cli import main
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
-NOISE_RMS_MM = 0.015  # AT901 model (calib/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
+NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
 
 
 def hidden_campaign(cell, seed: int, cause: str):
@@ -34,8 +33,7 @@ def hidden_campaign(cell, seed: int, cause: str):
     return simulate_campaign(twin, poses), magnitude
 
 
-def check_verdicts(seeds):
-    cell = load_cell("kr270")
+def check_verdicts(cell, seeds):
     params = irreducible_params(cell.chain)[0]
     failures = []
     for seed in seeds:
@@ -49,17 +47,17 @@ def check_verdicts(seeds):
     assert not failures, failures
 
 
-def test_every_hidden_cause_is_named():
-    check_verdicts([20001])
+def test_every_hidden_cause_is_named(kr270):
+    check_verdicts(kr270, [20001])
 
 
 @pytest.mark.slow
-def test_every_hidden_cause_is_named_many_seeds():
-    check_verdicts(range(30000, 30008))
+def test_every_hidden_cause_is_named_many_seeds(kr270):
+    check_verdicts(kr270, range(30000, 30008))
 
 
-def test_diagnose_cli_model_is_usable_by_predict(tmp_path):
-    cell = load_cell("kr270")
+def test_diagnose_cli_model_is_usable_by_predict(kr270, tmp_path):
+    cell = kr270
     table, _ = hidden_campaign(cell, 20002, "backlash")
     data = tmp_path / "t.csv"
     write_table(table, data)
@@ -82,8 +80,8 @@ def test_diagnose_cli_model_is_usable_by_predict(tmp_path):
 
 
 @pytest.mark.parametrize("cause", ["thermal_drift", "station_shift", "joint_compliance"])
-def test_identify_extend_writes_a_predictable_model(tmp_path, cause):
-    cell = load_cell("kr270")
+def test_identify_extend_writes_a_predictable_model(kr270, tmp_path, cause):
+    cell = kr270
     table, _ = hidden_campaign(cell, 20003, cause)
     data, model, pred = tmp_path / "t.csv", tmp_path / "m.json", tmp_path / "p.csv"
     write_table(table, data)
@@ -96,8 +94,8 @@ def test_identify_extend_writes_a_predictable_model(tmp_path, cause):
 
 
 @pytest.mark.parametrize("effects", [("backlash", "thermal_drift"), ("joint_compliance", "station_shift")])
-def test_several_causes_make_one_predictable_model(tmp_path, effects):
-    cell = load_cell("kr270")
+def test_several_causes_make_one_predictable_model(kr270, tmp_path, effects):
+    cell = kr270
     rng = np.random.default_rng(20004)
     twin = Twin(cell, seed=20004, effects={e: 4.0 * NOISE_RMS_MM for e in effects})
     table = simulate_campaign(twin, np.degrees(random_poses(cell, 40, rng)))

@@ -3,7 +3,7 @@ candidate's exact form, two effects at once, and trackers noisier than their mod
 
 The generator below is written for these tests only: its own true robot (random deviations of every
 parameter of the complete model), its own stations and reference points, its own effect physics, and
-the AT901 noise model (calib/noise.py) scaled by a factor. Each effect is scaled so that what a geometric
+the AT901 noise model (calib/identify/noise.py) scaled by a factor. Each effect is scaled so that what a geometric
 calibration cannot absorb (RMS per coordinate of the noise-free residual of the geometric fit) is a
 random multiple of the tracker noise, 3x to 6x (NOISE_RMS_MM ~15 um: AT901 at the cell's 2-4 m ranges).
 
@@ -12,7 +12,7 @@ An out-of-form effect must be named by its nearest physical candidate:
   compliance with the payload 30 % off the mass model -> joint_compliance;
   saturating (exponential warm-up) growth of the whole arm and tool -> thermal_drift;
   a station drifting gradually -> station_shift (the nearest: the station is not where it started).
-Seeds: the decision rules in calib/diagnose.py were designed on seeds 0-99; these tests use seeds from
+Seeds: the decision rules in calib/diagnose/selection.py were designed on seeds 0-99; these tests use seeds from
 5000 up (fast set) and 7000 up (slow set), never looked at while designing. Magnitudes and effect
 parameters are drawn from each seed.
 """
@@ -23,19 +23,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.diagnose import diagnose
-from calib.identify import Station, identify
-from calib.kinematics import Kinematics
-from calib.noise import TrackerNoise
-from calib.params import complete_params, irreducible_params
-from calib.pinmodel import gravity_torques
-from calib.poses import random_poses
-from calib.rigid import exp_so3
-from calib.table import MeasurementTable, write_table
-from campaign.cli import main
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Station, identify
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import complete_params, irreducible_params
+from trackcal.calib.model.pinmodel import gravity_torques
+from trackcal.calib.model.rigid import exp_so3
+from trackcal.campaign.cli import main
 
-NOISE_RMS_MM = 0.015  # AT901 model (calib/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
+NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
 SECONDS_PER_ROW = 20.0  # a tracker measurement with the robot settling (paper section 7.3 campaign pace)
 CELL = load_cell("kr270")
 PARAMS = irreducible_params(CELL.chain)[0]

@@ -6,23 +6,23 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calib import crossval as dg
-from calib import diagnose
-from calib.cell import load_cell
-from calib.changepoint import rigid_prefix_rss
-from calib.error_map import MapEvidence, fit_error_map
-from calib.extensions import build_extension
-from calib.identify import identify
-from calib.kinematics import Kinematics
-from calib.noise import TrackerNoise
-from calib.noise_floor import comparable_repeats
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.rigid import exp_so3, kabsch
-from calib.subset import identifiable_subset
-from calib.table import MeasurementTable
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.diagnose import crossval as dg
+from trackcal.calib.diagnose import selection as diagnose
+from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
+from trackcal.calib.diagnose.error_map import MapEvidence, fit_error_map
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.noise_floor import comparable_repeats
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import identify
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.rigid import exp_so3, kabsch
+from trackcal.calib.model.subset import identifiable_subset
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
 
 @settings(max_examples=25, deadline=None)
@@ -40,8 +40,7 @@ def test_prefix_rigid_rss_equals_kabsch(seed, m):
         assert abs(f - slow) <= 1e-6 * max(slow, 1.0)
 
 
-def kr270_context(effects, seed=11, n_poses=25):
-    cell = load_cell("kr270")
+def kr270_context(cell, effects, seed=11, n_poses=25):
     params = irreducible_params(cell.chain)[0]
     table = simulate_campaign(Twin(cell, seed=seed, effects=effects),
                               np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed))))  # fmt: skip
@@ -49,8 +48,8 @@ def kr270_context(effects, seed=11, n_poses=25):
     return diagnose.context(cell.chain, table, params, TrackerNoise(), geo, ("backlash",))
 
 
-def test_linearised_folds_match_full_refits():
-    ctx = kr270_context({"backlash": 0.05})
+def test_linearised_folds_match_full_refits(kr270):
+    ctx = kr270_context(kr270, {"backlash": 0.05})
     folds = dg.fold_rows(ctx.table, "pose", 5, 0)
     for causes in ((), ("backlash",)):
         fast = dg.cross_validate(ctx, causes, folds)
@@ -93,10 +92,10 @@ def test_repeats_from_another_approach_direction_are_not_comparable():
 
 
 
-def test_map_evidence_matches_direct_penalised_fits():
+def test_map_evidence_matches_direct_penalised_fits(kr270):
     # the re-judging's linearised problem against direct solves of the same problem: the penalised whole-table
     # fit (an augmented least-squares system) and explicit fold-by-fold refits, with and without the base cause
-    ctx = kr270_context({"encoder_scale": 3e-4, "cyclic_error": 2e-4}, n_poses=30)
+    ctx = kr270_context(kr270, {"encoder_scale": 3e-4, "cyclic_error": 2e-4}, n_poses=30)
     base = build_extension("encoder_scale", ctx.chain, ctx.table)
     start = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
     mf = fit_error_map(ctx.chain, ctx.table, ctx.geo.points, ctx.params, base=base, orders=(2, 4))

@@ -6,13 +6,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from calib.cell import load_cell
-from calib.doe import design_for_cell, exchange, monte_carlo_rho0, optimize_plan, random_feasible_poses, refine
-from calib.identify import identify
-from calib.noise import TrackerNoise
-from calib.params import irreducible_params, param_by_name
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.doe.design import (
+    design_for_cell,
+    exchange,
+    monte_carlo_rho0,
+    optimize_plan,
+    random_feasible_poses,
+    refine,
+)
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import identify
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import irreducible_params, param_by_name
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
 
 @pytest.fixture(scope="module")
@@ -109,8 +116,8 @@ def test_fig7_example(planar):
 
 
 @pytest.fixture(scope="module")
-def kr_design():
-    cell = load_cell("kr270")
+def kr_design(kr270):
+    cell = kr270
     return design_for_cell(cell, [param_by_name(cell.chain, n) for n in cell.plan_params], sigma_mm=0.01)
 
 
@@ -217,11 +224,11 @@ def test_k_times_m_against_full_plan(kr_design):
 
 
 @pytest.mark.parametrize("noise", [None, TrackerNoise()], ids=["iid", "tracker-model"])
-def test_monte_carlo_agrees_with_rho0(noise, kr_design):
+def test_monte_carlo_agrees_with_rho0(kr270, noise, kr_design):
     """Simulated campaigns of the plan, identified: E|dp|^2 = rho0^2. |dp|^2 is a weighted sum of chi2(1)
     with weights lambda_i = eigenvalues of J0 C J0^T, so the mean of N runs has standard deviation
     sqrt(2 sum lambda_i^2 / N); 4 standard deviations."""
-    cell = load_cell("kr270")
+    cell = kr270
     d = design_for_cell(cell, kr_design.params, sigma_mm=0.01, noise=noise)
     q = random_feasible_poses(d, 6, np.random.default_rng(5))
     n = 1500
@@ -234,12 +241,12 @@ def test_monte_carlo_agrees_with_rho0(noise, kr_design):
     assert stats.chi2.ppf(1e-4, n - 1) / (n - 1) < e2.var() / (2 * np.sum(lam**2)) < 2.0
 
 
-def test_a_refined_rho0_plan_can_be_identified_in_full(kr_design):
+def test_a_refined_rho0_plan_can_be_identified_in_full(kr270, kr_design):
     """rho0 is flat along plans whose poses gather at the test pose, where the joints no longer move and the
     parameters that do not act at the test pose become inseparable. A campaign measured with a refined plan
     (5 configurations, every point from every station that sees it) must still identify the whole irreducible
     set with the stations and points (what `trackcal run` does with it)."""
-    cell = load_cell("kr270")
+    cell = kr270
     plan = optimize_plan(kr_design, 5, starts=200, refined=2, seed=0)
     twin = Twin(cell, seed=5)
     table = simulate_campaign(twin, np.degrees(plan.poses), noise_free=True)

@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calib.cell import load_cell
-from calib.doe import design_for_cell, optimize_plan, random_feasible_poses
-from calib.doe_bound import derivative, multiplicative_weights, rho0_lower_bound
-from calib.params import param_by_name
+from trackcal.calib.doe.bound import derivative, multiplicative_weights, rho0_lower_bound
+from trackcal.calib.doe.design import design_for_cell, optimize_plan, random_feasible_poses
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import param_by_name
 
 
 def design(name: str, q0_deg=None, sigma_mm: float = 0.01):

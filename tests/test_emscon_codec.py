@@ -24,7 +24,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.emscon.codec import (
+from trackcal.drivers.emscon.codec import (
     _ANSWER_STRUCTS,
     _REQUEST_STRUCTS,
     HEADER_SIZE,
@@ -84,8 +84,8 @@ from drivers.emscon.codec import (
     encode_command,
     encode_refusal,
 )
-from drivers.emscon.layouts import LAYOUTS
-from drivers.errors import ProtocolError
+from trackcal.drivers.emscon.layouts import LAYOUTS
+from trackcal.drivers.errors import ProtocolError
 
 TO, FROM = Direction.TO_TRACKER, Direction.FROM_TRACKER
 

@@ -21,8 +21,8 @@ import time
 
 import pytest
 
-from drivers.emscon.client import EmsconTracker
-from drivers.emscon.codec import (
+from trackcal.drivers.emscon.client import EmsconTracker
+from trackcal.drivers.emscon.codec import (
     AngleUnit,
     Command,
     CoordinateSystemType,
@@ -49,10 +49,10 @@ from drivers.emscon.codec import (
     decode_packet,
     encode_command,
 )
-from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
-from drivers.interfaces import Environment, Tracker
-from mocks.clock import VirtualClock
-from mocks.servers.emscon import EmsconFault, MockEmscon
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
+from trackcal.drivers.interfaces import Environment, Tracker
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.emscon import EmsconFault, MockEmscon
 
 POINT = (2500.0, -400.0, 900.0)
 OFFSET = (2**-7, -(2**-6), 2**-8)

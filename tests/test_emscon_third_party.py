@@ -27,10 +27,9 @@ import struct
 
 import pytest
 
-from campaign.cells.hardware import load_hardware
-from mocks.clock import VirtualClock
-from mocks.servers.emscon import MockEmscon
-from tests.test_hardware import mock_cell  # noqa: F401 (the fixture: `trackcal mock` in its own process)
+from trackcal.campaign.cells.hardware import load_hardware
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.emscon import MockEmscon
 
 # ES_DataType
 ES_DT_COMMAND, ES_DT_ERROR, ES_DT_SINGLE_MEAS, ES_DT_SYSTEM_STATUS_CHANGE, ES_DT_SINGLE_MEAS2 = 0, 1, 2, 8, 9

@@ -5,18 +5,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from calib.identify import identify
-from calib.params import irreducible_params
-from campaign.engine.engine import CampaignStopped
-from campaign.engine.recording import ReplayDivergence
-from campaign.engine.runner import Live, replay_session, run_campaign
-from campaign.engine.steps import PlanError, campaign_steps
-from campaign.session.session import create_session, export_table, write_export
-from campaign.session.store import SessionStore
-from mocks.cell import World
-from mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-from mocks.twin import Twin
-from tests.conftest import before_call, feasible_plan, inproc_live
+from tests.helpers import before_call, feasible_plan, inproc_live
+from trackcal.calib.identify.solver import identify
+from trackcal.calib.model.params import irreducible_params
+from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.recording import ReplayDivergence
+from trackcal.campaign.engine.runner import Live, replay_session, run_campaign
+from trackcal.campaign.engine.steps import PlanError, campaign_steps
+from trackcal.campaign.session.session import create_session, export_table, write_export
+from trackcal.campaign.session.store import SessionStore
+from trackcal.mocks.cell import World
+from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+from trackcal.mocks.twin import Twin
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def test_full_campaign_then_identification(tmp_path, cell, plan):
     assert set(table.station) == {"S1", "S2"} and set(table.point) == {"P1", "P2", "P3"}
     assert np.all(np.diff(table.t_s) >= 0)
     res = identify(cell.chain, table, cell.tool_points, irreducible_params(cell.chain)[0])
-    # the AT901-like noise of the twin: ~15 um per coordinate (calib/noise.py at 2-4 m)
+    # the AT901-like noise of the twin: ~15 um per coordinate (calib/identify/noise.py at 2-4 m)
     assert np.sqrt(np.mean(res.residuals**2)) < 0.025
     # the engine never moved while a prompt was outstanding: each move follows a resume since the last prompt
     steps = [e.data["step"]["kind"] for e in store.events("step_started")]
@@ -125,7 +125,7 @@ def test_device_fault_stops_safely_and_resume_continues(tmp_path, cell, plan):
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.robot.faults = []
-    before_call(devices.robot, "move_ptp", 7, lambda: devices.robot.faults.append("estop"))
+    before_call(devices.robot, "move", 7, lambda: devices.robot.faults.append("estop"))
     with pytest.raises(CampaignStopped, match="estop"):
         run_campaign(store, devices)
     assert store.events("error")[-1].data["type"] == "DeviceFault"
@@ -180,7 +180,7 @@ def test_door_left_open_blocks_motion_until_closed(tmp_path, cell, plan):
     run_campaign(store, devices)
     kinds = [(e.kind, e.data.get("op")) for e in store.events() if e.kind in ("warning", "call")]
     first_warning = next(i for i, k in enumerate(kinds) if k[0] == "warning")
-    first_move = next(i for i, k in enumerate(kinds) if k == ("call", "move_ptp"))
+    first_move = next(i for i, k in enumerate(kinds) if k == ("call", "move"))
     assert first_warning < first_move  # the open door was noticed before the robot ever moved
     assert "door is open" in store.events("warning")[0].data["message"]
 
@@ -189,5 +189,5 @@ def test_replay_of_a_changed_plan_stops_at_the_first_divergent_step(tmp_path, ce
     store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
     run_campaign(store, live(cell)[1])
     changed = {"poses_deg": [list(plan["poses_deg"][1]), *plan["poses_deg"][1:]], "repeat": plan["repeat"]}
-    with pytest.raises(ReplayDivergence, match=r"step \d+: this run asks robot.move_ptp"):
+    with pytest.raises(ReplayDivergence, match=r"step \d+: this run asks robot.move"):
         replay_session(store, tmp_path / "r", plan_doc=changed)

@@ -2,7 +2,7 @@
 
 Magnitudes come from the physics of the cell, not from runs of the fit. The hidden map has the size the
 UR10 data show (issue 13: +-0.5-1 mrad there), 0.1 mrad per term: at the KR-270's ~2.5 m reach that is
-0.25 mm at the reflectors, ~17x the AT901 tracker noise (15 um per coordinate, calib/noise.py). A joint's
+0.25 mm at the reflectors, ~17x the AT901 tracker noise (15 um per coordinate, calib/identify/noise.py). A joint's
 curve is sampled at the campaign's ~190 training poses only; with ~50 coefficients per joint its standard
 deviation is of the order of 15 um * sqrt(50) / (2500 mm * sqrt(190 / 2)) ~ 4 urad, doubled or so by the
 other joints and the geometry sharing the same poses: 5-10 % of the hidden amplitude. The tests ask for
@@ -14,24 +14,23 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from calib.cell import load_cell
-from calib.compensate import compensate
-from calib.error_map import fit_error_map
-from calib.extensions import build_extension
-from calib.identify import identify, predict_points
-from calib.joint_map import Arc, outside_arcs
-from calib.kinematics import Kinematics
-from calib.model import identification_to_doc, load_model, predict_table
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.subset import identifiable_subset
-from calib.table import MeasurementTable, write_table
-from campaign.cli import main
-from campaign.output import write_json
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.compensate import compensate
+from trackcal.calib.diagnose.error_map import fit_error_map
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.joint_map import Arc, outside_arcs
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.solver import identify, predict_points
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.subset import identifiable_subset
+from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
+from trackcal.campaign.cli import main
+from trackcal.campaign.output import write_json
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
-NOISE_RMS_MM = 0.015  # AT901 model (calib/noise.py) at 2-4 m
+NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m
 AMPLITUDE_RAD = 1e-4  # per hidden term (see the module docstring)
 # harmonics 3 and 4 (a crossed-roller or cycloid signature) and ~20 (a gear mesh); joint index, harmonic, phase
 HIDDEN = [(1, 3, 0.4), (2, 4, 2.0), (0, 20, 1.1), (1, 19, 4.0)]
@@ -47,8 +46,8 @@ def true_map(joint: int, q: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def twin_fit():
-    cell = load_cell("kr270")
+def twin_fit(kr270):
+    cell = kr270
     twin = Twin(cell, seed=41)
     twin.hidden.cyclic = [(j, h, AMPLITUDE_RAD, ph) for j, h, ph in HIDDEN]
     poses = np.degrees(random_poses(cell, 240, np.random.default_rng(41)))
@@ -103,8 +102,8 @@ def test_map_gains_on_held_out_poses(twin_fit):
     assert fit.cv_rms_mm < fit.cv_rms_without_mm
 
 
-def test_joint_on_the_reference_point_axis_is_not_identifiable():
-    cell = load_cell("kr270")
+def test_joint_on_the_reference_point_axis_is_not_identifiable(kr270):
+    cell = kr270
     chain = cell.chain
     rng = np.random.default_rng(7)
     q = random_poses(cell, 120, rng)

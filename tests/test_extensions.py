@@ -2,20 +2,19 @@
 
 Thermal numbers from physics: a steel arm grows 11.5 ppm/K; warming 2 K/h gives 23 ppm/h, over a two-hour
 campaign 46 ppm, 0.14 mm at the KR-270's 3 m and 31 um over its 675 mm base column (configs/robots/kr270.yaml),
-twice the AT901 tracker noise (15 um per coordinate, calib/noise.py): enough rows tell the two forms apart.
+twice the AT901 tracker noise (15 um per coordinate, calib/identify/noise.py): enough rows tell the two forms apart.
 """
 
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.extensions import THERMAL_FORMS, build_extension, combine
-from calib.identify import Problem, Station, identify, predict_points
-from calib.kinematics import Kinematics
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from calib.rigid import exp_so3
-from calib.table import MeasurementTable
+from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension, combine
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.solver import Problem, Station, identify, predict_points
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.rigid import exp_so3
 
 NOISE_MM = 0.015
 GROWTH_PER_S = 23e-6 / 3600.0  # 11.5 ppm/K x 2 K/h
@@ -41,8 +40,8 @@ def campaign(cell, n_poses: int, seed: int, pivot: np.ndarray, rate: float) -> M
 
 
 @pytest.mark.parametrize("form", THERMAL_FORMS)
-def test_thermal_form_is_recovered_and_the_data_choose_the_pivot(form):
-    cell = load_cell("kr270")
+def test_thermal_form_is_recovered_and_the_data_choose_the_pivot(kr270, form):
+    cell = kr270
     chain = cell.chain
     pivot = np.zeros(3) if form == "e_base" else chain.base[:3, 3]
     table = campaign(cell, 120, 3, pivot, GROWTH_PER_S)
@@ -57,8 +56,8 @@ def test_thermal_form_is_recovered_and_the_data_choose_the_pivot(form):
     assert fits[form].variance_factor < fits[other].variance_factor  # the true pivot fits better
 
 
-def test_thermal_growth_includes_the_tool():
-    cell = load_cell("kr270")
+def test_thermal_growth_includes_the_tool(kr270):
+    cell = kr270
     chain = cell.chain
     rows = campaign(cell, 4, 5, np.zeros(3), 0.0)
     ext = build_extension("thermal_drift", chain, rows, names=["e_base"])
@@ -73,8 +72,8 @@ def test_thermal_growth_includes_the_tool():
     np.testing.assert_allclose(pred, (1.0 + 1e-3) * rigid, atol=1e-9)  # every length, the tool's too
 
 
-def test_combined_extension_jacobian_matches_finite_differences():
-    cell = load_cell("kr270")
+def test_combined_extension_jacobian_matches_finite_differences(kr270):
+    cell = kr270
     chain = cell.chain
     table = campaign(cell, 12, 9, np.zeros(3), 0.0)
     arcs_ext = build_extension("cyclic_error", chain, table, harmonics=3)

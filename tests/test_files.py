@@ -7,9 +7,9 @@ from unittest import mock
 
 import pytest
 
-import calib.files as files_mod
-from calib.errors import CalibError
-from calib.files import atomic_open, finite_or_null, read_json, read_text, read_yaml, write_json
+import trackcal.calib.io.files as files_mod
+from trackcal.calib.errors import CalibError
+from trackcal.calib.io.files import atomic_open, finite_or_null, read_json, read_text, read_yaml, write_json
 
 
 def test_atomic_open_gives_the_permissions_open_would(tmp_path):

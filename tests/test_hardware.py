@@ -8,21 +8,18 @@ import signal
 import socket
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
 
-from calib.cell import load_cell
-from calib.table import read_table
-from campaign.cells.hardware import load_hardware
-from campaign.errors import InputError
-from campaign.session.session import session_steps
+from tests.helpers import ROOT, TRACKCAL
+from trackcal.calib.io.table import read_table
+from trackcal.campaign.cells.hardware import load_hardware
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.session.session import session_steps
 
-TRACKCAL = [sys.executable, "-m", "campaign.cli"]
-ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "configs" / "hardware" / "example-cell.yaml"
 
 GOOD = {
@@ -184,38 +181,11 @@ def test_unreachable_tracker_names_it_and_resume_uses_the_session_copy(plan, tmp
     assert "config/hardware.yaml" in out.stderr  # where to fix it
 
 
-def wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.exists():
-        assert proc.poll() is None, f"trackcal mock exited early: {proc.communicate()}"
-        assert time.monotonic() < deadline, f"{path} not written within {timeout_s} s"
-        time.sleep(0.05)
+def measure_steps(cell, plan: Path) -> int:
+    return sum(s.kind == "measure" for s in session_steps(cell, json.loads(plan.read_text())))
 
 
-@pytest.fixture
-def mock_cell(tmp_path):
-    """`trackcal mock` in its own process; yields (process, hardware file). Stopped by SIGINT if still running."""
-    hw = tmp_path / "H.yaml"
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
-    try:
-        wait_for(hw, proc)
-        yield proc, hw
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-
-
-def measure_steps(plan: Path) -> int:
-    return sum(s.kind == "measure" for s in session_steps(load_cell("kr270"), json.loads(plan.read_text())))
-
-
-def test_mock_and_run_hardware_in_separate_processes(plan, mock_cell, tmp_path):
+def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp_path):
     proc, hw = mock_cell
     assert load_hardware(hw).plc is not None  # the mock writes the schema it is read with
     d = tmp_path / "session"
@@ -231,7 +201,7 @@ def test_mock_and_run_hardware_in_separate_processes(plan, mock_cell, tmp_path):
     assert prompts.count("resume") == 8
     run("export", str(d), "--csv", str(tmp_path / "t.csv"))
     table = read_table(tmp_path / "t.csv")
-    assert len(table) == measure_steps(plan) - len(skipped) and len(table) > 0
+    assert len(table) == measure_steps(kr270, plan) - len(skipped) and len(table) > 0
     assert not skipped  # every planned point is visible from its station on this twin (seed 3)
     # resume of the finished campaign needs nothing but the session (it reads its copy of the hardware file)
     out = run("resume", str(d), "--no-analysis")
@@ -251,7 +221,7 @@ def count_measurements(db: Path) -> int:
 
 
 @pytest.mark.slow
-def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(plan, mock_cell, tmp_path):
+def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(kr270, plan, mock_cell, tmp_path):
     """The controller of `trackcal mock` starts afresh for the resumed process; the campaign ends with the rows,
     joints and positions of `run --sim` with the same seed (the same twin, the same protocols, in-process)."""
     proc, hw = mock_cell
@@ -259,7 +229,7 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(plan, mock
     run_proc = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw),
                                  "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, cwd=ROOT)  # fmt: skip
-    n = measure_steps(plan)
+    n = measure_steps(kr270, plan)
     deadline = time.monotonic() + 120
     while count_measurements(d / "session.sqlite") < n // 2 and time.monotonic() < deadline:
         assert run_proc.poll() is None

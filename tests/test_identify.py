@@ -6,14 +6,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from calib.extensions import build_extension, combine
-from calib.identify import IdentificationError, Problem, identify, residual_stats, significance, solve
-from calib.noise import TrackerNoise
-from calib.params import complete_params
-from calib.rigid import exp_so3, kabsch
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
-from tests.conftest import kr270_campaign, truth_of
+from tests.helpers import kr270_campaign, truth_of
+from trackcal.calib.diagnose.extensions import build_extension, combine
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
+from trackcal.calib.model.params import complete_params
+from trackcal.calib.model.rigid import exp_so3, kabsch
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
 
 def test_noise_free_campaign_is_recovered_exactly(kr270, kr270_params):

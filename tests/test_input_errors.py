@@ -8,8 +8,8 @@ import shutil
 import pytest
 import yaml
 
-from calib.cell import CONFIGS
-from campaign.cli import main
+from trackcal.calib.model.cell import CONFIGS
+from trackcal.campaign.cli import main
 
 
 @pytest.fixture

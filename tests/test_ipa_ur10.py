@@ -7,18 +7,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cell import load_cell, load_robot
-from calib.chain import chain_from_urdf
-from calib.diagnose import diagnose
-from calib.error_map import fit_error_map
-from calib.extensions import build_extension
-from calib.identify import identify
-from calib.kinematics import Kinematics
-from calib.params import irreducible_params
-from calib.subset import identifiable_subset
-from calib.table import read_table
-from campaign.cli import main
-from campaign.importers.ipa_ur10 import (
+from studies.ur10_ipa.error_map_check import on_other_series
+from studies.ur10_ipa.orientation import angular_rms_mrad
+from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
+from trackcal.calib.diagnose.error_map import fit_error_map
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.identify.solver import identify
+from trackcal.calib.io.table import read_table
+from trackcal.calib.model.cell import load_cell, load_robot
+from trackcal.calib.model.chain import chain_from_urdf
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.subset import identifiable_subset
+from trackcal.campaign.cli import main
+from trackcal.campaign.importers.ipa_ur10 import (
     POINT,
     IpaFormatError,
     euler_xyz_matrix,
@@ -28,9 +31,6 @@ from campaign.importers.ipa_ur10 import (
     table_covariances,
     virtual_offsets,
 )
-from studies.ur10_ipa.error_map_check import on_other_series
-from studies.ur10_ipa.orientation import angular_rms_mrad
-from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
 
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="IPA data set not present")
 B_CSV, D_CSV = DATA / SERIES["B"], DATA / SERIES["D"]

@@ -7,11 +7,11 @@ import pinocchio as pin
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calib.chain import chain_from_urdf
-from calib.kinematics import Kinematics, turned
-from calib.params import complete_params
-from calib.pinmodel import pinocchio_model
-from calib.rigid import exp_so3, rot_axis
+from trackcal.calib.model.chain import chain_from_urdf
+from trackcal.calib.model.kinematics import Kinematics, turned
+from trackcal.calib.model.params import complete_params
+from trackcal.calib.model.pinmodel import pinocchio_model
+from trackcal.calib.model.rigid import exp_so3, rot_axis
 
 TOOL = np.array([277.0, -47.0, -94.0])
 

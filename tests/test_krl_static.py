@@ -16,7 +16,7 @@ import re
 
 import pytest
 
-from drivers.kuka.eki_codec import CHANNEL, COMMAND, STATE, config_text
+from trackcal.drivers.kuka.eki_codec import CHANNEL, COMMAND, STATE, config_text
 
 # KRL words that are no variables: statements, types, operators, literals, the BAS package's names the INI fold
 # uses, the RSI functions and ST_SETPARAM indices (ros-industrial/kuka_experimental KR_C2/ros_rsi.src,

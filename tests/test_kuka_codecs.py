@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import ProtocolError
-from drivers.kuka.eki_codec import (
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.kuka.eki_codec import (
     AXES,
     COMMAND,
     KIND_MOVE,
@@ -31,7 +31,7 @@ from drivers.kuka.eki_codec import (
     read_elements,
     read_template,
 )
-from drivers.kuka.rsi_codec import (
+from trackcal.drivers.kuka.rsi_codec import (
     SHIPPED,
     RobFrame,
     SenFrame,

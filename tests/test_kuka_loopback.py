@@ -11,10 +11,10 @@ import time
 
 import pytest
 
-from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
-from drivers.interfaces import RealClock, Robot
-from drivers.kuka.client import GUARD_S, STALE_CYCLES, KukaKrc2
-from drivers.kuka.eki_codec import (
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
+from trackcal.drivers.interfaces import RealClock, Robot
+from trackcal.drivers.kuka.client import GUARD_S, STALE_CYCLES, KukaKrc2
+from trackcal.drivers.kuka.eki_codec import (
     ERR_DRIVES_OFF,
     ERR_ESTOP,
     ERR_RSI_STOPPED,
@@ -23,9 +23,9 @@ from drivers.kuka.eki_codec import (
     KIND_STOP,
     Command,
 )
-from drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
-from mocks.clock import VirtualClock
-from mocks.servers.kuka import MockKrc2
+from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.kuka import MockKrc2
 
 HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # kuka_experimental KR_C2/ros_rsi.src HOME
 TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
@@ -93,17 +93,17 @@ def wait_for(pred, timeout=5.0):
 
 def test_move_settle_read(cell):
     assert isinstance(cell.client, Robot)
-    start = cell.client.read_joints()
+    start = cell.client.joints()
     assert start == HOME
     t0 = cell.clock.now()
-    cell.client.move_ptp(TARGET, 50.0)
+    cell.client.move(TARGET, 50.0)
     # synchronous PTP at 50 % of 100 deg/s over the largest axis move (15 deg): 1.875 * 15 / 50 = 0.5625 s,
     # plus the 0.3 s dwell; the virtual clock moved at least that far (12 ms cycles)
     assert cell.clock.now() - t0 >= 0.5625 + 0.3 - 0.024
     q = cell.client.wait_settled(tolerance_deg=0.0005, window_s=0.2, timeout_s=5.0)
     assert all(abs(a - b) <= 0.001 for a, b in zip(q, TARGET, strict=True))
-    assert cell.client.read_joints() == pytest.approx(TARGET, abs=0.001)
-    assert all(round(v, 4) == v for v in cell.client.read_joints())  # 0.0001 deg resolution
+    assert cell.client.joints() == pytest.approx(TARGET, abs=0.001)
+    assert all(round(v, 4) == v for v in cell.client.joints())  # 0.0001 deg resolution
     assert cell.mock.late_packets == 0
     assert [c.speed_pct for c in cell.mock.commands] == [50]
     assert cell.seen[-1] == pytest.approx(TARGET, abs=0.001)  # the twin callback saw the motion
@@ -111,10 +111,10 @@ def test_move_settle_read(cell):
 
 
 def test_wait_settled_waits_for_the_residual_oscillation(cell):
-    cell.client.move_ptp(TARGET, 100.0)
+    cell.client.move(TARGET, 100.0)
     # a second move, then settle with a tight tolerance: the mock's residual (<= 0.02 deg, tau = settle_s/5)
     # must decay below 0.0002 deg before the window can complete
-    cell.client.move_ptp(HOME, 100.0)
+    cell.client.move(HOME, 100.0)
     q = cell.client.wait_settled(tolerance_deg=0.0002, window_s=0.1, timeout_s=5.0)
     assert q == pytest.approx(HOME, abs=0.0005)
 
@@ -128,15 +128,15 @@ def test_limits_and_cell_box_refuse_before_sending():
     c = open_cell(cell_box_check=lambda q: "tool below the table" if q[1] > -20 else None)
     try:
         with pytest.raises(MotionRefused, match="A2=5.0") as exc:
-            c.client.move_ptp((0, 5.0, 90, 0, 90, 0), 10)
+            c.client.move((0, 5.0, 90, 0, 90, 0), 10)
         assert exc.value.code == "joint_limits"
         with pytest.raises(MotionRefused, match="below the table") as exc:
-            c.client.move_ptp((0, -10.0, 90, 0, 90, 0), 10)
+            c.client.move((0, -10.0, 90, 0, 90, 0), 10)
         assert exc.value.code == "cell_box"
         with pytest.raises(MotionRefused):
-            c.client.move_ptp(HOME, 0.0)
+            c.client.move(HOME, 0.0)
         with pytest.raises(MotionRefused):
-            c.client.move_ptp(HOME[:5], 10)
+            c.client.move(HOME[:5], 10)
         time.sleep(0.05)
         assert c.mock.commands == []
     finally:
@@ -148,12 +148,12 @@ def test_limits_and_cell_box_refuse_before_sending():
 def test_controller_faults_become_device_faults(cell, inject, code):
     getattr(cell.mock, inject)()
     with pytest.raises(DeviceFault) as exc:
-        cell.client.move_ptp(TARGET, 50)
+        cell.client.move(TARGET, 50)
     assert exc.value.code == code
     with pytest.raises(DeviceFault):
-        cell.client.move_ptp(TARGET, 50)  # latched: every request answers the fault until a reset
+        cell.client.move(TARGET, 50)  # latched: every request answers the fault until a reset
     cell.client.reset_faults()  # the operator acknowledged (issue 11: the old program never reset bEstop)
-    cell.client.move_ptp(TARGET, 50)
+    cell.client.move(TARGET, 50)
     assert [c.kind for c in cell.mock.commands] == [1, 1, 3, 1]
 
 
@@ -164,7 +164,7 @@ def test_estop_during_motion_halts_and_reports(cell):
 
     def move():
         try:
-            cell.client.move_ptp(TARGET, 1)
+            cell.client.move(TARGET, 1)
         except DeviceFault as exc:
             result["code"] = exc.code
 
@@ -183,7 +183,7 @@ def test_soft_limit_of_the_controller():
     c = open_cell(soft_limits_deg=((-5, 5),) + ((-360, 360),) * 5)
     try:
         with pytest.raises(DeviceFault) as exc:
-            c.client.move_ptp(TARGET, 50)
+            c.client.move(TARGET, 50)
         assert exc.value.code == ERR_SOFT_LIMIT
     finally:
         c.client.close()
@@ -193,29 +193,29 @@ def test_soft_limit_of_the_controller():
 def test_dropped_eki_connection(cell):
     cell.mock.drop_connection("eki")
     with pytest.raises(ConnectionLost):
-        cell.client.move_ptp(TARGET, 50)
+        cell.client.move(TARGET, 50)
 
 
 def test_dropped_rsi_connection(cell):
     cell.mock.drop_connection("rsi")
     assert wait_for(lambda: cell.client._rsi_error is not None)
     with pytest.raises(ConnectionLost):
-        cell.client.read_joints()
+        cell.client.joints()
     with pytest.raises(ConnectionLost):
-        cell.client.move_ptp(TARGET, 50)  # never move without the monitor
+        cell.client.move(TARGET, 50)  # never move without the monitor
 
 
 def test_malformed_rsi_frame_is_a_protocol_error(cell):
     cell.mock.send_garbage("rsi")
     assert wait_for(lambda: cell.client._rsi_error is not None)
     with pytest.raises(ProtocolError):
-        cell.client.read_joints()
+        cell.client.joints()
 
 
 def test_malformed_eki_answer_is_a_protocol_error(cell):
     cell.mock.send_garbage("eki", b"<RobotState><Pos A1='x'/></RobotState>")
     with pytest.raises(ProtocolError):
-        cell.client.move_ptp(TARGET, 50)
+        cell.client.move(TARGET, 50)
 
 
 class SlowClient(KukaKrc2):
@@ -230,7 +230,7 @@ def test_late_rsi_answers_stop_the_robot():
     c = open_cell(client_cls=SlowClient, answer_budget_s=0.01)
     try:
         with pytest.raises((DeviceFault, ConnectionLost)) as exc:
-            c.client.move_ptp(TARGET, 20)
+            c.client.move(TARGET, 20)
         if isinstance(exc.value, DeviceFault):
             assert exc.value.code == ERR_RSI_STOPPED
         assert c.mock.rsi_stopped
@@ -239,7 +239,7 @@ def test_late_rsi_answers_stop_the_robot():
         assert any("eERXmaxLatePackages=10" in e for e in c.mock.errors)
         assert wait_for(lambda: c.client._rsi_error is not None)
         with pytest.raises(ConnectionLost):
-            c.client.read_joints()
+            c.client.joints()
     finally:
         c.client.close()
         c.mock.stop()
@@ -249,7 +249,7 @@ def test_late_rsi_answers_stop_the_robot():
 def test_udp_rsi():
     c = open_cell(protocol="udp")
     try:
-        c.client.move_ptp(TARGET, 80)
+        c.client.move(TARGET, 80)
         assert c.client.wait_settled(0.0005, 0.1, 5.0) == pytest.approx(TARGET, abs=0.001)
         assert c.mock.late_packets == 0
     finally:
@@ -293,9 +293,9 @@ def test_only_the_controller_is_served(protocol):
         assert {a for a, _ in client.refused_peers} == {"127.0.0.2"}
         eki.settimeout(2.0)
         assert eki.recv(16) == b""  # closed by trackcal, never answered
-        assert client.read_joints() == pytest.approx(HOME)  # the controller's joints, not the invented ones
-        client.move_ptp(TARGET, 80)
-        assert client.read_joints() == pytest.approx(TARGET, abs=0.01)
+        assert client.joints() == pytest.approx(HOME)  # the controller's joints, not the invented ones
+        client.move(TARGET, 80)
+        assert client.joints() == pytest.approx(TARGET, abs=0.01)
     finally:
         for f in fakes:
             f.close()
@@ -355,8 +355,8 @@ def test_same_seed_same_bytes():
     for _ in range(2):
         c = open_cell(seed=7)
         try:
-            c.client.move_ptp(TARGET, 30)
-            c.client.move_ptp(HOME, 70)
+            c.client.move(TARGET, 30)
+            c.client.move(HOME, 70)
             runs.append(list(c.mock.eki_sent))
         finally:
             c.client.close()
@@ -369,8 +369,8 @@ def test_move_completes_without_overshoot():
     # simulated campaign runs the controller without overshoot)
     c = open_cell(overshoot_deg=0.0)
     try:
-        c.client.move_ptp((10.0, -90.0, 90.0, 0.0, 90.0, 0.0), 100.0)
-        assert c.client.read_joints() == (10.0, -90.0, 90.0, 0.0, 90.0, 0.0)
+        c.client.move((10.0, -90.0, 90.0, 0.0, 90.0, 0.0), 100.0)
+        assert c.client.joints() == (10.0, -90.0, 90.0, 0.0, 90.0, 0.0)
     finally:
         c.client.close()
         c.mock.stop()
@@ -383,7 +383,7 @@ def test_move_completes_without_overshoot():
 def test_passive_udp_rsi_needs_no_answers():
     c = open_cell(protocol="udp", passive=True)
     try:
-        c.client.move_ptp(TARGET, 80)
+        c.client.move(TARGET, 80)
         assert c.client.wait_settled(0.0005, 0.1, 5.0) == pytest.approx(TARGET, abs=0.001)
         assert c.client.rsi_frames_answered == 0 and c.mock.late_packets == 0 and not c.mock.rsi_stopped
     finally:
@@ -401,7 +401,7 @@ def test_the_guard_stops_a_move_within_the_braking_distance():
     try:
         threading.Thread(target=lambda: wait_for(lambda: c.mock.moving, 5.0) and door.set(), daemon=True).start()
         with pytest.raises(DeviceFault, match="stopped: the cell door opened") as exc:
-            c.client.move_ptp(TARGET, 2)  # 2 % of 100 deg/s: 14 s of controller time, stopped long before
+            c.client.move(TARGET, 2)  # 2 % of 100 deg/s: 14 s of controller time, stopped long before
         assert exc.value.code == ERR_STOPPED
         [(q_stop, v_stop, q_rest)] = c.mock.stops
         t_stop = max(abs(v) for v in v_stop) / 50.0 + KRC2_CYCLE_S
@@ -414,7 +414,7 @@ def test_the_guard_stops_a_move_within_the_braking_distance():
         assert [cmd.kind for cmd in c.mock.commands] == [1, 2]
         door.clear()
         assert c.client.wait_settled(0.0005, 0.1, 2.0) == pytest.approx(q_rest, abs=0.0001)  # and stands
-        c.client.move_ptp(TARGET, 100)  # the next move is served as usual
+        c.client.move(TARGET, 100)  # the next move is served as usual
     finally:
         c.client.close()
         c.mock.stop()
@@ -425,9 +425,9 @@ def test_a_stop_for_another_move_is_ignored():
     # a stop that arrives after its move ended (the door opened just as it finished): nothing to stop, no answer
     c = open_cell()
     try:
-        c.client.move_ptp(TARGET, 100)
+        c.client.move(TARGET, 100)
         c.client._send(Command(1, KIND_STOP))
-        c.client.move_ptp(HOME, 100)
+        c.client.move(HOME, 100)
         assert [cmd.kind for cmd in c.mock.commands] == [1, 2, 1] and c.mock.stops == []
     finally:
         c.client.close()
@@ -477,7 +477,7 @@ def test_a_stale_rsi_stream_refuses_the_move_before_sending(protocol):
     try:
         client.connect()
         with pytest.raises(MotionRefused, match=f"RSI stream stale.*more than {STALE_CYCLES} cycles") as exc:
-            client.move_ptp(TARGET, 10)
+            client.move(TARGET, 10)
         assert exc.value.code == "rsi_stale"
         assert ("unreadable frames" if protocol == "udp" else "without a complete <Rob>") in str(exc.value)
         eki.settimeout(0.1)
@@ -514,7 +514,7 @@ def test_a_restarted_trackcal_finds_the_controller_again():
     second = None
     try:
         first.connect()
-        first.move_ptp(TARGET, 100)
+        first.move(TARGET, 100)
         first.close()  # trackcal exits
         second = KukaKrc2(
             *eki_addr,
@@ -525,8 +525,8 @@ def test_a_restarted_trackcal_finds_the_controller_again():
             connect_timeout_s=5.0,
         )
         second.connect()
-        assert second.read_joints() == pytest.approx(TARGET, abs=0.001)
-        second.move_ptp(HOME, 100)
+        assert second.joints() == pytest.approx(TARGET, abs=0.001)
+        second.move(HOME, 100)
         assert mock.connections == 2 and not mock.rsi_stopped
     finally:
         if second is not None:

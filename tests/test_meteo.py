@@ -10,12 +10,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
-from drivers.interfaces import Environment, Meteo
-from drivers.meteo.client import SerialMeteo
-from drivers.meteo.codec import MAX_LINE_BYTES, Reading, checksum, encode_reading, parse_line
-from mocks.clock import VirtualClock
-from mocks.servers.meteo import MeteoFault, MockMeteo, reading_for
+from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
+from trackcal.drivers.interfaces import Environment, Meteo
+from trackcal.drivers.meteo.client import SerialMeteo
+from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, Reading, checksum, encode_reading, parse_line
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.meteo import MeteoFault, MockMeteo, reading_for
 
 # ---------------------------------------------------------------- golden lines, checksums computed by hand
 #

@@ -7,9 +7,8 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT
 
 
 def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
@@ -20,12 +19,15 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
                    cwd=tmp_path)  # fmt: skip
     (wheel,) = wheels.glob("trackcal-*.whl")
     subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, cwd=tmp_path)
-    assert (site / "configs" / "cells" / "kr270.yaml").is_file()
-    assert not (site / "studies").exists() and not (site / "tests").exists()
+    assert (site / "trackcal" / "configs" / "cells" / "kr270.yaml").is_file()
+    # one import package, its console script and the wheel's metadata: no generic top-level `calib`, `mocks` ...
+    assert sorted(p.name for p in site.iterdir() if not p.name.endswith(".dist-info")) == ["bin", "trackcal"]
+    assert [p.name for p in (site / "bin").iterdir()] == ["trackcal"]
     env = {k: v for k, v in os.environ.items() if k not in ("TRACKCAL_CONFIGS", "PYTHONPATH")}
     env["PYTHONPATH"] = str(site)  # the wheel's copy first; numpy, scipy, ... from this interpreter
-    code = ("import sys, campaign, calib.cell; from campaign.cli import main; "
-            "print(campaign.__file__, calib.cell.CONFIGS); sys.exit(main(sys.argv[1:]))")  # fmt: skip
+    code = ("import sys, trackcal.campaign as campaign, trackcal.calib.model.cell as cell; "
+            "from trackcal.campaign.cli import main; "
+            "print(campaign.__file__, cell.CONFIGS); sys.exit(main(sys.argv[1:]))")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code, "plan", "--cell", "kr270", "--configs", "3", "--repeat", "1",
                           "--starts", "20", "--refined", "1", "--json", "plan.json"],
                          cwd=work, env=env, capture_output=True, text=True)  # fmt: skip
@@ -38,7 +40,7 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
 
 def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):
     """Start-up time: the command table is light; a command's module is imported only when it runs."""
-    code = ("import sys; from campaign.cli import main\n"
+    code = ("import sys; from trackcal.campaign.cli import main\n"
             "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
             "print(sorted(m for m in ('pinocchio', 'matplotlib') if m in sys.modules))")  # fmt: skip
     for argv in (["--help"], ["export", str(tmp_path / "no-session"), "--csv", str(tmp_path / "t.csv")]):

@@ -5,10 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cell import load_robot
-from calib.chain import ChainError, chain_from_dict, chain_from_urdf
-from calib.identifiability import identification_jacobian, numerical_rank, random_configuration
-from calib.params import complete_params, irreducible_params
+from trackcal.calib.model.cell import load_robot
+from trackcal.calib.model.chain import ChainError, chain_from_dict, chain_from_urdf
+from trackcal.calib.model.identifiability import identification_jacobian, numerical_rank, random_configuration
+from trackcal.calib.model.params import complete_params, irreducible_params
 
 # Paper eq. (6), in this order.
 PAPER_EQ6 = [

@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cell import CellError, load_cell, usable_limits_deg
-from calib.doe import design_for_cell, optimize_plan
-from calib.kinematics import Kinematics
-from calib.params import param_by_name
-from campaign.engine.engine import CampaignStopped
-from campaign.engine.runner import run_campaign
-from campaign.engine.steps import PlanError, campaign_steps
-from campaign.session.session import create_session
-from tests.conftest import feasible_plan, inproc_live
+from tests.helpers import feasible_plan, inproc_live
+from trackcal.calib.doe.design import design_for_cell, optimize_plan
+from trackcal.calib.model.cell import CellError, load_cell, usable_limits_deg
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import param_by_name
+from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.engine.steps import PlanError, campaign_steps
+from trackcal.campaign.session.session import create_session
 
 
 @pytest.fixture(scope="module")

@@ -11,11 +11,11 @@ from io import StringIO
 import pytest
 from rich.console import Console
 
-from campaign.engine.operator import PlcOperator
-from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
-from drivers.interfaces import CellIO
-from drivers.plc.client import ModbusCellIO
-from drivers.plc.codec import (
+from trackcal.campaign.engine.operator import PlcOperator
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
+from trackcal.drivers.interfaces import CellIO
+from trackcal.drivers.plc.client import ModbusCellIO
+from trackcal.drivers.plc.codec import (
     REQUEST_REGISTERS,
     REQUEST_TARGET_CHARS,
     OperatorRequest,
@@ -23,8 +23,8 @@ from drivers.plc.codec import (
     decode_request,
     encode_request,
 )
-from mocks.clock import VirtualClock
-from mocks.servers.plc import MockPlc, PlcFault
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers.plc import MockPlc, PlcFault
 
 TIMEOUT_S = 0.25
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT
+
 README = ROOT / "README.md"
 NOT_RUN = "# not run by the README test:"
 # options whose value is a file or directory the command writes (checked to exist after the example)

@@ -14,14 +14,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from calib.diagnose import diagnose
-from calib.noise import TrackerNoise
-from calib.table import read_table, write_table
-from campaign.analysis import choose_params, run_identify, verdict_doc
-from campaign.cli import main
-from campaign.report.html import Provenance, write_report
-from campaign.report.inputs import table_sha256
-from tests.conftest import kr270_campaign
+from tests.helpers import kr270_campaign
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.io.table import read_table, write_table
+from trackcal.campaign.analysis import choose_params, run_identify, verdict_doc
+from trackcal.campaign.cli import main
+from trackcal.campaign.report.html import Provenance, write_report
+from trackcal.campaign.report.inputs import table_sha256
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
 SESSION = "KR-270 <script>alert('x')</script> & co"  # a session directory name HTML must escape

@@ -9,14 +9,14 @@ import time
 
 import pytest
 
-from campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
-from campaign.engine.runner import run_campaign
-from campaign.planning import PlanOptions, build_design, search_doc
-from campaign.session.session import create_session, write_export
-from drivers.errors import MotionRefused
-from drivers.kuka.client import STALE_CYCLES
-from drivers.kuka.rsi_codec import ipoc_of
-from tests.conftest import feasible_plan
+from tests.helpers import feasible_plan
+from trackcal.campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
+from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.session.session import create_session, write_export
+from trackcal.drivers.errors import MotionRefused
+from trackcal.drivers.kuka.client import STALE_CYCLES
+from trackcal.drivers.kuka.rsi_codec import ipoc_of
 
 SEED = 3
 SPEED_PCT = 30.0  # campaign.engine.engine.Settings' speed override
@@ -75,8 +75,8 @@ def test_every_cycle_of_a_move_is_exchanged_and_a_standing_robot_s_frames_jump(k
             robot, ctl = sim.live.robot, sim.controller
             sim.plc.close_door()  # the operator left the cell
             seen = received_ipocs(sim)
-            robot.move_ptp(target, SPEED_PCT)
-            assert robot.read_joints() == tuple(round(v, 4) for v in target)
+            robot.move(target, SPEED_PCT)
+            assert robot.joints() == tuple(round(v, 4) for v in target)
             # the frame of now the freshness check asks for before the move, then the move: a synchronous quintic
             # PTP lasts 1.875 max|dq| / speed (mocks.servers.kuka), then the program dwells settle_s; each of those
             # cycles is one frame, 12 ms of IPOC after the one before
@@ -89,7 +89,7 @@ def test_every_cycle_of_a_move_is_exchanged_and_a_standing_robot_s_frames_jump(k
             # next frame read carries the IPOC of its own cycle, the last one at most 2 s later
             moved = len(seen)
             sim.clock.sleep(2.0)
-            assert robot.read_joints() == tuple(round(v, 4) for v in target)
+            assert robot.joints() == tuple(round(v, 4) for v in target)
             due = math.floor(2.0 / ctl.cycle_s)
             assert seen[-1] - seen[moved - 1] == 12 * due
             assert len(seen) - moved == (1 if skip_idle else due)
@@ -105,18 +105,18 @@ def test_a_stream_that_stopped_while_the_robot_stood_refuses_the_next_move_in_co
     try:
         robot, ctl = sim.live.robot, sim.controller
         sim.plc.close_door()
-        robot.move_ptp(target, SPEED_PCT)
+        robot.move(target, SPEED_PCT)
         ctl.drop_connection("rsi")
         gone_by = time.monotonic() + 10.0  # the controller applies it at its next wake-up
         while not ctl.rsi_stopped and time.monotonic() < gone_by:
             time.sleep(0.001)
         assert ctl.rsi_stopped
         sim.clock.sleep(STALE_CYCLES * ctl.cycle_s)  # exactly STALE_CYCLES cycles later: still fresh
-        assert robot.read_joints() == tuple(round(v, 4) for v in target)
+        assert robot.joints() == tuple(round(v, 4) for v in target)
         sim.clock.sleep(ctl.cycle_s)  # one more: stale
         sent = len(ctl.commands)
         with pytest.raises(MotionRefused, match="RSI stream stale: no complete frame for 6 cycles") as refused:
-            robot.move_ptp(HOME_DEG, SPEED_PCT)
+            robot.move(HOME_DEG, SPEED_PCT)
         assert refused.value.code == "rsi_stale" and len(ctl.commands) == sent
     finally:
         sim.close()

@@ -18,14 +18,14 @@ import time
 import numpy as np
 import pytest
 
-from campaign.cells.sim import SimCell, TwinMocks
-from campaign.engine.engine import CampaignStopped
-from campaign.engine.runner import run_campaign
-from campaign.session.session import create_session, export_table
-from drivers.emscon.codec import LengthUnit, PacketReader, SetUnits, encode_command
-from drivers.kuka.rsi_codec import RobFrame, encode_rob
-from mocks.servers.emscon import EmsconFault
-from tests.conftest import before_call, feasible_plan, inproc_live
+from tests.helpers import before_call, feasible_plan, inproc_live
+from trackcal.campaign.cells.sim import SimCell, TwinMocks
+from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.session.session import create_session, export_table
+from trackcal.drivers.emscon.codec import LengthUnit, PacketReader, SetUnits, encode_command
+from trackcal.drivers.kuka.rsi_codec import RobFrame, encode_rob
+from trackcal.mocks.servers.emscon import EmsconFault
 
 SEED = 3
 
@@ -90,7 +90,7 @@ def test_controller_estop_stops_safely_and_resume_completes(tmp_path, kr270, pla
     store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     # pressed while the fourth command travels: the controller refuses it
-    before_call(sim.live.robot, "move_ptp", 4, sim.controller.estop)
+    before_call(sim.live.robot, "move", 4, sim.controller.estop)
     with pytest.raises(CampaignStopped, match="(?i)emergency stop"):
         run_campaign(store, sim.live)
     error = store.events("error")[-1].data
@@ -225,7 +225,7 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
         sim.clock.real_fraction = 1.0
         threading.Thread(target=open_the_door_20_ms_in, daemon=True).start()
 
-    before_call(sim.live.robot, "move_ptp", 5, in_real_time)
+    before_call(sim.live.robot, "move", 5, in_real_time)
     with pytest.raises(CampaignStopped, match="stopped: the cell door opened"):
         run_campaign(store, sim.live)
     [(q_stop, v_stop, q_rest)] = ctl.stops

@@ -19,15 +19,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from campaign.cli import main
-from campaign.engine.engine import CampaignStopped
-from campaign.engine.operator import ConsoleOperator
-from campaign.engine.runner import run_campaign
-from campaign.session.session import create_session, export_table, session_plan
-from campaign.session.store import SessionStore, StoreError
-from tests.conftest import before_call, feasible_plan, inproc_live
+from tests.helpers import TRACKCAL, before_call, feasible_plan, inproc_live
+from trackcal.campaign.cli import main
+from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.operator import ConsoleOperator
+from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.session.session import create_session, export_table, session_plan
+from trackcal.campaign.session.store import SessionStore, StoreError
 
-TRACKCAL = [sys.executable, "-m", "campaign.cli"]
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
 
 
@@ -74,7 +73,7 @@ def test_a_second_opener_in_the_same_process_is_refused(reference, tmp_path):
     SessionStore.open(d).close()
 
 
-HOLD = ("import sys, time; from campaign.session.store import SessionStore; SessionStore.open(sys.argv[1]); "
+HOLD = ("import sys, time; from trackcal.campaign.session.store import SessionStore; SessionStore.open(sys.argv[1]); "
         "print(flush=True); time.sleep(600)")
 
 
@@ -311,4 +310,4 @@ def test_the_console_at_end_of_input_stops_the_campaign_safely(kr270, plan, tmp_
     operator = ConsoleOperator(Console(file=io.StringIO()))
     with pytest.raises(CampaignStopped, match="operator console: end of input"):
         run_campaign(store, inproc_live(kr270, operator=operator)[1])
-    assert not [e for e in store.events("call") if e.data["op"] == "move_ptp"]  # nothing moved unacknowledged
+    assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged

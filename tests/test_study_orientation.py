@@ -5,14 +5,14 @@ orientations, and the residual is the angle by which the measured orientations w
 import numpy as np
 import pytest
 
-from calib.cell import load_cell
-from calib.identify import identify
-from calib.kinematics import Kinematics
-from calib.rigid import exp_so3
-from calib.table import MeasurementTable
-from campaign.importers.ipa_ur10 import POINT
 from studies.ur10_ipa.error_map_check import STATION_ONLY
 from studies.ur10_ipa.orientation import ANGLE_COLUMNS, angular_rms_mrad
+from trackcal.calib.identify.solver import identify
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.rigid import exp_so3
+from trackcal.campaign.importers.ipa_ur10 import POINT
 
 
 def tmac_table(q: np.ndarray, point: np.ndarray, turn_rad: float, rng: np.random.Generator) -> MeasurementTable:

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from calib.cell import load_robot
-from calib.identifiability import identification_jacobian, numerical_rank, random_configuration
-from calib.params import irreducible_params
-from calib.subset import identifiable_subset
+from trackcal.calib.model.cell import load_robot
+from trackcal.calib.model.identifiability import identification_jacobian, numerical_rank, random_configuration
+from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model.subset import identifiable_subset
 
 
 def _q(chain, seed=0, m=40):

@@ -11,10 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import calib.files as files_mod
-import calib.table as table_mod
-from calib.table import TableError, read_table, write_table
-from tests.conftest import kr270_campaign
+import trackcal.calib.io.files as files_mod
+import trackcal.calib.io.table as table_mod
+from tests.helpers import kr270_campaign
+from trackcal.calib.io.table import TableError, read_table, write_table
 
 HEADER = "seq,t_s,pose,station,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm"
 ROW = "1,0.0,Q1,S1,P1,10,-60,80,10,40,0,1000.5,200.25,-300.125"

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import calib.table as table_mod
-from calib import csv_grid
-from calib.table import TableError, read_table
+import trackcal.calib.io.table as table_mod
+from trackcal.calib.io import csv_grid
+from trackcal.calib.io.table import TableError, read_table
 
 HEADER = ["seq", "t_s", "pose", "station", "point", "q1_deg", "q2_deg", "q3_deg", "x_mm", "y_mm", "z_mm"]
 NUMERIC = [c for c in HEADER if c not in ("seq", "pose", "station", "point")]

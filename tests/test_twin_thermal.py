@@ -10,16 +10,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.diagnose import diagnose
-from calib.kinematics import Kinematics
-from calib.noise import TrackerNoise
-from calib.params import irreducible_params
-from calib.poses import random_poses
-from mocks.effects import THERMAL_PIVOTS
-from mocks.synth import simulate_campaign
-from mocks.twin import Twin
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.mocks.effects import THERMAL_PIVOTS
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
 
-NOISE_RMS_MM = 0.015  # AT901 model (calib/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
+NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
 FORM_OF_PIVOT = {"base": "e_base", "first_joint": "e"}  # calib.extensions.THERMAL_FORMS
 
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib.identify import identify
-from calib.noise import TrackerNoise
-from tests.conftest import kr270_campaign, truth_of
+from tests.helpers import kr270_campaign, truth_of
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import identify
 
 
 def coverage(cell, params, seeds, weighting, twin_noise):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.cell import Cell, usable_limits_deg
-from calib.poses import points_in_box
-from drivers.errors import DeviceError
-from drivers.plc.client import ModbusCellIO
+from trackcal.calib.doe.poses import points_in_box
+from trackcal.calib.model.cell import Cell, usable_limits_deg
+from trackcal.drivers.errors import DeviceError
+from trackcal.drivers.plc.client import ModbusCellIO
 
 
 def cell_box_check(cell: Cell):

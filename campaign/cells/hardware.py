@@ -17,21 +17,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from calib.cell import Cell
-from calib.files import read_yaml
-from campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
-from campaign.console import console as default_console
-from campaign.engine.operator import ConsoleOperator, PlcOperator
-from campaign.engine.runner import Live
-from campaign.errors import InputError
-from drivers.emscon.client import EmsconTracker
-from drivers.errors import DeviceError
-from drivers.interfaces import RealClock
-from drivers.kuka.client import KukaKrc2
-from drivers.kuka.rsi_codec import KRC2_CYCLE_S
-from drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
-from drivers.meteo.client import SerialMeteo
-from drivers.plc.client import ModbusCellIO
+from trackcal.calib.io.files import read_yaml
+from trackcal.calib.model.cell import Cell
+from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
+from trackcal.campaign.console import console as default_console
+from trackcal.campaign.engine.operator import ConsoleOperator, PlcOperator
+from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.errors import InputError
+from trackcal.drivers.emscon.client import EmsconTracker
+from trackcal.drivers.errors import DeviceError
+from trackcal.drivers.interfaces import RealClock
+from trackcal.drivers.kuka.client import KukaKrc2
+from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S
+from trackcal.drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
+from trackcal.drivers.meteo.client import SerialMeteo
+from trackcal.drivers.plc.client import ModbusCellIO
 
 # section -> key -> (kind, default); `...` marks a required key. port: integer 1..65535, unit: 0..255,
 # timeout / positive: a number > 0 (seconds / per second), host: name or address, device: serial path or URL.

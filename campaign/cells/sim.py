@@ -6,26 +6,26 @@ from __future__ import annotations
 import contextlib
 import socket
 
-from calib.cell import Cell
-from campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
-from campaign.console import console
-from campaign.engine.operator import PlcOperator
-from campaign.engine.runner import Live
-from campaign.errors import InputError
-from campaign.session.session import measured_keys
-from campaign.session.store import SessionStore
-from drivers.emscon.client import EmsconTracker
-from drivers.kuka.client import KukaKrc2
-from drivers.meteo.client import SerialMeteo
-from drivers.plc.client import ModbusCellIO
-from mocks.cell import World
-from mocks.clock import VirtualClock
-from mocks.operator import SimHuman
-from mocks.servers.emscon import MockEmscon
-from mocks.servers.kuka import MockKrc2
-from mocks.servers.meteo import MockMeteo
-from mocks.servers.plc import MockPlc
-from mocks.twin import Twin
+from trackcal.calib.model.cell import Cell
+from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
+from trackcal.campaign.console import console
+from trackcal.campaign.engine.operator import PlcOperator
+from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.session.session import measured_keys
+from trackcal.campaign.session.store import SessionStore
+from trackcal.drivers.emscon.client import EmsconTracker
+from trackcal.drivers.kuka.client import KukaKrc2
+from trackcal.drivers.meteo.client import SerialMeteo
+from trackcal.drivers.plc.client import ModbusCellIO
+from trackcal.mocks.cell import World
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.operator import SimHuman
+from trackcal.mocks.servers.emscon import MockEmscon
+from trackcal.mocks.servers.kuka import MockKrc2
+from trackcal.mocks.servers.meteo import MockMeteo
+from trackcal.mocks.servers.plc import MockPlc
+from trackcal.mocks.twin import Twin
 
 HOME_DEG = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # KR C2 HOME of the KRL program (configs/krc2)
 # Rated axis speeds of a KR 270 are about 100 deg/s for A1-A3 (KUKA KR QUANTEC data sheet: A1 105, A2 101,

@@ -12,12 +12,11 @@ import argparse
 import importlib
 import sys
 
-from calib.errors import CalibError
-from campaign.errors import CampaignError
-from drivers.errors import DeviceError
-
-from .blas import limited_blas
-from .commands import COMMANDS, GROUPS
+from trackcal.calib.errors import CalibError
+from trackcal.campaign.cli.blas import limited_blas
+from trackcal.campaign.cli.commands import COMMANDS, GROUPS
+from trackcal.campaign.errors import CampaignError
+from trackcal.drivers.errors import DeviceError
 
 USER_ERRORS = (CalibError, CampaignError, DeviceError)  # one line, exit 2
 

@@ -2,6 +2,6 @@
 
 import sys
 
-from campaign.cli import main
+from trackcal.campaign.cli import main
 
 sys.exit(main())

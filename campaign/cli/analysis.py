@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
-from calib.cell import load_cell
-from calib.diagnose import diagnose
-from calib.model import load_model, predict_table
-from calib.noise import noise_for
-from calib.table import read_table, write_table
-from campaign.analysis import (
+from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.identify.noise import noise_for
+from trackcal.calib.io.table import read_table, write_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model_file import load_model, predict_table
+from trackcal.campaign.analysis import (
     IdentifyOutcome,
     choose_params,
     fit_warning,
@@ -25,9 +25,9 @@ from campaign.analysis import (
     summary_of,
     verdict_doc,
 )
-from campaign.console import console
-from campaign.output import write_json, write_output_table
-from campaign.report.diagnosis_plots import plots
+from trackcal.campaign.console import console
+from trackcal.campaign.output import write_json, write_output_table
+from trackcal.campaign.report.diagnosis_plots import plots
 
 
 def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:

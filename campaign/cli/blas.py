@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 from threadpoolctl import threadpool_limits
 
-from campaign.errors import UsageError
+from trackcal.campaign.errors import UsageError
 
 ENV = "TRACKCAL_BLAS_THREADS"
 # read by the BLAS / OpenMP libraries when they load: libraries loaded later in this process (scipy's own

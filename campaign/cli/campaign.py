@@ -9,17 +9,17 @@ from pathlib import Path
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from calib.files import read_json, read_text
-from campaign.analysis import analyse_session, parse_effects
-from campaign.cells.hardware import connect_hardware, load_hardware
-from campaign.cells.sim import SimCell
-from campaign.console import console
-from campaign.engine.engine import CampaignStopped
-from campaign.engine.engine import Progress as CampaignProgress
-from campaign.engine.recording import ReplayDivergence
-from campaign.engine.runner import replay_session, run_campaign
-from campaign.errors import CampaignError, InputError, UsageError
-from campaign.session.session import (
+from trackcal.calib.io.files import read_json, read_text
+from trackcal.campaign.analysis import analyse_session, parse_effects
+from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
+from trackcal.campaign.cells.sim import SimCell
+from trackcal.campaign.console import console
+from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.engine import Progress as CampaignProgress
+from trackcal.campaign.engine.recording import ReplayDivergence
+from trackcal.campaign.engine.runner import replay_session, run_campaign
+from trackcal.campaign.errors import CampaignError, InputError, UsageError
+from trackcal.campaign.session.session import (
     HARDWARE_COPY,
     changed_copies,
     create_session,
@@ -27,7 +27,7 @@ from campaign.session.session import (
     session_hardware,
     write_export,
 )
-from campaign.session.store import SessionStore
+from trackcal.campaign.session.store import SessionStore
 
 
 def _progress():

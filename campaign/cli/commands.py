@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from calib.noise import DEFAULT_WEIGHTING, WEIGHTINGS
-from campaign.importers.ipa_ur10 import DEFAULT_PERIOD_S, VIRTUAL_DIRECTIONS
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, WEIGHTINGS
+from trackcal.campaign.importers.ipa_ur10 import DEFAULT_PERIOD_S, VIRTUAL_DIRECTIONS
 
 CAUSE_HELP = ("none (purely geometric), auto (diagnose's choice) or a cause: joint_compliance, backlash, "
               "encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
 TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm)"
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
-WEIGHTING_HELP = "the AT901 radial/transverse noise model (calib/noise.py), or i.i.d. least squares"
+WEIGHTING_HELP = "the AT901 radial/transverse noise model (calib/identify/noise.py), or i.i.d. least squares"
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 
 
@@ -37,7 +37,7 @@ GROUPS = {"import": "convert third-party measurement files into a measurement ta
 
 COMMANDS = [
     Command("identify", "identify robot parameters, stations and points from a measurement table",
-            "campaign.cli.analysis:cmd_identify", [
+            "trackcal.campaign.cli.analysis:cmd_identify", [
                 arg("data", help=TABLE_HELP),
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--params", help="comma-separated parameter names (default: the irreducible set)"),
@@ -47,7 +47,7 @@ COMMANDS = [
                 arg("--json", help="summary JSON to write (residuals, fit against the noise floor, parameters)"),
             ]),
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
-            "campaign.cli.analysis:cmd_diagnose", [
+            "trackcal.campaign.cli.analysis:cmd_diagnose", [
                 arg("data", help=TABLE_HELP),
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
@@ -58,13 +58,13 @@ COMMANDS = [
                 arg("--json", required=True, help="verdict JSON to write"),
                 arg("--out", help="model.json of the chosen model (usable by predict)"),
             ]),
-    Command("predict", "predict reflector positions with a model", "campaign.cli.analysis:cmd_predict", [
+    Command("predict", "predict reflector positions with a model", "trackcal.campaign.cli.analysis:cmd_predict", [
         arg("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)"),
         arg("--model", required=True, help="model.json from identify or diagnose"),
         arg("--out", required=True, help="CSV to write: the rows with x_mm, y_mm, z_mm predicted"),
     ]),
     Command("plan", "optimal measurement poses for the cell's test pose (or evaluate a plan)",
-            "campaign.cli.plan:cmd_plan", [
+            "trackcal.campaign.cli.plan:cmd_plan", [
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--test-pose", help="Q1,..,Qn in degrees (default: the cell's test pose)"),
                 arg("--configs", type=int, default=6, help="number of distinct configurations M"),
@@ -83,7 +83,7 @@ COMMANDS = [
                 arg("--json", default="plan.json", help="plan JSON to write"),
             ]),
     Command("simulate", "simulate a campaign of random feasible poses on the digital twin",
-            "campaign.cli.analysis:cmd_simulate", [
+            "trackcal.campaign.cli.analysis:cmd_simulate", [
                 arg("--cell", default="kr270", help=CELL_HELP),
                 arg("--poses", type=int, default=30, help="random feasible poses"),
                 arg("--repeat", type=int, default=1, help="each pose measured K times"),
@@ -93,12 +93,13 @@ COMMANDS = [
                 arg("--out", required=True, help="measurement table to write"),
             ]),
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
-            "campaign.cli.demo:cmd_demo", [
+            "trackcal.campaign.cli.demo:cmd_demo", [
                 arg("--cell", default="kr270", help=CELL_HELP),
                 arg("--seed", type=int, default=1, help="the twin's seed"),
                 arg("--out", default="out/demo", help="directory of the plan and the session"),
             ]),
-    Command("run", "run a measurement campaign (simulated cell or hardware)", "campaign.cli.campaign:cmd_run", [
+    Command("run", "run a measurement campaign (simulated cell or hardware)",
+            "trackcal.campaign.cli.campaign:cmd_run", [
         arg("--cell", required=True, help=CELL_HELP),
         arg("--plan", required=True, help="plan.json from `trackcal plan`"),
         arg("--sim", action="store_true", help="the digital twin's cell"),
@@ -109,27 +110,27 @@ COMMANDS = [
         arg("--session", required=True, help="session directory to create"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
     ]),
-    Command("resume", "continue an interrupted campaign", "campaign.cli.campaign:cmd_resume", [
+    Command("resume", "continue an interrupted campaign", "trackcal.campaign.cli.campaign:cmd_resume", [
         arg("session", help="session directory"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
         arg("--analyse", action="store_true", help="analyse a campaign that is already complete again"),
     ]),
-    Command("replay", "re-run a recorded campaign into a new session", "campaign.cli.campaign:cmd_replay", [
+    Command("replay", "re-run a recorded campaign into a new session", "trackcal.campaign.cli.campaign:cmd_replay", [
         arg("session", help="session directory of the recording (never modified)"),
         arg("--into", required=True, help="new session directory for the replay"),
         arg("--cell", help="replay with this cell instead of the recorded one"),
         arg("--plan", help="replay with this plan instead of the recorded one"),
     ]),
-    Command("export", "the measurement table of a session", "campaign.cli.session:cmd_export", [
+    Command("export", "the measurement table of a session", "trackcal.campaign.cli.session:cmd_export", [
         arg("session", help="session directory"),
         arg("--csv", required=True, help="measurement table to write"),
     ]),
     Command("check", "verify a session: database integrity, hash chain, stored plan and config",
-            "campaign.cli.session:cmd_check", [
+            "trackcal.campaign.cli.session:cmd_check", [
                 arg("session", help="session directory"),
             ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
-            "campaign.cli.mock:cmd_mock", [
+            "trackcal.campaign.cli.mock:cmd_mock", [
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--seed", type=int, default=1, help="the twin's seed"),
                 arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable)"),
@@ -137,7 +138,7 @@ COMMANDS = [
                 arg("--sim-speed", type=float, help="simulated seconds per real second (default: flat out)"),
             ]),
     Command("compensate", "joint targets corrected with an identified model (CSV, KRL)",
-            "campaign.cli.compensate:cmd_compensate", [
+            "trackcal.campaign.cli.compensate:cmd_compensate", [
                 arg("targets", help="CSV of nominal joint targets: q1_deg..qn_deg, optional name"),
                 arg("--model", required=True, help="model.json from identify or diagnose"),
                 arg("--out", required=True, help="CSV to write: the targets plus compensated angles and errors"),
@@ -147,7 +148,7 @@ COMMANDS = [
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
             ]),
     Command("report", "HTML report of a campaign: plan, residuals, parameters, diagnosis",
-            "campaign.cli.report:cmd_report", [
+            "trackcal.campaign.cli.report:cmd_report", [
                 arg("session", nargs="?", help="session directory (its table, model, plan, verdict)"),
                 arg("--table", help=TABLE_HELP),
                 arg("--model", help="model.json from identify or diagnose"),
@@ -158,7 +159,7 @@ COMMANDS = [
                 arg("--out", help="directory for report.html and its PNG plots (default: SESSION/report)"),
             ]),
     Command("ipa-ur10", "IPA UR10 + Leica T-Mac series (Landgraf et al., CASE 2021)",
-            "campaign.cli.importers:cmd_import_ipa", [
+            "trackcal.campaign.cli.importers:cmd_import_ipa", [
                 arg("file", help="series CSV (semicolon-separated, decimal commas)"),
                 arg("--out", required=True, help="measurement table to write"),
                 arg("--station", default="T1", help="station id"),

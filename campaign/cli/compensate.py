@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.compensate import NEAR_SINGULAR, compensate, pose_error
-from calib.model import load_model
-from campaign.compensation import read_targets, row_labels, write_output
-from campaign.errors import InputError, UsageError
-from campaign.krl import KrlError, check_name, point_names, write_krl
+from trackcal.calib.compensate import NEAR_SINGULAR, compensate, pose_error
+from trackcal.calib.model_file import load_model
+from trackcal.campaign.compensation import read_targets, row_labels, write_output
+from trackcal.campaign.errors import InputError, UsageError
+from trackcal.campaign.krl import KrlError, check_name, point_names, write_krl
 
 
 def parse_tcp(text: str | None, model) -> np.ndarray:

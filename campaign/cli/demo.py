@@ -6,17 +6,16 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from calib.cell import load_cell
-from calib.noise import DEFAULT_WEIGHTING
-from calib.table import read_table
-from campaign.analysis import analyse_session, choose_params, run_identify, twin_truth
-from campaign.console import console
-from campaign.output import write_json
-from campaign.planning import PlanOptions, build_design, search_doc
-from campaign.session.session import create_session
-
-from .analysis import print_identification, um
-from .campaign import drive
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING
+from trackcal.calib.io.table import read_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.analysis import analyse_session, choose_params, run_identify, twin_truth
+from trackcal.campaign.cli.analysis import print_identification, um
+from trackcal.campaign.cli.campaign import drive
+from trackcal.campaign.console import console
+from trackcal.campaign.output import write_json
+from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.session.session import create_session
 
 
 def cmd_demo(args) -> int:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from calib.table import write_table
-from campaign.importers.ipa_ur10 import IpaFormatError, read_ipa_series
+from trackcal.calib.io.table import write_table
+from trackcal.campaign.importers.ipa_ur10 import IpaFormatError, read_ipa_series
 
 
 def cmd_import_ipa(args) -> int:

@@ -25,12 +25,12 @@ from pathlib import Path
 import yaml
 from rich.table import Table
 
-from calib.cell import load_cell
-from campaign.analysis import parse_effects
-from campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
-from campaign.console import console
-from campaign.errors import UsageError
-from campaign.output import write_text
+from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.analysis import parse_effects
+from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
+from trackcal.campaign.console import console
+from trackcal.campaign.errors import UsageError
+from trackcal.campaign.output import write_text
 
 
 def cmd_mock(args) -> int:

@@ -7,10 +7,17 @@ from pathlib import Path
 import numpy as np
 from rich.progress import Progress
 
-from calib.cell import load_cell
-from campaign.console import console
-from campaign.output import write_json
-from campaign.planning import PlanOptions, build_design, evaluate_doc, read_plan_csv, search_doc, write_plan_csv
+from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.console import console
+from trackcal.campaign.output import write_json
+from trackcal.campaign.planning import (
+    PlanOptions,
+    build_design,
+    evaluate_doc,
+    read_plan_csv,
+    search_doc,
+    write_plan_csv,
+)
 
 
 def options_of(args) -> PlanOptions:

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calib.cell import load_cell
-from calib.files import read_json
-from campaign.errors import InputError, UsageError
-from campaign.report.html import Provenance
-from campaign.report.inputs import report_files, report_session
+from trackcal.calib.io.files import read_json
+from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.errors import InputError, UsageError
+from trackcal.campaign.report.html import Provenance
+from trackcal.campaign.report.inputs import report_files, report_session
 
 
 def cmd_report(args) -> int:

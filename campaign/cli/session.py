@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from campaign.console import console
-from campaign.errors import InputError
-from campaign.session.session import changed_copies, write_export
-from campaign.session.store import SessionStore
+from trackcal.campaign.console import console
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.session.session import changed_copies, write_export
+from trackcal.campaign.session.store import SessionStore
 
 
 def cmd_export(args) -> int:

@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from campaign.engine.steps import PROMPTS, Step, StepKind
-from campaign.errors import CampaignError
-from campaign.session.store import SessionStore
-from drivers.errors import DeviceError, TargetNotVisible
-from drivers.interfaces import CellIO, Clock, Meteo, Operator, Robot, Tracker
+from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
+from trackcal.campaign.errors import CampaignError
+from trackcal.campaign.session.store import SessionStore
+from trackcal.drivers.errors import DeviceError, TargetNotVisible
+from trackcal.drivers.interfaces import CellIO, Clock, Meteo, Operator, Robot, Tracker
 
 
 class CampaignStopped(CampaignError):
@@ -236,14 +236,14 @@ class Engine:
             self._warn("the cell door opened: motion blocked until resumed")
             self.interlock.close()
             self._resume_motion()
-        self.dev.robot.move_ptp(tuple(step.q_deg), self.settings.speed_pct)
+        self.dev.robot.move(tuple(step.q_deg), self.settings.speed_pct)
 
     def _settle(self) -> None:
         s = self.settings
         self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
 
     def _measure(self, step: Step) -> None:
-        q = self.dev.robot.read_joints()
+        q = self.dev.robot.joints()
         env = self.dev.meteo.read() if self.dev.meteo is not None else None
         expected = self.dev.expected(step) if self.dev.expected is not None else None
         for attempt in range(1, self.settings.measure_attempts + 1):

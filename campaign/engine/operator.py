@@ -6,7 +6,7 @@ import time
 
 from rich.console import Console
 
-from drivers.errors import ConnectionLost, ProtocolError
+from trackcal.drivers.errors import ConnectionLost, ProtocolError
 
 
 class ConsoleOperator:

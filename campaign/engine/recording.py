@@ -13,10 +13,10 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-import drivers.errors as derr
-from campaign.errors import CampaignError
-from campaign.session.store import Event, SessionStore
-from drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
+import trackcal.drivers.errors as derr
+from trackcal.campaign.errors import CampaignError
+from trackcal.campaign.session.store import Event, SessionStore
+from trackcal.drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
 
 TYPES = {cls.__name__: cls for cls in (Environment, TrackerMeasurement, TrackerStatus)}
 ERRORS = {

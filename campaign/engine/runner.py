@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.cell import Cell
-from calib.kinematics import Kinematics
-from campaign.engine.engine import CampaignStopped, Devices, Engine
-from campaign.engine.recording import EndOfSegment, Playback, Recorder
-from campaign.engine.steps import Step
-from campaign.session.session import create_session, session_cell, session_plan, session_steps, stored_config
-from campaign.session.store import SessionStore
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.campaign.engine.engine import CampaignStopped, Devices, Engine
+from trackcal.campaign.engine.recording import EndOfSegment, Playback, Recorder
+from trackcal.campaign.engine.steps import Step
+from trackcal.campaign.session.session import create_session, session_cell, session_plan, session_steps, stored_config
+from trackcal.campaign.session.store import SessionStore
 
 
 def expected_position(cell: Cell) -> Callable[[Step], tuple[float, float, float] | None]:

@@ -17,10 +17,10 @@ from enum import StrEnum
 
 import numpy as np
 
-from calib.cell import Cell, usable_limits_deg
-from calib.doe import design_for_cell
-from calib.poses import points_in_box
-from campaign.errors import CampaignError
+from trackcal.calib.doe.design import design_for_cell
+from trackcal.calib.doe.poses import points_in_box
+from trackcal.calib.model.cell import Cell, usable_limits_deg
+from trackcal.campaign.errors import CampaignError
 
 
 class StepKind(StrEnum):

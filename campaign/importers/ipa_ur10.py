@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.rigid import rot_axis, skew
-from calib.table import MeasurementTable, TableError, read_csv
+from trackcal.calib.io.table import MeasurementTable, TableError, read_csv
+from trackcal.calib.model.rigid import rot_axis, skew
 
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint")  # fmt: skip

@@ -7,14 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.cell import Cell
-from calib.diagnose import Diagnosis, rms
-from calib.error_map import map_curve
-from calib.extensions import approach_signs
-from calib.identify import Identification
-from calib.kinematics import Kinematics
-from calib.pinmodel import gravity_torques
-from campaign.report.figures import pyplot, save_png
+from trackcal.calib.diagnose.error_map import map_curve
+from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.diagnose.selection import Diagnosis, rms
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.pinmodel import gravity_torques
+from trackcal.campaign.report.figures import pyplot, save_png
 
 
 def main_cause_theta(d: Diagnosis) -> np.ndarray:

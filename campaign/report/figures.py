@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from campaign.output import output_file
+from trackcal.campaign.output import output_file
 
 
 def pyplot():

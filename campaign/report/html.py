@@ -28,17 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.cell import Cell
-from calib.diagnose import diagnose, noise_floor
-from calib.identify import identify, residual_stats
-from calib.model import model_from_doc, predict_table
-from calib.noise import noise_for
-from calib.params import param_by_name
-from calib.table import MeasurementTable
-from campaign.errors import InputError
-from campaign.output import write_text
-from campaign.report.diagnosis_plots import plots
-from campaign.report.figures import pyplot, save_png
+from trackcal.calib.diagnose.selection import diagnose, noise_floor
+from trackcal.calib.identify.noise import noise_for
+from trackcal.calib.identify.solver import identify, residual_stats
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.params import param_by_name
+from trackcal.calib.model_file import model_from_doc, predict_table
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.output import write_text
+from trackcal.campaign.report.diagnosis_plots import plots
+from trackcal.campaign.report.figures import pyplot, save_png
 
 TABLE9_ROWS = (
     ("coord_max_mm", "coordinate-based, max"),

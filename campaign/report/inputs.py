@@ -10,16 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import fields
-from calib.cell import Cell, load_cell
-from calib.extensions import CAUSES
-from calib.files import read_json
-from calib.model import load_model
-from calib.table import MeasurementTable, read_table
-from campaign.errors import InputError
-from campaign.report.html import Provenance, write_report
-from campaign.session.session import campaign_warnings
-from campaign.session.store import SessionStore
+from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.io import fields
+from trackcal.calib.io.files import read_json
+from trackcal.calib.io.table import MeasurementTable, read_table
+from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model_file import load_model
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.report.html import Provenance, write_report
+from trackcal.campaign.session.session import campaign_warnings
+from trackcal.campaign.session.store import SessionStore
 
 GEOMETRIC_MODEL = "model-geometric.json"  # beside a session's model.json when that one is extended by a cause
 

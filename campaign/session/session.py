@@ -17,20 +17,64 @@ import json
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from calib.cell import Cell, load_cell, load_yaml, resolve
-from calib.files import write_text
-from calib.table import MeasurementTable, write_table
-from campaign.engine.steps import Step, campaign_steps
-from campaign.session.store import SessionStore, StoreError
+from trackcal.calib.io.files import write_text
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.model.cell import Cell, load_cell, load_yaml, resolve
+from trackcal.campaign.engine.steps import Step, campaign_steps
+from trackcal.campaign.session.store import SessionStore, StoreError
 
 PLAN_DOC = "plan.json"
 CELL_DOC = "config/cell.yaml"
 HARDWARE_COPY = "config/hardware.yaml"  # a hardware session's config
+
+
+@dataclass(frozen=True)
+class SessionFiles:
+    """The files of a session folder, by what they hold: the one place that spells their names."""
+
+    directory: Path
+
+    @property
+    def plan(self) -> Path:
+        return self.directory / PLAN_DOC
+
+    @property
+    def cell(self) -> Path:
+        return self.directory / CELL_DOC
+
+    @property
+    def hardware(self) -> Path:
+        return self.directory / HARDWARE_COPY
+
+    @property
+    def table(self) -> Path:
+        """The measurement table exported at the end of the campaign."""
+        return self.directory / "table.csv"
+
+    @property
+    def model(self) -> Path:
+        """The model to use (extended by the diagnosed cause when there is one)."""
+        return self.directory / "model.json"
+
+    @property
+    def geometric_model(self) -> Path:
+        """The purely geometric model, beside model.json when that one is extended by a cause."""
+        return self.directory / "model-geometric.json"
+
+    @property
+    def verdict(self) -> Path:
+        return self.directory / "verdict.json"
+
+    @property
+    def report(self) -> Path:
+        """The report's folder (report.html and its figures)."""
+        return self.directory / "report"
 
 
 def config_documents(cell_ref: str) -> dict[str, str]:

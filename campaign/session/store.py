@@ -41,7 +41,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from campaign.errors import CampaignError
+from trackcal.campaign.errors import CampaignError
 
 SCHEMA_VERSION = "2"
 DB_NAME = "session.sqlite"

@@ -49,7 +49,7 @@ import socket
 import threading
 import time
 
-from drivers.emscon.codec import (
+from trackcal.drivers.emscon.codec import (
     DEFAULT_PORT,
     Answer,
     CommandAnswer,
@@ -101,9 +101,9 @@ from drivers.emscon.codec import (
     decode_packet,
     encode_command,
 )
-from drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
-from drivers.interfaces import Environment, TrackerMeasurement
-from drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
+from trackcal.drivers.interfaces import Environment, TrackerMeasurement
+from trackcal.drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
 
 _RECV_BYTES = 65536
 

@@ -48,8 +48,8 @@ import struct
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
-from drivers.emscon.layouts import LAYOUTS
-from drivers.errors import ProtocolError
+from trackcal.drivers.emscon.layouts import LAYOUTS
+from trackcal.drivers.errors import ProtocolError
 
 DEFAULT_PORT = 700
 HEADER = struct.Struct("<ii")  # PacketHeaderT {long lPacketSize; enum ES_DataType type}  [H], [K]

@@ -26,7 +26,7 @@ configs/krc2/trackcal_rsi.xml's.
   still bounds the wait if frames stop coming.
 - Simulation only (`rsi_sync` given: `run --sim`, the mock controller in the same process on a virtual clock,
   where a standing robot's controller time passes only when somebody waits for it): before reading what the
-  stream says while the robot stands (read_joints, the freshness check before a move, the settling window) the
+  stream says while the robot stands (joints, the freshness check before a move, the settling window) the
   client asks the controller for its frame of now, or for the cycles its window still needs, and judges
   freshness in controller time: the latest frame's IPOC at most STALE_CYCLES cycles behind the controller's (the
   IPOC counts milliseconds of controller time, kuka_rsi_simulator in ros-industrial/kuka_experimental).
@@ -55,7 +55,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 
-from drivers.errors import (
+from trackcal.drivers.errors import (
     ConnectionLost,
     DeviceError,
     DeviceFault,
@@ -63,7 +63,7 @@ from drivers.errors import (
     MotionRefused,
     ProtocolError,
 )
-from drivers.kuka.eki_codec import (
+from trackcal.drivers.kuka.eki_codec import (
     AXES,
     ERR_STOPPED,
     ERROR_TEXT,
@@ -78,7 +78,7 @@ from drivers.kuka.eki_codec import (
     encode_command,
     parse_state,
 )
-from drivers.kuka.rsi_codec import (
+from trackcal.drivers.kuka.rsi_codec import (
     KRC2_CYCLE_S,
     MAX_FRAME_BYTES,
     SHIPPED,
@@ -463,7 +463,7 @@ class KukaKrc2:
 
     # --- Robot protocol -------------------------------------------------------------------------------------
 
-    def read_joints(self) -> tuple[float, ...]:
+    def joints(self) -> tuple[float, ...]:
         self._require_connected()
         if self.rsi_sync is not None:  # simulation: the frame of now, freshness in controller time
             lag = self._synced_lag()
@@ -512,7 +512,7 @@ class KukaKrc2:
                 )
         return target
 
-    def move_ptp(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
+    def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         target = self.check_target(target_deg)
         speed = float(speed_override_pct)
         if not (math.isfinite(speed) and 1 <= round(speed) <= 100):

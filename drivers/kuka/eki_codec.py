@@ -35,9 +35,9 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from importlib import resources
 
-from drivers.errors import ProtocolError
+from trackcal.drivers.errors import ProtocolError
 
-CONFIG_PACKAGE = "configs"  # configs/krc2 is package data
+CONFIG_PACKAGE = "trackcal.configs"  # configs/krc2 is package data
 CHANNEL = "TrackcalEki"  # the channel name: EKX_Open("TrackcalEki") and every path's first part
 ELEMENTS_FILE = f"{CHANNEL}.xml"
 TEMPLATE_FILE = f"{CHANNEL}+.xml"

@@ -38,8 +38,8 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
-from drivers.errors import ProtocolError
-from drivers.kuka.eki_codec import (
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.kuka.eki_codec import (
     AXES,
     XmlStreamFramer,
     config_text,

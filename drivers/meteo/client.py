@@ -18,9 +18,9 @@ import time
 
 import serial
 
-from drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
-from drivers.interfaces import Environment
-from drivers.meteo.codec import MAX_LINE_BYTES, REQUEST, parse_line
+from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
+from trackcal.drivers.interfaces import Environment
+from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, REQUEST, parse_line
 
 _POLL_S = 0.02  # per-read timeout slice; the overall deadline is timeout_s
 

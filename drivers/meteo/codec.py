@@ -17,8 +17,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from drivers.errors import ProtocolError
-from drivers.interfaces import Environment
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.interfaces import Environment
 
 REQUEST = b"M\r\n"
 TERMINATOR = b"\r\n"

@@ -35,8 +35,8 @@ import logging
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
-from drivers.plc.codec import (
+from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
+from trackcal.drivers.plc.codec import (
     DEFAULT_REGISTER_MAP,
     MODBUS_EXCEPTIONS,
     REQUEST_MISMATCH_CODES,

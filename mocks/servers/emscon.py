@@ -49,7 +49,7 @@ import struct
 import threading
 from collections.abc import Callable
 
-from drivers.emscon.codec import (
+from trackcal.drivers.emscon.codec import (
     REQUEST_TYPES,
     ADMStatus,
     CommandAnswer,
@@ -104,10 +104,10 @@ from drivers.emscon.codec import (
     encode,
     encode_refusal,
 )
-from drivers.errors import ProtocolError
-from drivers.interfaces import Environment, RealClock
-from mocks.clock import VirtualClock
-from mocks.servers import emscon_units as units
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.interfaces import Environment, RealClock
+from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.servers import emscon_units as units
 
 MeasureFn = Callable[[tuple[float, float, float] | None], tuple[float, float, float, float, float, float]]
 

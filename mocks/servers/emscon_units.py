@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from drivers.emscon.codec import (
+from trackcal.drivers.emscon.codec import (
     AngleUnit,
     CoordinateSystemType,
     LengthUnit,

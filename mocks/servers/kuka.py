@@ -64,9 +64,9 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 
-from drivers.errors import ProtocolError
-from drivers.interfaces import RealClock
-from drivers.kuka.eki_codec import (
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.interfaces import RealClock
+from trackcal.drivers.kuka.eki_codec import (
     AXES,
     COMMAND_ROOT,
     ERR_BAD_COMMAND,
@@ -85,7 +85,7 @@ from drivers.kuka.eki_codec import (
     encode_state,
     parse_command,
 )
-from drivers.kuka.rsi_codec import (
+from trackcal.drivers.kuka.rsi_codec import (
     CART,
     KRC2_CYCLE_S,
     MAX_FRAME_BYTES,

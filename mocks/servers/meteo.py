@@ -27,9 +27,9 @@ import select
 import threading
 import tty
 
-from drivers.interfaces import RealClock
-from drivers.meteo.codec import H_RANGE_PCT, MAX_LINE_BYTES, Reading, encode_reading
-from mocks.clock import VirtualClock
+from trackcal.drivers.interfaces import RealClock
+from trackcal.drivers.meteo.codec import H_RANGE_PCT, MAX_LINE_BYTES, Reading, encode_reading
+from trackcal.mocks.clock import VirtualClock
 
 # Drift amplitudes and periods (in requests) and noise standard deviations. Amplitudes are of the order of
 # a shop floor over an hour (a few tenths of a degree, half a hPa, a few %RH); noise at the resolution of

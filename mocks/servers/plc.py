@@ -36,8 +36,8 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.interfaces import RealClock
-from drivers.plc.codec import (
+from trackcal.drivers.interfaces import RealClock
+from trackcal.drivers.plc.codec import (
     DEFAULT_REGISTER_MAP,
     REQUEST_REGISTERS,
     STATUS_ESTOP_OK,
@@ -48,7 +48,7 @@ from drivers.plc.codec import (
     decode_request,
     encode_request,
 )
-from mocks.clock import VirtualClock
+from trackcal.mocks.clock import VirtualClock
 
 FC_READ_COILS, FC_READ_DI, FC_READ_HR, FC_READ_IR = 1, 2, 3, 4
 FC_WRITE_COIL, FC_WRITE_REG, FC_WRITE_COILS, FC_WRITE_REGS = 5, 6, 15, 16

@@ -19,11 +19,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.extensions import rebuild
-from calib.identify import Identification
-from calib.kinematics import Kinematics
-from calib.table import MeasurementTable
-from campaign.importers.ipa_ur10 import euler_xyz_matrix
+from trackcal.calib.diagnose.extensions import rebuild
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.campaign.importers.ipa_ur10 import euler_xyz_matrix
 
 ANGLE_COLUMNS = ("rx_deg", "ry_deg", "rz_deg")
 

@@ -4,13 +4,13 @@ Data: christianlandgraf/ipa-robot-accuracy (MIT), Landgraf et al., "A Hybrid Neu
 Increasing the Absolute Accuracy of Industrial Robots", IEEE CASE 2021, pp. 468-474.
 
 1. Import both series (`campaign.importers.ipa_ur10`), one point per pose (the T-Mac centre) or with virtual points.
-2. Parameters: the irreducible set of `calib.params`, cut to what one point per pose can identify
-   (`calib.subset.identifiable_subset`: the T-Mac centre lies on the wrist_3 axis).
+2. Parameters: the irreducible set of `calib.model.params`, cut to what one point per pose can identify
+   (`calib.model.subset.identifiable_subset`: the T-Mac centre lies on the wrist_3 axis).
 3. Identify on B (robot deviations, station, tool point; i.i.d. weighting), and the reverse on D.
 4. Validate on the other series with robot and tool point fixed: `identify(..., fixed=("robot", "points"))`
    re-estimates only its station.
-5. Diagnose B (`calib.diagnose.diagnose`, what `trackcal diagnose --weighting iid --params ...` runs), validate
-   every joint-type candidate on D the same way, and test the temperature column.
+5. Diagnose B (`calib.diagnose.selection.diagnose`, what `trackcal diagnose --weighting iid --params ...` runs),
+   validate every joint-type candidate on D the same way, and test the temperature column.
 6. Write docs/ur10-real-data.md and plots under docs/img/.
 
 `python -m studies.ur10_ipa.study [--data DIR] [--out docs/ur10-real-data.md]` (several minutes: the diagnosis
@@ -30,17 +30,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.cell import Cell, load_cell
-from calib.diagnose import Diagnosis, diagnose, fit_cause
-from calib.extensions import JOINT_CAUSES, Extension
-from calib.identify import Identification, identify, residual_stats
-from calib.kinematics import Kinematics
-from calib.params import Param, irreducible_params
-from calib.rigid import rot_axis
-from calib.subset import identifiable_subset
-from calib.table import MeasurementTable
-from campaign.importers.ipa_ur10 import ANGLES, JOINTS, POINT, read_columns, read_ipa_series, table_covariances
-from campaign.report.diagnosis_plots import error_map_curves
+from trackcal.calib.diagnose.extensions import JOINT_CAUSES, Extension
+from trackcal.calib.diagnose.selection import Diagnosis, diagnose, fit_cause
+from trackcal.calib.identify.solver import Identification, identify, residual_stats
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param, irreducible_params
+from trackcal.calib.model.rigid import rot_axis
+from trackcal.calib.model.subset import identifiable_subset
+from trackcal.campaign.importers.ipa_ur10 import ANGLES, JOINTS, POINT, read_columns, read_ipa_series, table_covariances
+from trackcal.campaign.report.diagnosis_plots import error_map_curves
 
 from .error_map_check import STATION_ONLY, MapCheck, error_map_check, on_other_series
 from .orientation import orientation_check

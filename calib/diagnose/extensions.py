@@ -12,8 +12,8 @@ Joint-type causes:
 - backlash: dq_j = (b_j / 2) s_j, s_j = +1 / -1 the direction joint j last moved in before the row (time
   order; 0 before it first moves): a dead band of width b_j;
 - encoder_scale: dq_j = k_j q_j (gear-ratio / encoder gain error);
-- cyclic_error: the joint error map of `calib.joint_map`, a Fourier series per joint in its own angle of
-  any order (`calib.error_map` fits it and chooses order and ridge); here its features for given
+- cyclic_error: the joint error map of `calib.diagnose.joint_map`, a Fourier series per joint in its own angle of
+  any order (`calib.diagnose.error_map` fits it and chooses order and ridge); here its features for given
   coefficient names and fitted arcs, or for harmonics 1..H over the table's own arcs.
 
 Growth cause:
@@ -40,10 +40,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .chain import Chain
-from .joint_map import Arc, harmonic_names, map_features, parse_name
-from .pinmodel import gravity_torques
-from .table import MeasurementTable
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.pinmodel import gravity_torques
 
 CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift")
 JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error")

@@ -31,11 +31,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .cell import plan_joint_bounds
-from .chain import Chain
-from .kinematics import Kinematics, cross3
-from .noise import TrackerNoise
-from .params import Param
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.model.cell import plan_joint_bounds
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.kinematics import Kinematics, cross3
+from trackcal.calib.model.params import Param
 
 CRITERIA = ("rho0", "D", "A", "E")
 CRITERION_KEY = {"rho0": "rho0_mm", "D": "D_logdet_cov", "A": "A_trace_cov_mm2", "E": "E_max_eig_cov_mm2"}
@@ -420,7 +420,7 @@ def design_for_cell(
     noise: TrackerNoise | None = None,
     visibility: bool = True,
 ) -> Design:
-    """A Design from a `calib.cell.Cell`: its tool, TCP, test pose, box and (optionally) stations."""
+    """A Design from a `calib.model.cell.Cell`: its tool, TCP, test pose, box and (optionally) stations."""
     if q0 is None:
         if cell.test_pose is None:
             raise ValueError(f"cell {cell.name} has no test_pose_deg: give the test pose")

@@ -3,7 +3,7 @@
 Unknowns: the deviations of the chosen robot parameters, one 6-dof transform per tracker station
 (station <- robot base, x_s = R_s p + t_s) and the position of every reference point in the last joint
 frame. Stations start from a closed-form Kabsch fit on nominal predictions; then Levenberg-Marquardt on
-the analytic Jacobian of `calib.kinematics` solves the whole non-linear problem at once (the paper's
+the analytic Jacobian of `calib.model.kinematics` solves the whole non-linear problem at once (the paper's
 two-step alternation, eqs. 17-22, is kept in bench/ as a baseline).
 
 Weighting: i.i.d. by default, or a `TrackerNoise` model (eqs. 23-24). Uncertainty: eq. (27) with the
@@ -18,19 +18,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy.special import stdtrit
 
-from .chain import Chain
-from .errors import CalibError
-from .extensions import Extension
-from .kinematics import Kinematics
-from .noise import TrackerNoise
-from .params import Param
-from .rigid import exp_so3, kabsch, skew
-from .table import MeasurementTable
+from trackcal.calib.errors import CalibError
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param
+
+if TYPE_CHECKING:  # the solver takes a cause's columns as given; calib.diagnose builds them (and calls the solver)
+    from trackcal.calib.diagnose.extensions import Extension
+from trackcal.calib.model.rigid import exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
 

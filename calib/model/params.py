@@ -14,7 +14,7 @@ reference points are free 3-vectors in the last joint's frame (position-only mea
 - a translation along the last axis e_n, in the last link before a run of joints parallel to e_n,
   commutes with those joints and merges into the tool points (this is how T_x,L5 of eq. (4) goes).
 
-The result is verified numerically in `calib.identifiability`.
+The result is verified numerically in `calib.model.identifiability`.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .chain import Chain, ChainError
-from .rigid import AXIS_NAME
+from trackcal.calib.model.chain import Chain, ChainError
+from trackcal.calib.model.rigid import AXIS_NAME
 
 
 @dataclass(frozen=True)

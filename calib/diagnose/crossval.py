@@ -15,14 +15,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .chain import Chain
-from .changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
-from .extensions import Extension, build_extension, combine
-from .identify import Identification, IdentificationError, Problem, State, Station, predict_points, solve
-from .kinematics import Kinematics
-from .noise import TrackerNoise
-from .params import Param
-from .table import MeasurementTable
+from trackcal.calib.diagnose.changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
+from trackcal.calib.diagnose.extensions import Extension, build_extension, combine
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import (
+    Identification,
+    IdentificationError,
+    Problem,
+    State,
+    Station,
+    predict_points,
+    solve,
+)
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param
 
 TIME_CAUSES = ("thermal_drift", SHIFT)
 SINGULAR = 1e-7  # smallest / largest singular value of the column-scaled Jacobian of an identifiable fit

@@ -40,13 +40,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .chain import Chain
-from .extensions import Extension, build_extension, combine
-from .identify import Identification, IdentificationError, Problem, State, identify
-from .joint_map import Arc, harmonic_names, map_features, parse_name
-from .noise import TrackerNoise
-from .params import Param
-from .table import MeasurementTable
+from trackcal.calib.diagnose.extensions import Extension, build_extension, combine
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.params import Param
 
 CAUSE = "cyclic_error"
 ORDERS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidate harmonic orders H

@@ -10,7 +10,7 @@ linear criterion see Atkinson, Donev and Tobias, Optimum Experimental Designs, 2
 
 with the maximum over every feasible pose x. The weights come from the multiplicative algorithm (Silvey,
 Titterington and Torsney 1978, exponent 1/2 as for A-optimality); the support moves continuously, each round
-adding the local maxima of d(x) (joint limits and box as constraints, as in `calib.doe.refine`). The bound is
+adding the local maxima of d(x) (joint limits and box as constraints, as in `calib.doe.design.refine`). The bound is
 as sure as that maximum: it is taken over the pool and every local maximum found.
 
 Visibility is relaxed: every station sees every point (acceptance 180 deg). A pose's information can only
@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import minimize
 
-from .doe import Design, random_feasible_poses
+from trackcal.calib.doe.design import Design, random_feasible_poses
 
 
 @dataclass

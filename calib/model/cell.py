@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fields
-from .chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
-from .errors import CalibError
-from .files import read_yaml
-from .rigid import rot_axis
+from trackcal.calib.errors import CalibError
+from trackcal.calib.io import fields
+from trackcal.calib.io.files import read_yaml
+from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
+from trackcal.calib.model.rigid import rot_axis
 
 # Joint angles travel to and from the controller at 4 decimals of a degree (KR C2 EKI and RSI: drivers/kuka):
 # rounding a planned pose moves each joint by up to half a step.
@@ -25,7 +25,7 @@ CONTROLLER_STEP_DEG = 1e-4
 
 # The shipped configs are package data (a wheel installed anywhere resolves `--cell kr270`); TRACKCAL_CONFIGS
 # points at another tree with the same layout.
-CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS") or str(resources.files("configs")))
+CONFIGS = Path(os.environ.get("TRACKCAL_CONFIGS") or str(resources.files("trackcal.configs")))
 
 
 class CellError(CalibError):

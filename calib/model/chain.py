@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fields
-from .errors import CalibError
-from .rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
+from trackcal.calib.errors import CalibError
+from trackcal.calib.io import fields
+from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
 
 
 class ChainError(CalibError):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable
 
 SHIFT = "station_shift"
 SHIFT_SUFFIX = "~shift"

@@ -1,11 +1,11 @@
 """The largest identifiable subset of a parameter set for given poses and reference points.
 
-The irreducible set of `calib.params` assumes enough reference points per pose to see the end frame's
+The irreducible set of `calib.model.params` assumes enough reference points per pose to see the end frame's
 orientation (three non-collinear points, paper section 3). With fewer points some parameters can no
 longer be told apart from the tool points or from each other: with one point, position only, the
 orientation of the last link is invisible. This module finds, by the numerical rank of the
 identification Jacobian (stations and points free, columns scaled to unit norm, as in
-`calib.identifiability`), the largest subset that is identifiable, preferring parameters in the given
+`calib.model.identifiability`), the largest subset that is identifiable, preferring parameters in the given
 order: a parameter is kept when its column raises the rank of [stations, points, kept parameters].
 Every maximal independent set of columns has the same size, so this greedy choice is the largest.
 """
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .chain import Chain
-from .identifiability import identification_jacobian
-from .params import Param
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.identifiability import identification_jacobian
+from trackcal.calib.model.params import Param
 
 
 def _scaled(j: np.ndarray) -> np.ndarray:

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import chdtrc, fdtrc  # F and chi2 tails (scipy.stats: ~1 s to import)
 
-from .extensions import approach_signs
-from .identify import Identification
-from .noise import TrackerNoise
-from .table import MeasurementTable
+from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.io.table import MeasurementTable
 
 CLOSE_IN_TIME = 0.1  # repeats closer than this fraction of the campaign's span are comparable
 MIN_FLOOR_DOF = 10  # repeats needed before they replace the tracker noise model

@@ -18,17 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fields
-from .chain import Chain, ChainError, chain_from_dict, chain_to_dict
-from .changepoint import relabel_shift
-from .errors import CalibError
-from .extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
-from .files import read_json
-from .identify import Identification, Station, predict_points
-from .joint_map import Arc, range_warning
-from .noise import WEIGHTINGS
-from .params import Param, param_by_name
-from .table import MeasurementTable
+from trackcal.calib.diagnose.changepoint import relabel_shift
+from trackcal.calib.diagnose.extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
+from trackcal.calib.diagnose.joint_map import Arc, range_warning
+from trackcal.calib.errors import CalibError
+from trackcal.calib.identify.noise import WEIGHTINGS
+from trackcal.calib.identify.solver import Identification, Station, predict_points
+from trackcal.calib.io import fields
+from trackcal.calib.io.files import read_json
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
+from trackcal.calib.model.params import Param, param_by_name
 
 FORMAT = "trackcal-model/1"
 

@@ -1,7 +1,7 @@
 """Model discovery: what the geometric model gets wrong, which physical causes explain it, and the gain.
 
 The geometric model is fitted first. Then causes are added by forward selection: at each step every
-remaining candidate (`calib.extensions`, plus `station_shift`, a change point in one station's series) is
+remaining candidate (`calib.diagnose.extensions`, plus `station_shift`, a change point in one station's series) is
 fitted jointly with the geometric parameters and the causes already chosen, and judged against the
 current model by evidence that survives over-fitting:
 
@@ -16,19 +16,19 @@ current model by evidence that survives over-fitting:
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
 the one with the largest gain, `causes` the selected set in order.
 
-The joint error map (cyclic_error of any order, `calib.error_map`) is tried once the causes of few
+The joint error map (cyclic_error of any order, `calib.diagnose.error_map`) is tried once the causes of few
 parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in
 the model (`Rejudge`: BIC and held-out gain); one whose gain the map now explains leaves, and is not
 tried again. On the real UR10 (Series B) an encoder scale and a station shift had joined a two-harmonic
 joint error and gained nothing beside the map; kept, they made its prediction of Series D worse.
 
 `none` or `unexplained` is decided by structure, not by the scale of the noise model
-(`calib.structure`): with no cause selected, residuals that can be predicted are `unexplained`, others
+(`calib.diagnose.structure`): with no cause selected, residuals that can be predicted are `unexplained`, others
 `none`, with the noise scale reported: a tracker 18 % noisier than its model is not a cause. The noise
-floor (`calib.noise_floor`) comes from comparable repeats or the tracker model, and says which.
+floor (`calib.diagnose.noise_floor`) comes from comparable repeats or the tracker model, and says which.
 
-The fits (`calib.crossval`) skip the covariance, start from the geometric solution and cross-validate
-by one Gauss-Newton step per fold; the change point (`calib.changepoint`) is an exact scan of every
+The fits (`calib.diagnose.crossval`) skip the covariance, start from the geometric solution and cross-validate
+by one Gauss-Newton step per fold; the change point (`calib.diagnose.changepoint`) is an exact scan of every
 cut, then one full fit; candidate parameters the data cannot see are dropped and reported.
 """
 
@@ -40,19 +40,29 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
 
-from .chain import Chain
-from .changepoint import SHIFT, relabel_shift, shift_scan
-from .crossval import TIME_CAUSES, Context, Fit, Validator, extension_of, fit_model, rms, visible_extension, whole_fit
-from .error_map import CAUSE as MAP
-from .error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
-from .extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
-from .identify import Identification, IdentificationError, identify, model_points
-from .kinematics import Kinematics
-from .noise import TrackerNoise
-from .noise_floor import Floor, floor_test, noise_floor
-from .params import Param
-from .structure import structure_test
-from .table import MeasurementTable
+from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift, shift_scan
+from trackcal.calib.diagnose.crossval import (
+    TIME_CAUSES,
+    Context,
+    Fit,
+    Validator,
+    extension_of,
+    fit_model,
+    rms,
+    visible_extension,
+    whole_fit,
+)
+from trackcal.calib.diagnose.error_map import CAUSE as MAP
+from trackcal.calib.diagnose.error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
+from trackcal.calib.diagnose.extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
+from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
+from trackcal.calib.diagnose.structure import structure_test
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Identification, IdentificationError, identify, model_points
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param
 
 ALPHA = 1e-3
 
@@ -183,7 +193,7 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
 def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
                    step: int, folds: int, seed: int,
                    orders: tuple[int, ...] = ORDERS) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
-    """The joint error map on top of the model `fitted` (`calib.error_map`: order (of `orders`) and ridge by
+    """The joint error map on top of the model `fitted` (`calib.diagnose.error_map`: order (of `orders`) and ridge by
     its own cross-validation by pose, which also gives the held-out gain; the F test and BIC count its
     effective number of parameters)."""
     table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
@@ -226,7 +236,7 @@ class Rejudge:
     parameter counts (below one when the map takes its signal over), which no F distribution calibrates;
     the BIC takes effective counts as they are.
 
-    Every model is one linearised problem (`calib.error_map.MapEvidence`) with some causes held at zero: one
+    Every model is one linearised problem (`calib.diagnose.error_map.MapEvidence`) with some causes held at zero: one
     problem with the station shift and one without, for the causes `chosen` (before the map) and every
     subset of them; each figure is computed once."""
 

@@ -20,14 +20,17 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import csv_grid
-from .chain import Chain
-from .csv_grid import TEXT
-from .errors import CalibError
-from .files import atomic_open
+from trackcal.calib.errors import CalibError
+from trackcal.calib.io import csv_grid
+from trackcal.calib.io.csv_grid import TEXT
+from trackcal.calib.io.files import atomic_open
+
+if TYPE_CHECKING:  # a table is checked against a chain's joints; chains read their files with calib.io
+    from trackcal.calib.model.chain import Chain
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")

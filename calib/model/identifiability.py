@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .chain import Chain
-from .kinematics import Kinematics
-from .params import Param
-from .rigid import skew
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param
+from trackcal.calib.model.rigid import skew
 
 
 def identification_jacobian(

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .chain import Chain
+from trackcal.calib.model.chain import Chain
 
 if TYPE_CHECKING:
     import pinocchio as pin

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cell import Cell
-from .kinematics import Kinematics
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.kinematics import Kinematics
 
 
 def points_in_box(cell: Cell, q: np.ndarray) -> np.ndarray:

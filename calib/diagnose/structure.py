@@ -15,11 +15,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtrc, stdtr  # F and t tails (scipy.stats: ~1 s to import)
 
-from .crossval import Context, Fit
-from .extensions import approach_signs
-from .kinematics import Kinematics
-from .rigid import skew
-from .table import MeasurementTable
+from trackcal.calib.diagnose.crossval import Context, Fit
+from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.rigid import skew
 
 STRUCTURE_HARMONICS = 6
 RANDOM_FEATURES = 48

@@ -15,9 +15,9 @@ from functools import cached_property
 
 import numpy as np
 
-from .chain import Chain
-from .params import Param, complete_params
-from .rigid import skew
+from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.params import Param, complete_params
+from trackcal.calib.model.rigid import skew
 
 
 class PointJacobian:

@@ -1,0 +1,71 @@
+"""What several test modules share: the command line, campaigns on the twin, plans, in-process cells, fault
+injection. Fixtures live in conftest.py; no test module imports another."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
+from trackcal.calib.doe.poses import random_poses
+from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.session.session import measured_keys
+from trackcal.mocks.cell import World
+from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
+
+ROOT = Path(__file__).resolve().parents[1]
+TRACKCAL = [sys.executable, "-m", "trackcal.campaign.cli"]  # the command line, in a process of its own
+
+
+def kr270_campaign(cell, seed: int, n_poses: int = 30, noise_free: bool = False, **twin_kw):
+    """A paper-like campaign: random feasible poses, 3 points, 2 stations, AT901-like noise (twin defaults)."""
+    twin = Twin(cell, seed=seed, **twin_kw)
+    poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
+    return twin, simulate_campaign(twin, poses, noise_free=noise_free)
+
+
+def truth_of(twin, params):
+    return np.array([twin.true_dev[twin.params.index(p)] for p in params])
+
+
+def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
+    """A campaign plan (plan.json form) of n random poses satisfying limits, box and visibility."""
+
+    poses = np.degrees(random_feasible_poses(design_for_cell(cell, []), n_poses, np.random.default_rng(seed)))
+    return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
+
+
+def inproc_live(cell, seed: int = 3, store=None, operator=None):
+    """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
+    measurements the session holds (a resume sees the noise an uninterrupted run would)."""
+
+    world = World(Twin(cell, seed=seed))
+    if store is not None:
+        world.restore_counts(measured_keys(store))
+    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
+                       InprocCellIO(world))  # fmt: skip
+
+
+def before_call(obj, name: str, n: int, action) -> None:
+    """Make obj.name run `action()` just before its n-th call (fault injection at a chosen moment)."""
+    original, calls = getattr(obj, name), []
+
+    def wrapped(*args, **kw):
+        calls.append(1)
+        if len(calls) == n:
+            action()
+        return original(*args, **kw)
+
+    setattr(obj, name, wrapped)
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        assert proc.poll() is None, f"trackcal mock exited early: {proc.communicate()}"
+        assert time.monotonic() < deadline, f"{path} not written within {timeout_s} s"
+        time.sleep(0.05)
