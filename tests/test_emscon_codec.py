@@ -24,20 +24,40 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trackcal.drivers.emscon.codec import (
-    _ANSWER_STRUCTS,
-    _REQUEST_STRUCTS,
-    HEADER_SIZE,
-    MAX_PACKET_BYTES,
-    READBACK,
-    REQUEST_TYPES,
+from trackcal.drivers.emscon.enums import (
     ADMStatus,
     AngleUnit,
     Command,
-    CommandAnswer,
     CoordinateSystemType,
     DataType,
+    HumidityUnit,
+    LaserProcessorStatus,
+    LengthUnit,
+    MeasMode,
+    PressureUnit,
+    ResultStatus,
+    StatisticMode,
+    SystemStatusChange,
+    TemperatureUnit,
+    TrackerProcessorStatus,
+    TrackerStatus,
+    WeatherMonitorStatus,
+)
+from trackcal.drivers.emscon.framing import (
+    HEADER_SIZE,
+    MAX_PACKET_BYTES,
     Direction,
+    PacketReader,
+    decode_packet,
+    encode,
+)
+from trackcal.drivers.emscon.layouts import LAYOUTS
+from trackcal.drivers.emscon.messages import (
+    _ANSWER_STRUCTS,
+    _REQUEST_STRUCTS,
+    READBACK,
+    REQUEST_TYPES,
+    CommandAnswer,
     ErrorResponse,
     FindReflector,
     GetMeasurementStatusInfo,
@@ -47,16 +67,9 @@ from trackcal.drivers.emscon.codec import (
     GetUnits,
     GoBirdBath,
     GoPosition,
-    HumidityUnit,
     Initialize,
-    LaserProcessorStatus,
-    LengthUnit,
-    MeasMode,
     MeasurementStatusInfoAnswer,
-    PacketReader,
-    PressureUnit,
     ReflectorPosResult,
-    ResultStatus,
     SetCoordinateSystemType,
     SetEnvironmentParams,
     SetMeasurementMode,
@@ -70,21 +83,12 @@ from trackcal.drivers.emscon.codec import (
     SingleMeasResult,
     SingleMeasResult2,
     StartMeasurement,
-    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
-    SystemStatusChange,
-    TemperatureUnit,
-    TrackerProcessorStatus,
-    TrackerStatus,
     TrackerStatusAnswer,
-    WeatherMonitorStatus,
-    decode_packet,
-    encode,
     encode_command,
     encode_refusal,
 )
-from trackcal.drivers.emscon.layouts import LAYOUTS
 from trackcal.drivers.errors import ProtocolError
 
 TO, FROM = Direction.TO_TRACKER, Direction.FROM_TRACKER

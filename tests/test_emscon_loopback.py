@@ -22,31 +22,32 @@ import time
 import pytest
 
 from trackcal.drivers.emscon.client import EmsconTracker
-from trackcal.drivers.emscon.codec import (
+from trackcal.drivers.emscon.enums import (
     AngleUnit,
     Command,
     CoordinateSystemType,
+    LengthUnit,
+    PressureUnit,
+    ResultStatus,
+    StatisticMode,
+    SystemStatusChange,
+    TemperatureUnit,
+    WeatherMonitorStatus,
+)
+from trackcal.drivers.emscon.framing import PacketReader, decode_packet
+from trackcal.drivers.emscon.messages import (
     ErrorResponse,
     FindReflector,
     GetUnits,
     GoPosition,
     Initialize,
-    LengthUnit,
-    PacketReader,
-    PressureUnit,
-    ResultStatus,
     SetCoordinateSystemType,
     SetStatisticMode,
     SetSystemSettings,
     SetUnits,
     SingleMeasResult,
     StartMeasurement,
-    StatisticMode,
     StatusChange,
-    SystemStatusChange,
-    TemperatureUnit,
-    WeatherMonitorStatus,
-    decode_packet,
     encode_command,
 )
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError

@@ -23,7 +23,9 @@ from trackcal.campaign.cells.sim import SimCell, TwinMocks
 from trackcal.campaign.engine.engine import CampaignStopped
 from trackcal.campaign.engine.runner import run_campaign
 from trackcal.campaign.session.session import create_session, export_table
-from trackcal.drivers.emscon.codec import LengthUnit, PacketReader, SetUnits, encode_command
+from trackcal.drivers.emscon.enums import LengthUnit
+from trackcal.drivers.emscon.framing import PacketReader
+from trackcal.drivers.emscon.messages import SetUnits, encode_command
 from trackcal.drivers.kuka.rsi_codec import RobFrame, encode_rob
 from trackcal.mocks.servers.emscon import EmsconFault
 

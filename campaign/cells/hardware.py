@@ -40,7 +40,7 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
     "tracker": {
         "protocol": ("protocol", _REQUIRED),
         "host": ("host", _REQUIRED),
-        "port": ("port", 700),  # emScon TPI default (drivers.emscon.codec.DEFAULT_PORT)
+        "port": ("port", 700),  # emScon TPI default (drivers.emscon.client.DEFAULT_PORT)
         "timeout_s": ("timeout", 5.0),
         "measure_timeout_s": ("timeout", 60.0),
         "motion_timeout_s": ("timeout", 120.0),

@@ -1,7 +1,8 @@
 """Leica AT901 laser tracker over emScon TPI (binary C variant, TCP port 700): implements interfaces.Tracker.
 
-Wire format and enum values: drivers/emscon/codec.py (sources cited there: the Leica emScon TPI V3.6 headers
-ES_C_API_Def.h / Enum.h in beckjac/emscon_ros and MuffinSpawn/Leica, and the CESAPI Python client).
+Wire format and enum values: drivers/emscon/enums.py, messages.py and framing.py (sources cited there: the Leica
+emScon TPI V3.6 headers ES_C_API_Def.h / Enum.h in beckjac/emscon_ros and MuffinSpawn/Leica, and the CESAPI Python
+client).
 
 Conversation (one command at a time, under a lock):
 - every command is answered by a packet of type ES_DT_Command with the same command id and an ES_ResultStatus
@@ -30,7 +31,7 @@ position stream, the beam kept where it was when it is broken, the weather monit
 bHasNivel / bHasVideoCamera left as the tracker reports them (they describe its hardware). A result still in
 try mode or in another measurement mode is refused.
 
-Not confirmed against a real AT901 (see also the codec's docstring):
+Not confirmed against a real AT901 (see also drivers/emscon/messages.py's docstring):
 - the unit of StationaryModeDataT.lMeasTime is not written in the header; it is taken as milliseconds, the
   unit the same header gives for SearchParamsDataT.lTimeOut. `set_stationary_averaging(n)` asks for
   n / samples_per_second seconds (samples_per_second defaults to 1000, an assumption, not a datasheet value).
@@ -49,12 +50,25 @@ import socket
 import threading
 import time
 
-from trackcal.drivers.emscon.codec import (
-    DEFAULT_PORT,
+from trackcal.drivers.emscon.enums import (
+    CoordinateSystemType,
+    MeasMode,
+    MeasurementStatusInfo,
+    ResultStatus,
+    StatisticMode,
+    SystemStatusChange,
+    TrackerProcessorStatus,
+    TrackerStatus,
+    WeatherMonitorStatus,
+)
+from trackcal.drivers.emscon.framing import (
+    Direction,
+    PacketReader,
+    decode_packet,
+)
+from trackcal.drivers.emscon.messages import (
     Answer,
     CommandAnswer,
-    CoordinateSystemType,
-    Direction,
     ErrorResponse,
     FindReflector,
     FromTracker,
@@ -70,13 +84,9 @@ from trackcal.drivers.emscon.codec import (
     GoBirdBath,
     GoPosition,
     Initialize,
-    MeasMode,
-    MeasurementStatusInfo,
     MeasurementStatusInfoAnswer,
-    PacketReader,
     ReflectorPosResult,
     Request,
-    ResultStatus,
     SetCoordinateSystemType,
     SetEnvironmentParams,
     SetMeasurementMode,
@@ -90,25 +100,20 @@ from trackcal.drivers.emscon.codec import (
     SingleMeasResult,
     SingleMeasResult2,
     StartMeasurement,
-    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
-    SystemStatusChange,
-    TrackerProcessorStatus,
-    TrackerStatus,
     TrackerStatusAnswer,
-    WeatherMonitorStatus,
-    decode_packet,
     encode_command,
 )
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement
 from trackcal.drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
 
+DEFAULT_PORT = 700  # the TCP port of emScon TPI's binary C variant
 _RECV_BYTES = 65536
 
 # What the ES_ResultStatus codes a campaign meets mean, in the operator's words. Names from
-# ES_C_API_Def.h (see drivers/emscon/codec.py); the explanations are ours.
+# ES_C_API_Def.h (see drivers/emscon/enums.py); the explanations are ours.
 _FAULT_MESSAGES: dict[ResultStatus, str] = {
     ResultStatus.SERVER_BUSY: "tracker busy: another command is still pending",
     ResultStatus.NOT_IMPLEMENTED: "command not implemented by this tracker/server",

@@ -8,7 +8,7 @@ and no member wider than 4 bytes before a double means no padding (Python struct
 `unsigned short c...[32]` UNICODE strings are "32H". The one exception is GetStillImageRT, whose trailing
 `char cFileStart` opens a variable-length image: its fixed part is padded to the 4-byte pack ("ii" + 1 + 3).
 
-Nothing here interprets a value: drivers/emscon/codec.py does that for the commands trackcal speaks; the mock
+Nothing here interprets a value: drivers/emscon/messages.py does that for the commands trackcal speaks; the mock
 uses the sizes to answer every other command in the answer packet of that command (mocks/servers/emscon.py).
 """
 

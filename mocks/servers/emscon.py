@@ -1,4 +1,5 @@
-"""Mock Leica emScon TPI server (AT901-like) on a real loopback TCP socket, speaking drivers.emscon.codec bytes.
+"""Mock Leica emScon TPI server (AT901-like) on a real loopback TCP socket, framing with drivers.emscon.framing
+(the client's PacketReader) and speaking drivers.emscon.messages.
 
     server = MockEmscon(measure_fn, VirtualClock()).start()
     host, port = server.address
@@ -29,7 +30,7 @@ Behaviour (what a real server answers is assumed where the public headers do not
   result as a try-mode result; the Get* commands of these settings read them back;
 - only the stationary measurement mode is implemented: SetMeasurementMode of another is ES_RS_NotImplemented;
 - a command the mock does not implement is answered, and the connection kept, with ES_RS_NotImplemented (2) in
-  that command's *RT, full size, zeroed payload (drivers/emscon/codec.encode_refusal: the layouts of every
+  that command's *RT, full size, zeroed payload (drivers/emscon/messages.encode_refusal: the layouts of every
   ES_Command in drivers/emscon/layouts.py); a request it implements but cannot read (a wrong size, a value
   outside its enum) with ES_RS_WrongParameter (3) the same way; a packet that is no command, or an id that is
   no ES_Command, with a bare BasicCommandRT carrying the id it had (ES_C_Unknown, 64, if it had none) and
@@ -45,17 +46,34 @@ import contextlib
 import enum
 import math
 import socket
-import struct
 import threading
 from collections.abc import Callable
 
-from trackcal.drivers.emscon.codec import (
-    REQUEST_TYPES,
+from trackcal.drivers.emscon.enums import (
     ADMStatus,
-    CommandAnswer,
     CoordinateSystemType,
     DataType,
+    LaserProcessorStatus,
+    LengthUnit,
+    MeasMode,
+    MeasurementStatusInfo,
+    ResultStatus,
+    StatisticMode,
+    SystemStatusChange,
+    TrackerProcessorStatus,
+    TrackerStatus,
+    WeatherMonitorStatus,
+)
+from trackcal.drivers.emscon.framing import (
     Direction,
+    PacketReader,
+    decode_packet,
+    encode,
+    packet_ids,
+)
+from trackcal.drivers.emscon.messages import (
+    REQUEST_TYPES,
+    CommandAnswer,
     ErrorResponse,
     FindReflector,
     GetCoordinateSystemType,
@@ -70,15 +88,9 @@ from trackcal.drivers.emscon.codec import (
     GoBirdBath,
     GoPosition,
     Initialize,
-    LaserProcessorStatus,
-    LengthUnit,
-    MeasMode,
-    MeasurementStatusInfo,
     MeasurementStatusInfoAnswer,
     Message,
-    PacketReader,
     Request,
-    ResultStatus,
     SetCoordinateSystemType,
     SetEnvironmentParams,
     SetMeasurementMode,
@@ -92,16 +104,9 @@ from trackcal.drivers.emscon.codec import (
     SingleMeasResult,
     SingleMeasResult2,
     StartMeasurement,
-    StatisticMode,
     StatusChange,
     SystemStatusAnswer,
-    SystemStatusChange,
-    TrackerProcessorStatus,
-    TrackerStatus,
     TrackerStatusAnswer,
-    WeatherMonitorStatus,
-    decode_packet,
-    encode,
     encode_refusal,
 )
 from trackcal.drivers.errors import ProtocolError
@@ -290,8 +295,9 @@ class MockEmscon:
     # -------------------- protocol
     def _refuse(self, conn: socket.socket, packet: bytes) -> None:
         """Answer a framed packet the codec cannot read (see the module docstring) and keep the connection."""
-        data_type = struct.unpack_from("<i", packet, 4)[0]
-        command_id = struct.unpack_from("<i", packet, 8)[0] if len(packet) >= 12 else _UNKNOWN_COMMAND
+        data_type, command_id = packet_ids(packet)
+        if command_id is None:
+            command_id = _UNKNOWN_COMMAND
         is_read = data_type == DataType.COMMAND and command_id in _COMMANDS_READ
         status = ResultStatus.WRONG_PARAMETER if is_read else ResultStatus.NOT_IMPLEMENTED
         with self._state_lock:

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import math
 
-from trackcal.drivers.emscon.codec import (
+from trackcal.drivers.emscon.enums import (
     AngleUnit,
     CoordinateSystemType,
     LengthUnit,
     PressureUnit,
-    SetUnits,
     TemperatureUnit,
 )
+from trackcal.drivers.emscon.messages import SetUnits
 
 MM_PER_LENGTH = {
     LengthUnit.METER: 1000.0,
