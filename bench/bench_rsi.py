@@ -123,9 +123,9 @@ def measure(frames: int, cycle_s: float, load: str) -> np.ndarray:
     robot = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=False, rsi_cycle_s=cycle_s,
                      controller_host="127.0.0.1")  # the emulated KR C2 sends from loopback
     robot.listen()
-    eki = socket.create_connection(robot.eki_address)  # the EKI side only has to be connected
+    eki = socket.create_connection(robot.eki.address)  # the EKI side only has to be connected
     try:
-        return _latencies(robot.rsi_address, frames, cycle_s, load, on_start=robot.connect)
+        return _latencies(robot.rsi.address, frames, cycle_s, load, on_start=robot.connect)
     finally:
         eki.close()
         robot.close()

@@ -12,18 +12,20 @@ import time
 import pytest
 
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
-from trackcal.drivers.interfaces import RealClock, Robot
-from trackcal.drivers.kuka.client import GUARD_S, STALE_CYCLES, KukaKrc2
+from trackcal.drivers.interfaces import RealClock, Robot, RobotState
+from trackcal.drivers.kuka.client import GUARD_S, KukaKrc2
 from trackcal.drivers.kuka.eki_codec import (
     ERR_DRIVES_OFF,
     ERR_ESTOP,
     ERR_RSI_STOPPED,
     ERR_SOFT_LIMIT,
     ERR_STOPPED,
+    ERROR_TEXT,
     KIND_STOP,
     Command,
 )
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
+from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.servers.kuka import MockKrc2
 
@@ -56,8 +58,8 @@ def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, 
     client.listen()
     clock, seen = clock or VirtualClock(), []
     mock = MockKrc2(
-        client.eki_address,
-        client.rsi_address,
+        client.eki.address,
+        client.rsi.address,
         clock,
         HOME,
         joint_speed_deg_s=100.0,
@@ -198,7 +200,7 @@ def test_dropped_eki_connection(cell):
 
 def test_dropped_rsi_connection(cell):
     cell.mock.drop_connection("rsi")
-    assert wait_for(lambda: cell.client._rsi_error is not None)
+    assert wait_for(lambda: cell.client.rsi.error is not None)
     with pytest.raises(ConnectionLost):
         cell.client.joints()
     with pytest.raises(ConnectionLost):
@@ -207,7 +209,7 @@ def test_dropped_rsi_connection(cell):
 
 def test_malformed_rsi_frame_is_a_protocol_error(cell):
     cell.mock.send_garbage("rsi")
-    assert wait_for(lambda: cell.client._rsi_error is not None)
+    assert wait_for(lambda: cell.client.rsi.error is not None)
     with pytest.raises(ProtocolError):
         cell.client.joints()
 
@@ -221,9 +223,15 @@ def test_malformed_eki_answer_is_a_protocol_error(cell):
 class SlowClient(KukaKrc2):
     """Answers RSI frames far too late, like a PC without real-time priority."""
 
-    def _take(self, sock, doc):
-        time.sleep(0.03)
-        super()._take(sock, doc)
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        take = self.rsi._take
+
+        def slow_take(sock, doc):
+            time.sleep(0.03)
+            take(sock, doc)
+
+        self.rsi._take = slow_take
 
 
 def test_late_rsi_answers_stop_the_robot():
@@ -237,7 +245,7 @@ def test_late_rsi_answers_stop_the_robot():
         # the controller stops after MORE than eERXmaxLatePackages = 10 late answers in a row
         assert c.mock.consecutive_late == 11
         assert any("eERXmaxLatePackages=10" in e for e in c.mock.errors)
-        assert wait_for(lambda: c.client._rsi_error is not None)
+        assert wait_for(lambda: c.client.rsi.error is not None)
         with pytest.raises(ConnectionLost):
             c.client.joints()
     finally:
@@ -261,7 +269,7 @@ def test_udp_rsi():
 def test_connect_timeout_names_what_it_waited_for():
     client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1", connect_timeout_s=0.2)
     try:
-        host, port = client.eki_address
+        host, port = client.eki.address
         with pytest.raises(DeviceTimeout, match=f"EKI.*{host}:{port}"):
             client.connect()
     finally:
@@ -277,17 +285,17 @@ def test_only_the_controller_is_served(protocol):
     client.listen()
     invented = encode_rob(RobFrame(ipoc=1, aipos=(11.0, -22.0, 33.0, 0.0, 0.0, 0.0)), tcp=protocol == "tcp")
     fakes = []
-    eki = socket.create_connection(client.eki_address, source_address=("127.0.0.2", 0))
+    eki = socket.create_connection(client.eki.address, source_address=("127.0.0.2", 0))
     if protocol == "tcp":
-        rsi = socket.create_connection(client.rsi_address, source_address=("127.0.0.2", 0))
+        rsi = socket.create_connection(client.rsi.address, source_address=("127.0.0.2", 0))
         rsi.sendall(invented)
     else:
         rsi = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         rsi.bind(("127.0.0.2", 0))
-        rsi.sendto(invented, client.rsi_address)
+        rsi.sendto(invented, client.rsi.address)
     fakes += [eki, rsi]
     clock = VirtualClock()
-    mock = MockKrc2(client.eki_address, client.rsi_address, clock, HOME, rsi_protocol=protocol).start()
+    mock = MockKrc2(client.eki.address, client.rsi.address, clock, HOME, rsi_protocol=protocol).start()
     try:
         client.connect()
         assert {a for a, _ in client.refused_peers} == {"127.0.0.2"}
@@ -309,7 +317,7 @@ def test_a_refused_peer_is_named_when_the_controller_never_comes():
     try:
         refused = "refused 1 from 127.0.0.2: not the controller 127.0.0.1"
         with (
-            socket.create_connection(client.eki_address, source_address=("127.0.0.2", 0)),
+            socket.create_connection(client.eki.address, source_address=("127.0.0.2", 0)),
             pytest.raises(DeviceTimeout, match=refused),
         ):
             client.connect()
@@ -385,7 +393,7 @@ def test_passive_udp_rsi_needs_no_answers():
     try:
         c.client.move(TARGET, 80)
         assert c.client.wait_settled(0.0005, 0.1, 5.0) == pytest.approx(TARGET, abs=0.001)
-        assert c.client.rsi_frames_answered == 0 and c.mock.late_packets == 0 and not c.mock.rsi_stopped
+        assert c.client.rsi.frames_answered == 0 and c.mock.late_packets == 0 and not c.mock.rsi_stopped
     finally:
         c.client.close()
         c.mock.stop()
@@ -421,12 +429,72 @@ def test_the_guard_stops_a_move_within_the_braking_distance():
     assert c.mock.crashed is None
 
 
+def _move_in_thread(client, target, speed) -> tuple[threading.Thread, dict]:
+    """client.move in another thread; the dict gets the DeviceFault code it ended with (None: done)."""
+    result: dict = {}
+
+    def move():
+        try:
+            client.move(target, speed)
+            result["code"] = None
+        except DeviceFault as exc:
+            result["code"] = exc.code
+
+    thread = threading.Thread(target=move, daemon=True)
+    thread.start()
+    return thread, result
+
+
+def test_stop_brakes_the_running_move_and_returns_once_the_arm_stands():
+    c = open_cell(brake_deg_s2=50.0)
+    try:
+        c.client.stop()  # nothing moves: a no-op, nothing sent
+        assert c.mock.commands == []
+        thread, result = _move_in_thread(c.client, TARGET, 2)  # 2 % of 100 deg/s: 14 s of controller time
+        assert wait_for(lambda: c.mock.moving)
+        c.client.stop()
+        # returned once the controller answered the move (Error 6 after braking): the arm stands
+        [(q_stop, v_stop, q_rest)] = c.mock.stops
+        assert not c.mock.moving
+        thread.join(5.0)
+        assert result == {"code": ERR_STOPPED}
+        assert [cmd.kind for cmd in c.mock.commands] == [1, 2]
+        assert q_rest != pytest.approx(TARGET, abs=0.01)  # short of the target
+        assert c.client.wait_settled(0.0005, 0.1, 2.0) == pytest.approx(q_rest, abs=0.0001)  # and stands
+        assert c.client.state() == RobotState(moving=False, fault="")  # a stop on request is no fault
+        c.client.stop()  # nothing moves any more: a no-op
+        assert len(c.mock.commands) == 2
+        c.client.move(TARGET, 100)  # the next move is served as usual
+    finally:
+        c.client.close()
+        c.mock.stop()
+    assert c.mock.crashed is None
+
+
+def test_state_reports_moving_standing_and_the_latched_fault(cell):
+    assert cell.client.state() == RobotState(moving=False, fault="")
+    thread, result = _move_in_thread(cell.client, TARGET, 1)  # 1 % of 100 deg/s: 28 s of controller time
+    assert wait_for(lambda: cell.mock.moving)
+    assert cell.client.state() == RobotState(moving=True, fault="")
+    cell.mock.estop()
+    thread.join(5.0)
+    assert result == {"code": ERR_ESTOP}
+    assert cell.client.state() == RobotState(moving=False, fault=ERROR_TEXT[ERR_ESTOP])
+    with pytest.raises(DeviceFault):  # latched: the next request is refused with it too
+        cell.client.move(HOME, 100)
+    assert cell.client.state() == RobotState(moving=False, fault=ERROR_TEXT[ERR_ESTOP])
+    cell.client.reset_faults()  # the mock's E-stop is released at once
+    assert cell.client.state() == RobotState(moving=False, fault="")
+    cell.client.move(TARGET, 100)
+    assert cell.client.state() == RobotState(moving=False, fault="")  # standing after the move
+
+
 def test_a_stop_for_another_move_is_ignored():
     # a stop that arrives after its move ended (the door opened just as it finished): nothing to stop, no answer
     c = open_cell()
     try:
         c.client.move(TARGET, 100)
-        c.client._send(Command(1, KIND_STOP))
+        c.client.eki.send(Command(1, KIND_STOP))
         c.client.move(HOME, 100)
         assert [cmd.kind for cmd in c.mock.commands] == [1, 2, 1] and c.mock.stops == []
     finally:
@@ -460,10 +528,10 @@ def test_a_stale_rsi_stream_refuses_the_move_before_sending(protocol):
                       controller_host="127.0.0.1", connect_timeout_s=5.0)  # fmt: skip
     client.listen()
     stop = threading.Event()
-    eki = socket.create_connection(client.eki_address)
+    eki = socket.create_connection(client.eki.address)
     kind = socket.SOCK_DGRAM if protocol == "udp" else socket.SOCK_STREAM
     rsi = socket.socket(socket.AF_INET, kind)
-    rsi.connect(client.rsi_address)
+    rsi.connect(client.rsi.address)
 
     def controller():  # the first frame, then frames cut short: every cycle (UDP) or one that never ends (TCP)
         rsi.send(encode_rob(RobFrame(ipoc=None), tcp=protocol == "tcp"))
@@ -508,7 +576,7 @@ def test_a_restarted_trackcal_finds_the_controller_again():
         connect_timeout_s=5.0,
     )
     first.listen()
-    eki_addr, rsi_addr = first.eki_address, first.rsi_address
+    eki_addr, rsi_addr = first.eki.address, first.rsi.address
     mock = MockKrc2(eki_addr, rsi_addr, RealClock(), HOME, joint_speed_deg_s=100.0, settle_s=0.05,
                     rsi_protocol="udp", rsi_passive=True).start()  # fmt: skip
     second = None

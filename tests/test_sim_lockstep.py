@@ -15,8 +15,8 @@ from trackcal.campaign.engine.runner import run_campaign
 from trackcal.campaign.planning import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import create_session, write_export
 from trackcal.drivers.errors import MotionRefused
-from trackcal.drivers.kuka.client import STALE_CYCLES
 from trackcal.drivers.kuka.rsi_codec import ipoc_of
+from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
 
 SEED = 3
 SPEED_PCT = 30.0  # campaign.engine.engine.Settings' speed override
@@ -24,8 +24,8 @@ SPEED_PCT = 30.0  # campaign.engine.engine.Settings' speed override
 
 def received_ipocs(sim: SimCell) -> list[int]:
     """The IPOC of every frame trackcal's client receives from now on (its answering thread's input)."""
-    robot, seen = sim.live.robot, []
-    take = robot._take
+    rsi, seen = sim.live.robot.rsi, []
+    take = rsi._take
 
     def recording_take(sock, doc):
         ipoc = ipoc_of(doc)
@@ -33,7 +33,7 @@ def received_ipocs(sim: SimCell) -> list[int]:
             seen.append(ipoc)
         take(sock, doc)
 
-    robot._take = recording_take
+    rsi._take = recording_take
     return seen
 
 

@@ -150,11 +150,11 @@ class SimCell:
                                           cell_box_check=cell_box_check(cell), motion_guard=motion_guard(cellio),
                                           connect_timeout_s=20.0))  # fmt: skip
             robot.listen()
-            m.serve_controller(robot.eki_address, robot.rsi_address,
-                               delivered=robot.frame_received if lockstep else None, skip_idle=skip_idle)  # fmt: skip
+            m.serve_controller(robot.eki.address, robot.rsi.address, skip_idle=skip_idle,
+                               delivered=robot.rsi.frame_received if lockstep else None)  # fmt: skip
             self.controller = m.controller
             if lockstep:
-                robot.rsi_sync = self.controller.sync
+                robot.rsi.sync = self.controller.sync
             meteo = self._client(SerialMeteo(self.meteo_mock.port_path, timeout_s=5.0))
             for dev in (tracker, robot, cellio, meteo):
                 dev.connect()
