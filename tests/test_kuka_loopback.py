@@ -1,4 +1,5 @@
-"""drivers.kuka.client.KukaKrc2 against mocks.servers.kuka.MockKrc2 over real loopback sockets, on a virtual clock.
+"""drivers.kuka.client.KukaKrc2 against mocks.servers.kuka.controller.MockKrc2 over real loopback sockets, on a
+virtual clock.
 
 Most tests run the RSI answered over TCP: the answers pace the mock controller through virtual time. The shipped
 default (UDP, passive) has its own tests, as do the stop request, the stale RSI refusal and the reconnection."""
@@ -27,7 +28,7 @@ from trackcal.drivers.kuka.eki_codec import (
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
 from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
 from trackcal.mocks.clock import VirtualClock
-from trackcal.mocks.servers.kuka import MockKrc2
+from trackcal.mocks.servers.kuka.controller import MockKrc2
 
 HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # kuka_experimental KR_C2/ros_rsi.src HOME
 TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)

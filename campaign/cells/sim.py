@@ -22,7 +22,7 @@ from trackcal.mocks.cell import World
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.operator import SimHuman
 from trackcal.mocks.servers.emscon import MockEmscon
-from trackcal.mocks.servers.kuka import MockKrc2
+from trackcal.mocks.servers.kuka.controller import MockKrc2
 from trackcal.mocks.servers.meteo import MockMeteo
 from trackcal.mocks.servers.plc import MockPlc
 from trackcal.mocks.twin import Twin
@@ -81,7 +81,7 @@ class TwinMocks:
         again, as trackcal_eki.src closes and reopens its channel: the next trackcal finds it. The RSI stream is
         the shipped configuration's (configs/krc2/trackcal_rsi.xml). `delivered` (the client's frame_received,
         when it runs in this process on this clock) puts the controller in lockstep with it, skipping the idle
-        cycles nobody reads unless not skip_idle (mocks.servers.kuka)."""
+        cycles nobody reads unless not skip_idle (mocks.servers.kuka.controller)."""
         self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
                                    joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
                                    connect_timeout_s=connect_timeout_s, delivered=delivered,

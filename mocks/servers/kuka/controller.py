@@ -19,14 +19,11 @@ to their speed, so they stop together, as a synchronous PTP) and the move is ans
 any other ID is ignored, as the KRL ignores it. Kind 3 resets the latched faults (E-stop, drives off), not an
 RSI stop. `stops` records (joints, axis speeds, joints at standstill) for every braking.
 
-Motion is a synchronous PTP (all axes start and stop together) with a quintic profile
-s(u) = 10u^3 - 15u^4 + 6u^5, whose peak speed is 1.875x the mean, so the duration is
-T = 1.875 * max|dq| / (joint_speed_deg_s * speed% / 100). After arrival a damped residual oscillation
-overshoot * exp(-t / (settle_s / 5)) * cos(2 pi 1.5 Hz t) decays (e^-5 < 1 % of it is left after settle_s):
-this is what trackcal's wait_settled must see through. The program's dwell is settle_s; then the mock reports
-$AXIS_ACT (4 decimals) in <RobotState>. Everything is computed from integer cycle counts (not accumulated
-float time) and a random.Random(seed), so the same seed and the same commands give the same bytes; only how
-many idle cycles run between commands depends on the wall-clock pace of the peer.
+Motion: mocks/servers/kuka/motion.py (a synchronous PTP with a quintic profile, a decaying residual oscillation
+after arrival, the dwell of settle_s, then $AXIS_ACT (4 decimals) in <RobotState>; braking). Everything is computed
+from integer cycle counts and one random.Random(seed), so the same seed and the same commands give the same bytes;
+only how many idle cycles run between commands depends on the wall-clock pace of the peer. The socket ends are
+mocks/servers/kuka/links.py.
 
 The answer budget is wall time (answer_budget_s, default 0.25 s): the real controller allows ~10 ms, which a
 loaded CI machine running Python cannot promise; tests that need lateness set a small budget and a slow
@@ -68,33 +65,23 @@ from trackcal.drivers.errors import ProtocolError
 from trackcal.drivers.interfaces import RealClock
 from trackcal.drivers.kuka.eki_codec import (
     AXES,
-    COMMAND_ROOT,
     ERR_BAD_COMMAND,
     ERR_DRIVES_OFF,
     ERR_ESTOP,
     ERR_RSI_STOPPED,
     ERR_SOFT_LIMIT,
-    ERR_STOPPED,
     KIND_MOVE,
     KIND_RESET,
     KIND_STOP,
     Command,
     RobotState,
-    XmlStreamFramer,
     command_id_of,
     encode_state,
     parse_command,
 )
-from trackcal.drivers.kuka.rsi_codec import (
-    CART,
-    KRC2_CYCLE_S,
-    MAX_FRAME_BYTES,
-    SHIPPED,
-    RobFrame,
-    encode_rob,
-    parse_sen,
-    sen_framer,
-)
+from trackcal.drivers.kuka.rsi_codec import CART, KRC2_CYCLE_S, SHIPPED, RobFrame, encode_rob
+from trackcal.mocks.servers.kuka.links import EkiEnd, RsiEnd
+from trackcal.mocks.servers.kuka.motion import Motion, Stop
 
 DEFAULT_SOFT_LIMITS_DEG = (
     (-185.0, 185.0),
@@ -105,7 +92,6 @@ DEFAULT_SOFT_LIMITS_DEG = (
     (-350.0, 350.0),
 )
 _QUEUE_LIMIT = 16
-_RESIDUAL_HZ = 1.5
 _RECONNECT_S = 0.05  # wall time between connection attempts while trackcal is away
 # A passive controller waits for no answer, so on a virtual clock nothing would pace it: it leaves at least this
 # much wall time between cycles (2000 frames/s at most, 24x real time at 12 ms), or it would flood the receiver.
@@ -119,12 +105,6 @@ LOCKSTEP_TIMEOUT_S = 2.0
 LOCKSTEP_AHEAD = 64
 
 
-def _quintic(u: float) -> float:
-    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
-
-
-def _quintic_rate(u: float) -> float:
-    return 30.0 * u * u * (1.0 - u) * (1.0 - u)
 
 
 class MockKrc2:
@@ -162,8 +142,6 @@ class MockKrc2:
         self.eki_addr, self.rsi_addr = eki_addr, rsi_addr
         self.clock = clock
         self.wall = wall_clock or RealClock()  # network waits are real; the controller's own time is `clock`
-        self.joint_speed_deg_s = float(joint_speed_deg_s)
-        self.settle_s = float(settle_s)
         self.on_joints = on_joints
         self.rsi_protocol = rsi_protocol
         self.rsi_passive = bool(rsi_passive)
@@ -172,8 +150,6 @@ class MockKrc2:
         self.max_late_packages = int(max_late_packages)
         self.answer_budget_s = float(answer_budget_s)
         self.connect_timeout_s = float(connect_timeout_s)
-        self.overshoot_deg = float(overshoot_deg)
-        self.brake_deg_s2 = float(brake_deg_s2)
         self._rng = random.Random(seed)
         self._ipoc_step = max(1, round(self.cycle_s * 1000))  # IPOC counts milliseconds (kuka_rsi_simulator)
         self._ipoc0 = self._ipoc_step * self._rng.randrange(10**6, 10**7)
@@ -187,21 +163,9 @@ class MockKrc2:
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
 
-        self._q = list(q0)  # actual joints
-        self._q_set = list(q0)  # set point
-        self._mode = "idle"  # idle, moving, braking, dwell
-        self._cmd: Command | None = None
-        self._start: tuple[float, ...] = q0
-        self._target: tuple[float, ...] = q0
-        self._dirs = (0.0,) * 6
-        self._amp = 0.0
-        self._k = 0  # cycles into the current motion phase
-        self._n_move = 0
-        self._n_dwell = max(1, math.ceil(self.settle_s / self.cycle_s - 1e-9))
-        self._brake_from: tuple[float, ...] = q0
-        self._brake_v: tuple[float, ...] = (0.0,) * 6
-        self._n_brake = 0
-        self._since_arrival: int | None = None
+        self.errors: list[str] = []
+        self.motion = Motion(q0, self._rng, joint_speed_deg_s=joint_speed_deg_s, settle_s=settle_s,
+                             cycle_s=self.cycle_s, overshoot_deg=overshoot_deg, brake_deg_s2=brake_deg_s2)  # fmt: skip
         self._queue: deque[Command] = deque()
         self._fault = 0
         self._last_reported: tuple[float, ...] | None = None
@@ -210,12 +174,10 @@ class MockKrc2:
         self._pending: list[tuple[str, object]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._eki: socket.socket | None = None
-        self._rsi: socket.socket | None = None
+        self._eki = EkiEnd(eki_addr, self.errors)
+        self._rsi = RsiEnd(rsi_addr, rsi_protocol, self.sen_type, self.errors, self._rsi_lost)
         self._next_attempt = 0.0
         self._last_cycle = 0.0  # wall time of the last cycle's end (passive pacing)
-        self._eki_framer = XmlStreamFramer(COMMAND_ROOT)
-        self._sen_framer = sen_framer()
 
         # observable state for tests
         self.cycles = 0
@@ -224,10 +186,8 @@ class MockKrc2:
         self.late_packets = 0
         self.consecutive_late = 0
         self.rsi_stopped = False
-        self.errors: list[str] = []
         self.commands: list[Command] = []
         self.eki_sent: list[bytes] = []
-        self.stops: list[tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]] = []
         self.crashed: BaseException | None = None
         self.connected = threading.Event()
         self.connections = 0
@@ -257,11 +217,32 @@ class MockKrc2:
 
     @property
     def joints_deg(self) -> tuple[float, ...]:
-        return tuple(round(v, 4) for v in self._q)
+        return self.motion.joints_deg
 
     @property
     def moving(self) -> bool:
-        return self._mode in ("moving", "braking")
+        return self.motion.moving
+
+    @property
+    def joint_speed_deg_s(self) -> float:
+        return self.motion.joint_speed_deg_s
+
+    @property
+    def settle_s(self) -> float:
+        return self.motion.settle_s
+
+    @property
+    def overshoot_deg(self) -> float:
+        return self.motion.overshoot_deg
+
+    @property
+    def brake_deg_s2(self) -> float:
+        return self.motion.brake_deg_s2
+
+    @property
+    def stops(self) -> list[Stop]:
+        """(joints, axis speeds, joints at standstill) for every braking."""
+        return self.motion.stops
 
     # --- fault injection (any thread) -----------------------------------------------------------------------
 
@@ -323,9 +304,9 @@ class MockKrc2:
         last: OSError | None = None
         while not self._stop.is_set() and self.wall.now() < deadline:
             last = self._reconnect()
-            if self._eki is not None and (self._rsi is not None or self.rsi_protocol == "udp"):
-                if self._rsi is None:
-                    self._open_udp()
+            if self._eki.connected and (self._rsi.connected or self.rsi_protocol == "udp"):
+                if not self._rsi.connected:
+                    self._rsi.open_udp()
                 return True
             self.wall.sleep(0.02)
         self.errors.append(f"could not connect to trackcal within {self.connect_timeout_s} s ({last})")
@@ -334,43 +315,27 @@ class MockKrc2:
     def _reconnect(self) -> OSError | None:
         """One attempt at each missing connection (EKI; RSI over TCP); the last failure, if any."""
         failure = None
-        for channel, addr in (("eki", self.eki_addr), ("rsi", self.rsi_addr)):
-            if getattr(self, f"_{channel}") is not None or (channel == "rsi" and self.rsi_protocol == "udp"):
-                continue
-            try:
-                sock = socket.create_connection(addr, timeout=1.0)
-            except OSError as exc:
-                failure = exc
-                continue
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(None)
-            setattr(self, f"_{channel}", sock)
-            if channel == "eki":
-                self._eki_framer = XmlStreamFramer(COMMAND_ROOT)
+        if not self._eki.connected:
+            failure = self._eki.connect()
+            if failure is None:
                 self.connections += 1
                 self.connected.set()
-            else:
-                self._sen_framer = sen_framer()
-                self._send_rsi(encode_rob(RobFrame(ipoc=None), tcp=True))  # KR C2: empty IPOC first
+        if not self._rsi.connected and self.rsi_protocol == "tcp":
+            failure = self._rsi.connect_tcp() or failure
         return failure
-
-    def _open_udp(self) -> None:
-        self._rsi = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._rsi.connect(self.rsi_addr)
-        self._send_rsi(encode_rob(RobFrame(ipoc=None), tcp=False))  # KR C2: empty IPOC first
 
     def _cycle(self) -> None:
         self._apply_injections()
-        if self._eki is None or (self._rsi is None and self.rsi_protocol == "tcp" and not self.rsi_stopped):
+        if not self._eki.connected or (not self._rsi.connected and self.rsi_protocol == "tcp" and not self.rsi_stopped):
             now = self.wall.now()
             if now >= self._next_attempt:  # trackcal is away: EKX_Open again, as trackcal_eki.src does
                 self._next_attempt = now + _RECONNECT_S
                 self._reconnect()
-            if self._eki is None:
+            if not self._eki.connected:
                 self.wall.sleep(self.cycle_s)  # nobody to serve: do not spin through virtual time
         if self._delivered is not None and self._standing_still() and not self._work_arrived():
             return
-        self._poll_eki(0.0 if self._rsi is not None else self.cycle_s)
+        self._poll_eki(0.0 if self._rsi.connected else self.cycle_s)
         if self._delivered is not None:  # the cycle's time: advance the clock to it unless it is already there
             self.clock.sleep(self._t0 + self._tick * self.cycle_s - self.clock.now())
         self._step()
@@ -378,7 +343,7 @@ class MockKrc2:
         if self.on_joints is not None and q != self._last_reported:
             self._last_reported = q
             self.on_joints(q)
-        if self._rsi is not None:
+        if self._rsi.connected:
             self._rsi_exchange()
         self._tick += 1
         if self._delivered is None:
@@ -395,7 +360,7 @@ class MockKrc2:
     # --- lockstep (the controller thread) -------------------------------------------------------------------
 
     def _standing_still(self) -> bool:
-        return self._mode == "idle" and not self._queue and self._since_arrival is None
+        return self.motion.still and not self._queue
 
     def _work_arrived(self) -> bool:
         """A standing controller in lockstep: wait (wall, at most IDLE_WAKE_S) for an EKI request, an injection or
@@ -407,12 +372,13 @@ class MockKrc2:
                 return False
             busy = bool(self._syncs)
         if not busy:
-            socks = [self._wake_r] + ([self._eki] if self._eki is not None else [])
+            eki = self._eki.sock
+            socks = [self._wake_r] + ([eki] if eki is not None else [])
             readable, _, _ = select.select(socks, [], [], IDLE_WAKE_S)
             if self._wake_r in readable:
                 with contextlib.suppress(OSError):
                     self._wake_r.recv(4096)
-            if self._eki is not None and self._eki in readable:
+            if eki is not None and eki in readable:
                 self._poll_eki(0.0)
             with self._lock:
                 if self._pending:  # arrived while waiting: applied first
@@ -433,7 +399,7 @@ class MockKrc2:
             self._tick += due - 1
             due = 1
         for _ in range(due):
-            if self._rsi is not None:
+            if self._rsi.connected:
                 self._rsi_exchange()
             self._tick += 1
             self.cycles += 1
@@ -470,35 +436,18 @@ class MockKrc2:
             elif what == "garbage":
                 channel, data = arg  # type: ignore[misc]
                 if channel == "eki":
-                    self._send_eki(data)
+                    self._eki.send(data)
                 else:
-                    self._send_rsi(data)
+                    self._rsi.send(data)
 
     # --- EKI ------------------------------------------------------------------------------------------------
 
     def _poll_eki(self, timeout: float) -> None:
-        sock = self._eki
-        if sock is None:
+        if not self._eki.connected:
             if timeout:
                 self.wall.sleep(timeout)
             return
-        try:
-            readable, _, _ = select.select([sock], [], [], timeout)
-            if not readable:
-                return
-            data = sock.recv(4096)
-        except OSError as exc:
-            self._close("eki", f"EKI receive failed: {exc}")
-            return
-        if not data:
-            self._close("eki", None)  # trackcal went away: the program closes the channel and opens it again
-            return
-        try:
-            docs = self._eki_framer.feed(data)
-        except ProtocolError as exc:
-            self._close("eki", f"EKI: unreadable stream, connection dropped: {exc}")
-            return
-        for doc in docs:
+        for doc in self._eki.receive(timeout):
             try:
                 cmd = parse_command(doc)
             except ProtocolError as exc:
@@ -507,8 +456,9 @@ class MockKrc2:
                 continue
             self.commands.append(cmd)
             if cmd.kind == KIND_STOP:  # StopPoll: only the running move can be stopped
-                if self._cmd is not None and self._mode == "moving" and cmd.command_id == self._cmd.command_id:
-                    self._brake()
+                running = self.motion.command
+                if running is not None and self.motion.mode == "moving" and cmd.command_id == running.command_id:
+                    self.motion.brake()
             elif len(self._queue) >= _QUEUE_LIMIT:
                 self.errors.append(f"EKI: buffer full, command {cmd.command_id} rejected")
                 self._report(cmd.command_id, done=False, error=ERR_BAD_COMMAND)
@@ -518,48 +468,19 @@ class MockKrc2:
     def _report(self, command_id: int, done: bool, error: int) -> None:
         data = encode_state(RobotState(self.joints_deg, command_id, done, error))
         self.eki_sent.append(data)
-        self._send_eki(data)
+        self._eki.send(data)
 
-    def _send_eki(self, data: bytes) -> None:
-        if self._eki is None:
-            return
-        try:
-            self._eki.sendall(data)
-        except OSError as exc:
-            self._close("eki", f"EKI send failed: {exc}")
-
-    # --- motion ---------------------------------------------------------------------------------------------
-
-    def _residual(self, k: int) -> float:
-        t = k * self.cycle_s
-        tau = max(self.settle_s / 5.0, self.cycle_s)
-        if t / tau > 40.0:
-            return 0.0
-        return self._amp * math.exp(-t / tau) * math.cos(2.0 * math.pi * _RESIDUAL_HZ * t)
+    # --- the program: requests served, motion stepped -------------------------------------------------------
 
     def _halt(self, error: int) -> None:
-        cmd = self._cmd
-        self._target = self._start = tuple(self._q)
-        self._q_set = list(self._q)
-        self._amp, self._since_arrival, self._mode, self._cmd = 0.0, None, "idle", None
+        cmd = self.motion.halt()
         if cmd is not None:
             self._report(cmd.command_id, done=False, error=error)
 
-    def _brake(self) -> None:
-        """BRAKE: every axis decelerates from its speed now, all at the rate that stops the fastest one at
-        brake_deg_s2, so they stop together after v_max / brake_deg_s2 (braking distance v^2 / (2 a))."""
-        duration = self._n_move * self.cycle_s
-        rate = _quintic_rate(self._k / self._n_move) / duration
-        self._brake_v = tuple((b - a) * rate for a, b in zip(self._start, self._target, strict=True))
-        self._brake_from = tuple(self._q)
-        v_max = max(abs(v) for v in self._brake_v)
-        self._n_brake = max(1, math.ceil(v_max / self.brake_deg_s2 / self.cycle_s - 1e-9))
-        self._mode, self._k = "braking", 0
-
     def _step(self) -> None:
-        if self._mode != "idle" and self._fault:
+        if self.motion.mode != "idle" and self._fault:
             self._halt(self._fault)
-        if self._mode == "idle" and self._queue:
+        if self.motion.mode == "idle" and self._queue:
             cmd = self._queue.popleft()
             if cmd.kind == KIND_RESET:
                 if self._fault != ERR_RSI_STOPPED:  # E-stop released, drives on: only an RSI stop stays
@@ -572,81 +493,25 @@ class MockKrc2:
             elif any(not lo <= v <= hi for v, (lo, hi) in zip(cmd.target_deg, self.soft_limits_deg, strict=True)):
                 self._report(cmd.command_id, done=False, error=ERR_SOFT_LIMIT)
             else:
-                self._begin(cmd)
-        if self._mode == "moving":
-            self._k += 1
-            u = min(1.0, self._k / self._n_move)
-            p = _quintic(u)
-            self._q = [a + (b - a) * p for a, b in zip(self._start, self._target, strict=True)]
-            self._q_set = list(self._q)
-            if self._k >= self._n_move:
-                self._mode, self._k, self._since_arrival = "dwell", 0, 0
-            return
-        if self._mode == "braking":
-            self._k += 1
-            t, t_stop = self._k * self.cycle_s, self._n_brake * self.cycle_s
-            t = min(t, t_stop)
-            travel = t - 0.5 * t * t / t_stop  # v(t) = v0 (1 - t / t_stop): constant deceleration
-            self._q = [q0 + v * travel for q0, v in zip(self._brake_from, self._brake_v, strict=True)]
-            self._q_set = list(self._q)
-            if self._k >= self._n_brake:
-                self.stops.append((self._brake_from, self._brake_v, self.joints_deg))
-                self._halt(ERR_STOPPED)
-            return
-        if self._since_arrival is not None:  # the residual oscillation decays, dwelling or not
-            self._since_arrival += 1
-            r = self._residual(self._since_arrival)
-            self._q = [t + d * r for t, d in zip(self._target, self._dirs, strict=True)]
-            self._q_set = list(self._target)
-            if r == 0.0:
-                self._since_arrival = None
-        if self._mode == "dwell":  # counted apart from the oscillation: without overshoot it still ends
-            self._k += 1
-            if self._k >= self._n_dwell:  # WAIT SEC 0 + dwell done: report $AXIS_ACT
-                assert self._cmd is not None
-                self._report(self._cmd.command_id, done=True, error=0)
-                self._mode, self._cmd = "idle", None
-
-    def _begin(self, cmd: Command) -> None:
-        start = tuple(self._q)
-        deltas = [b - a for a, b in zip(start, cmd.target_deg, strict=True)]
-        span = max(abs(d) for d in deltas)
-        speed = self.joint_speed_deg_s * cmd.speed_pct / 100.0
-        self._cmd, self._start, self._target = cmd, start, tuple(cmd.target_deg)
-        self._dirs = tuple(d / span for d in deltas) if span > 0 else (0.0,) * 6
-        self._amp = self.overshoot_deg * (0.5 + 0.5 * self._rng.random()) if span > 0 else 0.0
-        self._n_move = math.ceil(1.875 * span / speed / self.cycle_s - 1e-9) if span > 0 else 0
-        self._k = 0
-        if self._n_move == 0:
-            self._mode, self._since_arrival = "dwell", 0
-        else:
-            self._mode, self._since_arrival = "moving", None
+                self.motion.begin(cmd)
+        ended = self.motion.step()
+        if ended is not None:
+            cmd, done, error = ended
+            self._report(cmd.command_id, done=done, error=error)
 
     # --- RSI ------------------------------------------------------------------------------------------------
-
-    def _send_rsi(self, data: bytes) -> bool:
-        if self._rsi is None:
-            return False
-        try:
-            self._rsi.sendall(data) if self.rsi_protocol == "tcp" else self._rsi.send(data)
-            return True
-        except ConnectionRefusedError:
-            return self.rsi_protocol == "udp"  # nobody listens (yet) on the UDP port: the datagram is lost
-        except OSError as exc:
-            self._close("rsi", f"RSI send failed: {exc}")
-            return False
 
     def _rsi_exchange(self) -> None:
         ipoc = self._ipoc0 + self._ipoc_step * self._tick
         frame = RobFrame(
             ipoc=ipoc,
             aipos=self.joints_deg,
-            aspos=tuple(round(v, 4) for v in self._q_set),
+            aspos=tuple(round(v, 4) for v in self.motion.q_set),
             rist=(0.0,) * len(CART),
             rsol=(0.0,) * len(CART),
             delay=self.late_packets,
         )
-        if not self._send_rsi(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
+        if not self._rsi.send(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
             return
         self.frames_sent += 1
         self._ipoc_sent = ipoc
@@ -654,10 +519,10 @@ class MockKrc2:
             self._await_delivery(ipoc - LOCKSTEP_AHEAD * self._ipoc_step)
         if self.rsi_passive:
             return
-        if self._await_answer(ipoc):
+        if self._rsi.await_answer(ipoc, self.wall.now() + self.answer_budget_s, self.wall.now):
             self.consecutive_late = 0
             return
-        if self._rsi is None:
+        if not self._rsi.connected:
             return
         self.late_packets += 1
         self.consecutive_late += 1
@@ -668,65 +533,12 @@ class MockKrc2:
                 f"eERXmaxLatePackages={self.max_late_packages}",
             )
 
-    def _await_answer(self, ipoc: int) -> bool:
-        deadline = self.wall.now() + self.answer_budget_s
-        while True:
-            sock = self._rsi
-            if sock is None:
-                return False
-            remaining = deadline - self.wall.now()
-            if remaining <= 0:
-                return False
-            try:
-                readable, _, _ = select.select([sock], [], [], remaining)
-                if not readable:
-                    continue
-                data = sock.recv(4096 if self.rsi_protocol == "tcp" else MAX_FRAME_BYTES + 1)
-            except ConnectionRefusedError:
-                return False  # UDP: nobody listens; the answer is late
-            except OSError as exc:
-                self._close("rsi", f"RSI receive failed: {exc}")
-                return False
-            if self.rsi_protocol == "tcp":
-                if not data:
-                    self._close("rsi", "trackcal closed the RSI connection")
-                    return False
-                try:
-                    docs = self._sen_framer.feed(data)
-                except ProtocolError as exc:
-                    self._close("rsi", f"RSI: unreadable answer stream, connection dropped: {exc}")
-                    return False
-            else:
-                docs = [data]
-            ok = False
-            for doc in docs:
-                try:
-                    sen = parse_sen(doc)
-                except ProtocolError as exc:
-                    self.errors.append(f"RSI: bad answer: {exc}")
-                    continue
-                if sen.sen_type != self.sen_type:
-                    self.errors.append(f"RSI: answer of Type {sen.sen_type!r}, configured {self.sen_type!r}")
-                elif sen.ipoc == ipoc:
-                    ok = True  # answers with another IPOC are stale answers to late packets: ignored
-            if ok:
-                return True
+    def _rsi_lost(self) -> None:
+        """Without its RSI partner the controller stops the robot (ST_ETHERNET error): sticky until restart."""
+        self.rsi_stopped = True
+        self._fault = ERR_RSI_STOPPED
+        if self.motion.mode != "idle":
+            self._halt(ERR_RSI_STOPPED)
 
     def _close(self, channel: str, why: str | None) -> None:
-        attr = "_eki" if channel == "eki" else "_rsi"
-        sock = getattr(self, attr)
-        setattr(self, attr, None)
-        if sock is None:
-            return
-        if why:
-            self.errors.append(why)
-        with contextlib.suppress(OSError):
-            sock.shutdown(socket.SHUT_RDWR)
-        with contextlib.suppress(OSError):
-            sock.close()
-        if channel == "rsi" and why is not None:
-            # without its RSI partner the controller stops the robot (ST_ETHERNET error): sticky until restart
-            self.rsi_stopped = True
-            self._fault = ERR_RSI_STOPPED
-            if self._mode != "idle":
-                self._halt(ERR_RSI_STOPPED)
+        (self._eki if channel == "eki" else self._rsi).close(why)
