@@ -37,8 +37,9 @@ The engine knows no controller: it moves a `Robot` (drivers/interfaces.py).
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -78,6 +79,8 @@ class RunContext:
 
     def emit(self, name: str, data: dict, step: int | None = None, t: float | None = None) -> None:
         """Hand one document to every subscriber, in order (each returns before the next is called)."""
+        if name not in DOCUMENTS:
+            raise ValueError(f"unknown document {name!r}")
         doc = Document(name, data, self.step if step is None else step, self.t if t is None else t)
         for subscriber in self.subscribers:
             subscriber(doc)
@@ -244,11 +247,11 @@ class Engine:
                 if i in done:
                     continue
                 self._execute(i, steps[i])
-                n_done = sum(1 for k in measures if k <= i)  # measured or skipped
+                n_done = bisect_right(measures, i)  # measured or skipped
                 nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
                 progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures),
                                     nxt)  # fmt: skip
-                self._emit("progress", progress.__dict__.copy())
+                self._emit("progress", asdict(progress))
         except _Stop as stop:
             return self._end("stopped", stop.reason, stop.step, n_done, len(measures))
         except EndOfSegment as end:
