@@ -3,7 +3,7 @@ how `run --sim` ran before issue 16, and how `trackcal mock` still serves anothe
 in lockstep with trackcal's client on the virtual clock, which skips the cycles the robot stands through unread.
 
 The campaign is the README's: `trackcal plan --cell kr270 --configs 6 --repeat 3` (seed 0), run on the twin with
-seed 1 (run_campaign of SimCell, the measurement part of `trackcal run --sim`; the analysis after it is the same
+seed 1 (run_stored of SimCell, the measurement part of `trackcal run --sim`; the analysis after it is the same
 for both). Sessions live on a tmpfs when the machine has one, as the tests' do (the store fsyncs every event).
 Wall and CPU time (this process: every thread of trackcal and of the mocks) are medians of repeats interleaved
 in one process. In the same run the exported table of the lockstep controller without skipping (every idle
@@ -29,9 +29,9 @@ from pathlib import Path
 from bench.goals import check
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cells.sim import SimCell
-from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.planning import PlanOptions, build_design, search_doc
-from trackcal.campaign.session.session import create_session, write_export
+from trackcal.campaign.session.session import write_export
 
 SEED = 1
 MODES = {"free (before)": {"lockstep": False}, "lockstep, every cycle": {"skip_idle": False},
@@ -47,12 +47,12 @@ def run(cell, plan: dict, root: Path, name: str, **sim_kw) -> tuple[float, float
     """(wall s, CPU s, exported table bytes, controller counts) of one simulated campaign."""
     directory = root / name
     shutil.rmtree(directory, ignore_errors=True)
-    store = create_session(directory, "kr270", plan, "sim", SEED)
+    store, _ = new_session(directory, "kr270", plan, "sim", SEED)
     sim = SimCell(cell, SEED, store, **sim_kw)
     try:
         w0, c0 = time.perf_counter(), time.process_time()
         with contextlib.redirect_stdout(io.StringIO()):  # the simulated operator's prompts, 16 per run
-            run_campaign(store, sim.live)
+            run_stored(store, sim.live)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         ctl = sim.controller
         counts = {"cycles": ctl.cycles, "frames": ctl.frames_sent, "skipped": ctl.idle_skipped}

@@ -3,6 +3,7 @@ simulate a table on the twin, and the end-of-campaign analysis of a session (exp
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,6 @@ from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc
-from trackcal.campaign.console import console
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.output import write_json
 from trackcal.campaign.report.inputs import GEOMETRIC_MODEL, report_session, table_sha256
@@ -227,9 +227,10 @@ def noise_note(d: Diagnosis) -> str:
             f"floor ({d.floor_source})")  # fmt: skip
 
 
-def analyse_session(store: SessionStore) -> None:
+def analyse_session(store: SessionStore, say: Callable[..., None]) -> None:
     """End of a campaign: export, identification, diagnosis and report, into the session directory. When the
-    diagnosis names a cause, model.json is the model extended by it and model-geometric.json the geometric one."""
+    diagnosis names a cause, model.json is the model extended by it and model-geometric.json the geometric one.
+    `say`: the console's print (campaign.cli.console)."""
     d = store.directory
     n = write_export(store, d / "table.csv")
     cell = session_cell(store)
@@ -239,7 +240,7 @@ def analyse_session(store: SessionStore) -> None:
         outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING)
         dg = diagnose(cell.chain, table, cell.tool_points, params, noise_for(DEFAULT_WEIGHTING))
     except IdentificationError as exc:
-        console.print(f"[yellow]identification not possible yet[/]: {exc}")
+        say(f"[yellow]identification not possible yet[/]: {exc}")
         return
     write_json(d / "verdict.json", verdict_doc(cell, dg))
     geometric = d / GEOMETRIC_MODEL
@@ -253,11 +254,11 @@ def analyse_session(store: SessionStore) -> None:
         what = f"model {d / 'model.json'} (geometric)"
     write_json(d / "model.json", model)
     report = report_session(d, diagnosis=dg)
-    console.print(f"{n} measurements -> {d / 'table.csv'}; {what}: coordinate RMS "
+    say(f"{n} measurements -> {d / 'table.csv'}; {what}: coordinate RMS "
                   f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
                   f"{dg.cause} ({d / 'verdict.json'}); report {report}")  # fmt: skip
     warnings = campaign_warnings(store)
     if warnings:
-        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/] (also in the report):", highlight=False)
+        say(f"[yellow]{len(warnings)} campaign warning(s)[/] (also in the report):", highlight=False)
         for w in warnings:
-            console.print(f"  {w}", markup=False, highlight=False)
+            say(f"  {w}", markup=False, highlight=False)

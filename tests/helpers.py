@@ -1,6 +1,7 @@
 """What several test modules share: the command line, campaigns on the twin, plans, in-process cells, fault
 injection. Fixtures live in conftest.py; no test module imports another."""
 
+import re
 import subprocess
 import sys
 import time
@@ -10,7 +11,7 @@ import numpy as np
 
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
-from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.session.session import measured_keys
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -48,6 +49,13 @@ def inproc_live(cell, seed: int = 3, store=None, operator=None):
         world.restore_counts(measured_keys(store))
     return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
                        InprocCellIO(world))  # fmt: skip
+
+
+def assert_stopped(result, pattern: str) -> None:
+    """The run stopped safely (what a resume continues) with a message `pattern` finds (re.search, as
+    pytest.raises(match=) did on the stop when it was an exception): "stopped safely at step N: why"."""
+    assert result.exit_status == "stopped", result
+    assert re.search(pattern, result.message), result.message
 
 
 def before_call(obj, name: str, n: int, action) -> None:

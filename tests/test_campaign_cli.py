@@ -15,9 +15,10 @@ import pytest
 from tests.helpers import TRACKCAL, feasible_plan
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.analysis import analyse_session
-from trackcal.campaign.engine.runner import Live, run_campaign
+from trackcal.campaign.cli.console import console
+from trackcal.campaign.engine.engine import Live
+from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.report.inputs import report_session
-from trackcal.campaign.session.session import create_session
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
 from trackcal.mocks.twin import Twin
@@ -141,11 +142,11 @@ def test_a_campaign_whose_diagnosis_names_a_cause_keeps_the_extended_model(kr270
     # the plan's two passes alternate the order, so every joint approaches from both directions
     plan = feasible_plan(kr270, 10, seed=11, repeat=2)
     d = tmp_path / "s"
-    store = create_session(d, "kr270", plan, "sim", 3, effects={"backlash": 0.05})
+    store, _ = new_session(d, "kr270", plan, "sim", 3, effects={"backlash": 0.05})
     world = World(Twin(kr270, seed=3, effects={"backlash": 0.05}))
-    run_campaign(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
+    run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
                              InprocCellIO(world)))  # fmt: skip
-    analyse_session(store)
+    analyse_session(store, console.print)
     out = "".join(capsys.readouterr().out.split())  # rich wraps long paths anywhere
     assert json.loads((d / "verdict.json").read_text())["cause"] == "backlash"
     model, geometric = (json.loads((d / f).read_text()) for f in ("model.json", "model-geometric.json"))

@@ -176,7 +176,7 @@ def run_broken(good, tmp_path_factory, case, data) -> None:
     broken(data, d / target)
     argv = argv_for(template, d, out)
     err = io.StringIO()
-    refuse = mock.patch("trackcal.campaign.cli.campaign.connect_hardware",
+    refuse = mock.patch("trackcal.campaign.jobs.campaign.connect_hardware",
                         side_effect=DeviceError("no cell in this test"))
     with refuse, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = main(argv)

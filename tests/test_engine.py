@@ -5,14 +5,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tests.helpers import before_call, feasible_plan, inproc_live
+from tests.helpers import assert_stopped, before_call, feasible_plan, inproc_live
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.model.params import irreducible_params
-from trackcal.campaign.engine.engine import CampaignStopped
+from trackcal.campaign.engine.engine import Live, Progress
 from trackcal.campaign.engine.recording import ReplayDivergence
-from trackcal.campaign.engine.runner import Live, replay_session, run_campaign
 from trackcal.campaign.engine.steps import PlanError, campaign_steps
-from trackcal.campaign.session.session import create_session, export_table, write_export
+from trackcal.campaign.jobs.campaign import new_session, replay, run_stored
+from trackcal.campaign.session.session import export_table, write_export
 from trackcal.campaign.session.store import SessionStore
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -59,9 +59,9 @@ def test_a_point_no_station_sees_is_refused_before_the_start(cell, plan):
 
 
 def test_full_campaign_then_identification(tmp_path, cell, plan):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
-    run_campaign(store, devices)
+    run_stored(store, devices)
     table = export_table(store)
     assert set(table.station) == {"S1", "S2"} and set(table.point) == {"P1", "P2", "P3"}
     assert np.all(np.diff(table.t_s) >= 0)
@@ -87,10 +87,10 @@ class Crash(Exception):
 @pytest.mark.parametrize("when", ["while measuring", "just after the measurement is stored"])
 @pytest.mark.parametrize("fraction", [0.02, 0.5, 0.97])
 def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, fraction, when):
-    ref = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
-    run_campaign(ref, live(cell)[1])
+    ref, _ = new_session(tmp_path / "ref", "kr270", plan, "sim", 3)
+    run_stored(ref, live(cell)[1])
     after_calls = max(1, int(fraction * len(ref.events("measurement"))))
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     _, devices = live(cell)
     append = store.append
 
@@ -107,43 +107,50 @@ def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, f
     else:
         store.append = dying_append
     with pytest.raises(Crash):
-        run_campaign(store, devices)
+        run_stored(store, devices)
     store.close()
     store = SessionStore.open(tmp_path / "s")
-    run_campaign(store, live(cell, store=store)[1])
+    run_stored(store, live(cell, store=store)[1])
     a, b = export_table(ref), export_table(store)
     assert a.pose == b.pose and a.station == b.station and a.point == b.point
     np.testing.assert_array_equal(a.q_deg, b.q_deg)
     np.testing.assert_array_equal(a.xyz, b.xyz)
     # the replay of the interrupted-and-resumed session gives the same table, byte for byte
     write_export(store, tmp_path / "s.csv")
-    write_export(replay_session(store, tmp_path / "replay"), tmp_path / "r.csv")
+    write_export(replay(store, tmp_path / "replay"), tmp_path / "r.csv")
     assert (tmp_path / "s.csv").read_bytes() == (tmp_path / "r.csv").read_bytes()
 
 
 def test_device_fault_stops_safely_and_resume_continues(tmp_path, cell, plan):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.robot.faults = []
     before_call(devices.robot, "move", 7, lambda: devices.robot.faults.append("estop"))
-    with pytest.raises(CampaignStopped, match="estop"):
-        run_campaign(store, devices)
+    assert_stopped(run_stored(store, devices), "estop")
     assert store.events("error")[-1].data["type"] == "DeviceFault"
-    run_campaign(store, live(cell, store=store)[1])
+    run_stored(store, live(cell, store=store)[1])
     assert store.events("campaign_done")
 
 
 def test_beam_break_looks_again_then_skips(tmp_path, cell, plan):
     """Three broken beams in a row: the first measurement fails twice (looked at again, then skipped there), the
     second fails once and the second look succeeds. Exactly one measurement is missing from the table."""
-    reference = create_session(tmp_path / "ref", "kr270", plan, "sim", 3)
+    reference, _ = new_session(tmp_path / "ref", "kr270", plan, "sim", 3)
     seen = []
-    run_campaign(reference, live(cell)[1], progress=seen.append)
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    run_stored(reference, live(cell)[1], [lambda doc: seen.append(Progress(**doc.data)) if doc.name == "progress"
+                                           else None])  # fmt: skip
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.tracker.faults = ["beam broken"] * 3
     told, progress = [], []
-    run_campaign(store, devices, progress=progress.append, notify=told.append)
+
+    def console(doc):  # what the console shows: the progress, and each warning
+        if doc.name == "progress":
+            progress.append(Progress(**doc.data))
+        elif doc.name == "warning":
+            told.append(doc.data["message"])
+
+    run_stored(store, devices, [console])
     warnings = [e.data["message"] for e in store.events("warning") if "beam broken" in e.data["message"]]
     assert [w.endswith("skipped here") for w in warnings] == [False, True, False]
     assert store.events("campaign_done")
@@ -173,11 +180,11 @@ class DoorLeftOpen(SimOperator):
 
 
 def test_door_left_open_blocks_motion_until_closed(tmp_path, cell, plan):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world = World(Twin(cell, seed=3))
     operator = DoorLeftOpen(world)
     devices = Live(InprocTracker(world), InprocRobot(world), operator, world.clock, InprocCellIO(world))
-    run_campaign(store, devices)
+    run_stored(store, devices)
     kinds = [(e.kind, e.data.get("op")) for e in store.events() if e.kind in ("warning", "call")]
     first_warning = next(i for i, k in enumerate(kinds) if k[0] == "warning")
     first_move = next(i for i, k in enumerate(kinds) if k == ("call", "move"))
@@ -186,8 +193,8 @@ def test_door_left_open_blocks_motion_until_closed(tmp_path, cell, plan):
 
 
 def test_replay_of_a_changed_plan_stops_at_the_first_divergent_step(tmp_path, cell, plan):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
-    run_campaign(store, live(cell)[1])
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    run_stored(store, live(cell)[1])
     changed = {"poses_deg": [list(plan["poses_deg"][1]), *plan["poses_deg"][1:]], "repeat": plan["repeat"]}
     with pytest.raises(ReplayDivergence, match=r"step \d+: this run asks robot.move"):
-        replay_session(store, tmp_path / "r", plan_doc=changed)
+        replay(store, tmp_path / "r", plan_doc=changed)

@@ -18,7 +18,7 @@ from tests.helpers import ROOT, TRACKCAL
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.session.session import session_steps
+from trackcal.campaign.jobs.campaign import plan_steps
 
 EXAMPLE = ROOT / "configs" / "hardware" / "example-cell.yaml"
 
@@ -182,7 +182,7 @@ def test_unreachable_tracker_names_it_and_resume_uses_the_session_copy(plan, tmp
 
 
 def measure_steps(cell, plan: Path) -> int:
-    return sum(s.kind == "measure" for s in session_steps(cell, json.loads(plan.read_text())))
+    return sum(s.kind == "measure" for s in plan_steps(cell, json.loads(plan.read_text())))
 
 
 def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp_path):

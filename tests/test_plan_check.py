@@ -9,15 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.helpers import feasible_plan, inproc_live
+from tests.helpers import assert_stopped, feasible_plan, inproc_live
 from trackcal.calib.doe.design import design_for_cell, optimize_plan
 from trackcal.calib.model.cell import CellError, load_cell, usable_limits_deg
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import param_by_name
-from trackcal.campaign.engine.engine import CampaignStopped
-from trackcal.campaign.engine.runner import run_campaign
 from trackcal.campaign.engine.steps import PlanError, campaign_steps
-from trackcal.campaign.session.session import create_session
+from trackcal.campaign.jobs.campaign import new_session, run_stored
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +28,7 @@ def test_a_pose_inside_the_joint_margin_is_refused_in_one_line_before_a_session_
     lim = usable_limits_deg(kr270)  # the KR 270's limits less the cell's default 1 deg margin
     bad[2, 1] = lim[1, 1] + 0.5  # A2 half a degree inside its limit: inside the limits, not inside the margin
     with pytest.raises(PlanError) as info:
-        create_session(tmp_path / "s", "kr270", {"poses_deg": bad.tolist(), "repeat": 1}, "sim", 3)
+        new_session(tmp_path / "s", "kr270", {"poses_deg": bad.tolist(), "repeat": 1}, "sim", 3)
     message = str(info.value)
     assert "\n" not in message and "pose Q3 outside the joint limits less the 1 deg margin" in message
     assert "A2" in message
@@ -78,17 +76,17 @@ def test_a_measurement_far_from_the_expected_position_stops_the_campaign(tmp_pat
     # 1 um: less than any real station set-up error, so the very first measurement is implausible
     strict = tmp_path / "strict.yaml"
     strict.write_text(Path(kr270.source).read_text() + "measurement_tolerance_mm: 0.001\n")
-    store = create_session(tmp_path / "s", str(strict), plan, "sim", 3)
-    with pytest.raises(CampaignStopped, match="units or coordinate system were changed.*wrong reflector.*moved"):
-        run_campaign(store, inproc_live(kr270, 3)[1])
+    store, _ = new_session(tmp_path / "s", str(strict), plan, "sim", 3)
+    assert_stopped(run_stored(store, inproc_live(kr270, 3)[1]),
+                   "units or coordinate system were changed.*wrong reflector.*moved")
     assert not store.events("measurement")  # nothing wrong is stored
     assert store.events("error")[-1].data["type"] == "ImplausibleMeasurement"
 
 
 
 def test_the_tracker_is_configured_at_every_station_and_before_every_point_block(tmp_path, kr270, plan):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
-    run_campaign(store, inproc_live(kr270, 3)[1])
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    run_stored(store, inproc_live(kr270, 3)[1])
     # the recorded device calls, in order: each prompt for a station or a point is followed by configure()
     calls = [e.data["op"] for e in store.events("call") if e.data["device"] in ("tracker", "operator")]
     blocks = [e.data["args"][0] for e in store.events("call") if e.data["op"] == "ask"]

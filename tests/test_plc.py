@@ -11,7 +11,7 @@ from io import StringIO
 import pytest
 from rich.console import Console
 
-from trackcal.campaign.engine.operator import PlcOperator
+from trackcal.campaign.cells.operator import PlcOperator
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import CellIO
 from trackcal.drivers.plc.client import ModbusCellIO
@@ -200,7 +200,7 @@ def operator_at(mock: MockPlc, seen: list):
 def test_plc_operator_shows_the_request_while_the_lamp_is_on():
     with MockPlc(clock=VirtualClock()) as mock, ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S) as io:
         seen: list = []
-        op = PlcOperator(io, Console(file=StringIO()), poll_s=0.0, sleep=operator_at(mock, seen))
+        op = PlcOperator(io, Console(file=StringIO()).print, poll_s=0.0, sleep=operator_at(mock, seen))
         assert op.ask("move_reflector", "P2", "put the reflector on P2") == "plc"
         assert seen == [("move_reflector", "P2")]  # written before the lamp lit
         assert mock.lamp is False and mock.operator_request.kind is None  # both off afterwards
@@ -214,7 +214,7 @@ def test_plc_operator_without_request_registers_keeps_lamp_and_button():
             ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=PlcRegisterMap(request_hr=40)) as io:
         seen: list = []
         out = StringIO()
-        op = PlcOperator(io, Console(file=out, width=200), poll_s=0.0, sleep=operator_at(mock, seen))
+        op = PlcOperator(io, Console(file=out, width=200).print, poll_s=0.0, sleep=operator_at(mock, seen))
         assert op.ask("change_station", "S1", "move the tracker to station S1") == "plc"
         assert seen == [(None, "")] and mock.lamp is False
         assert "HMI shows no requests" in out.getvalue() and "ILLEGAL DATA ADDRESS" in out.getvalue()

@@ -11,9 +11,9 @@ import pytest
 
 from tests.helpers import feasible_plan
 from trackcal.campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
-from trackcal.campaign.engine.runner import run_campaign
+from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.planning import PlanOptions, build_design, search_doc
-from trackcal.campaign.session.session import create_session, write_export
+from trackcal.campaign.session.session import write_export
 from trackcal.drivers.errors import MotionRefused
 from trackcal.drivers.kuka.rsi_codec import ipoc_of
 from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
@@ -38,12 +38,12 @@ def received_ipocs(sim: SimCell) -> list[int]:
 
 
 def exported(directory, cell, plan, seed: int, action_s: float | None = None, **sim_kw) -> tuple[bytes, SimCell]:
-    store = create_session(directory / "s", "kr270", plan, "sim", seed)
+    store, _ = new_session(directory / "s", "kr270", plan, "sim", seed)
     sim = SimCell(cell, seed, store, **sim_kw)
     if action_s is not None:
         sim.human.action_s = action_s
     try:
-        run_campaign(store, sim.live)
+        run_stored(store, sim.live)
     finally:
         sim.close()
     assert sim.controller.crashed is None and not sim.controller.errors

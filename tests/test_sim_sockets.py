@@ -18,11 +18,10 @@ import time
 import numpy as np
 import pytest
 
-from tests.helpers import before_call, feasible_plan, inproc_live
+from tests.helpers import assert_stopped, before_call, feasible_plan, inproc_live
 from trackcal.campaign.cells.sim import SimCell, TwinMocks
-from trackcal.campaign.engine.engine import CampaignStopped
-from trackcal.campaign.engine.runner import run_campaign
-from trackcal.campaign.session.session import create_session, export_table
+from trackcal.campaign.jobs.campaign import new_session, run_stored
+from trackcal.campaign.session.session import export_table
 from trackcal.drivers.emscon.enums import LengthUnit
 from trackcal.drivers.emscon.framing import PacketReader
 from trackcal.drivers.emscon.messages import SetUnits, encode_command
@@ -39,8 +38,8 @@ def plan(kr270):
 
 @pytest.fixture(scope="module")
 def reference(kr270, plan, tmp_path_factory):
-    store = create_session(tmp_path_factory.mktemp("ref") / "s", "kr270", plan, "sim", SEED)
-    run_campaign(store, inproc_live(kr270, SEED)[1])
+    store, _ = new_session(tmp_path_factory.mktemp("ref") / "s", "kr270", plan, "sim", SEED)
+    run_stored(store, inproc_live(kr270, SEED)[1])
     return export_table(store)
 
 
@@ -65,10 +64,10 @@ def same_table(a, b) -> None:
 
 
 def test_campaign_over_sockets_gives_the_in_process_table(tmp_path, kr270, plan, reference):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     moved_with_door_open = watched(sim)
-    run_campaign(store, sim.live)
+    run_stored(store, sim.live)
     assert store.events("campaign_done") and not moved_with_door_open
     same_table(export_table(store), reference)
     # the operator was asked through the PLC and did each thing once: 2 stations, 3 points per station
@@ -78,35 +77,34 @@ def test_campaign_over_sockets_gives_the_in_process_table(tmp_path, kr270, plan,
 
 
 def test_beam_break_mid_campaign_is_looked_at_again_and_nothing_is_lost(tmp_path, kr270, plan, reference):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     # someone walks through the beam during the fifth measurement
     before_call(sim.live.tracker, "measure", 5, lambda: sim.tracker_mock.inject(EmsconFault.BEAM_BREAK))
-    run_campaign(store, sim.live)
+    run_stored(store, sim.live)
     warnings = [e.data["message"] for e in store.events("warning")]
     assert len([w for w in warnings if w.endswith("looking again")]) == 1
     same_table(export_table(store), reference)
 
 
 def test_controller_estop_stops_safely_and_resume_completes(tmp_path, kr270, plan, reference):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     # pressed while the fourth command travels: the controller refuses it
     before_call(sim.live.robot, "move", 4, sim.controller.estop)
-    with pytest.raises(CampaignStopped, match="(?i)emergency stop"):
-        run_campaign(store, sim.live)
+    assert_stopped(run_stored(store, sim.live), "(?i)emergency stop")
     error = store.events("error")[-1].data
     assert error["type"] == "DeviceFault"
     stored = len(store.events("measurement"))
     assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
     # a new process (new mocks, the fault reset) resumes the session: nothing lost, nothing measured twice
-    run_campaign(store, SimCell(kr270, SEED, store).live)
+    run_stored(store, SimCell(kr270, SEED, store).live)
     assert store.events("campaign_done")
     same_table(export_table(store), reference)
 
 
 def test_door_left_open_at_resume_blocks_motion_until_closed(tmp_path, kr270, plan, reference):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     moved_with_door_open = watched(sim)
     close, closes = sim.plc.close_door, []
@@ -117,7 +115,7 @@ def test_door_left_open_at_resume_blocks_motion_until_closed(tmp_path, kr270, pl
             close()  # forgets to close the door, and still acknowledges
 
     sim.plc.close_door = forgetful_close
-    run_campaign(store, sim.live)
+    run_stored(store, sim.live)
     assert any("door is open" in e.data["message"] for e in store.events("warning"))
     assert not moved_with_door_open
     same_table(export_table(store), reference)
@@ -135,11 +133,10 @@ def another_program_sets_micrometres(sim: SimCell) -> None:
 def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing_wrong_is_stored(
     tmp_path, kr270, plan, reference
 ):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     before_call(sim.world, "measure", 6, lambda: another_program_sets_micrometres(sim))
-    with pytest.raises(CampaignStopped, match="units"):
-        run_campaign(store, sim.live)
+    assert_stopped(run_stored(store, sim.live), "units")
     error = store.events("error")[-1].data
     assert error["type"] == "ImplausibleMeasurement"
     # the sixth measurement came 1000 times too large (1 mm = 1000 um) and was not stored
@@ -148,7 +145,7 @@ def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing
     assert len(stored) == 5
     np.testing.assert_array_equal(stored, reference.xyz[:5])
     # a new process resumes: the tracker is configured again, the sixth point measured again, nothing lost
-    run_campaign(store, SimCell(kr270, SEED, store).live)
+    run_stored(store, SimCell(kr270, SEED, store).live)
     same_table(export_table(store), reference)
 
 
@@ -156,11 +153,11 @@ def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing
 def test_units_changed_by_another_client_between_blocks_are_set_again_before_the_next(
     tmp_path, kr270, plan, reference
 ):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     # after the first point block, while the operator is asked to move the reflector on (his fifth prompt)
     before_call(sim.live.operator, "ask", 5, lambda: another_program_sets_micrometres(sim))
-    run_campaign(store, sim.live)
+    run_stored(store, sim.live)
     units = [r for r in sim.tracker_mock.received if isinstance(r, SetUnits)]
     assert SetUnits(LengthUnit.MICRON) in units and units[-1] == SetUnits()  # trackcal set mm again after it
     same_table(export_table(store), reference)
@@ -184,7 +181,7 @@ def test_a_fake_controller_connecting_first_is_refused_and_the_real_one_runs_the
         serve(self, eki_addr, rsi_addr, *args, **kw)
 
     monkeypatch.setattr(TwinMocks, "serve_controller", fake_first)
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     try:
         robot = sim.live.robot
@@ -192,7 +189,7 @@ def test_a_fake_controller_connecting_first_is_refused_and_the_real_one_runs_the
         fakes[0].settimeout(2.0)  # the EKI connection: closed by trackcal, never answered
         with contextlib.suppress(ConnectionResetError):
             assert fakes[0].recv(16) == b""
-        run_campaign(store, sim.live)
+        run_stored(store, sim.live)
     finally:
         for fake in fakes:
             fake.close()
@@ -203,7 +200,7 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
     """Issue 11: a door opened 20 ms into a move. trackcal's robot client polls the door at 25 Hz, sends the stop
     request, the controller brakes (no motion beyond its braking distance after the stop), the campaign stops
     safely and a resume (door closed + acknowledge) gives the table of an uninterrupted run."""
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     ctl = sim.controller
     after_stop: list[tuple[float, ...]] = []
@@ -228,8 +225,7 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
         threading.Thread(target=open_the_door_20_ms_in, daemon=True).start()
 
     before_call(sim.live.robot, "move", 5, in_real_time)
-    with pytest.raises(CampaignStopped, match="stopped: the cell door opened"):
-        run_campaign(store, sim.live)
+    assert_stopped(run_stored(store, sim.live), "stopped: the cell door opened")
     [(q_stop, v_stop, q_rest)] = ctl.stops
     t_stop = max(abs(v) for v in v_stop) / ctl.brake_deg_s2 + ctl.cycle_s
     for a, v, b in zip(q_stop, v_stop, q_rest, strict=True):
@@ -240,6 +236,6 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
     assert store.events("error")[-1].data["type"] == "DeviceFault"
     stored = len(store.events("measurement"))
     assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
-    run_campaign(store, SimCell(kr270, SEED, store).live)
+    run_stored(store, SimCell(kr270, SEED, store).live)
     assert store.events("campaign_done")
     same_table(export_table(store), reference)

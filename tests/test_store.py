@@ -19,12 +19,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from tests.helpers import TRACKCAL, before_call, feasible_plan, inproc_live
+from tests.helpers import TRACKCAL, assert_stopped, before_call, feasible_plan, inproc_live
 from trackcal.campaign.cli import main
-from trackcal.campaign.engine.engine import CampaignStopped
-from trackcal.campaign.engine.operator import ConsoleOperator
-from trackcal.campaign.engine.runner import run_campaign
-from trackcal.campaign.session.session import create_session, export_table, session_plan
+from trackcal.campaign.cli.console import ConsoleOperator
+from trackcal.campaign.jobs.campaign import new_session, run_stored
+from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
 
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
@@ -38,8 +37,8 @@ def plan(kr270):
 @pytest.fixture(scope="module")
 def reference(kr270, plan, tmp_path_factory):
     """An uninterrupted in-process campaign: its session directory and its table."""
-    store = create_session(tmp_path_factory.mktemp("ref") / "s", "kr270", plan, "sim", 3)
-    run_campaign(store, inproc_live(kr270)[1])
+    store, _ = new_session(tmp_path_factory.mktemp("ref") / "s", "kr270", plan, "sim", 3)
+    run_stored(store, inproc_live(kr270)[1])
     table = export_table(store)
     store.close()
     return store.directory, table
@@ -102,7 +101,7 @@ def test_a_second_process_is_refused_naming_the_first_and_kill_9_leaves_no_stale
 def test_a_copy_of_the_database_file_alone_holds_every_committed_measurement(kr270, plan, reference, tmp_path):
     """Copies of session.sqlite alone taken right after the k-th measurement is committed (no -journal, no
     config, no plan.json beside them) export those k measurements, and a copy can be resumed to the end."""
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     append, copies, measured = store.append, {}, []
 
     def append_and_copy(kind, *args):
@@ -116,14 +115,14 @@ def test_a_copy_of_the_database_file_alone_holds_every_committed_measurement(kr2
         return event
 
     store.append = append_and_copy
-    run_campaign(store, inproc_live(kr270)[1])
+    run_stored(store, inproc_live(kr270)[1])
     full = export_table(store)
     for n, d in copies.items():
         table = export_table(SessionStore.open(d, readonly=True))
         assert len(table) == n and table.pose == full.pose[:n]
         np.testing.assert_array_equal(table.xyz, full.xyz[:n])
     resumed = SessionStore.open(copies[1])  # the stored cell and plan are all a resume needs
-    run_campaign(resumed, inproc_live(kr270, store=resumed)[1])
+    run_stored(resumed, inproc_live(kr270, store=resumed)[1])
     same_table(export_table(resumed), full)
 
 
@@ -136,11 +135,11 @@ def crash():
 
 
 def test_resume_uses_the_stored_plan_and_says_the_files_differ(kr270, plan, reference, tmp_path, capsys):
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     _, live = inproc_live(kr270)
     before_call(live.tracker, "measure", 2, crash)
     with pytest.raises(Crash):
-        run_campaign(store, live)
+        run_stored(store, live)
     store.close()
     edited = json.loads((tmp_path / "s" / "plan.json").read_text())
     edited["poses_deg"][0][0] += 5.0  # pose Q1 moved by hand in the file
@@ -289,15 +288,15 @@ def small_disk(reference, tmp_path):
 
 
 def test_a_full_disk_stops_the_campaign_and_loses_nothing(kr270, plan, reference, small_disk, tmp_path, capsys):
-    store = create_session(small_disk / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(small_disk / "s", "kr270", plan, "sim", 3)
     with pytest.raises(StoreError, match="the disk is full") as err:
-        run_campaign(store, inproc_live(kr270)[1])
+        run_stored(store, inproc_live(kr270)[1])
     assert "\n" not in str(err.value) and "copy" in str(err.value)
     stored = len(store.events("measurement"))
     store.close()
     assert 0 < stored < len(reference[1])  # full in the middle of the campaign
     elsewhere = SessionStore.open(shutil.copytree(small_disk / "s", tmp_path / "elsewhere"))
-    run_campaign(elsewhere, inproc_live(kr270, store=elsewhere)[1])
+    run_stored(elsewhere, inproc_live(kr270, store=elsewhere)[1])
     same_table(export_table(elsewhere), reference[1])
     (tmp_path / "plan.json").write_text(json.dumps(plan))  # and the command line says it in one line
     one_line_error(capsys, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session",
@@ -306,8 +305,7 @@ def test_a_full_disk_stops_the_campaign_and_loses_nothing(kr270, plan, reference
 
 def test_the_console_at_end_of_input_stops_the_campaign_safely(kr270, plan, tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # stdin closed: nobody at the console
-    store = create_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     operator = ConsoleOperator(Console(file=io.StringIO()))
-    with pytest.raises(CampaignStopped, match="operator console: end of input"):
-        run_campaign(store, inproc_live(kr270, operator=operator)[1])
+    assert_stopped(run_stored(store, inproc_live(kr270, operator=operator)[1]), "operator console: end of input")
     assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged

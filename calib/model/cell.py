@@ -55,7 +55,7 @@ class Cell:
     acceptance_deg: float = 90.0
     plan_params: list[str] | None = None  # parameters the planner targets (paper section 7.2: nine)
     joint_margin_deg: float = 1.0  # plans keep this far inside every joint limit
-    measurement_tolerance_mm: float | None = None  # None: from the station set-up uncertainty (campaign.engine.runner)
+    measurement_tolerance_mm: float | None = None  # None: from the station set-up (campaign/engine/expected.py)
     source: str = ""
 
 

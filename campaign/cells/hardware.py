@@ -1,7 +1,7 @@
 """The real cell: the hardware config (configs/hardware/README.md) and the clients it describes.
 
     hw = load_hardware("configs/hardware/example-cell.yaml")   # validated; InputError names file and key
-    live = connect_hardware(hw, cell)                          # runner.Live with every device connected
+    live = connect_hardware(hw, cell, say, operator)           # engine.Live with every device connected
 
 The keys are the parameter names of the driver constructors (drivers.emscon.client.EmsconTracker,
 drivers.kuka.client.KukaKrc2, drivers.plc.client.ModbusCellIO, drivers.meteo.client.SerialMeteo) and the defaults are
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,13 +21,12 @@ from typing import Any
 from trackcal.calib.io.files import read_yaml
 from trackcal.calib.model.cell import Cell
 from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
-from trackcal.campaign.console import console as default_console
-from trackcal.campaign.engine.operator import ConsoleOperator, PlcOperator
-from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.cells.operator import PlcOperator
+from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.errors import InputError
 from trackcal.drivers.emscon.client import EmsconTracker
 from trackcal.drivers.errors import DeviceError
-from trackcal.drivers.interfaces import RealClock
+from trackcal.drivers.interfaces import Operator, RealClock
 from trackcal.drivers.kuka.client import KukaKrc2
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S
 from trackcal.drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
@@ -183,11 +183,11 @@ def _section(path: Path, name: str, doc) -> dict:
     return out
 
 
-def connect_hardware(hw: Hardware, cell: Cell, console=None):
-    """The real clients of `hw`, connected, as a runner.Live (operator: PlcOperator with a PLC, else the
-    console; clock: the real one). A device that cannot be reached is a InputError naming it, its host and
-    port; whatever was connected before is closed again."""
-    console = console or default_console
+def connect_hardware(hw: Hardware, cell: Cell, say: Callable[[str], None], console_operator: Operator) -> Live:
+    """The real clients of `hw`, connected, as an engine.Live (operator: PlcOperator with a PLC, else
+    `console_operator`; clock: the real one). `say` shows a line (rich markup) to whoever runs the campaign. A
+    device that cannot be reached is a InputError naming it, its host and port; whatever was connected before
+    is closed again."""
     if cell.chain.dof != 6:
         raise InputError(f"{hw.path}: the KR C2 drives 6 axes, robot {cell.chain.name} of cell {cell.name} has "
                          f"{cell.chain.dof}")  # fmt: skip
@@ -199,7 +199,7 @@ def connect_hardware(hw: Hardware, cell: Cell, console=None):
             try:
                 dev.close()
             except Exception as exc:  # one failing close never keeps the others open
-                console.print(f"[yellow]warning[/]: closing {getattr(dev, 'device', dev)}: {exc}")
+                say(f"[yellow]warning[/]: closing {getattr(dev, 'device', dev)}: {exc}")
         opened.clear()
 
     def up(what: str, dev, where: str):
@@ -238,8 +238,8 @@ def connect_hardware(hw: Hardware, cell: Cell, console=None):
                      io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
     where = (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
              f"for the controller at {r['controller_host']} only")  # fmt: skip
-    console.print(f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where}; start "
+    say(f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where}; start "
                   "trackcal_eki on the controller)")  # fmt: skip
     up("robot controller", robot, where)
-    operator = PlcOperator(cellio, console, poll_s=p["poll_s"]) if cellio is not None else ConsoleOperator(console)
+    operator = PlcOperator(cellio, say, poll_s=p["poll_s"]) if cellio is not None else console_operator
     return Live(tracker, robot, operator, RealClock(), cellio, meteo, close=close)

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import contextlib
 import socket
+from collections.abc import Callable
 
 from trackcal.calib.model.cell import Cell
 from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
-from trackcal.campaign.console import console
-from trackcal.campaign.engine.operator import PlcOperator
-from trackcal.campaign.engine.runner import Live
+from trackcal.campaign.cells.operator import PlcOperator
+from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.session.session import measured_keys
 from trackcal.campaign.session.store import SessionStore
@@ -132,11 +132,13 @@ class SimCell:
     timestamp, depends on the commands only, and the cycles the robot stands through unread are skipped;
     `skip_idle=False` exchanges every one of them (the same session, byte for byte, only slower). `lockstep=False`
     runs the controller free, as `trackcal mock` serves it to another process: every cycle, paced by wall time,
-    so the timestamps depend on the machine's pace (the measurements do not)."""
+    so the timestamps depend on the machine's pace (the measurements do not). `say`: where the operator's requests
+    are shown (the console of `trackcal run --sim`; nowhere by default: the simulated operator reads the HMI)."""
 
     def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
                  effects: dict[str, float] | None = None, speed: float | None = None,
-                 skip_idle: bool = True, lockstep: bool = True) -> None:  # fmt: skip
+                 skip_idle: bool = True, lockstep: bool = True,
+                 say: Callable[[str], None] = lambda text: None) -> None:  # fmt: skip
         self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store))
         m = self.mocks
         self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
@@ -161,7 +163,7 @@ class SimCell:
         except BaseException:
             self.close()
             raise
-        operator = PlcOperator(cellio, console, poll_s=0.005)
+        operator = PlcOperator(cellio, say, poll_s=0.005)
         self.live = Live(tracker, robot, operator, self.clock, cellio, meteo, close=self.close)
 
     def _client(self, device):

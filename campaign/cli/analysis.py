@@ -25,7 +25,7 @@ from trackcal.campaign.analysis import (
     summary_of,
     verdict_doc,
 )
-from trackcal.campaign.console import console
+from trackcal.campaign.cli.console import console
 from trackcal.campaign.output import write_json, write_output_table
 from trackcal.campaign.report.diagnosis_plots import plots
 

@@ -2,78 +2,75 @@
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from trackcal.calib.io.files import read_json, read_text
+from trackcal.calib.io.files import read_json
 from trackcal.campaign.analysis import analyse_session, parse_effects
-from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
-from trackcal.campaign.cells.sim import SimCell
-from trackcal.campaign.console import console
-from trackcal.campaign.engine.engine import CampaignStopped
-from trackcal.campaign.engine.engine import Progress as CampaignProgress
+from trackcal.campaign.cli.console import ConsoleOperator, console
+from trackcal.campaign.engine.engine import Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
-from trackcal.campaign.engine.runner import replay_session, run_campaign
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
-from trackcal.campaign.session.session import (
-    HARDWARE_COPY,
-    changed_copies,
-    create_session,
-    session_cell,
-    session_hardware,
-    write_export,
-)
+from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
+from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
 
 
-def _progress():
-    """The campaign's bar: planned measurements done (measured or skipped), how many skipped, the next action."""
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("({task.fields[skipped]} skipped)"), TimeRemainingColumn(),
-                   TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
-    task = bar.add_task("measurements", total=None, next="", skipped=0)
+class ConsoleProgress:
+    """A subscriber of the engine: the campaign's bar (planned measurements done, measured or skipped; how many
+    skipped; the next action), shown from the run's start to its stop, and each warning as it happens (above
+    the bar). Used as a context manager, so that a run ended by an error takes the bar down too."""
 
-    def update(p: CampaignProgress) -> None:
-        bar.update(task, completed=p.measured + p.skipped, total=p.planned, skipped=p.skipped,
-                   next=p.next_action or "-")  # fmt: skip
+    def __init__(self) -> None:
+        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("({task.fields[skipped]} skipped)"), TimeRemainingColumn(),
+                            TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
+        self.task = self.bar.add_task("measurements", total=None, next="", skipped=0)
+        self.shown = False
 
-    return bar, update
+    def __call__(self, doc: Document) -> None:
+        if doc.name == "start" and not self.shown:
+            self.bar.start()
+            self.shown = True
+        elif doc.name == "progress":
+            p = doc.data
+            self.bar.update(self.task, completed=p["measured"] + p["skipped"], total=p["planned"],
+                            skipped=p["skipped"], next=p["next_action"] or "-")  # fmt: skip
+        elif doc.name == "warning":
+            console.print(f"[yellow]warning[/]: {escape(doc.data['message'])}", highlight=False)
+        elif doc.name == "stop":
+            self.close()
+
+    def close(self) -> None:
+        if self.shown:
+            self.bar.stop()
+            self.shown = False
+
+    def __enter__(self) -> ConsoleProgress:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
-def _warn_operator(message: str) -> None:
-    """A campaign warning on the console as it happens (above the progress bar)."""
-    console.print(f"[yellow]warning[/]: {escape(message)}", highlight=False)
+def at_console() -> OperatorConsole:
+    return OperatorConsole(say=console.print, operator=ConsoleOperator(console))
 
 
-def _live_for(store: SessionStore):
-    meta = store.meta()
-    cell = session_cell(store)
-    if meta["mode"] == "sim":
-        effects = json.loads(meta.get("effects", "{}") or "{}")
-        speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
-        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed).live
-    if meta["mode"] == "hardware":
-        hw = load_hardware(store.directory / HARDWARE_COPY, session_hardware(store))
-        try:
-            return connect_hardware(hw, cell)
-        except CampaignError as exc:
-            raise InputError(f"{exc} (the session uses the hardware config stored at its creation, copied in "
-                             f"{store.directory / HARDWARE_COPY}: make the devices reachable there, then "
-                             f"`trackcal resume {store.directory}`)") from None
-    raise InputError(f"{store.directory}: a {meta['mode']} session cannot be run live")
+def stopped_safely(store: SessionStore, result: RunResult) -> None:
+    """A run that did not complete is one line naming the step and the cause, and how to continue."""
+    if result.exit_status != "success":
+        raise CampaignError(f"{result.message}. Fix the cause, then: trackcal resume {store.directory}")
 
 
 def drive(store: SessionStore) -> None:
-    bar, update = _progress()
-    try:
-        with bar:
-            run_campaign(store, _live_for(store), progress=update, notify=_warn_operator)
-    except CampaignStopped as exc:
-        raise CampaignError(f"{exc}. Fix the cause, then: trackcal resume {store.directory}") from None
+    """Continue the session's campaign on its cell, with the console's progress."""
+    with ConsoleProgress() as progress:
+        result = resume(store, at_console(), [progress])
+    stopped_safely(store, result)
 
 
 def cmd_run(args) -> int:
@@ -83,49 +80,34 @@ def cmd_run(args) -> int:
     if args.hardware and (args.effect or args.sim_speed is not None):
         raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
     effects = parse_effects(args.effect) if args.sim else {}
-    mode, seed = ("sim", args.seed) if args.sim else ("hardware", None)
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
-    extra = {"sim_speed": str(args.sim_speed)} if args.sim and args.sim_speed else {}
-    if args.hardware:
-        return _campaign(lambda: _hardware_session(Path(args.session), args.cell, plan_doc, args.hardware),
-                         args.no_analysis)  # fmt: skip
-    return _campaign(lambda: create_session(Path(args.session), args.cell, plan_doc, mode, seed, effects=effects,
-                                            extra=extra), args.no_analysis)  # fmt: skip
-
-
-def _hardware_session(directory: Path, cell_ref: str, plan_doc: dict, hardware: str) -> SessionStore:
-    """A new session that stores the hardware config (validated first: a broken file makes no session)."""
-    text = read_text(hardware, InputError)
-    load_hardware(hardware, text)
-    source = str(Path(hardware).resolve())
-    return create_session(directory, cell_ref, plan_doc, "hardware", None, hardware=(text, source))
+    cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed)
+    with ConsoleProgress() as progress:
+        store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress])
+    stopped_safely(store, result)
+    if not args.no_analysis:
+        analyse_session(store, console.print)
+    return 0
 
 
 def cmd_resume(args) -> int:
-    def open_store() -> SessionStore:
-        store = SessionStore.open(args.session)
-        changed = changed_copies(store)
-        if changed:
-            console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
-                          "at the session's creation: resume uses the stored copies", soft_wrap=True)  # fmt: skip
-        return store
-
-    return _campaign(open_store, args.no_analysis, args.analyse)
-
-
-def _campaign(open_store, no_analysis: bool, reanalyse: bool = False) -> int:
-    """Drive the campaign to its end and analyse it; a campaign already complete is analysed again only on request."""
-    store = open_store()
+    """Drive the session's campaign to its end and analyse it; a campaign already complete is analysed again only
+    on request."""
+    store = SessionStore.open(args.session)
+    changed = changed_copies(store)
+    if changed:
+        console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
+                      "at the session's creation: resume uses the stored copies", soft_wrap=True)  # fmt: skip
     if store.events("campaign_done"):
         console.print(f"{store.directory}: the campaign is already complete"
-                      + ("" if reanalyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
-        if not reanalyse:
+                      + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
+        if not args.analyse:
             return 0
     else:
         drive(store)
-    if not no_analysis:
-        analyse_session(store)
+    if not args.no_analysis:
+        analyse_session(store, console.print)
     return 0
 
 
@@ -135,7 +117,7 @@ def cmd_replay(args) -> int:
     try:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        store = replay_session(recording, into, args.cell, plan_doc)
+        store = replay(recording, into, args.cell, plan_doc)
     except (CampaignError, OSError, ValueError) as exc:
         if fresh:  # a failed replay leaves no directory that resume or a second replay would stumble over
             shutil.rmtree(into, ignore_errors=True)

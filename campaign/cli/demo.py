@@ -12,10 +12,10 @@ from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.analysis import analyse_session, choose_params, run_identify, twin_truth
 from trackcal.campaign.cli.analysis import print_identification, um
 from trackcal.campaign.cli.campaign import drive
-from trackcal.campaign.console import console
+from trackcal.campaign.cli.console import console
+from trackcal.campaign.jobs.campaign import new_session
 from trackcal.campaign.output import write_json
 from trackcal.campaign.planning import PlanOptions, build_design, search_doc
-from trackcal.campaign.session.session import create_session
 
 
 def cmd_demo(args) -> int:
@@ -31,9 +31,9 @@ def cmd_demo(args) -> int:
     write_json(str(out / "plan.json"), plan)
     console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} µm "
                   f"({out / 'plan.json'})")  # fmt: skip
-    store = create_session(out / "session", args.cell, plan, "sim", args.seed)
+    store, _ = new_session(out / "session", args.cell, plan, "sim", args.seed)
     drive(store)
-    analyse_session(store)
+    analyse_session(store, console.print)
     table = read_table(out / "session" / "table.csv", chain=cell.chain)
     print_identification(run_identify(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING),
                          twin_truth(cell, args.seed))  # fmt: skip

@@ -28,7 +28,7 @@ from rich.table import Table
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.analysis import parse_effects
 from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
-from trackcal.campaign.console import console
+from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import UsageError
 from trackcal.campaign.output import write_text
 

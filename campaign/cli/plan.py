@@ -8,7 +8,7 @@ import numpy as np
 from rich.progress import Progress
 
 from trackcal.calib.model.cell import load_cell
-from trackcal.campaign.console import console
+from trackcal.campaign.cli.console import console
 from trackcal.campaign.output import write_json
 from trackcal.campaign.planning import (
     PlanOptions,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trackcal.campaign.console import console
+from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore

@@ -1,46 +1,144 @@
-"""The campaign engine: runs plan steps against the device interfaces, records everything, resumes.
+"""The campaign engine: walks the plan's steps through its command table against the device interfaces, emits
+documents to its subscribers, and returns how the run ended.
+
+After Bluesky's RunEngine (bluesky/bluesky, bluesky/run_engine.py: a registry of commands, `_command_registry`,
+that each message of a plan is dispatched through, and `emit` handing each document to the subscribers in turn;
+`RunEngineResult` for what a run returns): here the messages are the plan's steps (engine/steps.py), the command
+table is `Engine.handlers`, and the documents are `Document`s: `start`, `step_started`, every device `call` (by the
+recorders around the devices, engine/recording.py), `prompt` and the `operator`'s answer, `measurement`,
+`warning`, `error`, `step_done`, `progress`, and `stop` with the exit status. The session store is one subscriber
+(session/session.py SessionLog), the console's progress another (cli/campaign.py). Subscribers are called
+synchronously, in order, before the engine goes on: a subscriber that must be durable (the store) has committed
+each document before the next device call.
 
 Rules it keeps:
-- every device call, operator answer and measurement is stored (committed) as it happens; a step is
-  marked done only after its events are stored, and the next motion is never commanded before the
-  previous measurement is durably stored;
+- every device call, operator answer and measurement is emitted (so committed by the store) as it happens; a
+  step is marked done only after its documents are emitted, and the next motion is never commanded before the
+  previous measurement has been handed to every subscriber;
 - no motion while the cell door is open or an operator prompt is outstanding: after any prompt, motion
   resumes only after door closed + acknowledge + the plan's explicit `resume` step, which also resets the
-  controller's latched faults; during every move and settle the robot client itself polls the door
+  robot's latched faults; during every move and settle the robot client itself polls the door
   (campaign/cells/checks.motion_guard): a door opened mid-motion brakes the robot and the step fails, so the
   campaign stops safely there;
 - at every station set-up and before every point block the tracker is configured again (units, coordinate
   system type, measurement and statistic mode, system settings, read back: Tracker.configure) and given the
   environment, so that nothing another program changed on it in between reaches a measurement;
 - every measurement is compared with where the nominal model expects the reflector (the position FindReflector
-  is given); one farther than the cell's tolerance is not stored as a measurement: the campaign stops safely
+  is given); one farther than the cell's tolerance is not kept as a measurement: the campaign stops safely
   with the likely causes (units changed, wrong reflector, station moved);
 - a point the tracker cannot see from the current station (no reflector, beam broken) is skipped there
-  and covered from another station; any other device fault stops the campaign safely (`CampaignStopped`)
-  and `resume` continues it: steps already done are skipped, the operator context (station, reflector)
-  is re-confirmed, and an interrupted measurement is re-measured after moving to its pose again.
+  and covered from another station; any other device fault stops the campaign safely (the result's
+  exit status "stopped") and a resume continues it: steps already done are skipped, the operator context
+  (station, reflector) is re-confirmed, and an interrupted measurement is re-measured after moving to its pose
+  again.
+
+The engine knows no controller: it moves a `Robot` (drivers/interfaces.py).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from bisect import bisect_right
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from trackcal.campaign.engine.recording import EndOfSegment
 from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
-from trackcal.campaign.errors import CampaignError
-from trackcal.campaign.session.store import SessionStore
 from trackcal.drivers.errors import DeviceError, TargetNotVisible
 from trackcal.drivers.interfaces import CellIO, Clock, Meteo, Operator, Robot, Tracker
 
 
-class CampaignStopped(CampaignError):
-    """The campaign stopped safely at a step; `trackcal resume` continues it."""
+@dataclass(frozen=True)
+class Document:
+    """What the engine tells its subscribers: `name` (DOCUMENTS), its data, and the step and campaign time it
+    belongs to (step -1: outside the steps)."""
 
-    def __init__(self, step: int, message: str):
-        self.step = step
-        super().__init__(f"stopped safely at step {step}: {message}")
+    name: str
+    data: dict
+    step: int = -1
+    t: float = 0.0
+
+
+DOCUMENTS = ("start", "step_started", "call", "prompt", "operator", "measurement", "warning", "error", "step_done",
+             "progress", "stop")  # fmt: skip
+Subscriber = Callable[[Document], None]
+
+
+class RunContext:
+    """Where a run is (its step and campaign time) and who hears its documents. Built first and shared by the
+    engine and the recorders around its devices, so that both emit into the same ordered stream."""
+
+    def __init__(self, subscribers: Iterable[Subscriber] = ()) -> None:
+        self.step = -1
+        self.t = 0.0
+        self.subscribers = list(subscribers)
+
+    def where(self) -> tuple[int, float]:
+        return self.step, self.t
+
+    def emit(self, name: str, data: dict, step: int | None = None, t: float | None = None) -> None:
+        """Hand one document to every subscriber, in order (each returns before the next is called)."""
+        if name not in DOCUMENTS:
+            raise ValueError(f"unknown document {name!r}")
+        doc = Document(name, data, self.step if step is None else step, self.t if t is None else t)
+        for subscriber in self.subscribers:
+            subscriber(doc)
+
+
+class _Stop(Exception):
+    """The campaign stops safely at a step (internal: `Engine.run` reports it in its result)."""
+
+    def __init__(self, step: int, reason: str):
+        self.step, self.reason = step, reason
+        super().__init__(reason)
+
+
+@dataclass(frozen=True)
+class History:
+    """What the session already holds when a run starts (empty for a new one): steps done, whether a run started
+    before, the campaign time of its last event, and its measurements (the drift checks compare with them)."""
+
+    done: frozenset[int] = frozenset()
+    resumed: bool = False
+    t_last: float = 0.0
+    measurements: tuple[dict, ...] = ()
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """How a run ended (after Bluesky's RunEngineResult). exit_status: "success" (the campaign is complete),
+    "stopped" (stopped safely at `step` for `reason`: a resume continues it), "ended" (a replayed run whose
+    recording ends there: the recorded process stopped or was killed). Counts are the session's: measurements
+    stored, planned measurements skipped (not visible from the station), planned; `warnings` of this run."""
+
+    exit_status: str
+    reason: str = ""
+    step: int | None = None
+    measured: int = 0
+    skipped: int = 0
+    planned: int = 0
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def message(self) -> str:
+        if self.exit_status == "stopped":
+            return f"stopped safely at step {self.step}: {self.reason}"
+        return self.reason or self.exit_status
+
+
+@dataclass
+class Live:
+    """The devices of a cell as they come (real clients, the twin's, or players of a recording), before the
+    recorders wrap them into `Devices`; `close` ends them all."""
+
+    tracker: Tracker
+    robot: Robot
+    operator: Operator
+    clock: Clock
+    cellio: CellIO | None = None
+    meteo: Meteo | None = None
+    close: Callable[[], None] = lambda: None
 
 
 @dataclass
@@ -75,10 +173,10 @@ class DoorInterlock:
         return self.released
 
 
-@dataclass
+@dataclass(frozen=True)
 class Progress:
-    """Where a campaign is: measurements stored and skipped (the point not visible from the station) of those
-    planned, and the next operator action."""
+    """Where a campaign is (the data of a `progress` document): measurements stored and skipped (the point not
+    visible from the station) of those planned, and the next operator action."""
 
     measured: int
     skipped: int
@@ -98,19 +196,16 @@ class Settings:
 
 
 class Engine:
-    def __init__(self, store: SessionStore, devices: Devices, settings: Settings | None = None,
-                 progress: Callable[[Progress], None] | None = None,
-                 notify: Callable[[str], None] | None = None):  # fmt: skip
-        self.store = store
+    def __init__(self, devices: Devices, context: RunContext, history: History | None = None,
+                 settings: Settings | None = None):  # fmt: skip
         self.dev = devices
+        self.context = context
+        self.history = history or History()
         self.settings = settings or Settings()
-        self.progress = progress
-        self.notify = notify  # told each warning as it is stored: the operator sees it when it happens
-        self.measured = 0
-        self.step_index = -1
+        self.measurements = list(self.history.measurements)
+        self.warnings: list[str] = []
         self.t0 = 0.0
         self.offset = 0.0
-        self.t_last = 0.0
         self.interlock = DoorInterlock(lambda: self.dev.cellio is None or self.dev.cellio.door_closed())
         self.handlers: dict[StepKind, Callable[[Step], None]] = {
             StepKind.CHANGE_STATION: self._change_station,
@@ -121,53 +216,61 @@ class Engine:
             StepKind.MEASURE: self._measure,
         }
 
-    # ------------------------------------------------------------------ time and recording context
+    # ------------------------------------------------------------------ time and documents
     def tick(self) -> float:
         """Read the (recorded) campaign clock: seconds since the campaign start, continuing across resumes."""
-        self.t_last = self.offset + (self.dev.clock.now() - self.t0)
-        return self.t_last
+        self.context.t = self.offset + (self.dev.clock.now() - self.t0)
+        return self.context.t
 
-    def context(self) -> tuple[int, float]:
-        return self.step_index, self.t_last
-
-    def _append(self, kind: str, data: dict) -> None:
-        self.store.append(kind, data, self.step_index, self.t_last)
+    def _emit(self, name: str, data: dict) -> None:
+        self.context.emit(name, data)
 
     def _warn(self, message: str) -> None:
-        self._append("warning", {"message": message})
-        if self.notify is not None:
-            self.notify(message)
+        self.warnings.append(message)
+        self._emit("warning", {"message": message})
 
     # ------------------------------------------------------------------ running
-    def run(self, steps: list[Step]) -> None:
-        done = self.store.done_steps()
-        previous = self.store.events("campaign_started")
-        last = self.store.events()
-        self.offset = self.t_last = last[-1].t_campaign if last else 0.0
-        self._append("campaign_started", {"resumed": bool(previous), "steps": len(steps), "done": len(done)})
+    def run(self, steps: list[Step]) -> RunResult:
+        """Walk the steps not done yet; a safe stop, or the end of a replayed recording, ends the run with its
+        result (any other error propagates: nothing after it is emitted)."""
+        done = self.history.done
+        self.offset = self.context.t = self.history.t_last
+        self._emit("start", {"resumed": self.history.resumed, "steps": len(steps), "done": len(done)})
         self.t0 = self.dev.clock.now()
         first = next((i for i in range(len(steps)) if i not in done), len(steps))
-        if previous and first < len(steps):
-            self._restore_context(steps, first)
         measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
-        self.measured = len(self.store.events("measurement"))
-        for i in range(first, len(steps)):
-            if i in done:
-                continue
-            self._execute(i, steps[i])
-            if self.progress:
-                n_done = sum(1 for k in measures if k <= i)  # measured or skipped
+        n_done = sum(1 for k in measures if k in done or k < first)
+        try:
+            if self.history.resumed and first < len(steps):
+                self._restore_context(steps, first)
+            for i in range(first, len(steps)):
+                if i in done:
+                    continue
+                self._execute(i, steps[i])
+                n_done = bisect_right(measures, i)  # measured or skipped
                 nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
-                self.progress(Progress(self.measured, max(0, n_done - self.measured), len(measures), nxt))
-        self.step_index = -1
-        self._append("campaign_done", {})
+                progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures),
+                                    nxt)  # fmt: skip
+                self._emit("progress", asdict(progress))
+        except _Stop as stop:
+            return self._end("stopped", stop.reason, stop.step, n_done, len(measures))
+        except EndOfSegment as end:
+            return self._end("ended", str(end), self.context.step, n_done, len(measures))
+        self.context.step = -1
+        return self._end("success", "", None, len(measures), len(measures))
+
+    def _end(self, status: str, reason: str, step: int | None, n_done: int, planned: int) -> RunResult:
+        measured = len(self.measurements)
+        result = RunResult(status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings))
+        self._emit("stop", {"exit_status": status, "reason": reason})
+        return result
 
     def _restore_context(self, steps: list[Step], first: int) -> None:
         """Re-confirm the physical state a crash may have changed, then continue at `first`."""
         before = steps[:first]
         ctx = [s for s in before if s.kind == StepKind.CHANGE_STATION][-1:] + [
             s for s in before if s.kind == StepKind.MOVE_REFLECTOR and s.station == steps[first].station][-1:]
-        self.step_index = first
+        self.context.step = first
         self._warn(f"resuming at step {first}: re-confirming the operator context")
         for s in ctx:
             self._prompt(s.kind, s.station if s.kind == StepKind.CHANGE_STATION else s.point, f"Resuming: {s.label}")
@@ -182,15 +285,15 @@ class Engine:
                 self._settle()
 
     def _execute(self, i: int, step: Step) -> None:
-        self.step_index = i
+        self.context.step = i
         self.tick()
-        self._append("step_started", {"step": step.to_dict()})
+        self._emit("step_started", {"step": step.to_dict()})
         try:
             self.handlers[step.kind](step)
         except DeviceError as exc:
-            self._append("error", {"type": type(exc).__name__, "message": str(exc)})
-            raise CampaignStopped(i, str(exc)) from exc
-        self._append("step_done", {})
+            self._emit("error", {"type": type(exc).__name__, "message": str(exc)})
+            raise _Stop(i, str(exc)) from exc
+        self._emit("step_done", {})
 
     # ------------------------------------------------------------------ step kinds
     def _change_station(self, step: Step) -> None:
@@ -203,17 +306,17 @@ class Engine:
 
     def _prompt(self, kind: str, target: str, text: str) -> None:
         self.interlock.close()
-        self._append("prompt", {"kind": kind, "target": target, "text": text})
+        self._emit("prompt", {"kind": kind, "target": target, "text": text})
         answer = self.dev.operator.ask(kind, target, text)
-        self._append("operator", {"answer": answer})
+        self._emit("operator", {"answer": answer})
 
     def _resume_motion(self) -> None:
         """Door closed + acknowledge: only then may the robot move again."""
         text = "Leave the cell, close the door and acknowledge to resume motion"
         while True:
-            self._append("prompt", {"kind": StepKind.RESUME, "target": "", "text": text})
+            self._emit("prompt", {"kind": StepKind.RESUME, "target": "", "text": text})
             answer = self.dev.operator.ask(StepKind.RESUME, "", text)
-            self._append("operator", {"answer": answer})
+            self._emit("operator", {"answer": answer})
             if self.interlock.release():
                 self.dev.robot.reset_faults()  # the operator acknowledged: the controller's latched faults go
                 return
@@ -231,7 +334,7 @@ class Engine:
 
     def _move(self, step: Step) -> None:
         if not self.interlock.released:
-            raise CampaignStopped(self.step_index, "motion requested without an acknowledged resume")
+            raise _Stop(self.context.step, "motion requested without an acknowledged resume")
         if not self.interlock.door_closed():
             self._warn("the cell door opened: motion blocked until resumed")
             self.interlock.close()
@@ -269,8 +372,8 @@ class Engine:
             "std_mm": [m.std_x_mm, m.std_y_mm, m.std_z_mm],
             "env": [env.temperature_c, env.pressure_hpa, env.humidity_pct],
         }  # fmt: skip
-        self._append("measurement", data)
-        self.measured += 1
+        self._emit("measurement", data)
+        self.measurements.append(data)
         if step.drift:
             self._check_drift(data)
 
@@ -285,14 +388,14 @@ class Engine:
                    "the expected distance from the tracker), so it is not stored as a measurement. Likely causes: the "
                    "tracker's units or coordinate system were changed (by another program?), the wrong reflector, "
                    f"or station {step.station} moved")  # fmt: skip
-        self._append("error", {"type": "ImplausibleMeasurement", "message": message, "xyz_mm": x.tolist(),
+        self._emit("error", {"type": "ImplausibleMeasurement", "message": message, "xyz_mm": x.tolist(),
                                "expected_mm": e.tolist()})  # fmt: skip
-        raise CampaignStopped(self.step_index, message)
+        raise _Stop(self.context.step, message)
 
     def _check_drift(self, data: dict) -> None:
         first = next(
-            (e.data for e in self.store.events("measurement")
-             if e.data["drift"] and (e.data["station"], e.data["point"], e.data["pose"]) ==
+            (m for m in self.measurements
+             if m["drift"] and (m["station"], m["point"], m["pose"]) ==
              (data["station"], data["point"], data["pose"])), None,
         )  # fmt: skip
         if first is None:

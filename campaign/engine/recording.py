@@ -1,22 +1,24 @@
 """Recording and playing back every device call, so that replay is the same engine fed by a recording.
 
-Live: each driver (and the operator and the campaign clock) is wrapped in a `Recorder`, which stores
-every call with its arguments and its result (or its error) as a `call` event before handing the result
-to the engine. Replay: `Player`s stand in for the devices and return the recorded results in order,
-after checking that the engine asks exactly what it asked in the recording; the first call that differs
-stops the replay with the step and both calls named.
+Live: each driver (and the operator and the campaign clock) is wrapped in a `Recorder`, which emits
+every call with its arguments and its result (or its error) as a `call` document (engine.RunContext: the
+session store, a subscriber, commits it) before handing the result to the engine. Replay: `Player`s stand in
+for the devices and return the recorded results in order, after checking that the engine asks exactly what it
+asked in the recording; the first call that differs stops the replay with the step and both calls named.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 import trackcal.drivers.errors as derr
 from trackcal.campaign.errors import CampaignError
-from trackcal.campaign.session.store import Event, SessionStore
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
+
+if TYPE_CHECKING:
+    from trackcal.campaign.engine.engine import RunContext
 
 TYPES = {cls.__name__: cls for cls in (Environment, TrackerMeasurement, TrackerStatus)}
 ERRORS = {
@@ -75,10 +77,11 @@ def decode_error(err: dict) -> BaseException:
 
 
 class Recorder:
-    """Wraps a device: every public method call is stored as a `call` event (result or error)."""
+    """Wraps a device: every public method call is emitted as a `call` document (result or error), at the step
+    and campaign time of the moment it was made."""
 
-    def __init__(self, name: str, target: Any, store: SessionStore, context: Callable[[], tuple[int, float]]):
-        self._name, self._target, self._store, self._context = name, target, store, context
+    def __init__(self, name: str, target: Any, context: RunContext):
+        self._name, self._target, self._context = name, target, context
 
     def __getattr__(self, op: str):
         fn = getattr(self._target, op)
@@ -86,27 +89,28 @@ class Recorder:
             return fn
 
         def call(*args):
-            step, t = self._context()
+            step, t = self._context.where()
             record = {"device": self._name, "op": op, "args": encode(list(args))}
             try:
                 result = fn(*args)
             except derr.DeviceError as exc:
-                self._store.append("call", {**record, "error": encode_error(exc)}, step, t)
+                self._context.emit("call", {**record, "error": encode_error(exc)}, step, t)
                 raise
-            self._store.append("call", {**record, "result": encode(result)}, step, t)
+            self._context.emit("call", {**record, "result": encode(result)}, step, t)
             return result
 
         return call
 
 
 class Playback:
-    """The recorded calls of a session, handed out device by device in order."""
+    """The recorded calls of a session (its `call` events: kind, step, data), handed out device by device in
+    order; `context` says the step the engine is at."""
 
-    def __init__(self, events: list[Event], context: Callable[[], tuple[int, float]] = lambda: (-1, 0.0),
+    def __init__(self, events: Iterable, context: Callable[[], tuple[int, float]] = lambda: (-1, 0.0),
                  ends_abruptly: bool = False):  # fmt: skip
         self.context = context
         self.ends_abruptly = ends_abruptly
-        self.calls: dict[str, list[Event]] = {}
+        self.calls: dict[str, list] = {}
         for e in events:
             if e.kind == "call":
                 self.calls.setdefault(e.data["device"], []).append(e)

@@ -89,16 +89,17 @@ def _poses(rows: np.ndarray) -> str:
     return ("pose " if len(rows) == 1 else "poses ") + ", ".join(names) + more
 
 
-def check_plan(cell: Cell, poses_deg: np.ndarray) -> list[str]:
+def check_plan(cell: Cell, poses_deg: np.ndarray) -> tuple[list[str], dict[tuple[str, str], np.ndarray] | None]:
     """Problems that stop a campaign before its first prompt, for the whole plan as the controller gets it
     (4 decimals): no stations; a pose the robot cannot take (not a finite joint vector of its joints, or a joint
     outside its limits less the cell's joint_margin_deg); a pose putting a reference point outside the cell box;
-    a point no station sees."""
+    a point no station sees. With them the visibility it computed (None for poses that are not joint vectors of
+    the robot), so that the steps are built from the same one."""
     if not cell.stations:
         raise PlanError(f"cell {cell.name} lists no tracker stations")
     poses = np.atleast_2d(np.asarray(poses_deg, dtype=float))
     if poses.shape[1] != cell.chain.dof or not np.all(np.isfinite(poses)):
-        return [f"every pose needs {cell.chain.dof} finite joint angles (the plan has rows of {poses.shape[1]})"]
+        return [f"every pose needs {cell.chain.dof} finite joint angles (the plan has rows of {poses.shape[1]})"], None
     problems = []
     lim = usable_limits_deg(cell)
     outside = (poses < lim[:, 0]) | (poses > lim[:, 1])
@@ -116,15 +117,14 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> list[str]:
     for pid in sorted(cell.tool_points):
         if not any(vis[(sid, pid)].any() for sid in cell.stations):
             problems.append(f"point {pid} is not visible from any station at any pose of the plan")
-    return problems
+    return problems, vis
 
 
 def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterator[Step]:
     poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)  # as the controller gets them
-    problems = check_plan(cell, poses)
+    problems, vis = check_plan(cell, poses)  # the visibility of the check: computed once
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
-    vis = visibility(cell, poses)
     ids = [f"Q{i + 1}" for i in range(len(poses))]
     pids = sorted(cell.tool_points)
     for sid in cell.stations:

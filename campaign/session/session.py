@@ -26,7 +26,6 @@ import yaml
 from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell, load_yaml, resolve
-from trackcal.campaign.engine.steps import Step, campaign_steps
 from trackcal.campaign.session.store import SessionStore, StoreError
 
 PLAN_DOC = "plan.json"
@@ -118,23 +117,12 @@ def changed_copies(store: SessionStore) -> list[str]:
     return changed
 
 
-def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
-    try:
-        poses = np.asarray(plan_doc["poses_deg"], dtype=float)
-        repeat = int(plan_doc.get("repeat", 1))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StoreError(f"plan: expected poses_deg (list of joint vectors) and repeat ({exc})") from None
-    if poses.ndim != 2 or not np.all(np.isfinite(poses)) or repeat < 1:
-        raise StoreError("plan: poses_deg must be a list of finite joint vectors and repeat >= 1")
-    return poses, repeat
-
-
 def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
                    hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
                    extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
     """A new session holding its lock, with the cell, robot, tool, plan and (`hardware`: text, source path) the
-    hardware config stored in it. A cell or plan that cannot run makes no session."""
-    session_steps(load_cell(cell_ref), plan_doc)  # the whole plan is checked (PlanError) before a session exists
+    hardware config stored in it. The caller has checked the cell and the plan (campaign/jobs/campaign.py): a
+    cell or plan that cannot run makes no session."""
     documents = {**config_documents(cell_ref), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
     meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
             **(extra or {})}  # fmt: skip
@@ -166,11 +154,25 @@ def session_hardware(store: SessionStore) -> str:
     return store.documents()[HARDWARE_COPY]
 
 
-def session_steps(cell: Cell, plan_doc: dict) -> list[Step]:
-    poses, repeat = plan_arrays(plan_doc)
-    if poses.shape[1] != cell.chain.dof:
-        raise StoreError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
-    return list(campaign_steps(cell, poses, repeat))
+class SessionLog:
+    """The session store as a subscriber of the engine's documents (campaign/engine/engine.py): each document of
+    the record is committed (SessionStore.append) before this returns, so before the engine goes on. The event
+    kinds are the documents' names, but `start` is stored as campaign_started and a successful `stop` as
+    campaign_done; `progress` and any other `stop` are not stored (the error that stopped the run is)."""
+
+    KINDS = {"start": "campaign_started"}
+
+    def __init__(self, store: SessionStore):
+        self.store = store
+
+    def __call__(self, doc) -> None:
+        if doc.name == "progress":
+            return
+        if doc.name == "stop":
+            if doc.data["exit_status"] == "success":
+                self.store.append("campaign_done", {}, doc.step, doc.t)
+            return
+        self.store.append(self.KINDS.get(doc.name, doc.name), doc.data, doc.step, doc.t)
 
 
 def measured_keys(store: SessionStore) -> list[tuple[str, str, tuple[float, ...]]]:

@@ -1,29 +1,12 @@
-"""The operator in the loop: console prompts, and the cell PLC (request lamp, acknowledge button)."""
+"""The operator at the cell PLC: request on the HMI, request lamp, acknowledge button (the console's operator:
+campaign/cli/console.py)."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
-from rich.console import Console
-
-from trackcal.drivers.errors import ConnectionLost, ProtocolError
-
-
-class ConsoleOperator:
-    """Shows the request and waits for Enter (the operator's acknowledgement). A console at the end of its
-    input (stdin closed, or a file that ran out) has no operator behind it: the campaign stops safely there,
-    as for a lost device, and `trackcal resume` asks again."""
-
-    def __init__(self, console: Console):
-        self.console = console
-
-    def ask(self, kind: str, target: str, text: str) -> str:
-        self.console.print(f"[bold yellow]OPERATOR[/]: {text}")
-        try:
-            self.console.input("press Enter when done ")
-        except EOFError:
-            raise ConnectionLost("end of input, nobody can acknowledge", device="operator console") from None
-        return "console"
+from trackcal.drivers.errors import ProtocolError
 
 
 class PlcOperator:
@@ -35,23 +18,25 @@ class PlcOperator:
 
     Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console. A PLC program
     without the request registers (it answers with a Modbus exception) still gets lamp and button: the HMI
-    display is dropped with one warning."""
+    display is dropped with one warning. `say` shows a line (rich markup) on the console of whoever runs the
+    campaign."""
 
-    def __init__(self, cellio, console: Console, poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep):
-        self.cellio, self.console, self.poll_s, self.remind_s, self.sleep = cellio, console, poll_s, remind_s, sleep
+    def __init__(self, cellio, say: Callable[[str], None], poll_s: float = 0.1, remind_s: float = 60.0,
+                 sleep=time.sleep):  # fmt: skip
+        self.cellio, self.say, self.poll_s, self.remind_s, self.sleep = cellio, say, poll_s, remind_s, sleep
         self.hmi = hasattr(cellio, "show_request")
 
     def ask(self, kind: str, target: str, text: str) -> str:
         self._hmi(self.cellio.show_request if self.hmi else None, kind, target)
         try:
             self.cellio.set_request_lamp(True)
-            self.console.print(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
+            self.say(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
             waited = 0.0
             while not self.cellio.acknowledge_pressed():
                 self.sleep(self.poll_s)
                 waited += self.poll_s
                 if waited >= self.remind_s:
-                    self.console.print(f"[yellow]still waiting[/]: {text}")
+                    self.say(f"[yellow]still waiting[/]: {text}")
                     waited = 0.0
         finally:
             try:
@@ -69,5 +54,5 @@ class PlcOperator:
             fn(*args)
         except ProtocolError as exc:
             self.hmi = False
-            self.console.print(f"[yellow]warning[/]: the cell HMI shows no requests ({exc}); "
+            self.say(f"[yellow]warning[/]: the cell HMI shows no requests ({exc}); "
                                "lamp and acknowledge button only")  # fmt: skip
