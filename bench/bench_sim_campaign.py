@@ -30,7 +30,7 @@ from bench.goals import check
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.runner import run_campaign
-from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import create_session, write_export
 
 SEED = 1

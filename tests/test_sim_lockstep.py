@@ -12,7 +12,7 @@ import pytest
 from tests.helpers import feasible_plan
 from trackcal.campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
 from trackcal.campaign.engine.runner import run_campaign
-from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import create_session, write_export
 from trackcal.drivers.errors import MotionRefused
 from trackcal.drivers.kuka.client import STALE_CYCLES

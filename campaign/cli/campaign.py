@@ -10,15 +10,16 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from trackcal.calib.io.files import read_json, read_text
-from trackcal.campaign.analysis import analyse_session, parse_effects
 from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
 from trackcal.campaign.cells.sim import SimCell
+from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.console import console
 from trackcal.campaign.engine.engine import CampaignStopped
 from trackcal.campaign.engine.engine import Progress as CampaignProgress
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.engine.runner import replay_session, run_campaign
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
+from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import (
     HARDWARE_COPY,
     changed_copies,
@@ -125,7 +126,7 @@ def _campaign(open_store, no_analysis: bool, reanalyse: bool = False) -> int:
     else:
         drive(store)
     if not no_analysis:
-        analyse_session(store)
+        analyse_and_print(store)
     return 0
 
 
