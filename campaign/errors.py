@@ -6,7 +6,7 @@ CampaignError  a file, plan, session, cell or value the campaign cannot use; the
                  command line spells it as its flag (`--params: ...`)
   UsageError   a command-line mistake (a missing or conflicting option): raised by campaign.cli only
 Other subclasses live with their subject: PlanError (engine.steps), StoreError (session.store), CampaignStopped
-and ReplayDivergence (engine), KrlError (krl).
+and ReplayDivergence (engine), KrlError (jobs.krl), NotAnalysedError (jobs.end_of_run).
 """
 
 
