@@ -30,7 +30,7 @@ from bench.goals import check
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.jobs.campaign import new_session, run_stored
-from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import write_export
 
 SEED = 1

@@ -18,7 +18,10 @@ from trackcal.calib.identify.solver import Identification
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import identification_to_doc
-from trackcal.campaign.cli import build_parser, main
+from trackcal.campaign.cli import build_parser, flag, main
+from trackcal.campaign.errors import OptionError
+from trackcal.campaign.jobs.identify import convergence_warning
+from trackcal.campaign.jobs.plan import parse_test_pose
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +157,28 @@ def test_identify_says_which_weighting_and_whether_the_fit_can_be_trusted(tmp_pa
     assert s["fit"] == "poor" and s["fit_ratio"] > 2
     assert err.count("\n") == 1 and err.startswith("warning: poor fit") and "trackcal diagnose" in err
     assert "parameters left out (py1 phix1" in err
+
+
+def test_identify_summary_says_whether_the_fit_converged(tmp_path, campaign_csv):
+    _, data = campaign_csv
+    summary = tmp_path / "s.json"
+    assert main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json",
+                 str(summary)]) == 0  # fmt: skip
+    s = json.loads(summary.read_text())
+    assert s["converged"] is True and isinstance(s["message"], str)
+    assert convergence_warning({"converged": True, "message": "step below the floor"}) is None
+    line = convergence_warning({"converged": False, "message": "stopped after 50 iterations"})
+    assert "did not converge: stopped after 50 iterations" in line and "\n" not in line
+
+
+def test_a_job_names_its_option_and_the_command_line_spells_its_flag(kr270, capsys):
+    """Library messages name no command-line option: the job names the field of its options, the CLI the flag."""
+    with pytest.raises(OptionError) as info:
+        parse_test_pose(kr270, "1,2")
+    assert str(info.value) == "test_pose: expected 6 angles, got '1,2'"
+    assert info.value.spelled(flag) == "--test-pose: expected 6 angles, got '1,2'"
+    assert main(["plan", "--cell", "kr270", "--test-pose=1,2", "--json", "p.json"]) == 2
+    assert capsys.readouterr().err == "error: --test-pose: expected 6 angles, got '1,2'\n"
 
 
 def test_extend_prints_the_cause_and_its_parameters(tmp_path, campaign_csv, capsys):

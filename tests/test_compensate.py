@@ -23,9 +23,9 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params, param_by_name
 from trackcal.calib.model.pinmodel import gravity_torques
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.analysis import choose_params, run_identify
 from trackcal.campaign.cli import main
-from trackcal.campaign.krl import KrlError, krl_texts, point_names, write_krl
+from trackcal.campaign.jobs.identify import choose_params, run_identify
+from trackcal.campaign.jobs.krl import KrlError, krl_texts, point_names, write_krl
 from trackcal.mocks.twin import PAPER_TABLE8
 
 LEVER = 100.0  # mm, the tool points offset along x and y of the last frame (calib.compensate default)

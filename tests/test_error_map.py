@@ -20,13 +20,13 @@ from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.joint_map import Arc, outside_arcs
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import identify, predict_points
+from trackcal.calib.io.files import write_json
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.subset import identifiable_subset
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.cli import main
-from trackcal.campaign.output import write_json
 from trackcal.mocks.synth import simulate_campaign
 from trackcal.mocks.twin import Twin
 

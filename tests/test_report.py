@@ -18,15 +18,27 @@ from tests.helpers import kr270_campaign
 from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import read_table, write_table
-from trackcal.campaign.analysis import choose_params, run_identify, verdict_doc
 from trackcal.campaign.cli import main
-from trackcal.campaign.report.html import Provenance, write_report
-from trackcal.campaign.report.inputs import table_sha256
+from trackcal.campaign.jobs.diagnose import verdict_doc
+from trackcal.campaign.jobs.end_of_run import diagnosis_of
+from trackcal.campaign.jobs.identify import choose_params, run_identify, sha256_of
+from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
+from trackcal.campaign.report.html import write_report
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
 SESSION = "KR-270 <script>alert('x')</script> & co"  # a session directory name HTML must escape
-PROV = Provenance(session=SESSION, campaign_started="2026-12-01 10:00 UTC", model_path="model.json", cell_ref="kr270",
-                  warnings=["t = 748 s: P2 not measurable from S1 at Q5: beam broken; skipped here"])  # fmt: skip
+PROV = Provenance(session=SESSION, campaign_started="2026-12-01 10:00 UTC", model_path="model.json", cell_ref="kr270")
+WARNINGS = ["t = 748 s: P2 not measurable from S1 at Q5: beam broken; skipped here"]
+
+
+def render(out, cell, table, model, plan, verdict, prov, warnings=None, extra_images=None, diagnosis=None) -> Path:
+    """The report of these documents (a verdict without its diagnosis: the table diagnosed again, as `trackcal
+    report` does)."""
+    if verdict is not None and diagnosis is None:
+        diagnosis = diagnosis_of(cell, table, model)
+    analysis = CampaignAnalysis(cell=cell, table=table, table_sha256=None, model=model, plan=plan, verdict=verdict,
+                                diagnosis=diagnosis, warnings=warnings, provenance=prov)  # fmt: skip
+    return write_report(analysis, out, extra_images)
 
 
 class Page(HTMLParser):
@@ -57,7 +69,7 @@ def campaign(kr270, tmp_path_factory):
     configurations = list(dict.fromkeys(tuple(q) for q in table.q_deg.tolist()))  # the table's, in order
     plan = {"rho0_mm": 0.00231, "repeat": 1, "criterion": "rho0", "params": ["px1", "px2"],
             "poses_deg": [list(q) for q in configurations], "test_pose_deg": [76.7, -56.9, 89.3, 45.1, 76, 57.2]}
-    verdict = {"cause": "none", "cell": "kr270", "table_sha256": table_sha256(table),
+    verdict = {"cause": "none", "cell": "kr270", "table_sha256": sha256_of(table.source),
                "candidates": [{"cause": "backlash", "n_params": 5, "holdout_rms_mm": 0.0161,
                "rms_mm": 0.0149, "f_pvalue": 0.41, "delta_bic": 12.0, "significant": False}],
                "geometric": {"rms_mm": 0.0150}, "extended": {"rms_mm": 0.0150}, "noise_floor_mm": 0.0151,
@@ -80,7 +92,7 @@ def table9_expected(before: np.ndarray, after: np.ndarray) -> list[str]:
 
 def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    path = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV)
+    path = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS)
     assert path == tmp_path / "rep" / "report.html"
     text = path.read_text()
     page = Page()
@@ -109,7 +121,7 @@ def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
 
 def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV).read_text()
+    text = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS).read_text()
     page = Page()
     page.feed(text)
     cells = [c.strip() for c in page.cells]
@@ -127,7 +139,7 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
 def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
     backlash = dict(verdict, cause="backlash", extended={"rms_mm": 0.0149})
-    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, backlash, PROV).read_text()
+    text = render(tmp_path / "rep", kr270, table, outcome.doc, plan, backlash, PROV, WARNINGS).read_text()
     sentence = text.split("id='verdict'>")[1].split("</p>")[0]
     assert "shows backlash" in sentence and "15.0" in sentence and "14.9" in sentence
     advice = text.split("What next")[1].split("<h2")[0]
@@ -139,7 +151,7 @@ def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):
 
 def test_text_is_escaped(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    text = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV).read_text()
+    text = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS).read_text()
     assert "<script>" not in text and ODD_STATION not in text
     assert "KR-270 &lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; &amp; co" in text
     assert "S&quot;1&lt;&amp;&gt;" in text
@@ -158,7 +170,7 @@ def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, t
     fig.savefig(extra)
     plt.close(fig)
     out = tmp_path / "rep"
-    text = write_report(out, kr270, table, outcome.doc, None, None, Provenance(), extra_images=[extra]).read_text()
+    text = render(out, kr270, table, outcome.doc, None, None, Provenance(), extra_images=[extra]).read_text()
     assert "No plan given" in text
     assert 'src="extra/parameters.png"' in text and 'src="parameters.png"' in text
     assert (out / "extra" / "parameters.png").read_bytes() == extra.read_bytes()
@@ -223,7 +235,7 @@ def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
     d, table, outcome, plan, _ = campaign
     diag = diagnose(kr270.chain, table, kr270.tool_points, choose_params(kr270, None), TrackerNoise(), folds=3)
     out = tmp_path / "rep"
-    text = write_report(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag), Provenance(),
+    text = render(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag, sha256_of(table.source)), Provenance(),
                         diagnosis=diag).read_text()  # fmt: skip
     for name in ("diagnosis/signature.png", "diagnosis/structure.png"):
         assert f'src="{name}"' in text and (out / name).is_file()
@@ -281,7 +293,7 @@ def rendered_dom(html_path: Path, tmp_path: Path) -> str:
 
 def test_the_report_renders_in_chromium_with_its_header_verdict_and_every_image(kr270, campaign, tmp_path):
     d, table, outcome, plan, verdict = campaign
-    path = write_report(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV)
+    path = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS)
     dom = rendered_dom(path, tmp_path)
     assert 'data-checked="yes"' in dom  # the page loaded and the marking ran
     assert re.search(r"<h1>Calibration report: KR-270 &lt;script&gt;.*cell kr270</h1>", dom)

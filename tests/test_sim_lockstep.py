@@ -12,7 +12,7 @@ import pytest
 from tests.helpers import feasible_plan
 from trackcal.campaign.cells.sim import HOME_DEG, SIM_JOINT_SPEED_DEG_S, SimCell
 from trackcal.campaign.jobs.campaign import new_session, run_stored
-from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import write_export
 from trackcal.drivers.errors import MotionRefused
 from trackcal.drivers.kuka.rsi_codec import ipoc_of

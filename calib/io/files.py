@@ -131,10 +131,26 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
         os.close(dirfd)
 
 
-def write_text(path: str | Path, text: str) -> None:
-    with atomic_open(path) as fh:
+@contextlib.contextmanager
+def writing(path: str | Path, error: type[Exception]) -> Iterator[None]:
+    """An OSError in the block (a full disk, a read-only directory) is `error` with one line naming `path`."""
+    try:
+        yield
+    except OSError as exc:
+        raise error(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
+def write_text(path: str | Path, text: str, error: type[Exception] | None = None) -> None:
+    """`text` as the UTF-8 content of `path`, atomically; with `error`, a failed write is that error."""
+    with writing(path, error) if error is not None else contextlib.nullcontext(), atomic_open(path) as fh:
         fh.write(text)
 
 
-def write_json(path: str | Path, doc) -> None:
-    write_text(path, dumps_json(doc))
+def write_json(path: str | Path, doc, error: type[Exception] | None = None) -> None:
+    write_text(path, dumps_json(doc), error)
+
+
+def write_bytes(path: str | Path, data: bytes, error: type[Exception] | None = None) -> None:
+    """`data` as the content of `path`, atomically (a file whose bytes the caller also hashes)."""
+    with writing(path, error) if error is not None else contextlib.nullcontext(), atomic_open(path, "wb") as fh:
+        fh.write(data)

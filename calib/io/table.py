@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import codecs
 import csv
+import dataclasses
+import io
 import itertools
 import math
 import sys
@@ -404,22 +406,39 @@ def _fmt(v: float, digits: int) -> str:
     return f"{v:.{digits}f}"
 
 
-def write_table(table: MeasurementTable, path: str | Path) -> None:
-    """Write in the DESIGN.md layout (q to 1e-4 deg as the controller reports, xyz to 1e-4 mm), atomically."""
+def table_csv(table: MeasurementTable) -> str:
+    """The text of the table's file in the DESIGN.md layout (q to 1e-4 deg as the controller reports, xyz to
+    1e-4 mm, t to 1e-3 s), rows ending in LF."""
     header = ["seq", "t_s", *IDS, *joint_columns(table.n_joints)]
     if table.xyz is not None:
         header += list(XYZ)
     header += list(table.extra)
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(header)
+    for i in range(len(table)):
+        row = [str(int(table.seq[i])), _fmt(table.t_s[i], 3), table.pose[i], table.station[i], table.point[i]]
+        row += [_fmt(v, 4) for v in table.q_deg[i]]
+        if table.xyz is not None:
+            row += [_fmt(v, 4) for v in table.xyz[i]]
+        row += [table.extra[h][i] for h in table.extra]
+        w.writerow(row)
+    return out.getvalue()
+
+
+def as_written(table: MeasurementTable) -> MeasurementTable:
+    """The table as its file (`table_csv`) holds it: the numbers rounded as written, what read_table would give."""
+    def rounded(values: np.ndarray, digits: int) -> np.ndarray:
+        return np.vectorize(lambda v: float(_fmt(v, digits)), otypes=[float])(values)
+
+    return dataclasses.replace(table, t_s=rounded(table.t_s, 3), q_deg=rounded(table.q_deg, 4),
+                               xyz=None if table.xyz is None else rounded(table.xyz, 4))  # fmt: skip
+
+
+def write_table(table: MeasurementTable, path: str | Path) -> None:
+    """Write `table_csv(table)` to `path`, atomically."""
     with atomic_open(path, "w", newline="") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(header)
-        for i in range(len(table)):
-            row = [str(int(table.seq[i])), _fmt(table.t_s[i], 3), table.pose[i], table.station[i], table.point[i]]
-            row += [_fmt(v, 4) for v in table.q_deg[i]]
-            if table.xyz is not None:
-                row += [_fmt(v, 4) for v in table.xyz[i]]
-            row += [table.extra[h][i] for h in table.extra]
-            w.writerow(row)
+        fh.write(table_csv(table))
 
 
 def read_joint_rows(path: str | Path, dof: int, what: str = "rows") -> tuple[np.ndarray, dict[str, list[str]]]:

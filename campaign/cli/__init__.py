@@ -4,6 +4,7 @@ turns an error into a line on stderr.
 Every user mistake ends in one line and exit code 2. The command line catches one error base per layer:
 calib.errors.CalibError (the mathematics refuses its input), campaign.errors.CampaignError (a file, plan,
 session or option the campaign cannot use) and drivers.errors.DeviceError (a device that cannot be reached).
+A job's OptionError names the option it concerns; here it is spelled as the command's flag (`--params: ...`).
 """
 
 from __future__ import annotations
@@ -15,10 +16,20 @@ import sys
 from trackcal.calib.errors import CalibError
 from trackcal.campaign.cli.blas import limited_blas
 from trackcal.campaign.cli.commands import COMMANDS, GROUPS
-from trackcal.campaign.errors import CampaignError
+from trackcal.campaign.errors import CampaignError, OptionError
 from trackcal.drivers.errors import DeviceError
 
 USER_ERRORS = (CalibError, CampaignError, DeviceError)  # one line, exit 2
+
+
+def flag(option: str) -> str:
+    """The command-line flag of a job's option field: test_pose -> --test-pose."""
+    return "--" + option.replace("_", "-")
+
+
+def message_of(exc: Exception) -> str:
+    """The line a user error is shown as: a job's option errors name the command's flags."""
+    return exc.spelled(flag) if isinstance(exc, OptionError) else str(exc)
 
 
 class HelpWithDefaults(argparse.HelpFormatter):
@@ -74,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             handler = getattr(importlib.import_module(module), function)
             return handler(args)
     except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {message_of(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -1,37 +1,25 @@
-"""`trackcal identify | diagnose | predict | simulate`: thin commands over campaign.analysis."""
+"""`trackcal identify | diagnose | predict | simulate`: options in, one job (campaign.jobs), its result printed."""
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-import numpy as np
 from rich.table import Table
 
-from trackcal.calib.diagnose.selection import diagnose
-from trackcal.calib.identify.noise import noise_for
-from trackcal.calib.io.table import read_table, write_table
-from trackcal.calib.model.cell import load_cell
-from trackcal.calib.model_file import load_model, predict_table
-from trackcal.campaign.analysis import (
-    IdentifyOutcome,
-    choose_params,
-    fit_warning,
-    left_out,
-    model_doc,
-    parse_effects,
-    run_identify,
-    simulate,
-    summary_of,
-    verdict_doc,
-)
 from trackcal.campaign.cli.console import console
-from trackcal.campaign.output import write_json, write_output_table
-from trackcal.campaign.report.diagnosis_plots import plots
+from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
+from trackcal.campaign.jobs.identify import (
+    IdentifyOptions,
+    PredictOptions,
+    convergence_warning,
+    identify_table,
+    predict,
+)
+from trackcal.campaign.jobs.simulate import SimulateOptions, parse_effects, simulate
 
 
-def print_identification(outcome: IdentifyOutcome, truth: dict[str, float] | None = None) -> None:
-    doc = outcome.doc
+def print_identification(doc: dict, truth: dict[str, float] | None = None) -> None:
+    """A model document's parameters, residuals, significance, stations and fit (`truth`: the twin's)."""
     t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations, "
                     f"{doc['weighting']} weighting)")  # fmt: skip
     for col in ("parameter", "unit", "nominal", "deviation", "95 % CI"):
@@ -89,40 +77,31 @@ def print_extension(ext: dict) -> None:
 
 
 def cmd_identify(args) -> int:
-    cell = load_cell(args.cell)
-    table = read_table(args.data, chain=cell.chain)
-    params = choose_params(cell, args.params)
-    outcome = run_identify(cell, table, params, args.weighting, args.extend)
-    print_identification(outcome)
-    if args.extend == "auto":
-        cause = outcome.doc["extension"]["cause"]
-        console.print(f"--extend auto: diagnose chose {cause}" + (" (the model stays geometric)" if cause == "none"
-                                                                   else ""))  # fmt: skip
-    warning = fit_warning(outcome.doc, left_out(cell, params))
-    if warning:
-        print(f"warning: {warning}", file=sys.stderr)
-    write_json(args.out, outcome.doc)
-    if args.json:
-        write_json(args.json, summary_of(outcome))
+    outcome = identify_table(IdentifyOptions(data=args.data, cell=args.cell, out=args.out, params=args.params,
+                                             weighting=args.weighting, extend=args.extend, json=args.json))  # fmt: skip
+    print_identification(outcome.doc)
+    if outcome.chosen is not None:
+        console.print(f"--extend auto: diagnose chose {outcome.chosen}"
+                      + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
+    for warning in (outcome.warning, convergence_warning(outcome.doc)):
+        if warning:
+            print(f"warning: {warning}", file=sys.stderr)
     console.print(f"model written to {args.out}")
     return 0
 
 
 def cmd_predict(args) -> int:
-    model = load_model(args.model)
-    rows = read_table(args.rows, require_xyz=False, chain=model.chain)
-    pred = predict_table(model, rows)
-    warning = model.range_warning(np.radians(rows.q_deg))
-    if warning:
-        print(f"warning: {warning}", file=sys.stderr)
-    write_output_table(pred, args.out)
-    console.print(f"{len(pred)} predictions written to {args.out}")
+    done = predict(PredictOptions(model=args.model, rows=args.rows, out=args.out))
+    if done.warning:
+        print(f"warning: {done.warning}", file=sys.stderr)
+    console.print(f"{len(done.table)} predictions written to {args.out}")
     return 0
 
 
 def cmd_simulate(args) -> int:
-    _, _, table = simulate(args.cell, args.poses, args.seed, args.repeat, args.noise_free, parse_effects(args.effect))
-    write_table(table, args.out)
+    _, _, table = simulate(SimulateOptions(cell=args.cell, out=args.out, poses=args.poses, seed=args.seed,
+                                           repeat=args.repeat, noise_free=args.noise_free,
+                                           effects=parse_effects(args.effect)))  # fmt: skip
     console.print(f"{len(table)} simulated measurements written to {args.out}")
     return 0
 
@@ -133,13 +112,12 @@ def um(mm: float | None, digits: int = 1) -> str:
 
 
 def cmd_diagnose(args) -> int:
-    cell = load_cell(args.cell)
-    table = read_table(args.data, chain=cell.chain)
-    params = choose_params(cell, args.params)
-    noise = noise_for(args.weighting)
+    opts = DiagnoseOptions(data=args.data, cell=args.cell, json=args.json, params=args.params,
+                           weighting=args.weighting, folds=args.folds, seed=args.seed, plots=args.plots,
+                           out=args.out)  # fmt: skip
     with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
-        d = diagnose(cell.chain, table, cell.tool_points, params, noise, folds=args.folds, seed=args.seed)
-    doc = verdict_doc(cell, d)
+        done = run_diagnose(opts)
+    d, doc = done.diagnosis, done.verdict
     t = Table(title=f"Diagnosis: {d.cause}" + (f" (causes: {', '.join(c['cause'] for c in d.causes)})"
                                                if len(d.causes) > 1 else ""))  # fmt: skip
     for col in ("step", "candidate", "params", "held-out RMS µm", "gain µm", "fit RMS µm", "F-test p", "dBIC",
@@ -155,11 +133,7 @@ def cmd_diagnose(args) -> int:
     console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} µm ({d.floor_source}); {doc['noise_note']}; held-out "
                   f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} µm"
                   + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip
-    if args.plots:
-        for p in plots(cell, d, Path(args.plots)):
-            console.print(f"plot written to {p}")
-    write_json(args.json, doc)
-    if args.out:
-        write_json(args.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift))
+    for p in done.plots:
+        console.print(f"plot written to {p}")
     console.print(f"verdict written to {args.json}")
     return 0

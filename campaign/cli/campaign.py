@@ -9,12 +9,13 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from trackcal.calib.io.files import read_json
-from trackcal.campaign.analysis import analyse_session, parse_effects
 from trackcal.campaign.cli.console import ConsoleOperator, console
+from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.engine.engine import Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
 from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
+from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
 
@@ -87,7 +88,7 @@ def cmd_run(args) -> int:
         store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress])
     stopped_safely(store, result)
     if not args.no_analysis:
-        analyse_session(store, console.print)
+        analyse_and_print(store)
     return 0
 
 
@@ -107,7 +108,7 @@ def cmd_resume(args) -> int:
     else:
         drive(store)
     if not args.no_analysis:
-        analyse_session(store, console.print)
+        analyse_and_print(store)
     return 0
 
 

@@ -6,16 +6,14 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING
-from trackcal.calib.io.table import read_table
 from trackcal.calib.model.cell import load_cell
-from trackcal.campaign.analysis import analyse_session, choose_params, run_identify, twin_truth
 from trackcal.campaign.cli.analysis import print_identification, um
 from trackcal.campaign.cli.campaign import drive
 from trackcal.campaign.cli.console import console
+from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.jobs.campaign import new_session
-from trackcal.campaign.output import write_json
-from trackcal.campaign.planning import PlanOptions, build_design, search_doc
+from trackcal.campaign.jobs.plan import PlanOptions, plan
+from trackcal.campaign.jobs.simulate import twin_truth
 
 
 def cmd_demo(args) -> int:
@@ -25,16 +23,13 @@ def cmd_demo(args) -> int:
     out.mkdir(parents=True)
     cell = load_cell(args.cell)
     console.rule(f"trackcal demo: cell {cell.name} on the digital twin")
-    options = PlanOptions(configs=6, repeat=3, seed=args.seed)
     with console.status("planning: test-pose optimal poses (paper section 6)"):
-        plan = search_doc(build_design(cell, options), options)
-    write_json(str(out / "plan.json"), plan)
-    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan['rho0_mm'], 2)} µm "
+        plan_doc = plan(args.cell, PlanOptions(configs=6, repeat=3, seed=args.seed), str(out / "plan.json")).doc
+    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan_doc['rho0_mm'], 2)} µm "
                   f"({out / 'plan.json'})")  # fmt: skip
-    store, _ = new_session(out / "session", args.cell, plan, "sim", args.seed)
+    store, _ = new_session(out / "session", args.cell, plan_doc, "sim", args.seed)
     drive(store)
-    analyse_session(store, console.print)
-    table = read_table(out / "session" / "table.csv", chain=cell.chain)
-    print_identification(run_identify(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING),
-                         twin_truth(cell, args.seed))  # fmt: skip
+    analysis = analyse_and_print(store)
+    if analysis is not None:  # the geometric model's parameters against the twin's truth
+        print_identification(analysis.geometric, twin_truth(cell, args.seed))
     return 0

@@ -25,12 +25,12 @@ from pathlib import Path
 import yaml
 from rich.table import Table
 
+from trackcal.calib.io.files import write_text
 from trackcal.calib.model.cell import load_cell
-from trackcal.campaign.analysis import parse_effects
 from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
 from trackcal.campaign.cli.console import console
-from trackcal.campaign.errors import UsageError
-from trackcal.campaign.output import write_text
+from trackcal.campaign.errors import InputError, UsageError
+from trackcal.campaign.jobs.simulate import parse_effects
 
 
 def cmd_mock(args) -> int:
@@ -52,7 +52,7 @@ def cmd_mock(args) -> int:
         text = (f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
                 f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
         if out is not None:
-            write_text(out, text)
+            write_text(out, text, InputError)
         table = Table(title=f"trackcal mock: cell {cell.name}, seed {args.seed}"
                             + (f", effects {effects}" if effects else ""))  # fmt: skip
         table.add_column("device")

@@ -1,14 +1,16 @@
-"""`trackcal report`: the HTML report of a session, or of a table, a model, a plan and a verdict."""
+"""`trackcal report`: the HTML report of a session, or of a table, a model, a plan and a verdict; and the console
+lines of a campaign's end-of-run analysis (`print_analysis`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from trackcal.calib.io.files import read_json
-from trackcal.calib.model.cell import load_cell
+from trackcal.calib.identify.solver import IdentificationError
+from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import InputError, UsageError
-from trackcal.campaign.report.html import Provenance
-from trackcal.campaign.report.inputs import report_files, report_session
+from trackcal.campaign.jobs.end_of_run import NotAnalysedError, analyse_session, report_files, report_session
+from trackcal.campaign.report.analysis import CampaignAnalysis
+from trackcal.campaign.session.store import SessionStore
 
 
 def cmd_report(args) -> int:
@@ -21,17 +23,44 @@ def cmd_report(args) -> int:
     if args.session is not None:
         if args.table or args.model or args.plan or args.verdict or args.cell:
             raise UsageError("give a SESSION directory or --table, --model, --plan, --verdict, --cell; not both")
-        if not (Path(args.session) / "session.sqlite").exists():
-            raise InputError(f"{args.session}: not a trackcal session")
-        path = report_session(Path(args.session), Path(args.out) if args.out else None, extra_images=images)
+        try:
+            path = report_session(Path(args.session), Path(args.out) if args.out else None, images)
+        except NotAnalysedError as exc:
+            raise InputError(f"{exc.directory}: no {exc.missing} yet (the campaign has not been analysed: "
+                             f"trackcal resume {exc.directory} --analyse)") from None  # fmt: skip
     else:
         if not (args.table and args.model and args.out):
             raise UsageError("give a SESSION directory, or --table, --model and --out")
-        cell_ref = args.cell or read_json(args.model, InputError).get("cell")
-        if not cell_ref:
-            raise InputError(f"{args.model}: the model names no cell: give --cell NAME")
-        prov = Provenance(model_path=args.model, cell_ref=cell_ref)
-        path = report_files(load_cell(cell_ref), args.table, args.model, args.plan, args.verdict, args.out, prov,
-                            images)  # fmt: skip
+        path = report_files(args.table, args.model, args.out, args.plan, args.verdict, args.cell, images)
     print(f"report written to {path}")
     return 0
+
+
+def print_analysis(analysis: CampaignAnalysis) -> None:
+    """The end of a campaign on the console: where the table, model, verdict and report went, the fit, the
+    diagnosis, and the campaign's warnings."""
+    files, model, cause = analysis.files, analysis.model, analysis.verdict["cause"]
+    if analysis.geometric_model is not None:
+        what = f"model {files.model} extended by {cause} (the geometric one: {files.geometric_model})"
+    else:
+        what = f"model {files.model} (geometric)"
+    console.print(f"{len(analysis.table)} measurements -> {files.table}; {what}: coordinate RMS "
+                  f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
+                  f"{cause} ({files.verdict}); report {analysis.report}")  # fmt: skip
+    warnings = analysis.warnings
+    if warnings:
+        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/] (also in the report):", highlight=False)
+        for w in warnings:
+            console.print(f"  {w}", markup=False, highlight=False)
+
+
+def analyse_and_print(store: SessionStore) -> CampaignAnalysis | None:
+    """The end-of-run analysis of a session (campaign.jobs.end_of_run.analyse_session) on the console; None, with
+    one line saying why, when the session cannot be identified yet."""
+    try:
+        analysis = analyse_session(store)
+    except IdentificationError as exc:
+        console.print(f"[yellow]identification not possible yet[/]: {exc}")
+        return None
+    print_analysis(analysis)
+    return analysis

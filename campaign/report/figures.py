@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trackcal.campaign.output import output_file
+from trackcal.calib.io.files import atomic_open, writing
+from trackcal.campaign.errors import InputError
 
 
 def pyplot():
@@ -20,7 +21,7 @@ def pyplot():
 
 def save_png(fig, path: Path, dpi: int) -> Path:
     """The figure as a PNG at `path`, written atomically, then closed."""
-    with output_file(path, "wb") as fh:
+    with writing(path, InputError), atomic_open(path, "wb") as fh:
         fig.savefig(fh, format="png", dpi=dpi)
     pyplot().close(fig)
     return path

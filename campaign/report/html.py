@@ -1,5 +1,5 @@
-"""The campaign report: one self-contained HTML page, PNG plots next to it (campaign.report.inputs gathers and
-checks what goes in; `trackcal run` and `trackcal report` both write it through there).
+"""The campaign report: one self-contained HTML page, PNG plots next to it, rendered from the CampaignAnalysis it is
+given (campaign.jobs.end_of_run makes it at the end of `trackcal run` and reads it back for `trackcal report`).
 
 Its header: the session, the campaign's date, the trackcal version, the cell and the outcome in one sentence, then
 "what next" (the compensate command; a re-plan when the verdict names a cause the plan was not made to reveal)
@@ -21,22 +21,22 @@ from __future__ import annotations
 
 import html
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.diagnose.selection import diagnose, noise_floor
+from trackcal.calib.diagnose.selection import noise_floor
 from trackcal.calib.identify.noise import noise_for
 from trackcal.calib.identify.solver import identify, residual_stats
+from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
-from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import model_from_doc, predict_table
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.output import write_text
+from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.figures import pyplot, save_png
 
@@ -67,20 +67,6 @@ CAUSE_NEEDS = {
     "station_shift": "drift-check poses revisited within each station block",
 }
 NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
-
-
-@dataclass
-class Provenance:
-    """Where the report's inputs come from: the header and the "what next" section."""
-
-    session: str | None = None  # the session directory, None for a report from files
-    campaign_started: str | None = None  # UTC, of the first recorded event
-    model_path: str = "model.json"
-    cell_ref: str = ""
-    warnings: list[str] | None = None  # the campaign's warnings in order (None: no session, not known)
-    table_sha256: str | None = None
-    notes: list[str] = field(default_factory=list)  # e.g. which file is the extended and which the geometric model
-
 
 
 def esc(value) -> str:
@@ -415,12 +401,8 @@ def section_warnings(warnings: list[str] | None) -> str:
     return f"<h2>Campaign warnings ({len(warnings)})</h2><ul class='warn'>{items}</ul>"
 
 
-def diagnosis_images(out_dir: Path, cell: Cell, table: MeasurementTable, model_doc: dict, diagnosis) -> list[str]:
-    """The diagnosis plots (campaign.report.diagnosis_plots.plots); `diagnosis` None: diagnose the table again with the
-    model's parameters and weighting (deterministic: the same plots as the campaign's own report)."""
-    if diagnosis is None:
-        params = [param_by_name(cell.chain, n) for n in model_doc.get("covariance_order", [])]
-        diagnosis = diagnose(cell.chain, table, cell.tool_points, params, noise_for(model_doc.get("weighting", "iid")))
+def diagnosis_images(out_dir: Path, cell: Cell, diagnosis) -> list[str]:
+    """The diagnosis plots (campaign.report.diagnosis_plots.plots) of the diagnosis the verdict was made from."""
     return [f"diagnosis/{p.name}" for p in plots(cell, diagnosis, out_dir / "diagnosis")]
 
 
@@ -438,21 +420,13 @@ def _extra_images(out_dir: Path, extra_images) -> list[str]:
     return names
 
 
-def write_report(
-    out_dir: Path,
-    cell: Cell,
-    table: MeasurementTable,
-    model_doc: dict,
-    plan_doc: dict | None,
-    verdict_doc: dict | None,
-    prov: Provenance,
-    extra_images: list[Path] | None = None,
-    diagnosis=None,
-) -> Path:
-    """Write out_dir/report.html and its PNG plots; returns the HTML path.
+def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None = None) -> Path:
+    """Write out_dir/report.html and its PNG plots for `analysis`; returns the HTML path.
 
-    With a verdict the diagnosis plots are drawn (from `diagnosis`, a calib.diagnose.Diagnosis, or by diagnosing
-    the table again); `extra_images` are PNGs copied next to the report and shown in the diagnosis section."""
+    With a verdict and the diagnosis it was made from, the diagnosis plots are drawn; `extra_images` are PNGs
+    copied next to the report and shown in the diagnosis section."""
+    cell, table, model_doc = analysis.cell, analysis.table, analysis.model
+    plan_doc, verdict_doc, prov = analysis.plan, analysis.verdict, analysis.provenance
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -462,9 +436,10 @@ def write_report(
     plot_histograms(res, out_dir / "residuals_xyz.png")
     plot_per_pose(table, res, out_dir / "residuals_per_pose.png")
     par_plot = plot_parameters(model_doc, out_dir / "parameters.png")
-    images = diagnosis_images(out_dir, cell, table, model_doc, diagnosis) if verdict_doc else []
+    images = diagnosis_images(out_dir, cell, analysis.diagnosis) if verdict_doc and analysis.diagnosis else []
     images += _extra_images(out_dir, extra_images)
 
+    digest = f" (sha256 {analysis.table_sha256[:12]})" if analysis.table_sha256 else ""
     title = f"Calibration report: {prov.session or Path(table.source).name}, cell {cell.name}"
     n_poses = len(pose_order(table))
     sigma = model_doc.get("sigma_mm")
@@ -474,7 +449,7 @@ def write_report(
         ("report written", datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")),
         ("trackcal version", version("trackcal")),
         ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
-        ("measurement table", table.source + (f" (sha256 {prov.table_sha256[:12]})" if prov.table_sha256 else "")),
+        ("measurement table", table.source + digest),
         ("measurements", str(len(table))), ("configurations", str(n_poses)),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
@@ -492,7 +467,7 @@ def write_report(
         "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),
         "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in
                                                         what_next(model_doc, plan_doc, verdict_doc, prov)) + "</ul>",
-        section_warnings(prov.warnings),
+        section_warnings(analysis.warnings),
         section_plan(plan_doc, cell, out_dir),
         "<h2>Residuals before and after calibration (Table 9)</h2>",
         table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
@@ -513,5 +488,5 @@ def write_report(
             f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")  # fmt: skip
     path = out_dir / "report.html"
-    write_text(path, page)
+    write_text(path, page, InputError)
     return path

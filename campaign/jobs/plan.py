@@ -1,4 +1,4 @@
-"""Planning on typed options: search or evaluate a measurement plan for a cell (calib.doe behind an executor)."""
+"""`plan` on typed options: search or evaluate a measurement plan for a cell (calib.doe behind an executor)."""
 
 from __future__ import annotations
 
@@ -14,12 +14,11 @@ import numpy as np
 
 from trackcal.calib.doe.design import CRITERIA, Design, design_for_cell, optimize_plan
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.io.files import finite_or_null
+from trackcal.calib.io.files import atomic_open, finite_or_null, write_json, writing
 from trackcal.calib.io.table import joint_columns, read_joint_rows
-from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
-from trackcal.campaign.errors import InputError
-from trackcal.campaign.output import output_file
+from trackcal.campaign.errors import InputError, OptionError
 
 
 @dataclass(frozen=True)
@@ -41,33 +40,35 @@ class PlanOptions:
 
 
 def plan_params(cell: Cell, names: str | None) -> list[Param]:
-    """--params, else the cell's plan_params, else the irreducible set plus dq1 (base and tool known)."""
+    """The `params` option, else the cell's plan_params, else the irreducible set plus dq1 (base and tool known)."""
     chosen = names.split(",") if names else cell.plan_params
     if not chosen:
         return [param_by_name(cell.chain, "dq1"), *irreducible_params(cell.chain)[0]]
     try:
         return [param_by_name(cell.chain, n.strip()) for n in chosen if n.strip()]
     except ValueError as exc:
-        raise InputError(f"--params: {exc}") from None
+        raise OptionError("{0}: {exc}", "params", exc=exc) from None
 
 
 def parse_test_pose(cell: Cell, text: str | None) -> np.ndarray:
     if text is None:
         if cell.test_pose is None:
-            raise InputError(f"cell {cell.name} has no test_pose_deg: give --test-pose=Q1,..,Q{cell.chain.dof}")
+            raise OptionError("cell {cell} has no test_pose_deg: give {0}=Q1,..,Q{dof}", "test_pose", cell=cell.name,
+                              dof=cell.chain.dof)
         return cell.test_pose
     try:
         q = np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise InputError(f"--test-pose: expected {cell.chain.dof} comma-separated angles in degrees") from None
+        raise OptionError("{0}: expected {dof} comma-separated angles in degrees", "test_pose",
+                          dof=cell.chain.dof) from None
     if q.shape != (cell.chain.dof,) or not np.all(np.isfinite(q)):
-        raise InputError(f"--test-pose: expected {cell.chain.dof} angles, got {text!r}")
+        raise OptionError("{0}: expected {dof} angles, got {text!r}", "test_pose", dof=cell.chain.dof, text=text)
     return np.radians(q)
 
 
 def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
-        raise InputError("--sigma-mm must be positive")
+        raise OptionError("{0} must be positive", "sigma_mm")
     noise = TrackerNoise() if opts.noise == "tracker" else None
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
@@ -80,13 +81,14 @@ def executor_for(scheduler: str | None) -> Iterator[Executor]:
     """A local process pool by default; a Dask distributed cluster when given its scheduler address."""
     if scheduler:
         try:
-            from distributed import Client  # optional dependency (trackcal[dask]): only with --scheduler
+            from distributed import Client  # optional dependency (trackcal[dask]): only with a scheduler
         except ImportError:
-            raise InputError("--scheduler needs Dask: pip install 'trackcal[dask]'") from None
+            raise OptionError("{0} needs Dask: pip install 'trackcal[dask]'", "scheduler") from None
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as exc:
-            raise InputError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
+            raise OptionError("{0} {scheduler}: cannot reach the Dask scheduler ({exc})", "scheduler",
+                              scheduler=scheduler, exc=exc) from None
         try:
             yield client.get_executor()
         finally:
@@ -102,7 +104,7 @@ def read_plan_csv(path: str, dof: int) -> np.ndarray:
 
 
 def write_plan_csv(path: Path, poses_rad: np.ndarray, repeat: int) -> None:
-    with output_file(path, newline="") as fh:
+    with writing(path, InputError), atomic_open(path, "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(joint_columns(poses_rad.shape[1]))
         for _ in range(repeat):
@@ -128,9 +130,9 @@ def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
 
 def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int], None] | None = None) -> dict:
     if opts.configs < 1 or opts.repeat < 1:
-        raise InputError("--configs and --repeat must be at least 1")
+        raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
     if opts.criterion not in CRITERIA:
-        raise InputError(f"--criterion must be one of {', '.join(CRITERIA)}")
+        raise OptionError("{0} must be one of {criteria}", "criterion", criteria=", ".join(CRITERIA))
     try:
         with executor_for(opts.scheduler) as ex:
             plan = optimize_plan(
@@ -154,3 +156,25 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
         "starts": plan.starts,
         "refined": plan.refined,
     }
+
+
+@dataclass
+class PlanOutcome:
+    doc: dict  # plan.json (search) or the plan's criteria (evaluate)
+    evaluated: bool  # the doc evaluates a given plan
+
+
+def plan(cell_ref: str, opts: PlanOptions, json_out: str, evaluate: str | None = None, csv_out: str | None = None,
+         progress: Callable[[int, int], None] | None = None) -> PlanOutcome:  # fmt: skip
+    """`trackcal plan`: search a plan (its poses also as rows in `csv_out`), or evaluate the plan of the CSV
+    `evaluate`; the document written to `json_out`."""
+    cell = load_cell(cell_ref)
+    design = build_design(cell, opts)
+    if evaluate:
+        doc = evaluate_doc(design, read_plan_csv(evaluate, cell.chain.dof))
+    else:
+        doc = search_doc(design, opts, progress)
+        if csv_out:
+            write_plan_csv(Path(csv_out), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
+    write_json(json_out, doc, InputError)
+    return PlanOutcome(doc, evaluated=bool(evaluate))

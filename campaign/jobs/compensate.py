@@ -1,0 +1,142 @@
+"""`compensate` on typed options: joint targets corrected with an identified model (calib.compensate), the
+targets CSV in, the compensated CSV out, and optionally a KR C2 program (campaign.jobs.krl).
+
+    trackcal compensate --model model.json TARGETS.csv --out OUT.csv [--krl NAME --krl-dir DIR] [--tcp X,Y,Z]
+
+TARGETS.csv: columns q1_deg..qn_deg (n = the model's joints), optional `name`, other columns ignored.
+OUT.csv: name (if given), status (`ok`, or why the target could not be compensated: outside the joint limits,
+a singular pose such as the KUKA HOME 0,-90,90,0,0,0), q1_deg..qn_deg (nominal), q1_comp_deg..qn_comp_deg
+(compensated, 1e-6 deg), dq1_deg..dqn_deg (correction), position_error_mm and orientation_error_deg (the identified
+model at the compensated targets against the intended pose), uncompensated_position_mm (the identified model at the
+nominal targets), iterations, rounded_position_error_mm (the TCP error of the targets rounded to the 1e-4 deg the
+KRL program carries). A target that was not compensated keeps its row, the compensated columns empty, and is left
+out of the KRL program, whose E6AXIS points carry the targets' names (campaign.jobs.krl.point_names).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.compensate import NEAR_SINGULAR, CompensationReport, compensate, pose_error
+from trackcal.calib.io.files import atomic_open, writing
+from trackcal.calib.io.table import joint_columns, read_joint_rows
+from trackcal.calib.model_file import Model, load_model
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.krl import KrlError, check_name, point_names, write_krl
+
+COMP_DECIMALS = 6
+
+
+def read_targets(path: str, dof: int) -> tuple[np.ndarray, list[str] | None]:
+    """Joint targets (N, dof) in degrees and their names (None without a `name` column)."""
+    q, others = read_joint_rows(path, dof, what="targets")
+    return q, others.get("name")
+
+
+def row_labels(path: str, names: list[str] | None, n: int) -> list[str]:
+    """Labels for messages: the CSV row (header = row 1) and the target's name when it has one."""
+    return [f"{path}: row {i + 2}" + (f" ({names[i]})" if names and names[i] else "") for i in range(n)]
+
+
+def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report, rounded_mm: np.ndarray) -> None:
+    n = q_deg.shape[1]
+    header = (["name"] if names is not None else []) + ["status"] + joint_columns(n)
+    header += [f"q{j + 1}_comp_deg" for j in range(n)] + [f"dq{j + 1}_deg" for j in range(n)]
+    header += ["position_error_mm", "orientation_error_deg", "uncompensated_position_mm", "iterations"]
+    header += ["rounded_position_error_mm"]
+    with writing(path, InputError), atomic_open(path, "w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for i in range(len(q_deg)):
+            row = ([names[i]] if names is not None else []) + [report.failures[i] or "ok"]
+            row += [f"{v:.4f}" for v in q_deg[i]]
+            if report.failures[i]:  # nothing to run: the compensated columns stay empty
+                row += [""] * (2 * n + 2) + [f"{report.uncompensated_position_mm[i]:.4f}", "", ""]
+            else:
+                row += [f"{v:.{COMP_DECIMALS}f}" for v in qc_deg[i]] + [f"{v:.6f}" for v in qc_deg[i] - q_deg[i]]
+                row += [f"{report.position_error_mm[i]:.3e}", f"{report.orientation_error_deg[i]:.3e}",
+                        f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i])),
+                        f"{rounded_mm[i]:.4f}"]  # fmt: skip
+            w.writerow(row)
+
+
+@dataclass(frozen=True)
+class CompensateOptions:
+    """What `trackcal compensate` is asked."""
+
+    targets: str  # CSV of nominal joint targets
+    model: str  # model.json
+    out: str  # the compensated CSV
+    tcp: str | None = None  # "X,Y,Z" mm in the last joint frame; None: the centroid of the model's tool points
+    krl: str | None = None  # also a KR C2 program of this name
+    krl_dir: str | None = None  # its directory; None: the directory of `out`
+    speed: int = 10  # PTP axis speed and acceleration override, %
+
+
+@dataclass
+class Compensation:
+    report: CompensationReport
+    labels: list[str]  # per target, for messages (`row_labels`)
+    rounded_mm: np.ndarray  # TCP error of the targets rounded to the 1e-4 deg of the KRL program
+    near_singular: np.ndarray  # rows (0-based) of compensated targets near a singularity
+    krl_files: tuple[Path, Path] | None = None  # NAME.src, NAME.dat
+    doc: dict = field(default_factory=dict)  # report.to_doc()
+
+
+def parse_tcp(text: str | None, model: Model) -> np.ndarray:
+    if text is None:
+        if not model.points:
+            raise OptionError("the model has no tool points: give {0} X,Y,Z (mm, last joint frame)", "tcp")
+        return np.mean(list(model.points.values()), axis=0)
+    try:
+        tcp = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise OptionError("{0} {text}: expected X,Y,Z in mm", "tcp", text=text) from None
+    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)):
+        raise OptionError("{0} {text}: expected 3 finite numbers X,Y,Z in mm", "tcp", text=text)
+    return tcp
+
+
+def run_compensate(opts: CompensateOptions) -> Compensation:
+    """`trackcal compensate`: the targets corrected, written to opts.out (and the KRL program); refuses a KRL
+    program it cannot write before anything is written, and a file in which no target could be compensated."""
+    model = load_model(opts.model)
+    q_deg, names = read_targets(opts.targets, model.chain.dof)
+    tcp = parse_tcp(opts.tcp, model)
+    if opts.krl_dir and not opts.krl:
+        raise OptionError("{0} needs {1} NAME", "krl_dir", "krl")
+    if opts.krl:  # refuse before anything is written
+        try:
+            check_name(opts.krl)
+        except KrlError as exc:
+            raise OptionError("{0}: {exc}", "krl", exc=exc) from None
+        if model.chain.dof != 6:
+            raise OptionError("{0}: a KR C2 program needs a 6-axis robot, the model's has {dof}", "krl",
+                              dof=model.chain.dof)
+        if not 1 <= opts.speed <= 100:
+            raise OptionError("{0} {speed}: the axis speed override is a percentage 1..100", "speed", speed=opts.speed)
+    qc, report = compensate(model, np.radians(q_deg), tcp)
+    qc_deg = np.degrees(qc)
+    # the KRL program carries 1e-4 deg (as the controller reports angles): what rounding costs at the TCP
+    krl_deg = np.round(qc_deg, 4)
+    rounded_mm, _ = pose_error(model, np.radians(krl_deg), np.radians(q_deg), tcp)
+    write_output(opts.out, names, q_deg, qc_deg, report, rounded_mm)
+    ok = report.ok
+    if not ok.any():
+        first = report.failures[0]
+        raise InputError(f"{opts.targets}: no target could be compensated (row 2: {first}; {opts.out} has each row's "
+                         "reason)")  # fmt: skip
+    out = Compensation(report, row_labels(opts.targets, names, len(q_deg)), rounded_mm,
+                       np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)), doc=report.to_doc())  # fmt: skip
+    if opts.krl:
+        krl_dir = opts.krl_dir or str(Path(opts.out).parent)
+        try:
+            points = [p for p, k in zip(point_names(names, len(ok)), ok, strict=True) if k]
+            out.krl_files = write_krl(opts.krl, krl_deg[ok], krl_dir, opts.speed, points)
+        except KrlError as exc:
+            raise OptionError("{0}: {exc}", "krl", exc=exc) from None
+    return out

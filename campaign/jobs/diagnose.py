@@ -1,0 +1,124 @@
+"""`diagnose` on typed options: what the geometric model gets wrong (calib.diagnose), and the verdict document
+(verdict.json) written from a diagnosis."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.diagnose.extensions import rebuild
+from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.io.files import write_json
+from trackcal.calib.io.table import MeasurementTable, read_table
+from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of
+from trackcal.campaign.report.diagnosis_plots import plots
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """What `trackcal diagnose` is asked."""
+
+    data: str  # the measurement table
+    cell: str  # cell name or path
+    json: str  # verdict.json to write
+    params: str | None = None  # geometric parameters; None: the irreducible set
+    weighting: str = DEFAULT_WEIGHTING
+    folds: int = 5  # cross-validation folds (whole poses held out)
+    seed: int = 0  # of the assignment of poses to folds
+    plots: str | None = None  # directory for the residual plots
+    out: str | None = None  # model.json of the chosen model
+
+
+@dataclass
+class DiagnoseOutcome:
+    diagnosis: Diagnosis
+    verdict: dict
+    plots: list[Path]
+
+
+def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
+    """`trackcal diagnose`: the verdict written to opts.json (its plots to opts.plots, the chosen model to
+    opts.out)."""
+    cell = load_cell(opts.cell)
+    table = read_table(opts.data, chain=cell.chain)
+    params = choose_params(cell, opts.params)
+    d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting), folds=opts.folds,
+                 seed=opts.seed)  # fmt: skip
+    digest = sha256_of(table.source)
+    doc = verdict_doc(cell, d, digest)
+    written = plots(cell, d, Path(opts.plots)) if opts.plots else []
+    write_json(opts.json, doc, InputError)
+    if opts.out:
+        write_json(opts.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest),
+                   InputError)  # fmt: skip
+    return DiagnoseOutcome(d, doc, written)
+
+
+def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
+    """TCP at the cell's test pose with a fitted model (extension at its neutral context: no approach
+    history, campaign start)."""
+    if cell.test_pose is None:
+        return None
+    q0 = cell.test_pose[None]
+    ext = res.extension
+    if ext is not None and ext.joint_features is not None:
+        row = MeasurementTable(np.array([1]), np.zeros(1), ["q0"], ["-"], ["-"], np.degrees(q0), None)
+        q0 = q0 + rebuild(ext, cell.chain, row).joint_offsets(res.ext)
+    return Kinematics(cell.chain, res.params).points(q0, cell.tcp, res.dev)[0]
+
+
+def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
+    """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
+    their structure and the gain; the cell and the sha256 of the table it was made from (a report refuses files of
+    different campaigns). A figure that cannot be computed is null, with a note saying why."""
+    geo = d.geometric
+    doc = {
+        "cause": d.cause,
+        "causes": d.causes,
+        "cell": cell.name,
+        "table_sha256": table_sha256,
+        "candidates": [
+            {
+                "cause": c.cause, "step": c.step, "score": c.holdout_rms_mm, "holdout_rms_mm": c.holdout_rms_mm,
+                "holdout_base_mm": c.holdout_base_mm, "gain_mm": c.gain_mm, "cv_scheme": c.cv_scheme,
+                "cv_note": c.cv_note, "rms_mm": c.rms_mm, "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic,
+                "n_params": c.n_params, "significant": c.significant, **c.detail,
+            }
+            for c in sorted(d.candidates, key=lambda c: (c.step, c.holdout_rms_mm is None, c.score()))
+        ],
+        "geometric": {"rms_mm": rms(geo.residuals), "variance_factor": geo.variance_factor,
+                      "p_at_noise_floor": d.variance_factor_pvalue},
+        "noise_floor_mm": d.noise_floor_mm,
+        "noise_floor_source": d.floor_source,
+        "noise_scale": d.noise_scale,
+        "noise_note": noise_note(d),
+        "structure": d.structure,
+        "not_identifiable": d.not_identifiable,
+        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm,
+                    "folds": d.cv_scheme, "note": d.cv_note},
+    }  # fmt: skip
+    ext = d.extended or geo
+    doc["extended"] = {"rms_mm": rms(ext.residuals)}
+    if d.extended is not None:
+        tcp_g, tcp_e = tcp_at_test_pose(cell, geo), tcp_at_test_pose(cell, d.extended)
+        if tcp_g is not None:
+            doc["test_pose"] = {
+                "tcp_difference_mm": float(np.linalg.norm(tcp_e - tcp_g)),
+                "note": "how far the geometric model's TCP at the test pose is from the extended model's",
+            }
+    return doc
+
+
+def noise_note(d: Diagnosis) -> str:
+    """How far the chosen model's residuals sit from the noise floor: a scale, not a cause."""
+    pct = 100.0 * (d.noise_scale - 1.0)
+    model = "extended" if d.extended is not None else "geometric"
+    return (f"the {model} model's residuals are {abs(pct):.0f} % {'above' if pct >= 0 else 'below'} the noise "
+            f"floor ({d.floor_source})")  # fmt: skip

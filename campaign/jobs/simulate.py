@@ -1,0 +1,69 @@
+"""`simulate` on typed options: a measurement table of the digital twin (the one job that imports mocks), the
+hidden effects a simulated campaign is given, and the twin's true parameters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.mocks.synth import simulate_campaign
+from trackcal.mocks.twin import Twin
+
+
+def parse_effects(items: list[str] | None) -> dict[str, float]:
+    """Hidden effects NAME[:MAGNITUDE_MM] (the `effect` option, repeatable) as {cause: mm}; 0.05 mm by default."""
+    out = {}
+    for item in items or []:
+        name, _, mag = item.partition(":")
+        if name not in CAUSES:
+            raise OptionError("{0} {item}: unknown effect; choose from {causes}", "effect", item=item,
+                              causes=", ".join(CAUSES))
+        try:
+            out[name] = float(mag) if mag else 0.05
+        except ValueError:
+            raise OptionError("{0} {item}: the magnitude must be a number of mm", "effect", item=item) from None
+        if not out[name] > 0:
+            raise OptionError("{0} {item}: the magnitude must be positive", "effect", item=item)
+    return out
+
+
+@dataclass(frozen=True)
+class SimulateOptions:
+    """What `trackcal simulate` is asked."""
+
+    cell: str  # cell name or path
+    out: str | None = None  # the table to write; None: not written
+    poses: int = 30
+    seed: int = 1
+    repeat: int = 1
+    noise_free: bool = False
+    effects: dict[str, float] = field(default_factory=dict)  # cause -> magnitude (mm), `parse_effects`
+
+
+def simulate(opts: SimulateOptions) -> tuple[Cell, Twin, MeasurementTable]:
+    """A table of `opts.poses` random feasible poses measured by the twin of `opts.seed` (written to opts.out)."""
+    cell = load_cell(opts.cell)
+    if opts.poses < 1 or opts.repeat < 1:
+        raise OptionError("{0} and {1} must be at least 1", "poses", "repeat")
+    try:
+        poses = np.degrees(random_poses(cell, opts.poses, np.random.default_rng(opts.seed)))
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    twin = Twin(cell, seed=opts.seed, effects=opts.effects)
+    table = simulate_campaign(twin, poses, repeat=opts.repeat, noise_free=opts.noise_free)
+    if opts.out:
+        write_table(table, opts.out)
+    return cell, twin, table
+
+
+def twin_truth(cell: Cell, seed: int) -> dict[str, float]:
+    """The twin's true parameter deviations in boundary units (mm, deg)."""
+    twin = Twin(cell, seed=seed)
+    return {p.name: (v if p.is_length else float(np.degrees(v))) for p, v in zip(twin.params, twin.true_dev,
+                                                                                strict=True)}  # fmt: skip
