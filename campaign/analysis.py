@@ -23,8 +23,7 @@ from trackcal.campaign.output import write_json
 from trackcal.campaign.report.inputs import GEOMETRIC_MODEL, report_session, table_sha256
 from trackcal.campaign.session.session import campaign_warnings, session_cell, write_export
 from trackcal.campaign.session.store import SessionStore
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 # Above twice the noise floor three quarters of the residual variance (1 - 1/2^2) is something the model does not
 # describe; the intervals assume what is left is tracker noise, so they cannot be trusted (a parameter subset or a

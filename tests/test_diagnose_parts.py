@@ -21,8 +21,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.rigid import exp_so3, kabsch
 from trackcal.calib.model.subset import identifiable_subset
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 @settings(max_examples=25, deadline=None)

@@ -27,8 +27,7 @@ from trackcal.calib.model.subset import identifiable_subset
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.cli import main
 from trackcal.campaign.output import write_json
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m
 AMPLITUDE_RAD = 1e-4  # per hidden term (see the module docstring)

@@ -12,8 +12,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import exp_so3, kabsch
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 def test_noise_free_campaign_is_recovered_exactly(kr270, kr270_params):
