@@ -202,7 +202,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ChainError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:
         raise ModelError(f"{path}: extension: incomplete or malformed ({exc})") from None
     return model
 

@@ -9,11 +9,13 @@ import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES, rebuild
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, fit_cause, noise_floor, rms
+from trackcal.calib.doe.design import DesignError
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, residual_stats, significance
 from trackcal.calib.io.table import MeasurementTable, read_table
 from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc
@@ -37,7 +39,7 @@ def choose_params(cell: Cell, names: str | None) -> list[Param]:
         return kept
     try:
         return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
-    except ValueError as exc:
+    except ChainError as exc:
         raise InputError(f"--params: {exc}; the irreducible set is {' '.join(p.name for p in kept)}") from None
 
 
@@ -150,7 +152,7 @@ def simulate(cell_ref: str, n_poses: int, seed: int, repeat: int = 1, noise_free
         raise InputError("--poses and --repeat must be at least 1")
     try:
         poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
-    except ValueError as exc:
+    except DesignError as exc:
         raise InputError(str(exc)) from None
     twin = Twin(cell, seed=seed, effects=effects or {})
     return cell, twin, simulate_campaign(twin, poses, repeat=repeat, noise_free=noise_free)

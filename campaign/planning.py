@@ -12,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.doe.design import CRITERIA, Design, design_for_cell, optimize_plan
+from trackcal.calib.doe.design import CRITERIA, Design, DesignError, design_for_cell, optimize_plan
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.files import finite_or_null
 from trackcal.calib.io.table import joint_columns, read_joint_rows
 from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.output import output_file
@@ -47,7 +48,7 @@ def plan_params(cell: Cell, names: str | None) -> list[Param]:
         return [param_by_name(cell.chain, "dq1"), *irreducible_params(cell.chain)[0]]
     try:
         return [param_by_name(cell.chain, n.strip()) for n in chosen if n.strip()]
-    except ValueError as exc:
+    except ChainError as exc:
         raise InputError(f"--params: {exc}") from None
 
 
@@ -137,7 +138,7 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
                 design, opts.configs, opts.repeat, opts.criterion, starts=opts.starts, refined=opts.refined,
                 seed=opts.seed, executor=ex, progress=progress,
             )  # fmt: skip
-    except ValueError as exc:
+    except DesignError as exc:
         raise InputError(str(exc)) from None
     criteria = finite_or_null(plan.criteria, NOT_IDENTIFIABLE)
     return {

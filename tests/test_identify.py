@@ -117,7 +117,7 @@ def test_station_only_reestimation_keeps_robot_and_points(kr270, kr270_params, n
     assert res.dof == 3 * len(table) - 12
     assert np.all(res.param_ci95() == 0) and np.all(res.point_ci95("P1") == 0)
     assert np.all(res.station_ci95("S1") > 0)
-    with pytest.raises(ValueError, match="fixed: stations"):
+    with pytest.raises(IdentificationError, match="fixed: stations"):
         identify(kr270.chain, moved, ref.points, kr270_params, fixed=("stations",))
 
 

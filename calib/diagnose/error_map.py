@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import Extension, build_extension, combine
-from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.diagnose.joint_map import Arc, JointMapError, harmonic_names, map_features, parse_name
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
 from trackcal.calib.io.table import MeasurementTable
@@ -103,7 +103,7 @@ def map_curve(res: Identification, joint: int, q: np.ndarray) -> tuple[np.ndarra
             break
         at += len(names)
     else:
-        raise ValueError("the fitted model has no joint error map")
+        raise JointMapError("the fitted model has no joint error map")
     sel = [at + i for i, nm in enumerate(names) if parse_name(nm)[2] == joint]
     rows = np.zeros((len(q), res.chain.dof))
     rows[:, joint] = q

@@ -40,7 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.diagnose.joint_map import Arc, JointMapError, harmonic_names, map_features, parse_name
+from trackcal.calib.errors import CalibError
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.pinmodel import gravity_torques
@@ -51,6 +52,11 @@ THERMAL_FORMS = ("e", "e_base")  # arm + tool about the first joint's frame; bas
 # boundary unit -> factor from internal units (rad, N m, s)
 UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
                 "ppm/h": 1e6 * 3600.0}  # fmt: skip
+
+
+class ExtensionError(CalibError):
+    """A model extension that does not exist or cannot be built: an unknown cause or parameter, parts that do not
+    fit together."""
 
 
 @dataclass
@@ -96,10 +102,10 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
         return extensions[0]
     rows = {len(x.joint_features if x.joint_features is not None else x.growth) for x in extensions}
     if len(rows) != 1:
-        raise ValueError("extensions of tables with different rows cannot be combined")
+        raise ExtensionError("extensions of tables with different rows cannot be combined")
     pivots = {tuple(x.pivot) for x in extensions if x.growth is not None}
     if len(pivots) > 1:
-        raise ValueError("two growth extensions with different pivots cannot be combined")
+        raise ExtensionError("two growth extensions with different pivots cannot be combined")
     (n_rows,) = rows
     n = next((x.joint_features.shape[1] for x in extensions if x.joint_features is not None), 0)
     e = sum(x.size for x in extensions)
@@ -139,7 +145,7 @@ def _select(features: np.ndarray, names: list[str], wanted: list[str] | None, re
     if wanted is not None:
         unknown = [w for w in wanted if w not in names]
         if unknown:
-            raise ValueError(f"unknown extension parameter(s) {', '.join(unknown)}")
+            raise ExtensionError(f"unknown extension parameter(s) {', '.join(unknown)}")
         keep = np.array([n in wanted for n in names])
     else:
         col_std = features.std(axis=0).max(axis=0)
@@ -153,13 +159,13 @@ def _map_names(wanted: list[str], arcs: dict[int, Arc]) -> list[str]:
     for nm in wanted:
         try:
             kind, h, j = parse_name(nm)
-        except ValueError:
+        except JointMapError:
             bad.append(nm)
             continue
         if kind not in "sc" or h < 1 or j not in arcs:
             bad.append(nm)
     if bad:
-        raise ValueError(f"unknown extension parameter(s) {', '.join(bad)}")
+        raise ExtensionError(f"unknown extension parameter(s) {', '.join(bad)}")
     return list(wanted)
 
 
@@ -202,12 +208,12 @@ def build_extension(
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:
-            raise ValueError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
+            raise ExtensionError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
                              f"{', '.join(THERMAL_FORMS)}")  # fmt: skip
         pivot = np.zeros(3) if forms[0] == "e_base" else np.array(chain.base[:3, 3], dtype=float)
         return Extension(cause, list(forms), ["ppm/h"], np.array([UNIT_FACTORS["ppm/h"]]),
                          growth=np.asarray(table.t_s, float)[:, None], pivot=pivot)  # fmt: skip
-    raise ValueError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
+    raise ExtensionError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
 
 
 def build_parts(

@@ -14,6 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
+
+
+class JointMapError(CalibError):
+    """A joint error map that cannot be built or read: no angles, a malformed coefficient name, no map."""
+
 
 @dataclass(frozen=True)
 class Arc:
@@ -27,7 +33,7 @@ class Arc:
         """The smallest arc holding every angle of q: the circle minus its largest gap between angles."""
         a = np.sort(np.mod(np.asarray(q, dtype=float), 2 * np.pi))
         if len(a) == 0:
-            raise ValueError("no angles to cover")
+            raise JointMapError("no angles to cover")
         gaps = np.diff(np.append(a, a[0] + 2 * np.pi))
         g = int(np.argmax(gaps))
         start = a[(g + 1) % len(a)]
@@ -61,8 +67,11 @@ def harmonic_names(joint: int, order: int) -> list[str]:
 
 def parse_name(name: str) -> tuple[str, int, int]:
     """'s12_3' -> ('s', 12, 2): sine/cosine, harmonic, 0-based joint."""
-    head, joint = name.split("_")
-    return head[0], int(head[1:]), int(joint) - 1
+    try:
+        head, joint = name.split("_")
+        return head[0], int(head[1:]), int(joint) - 1
+    except (ValueError, IndexError):  # not two parts, not integers, an empty head
+        raise JointMapError(f"{name!r} is not a joint error map coefficient (s<h>_<joint> or c<h>_<joint>)") from None
 
 
 def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.ndarray:

@@ -9,6 +9,7 @@ from pathlib import Path
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import read_json, read_text
 from trackcal.campaign.analysis import analyse_session, parse_effects
 from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
@@ -136,7 +137,7 @@ def cmd_replay(args) -> int:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
         store = replay_session(recording, into, args.cell, plan_doc)
-    except (CampaignError, OSError, ValueError) as exc:
+    except (CalibError, CampaignError, OSError, ValueError) as exc:
         if fresh:  # a failed replay leaves no directory that resume or a second replay would stumble over
             shutil.rmtree(into, ignore_errors=True)
         if isinstance(exc, ReplayDivergence):
