@@ -8,7 +8,9 @@
                    "ci95_rotation_deg": [..]}},
  "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
- "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting", ...}
+ "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
+ "converged": the solver's stopping test was met, "message": why it stopped, ...}
+A model written before "converged" and "message" were recorded still loads (`Model.converged` is then None).
 """
 
 from __future__ import annotations
@@ -92,6 +94,8 @@ def identification_to_doc(res: Identification, extra: dict | None = None, shift:
         "variance_factor": res.variance_factor,
         "dof": res.dof,
         "iterations": res.iterations,
+        "converged": bool(res.converged),
+        "message": res.message,
         "weighting": "iid" if res.noise is None else "tracker",
     }
     for sid, st in res.stations.items():
@@ -116,6 +120,16 @@ class Model:
     stations: dict[str, Station]
     points: dict[str, np.ndarray]
     doc: dict
+
+    @property
+    def converged(self) -> bool | None:
+        """The fit met the solver's stopping test; None for a model written before this was recorded."""
+        return self.doc.get("converged")
+
+    @property
+    def message(self) -> str | None:
+        """Why the solver stopped; None for a model written before this was recorded."""
+        return self.doc.get("message")
 
     @property
     def cause(self) -> str:
@@ -168,6 +182,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     for key in ("robot", "parameters", "stations", "tool_points"):
         if key not in doc:
             raise ModelError(f"{path}: {key}: missing")
+    if "converged" in doc and not isinstance(doc["converged"], bool):
+        raise ModelError(f"{path}: converged: expected true or false, got {doc['converged']!r}")
+    if "message" in doc and not isinstance(doc["message"], str):
+        raise ModelError(f"{path}: message: expected a string, got {doc['message']!r}")
     if "weighting" in doc and doc["weighting"] not in WEIGHTINGS:
         raise ModelError(f"{path}: weighting: expected one of {', '.join(WEIGHTINGS)}, got {doc['weighting']!r}")
     try:
