@@ -238,7 +238,7 @@ def analyse_session(store: SessionStore) -> None:
     params = choose_params(cell, None)
     try:
         outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING)
-        dg = diagnose(cell.chain, table, cell.tool_points, params, noise_for(DEFAULT_WEIGHTING))
+        dg = diagnose(cell.chain, table, cell.tool_points, params, outcome.result.noise, geometric=outcome.result)
     except IdentificationError as exc:
         console.print(f"[yellow]identification not possible yet[/]: {exc}")
         return

@@ -127,13 +127,16 @@ class CauseFit(NamedTuple):
     n_extra: int  # parameters the causes add
 
 
-def fit_cause(chain, table, tool, params, noise, cause: str) -> CauseFit | None:
+def fit_cause(chain, table, tool, params, noise, cause: str,
+              geometric: Identification | None = None) -> CauseFit | None:  # fmt: skip
     """Fit the geometric model extended by `cause` (several joined by "+") with its covariance; None when
-    the table cannot reveal the cause (too few rows for a change point, no parameter the data can see)."""
+    the table cannot reveal the cause (too few rows for a change point, no parameter the data can see).
+    `geometric` is the geometric fit of the same table, tool, params and noise if already computed (a
+    diagnosis's `geometric`): it is not fitted again."""
+    geo = geometric if geometric is not None else identify(chain, table, tool, params, noise=noise)
     if cause == "none":
-        return CauseFit(identify(chain, table, tool, params, noise=noise), None, table, None, 0)
+        return CauseFit(geo, None, table, None, 0)
     causes = tuple(cause.split("+"))
-    geo = identify(chain, table, tool, params, noise=noise)
     ctx = context(chain, table, params, noise, geo, causes)
     if any(c != SHIFT and c not in ctx.features for c in causes):
         return None
@@ -341,8 +344,12 @@ def diagnose(
     folds: int = 5,
     seed: int = 0,
     causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT),
+    geometric: Identification | None = None,
 ) -> Diagnosis:
-    geo = identify(chain, table, tool_points, params, noise=noise)
+    """What the geometric model misses and which causes explain it (the module's docstring). `geometric` is the
+    geometric fit of the same table, tool points, params and noise if already computed (`fit_cause(..., "none")`,
+    identify's): it is not fitted again, and the diagnosis is the same."""
+    geo = geometric if geometric is not None else identify(chain, table, tool_points, params, noise=noise)
     n_obs = 3 * len(table)
     n_geo = n_obs - geo.dof
     floor = noise_floor(table, noise)
