@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.diagnose.changepoint import relabel_shift
-from trackcal.calib.diagnose.extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
+from trackcal.calib.diagnose.extensions import CAUSES, build_parts
+from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension
 from trackcal.calib.diagnose.joint_map import Arc, range_warning
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import WEIGHTINGS

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trackcal.calib.diagnose.extensions import ExtensionError, build_extension
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.features import ExtensionError
 from trackcal.calib.diagnose.joint_map import Arc, JointMapError, parse_name
 from trackcal.calib.doe.design import DesignError, design_for_cell
 from trackcal.calib.errors import CalibError

@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from trackcal.calib.diagnose import crossval as dg
 from trackcal.calib.diagnose import selection as diagnose
 from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
-from trackcal.calib.diagnose.error_map import MapEvidence, fit_error_map
 from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.joint_map import MapEvidence, fit_error_map
 from trackcal.calib.diagnose.noise_floor import comparable_repeats
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise

@@ -15,9 +15,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from trackcal.calib.compensate import compensate
-from trackcal.calib.diagnose.error_map import fit_error_map
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.joint_map import Arc, outside_arcs
+from trackcal.calib.diagnose.joint_map import Arc, fit_error_map, outside_arcs
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import identify, predict_points
 from trackcal.calib.io.table import MeasurementTable, write_table

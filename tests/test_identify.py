@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from tests.helpers import kr270_campaign, truth_of
-from trackcal.calib.diagnose.extensions import build_extension, combine
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.features import combine
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
 from trackcal.calib.io.files import write_json
