@@ -35,8 +35,7 @@ from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.subset import identifiable_subset
 from trackcal.campaign.importers.ipa_ur10 import POINT, read_ipa_series
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 BASELINE_COMMIT = "c29c288"
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,9 @@
                    "ci95_rotation_deg": [..]}},
  "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
- "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting", ...}
+ "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
+ "converged": the solver's stopping test was met, "message": why it stopped, ...}
+A model written before "converged" and "message" were recorded still loads (`Model.converged` is then None).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.diagnose.changepoint import relabel_shift
-from trackcal.calib.diagnose.extensions import CAUSES, UNIT_FACTORS, Extension, build_parts
+from trackcal.calib.diagnose.extensions import CAUSES, build_parts
+from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension
 from trackcal.calib.diagnose.joint_map import Arc, range_warning
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import WEIGHTINGS
@@ -92,6 +95,8 @@ def identification_to_doc(res: Identification, extra: dict | None = None, shift:
         "variance_factor": res.variance_factor,
         "dof": res.dof,
         "iterations": res.iterations,
+        "converged": bool(res.converged),
+        "message": res.message,
         "weighting": "iid" if res.noise is None else "tracker",
     }
     for sid, st in res.stations.items():
@@ -116,6 +121,16 @@ class Model:
     stations: dict[str, Station]
     points: dict[str, np.ndarray]
     doc: dict
+
+    @property
+    def converged(self) -> bool | None:
+        """The fit met the solver's stopping test; None for a model written before this was recorded."""
+        return self.doc.get("converged")
+
+    @property
+    def message(self) -> str | None:
+        """Why the solver stopped; None for a model written before this was recorded."""
+        return self.doc.get("message")
 
     @property
     def cause(self) -> str:
@@ -159,6 +174,27 @@ def load_model(path: str | Path) -> Model:
     return model_from_doc(read_json(path, ModelError), str(path))
 
 
+def json_number(value, where: str) -> float:
+    """A finite JSON number (model.json is written by trackcal: a number in a string is a broken file)."""
+    if isinstance(value, str):
+        raise ModelError(f"{where}: expected a number, got the string {value!r}")
+    return fields.number(value, where, ModelError)
+
+
+def parameter_value(pars: dict, p: Param, path: str) -> float:
+    """A parameter's deviation in calib units (mm, rad), its 95 % half-width and unit checked on the way: every
+    reader of the model (predict, compensate, the report's figures) takes them as given."""
+    where = f"{path}: parameters.{p.name}"
+    entry = fields.mapping(pars[p.name], where, ModelError)
+    value = json_number(entry.get("value"), f"{where}.value")
+    if json_number(entry.get("ci95"), f"{where}.ci95") < 0:
+        raise ModelError(f"{where}.ci95: a half-width cannot be negative, got {entry['ci95']!r}")
+    unit = "mm" if p.is_length else "deg"
+    if entry.get("unit", unit) != unit:
+        raise ModelError(f"{where}.unit: {p.name} is in {unit}, got {entry['unit']!r}")
+    return value * (1.0 if p.is_length else np.pi / 180.0)
+
+
 def model_from_doc(doc: dict, source: str = "model") -> Model:
     """A Model from a model.json document; every missing, mistyped or non-finite field is a ModelError naming
     `source` and the key."""
@@ -168,6 +204,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     for key in ("robot", "parameters", "stations", "tool_points"):
         if key not in doc:
             raise ModelError(f"{path}: {key}: missing")
+    if "converged" in doc and not isinstance(doc["converged"], bool):
+        raise ModelError(f"{path}: converged: expected true or false, got {doc['converged']!r}")
+    if "message" in doc and not isinstance(doc["message"], str):
+        raise ModelError(f"{path}: message: expected a string, got {doc['message']!r}")
     if "weighting" in doc and doc["weighting"] not in WEIGHTINGS:
         raise ModelError(f"{path}: weighting: expected one of {', '.join(WEIGHTINGS)}, got {doc['weighting']!r}")
     try:
@@ -179,13 +219,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
         params = [param_by_name(chain, n) for n in pars]
     except ChainError as exc:
         raise ModelError(f"{path}: parameters: {exc}") from None
-    dev = np.array(
-        [
-            fields.number(fields.mapping(pars[p.name], f"{path}: parameters.{p.name}", ModelError).get("value"),
-                          f"{path}: parameters.{p.name}.value", ModelError) * (1.0 if p.is_length else np.pi / 180.0)
-            for p in params
-        ]
-    )  # fmt: skip
+    dev = np.array([parameter_value(pars, p, path) for p in params])
     stations = {}
     for sid, st in fields.mapping(doc["stations"], f"{path}: stations", ModelError).items():
         where = f"{path}: stations.{sid}"
@@ -202,7 +236,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ChainError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:
         raise ModelError(f"{path}: extension: incomplete or malformed ({exc})") from None
     return model
 

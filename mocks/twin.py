@@ -9,6 +9,7 @@ the step), so a campaign resumed after a crash sees exactly the numbers an unint
 The twin is a small stateful world: `move_to` tells it where the robot was commanded (the direction each
 joint last moved in matters for backlash), `measure` takes the time since the campaign start (thermal
 drift: every length grows, tool included, about the pivot `thermal_pivot`; station shift).
+`simulate_campaign` is the table a campaign of given poses would record on it, in the campaign order.
 """
 
 from __future__ import annotations
@@ -18,15 +19,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from trackcal.calib.doe.order import campaign_order
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, Station
+from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import complete_params, irreducible_params, param_by_name
 from trackcal.calib.model.rigid import exp_so3
 from trackcal.mocks.effects import Effects, unit_effect
-from trackcal.mocks.synth import simulate_campaign
 
 # Paper Table 8: the KR-270's identified deviations (mm, deg), the default hidden truth of the twin.
 PAPER_TABLE8 = {
@@ -160,3 +162,48 @@ class Twin:
         if scaled.thermal_per_s:
             merged.thermal_per_s, merged.thermal_pivot = scaled.thermal_per_s, scaled.thermal_pivot
         merged.shift = scaled.shift or merged.shift
+
+
+def simulate_campaign(
+    twin: Twin,
+    poses_deg: np.ndarray,
+    repeat: int = 1,
+    stations: list[str] | None = None,
+    points: list[str] | None = None,
+    noise_free: bool = False,
+    seconds_per_measurement: float = 20.0,
+) -> MeasurementTable:
+    """Measure every pose (repeated `repeat` times) with every point from every station that sees it.
+
+    Rows come in the campaign order of `calib.doe.order` (the order `trackcal run` measures in): station by
+    station, point by point, the block's reference pose revisited at its start and end, passes alternating
+    direction; which reflector a station sees is the twin's own (true) visibility. Joint values are rounded
+    to the controller's 0.0001 deg. The twin's robot state follows the motions (backlash), time advances per
+    measurement (thermal drift). The noise of pass k is keyed by k, that of a drift check by its number.
+    """
+    stations = stations or sorted(twin.true_stations)
+    points = points or sorted(twin.true_points)
+    poses = np.round(np.asarray(poses_deg, dtype=float), 4)
+    seen = {(s, pt): np.array([twin.visible(q, pt, s) for q in poses], dtype=bool) for s in stations for pt in points}
+    visits: dict[tuple[str, str, int, bool], int] = {}
+    rows = []
+    for v in campaign_order(len(poses), stations, points, seen, repeat):
+        q = poses[v.pose]
+        k = visits.get((v.station, v.point, v.pose, v.drift), 0)
+        visits[(v.station, v.point, v.pose, v.drift)] = k + 1
+        twin.move_to(q)
+        t = len(rows) * seconds_per_measurement
+        key = f"{v.station}/{v.point}/pose{v.pose}/{'drift' if v.drift else 'rep'}{k}"
+        x = twin.exact(q, v.point, v.station, t) if noise_free else twin.measure(q, v.point, v.station, key, t)
+        rows.append((f"Q{v.pose + 1}", v.station, v.point, q, x, t))
+    n = len(rows)
+    return MeasurementTable(
+        seq=np.arange(1, n + 1),
+        t_s=np.array([r[5] for r in rows], dtype=float),
+        pose=[r[0] for r in rows],
+        station=[r[1] for r in rows],
+        point=[r[2] for r in rows],
+        q_deg=np.array([r[3] for r in rows]).reshape(n, poses.shape[1]),
+        xyz=np.array([r[4] for r in rows]).reshape(n, 3),
+        source="twin",
+    )

@@ -15,8 +15,7 @@ from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.session.session import measured_keys
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKCAL = [sys.executable, "-m", "trackcal.campaign.cli"]  # the command line, in a process of its own

@@ -12,15 +12,18 @@ import json
 import numpy as np
 import pytest
 
+from trackcal.calib.diagnose import selection
 from trackcal.calib.diagnose.extensions import CAUSES
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.calib.model.params import irreducible_params
+from trackcal.calib.model_file import identification_to_doc
+from trackcal.campaign.analysis import verdict_doc
 from trackcal.campaign.cli import main
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
 
@@ -111,3 +114,26 @@ def test_several_causes_make_one_predictable_model(kr270, tmp_path, effects):
     # both effects modelled: the tracker noise is left (~15 um per coordinate, within 30 %)
     assert np.sqrt(np.mean(err**2)) < 1.3 * NOISE_RMS_MM
 
+
+
+def test_diagnose_and_fit_cause_reuse_a_given_geometric_fit(kr270, monkeypatch):
+    """The geometric fit is computed once: given, it is not fitted again, and the results are the same bits."""
+    table, _ = hidden_campaign(kr270, 20002, "backlash")
+    params = irreducible_params(kr270.chain)[0]
+    plain = diagnose(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), seed=1)
+    fitted = fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "backlash")
+    geo = identify(kr270.chain, table, kr270.tool_points, params, noise=TrackerNoise())
+    geometric_fits = []
+
+    def counting(*args, **kw):
+        if set(kw) == {"noise"}:  # the geometric fit: no start, no extension
+            geometric_fits.append(args)
+        return identify(*args, **kw)
+
+    monkeypatch.setattr(selection, "identify", counting)
+    again = diagnose(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), seed=1, geometric=geo)
+    refit = fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "backlash", geometric=geo)
+    assert geometric_fits == [] and again.geometric is geo
+    assert json.dumps(verdict_doc(kr270, again)) == json.dumps(verdict_doc(kr270, plain))
+    assert json.dumps(identification_to_doc(refit.result)) == json.dumps(identification_to_doc(fitted.result))
+    assert fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "none", geometric=geo).result is geo

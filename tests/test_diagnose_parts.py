@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from trackcal.calib.diagnose import crossval as dg
 from trackcal.calib.diagnose import selection as diagnose
 from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
-from trackcal.calib.diagnose.error_map import MapEvidence, fit_error_map
 from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.joint_map import MapEvidence, fit_error_map
 from trackcal.calib.diagnose.noise_floor import comparable_repeats
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
@@ -21,8 +21,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.rigid import exp_so3, kabsch
 from trackcal.calib.model.subset import identifiable_subset
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 @settings(max_examples=25, deadline=None)

@@ -18,8 +18,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params, param_by_name
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 @pytest.fixture(scope="module")

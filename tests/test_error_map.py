@@ -15,9 +15,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from trackcal.calib.compensate import compensate
-from trackcal.calib.diagnose.error_map import fit_error_map
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.joint_map import Arc, outside_arcs
+from trackcal.calib.diagnose.joint_map import Arc, fit_error_map, outside_arcs
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import identify, predict_points
 from trackcal.calib.io.files import write_json
@@ -27,8 +26,7 @@ from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.subset import identifiable_subset
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.cli import main
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m
 AMPLITUDE_RAD = 1e-4  # per hidden term (see the module docstring)

@@ -8,7 +8,8 @@ twice the AT901 tracker noise (15 um per coordinate, calib/identify/noise.py): e
 import numpy as np
 import pytest
 
-from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension, combine
+from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension
+from trackcal.calib.diagnose.features import combine
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import Problem, Station, identify, predict_points
 from trackcal.calib.io.table import MeasurementTable

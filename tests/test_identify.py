@@ -7,13 +7,15 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from tests.helpers import kr270_campaign, truth_of
-from trackcal.calib.diagnose.extensions import build_extension, combine
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.features import combine
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
+from trackcal.calib.io.files import write_json
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import exp_so3, kabsch
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.calib.model_file import ModelError, identification_to_doc, load_model
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 def test_noise_free_campaign_is_recovered_exactly(kr270, kr270_params):
@@ -118,7 +120,7 @@ def test_station_only_reestimation_keeps_robot_and_points(kr270, kr270_params, n
     assert res.dof == 3 * len(table) - 12
     assert np.all(res.param_ci95() == 0) and np.all(res.point_ci95("P1") == 0)
     assert np.all(res.station_ci95("S1") > 0)
-    with pytest.raises(ValueError, match="fixed: stations"):
+    with pytest.raises(IdentificationError, match="fixed: stations"):
         identify(kr270.chain, moved, ref.points, kr270_params, fixed=("stations",))
 
 
@@ -247,3 +249,23 @@ def test_normal_equations_pass_gives_the_residual_cost(kr270, kr270_params, exte
     for chunks in (1, 3):
         problem.set_chunks(np.array_split(rng.permutation(problem.n_rows), chunks))
         assert problem.normal_equations(state)[2] == pytest.approx(float(r @ r), rel=1e-12)
+
+
+def test_a_fit_that_did_not_converge_says_so_in_model_json(kr270, kr270_params, tmp_path):
+    _, table = kr270_campaign(kr270, seed=11)
+    capped = identify(kr270.chain, table, kr270.tool_points, kr270_params, max_iter=1)
+    assert capped.converged is False and "stopped after 1 iterations" in capped.message
+    write_json(tmp_path / "capped.json", identification_to_doc(capped))
+    model = load_model(tmp_path / "capped.json")
+    assert model.doc["converged"] is False and model.doc["message"] == capped.message
+    assert model.converged is False and model.message == capped.message
+    done = identify(kr270.chain, table, kr270.tool_points, kr270_params)
+    assert done.converged is True and done.message
+    doc = identification_to_doc(done)
+    assert doc["converged"] is True and doc["message"] == done.message
+    old = {k: v for k, v in doc.items() if k not in ("converged", "message")}  # a model.json written before
+    write_json(tmp_path / "old.json", old)
+    assert load_model(tmp_path / "old.json").converged is None
+    write_json(tmp_path / "bad.json", {**doc, "converged": "yes"})
+    with pytest.raises(ModelError, match="converged: expected true or false"):
+        load_model(tmp_path / "bad.json")

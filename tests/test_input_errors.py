@@ -91,6 +91,11 @@ def model_json(tmp_path_factory):
         (lambda d: d.update(extension={"cause": "gremlins"}), r"extension\.cause: 'gremlins' is not none or one of"),
         # found by test_cli_fuzz: a null weighting crashed the report with a traceback
         (lambda d: d.update(weighting=None), r"weighting: expected one of tracker, iid, got None"),
+        # found by test_cli_fuzz: a negative, textual or missing half-width crashed the report's parameter plot
+        (lambda d: d["parameters"]["dq2"].update(ci95=-100), r"parameters\.dq2\.ci95: a half-width cannot be negative"),
+        (lambda d: d["parameters"]["dq2"].update(ci95="abc"), r"parameters\.dq2\.ci95: expected a number, got the str"),
+        (lambda d: d["parameters"]["dq2"].pop("ci95"), r"parameters\.dq2\.ci95: expected a number, got None"),
+        (lambda d: d["parameters"]["px2"].update(unit="deg"), r"parameters\.px2\.unit: px2 is in mm, got 'deg'"),
     ],
 )
 @pytest.mark.parametrize("command", ["predict", "compensate"])

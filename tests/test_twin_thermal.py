@@ -16,8 +16,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.mocks.effects import THERMAL_PIVOTS
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
 FORM_OF_PIVOT = {"base": "e_base", "first_joint": "e"}  # calib.extensions.THERMAL_FORMS

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.diagnose.changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
-from trackcal.calib.diagnose.extensions import Extension, build_extension, combine
+from trackcal.calib.diagnose.extensions import build_extension
+from trackcal.calib.diagnose.features import Extension, combine
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
     Identification,

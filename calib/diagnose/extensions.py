@@ -1,10 +1,7 @@
 """Non-geometric model extensions: physical causes with few parameters, added to the geometric model.
 
-Every extension is linear in its parameters theta, through two kinds of features computed from the rows:
-
-- joint features Phi (N, n, e): the joint angle the controller reports is off, q_true = q_read + Phi theta;
-- growth features G (N, e): the arm grows by the fraction g = G theta about a pivot (robot base frame),
-  p_true = pivot + (1 + g) (p - pivot), p the reflector position of the rigid model.
+Every extension is linear in its parameters theta (`calib.diagnose.features`: joint features, the reported joint
+angles are off by Phi theta; growth features, the arm grows by the fraction G theta about a pivot).
 
 Joint-type causes:
 - joint_compliance: dq_j = c_j tau_j(q), tau_j the gravity torque joint j holds (mass model of the
@@ -12,9 +9,8 @@ Joint-type causes:
 - backlash: dq_j = (b_j / 2) s_j, s_j = +1 / -1 the direction joint j last moved in before the row (time
   order; 0 before it first moves): a dead band of width b_j;
 - encoder_scale: dq_j = k_j q_j (gear-ratio / encoder gain error);
-- cyclic_error: the joint error map of `calib.diagnose.joint_map`, a Fourier series per joint in its own angle of
-  any order (`calib.diagnose.error_map` fits it and chooses order and ridge); here its features for given
-  coefficient names and fitted arcs, or for harmonics 1..H over the table's own arcs.
+- cyclic_error: the joint error map, a Fourier series per joint in its own angle of any order; its form, its
+  features and its ridge fit are `calib.diagnose.joint_map`, which `build_extension` calls for it.
 
 Growth cause:
 - thermal_drift: uniform thermal growth of every length, g = e t (t the row's time since the campaign
@@ -27,8 +23,7 @@ Growth cause:
 station_shift (a tracker station moved during the campaign) is handled by re-labelling the station after
 the change point (calib.diagnose), not here.
 
-Several causes at once: `combine` stacks extensions into one (parameters in order, features padded with
-zeros); `Extension.parts` lists the (cause, parameter names) it carries.
+Several causes at once: `features.combine` stacks extensions into one; `build_parts` builds them by name.
 
 Features are computed once on the whole table in time order (approach directions need the previous
 pose), then subset with the rows.
@@ -36,11 +31,11 @@ pose), then subset with the rows.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
+from trackcal.calib.diagnose.joint_map import CAUSE as MAP
+from trackcal.calib.diagnose.joint_map import Arc, map_extension
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.pinmodel import gravity_torques
@@ -48,77 +43,6 @@ from trackcal.calib.model.pinmodel import gravity_torques
 CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift")
 JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error")
 THERMAL_FORMS = ("e", "e_base")  # arm + tool about the first joint's frame; base column too, about the base origin
-# boundary unit -> factor from internal units (rad, N m, s)
-UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
-                "ppm/h": 1e6 * 3600.0}  # fmt: skip
-
-
-@dataclass
-class Extension:
-    cause: str
-    names: list[str]
-    units: list[str]  # boundary units
-    to_boundary: np.ndarray  # internal value * to_boundary = boundary value
-    joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
-    growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
-    pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
-    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"
-
-    @property
-    def size(self) -> int:
-        return len(self.names)
-
-    def subset(self, rows: np.ndarray) -> Extension:
-        return Extension(
-            self.cause, self.names, self.units, self.to_boundary,
-            None if self.joint_features is None else self.joint_features[rows],
-            None if self.growth is None else self.growth[rows], self.pivot, dict(self.meta),
-        )  # fmt: skip
-
-    def joint_offsets(self, theta: np.ndarray) -> np.ndarray | None:
-        if self.joint_features is None:
-            return None
-        return np.einsum("rje,e->rj", self.joint_features, theta)
-
-    def growth_of(self, theta: np.ndarray) -> np.ndarray | None:
-        """(N,) fractional growth of the arm, or None without growth features."""
-        return None if self.growth is None else self.growth @ theta
-
-    def parts(self) -> list[tuple[str, list[str]]]:
-        """(cause, parameter names) of every extension combined into this one, in parameter order."""
-        return self.meta.get("parts", [(self.cause, list(self.names))])
-
-
-def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
-    """One extension carrying all of `extensions` (parameters in order); `cause` names the main one (default:
-    the first's). Growth extensions must share their pivot."""
-    if len(extensions) == 1 and cause in (None, extensions[0].cause):
-        return extensions[0]
-    rows = {len(x.joint_features if x.joint_features is not None else x.growth) for x in extensions}
-    if len(rows) != 1:
-        raise ValueError("extensions of tables with different rows cannot be combined")
-    pivots = {tuple(x.pivot) for x in extensions if x.growth is not None}
-    if len(pivots) > 1:
-        raise ValueError("two growth extensions with different pivots cannot be combined")
-    (n_rows,) = rows
-    n = next((x.joint_features.shape[1] for x in extensions if x.joint_features is not None), 0)
-    e = sum(x.size for x in extensions)
-    jf = np.zeros((n_rows, n, e)) if n else None
-    gr = np.zeros((n_rows, e)) if pivots else None
-    at = 0
-    for x in extensions:
-        if x.joint_features is not None:
-            jf[:, :, at : at + x.size] = x.joint_features
-        if x.growth is not None:
-            gr[:, at : at + x.size] = x.growth
-        at += x.size
-    meta = {k: v for x in extensions for k, v in x.meta.items() if k != "parts"}
-    meta["parts"] = [part for x in extensions for part in x.parts()]
-    return Extension(
-        cause or extensions[0].cause, [nm for x in extensions for nm in x.names],
-        [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]), jf, gr,
-        np.array(pivots.pop()) if pivots else np.zeros(3), meta,
-    )  # fmt: skip
 
 
 def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
@@ -131,36 +55,6 @@ def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
         state = np.where(moved, np.sign(d), state)
         out[r] = state
     return out
-
-
-def _select(features: np.ndarray, names: list[str], wanted: list[str] | None, rel_tol: float = 1e-6):
-    """Keep the wanted columns by name, or (None) those that vary over the rows: a constant feature is a
-    joint offset, not a cause."""
-    if wanted is not None:
-        unknown = [w for w in wanted if w not in names]
-        if unknown:
-            raise ValueError(f"unknown extension parameter(s) {', '.join(unknown)}")
-        keep = np.array([n in wanted for n in names])
-    else:
-        col_std = features.std(axis=0).max(axis=0)
-        keep = col_std > rel_tol * max(col_std.max(), 1e-300)
-    return features[:, :, keep], [n for n, k in zip(names, keep, strict=True) if k]
-
-
-def _map_names(wanted: list[str], arcs: dict[int, Arc]) -> list[str]:
-    """The wanted cyclic_error coefficient names, checked against the joints the arcs cover."""
-    bad = []
-    for nm in wanted:
-        try:
-            kind, h, j = parse_name(nm)
-        except ValueError:
-            bad.append(nm)
-            continue
-        if kind not in "sc" or h < 1 or j not in arcs:
-            bad.append(nm)
-    if bad:
-        raise ValueError(f"unknown extension parameter(s) {', '.join(bad)}")
-    return list(wanted)
 
 
 def build_extension(
@@ -187,27 +81,19 @@ def build_extension(
             "backlash": ("b", "deg", UNIT_FACTORS["deg"]),
             "encoder_scale": ("k", "ppm", UNIT_FACTORS["ppm"]),
         }[cause]
-        feats, kept = _select(feats, [f"{letter}{j + 1}" for j in range(n)], names)
+        feats, kept = select_columns(feats, [f"{letter}{j + 1}" for j in range(n)], names)
         return Extension(cause, kept, [unit] * len(kept), np.full(len(kept), factor), feats)
-    if cause == "cyclic_error":
-        arcs = {j: Arc.covering(q[:, j]) for j in range(n)} if arcs is None else arcs
-        if names is None:
-            candidates = [nm for j in sorted(arcs) for nm in harmonic_names(j, harmonics)]
-            feats, kept = _select(map_features(q, candidates, arcs), candidates, None)
-        else:
-            kept = _map_names(names, arcs)
-            feats = map_features(q, kept, arcs)
-        return Extension(cause, kept, ["deg"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg"]), feats,
-                         meta={"arcs": {j: arcs[j] for j in sorted({parse_name(nm)[2] for nm in kept})}})  # fmt: skip
+    if cause == MAP:
+        return map_extension(q, harmonics, names, arcs)
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:
-            raise ValueError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
+            raise ExtensionError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
                              f"{', '.join(THERMAL_FORMS)}")  # fmt: skip
         pivot = np.zeros(3) if forms[0] == "e_base" else np.array(chain.base[:3, 3], dtype=float)
         return Extension(cause, list(forms), ["ppm/h"], np.array([UNIT_FACTORS["ppm/h"]]),
                          growth=np.asarray(table.t_s, float)[:, None], pivot=pivot)  # fmt: skip
-    raise ValueError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
+    raise ExtensionError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
 
 
 def build_parts(

@@ -16,7 +16,7 @@ current model by evidence that survives over-fitting:
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
 the one with the largest gain, `causes` the selected set in order.
 
-The joint error map (cyclic_error of any order, `calib.diagnose.error_map`) is tried once the causes of few
+The joint error map (cyclic_error of any order, `calib.diagnose.joint_map`) is tried once the causes of few
 parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in
 the model (`Rejudge`: BIC and held-out gain); one whose gain the map now explains leaves, and is not
 tried again. On the real UR10 (Series B) an encoder scale and a station shift had joined a two-harmonic
@@ -52,9 +52,10 @@ from trackcal.calib.diagnose.crossval import (
     visible_extension,
     whole_fit,
 )
-from trackcal.calib.diagnose.error_map import CAUSE as MAP
-from trackcal.calib.diagnose.error_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
-from trackcal.calib.diagnose.extensions import JOINT_CAUSES, THERMAL_FORMS, Extension, build_extension
+from trackcal.calib.diagnose.extensions import JOINT_CAUSES, THERMAL_FORMS, build_extension
+from trackcal.calib.diagnose.features import Extension
+from trackcal.calib.diagnose.joint_map import CAUSE as MAP
+from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
 from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
 from trackcal.calib.diagnose.structure import structure_test
 from trackcal.calib.identify.noise import TrackerNoise
@@ -127,13 +128,16 @@ class CauseFit(NamedTuple):
     n_extra: int  # parameters the causes add
 
 
-def fit_cause(chain, table, tool, params, noise, cause: str) -> CauseFit | None:
+def fit_cause(chain, table, tool, params, noise, cause: str,
+              geometric: Identification | None = None) -> CauseFit | None:  # fmt: skip
     """Fit the geometric model extended by `cause` (several joined by "+") with its covariance; None when
-    the table cannot reveal the cause (too few rows for a change point, no parameter the data can see)."""
+    the table cannot reveal the cause (too few rows for a change point, no parameter the data can see).
+    `geometric` is the geometric fit of the same table, tool, params and noise if already computed (a
+    diagnosis's `geometric`): it is not fitted again."""
+    geo = geometric if geometric is not None else identify(chain, table, tool, params, noise=noise)
     if cause == "none":
-        return CauseFit(identify(chain, table, tool, params, noise=noise), None, table, None, 0)
+        return CauseFit(geo, None, table, None, 0)
     causes = tuple(cause.split("+"))
-    geo = identify(chain, table, tool, params, noise=noise)
     ctx = context(chain, table, params, noise, geo, causes)
     if any(c != SHIFT and c not in ctx.features for c in causes):
         return None
@@ -193,7 +197,7 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
 def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
                    step: int, folds: int, seed: int,
                    orders: tuple[int, ...] = ORDERS) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
-    """The joint error map on top of the model `fitted` (`calib.diagnose.error_map`: order (of `orders`) and ridge by
+    """The joint error map on top of the model `fitted` (`calib.diagnose.joint_map`: order (of `orders`) and ridge by
     its own cross-validation by pose, which also gives the held-out gain; the F test and BIC count its
     effective number of parameters)."""
     table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
@@ -236,7 +240,7 @@ class Rejudge:
     parameter counts (below one when the map takes its signal over), which no F distribution calibrates;
     the BIC takes effective counts as they are.
 
-    Every model is one linearised problem (`calib.diagnose.error_map.MapEvidence`) with some causes held at zero: one
+    Every model is one linearised problem (`calib.diagnose.joint_map.MapEvidence`) with some causes held at zero: one
     problem with the station shift and one without, for the causes `chosen` (before the map) and every
     subset of them; each figure is computed once."""
 
@@ -341,8 +345,12 @@ def diagnose(
     folds: int = 5,
     seed: int = 0,
     causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT),
+    geometric: Identification | None = None,
 ) -> Diagnosis:
-    geo = identify(chain, table, tool_points, params, noise=noise)
+    """What the geometric model misses and which causes explain it (the module's docstring). `geometric` is the
+    geometric fit of the same table, tool points, params and noise if already computed (`fit_cause(..., "none")`,
+    identify's): it is not fitted again, and the diagnosis is the same."""
+    geo = geometric if geometric is not None else identify(chain, table, tool_points, params, noise=noise)
     n_obs = 3 * len(table)
     n_geo = n_obs - geo.dof
     floor = noise_floor(table, noise)

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import plan_joint_bounds
 from trackcal.calib.model.chain import Chain
@@ -39,6 +40,10 @@ from trackcal.calib.model.params import Param
 
 CRITERIA = ("rho0", "D", "A", "E")
 CRITERION_KEY = {"rho0": "rho0_mm", "D": "D_logdet_cov", "A": "A_trace_cov_mm2", "E": "E_max_eig_cov_mm2"}
+
+
+class DesignError(CalibError):
+    """A plan that cannot be made: an unknown criterion, too few feasible poses, no test pose."""
 
 
 @dataclass(frozen=True)
@@ -185,7 +190,7 @@ class Design:
         if criterion == "D":
             return np.exp(-2.0 * np.mean(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1))
         if criterion not in ("rho0", "A"):
-            raise ValueError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
+            raise DesignError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
         rhs = (self.j0 / s).T if criterion == "rho0" else np.eye(k)
         y = np.empty((len(ms), k, rhs.shape[1]))
         for i in range(k):  # forward substitution L y = rhs, vectorised over the stack
@@ -225,7 +230,7 @@ class Design:
             f = float(1.0 / lam[0])
             g = -np.outer(v, v) * f**2
         else:
-            raise ValueError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
+            raise DesignError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
         value, g = float(np.log(f)), g / f
         if d_weight:  # d log D = -(1/k) trace(M^-1 dM)
             value -= d_weight * float(np.mean(np.log(lam)))
@@ -297,7 +302,7 @@ def random_feasible_poses(design: Design, count: int, rng: np.random.Generator, 
         out.extend(cand[design.feasible(cand)])
         if len(out) >= count:
             return np.array(out[:count])
-    raise ValueError(f"found only {len(out)} of {count} feasible poses (limits, cell box, visibility)")
+    raise DesignError(f"found only {len(out)} of {count} feasible poses (limits, cell box, visibility)")
 
 
 def exchange(design: Design, infos: np.ndarray, plan: np.ndarray, criterion: str, max_passes: int = 100) -> np.ndarray:
@@ -385,7 +390,7 @@ def optimize_plan(
     the pool and then refined continuously (`refine`, in `executor` when given); the best feasible result is
     evaluated exactly. `initial` plans (m, n) rad are refined too (e.g. a repeated smaller plan)."""
     if criterion not in CRITERIA:
-        raise ValueError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
+        raise DesignError(f"unknown criterion {criterion!r}; choose from {', '.join(CRITERIA)}")
     rng = np.random.default_rng(seed)
     pool = random_feasible_poses(design, max(pool_size, m + 1), rng)
     infos = design.pose_information(pool)
@@ -423,7 +428,7 @@ def design_for_cell(
     """A Design from a `calib.model.cell.Cell`: its tool, TCP, test pose, box and (optionally) stations."""
     if q0 is None:
         if cell.test_pose is None:
-            raise ValueError(f"cell {cell.name} has no test_pose_deg: give the test pose")
+            raise DesignError(f"cell {cell.name} has no test_pose_deg: give the test pose")
         q0 = cell.test_pose
     pids = sorted(cell.tool_points)
     trackers = [Tracker(s.rotation, s.position) for s in cell.stations.values()] if visibility else []

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from trackcal.calib.doe.design import DesignError
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
 
@@ -32,4 +33,4 @@ def random_poses(cell: Cell, m: int, rng: np.random.Generator, max_tries: int = 
         out.extend(cand[points_in_box(cell, cand)])
         if len(out) >= m:
             return np.array(out[:m])
-    raise ValueError(f"cell {cell.name}: found only {len(out)} of {m} poses with every point in the box")
+    raise DesignError(f"cell {cell.name}: found only {len(out)} of {m} poses with every point in the box")

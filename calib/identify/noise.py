@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
+
 
 @dataclass(frozen=True)
 class TrackerNoise:
@@ -47,6 +49,10 @@ class TrackerNoise:
         return self.radial_mm * np.einsum("nij,nj->ni", uu, z) + st[:, None] * np.einsum("nij,nj->ni", perp, z)
 
 
+class NoiseError(CalibError):
+    """A noise model or weighting that does not exist."""
+
+
 # The one default weighting of identify, diagnose, run and the demo: this noise model. A laser tracker measures the
 # range by interferometer/ADM (5 µm) and the direction by angle encoders (7.5 µm + 3 µm/m of range), so the noise of
 # a point is anisotropic and grows with its distance. Weighting by the inverse covariance is the best linear
@@ -60,5 +66,5 @@ DEFAULT_WEIGHTING = "tracker"
 def noise_for(weighting: str) -> TrackerNoise | None:
     """The noise model of a weighting name (WEIGHTINGS): None is i.i.d. least squares."""
     if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting {weighting!r}: choose one of {', '.join(WEIGHTINGS)}")
+        raise NoiseError(f"weighting {weighting!r}: choose one of {', '.join(WEIGHTINGS)}")
     return TrackerNoise() if weighting == "tracker" else None

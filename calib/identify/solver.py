@@ -31,8 +31,8 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
 
 if TYPE_CHECKING:  # the solver takes a cause's columns as given; calib.diagnose builds them (and calls the solver)
-    from trackcal.calib.diagnose.extensions import Extension
-from trackcal.calib.model.rigid import exp_so3, kabsch, skew
+    from trackcal.calib.diagnose.features import Extension
+from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
 
@@ -119,7 +119,7 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
             )
         try:
             r, t = kabsch(p_nom[rows], xyz[rows])
-        except ValueError as exc:
+        except RigidError as exc:
             raise IdentificationError(f"{source}: station {sid!r}: {exc}") from None
         out.append(Station(r, t))
     return out
@@ -184,7 +184,7 @@ class Problem:
         self.n_all = self.c_st + 6 * self.n_st + 3 * self.n_pt
         unknown = set(fixed) - {"robot", "points"}
         if unknown:
-            raise ValueError(f"fixed: {', '.join(sorted(unknown))}; choose from robot, points")
+            raise IdentificationError(f"fixed: {', '.join(sorted(unknown))}; choose from robot, points")
         self.free = np.ones(self.n_all, dtype=bool)
         if "robot" in fixed:
             self.free[: self.c_st] = False

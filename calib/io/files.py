@@ -54,19 +54,17 @@ def read_yaml(path: str | Path, error: type[Exception], text: str | None = None)
     return doc
 
 
-def _no_constant(name: str):
-    raise ValueError(f"{name} is not JSON (RFC 8259 has no NaN or Infinity)")
-
-
 def read_json(path: str | Path, error: type[Exception]) -> dict:
     """The object of a strict JSON file: NaN and Infinity are refused."""
     text = read_text(path, error)
+
+    def no_constant(name: str):
+        raise error(f"{path}: {name} is not JSON (RFC 8259 has no NaN or Infinity)")
+
     try:
-        doc = json.loads(text, parse_constant=_no_constant)
+        doc = json.loads(text, parse_constant=no_constant)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: line {exc.lineno}: not JSON ({exc.msg})") from None
-    except ValueError as exc:
-        raise error(f"{path}: {exc}") from None
     if not isinstance(doc, dict):
         raise error(f"{path}: expected a JSON object at the top level, got {type(doc).__name__}")
     return doc

@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.chain import Chain, ChainError
 from trackcal.calib.model.params import Param, complete_params
 from trackcal.calib.model.rigid import skew
 
@@ -96,7 +96,7 @@ class Kinematics:
         complete = set(complete_params(chain))
         for p in self.params:
             if p not in complete:
-                raise ValueError(f"parameter {p.name} is not part of chain {chain.name}")
+                raise ChainError(f"parameter {p.name} is not part of chain {chain.name}")
 
     def _split(self, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = self.chain.dof
@@ -119,7 +119,7 @@ class Kinematics:
         chain = self.chain
         n_rows = q.shape[0]
         if q.shape[1] != chain.dof:
-            raise ValueError(f"expected {chain.dof} joint values per row, got {q.shape[1]}")
+            raise ChainError(f"expected {chain.dof} joint values per row, got {q.shape[1]}")
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
         r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
         o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()

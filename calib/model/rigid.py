@@ -4,8 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
+
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 AXIS_NAME = "xyz"
+
+
+class RigidError(CalibError):
+    """Points that do not determine a rigid transform (too few, collinear)."""
 
 
 def rot_axis(axis: int, angle: np.ndarray | float) -> np.ndarray:
@@ -57,17 +63,17 @@ def homogeneous(r: np.ndarray, t: np.ndarray) -> np.ndarray:
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares rigid transform with dst ~ R src + t (Kabsch/Horn, SVD form).
 
-    src, dst: (k, 3), k >= 3 non-collinear. Raises ValueError on degenerate input.
+    src, dst: (k, 3), k >= 3 non-collinear. Raises RigidError on degenerate input.
     """
     src = np.asarray(src, dtype=float)
     dst = np.asarray(dst, dtype=float)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or src.shape[0] < 3:
-        raise ValueError("need at least 3 corresponding 3-D points")
+        raise RigidError("need at least 3 corresponding 3-D points")
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     h = (src - cs).T @ (dst - cd)
     u, s, vt = np.linalg.svd(h)
     if s[1] <= 1e-9 * max(s[0], 1e-300):
-        raise ValueError("points are collinear: the rigid transform is not determined")
+        raise RigidError("points are collinear: the rigid transform is not determined")
     d = np.sign(np.linalg.det(vt.T @ u.T))
     r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
     return r, cd - r @ cs

@@ -14,9 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.identifiability import identification_jacobian
 from trackcal.calib.model.params import Param
+
+
+class SubsetError(CalibError):
+    """Poses and points too few to place the station and the points: no subset of parameters is identifiable."""
 
 
 def _scaled(j: np.ndarray) -> np.ndarray:
@@ -59,7 +64,7 @@ def identifiable_subset(
     nuis_names += [f"point {p} {c}" for p in point_ids for c in "xyz"]
     base_rank, _, _ = _rank(nuis, rtol)
     if base_rank < nuis.shape[1]:
-        raise ValueError(
+        raise SubsetError(
             f"{len(q)} pose(s) with {len(tool)} point(s) cannot even place the station and the points; add poses"
         )
     kept: list[int] = []

@@ -8,6 +8,7 @@ from pathlib import Path
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import read_json
 from trackcal.campaign.cli.console import ConsoleOperator, console
 from trackcal.campaign.cli.report import analyse_and_print
@@ -119,7 +120,7 @@ def cmd_replay(args) -> int:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
         store = replay(recording, into, args.cell, plan_doc)
-    except (CampaignError, OSError, ValueError) as exc:
+    except (CalibError, CampaignError, OSError, ValueError) as exc:
         if fresh:  # a failed replay leaves no directory that resume or a second replay would stumble over
             shutil.rmtree(into, ignore_errors=True)
         if isinstance(exc, ReplayDivergence):

@@ -1,12 +1,10 @@
 """Campaign plans: a deterministic generator of steps from a cell and a measurement plan.
 
-Ordering for few operator interventions: station by station (the operator moves the tracker once per
-station), point by point within a station (the reflector is moved once per point), every visible pose
-of the plan per point. Between passes over the poses the order alternates (each joint approaches from
-both directions: backlash becomes visible), and a reference pose is revisited at the start and the end
-of every point block, i.e. at the start, middle and end of each station block (drift checks: thermal
-drift and moved stations become visible). After every operator prompt comes an explicit `resume` step:
-motion only resumes once the operator has left the cell, closed the door and acknowledged.
+The order of the measurements is the one campaign order (`calib.doe.order`: station by station, point by
+point, drift revisits of a reference pose, alternating passes), on the nominal model's visibility. Around
+it come the operator's steps: a prompt when the station or the point changes, and after every prompt an
+explicit `resume` step: motion only resumes once the operator has left the cell, closed the door and
+acknowledged.
 """
 
 from __future__ import annotations
@@ -18,6 +16,7 @@ from enum import StrEnum
 import numpy as np
 
 from trackcal.calib.doe.design import design_for_cell
+from trackcal.calib.doe.order import campaign_order
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.campaign.errors import CampaignError
@@ -126,33 +125,16 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterat
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
-    pids = sorted(cell.tool_points)
-    for sid in cell.stations:
-        seen = {pid: vis[(sid, pid)] for pid in pids}
-        if not any(v.any() for v in seen.values()):
-            continue
-        # reference pose of the block: the pose this station sees the most points from (first on ties)
-        ref = int(np.argmax(sum(v.astype(int) for v in seen.values())))
-        yield Step(StepKind.CHANGE_STATION, station=sid)
-        yield Step(StepKind.RESUME, station=sid)
-        for pid in pids:
-            if not seen[pid].any():
-                continue
-            yield Step(StepKind.MOVE_REFLECTOR, station=sid, point=pid)
-            yield Step(StepKind.RESUME, station=sid, point=pid)
-            order = list(range(len(poses)))
-            blocks = []
-            if seen[pid][ref]:
-                blocks.append(([ref], True))
-            for k in range(repeat):
-                blocks.append((order if k % 2 == 0 else order[::-1], False))
-            if seen[pid][ref]:
-                blocks.append(([ref], True))
-            for block, drift in blocks:
-                for i in block:
-                    if not seen[pid][i]:
-                        continue
-                    q = tuple(float(v) for v in poses[i])
-                    yield Step(StepKind.MOVE, station=sid, point=pid, pose=ids[i], q_deg=q)
-                    yield Step(StepKind.SETTLE, station=sid, point=pid, pose=ids[i], q_deg=q)
-                    yield Step(StepKind.MEASURE, station=sid, point=pid, pose=ids[i], q_deg=q, drift=drift)
+    where = None
+    for v in campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat):
+        if where is None or v.station != where[0]:
+            yield Step(StepKind.CHANGE_STATION, station=v.station)
+            yield Step(StepKind.RESUME, station=v.station)
+        if (v.station, v.point) != where:
+            yield Step(StepKind.MOVE_REFLECTOR, station=v.station, point=v.point)
+            yield Step(StepKind.RESUME, station=v.station, point=v.point)
+        where = (v.station, v.point)
+        q = tuple(float(x) for x in poses[v.pose])
+        yield Step(StepKind.MOVE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
+        yield Step(StepKind.SETTLE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
+        yield Step(StepKind.MEASURE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q, drift=v.drift)

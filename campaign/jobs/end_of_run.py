@@ -63,7 +63,7 @@ def analyse_session(store: SessionStore) -> CampaignAnalysis:
     table, digest = as_written(exported), hashlib.sha256(data).hexdigest()
     params = choose_params(cell, None)
     outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING, table_sha256=digest)
-    dg = diagnose(cell.chain, table, cell.tool_points, params, noise_for(DEFAULT_WEIGHTING))
+    dg = diagnose(cell.chain, table, cell.tool_points, params, outcome.result.noise, geometric=outcome.result)
     verdict = written(files.verdict, verdict_doc(cell, dg, digest))
     geometric = None
     if dg.extended is not None:

@@ -16,6 +16,7 @@ from trackcal.calib.identify.solver import Identification, identify, residual_st
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, read_table, write_table
 from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
@@ -37,7 +38,7 @@ def choose_params(cell: Cell, names: str | None) -> list[Param]:
         return kept
     try:
         return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
-    except ValueError as exc:
+    except ChainError as exc:
         raise OptionError("{0}: {exc}; the irreducible set is {kept}", "params", exc=exc,
                           kept=" ".join(p.name for p in kept)) from None
 

@@ -12,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.doe.design import CRITERIA, Design, design_for_cell, optimize_plan
+from trackcal.calib.doe.design import CRITERIA, Design, DesignError, design_for_cell, optimize_plan
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.files import atomic_open, finite_or_null, write_json, writing
 from trackcal.calib.io.table import joint_columns, read_joint_rows
 from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.campaign.errors import InputError, OptionError
 
@@ -46,7 +47,7 @@ def plan_params(cell: Cell, names: str | None) -> list[Param]:
         return [param_by_name(cell.chain, "dq1"), *irreducible_params(cell.chain)[0]]
     try:
         return [param_by_name(cell.chain, n.strip()) for n in chosen if n.strip()]
-    except ValueError as exc:
+    except ChainError as exc:
         raise OptionError("{0}: {exc}", "params", exc=exc) from None
 
 
@@ -139,7 +140,7 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
                 design, opts.configs, opts.repeat, opts.criterion, starts=opts.starts, refined=opts.refined,
                 seed=opts.seed, executor=ex, progress=progress,
             )  # fmt: skip
-    except ValueError as exc:
+    except DesignError as exc:
         raise InputError(str(exc)) from None
     criteria = finite_or_null(plan.criteria, NOT_IDENTIFIABLE)
     return {

@@ -8,12 +8,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.doe.design import DesignError
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.errors import InputError, OptionError
-from trackcal.mocks.synth import simulate_campaign
-from trackcal.mocks.twin import Twin
+from trackcal.mocks.twin import Twin, simulate_campaign
 
 
 def parse_effects(items: list[str] | None) -> dict[str, float]:
@@ -53,7 +53,7 @@ def simulate(opts: SimulateOptions) -> tuple[Cell, Twin, MeasurementTable]:
         raise OptionError("{0} and {1} must be at least 1", "poses", "repeat")
     try:
         poses = np.degrees(random_poses(cell, opts.poses, np.random.default_rng(opts.seed)))
-    except ValueError as exc:
+    except DesignError as exc:
         raise InputError(str(exc)) from None
     twin = Twin(cell, seed=opts.seed, effects=opts.effects)
     table = simulate_campaign(twin, poses, repeat=opts.repeat, noise_free=opts.noise_free)

@@ -30,7 +30,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from trackcal.calib.diagnose.extensions import JOINT_CAUSES, Extension
+from trackcal.calib.diagnose.extensions import JOINT_CAUSES
+from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, fit_cause
 from trackcal.calib.identify.solver import Identification, identify, residual_stats
 from trackcal.calib.io.table import MeasurementTable

@@ -1,0 +1,110 @@
+"""A model extension: features linear in its parameters, computed from the rows of a table.
+
+Two kinds of features (`calib.diagnose.extensions` lists the causes, `calib.diagnose.joint_map` the joint error map):
+
+- joint features Phi (N, n, e): the joint angle the controller reports is off, q_true = q_read + Phi theta;
+- growth features G (N, e): the arm grows by the fraction g = G theta about a pivot (robot base frame),
+  p_true = pivot + (1 + g) (p - pivot), p the reflector position of the rigid model.
+
+Several causes at once: `combine` stacks extensions into one (parameters in order, features padded with
+zeros); `Extension.parts` lists the (cause, parameter names) it carries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trackcal.calib.errors import CalibError
+
+# boundary unit -> factor from internal units (rad, N m, s)
+UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
+                "ppm/h": 1e6 * 3600.0}  # fmt: skip
+
+
+class ExtensionError(CalibError):
+    """A model extension that does not exist or cannot be built: an unknown cause or parameter, parts that do not
+    fit together."""
+
+
+@dataclass
+class Extension:
+    cause: str
+    names: list[str]
+    units: list[str]  # boundary units
+    to_boundary: np.ndarray  # internal value * to_boundary = boundary value
+    joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
+    growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
+    pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
+    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def subset(self, rows: np.ndarray) -> Extension:
+        return Extension(
+            self.cause, self.names, self.units, self.to_boundary,
+            None if self.joint_features is None else self.joint_features[rows],
+            None if self.growth is None else self.growth[rows], self.pivot, dict(self.meta),
+        )  # fmt: skip
+
+    def joint_offsets(self, theta: np.ndarray) -> np.ndarray | None:
+        if self.joint_features is None:
+            return None
+        return np.einsum("rje,e->rj", self.joint_features, theta)
+
+    def growth_of(self, theta: np.ndarray) -> np.ndarray | None:
+        """(N,) fractional growth of the arm, or None without growth features."""
+        return None if self.growth is None else self.growth @ theta
+
+    def parts(self) -> list[tuple[str, list[str]]]:
+        """(cause, parameter names) of every extension combined into this one, in parameter order."""
+        return self.meta.get("parts", [(self.cause, list(self.names))])
+
+
+def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
+    """One extension carrying all of `extensions` (parameters in order); `cause` names the main one (default:
+    the first's). Growth extensions must share their pivot."""
+    if len(extensions) == 1 and cause in (None, extensions[0].cause):
+        return extensions[0]
+    rows = {len(x.joint_features if x.joint_features is not None else x.growth) for x in extensions}
+    if len(rows) != 1:
+        raise ExtensionError("extensions of tables with different rows cannot be combined")
+    pivots = {tuple(x.pivot) for x in extensions if x.growth is not None}
+    if len(pivots) > 1:
+        raise ExtensionError("two growth extensions with different pivots cannot be combined")
+    (n_rows,) = rows
+    n = next((x.joint_features.shape[1] for x in extensions if x.joint_features is not None), 0)
+    e = sum(x.size for x in extensions)
+    jf = np.zeros((n_rows, n, e)) if n else None
+    gr = np.zeros((n_rows, e)) if pivots else None
+    at = 0
+    for x in extensions:
+        if x.joint_features is not None:
+            jf[:, :, at : at + x.size] = x.joint_features
+        if x.growth is not None:
+            gr[:, at : at + x.size] = x.growth
+        at += x.size
+    meta = {k: v for x in extensions for k, v in x.meta.items() if k != "parts"}
+    meta["parts"] = [part for x in extensions for part in x.parts()]
+    return Extension(
+        cause or extensions[0].cause, [nm for x in extensions for nm in x.names],
+        [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]), jf, gr,
+        np.array(pivots.pop()) if pivots else np.zeros(3), meta,
+    )  # fmt: skip
+
+
+def select_columns(features: np.ndarray, names: list[str], wanted: list[str] | None, rel_tol: float = 1e-6):
+    """Keep the wanted columns by name, or (None) those that vary over the rows: a constant feature is a
+    joint offset, not a cause."""
+    if wanted is not None:
+        unknown = [w for w in wanted if w not in names]
+        if unknown:
+            raise ExtensionError(f"unknown extension parameter(s) {', '.join(unknown)}")
+        keep = np.array([n in wanted for n in names])
+    else:
+        col_std = features.std(axis=0).max(axis=0)
+        keep = col_std > rel_tol * max(col_std.max(), 1e-300)
+    return features[:, :, keep], [n for n, k in zip(names, keep, strict=True) if k]

@@ -1,0 +1,55 @@
+"""The one campaign order: in which sequence a campaign measures its poses, for the engine and for the twin.
+
+Ordering for few operator interventions: station by station (the operator moves the tracker once per
+station), point by point within a station (the reflector is moved once per point), every visible pose
+of the plan per point. Between passes over the poses the order alternates (each joint approaches from
+both directions: backlash becomes visible), and the block's reference pose (the pose the station sees
+the most points from, the first on ties) is revisited at the start and the end of every point block,
+i.e. at the start, middle and end of each station block (drift checks: thermal drift and moved stations
+become visible). Pure: from who sees what, the sequence of visits; no robot, no tracker, no clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Visit:
+    """One measurement of the campaign: `pose` indexes the plan's poses; `drift` marks a reference revisit."""
+
+    station: str
+    point: str
+    pose: int
+    drift: bool = False
+
+
+def campaign_order(
+    n_poses: int,
+    stations: Sequence[str],
+    points: Sequence[str],
+    seen: Mapping[tuple[str, str], np.ndarray],
+    repeat: int = 1,
+) -> list[Visit]:
+    """The visits of a campaign of `n_poses` poses passed over `repeat` times, in campaign order.
+
+    `seen[(station, point)]` is an (n_poses,) bool array: that station sees that point at that pose. A pose
+    not seen is skipped, a point seen at no pose has no block, a station seeing nothing has no block.
+    """
+    order = list(range(n_poses))
+    visits = []
+    for sid in stations:
+        vis = {pid: np.asarray(seen[(sid, pid)], dtype=bool) for pid in points}
+        if not any(v.any() for v in vis.values()):
+            continue
+        ref = int(np.argmax(sum(v.astype(int) for v in vis.values())))
+        for pid in points:
+            v = vis[pid]
+            blocks = [([ref], True)] if v[ref] else []
+            blocks += [(order if k % 2 == 0 else order[::-1], False) for k in range(repeat)]
+            blocks += [([ref], True)] if v[ref] else []
+            visits += [Visit(sid, pid, i, drift) for block, drift in blocks for i in block if v[i]]
+    return visits

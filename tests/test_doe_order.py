@@ -1,0 +1,48 @@
+"""The one campaign order (calib/doe/order.py): what the engine's steps and the twin's tables both walk."""
+
+import numpy as np
+
+from trackcal.calib.doe.order import Visit, campaign_order
+from trackcal.calib.doe.poses import random_poses
+from trackcal.campaign.engine.steps import StepKind, campaign_steps, check_plan, visibility
+from trackcal.mocks.twin import Twin, simulate_campaign
+
+
+def test_station_by_station_point_by_point_drift_revisits_and_alternating_passes():
+    seen = {
+        ("S1", "P1"): np.array([True, True, True, True]),
+        ("S1", "P2"): np.array([False, True, True, False]),
+        ("S2", "P1"): np.zeros(4, dtype=bool),  # S2 sees nothing: no block, no prompt
+        ("S2", "P2"): np.zeros(4, dtype=bool),
+    }
+    got = [(v.station, v.point, v.pose, v.drift) for v in campaign_order(4, ["S1", "S2"], ["P1", "P2"], seen, 2)]
+    # reference pose of S1: the one seeing the most points, the first on ties (poses 1 and 2 see both): 1
+    p1 = [("S1", "P1", 1, True)] + [("S1", "P1", i, False) for i in (0, 1, 2, 3, 3, 2, 1, 0)] + [("S1", "P1", 1, True)]
+    p2 = [("S1", "P2", 1, True)] + [("S1", "P2", i, False) for i in (1, 2, 2, 1)] + [("S1", "P2", 1, True)]
+    assert got == p1 + p2
+
+
+def test_no_drift_check_when_the_point_does_not_see_the_reference_pose():
+    seen = {("S1", "P1"): np.array([True, True, False]), ("S1", "P2"): np.array([False, True, True]),
+            ("S1", "P3"): np.array([False, False, True])}  # fmt: skip
+    visits = campaign_order(3, ["S1"], ["P1", "P2", "P3"], seen)  # points seen per pose 1, 2, 2: the reference is 1
+    assert [v for v in visits if v.point == "P3"] == [Visit("S1", "P3", 2)]
+
+
+def test_engine_steps_and_twin_table_walk_the_same_order(kr270):
+    poses = np.round(np.degrees(random_poses(kr270, 12, np.random.default_rng(3))), 4)
+    poses = poses[[not check_plan(kr270, q[None]) for q in poses]]  # those inside the joint margins
+    assert len(poses) >= 6
+    steps = [s for s in campaign_steps(kr270, poses, 2) if s.kind == StepKind.MEASURE]
+    order = campaign_order(len(poses), list(kr270.stations), sorted(kr270.tool_points), visibility(kr270, poses), 2)
+    assert [(s.station, s.point, s.pose, s.drift) for s in steps] == [
+        (v.station, v.point, f"Q{v.pose + 1}", v.drift) for v in order
+    ]
+    twin = Twin(kr270, seed=3)
+    table = simulate_campaign(twin, poses, repeat=2)
+    seen = {(s, p): np.array([twin.visible(q, p, s) for q in poses]) for s in sorted(kr270.stations)
+            for p in sorted(kr270.tool_points)}  # fmt: skip
+    expected = campaign_order(len(poses), sorted(kr270.stations), sorted(kr270.tool_points), seen, 2)
+    assert list(zip(table.station, table.point, table.pose, strict=True)) == [
+        (v.station, v.point, f"Q{v.pose + 1}") for v in expected
+    ]
