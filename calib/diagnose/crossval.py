@@ -146,10 +146,17 @@ def predict_rows(ctx: Context, fit: Fit, rows: np.ndarray, ext: Extension | None
     return predict_points(ctx.chain, ctx.params, fit.dev, fit.stations, fit.points, table, ext, fit.ext)
 
 
-def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int) -> list[np.ndarray] | None:
+def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int,
+              cut: tuple[str, float] | None = None) -> list[np.ndarray] | None:  # fmt: skip
     """Held-out rows of each fold: whole poses ("pose"), passes of the plan ("pass": the k-th measurement
     of each pose, station and point) or blocks of time within each station ("time"); None when the
-    table has fewer than two groups."""
+    table has fewer than two groups.
+
+    `cut` (station, after_t_s): a change point of that station. Its time blocks are then cut within each side
+    of the change, block k of either side in fold k, so that every fold trains on rows before and after it: a
+    station that moved in the last fifth of its block would otherwise have all its rows after the move in one
+    fold, whose training rows then cannot know where the station went (leave-block-out cross-validation of a
+    change point needs both segments in every training set)."""
     n = len(table)
     if scheme == "pose":
         poses = np.array(sorted(set(table.pose)))
@@ -174,8 +181,11 @@ def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int) -> li
     for sid in set(table.station):
         rows = np.flatnonzero(stations == sid)
         rows = rows[np.argsort(table.t_s[rows], kind="stable")]
-        for k, part in enumerate(np.array_split(rows, folds)):
-            block[part] = k
+        sides = [rows] if cut is None or cut[0] != sid else [rows[table.t_s[rows] <= cut[1]],
+                                                             rows[table.t_s[rows] > cut[1]]]  # fmt: skip
+        for side in sides:
+            for k, part in enumerate(np.array_split(side, folds)):
+                block[part] = k
     groups = [np.flatnonzero(block == k) for k in range(folds)]
     groups = [g for g in groups if len(g)]
     return groups if len(groups) > 1 else None
@@ -229,21 +239,35 @@ class Validator:
         self.cache: dict[tuple, float | None] = {}
         self.fold_sets = {s: fold_rows(ctx.table, s, folds, seed) for s in ("pose", "pass", "time")}
 
-    def cv(self, causes: tuple[str, ...], scheme: str) -> float | None:
-        key = (tuple(sorted(causes)), scheme)
+    def cv(self, causes: tuple[str, ...], scheme: str, cut: tuple[str, float] | None = None) -> float | None:
+        key = (tuple(sorted(causes)), scheme, cut)
         if key not in self.cache:
-            folds = self.fold_sets[scheme]
+            folds = self.fold_sets[scheme] if cut is None else fold_rows(self.ctx.table, scheme, self.folds,
+                                                                         self.seed, cut)  # fmt: skip
             self.cache[key] = None if folds is None else cross_validate(self.ctx, causes, folds)
         return self.cache[key]
 
+    def change_point(self, causes: tuple[str, ...]) -> tuple[str, float] | None:
+        """The station and time of the model's station shift (from its whole-table fit), if it has one."""
+        if SHIFT not in causes:
+            return None
+        try:
+            shift = whole_fit(self.ctx, causes).shift
+        except IdentificationError:
+            return None
+        return None if shift is None else (shift["station"], float(shift["after_t_s"]))
+
     def compare(self, base: tuple[str, ...], model: tuple[str, ...]) -> tuple[str | None, float | None, float | None]:
-        """(scheme, held-out RMS of base, of model): time blocks first for a time-dependent cause."""
+        """(scheme, held-out RMS of base, of model) on the same folds: time blocks first for a time-dependent
+        cause, cut on both sides of the model's change point when it has one (`fold_rows`)."""
         order = ("time", "pose", "pass") if set(model) & set(TIME_CAUSES) else ("pose", "pass", "time")
+        cut = self.change_point(model) or self.change_point(base)
         for scheme in order:
-            hb = self.cv(base, scheme)
+            at = cut if scheme == "time" else None
+            hb = self.cv(base, scheme, at)
             if hb is None:
                 continue
-            hm = self.cv(model, scheme)
+            hm = self.cv(model, scheme, at)
             if hm is not None:
                 return scheme, hb, hm
         return None, None, None
