@@ -21,8 +21,8 @@ from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import identification_to_doc
-from trackcal.campaign.analysis import verdict_doc
 from trackcal.campaign.cli import main
+from trackcal.campaign.jobs.diagnose import verdict_doc
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 NOISE_RMS_MM = 0.015  # AT901 model (calib/identify/noise.py) at 2-4 m: sqrt((5^2 + 2 * 16^2) / 3) um
@@ -115,7 +115,6 @@ def test_several_causes_make_one_predictable_model(kr270, tmp_path, effects):
     assert np.sqrt(np.mean(err**2)) < 1.3 * NOISE_RMS_MM
 
 
-
 def test_diagnose_and_fit_cause_reuse_a_given_geometric_fit(kr270, monkeypatch):
     """The geometric fit is computed once: given, it is not fitted again, and the results are the same bits."""
     table, _ = hidden_campaign(kr270, 20002, "backlash")
@@ -134,6 +133,6 @@ def test_diagnose_and_fit_cause_reuse_a_given_geometric_fit(kr270, monkeypatch):
     again = diagnose(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), seed=1, geometric=geo)
     refit = fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "backlash", geometric=geo)
     assert geometric_fits == [] and again.geometric is geo
-    assert json.dumps(verdict_doc(kr270, again)) == json.dumps(verdict_doc(kr270, plain))
+    assert json.dumps(verdict_doc(kr270, again, None)) == json.dumps(verdict_doc(kr270, plain, None))
     assert json.dumps(identification_to_doc(refit.result)) == json.dumps(identification_to_doc(fitted.result))
     assert fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "none", geometric=geo).result is geo
