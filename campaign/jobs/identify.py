@@ -130,9 +130,9 @@ def fit_warning(doc: dict, missing: list[str]) -> str | None:
 def convergence_warning(doc: dict) -> str | None:
     """One line when the solver stopped without meeting its stopping test (the model document's `converged` and
     `message`); None when it converged."""
-    if doc.get("converged", True):
+    if doc["converged"]:
         return None
-    why = doc.get("message", "")
+    why = doc["message"]
     return "the fit did not converge" + (f": {why}" if why else "") + "; the parameters may not be the best fit"
 
 
@@ -168,8 +168,8 @@ def summary_of(outcome: IdentifyOutcome) -> dict:
             "parameters": outcome.doc["parameters"],
             "sigma_mm": outcome.doc["sigma_mm"],
             "iterations": res.iterations,
-            "converged": outcome.doc.get("converged", True),
-            "message": outcome.doc.get("message", ""),
+            "converged": outcome.doc["converged"],
+            "message": outcome.doc["message"],
             "dof": res.dof,
             "stations": list(res.stations),
         }
