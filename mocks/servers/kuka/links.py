@@ -26,6 +26,18 @@ def _shut(sock: socket.socket) -> None:
         sock.close()
 
 
+
+def open_stream(addr: tuple[str, int]) -> socket.socket | OSError:
+    """One attempt at the controller's TCP connection to trackcal (no Nagle: one document per segment), or why
+    it failed."""
+    try:
+        sock = socket.create_connection(addr, timeout=1.0)
+    except OSError as exc:
+        return exc
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    sock.settimeout(None)
+    return sock
+
 class EkiEnd:
     """The controller's end of the EKI channel (TCP): documents in, <RobotState> documents out."""
 
@@ -41,12 +53,9 @@ class EkiEnd:
 
     def connect(self) -> OSError | None:
         """One attempt (EKX_Open); the failure, if it failed."""
-        try:
-            sock = socket.create_connection(self.addr, timeout=1.0)
-        except OSError as exc:
-            return exc
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(None)
+        sock = open_stream(self.addr)
+        if isinstance(sock, OSError):
+            return sock
         self.sock = sock
         self._framer = XmlStreamFramer(COMMAND_ROOT)
         return None
@@ -112,12 +121,9 @@ class RsiEnd:
 
     def connect_tcp(self) -> OSError | None:
         """One attempt at the TCP stream; the failure, if it failed. The KR C2 sends an empty IPOC first."""
-        try:
-            sock = socket.create_connection(self.addr, timeout=1.0)
-        except OSError as exc:
-            return exc
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(None)
+        sock = open_stream(self.addr)
+        if isinstance(sock, OSError):
+            return sock
         self.sock = sock
         self._framer = sen_framer()
         self.send(encode_rob(RobFrame(ipoc=None), tcp=True))  # KR C2: empty IPOC first
