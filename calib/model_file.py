@@ -182,16 +182,13 @@ def json_number(value, where: str) -> float:
 
 
 def parameter_value(pars: dict, p: Param, path: str) -> float:
-    """A parameter's deviation in calib units (mm, rad), its 95 % half-width and unit checked on the way: every
-    reader of the model (predict, compensate, the report's figures) takes them as given."""
+    """A parameter's deviation in calib units (mm, rad), its 95 % half-width checked on the way: every reader of
+    the model (predict, compensate, the report's figures) takes them as given."""
     where = f"{path}: parameters.{p.name}"
     entry = fields.mapping(pars[p.name], where, ModelError)
     value = json_number(entry.get("value"), f"{where}.value")
     if json_number(entry.get("ci95"), f"{where}.ci95") < 0:
         raise ModelError(f"{where}.ci95: a half-width cannot be negative, got {entry['ci95']!r}")
-    unit = "mm" if p.is_length else "deg"
-    if entry.get("unit", unit) != unit:
-        raise ModelError(f"{where}.unit: {p.name} is in {unit}, got {entry['unit']!r}")
     return value * (1.0 if p.is_length else np.pi / 180.0)
 
 
