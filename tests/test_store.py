@@ -309,3 +309,59 @@ def test_the_console_at_end_of_input_stops_the_campaign_safely(kr270, plan, tmp_
     operator = ConsoleOperator(Console(file=io.StringIO()))
     assert_stopped(run_stored(store, inproc_live(kr270, operator=operator)[1]), "operator console: end of input")
     assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged
+
+
+# ------------------------------------------------------------------------------------ the folder is the user's
+def test_a_lock_file_replaced_by_a_link_is_refused_and_its_target_untouched(reference, tmp_path, capsys):
+    # issue 27: `resume` truncated and overwrote whatever session.lock pointed at (trackcal runs as root on cell PCs)
+    d = copy_of(reference[0], tmp_path)
+    precious = tmp_path / "precious.txt"
+    precious.write_text("a file of the cell PC\n")
+    (d / "session.lock").unlink(missing_ok=True)
+    (d / "session.lock").symlink_to(precious)
+    err = one_line_error(capsys, ["resume", d, "--no-analysis"])
+    assert "session.lock: a symbolic link" in err
+    assert precious.read_text() == "a file of the cell PC\n"
+    (d / "session.lock").unlink()
+    (d / "session.lock").symlink_to(tmp_path / "etc" / "created-by-trackcal")  # dangling: nothing may be created
+    one_line_error(capsys, ["resume", d, "--no-analysis"])
+    assert not (tmp_path / "etc").exists()
+
+
+def test_a_linked_session_folder_or_database_is_refused(reference, tmp_path, capsys):
+    d = copy_of(reference[0], tmp_path)
+    (tmp_path / "link").symlink_to(d, target_is_directory=True)
+    for command in (["check", tmp_path / "link"], ["export", tmp_path / "link", "--csv", tmp_path / "t.csv"],
+                    ["resume", tmp_path / "link"]):  # fmt: skip
+        assert "link: a symbolic link" in one_line_error(capsys, command)
+    (tmp_path / "db").mkdir()
+    (tmp_path / "db" / "session.sqlite").symlink_to(d / "session.sqlite")
+    assert "session.sqlite: a symbolic link" in one_line_error(capsys, ["check", tmp_path / "db"])
+
+
+@pytest.mark.parametrize("name", ["with space", "unicode-Kö€ln", "what?", "hash#tag", "per%cent", "%3F"])
+def test_session_paths_with_uri_characters_are_read_where_they_are(reference, tmp_path, capsys, name):
+    # issue 27: the path was pasted unescaped into SQLite's `file:` URI: `?`, `#`, `%` made check/export/resume
+    # open another file (and check create stray ones)
+    d = Path(shutil.copytree(reference[0], tmp_path / name))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["check", str(d)]) == 0 and "sound" in capsys.readouterr().out
+    assert main(["export", str(d), "--csv", str(tmp_path / "t.csv")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*before, "t.csv"])  # no stray files
+    assert main(["resume", str(d), "--no-analysis"]) == 0  # complete: nothing to do, but it opens and locks
+    assert "already complete" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("ddl, named", [
+    ("CREATE TRIGGER t AFTER INSERT ON events BEGIN UPDATE events SET data = '{}' WHERE id = NEW.id; END",
+     "trigger t"),
+    ("CREATE VIEW v AS SELECT * FROM events", "view v"),
+    ("CREATE INDEX i ON events(kind)", "index i"),
+])  # fmt: skip
+def test_a_schema_object_added_to_the_database_is_named(reference, tmp_path, capsys, ddl, named):
+    # issue 27: a trigger or view added to session.sqlite was not noticed by `check`
+    d = copy_of(reference[0], tmp_path)
+    with sqlite3.connect(d / "session.sqlite") as db:
+        db.execute(ddl)
+    err = one_line_error(capsys, ["check", d])
+    assert "its schema is not trackcal's" in err and named in err

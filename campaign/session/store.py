@@ -46,6 +46,26 @@ from trackcal.campaign.errors import CampaignError
 SCHEMA_VERSION = "2"
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
+TABLES = {
+    "meta": "CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+    "documents": "CREATE TABLE documents(name TEXT PRIMARY KEY, text TEXT NOT NULL, sha256 TEXT NOT NULL)",
+    "events": "CREATE TABLE events(id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, "
+              "t_campaign REAL NOT NULL, step INTEGER NOT NULL, kind TEXT NOT NULL, data TEXT NOT NULL, "
+              "hash TEXT NOT NULL)",
+}  # fmt: skip
+# What SQLite itself adds for these tables (the PRIMARY KEY indexes, AUTOINCREMENT's counter): with TABLES, the whole
+# schema. Anything else in sqlite_master (a trigger that rewrites events, a view, an index) is not trackcal's.
+SQLITE_OWN = {("index", "sqlite_autoindex_meta_1"), ("index", "sqlite_autoindex_documents_1"),
+              ("table", "sqlite_sequence")}  # fmt: skip
+
+
+def refuse_links(directory: Path, *names: str) -> None:
+    """The session folder is the user's: neither it nor a file of it may be a symbolic link, which would make trackcal
+    write (as root, on many cell PCs) wherever the link points."""
+    for path in (directory, *(directory / n for n in names)):
+        if path.is_symlink():
+            raise StoreError(f"{path}: a symbolic link: trackcal opens no session folder or file through a link "
+                             f"(copy the session to a real directory)")  # fmt: skip
 KINDS = (
     "campaign_started",  # {"resumed": bool}
     "step_started",  # {"step": {...}}
@@ -102,10 +122,12 @@ class SessionLock:
     @classmethod
     def acquire(cls, directory: Path) -> SessionLock:
         path = directory / LOCK_NAME
+        refuse_links(directory, LOCK_NAME)
         try:
             if not os.access(directory, os.W_OK):
                 raise PermissionError(0, "read-only")
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            # O_NOFOLLOW: a link put there between the check above and this open is not followed either (ELOOP)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         except OSError as exc:
             raise StoreError(f"{directory}: cannot write there ({exc.strerror}): a campaign writes its session; copy "
                              f"the directory to a writable place and resume the copy (export and check read it "
@@ -172,7 +194,8 @@ class SessionStore:
     def _connect(path: Path) -> sqlite3.Connection:
         # mode=rw: never creates a file; a read-only file opens for reading. An interrupted write's journal is
         # rolled back by SQLite here (it needs write access, which a reader of a killed session has).
-        conn = sqlite3.connect(f"file:{path}?mode=rw", uri=True, isolation_level=None, timeout=30.0)
+        # the path percent-encoded (Path.as_uri): a `?`, `#` or `%` in a folder name is part of the name, not of the URI
+        conn = sqlite3.connect(f"{path.absolute().as_uri()}?mode=rw", uri=True, isolation_level=None, timeout=30.0)
         conn.execute("PRAGMA synchronous=FULL")
         return conn
 
@@ -195,11 +218,8 @@ class SessionStore:
                 conn.execute("PRAGMA journal_mode=DELETE")
                 conn.execute("PRAGMA synchronous=FULL")
                 conn.execute("BEGIN")
-                conn.execute("CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)")
-                conn.execute("CREATE TABLE documents(name TEXT PRIMARY KEY, text TEXT NOT NULL, sha256 TEXT NOT NULL)")
-                conn.execute("CREATE TABLE events(id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, "
-                             "t_campaign REAL NOT NULL, step INTEGER NOT NULL, kind TEXT NOT NULL, "
-                             "data TEXT NOT NULL, hash TEXT NOT NULL)")  # fmt: skip
+                for ddl in TABLES.values():
+                    conn.execute(ddl)
                 conn.executemany("INSERT INTO meta VALUES (?, ?)", [("schema", SCHEMA_VERSION), *meta.items()])
                 conn.executemany("INSERT INTO documents VALUES (?, ?, ?)",
                                  [(name, text, sha256(text)) for name, text in documents.items()])  # fmt: skip
@@ -220,6 +240,7 @@ class SessionStore:
         """An existing session, checked (`verify`); `readonly=False` takes its lock (resume)."""
         directory = Path(directory)
         path = directory / DB_NAME
+        refuse_links(directory, DB_NAME)
         if not path.exists():
             raise StoreError(f"{directory}: not a trackcal session (no {DB_NAME})")
         lock = None if readonly else SessionLock.acquire(directory)
@@ -243,8 +264,11 @@ class SessionStore:
         return store
 
     def _check_schema(self) -> None:
+        """The schema version, then the schema itself: trackcal's tables as it creates them and nothing else (a
+        trigger could rewrite every event as it is read or appended, a view could stand in for a table)."""
         try:
-            tables = {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+            entries = self.conn.execute("SELECT type, name, sql FROM sqlite_master").fetchall()
+            tables = {name for kind, name, _ in entries if kind == "table"}
             schema = "SELECT value FROM meta WHERE key='schema'"
             row = self.conn.execute(schema).fetchone() if "meta" in tables else None
         except sqlite3.Error as exc:
@@ -255,6 +279,11 @@ class SessionStore:
             raise StoreError(f"{self.path}: session schema {row[0]}, this trackcal reads schema {SCHEMA_VERSION} "
                              f"(hash-chained events, stored plan and config): use the trackcal that recorded "
                              f"it")  # fmt: skip
+        foreign = sorted(f"{kind} {name}" for kind, name, sql in entries
+                         if (kind, name) not in SQLITE_OWN and not (kind == "table" and TABLES.get(name) == sql))
+        if foreign:
+            raise StoreError(f"{self.path}: its schema is not trackcal's ({', '.join(foreign)} added or changed "
+                             f"after the session was created): the database was edited")  # fmt: skip
 
     def verify(self) -> Verified:
         """SQLite's integrity check, the stored documents against their hashes, then the hash chain from the
