@@ -365,3 +365,28 @@ def test_a_schema_object_added_to_the_database_is_named(reference, tmp_path, cap
         db.execute(ddl)
     err = one_line_error(capsys, ["check", d])
     assert "its schema is not trackcal's" in err and named in err
+
+
+KILLED_REPLAY = ("import os, signal, sys; from pathlib import Path; import trackcal.campaign.jobs.campaign as job; "
+                 "from trackcal.campaign.session.store import SessionStore\n"
+                 "seen = []\n"
+                 "def kill_at_the_fifth_measurement(doc):  # after the session log: five measurements committed\n"
+                 "    seen.extend([1] if doc.name == 'measurement' else [])\n"
+                 "    if len(seen) == 5:\n"
+                 "        os.kill(os.getpid(), signal.SIGKILL)  # kill -9\n"
+                 "job.replay(SessionStore.open(sys.argv[1], readonly=True), Path(sys.argv[2]), "
+                 "subscribers=[kill_at_the_fifth_measurement])\n")  # fmt: skip
+
+
+def test_a_killed_replay_leaves_no_session_and_the_next_replay_makes_it(reference, tmp_path, capsys):
+    # issue 27: a killed `replay --into` was a dead end (replay again: "use resume"; resume: "cannot be run live")
+    into = tmp_path / "replay"
+    proc = subprocess.run([sys.executable, "-c", KILLED_REPLAY, str(reference[0]), str(into)], capture_output=True)
+    assert proc.returncode == -9, proc.stderr
+    staging = tmp_path / "replay.replaying"
+    assert not into.exists() and (staging / "session.sqlite").exists()
+    err = one_line_error(capsys, ["resume", staging])
+    assert f"trackcal replay {reference[0]} --into DIR" in err  # the one piece of advice: replay again
+    assert main(["replay", str(reference[0]), "--into", str(into)]) == 0
+    assert not staging.exists()
+    same_table(export_table(SessionStore.open(into, readonly=True)), reference[1])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 from rich.markup import escape
@@ -97,6 +96,13 @@ def cmd_resume(args) -> int:
     """Drive the session's campaign to its end and analyse it; a campaign already complete is analysed again only
     on request."""
     store = SessionStore.open(args.session)
+    try:  # the lock goes with the store, also when the campaign cannot go on (a caller in the same process resumes)
+        return resume_and_analyse(store, args)
+    finally:
+        store.close()
+
+
+def resume_and_analyse(store: SessionStore, args) -> int:
     changed = changed_copies(store)
     if changed:
         console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
@@ -115,14 +121,11 @@ def cmd_resume(args) -> int:
 
 def cmd_replay(args) -> int:
     into = Path(args.into)
-    fresh = not into.exists()
     try:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        store = replay(recording, into, args.cell, plan_doc)
+        store = replay(recording, into, args.cell, plan_doc)  # a failed replay leaves nothing at `into`
     except (CalibError, CampaignError, OSError, ValueError) as exc:
-        if fresh:  # a failed replay leaves no directory that resume or a second replay would stumble over
-            shutil.rmtree(into, ignore_errors=True)
         if isinstance(exc, ReplayDivergence):
             raise InputError(f"replay diverges from the recording at {exc} ({into} not kept)") from None
         if isinstance(exc, CampaignError):

@@ -12,6 +12,7 @@ devices, run by run; resume is the engine continuing a session from what it alre
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,7 @@ from trackcal.campaign.session.session import (
     session_plan,
     stored_config,
 )
-from trackcal.campaign.session.store import Event, SessionStore, StoreError
+from trackcal.campaign.session.store import Event, SessionLock, SessionStore, StoreError
 from trackcal.drivers.interfaces import Operator
 
 
@@ -164,6 +165,10 @@ def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole) -> Live
             raise InputError(f"{exc} (the session uses the hardware config stored at its creation, copied in "
                              f"{copy}: make the devices reachable there, then `trackcal resume "
                              f"{store.directory}`)") from None  # fmt: skip
+    if meta["mode"] == "replay":
+        source = meta.get("replay_of") or "RECORDING"
+        raise InputError(f"{store.directory}: a replay is not resumed but made again: `trackcal replay {source} --into "
+                         f"DIR` (it replaces what a killed replay left)")  # fmt: skip
     raise InputError(f"{store.directory}: a {meta['mode']} session cannot be run live")
 
 
@@ -199,26 +204,54 @@ def segments(events: list[Event]) -> list[tuple[list[Event], bool]]:
     return [(run, not any(e.kind in ("campaign_done", "error") for e in run)) for run in runs]
 
 
+REPLAYING = ".replaying"  # the folder a replay is made in, beside its destination, until it is complete
+
+
+def replay_staging(into: Path) -> Path:
+    return into.with_name(into.name + REPLAYING)
+
+
 def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, plan_doc: dict | None = None,
            subscribers: Sequence[Subscriber] = ()) -> SessionStore:  # fmt: skip
     """`trackcal replay`: re-run the campaign with players of the recording instead of devices, into a new
     session, run by run: a recorded run that stopped (device fault) or was killed stops the replay's run at the
     same call, and the next run resumes exactly as the recorded one did. `cell_ref` / `plan_doc` replace the
     recorded ones (a changed config): the replay then stops at the first step whose device calls differ
-    (ReplayDivergence)."""
+    (ReplayDivergence).
+
+    The replay is made in INTO.replaying and renamed to INTO once complete: a replay that was killed leaves no
+    session at INTO, only its staging folder, which the next replay into INTO removes (a replay is a pure function
+    of the recording: made again, it is the same). Returns the finished session, opened read-only."""
+    into = Path(into)
+    if into.exists() and (not into.is_dir() or any(into.iterdir())):
+        raise StoreError(f"{into}: already exists and is not empty: replay into a new folder")
+    staging = replay_staging(into)
+    if staging.exists():  # what a killed replay left (a replay still running there holds its lock: refused)
+        SessionLock.acquire(staging).release()
+        shutil.rmtree(staging)
     meta = recording.meta()
     plan_doc = plan_doc or session_plan(recording)
     seed = int(meta["seed"]) if meta["seed"] else None
+    extra = {"replay_of": str(recording.directory)}
     if cell_ref is not None:
-        store, campaign = new_session(into, cell_ref, plan_doc, "replay", seed)
+        store, campaign = new_session(staging, cell_ref, plan_doc, "replay", seed, extra=extra)
     else:
         with stored_config(recording) as cell_path:
-            store, campaign = new_session(into, str(cell_path), plan_doc, "replay", seed)
-    for run, abrupt in segments(recording.events()):
-        context = RunContext([SessionLog(store), *subscribers])
-        playback = Playback(run, context.where, ends_abruptly=abrupt)
-        players = Live(*(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
-                       cellio=playback.device("cellio") if "cellio" in playback.calls else None,
-                       meteo=playback.device("meteo") if "meteo" in playback.calls else None)  # fmt: skip
-        Engine(devices(players, context, campaign.cell), context, history(store)).run(campaign.steps)
-    return store
+            store, campaign = new_session(staging, str(cell_path), plan_doc, "replay", seed, extra=extra)
+    try:
+        for run, abrupt in segments(recording.events()):
+            context = RunContext([SessionLog(store), *subscribers])
+            playback = Playback(run, context.where, ends_abruptly=abrupt)
+            players = Live(*(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
+                           cellio=playback.device("cellio") if "cellio" in playback.calls else None,
+                           meteo=playback.device("meteo") if "meteo" in playback.calls else None)  # fmt: skip
+            Engine(devices(players, context, campaign.cell), context, history(store)).run(campaign.steps)
+    except BaseException:
+        store.close()
+        shutil.rmtree(staging, ignore_errors=True)  # a failed replay leaves nothing behind
+        raise
+    store.close()
+    if into.exists():
+        into.rmdir()  # empty (checked above): the finished replay takes its place
+    staging.rename(into)
+    return SessionStore.open(into, readonly=True)
