@@ -17,8 +17,8 @@ import yaml
 from tests.helpers import ROOT, TRACKCAL
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
+from trackcal.campaign.engine.steps import plan_steps
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.jobs.campaign import plan_steps
 
 EXAMPLE = ROOT / "configs" / "hardware" / "example-cell.yaml"
 

@@ -19,12 +19,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from tests.helpers import TRACKCAL, assert_stopped, before_call, feasible_plan, inproc_live
+from tests.helpers import ROOT, TRACKCAL, assert_stopped, before_call, feasible_plan, inproc_live
 from trackcal.campaign.cli import main
+from trackcal.campaign.cli.campaign import campaign_exit
 from trackcal.campaign.cli.console import ConsoleOperator
 from trackcal.campaign.jobs.campaign import new_session, run_stored
+from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
+from trackcal.mocks.cell import NotVisible, World
 
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
 
@@ -390,3 +393,55 @@ def test_a_killed_replay_leaves_no_session_and_the_next_replay_makes_it(referenc
     assert main(["replay", str(reference[0]), "--into", str(into)]) == 0
     assert not staging.exists()
     same_table(export_table(SessionStore.open(into, readonly=True)), reference[1])
+
+
+# ------------------------------------------------------------------------------------ check tells the whole truth
+def test_a_session_whose_tail_was_deleted_checks_sound_but_incomplete(reference, tmp_path, capsys):
+    # issue 27: deleting the last measurements and campaign_done (no rehash needed: the chain is a prefix) checked
+    # "sound" with nothing saying that planned measurements are missing
+    d = copy_of(reference[0], tmp_path)
+    planned = len(reference[1])  # the reference measured every planned measurement (test_hardware: none skipped)
+    assert main(["check", str(d)]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"campaign complete: {planned} of {planned} planned measurements stored, 0 skipped" in out
+    with sqlite3.connect(d / "session.sqlite") as db:
+        (third_last,) = db.execute("SELECT id FROM events WHERE kind = 'measurement' ORDER BY id DESC LIMIT 1 OFFSET 2")
+        db.execute("DELETE FROM events WHERE id >= ?", third_last)
+    assert main(["check", str(d)]) == 0  # the prefix of a chain is a chain: the truth is in the counts
+    out = " ".join(capsys.readouterr().out.split())
+    assert (f"campaign incomplete (it has not reached its end): {planned - 3} of {planned} planned measurements "
+            f"stored, 0 skipped, 3 not measured yet") in out  # fmt: skip
+    assert main(["export", str(d), "--csv", str(tmp_path / "t.csv")]) == 0
+    first = " ".join(capsys.readouterr().out.split())
+    assert first.startswith(f"note: {d}: campaign incomplete")  # export says so in its first line
+
+
+def test_a_campaign_that_measured_nothing_ends_with_exit_code_3(kr270, plan, tmp_path, monkeypatch, capsys):
+    # issue 27: 48 of 48 measurements skipped ended "complete" with exit 0 (README: exit codes)
+    monkeypatch.setattr(World, "measure", lambda self: (_ for _ in ()).throw(NotVisible("covered")))
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    result = run_stored(store, inproc_live(kr270)[1])
+    assert result.exit_status == "success" and result.measured == 0  # the engine went through every step
+    assert campaign_exit(store) == 3
+    assert "it measured nothing" in capsys.readouterr().err
+
+
+def test_a_campaign_may_skip_the_cells_share_and_no_more(kr270, plan, tmp_path, monkeypatch):
+    # the cell's max_skipped_share (calib.model.cell.MAX_SKIPPED_SHARE: rho0 at most 10 % worse, 1 - 1/1.1^2); the
+    # reflector on P1 covered at S1: that block is skipped, every other measured
+    original = World.measure
+
+    def covered_at_s1(self):
+        if (self.station, self.point) == ("S1", "P1"):
+            raise NotVisible("covered")
+        return original(self)
+
+    monkeypatch.setattr(World, "measure", covered_at_s1)
+    for share, code in ((0.0, 3), (1.0, 0)):
+        cell = tmp_path / f"cell-{share}.yaml"
+        cell.write_text((ROOT / "configs" / "cells" / "kr270.yaml").read_text() + f"max_skipped_share: {share}\n")
+        store, _ = new_session(tmp_path / f"s{share}", str(cell), plan, "sim", 3)
+        run_stored(store, inproc_live(kr270)[1])
+        done = completeness(store)
+        assert 0 < done.skipped < done.planned and done.measured + done.skipped == done.planned
+        assert campaign_exit(store) == code

@@ -40,6 +40,13 @@ class StationPlacement:
     position: np.ndarray  # mm
 
 
+# The share of a plan's measurements a campaign may skip (a point the tracker could not see from a station) and still
+# deliver what the plan promised: the test-pose error rho0 of a plan scales as 1/sqrt(N) when measurements are lost
+# evenly (paper eq. 41: the covariance is the inverse of a sum over the measurements), so losing a share s multiplies
+# it by 1/sqrt(1 - s); at most 10 % worse: s <= 1 - 1/1.1^2 = 0.17.
+MAX_SKIPPED_SHARE = round(1.0 - 1.0 / 1.1**2, 2)
+
+
 @dataclass
 class Cell:
     name: str
@@ -56,6 +63,7 @@ class Cell:
     plan_params: list[str] | None = None  # parameters the planner targets (paper section 7.2: nine)
     joint_margin_deg: float = 1.0  # plans keep this far inside every joint limit
     measurement_tolerance_mm: float | None = None  # None: from the station set-up (campaign/engine/expected.py)
+    max_skipped_share: float = MAX_SKIPPED_SHARE  # a campaign that skipped more of its planned measurements failed
     source: str = ""
 
 
@@ -168,6 +176,10 @@ def load_cell(ref: str) -> Cell:
         cell.measurement_tolerance_mm = _non_negative(doc, "measurement_tolerance_mm", where, 0.0)
         if cell.measurement_tolerance_mm == 0:
             raise CellError(f"{where}: measurement_tolerance_mm: must be positive")
+    cell.max_skipped_share = _non_negative(doc, "max_skipped_share", where, MAX_SKIPPED_SHARE)
+    if cell.max_skipped_share > 1:
+        raise CellError(f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got "
+                        f"{cell.max_skipped_share:g}")  # fmt: skip
     if doc.get("plan_params") is not None:
         names = fields.sequence(doc["plan_params"], f"{where}: plan_params", CellError)
         cell.plan_params = [fields.text(n, f"{where}: plan_params[{k}]", CellError) for k, n in enumerate(names)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from rich.markup import escape
@@ -15,6 +16,7 @@ from trackcal.campaign.engine.engine import Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
 from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
+from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
@@ -67,6 +69,19 @@ def stopped_safely(store: SessionStore, result: RunResult) -> None:
         raise CampaignError(f"{result.message}. Fix the cause, then: trackcal resume {store.directory}")
 
 
+def campaign_exit(store: SessionStore) -> int:
+    """The exit code of a campaign that reached its end: 0, or 3 when it measured nothing or skipped more of its
+    planned measurements than the cell's max_skipped_share (the plan's promise is not kept: README, exit codes)."""
+    done = completeness(store)
+    if not done.failed:
+        return 0
+    why = "it measured nothing" if done.measured == 0 else (
+        f"more than the cell's max_skipped_share {done.max_skipped_share:.0%} skipped")  # fmt: skip
+    print(f"error: {store.directory}: {done.sentence()}: {why}, so the plan's accuracy is not reached "
+          "(exit code 3)", file=sys.stderr)  # fmt: skip
+    return 3
+
+
 def drive(store: SessionStore) -> None:
     """Continue the session's campaign on its cell, with the console's progress."""
     with ConsoleProgress() as progress:
@@ -89,7 +104,7 @@ def cmd_run(args) -> int:
     stopped_safely(store, result)
     if not args.no_analysis:
         analyse_and_print(store)
-    return 0
+    return campaign_exit(store)
 
 
 def cmd_resume(args) -> int:
@@ -111,12 +126,12 @@ def resume_and_analyse(store: SessionStore, args) -> int:
         console.print(f"{store.directory}: the campaign is already complete"
                       + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
         if not args.analyse:
-            return 0
+            return campaign_exit(store)
     else:
         drive(store)
     if not args.no_analysis:
         analyse_and_print(store)
-    return 0
+    return campaign_exit(store)
 
 
 def cmd_replay(args) -> int:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from trackcal.calib.identify.solver import IdentificationError
 from trackcal.campaign.cli.console import console
+from trackcal.campaign.cli.session import incomplete_note
 from trackcal.campaign.errors import InputError, UsageError
 from trackcal.campaign.jobs.end_of_run import NotAnalysedError, analyse_session, report_files, report_session
 from trackcal.campaign.report.analysis import CampaignAnalysis
@@ -23,6 +24,9 @@ def cmd_report(args) -> int:
     if args.session is not None:
         if args.table or args.model or args.plan or args.verdict or args.cell:
             raise UsageError("give a SESSION directory or --table, --model, --plan, --verdict, --cell; not both")
+        store = SessionStore.open(args.session, readonly=True)
+        incomplete_note(store)
+        store.close()
         try:
             path = report_session(Path(args.session), Path(args.out) if args.out else None, images)
         except NotAnalysedError as exc:

@@ -138,3 +138,22 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterat
         yield Step(StepKind.MOVE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
         yield Step(StepKind.SETTLE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
         yield Step(StepKind.MEASURE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q, drift=v.drift)
+
+
+def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
+    try:
+        poses = np.asarray(plan_doc["poses_deg"], dtype=float)
+        repeat = int(plan_doc.get("repeat", 1))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PlanError(f"plan: expected poses_deg (list of joint vectors) and repeat ({exc})") from None
+    if poses.ndim != 2 or not np.all(np.isfinite(poses)) or repeat < 1:
+        raise PlanError("plan: poses_deg must be a list of finite joint vectors and repeat >= 1")
+    return poses, repeat
+
+
+def plan_steps(cell: Cell, plan_doc: dict) -> list[Step]:
+    """The steps of a plan in a cell; the whole plan is checked first (PlanError)."""
+    poses, repeat = plan_arrays(plan_doc)
+    if poses.shape[1] != cell.chain.dof:
+        raise PlanError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
+    return list(campaign_steps(cell, poses, repeat))

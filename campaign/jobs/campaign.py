@@ -17,8 +17,6 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
@@ -26,7 +24,7 @@ from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
 from trackcal.campaign.engine.expected import expected_position, measurement_tolerance
 from trackcal.campaign.engine.recording import Playback, Recorder
-from trackcal.campaign.engine.steps import Step, campaign_steps
+from trackcal.campaign.engine.steps import Step, plan_steps
 from trackcal.campaign.errors import CampaignError, InputError
 from trackcal.campaign.session.session import (
     SessionFiles,
@@ -74,25 +72,6 @@ class OperatorConsole:
 
     say: Callable[[str], None]
     operator: Operator
-
-
-def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
-    try:
-        poses = np.asarray(plan_doc["poses_deg"], dtype=float)
-        repeat = int(plan_doc.get("repeat", 1))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StoreError(f"plan: expected poses_deg (list of joint vectors) and repeat ({exc})") from None
-    if poses.ndim != 2 or not np.all(np.isfinite(poses)) or repeat < 1:
-        raise StoreError("plan: poses_deg must be a list of finite joint vectors and repeat >= 1")
-    return poses, repeat
-
-
-def plan_steps(cell: Cell, plan_doc: dict) -> list[Step]:
-    """The steps of a plan in a cell; the whole plan is checked first (PlanError, StoreError)."""
-    poses, repeat = plan_arrays(plan_doc)
-    if poses.shape[1] != cell.chain.dof:
-        raise StoreError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
-    return list(campaign_steps(cell, poses, repeat))
 
 
 def stored_campaign(store: SessionStore) -> Campaign:
