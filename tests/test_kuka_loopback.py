@@ -603,3 +603,25 @@ def test_a_restarted_trackcal_finds_the_controller_again():
         first.close()
         mock.stop()
     assert mock.crashed is None
+
+
+def test_rsi_frames_whose_ipoc_goes_backwards_are_not_read():
+    """Issue 27: the IPOC is the controller's interpolation-cycle timestamp and only moves forward
+    (kuka_rsi_simulator in ros-industrial/kuka_experimental); a frame with an older one is not the controller's
+    stream now: counted, never read."""
+    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=True,
+                      controller_host="127.0.0.1", rsi_stale_s=60.0)  # fmt: skip  60 s only bounds a hang
+    rsi = client.rsi
+    ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        ctl.bind(("127.0.0.1", 0))
+        ctl.sendto(encode_rob(RobFrame(ipoc=None), tcp=False), rsi.address)  # the KR C2's first frame
+        rsi.accept(time.monotonic() + 10.0, 10.0)
+        rsi.start()
+        ctl.sendto(encode_rob(RobFrame(ipoc=1000, aipos=HOME), tcp=False), rsi.address)
+        ctl.sendto(encode_rob(RobFrame(ipoc=988, aipos=TARGET), tcp=False), rsi.address)  # 12 ms back: 1 cycle
+        assert wait_for(lambda: rsi.frames_backwards == 1, timeout=10.0)
+        assert rsi.joints() == HOME and rsi.last_seq == 1
+    finally:
+        ctl.close()
+        client.close()

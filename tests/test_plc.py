@@ -11,6 +11,7 @@ from io import StringIO
 import pytest
 from rich.console import Console
 
+from trackcal.campaign.cells.checks import motion_guard
 from trackcal.campaign.cells.operator import PlcOperator
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import CellIO
@@ -339,3 +340,17 @@ def test_garbage_connections_never_take_the_server_down(plc, cell):
     assert cell.door_closed() is True
     cell.set_request_lamp(True)
     assert plc.lamp is True
+
+
+def test_the_motion_guard_names_a_silent_plc_and_an_open_door_apart(plc, cell):
+    """Issue 27, finding 7: a frozen cell (the PLC silent) stops the robot as a PLC that does not answer, not as
+    "the cell door opened"; both stop it."""
+    guard = motion_guard(cell)
+    plc.close_door()
+    assert guard() is None
+    plc.open_door()
+    assert guard() == "the cell door opened"
+    plc.close_door()
+    plc.inject(PlcFault.SILENT)
+    reason = guard()
+    assert reason is not None and reason.startswith("the cell PLC does not answer (") and "door opened" not in reason

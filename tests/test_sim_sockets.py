@@ -11,6 +11,8 @@ moves while the mock PLC reports the cell door open.
 """
 
 import contextlib
+import itertools
+import logging
 import socket
 import threading
 import time
@@ -239,3 +241,46 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
     run_stored(store, SimCell(kr270, SEED, store).live)
     assert store.events("campaign_done")
     same_table(export_table(store), reference)
+
+
+def test_a_spoofer_on_the_controllers_address_streaming_first_is_never_read(
+    tmp_path, kr270, plan, reference, monkeypatch, caplog
+):
+    """Issue 27, finding 1: a sender on 127.0.0.1 (the controller's address), another port, streams in-limit joints
+    before the controller's first RSI frame and all along. Only the peer the controller's session began with (its
+    first frame, empty <IPOC/>) is read: no stored row carries the spoofer's joints, it is counted and logged once,
+    and the campaign gives the table of a clean run."""
+    fake = (10.0, -60.0, 90.0, 10.0, 60.0, 10.0)  # the issue's joints
+    stop, first_sent = threading.Event(), threading.Event()
+    spoofer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    spoofer.bind(("127.0.0.1", 0))
+    serve = TwinMocks.serve_controller
+
+    def stream(rsi_addr):
+        for ipoc in itertools.count(10**9, 12):  # IPOC: ms of controller time, 12 ms a KR C2 cycle
+            with contextlib.suppress(OSError):
+                spoofer.sendto(encode_rob(RobFrame(ipoc=ipoc, aipos=fake), tcp=False), rsi_addr)
+            first_sent.set()
+            if stop.wait(0.012):
+                return
+
+    def spoofer_first(self, eki_addr, rsi_addr, *args, **kw):
+        threading.Thread(target=stream, args=(rsi_addr,), daemon=True).start()
+        assert first_sent.wait(10.0)
+        serve(self, eki_addr, rsi_addr, *args, **kw)
+
+    monkeypatch.setattr(TwinMocks, "serve_controller", spoofer_first)
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    caplog.set_level(logging.WARNING, logger="trackcal.drivers.kuka.rsi_link")
+    try:
+        sim = SimCell(kr270, SEED, store)
+        run_stored(store, sim.live)
+        rsi = sim.live.robot.rsi
+    finally:
+        stop.set()
+        spoofer.close()
+    table = export_table(store)
+    assert not any(np.allclose(q, fake) for q in table.q_deg)
+    same_table(table, reference)
+    assert rsi.frames_foreign > 0
+    assert len([r for r in caplog.records if "ignored" in r.getMessage()]) == 1

@@ -28,11 +28,13 @@ def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
 
 def motion_guard(cellio: ModbusCellIO):
     """The robot client's guard during moves and settling (drivers.kuka.client polls it at 25 Hz): why the robot
-    must stop now, or None. The door (an unreadable door reads as open, drivers.plc.client) and the PLC's
-    emergency-stop input; a PLC that cannot be read stops the robot too."""
+    must stop now, or None. The door and the PLC's emergency-stop input; a PLC that cannot be read stops the robot
+    too, named as what it is (an unreadable door reads as open in drivers.plc.client, but it is not an open door)."""
 
     def guard() -> str | None:
         if not cellio.door_closed():
+            if cellio.last_door_error is not None:
+                return f"the cell PLC does not answer ({cellio.last_door_error})"
             return "the cell door opened"
         try:
             if not cellio.read_status().estop_ok:

@@ -9,6 +9,16 @@ passive flag are the defaults): trackcal listens, only the controller is served 
   (drivers.kuka.rsi_codec.ipoc_of). That thread does nothing else: a second one parses the frames and keeps the
   latest AIPos (0.0001 deg), because a controller in answered mode stops the robot after more than
   eERXmaxLatePackages late answers.
+- Whose frames count (issue 27): over TCP the session is the connection accepted from the controller. Over UDP
+  it is the peer (address and port) of the KR C2's first frame after ST_ETHERNET, the one holding only an empty
+  <IPOC/> (ros-industrial/kuka_experimental pull request #74, drivers.kuka.rsi_codec), from the controller's
+  address. A trackcal started while the controller already streams (passive RSI keeps running between EKI
+  connections, trackcal_eki.src) sees no such frame: it follows the first peer from the controller's address until
+  an opener comes from it, once; a session begun with an opener is never given up. Datagrams from any other port
+  and frames whose IPOC does not move forward (the controller's interpolation-cycle timestamp, one step per cycle:
+  kuka_rsi_simulator in ros-industrial/kuka_experimental) are counted (`frames_foreign`, `frames_backwards`),
+  logged once, never answered and never read. A restarted controller runs its KRL program from the top and ends
+  the EKI connection: the campaign stops, `resume` connects again and takes the new stream.
 - Freshness: a complete frame at most STALE_CYCLES cycles of rsi_cycle_s old (12 ms on a KR C2, 4 ms on a KR C4:
   the hardware file says which); `require_fresh` waits at most stale_s for one before it refuses a move.
 - The frames are kept (FRAME_HISTORY of them, numbered) for settling windows judged in controller time: one frame
@@ -27,6 +37,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import logging
 import queue
 import socket
 import threading
@@ -42,6 +53,9 @@ POLL_S = 0.05  # socket timeout slice of the background threads
 STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more than this many cycles
 FRAME_HISTORY = 8192  # RSI frames kept for settling windows (~98 s of 12 ms cycles)
 _RECV_BYTES = 4096
+_NEW_SESSION = b""  # from the answering to the monitor thread: the controller's session began, forget the stream
+
+log = logging.getLogger(__name__)
 
 RsiSync = Callable[[int], "int | None"]  # run n more cycles (0: none), the IPOC of the controller's last frame
 
@@ -91,6 +105,11 @@ class RsiLink:
         self._framer_pending = 0
         self.frames_answered = 0
         self.frames_unreadable = 0
+        self.frames_foreign = 0  # UDP: from the controller's address but not its RSI session's peer
+        self.frames_backwards = 0  # IPOC not after the last one read
+        self._last_ipoc: int | None = None  # the answering thread's: the last IPOC taken
+        self._logged: set[str] = set()
+        self._opened = False  # UDP: the session began with the controller's first frame (else: a running stream)
 
     # --- address and connection -----------------------------------------------------------------------------
 
@@ -145,8 +164,8 @@ class RsiLink:
                 raise ConnectionLost(f"UDP receive failed while waiting for {what}: {exc}", device=self.device) from exc
             if not self.peers.accepts(peer):
                 continue
-            self._peer, self._sock = peer, sock
-            self._take(sock, data)  # the KR C2's first frame (empty IPOC) normally
+            self._peer, self._sock, self._opened = peer, sock, _is_opener(data)
+            self._take(sock, data)
             return
 
     def start(self) -> None:
@@ -194,8 +213,15 @@ class RsiLink:
                         self._framer_pending = framer.pending
                     else:
                         data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
-                        if peer == self._peer:  # anything else is not our controller
+                        if peer == self._peer:
                             self._take(sock, data)
+                        elif self.peers.accepts(peer):
+                            if not self._opened and _is_opener(data):  # the controller's session starts now
+                                self._peer, self._opened, self._last_ipoc = peer, True, None
+                                self._inbox.put((time.monotonic(), _NEW_SESSION))
+                                self._take(sock, data)
+                            else:
+                                self._foreign(peer, f"not the peer of the controller's RSI session {self._peer}")
                 except TimeoutError:
                     continue
         except DeviceError as exc:
@@ -206,18 +232,34 @@ class RsiLink:
             if not self._stop.is_set():
                 self._inbox.put((time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device)))
 
+    def _foreign(self, peer: tuple, why: str) -> None:
+        """A datagram from the controller's address that is not its RSI session's: counted, logged once."""
+        self.frames_foreign += 1
+        self._log_once(f"foreign {peer[0]}:{peer[1]}", f"RSI frames from {peer[0]}:{peer[1]} ignored: {why}")
+
+    def _log_once(self, key: str, text: str) -> None:
+        if key not in self._logged:
+            self._logged.add(key)
+            log.warning("%s: %s", self.device, text)
+
     def _take(self, sock: socket.socket, doc: bytes) -> None:
-        """Answer a frame at once (unless passive) and hand it to the monitor thread."""
+        """Answer a frame at once (unless passive) and hand it to the monitor thread; a frame whose IPOC does not
+        move forward is counted, logged once and dropped."""
         arrived = time.monotonic()
-        if not self.passive:
-            ipoc = ipoc_of(doc)
-            if ipoc is not None:
-                answer = encode_sen(SenFrame(ipoc=ipoc))
-                if self.protocol == "tcp":
-                    sock.sendall(answer)
-                else:
-                    sock.sendto(answer, self._peer)
-                self.frames_answered += 1
+        ipoc = ipoc_of(doc)
+        if ipoc is not None:
+            if self._last_ipoc is not None and ipoc <= self._last_ipoc:
+                self.frames_backwards += 1
+                self._log_once("backwards", f"RSI frames ignored: IPOC {ipoc} not after {self._last_ipoc}")
+                return
+            self._last_ipoc = ipoc
+        if not self.passive and ipoc is not None:
+            answer = encode_sen(SenFrame(ipoc=ipoc))
+            if self.protocol == "tcp":
+                sock.sendall(answer)
+            else:
+                sock.sendto(answer, self._peer)
+            self.frames_answered += 1
         self._inbox.put((arrived, doc))
 
     def _monitor_loop(self) -> None:
@@ -229,6 +271,11 @@ class RsiLink:
             if isinstance(item, DeviceError):
                 self._set_error(item)
                 return
+            if item is _NEW_SESSION:  # what the stream said before the controller's session is not the robot's
+                with self._cond:
+                    self._frames.clear()
+                    self._latest = self._latest_at = self._latest_ipoc = None
+                continue
             try:
                 frame = parse_rob(item)
             except ProtocolError as exc:
@@ -310,6 +357,11 @@ class RsiLink:
             why = []
             if self.frames_unreadable:
                 why.append(f"{self.frames_unreadable} unreadable frames, the last: {self._last_bad}")
+            if self.frames_foreign or self.frames_backwards:
+                why.append(
+                    f"{self.frames_foreign} frames from another peer and {self.frames_backwards} with an "
+                    "IPOC going backwards ignored"
+                )
             if self._framer_pending:
                 why.append(f"{self._framer_pending} bytes received without a complete <Rob>")
         raise MotionRefused(
@@ -366,3 +418,11 @@ class RsiLink:
                 if remaining <= 0:
                     return
                 self._cond.wait(remaining)
+
+
+def _is_opener(data: bytes) -> bool:
+    """The KR C2's first RSI frame: a <Rob> holding only an empty <IPOC/> (drivers.kuka.rsi_codec)."""
+    try:
+        return parse_rob(data).ipoc is None
+    except ProtocolError:
+        return False
