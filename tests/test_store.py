@@ -25,6 +25,7 @@ from trackcal.campaign.cli.console import ConsoleOperator
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
+from trackcal.drivers.errors import ConnectionLost
 
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
 
@@ -309,3 +310,38 @@ def test_the_console_at_end_of_input_stops_the_campaign_safely(kr270, plan, tmp_
     operator = ConsoleOperator(Console(file=io.StringIO()))
     assert_stopped(run_stored(store, inproc_live(kr270, operator=operator)[1]), "operator console: end of input")
     assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged
+
+
+def console_reading(monkeypatch, answers: str) -> ConsoleOperator:
+    monkeypatch.setattr(sys, "stdin", io.StringIO(answers))
+    return ConsoleOperator(Console(file=io.StringIO()))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.text().filter(lambda s: s.strip().lower() not in ("done", "resume")), min_size=5, max_size=5))
+def test_garbage_on_the_console_never_acknowledges(answers):
+    """Issue 27, finding 6: any line used to acknowledge. Random text and the other prompt's word are refused;
+    5 wrong answers in a row (ConsoleOperator's max_wrong) are an operator who is not there."""
+    lines = "".join(a.replace("\n", " ").replace("\r", " ") + "\n" for a in answers)
+    for kind in ("change_station", "move_reflector", "resume"):
+        with pytest.MonkeyPatch.context() as mp, pytest.raises(ConnectionLost, match="5 answers in a row"):
+            console_reading(mp, lines + "done\nresume\n").ask(kind, "S1", "do it")
+
+
+def test_the_console_acknowledges_the_exact_word_only(monkeypatch):
+    assert console_reading(monkeypatch, "\n  Done \n").ask("change_station", "S1", "move the tracker") == "console"
+    assert console_reading(monkeypatch, "y\nok\nresume\n").ask("resume", "", "leave the cell") == "console"
+    with pytest.raises(ConnectionLost, match="not 'resume'"):  # "done" does not release the robot
+        console_reading(monkeypatch, "done\n" * 5 + "resume\n").ask("resume", "", "leave the cell")
+
+
+def test_wrong_answers_stop_the_campaign_safely_and_resume_asks_again(kr270, plan, tmp_path, monkeypatch):
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    operator = console_reading(monkeypatch, "done\n" + "done\n" * 5)  # the station set, then "done" to resume
+    assert_stopped(run_stored(store, inproc_live(kr270, operator=operator)[1]), "5 answers in a row were not")
+    assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged
+    assert len(store.events("operator")) == 1  # only the station prompt was acknowledged
+    prompts = len(store.events("prompt"))
+    operator = console_reading(monkeypatch, "")  # resume: the prompts are asked again
+    assert_stopped(run_stored(store, inproc_live(kr270, store=store, operator=operator)[1]), "end of input")
+    assert len(store.events("prompt")) > prompts
