@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
@@ -76,13 +77,11 @@ class OperatorConsole:
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
-    try:
-        poses = np.asarray(plan_doc["poses_deg"], dtype=float)
-        repeat = int(plan_doc.get("repeat", 1))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StoreError(f"plan: expected poses_deg (list of joint vectors) and repeat ({exc})") from None
-    if poses.ndim != 2 or not np.all(np.isfinite(poses)) or repeat < 1:
-        raise StoreError("plan: poses_deg must be a list of finite joint vectors and repeat >= 1")
+    """The poses (a list of joint vectors of JSON numbers) and the passes (an integer >= 1) of a plan."""
+    poses = fields.rows(plan_doc.get("poses_deg"), "plan: poses_deg", StoreError)
+    repeat = fields.integer(plan_doc.get("repeat", 1), "plan: repeat", StoreError)
+    if repeat < 1:
+        raise StoreError(f"plan: repeat: expected an integer >= 1, got {repeat}")
     return poses, repeat
 
 

@@ -241,8 +241,8 @@ def check_one_campaign(table: MeasurementTable, digest: str, cell: Cell, inputs:
         if doc.get("cell") not in (None, cell.name):
             raise InputError(f"{path}: made for cell {doc['cell']}, not for {cell.name}")
         if "poses_deg" in doc:
-            poses = np.asarray(doc["poses_deg"], dtype=float)
-            if poses.ndim != 2 or poses.shape[1] != table.q_deg.shape[1]:
+            poses = fields.rows(doc["poses_deg"], f"{path}: poses_deg", InputError)
+            if poses.shape[1] != table.q_deg.shape[1]:
                 raise InputError(f"{path}: its poses have not the table's {table.q_deg.shape[1]} joints")
             gap = np.abs(table.q_deg[:, None, :] - poses[None]).max(axis=2).min(axis=1)
             far = np.flatnonzero(gap > PLAN_MATCH_DEG)
