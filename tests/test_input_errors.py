@@ -175,3 +175,16 @@ def test_deeply_nested_json_is_one_line(model_json, tmp_path, capfd):
                  [*report, "--model", model_json / "model.json", "--verdict", deep]):
         err = one_line_error(capfd, argv)
         assert message in err, err
+
+
+@pytest.mark.parametrize("poses, repeat, message",
+                         [([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got '10'"),
+                          ([GOOD_POSE], 2.5, r"repeat: expected an integer, got 2\.5")])  # fmt: skip
+def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, repeat, message):
+    """Issue 27, finding 8: the report took string joint angles and a fractional repeat (the one it prints in
+    the `trackcal plan` command it suggests)."""
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"poses_deg": poses, "repeat": repeat}))
+    err = one_line_error(capfd, ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--model",
+                                 model_json / "model.json", "--plan", plan, "--out", tmp_path / "r"])  # fmt: skip
+    assert str(plan) in err and re.search(message, err), err

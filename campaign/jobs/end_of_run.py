@@ -166,9 +166,12 @@ def read_plan(path: str | None, dof: int) -> dict | None:
     if path is None:
         return None
     doc = read_json(path, InputError)
-    poses = doc.get("poses_deg") or []
-    rows = len(fields.sequence(poses, f"{path}: poses_deg", InputError))
-    fields.matrix(poses, f"{path}: poses_deg", InputError, (rows, dof))
+    if doc.get("poses_deg"):
+        poses = fields.rows(doc["poses_deg"], f"{path}: poses_deg", InputError)
+        if poses.shape[1] != dof:
+            raise InputError(f"{path}: poses_deg: expected joint vectors of {dof} numbers, got {poses.shape[1]}")
+    if doc.get("repeat") is not None:
+        fields.integer(doc["repeat"], f"{path}: repeat", InputError)
     if doc.get("test_pose_deg") is not None:
         fields.vector(doc["test_pose_deg"], f"{path}: test_pose_deg", InputError, dof)
     for k, name in enumerate(fields.sequence(doc.get("params", []), f"{path}: params", InputError)):
