@@ -188,3 +188,22 @@ def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, 
     err = one_line_error(capfd, ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--model",
                                  model_json / "model.json", "--plan", plan, "--out", tmp_path / "r"])  # fmt: skip
     assert str(plan) in err and re.search(message, err), err
+
+
+@pytest.mark.parametrize(
+    "extension, message",
+    [  # issue 27, finding 8: these leaked "invalid literal for int() with base 10" and KeyError's "'unit'"
+        ({"cause": "cyclic_error", "arcs": {"joint_x": {"from_deg": 0, "to_deg": 90}}},
+         r"extension\.arcs: 'joint_x' is not joint_N"),
+        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": 1.0}}},
+         r"extension\.parameters\.s1_2\.unit: expected one of deg"),
+        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": "1", "unit": "deg"}}},
+         r"extension\.parameters\.s1_2\.value: expected a number, got '1'"),
+    ],
+)  # fmt: skip
+def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd, extension, message):
+    doc = json.loads((model_json / "model.json").read_text())
+    bad = tmp_path / "model.json"
+    bad.write_text(json.dumps({**doc, "extension": extension}))
+    err = one_line_error(capfd, ["predict", model_json / "t.csv", "--model", bad, "--out", tmp_path / "out.csv"])
+    assert str(bad) in err and re.search(message, err) and "invalid literal" not in err, err
