@@ -328,6 +328,16 @@ def test_garbage_on_the_console_never_acknowledges(answers):
             console_reading(mp, lines + "done\nresume\n").ask(kind, "S1", "do it")
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.binary(min_size=1, max_size=200))
+def test_random_bytes_on_the_console_never_acknowledge(noise):
+    """Bytes as a terminal or a pipe delivers them (UTF-8 decoded strictly, as Python's stdin does)."""
+    stdin = io.TextIOWrapper(io.BytesIO(noise.replace(b"\n", b" ") + b"\n" * 5), encoding="utf-8")
+    with pytest.MonkeyPatch.context() as mp, pytest.raises(ConnectionLost, match="5 answers in a row|end of input"):
+        mp.setattr(sys, "stdin", stdin)  # undecodable bytes may end what the decoder can read: end of input
+        ConsoleOperator(Console(file=io.StringIO())).ask("resume", "", "leave the cell")
+
+
 def test_the_console_acknowledges_the_exact_word_only(monkeypatch):
     assert console_reading(monkeypatch, "\n  Done \n").ask("change_station", "S1", "move the tracker") == "console"
     assert console_reading(monkeypatch, "y\nok\nresume\n").ask("resume", "", "leave the cell") == "console"

@@ -31,6 +31,8 @@ class ConsoleOperator:
                 line = self.console.input(f"type {word} and press Enter when done: ")
             except EOFError:
                 raise ConnectionLost("end of input, nobody can acknowledge", device="operator console") from None
+            except UnicodeDecodeError:  # bytes that are no text: no word at all
+                line = "(not text)"
             if line.strip().lower() == word:
                 return "console"
             self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {word!r}")
