@@ -193,20 +193,13 @@ def load_model(path: str | Path) -> Model:
     return model_from_doc(read_json(path, ModelError), str(path))
 
 
-def json_number(value, where: str) -> float:
-    """A finite JSON number (model.json is written by trackcal: a number in a string is a broken file)."""
-    if isinstance(value, str):
-        raise ModelError(f"{where}: expected a number, got the string {value!r}")
-    return fields.number(value, where, ModelError)
-
-
 def parameter_value(pars: dict, p: Param, path: str) -> float:
     """A parameter's deviation in calib units (mm, rad), its 95 % half-width and unit checked on the way: every
     reader of the model (predict, compensate, the report's figures) takes them as given."""
     where = f"{path}: parameters.{p.name}"
     entry = fields.mapping(pars[p.name], where, ModelError)
-    value = json_number(entry.get("value"), f"{where}.value")
-    if json_number(entry.get("ci95"), f"{where}.ci95") < 0:
+    value = fields.json_number(entry.get("value"), f"{where}.value", ModelError)
+    if fields.json_number(entry.get("ci95"), f"{where}.ci95", ModelError) < 0:
         raise ModelError(f"{where}.ci95: a half-width cannot be negative, got {entry['ci95']!r}")
     unit = "mm" if p.is_length else "deg"
     if entry.get("unit", unit) != unit:

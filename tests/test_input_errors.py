@@ -134,7 +134,7 @@ GOOD_POSE = [10, -60, 80, 10, 40, 0]  # a kr270 pose inside its limits (the one 
         ({"poses_deg": [GOOD_POSE], "repeat": True}, r"plan: repeat: expected an integer, got True"),
         ({"poses_deg": [GOOD_POSE], "repeat": "2"}, r"plan: repeat: expected an integer, got '2'"),
         ({"poses_deg": [GOOD_POSE], "repeat": 0}, r"plan: repeat: expected an integer >= 1, got 0"),
-        ({"poses_deg": [[str(v) for v in GOOD_POSE]]}, r"plan: poses_deg\[0\]\[0\]: expected a number, got '10'"),
+        ({"poses_deg": [[str(v) for v in GOOD_POSE]]}, r"plan: poses_deg\[0\]\[0\]: expected a number, got the str"),
         ({"poses_deg": [GOOD_POSE, GOOD_POSE[:5]]}, r"plan: poses_deg\[1\]: expected 6 numbers as in row 0, got 5"),
         ({"poses_deg": [GOOD_POSE, 3]}, r"plan: poses_deg\[1\]: expected a list, got 3"),
     ],
@@ -178,7 +178,7 @@ def test_deeply_nested_json_is_one_line(model_json, tmp_path, capfd):
 
 
 @pytest.mark.parametrize("poses, repeat, message",
-                         [([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got '10'"),
+                         [([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got the string '10'"),
                           ([GOOD_POSE], 2.5, r"repeat: expected an integer, got 2\.5")])  # fmt: skip
 def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, repeat, message):
     """Issue 27, finding 8: the report took string joint angles and a fractional repeat (the one it prints in
@@ -198,7 +198,7 @@ def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, 
         ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": 1.0}}},
          r"extension\.parameters\.s1_2\.unit: expected one of deg"),
         ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": "1", "unit": "deg"}}},
-         r"extension\.parameters\.s1_2\.value: expected a number, got '1'"),
+         r"extension\.parameters\.s1_2\.value: expected a number, got the string '1'"),
     ],
 )  # fmt: skip
 def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd, extension, message):

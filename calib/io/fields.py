@@ -49,7 +49,9 @@ def number(value, where: str, error: type[Exception]) -> float:
 
 def json_number(value, where: str, error: type[Exception]) -> float:
     """A finite JSON number: a string, even a numeric one, is refused (plans and models are JSON, whose numbers
-    are typed; `number` takes numeric strings for YAML's sake)."""
+    are typed and written by trackcal or a program; `number` takes numeric strings for YAML's sake)."""
+    if isinstance(value, str):
+        raise error(f"{where}: expected a number, got the string {_got(value)}")
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise error(f"{where}: expected a number, got {_got(value)}")
     return number(value, where, error)
