@@ -15,6 +15,7 @@ A model written before "converged" and "message" were recorded still loads (`Mod
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -170,15 +171,26 @@ class Model:
         return range_warning(q, arcs) if arcs else None
 
 
+def _extension_values(ext: dict, where: str) -> None:
+    """The typed values of an extension (its parameters and the arcs of a joint error map), each named in one
+    line when wrong: a JSON number with a known unit, an arc `joint_N` from a number of degrees to another."""
+    pars = fields.mapping(ext.get("parameters", {}), f"{where}.parameters", ModelError)
+    for name, par in pars.items():
+        par = fields.mapping(par, f"{where}.parameters.{name}", ModelError)
+        fields.json_number(par.get("value"), f"{where}.parameters.{name}.value", ModelError)
+        if par.get("unit") not in UNIT_FACTORS:
+            raise ModelError(f"{where}.parameters.{name}.unit: expected one of {', '.join(UNIT_FACTORS)}, "
+                             f"got {par.get('unit')!r}")  # fmt: skip
+    for key, arc in fields.mapping(ext.get("arcs", {}), f"{where}.arcs", ModelError).items():
+        if not re.fullmatch(r"joint_[1-9][0-9]?", str(key)):
+            raise ModelError(f"{where}.arcs: {key!r} is not joint_N (N the joint, from 1)")
+        arc = fields.mapping(arc, f"{where}.arcs.{key}", ModelError)
+        for end in ("from_deg", "to_deg"):
+            fields.json_number(arc.get(end), f"{where}.arcs.{key}.{end}", ModelError)
+
+
 def load_model(path: str | Path) -> Model:
     return model_from_doc(read_json(path, ModelError), str(path))
-
-
-def json_number(value, where: str) -> float:
-    """A finite JSON number (model.json is written by trackcal: a number in a string is a broken file)."""
-    if isinstance(value, str):
-        raise ModelError(f"{where}: expected a number, got the string {value!r}")
-    return fields.number(value, where, ModelError)
 
 
 def parameter_value(pars: dict, p: Param, path: str) -> float:
@@ -186,8 +198,8 @@ def parameter_value(pars: dict, p: Param, path: str) -> float:
     the model (predict, compensate, the report's figures) takes them as given."""
     where = f"{path}: parameters.{p.name}"
     entry = fields.mapping(pars[p.name], where, ModelError)
-    value = json_number(entry.get("value"), f"{where}.value")
-    if json_number(entry.get("ci95"), f"{where}.ci95") < 0:
+    value = fields.json_number(entry.get("value"), f"{where}.value", ModelError)
+    if fields.json_number(entry.get("ci95"), f"{where}.ci95", ModelError) < 0:
         raise ModelError(f"{where}.ci95: a half-width cannot be negative, got {entry['ci95']!r}")
     return value * (1.0 if p.is_length else np.pi / 180.0)
 
@@ -230,6 +242,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     ext = fields.mapping(doc.get("extension", {"cause": "none"}), f"{path}: extension", ModelError)
     if ext.get("cause", "none") not in ("none", *CAUSES):
         raise ModelError(f"{path}: extension.cause: {ext.get('cause')!r} is not none or one of {', '.join(CAUSES)}")
+    _extension_values(ext, f"{path}: extension")
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable

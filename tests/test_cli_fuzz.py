@@ -164,6 +164,10 @@ def argv_for(template: str, d: Path, out: Path) -> list[str]:
     return re.sub(r"\{([\w.-]+)\}", lambda m: str(out if m[1] == "out" else d / m[1]), template).split()
 
 
+# Python's and numpy's wording of their own errors, which says nothing about the file (issue 27, finding 8)
+PYTHON_WORDING = ("invalid literal for", "inhomogeneous", "could not convert string", "setting an array element")
+
+
 def run_broken(good, tmp_path_factory, case, data) -> None:
     template, files = CASES[case]
     if "ipa.csv" in files and not (good / "ipa.csv").exists():
@@ -183,6 +187,7 @@ def run_broken(good, tmp_path_factory, case, data) -> None:
     lines = err.getvalue().splitlines()
     assert code in (0, 2), (target, code, err.getvalue())
     assert len(lines) <= 1 and "Traceback" not in err.getvalue(), (target, err.getvalue())
+    assert not any(leak in err.getvalue() for leak in PYTHON_WORDING), (target, err.getvalue())  # issue 27, 8
     if code == 2:
         assert lines and lines[0].startswith("error: "), (target, err.getvalue())
 

@@ -121,3 +121,88 @@ def test_non_utf8_plan_and_hardware_files(model_json, cell_dir, tmp_path, capfd)
     err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", good_plan, "--hardware", hw,
                                  "--session", tmp_path / "s2"])  # fmt: skip
     assert f"{hw}: line " in err and "not UTF-8 text (byte 0xff)" in err
+
+
+GOOD_POSE = [10, -60, 80, 10, 40, 0]  # a kr270 pose inside its limits (the one test_non_utf8_plan_... runs)
+
+
+@pytest.mark.parametrize(
+    "plan, message",
+    [  # issue 27, finding 8: 2.7 ran as 2 passes, true as 1, "2" as 2, string angles were taken
+        ({"poses_deg": [GOOD_POSE], "repeat": 2.7}, r"plan: repeat: expected an integer, got 2\.7"),
+        ({"poses_deg": [GOOD_POSE], "repeat": True}, r"plan: repeat: expected an integer, got True"),
+        ({"poses_deg": [GOOD_POSE], "repeat": "2"}, r"plan: repeat: expected an integer, got '2'"),
+        ({"poses_deg": [GOOD_POSE], "repeat": 0}, r"plan: repeat: expected an integer >= 1, got 0"),
+        ({"poses_deg": [[str(v) for v in GOOD_POSE]]}, r"plan: poses_deg\[0\]\[0\]: expected a number, got the str"),
+        ({"poses_deg": [GOOD_POSE, GOOD_POSE[:5]]}, r"plan: poses_deg\[1\]: expected 6 numbers as in row 0, got 5"),
+        ({"poses_deg": [GOOD_POSE, 3]}, r"plan: poses_deg\[1\]: expected a list, got 3"),
+    ],
+)
+def test_a_plan_of_the_wrong_types(tmp_path, capfd, plan, message):
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session",
+                                 tmp_path / "s"])  # fmt: skip
+    assert re.search(message, err), err
+    assert not (tmp_path / "s").exists()
+
+
+def test_an_unknown_plan_param_is_refused_when_the_cell_loads(cell_dir, tmp_path, capfd):
+    """Issue 27, finding 8: a cell's unknown plan_params name passed `simulate` silently."""
+    spoil(cell_dir / "cell.yaml", lambda d: d.update(plan_params=["dq2", "gremlin"]))
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"poses_deg": [GOOD_POSE], "repeat": 1}))
+    for argv in (["simulate", "--cell", cell_dir / "cell.yaml", "--poses", 2, "--out", tmp_path / "t.csv"],
+                 ["plan", "--cell", cell_dir / "cell.yaml", "--json", tmp_path / "p.json"],
+                 ["run", "--cell", cell_dir / "cell.yaml", "--plan", plan, "--sim", "--session", tmp_path / "s"]):
+        err = one_line_error(capfd, argv)
+        assert re.search(r"cell\.yaml: plan_params\[1\]: 'gremlin' is no parameter of robot", err), err
+
+
+def nested(depth: int) -> str:
+    """Arrays and objects nested `depth` deep (100k: issue 27, finding 8), valid JSON."""
+    return '{"a": ' * (depth // 2) + "[" * (depth // 2) + "]" * (depth // 2) + "}" * (depth // 2)
+
+
+def test_deeply_nested_json_is_one_line(model_json, tmp_path, capfd):
+    deep = tmp_path / "deep.json"
+    deep.write_text('{"poses_deg": ' + nested(100_000) + "}")
+    message = f"{deep}: not a document of trackcal (arrays or objects nested too deeply)"
+    report = ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--out", tmp_path / "r"]
+    for argv in (["run", "--cell", "kr270", "--plan", deep, "--sim", "--session", tmp_path / "s"],
+                 ["predict", model_json / "t.csv", "--model", deep, "--out", tmp_path / "out.csv"],
+                 [*report, "--model", deep], [*report, "--model", model_json / "model.json", "--plan", deep],
+                 [*report, "--model", model_json / "model.json", "--verdict", deep]):
+        err = one_line_error(capfd, argv)
+        assert message in err, err
+
+
+@pytest.mark.parametrize("poses, repeat, message",
+                         [([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got the string '10'"),
+                          ([GOOD_POSE], 2.5, r"repeat: expected an integer, got 2\.5")])  # fmt: skip
+def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, repeat, message):
+    """Issue 27, finding 8: the report took string joint angles and a fractional repeat (the one it prints in
+    the `trackcal plan` command it suggests)."""
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"poses_deg": poses, "repeat": repeat}))
+    err = one_line_error(capfd, ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--model",
+                                 model_json / "model.json", "--plan", plan, "--out", tmp_path / "r"])  # fmt: skip
+    assert str(plan) in err and re.search(message, err), err
+
+
+@pytest.mark.parametrize(
+    "extension, message",
+    [  # issue 27, finding 8: these leaked "invalid literal for int() with base 10" and KeyError's "'unit'"
+        ({"cause": "cyclic_error", "arcs": {"joint_x": {"from_deg": 0, "to_deg": 90}}},
+         r"extension\.arcs: 'joint_x' is not joint_N"),
+        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": 1.0}}},
+         r"extension\.parameters\.s1_2\.unit: expected one of deg"),
+        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": "1", "unit": "deg"}}},
+         r"extension\.parameters\.s1_2\.value: expected a number, got the string '1'"),
+    ],
+)  # fmt: skip
+def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd, extension, message):
+    doc = json.loads((model_json / "model.json").read_text())
+    bad = tmp_path / "model.json"
+    bad.write_text(json.dumps({**doc, "extension": extension}))
+    err = one_line_error(capfd, ["predict", model_json / "t.csv", "--model", bad, "--out", tmp_path / "out.csv"])
+    assert str(bad) in err and re.search(message, err) and "invalid literal" not in err, err

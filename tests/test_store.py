@@ -28,6 +28,7 @@ from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
 from trackcal.mocks.cell import NotVisible, World
+from trackcal.drivers.errors import ConnectionLost
 
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
 
@@ -445,3 +446,48 @@ def test_a_campaign_may_skip_the_cells_share_and_no_more(kr270, plan, tmp_path, 
         done = completeness(store)
         assert 0 < done.skipped < done.planned and done.measured + done.skipped == done.planned
         assert campaign_exit(store) == code
+
+
+def console_reading(monkeypatch, answers: str) -> ConsoleOperator:
+    monkeypatch.setattr(sys, "stdin", io.StringIO(answers))
+    return ConsoleOperator(Console(file=io.StringIO()))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.text().filter(lambda s: s.strip().lower() not in ("done", "resume")), min_size=5, max_size=5))
+def test_garbage_on_the_console_never_acknowledges(answers):
+    """Issue 27, finding 6: any line used to acknowledge. Random text and the other prompt's word are refused;
+    5 wrong answers in a row (ConsoleOperator's max_wrong) are an operator who is not there."""
+    lines = "".join(a.replace("\n", " ").replace("\r", " ") + "\n" for a in answers)
+    for kind in ("change_station", "move_reflector", "resume"):
+        with pytest.MonkeyPatch.context() as mp, pytest.raises(ConnectionLost, match="5 answers in a row"):
+            console_reading(mp, lines + "done\nresume\n").ask(kind, "S1", "do it")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.binary(min_size=1, max_size=200))
+def test_random_bytes_on_the_console_never_acknowledge(noise):
+    """Bytes as a terminal or a pipe delivers them (UTF-8 decoded strictly, as Python's stdin does)."""
+    stdin = io.TextIOWrapper(io.BytesIO(noise.replace(b"\n", b" ") + b"\n" * 5), encoding="utf-8")
+    with pytest.MonkeyPatch.context() as mp, pytest.raises(ConnectionLost, match="5 answers in a row|end of input"):
+        mp.setattr(sys, "stdin", stdin)  # undecodable bytes may end what the decoder can read: end of input
+        ConsoleOperator(Console(file=io.StringIO())).ask("resume", "", "leave the cell")
+
+
+def test_the_console_acknowledges_the_exact_word_only(monkeypatch):
+    assert console_reading(monkeypatch, "\n  Done \n").ask("change_station", "S1", "move the tracker") == "console"
+    assert console_reading(monkeypatch, "y\nok\nresume\n").ask("resume", "", "leave the cell") == "console"
+    with pytest.raises(ConnectionLost, match="not 'resume'"):  # "done" does not release the robot
+        console_reading(monkeypatch, "done\n" * 5 + "resume\n").ask("resume", "", "leave the cell")
+
+
+def test_wrong_answers_stop_the_campaign_safely_and_resume_asks_again(kr270, plan, tmp_path, monkeypatch):
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    operator = console_reading(monkeypatch, "done\n" + "done\n" * 5)  # the station set, then "done" to resume
+    assert_stopped(run_stored(store, inproc_live(kr270, operator=operator)[1]), "5 answers in a row were not")
+    assert not [e for e in store.events("call") if e.data["op"] == "move"]  # nothing moved unacknowledged
+    assert len(store.events("operator")) == 1  # only the station prompt was acknowledged
+    prompts = len(store.events("prompt"))
+    operator = console_reading(monkeypatch, "")  # resume: the prompts are asked again
+    assert_stopped(run_stored(store, inproc_live(kr270, store=store, operator=operator)[1]), "end of input")
+    assert len(store.events("prompt")) > prompts

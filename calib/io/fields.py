@@ -47,6 +47,31 @@ def number(value, where: str, error: type[Exception]) -> float:
     return v
 
 
+def json_number(value, where: str, error: type[Exception]) -> float:
+    """A finite JSON number: a string, even a numeric one, is refused (plans and models are JSON, whose numbers
+    are typed and written by trackcal or a program; `number` takes numeric strings for YAML's sake)."""
+    if isinstance(value, str):
+        raise error(f"{where}: expected a number, got the string {_got(value)}")
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise error(f"{where}: expected a number, got {_got(value)}")
+    return number(value, where, error)
+
+
+def rows(value, where: str, error: type[Exception]) -> np.ndarray:
+    """A non-empty list of rows of finite JSON numbers, every row as long as the first: (n, m) floats."""
+    items = sequence(value, where, error)
+    if not items:
+        raise error(f"{where}: expected at least one row, got []")
+    width = len(sequence(items[0], f"{where}[0]", error))
+    out = []
+    for i, row in enumerate(items):
+        row = sequence(row, f"{where}[{i}]", error)
+        if not row or len(row) != width:
+            raise error(f"{where}[{i}]: expected {width or 'some'} numbers as in row 0, got {len(row)}")
+        out.append([json_number(v, f"{where}[{i}][{k}]", error) for k, v in enumerate(row)])
+    return np.array(out)
+
+
 def integer(value, where: str, error: type[Exception]) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise error(f"{where}: expected an integer, got {_got(value)}")

@@ -65,6 +65,8 @@ def read_json(path: str | Path, error: type[Exception]) -> dict:
         doc = json.loads(text, parse_constant=no_constant)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: line {exc.lineno}: not JSON ({exc.msg})") from None
+    except RecursionError:  # the parser recurses per nested array or object; no document of ours nests 10 deep
+        raise error(f"{path}: not a document of trackcal (arrays or objects nested too deeply)") from None
     if not isinstance(doc, dict):
         raise error(f"{path}: expected a JSON object at the top level, got {type(doc).__name__}")
     return doc

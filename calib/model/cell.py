@@ -17,6 +17,7 @@ from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_yaml
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
+from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import rot_axis
 
 # Joint angles travel to and from the controller at 4 decimals of a degree (KR C2 EKI and RSI: drivers/kuka):
@@ -183,4 +184,9 @@ def load_cell(ref: str) -> Cell:
     if doc.get("plan_params") is not None:
         names = fields.sequence(doc["plan_params"], f"{where}: plan_params", CellError)
         cell.plan_params = [fields.text(n, f"{where}: plan_params[{k}]", CellError) for k, n in enumerate(names)]
+        known = {p.name for p in complete_params(chain)}
+        for k, name in enumerate(cell.plan_params):
+            if name not in known:
+                raise CellError(f"{where}: plan_params[{k}]: {name!r} is no parameter of robot {chain.name} "
+                                f"(e.g. {', '.join(sorted(known)[:4])})")
     return cell

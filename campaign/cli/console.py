@@ -1,24 +1,40 @@
 """The one rich console of the command line, and the operator who answers on it."""
 
 from rich.console import Console
+from rich.markup import escape
 
 from trackcal.drivers.errors import ConnectionLost
 
 console = Console(highlight=False)
 
+# The word each prompt asks for: one that no stray key, paste or cat on the keyboard types by accident. The
+# resume prompt, after which the robot moves, has its own word; a prompt kind not listed asks for "done".
+ANSWERS = {"change_station": "done", "move_reflector": "done", "resume": "resume"}
+
 
 class ConsoleOperator:
-    """Shows the request and waits for Enter (the operator's acknowledgement). A console at the end of its
-    input (stdin closed, or a file that ran out) has no operator behind it: the campaign stops safely there,
-    as for a lost device, and `trackcal resume` asks again."""
+    """Shows the request and waits for the exact word it asks for (`ANSWERS`, case and surrounding spaces
+    aside): anything else repeats the prompt with the word expected. `max_wrong` wrong answers in a row, or a
+    console at the end of its input (stdin closed, or a file that ran out), mean no operator is answering:
+    the campaign stops safely there, as for a lost device, and `trackcal resume` asks again. Five: a person
+    mistyping gets four more tries, while garbage (random bytes, a file piped by mistake) stops within five
+    lines instead of scrolling forever. The answer recorded is "console"."""
 
-    def __init__(self, console: Console = console):
-        self.console = console
+    def __init__(self, console: Console = console, max_wrong: int = 5):
+        self.console, self.max_wrong = console, max_wrong
 
     def ask(self, kind: str, target: str, text: str) -> str:
-        self.console.print(f"[bold yellow]OPERATOR[/]: {text}")
-        try:
-            self.console.input("press Enter when done ")
-        except EOFError:
-            raise ConnectionLost("end of input, nobody can acknowledge", device="operator console") from None
-        return "console"
+        word = ANSWERS.get(kind, "done")
+        self.console.print(f"[bold yellow]OPERATOR[/]: {escape(text)}")
+        for _ in range(self.max_wrong):
+            try:
+                line = self.console.input(f"type {word} and press Enter when done: ")
+            except EOFError:
+                raise ConnectionLost("end of input, nobody can acknowledge", device="operator console") from None
+            except UnicodeDecodeError:  # bytes that are no text: no word at all
+                line = "(not text)"
+            if line.strip().lower() == word:
+                return "console"
+            self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {word!r}")
+        raise ConnectionLost(f"{self.max_wrong} answers in a row were not {word!r}, nobody acknowledges",
+                             device="operator console")  # fmt: skip

@@ -242,7 +242,11 @@ class Engine:
         n_done = sum(1 for k in measures if k in done or k < first)
         try:
             if self.history.resumed and first < len(steps):
-                self._restore_context(steps, first)
+                try:
+                    self._restore_context(steps, first)
+                except DeviceError as exc:  # e.g. the operator not answering the re-confirmation: stop as in a step
+                    self._emit("error", {"type": type(exc).__name__, "message": str(exc)})
+                    raise _Stop(first, str(exc)) from exc
             for i in range(first, len(steps)):
                 if i in done:
                     continue

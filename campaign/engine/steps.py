@@ -141,13 +141,11 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterat
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
-    try:
-        poses = np.asarray(plan_doc["poses_deg"], dtype=float)
-        repeat = int(plan_doc.get("repeat", 1))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise PlanError(f"plan: expected poses_deg (list of joint vectors) and repeat ({exc})") from None
-    if poses.ndim != 2 or not np.all(np.isfinite(poses)) or repeat < 1:
-        raise PlanError("plan: poses_deg must be a list of finite joint vectors and repeat >= 1")
+    """The poses (a list of joint vectors of JSON numbers) and the passes (an integer >= 1) of a plan."""
+    poses = fields.rows(plan_doc.get("poses_deg"), "plan: poses_deg", PlanError)
+    repeat = fields.integer(plan_doc.get("repeat", 1), "plan: repeat", PlanError)
+    if repeat < 1:
+        raise PlanError(f"plan: repeat: expected an integer >= 1, got {repeat}")
     return poses, repeat
 
 

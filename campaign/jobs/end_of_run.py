@@ -166,9 +166,12 @@ def read_plan(path: str | None, dof: int) -> dict | None:
     if path is None:
         return None
     doc = read_json(path, InputError)
-    poses = doc.get("poses_deg") or []
-    rows = len(fields.sequence(poses, f"{path}: poses_deg", InputError))
-    fields.matrix(poses, f"{path}: poses_deg", InputError, (rows, dof))
+    if doc.get("poses_deg"):
+        poses = fields.rows(doc["poses_deg"], f"{path}: poses_deg", InputError)
+        if poses.shape[1] != dof:
+            raise InputError(f"{path}: poses_deg: expected joint vectors of {dof} numbers, got {poses.shape[1]}")
+    if doc.get("repeat") is not None:
+        fields.integer(doc["repeat"], f"{path}: repeat", InputError)
     if doc.get("test_pose_deg") is not None:
         fields.vector(doc["test_pose_deg"], f"{path}: test_pose_deg", InputError, dof)
     for k, name in enumerate(fields.sequence(doc.get("params", []), f"{path}: params", InputError)):
@@ -241,8 +244,8 @@ def check_one_campaign(table: MeasurementTable, digest: str, cell: Cell, inputs:
         if doc.get("cell") not in (None, cell.name):
             raise InputError(f"{path}: made for cell {doc['cell']}, not for {cell.name}")
         if "poses_deg" in doc:
-            poses = np.asarray(doc["poses_deg"], dtype=float)
-            if poses.ndim != 2 or poses.shape[1] != table.q_deg.shape[1]:
+            poses = fields.rows(doc["poses_deg"], f"{path}: poses_deg", InputError)
+            if poses.shape[1] != table.q_deg.shape[1]:
                 raise InputError(f"{path}: its poses have not the table's {table.q_deg.shape[1]} joints")
             gap = np.abs(table.q_deg[:, None, :] - poses[None]).max(axis=2).min(axis=1)
             far = np.flatnonzero(gap > PLAN_MATCH_DEG)
