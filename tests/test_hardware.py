@@ -253,3 +253,42 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(kr270, pla
     assert abs(a.xyz - b.xyz).max() < 0.2
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=15) == 0
+
+
+def test_second_campaign_on_a_busy_mock_is_refused_and_the_first_keeps_its_table(kr270, plan, mock_cell, tmp_path):
+    """Issue 27, item 8: "two campaigns on one `trackcal mock`: the second leaves an empty session behind, the
+    first's tracker noise is no longer the deterministic stream of its seed". The controller connects to one
+    server (configs/krc2/XmlApiConfig.xml: one IP and PORT), so the cell serves one campaign: the second finds the
+    robot's EKI port held, is refused with one line before it makes a session or touches a device, and the first
+    ends with the table of `run --sim` with the same seed (3, the mock_cell fixture's)."""
+    proc, hw = mock_cell
+    a, b = tmp_path / "a", tmp_path / "b"
+    first = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw),
+                              "--session", str(a), "--no-analysis"], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120  # bounds a hang only
+        while count_measurements(a / "session.sqlite") < 1 and time.monotonic() < deadline:
+            assert first.poll() is None, first.stderr.read()
+            time.sleep(0.01)
+        assert count_measurements(a / "session.sqlite") >= 1  # the first campaign is running
+        out = run("run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw), "--session", str(b),
+                  check=False)  # fmt: skip
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+        assert len(out.stderr.splitlines()) == 1 and "the cell is busy" in out.stderr, out.stderr
+        assert not b.exists()
+        _, err = first.communicate(timeout=150)
+        assert first.returncode == 0, err
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    run("export", str(a), "--csv", str(tmp_path / "hw.csv"))
+    run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "3", "--session", str(tmp_path / "sim"),
+        "--no-analysis", timeout=150)  # fmt: skip
+    run("export", str(tmp_path / "sim"), "--csv", str(tmp_path / "sim.csv"))
+    got, want = read_table(tmp_path / "hw.csv"), read_table(tmp_path / "sim.csv")
+    assert got.pose == want.pose and got.point == want.point and got.station == want.station
+    assert (got.q_deg == want.q_deg).all() and (got.xyz == want.xyz).all()
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=15) == 0

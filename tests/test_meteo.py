@@ -3,17 +3,30 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import re
+import threading
 import time
+import tty
 
 import pytest
+import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
-from trackcal.drivers.interfaces import Environment, Meteo
+from trackcal.drivers.interfaces import Environment, Meteo, RealClock
 from trackcal.drivers.meteo.client import SerialMeteo
-from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, Reading, checksum, encode_reading, parse_line
+from trackcal.drivers.meteo.codec import (
+    MAX_LINE_BYTES,
+    MAX_SEQ,
+    Reading,
+    checksum,
+    encode_reading,
+    parse_line,
+    parse_request,
+    request,
+)
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.servers.meteo import MeteoFault, MockMeteo, reading_for
 
@@ -249,3 +262,72 @@ def test_read_before_connect_and_bad_port():
         SerialMeteo("/dev/nonexistent-meteo", timeout_s=0.1).read()
     with pytest.raises(ConnectionLost, match="/dev/nonexistent-meteo"):
         SerialMeteo("/dev/nonexistent-meteo", timeout_s=0.1).connect()
+
+
+# ---------------------------------------------------------------- answers matched to requests (issue 27, item 8)
+def _wire(seed: int, n: int) -> Environment:
+    """What the mock answers to request number n, as the client returns it (wire resolution)."""
+    return parse_line(encode_reading(reading_for(seed, n))).to_environment()
+
+
+def test_a_second_reader_and_a_stale_answer_never_shift_a_reading():
+    """Issue 27: "a second process reading the meteo port shifts every later row's meteo by one answer". Every
+    read of the first client is the mock's answer to its own request, whoever else asks on the same pty."""
+    # a real clock and a 0.1 s answer delay (well inside the sensor's 200 ms, meteo-protocol.md), so the stale
+    # answer below is written after the first client has flushed its input and sent its own request
+    with MockMeteo(seed=11, clock=RealClock(), response_delay_s=0.1) as mock:
+        first = SerialMeteo(mock.port_path, timeout_s=5.0)  # 5 s only bounds a hang
+        second = SerialMeteo(mock.port_path, timeout_s=5.0)
+        stray = serial.serial_for_url(mock.port_path, timeout=0.1)
+        with first, second, contextlib.closing(stray):
+            got = []
+            for k in range(4):
+                got.append(first.read())
+                second.read()  # a second process taking answers on the same port
+                second.read()
+                stray.write(b"M%d\r\n" % (1000 + k))  # a request nobody reads: its answer lands in the buffer
+            assert got == [_wire(11, k) for k in range(4)]
+            assert mock.requests >= 4 * 3
+    with pytest.raises(ValueError):
+        encode_reading(Reading(20.0, 1013.25, 45.0, 65536))
+
+
+def test_unnumbered_answer_is_refused():
+    """A line without N= cannot be matched to the request: refused with a one-line ProtocolError."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        client = SerialMeteo(os.ttyname(slave), timeout_s=5.0)
+        with client:
+            sent = threading.Event()
+
+            def sensor():  # answers the request with the unnumbered line of the protocol's golden example
+                buf = b""
+                while b"\n" not in buf:
+                    buf += os.read(master, 64)
+                sent.set()
+                os.write(master, GOLDEN_1)
+
+            threading.Thread(target=sensor, daemon=True).start()
+            with pytest.raises(ProtocolError, match=r"carries no request number N= \(sent M0\)"):
+                client.read()
+            assert sent.is_set()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@given(readings, st.integers(0, MAX_SEQ))
+def test_numbered_round_trip(r, n):
+    numbered = Reading(r.temperature_c, r.pressure_hpa, r.humidity_pct, n)
+    line = encode_reading(numbered)
+    assert len(line) <= MAX_LINE_BYTES and parse_line(line).seq == n
+    assert parse_request(request(n)) == n
+
+
+@settings(max_examples=300)
+@given(st.text(alphabet="$MET,=.*-0123456789ABCDEFHPN\r\n", max_size=90))
+def test_fuzz_numbered_alphabet_only_protocol_error(text):
+    with contextlib.suppress(ProtocolError):
+        parse_line(text.encode("ascii"))
+    assert parse_request(text.encode("ascii")) is None or text.startswith("M")

@@ -1,7 +1,8 @@
 """The real cell: the hardware config (configs/hardware/README.md) and the clients it describes.
 
     hw = load_hardware("configs/hardware/example-cell.yaml")   # validated; InputError names file and key
-    live = connect_hardware(hw, cell, say, operator)           # engine.Live with every device connected
+    clients = claim_cell(hw, cell)                             # built, the robot's ports bound: the cell is ours
+    live = connect_hardware(clients, say, operator)            # engine.Live with every device connected
 
 The keys are the parameter names of the driver constructors (drivers.emscon.client.EmsconTracker,
 drivers.kuka.client.KukaKrc2, drivers.plc.client.ModbusCellIO, drivers.meteo.client.SerialMeteo) and the defaults are
@@ -12,6 +13,7 @@ the controller connects.
 from __future__ import annotations
 
 import difflib
+import errno
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -183,16 +185,64 @@ def _section(path: Path, name: str, doc) -> dict:
     return out
 
 
-def connect_hardware(hw: Hardware, cell: Cell, say: Callable[[str], None], console_operator: Operator) -> Live:
-    """The real clients of `hw`, connected, as an engine.Live (operator: PlcOperator with a PLC, else
-    `console_operator`; clock: the real one). `say` shows a line (rich markup) to whoever runs the campaign. A
-    device that cannot be reached is a InputError naming it, its host and port; whatever was connected before
-    is closed again."""
+@dataclass
+class CellClients:
+    """The clients of a hardware config, built (no I/O) with the robot's EKI and RSI ports bound (claim_cell)."""
+
+    hw: Hardware
+    tracker: EmsconTracker
+    robot: KukaKrc2
+    cellio: ModbusCellIO | None
+    meteo: SerialMeteo | None
+
+
+def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
+    """Build the clients of `hw` and bind the robot's EKI and RSI ports, touching no device. The controller
+    connects to those ports only (configs/krc2/XmlApiConfig.xml names one server IP and PORT), so the campaign
+    holding them is the only one the cell serves: a second campaign on this PC finds the EKI port in use (a TCP
+    port has one listener) and is refused here, an InputError naming the reason, before it touches the tracker,
+    the PLC or the meteo sensor of the running one."""
     if cell.chain.dof != 6:
         raise InputError(f"{hw.path}: the KR C2 drives 6 axes, robot {cell.chain.name} of cell {cell.name} has "
                          f"{cell.chain.dof}")  # fmt: skip
     t, r, p, m = hw.tracker, hw.robot, hw.plc, hw.meteo
-    opened: list = []
+    # with trackcal's own meteo sensor the tracker takes the environment trackcal sets; without one, its own
+    # weather monitor reads it and computes the refraction (drivers.emscon.client: weather_monitor)
+    weather_monitor = "not_connected" if m is not None else "read_and_calculate_refractions"
+    tracker = EmsconTracker(t["host"], t["port"], timeout_s=t["timeout_s"], measure_timeout_s=t["measure_timeout_s"],
+                            motion_timeout_s=t["motion_timeout_s"], search_timeout_s=t["search_timeout_s"],
+                            samples_per_second=t["samples_per_second"], weather_monitor=weather_monitor)  # fmt: skip
+    cellio = None if p is None else ModbusCellIO(p["host"], p["port"], unit_id=p["unit_id"], timeout_s=p["timeout_s"])
+    meteo = None if m is None else SerialMeteo(m["port"], baudrate=m["baudrate"], timeout_s=m["timeout_s"])
+    eki, rsi = r["eki"], r["rsi"]
+    robot = KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
+                     controller_host=r["controller_host"],
+                     rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
+                     joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
+                     motion_guard=None if cellio is None else motion_guard(cellio),
+                     connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
+                     io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
+    try:
+        robot.listen()
+    except DeviceError as exc:
+        robot.close()
+        cause = exc.__cause__
+        if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
+            raise InputError(f"{hw.path}: the cell is busy: another trackcal campaign holds its robot ports "
+                             f"({exc})") from None  # fmt: skip
+        # any other failure (an address not on this PC) is the robot's connection error in connect_hardware,
+        # in the order of the devices, once the session exists for `trackcal resume`
+    return CellClients(hw, tracker, robot, cellio, meteo)
+
+
+def connect_hardware(clients: CellClients, say: Callable[[str], None], console_operator: Operator) -> Live:
+    """The claimed clients (claim_cell), connected, as an engine.Live (operator: PlcOperator with a PLC, else
+    `console_operator`; clock: the real one). `say` shows a line (rich markup) to whoever runs the campaign. A
+    device that cannot be reached is a InputError naming it, its host and port; whatever was connected before
+    is closed again, the robot's ports with it."""
+    hw, tracker, robot, cellio, meteo = clients.hw, clients.tracker, clients.robot, clients.cellio, clients.meteo
+    t, r, p, m = hw.tracker, hw.robot, hw.plc, hw.meteo
+    opened: list = [robot]
 
     def close() -> None:
         for dev in reversed(opened):
@@ -203,7 +253,8 @@ def connect_hardware(hw: Hardware, cell: Cell, say: Callable[[str], None], conso
         opened.clear()
 
     def up(what: str, dev, where: str):
-        opened.append(dev)
+        if dev not in opened:
+            opened.append(dev)
         try:
             dev.connect()
         except DeviceError as exc:
@@ -214,28 +265,12 @@ def connect_hardware(hw: Hardware, cell: Cell, say: Callable[[str], None], conso
             raise
         return dev
 
-    # with trackcal's own meteo sensor the tracker takes the environment trackcal sets; without one, its own
-    # weather monitor reads it and computes the refraction (drivers.emscon.client: weather_monitor)
-    weather_monitor = "not_connected" if m is not None else "read_and_calculate_refractions"
-    tracker = EmsconTracker(t["host"], t["port"], timeout_s=t["timeout_s"], measure_timeout_s=t["measure_timeout_s"],
-                            motion_timeout_s=t["motion_timeout_s"], search_timeout_s=t["search_timeout_s"],
-                            samples_per_second=t["samples_per_second"], weather_monitor=weather_monitor)  # fmt: skip
     up("tracker", tracker, f"emScon {t['host']}:{t['port']}")
-    cellio = meteo = None
-    if p is not None:
-        cellio = ModbusCellIO(p["host"], p["port"], unit_id=p["unit_id"], timeout_s=p["timeout_s"])
+    if cellio is not None:
         up("cell PLC", cellio, f"Modbus TCP {p['host']}:{p['port']} unit {p['unit_id']}")
-    if m is not None:
-        meteo = SerialMeteo(m["port"], baudrate=m["baudrate"], timeout_s=m["timeout_s"])
+    if meteo is not None:
         up("meteo sensor", meteo, f"serial {m['port']}")
     eki, rsi = r["eki"], r["rsi"]
-    robot = KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
-                     controller_host=r["controller_host"],
-                     rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
-                     joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
-                     motion_guard=None if cellio is None else motion_guard(cellio),
-                     connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                     io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
     where = (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
              f"for the controller at {r['controller_host']} only")  # fmt: skip
     say(f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where}; start "

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
-from trackcal.campaign.cells.hardware import connect_hardware, load_hardware
+from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
 from trackcal.campaign.engine.expected import expected_position, measurement_tolerance
@@ -127,9 +127,9 @@ def run_stored(store: SessionStore, live: Live, subscribers: Iterable[Subscriber
     return run_session(store, stored_campaign(store), live, subscribers)
 
 
-def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole) -> Live:
+def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claimed: CellClients | None = None) -> Live:
     """The devices of the session's cell: the digital twin's (sim) or the real one (hardware, from the hardware
-    config stored at the session's creation)."""
+    config stored at the session's creation; `claimed`: its clients when run_new claimed them already)."""
     meta = store.meta()
     if meta["mode"] == "sim":
         effects = json.loads(meta.get("effects", "{}") or "{}")
@@ -137,9 +137,9 @@ def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole) -> Live
         return SimCell(cell, int(meta["seed"] or 0), store, effects, speed, say=console.say).live
     if meta["mode"] == "hardware":
         copy = SessionFiles(store.directory).hardware
-        hw = load_hardware(copy, session_hardware(store))
+        clients = claimed or claim_cell(load_hardware(copy, session_hardware(store)), cell)
         try:
-            return connect_hardware(hw, cell, console.say, console.operator)
+            return connect_hardware(clients, console.say, console.operator)
         except CampaignError as exc:
             raise InputError(f"{exc} (the session uses the hardware config stored at its creation, copied in "
                              f"{copy}: make the devices reachable there, then `trackcal resume "
@@ -154,16 +154,22 @@ def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole) -> Live
 def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | HardwareOptions,
             console: OperatorConsole, subscribers: Sequence[Subscriber] = ()) -> tuple[SessionStore, RunResult]:
     """`trackcal run`: a new session of the plan in the cell (simulated or real), run to its end or to a safe
-    stop. A hardware config is checked before the session exists, then the cell and the plan."""
+    stop. A hardware config is checked before the session exists, then the cell and the plan; then the cell is
+    claimed (cells.hardware.claim_cell): a cell another campaign is running on makes no session. A device that
+    cannot be reached leaves the session, with its copy of the hardware config, for `trackcal resume`."""
     if isinstance(cell, HardwareOptions):
         text = read_text(cell.config, InputError)
-        load_hardware(cell.config, text)
-        store, campaign = new_session(directory, cell_ref, plan_doc, "hardware", None,
-                                      hardware=(text, str(Path(cell.config).resolve())))  # fmt: skip
-    else:
-        extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
-        store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
-                                      extra=extra)  # fmt: skip
+        clients = claim_cell(load_hardware(cell.config, text), load_cell(cell_ref))
+        try:
+            store, campaign = new_session(directory, cell_ref, plan_doc, "hardware", None,
+                                          hardware=(text, str(Path(cell.config).resolve())))  # fmt: skip
+        except BaseException:
+            clients.robot.close()
+            raise
+        return store, run_session(store, campaign, open_cell(store, campaign.cell, console, clients), subscribers)
+    extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
+    store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
+                                  extra=extra)  # fmt: skip
     return store, run_session(store, campaign, open_cell(store, campaign.cell, console), subscribers)
 
 

@@ -1,7 +1,10 @@
 """Serial meteo sensor client (pyserial) implementing drivers.interfaces.Meteo.
 
-One `read()` = flush stale input, send the request b"M\\r\\n", collect bytes until CR LF or the deadline,
-parse the line with drivers.meteo.codec. Nothing waits longer than `timeout_s` (plus one poll slice).
+One `read()` = flush stale input, send the request b"M<n>\\r\\n" with this client's next request number n,
+collect lines until the answer echoing N=<n> or the deadline, parse each with drivers.meteo.codec. An answer
+to another number (a late answer to an earlier request, or a second reader's on the same port) is discarded;
+a line without a number is refused (ProtocolError). Nothing waits longer than `timeout_s` (plus one poll
+slice).
 
 pyserial notes (installed pyserial 3.5, serial/serialutil.py and serial/serialposix.py):
 - `serial.serial_for_url(url, ...)` opens plain device paths too (a pty slave such as /dev/pts/5 in tests)
@@ -20,7 +23,7 @@ import serial
 
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import Environment
-from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, REQUEST, parse_line
+from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, MAX_SEQ, parse_line, request
 
 _POLL_S = 0.02  # per-read timeout slice; the overall deadline is timeout_s
 
@@ -36,6 +39,7 @@ class SerialMeteo:
         self.timeout_s = timeout_s
         self.device = f"meteo {port}"
         self._serial: serial.SerialBase | None = None
+        self._seq = 0  # the number of the next request, 0..MAX_SEQ, wrapping
 
     def connect(self) -> None:
         if self._serial is not None:
@@ -59,28 +63,38 @@ class SerialMeteo:
         port = self._serial
         if port is None:
             raise ConnectionLost("not connected (call connect() first) while reading", device=self.device)
+        seq, self._seq = self._seq, (self._seq + 1) % (MAX_SEQ + 1)
         try:
             port.reset_input_buffer()  # a late answer to an earlier, timed-out request is stale: drop it
-            port.write(REQUEST)
+            port.write(request(seq))
             port.flush()
-            line = self._read_line(port)
+            return self._read_answer(port, seq)
         except serial.SerialTimeoutException as exc:
             raise DeviceTimeout(f"request not written within {self.timeout_s} s", device=self.device) from exc
         except (serial.SerialException, OSError) as exc:
             self.close()
             raise ConnectionLost(f"serial I/O failed while reading: {exc}", device=self.device) from exc
-        try:
-            return parse_line(line).to_environment()
-        except ProtocolError as exc:
-            raise ProtocolError(str(exc), device=self.device) from exc
 
-    def _read_line(self, port: serial.SerialBase) -> bytes:
+    def _read_answer(self, port: serial.SerialBase, seq: int) -> Environment:
+        """The answer to request `seq`; answers to other numbers are skipped until the deadline."""
         deadline = time.monotonic() + self.timeout_s
         buffer = bytearray()
+        skipped = 0
         while True:
             newline = buffer.find(b"\n")
             if newline >= 0:
-                return bytes(buffer[: newline + 1])
+                line, buffer = bytes(buffer[: newline + 1]), buffer[newline + 1 :]
+                try:
+                    reading = parse_line(line)
+                except ProtocolError as exc:
+                    raise ProtocolError(str(exc), device=self.device) from exc
+                if reading.seq is None:
+                    raise ProtocolError(f"answer {line!r} carries no request number N= (sent M{seq})",
+                                        device=self.device)  # fmt: skip
+                if reading.seq == seq:
+                    return reading.to_environment()
+                skipped += 1  # not ours: a late answer, or another reader's on this port
+                continue
             if len(buffer) > MAX_LINE_BYTES:
                 raise ProtocolError(
                     f"no line end within {MAX_LINE_BYTES} bytes (got {bytes(buffer[:40])!r}...)",
@@ -88,7 +102,10 @@ class SerialMeteo:
                 )
             if time.monotonic() >= deadline:
                 got = f"; partial line {bytes(buffer)!r}" if buffer else ""
-                raise DeviceTimeout(f"no complete answer within {self.timeout_s} s{got}", device=self.device)
+                if skipped:
+                    got += f"; discarded {skipped} answer(s) to other requests (another reader on the port?)"
+                raise DeviceTimeout(f"no answer to request M{seq} within {self.timeout_s} s{got}",
+                                    device=self.device)  # fmt: skip
             buffer += port.read(max(1, min(port.in_waiting, MAX_LINE_BYTES + 1)))
 
     def close(self) -> None:

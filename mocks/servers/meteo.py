@@ -2,9 +2,9 @@
 
 `MockMeteo(seed, clock)` opens a pty pair (os.openpty); the client opens `.port_path` (the slave tty) with
 pyserial exactly as it would open /dev/ttyUSB0. A background thread reads the master side and answers each
-request line b"M\\r\\n" with one measurement line encoded by drivers.meteo.codec.
+request line b"M<n>\\r\\n" with one measurement line encoded by drivers.meteo.codec, echoing N=<n>.
 
-The n-th answered request (n = 0, 1, 2, ...) carries a reading that is a pure function of (seed, n): a slow
+The answer to request number n carries a reading that is a pure function of (seed, n): a slow
 sinusoidal drift per quantity (phase from the seed) plus small Gaussian noise drawn from a generator seeded
 by (seed, n). The clock only paces the answer (`response_delay_s`), so a VirtualClock makes it instant.
 
@@ -13,7 +13,7 @@ Fault injection (`inject`), each for the next `times` requests (or until `clear_
   GARBAGE       a CR LF terminated line of seeded random bytes
   SILENCE       no answer at all
   OVERLONG      a babbling line of 120 bytes before its CR LF (longer than the 82-byte cap)
-Faulted requests also advance n, so the sequence of good readings does not depend on the faults.
+Whoever else sends requests on the port (a second reader) never changes the reading of request n.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import threading
 import tty
 
 from trackcal.drivers.interfaces import RealClock
-from trackcal.drivers.meteo.codec import H_RANGE_PCT, MAX_LINE_BYTES, Reading, encode_reading
+from trackcal.drivers.meteo.codec import H_RANGE_PCT, MAX_LINE_BYTES, Reading, encode_reading, parse_request
 from trackcal.mocks.clock import VirtualClock
 
 # Drift amplitudes and periods (in requests) and noise standard deviations. Amplitudes are of the order of
@@ -47,7 +47,8 @@ class MeteoFault(enum.Enum):
 
 
 def reading_for(seed: int, n: int, base: tuple[float, float, float] = (20.0, 1013.25, 45.0)) -> Reading:
-    """The reading the mock serves for its n-th request: a pure function of (seed, n, base)."""
+    """The reading the mock serves for request number n (without the number): a pure function of (seed, n,
+    base)."""
     phases = random.Random(f"meteo-phase:{seed}")
     rng = random.Random(f"meteo-noise:{seed}:{n}")  # str seeds hash with SHA-512: stable across runs
     values = []
@@ -71,7 +72,7 @@ class MockMeteo:
         self.clock = clock if clock is not None else VirtualClock()
         self.base = base
         self.response_delay_s = response_delay_s
-        self.requests = 0  # requests seen so far (= n of the next one)
+        self.requests = 0  # requests seen so far, from any reader
         self.answers: list[bytes] = []  # every line written, in order (for determinism checks)
         self._faults: list[tuple[MeteoFault, int | None]] = []
         self._lock = threading.Lock()
@@ -136,7 +137,8 @@ class MockMeteo:
             alphabet = b"$*,=.0123456789ABCDEFMTPH\x00\xff~ "
             junk = bytes(rng.choice(alphabet) for _ in range(rng.randint(1, 60)))
             return junk.replace(b"\r", b"").replace(b"\n", b"") + b"\r\n"
-        line = encode_reading(reading_for(self.seed, n, self.base))
+        r = reading_for(self.seed, n, self.base)
+        line = encode_reading(Reading(r.temperature_c, r.pressure_hpa, r.humidity_pct, n))
         if fault is MeteoFault.OVERLONG:
             return line[:-2] + b"," * (120 - len(line)) + b"\r\n"
         if fault is MeteoFault.BAD_CHECKSUM:
@@ -158,15 +160,15 @@ class MockMeteo:
                     return
                 continue  # EIO while no client holds the slave open: keep serving
             while (end := pending.find(b"\n")) >= 0:
-                request, pending = bytes(pending[:end]).rstrip(b"\r"), pending[end + 1 :]
-                if request.strip() == b"M":
-                    self._answer_request()
+                request, pending = bytes(pending[: end + 1]), pending[end + 1 :]
+                n = parse_request(request)
+                if n is not None:
+                    self._answer_request(n)
                 # any other line is ignored, as the real sensor does (see meteo-protocol.md)
             if len(pending) > MAX_LINE_BYTES:
                 pending.clear()  # garbage without line ends never grows the buffer unbounded
 
-    def _answer_request(self) -> None:
-        n = self.requests
+    def _answer_request(self, n: int) -> None:
         self.requests += 1
         fault = self._next_fault()
         data = self.answer(n, fault)
