@@ -27,8 +27,8 @@ from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
-from trackcal.mocks.cell import NotVisible, World
 from trackcal.drivers.errors import ConnectionLost
+from trackcal.mocks.cell import NotVisible, World
 
 HOLDER = r"in use by process (\d+) since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC"
 

@@ -18,6 +18,7 @@ import numpy as np
 from trackcal.calib.doe.design import design_for_cell
 from trackcal.calib.doe.order import campaign_order
 from trackcal.calib.doe.poses import points_in_box
+from trackcal.calib.io import fields
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.campaign.errors import CampaignError
 
