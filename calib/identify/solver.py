@@ -31,7 +31,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
 
 if TYPE_CHECKING:  # the solver takes a cause's columns as given; calib.diagnose builds them (and calls the solver)
-    from trackcal.calib.diagnose.features import Extension
+    from trackcal.calib.diagnose.features import Extension  # annotations only: TYPE_CHECKING
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized

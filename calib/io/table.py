@@ -32,7 +32,7 @@ from trackcal.calib.io.csv_grid import TEXT
 from trackcal.calib.io.files import atomic_open
 
 if TYPE_CHECKING:  # a table is checked against a chain's joints; chains read their files with calib.io
-    from trackcal.calib.model.chain import Chain
+    from trackcal.calib.model.chain import Chain  # annotations only: TYPE_CHECKING
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")

@@ -17,8 +17,8 @@ import trackcal.drivers.errors as derr
 from trackcal.campaign.errors import CampaignError
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
 
-if TYPE_CHECKING:
-    from trackcal.campaign.engine.engine import RunContext
+if TYPE_CHECKING:  # the engine builds recorders with its run context; engine.py imports this module
+    from trackcal.campaign.engine.engine import RunContext  # annotations only: TYPE_CHECKING
 
 TYPES = {cls.__name__: cls for cls in (Environment, TrackerMeasurement, TrackerStatus)}
 ERRORS = {
