@@ -1,0 +1,181 @@
+"""ISO 9283:1998 pose characteristics from attained positions, with their uncertainty from the instrument.
+
+ISO 9283:1998, *Manipulating industrial robots -- Performance criteria and related test methods*, clause 7. A test
+commands the same pose `n` times (30 cycles, clause 6.8) and measures the attained positions x_j (j = 1..n) of the
+reference point; c is the commanded position. Every figure below is the standard's formula, cited by clause:
+
+- 7.2.1 pose accuracy:       AP_P = |x_bar - c|,  AP_x = x_bar - c_x (each coordinate),  x_bar = (1/n) sum x_j;
+                              orientation AP_a = a_bar - a_c (b, c alike)
+- 7.2.2 pose repeatability:  RP_l = l_bar + 3 S_l,  l_j = |x_j - x_bar|,  l_bar = (1/n) sum l_j,
+                              S_l = sqrt(sum (l_j - l_bar)^2 / (n - 1));  orientation RP_a = 3 S_a
+- 7.3 multi-directional pose accuracy variation: vAP_P = max over approach directions h, k of |x_bar_h - x_bar_k|
+- 7.4 distance accuracy:     AD_P = D_bar - D_c,  D_j = |x1_j - x2_j|,  D_c = |c1 - c2|
+       distance repeatability: RD = 3 sqrt(sum (D_j - D_bar)^2 / (n - 1))
+- 7.7 drift:                 dAP = |AP_(t=1) - AP_(t=T)|,  dRP = |RP_(t=1) - RP_(t=T)|
+
+Uncertainty: each attained position is a tracker measurement with covariance Sigma_j (the instrument model,
+calib.identify.noise); a figure f(x_1..x_n) then carries the instrument's standard uncertainty
+u(f)^2 = sum_j g_j^T Sigma_j g_j with g_j = df/dx_j, the GUM's law of propagation (JCGM 100:2008, 5.1.2), from the
+exact gradients below (tests compare them with finite differences). The figures are reported with the expanded
+uncertainty U = 2 u (k = 2, about 95 %). The robot's own scatter is not an uncertainty of the figures: it is what
+RP measures.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from trackcal.calib.errors import CalibError
+
+CYCLES = 30  # ISO 9283:1998, 6.8: pose accuracy and repeatability are tested over 30 cycles
+COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
+
+
+class IsoError(CalibError):
+    """Attained positions an ISO 9283 figure cannot be computed from."""
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One ISO 9283 figure in mm (or deg), its expanded uncertainty from the instrument (k = 2) and its clause."""
+
+    value: float
+    u95: float
+    clause: str
+
+
+def _points(x, name: str, min_rows: int = 1) -> np.ndarray:
+    a = np.asarray(x, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < min_rows or not np.isfinite(a).all():
+        raise IsoError(f"{name}: expected at least {min_rows} finite positions (n x 3), got shape {a.shape}")
+    return a
+
+
+def _covs(cov, n: int) -> np.ndarray | None:
+    if cov is None:
+        return None
+    c = np.asarray(cov, dtype=float)
+    if c.shape == (3, 3):
+        c = np.broadcast_to(c, (n, 3, 3))
+    if c.shape != (n, 3, 3) or not np.isfinite(c).all():
+        raise IsoError(f"covariances: expected (3, 3) or ({n}, 3, 3), got {c.shape}")
+    return c
+
+
+def _u95(grad: np.ndarray, cov: np.ndarray | None) -> float:
+    """U = k sqrt(sum_j g_j^T Sigma_j g_j): the law of propagation for independent measurements."""
+    if cov is None:
+        return float("nan")
+    return COVERAGE * float(np.sqrt(np.einsum("ni,nij,nj->", grad, cov, grad)))
+
+
+def _norm_grad(d: np.ndarray) -> np.ndarray:
+    """d|d|/dd, zero where |d| = 0 (the figure's gradient is not defined there; its one-sided slope is 1)."""
+    r = np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.divide(d, r, out=np.zeros_like(d), where=r > 0)
+
+
+def pose_accuracy(attained, commanded, cov=None) -> tuple[Figure, np.ndarray]:
+    """AP_P (7.2.1) and the per-coordinate offsets AP_x, AP_y, AP_z = x_bar - c."""
+    x = _points(attained, "attained positions")
+    c = np.asarray(commanded, dtype=float).reshape(3)
+    n = len(x)
+    offset = x.mean(axis=0) - c
+    grad = np.broadcast_to(_norm_grad(offset) / n, (n, 3))
+    return Figure(float(np.linalg.norm(offset)), _u95(grad, _covs(cov, n)), "ISO 9283:1998, 7.2.1"), offset
+
+
+def _repeatability_parts(x: np.ndarray):
+    n = len(x)
+    d = x - x.mean(axis=0)
+    ell = np.linalg.norm(d, axis=1)
+    lbar = ell.mean()
+    s = float(np.sqrt(((ell - lbar) ** 2).sum() / (n - 1)))
+    return d, ell, lbar, s
+
+
+def pose_repeatability(attained, cov=None) -> tuple[Figure, float, float]:
+    """RP_l = l_bar + 3 S_l (7.2.2); also l_bar and S_l."""
+    x = _points(attained, "attained positions", min_rows=2)
+    n = len(x)
+    d, ell, lbar, s = _repeatability_parts(x)
+    # dl_j/dx_i = u_j (delta_ij - 1/n) with u_j = d_j / l_j, so d l_bar/dx_i = (u_i - u_mean) / n
+    u = _norm_grad(d)
+    g_lbar = (u - u.mean(axis=0)) / n
+    # d S_l / dx_i = 1/((n-1) S) sum_j (l_j - l_bar) dl_j/dx_i  (the l_bar term vanishes: sum_j (l_j - l_bar) = 0)
+    #             = 1/((n-1) S) [ (l_i - l_bar) u_i - (1/n) sum_j (l_j - l_bar) u_j ]
+    w = (ell - lbar)[:, None] * u
+    g_s = (w - w.mean(axis=0)) / ((n - 1) * s) if s > 0 else np.zeros_like(x)
+    grad = g_lbar + 3.0 * g_s
+    return Figure(float(lbar + 3.0 * s), _u95(grad, _covs(cov, n)), "ISO 9283:1998, 7.2.2"), float(lbar), s
+
+
+def orientation_accuracy(attained_deg, commanded_deg) -> np.ndarray:
+    """AP_a, AP_b, AP_c = mean attained angle - commanded angle (7.2.1), in degrees; angles are unwrapped about
+    the commanded one first (a cluster straddling +-180 deg averages to its centre, not to 0)."""
+    a = _points(attained_deg, "attained orientations")
+    c = np.asarray(commanded_deg, dtype=float).reshape(3)
+    wrapped = (a - c + 180.0) % 360.0 - 180.0
+    return wrapped.mean(axis=0)
+
+
+def orientation_repeatability(attained_deg) -> np.ndarray:
+    """RP_a, RP_b, RP_c = 3 S_a (7.2.2: the standard writes +-3 S_a), in degrees."""
+    a = _points(attained_deg, "attained orientations", min_rows=2)
+    ref = a[0]
+    wrapped = (a - ref + 180.0) % 360.0 - 180.0
+    return 3.0 * wrapped.std(axis=0, ddof=1)
+
+
+def multidirectional_variation(clusters: Sequence, covs: Sequence | None = None) -> Figure:
+    """vAP_P (7.3): the largest distance between the barycentres of the clusters attained from different
+    approach directions (three, parallel to the base axes, in the standard)."""
+    xs = [_points(c, f"approach {k + 1}") for k, c in enumerate(clusters)]
+    if len(xs) < 2:
+        raise IsoError("multi-directional variation needs the attained positions of at least two approaches")
+    bars = [x.mean(axis=0) for x in xs]
+    best, pair = -1.0, (0, 1)
+    for h in range(len(xs)):
+        for k in range(h + 1, len(xs)):
+            dist = float(np.linalg.norm(bars[h] - bars[k]))
+            if dist > best:
+                best, pair = dist, (h, k)
+    u = float("nan")
+    if covs is not None:
+        h, k = pair
+        g = _norm_grad(bars[h] - bars[k])
+        var = sum(
+            _u95(np.broadcast_to(sign * g / len(xs[i]), xs[i].shape), _covs(covs[i], len(xs[i]))) ** 2
+            for i, sign in ((h, 1.0), (k, -1.0))
+        )
+        u = float(np.sqrt(var))
+    return Figure(best, u, "ISO 9283:1998, 7.3")
+
+
+def distance_accuracy(attained1, attained2, commanded1, commanded2, cov1=None, cov2=None) -> tuple[Figure, Figure]:
+    """AD_P = D_bar - D_c (7.4.1) and RD = 3 S_D (7.4.2), D_j = |x1_j - x2_j| over the n cycles."""
+    x1 = _points(attained1, "attained positions of the first pose", min_rows=2)
+    x2 = _points(attained2, "attained positions of the second pose", min_rows=2)
+    if len(x1) != len(x2):
+        raise IsoError(f"distance: the two poses have {len(x1)} and {len(x2)} cycles; one pair per cycle is needed")
+    n = len(x1)
+    diff = x1 - x2
+    dj = np.linalg.norm(diff, axis=1)
+    dc = float(np.linalg.norm(np.asarray(commanded1, float) - np.asarray(commanded2, float)))
+    dbar = dj.mean()
+    s = float(np.sqrt(((dj - dbar) ** 2).sum() / (n - 1)))
+    u = _norm_grad(diff)
+    c1, c2 = _covs(cov1, n), _covs(cov2, n)
+    both = None if c1 is None or c2 is None else c1 + c2  # dD_j/dx1_j = u_j = -dD_j/dx2_j
+    ad = Figure(float(dbar - dc), _u95(u / n, both), "ISO 9283:1998, 7.4.1")
+    g_s = ((dj - dbar)[:, None] * u) / ((n - 1) * s) if s > 0 else np.zeros_like(u)
+    rd = Figure(3.0 * s, _u95(3.0 * g_s, both), "ISO 9283:1998, 7.4.2")
+    return ad, rd
+
+
+def drift(first: Figure, last: Figure) -> Figure:
+    """dAP or dRP (7.7): |figure at the first test - figure at the last|, their uncertainties added in quadrature."""
+    return Figure(abs(first.value - last.value), float(np.hypot(first.u95, last.u95)), "ISO 9283:1998, 7.7")
