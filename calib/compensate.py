@@ -26,12 +26,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import build_parts
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 
@@ -217,30 +219,10 @@ def compensate(
     kin = Kinematics(chain, model.params)
     target = kin.points(np.repeat(q0, 3, axis=0), tool_rows).reshape(n_rows, 3, 3)
 
-    q = q0.copy()
-    iterations = np.zeros(n_rows, dtype=int)
-    done = np.array([bool(f) for f in failures])  # targets outside the limits are not iterated
-    lost = np.zeros(n_rows, dtype=bool)  # diverged to non-finite angles: not converged
-    for it in range(max_iter + 1):
-        active = np.flatnonzero(~done)
-        if len(active) == 0:
-            break
-        qt, dqt = _true_joints(offsets, q[active])
-        jac = kin.jacobian(np.repeat(qt, 3, axis=0), np.tile(tools, (len(active), 1)), model.dev)
-        err = target[active] - jac.p.reshape(len(active), 3, 3)
-        converged = np.linalg.norm(err, axis=2).max(axis=1) <= tol_mm
-        done[active[converged]] = True
-        iterations[active[converged]] = it
-        if converged.all() or it == max_iter:
-            break
-        keep = ~converged
-        jq = np.einsum("nij,njk->nik", jac.d_q.reshape(len(active), 9, n), dqt)[keep]
-        step = np.einsum("nji,ni->nj", np.linalg.pinv(jq, rcond=1e-12), err[keep].reshape(-1, 9))
-        q[active[keep]] += step
-        gone = active[keep][~np.all(np.isfinite(q[active[keep]]), axis=1)]
-        q[gone], done[gone], lost[gone] = q0[gone], True, True
-
-    for i in np.flatnonzero(~done | lost):
+    outside = np.array([bool(f) for f in failures])  # targets outside the limits are not iterated
+    true_joints = None if offsets is None else partial(_true_joints, offsets)
+    q, iterations, converged = reach_points(kin, tools, target, q0, model.dev, true_joints, tol_mm, max_iter, outside)
+    for i in np.flatnonzero(~converged & ~outside):
         failures[i] = (f"did not converge in {max_iter} iterations: a singular pose or a chain that cannot reach the "
                        "intended pose (move the target away from the singularity)")  # fmt: skip
     for i, v in enumerate(_limit_violations(q, limits, joint_names)):
