@@ -14,7 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trackcal.calib.doe.design import design_for_cell
+from trackcal.calib.doe.poses import points_in_box, random_poses
 from trackcal.calib.errors import CalibError
+from trackcal.calib.model.cell import Cell, usable_limits_deg
+from trackcal.calib.model.inverse import reach_points
+from trackcal.calib.model.kinematics import Kinematics
 
 CORNER_FRACTION = 0.10  # ISO 9283:1998, 6.7: P2..P5 at (10 +- 2) % of the diagonal from the corners
 # One test cycle visits P1, P5, P4, P3, P2 (ISO 9283:1998, 7.2.1), each approached in the same direction.
@@ -70,3 +75,141 @@ def largest_cube(box_min, box_max, centre=None) -> IsoCube:
         raise CubeError(f"ISO cube: the centre {np.asarray(centre).tolist()} is not inside the box")
     half = float(np.min(np.minimum(c - lo, hi - c)))
     return IsoCube(tuple(float(v) for v in c), 2.0 * half)
+
+
+@dataclass(frozen=True)
+class IsoPlan:
+    """The five ISO poses of a cell: joints (5, n) rad putting the TCP on P1..P5 with the test pose's orientation,
+    the reflector point measured and the station measuring it, and where the nominal model puts that point."""
+
+    cube: IsoCube
+    fraction: float
+    q_rad: np.ndarray
+    tcp_mm: np.ndarray  # (5, 3) the TCP at q_rad, base frame (= the cube's poses)
+    point: str
+    station: str
+    commanded_mm: np.ndarray  # (5, 3) the measured point at q_rad by the nominal model, base frame
+
+
+LEVER_MM = 100.0  # three points 100 mm apart fix the orientation of the last frame (as compensation does)
+HOMOTOPY = 8  # steps from P1 to each other pose
+# conditioning (smallest / largest singular value of the 3-point Jacobian) below which a pose is near a singularity,
+# the threshold of compensation (calib.compensate.NEAR_SINGULAR, same Jacobian)
+NEAR_SINGULAR = 2e-3
+SHRINK = 0.9  # a cube some pose of which is out of reach is shrunk by this factor about its centre
+MIN_SIDE_MM = 50.0
+BISECTIONS = 7  # the side found to within (largest - 50 mm) / 128
+
+
+def _reach(cell: Cell, kin: Kinematics, cube: IsoCube, fraction: float, q_ref: np.ndarray):
+    """Joints (5, n) for the cube's poses, or why not (the first pose that fails and its reason). P1 is reached from
+    q_ref, and each other pose from P1's joints along the straight line to it in HOMOTOPY steps, so that all five
+    stay on one branch of the inverse kinematics (no wrist flip between two poses of the test)."""
+    r0, _ = kin.end_frames(q_ref)
+    tools = cell.tcp + np.array([[0.0, 0.0, 0.0], [LEVER_MM, 0.0, 0.0], [0.0, LEVER_MM, 0.0]])
+    tcp = cube.poses(fraction)
+    target = tcp[:, None, :] + np.einsum("ij,kj->ki", r0[0], tools - cell.tcp)[None]
+    q1, _, ok1 = reach_points(kin, tools, target[:1], q_ref, max_iter=50)
+    if not ok1[0]:
+        return None, "P1 cannot be reached with the reference pose's orientation"
+    q = np.repeat(q1, 5, axis=0)
+    for s in np.linspace(0.0, 1.0, HOMOTOPY + 1)[1:]:
+        q, _, ok = reach_points(kin, tools, target[:1] + s * (target - target[:1]), q, max_iter=50)
+        if not ok.all():
+            return None, f"P{int(np.argmin(ok)) + 1} cannot be reached with the reference pose's orientation"
+    lim = np.radians(usable_limits_deg(cell))
+    inside = np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1) & points_in_box(cell, q)
+    if not inside.all():
+        return None, f"P{int(np.argmin(inside)) + 1} leaves the joint limits or the cell box"
+    jq = kin.jacobian(np.repeat(q, 3, axis=0), np.tile(tools, (5, 1))).d_q.reshape(5, 9, -1)
+    sv = np.linalg.svd(jq, compute_uv=False)
+    if (sv[:, -1] / sv[:, 0] < NEAR_SINGULAR).any():
+        return None, f"P{int(np.argmin(sv[:, -1] / sv[:, 0])) + 1} is near a singularity"
+    return q, ""
+
+
+def _measured_pair(cell: Cell, q: np.ndarray) -> tuple[str, str] | None:
+    """(station, point) seeing the point at every pose with the largest worst-case margin; None if none does."""
+    design = design_for_cell(cell, [], q0=cell.test_pose, visibility=True)
+    pids, sids = sorted(cell.tool_points), list(cell.stations)
+    margins = design.visibility_margins(q).reshape(len(q), len(pids), len(sids))
+    worst = margins.min(axis=0)  # (points, stations)
+    k, s = np.unravel_index(int(np.argmax(worst)), worst.shape)
+    return (sids[s], pids[k]) if worst[k, s] >= 0.0 else None
+
+
+def _plan_at(cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm, fraction: float):
+    """The largest cube about `centre_mm` (default: the TCP at q_ref) reached with q_ref's tool orientation, or
+    the given side; (IsoPlan, "") or (None, why)."""
+    if centre_mm is None:
+        r0, o0 = kin.end_frames(q_ref)
+        centre_mm = o0[0] + r0[0] @ cell.tcp
+    lo = cell.box_min if cell.box_min is not None else np.full(3, -np.inf)
+    hi = cell.box_max if cell.box_max is not None else np.full(3, np.inf)
+    if side_mm is not None:
+        side = float(side_mm)
+    elif np.isfinite(lo).all() and np.isfinite(hi).all() and ((centre_mm > lo) & (centre_mm < hi)).all():
+        side = largest_cube(lo, hi, centre_mm).side_mm
+    else:
+        return None, "the cube's centre is outside the cell box (or the cell has none): give the side"
+    if side_mm is not None:
+        return _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), side), fraction, lo, hi)
+    # the largest side that fits, by bisection between MIN_SIDE_MM and the box's largest (fitting is monotone in
+    # practice: a smaller cube about the same centre needs smaller moves from the reference pose)
+    best, why = _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), side), fraction, lo, hi)
+    if best is not None:
+        return best, ""
+    small, big = MIN_SIDE_MM, side
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (small + big)
+        plan, reason = _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), mid), fraction, lo, hi)
+        if plan is None:
+            big, why = mid, reason
+        else:
+            small, best = mid, plan
+    return (best, "") if best is not None else (None, why)
+
+
+def _cube_plan(cell, kin, q_ref, cube: IsoCube, fraction: float, lo, hi):
+    """(IsoPlan, "") for this cube, or (None, why)."""
+    corners = cube.corners()
+    if (corners < lo).any() or (corners > hi).any():
+        return None, f"ISO cube of side {cube.side_mm:.0f} mm: it leaves the cell box"
+    q, why = _reach(cell, kin, cube, fraction, q_ref)
+    if q is None:
+        return None, f"ISO cube of side {cube.side_mm:.0f} mm: {why}"
+    pair = _measured_pair(cell, q)
+    if pair is None:
+        return None, f"ISO cube of side {cube.side_mm:.0f} mm: no station sees one reflector point at all five poses"
+    station, point = pair
+    commanded = kin.points(q, cell.tool_points[point])
+    return IsoPlan(cube, fraction, q, cube.poses(fraction), point, station, commanded), ""
+
+
+CANDIDATES = 40  # random feasible tool orientations tried when the test pose's gives no cube
+
+
+def iso_plan(
+    cell: Cell, side_mm: float | None = None, centre_mm=None, fraction: float = CORNER_FRACTION, seed: int = 0
+) -> IsoPlan:
+    """The ISO 9283 cube of a cell and its five poses, the TCP keeping one tool orientation (the standard's poses
+    differ in position only). First about the TCP at the cell's test pose with its orientation (the part of the
+    workspace the cell is used in); if no cube fits there, the largest cube over random feasible poses (`seed`),
+    each about its own TCP with its own orientation. A cube fits when the robot reaches its five poses within the
+    joint limits less the cell's margin, every reference point in the cell box, and one station sees one reflector
+    point at every pose. `side_mm` and `centre_mm` fix the cube instead (refused if it does not fit)."""
+    if cell.test_pose is None or cell.tcp is None:
+        raise CubeError(f"cell {cell.name} needs a test pose and a TCP for the ISO cube")
+    kin = Kinematics(cell.chain, [])
+    centre = None if centre_mm is None else np.asarray(centre_mm, dtype=float)
+    plan, why = _plan_at(cell, kin, np.atleast_2d(cell.test_pose), side_mm, centre, fraction)
+    if plan is not None:
+        return plan
+    found = []
+    for q in random_poses(cell, CANDIDATES, np.random.default_rng(seed)):
+        other, _ = _plan_at(cell, kin, q[None], side_mm, centre, fraction)
+        if other is not None:
+            found.append(other)
+    if not found:
+        raise CubeError(f"{why}; no other tool orientation of {CANDIDATES} tried fits a cube either")
+    return max(found, key=lambda p: p.cube.side_mm)
