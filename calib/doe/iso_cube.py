@@ -138,9 +138,10 @@ def _measured_pair(cell: Cell, q: np.ndarray) -> tuple[str, str] | None:
     return (sids[s], pids[k]) if worst[k, s] >= 0.0 else None
 
 
-def _plan_at(cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm, fraction: float):
+def _plan_at(cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm, fraction: float,
+             at_least: float = MIN_SIDE_MM):
     """The largest cube about `centre_mm` (default: the TCP at q_ref) reached with q_ref's tool orientation, or
-    the given side; (IsoPlan, "") or (None, why)."""
+    the given side; (IsoPlan, "") or (None, why). A cube smaller than `at_least` is not looked for."""
     if centre_mm is None:
         r0, o0 = kin.end_frames(q_ref)
         centre_mm = o0[0] + r0[0] @ cell.tcp
@@ -159,7 +160,13 @@ def _plan_at(cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm,
     best, why = _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), side), fraction, lo, hi)
     if best is not None:
         return best, ""
-    small, big = MIN_SIDE_MM, side
+    small, big = at_least, side
+    if small >= big:
+        return None, f"no cube larger than {at_least:.0f} mm fits"
+    if at_least > MIN_SIDE_MM:  # a candidate that cannot beat the best cube so far costs one evaluation
+        best, why = _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), small), fraction, lo, hi)
+        if best is None:
+            return None, why
     for _ in range(BISECTIONS):
         mid = 0.5 * (small + big)
         plan, reason = _cube_plan(cell, kin, q_ref, IsoCube(tuple(float(v) for v in centre_mm), mid), fraction, lo, hi)
@@ -186,7 +193,20 @@ def _cube_plan(cell, kin, q_ref, cube: IsoCube, fraction: float, lo, hi):
     return IsoPlan(cube, fraction, q, cube.poses(fraction), point, station, commanded), ""
 
 
-CANDIDATES = 40  # random feasible tool orientations tried when the test pose's gives no cube
+CANDIDATES = 40  # random feasible tool orientations drawn when the test pose's gives no cube
+TRIED = 40  # of which the ones a station sees best are tried first
+BEAT = 1.02  # a later candidate is explored only if it holds a cube 2 % larger than the best so far
+
+
+def _candidates(cell: Cell, rng: np.random.Generator) -> np.ndarray:
+    """Random poses within the limits and the box, the TRIED whose best (station, point) visibility margin is largest
+    first: a cube about a pose no station sees well cannot keep one point in view at all five poses."""
+    q = random_poses(cell, CANDIDATES, rng)
+    design = design_for_cell(cell, [], q0=cell.test_pose, visibility=True)
+    margins = design.visibility_margins(q).reshape(len(q), -1)
+    best = margins.max(axis=1)
+    order = np.argsort(-best, kind="stable")[:TRIED]
+    return q[order[best[order] >= 0.0]]
 
 
 def iso_plan(
@@ -205,11 +225,12 @@ def iso_plan(
     plan, why = _plan_at(cell, kin, np.atleast_2d(cell.test_pose), side_mm, centre, fraction)
     if plan is not None:
         return plan
-    found = []
-    for q in random_poses(cell, CANDIDATES, np.random.default_rng(seed)):
-        other, _ = _plan_at(cell, kin, q[None], side_mm, centre, fraction)
-        if other is not None:
-            found.append(other)
-    if not found:
+    best = None
+    for q in _candidates(cell, np.random.default_rng(seed)):
+        at_least = MIN_SIDE_MM if best is None or side_mm is not None else best.cube.side_mm * BEAT
+        other, _ = _plan_at(cell, kin, q[None], side_mm, centre, fraction, at_least)
+        if other is not None and (best is None or other.cube.side_mm > best.cube.side_mm):
+            best = other
+    if best is None:
         raise CubeError(f"{why}; no other tool orientation of {CANDIDATES} tried fits a cube either")
-    return max(found, key=lambda p: p.cube.side_mm)
+    return best

@@ -33,7 +33,10 @@ class Command:
     description: str | None = None
 
 
-GROUPS = {"import": "convert third-party measurement files into a measurement table"}
+GROUPS = {
+    "import": "convert third-party measurement files into a measurement table",
+    "iso9283": "the ISO 9283 acceptance test: plan it, then compare the figures before and after compensation",
+}
 
 COMMANDS = [
     Command("identify", "identify robot parameters, stations and points from a measurement table",
@@ -173,4 +176,22 @@ COMMANDS = [
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),
+    Command("plan", "the ISO 9283 cube of the cell, its five poses and the plan `trackcal run` walks",
+            "trackcal.campaign.cli.iso9283:cmd_plan", [
+                arg("--cell", required=True, help=CELL_HELP),
+                arg("--json", default="iso.json", help="plan JSON to write"),
+                arg("--model", help="model.json: write its compensated joint targets for the same poses (the "
+                                    "'after' test; default: the nominal targets)"),
+                arg("--side", type=float, help="cube side, mm (default: the largest the robot reaches)"),
+                arg("--centre", help="X,Y,Z of the cube centre in the base frame, mm (default: the TCP at the test "
+                                     "pose)"),
+                arg("--cycles", type=int, default=30, help="test cycles (ISO 9283:1998, 6.8: 30)"),
+                arg("--seed", type=int, default=0, help="seed of the orientations tried when the test pose's fails"),
+            ], group="iso9283"),
+    Command("compare", "the ISO 9283 figures of test sessions side by side (e.g. before and after compensation)",
+            "trackcal.campaign.cli.iso9283:cmd_compare", [
+                arg("sessions", nargs="+", help="session directories of runs of ISO plans"),
+                arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
+                arg("--json", help="figures JSON to write (default: none, the console only)"),
+            ], group="iso9283"),
 ]  # fmt: skip

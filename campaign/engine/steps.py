@@ -16,7 +16,8 @@ from enum import StrEnum
 import numpy as np
 
 from trackcal.calib.doe.design import design_for_cell
-from trackcal.calib.doe.order import campaign_order
+from trackcal.calib.doe.iso_cube import CYCLE_ORDER
+from trackcal.calib.doe.order import campaign_order, iso9283_order
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.io import fields
 from trackcal.calib.model.cell import Cell, usable_limits_deg
@@ -120,14 +121,25 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> tuple[list[str], dict[tuple
     return problems, vis
 
 
-def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1) -> Iterator[Step]:
+def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict | None = None) -> Iterator[Step]:
+    """The steps of a plan: the one campaign order (calib.doe.order), or with `iso` (the plan's `iso9283` block) the
+    ISO 9283 pose test: its one point from its one station, cycle after cycle."""
     poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)  # as the controller gets them
     problems, vis = check_plan(cell, poses)  # the visibility of the check: computed once
+    if iso is not None:
+        station, point = iso["station"], iso["point"]
+        problems = [p for p in problems if not p.startswith("point ")]  # only the test's point must be seen
+        if vis is not None and not vis[(station, point)].all():
+            problems.append(f"station {station} does not see point {point} at every pose of the ISO test")
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
+    if iso is None:
+        visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat)
+    else:
+        visits = iso9283_order(iso["station"], iso["point"], repeat, CYCLE_ORDER)
     where = None
-    for v in campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat):
+    for v in visits:
         if where is None or v.station != where[0]:
             yield Step(StepKind.CHANGE_STATION, station=v.station)
             yield Step(StepKind.RESUME, station=v.station)
@@ -150,9 +162,27 @@ def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
     return poses, repeat
 
 
+def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
+    """The `iso9283` block of an ISO 9283 plan (`order: iso9283`), checked: a station and a point of the cell and
+    five poses; None for a calibration plan."""
+    order = plan_doc.get("order", "campaign")
+    if order == "campaign":
+        return None
+    if order != "iso9283":
+        raise PlanError(f"plan: order: expected campaign or iso9283, got {order!r}")
+    iso = fields.mapping(plan_doc.get("iso9283"), "plan: iso9283", PlanError)
+    if iso.get("station") not in cell.stations:
+        raise PlanError(f"plan: iso9283.station: {iso.get('station')!r} is no station of cell {cell.name}")
+    if iso.get("point") not in cell.tool_points:
+        raise PlanError(f"plan: iso9283.point: {iso.get('point')!r} is no reference point of cell {cell.name}")
+    if n_poses != len(CYCLE_ORDER):
+        raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one {n_poses}")
+    return iso
+
+
 def plan_steps(cell: Cell, plan_doc: dict) -> list[Step]:
     """The steps of a plan in a cell; the whole plan is checked first (PlanError)."""
     poses, repeat = plan_arrays(plan_doc)
     if poses.shape[1] != cell.chain.dof:
         raise PlanError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
-    return list(campaign_steps(cell, poses, repeat))
+    return list(campaign_steps(cell, poses, repeat, iso_block(plan_doc, cell, len(poses))))

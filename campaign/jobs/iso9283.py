@@ -1,0 +1,208 @@
+"""`iso9283 plan | compare` on typed options: the ISO 9283 acceptance test of a cell, before and after compensation.
+
+    trackcal iso9283 plan --cell C --json iso.json [--model model.json] [--side MM] [--centre X,Y,Z] [--cycles N]
+    trackcal iso9283 compare SESSION [SESSION ...] --model model.json [--json out.json]
+
+`plan` writes a plan that `trackcal run` walks (`order: iso9283`): the five poses of the cube (calib.doe.iso_cube)
+visited P1, P5, P4, P3, P2 in each of `cycles` cycles, one reflector point measured from one station. With
+`--model` the joints are the compensated targets of that model for the same poses (calib.compensate), the commanded
+positions unchanged: the "after" test. `compare` computes the standard's figures (calib.iso9283) of each session's
+attained positions, expressed in the robot base frame through the model's estimate of the station (the tracker
+stays where the calibration left it), and puts the sessions side by side.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.compensate import compensate
+from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, IsoPlan, iso_plan
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.io import fields
+from trackcal.calib.io.files import write_json
+from trackcal.calib.iso9283 import CYCLES, Figure, distance_accuracy, pose_accuracy, pose_repeatability
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model_file import Model, load_model
+from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.session.session import export_table, session_cell, session_plan
+from trackcal.campaign.session.store import SessionStore
+
+POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
+DISTANCE_POSES = (1, 3)  # AD and RD over P2-P4, a diagonal of the measuring plane (trackcal's choice of pair)
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    cell: str
+    json: str
+    model: str | None = None
+    side_mm: float | None = None
+    centre_mm: tuple[float, float, float] | None = None
+    cycles: int = CYCLES
+    seed: int = 0
+
+
+def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None) -> dict:
+    return {
+        "criterion": "iso9283",
+        "order": "iso9283",
+        "cell": cell_name,
+        "poses_deg": np.round(q_deg, 4).tolist(),
+        "repeat": cycles,
+        "iso9283": {
+            "station": plan.station,
+            "point": plan.point,
+            "pose_names": list(POSE_NAMES),
+            "cycle_order": [POSE_NAMES[i] for i in CYCLE_ORDER],
+            "cube_centre_mm": [round(float(v), 4) for v in plan.cube.centre_mm],
+            "cube_side_mm": round(plan.cube.side_mm, 4),
+            "corner_fraction": plan.fraction,
+            "tcp_mm": np.round(plan.tcp_mm, 4).tolist(),
+            "commanded_mm": np.round(plan.commanded_mm, 4).tolist(),
+            "nominal_poses_deg": np.round(np.degrees(plan.q_rad), 4).tolist(),
+            "compensated_with": compensated_with,
+        },
+    }
+
+
+def make_plan(opts: PlanOptions) -> dict:
+    """The ISO 9283 plan of a cell, written to opts.json; with a model, its compensated targets."""
+    if opts.cycles < 2:
+        raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
+                          "cycles")  # fmt: skip
+    if opts.side_mm is not None and not opts.side_mm > 0:
+        raise OptionError("{0} must be a positive length in mm", "side_mm")
+    cell = load_cell(opts.cell)
+    plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
+    q_deg = np.degrees(plan.q_rad)
+    compensated_with = None
+    if opts.model:
+        model = load_model(opts.model)
+        if model.chain.dof != cell.chain.dof:
+            raise InputError(f"{opts.model}: a model of {model.chain.dof} joints for a cell of {cell.chain.dof}")
+        q_comp, report = compensate(model, plan.q_rad, cell.tcp)
+        failed = [f"{POSE_NAMES[i]}: {f}" for i, f in enumerate(report.failures) if f]
+        if failed:
+            raise InputError(f"{opts.model}: the ISO poses cannot be compensated: {'; '.join(failed)}")
+        q_deg = np.degrees(q_comp)
+        compensated_with = {"model": str(opts.model),
+                            "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest()}  # fmt: skip
+    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with)
+    write_json(opts.json, doc)
+    return doc
+
+
+@dataclass
+class PoseFigures:
+    name: str
+    n: int
+    ap: Figure
+    offset_mm: np.ndarray
+    rp: Figure
+    l_bar_mm: float
+    s_l_mm: float
+
+
+@dataclass
+class TestFigures:
+    """The figures of one session's test."""
+
+    session: str
+    compensated: bool
+    poses: list[PoseFigures]
+    ad: Figure | None
+    rd: Figure | None
+    notes: list[str] = field(default_factory=list)
+
+    def to_doc(self) -> dict:
+        def fig(f: Figure | None):
+            return None if f is None else {"value_mm": f.value, "u95_mm": f.u95, "clause": f.clause}
+
+        return {
+            "session": self.session,
+            "compensated": self.compensated,
+            "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
+                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
+            "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [POSE_NAMES[i] for i in DISTANCE_POSES],
+            "notes": self.notes,
+        }  # fmt: skip
+
+
+def _session_inputs(directory: Path):
+    store = SessionStore.open(directory, readonly=True)
+    try:
+        return session_cell(store), session_plan(store), export_table(store, str(directory))
+    finally:
+        store.close()
+
+
+def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> TestFigures:
+    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
+    cell, plan, table = _session_inputs(directory)
+    poses, _ = plan_arrays(plan)
+    iso = iso_block(plan, cell, len(poses))
+    if iso is None:
+        raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
+    station = model.stations.get(iso["station"])
+    if station is None:
+        raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
+    commanded = commanded_positions(iso, model)
+    noise = noise or TrackerNoise()
+    rot = station.rotation
+    keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
+    pose_ids = np.asarray(table.pose)
+    attained, covs, figures = [], [], []
+    for i, name in enumerate(POSE_NAMES):
+        rows = keep & (pose_ids == f"Q{i + 1}")
+        xyz = table.xyz[rows]
+        if len(xyz) < 2:
+            raise InputError(f"{directory}: {name} was measured {len(xyz)} times; repeatability needs two cycles")
+        base = (xyz - station.translation) @ rot  # R^T (x - t), row-wise
+        cov = np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)  # R^T Sigma R
+        ap, offset = pose_accuracy(base, commanded[i], cov)
+        rp, lbar, s = pose_repeatability(base, cov)
+        figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
+        attained.append(base)
+        covs.append(cov)
+    a, b = DISTANCE_POSES
+    ad = rd = None
+    notes = []
+    if len(attained[a]) == len(attained[b]):
+        ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
+    else:
+        notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
+    return TestFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, notes)
+
+
+def commanded_positions(iso: dict, model: Model) -> np.ndarray:
+    """(5, 3) where the measured point is meant to be: the nominal chain at the nominal joints of the plan, with the
+    point where the calibration found it on the tool (model.points). The plan's own `commanded_mm` uses the cell's
+    nominal tool, whose points are known only to the tool drawing's tolerance (tenths of a mm on the KR-270 tool):
+    against it a perfectly compensated robot would show the tool's error as pose accuracy."""
+    q = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
+    point = model.points.get(iso["point"])
+    if point is None:
+        raise InputError(f"the model knows no reference point {iso['point']!r} (the point the ISO test measures)")
+    return Kinematics(model.chain, []).points(q, point)
+
+
+@dataclass(frozen=True)
+class CompareOptions:
+    sessions: list[str]
+    model: str
+    json: str | None = None
+
+
+def compare(opts: CompareOptions) -> list[TestFigures]:
+    """The figures of each session, in the order given (e.g. before, after)."""
+    model = load_model(opts.model)
+    out = [session_figures(Path(s), model) for s in opts.sessions]
+    if opts.json:
+        write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in out]})
+    return out
