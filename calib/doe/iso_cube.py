@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackcal.calib.doe.design import design_for_cell
-from trackcal.calib.doe.poses import points_in_box, random_poses
+from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.errors import CalibError
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.calib.model.inverse import reach_points
@@ -98,6 +98,9 @@ HOMOTOPY = 8  # steps from P1 to each other pose
 NEAR_SINGULAR = 2e-3
 SHRINK = 0.9  # a cube some pose of which is out of reach is shrunk by this factor about its centre
 MIN_SIDE_MM = 50.0
+# The reference points stay this far inside the cell box at the nominal poses, so that the compensated targets of a
+# calibrated robot (corrections of a few mm at most: the KR-270's Table 8 deviations) stay inside it too
+BOX_MARGIN_MM = 10.0
 BISECTIONS = 7  # the side found to within (largest - 50 mm) / 128
 
 
@@ -118,7 +121,11 @@ def _reach(cell: Cell, kin: Kinematics, cube: IsoCube, fraction: float, q_ref: n
         if not ok.all():
             return None, f"P{int(np.argmin(ok)) + 1} cannot be reached with the reference pose's orientation"
     lim = np.radians(usable_limits_deg(cell))
-    inside = np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1) & points_in_box(cell, q)
+    inside = np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1)
+    if cell.box_min is not None:  # every reference point BOX_MARGIN_MM inside: compensated targets move them a little
+        for p in cell.tool_points.values():
+            x = kin.points(q, p)
+            inside &= np.all((x >= cell.box_min + BOX_MARGIN_MM) & (x <= cell.box_max - BOX_MARGIN_MM), axis=1)
     if not inside.all():
         return None, f"P{int(np.argmin(inside)) + 1} leaves the joint limits or the cell box"
     jq = kin.jacobian(np.repeat(q, 3, axis=0), np.tile(tools, (5, 1))).d_q.reshape(5, 9, -1)

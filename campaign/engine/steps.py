@@ -176,7 +176,7 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
     if iso.get("point") not in cell.tool_points:
         raise PlanError(f"plan: iso9283.point: {iso.get('point')!r} is no reference point of cell {cell.name}")
     if n_poses != len(CYCLE_ORDER):
-        raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one {n_poses}")
+        raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     return iso
 
 
