@@ -1,6 +1,7 @@
 """The ISO 9283 acceptance test on the twin, through the command line: calibrate, plan the cube, run it with the
 nominal and with the compensated targets, compare; the figures against what the twin knows."""
 
+import csv
 import json
 import subprocess
 
@@ -35,7 +36,8 @@ def acceptance(tmp_path_factory):
     for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
         run("run", "--sim", "--cell", "kr270", "--plan", plan, "--seed", str(SEED), "--session", session,
             "--no-analysis", cwd=d)  # fmt: skip
-    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--json", "cmp.json", cwd=d)
+    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--json", "cmp.json", "--report",
+              "iso.html", cwd=d)  # fmt: skip
     return d, json.loads((d / "iso.json").read_text()), json.loads((d / "cmp.json").read_text()), out
 
 
@@ -99,3 +101,36 @@ def test_iso_plan_walks_cycles_in_one_direction(acceptance, kr270):
         plan_steps(kr270, {**plan, "order": "spiral"})
     with pytest.raises(PlanError, match="5 poses"):
         plan_steps(kr270, {**plan, "poses_deg": plan["poses_deg"][:4]})
+
+
+def test_report_figures_by_a_second_route(acceptance):
+    """Every AP_P and RP_l the report shows, recomputed from the exported table with plain numpy: the rows of each
+    pose by their id, the station's rotation and translation read from model.json's JSON, the standard's formulas
+    written out again here."""
+    d, plan, cmp, _ = acceptance
+    page = (d / "iso.html").read_text()
+    assert "src='data:image/png;base64," in page and "<img alt='P5'" in page and ".png'" not in page  # one file
+    model = json.loads((d / "model.json").read_text())
+    iso = plan["iso9283"]
+    st = model["stations"][iso["station"]]
+    rot, t = np.array(st["rotation"]), np.array(st["translation_mm"])
+    cell = load_cell("kr270")
+    tool = np.array(model["tool_points"][iso["point"]]["xyz_mm"])
+    commanded = Kinematics(cell.chain, []).points(np.radians(iso["nominal_poses_deg"]), tool)
+    for session in ("before", "after"):
+        run("export", session, "--csv", f"{session}.csv", cwd=d)
+        with open(d / f"{session}.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        for i in range(5):
+            xyz = np.array([[float(r["x_mm"]), float(r["y_mm"]), float(r["z_mm"])] for r in rows
+                            if r["pose"] == f"Q{i + 1}"])  # fmt: skip
+            base = np.array([rot.T @ (x - t) for x in xyz])
+            bar = base.mean(axis=0)
+            ap = np.sqrt(((bar - commanded[i]) ** 2).sum())
+            ell = np.sqrt(((base - bar) ** 2).sum(axis=1))
+            rp = ell.mean() + 3 * np.sqrt(((ell - ell.mean()) ** 2).sum() / (len(ell) - 1))
+            fig = cmp["tests"][0 if session == "before" else 1]["poses"][i]
+            for key, value in (("AP_P", ap), ("RP_l", rp)):
+                # the export writes 4 decimals (0.05 µm rounding per coordinate): the figures agree to 0.1 µm
+                assert fig[key]["value_mm"] == pytest.approx(value, abs=1e-4), (session, i, key)
+                assert f"{fig[key]['value_mm'] * 1000:.1f} ± {fig[key]['u95_mm'] * 1000:.1f}" in page

@@ -193,5 +193,6 @@ COMMANDS = [
                 arg("sessions", nargs="+", help="session directories of runs of ISO plans"),
                 arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
                 arg("--json", help="figures JSON to write (default: none, the console only)"),
+                arg("--report", help="HTML report to write, self-contained (default: none, the console only)"),
             ], group="iso9283"),
 ]  # fmt: skip

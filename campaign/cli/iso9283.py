@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from rich.table import Table
 
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
+from trackcal.campaign.report.iso9283 import write_iso_report
 
 
 def _centre(text: str | None) -> tuple[float, float, float] | None:
@@ -65,4 +68,6 @@ def cmd_compare(args) -> int:
             console.print(f"note: {t.session}: {note}")
     if args.json:
         console.print(f"figures written to {args.json}")
+    if args.report:
+        console.print(f"report written to {write_iso_report(tests, args.model, Path(args.report))}")
     return 0

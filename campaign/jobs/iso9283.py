@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
@@ -111,13 +113,16 @@ class PoseFigures:
 
 @dataclass
 class TestFigures:
-    """The figures of one session's test."""
+    """The figures of one session's test, the attained and commanded positions (base frame) and its conditions."""
 
     session: str
     compensated: bool
     poses: list[PoseFigures]
     ad: Figure | None
     rd: Figure | None
+    attained_mm: list[np.ndarray]  # (cycles, 3) per pose
+    commanded_mm: np.ndarray  # (5, 3)
+    conditions: dict[str, str]
     notes: list[str] = field(default_factory=list)
 
     def to_doc(self) -> dict:
@@ -130,21 +135,37 @@ class TestFigures:
             "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
                        "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
             "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [POSE_NAMES[i] for i in DISTANCE_POSES],
-            "notes": self.notes,
+            "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip
 
 
+def _utc(t_wall: float) -> str:
+    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M UTC")
+
+
 def _session_inputs(directory: Path):
+    """(cell, plan, table, conditions) of a session: when it ran, how (simulated or hardware, seed)."""
     store = SessionStore.open(directory, readonly=True)
     try:
-        return session_cell(store), session_plan(store), export_table(store, str(directory))
+        events, meta = store.events(), store.meta()
+        seed = f" (seed {meta['seed']})" if meta.get("seed") else ""
+        conditions = {"started": _utc(events[0].t_wall) if events else "-",
+                      "ended": _utc(events[-1].t_wall) if events else "-",
+                      "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
+                      "mode": meta.get("mode", "-") + seed}  # fmt: skip
+        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions
     finally:
         store.close()
 
 
+def _temperature(table) -> str:
+    temps = np.array([float(v) for v in table.extra.get("temp_c", [])]) if table.extra else np.zeros(0)
+    return f"{temps.mean():.1f} °C ({temps.min():.1f}-{temps.max():.1f})" if len(temps) else "not recorded"
+
+
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> TestFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
-    cell, plan, table = _session_inputs(directory)
+    cell, plan, table, conditions = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
@@ -177,7 +198,15 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
-    return TestFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, notes)
+    comp = iso.get("compensated_with")
+    conditions.update({
+        "robot": cell.chain.name, "cell": cell.name, "tool point measured": iso["point"], "station": iso["station"],
+        "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
+                f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
+        "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
+        "temperature": _temperature(table), "trackcal version": version("trackcal"),
+    })  # fmt: skip
+    return TestFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
 
 
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:

@@ -1,0 +1,121 @@
+"""The ISO 9283 acceptance report: one self-contained HTML page (figures embedded as PNG data) with the conditions
+of each test, the standard's figures side by side, their definitions, and per pose the cluster of attained
+positions around the commanded one, before and after compensation."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from pathlib import Path
+
+from trackcal.calib.io.files import write_text
+from trackcal.campaign.errors import InputError
+from trackcal.campaign.jobs.iso9283 import DISTANCE_POSES, POSE_NAMES, TestFigures
+from trackcal.campaign.report.figures import pyplot
+
+DEFINITIONS = [
+    ("AP_P", "pose accuracy: |x̄ − c|, the distance from the commanded position c to the barycentre x̄ of the n "
+             "attained positions", "ISO 9283:1998, 7.2.1"),
+    ("AP_x, AP_y, AP_z", "the barycentre's offset from the commanded position along each base axis",
+     "ISO 9283:1998, 7.2.1"),
+    ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
+     "ISO 9283:1998, 7.2.2"),
+    ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
+     "ISO 9283:1998, 7.4"),
+    ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
+     "ISO 9283:1998, 7.4"),
+    ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
+            "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
+]  # fmt: skip
+
+STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:right}
+th{background:#eee}td.l,th.l{text-align:left}img{max-width:100%}"""
+
+
+def _um(value: float, u: float | None = None) -> str:
+    text = f"{value * 1000:.1f}"
+    return text if u is None else f"{text} ± {u * 1000:.1f}"
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    pyplot().close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def cluster_figure(tests: list[TestFigures], i: int) -> str:
+    """Pose i: one row per test, its attained positions around the commanded one (µm) in the base frame's x-y and
+    x-z planes, with the barycentre marked; each row on its own scale, so the spread shows beside the offset."""
+    plt = pyplot()
+    fig, axes = plt.subplots(len(tests), 2, figsize=(8, 3.2 * len(tests)), squeeze=False)
+    for row, t in zip(axes, tests, strict=True):
+        d = (t.attained_mm[i] - t.commanded_mm[i]) * 1000.0
+        bar = d.mean(axis=0)
+        label = "compensated" if t.compensated else "nominal"
+        for ax, (a, b) in zip(row, ((0, 1), (0, 2)), strict=True):
+            ax.scatter(d[:, a], d[:, b], s=12, color="tab:blue", alpha=0.6, label="attained")
+            ax.plot(bar[a], bar[b], marker="x", markersize=10, color="tab:red", linestyle="", label="barycentre")
+            ax.plot(0, 0, marker="+", markersize=14, color="black", linestyle="", label="commanded")
+            ax.set_xlabel(f"{'xyz'[a]} − commanded (µm)")
+            ax.set_ylabel(f"{'xyz'[b]} − commanded (µm)")
+            ax.set_title(f"{POSE_NAMES[i]}, {label} targets", fontsize=9)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.grid(alpha=0.3)
+        row[1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def render(tests: list[TestFigures], model_path: str) -> str:
+    label = ["compensated" if t.compensated else "nominal" for t in tests]
+    out = ["<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test</title>",
+           f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
+    keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
+    out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
+    out += [f"<th class=l>{html.escape(t.session)}</th>" for t in tests]
+    out.append("</tr>")
+    for k in keys:
+        out.append(f"<tr><td class=l>{html.escape(k)}</td>")
+        out += [f"<td class=l>{html.escape(t.conditions.get(k, '-'))}</td>" for t in tests]
+        out.append("</tr>")
+    out.append(f"<tr><td class=l>base frame</td><td class=l colspan={len(tests)}>the station estimate of "
+               f"{html.escape(model_path)}</td></tr></table>")  # fmt: skip
+    out.append("<h2>Pose characteristics (µm)</h2><table><tr><th class=l>pose</th>")
+    for lab in label:
+        out += [f"<th>AP_P {lab}</th><th>AP_x, AP_y, AP_z {lab}</th><th>RP_l {lab}</th>"]
+    out.append("</tr>")
+    for i, name in enumerate(POSE_NAMES):
+        out.append(f"<tr><td class=l>{name}</td>")
+        for t in tests:
+            p = t.poses[i]
+            xyz = ", ".join(f"{v * 1000:.1f}" for v in p.offset_mm)
+            out.append(f"<td>{_um(p.ap.value, p.ap.u95)}</td><td>{xyz}</td><td>{_um(p.rp.value, p.rp.u95)}</td>")
+        out.append("</tr>")
+    a, b = DISTANCE_POSES
+    out.append(f"</table><h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
+    out += [f"<th>AD_P {lab}</th><th>RD {lab}</th>" for lab in label]
+    out.append("</tr><tr>")
+    for t in tests:
+        ad = _um(t.ad.value, t.ad.u95) if t.ad else "-"
+        rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
+        out.append(f"<td>{ad}</td><td>{rd}</td>")
+    out.append("</tr></table><h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
+               "<th class=l>clause</th></tr>")  # fmt: skip
+    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class=l>{c}</td></tr>"
+            for n, d, c in DEFINITIONS]  # fmt: skip
+    out.append("</table><h2>Attained positions</h2>")
+    out += [f"<p><img alt='{POSE_NAMES[i]}' src='{cluster_figure(tests, i)}'></p>" for i in range(len(POSE_NAMES))]
+    notes = [f"{t.session}: {n}" for t in tests for n in t.notes]
+    if notes:
+        out.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+    out.append("</body></html>\n")
+    return "\n".join(out)
+
+
+def write_iso_report(tests: list[TestFigures], model_path: str, path: Path) -> Path:
+    write_text(path, render(tests, model_path), InputError)
+    return path
+
