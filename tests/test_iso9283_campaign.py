@@ -10,9 +10,11 @@ import pytest
 
 from tests.helpers import TRACKCAL
 from trackcal.calib.doe.iso_cube import CYCLE_ORDER, IsoCube
+from trackcal.calib.iso9283 import Figure
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.steps import PlanError, StepKind, plan_steps
+from trackcal.campaign.jobs.iso9283 import PoseFigures, TestFigures, drifts
 from trackcal.mocks.twin import Twin
 
 SEED = 1
@@ -134,3 +136,21 @@ def test_report_figures_by_a_second_route(acceptance):
                 # the export writes 4 decimals (0.05 µm rounding per coordinate): the figures agree to 0.1 µm
                 assert fig[key]["value_mm"] == pytest.approx(value, abs=1e-4), (session, i, key)
                 assert f"{fig[key]['value_mm'] * 1000:.1f} ± {fig[key]['u95_mm'] * 1000:.1f}" in page
+
+
+def test_drift_between_first_and_last_tests_of_the_same_targets():
+    """dAP = |AP(first) - AP(last)| per pose over the tests of one kind of targets (7.7); a single test of a kind has
+    no drift. By hand: AP 0.30 then 0.25 then 0.22 mm -> dAP 0.08 mm (first and last, not neighbours)."""
+
+    def test(session, targets, ap):
+        poses = [PoseFigures(n, 3, Figure(ap, 0.01, ""), np.zeros(3), Figure(0.05, 0.02, ""), 0.02, 0.01)
+                 for n in ("P1", "P2", "P3", "P4", "P5")]  # fmt: skip
+        return TestFigures(session, targets != "nominal", poses, None, None, [], np.zeros((5, 3)),
+                           {"targets": targets})  # fmt: skip
+
+    tests = [test("a", "nominal", 0.30), test("b", "nominal", 0.25), test("c", "nominal", 0.22),
+             test("d", "compensated with m.json", 0.01)]  # fmt: skip
+    (d,) = drifts(tests)
+    assert (d["first"], d["last"], d["targets"]) == ("a", "c", "nominal")
+    assert d["poses"][0]["dAP"].value == pytest.approx(0.08)
+    assert d["poses"][0]["dRP"].value == pytest.approx(0.0)

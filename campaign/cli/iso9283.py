@@ -46,7 +46,7 @@ def _um(fig) -> str:
 
 
 def cmd_compare(args) -> int:
-    tests = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
+    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
     table.add_column("pose")
     for t in tests:
@@ -63,11 +63,15 @@ def cmd_compare(args) -> int:
         row += [_um(t.ad), _um(t.rd)]
     table.add_row(*row)
     console.print(table)
+    for d in drift_list:
+        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.7), µm: "
+                      + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
+                      soft_wrap=True)  # fmt: skip
     for t in tests:
         for note in t.notes:
             console.print(f"note: {t.session}: {note}")
     if args.json:
         console.print(f"figures written to {args.json}")
     if args.report:
-        console.print(f"report written to {write_iso_report(tests, args.model, Path(args.report))}")
+        console.print(f"report written to {write_iso_report(tests, drift_list, args.model, Path(args.report))}")
     return 0

@@ -26,7 +26,7 @@ from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, IsoPlan, i
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
-from trackcal.calib.iso9283 import CYCLES, Figure, distance_accuracy, pose_accuracy, pose_repeatability
+from trackcal.calib.iso9283 import CYCLES, Figure, distance_accuracy, drift, pose_accuracy, pose_repeatability
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
@@ -228,10 +228,32 @@ class CompareOptions:
     json: str | None = None
 
 
-def compare(opts: CompareOptions) -> list[TestFigures]:
-    """The figures of each session, in the order given (e.g. before, after)."""
-    model = load_model(opts.model)
-    out = [session_figures(Path(s), model) for s in opts.sessions]
-    if opts.json:
-        write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in out]})
+def drifts(tests: list[TestFigures]) -> list[dict]:
+    """dAP and dRP per pose (ISO 9283:1998, 7.7) between the first and the last of the tests run with the same
+    targets, in the order given (the standard repeats the test over hours: give the sessions in time order)."""
+    out = []
+    for targets in dict.fromkeys(t.conditions["targets"] for t in tests):
+        same = [t for t in tests if t.conditions["targets"] == targets]
+        if len(same) < 2:
+            continue
+        first, last = same[0], same[-1]
+        out.append({"targets": targets, "first": first.session, "last": last.session, "poses": [
+            {"pose": a.name, "dAP": drift(a.ap, b.ap), "dRP": drift(a.rp, b.rp)}
+            for a, b in zip(first.poses, last.poses, strict=True)]})  # fmt: skip
     return out
+
+
+def compare(opts: CompareOptions) -> tuple[list[TestFigures], list[dict]]:
+    """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
+    same targets."""
+    model = load_model(opts.model)
+    tests = [session_figures(Path(s), model) for s in opts.sessions]
+    drift_list = drifts(tests)
+    if opts.json:
+        def fig(f: Figure) -> dict:
+            return {"value_mm": f.value, "u95_mm": f.u95, "clause": f.clause}
+
+        write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
+            {**d, "poses": [{"pose": p["pose"], "dAP": fig(p["dAP"]), "dRP": fig(p["dRP"])} for p in d["poses"]]}
+            for d in drift_list]})  # fmt: skip
+    return tests, drift_list

@@ -25,6 +25,8 @@ DEFINITIONS = [
      "ISO 9283:1998, 7.4"),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
      "ISO 9283:1998, 7.4"),
+    ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
+                 "targets repeated over time, RP alike", "ISO 9283:1998, 7.7"),
     ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
             "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
 ]  # fmt: skip
@@ -69,7 +71,7 @@ def cluster_figure(tests: list[TestFigures], i: int) -> str:
     return _png(fig)
 
 
-def render(tests: list[TestFigures], model_path: str) -> str:
+def render(tests: list[TestFigures], drift_list: list[dict], model_path: str) -> str:
     label = ["compensated" if t.compensated else "nominal" for t in tests]
     out = ["<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test</title>",
            f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
@@ -102,7 +104,14 @@ def render(tests: list[TestFigures], model_path: str) -> str:
         ad = _um(t.ad.value, t.ad.u95) if t.ad else "-"
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
-    out.append("</tr></table><h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
+    out.append("</tr></table>")
+    for d in drift_list:
+        out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
+                   f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
+        out += [f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
+                f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>" for p in d["poses"]]  # fmt: skip
+        out.append("</table>")
+    out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
                "<th class=l>clause</th></tr>")  # fmt: skip
     out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class=l>{c}</td></tr>"
             for n, d, c in DEFINITIONS]  # fmt: skip
@@ -115,7 +124,7 @@ def render(tests: list[TestFigures], model_path: str) -> str:
     return "\n".join(out)
 
 
-def write_iso_report(tests: list[TestFigures], model_path: str, path: Path) -> Path:
-    write_text(path, render(tests, model_path), InputError)
+def write_iso_report(tests: list[TestFigures], drift_list: list[dict], model_path: str, path: Path) -> Path:
+    write_text(path, render(tests, drift_list, model_path), InputError)
     return path
 
