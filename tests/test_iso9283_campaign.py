@@ -14,7 +14,7 @@ from trackcal.calib.iso9283 import Figure
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.steps import PlanError, StepKind, plan_steps
-from trackcal.campaign.jobs.iso9283 import PoseFigures, TestFigures, drifts
+from trackcal.campaign.jobs.iso9283 import IsoFigures, PoseFigures, drifts
 from trackcal.mocks.twin import Twin
 
 SEED = 1
@@ -145,7 +145,7 @@ def test_drift_between_first_and_last_tests_of_the_same_targets():
     def test(session, targets, ap):
         poses = [PoseFigures(n, 3, Figure(ap, 0.01, ""), np.zeros(3), Figure(0.05, 0.02, ""), 0.02, 0.01)
                  for n in ("P1", "P2", "P3", "P4", "P5")]  # fmt: skip
-        return TestFigures(session, targets != "nominal", poses, None, None, [], np.zeros((5, 3)),
+        return IsoFigures(session, targets != "nominal", poses, None, None, [], np.zeros((5, 3)),
                            {"targets": targets})  # fmt: skip
 
     tests = [test("a", "nominal", 0.30), test("b", "nominal", 0.25), test("c", "nominal", 0.22),

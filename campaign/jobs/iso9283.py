@@ -112,7 +112,7 @@ class PoseFigures:
 
 
 @dataclass
-class TestFigures:
+class IsoFigures:
     """The figures of one session's test, the attained and commanded positions (base frame) and its conditions."""
 
     session: str
@@ -163,7 +163,7 @@ def _temperature(table) -> str:
     return f"{temps.mean():.1f} °C ({temps.min():.1f}-{temps.max():.1f})" if len(temps) else "not recorded"
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> TestFigures:
+def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
     cell, plan, table, conditions = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
@@ -206,7 +206,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
         "temperature": _temperature(table), "trackcal version": version("trackcal"),
     })  # fmt: skip
-    return TestFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
+    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
 
 
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:
@@ -228,7 +228,7 @@ class CompareOptions:
     json: str | None = None
 
 
-def drifts(tests: list[TestFigures]) -> list[dict]:
+def drifts(tests: list[IsoFigures]) -> list[dict]:
     """dAP and dRP per pose (ISO 9283:1998, 7.7) between the first and the last of the tests run with the same
     targets, in the order given (the standard repeats the test over hours: give the sessions in time order)."""
     out = []
@@ -243,7 +243,7 @@ def drifts(tests: list[TestFigures]) -> list[dict]:
     return out
 
 
-def compare(opts: CompareOptions) -> tuple[list[TestFigures], list[dict]]:
+def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
     """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
     same targets."""
     model = load_model(opts.model)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from trackcal.calib.io.files import write_text
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.jobs.iso9283 import DISTANCE_POSES, POSE_NAMES, TestFigures
+from trackcal.campaign.jobs.iso9283 import DISTANCE_POSES, POSE_NAMES, IsoFigures
 from trackcal.campaign.report.figures import pyplot
 
 DEFINITIONS = [
@@ -48,7 +48,7 @@ def _png(fig) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def cluster_figure(tests: list[TestFigures], i: int) -> str:
+def cluster_figure(tests: list[IsoFigures], i: int) -> str:
     """Pose i: one row per test, its attained positions around the commanded one (µm) in the base frame's x-y and
     x-z planes, with the barycentre marked; each row on its own scale, so the spread shows beside the offset."""
     plt = pyplot()
@@ -71,7 +71,7 @@ def cluster_figure(tests: list[TestFigures], i: int) -> str:
     return _png(fig)
 
 
-def render(tests: list[TestFigures], drift_list: list[dict], model_path: str) -> str:
+def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> str:
     label = ["compensated" if t.compensated else "nominal" for t in tests]
     out = ["<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test</title>",
            f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
@@ -124,7 +124,7 @@ def render(tests: list[TestFigures], drift_list: list[dict], model_path: str) ->
     return "\n".join(out)
 
 
-def write_iso_report(tests: list[TestFigures], drift_list: list[dict], model_path: str, path: Path) -> Path:
+def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path) -> Path:
     write_text(path, render(tests, drift_list, model_path), InputError)
     return path
 
