@@ -161,6 +161,14 @@ COMMANDS = [
                 arg("--cell", help="cell (default: the one the model names)"),
                 arg("--out", help="directory for report.html and its PNG plots (default: SESSION/report)"),
             ]),
+    Command("history", "one robot's calibrations over time: which parameters moved, recalibrate or not",
+            "trackcal.campaign.cli.history:cmd_history", [
+                arg("calibrations", nargs="+", metavar="SESSION_OR_MODEL",
+                    help="session folders (dated by their campaign) or model.json files (dated by --dates, else by "
+                         "the file's modification time)"),
+                arg("--dates", help="comma-separated ISO dates, one per calibration (default: see above)"),
+                arg("--json", help="history JSON to write (default: none, the console only)"),
+            ]),
     Command("ipa-ur10", "IPA UR10 + Leica T-Mac series (Landgraf et al., CASE 2021)",
             "trackcal.campaign.cli.importers:cmd_import_ipa", [
                 arg("file", help="series CSV (semicolon-separated, decimal commas)"),

@@ -1,0 +1,188 @@
+"""`history` on typed options: one robot's calibrations over time, and whether it changed.
+
+    trackcal history SESSION_OR_MODEL ... [--json out.json]
+
+Each argument is a session folder (its model.json, dated by the campaign's first event) or a model.json (dated by
+`--dates` or its file's modification time, said so). In time order: every identified parameter with its 95 %
+interval; between each calibration and the next, and between the first and the last, the test of
+`calib.history` (one F test for the whole robot at 5 %, the parameters that moved beyond their Bonferroni-corrected
+interval); the TCP error each model predicts at the cell's test pose, with its 95 % interval; one sentence:
+"recalibrate: ... changed since <date>" or "no significant change since <date>".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from trackcal.calib.history import Change, compare_estimates
+from trackcal.calib.io.files import write_json
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model_file import Model, load_model
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.session.session import SessionFiles
+from trackcal.campaign.session.store import DB_NAME, SessionStore
+
+
+@dataclass
+class Calibration:
+    label: str  # what the user gave
+    date: datetime
+    date_source: str  # "campaign start" or "file modified"
+    model: Model
+    names: list[str]
+    values: np.ndarray  # boundary units (mm, deg)
+    cov: np.ndarray
+    dof: int
+    tcp_error_mm: float | None = None
+    tcp_ci95_mm: float | None = None
+
+
+def _utc(t: float) -> datetime:
+    return datetime.fromtimestamp(t, UTC)
+
+
+def _date_of(path: Path) -> tuple[Path, datetime, str]:
+    """(model.json, date, where the date comes from) of a session folder or a model file."""
+    if path.is_dir():
+        if not (path / DB_NAME).exists():
+            raise InputError(f"{path}: neither a trackcal session nor a model.json")
+        files = SessionFiles(path)
+        if not files.model.exists():
+            raise InputError(f"{path}: the session has no model.json (run `trackcal resume {path} --analyse`)")
+        store = SessionStore.open(path, readonly=True)
+        try:
+            first = store.events()[:1]
+        finally:
+            store.close()
+        if not first:
+            raise InputError(f"{path}: the session holds no event")
+        return files.model, _utc(first[0].t_wall), "campaign start"
+    if not path.exists():
+        raise InputError(f"{path}: no such session or model")
+    return path, _utc(path.stat().st_mtime), "file modified"
+
+
+def _tcp_error(model: Model, values_cov: np.ndarray) -> tuple[float | None, float | None]:
+    """|TCP(model) - TCP(nominal)| at the model's test pose (mm) and its 95 % half-width (linearised)."""
+    doc = model.doc
+    if doc.get("test_pose_deg") is None or doc.get("tcp_mm") is None:
+        return None, None
+    q0 = np.radians(np.asarray(doc["test_pose_deg"], float))[None]
+    tcp = np.asarray(doc["tcp_mm"], float)
+    kin = Kinematics(model.chain, model.params)
+    jac = kin.jacobian(q0, tcp, model.dev)
+    d = jac.p[0] - kin.points(q0, tcp)[0]
+    err = float(np.linalg.norm(d))
+    # the Jacobian is in internal units (mm, rad), the covariance in boundary units (mm, deg)
+    scale = np.array([1.0 if p.kind == "p" else np.pi / 180.0 for p in model.params])
+    j = jac.d_params[0] * scale[None, :]
+    u = d / err if err > 0 else np.zeros(3)
+    sd = float(np.sqrt(u @ j @ values_cov @ j.T @ u))
+    return err, float(stats.t.ppf(0.975, max(1, int(doc.get("dof", 1))))) * sd
+
+
+def load_calibration(label: str, date: datetime | None = None) -> Calibration:
+    model_path, found, source = _date_of(Path(label))
+    model = load_model(model_path)
+    doc = model.doc
+    names = [str(n) for n in doc.get("covariance_order", [])]
+    cov = np.asarray(doc.get("covariance", []), dtype=float)
+    if not names or cov.shape != (len(names), len(names)):
+        raise InputError(f"{model_path}: no parameter covariance (a model from trackcal identify or diagnose has one)")
+    values = np.array([doc["parameters"][n]["value"] for n in names], dtype=float)
+    cal = Calibration(label, date or found, "given" if date else source, model, names, values, cov,
+                      int(doc.get("dof", 1)))  # fmt: skip
+    cal.tcp_error_mm, cal.tcp_ci95_mm = _tcp_error(model, cov)
+    return cal
+
+
+@dataclass(frozen=True)
+class HistoryOptions:
+    calibrations: list[str]
+    dates: list[str] | None = None  # ISO dates, one per calibration
+    json: str | None = None
+
+
+@dataclass
+class History:
+    calibrations: list[Calibration]
+    steps: list[Change]  # between each calibration and the next
+    overall: Change | None  # first against last (None with one calibration)
+    sentence: str
+    notes: list[str] = field(default_factory=list)
+
+
+def _dates(opts: HistoryOptions) -> list[datetime | None]:
+    if opts.dates is None:
+        return [None] * len(opts.calibrations)
+    if len(opts.dates) != len(opts.calibrations):
+        raise OptionError("{0}: give one date per calibration ({n} calibrations, {m} dates)", "dates",
+                          n=len(opts.calibrations), m=len(opts.dates))  # fmt: skip
+    out = []
+    for text in opts.dates:
+        try:
+            d = datetime.fromisoformat(text)
+        except ValueError:
+            raise OptionError("{0}: {text!r} is no ISO date (e.g. 2026-08-01 or 2026-08-01T14:00)", "dates",
+                              text=text) from None  # fmt: skip
+        out.append(d if d.tzinfo else d.replace(tzinfo=UTC))
+    return out
+
+
+def _change(a: Calibration, b: Calibration) -> Change:
+    return compare_estimates(a.names, a.values, a.cov, a.dof, b.names, b.values, b.cov, b.dof)
+
+
+def history(opts: HistoryOptions) -> History:
+    if not opts.calibrations:
+        raise OptionError("{0}: give at least one session or model", "calibrations")
+    cals = [load_calibration(c, d) for c, d in zip(opts.calibrations, _dates(opts), strict=True)]
+    cals.sort(key=lambda c: c.date)
+    robots = {c.model.chain.name for c in cals}
+    if len(robots) > 1:
+        raise InputError(f"the calibrations are of different robots ({', '.join(sorted(robots))}): one at a time")
+    steps = [_change(a, b) for a, b in zip(cals, cals[1:], strict=False)]
+    overall = _change(cals[0], cals[-1]) if len(cals) > 1 else None
+    if overall is None:
+        sentence = f"one calibration ({cals[0].date:%Y-%m-%d}): nothing to compare yet"
+    else:
+        last_change = max((i for i, s in enumerate(steps) if s.changed), default=None)
+        if overall.changed or last_change is not None:
+            since = cals[0] if last_change is None else cals[last_change]
+            moved = overall if overall.changed else steps[last_change]
+            names = [n for n, m in zip(moved.names, moved.moved, strict=True) if m]
+            which = f": {', '.join(names)} moved beyond their uncertainty" if names else ""
+            sentence = (f"recalibrate: the robot changed since {since.date:%Y-%m-%d} "
+                        f"(p = {moved.p_value:.2g} < {moved.alpha}){which}")  # fmt: skip
+        else:
+            sentence = f"no significant change since {cals[0].date:%Y-%m-%d} (p = {overall.p_value:.2g})"
+    notes = [f"{c.label}: dated by its {c.date_source}" for c in cals if c.date_source == "file modified"]
+    out = History(cals, steps, overall, sentence, notes)
+    if opts.json:
+        write_json(opts.json, history_doc(out))
+    return out
+
+
+def _change_doc(c: Change) -> dict:
+    return {"p_value": c.p_value, "statistic": c.statistic, "dof": list(c.dof), "alpha": c.alpha,
+            "changed": c.changed, "parameters": {n: {"difference": float(d), "sigma": float(s), "moved": bool(m)}
+                                                 for n, d, s, m in zip(c.names, c.difference, c.sigma, c.moved,
+                                                                       strict=True)}}  # fmt: skip
+
+
+def history_doc(h: History) -> dict:
+    return {
+        "calibrations": [{"source": c.label, "date": c.date.isoformat(), "date_source": c.date_source,
+                          "robot": c.model.chain.name, "tcp_error_mm": c.tcp_error_mm, "tcp_ci95_mm": c.tcp_ci95_mm,
+                          "parameters": {n: {"value": float(v), "ci95": c.model.doc["parameters"][n]["ci95"]}
+                                         for n, v in zip(c.names, c.values, strict=True)}}
+                         for c in h.calibrations],
+        "steps": [_change_doc(s) for s in h.steps],
+        "overall": None if h.overall is None else _change_doc(h.overall),
+        "sentence": h.sentence, "notes": h.notes,
+    }  # fmt: skip
