@@ -161,6 +161,13 @@ def history(opts: HistoryOptions) -> History:
                         f"(p = {moved.p_value:.2g} < {moved.alpha}){which}")  # fmt: skip
         else:
             sentence = f"no significant change since {cals[0].date:%Y-%m-%d} (p = {overall.p_value:.2g})"
+    poor = [c for c in cals if c.model.doc.get("fit") == "poor"]
+    if overall is not None and poor:
+        ratios = ", ".join(f"{c.label} {c.model.doc.get('fit_ratio', float('nan')):.1f}x" for c in poor)
+        sentence = (f"cannot tell: the fit of {', '.join(c.label for c in poor)} is poor (residual RMS / noise floor: "
+                    f"{ratios}), so its intervals understate what the model misses and a change cannot be judged "
+                    f"against them (the test alone says: {sentence}); identify with the cause `trackcal diagnose` "
+                    "names, then compare again")  # fmt: skip
     notes = [f"{c.label}: dated by its {c.date_source}" for c in cals if c.date_source == "file modified"]
     out = History(cals, steps, overall, sentence, notes)
     if opts.json:
