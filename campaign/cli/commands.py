@@ -23,6 +23,18 @@ def arg(*flags: str, **options) -> tuple[tuple[str, ...], dict]:
     return flags, options
 
 
+BATCH_ARGS = [
+    arg("inputs", nargs="+", metavar="INPUT",
+        help="measurement tables, session folders, or folders holding either (one level down)"),
+    arg("--out", required=True, help="results folder: one JSON per campaign, keyed by the table's sha256; a result "
+                                     "already there is not computed again"),
+    arg("--cell", help=CELL_HELP + " (for plain tables; a session knows its cell)"),
+    arg("--params", help="parameters (default: the irreducible set)"),
+    arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
+    arg("--scheduler", help="Dask scheduler address (default: a local process pool)"),
+]  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Command:
     name: str
@@ -35,6 +47,7 @@ class Command:
 
 GROUPS = {
     "import": "convert third-party measurement files into a measurement table",
+    "batch": "identify or diagnose many campaigns at once, on a process pool or a Dask cluster",
     "iso9283": "the ISO 9283 acceptance test: plan it, then compare the figures before and after compensation",
 }
 
@@ -161,6 +174,10 @@ COMMANDS = [
                 arg("--cell", help="cell (default: the one the model names)"),
                 arg("--out", help="directory for report.html and its PNG plots (default: SESSION/report)"),
             ]),
+    Command("identify", "identify every campaign (model.json and fit of each, one table)",
+            "trackcal.campaign.cli.batch:cmd_batch", BATCH_ARGS, group="batch"),
+    Command("diagnose", "diagnose every campaign (verdict and chosen model of each, one table)",
+            "trackcal.campaign.cli.batch:cmd_batch", BATCH_ARGS, group="batch"),
     Command("history", "one robot's calibrations over time: which parameters moved, recalibrate or not",
             "trackcal.campaign.cli.history:cmd_history", [
                 arg("calibrations", nargs="+", metavar="SESSION_OR_MODEL",
