@@ -24,7 +24,7 @@ RP measures.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from trackcal.calib.errors import CalibError
 
 CYCLES = 30  # ISO 9283:1998, 6.8: pose accuracy and repeatability are tested over 30 cycles
 COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
+
+
+DISTANCE_POSES = (1, 3)  # AD and RD over P2-P4, a diagonal of the measuring plane (trackcal's choice of pair)
 
 
 class IsoError(CalibError):
@@ -45,6 +48,9 @@ class Figure:
     value: float
     u95: float
     clause: str
+
+    def to_doc(self) -> dict:
+        return {"value_mm": self.value, "u95_mm": self.u95, "clause": self.clause}
 
 
 def _points(x, name: str, min_rows: int = 1) -> np.ndarray:
@@ -179,3 +185,42 @@ def distance_accuracy(attained1, attained2, commanded1, commanded2, cov1=None, c
 def drift(first: Figure, last: Figure) -> Figure:
     """dAP or dRP (7.7): |figure at the first test - figure at the last|, their uncertainties added in quadrature."""
     return Figure(abs(first.value - last.value), float(np.hypot(first.u95, last.u95)), "ISO 9283:1998, 7.7")
+
+
+@dataclass
+class PoseFigures:
+    name: str
+    n: int
+    ap: Figure
+    offset_mm: np.ndarray
+    rp: Figure
+    l_bar_mm: float
+    s_l_mm: float
+
+
+@dataclass
+class IsoFigures:
+    """The figures of one session's test, the attained and commanded positions (base frame) and its conditions."""
+
+    session: str
+    compensated: bool
+    poses: list[PoseFigures]
+    ad: Figure | None
+    rd: Figure | None
+    attained_mm: list[np.ndarray]  # (cycles, 3) per pose
+    commanded_mm: np.ndarray  # (5, 3)
+    conditions: dict[str, str]
+    notes: list[str] = field(default_factory=list)
+
+    def to_doc(self) -> dict:
+        def fig(f: Figure | None):
+            return None if f is None else f.to_doc()
+
+        return {
+            "session": self.session,
+            "compensated": self.compensated,
+            "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
+                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
+            "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
+            "conditions": self.conditions, "notes": self.notes,
+        }  # fmt: skip

@@ -10,11 +10,11 @@ import pytest
 
 from tests.helpers import TRACKCAL
 from trackcal.calib.doe.iso_cube import CYCLE_ORDER, IsoCube
-from trackcal.calib.iso9283 import Figure
+from trackcal.calib.iso9283 import Figure, IsoFigures, PoseFigures
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.steps import PlanError, StepKind, plan_steps
-from trackcal.campaign.jobs.iso9283 import IsoFigures, PoseFigures, drifts
+from trackcal.campaign.jobs.iso9283 import drifts
 from trackcal.mocks.twin import Twin
 
 SEED = 1

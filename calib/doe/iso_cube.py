@@ -24,6 +24,7 @@ from trackcal.calib.model.kinematics import Kinematics
 CORNER_FRACTION = 0.10  # ISO 9283:1998, 6.7: P2..P5 at (10 +- 2) % of the diagonal from the corners
 # One test cycle visits P1, P5, P4, P3, P2 (ISO 9283:1998, 7.2.1), each approached in the same direction.
 CYCLE_ORDER = (0, 4, 3, 2, 1)
+POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
 
 
 class CubeError(CalibError):

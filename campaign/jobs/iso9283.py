@@ -14,7 +14,7 @@ stays where the calibration left it), and puts the sessions side by side.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import version
 from pathlib import Path
@@ -22,11 +22,20 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.compensate import compensate
-from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, IsoPlan, iso_plan
+from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, POSE_NAMES, IsoPlan, iso_plan
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
-from trackcal.calib.iso9283 import CYCLES, Figure, distance_accuracy, drift, pose_accuracy, pose_repeatability
+from trackcal.calib.iso9283 import (
+    CYCLES,
+    DISTANCE_POSES,
+    IsoFigures,
+    PoseFigures,
+    distance_accuracy,
+    drift,
+    pose_accuracy,
+    pose_repeatability,
+)
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
@@ -34,9 +43,6 @@ from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.session.session import export_table, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
-
-POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
-DISTANCE_POSES = (1, 3)  # AD and RD over P2-P4, a diagonal of the measuring plane (trackcal's choice of pair)
 
 
 @dataclass(frozen=True)
@@ -98,45 +104,6 @@ def make_plan(opts: PlanOptions) -> dict:
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with)
     write_json(opts.json, doc)
     return doc
-
-
-@dataclass
-class PoseFigures:
-    name: str
-    n: int
-    ap: Figure
-    offset_mm: np.ndarray
-    rp: Figure
-    l_bar_mm: float
-    s_l_mm: float
-
-
-@dataclass
-class IsoFigures:
-    """The figures of one session's test, the attained and commanded positions (base frame) and its conditions."""
-
-    session: str
-    compensated: bool
-    poses: list[PoseFigures]
-    ad: Figure | None
-    rd: Figure | None
-    attained_mm: list[np.ndarray]  # (cycles, 3) per pose
-    commanded_mm: np.ndarray  # (5, 3)
-    conditions: dict[str, str]
-    notes: list[str] = field(default_factory=list)
-
-    def to_doc(self) -> dict:
-        def fig(f: Figure | None):
-            return None if f is None else {"value_mm": f.value, "u95_mm": f.u95, "clause": f.clause}
-
-        return {
-            "session": self.session,
-            "compensated": self.compensated,
-            "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
-                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
-            "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [POSE_NAMES[i] for i in DISTANCE_POSES],
-            "conditions": self.conditions, "notes": self.notes,
-        }  # fmt: skip
 
 
 def _utc(t_wall: float) -> str:
@@ -250,10 +217,7 @@ def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
     tests = [session_figures(Path(s), model) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:
-        def fig(f: Figure) -> dict:
-            return {"value_mm": f.value, "u95_mm": f.u95, "clause": f.clause}
-
         write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
-            {**d, "poses": [{"pose": p["pose"], "dAP": fig(p["dAP"]), "dRP": fig(p["dRP"])} for p in d["poses"]]}
-            for d in drift_list]})  # fmt: skip
+            {**d, "poses": [{"pose": p["pose"], "dAP": p["dAP"].to_doc(), "dRP": p["dRP"].to_doc()}
+                            for p in d["poses"]]} for d in drift_list]})  # fmt: skip
     return tests, drift_list

@@ -9,9 +9,10 @@ import html
 import io
 from pathlib import Path
 
+from trackcal.calib.doe.iso_cube import POSE_NAMES
 from trackcal.calib.io.files import write_text
+from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.jobs.iso9283 import DISTANCE_POSES, POSE_NAMES, IsoFigures
 from trackcal.campaign.report.figures import pyplot
 
 DEFINITIONS = [
