@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import os
 import resource
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 from bench.goals import check
-from trackcal.campaign.jobs.batch import BatchOptions, batch, run_chunk
+from trackcal.campaign.jobs.batch import BatchOptions, batch, find_campaigns, result_key, run_chunk
+from trackcal.campaign.jobs.simulate import SimulateOptions, parse_effects, simulate
 
 N = int(os.environ.get("BENCH_BATCH_N", "200"))
 EFFECTS = ["", "backlash:0.05", "joint_compliance:0.05", "encoder_scale:0.05", "thermal_drift:0.05"]
@@ -25,18 +24,13 @@ EFFECTS = ["", "backlash:0.05", "joint_compliance:0.05", "encoder_scale:0.05", "
 
 def make_tables(folder: Path, n: int) -> None:
     for i in range(n):
-        effect = EFFECTS[i % len(EFFECTS)]
-        cmd = [sys.executable, "-m", "trackcal.campaign.cli", "simulate", "--cell", "kr270", "--poses", "25",
-               "--seed", str(1000 + i), "--out", str(folder / f"c{i:03d}.csv")]  # fmt: skip
-        if effect:
-            cmd += ["--effect", effect]
-        subprocess.run(cmd, check=True, capture_output=True)
+        simulate(SimulateOptions(cell="kr270", out=str(folder / f"c{i:03d}.csv"), poses=25, seed=1000 + i,
+                                 effects=parse_effects([EFFECTS[i % len(EFFECTS)]] if EFFECTS[i % len(EFFECTS)]
+                                                       else None)))  # fmt: skip
 
 
 def loop(opts: BatchOptions) -> list[str]:
     """The plain loop a user would write: one campaign after the other in this process."""
-    from trackcal.campaign.jobs.batch import find_campaigns, result_key  # lazy: only this baseline needs them
-
     Path(opts.out).mkdir(parents=True, exist_ok=True)
     campaigns = find_campaigns(opts.inputs, opts.cell)
     rows = run_chunk([(c, result_key(c, opts)) for c in campaigns], opts)
