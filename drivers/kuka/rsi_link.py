@@ -20,7 +20,8 @@ passive flag are the defaults): trackcal listens, only the controller is served 
   logged once, never answered and never read. A restarted controller runs its KRL program from the top and ends
   the EKI connection: the campaign stops, `resume` connects again and takes the new stream.
 - Freshness: a complete frame at most STALE_CYCLES cycles of rsi_cycle_s old (12 ms on a KR C2, 4 ms on a KR C4:
-  the hardware file says which); `require_fresh` waits at most stale_s for one before it refuses a move.
+  the hardware file says which); `require_fresh` waits at most stale_s for one before it refuses a move. During a
+  move or a settle, a stream silent for more than stale_s (`stale_for`) stops the robot (drivers.kuka.client).
 - The frames are kept (FRAME_HISTORY of them, numbered) for settling windows judged in controller time: one frame
   = one interpolation cycle.
 - Simulation only (`sync` given: `run --sim`, the mock controller in the same process on a virtual clock, where a
@@ -101,6 +102,7 @@ class RsiLink:
         self._latest: tuple[float, ...] | None = None
         self._latest_at: float | None = None
         self._latest_ipoc: int | None = None
+        self._heard_at: float | None = None  # when the last frame with joints arrived (kept across a new session)
         self._last_bad = ""
         self._framer_pending = 0
         self.frames_answered = 0
@@ -294,6 +296,7 @@ class RsiLink:
                 self._seq += 1
                 self._frames.append((self._seq, joints))
                 self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
+                self._heard_at = arrived
                 self._cond.notify_all()
 
     def _set_error(self, exc: DeviceError) -> None:
@@ -370,6 +373,18 @@ class RsiLink:
             code="rsi_stale",
             device=self.device,
         )
+
+    def stale_for(self) -> float | None:
+        """Without sync (a real controller, `trackcal mock`): how long (wall seconds) no frame with joints arrived,
+        when that is more than stale_s, else None: the stream went stale during a move or a settle. With sync the
+        lockstep controller's own checks decide (`joints`, the settling window)."""
+        if self.sync is not None:
+            return None
+        with self._cond:
+            if self._heard_at is None:
+                return None
+            silent = time.monotonic() - self._heard_at
+            return silent if silent > self.stale_s else None
 
     def joints(self) -> tuple[float, ...]:
         """The latest frame's AIPos, if it is current (DeviceTimeout if not)."""
