@@ -237,6 +237,7 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
         assert abs(b - a) <= abs(v) * t_stop / 2 + 1e-4
     assert after_stop == [] and ctl.joints_deg == q_rest  # and then it stands: no joint change after rest
     assert store.events("error")[-1].data["type"] == "DeviceFault"
+    assert store.events("error")[-1].data["code"] == "door_open"  # issue 27, finding 7: the session records the cause
     stored = len(store.events("measurement"))
     assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
     run_stored(store, SimCell(kr270, SEED, store).live)
