@@ -365,15 +365,15 @@ class Engine:
         s = self.settings
         q = self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
         target = tuple(step.q_deg)
-        for j, (a, t) in enumerate(zip(q, target, strict=False), 1):
+        if len(q) != len(target):
+            raise DeviceFault(f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
+                              code=TARGET_MISSED, device="robot")  # fmt: skip
+        for j, (a, t) in enumerate(zip(q, target, strict=True), 1):
             if abs(round(float(a) / JOINT_RESOLUTION_DEG) - round(float(t) / JOINT_RESOLUTION_DEG)) > 1:
                 raise DeviceFault(f"{step.pose}: the robot settled with joint {j} at {float(a):.4f} deg, not at the "
                                   f"target {float(t):.4f} deg (more than one count of {JOINT_RESOLUTION_DEG:g} deg "
                                   "apart): nothing is measured at this pose", code=TARGET_MISSED,
                                   device="robot")  # fmt: skip
-        if len(q) != len(target):
-            raise DeviceFault(f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
-                              code=TARGET_MISSED, device="robot")  # fmt: skip
 
     def _measure(self, step: Step) -> None:
         q = self.dev.robot.joints()

@@ -67,13 +67,12 @@ from trackcal.drivers.kuka.eki_codec import RobotState as EkiState
 from trackcal.drivers.kuka.eki_link import EkiLink
 from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
-from trackcal.drivers.kuka.rsi_link import POLL_S, RsiLink, RsiSync
+from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
 # the faults the KRL program latches until a reset finds them gone (trackcal_eki.src); other errors refuse one request
 LATCHED = (ERR_ESTOP, ERR_DRIVES_OFF, ERR_RSI_STOPPED)
-# stop codes of this client's own causes (the guard's come with its StopCause)
-RSI_STALE = "rsi_stale"  # the RSI stream went silent during a move or a settle (also the code of a refused move)
+# stop codes of this client's own causes (the guard's come with its StopCause; RSI_STALE: drivers.kuka.rsi_link)
 CHANNELS_DISAGREE = "channels_disagree"  # EKI's answer and RSI's settled frame do not show the same arm
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]

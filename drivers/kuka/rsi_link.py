@@ -52,6 +52,7 @@ from trackcal.drivers.kuka.rsi_codec import MAX_FRAME_BYTES, SenFrame, encode_se
 
 POLL_S = 0.05  # socket timeout slice of the background threads
 STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more than this many cycles
+RSI_STALE = "rsi_stale"  # the code of a refused move, and of a move or settle stopped by a silent stream
 FRAME_HISTORY = 8192  # RSI frames kept for settling windows (~98 s of 12 ms cycles)
 _RECV_BYTES = 4096
 _NEW_SESSION = b""  # from the answering to the monitor thread: the controller's session began, forget the stream
@@ -370,7 +371,7 @@ class RsiLink:
         raise MotionRefused(
             f"RSI stream stale: no complete frame for {age} (more than {STALE_CYCLES} cycles of "
             f"{self.cycle_s * 1000:g} ms){': ' + '; '.join(why) if why else ''}; the move is not sent",
-            code="rsi_stale",
+            code=RSI_STALE,
             device=self.device,
         )
 
