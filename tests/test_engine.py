@@ -221,7 +221,7 @@ def test_a_robot_that_settles_off_its_target_stops_before_the_pose_is_measured(t
         return
     assert_stopped(result, rf"settled with joint 3 at {calls[4][2] + off_deg:.4f} deg, not at the target "
                            rf"{calls[4][2]:.4f} deg .*nothing is measured at this pose")  # fmt: skip
-    assert result.code == "target_missed" and store.events("error")[-1].data["code"] == "target_missed"
+    assert result.code == "target_mismatch" and store.events("error")[-1].data["code"] == "target_mismatch"
     assert all(e.step < result.step for e in store.events("measurement"))
     run_stored(store, live(cell, store=store)[1])
     assert store.events("campaign_done")

@@ -13,7 +13,7 @@ from trackcal.calib.io.files import read_json
 from trackcal.campaign.cells.checks import DOOR_OPEN, ESTOP_PRESSED, PLC_SILENT
 from trackcal.campaign.cli.console import ConsoleOperator, console
 from trackcal.campaign.cli.report import analyse_and_print
-from trackcal.campaign.engine.engine import TARGET_MISSED, Document, RunResult
+from trackcal.campaign.engine.engine import TARGET_MISMATCH, Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
 from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
@@ -73,7 +73,7 @@ ADVICE = {
     RSI_STALE: "Check that the controller's RSI program runs and its network to this PC, then",
     CHANNELS_DISAGREE: "Make sure nothing but the controller sends RSI frames to this PC (the log names every sender "
                        "ignored), then",
-    TARGET_MISSED: "Check the robot program and the controller's messages (it stood elsewhere than its target), then",
+    TARGET_MISMATCH: "Check the robot program and the controller's messages (it stood elsewhere than its target), then",
 }  # fmt: skip
 
 

@@ -24,7 +24,7 @@ Rules it keeps:
   system type, measurement and statistic mode, system settings, read back: Tracker.configure) and given the
   environment, so that nothing another program changed on it in between reaches a measurement;
 - after every move, the joints the robot settled at must equal the move's target within the controller's
-  resolution (JOINT_RESOLUTION_DEG, one count); otherwise the campaign stops safely (code TARGET_MISSED) before
+  resolution (JOINT_RESOLUTION_DEG, one count); otherwise the campaign stops safely (code TARGET_MISMATCH) before
   anything is measured at that pose (a robot that reports on two channels checks them against each other first);
 - every measurement is compared with where the nominal model expects the reflector (the position FindReflector
   is given); one farther than the cell's tolerance is not kept as a measurement: the campaign stops safely
@@ -51,7 +51,7 @@ from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
 from trackcal.drivers.errors import DeviceError, DeviceFault, TargetNotVisible
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, CellIO, Clock, Meteo, Operator, Robot, Tracker
 
-TARGET_MISSED = "target_missed"  # stop code: the robot settled elsewhere than the move's target
+TARGET_MISMATCH = "target_mismatch"  # stop code: the robot settled elsewhere than the move's target
 
 
 @dataclass(frozen=True)
@@ -367,12 +367,12 @@ class Engine:
         target = tuple(step.q_deg)
         if len(q) != len(target):
             raise DeviceFault(f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
-                              code=TARGET_MISSED, device="robot")  # fmt: skip
+                              code=TARGET_MISMATCH, device="robot")  # fmt: skip
         for j, (a, t) in enumerate(zip(q, target, strict=True), 1):
             if abs(round(float(a) / JOINT_RESOLUTION_DEG) - round(float(t) / JOINT_RESOLUTION_DEG)) > 1:
                 raise DeviceFault(f"{step.pose}: the robot settled with joint {j} at {float(a):.4f} deg, not at the "
                                   f"target {float(t):.4f} deg (more than one count of {JOINT_RESOLUTION_DEG:g} deg "
-                                  "apart): nothing is measured at this pose", code=TARGET_MISSED,
+                                  "apart): nothing is measured at this pose", code=TARGET_MISMATCH,
                                   device="robot")  # fmt: skip
 
     def _measure(self, step: Step) -> None:
