@@ -65,7 +65,7 @@ def at_console() -> OperatorConsole:
     return OperatorConsole(say=console.print, operator=ConsoleOperator(console))
 
 
-# What to do before `trackcal resume`, by the stop's code (README, "Safe stops and their codes")
+# What to do before `trackcal resume`, by the stop's code (README, "Safe stops name their cause")
 ADVICE = {
     DOOR_OPEN: "Close the cell door, then",
     PLC_SILENT: "Check the cell PLC's power and its network to this PC (the plc section of the hardware file), then",
