@@ -57,6 +57,24 @@ class Tracker(Protocol):
     def close(self) -> None: ...
 
 
+# One count of a joint angle as a controller reports it: KRL writes $AXIS_ACT with 4 decimals on EKI
+# (drivers.kuka.eki_codec) and the RSI client reads <AIPos> to 4 decimals (drivers.kuka.rsi_link; the mock sends
+# 4, kuka_experimental's kuka_rsi_simulator sends Python's str() of the float, more digits than a count).
+JOINT_RESOLUTION_DEG = 1e-4
+
+
+class StopCause(str):
+    """Why the robot must stop now, as a motion guard answers it: the one line for people (the string itself) and
+    a stable `code` naming the cause (the stop's DeviceFault code, so the session records which cause it was)."""
+
+    code: str
+
+    def __new__(cls, text: str, code: str) -> StopCause:
+        cause = super().__new__(cls, text)
+        cause.code = code
+        return cause
+
+
 @dataclass(frozen=True)
 class RobotState:
     """What the controller says of the arm now: moving or standing, and the fault it holds ("" when none)."""
@@ -79,7 +97,9 @@ class Robot(Protocol):
         done."""
         ...
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
-        """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them."""
+        """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them (the engine compares
+        them with the move's target: they must equal it within JOINT_RESOLUTION_DEG). A controller reporting its
+        joints on more than one channel checks that they agree (DeviceFault otherwise)."""
         ...
     def stop(self) -> None:
         """Brake the running move on its path (a controlled stop, drives stay on); returns once the arm stands."""

@@ -198,3 +198,30 @@ def test_replay_of_a_changed_plan_stops_at_the_first_divergent_step(tmp_path, ce
     changed = {"poses_deg": [list(plan["poses_deg"][1]), *plan["poses_deg"][1:]], "repeat": plan["repeat"]}
     with pytest.raises(ReplayDivergence, match=r"step \d+: this run asks robot.move"):
         replay(store, tmp_path / "r", plan_doc=changed)
+
+
+@pytest.mark.parametrize(("off_deg", "stops"), [(0.0001, False), (-0.0002, True), (0.5, True)])
+def test_a_robot_that_settles_off_its_target_stops_before_the_pose_is_measured(tmp_path, cell, plan, off_deg, stops):
+    """Issue 27, finding 1, for any Robot: after every move the settled joints must equal the target within the
+    controller's resolution, one count of 0.0001 deg (KRL writes joints with 4 decimals). Two counts off stop the
+    campaign safely at the settle, before anything is measured at that pose; `resume` then completes it."""
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
+    world, devices = live(cell)
+    settle, calls = devices.robot.wait_settled, []
+
+    def settled_off(*args):
+        q = settle(*args)
+        calls.append(q)
+        return q[:2] + (q[2] + off_deg,) + q[3:] if len(calls) == 5 else q
+
+    devices.robot.wait_settled = settled_off
+    result = run_stored(store, devices)
+    if not stops:
+        assert result.exit_status == "success"
+        return
+    assert_stopped(result, rf"settled with joint 3 at {calls[4][2] + off_deg:.4f} deg, not at the target "
+                           rf"{calls[4][2]:.4f} deg .*nothing is measured at this pose")  # fmt: skip
+    assert result.code == "target_mismatch" and store.events("error")[-1].data["code"] == "target_mismatch"
+    assert all(e.step < result.step for e in store.events("measurement"))
+    run_stored(store, live(cell, store=store)[1])
+    assert store.events("campaign_done")

@@ -13,6 +13,7 @@ moves while the mock PLC reports the cell door open.
 import contextlib
 import itertools
 import logging
+import re
 import socket
 import threading
 import time
@@ -236,6 +237,7 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
         assert abs(b - a) <= abs(v) * t_stop / 2 + 1e-4
     assert after_stop == [] and ctl.joints_deg == q_rest  # and then it stands: no joint change after rest
     assert store.events("error")[-1].data["type"] == "DeviceFault"
+    assert store.events("error")[-1].data["code"] == "door_open"  # issue 27, finding 7: the session records the cause
     stored = len(store.events("measurement"))
     assert 0 < stored < len(reference.pose) and not store.events("campaign_done")
     run_stored(store, SimCell(kr270, SEED, store).live)
@@ -284,3 +286,73 @@ def test_a_spoofer_on_the_controllers_address_streaming_first_is_never_read(
     same_table(table, reference)
     assert rsi.frames_foreign > 0
     assert len([r for r in caplog.records if "ignored" in r.getMessage()]) == 1
+
+
+def test_a_spoofer_alone_before_the_controllers_opening_frame_is_caught_before_anything_is_stored(
+    tmp_path, kr270, plan, reference, monkeypatch
+):
+    """Issue 27, finding 1, what the session rule alone cannot catch: a sender on 127.0.0.1 that opens an RSI
+    session of its own (an empty <IPOC/> first, as the KR C2 does) before the controller's opening frame is the
+    session followed, and it streams in-limit joints. After the first move the two channels disagree (EKI's answer:
+    where the arm went; RSI: the spoofer's joints), so the campaign stops safely before any measurement is stored,
+    with one line naming the channel, the joint and both values. Without the spoofer, `resume` completes the
+    campaign with the table of a clean run."""
+    fake = (10.0, -60.0, 90.0, 10.0, 60.0, 10.0)  # the issue's joints
+    stop, first_sent = threading.Event(), threading.Event()
+    spoofer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    spoofer.bind(("127.0.0.1", 0))
+    serve = TwinMocks.serve_controller
+
+    def stream(rsi_addr):
+        spoofer.sendto(encode_rob(RobFrame(ipoc=None), tcp=False), rsi_addr)  # the KR C2's opening frame
+        for ipoc in itertools.count(10**9, 12):  # IPOC: ms of controller time, 12 ms a KR C2 cycle
+            with contextlib.suppress(OSError):
+                spoofer.sendto(encode_rob(RobFrame(ipoc=ipoc, aipos=fake), tcp=False), rsi_addr)
+            first_sent.set()
+            if stop.wait(0.012):
+                return
+
+    def spoofer_first(self, eki_addr, rsi_addr, *args, **kw):
+        threading.Thread(target=stream, args=(rsi_addr,), daemon=True).start()
+        assert first_sent.wait(10.0)
+        serve(self, eki_addr, rsi_addr, *args, **kw)
+
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    with monkeypatch.context() as patched:
+        patched.setattr(TwinMocks, "serve_controller", spoofer_first)
+        try:
+            sim = SimCell(kr270, SEED, store)
+            assert sim.live.robot.rsi.address  # the spoofer's session is the one followed
+            result = run_stored(store, sim.live)
+        finally:
+            stop.set()
+            spoofer.close()
+    assert_stopped(result, r"the two channels disagree on A\d: RSI -?\d+\.\d{4} deg, EKI -?\d+\.\d{4} deg")
+    assert result.code == "channels_disagree" and store.events("error")[-1].data["code"] == "channels_disagree"
+    assert store.events("measurement") == []  # nothing stored, so no row with the spoofer's joints
+    run_stored(store, SimCell(kr270, SEED, store).live)
+    same_table(export_table(store), reference)
+
+
+def test_channels_that_disagree_by_a_hundredth_of_a_degree_stop_before_the_pose_is_measured(
+    tmp_path, kr270, plan, reference
+):
+    """Issue 27, finding 1: the mock KR C2 answers the third move on EKI with A2 0.01 deg off what its RSI frames
+    say (a hundred counts of the controller's 0.0001 deg). The campaign stops safely at that pose's settle, nothing is
+    measured at it, and once the controller is sound again `resume` gives the table of an uninterrupted run."""
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
+    sim = SimCell(kr270, SEED, store)
+    moves: list[tuple[float, ...]] = []
+    before_call(sim.live.robot, "move", 3, lambda: sim.controller.misreport("eki", 1, 0.01))
+    original_move = sim.live.robot.move
+    sim.live.robot.move = lambda q, speed: (moves.append(tuple(q)), original_move(q, speed))[1]
+    result = run_stored(store, sim.live)
+    assert_stopped(result, r"the two channels disagree on A2: RSI (-?\d+\.\d{4}) deg, EKI (-?\d+\.\d{4}) deg")
+    rsi, eki = (float(v) for v in re.search(r"RSI (\S+) deg, EKI (\S+) deg", result.message).groups())
+    assert round(eki - rsi, 4) == 0.01 and rsi == moves[-1][1]  # RSI shows the target, EKI the lie
+    assert result.code == "channels_disagree"
+    [stopped_at] = [e.data["step"] for e in store.events("step_started") if e.step == result.step]
+    assert stopped_at["kind"] == "settle" and stopped_at["q_deg"] == list(moves[-1])
+    assert store.events("measurement") and all(e.step < result.step for e in store.events("measurement"))
+    run_stored(store, SimCell(kr270, SEED, store).live)
+    same_table(export_table(store), reference)

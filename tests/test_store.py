@@ -417,6 +417,16 @@ def test_a_session_whose_tail_was_deleted_checks_sound_but_incomplete(reference,
     assert first.startswith(f"note: {d}: campaign incomplete")  # export says so in its first line
 
 
+def test_report_of_an_incomplete_session_says_so_in_its_first_line(reference, tmp_path, capsys):
+    # issue 27: "`export` and `report` of an incomplete session say so in their first line" (export: above)
+    d = copy_of(reference[0], tmp_path)
+    with sqlite3.connect(d / "session.sqlite") as db:
+        db.execute("DELETE FROM events WHERE kind = 'campaign_done'")
+    main(["report", str(d)])  # not analysed either: that is its error, on stderr, after the note
+    out = capsys.readouterr().out
+    assert " ".join(out.split()).startswith(f"note: {d}: campaign incomplete (it has not reached its end)")
+
+
 def test_a_campaign_that_measured_nothing_ends_with_exit_code_3(kr270, plan, tmp_path, monkeypatch, capsys):
     # issue 27: 48 of 48 measurements skipped ended "complete" with exit 0 (README: exit codes)
     monkeypatch.setattr(World, "measure", lambda self: (_ for _ in ()).throw(NotVisible("covered")))

@@ -3,7 +3,9 @@
 Reading: every failure is the caller's error class with one line naming the file (and the line in it).
 Writing: `atomic_open` is the one way an output file is made. The content goes to a temporary file in the
 same directory, is flushed to the disk, then renamed over the target (a rename within a directory is atomic
-on POSIX), so a crash, a full disk or a kill leaves the previous file or none, never a truncated one.
+on POSIX), so a crash, a full disk or a kill leaves the previous file or none, never a truncated one. A kill -9
+leaves the temporary file itself: it is named `.NAME.PID.RANDOM.tmp` (the writer's process id), and the next write
+into that directory removes every such file whose writer is dead, and nothing else.
 JSON is strict (RFC 8259: no NaN or Infinity); a value that cannot be a number is null with a reason.
 """
 
@@ -13,6 +15,8 @@ import contextlib
 import json
 import math
 import os
+import re
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -105,12 +109,53 @@ def _umask() -> int:
     return mask
 
 
+# `.NAME.PID.RANDOM.tmp` as atomic_open makes it: RANDOM is mkstemp's 8 characters from "abcdefghijklmnopqrstuvwxyz
+# 0123456789_" (CPython Lib/tempfile.py, _RandomNameSequence)
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.(?P<pid>[1-9][0-9]{0,9})\.[a-z0-9_]{8}\.tmp")
+
+
+def _writer_dead(pid: int) -> bool:
+    """Whether no process `pid` exists (kill(pid, 0) checks without signalling; another user's process exists)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # PermissionError: it exists; anything else: do not guess
+        return False
+    return False
+
+
+def remove_dead_temporaries(directory: str | Path) -> list[Path]:
+    """Remove the temporary files atomic_open's killed writers left in `directory`: regular files named
+    `.NAME.PID.RANDOM.tmp` whose process PID is gone. A live writer's file, a link and any other name are never
+    touched; a file that cannot be removed stays (the write that asked goes on). Returns the files removed."""
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _TEMPORARY.fullmatch(entry.name)
+        if match is None or int(match["pid"]) == os.getpid():
+            continue
+        try:
+            if not stat.S_ISREG(entry.stat(follow_symlinks=False).st_mode) or not _writer_dead(int(match["pid"])):
+                continue
+            os.unlink(entry.path)
+        except OSError:
+            continue
+        removed.append(Path(entry.path))
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """A file object ("w": text, UTF-8 unless told; "wb": bytes) whose content replaces `path` only when the
-    block ends without an exception; on failure the temporary file is removed and `path` is untouched."""
+    block ends without an exception; on failure the temporary file is removed and `path` is untouched. What killed
+    writers left in the directory goes first (remove_dead_temporaries)."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    remove_dead_temporaries(path.parent)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # what open() would have made, not mkstemp's 0600
         if "b" not in mode:

@@ -7,6 +7,7 @@ import numpy as np
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.drivers.errors import DeviceError
+from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.plc.client import ModbusCellIO
 
 
@@ -26,21 +27,28 @@ def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
     return [(float(lo), float(hi)) for lo, hi in usable_limits_deg(cell)]
 
 
+# The motion guard's stop codes (the stop's DeviceFault code, recorded in the session's error event)
+DOOR_OPEN = "door_open"  # the PLC answered: the cell door is open
+PLC_SILENT = "plc_silent"  # the PLC does not answer: the door cannot be known, so the robot stops as if it were open
+ESTOP_PRESSED = "estop_pressed"  # the PLC's emergency-stop input
+
+
 def motion_guard(cellio: ModbusCellIO):
     """The robot client's guard during moves and settling (drivers.kuka.client polls it at 25 Hz): why the robot
-    must stop now, or None. The door and the PLC's emergency-stop input; a PLC that cannot be read stops the robot
-    too, named as what it is (an unreadable door reads as open in drivers.plc.client, but it is not an open door)."""
+    must stop now (a StopCause: one line and its code), or None. The door and the PLC's emergency-stop input; a PLC
+    that cannot be read stops the robot too, named as what it is (an unreadable door reads as open in
+    drivers.plc.client, but it is not an open door)."""
 
-    def guard() -> str | None:
+    def guard() -> StopCause | None:
         if not cellio.door_closed():
             if cellio.last_door_error is not None:
-                return f"the cell PLC does not answer ({cellio.last_door_error})"
-            return "the cell door opened"
+                return StopCause(f"the cell PLC does not answer ({cellio.last_door_error})", PLC_SILENT)
+            return StopCause("the cell door opened", DOOR_OPEN)
         try:
             if not cellio.read_status().estop_ok:
-                return "the cell's emergency stop is pressed"
+                return StopCause("the cell's emergency stop is pressed", ESTOP_PRESSED)
         except DeviceError as exc:
-            return f"the cell PLC cannot be read ({exc})"
+            return StopCause(f"the cell PLC cannot be read ({exc})", PLC_SILENT)
         return None
 
     return guard

@@ -10,9 +10,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import read_json
+from trackcal.campaign.cells.checks import DOOR_OPEN, ESTOP_PRESSED, PLC_SILENT
 from trackcal.campaign.cli.console import ConsoleOperator, console
 from trackcal.campaign.cli.report import analyse_and_print
-from trackcal.campaign.engine.engine import Document, RunResult
+from trackcal.campaign.engine.engine import TARGET_MISMATCH, Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
 from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
@@ -20,6 +21,7 @@ from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
+from trackcal.drivers.kuka.client import CHANNELS_DISAGREE, RSI_STALE
 
 
 class ConsoleProgress:
@@ -63,10 +65,23 @@ def at_console() -> OperatorConsole:
     return OperatorConsole(say=console.print, operator=ConsoleOperator(console))
 
 
+# What to do before `trackcal resume`, by the stop's code (README, "Safe stops name their cause")
+ADVICE = {
+    DOOR_OPEN: "Close the cell door, then",
+    PLC_SILENT: "Check the cell PLC's power and its network to this PC (the plc section of the hardware file), then",
+    ESTOP_PRESSED: "Release the emergency stop once the cell is safe, then",
+    RSI_STALE: "Check that the controller's RSI program runs and its network to this PC, then",
+    CHANNELS_DISAGREE: "Make sure nothing but the controller sends RSI frames to this PC (the log names every sender "
+                       "ignored), then",
+    TARGET_MISMATCH: "Check the robot program and the controller's messages (it stood elsewhere than its target), then",
+}  # fmt: skip
+
+
 def stopped_safely(store: SessionStore, result: RunResult) -> None:
-    """A run that did not complete is one line naming the step and the cause, and how to continue."""
+    """A run that did not complete is one line naming the step and the cause, and what to do before continuing."""
     if result.exit_status != "success":
-        raise CampaignError(f"{result.message}. Fix the cause, then: trackcal resume {store.directory}")
+        advice = ADVICE.get(result.code, "Fix the cause, then")  # type: ignore[arg-type]
+        raise CampaignError(f"{result.message}. {advice}: trackcal resume {store.directory}")
 
 
 def campaign_exit(store: SessionStore) -> int:

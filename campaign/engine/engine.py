@@ -23,6 +23,9 @@ Rules it keeps:
 - at every station set-up and before every point block the tracker is configured again (units, coordinate
   system type, measurement and statistic mode, system settings, read back: Tracker.configure) and given the
   environment, so that nothing another program changed on it in between reaches a measurement;
+- after every move, the joints the robot settled at must equal the move's target within the controller's
+  resolution (JOINT_RESOLUTION_DEG, one count); otherwise the campaign stops safely (code TARGET_MISMATCH) before
+  anything is measured at that pose (a robot that reports on two channels checks them against each other first);
 - every measurement is compared with where the nominal model expects the reflector (the position FindReflector
   is given); one farther than the cell's tolerance is not kept as a measurement: the campaign stops safely
   with the likely causes (units changed, wrong reflector, station moved);
@@ -45,8 +48,10 @@ import numpy as np
 
 from trackcal.campaign.engine.recording import EndOfSegment
 from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
-from trackcal.drivers.errors import DeviceError, TargetNotVisible
-from trackcal.drivers.interfaces import CellIO, Clock, Meteo, Operator, Robot, Tracker
+from trackcal.drivers.errors import DeviceError, DeviceFault, TargetNotVisible
+from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, CellIO, Clock, Meteo, Operator, Robot, Tracker
+
+TARGET_MISMATCH = "target_mismatch"  # stop code: the robot settled elsewhere than the move's target
 
 
 @dataclass(frozen=True)
@@ -89,8 +94,8 @@ class RunContext:
 class _Stop(Exception):
     """The campaign stops safely at a step (internal: `Engine.run` reports it in its result)."""
 
-    def __init__(self, step: int, reason: str):
-        self.step, self.reason = step, reason
+    def __init__(self, step: int, reason: str, code: int | str | None = None):
+        self.step, self.reason, self.code = step, reason, code
         super().__init__(reason)
 
 
@@ -110,7 +115,8 @@ class RunResult:
     """How a run ended (after Bluesky's RunEngineResult). exit_status: "success" (the campaign is complete),
     "stopped" (stopped safely at `step` for `reason`: a resume continues it), "ended" (a replayed run whose
     recording ends there: the recorded process stopped or was killed). Counts are the session's: measurements
-    stored, planned measurements skipped (not visible from the station), planned; `warnings` of this run."""
+    stored, planned measurements skipped (not visible from the station), planned; `warnings` of this run; `code`:
+    the stop's cause when a device fault named one (the door, a silent PLC, a stale stream ...)."""
 
     exit_status: str
     reason: str = ""
@@ -119,6 +125,7 @@ class RunResult:
     skipped: int = 0
     planned: int = 0
     warnings: tuple[str, ...] = ()
+    code: int | str | None = None
 
     @property
     def message(self) -> str:
@@ -212,7 +219,7 @@ class Engine:
             StepKind.MOVE_REFLECTOR: self._move_reflector,
             StepKind.RESUME: lambda step: self._resume_motion(),
             StepKind.MOVE: self._move,
-            StepKind.SETTLE: lambda step: self._settle(),
+            StepKind.SETTLE: self._settle,
             StepKind.MEASURE: self._measure,
         }
 
@@ -245,8 +252,7 @@ class Engine:
                 try:
                     self._restore_context(steps, first)
                 except DeviceError as exc:  # e.g. the operator not answering the re-confirmation: stop as in a step
-                    self._emit("error", {"type": type(exc).__name__, "message": str(exc)})
-                    raise _Stop(first, str(exc)) from exc
+                    raise self._stop_for(first, exc) from exc
             for i in range(first, len(steps)):
                 if i in done:
                     continue
@@ -257,15 +263,17 @@ class Engine:
                                     nxt)  # fmt: skip
                 self._emit("progress", asdict(progress))
         except _Stop as stop:
-            return self._end("stopped", stop.reason, stop.step, n_done, len(measures))
+            return self._end("stopped", stop.reason, stop.step, n_done, len(measures), stop.code)
         except EndOfSegment as end:
             return self._end("ended", str(end), self.context.step, n_done, len(measures))
         self.context.step = -1
         return self._end("success", "", None, len(measures), len(measures))
 
-    def _end(self, status: str, reason: str, step: int | None, n_done: int, planned: int) -> RunResult:
+    def _end(self, status: str, reason: str, step: int | None, n_done: int, planned: int,
+             code: int | str | None = None) -> RunResult:  # fmt: skip
         measured = len(self.measurements)
-        result = RunResult(status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings))
+        result = RunResult(status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings),
+                           code)  # fmt: skip
         self._emit("stop", {"exit_status": status, "reason": reason})
         return result
 
@@ -286,7 +294,7 @@ class Engine:
             move = next(s for s in reversed(before) if s.kind == StepKind.MOVE)
             self._move(move)
             if steps[first].kind == StepKind.MEASURE:
-                self._settle()
+                self._settle(move)
 
     def _execute(self, i: int, step: Step) -> None:
         self.context.step = i
@@ -295,9 +303,16 @@ class Engine:
         try:
             self.handlers[step.kind](step)
         except DeviceError as exc:
-            self._emit("error", {"type": type(exc).__name__, "message": str(exc)})
-            raise _Stop(i, str(exc)) from exc
+            raise self._stop_for(i, exc) from exc
         self._emit("step_done", {})
+
+    def _stop_for(self, i: int, exc: DeviceError) -> _Stop:
+        """The safe stop at step i for a device error, its error document emitted (with the fault's code, which
+        names the cause: the session records which)."""
+        code = getattr(exc, "code", None)
+        self._emit("error", {"type": type(exc).__name__, "message": str(exc)} | ({} if code is None else
+                                                                                  {"code": code}))  # fmt: skip
+        return _Stop(i, str(exc), code)
 
     # ------------------------------------------------------------------ step kinds
     def _change_station(self, step: Step) -> None:
@@ -345,9 +360,20 @@ class Engine:
             self._resume_motion()
         self.dev.robot.move(tuple(step.q_deg), self.settings.speed_pct)
 
-    def _settle(self) -> None:
+    def _settle(self, step: Step) -> None:
+        """Wait until the robot stands; it must stand at the step's target, to one count of the controller."""
         s = self.settings
-        self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
+        q = self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
+        target = tuple(step.q_deg)
+        if len(q) != len(target):
+            raise DeviceFault(f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
+                              code=TARGET_MISMATCH, device="robot")  # fmt: skip
+        for j, (a, t) in enumerate(zip(q, target, strict=True), 1):
+            if abs(round(float(a) / JOINT_RESOLUTION_DEG) - round(float(t) / JOINT_RESOLUTION_DEG)) > 1:
+                raise DeviceFault(f"{step.pose}: the robot settled with joint {j} at {float(a):.4f} deg, not at the "
+                                  f"target {float(t):.4f} deg (more than one count of {JOINT_RESOLUTION_DEG:g} deg "
+                                  "apart): nothing is measured at this pose", code=TARGET_MISMATCH,
+                                  device="robot")  # fmt: skip
 
     def _measure(self, step: Step) -> None:
         q = self.dev.robot.joints()

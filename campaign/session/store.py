@@ -75,7 +75,7 @@ KINDS = (
     "prompt",  # {"kind", "text"}
     "operator",  # {"answer"}
     "warning",  # {"message"}
-    "error",  # {"message", "type"}
+    "error",  # {"message", "type"} and, for a device fault, its "code" (the cause of the stop)
     "campaign_done",  # {}
 )
 

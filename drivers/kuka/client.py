@@ -15,13 +15,22 @@ passive) are the shipped configs/krc2/trackcal_rsi.xml's. KukaKrc2 composes the 
   client waits at most rsi_stale_s for a fresh one before it refuses, and never sends the move.
 - `motion_guard` (a callable returning None, or why the robot must stop) is polled at least every GUARD_S
   (25 Hz) during every move and settle: during a move it makes the client send the stop request (Kind 2: the KRL
-  brakes) and the move end in DeviceFault code ERR_STOPPED; during settling it ends the wait the same way.
+  brakes) and the move end in DeviceFault; during settling it ends the wait the same way. The fault's code names
+  the cause: the StopCause's code the guard gave (drivers.interfaces: the door, a silent PLC ...), RSI_STALE when
+  the RSI stream went silent for more than rsi_stale_s during the move or the settle (checked by the client
+  itself, beside the guard), else the controller's ERR_STOPPED (a plain reason, or `stop()`).
   `stop()`, from another thread than the one moving, does the same for the running move and returns once the
   controller answered it (the arm stands).
 - `state()` is what the client already knows, without wire traffic: moving while a move it sent is unanswered;
   the fault latched by the controller (E-stop seen, drives off, RSI stop: Error 1, 2, 4) as the last answer
   reported it. The KRL program reports only in answers (trackcal_eki.src), so a fault that arrives while the arm
   stands shows in the answer to the next request.
+- Two channels, one arm (issue 27): the answer to a move carries $AXIS_ACT at the end of the program's dwell (EKI),
+  the settled joints come from RSI. `wait_settled` checks that they agree within the settle tolerance plus one
+  count (JOINT_RESOLUTION_DEG: the arm moved less than the tolerance over the window, and each channel rounds to a
+  count); otherwise DeviceFault CHANNELS_DISAGREE naming the joint and both values: the RSI stream is not this
+  arm's (a spoofer followed before the controller's session began), or a channel lies. The engine then compares
+  the settled joints with the target.
 - Settling (`wait_settled`) is judged on RSI frames in controller time: one frame = one interpolation cycle of
   rsi_cycle_s (12 ms on a KR C2, 4 ms on a KR C4: the hardware file says which). The same code is then right for
   the real robot and for the mock controller on a virtual clock. A real-time guard (timeout_s + rsi_stale_s)
@@ -40,7 +49,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
-from trackcal.drivers.interfaces import RobotState
+from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
 from trackcal.drivers.kuka.eki_codec import (
     AXES,
     ERR_DRIVES_OFF,
@@ -58,11 +67,13 @@ from trackcal.drivers.kuka.eki_codec import RobotState as EkiState
 from trackcal.drivers.kuka.eki_link import EkiLink
 from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
-from trackcal.drivers.kuka.rsi_link import POLL_S, RsiLink, RsiSync
+from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
 # the faults the KRL program latches until a reset finds them gone (trackcal_eki.src); other errors refuse one request
 LATCHED = (ERR_ESTOP, ERR_DRIVES_OFF, ERR_RSI_STOPPED)
+# stop codes of this client's own causes (the guard's come with its StopCause; RSI_STALE: drivers.kuka.rsi_link)
+CHANNELS_DISAGREE = "channels_disagree"  # EKI's answer and RSI's settled frame do not show the same arm
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
@@ -124,6 +135,7 @@ class KukaKrc2:
         self._stop_asked: str | None = None  # why stop() asked to brake it
         self._ended: tuple[int, bool] = (0, True)  # the last move's ID, and whether the controller answered it
         self._fault = ""  # the latched fault the last answer reported ("" when none)
+        self._answered: tuple[int, tuple[float, ...]] | None = None  # the last move done: its ID, EKI's joints
 
     @property
     def refused_peers(self) -> list[tuple[str, int]]:
@@ -205,7 +217,7 @@ class KukaKrc2:
         self.rsi.require_fresh()  # never move without the monitor
         command_id = self._next_id()
         with self._motion:
-            self._moving, self._stop_asked = command_id, None
+            self._moving, self._stop_asked, self._answered = command_id, None, None
         stood = False
         try:
             self.eki.send(Command(command_id, KIND_MOVE, target, int(round(speed))))
@@ -216,7 +228,8 @@ class KukaKrc2:
                 self._moving, self._ended = None, (command_id, stood)
                 self._motion.notify_all()
         if stopped:
-            raise DeviceFault(f"move {command_id} to {target} stopped: {stopped}", code=ERR_STOPPED, device=self.device)
+            raise DeviceFault(f"move {command_id} to {target} stopped: {stopped}", code=getattr(stopped, "code",
+                              ERR_STOPPED), device=self.device)  # fmt: skip
         if state.error:
             text = ERROR_TEXT.get(state.error, "controller fault")
             raise DeviceFault(f"move {command_id} to {target} failed: {text}", code=state.error, device=self.device)
@@ -224,6 +237,7 @@ class KukaKrc2:
             raise ProtocolError(
                 f"move {command_id} acknowledged without Done and without an error code", device=self.device
             )
+        self._answered = (command_id, state.joints_deg)
 
     def reset_faults(self) -> None:
         """Clear the controller's fault flags (after the operator acknowledged); DeviceFault if one is still
@@ -263,12 +277,24 @@ class KukaKrc2:
         return next(self._ids) % MAX_ID or next(self._ids)
 
     def _guard(self) -> str | None:
+        reason = self._cause()
+        if reason:
+            return reason
+        with self._motion:
+            return self._stop_asked
+
+    def _cause(self) -> str | None:
+        """Why the robot must stop now: the motion guard's reason, or the RSI stream silent for too long."""
         if self.motion_guard is not None:
             reason = self.motion_guard()
             if reason:
                 return reason
-        with self._motion:
-            return self._stop_asked
+        silent = self.rsi.stale_for()
+        if silent is not None:
+            return StopCause(f"the RSI stream went stale: no frame for {silent:.1f} s (rsi_stale_s "
+                             f"{self.rsi.stale_s:g} s); check the controller's RSI program and its network to this "
+                             "PC", RSI_STALE)  # fmt: skip
+        return None
 
     def _await_state(self, command_id: int, guarded: bool) -> tuple[EkiState, str | None]:
         """The controller's answer to `command_id`, and why it was stopped (None if it was not). While
@@ -302,7 +328,8 @@ class KukaKrc2:
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         """Joints from RSI frames arriving after the call that stay within tolerance_deg of the window's first
         frame for window_s of controller time; returns the last of them. The motion guard is polled every
-        GUARD_S: a reason ends the wait (DeviceFault code ERR_STOPPED)."""
+        GUARD_S, and the RSI stream's freshness: a reason ends the wait (DeviceFault, the cause's code). The settled
+        joints must agree with EKI's answer to the last move (DeviceFault CHANNELS_DISAGREE otherwise)."""
         if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
             raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
         self._require_connected()
@@ -317,9 +344,10 @@ class KukaKrc2:
         next_guard = time.monotonic()
         while True:
             if time.monotonic() >= next_guard:
-                reason = None if self.motion_guard is None else self.motion_guard()
+                reason = self._cause()
                 if reason:
-                    raise DeviceFault(f"settling stopped: {reason}", code=ERR_STOPPED, device=self.device)
+                    raise DeviceFault(f"settling stopped: {reason}", code=getattr(reason, "code", ERR_STOPPED),
+                                      device=self.device)  # fmt: skip
                 next_guard = time.monotonic() + GUARD_S
             first_seq, frames = rsi.frames_from(next_seq)
             if next_seq < first_seq:  # fell behind the history: restart the window
@@ -329,6 +357,7 @@ class KukaKrc2:
                 if anchor is None or any(abs(a - b) > tolerance_deg for a, b in zip(joints, anchor, strict=True)):
                     anchor, anchor_seq = joints, seq
                 if (seq - anchor_seq) * cycle >= window_s - 1e-9:
+                    self._check_channels(joints, tolerance_deg)
                     return joints
                 if (seq - start_seq + 1) * cycle > timeout_s:
                     raise DeviceTimeout(
@@ -349,3 +378,19 @@ class KukaKrc2:
             have = 0 if anchor is None else next_seq - 1 - anchor_seq
             wanted = math.ceil(window_s / cycle - 1e-9) - have + (1 if anchor is None else 0)
             rsi.sync(max(1, min(wanted, math.ceil(GUARD_S / cycle))))
+
+    def _check_channels(self, settled: tuple[float, ...], tolerance_deg: float) -> None:
+        """RSI's settled joints against EKI's answer to the last move done (none since: nothing to compare)."""
+        if self._answered is None:
+            return
+        command_id, answered = self._answered
+        allowed = tolerance_deg + JOINT_RESOLUTION_DEG
+        for name, rsi, eki in zip(AXES, settled, answered, strict=True):
+            if abs(rsi - eki) > allowed + 1e-9:
+                raise DeviceFault(
+                    f"after move {command_id} the two channels disagree on {name}: RSI {rsi:.4f} deg, EKI "
+                    f"{eki:.4f} deg (more than {allowed:g} deg apart, the settle tolerance and one count): the RSI "
+                    "stream may not be this arm's (another sender on the controller's address?)",
+                    code=CHANNELS_DISAGREE,
+                    device=self.device,
+                )

@@ -20,7 +20,8 @@ passive flag are the defaults): trackcal listens, only the controller is served 
   logged once, never answered and never read. A restarted controller runs its KRL program from the top and ends
   the EKI connection: the campaign stops, `resume` connects again and takes the new stream.
 - Freshness: a complete frame at most STALE_CYCLES cycles of rsi_cycle_s old (12 ms on a KR C2, 4 ms on a KR C4:
-  the hardware file says which); `require_fresh` waits at most stale_s for one before it refuses a move.
+  the hardware file says which); `require_fresh` waits at most stale_s for one before it refuses a move. During a
+  move or a settle, a stream silent for more than stale_s (`stale_for`) stops the robot (drivers.kuka.client).
 - The frames are kept (FRAME_HISTORY of them, numbered) for settling windows judged in controller time: one frame
   = one interpolation cycle.
 - Simulation only (`sync` given: `run --sim`, the mock controller in the same process on a virtual clock, where a
@@ -51,6 +52,7 @@ from trackcal.drivers.kuka.rsi_codec import MAX_FRAME_BYTES, SenFrame, encode_se
 
 POLL_S = 0.05  # socket timeout slice of the background threads
 STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more than this many cycles
+RSI_STALE = "rsi_stale"  # the code of a refused move, and of a move or settle stopped by a silent stream
 FRAME_HISTORY = 8192  # RSI frames kept for settling windows (~98 s of 12 ms cycles)
 _RECV_BYTES = 4096
 _NEW_SESSION = b""  # from the answering to the monitor thread: the controller's session began, forget the stream
@@ -101,6 +103,7 @@ class RsiLink:
         self._latest: tuple[float, ...] | None = None
         self._latest_at: float | None = None
         self._latest_ipoc: int | None = None
+        self._heard_at: float | None = None  # when the last frame with joints arrived (kept across a new session)
         self._last_bad = ""
         self._framer_pending = 0
         self.frames_answered = 0
@@ -294,6 +297,7 @@ class RsiLink:
                 self._seq += 1
                 self._frames.append((self._seq, joints))
                 self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
+                self._heard_at = arrived
                 self._cond.notify_all()
 
     def _set_error(self, exc: DeviceError) -> None:
@@ -367,9 +371,21 @@ class RsiLink:
         raise MotionRefused(
             f"RSI stream stale: no complete frame for {age} (more than {STALE_CYCLES} cycles of "
             f"{self.cycle_s * 1000:g} ms){': ' + '; '.join(why) if why else ''}; the move is not sent",
-            code="rsi_stale",
+            code=RSI_STALE,
             device=self.device,
         )
+
+    def stale_for(self) -> float | None:
+        """Without sync (a real controller, `trackcal mock`): how long (wall seconds) no frame with joints arrived,
+        when that is more than stale_s, else None: the stream went stale during a move or a settle. With sync the
+        lockstep controller's own checks decide (`joints`, the settling window)."""
+        if self.sync is not None:
+            return None
+        with self._cond:
+            if self._heard_at is None:
+                return None
+            silent = time.monotonic() - self._heard_at
+            return silent if silent > self.stale_s else None
 
     def joints(self) -> tuple[float, ...]:
         """The latest frame's AIPos, if it is current (DeviceTimeout if not)."""

@@ -46,8 +46,10 @@ injected faults and stops are served at once in both modes (the controller wakes
 
 Fault injection: estop(), drives_off() (reported as RobotState Error 1/2, see drivers.kuka.eki_codec), a
 target outside soft_limits_deg (Error 3), RSI stop after late answers (Error 4), drop_connection("eki"|"rsi"),
-send_garbage("eki"|"rsi"). Garbage from the peer never raises out of the thread: it is recorded in `errors`
-and the connection it came on is dropped (a stream cannot be resynchronised).
+send_garbage("eki"|"rsi"), lose_rsi() (every RSI frame lost on the wire from now: the controller, passive, does
+not notice; the stream goes stale at trackcal) and misreport("eki"|"rsi", axis, offset_deg) (that channel reports
+one joint off by offset_deg: the two channels disagree). Garbage from the peer never raises out of the thread: it
+is recorded in `errors` and the connection it came on is dropped (a stream cannot be resynchronised).
 """
 
 from __future__ import annotations
@@ -169,6 +171,8 @@ class MockKrc2:
         self._queue: deque[Command] = deque()
         self._fault = 0
         self._last_reported: tuple[float, ...] | None = None
+        self._misreport: dict[str, tuple[int, float]] = {}  # channel -> (axis index, offset_deg) (fault injection)
+        self._wire_loses_rsi = False
 
         self._lock = threading.Lock()
         self._pending: list[tuple[str, object]] = []
@@ -257,6 +261,25 @@ class MockKrc2:
 
     def send_garbage(self, channel: str = "rsi", data: bytes = b'<Rob TYPE="KUKA"><AIPos A1=\x00\xff garbage') -> None:
         self._inject("garbage", (channel, data))
+
+    def lose_rsi(self, lost: bool = True) -> None:
+        """From now (until lose_rsi(False)) every RSI frame is lost on the wire: trackcal receives none."""
+        self._inject("lose_rsi", lost)
+
+    def misreport(self, channel: str, axis: int, offset_deg: float) -> None:
+        """From now the channel ("eki": the RobotState answers, "rsi": the <Rob> AIPos) reports joint `axis` (0-5)
+        offset_deg away from the arm's; offset 0 ends it."""
+        if channel not in ("eki", "rsi") or not 0 <= axis < len(AXES):
+            raise ValueError("misreport needs channel 'eki' or 'rsi' and an axis 0..5")
+        self._inject("misreport", (channel, axis, float(offset_deg)))
+
+    def _reported(self, channel: str) -> tuple[float, ...]:
+        """The joints as `channel` reports them (4 decimals; misreport's offset added)."""
+        q = self.joints_deg
+        if channel in self._misreport:
+            axis, offset = self._misreport[channel]
+            q = tuple(round(v + offset, 4) if i == axis else v for i, v in enumerate(q))
+        return q
 
     def _inject(self, what: str, arg: object) -> None:
         with self._lock:
@@ -433,6 +456,13 @@ class MockKrc2:
             elif what == "drop":
                 for channel in ("eki", "rsi") if arg == "both" else (str(arg),):
                     self._close(channel, f"{channel.upper()} connection dropped (injected)")
+            elif what == "lose_rsi":
+                self._wire_loses_rsi = bool(arg)
+            elif what == "misreport":
+                channel, axis, offset = arg  # type: ignore[misc]
+                self._misreport.pop(channel, None)
+                if offset:
+                    self._misreport[channel] = (axis, offset)
             elif what == "garbage":
                 channel, data = arg  # type: ignore[misc]
                 if channel == "eki":
@@ -466,7 +496,7 @@ class MockKrc2:
                 self._queue.append(cmd)
 
     def _report(self, command_id: int, done: bool, error: int) -> None:
-        data = encode_state(RobotState(self.joints_deg, command_id, done, error))
+        data = encode_state(RobotState(self._reported("eki"), command_id, done, error))
         self.eki_sent.append(data)
         self._eki.send(data)
 
@@ -505,13 +535,13 @@ class MockKrc2:
         ipoc = self._ipoc0 + self._ipoc_step * self._tick
         frame = RobFrame(
             ipoc=ipoc,
-            aipos=self.joints_deg,
+            aipos=self._reported("rsi"),
             aspos=tuple(round(v, 4) for v in self.motion.q_set),
             rist=(0.0,) * len(CART),
             rsol=(0.0,) * len(CART),
             delay=self.late_packets,
         )
-        if not self._rsi.send(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
+        if self._wire_loses_rsi or not self._rsi.send(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
             return
         self.frames_sent += 1
         self._ipoc_sent = ipoc
