@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from rich.markup import escape
@@ -20,6 +22,7 @@ from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
+from trackcal.campaign.web.server import WebPage
 
 
 class ConsoleProgress:
@@ -59,6 +62,26 @@ class ConsoleProgress:
         self.close()
 
 
+@contextmanager
+def operator_page(args) -> Iterator[WebPage | None]:
+    """`--operator web`: the operator's page, listening from now until the command ends (None: console only)."""
+    if getattr(args, "operator", "console") != "web":
+        yield None
+        return
+    page = WebPage(args.web_host, args.web_port, say=console.print, out=console.file.write)
+    try:
+        yield page
+    finally:
+        page.close()
+
+
+def analyse_for(store: SessionStore, page: WebPage | None) -> None:
+    """The end-of-run analysis on the console, and its outcome on the page."""
+    analysis = analyse_and_print(store)
+    if page is not None:
+        page.finish(analysis.report if analysis is not None else None)
+
+
 def at_console() -> OperatorConsole:
     return OperatorConsole(say=console.print, operator=ConsoleOperator(console))
 
@@ -82,10 +105,10 @@ def campaign_exit(store: SessionStore) -> int:
     return 3
 
 
-def drive(store: SessionStore) -> None:
-    """Continue the session's campaign on its cell, with the console's progress."""
+def drive(store: SessionStore, page: WebPage | None = None) -> None:
+    """Continue the session's campaign on its cell, with the console's progress (and the operator's page)."""
     with ConsoleProgress() as progress:
-        result = resume(store, at_console(), [progress])
+        result = resume(store, at_console(), [progress], page)
     stopped_safely(store, result)
 
 
@@ -99,12 +122,13 @@ def cmd_run(args) -> int:
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
     cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed)
-    with ConsoleProgress() as progress:
-        store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress])
-    stopped_safely(store, result)
-    if not args.no_analysis:
-        analyse_and_print(store)
-    return campaign_exit(store)
+    with operator_page(args) as page:
+        with ConsoleProgress() as progress:
+            store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page)
+        stopped_safely(store, result)
+        if not args.no_analysis:
+            analyse_for(store, page)
+        return campaign_exit(store)
 
 
 def cmd_resume(args) -> int:
@@ -112,12 +136,13 @@ def cmd_resume(args) -> int:
     on request."""
     store = SessionStore.open(args.session)
     try:  # the lock goes with the store, also when the campaign cannot go on (a caller in the same process resumes)
-        return resume_and_analyse(store, args)
+        with operator_page(args) as page:
+            return resume_and_analyse(store, args, page)
     finally:
         store.close()
 
 
-def resume_and_analyse(store: SessionStore, args) -> int:
+def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -> int:
     changed = changed_copies(store)
     if changed:
         console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
@@ -128,9 +153,9 @@ def resume_and_analyse(store: SessionStore, args) -> int:
         if not args.analyse:
             return campaign_exit(store)
     else:
-        drive(store)
+        drive(store, page)
     if not args.no_analysis:
-        analyse_and_print(store)
+        analyse_for(store, page)
     return campaign_exit(store)
 
 
@@ -139,7 +164,8 @@ def cmd_replay(args) -> int:
     try:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        store = replay(recording, into, args.cell, plan_doc)  # a failed replay leaves nothing at `into`
+        with operator_page(args) as page:
+            store = replay(recording, into, args.cell, plan_doc, page=page)  # a failed one leaves nothing at `into`
     except (CalibError, CampaignError, OSError, ValueError) as exc:
         if isinstance(exc, ReplayDivergence):
             raise InputError(f"replay diverges from the recording at {exc} ({into} not kept)") from None
