@@ -68,18 +68,17 @@ class Guard:
             return await self.app(scope, receive, send)
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
-        set_cookie = False
+        set_cookie, refused = False, None
         if self.hosts is not None and headers.get("host", "") not in self.hosts:
-            return await _refuse("forbidden: unknown Host")(scope, receive, send)
-        if self.token is not None:
+            refused = _refuse("forbidden: unknown Host")
+        elif self.token is not None:
             given = query.get("token", [""])[0]
             cookie = _cookie(headers.get("cookie", ""), COOKIE)
             if given and hmac.compare_digest(given, self.token):
                 set_cookie = True
             elif not (cookie and hmac.compare_digest(cookie, self.token)):
-                return await _refuse("forbidden: open the URL with the token that trackcal printed")(
-                    scope, receive, send)
-        report = scope.get("path", "").startswith("/report/")
+                refused = _refuse("forbidden: open the URL with the token that trackcal printed")
+        report = refused is None and scope.get("path", "").startswith("/report/")
 
         async def send_with_headers(message):
             if message["type"] == "http.response.start":
@@ -90,6 +89,8 @@ class Guard:
                 message = {**message, "headers": [*message.get("headers", []), *extra]}
             await send(message)
 
+        if refused is not None:
+            return await refused(scope, receive, send_with_headers)
         return await self.app(scope, receive, send_with_headers)
 
 
