@@ -8,7 +8,7 @@ const LOST_AFTER_MS = 3500;  // the server sends a heartbeat every second (app.p
 const COLORS = ["#1f5fa8", "#c0582b", "#2c8a4b", "#7a3da0", "#a8871f", "#2b8a8a"];
 
 const page = { view: null, points: [], plan: null, live: {}, csrf: "", connected: false, heard: 0, pending: false,
-               ended: false };
+               answered: null };
 window.trackcalSeen = {};  // event id of a measurement -> when it was drawn (bench/bench_web.py reads it)
 
 function clientId() {
@@ -77,6 +77,7 @@ $("answer").addEventListener("click", async () => {
   page.pending = true; renderAll();
   const d = await post("/answer", { prompt: p.id });
   page.pending = false;
+  if (d.ok) page.answered = p.id;  // until the session says it was answered, this one is not offered again
   $("answer-note").textContent = d.ok ? "sent" : "not taken: " + d.why;
   renderAll();
 });
@@ -132,11 +133,19 @@ function renderPrompt(v, live, mine) {
   const p = v.prompt, button = $("answer"), sentence = $("sentence");
   const drawing = $("drawing");
   drawing.replaceChildren();
+  if (!page.connected && v.run.status !== "success") {
+    sentence.textContent = "trackcal is not running: the campaign stopped" + (p ? " at “" + promptWords(p)[0] + "”" : "")
+      + ". Resume it on the cell PC (trackcal resume).";
+    button.textContent = "Nothing to answer";
+    button.disabled = true;
+    $("answer-note").textContent = "";
+    drawCellMap(drawing, null, null);
+    return;
+  }
   if (!p) {
     const run = v.run.status;
     sentence.textContent = run === "success" ? "The campaign is complete."
       : run === "stopped" ? "The campaign stopped: " + v.run.reason
-      : !page.connected ? "trackcal is not running. Resume the campaign on the cell PC (trackcal resume)."
       : v.step.label ? "Robot working: " + v.step.label : "Waiting for trackcal…";
     button.textContent = "Nothing to answer";
     button.disabled = true;
@@ -148,7 +157,7 @@ function renderPrompt(v, live, mine) {
   sentence.textContent = p.text.startsWith("Resuming") ? "Resuming: " + words : words;
   button.textContent = label;
   const open = live.open === p.id;
-  button.disabled = !(open && mine && page.connected && !page.pending);
+  button.disabled = !(open && mine && page.connected && !page.pending && page.answered !== p.id);
   if (!mine) $("answer-note").textContent = "Another page holds control: press “Take control” to answer here.";
   else if (!open) $("answer-note").textContent = "Waiting for the cell…";
   else if ($("answer-note").textContent.startsWith("Waiting") || $("answer-note").textContent.startsWith("Another"))
@@ -266,19 +275,23 @@ function renderPlot() {
     const color = COLORS[k % COLORS.length];
     const planned = page.plan.planned.filter((p) => p.station === sid && p.xyz);
     const measured = page.points.filter((p) => p.station === sid);
-    svg.append(el("text", { x: k * w + 6, y: 18, "font-size": 16, "font-weight": 700, fill: color }, sid));
+    svg.append(el("text", { x: k * w + 6, y: 26, "font-size": 28, "font-weight": 700, fill: color }, sid));
     if (!planned.length) return;
-    const tf = fit(planned.map((p) => p.xyz), w, 180, 16);
-    const g = el("g", { transform: `translate(${k * w},14)` });
-    for (const p of planned) { const [x, y] = tf(p.xyz); g.append(el("circle", { cx: x, cy: y, r: 5, fill: "none", stroke: "#999" })); }
-    for (const p of measured) { const [x, y] = tf(p.xyz); g.append(el("circle", { cx: x, cy: y, r: 3.5, fill: color })); }
+    const tf = fit(planned.map((p) => p.xyz), w, 170, 18);
+    const g = el("g", { transform: `translate(${k * w},20)` });
+    for (const p of planned) {
+      const [x, y] = tf(p.xyz);
+      g.append(el("circle", { cx: x, cy: y, r: 8, fill: "none", stroke: "#777", "stroke-width": 2 }));
+    }
+    for (const p of measured) { const [x, y] = tf(p.xyz); g.append(el("circle", { cx: x, cy: y, r: 5, fill: color })); }
     svg.append(g);
   });
   // deviation from the nominal expectation, one bar per measurement, in campaign order
   const devs = page.points.filter((p) => p.dev_mm !== null);
-  const top = 205, hgt = 80, max = Math.max(1, ...devs.map((p) => p.dev_mm));
+  const top = 218, hgt = 80, max = Math.max(1, ...devs.map((p) => p.dev_mm));
   svg.append(el("line", { x1: 0, y1: top + hgt, x2: 640, y2: top + hgt, stroke: "#999" }),
-             el("text", { x: 4, y: top + 12, "font-size": 13, fill: "#555" }, `${max.toFixed(1)} mm`));
+             el("text", { x: 636, y: top - 4, "font-size": 22, fill: "#555", "text-anchor": "end" },
+                `bar height ${max.toFixed(1)} mm`));
   const bw = 640 / Math.max(page.plan.planned.length, 1);
   devs.forEach((p, i) => {
     const k = stations.indexOf(p.station), h = (hgt * p.dev_mm) / max;
