@@ -228,18 +228,26 @@ def test_kill_9_leaves_a_page_that_says_so_and_resume_brings_it_back(browser, pl
         wait_until(page, "#status", lambda t: t == "campaign stopped: trackcal is not running", timeout_s=15)
         assert "not running" in text(page, "#sentence") and page.locator("#answer").is_disabled()
         page.screenshot(path=str(tmp_path / "killed-phone.png"), full_page=True)
-        resumed = subprocess.Popen([*TRACKCAL, "resume", str(session), "--no-analysis", "--operator", "web",
-                                    "--web-port", str(port)], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+        resumed = subprocess.Popen([*TRACKCAL, "resume", str(session), "--operator", "web", "--web-port", str(port),
+                                    "--web-linger", "120"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                    stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
         wait_until(page, "#status", lambda t: t == "running", timeout_s=60)  # the page reconnects by itself
         assert text(page, "#control") == "you have control"
-        while resumed.poll() is None:
+        while "complete" not in text(page, "#status"):
+            assert resumed.poll() is None, resumed.stdout.read()[-3000:]
             click_next(page, 500)
-        out = resumed.stdout.read()
-        assert resumed.returncode == 0, out[-3000:]
-        wait_until(page, "#status", lambda t: "complete" in t)
         assert text(page, "#counts") == "24 measured, 0 skipped of 24"
         assert "resuming at step" in text(page, "#warnings")
+        # the analysis: the report's outcome sentence and a link to the report, served while the page lingers
+        page.wait_for_selector("#outcome-card:not([hidden])", timeout=180000)
+        assert text(page, "#outcome").startswith("The ")
+        report = page.request.get(page.locator("#report").get_attribute("href"))
+        assert report.status == 200 and "id='verdict'" in report.text()
+        assert "sandbox" in report.headers["content-security-policy"]
+        page.screenshot(path=str(tmp_path / "outcome-phone.png"), full_page=True)
+        resumed.send_signal(signal.SIGINT)  # ends the lingering
+        assert resumed.wait(timeout=30) == 0, resumed.stdout.read()[-3000:]
+        proc = resumed
     finally:
         context.close()
         for p in (proc,):

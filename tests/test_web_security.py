@@ -10,6 +10,7 @@ import re
 import pytest
 
 from tests.helpers import feasible_plan
+from trackcal.campaign.cli import main
 from trackcal.campaign.engine.engine import Document
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.jobs.campaign import new_session
@@ -128,3 +129,13 @@ def test_a_port_in_use_is_one_line():
             WebPage("127.0.0.1", first.port, say=lambda text: None)
     finally:
         first.close()
+
+
+def test_the_page_options_belong_to_operator_web(tmp_path, capsys):
+    plan = tmp_path / "plan.json"
+    plan.write_text("{}")
+    code = main(["run", "--cell", "kr270", "--plan", str(plan), "--sim", "--session", str(tmp_path / "s"),
+                 "--web-host", "0.0.0.0"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == "error: --web-host, --web-port and --web-linger are for --operator web"
+    assert not (tmp_path / "s").exists()

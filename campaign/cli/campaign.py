@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from rich.markup import escape
@@ -22,7 +23,7 @@ from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
-from trackcal.campaign.web.server import WebPage
+from trackcal.campaign.web.server import DEFAULT_PORT, LOOPBACK, WebPage
 
 
 class ConsoleProgress:
@@ -68,18 +69,25 @@ def operator_page(args) -> Iterator[WebPage | None]:
     if getattr(args, "operator", "console") != "web":
         yield None
         return
-    page = WebPage(args.web_host, args.web_port, say=console.print, out=console.file.write)
+    page = WebPage(args.web_host or LOOPBACK, DEFAULT_PORT if args.web_port is None else args.web_port,
+                   say=console.print, out=console.file.write)  # fmt: skip
     try:
         yield page
     finally:
         page.close()
 
 
-def analyse_for(store: SessionStore, page: WebPage | None) -> None:
-    """The end-of-run analysis on the console, and its outcome on the page."""
+def analyse_for(store: SessionStore, page: WebPage | None, linger_s: float = 0.0) -> None:
+    """The end-of-run analysis on the console, and its outcome on the page (kept up `linger_s` seconds, or until
+    Ctrl-C, so that the operator can open the report on the tablet)."""
     analysis = analyse_and_print(store)
-    if page is not None:
-        page.finish(analysis.report if analysis is not None else None)
+    if page is None:
+        return
+    page.finish(analysis.report if analysis is not None else None)
+    if linger_s > 0:
+        console.print(f"the operator's page shows the outcome and the report for {linger_s:g} s (Ctrl-C ends it)")
+        with suppress(KeyboardInterrupt):
+            time.sleep(linger_s)
 
 
 def at_console() -> OperatorConsole:
@@ -119,6 +127,8 @@ def cmd_run(args) -> int:
     if args.hardware and (args.effect or args.sim_speed is not None):
         raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
     effects = parse_effects(args.effect) if args.sim else {}
+    if args.operator != "web" and (args.web_host or args.web_port is not None or args.web_linger):
+        raise UsageError("--web-host, --web-port and --web-linger are for --operator web")
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
     cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed)
@@ -127,7 +137,7 @@ def cmd_run(args) -> int:
             store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page)
         stopped_safely(store, result)
         if not args.no_analysis:
-            analyse_for(store, page)
+            analyse_for(store, page, args.web_linger)
         return campaign_exit(store)
 
 
@@ -155,7 +165,7 @@ def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -
     else:
         drive(store, page)
     if not args.no_analysis:
-        analyse_for(store, page)
+        analyse_for(store, page, getattr(args, "web_linger", 0.0))
     return campaign_exit(store)
 
 

@@ -37,9 +37,11 @@ class Command:
 OPERATOR_ARGS = [
     arg("--operator", choices=("console", "web"), default="console",
         help="web: also serve the operator's page (the first answer from page, console or cell button wins)"),
-    arg("--web-host", default="127.0.0.1",
-        help="--operator web: address to listen on (any but loopback needs the token the console prints)"),
-    arg("--web-port", type=int, default=8470, help="--operator web: port (0: a free one)"),
+    arg("--web-host", help="--operator web: address to listen on, default 127.0.0.1 (any other needs the token "
+                           "that the console prints)"),
+    arg("--web-port", type=int, help="--operator web: port, default 8470 (0: a free one)"),
+    arg("--web-linger", type=float, default=0.0,
+        help="--operator web: seconds the page stays up after the analysis, with the outcome and the report"),
 ]
 
 GROUPS = {"import": "convert third-party measurement files into a measurement table"}

@@ -145,15 +145,25 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
                             return
                         yield _sse("ping", {})
                         continue
-                    if kind == "close":
-                        return
-                    if kind == "live":
-                        yield _sse("live", item)
-                        continue
-                    changed, added = state.apply(item)
+                    # everything already waiting goes in one message (a campaign emits bursts of documents)
+                    batch = [(kind, item)]
+                    while not queue.empty():
+                        batch.append(queue.get_nowait())
+                    changed, added, live_now, last = set(), [], {}, None
+                    for kind, item in batch:
+                        if kind == "close":
+                            return
+                        if kind == "live":
+                            live_now.update(item)
+                            continue
+                        c, a = state.apply(item)
+                        changed |= c
+                        added += a
+                        last = item.id
+                    if live_now:
+                        yield _sse("live", live_now)
                     if changed or added:
-                        yield _sse("patch", {"id": item.id, "set": {k: state.view[k] for k in changed},
-                                             "add": added})  # fmt: skip
+                        yield _sse("patch", {"id": last, "set": {k: state.view[k] for k in changed}, "add": added})
             finally:
                 hub.unsubscribe(push)
 

@@ -28,7 +28,8 @@ from trackcal.campaign.web.hub import Hub, PageOperator
 from trackcal.campaign.web.state import plan_view
 from trackcal.drivers.errors import DeviceError
 
-DEFAULT_PORT = 8470
+DEFAULT_PORT = 8470  # `--web-port`'s default: a fixed port, so that a page left open finds `trackcal resume` again
+LOOPBACK = "127.0.0.1"
 
 
 def is_loopback(host: str) -> bool:
@@ -56,7 +57,7 @@ class WebPage:
     makes the prompt shared between the console (and the cell's button) and the page; `finish` shows the report's
     outcome; `close` ends it. `say` prints a line (rich markup) on the console."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, say: Callable[[str], None] = print,
+    def __init__(self, host: str = LOOPBACK, port: int = DEFAULT_PORT, say: Callable[[str], None] = print,
                  out: Callable[[str], None] = print) -> None:  # fmt: skip
         self.host, self.say, self.out = host, say, out
         self.loopback = is_loopback(host)

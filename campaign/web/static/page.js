@@ -8,7 +8,7 @@ const LOST_AFTER_MS = 3500;  // the server sends a heartbeat every second (app.p
 const COLORS = ["#1f5fa8", "#c0582b", "#2c8a4b", "#7a3da0", "#a8871f", "#2b8a8a"];
 
 const page = { view: null, points: [], plan: null, live: {}, csrf: "", connected: false, heard: 0, pending: false,
-               answered: null };
+               answered: null, fresh: [], plotDirty: true };
 window.trackcalSeen = {};  // event id of a measurement -> when it was drawn (bench/bench_web.py reads it)
 
 function clientId() {
@@ -37,23 +37,35 @@ function connect() {
     const d = JSON.parse(m.data);
     page.view = d.view; page.points = d.points; page.plan = d.plan; page.live = d.live; page.csrf = d.csrf;
     heard();
-    renderAll();
-    const now = performance.timeOrigin + performance.now();
-    for (const p of page.points) if (!(p.id in window.trackcalSeen)) window.trackcalSeen[p.id] = now;
+    page.fresh.push(...page.points);
+    page.plotDirty = true;
+    schedule();
   });
   src.addEventListener("patch", (m) => {
     const d = JSON.parse(m.data);
     heard();
     if (!page.view) return;
     Object.assign(page.view, d.set);
-    if (d.add.length) page.points.push(...d.add);
-    renderAll();
-    const now = performance.timeOrigin + performance.now();
-    for (const p of d.add) window.trackcalSeen[p.id] = now;
+    if (d.add.length) { page.points.push(...d.add); page.fresh.push(...d.add); page.plotDirty = true; }
+    schedule();
   });
-  src.addEventListener("live", (m) => { Object.assign(page.live, JSON.parse(m.data)); heard(); renderAll(); });
+  src.addEventListener("live", (m) => { Object.assign(page.live, JSON.parse(m.data)); heard(); schedule(); });
   src.addEventListener("ping", heard);
   src.onerror = () => { page.connected = false; renderAll(); };
+}
+
+// one render per frame however many messages arrive (a campaign sends bursts)
+let scheduled = false;
+function schedule() {
+  if (scheduled) return;
+  scheduled = true;
+  requestAnimationFrame(() => {
+    scheduled = false;
+    renderAll();
+    const now = performance.timeOrigin + performance.now();
+    for (const p of page.fresh) if (!(p.id in window.trackcalSeen)) window.trackcalSeen[p.id] = now;
+    page.fresh = [];
+  });
 }
 
 function heard() { page.heard = Date.now(); page.connected = true; }
@@ -119,7 +131,7 @@ function renderAll() {
   renderProgress(v);
   renderCell(v, live);
   renderWarnings(v);
-  renderPlot();
+  if (page.plotDirty) { renderPlot(); page.plotDirty = false; }
   const out = live.outcome;
   $("outcome-card").hidden = !out;
   if (out) {
