@@ -289,7 +289,7 @@ function renderPlot() {
     const measured = page.points.filter((p) => p.station === sid);
     svg.append(el("text", { x: k * w + 6, y: 26, "font-size": 28, "font-weight": 700, fill: color }, sid));
     if (!planned.length) return;
-    const tf = fit(planned.map((p) => p.xyz), w, 170, 18);
+    const tf = fit([...planned, ...measured].map((p) => p.xyz), w, 170, 18);  // a stray measurement stays in view
     const g = el("g", { transform: `translate(${k * w},20)` });
     for (const p of planned) {
       const [x, y] = tf(p.xyz);
