@@ -83,7 +83,10 @@ def analyse_for(store: SessionStore, page: WebPage | None, linger_s: float = 0.0
     analysis = analyse_and_print(store)
     if page is None:
         return
-    page.finish(analysis.report if analysis is not None else None)
+    if analysis is None:
+        page.finish(None, "The campaign is complete but cannot be identified yet (the console says why): no report.")
+    else:
+        page.finish(analysis.report)
     if linger_s > 0:
         console.print(f"the operator's page shows the outcome and the report for {linger_s:g} s (Ctrl-C ends it)")
         with suppress(KeyboardInterrupt):

@@ -130,11 +130,11 @@ class WebPage:
 
         return watch
 
-    def finish(self, report: Path | None) -> None:
-        """The campaign was analysed: the report's outcome sentence and a link to it."""
+    def finish(self, report: Path | None, note: str = "") -> None:
+        """The campaign was analysed: the report's outcome sentence and a link to it (no report: `note` says why)."""
         if self.hub is None:
             return
-        sentence = ""
+        sentence = note
         if report is not None and report.is_file():
             m = re.search(r"<p class='verdict' id='verdict'>(.*?)</p>", report.read_text(errors="replace"), re.S)
             sentence = html.unescape(m.group(1)) if m else ""

@@ -135,7 +135,7 @@ function renderAll() {
   const out = live.outcome;
   $("outcome-card").hidden = !out;
   if (out) {
-    $("outcome").textContent = out.sentence || "The campaign is complete; the analysis is in the report.";
+    $("outcome").textContent = out.sentence;
     $("report").hidden = !out.report || !page.connected;
     if (out.report) $("report").href = out.report;
   }
