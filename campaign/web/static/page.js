@@ -273,6 +273,7 @@ function renderWarnings(v) {
     li.dataset.id = String(w.id);
     li.textContent = `t = ${Math.round(w.t)} s: ${w.message}`;
     ol.append(li);
+    ol.scrollTop = ol.scrollHeight;  // the newest in view
   }
   $("no-warnings").hidden = v.warnings.length > 0;
 }
