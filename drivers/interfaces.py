@@ -144,6 +144,26 @@ class Operator(Protocol):
         ...
 
 
+@runtime_checkable
+class SharedOperator(Protocol):
+    """An operator that can share a prompt with others (the console, the cell's button, the operator's page):
+    the prompt is offered to each, polled until one answers, and withdrawn from the others (the first answer
+    wins). Polling never blocks for long; an operator that can no longer answer raises ConnectionLost from
+    `poll` (it leaves the others in charge)."""
+
+    def offer(self, kind: str, target: str, text: str) -> None:
+        """Show the request (as `Operator.ask`), without waiting."""
+        ...
+
+    def poll(self) -> str | None:
+        """The answer (who gave it) if the request was acknowledged since `offer`, else None."""
+        ...
+
+    def withdraw(self) -> None:
+        """Another operator answered: take the request down."""
+        ...
+
+
 class RealClock:
     """The wall clock a real cell runs on (time.monotonic)."""
 

@@ -15,11 +15,13 @@ from trackcal.mocks.servers.plc import MockPlc
 class SimHuman:
     """He holds the acknowledge button until the request lamp goes out (at least `hold_s`, at most `max_hold_s`
     of wall time), so trackcal sees the press however slowly it polls. `action_s`: how long the action takes
-    (world time)."""
+    (world time). `acknowledges=False`: he does the work and closes the door but leaves the acknowledgement to
+    someone else (the operator's page in `run --sim --operator web`); `acted` counts the requests he has done."""
 
     def __init__(self, world: World, plc: MockPlc, hold_s: float = 0.05, action_s: float = 60.0,
-                 max_hold_s: float = 30.0):  # fmt: skip
+                 max_hold_s: float = 30.0, acknowledges: bool = True):  # fmt: skip
         self.world, self.plc, self.hold_s, self.action_s = world, plc, hold_s, action_s
+        self.acknowledges, self.acted = acknowledges, 0
         self.max_hold_s = max_hold_s
         self.log: list[tuple[str, str, str]] = []  # (kind, target, what the HMI showed), one per request done
         self.errors: list[str] = []
@@ -57,9 +59,13 @@ class SimHuman:
             self.world.point = target
         self.world.clock.sleep(self.action_s)
         self.plc.close_door()  # and out again
+        if not self.acknowledges:
+            self.acted += 1
+            return
         self.plc.press_acknowledge()
         time.sleep(self.hold_s)
         deadline = time.monotonic() + self.max_hold_s
         while self.plc.lamp and time.monotonic() < deadline and not self._stop.is_set():
             time.sleep(0.002)
         self.plc.release_acknowledge()
+        self.acted += 1

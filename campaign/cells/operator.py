@@ -4,9 +4,10 @@ campaign/cli/console.py)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
-from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.errors import ConnectionLost, DeviceError, ProtocolError
+from trackcal.drivers.interfaces import SharedOperator
 
 
 class PlcOperator:
@@ -47,6 +48,26 @@ class PlcOperator:
             self.sleep(self.poll_s)
         return "plc"
 
+    # The same request shared with other operators (FirstAnswer): no reminders, the others show it too.
+    def offer(self, kind: str, target: str, text: str) -> None:
+        self._hmi(self.cellio.show_request if self.hmi else None, kind, target)
+        self.cellio.set_request_lamp(True)
+        self.say(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
+
+    def poll(self) -> str | None:
+        if not self.cellio.acknowledge_pressed():
+            return None
+        self.withdraw()
+        while self.cellio.acknowledge_pressed():  # released: one press, one acknowledgement
+            self.sleep(self.poll_s)
+        return "plc"
+
+    def withdraw(self) -> None:
+        try:
+            self.cellio.set_request_lamp(False)
+        finally:
+            self._hmi(self.cellio.clear_request if self.hmi else None)
+
     def _hmi(self, fn, *args) -> None:
         if fn is None:
             return
@@ -56,3 +77,56 @@ class PlcOperator:
             self.hmi = False
             self.say(f"[yellow]warning[/]: the cell HMI shows no requests ({exc}); "
                                "lamp and acknowledge button only")  # fmt: skip
+
+
+class FirstAnswer:
+    """One prompt offered to several operators at once (console, cell button, the operator's page): the first
+    answer wins and is what `ask` returns (who gave it, recorded by the engine as every answer is); the request
+    is then withdrawn from the others. An operator that can no longer answer (a console at the end of its
+    input, a page whose server stopped) drops out with one line and leaves the others in charge; when none is
+    left, ConnectionLost, as for a single operator who does not answer.
+
+    Everything runs in the caller's thread (the engine's): `watch`, when given, is called about every
+    `watch_s` while a prompt waits (the page shows the door and the E-stop from it: reading them here keeps
+    each device client in one thread)."""
+
+    def __init__(self, operators: Sequence[SharedOperator], say: Callable[[str], None], poll_s: float = 0.02,
+                 watch: Callable[[], None] | None = None, watch_s: float = 0.25, sleep=time.sleep):  # fmt: skip
+        self.operators, self.say, self.poll_s = list(operators), say, poll_s
+        self.watch, self.watch_s, self.sleep = watch, watch_s, sleep
+
+    def ask(self, kind: str, target: str, text: str) -> str:
+        offered = []
+        try:
+            for op in list(self.operators):
+                self._guard(op, op.offer, kind, target, text)
+                if op in self.operators:
+                    offered.append(op)
+            last_watch = None
+            while True:
+                if not self.operators:
+                    raise ConnectionLost("no operator can answer (console, button and page all gone)",
+                                         device="operator")  # fmt: skip
+                for op in list(self.operators):
+                    answer = self._guard(op, op.poll)
+                    if answer is not None:
+                        offered.remove(op)
+                        return answer
+                if self.watch is not None and (last_watch is None or time.monotonic() - last_watch >= self.watch_s):
+                    last_watch = time.monotonic()
+                    self.watch()
+                self.sleep(self.poll_s)
+        finally:
+            for op in offered:
+                if op in self.operators:
+                    self._guard(op, op.withdraw)
+
+    def _guard(self, op, fn, *args):
+        try:
+            return fn(*args)
+        except DeviceError as exc:
+            if op in self.operators:
+                self.operators.remove(op)
+                left = len(self.operators)
+                self.say(f"[yellow]note[/]: {exc}; {left} other way{'s' if left != 1 else ''} to answer left")
+            return None

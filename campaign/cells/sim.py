@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import socket
+import time
 from collections.abc import Callable
 
 from trackcal.calib.model.cell import Cell
@@ -46,7 +47,7 @@ class TwinMocks:
     holds the acknowledge button (he holds it until the request lamp goes out)."""
 
     def __init__(self, cell: Cell, seed: int, effects: dict[str, float] | None = None, speed: float | None = None,
-                 measured=None, hold_s: float = 0.05) -> None:  # fmt: skip
+                 measured=None, hold_s: float = 0.05, human_acknowledges: bool = True) -> None:  # fmt: skip
         if cell.chain.dof != len(HOME_DEG):
             raise InputError(f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has "
                              f"{cell.chain.dof}")  # fmt: skip
@@ -65,7 +66,8 @@ class TwinMocks:
             )
             self.plc = self._up(MockPlc(clock=self.clock).start())
             self.meteo_mock = self._up(MockMeteo(seed, self.clock).start())
-            self.human = self._up(SimHuman(self.world, self.plc, hold_s=hold_s).start())
+            self.human = self._up(SimHuman(self.world, self.plc, hold_s=hold_s,
+                                           acknowledges=human_acknowledges).start())  # fmt: skip
         except BaseException:
             self.close()
             raise
@@ -138,8 +140,9 @@ class SimCell:
     def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
                  effects: dict[str, float] | None = None, speed: float | None = None,
                  skip_idle: bool = True, lockstep: bool = True,
-                 say: Callable[[str], None] = lambda text: None) -> None:  # fmt: skip
-        self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store))
+                 say: Callable[[str], None] = lambda text: None, human_acknowledges: bool = True) -> None:  # fmt: skip
+        self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store),
+                               human_acknowledges=human_acknowledges)  # fmt: skip
         m = self.mocks
         self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
         self.meteo_mock, self.human = m.meteo_mock, m.human
@@ -164,6 +167,8 @@ class SimCell:
             self.close()
             raise
         operator = PlcOperator(cellio, say, poll_s=0.005)
+        if not human_acknowledges:
+            operator = HumanFirst(operator, self.human)
         self.live = Live(tracker, robot, operator, self.clock, cellio, meteo, close=self.close)
 
     def _client(self, device):
@@ -179,6 +184,33 @@ class SimCell:
                 dev.close()
         self._clients = []
         self.mocks.close()
+
+
+class HumanFirst:
+    """The cell's request (PlcOperator) shared with other operators while the simulated person does the work
+    but leaves the acknowledgement to them (`run --sim --operator web`): the request is offered to the others
+    only once he has done it and closed the door, as a person answers on the tablet once the reflector is in its
+    nest. (Without this wait an answer could overtake him, and the tracker would measure a station or point he has
+    not set up yet.)"""
+
+    def __init__(self, plc: PlcOperator, human, timeout_s: float = 60.0) -> None:
+        self.plc, self.human, self.timeout_s = plc, human, timeout_s
+
+    def offer(self, kind: str, target: str, text: str) -> None:
+        before = self.human.acted
+        self.plc.offer(kind, target, text)
+        deadline = time.monotonic() + self.timeout_s
+        while self.human.acted == before and time.monotonic() < deadline:
+            time.sleep(0.002)
+
+    def poll(self) -> str | None:
+        return self.plc.poll()
+
+    def withdraw(self) -> None:
+        self.plc.withdraw()
+
+    def ask(self, kind: str, target: str, text: str) -> str:
+        return self.plc.ask(kind, target, text)
 
 
 # How often trackcal reads the acknowledge button (written into the hardware file); the simulated operator holds

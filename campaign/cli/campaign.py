@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from rich.markup import escape
@@ -21,6 +24,7 @@ from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
+from trackcal.campaign.web.server import DEFAULT_PORT, LOOPBACK, WebPage
 from trackcal.drivers.kuka.client import CHANNELS_DISAGREE, RSI_STALE
 
 
@@ -61,6 +65,36 @@ class ConsoleProgress:
         self.close()
 
 
+@contextmanager
+def operator_page(args) -> Iterator[WebPage | None]:
+    """`--operator web`: the operator's page, listening from now until the command ends (None: console only)."""
+    if getattr(args, "operator", "console") != "web":
+        yield None
+        return
+    page = WebPage(args.web_host or LOOPBACK, DEFAULT_PORT if args.web_port is None else args.web_port,
+                   say=console.print, out=console.file.write)  # fmt: skip
+    try:
+        yield page
+    finally:
+        page.close()
+
+
+def analyse_for(store: SessionStore, page: WebPage | None, linger_s: float = 0.0) -> None:
+    """The end-of-run analysis on the console, and its outcome on the page (kept up `linger_s` seconds, or until
+    Ctrl-C, so that the operator can open the report on the tablet)."""
+    analysis = analyse_and_print(store)
+    if page is None:
+        return
+    if analysis is None:
+        page.finish(None, "The campaign is complete but cannot be identified yet (the console says why): no report.")
+    else:
+        page.finish(analysis.report)
+    if linger_s > 0:
+        console.print(f"the operator's page shows the outcome and the report for {linger_s:g} s (Ctrl-C ends it)")
+        with suppress(KeyboardInterrupt):
+            time.sleep(linger_s)
+
+
 def at_console() -> OperatorConsole:
     return OperatorConsole(say=console.print, operator=ConsoleOperator(console))
 
@@ -97,10 +131,10 @@ def campaign_exit(store: SessionStore) -> int:
     return 3
 
 
-def drive(store: SessionStore) -> None:
-    """Continue the session's campaign on its cell, with the console's progress."""
+def drive(store: SessionStore, page: WebPage | None = None) -> None:
+    """Continue the session's campaign on its cell, with the console's progress (and the operator's page)."""
     with ConsoleProgress() as progress:
-        result = resume(store, at_console(), [progress])
+        result = resume(store, at_console(), [progress], page)
     stopped_safely(store, result)
 
 
@@ -111,15 +145,18 @@ def cmd_run(args) -> int:
     if args.hardware and (args.effect or args.sim_speed is not None):
         raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
     effects = parse_effects(args.effect) if args.sim else {}
+    if args.operator != "web" and (args.web_host or args.web_port is not None or args.web_linger):
+        raise UsageError("--web-host, --web-port and --web-linger are for --operator web")
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
     cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed)
-    with ConsoleProgress() as progress:
-        store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress])
-    stopped_safely(store, result)
-    if not args.no_analysis:
-        analyse_and_print(store)
-    return campaign_exit(store)
+    with operator_page(args) as page:
+        with ConsoleProgress() as progress:
+            store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page)
+        stopped_safely(store, result)
+        if not args.no_analysis:
+            analyse_for(store, page, args.web_linger)
+        return campaign_exit(store)
 
 
 def cmd_resume(args) -> int:
@@ -127,12 +164,13 @@ def cmd_resume(args) -> int:
     on request."""
     store = SessionStore.open(args.session)
     try:  # the lock goes with the store, also when the campaign cannot go on (a caller in the same process resumes)
-        return resume_and_analyse(store, args)
+        with operator_page(args) as page:
+            return resume_and_analyse(store, args, page)
     finally:
         store.close()
 
 
-def resume_and_analyse(store: SessionStore, args) -> int:
+def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -> int:
     changed = changed_copies(store)
     if changed:
         console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
@@ -143,9 +181,9 @@ def resume_and_analyse(store: SessionStore, args) -> int:
         if not args.analyse:
             return campaign_exit(store)
     else:
-        drive(store)
+        drive(store, page)
     if not args.no_analysis:
-        analyse_and_print(store)
+        analyse_for(store, page, getattr(args, "web_linger", 0.0))
     return campaign_exit(store)
 
 
@@ -154,7 +192,8 @@ def cmd_replay(args) -> int:
     try:
         plan_doc = read_json(args.plan, InputError) if args.plan else None
         recording = SessionStore.open(args.session, readonly=True)
-        store = replay(recording, into, args.cell, plan_doc)  # a failed replay leaves nothing at `into`
+        with operator_page(args) as page:
+            store = replay(recording, into, args.cell, plan_doc, page=page)  # a failed one leaves nothing at `into`
     except (CalibError, CampaignError, OSError, ValueError) as exc:
         if isinstance(exc, ReplayDivergence):
             raise InputError(f"replay diverges from the recording at {exc} ({into} not kept)") from None

@@ -45,6 +45,17 @@ class Command:
     description: str | None = None
 
 
+# `--operator web`: the operator's page beside the console (campaign/web; README "The operator's page")
+OPERATOR_ARGS = [
+    arg("--operator", choices=("console", "web"), default="console",
+        help="web: also serve the operator's page (the first answer from page, console or cell button wins)"),
+    arg("--web-host", help="--operator web: address to listen on, default 127.0.0.1 (any other needs the token "
+                           "that the console prints)"),
+    arg("--web-port", type=int, help="--operator web: port, default 8470 (0: a free one)"),
+    arg("--web-linger", type=float, default=0.0,
+        help="--operator web: seconds the page stays up after the analysis, with the outcome and the report"),
+]
+
 GROUPS = {
     "import": "convert third-party measurement files into a measurement table",
     "batch": "identify or diagnose many campaigns at once, on a process pool or a Dask cluster",
@@ -125,17 +136,20 @@ COMMANDS = [
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
         arg("--session", required=True, help="session directory to create"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
+        *OPERATOR_ARGS,
     ]),
     Command("resume", "continue an interrupted campaign", "trackcal.campaign.cli.campaign:cmd_resume", [
         arg("session", help="session directory"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
         arg("--analyse", action="store_true", help="analyse a campaign that is already complete again"),
+        *OPERATOR_ARGS,
     ]),
     Command("replay", "re-run a recorded campaign into a new session", "trackcal.campaign.cli.campaign:cmd_replay", [
         arg("session", help="session directory of the recording (never modified)"),
         arg("--into", required=True, help="new session directory for the replay"),
         arg("--cell", help="replay with this cell instead of the recorded one"),
         arg("--plan", help="replay with this plan instead of the recorded one"),
+        *OPERATOR_ARGS,
     ]),
     Command("export", "the measurement table of a session", "trackcal.campaign.cli.session:cmd_export", [
         arg("session", help="session directory"),

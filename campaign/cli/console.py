@@ -1,5 +1,9 @@
 """The one rich console of the command line, and the operator who answers on it."""
 
+import queue
+import sys
+import threading
+
 from rich.console import Console
 from rich.markup import escape
 
@@ -20,8 +24,11 @@ class ConsoleOperator:
     mistyping gets four more tries, while garbage (random bytes, a file piped by mistake) stops within five
     lines instead of scrolling forever. The answer recorded is "console"."""
 
-    def __init__(self, console: Console = console, max_wrong: int = 5):
+    def __init__(self, console: Console = console, max_wrong: int = 5, readline=None):
         self.console, self.max_wrong = console, max_wrong
+        self._readline = readline or sys.stdin.readline
+        self._lines: queue.SimpleQueue | None = None
+        self._word, self._wrong = "done", 0
 
     def ask(self, kind: str, target: str, text: str) -> str:
         word = ANSWERS.get(kind, "done")
@@ -38,3 +45,49 @@ class ConsoleOperator:
             self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {word!r}")
         raise ConnectionLost(f"{self.max_wrong} answers in a row were not {word!r}, nobody acknowledges",
                              device="operator console")  # fmt: skip
+
+    # Shared with other operators (campaign.cells.operator.FirstAnswer, e.g. the operator's page): the console
+    # cannot stop waiting for a line, so a thread reads lines into a queue and the prompt polls it; a line typed
+    # before the prompt was shown is no answer to it.
+    def offer(self, kind: str, target: str, text: str) -> None:
+        if self._lines is None:
+            self._lines = queue.SimpleQueue()
+            threading.Thread(target=self._read, name="console-lines", daemon=True).start()
+        while not self._lines.empty():
+            if self._lines.get() is None:
+                self._lines.put(None)  # the end of input stays the end
+                break
+        self._word, self._wrong = ANSWERS.get(kind, "done"), 0
+        self.console.print(f"[bold yellow]OPERATOR[/]: {escape(text)} (type {self._word} and press Enter)")
+
+    def poll(self) -> str | None:
+        while self._lines is not None and not self._lines.empty():
+            line = self._lines.get()
+            if line is None:
+                self._lines.put(None)
+                raise ConnectionLost("end of input, the console cannot acknowledge", device="operator console")
+            if line.strip().lower() == self._word:
+                return "console"
+            self._wrong += 1
+            if self._wrong >= self.max_wrong:
+                raise ConnectionLost(f"{self.max_wrong} answers in a row were not {self._word!r} on the console",
+                                     device="operator console")  # fmt: skip
+            self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {self._word!r}")
+        return None
+
+    def withdraw(self) -> None:
+        self.console.print("[dim](answered elsewhere)[/]")
+
+    def _read(self) -> None:
+        try:
+            while True:
+                try:
+                    line = self._readline()
+                except UnicodeDecodeError:
+                    line = "(not text)\n"
+                if not line:
+                    break
+                self._lines.put(line)
+        except (OSError, ValueError):  # stdin closed or not readable here (a test's captured stdin)
+            pass
+        self._lines.put(None)

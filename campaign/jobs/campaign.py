@@ -36,6 +36,7 @@ from trackcal.campaign.session.session import (
     stored_config,
 )
 from trackcal.campaign.session.store import Event, SessionLock, SessionStore, StoreError
+from trackcal.campaign.web.server import WebPage
 from trackcal.drivers.interfaces import Operator
 
 
@@ -112,11 +113,13 @@ def devices(live: Live, context: RunContext, cell: Cell) -> Devices:
 
 
 def run_session(store: SessionStore, campaign: Campaign, live: Live,
-                subscribers: Iterable[Subscriber] = ()) -> RunResult:  # fmt: skip
+                subscribers: Iterable[Subscriber] = (), page: WebPage | None = None) -> RunResult:  # fmt: skip
     """Run (or continue) the session's campaign on `live` until it is complete or stops safely; the store hears
-    every document first, then `subscribers` in order. The devices are closed at the end."""
+    every document first, then `subscribers` in order, then the operator's page (`page`, attached by open_cell).
+    The devices are closed at the end."""
     try:
-        context = RunContext([SessionLog(store), *subscribers])
+        hub = [] if page is None or page.hub is None else [page.hub]
+        context = RunContext([SessionLog(store), *subscribers, *hub])
         return Engine(devices(live, context, campaign.cell), context, history(store)).run(campaign.steps)
     finally:
         live.close()
@@ -127,14 +130,27 @@ def run_stored(store: SessionStore, live: Live, subscribers: Iterable[Subscriber
     return run_session(store, stored_campaign(store), live, subscribers)
 
 
-def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claimed: CellClients | None = None) -> Live:
+def open_cell(store: SessionStore, campaign: Campaign, console: OperatorConsole, claimed: CellClients | None = None,
+              page: WebPage | None = None) -> Live:  # fmt: skip
     """The devices of the session's cell: the digital twin's (sim) or the real one (hardware, from the hardware
-    config stored at the session's creation; `claimed`: its clients when run_new claimed them already)."""
+    config stored at the session's creation; `claimed`: its clients when run_new claimed them already). With the
+    operator's `page`, it serves the session and each prompt is shared by the cell's operator, the console and the
+    page (the twin's simulated person then does the work but leaves the acknowledgement to them)."""
+    live = _open_cell(store, campaign.cell, console, claimed, page is None)
+    if page is not None:
+        page.attach(store, campaign.cell, campaign.steps)
+        live.operator = page.operator(live.operator, console.operator, live.cellio)
+    return live
+
+
+def _open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claimed: CellClients | None,
+               human_acknowledges: bool) -> Live:  # fmt: skip
     meta = store.meta()
     if meta["mode"] == "sim":
         effects = json.loads(meta.get("effects", "{}") or "{}")
         speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
-        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed, say=console.say).live
+        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed, say=console.say,
+                       human_acknowledges=human_acknowledges).live  # fmt: skip
     if meta["mode"] == "hardware":
         copy = SessionFiles(store.directory).hardware
         clients = claimed or claim_cell(load_hardware(copy, session_hardware(store)), cell)
@@ -152,7 +168,8 @@ def open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claimed
 
 
 def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | HardwareOptions,
-            console: OperatorConsole, subscribers: Sequence[Subscriber] = ()) -> tuple[SessionStore, RunResult]:
+            console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
+            page: WebPage | None = None) -> tuple[SessionStore, RunResult]:  # fmt: skip
     """`trackcal run`: a new session of the plan in the cell (simulated or real), run to its end or to a safe
     stop. A hardware config is checked before the session exists, then the cell and the plan; then the cell is
     claimed (cells.hardware.claim_cell): a cell another campaign is running on makes no session. A device that
@@ -166,17 +183,19 @@ def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | H
         except BaseException:
             clients.robot.close()
             raise
-        return store, run_session(store, campaign, open_cell(store, campaign.cell, console, clients), subscribers)
+        live = open_cell(store, campaign, console, clients, page)
+        return store, run_session(store, campaign, live, subscribers, page)
     extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
     store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
                                   extra=extra)  # fmt: skip
-    return store, run_session(store, campaign, open_cell(store, campaign.cell, console), subscribers)
+    return store, run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
 
 
-def resume(store: SessionStore, console: OperatorConsole, subscribers: Sequence[Subscriber] = ()) -> RunResult:
+def resume(store: SessionStore, console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
+           page: WebPage | None = None) -> RunResult:  # fmt: skip
     """`trackcal resume`: continue the session's campaign (its stored cell and plan) on its cell."""
     campaign = stored_campaign(store)
-    return run_session(store, campaign, open_cell(store, campaign.cell, console), subscribers)
+    return run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
 
 
 def segments(events: list[Event]) -> list[tuple[list[Event], bool]]:
@@ -197,7 +216,7 @@ def replay_staging(into: Path) -> Path:
 
 
 def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, plan_doc: dict | None = None,
-           subscribers: Sequence[Subscriber] = ()) -> SessionStore:  # fmt: skip
+           subscribers: Sequence[Subscriber] = (), page: WebPage | None = None) -> SessionStore:  # fmt: skip
     """`trackcal replay`: re-run the campaign with players of the recording instead of devices, into a new
     session, run by run: a recorded run that stopped (device fault) or was killed stops the replay's run at the
     same call, and the next run resumes exactly as the recorded one did. `cell_ref` / `plan_doc` replace the
@@ -206,7 +225,8 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
 
     The replay is made in INTO.replaying and renamed to INTO once complete: a replay that was killed leaves no
     session at INTO, only its staging folder, which the next replay into INTO removes (a replay is a pure function
-    of the recording: made again, it is the same). Returns the finished session, opened read-only."""
+    of the recording: made again, it is the same). Returns the finished session, opened read-only. `page`: the
+    operator's page watches the replay (its answers are the recording's)."""
     into = Path(into)
     if into.exists() and (not into.is_dir() or any(into.iterdir())):
         raise StoreError(f"{into}: already exists and is not empty: replay into a new folder")
@@ -224,8 +244,9 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
         with stored_config(recording) as cell_path:
             store, campaign = new_session(staging, str(cell_path), plan_doc, "replay", seed, extra=extra)
     try:
+        hub = [] if page is None else [page.attach(store, campaign.cell, campaign.steps)]  # watching only
         for run, abrupt in segments(recording.events()):
-            context = RunContext([SessionLog(store), *subscribers])
+            context = RunContext([SessionLog(store), *subscribers, *hub])
             playback = Playback(run, context.where, ends_abruptly=abrupt)
             players = Live(*(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
                            cellio=playback.device("cellio") if "cellio" in playback.calls else None,
