@@ -68,7 +68,7 @@ def print_extension(ext: dict) -> None:
         console.print(f"model extension: station_shift: station {ext['station']} moved after t = "
                       f"{ext['after_t_s']:.1f} s; its later transform is identified as a separate station")  # fmt: skip
         return
-    t = Table(title=f"Model extension: {cause}")
+    t = Table(title=f"Model extension: {' + '.join(ext.get('causes') or [cause])}")
     for col in ("parameter", "unit", "value", "95 % CI"):
         t.add_column(col, justify="right")
     for name, p in ext.get("parameters", {}).items():
