@@ -66,19 +66,21 @@ class CompensationReport:
     uncompensated_position_mm: np.ndarray  # (N,) TCP error of the identified model at q_nom (what is corrected)
     uncompensated_orientation_deg: np.ndarray  # (N,)
     conditioning: np.ndarray  # (N,) smallest / largest singular value of the 9 x n tool-point Jacobian at q_c
-    cause: str  # the model's extension, "none" if purely geometric
+    cause: str  # the model's extension (its main cause), "none" if purely geometric
     failures: list[str]  # (N,) why a target could not be compensated, "" when it was (its angles are then valid)
     ignored: list[str] = field(default_factory=list)  # effects without a static compensation (warnings)
     warnings: list[str] = field(default_factory=list)  # e.g. targets outside the joint error map's fitted range
     notes: list[str] = field(default_factory=list)
     tcp_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lever_mm: float = 100.0
+    causes: list[str] = field(default_factory=list)  # every cause the model carries, the main one first
 
     def to_doc(self) -> dict:
         """Summary in boundary units (mm, deg), over the targets that were compensated."""
         ok = self.ok
         return {
             "cause": self.cause,
+            "causes": list(self.causes),
             "ignored": list(self.ignored),
             "warnings": list(self.warnings),
             "notes": list(self.notes),
@@ -246,6 +248,7 @@ def compensate(
         uncompensated_orientation_deg=ori_err0,
         conditioning=sv[:, -1] / sv[:, 0],
         cause=model.cause,
+        causes=model.causes,
         failures=failures,
         ignored=ignored,
         warnings=[w for w in [model.range_warning(q)] if w],  # the map is evaluated at the commanded angles

@@ -55,10 +55,12 @@ def extension_doc(res: Identification, shift: dict | None = None) -> dict:
     the parameters of other causes."""
     ext = res.extension
     if ext is None:
-        return {"cause": "none"} if shift is None else {"cause": "station_shift", **shift, "parameters": {}}
+        return {"cause": "none"} if shift is None else {"cause": "station_shift", "causes": ["station_shift"],
+                                                         **shift, "parameters": {}}  # fmt: skip
     ci = res.ext_ci95()
     doc = {
         "cause": ext.cause,
+        "causes": fitted_causes(ext, shift),
         "parameters": {
             n: {"value": float(v * f), "ci95": float(c * f), "unit": u}
             for n, v, c, f, u in zip(ext.names, res.ext, ci, ext.to_boundary, ext.units, strict=True)
@@ -69,6 +71,15 @@ def extension_doc(res: Identification, shift: dict | None = None) -> dict:
     if "arcs" in ext.meta:
         doc["arcs"] = {f"joint_{j + 1}": arc.to_doc() for j, arc in sorted(ext.meta["arcs"].items())}
     return doc if shift is None else {**doc, **shift}
+
+
+def fitted_causes(ext: Extension, shift: dict | None = None) -> list[str]:
+    """Every cause a fitted extension carries, the main one (`ext.cause`) first, then the others in their order
+    (station_shift, which has no parameters of its own, last): what model.json's `causes` lists (DESIGN.md: a
+    verdict may name several causes, `cause` being the main one)."""
+    names = [c for c, _ in ext.parts()]
+    out = [ext.cause] + [c for c in dict.fromkeys(names) if c != ext.cause]
+    return out + (["station_shift"] if shift is not None and "station_shift" not in out else [])
 
 
 def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None) -> dict:
@@ -136,6 +147,19 @@ class Model:
     @property
     def cause(self) -> str:
         return self.doc.get("extension", {}).get("cause", "none")
+
+    @property
+    def causes(self) -> list[str]:
+        """Every cause the extension carries, the main one first (a model written before `causes` was recorded:
+        those of its parts, else its one cause); [] for a purely geometric model."""
+        info = self.doc.get("extension", {})
+        if "causes" in info:
+            return list(info["causes"])
+        if self.cause in ("none", "unexplained"):
+            return []
+        names = [self.cause] + [c for c, _ in self.parts() if c != self.cause]
+        return list(dict.fromkeys(names)) + (["station_shift"] if "after_t_s" in info and
+                                             "station_shift" not in names else [])  # fmt: skip
 
     def extension_values(self) -> tuple[list[str], np.ndarray]:
         """Extension parameter names and values in internal units (rad, N m, s)."""
@@ -243,6 +267,12 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     if ext.get("cause", "none") not in ("none", *CAUSES):
         raise ModelError(f"{path}: extension.cause: {ext.get('cause')!r} is not none or one of {', '.join(CAUSES)}")
     _extension_values(ext, f"{path}: extension")
+    if "causes" in ext:
+        causes = ext["causes"]
+        if not isinstance(causes, list) or not all(c in CAUSES for c in causes) or (
+                causes and causes[0] != ext.get("cause")):  # fmt: skip
+            raise ModelError(f"{path}: extension.causes: expected a list of causes from {', '.join(CAUSES)} "
+                             f"beginning with extension.cause, got {causes!r}")  # fmt: skip
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.parts(), model.arcs(), model.extension_values()  # the extension is readable

@@ -10,8 +10,10 @@ current model by evidence that survives over-fitting:
 - cross-validation: the candidate must predict held-out rows better than the current model. Folds are
   whole poses, or (when a time-dependent cause is judged: thermal drift, station shift) blocks of time
   within each station, so a drift is judged by how it extrapolates. When a fold scheme leaves a training
-  set that cannot be identified (a planned campaign of few configurations), the next scheme is used
-  (pose, pass, time); when none works the verdict says so and rests on the F test and BIC.
+  set that cannot identify the current model (a planned campaign of few configurations), the next scheme is
+  used (pose, pass, time); when none works the verdict says so and rests on the F test and BIC. A candidate
+  the current model's scheme cannot identify is not significant (`Validator.compare`): the campaign cannot
+  tell it from over-fitting.
 
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
 the one with the largest gain, `causes` the selected set in order.
@@ -388,11 +390,17 @@ def diagnose(
                              step=step, holdout_base_mm=hold_b, cv_scheme=scheme)  # fmt: skip
             if cause in ctx.dropped:
                 cand.detail["not_identifiable"] = list(ctx.dropped[cause])
-            cand.significant = bool(p < alpha and d_bic < 0 and (hold_m is None or hold_m < hold_b))
+            # no held-out figure: on no scheme (the F test and BIC decide), or the folds the campaign supports
+            # cannot identify this model (it cannot be told from over-fitting: not significant)
+            unsupported = scheme is not None and hold_m is None
+            cand.significant = bool(p < alpha and d_bic < 0 and not unsupported
+                                    and (hold_m is None or hold_m < hold_b))  # fmt: skip
             if hold_m is None:
                 rejected = not (p < alpha and d_bic < 0)
-                cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if rejected
-                                else "cross-validation not possible on this design")  # fmt: skip
+                cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if rejected else
+                                f"a training set of the {scheme} folds cannot identify it: this campaign cannot tell "
+                                "it from over-fitting" if unsupported else
+                                "cross-validation not possible on this design")  # fmt: skip
             trial.append((cand, fit))
         if map_open and not any(c.significant for c, _ in trial):
             # cyclic_error's low-order form (if chosen) gives way to the map of any order; judged last, since a

@@ -65,6 +65,7 @@ class Cell:
     joint_margin_deg: float = 1.0  # plans keep this far inside every joint limit
     measurement_tolerance_mm: float | None = None  # None: from the station set-up (campaign/engine/expected.py)
     max_skipped_share: float = MAX_SKIPPED_SHARE  # a campaign that skipped more of its planned measurements failed
+    repeatability_mm: float = 0.0  # the robot's ISO 9283 pose repeatability RP (datasheet); 0: not stated
     source: str = ""
 
 
@@ -178,6 +179,7 @@ def load_cell(ref: str) -> Cell:
         if cell.measurement_tolerance_mm == 0:
             raise CellError(f"{where}: measurement_tolerance_mm: must be positive")
     cell.max_skipped_share = _non_negative(doc, "max_skipped_share", where, MAX_SKIPPED_SHARE)
+    cell.repeatability_mm = _non_negative(doc, "repeatability_mm", where, 0.0)
     if cell.max_skipped_share > 1:
         raise CellError(f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got "
                         f"{cell.max_skipped_share:g}")  # fmt: skip

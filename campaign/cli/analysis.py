@@ -68,7 +68,7 @@ def print_extension(ext: dict) -> None:
         console.print(f"model extension: station_shift: station {ext['station']} moved after t = "
                       f"{ext['after_t_s']:.1f} s; its later transform is identified as a separate station")  # fmt: skip
         return
-    t = Table(title=f"Model extension: {cause}")
+    t = Table(title=f"Model extension: {' + '.join(ext.get('causes') or [cause])}")
     for col in ("parameter", "unit", "value", "95 % CI"):
         t.add_column(col, justify="right")
     for name, p in ext.get("parameters", {}).items():
@@ -83,7 +83,7 @@ def cmd_identify(args) -> int:
     if outcome.chosen is not None:
         console.print(f"--extend auto: diagnose chose {outcome.chosen}"
                       + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
-    warnings = [w for w in (outcome.warning, convergence_warning(outcome.doc)) if w]
+    warnings = [w for w in (outcome.warning, outcome.determination, convergence_warning(outcome.doc)) if w]
     if warnings:  # one line on stderr, whatever the fit's troubles (scripts read the first line)
         print(f"warning: {'; and '.join(warnings)}", file=sys.stderr)
     console.print(f"model written to {args.out}")

@@ -29,7 +29,7 @@ def cmd_compensate(args) -> int:
     print(
         f"{doc['compensated']} of {doc['targets']} targets compensated"
         + (f" ({failed} not: see their rows)" if failed else "")
-        + f" (model extension: {doc['cause']}); TCP error of the identified "
+        + f" (model extension: {' + '.join(doc['causes'] or [doc['cause']])}); TCP error of the identified "
         f"model before compensation up to {doc['max_uncompensated_position_mm']:.3f} mm, after "
         f"{doc['max_position_error_mm']:.1e} mm / {doc['max_orientation_error_deg']:.1e} deg; largest correction "
         f"{doc['max_correction_deg']:.4f} deg, at most {doc['max_iterations']} iterations; rounded to 1e-4 deg "

@@ -42,10 +42,11 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from trackcal.calib.identify.drift import DriftTest
 from trackcal.campaign.engine.recording import EndOfSegment
 from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
 from trackcal.drivers.errors import DeviceError, DeviceFault, TargetNotVisible
@@ -160,6 +161,8 @@ class Devices:
     meteo: Meteo | None = None
     expected: Callable[[Step], tuple[float, float, float] | None] | None = None  # where to look for the reflector
     tolerance: Callable[[float], float] | None = None  # mm a measurement may lie from `expected`, given its range
+    drift: DriftTest = field(default_factory=DriftTest)  # the drift checks' test: the tracker's noise, the robot's
+    # repeatability (the engine shares its false-alarm rate among the plan's checks)
 
 
 class DoorInterlock:
@@ -199,7 +202,16 @@ class Settings:
     settle_timeout_s: float = 60.0
     search_radius_mm: float = 50.0
     measure_attempts: int = 2  # a beam broken by someone walking through it is transient: look again once
-    drift_warn_mm: float = 0.05
+
+
+def drift_checks(steps: list[Step]) -> int:
+    """How many drift comparisons the plan makes: every revisit of a block's reference measurement after its first."""
+    seen: dict[tuple[str, str, str], int] = {}
+    for s in steps:
+        if s.kind == StepKind.MEASURE and s.drift:
+            key = (s.station, s.point, s.pose)
+            seen[key] = seen.get(key, 0) + 1
+    return sum(n - 1 for n in seen.values())
 
 
 class Engine:
@@ -212,6 +224,7 @@ class Engine:
         self.measurements = list(self.history.measurements)
         self.warnings: list[str] = []
         self.t0 = 0.0
+        self.drift = self.dev.drift
         self.offset = 0.0
         self.interlock = DoorInterlock(lambda: self.dev.cellio is None or self.dev.cellio.door_closed())
         self.handlers: dict[StepKind, Callable[[Step], None]] = {
@@ -245,6 +258,7 @@ class Engine:
         self._emit("start", {"resumed": self.history.resumed, "steps": len(steps), "done": len(done)})
         self.t0 = self.dev.clock.now()
         first = next((i for i in range(len(steps)) if i not in done), len(steps))
+        self.drift = replace(self.dev.drift, checks=drift_checks(steps))
         measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
         n_done = sum(1 for k in measures if k in done or k < first)
         try:
@@ -430,7 +444,9 @@ class Engine:
         )  # fmt: skip
         if first is None:
             return
-        moved = float(np.linalg.norm(np.subtract(data["xyz_mm"], first["xyz_mm"])))
-        if moved > self.settings.drift_warn_mm:
-            self._warn(f"drift check: {data['point']} at {data['pose']} moved {moved:.3f} mm since the start of the "
-                       f"block: has station {data['station']} moved?")
+        a, b = np.asarray(first["xyz_mm"], dtype=float), np.asarray(data["xyz_mm"], dtype=float)
+        if self.drift.alarms(a, b):
+            self._warn(f"drift check: {data['point']} at {data['pose']} moved {float(np.linalg.norm(b - a)):.3f} mm "
+                       f"since the start of the block, {self.drift.distance(a, b):.1f} standard deviations of the "
+                       f"tracker's noise and the robot's repeatability there (alarm above {self.drift.level:.1f}): "
+                       f"has station {data['station']} moved?")

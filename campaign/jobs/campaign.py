@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from trackcal.calib.identify.drift import DriftTest
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
@@ -109,7 +110,8 @@ def devices(live: Live, context: RunContext, cell: Cell) -> Devices:
     return Devices(tracker=rec("tracker", live.tracker), robot=rec("robot", live.robot),
                    operator=rec("operator", live.operator), clock=rec("clock", live.clock),
                    cellio=rec("cellio", live.cellio), meteo=rec("meteo", live.meteo),
-                   expected=expected_position(cell), tolerance=measurement_tolerance(cell))  # fmt: skip
+                   expected=expected_position(cell), tolerance=measurement_tolerance(cell),
+                   drift=DriftTest(repeatability_mm=cell.repeatability_mm))  # fmt: skip
 
 
 def run_session(store: SessionStore, campaign: Campaign, live: Live,

@@ -11,8 +11,17 @@ import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.selection import diagnose, fit_cause, noise_floor
+from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
-from trackcal.calib.identify.solver import Identification, identify, residual_stats, significance
+from trackcal.calib.identify.solver import (
+    Identification,
+    IdentificationError,
+    Problem,
+    State,
+    identify,
+    residual_stats,
+    significance,
+)
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, read_table, write_table
 from trackcal.calib.model.cell import Cell, load_cell
@@ -62,6 +71,7 @@ class IdentifyOutcome:
     before: Identification
     doc: dict
     warning: str | None = None  # fit_warning: the intervals cannot be trusted
+    determination: str | None = None  # determination_warning: parameters the table does not determine
     chosen: str | None = None  # --extend auto: the cause diagnose chose ("none": the model stays geometric)
 
 
@@ -84,7 +94,12 @@ def run_identify(
         raise OptionError("{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend",
                           extend=extend)
     doc = model_doc(cell, table, fit.result, before, fit.shift, table_sha256)
-    return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, left_out(cell, params)))
+    doc["poorly_determined"] = poorly_determined(fit.result, fit.table)
+    missing = left_out(cell, params)
+    advice = determinable(fit.result, fit.table, [param_by_name(cell.chain, n) for n in missing]) if (
+        doc["fit"] == "poor" and missing) else missing  # fmt: skip
+    return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, advice, missing),
+                           determination=determination_warning(doc))  # fmt: skip
 
 
 def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
@@ -117,11 +132,64 @@ def left_out(cell: Cell, params: list[Param]) -> list[str]:
     return [p.name for p in irreducible_params(cell.chain)[0] if p.name not in chosen]
 
 
-def fit_warning(doc: dict, missing: list[str]) -> str | None:
-    """One line when the model's intervals cannot be trusted, saying where to look; None for a good fit."""
+def _fit_jacobian(res: Identification, table: MeasurementTable, params: list[Param]) -> np.ndarray:
+    """The whitened Jacobian of `res`'s model at its solution, with `params` as its parameters (those of `res` first,
+    any others at nominal)."""
+    extra = len(params) - len(res.params)
+    problem = Problem(res.chain, table, res.points, params, res.noise, np.r_[res.dev, np.zeros(extra)],
+                      extension=res.extension, ext0=res.ext)  # fmt: skip
+    state = State(problem.initial.dev, [res.stations[s] for s in problem.station_ids],
+                  np.array([res.points[p] for p in problem.point_ids]), np.asarray(res.ext, dtype=float))  # fmt: skip
+    return problem.residual_and_jacobian(state)[1]
+
+
+def poorly_determined(res: Identification, table: MeasurementTable) -> dict[str, float]:
+    """{name: ratio} of the fitted parameters the table does not determine (calib.identify.determined: moved alone by
+    its 95 % interval, one would displace the reflectors by more than POORLY_DETERMINED noise floors)."""
+    ratios = noise_floor_ratios(_fit_jacobian(res, table, res.params), np.arange(len(res.params)))
+    return {p.name: float(r) if np.isfinite(r) else None for p, r in zip(res.params, ratios, strict=True)
+            if not r <= POORLY_DETERMINED}  # fmt: skip
+
+
+def determinable(res: Identification, table: MeasurementTable, candidates: list[Param]) -> list[str]:
+    """The `candidates` (parameters left out) the table would determine if added, in order, each judged with those
+    kept before it and the fitted model (calib.identify.determined); advice names only these."""
+    try:
+        jm = _fit_jacobian(res, table, [*res.params, *candidates])
+    except IdentificationError:  # more unknowns than equations with all of them: judge none
+        return []
+    k, n_all = len(res.params), jm.shape[1]
+    rest = list(range(k + len(candidates), n_all))  # the extension, stations and points
+    kept: list[int] = []
+    for i in range(len(candidates)):
+        cols = list(range(k)) + [k + c for c in kept] + [k + i] + rest
+        if noise_floor_ratios(jm[:, cols], [k + len(kept)])[0] <= POORLY_DETERMINED:
+            kept.append(i)
+    return [candidates[i].name for i in kept]
+
+
+def determination_warning(doc: dict) -> str | None:
+    """One line naming the fitted parameters the table does not determine; None when it determines them all."""
+    bad = doc.get("poorly_determined") or {}
+    if not bad:
+        return None
+    pars = doc["parameters"]
+    named = ", ".join(f"{n} ±{pars[n]['ci95']:.3g} {pars[n]['unit']}" for n in bad)
+    return (f"poorly determined by this table: {named} (moved alone across its 95 % interval, each would displace "
+            f"the reflectors by more than {POORLY_DETERMINED:g} times the noise floor; their values are whatever the "
+            "noise makes them: add poses, reference points or stations, or leave them out)")  # fmt: skip
+
+
+def fit_warning(doc: dict, advice: list[str], missing: list[str] | None = None) -> str | None:
+    """One line when the model's intervals cannot be trusted, saying where to look; None for a good fit. `advice`:
+    the parameters left out that the table would determine (of `missing`, all those left out)."""
     if doc["fit"] != "poor":
         return None
-    where = f"add the parameters left out ({' '.join(missing)}) or run" if missing else "run"
+    missing = advice if missing is None else missing
+    where = f"add the parameters left out ({' '.join(advice)}: this table determines them) or run" if advice else "run"
+    if len(advice) < len(missing):
+        where = (f"{len(missing) - len(advice)} parameter(s) left out cannot be determined by this table "
+                 f"({' '.join(n for n in missing if n not in advice)}); {where}")  # fmt: skip
     return (f"poor fit: the residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm is {doc['fit_ratio']:.1f}x the "
             f"noise floor {doc['noise_floor_mm'] * 1000:.1f} µm ({doc['noise_floor_source']}), so the intervals "
             f"cannot be trusted: {where} `trackcal diagnose` to see what the model misses")  # fmt: skip
@@ -161,7 +229,7 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
     keys = ("cell", "data", "table_sha256", "n_measurements", "weighting", "fit", "fit_ratio", "residual_rms_mm",
-            "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm")
+            "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm", "poorly_determined")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {
