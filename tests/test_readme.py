@@ -3,7 +3,9 @@
 The examples build their own fixtures (the first simulates a small table on the digital twin), so a newcomer can
 paste them one after the other. A command line ending in `# not run by the README test: REASON` (hardware, a
 cluster, many minutes) is shown but skipped here; a block that uses $TRACKCAL_IPA_DATA runs only where the IPA
-data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points).
+data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points). A `python -m MODULE` line
+that is not run must still name a module the empty directory can import. A block that starts a detached
+`trackcal mock` must stop it: a mock still running after the block fails the test (and is stopped).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -19,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers import ROOT
+from trackcal.campaign.cli.mock import mock_pid, running_mock
 
 README = ROOT / "README.md"
 NOT_RUN = "# not run by the README test:"
@@ -102,3 +106,44 @@ def test_example_runs_verbatim(example: Example, workdir: Path):
     assert done.returncode == 0, f"README.md:{example.line}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
     missing = [p for c in example.commands for p in outputs_of(c) if not (workdir / p).exists()]
     assert not missing, f"README.md:{example.line}: the example did not make {missing}"
+
+
+def left_running(workdir: Path, commands: list[str]) -> list[int]:
+    """Pids of the mocks the commands started (their --write-hardware files) that still run; each is stopped."""
+    pids = []
+    for command in commands:
+        words = shlex.split(command.partition(" #")[0])
+        if words[:2] == ["trackcal", "mock"] and "--write-hardware" in words:
+            hardware = workdir / words[words.index("--write-hardware") + 1]
+            pid = mock_pid(hardware) if hardware.exists() else None
+            if pid is not None and running_mock(pid):
+                pids.append(pid)
+                os.kill(pid, signal.SIGKILL)
+    return pids
+
+
+@pytest.mark.parametrize("example", [e for e in EXAMPLES if any("trackcal mock" in c for c in e.commands)],
+                         ids=lambda e: f"README.md:{e.line}")  # fmt: skip
+def test_a_mock_block_stops_its_mock(example: Example, workdir: Path):
+    """Runs after test_example_runs_verbatim (same module, the order pytest keeps): the block started a detached
+    mock and stopped it, so no process is left behind."""
+    assert not left_running(workdir, example.commands), f"README.md:{example.line} left its trackcal mock running"
+
+
+def test_a_module_the_readme_names_but_does_not_run_can_be_imported_from_any_directory(tmp_path):
+    modules = [re.match(r"python -m ([\w.]+)", line) for ex in EXAMPLES for line in ex.skipped]
+    modules = sorted({m.group(1) for m in modules if m})
+    assert modules, "the README names no `python -m` module"
+    env = dict(os.environ, PYTHONPATH="")
+    for module in modules:  # a spec found from an empty directory: not only from the repository's root
+        done = subprocess.run([sys.executable, "-c", f"import importlib.util as u; assert u.find_spec({module!r})"],
+                              cwd=tmp_path, env=env, capture_output=True, text=True)  # fmt: skip
+        assert done.returncode == 0, f"README: python -m {module} fails outside the repository root: {done.stderr}"
+
+
+def test_the_study_without_data_says_where_it_looked(tmp_path):
+    nowhere = tmp_path / "no-data"
+    done = subprocess.run([sys.executable, "-m", "trackcal.studies.ur10_ipa.study", "--data", str(nowhere)],
+                          cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert str(nowhere) in done.stderr and "TRACKCAL_IPA_DATA" in done.stderr
