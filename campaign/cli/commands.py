@@ -24,6 +24,17 @@ def arg(*flags: str, **options) -> tuple[tuple[str, ...], dict]:
     return flags, options
 
 
+def seed(text: str) -> int:
+    """A seed option: numpy's generators take whole numbers from 0 (a negative one was a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0, got {text}")
+    return value
+
+
 @dataclass(frozen=True)
 class Command:
     name: str
@@ -55,7 +66,7 @@ COMMANDS = [
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)"),
-                arg("--seed", type=int, default=0, help="seed of the assignment of poses to folds"),
+                arg("--seed", type=seed, default=0, help="seed of the assignment of poses to folds"),
                 arg("--plots", help="directory for the residual plots (default: no plots)"),
                 arg("--json", required=True, help="verdict JSON to write"),
                 arg("--out", help="model.json of the chosen model to write, usable by predict (default: not written)"),
@@ -77,7 +88,7 @@ COMMANDS = [
                 arg("--params", help="parameters targeted (default: the cell's plan_params)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),
-                arg("--seed", type=int, default=0, help="seed of the random starting plans"),
+                arg("--seed", type=seed, default=0, help="seed of the random starting plans"),
                 arg("--starts", type=int, default=1000, help="random plans of the candidate pool scored (screening)"),
                 arg("--refined", type=int, default=16, help="best screened plans exchanged, then refined"),
                 arg("--scheduler", help="Dask scheduler address (default: local process pool)"),
@@ -91,7 +102,7 @@ COMMANDS = [
                 arg("--cell", default="kr270", help=CELL_HELP),
                 arg("--poses", type=int, default=30, help="random feasible poses"),
                 arg("--repeat", type=int, default=1, help="each pose measured K times"),
-                arg("--seed", type=int, default=1, help="the twin's seed (its true robot, stations and noise)"),
+                arg("--seed", type=seed, default=1, help="the twin's seed (its true robot, stations and noise)"),
                 arg("--noise-free", action="store_true", help="no tracker noise"),
                 arg("--effect", action="append", help=EFFECT_HELP + " (default: none)"),
                 arg("--out", required=True, help="measurement table to write"),
@@ -99,7 +110,7 @@ COMMANDS = [
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
             "trackcal.campaign.cli.demo:cmd_demo", [
                 arg("--cell", default="kr270", help=CELL_HELP),
-                arg("--seed", type=int, default=1, help="the twin's seed"),
+                arg("--seed", type=seed, default=1, help="the twin's seed"),
                 arg("--out", default="out/demo", help="directory of the plan and the session"),
             ]),
     Command("run", "run a measurement campaign (simulated cell or hardware)",
@@ -109,7 +120,7 @@ COMMANDS = [
         arg("--sim", action="store_true", help="the digital twin's cell"),
         arg("--hardware", help="hardware config (configs/hardware/README.md); stored in the session (default: none; "
                                 "--sim or --hardware is needed)"),
-        arg("--seed", type=int, default=1, help="--sim: the twin's seed"),
+        arg("--seed", type=seed, default=1, help="--sim: the twin's seed"),
         arg("--effect", action="append", help="--sim: " + EFFECT_HELP + " (default: none)"),
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
         arg("--session", required=True, help="session directory to create"),
@@ -136,8 +147,8 @@ COMMANDS = [
             ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
             "trackcal.campaign.cli.mock:cmd_mock", [
-                arg("--cell", help=CELL_HELP + " (needed unless --stop)"),
-                arg("--seed", type=int, default=1, help="the twin's seed"),
+                arg("--cell", help=CELL_HELP + " (default: none; needed unless --stop)"),
+                arg("--seed", type=seed, default=1, help="the twin's seed"),
                 arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable; default: none)"),
                 arg("--write-hardware", metavar="FILE", help="write the hardware config of the mocks here "
                                                                           "(default: printed on the console only)"),
@@ -145,8 +156,8 @@ COMMANDS = [
                 arg("--detach", action="store_true",
                     help="serve in a process of its own, returning once every server listens and the hardware file "
                          "is written (its output in FILE.log)"),
-                arg("--stop", metavar="FILE", help="stop the mock that wrote this hardware file (SIGTERM, waits for "
-                                                   "it to exit)"),
+                arg("--stop", metavar="FILE", help="stop the mock that wrote this hardware file, SIGTERM, and wait "
+                                                   "for it to exit (default: start a mock)"),
                 arg("--ready-fd", type=int, help=argparse.SUPPRESS),  # --detach's child reports on this pipe
             ]),
     Command("compensate", "joint targets corrected with an identified model (CSV, KRL)",
