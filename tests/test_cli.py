@@ -5,13 +5,17 @@ import argparse
 import json
 import os
 import re
+import socket
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+from rich.table import Table
 from threadpoolctl import threadpool_info
 
 import trackcal.campaign.cli.analysis
+import trackcal.campaign.jobs.limits as limits
 from tests.helpers import kr270_campaign
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.identify.solver import Identification
@@ -19,9 +23,11 @@ from trackcal.calib.io.table import read_table, write_table
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import identification_to_doc
 from trackcal.campaign.cli import build_parser, flag, main
+from trackcal.campaign.cli.console import print_table
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.identify import convergence_warning
-from trackcal.campaign.jobs.plan import parse_test_pose
+from trackcal.campaign.jobs.limits import available_bytes
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, check_plan_size, parse_test_pose, plan_bytes
 
 
 @pytest.fixture(scope="module")
@@ -265,10 +271,6 @@ def test_every_optional_option_says_its_default_or_what_happens_without_it():
 
 def test_tables_are_never_cut_on_a_narrow_console(tmp_path, campaign_csv, capsys, monkeypatch):
     """Issue 25: console tables were cut at 80 columns ("cycli…"): every name is printed whole, however narrow."""
-    from rich.table import Table
-
-    from trackcal.campaign.cli.console import print_table
-
     monkeypatch.setenv("COLUMNS", "40")
     names = ["joint_compliance", "cyclic_error", "station_shift"]
     t = Table(title="Diagnosis")
@@ -288,8 +290,6 @@ def test_tables_are_never_cut_on_a_narrow_console(tmp_path, campaign_csv, capsys
 @pytest.fixture
 def small_machine(monkeypatch):
     """A machine with 1 GiB available, whatever this one has (the limits are then the same on every machine)."""
-    import trackcal.campaign.jobs.limits as limits
-
     monkeypatch.setattr(limits, "MEMORY_CEILING_BYTES", 2**30)
 
 
@@ -319,9 +319,6 @@ def test_large_numbers_are_refused_with_the_limit_before_allocating(small_machin
 
 def test_the_largest_count_said_to_fit_does_fit(small_machine, kr270):
     """The "at most N" of the refusal is the largest count the same check lets through."""
-    from trackcal.campaign.jobs.limits import available_bytes
-    from trackcal.campaign.jobs.plan import PlanOptions, build_design, check_plan_size, plan_bytes
-
     design = build_design(kr270, PlanOptions())
     with pytest.raises(OptionError, match=r"at most (\d+)") as refused:
         check_plan_size(design, PlanOptions(configs=100_000))
@@ -345,9 +342,6 @@ def test_a_negative_seed_is_one_line(command, capsys):
 def test_a_server_that_is_no_dask_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
     """Issue 25: an HTTP server at the --scheduler address (its "HTTP/1.1" read as a Dask frame length: 3.07 EiB)
     was a traceback."""
-    import socket
-    import threading
-
     pytest.importorskip("distributed")
     server = socket.create_server(("127.0.0.1", 0))
     host, port = server.getsockname()
@@ -373,8 +367,6 @@ def test_a_server_that_is_no_dask_scheduler_is_one_line(tmp_path, monkeypatch, c
 
 
 def test_plan_noise_defaults_to_the_tracker_model_as_identify_weighs():
-    from trackcal.campaign.jobs.plan import PlanOptions
-
     args = build_parser().parse_args(["plan", "--cell", "kr270"])
     assert args.noise == "tracker" and PlanOptions().noise == "tracker"
     assert build_parser().parse_args(["identify", "t.csv", "--cell", "kr270", "--out", "m.json"]).weighting == "tracker"
