@@ -392,3 +392,13 @@ def test_stop_refuses_a_pid_that_is_no_mock(tmp_path, capsys):
     (tmp_path / "H.yaml").write_text(f"# trackcal mock --cell kr270 --seed 3: the twin (pid {os.getpid()}); valid\n")
     assert main(["mock", "--stop", str(tmp_path / "H.yaml")]) == 2
     assert f"no trackcal mock runs with pid {os.getpid()}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("folds", ["0", "-1", "1000000000"])
+def test_diagnose_folds_outside_what_the_table_can_hold_out_is_one_line(tmp_path, campaign_csv, capsys, folds):
+    """--folds 0 was numpy's traceback; 10^9 a list of 10^9 empty blocks: a fold holds out at least one row."""
+    argv = ["diagnose", str(campaign_csv[1]), "--cell", "kr270", "--folds", folds, "--json", str(tmp_path / "v.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"--folds {folds}: from 2 to the table's " in err and err.count("\n") == 1, err
+    assert not (tmp_path / "v.json").exists()
