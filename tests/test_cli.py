@@ -402,3 +402,13 @@ def test_diagnose_folds_outside_what_the_table_can_hold_out_is_one_line(tmp_path
     err = capsys.readouterr().err
     assert f"--folds {folds}: from 2 to the table's " in err and err.count("\n") == 1, err
     assert not (tmp_path / "v.json").exists()
+
+
+@pytest.mark.parametrize("option, value", [("--lever-mm", "nan"), ("--lever-mm", "1e308"), ("--period-s", "inf"),
+                                           ("--period-s", "1e308")])  # fmt: skip
+def test_import_numbers_are_bounded(tmp_path, capsys, option, value):
+    """--lever-mm nan wrote a table of NaN positions, 1e308 one of infinities: both are one line now."""
+    out = tmp_path / "b.csv"
+    assert main(["import", "ipa-ur10", str(tmp_path / "series.csv"), "--out", str(out), option, value]) == 2
+    err = capsys.readouterr().err
+    assert f"{option}: must be positive and at most" in err and err.count("\n") == 1 and not out.exists(), err

@@ -193,9 +193,10 @@ COMMANDS = [
                     help="virtual reference points on the probe from its measured orientation (0..6; 2 carry it "
                          "all)"),
                 arg("--lever-mm", type=float, default=100.0,
-                    help="distance of the virtual points from the T-Mac centre (mm; the ur10-tmac tool expects 100)"),
+                    help="distance of the virtual points from the T-Mac centre (mm, at most 10000; the ur10-tmac tool "
+                         "expects 100)"),
                 arg("--period-s", type=float, default=DEFAULT_PERIOD_S,
-                    help="nominal time between poses (s): the file's timestamps are unusable"),
+                    help="nominal time between poses (s, at most a day): the file's timestamps are unusable"),
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),
