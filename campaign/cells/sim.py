@@ -195,13 +195,6 @@ def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
-# How long `run --hardware` waits for a fresh RSI frame from the mock before it refuses a move (a real cell's
-# default is 1 s, campaign/cells/hardware.py): the mock's 12 ms stream is a Python thread of one process among
-# many on a shared machine, and on a 2-core machine at load 24 it paused for 0.3-0.6 s, stopping the README's
-# campaign at its 7th-16th step; the waiting client catches the next frame once the stream resumes.
-MOCK_RSI_STALE_S = 10.0
-
-
 def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -> dict:
     """The hardware config (campaign/cells/hardware.py schema) of the running mocks."""
     thost, tport = mocks.tracker_mock.address
@@ -210,8 +203,7 @@ def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -
         "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
         "robot": {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
                   "rsi": {"protocol": mocks.controller.rsi_protocol, "passive": mocks.controller.rsi_passive,
-                          "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0,
-                  "rsi_stale_s": MOCK_RSI_STALE_S},
+                          "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
         "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
                 "poll_s": POLL_S},
         "meteo": {"protocol": "serial", "port": mocks.meteo_mock.port_path, "baudrate": 9600, "timeout_s": 2.0},
