@@ -6,17 +6,19 @@ import json
 import os
 import re
 import socket
+import subprocess
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rich.table import Table
 from threadpoolctl import threadpool_info
 
 import trackcal.campaign.cli.analysis
 import trackcal.campaign.jobs.limits as limits
-from tests.helpers import kr270_campaign
+from tests.helpers import TRACKCAL, kr270_campaign
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.identify.solver import Identification
 from trackcal.calib.io.table import read_table, write_table
@@ -24,6 +26,7 @@ from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import identification_to_doc
 from trackcal.campaign.cli import build_parser, flag, main
 from trackcal.campaign.cli.console import print_table
+from trackcal.campaign.cli.mock import mock_pid, running_mock
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.identify import convergence_warning
 from trackcal.campaign.jobs.limits import available_bytes
@@ -412,3 +415,26 @@ def test_import_numbers_are_bounded(tmp_path, capsys, option, value):
     assert main(["import", "ipa-ur10", str(tmp_path / "series.csv"), "--out", str(out), option, value]) == 2
     err = capsys.readouterr().err
     assert f"{option}: must be positive and at most" in err and err.count("\n") == 1 and not out.exists(), err
+
+
+def test_a_detached_mock_serves_when_it_returns_and_stops_on_request(tmp_path):
+    """Issue 25: `trackcal mock ... &` raced the next command. --detach returns once the hardware file is written
+    and every server listens: the tracker and PLC ports accept a connection at once; --stop leaves no process."""
+    hw = tmp_path / "cell.yaml"
+    started = subprocess.run([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw),
+                              "--detach"], cwd=tmp_path, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert started.returncode == 0, started.stderr
+    pid = mock_pid(hw)
+    try:
+        assert f"pid {pid}" in started.stdout and f"trackcal mock --stop {hw}" in " ".join(started.stdout.split())
+        doc = yaml.safe_load(hw.read_text())
+        for device in ("tracker", "plc"):  # listening before --detach returned: no wait, no retry
+            socket.create_connection((doc[device]["host"], doc[device]["port"]), timeout=5).close()
+        assert (tmp_path / "cell.yaml.log").exists()
+        stopped = subprocess.run([*TRACKCAL, "mock", "--stop", str(hw)], cwd=tmp_path, capture_output=True,
+                                 text=True, timeout=120)  # fmt: skip
+        assert stopped.returncode == 0 and not running_mock(pid), stopped.stderr
+        assert "stopping" in (tmp_path / "cell.yaml.log").read_text()  # it closed its servers itself (SIGTERM)
+    finally:
+        if running_mock(pid):
+            os.kill(pid, 9)
