@@ -303,7 +303,8 @@ def small_machine(monkeypatch):
     # 1000 starts x 100,000 configurations x 9 x 9 parameters x 8 bytes: 60.3 GiB of screening alone (issue 25)
     (["plan", "--cell", "kr270", "--configs", "100000"], r"--configs 100000: needs about "),
     (["plan", "--cell", "kr270", "--starts", "100000000"], r"--starts 100000000: needs about "),
-    (["plan", "--cell", "kr270", "--refined", "100000000"], r"--refined 100000000: needs about "),
+    (["plan", "--cell", "kr270", "--refined", "100000000", "--starts", "100000000"], r"--starts 100000000: needs "),
+    (["plan", "--cell", "kr270", "--refined", "1001"], r"--refined 1001: at most --starts \(1000\)"),
     (["plan", "--cell", "kr270", "--repeat", "1000000000"], r"--repeat 1000000000: the campaign would measure "),
     (["plan", "--cell", "kr270", "--refined", "0"], r"--starts and --refined must be at least 1"),
     (["plan", "--cell", "kr270", "--sigma-mm", "0.02"], r"--sigma-mm is the i.i.d. noise .* --noise iid"),

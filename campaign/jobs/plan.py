@@ -153,16 +153,19 @@ WORKERS = min(os.cpu_count() or 1, 8)  # the local process pool's size (executor
 def plan_bytes(design: Design, opts: PlanOptions) -> dict[str, float]:
     """Peak memory of a plan search by its stages, bytes, from the arrays optimize_plan makes (float64):
     screening holds the information matrices of `starts` plans of `configs` poses (starts x configs x k x k, k
-    parameters: 60.3 GiB for 100,000 configurations); every refinement task carries the pool's matrices; each
-    worker's SLSQP holds the constraint Jacobian (configs x points x (6 box faces + stations) rows, configs x dof
-    columns) about four times (ours, SLSQP's copy and its work arrays): quadratic in configs."""
-    k, m = len(design.params), opts.configs
-    pool = max(POOL, m + 1)
+    parameters: 60.3 GiB for 100,000 configurations); the pool's poses and matrices are held once, and each
+    refinement task holds its plan's pool indices and its two results (configs x dof), plus the pool's matrices
+    when a Dask cluster serialises every task; each worker's SLSQP holds the constraint Jacobian (configs x points
+    x (6 box faces + stations) rows, configs x dof columns) about four times (ours, SLSQP's copy and its work
+    arrays): quadratic in configs."""
+    k, m, dof = len(design.params), opts.configs, design.chain.dof
+    pool = 8.0 * max(POOL, m + 1) * (k * k + dof)
+    task = 8.0 * m * (1 + 2 * dof) + 256 + (pool if opts.scheduler else 0.0)
     rows = len(design.tool) * (6 + len(design.trackers))
     return {
         "screening": 8.0 * opts.starts * m * (k * k + 1),
-        "tasks": 8.0 * pool * (k * k + design.chain.dof) * (1 + opts.refined),
-        "refinement": WORKERS * 4 * 8.0 * (m * rows) * (m * design.chain.dof),
+        "tasks": pool + task * opts.refined,
+        "refinement": WORKERS * 4 * 8.0 * (m * rows) * (m * dof),
     }
 
 
@@ -173,6 +176,9 @@ def check_plan_size(design: Design, opts: PlanOptions) -> None:
         raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
     if opts.starts < 1 or opts.refined < 1:
         raise OptionError("{0} and {1} must be at least 1", "starts", "refined")
+    if opts.refined > opts.starts:  # the refined plans are the best of the screened ones
+        raise OptionError("{0} {refined}: at most {1} ({starts}), the plans screened", "refined", "starts",
+                          refined=opts.refined, starts=opts.starts)  # fmt: skip
     need = plan_bytes(design, opts)
     largest = max(need, key=need.get)
 
