@@ -164,7 +164,7 @@ def plan_bytes(design: Design, opts: PlanOptions) -> dict[str, float]:
     rows = len(design.tool) * (6 + len(design.trackers))
     return {
         "screening": 8.0 * opts.starts * m * (k * k + 1),
-        "tasks": pool + task * opts.refined,
+        "tasks": pool + task * min(opts.refined, opts.starts),  # the best screened plans are refined
         "refinement": WORKERS * 4 * 8.0 * (m * rows) * (m * dof),
     }
 
@@ -176,9 +176,6 @@ def check_plan_size(design: Design, opts: PlanOptions) -> None:
         raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
     if opts.starts < 1 or opts.refined < 1:
         raise OptionError("{0} and {1} must be at least 1", "starts", "refined")
-    if opts.refined > opts.starts:  # the refined plans are the best of the screened ones
-        raise OptionError("{0} {refined}: at most {1} ({starts}), the plans screened", "refined", "starts",
-                          refined=opts.refined, starts=opts.starts)  # fmt: skip
     need = plan_bytes(design, opts)
     largest = max(need, key=need.get)
 
