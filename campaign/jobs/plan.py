@@ -150,7 +150,8 @@ POOL = 2000
 WORKERS = min(os.cpu_count() or 1, 8)  # the local process pool's size (executor_for)
 # Measured (KR-270, 10 starts, 1 refinement in one process, peak RSS above the imports): 63 MB at 24
 # configurations, 81 MB at 48; the 18 MB between them, quadratic, is 9 copies of the 8-byte constraint Jacobian
-# (24 rows x 6 columns per configuration squared: 1728 x 1152 bytes x 9 = 17.9 MB)
+# (24 rows x 6 columns per configuration squared: 1728 x 1152 bytes x 9 = 17.9 MB); at 96 it predicts 153 MB,
+# measured 148 MB
 REFINE_COPIES = 9
 
 
