@@ -5,23 +5,32 @@ import argparse
 import json
 import os
 import re
+import socket
+import subprocess
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
+from rich.table import Table
 from threadpoolctl import threadpool_info
 
 import trackcal.campaign.cli.analysis
-from tests.helpers import kr270_campaign
+import trackcal.campaign.jobs.limits as limits
+from tests.helpers import TRACKCAL, kr270_campaign
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.identify.solver import Identification
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import identification_to_doc
 from trackcal.campaign.cli import build_parser, flag, main
+from trackcal.campaign.cli.console import print_table
+from trackcal.campaign.cli.mock import mock_pid, running_mock
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.identify import convergence_warning
-from trackcal.campaign.jobs.plan import parse_test_pose
+from trackcal.campaign.jobs.limits import available_bytes
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, check_plan_size, parse_test_pose, plan_bytes
 
 
 @pytest.fixture(scope="module")
@@ -229,3 +238,217 @@ def test_option_mistakes_are_one_line_naming_the_command(argv, prog, capsys):
 def test_plan_writes_plan_json_by_default():
     args = build_parser().parse_args(["plan", "--cell", "kr270"])
     assert args.json == "plan.json"
+
+
+def test_no_option_is_taken_by_a_prefix_of_its_name():
+    """Issue 25: `plan --config 6` was taken as `--configs 6` (argparse's prefix matching) and overwrote plan.json."""
+    for parser in [build_parser(), *leaf_parsers(build_parser())]:
+        assert parser.allow_abbrev is False, parser.prog
+        for action in parser._actions:
+            for option in (o for o in action.option_strings if o.startswith("--") and len(o) > 4):
+                found = parser._parse_optional(option[:-1])  # what argparse makes of the shortened flag
+                found = found[0] if isinstance(found, tuple) else found[0][0]  # 3.11 | 3.12+ return forms
+                assert found is None, f"{parser.prog}: {option[:-1]} is taken as {option}"
+
+
+def test_a_shortened_option_is_one_line_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(["plan", "--cell", "kr270", "--config", "6"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "unrecognized arguments: --config 6" in err and err.count("\n") == 1
+    assert not (tmp_path / "plan.json").exists()
+
+
+def test_every_optional_option_says_its_default_or_what_happens_without_it():
+    """An optional output left out (--json, --plots, --csv, --krl, ...): its help says so ("default: not written")."""
+    for parser in leaf_parsers(build_parser()):
+        text = " ".join(parser.format_help().split())
+        for action in parser._actions:
+            if not action.option_strings or action.required or action.help == argparse.SUPPRESS \
+                    or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction)):  # fmt: skip
+                continue
+            help_text = " ".join(action.help.split())
+            assert "default" in help_text or f"(default: {action.default})" in text, (parser.prog, action.dest)
+
+
+def test_tables_are_never_cut_on_a_narrow_console(tmp_path, campaign_csv, capsys, monkeypatch):
+    """Issue 25: console tables were cut at 80 columns ("cycli…"): every name is printed whole, however narrow."""
+    monkeypatch.setenv("COLUMNS", "40")
+    names = ["joint_compliance", "cyclic_error", "station_shift"]
+    t = Table(title="Diagnosis")
+    for col in ("step", "candidate", "params", "held-out RMS µm", "gain µm", "fit RMS µm", "F-test p", "dBIC"):
+        t.add_column(col, justify="right")
+    for i, name in enumerate(names):
+        t.add_row(str(i + 1), name, "12", "1609.6", "42138.0", "14.4", "1e-05", "-123")
+    print_table(t)
+    out = capsys.readouterr().out
+    assert "…" not in out and all(n in out for n in [*names, "1609.6", "42138.0", "1e-05"]), out
+    assert main(["identify", str(campaign_csv[1]), "--cell", "kr270", "--out", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert "…" not in out and all(re.search(rf"\b{p}\b", out) for p in doc["parameters"]), out
+
+
+@pytest.fixture
+def small_machine(monkeypatch):
+    """A machine with 1 GiB available, whatever this one has (the limits are then the same on every machine)."""
+    monkeypatch.setattr(limits, "MEMORY_CEILING_BYTES", 2**30)
+
+
+@pytest.mark.parametrize("argv, message", [
+    # 100,000,000 poses x 6 (station, point) pairs x 433 bytes measured: 242 GiB (was a 17.9 GiB traceback)
+    (["simulate", "--cell", "kr270", "--poses", "100000000", "--out", "x.csv"], r"--poses 100000000: needs about "),
+    (["simulate", "--cell", "kr270", "--poses", "10", "--repeat", "100000000", "--out", "x.csv"], r"--repeat "),
+    # 1000 starts x 100,000 configurations x 9 x 9 parameters x 8 bytes: 60.3 GiB of screening alone (issue 25)
+    (["plan", "--cell", "kr270", "--configs", "100000"], r"--configs 100000: needs about "),
+    (["plan", "--cell", "kr270", "--starts", "100000000"], r"--starts 100000000: needs about "),
+    (["plan", "--cell", "kr270", "--refined", "100000000", "--starts", "100000000"], r"--starts 100000000: needs "),
+    (["plan", "--cell", "kr270", "--repeat", "1000000000"], r"--repeat 1000000000: the campaign would measure "),
+    (["plan", "--cell", "kr270", "--refined", "0"], r"--starts and --refined must be at least 1"),
+    (["plan", "--cell", "kr270", "--sigma-mm", "0.02"], r"--sigma-mm is the i.i.d. noise .* --noise iid"),
+])  # fmt: skip
+def test_large_numbers_are_refused_with_the_limit_before_allocating(small_machine, tmp_path, monkeypatch, capsys,
+                                                                     argv, message):  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(message, err), err
+    if "needs about" in message:
+        most = int(re.search(r"at most (\d+)", err).group(1))
+        assert "GiB is available" in err and most < int(argv[argv.index(message.split()[0].rstrip(":")) + 1])
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_largest_count_said_to_fit_does_fit(small_machine, kr270):
+    """The "at most N" of the refusal is the largest count the same check lets through."""
+    design = build_design(kr270, PlanOptions())
+    with pytest.raises(OptionError, match=r"at most (\d+)") as refused:
+        check_plan_size(design, PlanOptions(configs=100_000))
+    most = int(re.search(r"at most (\d+)", str(refused.value)).group(1))
+    check_plan_size(design, PlanOptions(configs=most))  # passes
+    assert sum(plan_bytes(design, PlanOptions(configs=most + 1)).values()) > available_bytes()
+    # the screening term is the array optimize_plan makes: starts x configs information matrices, float64
+    k = len(design.params)
+    assert plan_bytes(design, PlanOptions(configs=100_000))["screening"] >= 1000 * 100_000 * k * k * 8
+
+
+@pytest.mark.parametrize("command", [["simulate", "--out", "x.csv"], ["plan"], ["mock"], ["demo"], ["diagnose", "t.csv",
+                                     "--json", "v.json"], ["run", "--plan", "p.json", "--sim", "--session", "s"]])
+def test_a_negative_seed_is_one_line(command, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([*command, "--cell", "kr270", "--seed", "-1"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "--seed: expected a whole number from 0, got -1" in err and err.count("\n") == 1
+
+
+def test_a_server_that_is_no_dask_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
+    """Issue 25: an HTTP server at the --scheduler address (its "HTTP/1.1" read as a Dask frame length: 3.07 EiB)
+    was a traceback."""
+    pytest.importorskip("distributed")
+    server = socket.create_server(("127.0.0.1", 0))
+    host, port = server.getsockname()
+
+    def answer_http():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            with conn:
+                conn.recv(65536)
+                conn.sendall(b"HTTP/1.1 404 Not Found\r\nserver: test\r\ncontent-length: 0\r\n\r\n")
+
+    threading.Thread(target=answer_http, daemon=True).start()
+    monkeypatch.chdir(tmp_path)
+    try:
+        code = main(["plan", "--cell", "kr270", "--scheduler", f"tcp://{host}:{port}", "--starts", "2"])
+    finally:
+        server.close()
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and f"--scheduler tcp://{host}:{port}: " in err, err
+
+
+def test_plan_noise_defaults_to_the_tracker_model_as_identify_weighs():
+    args = build_parser().parse_args(["plan", "--cell", "kr270"])
+    assert args.noise == "tracker" and PlanOptions().noise == "tracker"
+    assert build_parser().parse_args(["identify", "t.csv", "--cell", "kr270", "--out", "m.json"]).weighting == "tracker"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["mock", "--cell", "kr270", "--detach"], "--detach needs --write-hardware FILE"),
+    (["mock"], "--cell is required (or --stop FILE)"),
+    (["mock", "--stop", "H.yaml", "--cell", "kr270"], "--stop FILE takes no other option"),
+    (["mock", "--stop", "H.yaml"], "H.yaml: not a hardware file written by trackcal mock"),
+    (["mock", "--stop", "missing.yaml"], "missing.yaml: cannot read"),
+])  # fmt: skip
+def test_mock_detach_and_stop_mistakes_are_one_line(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "H.yaml").write_text("tracker: {}\n")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+
+
+def test_stop_refuses_a_pid_that_is_no_mock(tmp_path, capsys):
+    """--stop signals only a trackcal mock: a stale file whose pid is now another program's is refused."""
+    (tmp_path / "H.yaml").write_text(f"# trackcal mock --cell kr270 --seed 3: the twin (pid {os.getpid()}); valid\n")
+    assert main(["mock", "--stop", str(tmp_path / "H.yaml")]) == 2
+    assert f"no trackcal mock runs with pid {os.getpid()}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("folds", ["0", "-1", "1000000000"])
+def test_diagnose_folds_outside_what_the_table_can_hold_out_is_one_line(tmp_path, campaign_csv, capsys, folds):
+    """--folds 0 was numpy's traceback; 10^9 a list of 10^9 empty blocks: a fold holds out at least one row."""
+    argv = ["diagnose", str(campaign_csv[1]), "--cell", "kr270", "--folds", folds, "--json", str(tmp_path / "v.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"--folds {folds}: from 2 to the table's " in err and err.count("\n") == 1, err
+    assert not (tmp_path / "v.json").exists()
+
+
+@pytest.mark.parametrize("option, value", [("--lever-mm", "nan"), ("--lever-mm", "1e308"), ("--period-s", "inf"),
+                                           ("--period-s", "1e308")])  # fmt: skip
+def test_import_numbers_are_bounded(tmp_path, capsys, option, value):
+    """--lever-mm nan wrote a table of NaN positions, 1e308 one of infinities: both are one line now."""
+    out = tmp_path / "b.csv"
+    assert main(["import", "ipa-ur10", str(tmp_path / "series.csv"), "--out", str(out), option, value]) == 2
+    err = capsys.readouterr().err
+    assert f"{option}: must be positive and at most" in err and err.count("\n") == 1 and not out.exists(), err
+
+
+def test_a_detached_mock_serves_when_it_returns_and_stops_on_request(tmp_path):
+    """Issue 25: `trackcal mock ... &` raced the next command. --detach returns once the hardware file is written
+    and every server listens: the tracker and PLC ports accept a connection at once; --stop leaves no process."""
+    hw = tmp_path / "cell.yaml"
+    started = subprocess.run([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw),
+                              "--detach"], cwd=tmp_path, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert started.returncode == 0, started.stderr
+    pid = mock_pid(hw)
+    try:
+        assert f"pid {pid}" in started.stdout and f"trackcal mock --stop {hw}" in " ".join(started.stdout.split())
+        doc = yaml.safe_load(hw.read_text())
+        for device in ("tracker", "plc"):  # listening before --detach returned: no wait, no retry
+            socket.create_connection((doc[device]["host"], doc[device]["port"]), timeout=5).close()
+        assert (tmp_path / "cell.yaml.log").exists()
+        stopped = subprocess.run([*TRACKCAL, "mock", "--stop", str(hw)], cwd=tmp_path, capture_output=True,
+                                 text=True, timeout=120)  # fmt: skip
+        assert stopped.returncode == 0 and not running_mock(pid), stopped.stderr
+        assert "stopping" in (tmp_path / "cell.yaml.log").read_text()  # it closed its servers itself (SIGTERM)
+    finally:
+        if running_mock(pid):
+            os.kill(pid, 9)
+
+
+def test_a_scheduler_address_where_nothing_listens_is_one_line_within_the_timeout(tmp_path, monkeypatch, capsys):
+    import trackcal.campaign.jobs.plan as plan_job  # lazy: the module whose timeout the test shortens
+
+    pytest.importorskip("distributed")
+    monkeypatch.setattr(plan_job, "SCHEDULER_TIMEOUT_S", 1)  # the bound is the option's, not the machine's speed
+    closed = socket.create_server(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()  # nothing listens there now
+    monkeypatch.chdir(tmp_path)
+    assert main(["plan", "--cell", "kr270", "--scheduler", f"tcp://127.0.0.1:{port}", "--starts", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot reach the Dask scheduler" in err, err

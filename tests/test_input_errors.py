@@ -206,3 +206,20 @@ def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd,
     bad.write_text(json.dumps({**doc, "extension": extension}))
     err = one_line_error(capfd, ["predict", model_json / "t.csv", "--model", bad, "--out", tmp_path / "out.csv"])
     assert str(bad) in err and re.search(message, err) and "invalid literal" not in err, err
+
+
+@pytest.mark.parametrize("command, text, message", [
+    # a table saved by Excel in a locale with decimal commas: ';' between fields, ',' in numbers (issue 25)
+    (["identify", "T", "--cell", "kr270", "--out", "m.json"],
+     "seq;t_s;pose;station;point;q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg;x_mm;y_mm;z_mm\n"
+     "1;0,0;P1;S1;Q1;1,5;-80;80;0;40;5;1000,1;2;3\n", "this table is separated by ';' with decimal commas"),
+    (["plan", "--cell", "kr270", "--evaluate", "T", "--json", "e.json"],
+     "q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg\n1.5;-80;80;0;40;5\n", "this table is separated by ';', not by ','"),
+    (["compensate", "T", "--model", "M", "--out", "c.csv"],
+     "name\tq1_deg\tq2_deg\tq3_deg\tq4_deg\tq5_deg\tq6_deg\nHOME\t0\t-90\t90\t0\t0\t0\n", "separated by tabs"),
+])  # fmt: skip
+def test_a_table_with_another_separator_is_named_as_such(model_json, tmp_path, capfd, command, text, message):
+    table = tmp_path / "t.csv"
+    table.write_text(text)
+    err = one_line_error(capfd, [table if a == "T" else model_json / "model.json" if a == "M" else a for a in command])
+    assert message in err and "row 1" in err and "joint columns" not in err, err

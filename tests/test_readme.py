@@ -3,7 +3,9 @@
 The examples build their own fixtures (the first simulates a small table on the digital twin), so a newcomer can
 paste them one after the other. A command line ending in `# not run by the README test: REASON` (hardware, a
 cluster, many minutes) is shown but skipped here; a block that uses $TRACKCAL_IPA_DATA runs only where the IPA
-data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points).
+data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points). A `python -m MODULE` line
+that is not run must still name a module the empty directory can import. A block that starts a detached
+`trackcal mock` must stop it: a mock still running after the block fails the test (and is stopped).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -19,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers import ROOT
+from trackcal.campaign.cli.mock import mock_pid, running_mock
 
 README = ROOT / "README.md"
 NOT_RUN = "# not run by the README test:"
@@ -97,8 +101,53 @@ def test_example_runs_verbatim(example: Example, workdir: Path):
                TRACKCAL_IPA_DATA=str(IPA_DATA), OPENBLAS_NUM_THREADS="1")  # fmt: skip
     script = (f"set -eo pipefail\ntrap 'echo \"README.md:{example.line}: failed: $BASH_COMMAND\" >&2' ERR\n"
               "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n" + script + "\n")  # fmt: skip
-    done = subprocess.run(["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True,
-                          stdin=subprocess.DEVNULL)  # fmt: skip
+    try:
+        done = subprocess.run(["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True,
+                              stdin=subprocess.DEVNULL)  # fmt: skip
+    finally:  # a detached mock outlives the shell: the block must stop it, and a failed block leaves none either
+        left = left_running(workdir, example.commands)
     assert done.returncode == 0, f"README.md:{example.line}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
+    assert not left, f"README.md:{example.line} left its trackcal mock running (pids {left}; now stopped)"
     missing = [p for c in example.commands for p in outputs_of(c) if not (workdir / p).exists()]
     assert not missing, f"README.md:{example.line}: the example did not make {missing}"
+
+
+def left_running(workdir: Path, commands: list[str]) -> list[int]:
+    """Pids of the mocks the commands started (their --write-hardware files) that still run; each is stopped."""
+    pids = []
+    for command in commands:
+        words = shlex.split(command.partition(" #")[0])
+        if words[:2] == ["trackcal", "mock"] and "--write-hardware" in words:
+            hardware = workdir / words[words.index("--write-hardware") + 1]
+            pid = mock_pid(hardware) if hardware.exists() else None
+            if pid is not None and running_mock(pid):
+                pids.append(pid)
+                os.kill(pid, signal.SIGKILL)
+    return pids
+
+
+def test_the_readme_starts_a_mock_and_stops_it():
+    """The mock block runs (it is not all marked not run) and stops its mock: test_example_runs_verbatim fails a
+    block that leaves one running."""
+    blocks = [e for e in EXAMPLES if any(c.startswith("trackcal mock") for c in e.commands)]
+    assert blocks and any("--detach" in c for c in blocks[0].commands), "the README runs no detached mock"
+    assert any(c.startswith("trackcal mock --stop") for c in blocks[0].commands)
+
+
+def test_a_module_the_readme_names_but_does_not_run_can_be_imported_from_any_directory(tmp_path):
+    modules = [re.match(r"python -m ([\w.]+)", line) for ex in EXAMPLES for line in ex.skipped]
+    modules = sorted({m.group(1) for m in modules if m})
+    assert modules, "the README names no `python -m` module"
+    env = dict(os.environ, PYTHONPATH="")
+    for module in modules:  # a spec found from an empty directory: not only from the repository's root
+        done = subprocess.run([sys.executable, "-c", f"import importlib.util as u; assert u.find_spec({module!r})"],
+                              cwd=tmp_path, env=env, capture_output=True, text=True)  # fmt: skip
+        assert done.returncode == 0, f"README: python -m {module} fails outside the repository root: {done.stderr}"
+
+
+def test_the_study_without_data_says_where_it_looked(tmp_path):
+    nowhere = tmp_path / "no-data"
+    done = subprocess.run([sys.executable, "-m", "trackcal.studies.ur10_ipa.study", "--data", str(nowhere)],
+                          cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert str(nowhere) in done.stderr and "TRACKCAL_IPA_DATA" in done.stderr

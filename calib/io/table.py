@@ -18,6 +18,7 @@ import dataclasses
 import io
 import itertools
 import math
+import re
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -142,8 +143,32 @@ def split_lines(data: bytes) -> list[str]:
     return lines
 
 
-def split_header(path: Path, line: str, delimiter: str, error: type[TableError]) -> list[str]:
-    """Row 1: distinct column names, stripped."""
+# separators a spreadsheet writes instead of the comma (Excel in a locale with decimal commas writes ';')
+OTHER_SEPARATORS = {";": "';'", "\t": "tabs", "|": "'|'"}
+DECIMAL_COMMA = re.compile(r"(?:^|[;\t|])\s*[-+]?\d+,\d+\s*(?=$|[;\t|])")
+
+
+def separator_note(line: str, delimiter: str, sample: str | None = None) -> str | None:
+    """Why a header without `delimiter` that another separator splits into names is no table of ours (and
+    whether its first data row `sample` writes decimal commas); None for any other header."""
+    if delimiter in line:
+        return None
+    for sep, name in OTHER_SEPARATORS.items():
+        if sep in line:
+            commas = " with decimal commas" if sample and DECIMAL_COMMA.search(sample) else ""
+            return (f"this table is separated by {name}{commas}, not by {delimiter!r}: save it as comma-separated "
+                    f"values with decimal points (a spreadsheet's CSV export in an English locale)")  # fmt: skip
+    return None
+
+
+def split_header(
+    path: Path, line: str, delimiter: str, error: type[TableError], sample: str | None = None
+) -> list[str]:
+    """Row 1: distinct column names, stripped. A header another separator splits (a spreadsheet's ';') is
+    refused saying so (`sample`: the first data row, to tell decimal commas too)."""
+    note = separator_note(line, delimiter, sample)
+    if note is not None:
+        raise error(f"{path}: row 1: {note}")
     try:
         header = [h.strip() for h in next(csv.reader([line], delimiter=delimiter))]
     except csv.Error as exc:
@@ -163,7 +188,7 @@ def read_csv(path: Path, delimiter: str = ",", error: type[TableError] = TableEr
         rows = list(csv.reader(lines, delimiter=delimiter))
     except csv.Error as exc:
         raise error(f"{path}: not a {delimiter!r}-separated text file ({exc})") from None
-    rows[0] = split_header(path, lines[0], delimiter, error)
+    rows[0] = split_header(path, lines[0], delimiter, error, lines[1] if len(lines) > 1 else None)
     return rows
 
 
@@ -331,7 +356,8 @@ def read_table(
     if first is None:
         raise TableError(f"{path}: empty file, expected a header row")
     line, _, body = first[1].partition(b"\n")
-    header = split_header(path, line.decode("utf-8"), ",", TableError)
+    sample = body.partition(b"\n")[0].decode("utf-8", errors="replace")
+    header = split_header(path, line.decode("utf-8"), ",", TableError, sample)
     qcols = []
     while f"q{len(qcols) + 1}_deg" in header:
         qcols.append(f"q{len(qcols) + 1}_deg")

@@ -45,10 +45,13 @@ class HelpWithDefaults(argparse.HelpFormatter):
 
 
 class Parser(argparse.ArgumentParser):
-    """An option mistake is one line naming the command it belongs to (`trackcal plan: error: ...`), exit 2."""
+    """An option mistake is one line naming the command it belongs to (`trackcal plan: error: ...`), exit 2.
+    Options are spelled in full: argparse would take a prefix (`plan --config 6` as `--configs 6`), and a
+    misspelt option silently meaning another is worse than an error. Subparsers are made by this class too."""
 
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", HelpWithDefaults)
+        kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):

@@ -6,7 +6,7 @@ import sys
 
 from rich.table import Table
 
-from trackcal.campaign.cli.console import console
+from trackcal.campaign.cli.console import console, print_table
 from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
 from trackcal.campaign.jobs.identify import (
     IdentifyOptions,
@@ -33,7 +33,7 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
             tv = truth.get(name, 0.0)
             row += [f"{tv:+.4f}", "yes" if abs(tv - p["value"]) <= p["ci95"] else "NO"]
         t.add_row(*row)
-    console.print(t)
+    print_table(t)
     r = doc["residuals"]
     rt = Table(title="Residuals (paper Table 9 style), mm")
     for col in ("", "before", "after", "factor"):
@@ -42,7 +42,7 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
                        ("dist_max_mm", "distance max"), ("dist_rms_mm", "distance RMS")):
         b, a = r["before"][key], r["after"][key]
         rt.add_row(label, f"{b:.4f}", f"{a:.4f}", f"{b / a:.1f}" if a > 0 else "-")
-    console.print(rt)
+    print_table(rt)
     if "significance_mm" in doc:
         sig = sorted(doc["significance_mm"].items(), key=lambda kv: -kv[1])
         console.print(
@@ -73,7 +73,7 @@ def print_extension(ext: dict) -> None:
         t.add_column(col, justify="right")
     for name, p in ext.get("parameters", {}).items():
         t.add_row(name, p["unit"], f"{p['value']:+.4g}", f"±{p['ci95']:.3g}")
-    console.print(t)
+    print_table(t)
 
 
 def cmd_identify(args) -> int:
@@ -129,7 +129,7 @@ def cmd_diagnose(args) -> int:
         t.add_row(str(c["step"]), c["cause"], str(c["n_params"]), um(c["holdout_rms_mm"]), um(c["gain_mm"]),
                   um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
                   "yes" if c["significant"] else "no")  # fmt: skip
-    console.print(t)
+    print_table(t)
     console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} µm ({d.floor_source}); {doc['noise_note']}; held-out "
                   f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} µm"
                   + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip

@@ -6,6 +6,7 @@ runs (campaign.cli.main), so `trackcal --help` and the light commands load neith
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field
 
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, WEIGHTINGS
@@ -33,6 +34,17 @@ BATCH_ARGS = [
     arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
     arg("--scheduler", help="Dask scheduler address (default: a local process pool)"),
 ]  # fmt: skip
+
+
+def seed(text: str) -> int:
+    """A seed option: numpy's generators take whole numbers from 0 (a negative one was a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0, got {text}")
+    return value
 
 
 @dataclass(frozen=True)
@@ -71,7 +83,8 @@ COMMANDS = [
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--extend", default="none", help=CAUSE_HELP),
                 arg("--out", required=True, help="model.json to write"),
-                arg("--json", help="summary JSON to write (residuals, fit against the noise floor, parameters)"),
+                arg("--json", help="summary JSON to write (residuals, fit against the noise floor, parameters) "
+                                    "(default: not written)"),
             ]),
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
             "trackcal.campaign.cli.analysis:cmd_diagnose", [
@@ -80,10 +93,10 @@ COMMANDS = [
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)"),
-                arg("--seed", type=int, default=0, help="seed of the assignment of poses to folds"),
-                arg("--plots", help="directory for the residual plots"),
+                arg("--seed", type=seed, default=0, help="seed of the assignment of poses to folds"),
+                arg("--plots", help="directory for the residual plots (default: no plots)"),
                 arg("--json", required=True, help="verdict JSON to write"),
-                arg("--out", help="model.json of the chosen model (usable by predict)"),
+                arg("--out", help="model.json of the chosen model to write, usable by predict (default: not written)"),
             ]),
     Command("predict", "predict reflector positions with a model", "trackcal.campaign.cli.analysis:cmd_predict", [
         arg("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)"),
@@ -96,17 +109,19 @@ COMMANDS = [
                 arg("--test-pose", help="Q1,..,Qn in degrees (default: the cell's test pose)"),
                 arg("--configs", type=int, default=6, help="number of distinct configurations M"),
                 arg("--repeat", type=int, default=1, help="each configuration measured K times"),
-                arg("--sigma-mm", type=float, help="tracker noise, one coordinate (default 0.01)"),
-                arg("--noise", choices=("iid", "tracker"), default="iid", help="i.i.d. or the AT901 model"),
+                arg("--sigma-mm", type=float, help="--noise iid: the noise of one coordinate, mm (default: 0.01)"),
+                arg("--noise", choices=("tracker", "iid"), default="tracker",
+                    help="the AT901 model, as identify weighs the campaign, or i.i.d. --sigma-mm (the paper's)"),
                 arg("--params", help="parameters targeted (default: the cell's plan_params)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),
-                arg("--seed", type=int, default=0, help="seed of the random starting plans"),
+                arg("--seed", type=seed, default=0, help="seed of the random starting plans"),
                 arg("--starts", type=int, default=1000, help="random plans of the candidate pool scored (screening)"),
                 arg("--refined", type=int, default=16, help="best screened plans exchanged, then refined"),
                 arg("--scheduler", help="Dask scheduler address (default: local process pool)"),
-                arg("--evaluate", help="CSV of poses (q1_deg..qn_deg, one row per measurement) to evaluate"),
-                arg("--csv", help="also write the plan as a CSV of rows (repetitions included)"),
+                arg("--evaluate", help="CSV of poses (q1_deg..qn_deg, one row per measurement) to evaluate "
+                                          "(default: search a plan)"),
+                arg("--csv", help="also write the plan as a CSV of rows, repetitions included (default: not written)"),
                 arg("--json", default="plan.json", help="plan JSON to write"),
             ]),
     Command("simulate", "simulate a campaign of random feasible poses on the digital twin",
@@ -114,15 +129,15 @@ COMMANDS = [
                 arg("--cell", default="kr270", help=CELL_HELP),
                 arg("--poses", type=int, default=30, help="random feasible poses"),
                 arg("--repeat", type=int, default=1, help="each pose measured K times"),
-                arg("--seed", type=int, default=1, help="the twin's seed (its true robot, stations and noise)"),
+                arg("--seed", type=seed, default=1, help="the twin's seed (its true robot, stations and noise)"),
                 arg("--noise-free", action="store_true", help="no tracker noise"),
-                arg("--effect", action="append", help=EFFECT_HELP),
+                arg("--effect", action="append", help=EFFECT_HELP + " (default: none)"),
                 arg("--out", required=True, help="measurement table to write"),
             ]),
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
             "trackcal.campaign.cli.demo:cmd_demo", [
                 arg("--cell", default="kr270", help=CELL_HELP),
-                arg("--seed", type=int, default=1, help="the twin's seed"),
+                arg("--seed", type=seed, default=1, help="the twin's seed"),
                 arg("--out", default="out/demo", help="directory of the plan and the session"),
             ]),
     Command("run", "run a measurement campaign (simulated cell or hardware)",
@@ -130,9 +145,10 @@ COMMANDS = [
         arg("--cell", required=True, help=CELL_HELP),
         arg("--plan", required=True, help="plan.json from `trackcal plan`"),
         arg("--sim", action="store_true", help="the digital twin's cell"),
-        arg("--hardware", help="hardware config (configs/hardware/README.md); stored in the session"),
-        arg("--seed", type=int, default=1, help="--sim: the twin's seed"),
-        arg("--effect", action="append", help="--sim: " + EFFECT_HELP),
+        arg("--hardware", help="hardware config (configs/hardware/README.md); stored in the session (default: none; "
+                                "--sim or --hardware is needed)"),
+        arg("--seed", type=seed, default=1, help="--sim: the twin's seed"),
+        arg("--effect", action="append", help="--sim: " + EFFECT_HELP + " (default: none)"),
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
         arg("--session", required=True, help="session directory to create"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
@@ -147,8 +163,8 @@ COMMANDS = [
     Command("replay", "re-run a recorded campaign into a new session", "trackcal.campaign.cli.campaign:cmd_replay", [
         arg("session", help="session directory of the recording (never modified)"),
         arg("--into", required=True, help="new session directory for the replay"),
-        arg("--cell", help="replay with this cell instead of the recorded one"),
-        arg("--plan", help="replay with this plan instead of the recorded one"),
+        arg("--cell", help="replay with this cell (default: the recorded one)"),
+        arg("--plan", help="replay with this plan (default: the recorded one)"),
         *OPERATOR_ARGS,
     ]),
     Command("export", "the measurement table of a session", "trackcal.campaign.cli.session:cmd_export", [
@@ -161,11 +177,18 @@ COMMANDS = [
             ]),
     Command("mock", "serve the digital twin's cell on loopback for `trackcal run --hardware`",
             "trackcal.campaign.cli.mock:cmd_mock", [
-                arg("--cell", required=True, help=CELL_HELP),
-                arg("--seed", type=int, default=1, help="the twin's seed"),
-                arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable)"),
-                arg("--write-hardware", metavar="FILE", help="write the hardware config of the mocks here"),
+                arg("--cell", help=CELL_HELP + " (default: none; needed unless --stop)"),
+                arg("--seed", type=seed, default=1, help="the twin's seed"),
+                arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable; default: none)"),
+                arg("--write-hardware", metavar="FILE", help="write the hardware config of the mocks here "
+                                                                          "(default: printed on the console only)"),
                 arg("--sim-speed", type=float, help="simulated seconds per real second (default: flat out)"),
+                arg("--detach", action="store_true",
+                    help="serve in a process of its own, returning once every server listens and the hardware file "
+                         "is written (its output in FILE.log)"),
+                arg("--stop", metavar="FILE", help="stop the mock that wrote this hardware file, SIGTERM, and wait "
+                                                   "for it to exit (default: start a mock)"),
+                arg("--ready-fd", type=int, help=argparse.SUPPRESS),  # --detach's child reports on this pipe
             ]),
     Command("compensate", "joint targets corrected with an identified model (CSV, KRL)",
             "trackcal.campaign.cli.compensate:cmd_compensate", [
@@ -173,18 +196,21 @@ COMMANDS = [
                 arg("--model", required=True, help="model.json from identify or diagnose"),
                 arg("--out", required=True, help="CSV to write: the targets plus compensated angles and errors"),
                 arg("--tcp", help="X,Y,Z of the TCP in the last joint frame, mm (default: tool points centroid)"),
-                arg("--krl", metavar="NAME", help="also write a KR C2 program NAME.src / NAME.dat"),
+                arg("--krl", metavar="NAME", help="also write a KR C2 program NAME.src / NAME.dat (default: "
+                                                          "none)"),
                 arg("--krl-dir", help="directory of the KRL program (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
             ]),
     Command("report", "HTML report of a campaign: plan, residuals, parameters, diagnosis",
             "trackcal.campaign.cli.report:cmd_report", [
                 arg("session", nargs="?", help="session directory (its table, model, plan, verdict)"),
-                arg("--table", help=TABLE_HELP),
-                arg("--model", help="model.json from identify or diagnose"),
-                arg("--plan", help="plan.json from trackcal plan"),
-                arg("--verdict", help="verdict.json from trackcal diagnose"),
-                arg("--plots", help="directory of PNG plots to include (e.g. trackcal diagnose --plots)"),
+                arg("--table", help=TABLE_HELP + " (default: the session's)"),
+                arg("--model", help="model.json from identify or diagnose (default: the session's)"),
+                arg("--plan", help="plan.json from trackcal plan (default: the session's; none without a session)"),
+                arg("--verdict", help="verdict.json from trackcal diagnose (default: the session's; none without a "
+                                         "session)"),
+                arg("--plots", help="directory of PNG plots to include, e.g. trackcal diagnose --plots "
+                                        "(default: none)"),
                 arg("--cell", help="cell (default: the one the model names)"),
                 arg("--out", help="directory for report.html and its PNG plots (default: SESSION/report)"),
             ]),
@@ -209,9 +235,10 @@ COMMANDS = [
                     help="virtual reference points on the probe from its measured orientation (0..6; 2 carry it "
                          "all)"),
                 arg("--lever-mm", type=float, default=100.0,
-                    help="distance of the virtual points from the T-Mac centre (mm; the ur10-tmac tool expects 100)"),
+                    help="distance of the virtual points from the T-Mac centre (mm, at most 10000; the ur10-tmac tool "
+                         "expects 100)"),
                 arg("--period-s", type=float, default=DEFAULT_PERIOD_S,
-                    help="nominal time between poses (s): the file's timestamps are unusable"),
+                    help="nominal time between poses (s, at most a day): the file's timestamps are unusable"),
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),
@@ -225,7 +252,7 @@ COMMANDS = [
                 arg("--centre", help="X,Y,Z of the cube centre in the base frame, mm (default: the TCP at the test "
                                      "pose)"),
                 arg("--cycles", type=int, default=30, help="test cycles (ISO 9283:1998, 6.8: 30)"),
-                arg("--seed", type=int, default=0, help="seed of the orientations tried when the test pose's fails"),
+                arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
             ], group="iso9283"),
     Command("compare", "the ISO 9283 figures of test sessions side by side (e.g. before and after compensation)",
             "trackcal.campaign.cli.iso9283:cmd_compare", [

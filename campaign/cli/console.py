@@ -6,10 +6,24 @@ import threading
 
 from rich.console import Console
 from rich.markup import escape
+from rich.table import Table
 
 from trackcal.drivers.errors import ConnectionLost
 
 console = Console(highlight=False)
+
+
+def print_table(table: Table) -> None:
+    """A table whose cells are never cut: rich shortens a column to fit the console's width (80 when the output is
+    no terminal: "cycli…"), so each column is at least as wide as its widest cell, headers fold, and a table
+    wider than the console is printed whole (the terminal wraps its lines) rather than cropped."""
+    cells = [list(column.cells) for column in table.columns]
+    for column, texts in zip(table.columns, cells, strict=True):
+        column.overflow = "fold"
+        column.min_width = max((len(str(t)) for t in texts), default=0)
+    # the narrowest width that holds every cell: each column plus its padding (1 each side) and the borders
+    needed = sum(column.min_width + 2 for column in table.columns) + len(table.columns) + 1
+    console.print(table, width=max(console.width, needed), crop=False)
 
 # The word each prompt asks for: one that no stray key, paste or cat on the keyboard types by accident. The
 # resume prompt, after which the robot moves, has its own word; a prompt kind not listed asks for "done".

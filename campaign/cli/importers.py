@@ -5,10 +5,17 @@ from __future__ import annotations
 from trackcal.calib.io.table import write_table
 from trackcal.campaign.importers.ipa_ur10 import IpaFormatError, read_ipa_series
 
+# Ceilings of the two numbers the import takes (NaN and inf fail them too): a day between poses, and a lever of
+# 10 m, beyond any probe a UR10 carries (the T-Mac's points are 0.1 m from its centre; ur10-tmac expects 100 mm)
+MAX_PERIOD_S = 86400.0
+MAX_LEVER_MM = 10000.0
+
 
 def cmd_import_ipa(args) -> int:
-    if not args.period_s > 0:
-        raise IpaFormatError(f"--period-s: must be positive, got {args.period_s}")
+    if not 0 < args.period_s <= MAX_PERIOD_S:
+        raise IpaFormatError(f"--period-s: must be positive and at most {MAX_PERIOD_S:g} s, got {args.period_s}")
+    if not 0 < args.lever_mm <= MAX_LEVER_MM:
+        raise IpaFormatError(f"--lever-mm: must be positive and at most {MAX_LEVER_MM:g} mm, got {args.lever_mm}")
     table = read_ipa_series(args.file, station=args.station, period_s=args.period_s,
                             virtual_points=args.virtual_points, lever_mm=args.lever_mm)  # fmt: skip
     try:

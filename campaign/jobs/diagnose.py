@@ -16,7 +16,7 @@ from trackcal.calib.io.files import write_json
 from trackcal.calib.io.table import MeasurementTable, read_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
-from trackcal.campaign.errors import InputError
+from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of
 from trackcal.campaign.report.diagnosis_plots import plots
 
@@ -48,6 +48,9 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     opts.out)."""
     cell = load_cell(opts.cell)
     table = read_table(opts.data, chain=cell.chain)
+    if not 2 <= opts.folds <= max(2, len(table)):  # a fold holds at least one row out (and a huge count was a
+        # list of that many empty blocks); more folds than poses hold out one pose each
+        raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
     params = choose_params(cell, opts.params)
     d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting), folds=opts.folds,
                  seed=opts.seed)  # fmt: skip

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -20,6 +21,7 @@ from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.limits import check_memory, check_table_rows
 
 
 @dataclass(frozen=True)
@@ -28,8 +30,10 @@ class PlanOptions:
 
     params: str | None = None  # comma-separated names; None: the cell's plan_params
     test_pose: str | None = None  # "Q1,..,Qn" in degrees; None: the cell's test pose
-    sigma_mm: float | None = None  # tracker noise, one coordinate; None: 0.01
-    noise: str = "iid"  # or "tracker" (the AT901 model)
+    sigma_mm: float | None = None  # noise="iid": one coordinate's noise; None: 0.01
+    # the AT901 model by default: identify, diagnose and run weigh a campaign by it, and rho0 is the test-pose
+    # error of the estimate they compute; "iid" (sigma_mm) is the paper's i.i.d. case
+    noise: str = "tracker"
     visibility: bool = True
     configs: int = 6
     repeat: int = 1
@@ -70,11 +74,18 @@ def parse_test_pose(cell: Cell, text: str | None) -> np.ndarray:
 def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
+    if opts.sigma_mm is not None and opts.noise != "iid":
+        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the AT901 model, the "
+                          "default, has its own)", "sigma_mm", "noise")  # fmt: skip
     noise = TrackerNoise() if opts.noise == "tracker" else None
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
         sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
     )  # fmt: skip
+
+
+# how long `--scheduler` waits for a Dask scheduler to answer (distributed.Client's connect timeout)
+SCHEDULER_TIMEOUT_S = 10
 
 
 @contextlib.contextmanager
@@ -86,16 +97,21 @@ def executor_for(scheduler: str | None) -> Iterator[Executor]:
         except ImportError:
             raise OptionError("{0} needs Dask: pip install 'trackcal[dask]'", "scheduler") from None
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
         except (OSError, TimeoutError) as exc:
             raise OptionError("{0} {scheduler}: cannot reach the Dask scheduler ({exc})", "scheduler",
                               scheduler=scheduler, exc=exc) from None
+        except Exception as exc:  # noqa: BLE001 - whatever a server that is no Dask scheduler makes distributed raise
+            # e.g. an HTTP server's "HTTP/1.1 404" read as a frame length: numpy asked for 3.07 EiB (MemoryError)
+            raise OptionError("{0} {scheduler}: no Dask scheduler answers there (the server's reply is not Dask's "
+                              "protocol: {kind})", "scheduler", scheduler=scheduler,
+                              kind=type(exc).__name__) from None  # fmt: skip
         try:
             yield client.get_executor()
         finally:
             client.close()
     else:
-        with ProcessPoolExecutor(max_workers=min(os.cpu_count() or 1, 8)) as pool:
+        with ProcessPoolExecutor(max_workers=WORKERS) as pool:
             yield pool
 
 
@@ -129,9 +145,61 @@ def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
     }
 
 
-def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int], None] | None = None) -> dict:
+# calib.doe.design.optimize_plan's pool: max(POOL, configs + 1) random feasible poses
+POOL = 2000
+WORKERS = min(os.cpu_count() or 1, 8)  # the local process pool's size (executor_for)
+# Measured (KR-270, 10 starts, 1 refinement in one process, peak RSS above the imports): 63 MB at 24
+# configurations, 81 MB at 48; the 18 MB between them, quadratic, is 9 copies of the 8-byte constraint Jacobian
+# (24 rows x 6 columns per configuration squared: 1728 x 1152 bytes x 9 = 17.9 MB); at 96 it predicts 153 MB,
+# measured 148 MB
+REFINE_COPIES = 9
+
+
+def plan_bytes(design: Design, opts: PlanOptions) -> dict[str, float]:
+    """Peak memory of a plan search by its stages, bytes, from the arrays optimize_plan makes (float64):
+    screening holds the information matrices of `starts` plans of `configs` poses (starts x configs x k x k, k
+    parameters: 60.3 GiB for 100,000 configurations); the pool's poses and matrices are held once, and each
+    refinement task holds its plan's pool indices and its two results (configs x dof), plus the pool's matrices
+    when a Dask cluster serialises every task; each worker's refinement holds the constraint Jacobian (configs x
+    points x (6 box faces + stations) rows, configs x dof columns) REFINE_COPIES times (ours, SLSQP's copies
+    and work arrays): quadratic in configs."""
+    k, m, dof = len(design.params), opts.configs, design.chain.dof
+    pool = 8.0 * max(POOL, m + 1) * (k * k + dof)
+    task = 8.0 * m * (1 + 2 * dof) + 256 + (pool if opts.scheduler else 0.0)
+    rows = len(design.tool) * (6 + len(design.trackers))
+    return {
+        "screening": 8.0 * opts.starts * m * (k * k + 1),
+        "tasks": pool + task * min(opts.refined, opts.starts),  # the best screened plans are refined
+        "refinement": WORKERS * REFINE_COPIES * 8.0 * (m * rows) * (m * dof),
+    }
+
+
+def check_plan_size(design: Design, opts: PlanOptions) -> None:
+    """Refuse a search the machine cannot hold, naming the option that makes it large, before any allocation;
+    and a plan whose campaign's table could not be read back."""
     if opts.configs < 1 or opts.repeat < 1:
         raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
+    if opts.starts < 1 or opts.refined < 1:
+        raise OptionError("{0} and {1} must be at least 1", "starts", "refined")
+    need = plan_bytes(design, opts)
+    largest = max(need, key=need.get)
+
+    def total(**change: int) -> float:
+        return sum(plan_bytes(design, dataclasses.replace(opts, **change)).values())
+
+    if largest == "tasks":
+        check_memory("refined", opts.refined, lambda n: total(refined=n), "refined plan")
+    elif largest == "screening" and opts.starts / 1000 > opts.configs / 6:  # the count further above its default
+        check_memory("starts", opts.starts, lambda n: total(starts=n), "screened plan")
+    check_memory("configs", opts.configs, lambda n: total(configs=n), "configuration")
+    rows = opts.configs * opts.repeat * len(design.tool) * max(1, len(design.trackers))
+    if opts.repeat >= opts.configs:
+        check_table_rows("repeat", opts.repeat, rows, design.chain.dof, "repetitions")
+    check_table_rows("configs", opts.configs, rows, design.chain.dof, "configurations")
+
+
+def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int], None] | None = None) -> dict:
+    check_plan_size(design, opts)
     if opts.criterion not in CRITERIA:
         raise OptionError("{0} must be one of {criteria}", "criterion", criteria=", ".join(CRITERIA))
     try:

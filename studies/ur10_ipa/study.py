@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from string import Template
@@ -430,6 +431,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="report (default under build/, untracked; --out docs/ur10-real-data.md updates the docs)")
     ap.add_argument("--img", type=Path, default=None, help="plot directory (default: img next to --out)")
     args = ap.parse_args(argv)
+    missing = [name for name in SERIES.values() if not (args.data / name).is_file()]
+    if missing:  # one line saying where it looked, not a traceback
+        print(f"error: the IPA data set is not at {args.data.resolve()} (no {missing[0]}): set TRACKCAL_IPA_DATA "
+              "to its directory, or give --data", file=sys.stderr)  # fmt: skip
+        return 2
     study = run(args.data)
     images = plots(study, args.img or args.out.parent / "img")
     report(study, args.out, images)
