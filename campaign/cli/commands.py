@@ -29,7 +29,7 @@ BATCH_ARGS = [
         help="measurement tables, session folders, or folders holding either (one level down)"),
     arg("--out", required=True, help="results folder: one JSON per campaign, keyed by the table's sha256; a result "
                                      "already there is not computed again"),
-    arg("--cell", help=CELL_HELP + " (for plain tables; a session knows its cell)"),
+    arg("--cell", help=CELL_HELP + " of plain tables (default: none; a session knows its cell)"),
     arg("--params", help="parameters (default: the irreducible set)"),
     arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
     arg("--scheduler", help="Dask scheduler address (default: a local process pool)"),
