@@ -3,13 +3,16 @@ and irreducible (hypothesis over random chains), known deviations recovered by t
 moves reported as not identifiable."""
 
 import dataclasses
+import json
+import subprocess
 
 import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import TRACKCAL
 from trackcal.calib.identify.solver import identify
-from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict
 from trackcal.calib.model.identifiability import identification_jacobian, numerical_rank, random_configuration
 from trackcal.calib.model.kinematics import Kinematics
@@ -139,3 +142,32 @@ def test_known_deviations_are_recovered_from_a_noisy_table_within_their_interval
     assert len(kept) == 4 * 7 - 6
     z = (res.dev - truth) / (res.param_ci95() / 1.96)
     assert np.max(np.abs(z)) < 4.5  # 22 parameters, each |z| > 4.5 has probability 7e-6
+
+
+def test_a_joint_that_never_moves_is_reported_not_refused(kr270, tmp_path):
+    """KR-270 table with A4 held at 30 deg: dq4 and the parameters its two links then share are named in one warning
+    line and left at nominal; the rest is identified (no singular fit, no refusal) down to the table's rounding."""
+    chain = kr270.chain
+    kept, _ = irreducible_params(chain)
+    rng = np.random.default_rng(3)
+    q = random_configuration(chain, 40, rng) * 0.5
+    q[:, 3] = np.radians(30.0)
+    truth = np.array([rng.normal(0, 0.3) if p.is_length else rng.normal(0, 5e-4) for p in kept])
+    table = _table(chain, truth, kept, q, exp_so3([0.0, 0.0, 0.3]), np.array([3000.0, 0, 0]), kr270.tool_points, 0.0,
+                   rng)  # fmt: skip
+    table.source = str(tmp_path / "still.csv")
+    write_table(table, table.source)
+    run = subprocess.run([*TRACKCAL, "identify", table.source, "--cell", "kr270", "--weighting", "iid", "--out",
+                          str(tmp_path / "m.json")], capture_output=True, text=True, cwd=tmp_path)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    doc = json.loads((tmp_path / "m.json").read_text())
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: joint A4 never moves in")
+    assert doc["not_identifiable"] in lines[0]
+    dropped = doc["not_identifiable"].split(": ")[1].split(" not identifiable")[0].split()
+    # joint 4 still: links 3 and 4 become one rigid body between axes 3 and 5, and the robot counts as a 5R one:
+    # 4 x 5 - 6 = 14 parameters of the 18 stay (the counting of calib.model.params), the 4 others from those links
+    assert len(dropped) == 4 and set(dropped) <= {"dq4", "py4", "pz4", "phiz4", "px3", "pz3", "phiz3"}
+    assert set(doc["parameters"]) == {p.name for p in kept} - set(dropped)
+    # noise-free, but the table keeps the controller's 4 decimals of a degree: 0.5e-4 deg at a 3 m lever is 2.6 µm
+    assert doc["residuals"]["after"]["coord_max_mm"] < 0.01 and doc["converged"]

@@ -18,7 +18,8 @@ the last joint's frame (position-only measurements, several points per pose), so
       dq_{k+1} = cos(th) dq_k - cos(th) T_{a x t} + R_w,
   a dependency among dq_k, dq_{k+1}, link k's translations across the common normal and its rotations about
   the axes orthogonal to a. One of link k's four parameters goes: the one with the largest coefficient, rotations
-  weighed at the chain's reach, so that the set kept is the best conditioned. Perpendicular axes (th = 90 deg):
+  weighed at the chain's reach, so that the set kept is the best conditioned (with the last rule below, the
+  dependencies are eliminated row by row, so that the parameters dropped are independent of each other). Perpendicular axes (th = 90 deg):
   the rotation about the next axis merges with dq_{k+1} (rule 1). Parallel and near-parallel axes (tan th below
   |a x t| / reach): the translation orthogonal to the nominal common normal goes and both rotations stay, the
   second one being Hayati's beta (Hayati & Mirmirani 1985, J. Robotic Systems 2(4) 397-413), where DH's d along
@@ -118,43 +119,70 @@ def _reach_mm(chain: Chain) -> float:
 TOL = 1e-9
 
 
-def _pair_candidates(chain: Chain, k: int, lever: float) -> list[tuple[float, Param]]:
-    """The one linear dependency between link k's parameters and the offsets of joints k+1 and k+2, derived at the
-    nominal geometry (module docstring): weighted coefficient of each of link k's four parameters in it."""
+Row = dict[Param, float]  # a linear dependency among parameter columns: coefficient of each (rotations at the lever)
+
+
+def _pair_row(chain: Chain, k: int, lever: float) -> Row:
+    """The one dependency between link k's parameters and the offsets of joints k+1 and k+2, derived at the nominal
+    geometry (module docstring): dq_{k+2} - cos(th) dq_{k+1} + cos(th) T_{a x t} - R_w = 0."""
     joint = chain.joints[k]
     a = np.eye(3)[joint.axis]
     d = next_axis_direction(chain, k)
     c = float(d @ a)  # cos of the angle between the axes
     w = d - c * a  # sin(angle) times the in-plane direction of the next axis
     n = c * np.cross(a, joint.translation)  # cos(angle) times the offset across the common normal, mm
-    others = [i for i in range(3) if i != joint.axis]
-    return [(abs(w[i]) * lever, Param(k, "phi", i)) for i in others] + [(abs(n[i]), Param(k, "p", i)) for i in others]
+    row: Row = {Param(k + 1, "dq"): 1.0, Param(k, "dq"): -c}
+    for i in range(3):
+        if i != joint.axis:
+            row[Param(k, "p", i)] = float(n[i])
+            row[Param(k, "phi", i)] = -float(w[i]) * lever
+    return row
 
 
-def _tool_candidates(chain: Chain) -> list[tuple[float, Param]]:
+def _tool_row(chain: Chain) -> Row:
     """The translation along the last joint's axis in the link before it commutes with the last joint (tool points);
     carried back through the links (its part along a joint's axis commutes with that joint too) it is a combination
-    of link translations: their coefficients, nearest link first."""
+    of link translations: their coefficients. Empty when it reaches the base (every axis parallel back there)."""
     n = chain.dof
-    out: list[tuple[float, Param]] = []
+    row: Row = {}
     v = next_axis_direction(chain, n - 2)
     for k in range(n - 2, -1, -1):
         a_k = chain.joints[k].axis
-        out += [(abs(v[i]), Param(k, "p", i)) for i in range(3) if i != a_k]
+        row.update({Param(k, "p", i): float(v[i]) for i in range(3) if i != a_k})
         if k == 0 or abs(v[a_k]) <= TOL:
             break
         v = v[a_k] * (chain.joints[k - 1].rotation @ np.eye(3)[a_k])  # the part along joint k's axis, one link back
+    return row
+
+
+def _eliminate(rows: list[tuple[Row, str]], droppable: set[Param], offsets: set[Param]) -> dict[Param, int]:
+    """One parameter per dependency such that the rest are independent: Gaussian elimination row by row, each row's
+    pivot the droppable parameter with the largest coefficient once the earlier pivots are eliminated from it (the
+    first of equals), so that the set kept is the best conditioned. Returns {parameter: row index}; a row with no
+    droppable coefficient left but a joint offset that is kept (a dependency among those offsets alone) is a
+    ChainError with the row's text."""
+    done: list[tuple[Row, Param]] = []
+    out: dict[Param, int] = {}
+    for r, (row, why) in enumerate(rows):
+        row = dict(row)
+        for prev, piv in done:
+            f = row.get(piv, 0.0) / prev[piv]
+            if f:
+                for key, val in prev.items():
+                    row[key] = row.get(key, 0.0) - f * val
+        best = None
+        for key, val in row.items():
+            if key not in droppable or key in out or abs(val) <= TOL:
+                continue
+            if best is None or abs(val) > abs(row[best]) * (1 + 1e-12):
+                best = key
+        if best is None:
+            if any(abs(v) > TOL for key, v in row.items() if key in offsets):
+                raise ChainError(why)
+            continue
+        done.append((row, best))
+        out[best] = r
     return out
-
-
-def _pick(candidates: list[tuple[float, Param]], removed: dict) -> tuple[float, Param] | None:
-    """The free parameter with the largest coefficient (the first of equals): dropping it leaves the best-conditioned
-    set. None when no coefficient exceeds TOL."""
-    best = None
-    for coef, p in candidates:
-        if p not in removed and coef > TOL and (best is None or coef > best[0] * (1 + 1e-12)):
-            best = (coef, p)
-    return best
 
 
 def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
@@ -170,29 +198,25 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
             removed[p] = "last-link parameter merges into the tool points"
 
     lever = _reach_mm(chain)
-    for k in range(n - 1):
-        pick = _pair_candidates(chain, k, lever)
-        chosen = _pick(pick, removed)
-        if chosen is None:
-            raise ChainError(
-                f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant"
-            )
-        p = chosen[1]
-        a = next_axis_direction(chain, k) @ np.eye(3)[chain.joints[k].axis]
-        if p.kind == "phi" and abs(a) <= TOL:
-            why = f"rotation about the axis of joint {k + 2} merges with dq{k + 2}"
+    rows = [(_pair_row(chain, k, lever),
+             f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant")
+            for k in range(n - 1)]  # fmt: skip
+    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated"))
+    free = [p for p in complete_params(chain) if p not in removed]
+    for p, r in _eliminate(rows, {p for p in free if p.kind != "dq"}, {p for p in free if p.kind == "dq"}).items():
+        if r == n - 1:
+            removed[p] = f"translation along the last joint axis commutes with joints {p.joint + 2}..{n}: tool points"
+            continue
+        cos = abs(next_axis_direction(chain, r) @ np.eye(3)[chain.joints[r].axis])
+        if p.kind == "phi" and cos <= TOL:
+            removed[p] = f"rotation about the axis of joint {r + 2} merges with dq{r + 2}"
         elif p.kind == "phi":
-            why = (f"joints {k + 1} and {k + 2} are tilted: the rotation about joint {k + 2}'s axis is dq{k + 1} "
-                   f"plus this rotation, so it merges with dq{k + 1} and dq{k + 2}")
+            removed[p] = (f"joints {r + 1} and {r + 2} are tilted: the rotation about joint {r + 2}'s axis is "
+                          f"dq{r + 1} plus this rotation, so it merges with dq{r + 1} and dq{r + 2}")  # fmt: skip
         else:
-            why = (f"joints {k + 1} and {k + 2} are parallel{'' if abs(abs(a) - 1) <= TOL else ' or nearly'}: this "
-                   f"translation is a rotation of the common normal, already described by dq{k + 1} and dq{k + 2}")
-        removed[p] = why
-
-    tool = _pick(_tool_candidates(chain), removed)
-    if tool is not None:
-        first = tool[1].joint + 2
-        removed[tool[1]] = f"translation along the last joint axis commutes with joints {first}..{n}: tool points"
+            nearly = "" if abs(cos - 1) <= TOL else " or nearly"
+            removed[p] = (f"joints {r + 1} and {r + 2} are parallel{nearly}: this translation is a rotation of the "
+                          f"common normal, already described by dq{r + 1} and dq{r + 2}")  # fmt: skip
 
     kept = [p for p in complete_params(chain) if p not in removed]
     eliminated = [Eliminated(p, removed[p]) for p in complete_params(chain) if p in removed]

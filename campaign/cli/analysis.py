@@ -83,7 +83,7 @@ def cmd_identify(args) -> int:
     if outcome.chosen is not None:
         console.print(f"--extend auto: diagnose chose {outcome.chosen}"
                       + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
-    warnings = [w for w in (outcome.warning, convergence_warning(outcome.doc)) if w]
+    warnings = [w for w in (outcome.still, outcome.warning, convergence_warning(outcome.doc)) if w]
     if warnings:  # one line on stderr, whatever the fit's troubles (scripts read the first line)
         print(f"warning: {'; and '.join(warnings)}", file=sys.stderr)
     console.print(f"model written to {args.out}")

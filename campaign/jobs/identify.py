@@ -17,6 +17,7 @@ from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, read_table, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
+from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
@@ -63,6 +64,22 @@ class IdentifyOutcome:
     doc: dict
     warning: str | None = None  # fit_warning: the intervals cannot be trusted
     chosen: str | None = None  # --extend auto: the cause diagnose chose ("none": the model stays geometric)
+    still: str | None = None  # still_warning: joints that never move, their parameters left at nominal
+
+
+def still_warning(cell: Cell, table: MeasurementTable, params: list[Param]) -> tuple[list[Param], str | None]:
+    """(the parameters the table can identify, one line naming the joints that never move in it and the
+    parameters left at nominal because of them; None when every joint moves)."""
+    still = still_joints(table.q_deg)
+    if not still:
+        return params, None
+    tool = np.array(list(cell.tool_points.values()))
+    dropped = unidentifiable_params(cell.chain, params, np.radians(table.q_deg), tool, still)
+    names = ", ".join(cell.chain.joints[j].name for j in still)
+    verb = "never moves" if len(still) == 1 else "never move"
+    left = " ".join(p.name for p in dropped) or "none of the parameters"
+    return [p for p in params if p not in dropped], (
+        f"joint {names} {verb} in {table.source}: {left} not identifiable from it, left at nominal")
 
 
 def run_identify(
@@ -74,6 +91,7 @@ def run_identify(
     if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
         raise OptionError("{0} {extend}: choose none, auto or causes joined by + from {causes}", "extend",
                           extend=extend, causes=", ".join(CAUSES))
+    params, still = still_warning(cell, table, params)
     noise = noise_for(weighting)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
@@ -84,7 +102,10 @@ def run_identify(
         raise OptionError("{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend",
                           extend=extend)
     doc = model_doc(cell, table, fit.result, before, fit.shift, table_sha256)
-    return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, left_out(cell, params)))
+    if still:
+        doc["not_identifiable"] = still
+    return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, left_out(cell, params)),
+                           still=still)  # fmt: skip
 
 
 def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
