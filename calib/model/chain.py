@@ -18,6 +18,7 @@ import numpy as np
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
+from trackcal.calib.model.dh import dh_joints
 from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
 
 
@@ -67,10 +68,36 @@ def _parse_axis(text: str, where: str) -> tuple[int, float]:
     return AXIS_INDEX[t], sign
 
 
+def _limits(jd: dict, where: str) -> tuple[float, float] | None:
+    if jd.get("limits_deg") is None:
+        return None
+    lo, hi = fields.vector(jd["limits_deg"], f"{where}.limits_deg", ChainError, 2)
+    if not lo < hi:
+        raise ChainError(f"{where}.limits_deg: must be [min, max] with min < max")
+    return np.radians(lo), np.radians(hi)
+
+
+def _joint(jd: dict, k: int, where: str, axis: int, sign: float, translation, rotation) -> Joint:
+    """A joint with the name, limits and mass model of its YAML entry `jd` (a `joints` entry or a DH row)."""
+    return Joint(
+        name=fields.text(jd.get("name", f"A{k + 1}"), f"{where}.name", ChainError),
+        axis=axis,
+        sign=sign,
+        translation=translation,
+        rotation=rotation,
+        limits=_limits(jd, where),
+        mass_kg=fields.number(jd.get("mass_kg", 0.0), f"{where}.mass_kg", ChainError),
+        com=fields.vector(jd.get("com_mm", [0, 0, 0]), f"{where}.com_mm", ChainError),
+    )
+
+
 def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
-    """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg)."""
-    if not isinstance(doc, dict) or "joints" not in doc:
-        raise ChainError(f"{source}: a robot needs a 'joints' list")
+    """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg): a `joints` list, or a `dh`
+    table (calib.model.dh: standard or modified DH with theta offsets and joint signs)."""
+    if not isinstance(doc, dict) or ("joints" not in doc and "dh" not in doc):
+        raise ChainError(f"{source}: a robot needs a 'joints' list or a 'dh' table")
+    if "joints" in doc and "dh" in doc:
+        raise ChainError(f"{source}: give either 'joints' or 'dh', not both")
     base_doc = fields.mapping(doc.get("base") or {}, f"{source}: base", ChainError)
 
     def vec3(d: dict, key: str, where: str) -> np.ndarray:
@@ -81,29 +108,19 @@ def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
         vec3(base_doc, "translation_mm", f"{source}: base"),
     )
     joints = []
-    for k, jd in enumerate(fields.sequence(doc["joints"], f"{source}: joints", ChainError)):
-        where = f"{source}: joints[{k}]"
-        if not isinstance(jd, dict) or "axis" not in jd:
-            raise ChainError(f"{where}: needs at least 'axis'")
-        axis, sign = _parse_axis(jd["axis"], where)
-        limits = None
-        if jd.get("limits_deg") is not None:
-            lo, hi = fields.vector(jd["limits_deg"], f"{where}.limits_deg", ChainError, 2)
-            if not lo < hi:
-                raise ChainError(f"{where}.limits_deg: must be [min, max] with min < max")
-            limits = (np.radians(lo), np.radians(hi))
-        joints.append(
-            Joint(
-                name=fields.text(jd.get("name", f"A{k + 1}"), f"{where}.name", ChainError),
-                axis=axis,
-                sign=sign,
-                translation=vec3(jd, "link_mm", where),
-                rotation=rpy_matrix(*np.radians(vec3(jd, "link_rpy_deg", where))),
-                limits=limits,
-                mass_kg=fields.number(jd.get("mass_kg", 0.0), f"{where}.mass_kg", ChainError),
-                com=vec3(jd, "com_mm", where),
-            )
-        )
+    if "dh" in doc:
+        dh_base, rows = dh_joints(doc["dh"], f"{source}: dh", ChainError)
+        base = base @ dh_base
+        for k, jd in enumerate(rows):
+            joints.append(_joint(jd, k, f"{source}: dh.rows[{k}]", 2, jd["sign"], jd["translation"], jd["rotation"]))
+    else:
+        for k, jd in enumerate(fields.sequence(doc["joints"], f"{source}: joints", ChainError)):
+            where = f"{source}: joints[{k}]"
+            if not isinstance(jd, dict) or "axis" not in jd:
+                raise ChainError(f"{where}: needs at least 'axis'")
+            axis, sign = _parse_axis(jd["axis"], where)
+            rotation = rpy_matrix(*np.radians(vec3(jd, "link_rpy_deg", where)))
+            joints.append(_joint(jd, k, where, axis, sign, vec3(jd, "link_mm", where), rotation))
     if not joints:
         raise ChainError(f"{source}: joints: the chain has no joints")
     name = fields.text(doc.get("name", source), f"{source}: name", ChainError)

@@ -19,7 +19,8 @@ the last joint's frame (position-only measurements, several points per pose), so
   a dependency among dq_k, dq_{k+1}, link k's translations across the common normal and its rotations about
   the axes orthogonal to a. One of link k's four parameters goes: the one with the largest coefficient, rotations
   weighed at the chain's reach, so that the set kept is the best conditioned (with the last rule below, the
-  dependencies are eliminated row by row, so that the parameters dropped are independent of each other). Perpendicular axes (th = 90 deg):
+  dependencies are eliminated row by row, so that the parameters dropped are independent of each other).
+  Perpendicular axes (th = 90 deg):
   the rotation about the next axis merges with dq_{k+1} (rule 1). Parallel and near-parallel axes (tan th below
   |a x t| / reach): the translation orthogonal to the nominal common normal goes and both rotations stay, the
   second one being Hayati's beta (Hayati & Mirmirani 1985, J. Robotic Systems 2(4) 397-413), where DH's d along
