@@ -21,6 +21,10 @@ from trackcal.calib.io import fields
 from trackcal.calib.model.dh import dh_joints
 from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
 
+# The fixed joint of a URDF written by trackcal (calib.model.urdf) that leads from the last joint to the flange, the
+# frame of the tool points: chain_from_urdf takes the last link from it, so a written URDF reads back exactly.
+FLANGE_JOINT = "trackcal_flange"
+
 
 class ChainError(CalibError):
     """A chain description that cannot be used (bad axis, non-aligned axes, bad numbers)."""
@@ -160,7 +164,9 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
     """Load a serial chain of revolute joints from a URDF through pinocchio (metres -> mm).
 
     Joint i's placement in its parent joint frame becomes the link block of joint i-1 (translation
-    and fixed rotation); the first placement is the base transform. Inertias give the mass model.
+    and fixed rotation); the first placement is the base transform; the last joint's link block is the placement of
+    the fixed joint FLANGE_JOINT when the URDF has one on the last joint (a URDF trackcal wrote), else none.
+    Inertias give the mass model.
     """
     model = _urdf_model(path)
     names = list(model.names)[1:]
@@ -186,10 +192,12 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
         if model.parents[i] != i - 1:
             raise ChainError(f"{path}: joint {names[i - 1]} is not in a serial chain")
     placements = [model.jointPlacements[i] for i in range(1, last + 1)]
+    if model.existFrame(FLANGE_JOINT) and model.frames[model.getFrameId(FLANGE_JOINT)].parentJoint == last:
+        placements.append(model.frames[model.getFrameId(FLANGE_JOINT)].placement)
     base = homogeneous(placements[0].rotation, 1000.0 * placements[0].translation)
     joints = []
     for j in range(last):
-        nxt = placements[j + 1] if j + 1 < last else None
+        nxt = placements[j + 1] if j + 1 < len(placements) else None
         lo, hi = model.lowerPositionLimit[j], model.upperPositionLimit[j]
         inertia = model.inertias[j + 1]
         joints.append(
