@@ -117,6 +117,8 @@ def cmd_diagnose(args) -> int:
                            out=args.out)  # fmt: skip
     with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
         done = run_diagnose(opts)
+    if done.still:
+        print(f"warning: {done.still}", file=sys.stderr)
     d, doc = done.diagnosis, done.verdict
     t = Table(title=f"Diagnosis: {d.cause}" + (f" (causes: {', '.join(c['cause'] for c in d.causes)})"
                                                if len(d.causes) > 1 else ""))  # fmt: skip
