@@ -117,3 +117,53 @@ def test_rpy_gives_the_rotation_back_even_near_pitch_90(roll, pitch, yaw):
 def test_option_mistakes(opts, message):
     with pytest.raises(OptionError, match=message):
         export_urdf(ExportUrdfOptions(**{"out": "x.urdf", **opts}))
+
+
+TILTED_URDF = """<?xml version="1.0"?>
+<robot name="tilted">
+  <link name="base_link"/>
+  <joint name="torso" type="revolute"><parent link="base_link"/><child link="l1"/>
+    <origin xyz="0 0 0.3" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <link name="l1"/>
+  <joint name="shoulder" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.15 0 0.2" rpy="0.1 0 0"/><axis xyz="0 0.25881904510252074 0.9659258262890683"/>
+    <limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <link name="l2"><inertial><mass value="2"/><origin xyz="0.1 0.02 0"/>
+    <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link>
+  <joint name="elbow" type="revolute"><parent link="l2"/><child link="l3"/>
+    <origin xyz="0.6 0 0" rpy="0 0 0"/><axis xyz="0.6 -0.8 0"/>
+    <limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <link name="l3"/>
+  <joint name="wrist" type="revolute"><parent link="l3"/><child link="l4"/>
+    <origin xyz="0.4 0.05 0" rpy="0 0.3 0"/><axis xyz="-1 0 0"/>
+    <limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <link name="l4"/>
+</robot>
+"""
+
+
+def test_urdf_joints_about_tilted_axes_are_read(tmp_path):
+    """A URDF axis in any direction (here a shoulder tilted 15 deg, an elbow along (0.6, -0.8, 0)) is read as a
+    turned frame: the same forward kinematics as pinocchio's model of the file, and a complete set of 4n - 6."""
+    path = tmp_path / "tilted.urdf"
+    path.write_text(TILTED_URDF)
+    chain = chain_from_urdf(str(path))
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    q = np.random.default_rng(2).uniform(-3, 3, size=(30, 4))
+    r, o = Kinematics(chain, []).end_frames(q)
+    for qi, ri, oi in zip(q, r, o, strict=True):
+        pin.forwardKinematics(model, data, qi)
+        np.testing.assert_allclose(oi, 1000.0 * data.oMi[4].translation, atol=1e-9)
+        np.testing.assert_allclose(ri @ np.eye(3)[chain.joints[3].axis] * chain.joints[3].sign,
+                                   data.oMi[4].rotation @ np.array([-1.0, 0, 0]), atol=1e-12)  # fmt: skip
+    assert len(irreducible_params(chain)[0]) == 4 * 4 - 6
+    # the mass model follows the turned frame: the centre of mass is where the URDF puts it
+    pin.forwardKinematics(model, data, q[0])
+    com_urdf = 1000.0 * (data.oMi[2].act(model.inertias[2].lever))
+    kin2 = Kinematics(type(chain)(chain.name, chain.base, chain.joints[:2]), [])
+    r2, o2 = kin2.end_frames(q[:1, :2])
+    # end_frames gives the frame after joint 2's link; the com is in the frame right after joint 2's rotation
+    turned_frame = r2[0] @ chain.joints[1].rotation.T
+    origin = o2[0] - turned_frame @ chain.joints[1].translation
+    np.testing.assert_allclose(origin + turned_frame @ chain.joints[1].com, com_urdf, atol=1e-9)

@@ -17,16 +17,9 @@ from xml.sax.saxutils import escape, quoteattr
 import numpy as np
 
 from trackcal.calib.model.chain import FLANGE_JOINT, Chain
+from trackcal.calib.model.rigid import rpy_of
 
 NO_LIMIT_RAD = 4 * np.pi
-def rpy_of(r: np.ndarray) -> np.ndarray:
-    """URDF (roll, pitch, yaw) of a rotation matrix, rad; pitch from atan2, which stays accurate near +-90 deg."""
-    pitch = np.arctan2(-r[2, 0], np.hypot(r[0, 0], r[1, 0]))
-    if np.hypot(r[0, 0], r[1, 0]) > 1e-12:
-        return np.array([np.arctan2(r[2, 1], r[2, 2]), pitch, np.arctan2(r[1, 0], r[0, 0])])
-    return np.array([np.arctan2(-r[1, 2], r[1, 1]), pitch, 0.0])
-
-
 def _num(v: float) -> str:
     return repr(float(v) + 0.0)  # + 0.0: no "-0.0"
 
