@@ -9,7 +9,9 @@
  "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
  "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
- "converged": the solver's stopping test was met, "message": why it stopped, ...}
+ "converged": the solver's stopping test was met, "message": why it stopped,
+ "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
+ nominal because of them (only then), ...}
 A model written before "converged" and "message" were recorded still loads (`Model.converged` is then None).
 """
 

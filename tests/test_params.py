@@ -65,10 +65,11 @@ def test_urdf_dh_frames_through_pinocchio(tmp_path):
     assert len(kept) == 18
 
 
-def test_non_aligned_axes_are_refused():
+def test_non_aligned_axes_get_their_parameters():
+    # issue 23: axes that are neither parallel nor perpendicular were refused; tests/test_chains.py checks the set
     doc = {"joints": [{"axis": "z", "link_mm": [100, 0, 0], "link_rpy_deg": [30, 0, 0]}, {"axis": "y"}]}
-    with pytest.raises(ChainError, match="parallel or perpendicular"):
-        irreducible_params(chain_from_dict(doc))
+    kept, _ = irreducible_params(chain_from_dict(doc))
+    assert len(kept) == 2  # 4n - 6 with n = 2: the distance and the angle between the two axes
 
 
 def test_bad_axis_is_a_clear_error():

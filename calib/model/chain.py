@@ -18,7 +18,12 @@ import numpy as np
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
-from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix
+from trackcal.calib.model.dh import dh_joints
+from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_matrix, rpy_of, turning
+
+# The fixed joint of a URDF written by trackcal (calib.model.urdf) that leads from the last joint to the flange, the
+# frame of the tool points: chain_from_urdf takes the last link from it, so a written URDF reads back exactly.
+FLANGE_JOINT = "trackcal_flange"
 
 
 class ChainError(CalibError):
@@ -67,10 +72,36 @@ def _parse_axis(text: str, where: str) -> tuple[int, float]:
     return AXIS_INDEX[t], sign
 
 
+def _limits(jd: dict, where: str) -> tuple[float, float] | None:
+    if jd.get("limits_deg") is None:
+        return None
+    lo, hi = fields.vector(jd["limits_deg"], f"{where}.limits_deg", ChainError, 2)
+    if not lo < hi:
+        raise ChainError(f"{where}.limits_deg: must be [min, max] with min < max")
+    return np.radians(lo), np.radians(hi)
+
+
+def _joint(jd: dict, k: int, where: str, axis: int, sign: float, translation, rotation) -> Joint:
+    """A joint with the name, limits and mass model of its YAML entry `jd` (a `joints` entry or a DH row)."""
+    return Joint(
+        name=fields.text(jd.get("name", f"A{k + 1}"), f"{where}.name", ChainError),
+        axis=axis,
+        sign=sign,
+        translation=translation,
+        rotation=rotation,
+        limits=_limits(jd, where),
+        mass_kg=fields.number(jd.get("mass_kg", 0.0), f"{where}.mass_kg", ChainError),
+        com=fields.vector(jd.get("com_mm", [0, 0, 0]), f"{where}.com_mm", ChainError),
+    )
+
+
 def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
-    """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg)."""
-    if not isinstance(doc, dict) or "joints" not in doc:
-        raise ChainError(f"{source}: a robot needs a 'joints' list")
+    """Build a chain from the YAML schema of configs/robots/*.yaml (units mm and deg): a `joints` list, or a `dh`
+    table (calib.model.dh: standard or modified DH with theta offsets and joint signs)."""
+    if not isinstance(doc, dict) or ("joints" not in doc and "dh" not in doc):
+        raise ChainError(f"{source}: a robot needs a 'joints' list or a 'dh' table")
+    if "joints" in doc and "dh" in doc:
+        raise ChainError(f"{source}: give either 'joints' or 'dh', not both")
     base_doc = fields.mapping(doc.get("base") or {}, f"{source}: base", ChainError)
 
     def vec3(d: dict, key: str, where: str) -> np.ndarray:
@@ -81,29 +112,19 @@ def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
         vec3(base_doc, "translation_mm", f"{source}: base"),
     )
     joints = []
-    for k, jd in enumerate(fields.sequence(doc["joints"], f"{source}: joints", ChainError)):
-        where = f"{source}: joints[{k}]"
-        if not isinstance(jd, dict) or "axis" not in jd:
-            raise ChainError(f"{where}: needs at least 'axis'")
-        axis, sign = _parse_axis(jd["axis"], where)
-        limits = None
-        if jd.get("limits_deg") is not None:
-            lo, hi = fields.vector(jd["limits_deg"], f"{where}.limits_deg", ChainError, 2)
-            if not lo < hi:
-                raise ChainError(f"{where}.limits_deg: must be [min, max] with min < max")
-            limits = (np.radians(lo), np.radians(hi))
-        joints.append(
-            Joint(
-                name=fields.text(jd.get("name", f"A{k + 1}"), f"{where}.name", ChainError),
-                axis=axis,
-                sign=sign,
-                translation=vec3(jd, "link_mm", where),
-                rotation=rpy_matrix(*np.radians(vec3(jd, "link_rpy_deg", where))),
-                limits=limits,
-                mass_kg=fields.number(jd.get("mass_kg", 0.0), f"{where}.mass_kg", ChainError),
-                com=vec3(jd, "com_mm", where),
-            )
-        )
+    if "dh" in doc:
+        dh_base, rows = dh_joints(doc["dh"], f"{source}: dh", ChainError)
+        base = base @ dh_base
+        for k, jd in enumerate(rows):
+            joints.append(_joint(jd, k, f"{source}: dh.rows[{k}]", 2, jd["sign"], jd["translation"], jd["rotation"]))
+    else:
+        for k, jd in enumerate(fields.sequence(doc["joints"], f"{source}: joints", ChainError)):
+            where = f"{source}: joints[{k}]"
+            if not isinstance(jd, dict) or "axis" not in jd:
+                raise ChainError(f"{where}: needs at least 'axis'")
+            axis, sign = _parse_axis(jd["axis"], where)
+            rotation = rpy_matrix(*np.radians(vec3(jd, "link_rpy_deg", where)))
+            joints.append(_joint(jd, k, where, axis, sign, vec3(jd, "link_mm", where), rotation))
     if not joints:
         raise ChainError(f"{source}: joints: the chain has no joints")
     name = fields.text(doc.get("name", source), f"{source}: name", ChainError)
@@ -143,7 +164,9 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
     """Load a serial chain of revolute joints from a URDF through pinocchio (metres -> mm).
 
     Joint i's placement in its parent joint frame becomes the link block of joint i-1 (translation
-    and fixed rotation); the first placement is the base transform. Inertias give the mass model.
+    and fixed rotation); the first placement is the base transform; the last joint's link block is the placement of
+    the fixed joint FLANGE_JOINT when the URDF has one on the last joint (a URDF trackcal wrote), else none.
+    Inertias give the mass model.
     """
     model = _urdf_model(path)
     names = list(model.names)[1:]
@@ -157,22 +180,33 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
         jm = model.joints[i]
         short = jm.shortname()
         if short in ("JointModelRX", "JointModelRY", "JointModelRZ"):
-            axes.append((AXIS_INDEX[short[-1].lower()], 1.0))
+            axes.append((AXIS_INDEX[short[-1].lower()], 1.0, None))
         elif short == "JointModelRevoluteUnaligned":
-            a = np.asarray(jm.axis, dtype=float)
+            a = np.asarray(jm.extract().axis, dtype=float)
             k = int(np.argmax(np.abs(a)))
-            if abs(abs(a[k]) - 1.0) > 1e-9:
-                raise ChainError(f"{path}: joint {names[i - 1]} axis {a} is not along x, y or z")
-            axes.append((k, float(np.sign(a[k]))))
+            if abs(abs(a[k]) - 1.0) > 1e-12:  # an axis in any direction: z of a frame turned onto it
+                axes.append((2, 1.0, turning(np.eye(3)[2], a)))
+            else:
+                axes.append((k, float(np.sign(a[k])), None))
         else:
             raise ChainError(f"{path}: joint {names[i - 1]} is {short}; only revolute joints are supported")
         if model.parents[i] != i - 1:
             raise ChainError(f"{path}: joint {names[i - 1]} is not in a serial chain")
-    placements = [model.jointPlacements[i] for i in range(1, last + 1)]
-    base = homogeneous(placements[0].rotation, 1000.0 * placements[0].translation)
+    # (rotation, translation mm) from each joint's frame to the next: the URDF's placements, then the flange
+    steps = [(np.asarray(model.jointPlacements[i].rotation), 1000.0 * np.asarray(model.jointPlacements[i].translation))
+             for i in range(1, last + 1)]  # fmt: skip
+    if model.existFrame(FLANGE_JOINT) and model.frames[model.getFrameId(FLANGE_JOINT)].parentJoint == last:
+        flange = model.frames[model.getFrameId(FLANGE_JOINT)].placement
+        steps.append((np.asarray(flange.rotation), 1000.0 * np.asarray(flange.translation)))
+    steps += [(np.eye(3), np.zeros(3))] * (last + 1 - len(steps))
+    # a joint about an unaligned axis a turns about z of its frame turned by C (C z = a): the step into it ends
+    # with C, the step out of it starts with C^T, and its mass model is seen in the turned frame
+    turn = [np.eye(3) if ax[2] is None else ax[2] for ax in axes] + [np.eye(3)]
+    steps = [(r @ turn[i], t) for i, (r, t) in enumerate(steps)]
+    steps = [steps[0]] + [(turn[i].T @ r, turn[i].T @ t) for i, (r, t) in enumerate(steps[1:])]
+    base = homogeneous(*steps[0])
     joints = []
     for j in range(last):
-        nxt = placements[j + 1] if j + 1 < last else None
         lo, hi = model.lowerPositionLimit[j], model.upperPositionLimit[j]
         inertia = model.inertias[j + 1]
         joints.append(
@@ -180,11 +214,11 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
                 name=names[j],
                 axis=axes[j][0],
                 sign=axes[j][1],
-                translation=np.zeros(3) if nxt is None else 1000.0 * np.asarray(nxt.translation),
-                rotation=np.eye(3) if nxt is None else np.asarray(nxt.rotation),
+                translation=steps[j + 1][1],
+                rotation=steps[j + 1][0],
                 limits=(float(lo), float(hi)) if np.isfinite(lo) and np.isfinite(hi) and lo < hi else None,
                 mass_kg=float(inertia.mass),
-                com=1000.0 * np.asarray(inertia.lever),
+                com=turn[j].T @ (1000.0 * np.asarray(inertia.lever)),
             )
         )
     return Chain(name=str(model.name), base=base, joints=tuple(joints))
@@ -193,12 +227,7 @@ def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
 # ---------------------------------------------------------------- back to the YAML schema of configs/robots
 def _rpy_deg(r: np.ndarray) -> list[float]:
     """URDF rpy (R = Rz(y) Ry(p) Rx(r)) of a rotation matrix, deg."""
-    pitch = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
-    if abs(np.cos(pitch)) > 1e-9:
-        roll, yaw = np.arctan2(r[2, 1], r[2, 2]), np.arctan2(r[1, 0], r[0, 0])
-    else:
-        roll, yaw = np.arctan2(-r[1, 2], r[1, 1]), 0.0
-    return [float(np.degrees(v)) for v in (roll, pitch, yaw)]
+    return [float(np.degrees(v)) for v in rpy_of(r)]
 
 
 def chain_to_dict(chain: Chain) -> dict:

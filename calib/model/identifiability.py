@@ -45,3 +45,49 @@ def random_configuration(chain: Chain, m: int, rng: np.random.Generator) -> np.n
     lim = chain.limits_array()
     lim = np.where(np.isfinite(lim), lim, np.array([-np.pi, np.pi]))
     return rng.uniform(lim[:, 0], lim[:, 1], size=(m, chain.dof))
+
+
+# A joint whose values in a table spread less than this never moved: ten steps of the controller's 4 decimals of a
+# degree (KR C2 EKI/RSI; calib.model.cell.CONTROLLER_STEP_DEG), so a joint that only jitters by rounding counts.
+STILL_SPREAD_DEG = 1e-3
+MAX_RANK_POSES = 200  # distinct poses enough to see a rank; more only cost time
+
+
+def still_joints(q_deg: np.ndarray) -> list[int]:
+    """The joints (0-based) that never move in a table's joint values q_deg (N, n)."""
+    q_deg = np.atleast_2d(q_deg)
+    return [j for j in range(q_deg.shape[1]) if np.ptp(q_deg[:, j]) < STILL_SPREAD_DEG]
+
+
+def unidentifiable_params(
+    chain: Chain, params: list[Param], q: np.ndarray, tool: np.ndarray, still: list[int]
+) -> list[Param]:
+    """The parameters a table whose joints `still` never move cannot identify, taken from those joints' offsets and
+    the links on either side (a joint that never moves makes its two links one rigid body: its offset and part of
+    their parameters describe the same thing). Greedy: dq_j first, then link j, then link j-1, each dropped while the
+    identification Jacobian at the table's poses q (M, n) rad, with station and tool-point columns, does not have
+    full column rank."""
+    if not still:
+        return []
+    q = np.unique(np.atleast_2d(q), axis=0)[:MAX_RANK_POSES]
+    order = []
+    for j in still:
+        order += [p for p in params if p.kind == "dq" and p.joint == j]
+        order += [p for p in params if p.kind != "dq" and p.joint == j]
+        order += [p for p in params if p.kind != "dq" and p.joint == j - 1]
+    kept = list(params)
+    dropped: list[Param] = []
+
+    def full(ps: list[Param]) -> bool:
+        j = identification_jacobian(chain, ps, q, tool)
+        return numerical_rank(j) == numerical_rank(identification_jacobian(chain, [], q, tool)) + len(ps)
+
+    for p in dict.fromkeys(order):
+        if full(kept):
+            break
+        without = [x for x in kept if x != p]
+        if numerical_rank(identification_jacobian(chain, without, q, tool)) == numerical_rank(
+            identification_jacobian(chain, kept, q, tool)
+        ):
+            kept, dropped = without, dropped + [p]
+    return dropped

@@ -11,13 +11,14 @@ Jacobian column is the exact derivative at the current deviations (not only at n
 
 from __future__ import annotations
 
+import dataclasses
 from functools import cached_property
 
 import numpy as np
 
 from trackcal.calib.model.chain import Chain, ChainError
 from trackcal.calib.model.params import Param, complete_params
-from trackcal.calib.model.rigid import skew
+from trackcal.calib.model.rigid import rot_axis, skew
 
 
 class PointJacobian:
@@ -198,3 +199,22 @@ class Kinematics:
         up = cross3(jac.rot_axes[:, :, :, None], jac.d_q[:, :, None, :])
         mask = self.upstream()[None, None]
         return np.where(mask, up, out)
+
+
+def calibrated_chain(chain: Chain, params: list[Param], dev: np.ndarray) -> Chain:
+    """The chain with the deviations `dev` of `params` folded into its nominal geometry: its forward kinematics at
+    zero deviation are `chain`'s at `dev`, exactly. Joint j's offset turns about its own axis, so it commutes with
+    the joint's rotation and joins the link that follows: link = R_e(s dq) . Trans(t + dt) . R_phi . R_nom, the
+    order of `Kinematics._forward` (rotations about x, y, z in that order)."""
+    dq, dt, dphi = Kinematics(chain, params)._split(dev)
+    joints = []
+    for j, jt in enumerate(chain.joints):
+        turn = rot_axis(jt.axis, jt.sign * dq[j])
+        r = np.eye(3)
+        for a in range(3):
+            if a != jt.axis and dphi[j, a] != 0.0:
+                r = r @ rot_axis(a, dphi[j, a])
+        joints.append(
+            dataclasses.replace(jt, translation=turn @ (jt.translation + dt[j]), rotation=turn @ r @ jt.rotation)
+        )
+    return Chain(chain.name, chain.base.copy(), tuple(joints))

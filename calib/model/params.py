@@ -1,20 +1,49 @@
-"""The complete model of paper section 3, step 1, and its reduction by the elimination rules of step 2.
+"""The complete model of paper section 3, step 1, and its reduction to an irreducible set, for joint axes in any
+direction.
 
 Complete (redundant) model, per revolute joint j:  R_{e_j}(q_j + dq_j) . [T_u T_v R_u R_v]_Lj
 with u, v the two coordinate axes orthogonal to e_j, translations first, then rotations (x before y
-before z), as in eq. (4)/(5). The base and every tracker station are free 6-dof transforms and the
-reference points are free 3-vectors in the last joint's frame (position-only measurements), so:
+before z), as in eq. (4)/(5). It is complete for any nominal geometry (the fixed rotation R_nom,j of the
+chain may point the next axis anywhere): a link error is a twist, 6 numbers; its rotation about e_j is dq_j
+and its translation along e_j commutes with the joint, so it moves back a link (and to the base in the end).
+The base and every tracker station are free 6-dof transforms and the reference points are free 3-vectors in
+the last joint's frame (position-only measurements, several points per pose), so:
 
 - dq_1 merges into the base (station) transform (remark 2);
 - dq_n and every parameter of the last link merge into the tool points (remarks 2, 3 and 4);
-- e_j perpendicular to e_{j-1}: R about e_j in link j-1 merges with dq_j (rule 1);
-- e_j parallel to e_{j-1}: the in-plane translation of link j-1 orthogonal to the nominal common
-  normal is a rotation of the normal, which (dq_{j-1}, dq_j) already describe (rule 2). The paper
-  says "T_u or T_v"; which one matters: the one orthogonal to the nominal link vector goes;
-- a translation along the last axis e_n, in the last link before a run of joints parallel to e_n,
-  commutes with those joints and merges into the tool points (this is how T_x,L5 of eq. (4) goes).
+- each pair of consecutive joints (k, k+1) leaves exactly one linear dependency. In link k's frame (origin O at
+  the end of its translation t), let a be joint k's axis and d joint k+1's axis, d = cos(th) a + w with w
+  orthogonal to a (|w| = sin th). Joint k's offset is the twist (a, a x t) at O (a rotation about a line through
+  O - t), joint k+1's the twist (d, 0), so
+      dq_{k+1} = cos(th) dq_k - cos(th) T_{a x t} + R_w,
+  a dependency among dq_k, dq_{k+1}, link k's translations across the common normal and its rotations about
+  the axes orthogonal to a. One of link k's four parameters goes: the one with the largest coefficient, rotations
+  weighed at the chain's reach, so that the set kept is the best conditioned (with the last rule below, the
+  dependencies are eliminated row by row, so that the parameters dropped are independent of each other).
+  Perpendicular axes (th = 90 deg):
+  the rotation about the next axis merges with dq_{k+1} (rule 1). Parallel and near-parallel axes (tan th below
+  |a x t| / reach): the translation orthogonal to the nominal common normal goes and both rotations stay, the
+  second one being Hayati's beta (Hayati & Mirmirani 1985, J. Robotic Systems 2(4) 397-413), where DH's d along
+  an ill-defined common normal would be (rule 2; the paper says "T_u or T_v": which one matters). Skew or
+  intersecting tilted axes (a x t = 0 for intersecting ones): the rotation about the in-plane part of the next
+  axis goes, as for perpendicular axes. Two parallel axes on one line (a x t = 0, w = 0) are refused;
+- a translation along the last axis e_n, in the link before it, commutes with joint n and merges into the tool
+  points; carried back (its part along a joint's axis commutes with that joint) it is a combination of link
+  translations, and the one with the largest coefficient goes (this is how T_x,L5 of eq. (4) goes). When every
+  axis from there back to the base is parallel to e_n it reaches the base instead, and nothing goes.
 
-The result is verified numerically in `calib.model.identifiability`.
+Counting: 5n - 1 - 5 - (n - 1) - 1 = 4n - 6 kept for n revolute joints: Everett, Driels & Mooring's 4R + 2P + 6
+for a complete and irreducible model of the whole chain with its base and tool (Everett, Driels, Mooring 1987,
+"Kinematic modelling for robot calibration", IEEE ICRA), less the 6 of the free station and the 6 of the free tool
+points (the paper's footnote 1; Zhuang, Roth & Hamano 1992, "A complete and parametrically continuous kinematic
+model for robot manipulators", IEEE T-RA 8(4) 451-463, count the same for their CPC model, whose continuity near
+parallel axes the choice above keeps). He, Zhao, Yang & Yang 2010 (IEEE T-RO 26(3) 461-471) show the same
+completeness for the product-of-exponentials form: a link twist modulo the joint's own twist and the translation
+along its axis, which is the reduction done here. One more parameter stays where the chain ends in a run of axes
+parallel all the way to the base (the planar arm of section 6.2).
+
+The result is verified numerically in `calib.model.identifiability` and, for random chains with tilted and skew
+axes, against central differences of all six deviations of every link (tests/test_chains.py).
 """
 
 from __future__ import annotations
@@ -70,18 +99,91 @@ def param_by_name(chain: Chain, name: str) -> Param:
     raise ChainError(f"unknown parameter {name!r} for chain {chain.name}")
 
 
-def _aligned_axis(v: np.ndarray, where: str) -> int:
-    k = int(np.argmax(np.abs(v)))
-    if abs(abs(v[k]) - 1.0) > 1e-9:
-        raise ChainError(f"{where}: joint axes must be parallel or perpendicular (got direction {v})")
-    return k
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
 
 
-def next_axis_in_link(chain: Chain, j: int) -> int:
-    """Coordinate axis of link j's frame along which joint j+1 rotates."""
-    joint = chain.joints[j]
-    e_next = np.eye(3)[chain.joints[j + 1].axis]
-    return _aligned_axis(joint.rotation @ e_next, f"joints {j + 1}-{j + 2}")
+def next_axis_direction(chain: Chain, j: int) -> np.ndarray:
+    """Unit direction of joint j+1's axis in link j's frame (the frame where link j's p and phi act)."""
+    return _unit(chain.joints[j].rotation @ np.eye(3)[chain.joints[j + 1].axis])
+
+
+def _reach_mm(chain: Chain) -> float:
+    """The lever at which a link rotation is weighed against a link translation: the chain's reach (the sum of its
+    nominal link lengths), so that a parameter's column in the identification Jacobian is compared at the size of
+    the point displacement it causes (a rotation of 1 rad moves the far end by about the reach)."""
+    return max(float(sum(np.linalg.norm(jt.translation) for jt in chain.joints)), 1.0)
+
+
+# Below this a dependency coefficient is zero: the aligned robots' geometry is exact to ~1e-16 and datasheet DH
+# angles turned into rotations to ~1e-15; the old aligned-axis test used the same 1e-9.
+TOL = 1e-9
+
+
+Row = dict[Param, float]  # a linear dependency among parameter columns: coefficient of each (rotations at the lever)
+
+
+def _pair_row(chain: Chain, k: int, lever: float) -> Row:
+    """The one dependency between link k's parameters and the offsets of joints k+1 and k+2, derived at the nominal
+    geometry (module docstring): dq_{k+2} - cos(th) dq_{k+1} + cos(th) T_{a x t} - R_w = 0."""
+    joint = chain.joints[k]
+    a = np.eye(3)[joint.axis]
+    d = next_axis_direction(chain, k)
+    c = float(d @ a)  # cos of the angle between the axes
+    w = d - c * a  # sin(angle) times the in-plane direction of the next axis
+    n = c * np.cross(a, joint.translation)  # cos(angle) times the offset across the common normal, mm
+    row: Row = {Param(k + 1, "dq"): 1.0, Param(k, "dq"): -c}
+    for i in range(3):
+        if i != joint.axis:
+            row[Param(k, "p", i)] = float(n[i])
+            row[Param(k, "phi", i)] = -float(w[i]) * lever
+    return row
+
+
+def _tool_row(chain: Chain) -> Row:
+    """The translation along the last joint's axis in the link before it commutes with the last joint (tool points);
+    carried back through the links (its part along a joint's axis commutes with that joint too) it is a combination
+    of link translations: their coefficients. Empty when it reaches the base (every axis parallel back there)."""
+    n = chain.dof
+    row: Row = {}
+    v = next_axis_direction(chain, n - 2)
+    for k in range(n - 2, -1, -1):
+        a_k = chain.joints[k].axis
+        row.update({Param(k, "p", i): float(v[i]) for i in range(3) if i != a_k})
+        if k == 0 or abs(v[a_k]) <= TOL:
+            break
+        v = v[a_k] * (chain.joints[k - 1].rotation @ np.eye(3)[a_k])  # the part along joint k's axis, one link back
+    return row
+
+
+def _eliminate(rows: list[tuple[Row, str]], droppable: set[Param], offsets: set[Param]) -> dict[Param, int]:
+    """One parameter per dependency such that the rest are independent: Gaussian elimination row by row, each row's
+    pivot the droppable parameter with the largest coefficient once the earlier pivots are eliminated from it (the
+    first of equals), so that the set kept is the best conditioned. Returns {parameter: row index}; a row with no
+    droppable coefficient left but a joint offset that is kept (a dependency among those offsets alone) is a
+    ChainError with the row's text."""
+    done: list[tuple[Row, Param]] = []
+    out: dict[Param, int] = {}
+    for r, (row, why) in enumerate(rows):
+        row = dict(row)
+        for prev, piv in done:
+            f = row.get(piv, 0.0) / prev[piv]
+            if f:
+                for key, val in prev.items():
+                    row[key] = row.get(key, 0.0) - f * val
+        best = None
+        for key, val in row.items():
+            if key not in droppable or key in out or abs(val) <= TOL:
+                continue
+            if best is None or abs(val) > abs(row[best]) * (1 + 1e-12):
+                best = key
+        if best is None:
+            if any(abs(v) > TOL for key, v in row.items() if key in offsets):
+                raise ChainError(why)
+            continue
+        done.append((row, best))
+        out[best] = r
+    return out
 
 
 def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
@@ -96,40 +198,26 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
         if p.joint == n - 1 and p.kind != "dq":
             removed[p] = "last-link parameter merges into the tool points"
 
-    for j in range(1, n):
-        prev = chain.joints[j - 1]
-        a_next = next_axis_in_link(chain, j - 1)
-        if a_next != prev.axis:  # perpendicular
-            removed.setdefault(
-                Param(j - 1, "phi", a_next), f"rotation about the axis of joint {j + 1} merges with dq{j + 1}"
-            )
-        else:  # parallel: drop the in-plane translation orthogonal to the nominal common normal
-            in_plane = [a for a in range(3) if a != prev.axis]
-            t = prev.translation
-            if max(abs(t[a]) for a in in_plane) < 1e-9:
-                raise ChainError(
-                    f"joints {j} and {j + 1} are parallel and coincide nominally; such a chain is redundant"
-                )
-            drop = min(in_plane, key=lambda a: abs(t[a]))
-            removed.setdefault(
-                Param(j - 1, "p", drop),
-                f"joints {j} and {j + 1} are parallel: this translation is a rotation of the common normal, "
-                f"already described by dq{j} and dq{j + 1}",
-            )
-
-    # translation along the last axis, before the run of joints parallel to it
-    k = n - 1
-    v = np.eye(3)[chain.joints[k].axis]
-    while k > 0:
-        v = chain.joints[k - 1].rotation @ v
-        a = _aligned_axis(v, f"joints {k}-{k + 1}")
-        if a != chain.joints[k - 1].axis:
-            removed.setdefault(
-                Param(k - 1, "p", a),
-                f"translation along the last joint axis commutes with joints {k + 1}..{n}: tool points",
-            )
-            break
-        k -= 1
+    lever = _reach_mm(chain)
+    rows = [(_pair_row(chain, k, lever),
+             f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant")
+            for k in range(n - 1)]  # fmt: skip
+    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated"))
+    free = [p for p in complete_params(chain) if p not in removed]
+    for p, r in _eliminate(rows, {p for p in free if p.kind != "dq"}, {p for p in free if p.kind == "dq"}).items():
+        if r == n - 1:
+            removed[p] = f"translation along the last joint axis commutes with joints {p.joint + 2}..{n}: tool points"
+            continue
+        cos = abs(next_axis_direction(chain, r) @ np.eye(3)[chain.joints[r].axis])
+        if p.kind == "phi" and cos <= TOL:
+            removed[p] = f"rotation about the axis of joint {r + 2} merges with dq{r + 2}"
+        elif p.kind == "phi":
+            removed[p] = (f"joints {r + 1} and {r + 2} are tilted: the rotation about joint {r + 2}'s axis is "
+                          f"dq{r + 1} plus this rotation, so it merges with dq{r + 1} and dq{r + 2}")  # fmt: skip
+        else:
+            nearly = "" if abs(cos - 1) <= TOL else " or nearly"
+            removed[p] = (f"joints {r + 1} and {r + 2} are parallel{nearly}: this translation is a rotation of the "
+                          f"common normal, already described by dq{r + 1} and dq{r + 2}")  # fmt: skip
 
     kept = [p for p in complete_params(chain) if p not in removed]
     eliminated = [Eliminated(p, removed[p]) for p in complete_params(chain) if p in removed]

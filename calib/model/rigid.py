@@ -53,6 +53,30 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rot_axis(2, yaw) @ rot_axis(1, pitch) @ rot_axis(0, roll)
 
 
+def rpy_of(r: np.ndarray) -> np.ndarray:
+    """URDF (roll, pitch, yaw) of a rotation matrix, rad, with rpy_matrix(*rpy_of(r)) = r; pitch from atan2, which
+    stays accurate near +-90 deg (arcsin loses half the digits there)."""
+    c = np.hypot(r[0, 0], r[1, 0])
+    pitch = np.arctan2(-r[2, 0], c)
+    if c > 1e-12:
+        return np.array([np.arctan2(r[2, 1], r[2, 2]), pitch, np.arctan2(r[1, 0], r[0, 0])])
+    return np.array([np.arctan2(-r[1, 2], r[1, 1]), pitch, 0.0])
+
+
+def turning(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b (a half turn about an axis normal to a when
+    b = -a)."""
+    a, b = np.asarray(a, float) / np.linalg.norm(a), np.asarray(b, float) / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-15:
+        if c > 0:
+            return np.eye(3)
+        normal = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
+        return exp_so3(np.pi * normal / np.linalg.norm(normal))
+    return exp_so3(axis / s * np.arctan2(s, c))
+
+
 def homogeneous(r: np.ndarray, t: np.ndarray) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3] = r

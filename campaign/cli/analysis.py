@@ -83,7 +83,8 @@ def cmd_identify(args) -> int:
     if outcome.chosen is not None:
         console.print(f"--extend auto: diagnose chose {outcome.chosen}"
                       + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
-    warnings = [w for w in (outcome.warning, outcome.determination, convergence_warning(outcome.doc)) if w]
+    warnings = [w for w in (outcome.still, outcome.warning, outcome.determination, convergence_warning(outcome.doc))
+                if w]  # fmt: skip
     if warnings:  # one line on stderr, whatever the fit's troubles (scripts read the first line)
         print(f"warning: {'; and '.join(warnings)}", file=sys.stderr)
     console.print(f"model written to {args.out}")
@@ -117,6 +118,8 @@ def cmd_diagnose(args) -> int:
                            out=args.out)  # fmt: skip
     with console.status("fitting the geometric model and selecting causes (F test, BIC, cross-validation)"):
         done = run_diagnose(opts)
+    if done.still:
+        print(f"warning: {done.still}", file=sys.stderr)
     d, doc = done.diagnosis, done.verdict
     t = Table(title=f"Diagnosis: {d.cause}" + (f" (causes: {', '.join(c['cause'] for c in d.causes)})"
                                                if len(d.causes) > 1 else ""))  # fmt: skip

@@ -103,6 +103,13 @@ COMMANDS = [
         arg("--model", required=True, help="model.json from identify or diagnose"),
         arg("--out", required=True, help="CSV to write: the rows with x_mm, y_mm, z_mm predicted"),
     ]),
+    Command("export-urdf", "the calibrated geometric robot as a URDF (and what a URDF cannot hold beside it)",
+            "trackcal.campaign.cli.urdf:cmd_export_urdf", [
+                arg("--model", help="model.json from identify or diagnose (the calibrated robot)"),
+                arg("--cell", help="or a cell: its nominal robot and tool points"),
+                arg("--robot", help="or a robot description: configs/robots name, robot YAML or URDF path"),
+                arg("--out", required=True, help="URDF to write; NAME.trackcal.json is written beside it"),
+            ]),
     Command("plan", "optimal measurement poses for the cell's test pose (or evaluate a plan)",
             "trackcal.campaign.cli.plan:cmd_plan", [
                 arg("--cell", required=True, help=CELL_HELP),

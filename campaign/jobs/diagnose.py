@@ -17,7 +17,7 @@ from trackcal.calib.io.table import MeasurementTable, read_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.errors import InputError, OptionError
-from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of
+from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
 
 
@@ -41,6 +41,7 @@ class DiagnoseOutcome:
     diagnosis: Diagnosis
     verdict: dict
     plots: list[Path]
+    still: str | None = None  # identify's still_warning: joints that never move, their parameters left at nominal
 
 
 def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
@@ -51,7 +52,7 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     if not 2 <= opts.folds <= max(2, len(table)):  # a fold holds at least one row out (and a huge count was a
         # list of that many empty blocks); more folds than poses hold out one pose each
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
-    params = choose_params(cell, opts.params)
+    params, still = still_warning(cell, table, choose_params(cell, opts.params))
     d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting), folds=opts.folds,
                  seed=opts.seed)  # fmt: skip
     digest = sha256_of(table.source)
@@ -61,7 +62,7 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     if opts.out:
         write_json(opts.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest),
                    InputError)  # fmt: skip
-    return DiagnoseOutcome(d, doc, written)
+    return DiagnoseOutcome(d, doc, written, still)
 
 
 def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:

@@ -63,7 +63,8 @@ def analyse_session(store: SessionStore) -> CampaignAnalysis:
     table, digest = as_written(exported), hashlib.sha256(data).hexdigest()
     params = choose_params(cell, None)
     outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING, table_sha256=digest)
-    dg = diagnose(cell.chain, table, cell.tool_points, params, outcome.result.noise, geometric=outcome.result)
+    dg = diagnose(cell.chain, table, cell.tool_points, outcome.result.params, outcome.result.noise,
+                  geometric=outcome.result)  # fmt: skip
     verdict = written(files.verdict, verdict_doc(cell, dg, digest))
     geometric = None
     if dg.extended is not None:

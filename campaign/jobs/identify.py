@@ -26,6 +26,7 @@ from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, read_table, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
+from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
@@ -73,6 +74,22 @@ class IdentifyOutcome:
     warning: str | None = None  # fit_warning: the intervals cannot be trusted
     determination: str | None = None  # determination_warning: parameters the table does not determine
     chosen: str | None = None  # --extend auto: the cause diagnose chose ("none": the model stays geometric)
+    still: str | None = None  # still_warning: joints that never move, their parameters left at nominal
+
+
+def still_warning(cell: Cell, table: MeasurementTable, params: list[Param]) -> tuple[list[Param], str | None]:
+    """(the parameters the table can identify, one line naming the joints that never move in it and the
+    parameters left at nominal because of them; None when every joint moves)."""
+    still = still_joints(table.q_deg)
+    if not still:
+        return params, None
+    tool = np.array(list(cell.tool_points.values()))
+    dropped = unidentifiable_params(cell.chain, params, np.radians(table.q_deg), tool, still)
+    names = ", ".join(cell.chain.joints[j].name for j in still)
+    verb = "never moves" if len(still) == 1 else "never move"
+    left = " ".join(p.name for p in dropped) or "none of the parameters"
+    return [p for p in params if p not in dropped], (
+        f"joint {names} {verb} in {table.source}: {left} not identifiable from it, left at nominal")
 
 
 def run_identify(
@@ -84,6 +101,7 @@ def run_identify(
     if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
         raise OptionError("{0} {extend}: choose none, auto or causes joined by + from {causes}", "extend",
                           extend=extend, causes=", ".join(CAUSES))
+    params, still = still_warning(cell, table, params)
     noise = noise_for(weighting)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
@@ -95,11 +113,13 @@ def run_identify(
                           extend=extend)
     doc = model_doc(cell, table, fit.result, before, fit.shift, table_sha256)
     doc["poorly_determined"] = poorly_determined(fit.result, fit.table)
+    if still:
+        doc["not_identifiable"] = still
     missing = left_out(cell, params)
     advice = determinable(fit.result, fit.table, [param_by_name(cell.chain, n) for n in missing]) if (
         doc["fit"] == "poor" and missing) else missing  # fmt: skip
     return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, advice, missing),
-                           determination=determination_warning(doc))  # fmt: skip
+                           determination=determination_warning(doc), still=still)  # fmt: skip
 
 
 def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
