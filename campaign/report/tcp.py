@@ -1,0 +1,120 @@
+"""How far the extended model's TCP at the cell's test pose is from the geometric one's, and whether this campaign
+determines that figure at all.
+
+The TCP is the reference points' centroid as each model places it (its own fitted points, not the tool drawing's:
+with stations and points free, a shift of the points along a link trades against that link's lengths, so a TCP
+fixed in the flange frame would compare two different physical points), in the frame of the table's first
+station: what `trackcal predict` gives for rows at the test pose, one per reference point, the extension at its
+neutral context (no approach history, the campaign's start). Its uncertainty comes from each model's own
+covariance (robot parameters, that station, the points), propagated to the centroid (first order): a plan
+optimised for a few parameters leaves the others barely determined, and the two models can then differ at the
+test pose by millimetres that say nothing of the cause. The difference is shown as determined only when it
+exceeds twice the combined 1-sigma uncertainty (3-D) of the two predictions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trackcal.calib.identify.solver import Identification
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model_file import model_from_doc, predict_table
+
+# a difference is determined when it exceeds this many combined 1-sigma (3-D) uncertainties: about the 95 %
+# one-sided bound of the length of a difference that is noise alone
+DETERMINED_SIGMAS = 2.0
+
+
+@dataclass(frozen=True)
+class TcpDifference:
+    station: str  # the frame the positions are in
+    geometric_mm: np.ndarray  # (3,) the geometric model's TCP (centroid of its points), station frame
+    extended_mm: np.ndarray  # (3,) the extended model's
+    difference_mm: float  # |extended - geometric|
+    sigma_geometric_mm: float | None  # 1-sigma 3-D uncertainty of each prediction (None: no covariance)
+    sigma_extended_mm: float | None
+
+    @property
+    def sigma_mm(self) -> float | None:
+        """The combined 1-sigma 3-D uncertainty of the difference (the two taken as independent)."""
+        if self.sigma_geometric_mm is None or self.sigma_extended_mm is None:
+            return None
+        return float(np.hypot(self.sigma_geometric_mm, self.sigma_extended_mm))
+
+    @property
+    def determined(self) -> bool:
+        return self.sigma_mm is not None and self.difference_mm > DETERMINED_SIGMAS * self.sigma_mm
+
+
+def tcp_rows(cell: Cell, points: list[str], station: str) -> MeasurementTable:
+    """One row per reference point at the cell's test pose, seen from `station`, at the campaign's start."""
+    n = len(points)
+    q = np.repeat(np.degrees(cell.test_pose)[None], n, axis=0)
+    return MeasurementTable(np.arange(1, n + 1), np.zeros(n), ["test"] * n, [station] * n, list(points), q, None,
+                            source="test pose")  # fmt: skip
+
+
+def predicted_tcp(cell: Cell, model_doc: dict, station: str) -> np.ndarray:
+    """The model's TCP (centroid of its reference points) at the test pose in `station`'s frame: `trackcal
+    predict` of one row per point."""
+    model = model_from_doc(model_doc)
+    return predict_table(model, tcp_rows(cell, sorted(model.points), station)).xyz.mean(axis=0)
+
+
+def _centroid_base(cell: Cell, res: Identification, dev: np.ndarray, points: dict[str, np.ndarray]) -> np.ndarray:
+    kin = Kinematics(res.chain, res.params)
+    tool = np.array([points[p] for p in res.point_ids])
+    return kin.points(np.repeat(cell.test_pose[None], len(tool), axis=0), tool, dev).mean(axis=0)
+
+
+def _skew(y: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -y[2], y[1]], [y[2], 0.0, -y[0]], [-y[1], y[0], 0.0]])
+
+
+def tcp_sigma(cell: Cell, res: Identification, station: str, step: float = 1e-6) -> float:
+    """1-sigma 3-D uncertainty (sqrt of the trace of the covariance) of the identification's TCP at the test pose in
+    `station`'s frame, from its covariance of the robot parameters, the station and the points (the extension's
+    parameters, whose effect at the neutral context is small or nil, are left out). Numerical first-order
+    propagation: forward differences of `step` (mm, rad) on the centroid, the station's perturbation as the solver
+    defines it (x' = Exp(w) x + v in the station frame, calib.identify.solver)."""
+    k, c_st = len(res.params), len(res.params) + len(res.ext)
+    c_pt = c_st + 6 * len(res.station_ids)
+    rot = res.stations[station].rotation
+    base = _centroid_base(cell, res, res.dev, res.points)
+    cols, idx = [], []
+    for i in range(k):
+        dev = res.dev.copy()
+        dev[i] += step
+        cols.append(rot @ (_centroid_base(cell, res, dev, res.points) - base) / step)
+        idx.append(i)
+    for n, pid in enumerate(res.point_ids):
+        for a in range(3):
+            pts = dict(res.points)
+            pts[pid] = pts[pid] + step * np.eye(3)[a]
+            cols.append(rot @ (_centroid_base(cell, res, res.dev, pts) - base) / step)
+            idx.append(c_pt + 3 * n + a)
+    y = res.stations[station].apply(base)
+    s0 = c_st + 6 * res.station_ids.index(station)
+    jac = np.hstack([np.array(cols).T, np.eye(3), -_skew(y)])
+    idx += list(range(s0, s0 + 6))
+    cov = res.cov[np.ix_(idx, idx)]
+    return float(np.sqrt(max(np.trace(jac @ cov @ jac.T), 0.0)))
+
+
+def tcp_difference(cell: Cell, model_doc: dict, geometric_doc: dict, diagnosis=None) -> TcpDifference | None:
+    """The two models' TCPs at the test pose and their uncertainty (None without a test pose or an extension).
+    `diagnosis` (calib.diagnose.selection.Diagnosis, what the models were made from) gives the covariances."""
+    if cell.test_pose is None or model_doc is geometric_doc:
+        return None
+    station = sorted(geometric_doc.get("stations", {}))[0]
+    geo, ext = predicted_tcp(cell, geometric_doc, station), predicted_tcp(cell, model_doc, station)
+    sg = se = None
+    if diagnosis is not None and diagnosis.extended is not None:
+        sg = tcp_sigma(cell, diagnosis.geometric, station)
+        se = tcp_sigma(cell, diagnosis.extended, station)
+    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)), sg, se)
+
