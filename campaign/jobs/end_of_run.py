@@ -215,7 +215,8 @@ def read_verdict(path: str | None) -> dict | None:
     for key in ("noise_note", "noise_floor_source"):
         if doc.get(key) is not None:
             fields.text(doc[key], f"{path}: {key}", InputError)
-    for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)), ("test_pose", ("tcp_difference_mm",)),
+    for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)),
+                       ("test_pose", ("tcp_difference_mm", "sigma_mm")),
                        ("holdout", ("rms_geometric_mm", "rms_extended_mm"))):  # fmt: skip
         _numbers(fields.mapping(doc.get(part, {}), f"{path}: {part}", InputError), keys, f"{path}: {part}.")
     if doc.get("holdout", {}).get("note") is not None:

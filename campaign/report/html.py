@@ -149,8 +149,8 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
         # the RMS 3-D distance that tracker noise alone gives: sqrt(3) x the floor of one coordinate
         rms_pose = per_pose_rms(table, r) * 1000.0
         floor3 = np.sqrt(3.0) * res.floor_mm * 1000.0
-        label = f"noise floor of a 3-D distance: √3 × {res.floor_mm * 1000:.1f} = {floor3:.1f} µm"
-        ax.axhline(floor3, color="k", ls="--", lw=1.2, label=label)
+        floor_label = f"noise floor of a 3-D distance: √3 × {res.floor_mm * 1000:.1f} = {floor3:.1f} µm"
+        ax.axhline(floor3, color="k", ls="--", lw=1.2, label=floor_label)
         ax.set_ylim(0.0, 1.3 * max(float(rms_pose.max()), floor3))  # head room: the legend covers no bar
         ax.legend(loc="upper center", fontsize=8, ncol=2, framealpha=0.95)
         ax.set_ylabel("RMS distance (µm)")
@@ -389,8 +389,8 @@ def candidate_row(c: dict) -> list[str]:
                 "not fitted: none of its parameters is identifiable from these poses"]  # fmt: skip
     hold, note = c.get("holdout_rms_mm"), c.get("cv_note") or ""
     if hold is not None and not holdout_trusted(hold, c.get("rms_mm")):
-        note = (f"held out by {c.get('cv_scheme') or '?'}: {micro(hold)} µm, over {HOLDOUT_TRUST:.0f}x its fit RMS "
-                "(the held-out rows are needed to determine the model): not a figure this campaign supports")
+        note = (f"held out by {c.get('cv_scheme') or '?'}: not shown, over {HOLDOUT_TRUST:.0f}x its fit RMS (the "
+                "held-out rows are needed to determine the model): not a scheme this campaign supports")
         hold = None
     return [step, c.get("cause", "?"), "-" if n is None else str(n), micro(hold), micro(c.get("rms_mm")),
             pvalue_text(c.get("f_pvalue")), fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no",
@@ -430,7 +430,8 @@ def section_diagnosis(verdict_doc: dict | None, images: list[Path], tcp: TcpDiff
             ("noise floor (µm, per coordinate)", micro(verdict_doc.get("noise_floor_mm"))),
             ("noise floor from", verdict_doc.get("noise_floor_source", "-")),
             ("geometric model RMS (µm, per coordinate)", micro(geo_rms)),
-            ("extended model RMS (µm, per coordinate)", micro(ext_rms)),
+            ("extended model RMS (µm, per coordinate)",
+             micro(ext_rms) if verdict_doc.get("cause") not in ("none", "unexplained") else "- (no cause chosen)"),
         ]
         untrusted = []
         for label, key, fit in (("geometric", "rms_geometric_mm", geo_rms), ("extended", "rms_extended_mm", ext_rms)):
@@ -581,7 +582,8 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
     par_plot = plot_parameters(model_doc, out_dir / "parameters.png")
     images = diagnosis_images(out_dir, cell, analysis.diagnosis) if verdict_doc and analysis.diagnosis else []
     images += _extra_images(out_dir, extra_images)
-    tcp = tcp_difference(cell, model_doc, analysis.geometric, analysis.diagnosis) if verdict_doc else None
+    d = analysis.diagnosis if verdict_doc else None
+    tcp = tcp_difference(cell, d.geometric, d.extended) if d is not None else None
     planned = list(plan_doc.get("params") or []) if plan_doc else None
     model_sigma = None
     if analysis.diagnosis is not None and cell.test_pose is not None:

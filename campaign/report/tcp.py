@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackcal.calib.identify.solver import Identification
+from trackcal.calib.diagnose.extensions import rebuild
+from trackcal.calib.identify.solver import Identification, model_points
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
@@ -59,16 +60,26 @@ def tcp_rows(cell: Cell, points: list[str], station: str) -> MeasurementTable:
 
 
 def predicted_tcp(cell: Cell, model_doc: dict, station: str) -> np.ndarray:
-    """The model's TCP (centroid of its reference points) at the test pose in `station`'s frame: `trackcal
+    """A model file's TCP (centroid of its reference points) at the test pose in `station`'s frame: `trackcal
     predict` of one row per point."""
     model = model_from_doc(model_doc)
     return predict_table(model, tcp_rows(cell, sorted(model.points), station)).xyz.mean(axis=0)
 
 
 def _centroid_base(cell: Cell, res: Identification, dev: np.ndarray, points: dict[str, np.ndarray]) -> np.ndarray:
-    kin = Kinematics(res.chain, res.params)
+    """The identification's reference points' centroid at the test pose, robot base frame, extension at its
+    neutral context."""
+    rows = tcp_rows(cell, res.point_ids, res.station_ids[0])
+    ext = rebuild(res.extension, cell.chain, rows) if res.extension is not None and len(res.ext) else None
     tool = np.array([points[p] for p in res.point_ids])
-    return kin.points(np.repeat(cell.test_pose[None], len(tool), axis=0), tool, dev).mean(axis=0)
+    kin = Kinematics(res.chain, res.params)
+    return model_points(kin, np.radians(rows.q_deg), tool, dev, ext, res.ext).mean(axis=0)
+
+
+def identified_tcp(cell: Cell, res: Identification, station: str) -> np.ndarray:
+    """The identification's TCP at the test pose in `station`'s frame (what `predicted_tcp` gives of its model
+    file)."""
+    return res.stations[station].apply(_centroid_base(cell, res, res.dev, res.points))
 
 
 def _skew(y: np.ndarray) -> np.ndarray:
@@ -105,16 +116,24 @@ def tcp_sigma(cell: Cell, res: Identification, station: str, step: float = 1e-6)
     return float(np.sqrt(max(np.trace(jac @ cov @ jac.T), 0.0)))
 
 
-def tcp_difference(cell: Cell, model_doc: dict, geometric_doc: dict, diagnosis=None) -> TcpDifference | None:
-    """The two models' TCPs at the test pose and their uncertainty (None without a test pose or an extension).
-    `diagnosis` (calib.diagnose.selection.Diagnosis, what the models were made from) gives the covariances."""
-    if cell.test_pose is None or model_doc is geometric_doc:
+def tcp_difference(cell: Cell, geometric: Identification, extended: Identification | None) -> TcpDifference | None:
+    """The two models' TCPs at the test pose, in the frame of the table's first station, and their uncertainty
+    (None without a test pose or an extended model)."""
+    if cell.test_pose is None or extended is None:
         return None
-    station = sorted(geometric_doc.get("stations", {}))[0]
-    geo, ext = predicted_tcp(cell, geometric_doc, station), predicted_tcp(cell, model_doc, station)
-    sg = se = None
-    if diagnosis is not None and diagnosis.extended is not None:
-        sg = tcp_sigma(cell, diagnosis.geometric, station)
-        se = tcp_sigma(cell, diagnosis.extended, station)
-    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)), sg, se)
+    station = geometric.station_ids[0]
+    geo, ext = identified_tcp(cell, geometric, station), identified_tcp(cell, extended, station)
+    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)), tcp_sigma(cell, geometric, station),
+                         tcp_sigma(cell, extended, station))  # fmt: skip
 
+
+def tcp_doc(tcp: TcpDifference) -> dict:
+    """verdict.json's test_pose: the difference, its uncertainty and whether this campaign determines it."""
+    return {
+        "tcp_difference_mm": tcp.difference_mm, "sigma_mm": tcp.sigma_mm, "determined": tcp.determined,
+        "station": tcp.station, "geometric_tcp_mm": tcp.geometric_mm.tolist(),
+        "extended_tcp_mm": tcp.extended_mm.tolist(),
+        "note": "how far the geometric model's TCP (the centroid of its reference points) at the test pose is from "
+                f"the extended model's, in station {tcp.station}'s frame; determined when over {DETERMINED_SIGMAS:.0f} "
+                "times its 1-sigma 3-D uncertainty (sigma_mm, from the two models' covariances)",
+    }  # fmt: skip
