@@ -24,7 +24,7 @@ from trackcal.campaign.jobs.diagnose import verdict_doc
 from trackcal.campaign.jobs.end_of_run import diagnosis_of
 from trackcal.campaign.jobs.identify import choose_params, run_identify, sha256_of
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
-from trackcal.campaign.report.html import write_report
+from trackcal.campaign.report.html import summarise_warnings, write_report
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
 SESSION = "KR-270 <script>alert('x')</script> & co"  # a session directory name HTML must escape
@@ -135,10 +135,29 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
     assert "re-plan" not in text  # the verdict names no cause the plan could have missed
     warnings = text.split("Campaign warnings")[1]
     planned = len(table) + 1  # the table's measurements and the one skipped
-    assert f"1 of {planned} planned measurements skipped: 1 of point P2 at station S1 (Q5) because: beam broken" \
+    assert f"1 of {planned} planned measurements skipped, all at station S1 (point P2; pose Q5) because: beam broken" \
         in warnings
     assert "t = 748 s: P2 not measurable from S1 at Q5" in warnings.split("every warning as raised (1)")[1]
     assert "(um)" not in text and " um " not in text
+
+
+def test_skipped_measurements_are_counted_and_grouped_by_station_and_reason():
+    # the engine's words (campaign.engine.engine.Engine._measure) as a `trackcal mock` campaign raised them: two
+    # attempts per measurement, the second one skips; only the searched position differs between the points
+    why = ("tracker 127.0.0.1:41455: not ready to measure: no reflector locked (beam broken or reflector not found) "
+           "while searching the reflector near ({}) mm (code 10004)")
+    near = {"P1": "4361.280, -1007.061, -260.764", "P2": "4486.365, -1123.017, -339.846"}
+    warnings = [f"t = {2 + 10 * k} s: {p} not measurable from S1 at Q1: {why.format(near[p])}; {then}"
+                for k in range(3) for p in ("P1", "P2") for then in ("looking again", "skipped here")]
+    warnings += ["t = 90 s: P3 not measurable from S2 at Q4: beam broken; skipped here",
+                 "t = 88 s: the cell door opened: motion blocked until resumed",
+                 "t = 95 s: the cell door opened: motion blocked until resumed"]  # fmt: skip
+    lines = summarise_warnings(warnings, measured=113)
+    assert lines[0].startswith("7 of 120 planned measurements skipped, 6 at station S1 (point P1 ×3, P2 ×3; pose "
+                               "Q1 ×6) because: tracker 127.0.0.1:41455: not ready to measure: no reflector locked")
+    assert "near where the model expects it (code 10004); 1 at station S2 (point P3; pose Q4) because: beam broken." \
+        in lines[0]
+    assert lines[1:] == ["the cell door opened: motion blocked until resumed (2 times)"]
 
 
 def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):

@@ -300,7 +300,7 @@ def parameters_note(model_doc: dict, plan_doc: dict | None, sigma_mm: float | No
                      "not fitted.")
         if extra:
             text += (f" {' '.join(extra)} are not in the plan: these configurations were not chosen to determine "
-                     "them, and their intervals say how little they do.")
+                     "them: their intervals say how well they are determined all the same.")
     if sigma_mm is not None:
         rho = (plan_doc or {}).get("rho0_mm")
         promised = f" (the plan's rho0, for its own parameters only: {float(rho) * 1000:.2f} µm)" if rho else ""
@@ -510,11 +510,24 @@ NOT_MEASURABLE = re.compile(r"^(?:t = [-0-9.]+ s: )?(?P<point>.+?) not measurabl
                             r"(?P<pose>.+?): (?P<why>.*); (?P<then>skipped here|looking again)$")
 
 
+# what differs from one skip to the next of one cause: where the tracker searched (the expected position)
+SEARCHED_AT = re.compile(r" near \([-0-9., ]+\) mm")
+
+
+def counted(names: list[str]) -> str:
+    """`P1 x5, P2 x5` (first-seen order), a name alone when it occurs once."""
+    counts: dict[str, int] = {}
+    for n in names:
+        counts[n] = counts.get(n, 0) + 1
+    return ", ".join(f"{n} ×{c}" if c > 1 else n for n, c in counts.items())
+
+
 def summarise_warnings(warnings: list[str], measured: int) -> list[str]:
     """The campaign's warnings as an engineer reads them: the skipped measurements counted against the planned
-    ones and grouped by point, station and reason (each attempt that looked again is part of its skip), then every
-    other warning once per kind of message with its count."""
-    skipped: dict[tuple[str, str, str], list[str]] = {}
+    ones and grouped by station and reason (where the tracker searched left out), with their points and poses
+    (each attempt that looked again is part of its skip), then every other warning once per message, with its
+    count."""
+    skipped: dict[tuple[str, str], list[tuple[str, str]]] = {}
     others: dict[str, int] = {}
     for w in warnings:
         m = NOT_MEASURABLE.match(w)
@@ -522,13 +535,15 @@ def summarise_warnings(warnings: list[str], measured: int) -> list[str]:
             text = re.sub(r"^t = [-0-9.]+ s: ", "", w)
             others[text] = others.get(text, 0) + 1
         elif m["then"] == "skipped here":
-            skipped.setdefault((m["point"], m["station"], m["why"]), []).append(m["pose"])
+            why = SEARCHED_AT.sub(" near where the model expects it", m["why"])
+            skipped.setdefault((m["station"], why), []).append((m["point"], m["pose"]))
     lines = []
     n_skipped = sum(len(v) for v in skipped.values())
     if n_skipped:
-        groups = "; ".join(f"{len(poses)} of point {point} at station {station} ({', '.join(dict.fromkeys(poses))}) "
-                           f"because: {why}" for (point, station, why), poses in skipped.items())  # fmt: skip
-        lines.append(f"{n_skipped} of {measured + n_skipped} planned measurements skipped: {groups}.")
+        groups = "; ".join(f"{'all' if len(skips) == n_skipped else len(skips)} at station {station} (point "
+                           f"{counted([p for p, _ in skips])}; pose {counted([q for _, q in skips])}) because: {why}"
+                           for (station, why), skips in skipped.items())  # fmt: skip
+        lines.append(f"{n_skipped} of {measured + n_skipped} planned measurements skipped, {groups}.")
     lines += [f"{text} ({n} times)" if n > 1 else text for text, n in others.items()]
     return lines
 
