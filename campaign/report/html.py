@@ -316,8 +316,8 @@ def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
     rho = plan_doc.get("rho0_mm")
     facts = [("criterion", plan_doc.get("criterion", "-")), ("repeat", plan_doc.get("repeat", "-")),
              ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
-             ("parameters", " ".join(plan_doc.get("params", []))),
-             ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []))]  # fmt: skip
+             ("parameters", " ".join(plan_doc.get("params", [])) or "-"),
+             ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []) or "-")]  # fmt: skip
     parts.append(table_html(None, [list(f) for f in facts], left=2))
     poses = plan_doc.get("poses_deg") or []
     if poses:
@@ -403,9 +403,10 @@ def tcp_text(tcp: TcpDifference, plan_doc: dict | None, model_doc: dict) -> str:
     if tcp.sigma_mm is None:
         return f"{diff} (its uncertainty is not known: no covariance)"
     unc = (f"geometric ±{tcp.sigma_geometric_mm * 1000:.1f}, extended ±{tcp.sigma_extended_mm * 1000:.1f} µm, "
-           "1σ 3-D")
+           "1σ 3-D at the noise the extended model leaves")
     if tcp.determined:
-        return f"{diff} ± {tcp.sigma_mm * 1000:.1f} (1σ 3-D; {unc})"
+        return (f"{diff} ± {tcp.sigma_mm * 1000:.1f} ({unc}): where the geometric model would put the TCP, "
+                "compared with the model that explains the cause")
     planned = (plan_doc or {}).get("params") or []
     why = (f"; the plan was optimised for {len(planned)} parameters ({' '.join(planned)}), the model fits "
            f"{len(model_doc.get('parameters', {}))}" if planned else "")

@@ -6,10 +6,13 @@ with stations and points free, a shift of the points along a link trades against
 fixed in the flange frame would compare two different physical points), in the frame of the table's first
 station: what `trackcal predict` gives for rows at the test pose, one per reference point, the extension at its
 neutral context (no approach history, the campaign's start). Its uncertainty comes from each model's own
-covariance (robot parameters, that station, the points), propagated to the centroid (first order): a plan
-optimised for a few parameters leaves the others barely determined, and the two models can then differ at the
-test pose by millimetres that say nothing of the cause. The difference is shown as determined only when it
-exceeds twice the combined 1-sigma uncertainty (3-D) of the two predictions.
+covariance (robot parameters, that station, the points), propagated to the centroid (first order), each at the
+noise the extended model leaves (its variance factor: the geometric model's own one also holds the misfit the cause
+explains, which is what the difference measures, not noise). A plan optimised for a few parameters leaves the
+others of an 18-parameter fit barely determined: the geometric model then spreads the cause's systematic error
+over them, and the two models can differ at the test pose by far more than the cause's own size (on the twin, a
+0.05 mm backlash on the README's 6-configuration plan: 1.3 mm, the geometric model 1.3-1.5 mm from the truth there,
+the extended one 0.2 mm). The difference is determined when it exceeds twice the combined 1-sigma uncertainty.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ class TcpDifference:
     geometric_mm: np.ndarray  # (3,) the geometric model's TCP (centroid of its points), station frame
     extended_mm: np.ndarray  # (3,) the extended model's
     difference_mm: float  # |extended - geometric|
-    sigma_geometric_mm: float | None  # 1-sigma 3-D uncertainty of each prediction (None: no covariance)
+    sigma_geometric_mm: float | None  # 1-sigma 3-D uncertainty of each prediction at the extended model's noise
     sigma_extended_mm: float | None
 
     @property
@@ -86,12 +89,14 @@ def _skew(y: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -y[2], y[1]], [y[2], 0.0, -y[0]], [-y[1], y[0], 0.0]])
 
 
-def tcp_sigma(cell: Cell, res: Identification, station: str, step: float = 1e-6) -> float:
+def tcp_sigma(cell: Cell, res: Identification, station: str, variance_factor: float | None = None,
+              step: float = 1e-6) -> float:  # fmt: skip
     """1-sigma 3-D uncertainty (sqrt of the trace of the covariance) of the identification's TCP at the test pose in
     `station`'s frame, from its covariance of the robot parameters, the station and the points (the extension's
     parameters, whose effect at the neutral context is small or nil, are left out). Numerical first-order
     propagation: forward differences of `step` (mm, rad) on the centroid, the station's perturbation as the solver
-    defines it (x' = Exp(w) x + v in the station frame, calib.identify.solver)."""
+    defines it (x' = Exp(w) x + v in the station frame, calib.identify.solver). `variance_factor`: the noise level
+    to scale the covariance to (default the identification's own)."""
     k, c_st = len(res.params), len(res.params) + len(res.ext)
     c_pt = c_st + 6 * len(res.station_ids)
     rot = res.stations[station].rotation
@@ -113,6 +118,8 @@ def tcp_sigma(cell: Cell, res: Identification, station: str, step: float = 1e-6)
     jac = np.hstack([np.array(cols).T, np.eye(3), -_skew(y)])
     idx += list(range(s0, s0 + 6))
     cov = res.cov[np.ix_(idx, idx)]
+    if variance_factor is not None and res.variance_factor > 0:
+        cov = cov * (variance_factor / res.variance_factor)
     return float(np.sqrt(max(np.trace(jac @ cov @ jac.T), 0.0)))
 
 
@@ -123,17 +130,20 @@ def tcp_difference(cell: Cell, geometric: Identification, extended: Identificati
         return None
     station = geometric.station_ids[0]
     geo, ext = identified_tcp(cell, geometric, station), identified_tcp(cell, extended, station)
-    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)), tcp_sigma(cell, geometric, station),
-                         tcp_sigma(cell, extended, station))  # fmt: skip
+    noise = extended.variance_factor
+    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)),
+                         tcp_sigma(cell, geometric, station, noise), tcp_sigma(cell, extended, station))  # fmt: skip
 
 
 def tcp_doc(tcp: TcpDifference) -> dict:
     """verdict.json's test_pose: the difference, its uncertainty and whether this campaign determines it."""
     return {
         "tcp_difference_mm": tcp.difference_mm, "sigma_mm": tcp.sigma_mm, "determined": tcp.determined,
+        "sigma_geometric_mm": tcp.sigma_geometric_mm, "sigma_extended_mm": tcp.sigma_extended_mm,
         "station": tcp.station, "geometric_tcp_mm": tcp.geometric_mm.tolist(),
         "extended_tcp_mm": tcp.extended_mm.tolist(),
         "note": "how far the geometric model's TCP (the centroid of its reference points) at the test pose is from "
                 f"the extended model's, in station {tcp.station}'s frame; determined when over {DETERMINED_SIGMAS:.0f} "
-                "times its 1-sigma 3-D uncertainty (sigma_mm, from the two models' covariances)",
+                "times its 1-sigma 3-D uncertainty (sigma_mm, from the two models' covariances at the noise the "
+                "extended model leaves)",
     }  # fmt: skip
