@@ -254,7 +254,7 @@ def check_report(kr270, analysis, tmp_path: Path) -> None:
     if floor is not None:
         shown = facts["noise floor (µm)"]
         assert close(shown, floor), (shown, floor)
-        assert f"{np.sqrt(3.0) * number(shown):.1f}"[:-1] in shown.split(";")[1], shown  # √3 x the per-coordinate
+        assert close(shown.split(";")[1], np.sqrt(3.0) * floor), shown  # √3 x the per-coordinate floor
     # Table 9: after = table - model by direct kinematics; before = identify's own document of the nominal robot
     after = xyz - predicted(chain, model, cols, table)
     rows = {r[0]: r[1:] for r in page.table("Residuals before and after")[1:]}
