@@ -296,8 +296,8 @@ def parameters_note(model_doc: dict, plan_doc: dict | None, sigma_mm: float | No
         text += (f" The plan was optimised for {len(planned)} parameters ({' '.join(planned)}); the model fits "
                  f"{len(fitted)}, the irreducible set with the stations and reference points free.")
         if left:
-            text += (f" {' '.join(left)} of the plan cannot be told apart from the stations' placement and are "
-                     "not fitted.")
+            text += (f" {' '.join(left)} of the plan cannot be told apart from the stations' placement and "
+                     f"{'is' if len(left) == 1 else 'are'} not fitted.")
         if extra:
             text += (f" {' '.join(extra)} are not in the plan: these configurations were not chosen to determine "
                      "them: their intervals say how well they are determined all the same.")
