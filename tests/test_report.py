@@ -1,6 +1,7 @@
 """The campaign report: report.html with its PNG plots, header, Table 8 and Table 9 content, escaping, files of
 different campaigns refused, the CLI, and the page as headless Chromium renders it."""
 
+import base64
 import json
 import os
 import re
@@ -23,7 +24,7 @@ from trackcal.campaign.jobs.diagnose import verdict_doc
 from trackcal.campaign.jobs.end_of_run import diagnosis_of
 from trackcal.campaign.jobs.identify import choose_params, run_identify, sha256_of
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
-from trackcal.campaign.report.html import write_report
+from trackcal.campaign.report.html import summarise_warnings, write_report
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
 SESSION = "KR-270 <script>alert('x')</script> & co"  # a session directory name HTML must escape
@@ -97,11 +98,11 @@ def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
     text = path.read_text()
     page = Page()
     page.feed(text)
-    # every image is a PNG next to the report, and exists; nothing external
+    # every image is a PNG embedded in the page (the one file is the report); nothing external
     assert len(page.images) >= 4
     for src in page.images:
-        assert src.endswith(".png") and not src.startswith(("/", "http"))
-        assert (path.parent / src).is_file() and (path.parent / src).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert src.startswith("data:image/png;base64,")
+        assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
     assert "script" not in page.tags and "link" not in page.tags and "http" not in text
     cells = [c.strip() for c in page.cells]
     for name in outcome.doc["parameters"]:
@@ -132,8 +133,31 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
     assert "fits to the noise floor" in sentence and "no non-geometric effect" in sentence
     assert "trackcal compensate --model model.json" in text.split("What next")[1]
     assert "re-plan" not in text  # the verdict names no cause the plan could have missed
-    assert "P2 not measurable from S1 at Q5" in text.split("Campaign warnings (1)")[1]
+    warnings = text.split("Campaign warnings")[1]
+    planned = len(table) + 1  # the table's measurements and the one skipped
+    assert f"1 of {planned} planned measurements skipped, all at station S1 (point P2; pose Q5) because: beam broken" \
+        in warnings
+    assert "t = 748 s: P2 not measurable from S1 at Q5" in warnings.split("every warning as raised (1)")[1]
     assert "(um)" not in text and " um " not in text
+
+
+def test_skipped_measurements_are_counted_and_grouped_by_station_and_reason():
+    # the engine's words (campaign.engine.engine.Engine._measure) as a `trackcal mock` campaign raised them: two
+    # attempts per measurement, the second one skips; only the searched position differs between the points
+    why = ("tracker 127.0.0.1:41455: not ready to measure: no reflector locked (beam broken or reflector not found) "
+           "while searching the reflector near ({}) mm (code 10004)")
+    near = {"P1": "4361.280, -1007.061, -260.764", "P2": "4486.365, -1123.017, -339.846"}
+    warnings = [f"t = {2 + 10 * k} s: {p} not measurable from S1 at Q1: {why.format(near[p])}; {then}"
+                for k in range(3) for p in ("P1", "P2") for then in ("looking again", "skipped here")]
+    warnings += ["t = 90 s: P3 not measurable from S2 at Q4: beam broken; skipped here",
+                 "t = 88 s: the cell door opened: motion blocked until resumed",
+                 "t = 95 s: the cell door opened: motion blocked until resumed"]  # fmt: skip
+    lines = summarise_warnings(warnings, measured=113)
+    assert lines[0].startswith("7 of 120 planned measurements skipped, 6 at station S1 (point P1 ×3, P2 ×3; pose "
+                               "Q1 ×6) because: tracker 127.0.0.1:41455: not ready to measure: no reflector locked")
+    assert "near where the model expects it (code 10004); 1 at station S2 (point P3; pose Q4) because: beam broken." \
+        in lines[0]
+    assert lines[1:] == ["the cell door opened: motion blocked until resumed (2 times)"]
 
 
 def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):
@@ -172,7 +196,8 @@ def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, t
     out = tmp_path / "rep"
     text = render(out, kr270, table, outcome.doc, None, None, Provenance(), extra_images=[extra]).read_text()
     assert "No plan given" in text
-    assert 'src="extra/parameters.png"' in text and 'src="parameters.png"' in text
+    assert 'title="parameters.png"' in text and text.count("data:image/png") == 4  # 2 residual plots, 2 parameters
+    assert base64.b64encode(extra.read_bytes()).decode() in text
     assert (out / "extra" / "parameters.png").read_bytes() == extra.read_bytes()
     assert (out / "parameters.png").read_bytes() != extra.read_bytes()
 
@@ -185,7 +210,8 @@ def test_cli_report(campaign, tmp_path, capsys):
     assert main(argv) == 0
     assert "report written to" in capsys.readouterr().out
     text = (out / "report.html").read_text()
-    assert "kr270" in text and all((out / src).is_file() for src in re.findall(r'src="([^"]+)"', text))
+    sources = re.findall(r'src="([^"]+)"', text)
+    assert "kr270" in text and sources and all(src.startswith("data:image/png;base64,") for src in sources)
 
 
 def test_cli_user_mistakes_end_in_one_line_and_exit_2(campaign, tmp_path, capsys):
@@ -237,8 +263,8 @@ def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
     out = tmp_path / "rep"
     text = render(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag, sha256_of(table.source)), Provenance(),
                         diagnosis=diag).read_text()  # fmt: skip
-    for name in ("diagnosis/signature.png", "diagnosis/structure.png"):
-        assert f'src="{name}"' in text and (out / name).is_file()
+    for name in ("signature.png", "structure.png"):
+        assert f'title="{name}"' in text and (out / "diagnosis" / name).is_file()
     assert f"Cause: <b>{diag.cause}</b>" in text
 
 

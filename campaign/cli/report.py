@@ -11,6 +11,7 @@ from trackcal.campaign.cli.session import incomplete_note
 from trackcal.campaign.errors import InputError, UsageError
 from trackcal.campaign.jobs.end_of_run import NotAnalysedError, analyse_session, report_files, report_session
 from trackcal.campaign.report.analysis import CampaignAnalysis
+from trackcal.campaign.report.html import summarise_warnings
 from trackcal.campaign.session.store import SessionStore
 
 
@@ -53,9 +54,10 @@ def print_analysis(analysis: CampaignAnalysis) -> None:
                   f"{cause} ({files.verdict}); report {analysis.report}")  # fmt: skip
     warnings = analysis.warnings
     if warnings:
-        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/] (also in the report):", highlight=False)
-        for w in warnings:
-            console.print(f"  {w}", markup=False, highlight=False)
+        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/], in short (each as raised: in the report):",
+                      highlight=False)  # fmt: skip
+        for line in summarise_warnings(warnings, len(analysis.table)):
+            console.print(f"  {line}", markup=False, highlight=False)
 
 
 def analyse_and_print(store: SessionStore) -> CampaignAnalysis | None:

@@ -6,19 +6,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from trackcal.calib.diagnose.extensions import rebuild
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
-from trackcal.calib.identify.solver import Identification
 from trackcal.calib.io.files import write_json
-from trackcal.calib.io.table import MeasurementTable, read_table
+from trackcal.calib.io.table import read_table
 from trackcal.calib.model.cell import Cell, load_cell
-from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
+from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
 
 
 @dataclass(frozen=True)
@@ -65,19 +61,6 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     return DiagnoseOutcome(d, doc, written, still)
 
 
-def tcp_at_test_pose(cell: Cell, res: Identification) -> np.ndarray | None:
-    """TCP at the cell's test pose with a fitted model (extension at its neutral context: no approach
-    history, campaign start)."""
-    if cell.test_pose is None:
-        return None
-    q0 = cell.test_pose[None]
-    ext = res.extension
-    if ext is not None and ext.joint_features is not None:
-        row = MeasurementTable(np.array([1]), np.zeros(1), ["q0"], ["-"], ["-"], np.degrees(q0), None)
-        q0 = q0 + rebuild(ext, cell.chain, row).joint_offsets(res.ext)
-    return Kinematics(cell.chain, res.params).points(q0, cell.tcp, res.dev)[0]
-
-
 def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
     """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
     their structure and the gain; the cell and the sha256 of the table it was made from (a report refuses files of
@@ -110,13 +93,9 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
     }  # fmt: skip
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}
-    if d.extended is not None:
-        tcp_g, tcp_e = tcp_at_test_pose(cell, geo), tcp_at_test_pose(cell, d.extended)
-        if tcp_g is not None:
-            doc["test_pose"] = {
-                "tcp_difference_mm": float(np.linalg.norm(tcp_e - tcp_g)),
-                "note": "how far the geometric model's TCP at the test pose is from the extended model's",
-            }
+    tcp = tcp_difference(cell, geo, d.extended)
+    if tcp is not None:
+        doc["test_pose"] = tcp_doc(tcp)
     return doc
 
 

@@ -18,7 +18,7 @@ from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import dumps_json, read_json, write_bytes, write_text
 from trackcal.calib.io.table import MeasurementTable, as_written, read_table, table_csv
-from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.cell import Cell, load_cell, resolve
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import load_model
 from trackcal.campaign.errors import InputError, OptionError
@@ -76,22 +76,36 @@ def analyse_session(store: SessionStore) -> CampaignAnalysis:
     analysis = CampaignAnalysis(
         cell=cell, table=table, table_sha256=digest, model=written(files.model, model), geometric_model=geometric,
         verdict=verdict, plan=session_plan(store), diagnosis=dg, warnings=campaign_warnings(store),
-        provenance=session_provenance(store, files), files=files,
+        provenance=session_provenance(store, files, cell.name), files=files,
     )  # fmt: skip
     analysis.report = write_report(analysis, files.report)
     return analysis
 
 
-def session_provenance(store: SessionStore, files: SessionFiles) -> Provenance:
+def utc_text(t_wall: float) -> str:
+    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def session_cell_ref(store: SessionStore, files: SessionFiles, cell_name: str) -> str:
+    """How a command names the session's cell: its name when configs/cells/NAME.yaml exists, else the copy the
+    session keeps (SESSION/config/cell.yaml)."""
+    ref = store.meta().get("cell_ref") or cell_name
+    return ref if resolve("cells", ref).is_file() else str(files.cell)
+
+
+def session_provenance(store: SessionStore, files: SessionFiles, cell_name: str) -> Provenance:
     """The header facts of a session's report."""
-    first = store.events()[:1]
-    started = datetime.fromtimestamp(first[0].t_wall, UTC).strftime("%Y-%m-%d %H:%M UTC") if first else None
+    events = store.events()
+    started = utc_text(events[0].t_wall) if events else None
+    ended = utc_text(events[-1].t_wall) if events else None
+    duration = events[-1].t_wall - events[0].t_wall if events else None
     notes = []
     if files.geometric_model.exists():
         notes.append(f"{files.model} is the model extended by the diagnosed cause; the purely geometric "
                      f"model is {files.geometric_model}.")  # fmt: skip
-    return Provenance(session=str(files.directory), campaign_started=started, model_path=str(files.model),
-                      cell_ref=store.meta().get("cell_ref", ""), notes=notes)  # fmt: skip
+    return Provenance(session=str(files.directory), campaign_started=started, campaign_ended=ended,
+                      duration_s=duration, model_path=str(files.model),
+                      cell_ref=session_cell_ref(store, files, cell_name), notes=notes)  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------ reading a campaign's files
@@ -122,13 +136,14 @@ def read_session(directory: Path) -> CampaignAnalysis:
         raise InputError(f"{d}: not a trackcal session")
     if not files.model.exists():
         raise NotAnalysedError(d, files.model.name)
+    cell = load_cell(str(files.cell))
     store = SessionStore.open(d, readonly=True)
     try:
-        prov, warnings = session_provenance(store, files), campaign_warnings(store)
+        prov, warnings = session_provenance(store, files, cell.name), campaign_warnings(store)
     finally:
         store.close()
     verdict = files.verdict if files.verdict.exists() else None
-    analysis = read_campaign(load_cell(str(files.cell)), files.table, files.model, files.plan, verdict, prov)
+    analysis = read_campaign(cell, files.table, files.model, files.plan, verdict, prov)
     analysis.warnings, analysis.files = warnings, files
     if files.geometric_model.exists():
         analysis.geometric_model = load_model(files.geometric_model).doc
@@ -201,7 +216,8 @@ def read_verdict(path: str | None) -> dict | None:
     for key in ("noise_note", "noise_floor_source"):
         if doc.get(key) is not None:
             fields.text(doc[key], f"{path}: {key}", InputError)
-    for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)), ("test_pose", ("tcp_difference_mm",)),
+    for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)),
+                       ("test_pose", ("tcp_difference_mm", "sigma_mm")),
                        ("holdout", ("rms_geometric_mm", "rms_extended_mm"))):  # fmt: skip
         _numbers(fields.mapping(doc.get(part, {}), f"{path}: {part}", InputError), keys, f"{path}: {part}.")
     if doc.get("holdout", {}).get("note") is not None:

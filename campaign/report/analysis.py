@@ -19,6 +19,8 @@ class Provenance:
 
     session: str | None = None  # the session directory, None for a report from files
     campaign_started: str | None = None  # UTC, of the first recorded event
+    campaign_ended: str | None = None  # UTC, of the last recorded event
+    duration_s: float | None = None  # wall-clock seconds from the first to the last recorded event
     model_path: str = "model.json"
     cell_ref: str = ""
     notes: list[str] = field(default_factory=list)  # e.g. which file is the extended and which the geometric model

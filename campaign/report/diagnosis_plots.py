@@ -57,7 +57,9 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     label, x, j = signature(cell, d)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    # without an extension the model after is the geometric one: one panel, not two identical ones
+    fig, axes = plt.subplots(1, 2 if d.extended is not None else 1, figsize=(11, 4), sharey=True, squeeze=False)
+    axes = axes[0]
     after = d.extended or d.geometric
     if j is not None:
         # component + residual: the extension's fitted error of joint j plus what is left, against the signature
@@ -69,9 +71,10 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ylabel = f"joint {j + 1} error (mdeg)"
     else:
         panels = ((axes[0], np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0,
-                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} µm"),
-                  (axes[1], np.linalg.norm(after.residuals, axis=1) * 1000.0,
-                   f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} µm"))  # fmt: skip
+                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} µm"),)  # fmt: skip
+        if d.extended is not None:
+            panels += ((axes[1], np.linalg.norm(after.residuals, axis=1) * 1000.0,
+                        f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} µm"),)  # fmt: skip
         ylabel = "|residual| (µm)"
     for ax, y, title in panels:
         for sid in sorted(set(d.table.station)):

@@ -19,7 +19,9 @@ No external CSS or JavaScript; every text is HTML-escaped.
 
 from __future__ import annotations
 
+import base64
 import html
+import re
 import shutil
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -39,6 +41,7 @@ from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.figures import pyplot, save_png
+from trackcal.campaign.report.tcp import DETERMINED_SIGMAS, TcpDifference, tcp_difference, tcp_sigma
 
 TABLE9_ROWS = (
     ("coord_max_mm", "coordinate-based, max"),
@@ -112,8 +115,9 @@ def plot_histograms(res: Residuals, path: Path) -> Path:
                     label=f"N({mu:.1f}, {sd:.1f}) µm")  # fmt: skip
         for sign in (-1, 1):
             ax.axvline(sign * res.floor_mm * 1000.0, color="#c0504d", ls="--", lw=1.2,
-                       label=f"± noise floor {res.floor_mm * 1000:.1f} µm" if sign > 0 else None)  # fmt: skip
-        ax.legend(loc="upper right", fontsize=8)
+                       label=f"± noise floor {res.floor_mm * 1000:.1f} µm (per coordinate)" if sign > 0 else None)
+        ax.set_ylim(0.0, 1.35 * max(float(counts.max()), 1.0))  # head room: the legend covers no bar
+        ax.legend(loc="upper center", fontsize=7, framealpha=0.95)
         ax.set_xlabel(f"residual {'xyz'[a]} (µm)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("measurements")
@@ -141,11 +145,14 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     fig, axes = plt.subplots(2, 1, figsize=(13, 6), sharex=True)
     for ax, r, label, color in ((axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
                                 (axes[1], res.after, "after calibration", "#4a7ebb")):  # fmt: skip
-        ax.bar(x, per_pose_rms(table, r) * 1000.0, color=color)
+        ax.bar(x, per_pose_rms(table, r) * 1000.0, color=color, label="RMS distance")
         # the RMS 3-D distance that tracker noise alone gives: sqrt(3) x the floor of one coordinate
-        ax.axhline(np.sqrt(3.0) * res.floor_mm * 1000.0, color="k", ls="--", lw=1.2,
-                   label=f"noise floor {np.sqrt(3.0) * res.floor_mm * 1000:.1f} µm ({res.floor_source})")  # fmt: skip
-        ax.legend(loc="upper right", fontsize=8)
+        rms_pose = per_pose_rms(table, r) * 1000.0
+        floor3 = np.sqrt(3.0) * res.floor_mm * 1000.0
+        floor_label = f"noise floor of a 3-D distance: √3 × {res.floor_mm * 1000:.1f} = {floor3:.1f} µm"
+        ax.axhline(floor3, color="k", ls="--", lw=1.2, label=floor_label)
+        ax.set_ylim(0.0, 1.3 * max(float(rms_pose.max()), floor3))  # head room: the legend covers no bar
+        ax.legend(loc="upper center", fontsize=8, ncol=2, framealpha=0.95)
         ax.set_ylabel("RMS distance (µm)")
         ax.set_title(f"{label}: residual distance per configuration", fontsize=10)
         ax.grid(alpha=0.3, axis="y")
@@ -209,19 +216,24 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
 
 
 # ------------------------------------------------------------------------------------------------- html
-def table_html(header: list[str], rows: list[list], left: int = 1) -> str:
-    """A table; the first `left` columns are text (left-aligned). Every cell is escaped."""
+def table_html(header: list[str] | None, rows: list[list], left: int = 1) -> str:
+    """A table; the first `left` columns are text (left-aligned); no header row when `header` is None (a table of
+    facts). Every cell is escaped."""
 
     def cls(i: int) -> str:
         return ' class="l"' if i < left else ""
 
-    head = "".join(f"<th{cls(i)}>{esc(h)}</th>" for i, h in enumerate(header))
+    head = "" if header is None else (
+        "<thead><tr>" + "".join(f"<th{cls(i)}>{esc(h)}</th>" for i, h in enumerate(header)) + "</tr></thead>")
     body = "".join("<tr>" + "".join(f"<td{cls(i)}>{esc(c)}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    return f"<table>{head}<tbody>{body}</tbody></table>"
 
 
-def img_html(name: str, alt: str) -> str:
-    return f'<p><img src="{esc(name)}" alt="{esc(alt)}"></p>'
+def img_html(path: Path, alt: str) -> str:
+    """The PNG at `path` embedded in the page (a data: URI): the one HTML file is the whole report, the PNG files
+    beside it are copies for slides."""
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    return f'<p><img src="data:image/png;base64,{data}" alt="{esc(alt)}" title="{esc(Path(path).name)}"></p>'
 
 
 def pvalue_text(p) -> str:
@@ -238,6 +250,20 @@ def fmt(v, digits: int = 4) -> str:
     return f"{f:.{digits}f}" if np.isfinite(f) else str(f)
 
 
+def duration_text(seconds: float | None) -> str:
+    if seconds is None:
+        return "not known (a report from files)"
+    h, rest = divmod(int(round(seconds)), 3600)
+    return f"{h} h {rest // 60:02d} min" if h else f"{rest // 60} min {rest % 60:02d} s"
+
+
+def floor_text(res: Residuals) -> str:
+    """The one noise floor, with both of its forms: per coordinate (Table 9, the histograms) and for a 3-D
+    distance (the per-configuration plot): sqrt(3) times, the RMS length of three independent coordinates."""
+    return (f"{res.floor_mm * 1000:.1f} per coordinate ({res.floor_source}); {np.sqrt(3.0) * res.floor_mm * 1000:.1f} "
+            "for a 3-D distance (√3 × the per-coordinate floor)")
+
+
 def table9_rows(res: Residuals) -> list[list[str]]:
     rows = []
     for key, label in TABLE9_ROWS:
@@ -246,13 +272,41 @@ def table9_rows(res: Residuals) -> list[list[str]]:
     return rows
 
 
-def parameter_rows(model_doc: dict) -> list[list[str]]:
+def parameter_rows(model_doc: dict, planned: list[str] | None) -> list[list[str]]:
+    """Table 8, and whether the plan was optimised for each parameter ("-" without a plan)."""
     rows = []
     for name, p in model_doc.get("parameters", {}).items():
         value, ci = float(p["value"]), float(p.get("ci95", float("nan")))
         significant = "yes" if abs(value) > ci else "no"
-        rows.append([name, p.get("unit", ""), fmt(p.get("nominal"), 1), f"{value:+.4f}", f"±{ci:.4f}", significant])
+        in_plan = "-" if planned is None else "yes" if name in planned else "no"
+        rows.append([name, p.get("unit", ""), fmt(p.get("nominal"), 1), f"{value:+.4f}", f"±{ci:.4f}", significant,
+                     in_plan])  # fmt: skip
     return rows
+
+
+def parameters_note(model_doc: dict, plan_doc: dict | None, sigma_mm: float | None) -> str:
+    """What the plan determines: the parameters it was optimised for, the others fitted beside them, and how well
+    the model's TCP at the test pose is determined by this campaign."""
+    text = "Deviations from nominal; significant when the 95 % interval excludes zero."
+    fitted = list(model_doc.get("parameters", {}))
+    planned = list((plan_doc or {}).get("params") or [])
+    if planned:
+        extra = [n for n in fitted if n not in planned]
+        left = [n for n in planned if n not in fitted]
+        text += (f" The plan was optimised for {len(planned)} parameters ({' '.join(planned)}); the model fits "
+                 f"{len(fitted)}, the irreducible set with the stations and reference points free.")
+        if left:
+            text += (f" {' '.join(left)} of the plan cannot be told apart from the stations' placement and "
+                     f"{'is' if len(left) == 1 else 'are'} not fitted.")
+        if extra:
+            text += (f" {' '.join(extra)} are not in the plan: these configurations were not chosen to determine "
+                     "them: their intervals say how well they are determined all the same.")
+    if sigma_mm is not None:
+        rho = (plan_doc or {}).get("rho0_mm")
+        promised = f" (the plan's rho0, for its own parameters only: {float(rho) * 1000:.2f} µm)" if rho else ""
+        text += (f" This model's TCP at the test pose is determined to ±{sigma_mm * 1000:.1f} µm by this campaign "
+                 f"(1σ 3-D, from its covariance){promised}.")
+    return text
 
 
 def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
@@ -262,16 +316,16 @@ def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
     rho = plan_doc.get("rho0_mm")
     facts = [("criterion", plan_doc.get("criterion", "-")), ("repeat", plan_doc.get("repeat", "-")),
              ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
-             ("parameters", " ".join(plan_doc.get("params", []))),
-             ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []))]  # fmt: skip
-    parts.append(table_html(["", "value"], [list(f) for f in facts], left=2))
+             ("parameters", " ".join(plan_doc.get("params", [])) or "-"),
+             ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []) or "-")]  # fmt: skip
+    parts.append(table_html(None, [list(f) for f in facts], left=2))
     poses = plan_doc.get("poses_deg") or []
     if poses:
         n = len(poses[0])
         parts.append(table_html(["configuration", *[f"q{j + 1} (deg)" for j in range(n)]],
                                 [[str(k + 1), *[fmt(v, 2) for v in q]] for k, q in enumerate(poses)]))  # fmt: skip
     if plot_plan(plan_doc, cell, out_dir / "plan.png") is not None:
-        parts.append(img_html("plan.png", "measurement plan"))
+        parts.append(img_html(out_dir / "plan.png", "measurement plan"))
     return "".join(parts)
 
 
@@ -310,7 +364,58 @@ def section_extension(model_doc: dict) -> str:
     return "".join(parts)
 
 
-def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
+# a held-out RMS more than this many times the candidate's own fit RMS says the held-out rows were needed to
+# determine the model (a scheme the campaign cannot support, e.g. whole configurations left out of a plan of a few):
+# with N rows and p unknowns a model that holds predicts held-out rows at about sqrt(N / (N - p)) times its fit RMS
+HOLDOUT_TRUST = 3.0
+
+
+def holdout_trusted(holdout_mm, fit_mm) -> bool:
+    return holdout_mm is not None and fit_mm is not None and float(holdout_mm) <= HOLDOUT_TRUST * float(fit_mm)
+
+
+def micro(v) -> str:
+    """mm -> µm text ("-" for none)."""
+    return fmt(1000 * float(v), 1) if v is not None else "-"
+
+
+def candidate_row(c: dict) -> list[str]:
+    """One candidate of one selection step: a candidate with nothing to fit, or whose held-out figure the campaign
+    cannot support, says so instead of a number."""
+    n = c.get("n_params")
+    step = str(c.get("step", "-"))
+    if n == 0:
+        return [step, c.get("cause", "?"), "0", "-", "-", "-", "-", "no",
+                "not fitted: none of its parameters is identifiable from these poses"]  # fmt: skip
+    hold, note = c.get("holdout_rms_mm"), c.get("cv_note") or ""
+    if hold is not None and not holdout_trusted(hold, c.get("rms_mm")):
+        note = (f"held out by {c.get('cv_scheme') or '?'}: not shown, over {HOLDOUT_TRUST:.0f}x its fit RMS (the "
+                "held-out rows are needed to determine the model): not a scheme this campaign supports")
+        hold = None
+    return [step, c.get("cause", "?"), "-" if n is None else str(n), micro(hold), micro(c.get("rms_mm")),
+            pvalue_text(c.get("f_pvalue")), fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no",
+            note]  # fmt: skip
+
+
+def tcp_text(tcp: TcpDifference, plan_doc: dict | None, model_doc: dict) -> str:
+    """The TCP difference at the test pose, with its uncertainty, or why it is not determined."""
+    diff = f"{tcp.difference_mm * 1000:.1f}"
+    if tcp.sigma_mm is None:
+        return f"{diff} (its uncertainty is not known: no covariance)"
+    unc = (f"geometric ±{tcp.sigma_geometric_mm * 1000:.1f}, extended ±{tcp.sigma_extended_mm * 1000:.1f} µm, "
+           "1σ 3-D at the noise the extended model leaves")
+    if tcp.determined:
+        return (f"{diff} ± {tcp.sigma_mm * 1000:.1f} ({unc}): where the geometric model would put the TCP, "
+                "compared with the model that explains the cause")
+    planned = (plan_doc or {}).get("params") or []
+    why = (f"; the plan was optimised for {len(planned)} parameters ({' '.join(planned)}), the model fits "
+           f"{len(model_doc.get('parameters', {}))}" if planned else "")
+    return (f"not determined by this campaign: the two models' TCPs differ by {diff} µm, within "
+            f"{DETERMINED_SIGMAS:.0f}σ of their own uncertainty at the test pose ({unc}){why}")
+
+
+def section_diagnosis(verdict_doc: dict | None, images: list[Path], tcp: TcpDifference | None = None,
+                      plan_doc: dict | None = None, model_doc: dict | None = None) -> str:  # fmt: skip
     if not verdict_doc and not images:
         return "<h2>Diagnosis</h2><p class='note'>No diagnosis given (run trackcal diagnose).</p>"
     parts = ["<h2>Diagnosis</h2>"]
@@ -320,33 +425,39 @@ def section_diagnosis(verdict_doc: dict | None, images: list[str]) -> str:
         if len(causes) > 1:
             parts.append(f"<p>Causes, in the order forward selection added them: {esc(', '.join(causes))}</p>")
         hold = verdict_doc.get("holdout", {})
-
-        def micro(v):  # mm -> µm text
-            return fmt(1000 * float(v), 1) if v is not None else "-"
-
+        geo_rms = verdict_doc.get("geometric", {}).get("rms_mm")
+        ext_rms = verdict_doc.get("extended", {}).get("rms_mm")
         facts = [
-            ("noise floor (µm)", micro(verdict_doc.get("noise_floor_mm"))),
+            ("noise floor (µm, per coordinate)", micro(verdict_doc.get("noise_floor_mm"))),
             ("noise floor from", verdict_doc.get("noise_floor_source", "-")),
-            ("geometric model RMS (µm)", micro(verdict_doc.get("geometric", {}).get("rms_mm"))),
-            ("extended model RMS (µm)", micro(verdict_doc.get("extended", {}).get("rms_mm"))),
-            ("held-out RMS, geometric (µm)", micro(hold.get("rms_geometric_mm"))),
-            ("held-out RMS, extended (µm)", micro(hold.get("rms_extended_mm"))),
+            ("geometric model RMS (µm, per coordinate)", micro(geo_rms)),
+            ("extended model RMS (µm, per coordinate)",
+             micro(ext_rms) if verdict_doc.get("cause") not in ("none", "unexplained") else "- (no cause chosen)"),
         ]
+        untrusted = []
+        for label, key, fit in (("geometric", "rms_geometric_mm", geo_rms), ("extended", "rms_extended_mm", ext_rms)):
+            value = hold.get(key)
+            if value is not None and not holdout_trusted(value, fit):
+                untrusted.append(label)
+                value = None
+            facts.append((f"held-out RMS, {label} (µm)", micro(value)))
         facts += [(label, verdict_doc[key]) for label, key in (("noise", "noise_note"),) if verdict_doc.get(key)]
         if hold.get("note"):
             facts.append(("held-out figures", hold["note"]))
-        if "test_pose" in verdict_doc:
-            facts.append(("TCP difference at the test pose (µm)", micro(verdict_doc["test_pose"]["tcp_difference_mm"])))
-        parts.append(table_html(["", "value"], [list(f) for f in facts], left=2))
-        rows = []
-        for c in verdict_doc.get("candidates", []):
-            rows.append([c.get("cause", "?"), str(c.get("n_params", "-")), micro(c.get("holdout_rms_mm")),
-                         micro(c.get("rms_mm")), pvalue_text(c.get("f_pvalue")),
-                         fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no"])  # fmt: skip
+        if untrusted:
+            facts.append(("held-out figures not shown", f"{' and '.join(untrusted)}: over {HOLDOUT_TRUST:.0f}x the "
+                          "fit RMS, the held-out scheme is not one this campaign supports"))  # fmt: skip
+        if tcp is not None:
+            facts.append((f"TCP difference at the test pose (µm, station {tcp.station} frame)",
+                          tcp_text(tcp, plan_doc, model_doc or {})))  # fmt: skip
+        parts.append(table_html(None, [list(f) for f in facts], left=2))
+        rows = [candidate_row(c) for c in verdict_doc.get("candidates", [])]
         if rows:
-            parts.append(table_html(["candidate", "params", "held-out RMS (µm)", "fit RMS (µm)", "F-test p", "dBIC",
-                                     "significant"], rows))  # fmt: skip
-    parts += [img_html(name, "diagnosis plot") for name in images]
+            parts.append("<p class='note'>Every candidate of every forward-selection step: at each step the "
+                         "candidates are fitted on top of the causes chosen before it.</p>")  # fmt: skip
+            parts.append(table_html(["step", "candidate", "params", "held-out RMS (µm)", "fit RMS (µm)", "F-test p",
+                                     "dBIC", "significant", "note"], rows, left=2))  # fmt: skip
+    parts += [img_html(path, "diagnosis plot") for path in images]
     return "".join(parts)
 
 
@@ -369,9 +480,12 @@ def verdict_sentence(model_doc: dict, verdict_doc: dict | None, res: Residuals) 
             f"by {cause} {ext:.1f} µm, against a noise floor of {res.floor_mm * 1000:.1f} µm.")  # fmt: skip
 
 
-def what_next(model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, prov: Provenance) -> list[str]:
-    """The next steps, as HTML paragraphs (commands in <code>)."""
+def what_next(model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, prov: Provenance,
+              cell_name: str = "") -> list[str]:  # fmt: skip
+    """The next steps, as HTML paragraphs (commands in <code>); `cell_name` names the cell when the provenance
+    does not."""
     cause = (verdict_doc or {}).get("cause")
+    cell_ref = prov.cell_ref or cell_name
     steps = []
     if model_doc.get("fit") == "poor" and cause in (None, "unexplained"):
         steps.append("The model does not reach the noise floor, so its intervals cannot be trusted: look at the "
@@ -386,27 +500,73 @@ def what_next(model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, 
         planned = " ".join((plan_doc or {}).get("params", [])) or "the geometric parameters"
         steps.append(f"The plan was optimised for {esc(planned)} only, not to reveal {esc(cause)}, which needs "
                      f"{esc(CAUSE_NEEDS[cause])}. To pin it down, re-plan with more configurations and measure "
-                     f"again: <code>trackcal plan --cell {esc(prov.cell_ref)} --configs {2 * configs} --repeat "
-                     f"{repeat} --json plan-2.json</code>, then <code>trackcal run --cell {esc(prov.cell_ref)} "
+                     f"again: <code>trackcal plan --cell {esc(cell_ref)} --configs {2 * configs} --repeat "
+                     f"{repeat} --json plan-2.json</code>, then <code>trackcal run --cell {esc(cell_ref)} "
                      "--plan plan-2.json ...</code>.")  # fmt: skip
     return steps
 
 
-def section_warnings(warnings: list[str] | None) -> str:
+# the engine's words for a point it could not measure (campaign.engine.engine.Engine._measure)
+NOT_MEASURABLE = re.compile(r"^(?:t = [-0-9.]+ s: )?(?P<point>.+?) not measurable from (?P<station>.+?) at "
+                            r"(?P<pose>.+?): (?P<why>.*); (?P<then>skipped here|looking again)$")
+
+
+# what differs from one skip to the next of one cause: where the tracker searched (the expected position)
+SEARCHED_AT = re.compile(r" near \([-0-9., ]+\) mm")
+
+
+def counted(names: list[str]) -> str:
+    """`P1 x5, P2 x5` (first-seen order), a name alone when it occurs once."""
+    counts: dict[str, int] = {}
+    for n in names:
+        counts[n] = counts.get(n, 0) + 1
+    return ", ".join(f"{n} ×{c}" if c > 1 else n for n, c in counts.items())
+
+
+def summarise_warnings(warnings: list[str], measured: int) -> list[str]:
+    """The campaign's warnings as an engineer reads them: the skipped measurements counted against the planned
+    ones and grouped by station and reason (where the tracker searched left out), with their points and poses
+    (each attempt that looked again is part of its skip), then every other warning once per message, with its
+    count."""
+    skipped: dict[tuple[str, str], list[tuple[str, str]]] = {}
+    others: dict[str, int] = {}
+    for w in warnings:
+        m = NOT_MEASURABLE.match(w)
+        if m is None:
+            text = re.sub(r"^t = [-0-9.]+ s: ", "", w)
+            others[text] = others.get(text, 0) + 1
+        elif m["then"] == "skipped here":
+            why = SEARCHED_AT.sub(" near where the model expects it", m["why"])
+            skipped.setdefault((m["station"], why), []).append((m["point"], m["pose"]))
+    lines = []
+    n_skipped = sum(len(v) for v in skipped.values())
+    if n_skipped:
+        groups = "; ".join(f"{'all' if len(skips) == n_skipped else len(skips)} at station {station} (point "
+                           f"{counted([p for p, _ in skips])}; pose {counted([q for _, q in skips])}) because: {why}"
+                           for (station, why), skips in skipped.items())  # fmt: skip
+        lines.append(f"{n_skipped} of {measured + n_skipped} planned measurements skipped, {groups}.")
+    lines += [f"{text} ({n} times)" if n > 1 else text for text, n in others.items()]
+    return lines
+
+
+def section_warnings(warnings: list[str] | None, measured: int) -> str:
     if warnings is None:
-        return ""
+        return ("<h2>Campaign warnings</h2><p class='note'>Not known: a report from files (the warnings are in the "
+                "session; give the SESSION directory).</p>")  # fmt: skip
     if not warnings:
         return "<h2>Campaign warnings</h2><p>None: every planned measurement was made, no drift, no blocked motion.</p>"
-    items = "".join(f"<li>{esc(w)}</li>" for w in warnings)
-    return f"<h2>Campaign warnings ({len(warnings)})</h2><ul class='warn'>{items}</ul>"
+    summary = "".join(f"<li>{esc(w)}</li>" for w in summarise_warnings(warnings, measured))
+    raw = "".join(f"<li>{esc(w)}</li>" for w in warnings)
+    return (f"<h2>Campaign warnings</h2><ul class='warn' id='warnings'>{summary}</ul>"
+            f"<details><summary>every warning as raised ({len(warnings)})</summary><ul>{raw}</ul></details>")
 
 
-def diagnosis_images(out_dir: Path, cell: Cell, diagnosis) -> list[str]:
+def diagnosis_images(out_dir: Path, cell: Cell, diagnosis) -> list[Path]:
     """The diagnosis plots (campaign.report.diagnosis_plots.plots) of the diagnosis the verdict was made from."""
-    return [f"diagnosis/{p.name}" for p in plots(cell, diagnosis, out_dir / "diagnosis")]
+    return plots(cell, diagnosis, out_dir / "diagnosis")
 
 
-def _extra_images(out_dir: Path, extra_images) -> list[str]:
+def _extra_images(out_dir: Path, extra_images) -> list[Path]:
     names = []
     for p in extra_images or []:
         p = Path(p)
@@ -416,7 +576,7 @@ def _extra_images(out_dir: Path, extra_images) -> list[str]:
         target.parent.mkdir(exist_ok=True)
         if p.resolve() != target.resolve():
             shutil.copy2(p, target)
-        names.append(f"extra/{p.name}")
+        names.append(target)
     return names
 
 
@@ -438,14 +598,24 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
     par_plot = plot_parameters(model_doc, out_dir / "parameters.png")
     images = diagnosis_images(out_dir, cell, analysis.diagnosis) if verdict_doc and analysis.diagnosis else []
     images += _extra_images(out_dir, extra_images)
+    d = analysis.diagnosis if verdict_doc else None
+    tcp = tcp_difference(cell, d.geometric, d.extended) if d is not None else None
+    planned = list(plan_doc.get("params") or []) if plan_doc else None
+    model_sigma = None
+    if analysis.diagnosis is not None and cell.test_pose is not None:
+        fit = analysis.diagnosis.extended or analysis.diagnosis.geometric
+        model_sigma = tcp_sigma(cell, fit, sorted(fit.stations)[0])
 
+    next_steps = what_next(model_doc, plan_doc, verdict_doc, prov, cell.name)
     digest = f" (sha256 {analysis.table_sha256[:12]})" if analysis.table_sha256 else ""
     title = f"Calibration report: {prov.session or Path(table.source).name}, cell {cell.name}"
     n_poses = len(pose_order(table))
     sigma = model_doc.get("sigma_mm")
     facts = [
         ("session", prov.session or "none (a report from files)"),
-        ("campaign started", prov.campaign_started or "-"),
+        ("campaign started", prov.campaign_started or "not known (a report from files)"),
+        ("campaign ended", prov.campaign_ended or "not known (a report from files)"),
+        ("duration", duration_text(prov.duration_s)),
         ("report written", datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")),
         ("trackcal version", version("trackcal")),
         ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
@@ -457,32 +627,32 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("a-posteriori sigma (µm)", fmt(1000 * sigma, 1) if sigma is not None else
          f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)"),
         ("variance factor", fmt(model_doc.get("variance_factor"), 3)),
-        ("noise floor (µm)", f"{fmt(1000 * res.floor_mm, 1)} ({res.floor_source})"),
+        ("noise floor (µm)", floor_text(res)),
         ("model extension", (model_doc.get("extension") or {}).get("cause", "none")),
     ]  # fmt: skip
     body = [
         f"<h1>{esc(title)}</h1>",
         f"<p class='verdict' id='verdict'>{esc(verdict_sentence(model_doc, verdict_doc, res))}</p>",
-        table_html(["", ""], [list(f) for f in facts], left=2),
+        table_html(None, [list(f) for f in facts], left=2),
         "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),
-        "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in
-                                                        what_next(model_doc, plan_doc, verdict_doc, prov)) + "</ul>",
-        section_warnings(analysis.warnings),
+        "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in next_steps) + "</ul>",
+        section_warnings(analysis.warnings, len(table)),
         section_plan(plan_doc, cell, out_dir),
         "<h2>Residuals before and after calibration (Table 9)</h2>",
         table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
         "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
         "After: this table minus the model's prediction. Coordinate-based: every x, y, z; distance-based: the "
         "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone gives.</p>",
-        img_html("residuals_xyz.png", "residual histograms per axis"),
-        img_html("residuals_per_pose.png", "residual distance per configuration"),
+        img_html(out_dir / "residuals_xyz.png", "residual histograms per axis"),
+        img_html(out_dir / "residuals_per_pose.png", "residual distance per configuration"),
         "<h2>Identified parameters (Table 8)</h2>",
-        table_html(["parameter", "unit", "nominal", "deviation", "95 % CI", "significant"], parameter_rows(model_doc)),
-        "<p class='note'>Deviations from nominal; significant when the 95 % interval excludes zero.</p>",
-        img_html("parameters.png", "identified parameters") if par_plot is not None else "",
+        table_html(["parameter", "unit", "nominal", "deviation", "95 % CI", "significant", "in the plan"],
+                   parameter_rows(model_doc, planned)),
+        f"<p class='note'>{esc(parameters_note(model_doc, plan_doc, model_sigma))}</p>",
+        img_html(par_plot, "identified parameters") if par_plot is not None else "",
         section_stations_points(model_doc),
         section_extension(model_doc),
-        section_diagnosis(verdict_doc, images),
+        section_diagnosis(verdict_doc, images, tcp, plan_doc, model_doc),
     ]  # fmt: skip
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
