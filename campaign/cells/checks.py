@@ -26,6 +26,11 @@ def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
     return [(float(lo), float(hi)) for lo, hi in usable_limits_deg(cell)]
 
 
+def robot_limits_deg(cell: Cell) -> list[tuple[float, float]]:
+    """The robot's own joint limits (deg, no margin): the software limit switches of the twin's controller."""
+    return [(float(lo), float(hi)) for lo, hi in np.degrees(cell.chain.limits_array())]
+
+
 def motion_guard(cellio: ModbusCellIO):
     """The robot client's guard during moves and settling (drivers.kuka.client polls it at 25 Hz): why the robot
     must stop now, or None. The door and the PLC's emergency-stop input; a PLC that cannot be read stops the robot

@@ -8,7 +8,7 @@ import socket
 from collections.abc import Callable
 
 from trackcal.calib.model.cell import Cell
-from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
+from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard, robot_limits_deg
 from trackcal.campaign.cells.operator import PlcOperator
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.errors import InputError
@@ -84,6 +84,7 @@ class TwinMocks:
         cycles nobody reads unless not skip_idle (mocks.servers.kuka.controller)."""
         self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
                                    joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
+                                   soft_limits_deg=robot_limits_deg(self.cell),
                                    connect_timeout_s=connect_timeout_s, delivered=delivered,
                                    skip_idle=skip_idle).start()  # fmt: skip
 
