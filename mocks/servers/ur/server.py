@@ -1,0 +1,402 @@
+"""Sockets of the mock UR controller on one address: RTDE (30004), dashboard (29999), primary / secondary / real-time
+script ports (30001 / 30002 / 30003) and the mock's own control port (CONTROL_PORT, no UR port: fault injection and
+state for tests). One thread ticks the controller at 500 Hz of wall time; each connection has its reader thread.
+
+RTDE (rtde_codec.py for the sources): a request is answered on its connection in the order received; the answer to
+'S' is written before the first 'U' frame (both under the connection's write lock, `started` set after the
+answer); frames go out at the recipe's frequency, counted on controller ticks (a frequency that does not divide 500
+Hz gets the nearest ticks). A stream that is no RTDE (bad size, unknown type, a payload of the wrong size) closes
+the connection, as the real controller drops a client it cannot parse.
+
+Faults (control port or scheduled by the controller): `drop` closes every client connection at once (a controller
+that vanished from the network), `stale on|off` stops / restarts the RTDE frames while the connections stay open,
+`protective_stop`, `safeguard_stop`, `safeguard_reset`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+import socket
+import struct
+import threading
+import time
+
+from trackcal.mocks.servers.ur import dashboard, primary
+from trackcal.mocks.servers.ur import rtde_codec as rc
+from trackcal.mocks.servers.ur.controller import UrController
+from trackcal.mocks.servers.ur.motion import TICK_S
+
+RTDE_PORT, DASHBOARD_PORT, PRIMARY_PORT, SECONDARY_PORT, REALTIME_PORT = 30004, 29999, 30001, 30002, 30003
+CONTROL_PORT = 30999  # the mock's own (not a UR port)
+MAX_FREQUENCY = 500.0  # e-Series (RTDE guide: 1..500 Hz; CB3 1..125)
+PRIMARY_PERIOD_S = 0.1  # robot state messages at 10 Hz on the primary / secondary interfaces (Client Interface doc)
+MAX_CATCH_UP = 25  # ticks run at once when the process was descheduled (50 ms); beyond, controller time slips
+SEND_TIMEOUT_S = 2.0
+_PROGRAM_END = re.compile(r"^(?:def|sec)\s+\w+\s*\(\s*\)\s*:.*?^end\b[^\n]*(?:\n|$)", re.S | re.M)
+
+
+class RtdeSession:
+    def __init__(self, server: UrServer, sock: socket.socket) -> None:
+        self.server, self.sock = server, sock
+        self.wlock = threading.Lock()
+        self.protocol = 1
+        self.output: rc.Recipe | None = None
+        self.inputs: dict[int, rc.Recipe] = {}
+        self.reserved: set[str] = set()
+        self.started = False
+        self.closed = False
+        self._next_output_id = 1
+        self._next_input_id = 1
+        self.frames_sent = 0
+
+    def send(self, data: bytes) -> None:
+        with self.wlock:
+            self.sock.sendall(data)
+
+    def close(self) -> None:
+        self.closed = True
+        self.started = False
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def handle(self, command: int, payload: bytes) -> None:
+        srv, ctl = self.server, self.server.ctl
+        if command == rc.REQUEST_PROTOCOL_VERSION:
+            if len(payload) != 2:
+                raise rc.FrameError("protocol version request of the wrong size")
+            (version,) = struct.unpack(">H", payload)
+            ok = version in rc.PROTOCOL_VERSIONS
+            if ok:
+                self.protocol = version
+            self.send(rc.pack_success(command, ok))
+        elif command == rc.GET_URCONTROL_VERSION:
+            self.send(rc.pack_version(*ctl.version))
+        elif command == rc.CONTROL_PACKAGE_SETUP_OUTPUTS:
+            if self.protocol >= 2:
+                frequency, names = rc.parse_output_setup(payload)
+            else:
+                frequency, names = 125.0, rc.split_names(payload)
+            types = tuple(rc.output_type(n) for n in names)
+            ok = bool(names) and rc.NOT_FOUND not in types and 1.0 <= frequency <= MAX_FREQUENCY
+            rid = 0
+            if ok:
+                rid, self._next_output_id = self._next_output_id, min(255, self._next_output_id + 1)
+            recipe = rc.Recipe(rid, names, types, frequency)
+            srv.recipes.append(("O", recipe))
+            self.send(rc.pack(command, recipe.answer()))
+            if ok:
+                with self.wlock:
+                    self.output = recipe
+        elif command == rc.CONTROL_PACKAGE_SETUP_INPUTS:
+            names = rc.split_names(payload)
+            with srv.reserve_lock:
+                taken = srv.reserved_inputs(self)
+                types = tuple(rc.IN_USE if (n in taken and rc.input_type(n) != rc.NOT_FOUND) else rc.input_type(n)
+                              for n in names)  # fmt: skip
+                ok = bool(names) and rc.NOT_FOUND not in types and rc.IN_USE not in types and len(self.inputs) < 255
+                rid = 0
+                if ok:
+                    rid = self._next_input_id
+                    self._next_input_id += 1
+                    self.reserved.update(names)
+            recipe = rc.Recipe(rid, names, types)
+            srv.recipes.append(("I", recipe))
+            if ok:
+                self.inputs[rid] = recipe
+            self.send(rc.pack(command, recipe.answer()))
+        elif command == rc.CONTROL_PACKAGE_START:
+            ok = self.output is not None or bool(self.inputs)
+            with self.wlock:  # the answer first, then frames (the tick thread takes the same lock)
+                self.sock.sendall(rc.pack_success(command, ok))
+                self.started = ok
+        elif command == rc.CONTROL_PACKAGE_PAUSE:
+            with self.wlock:
+                self.started = False
+                self.sock.sendall(rc.pack_success(command, True))
+        elif command == rc.DATA_PACKAGE:
+            if not payload:
+                raise rc.FrameError("data package without a recipe id")
+            recipe = self.inputs.get(payload[0])
+            if recipe is None:
+                self.send(rc.pack_text(f"unknown input recipe id {payload[0]}", "RTDE", rc.ERROR_MESSAGE))
+                return
+            ctl.write_inputs(rc.unpack_data(recipe, payload))
+        elif command == rc.TEXT_MESSAGE:
+            with ctl.lock:
+                ctl.log.append(f"RTDE client message: {payload[:300]!r}")
+
+    def due(self, tick: int) -> bool:
+        """A frame of the output recipe belongs to controller tick `tick`."""
+        f = self.output.frequency if self.output else 0.0
+        return f > 0 and int(tick * f / MAX_FREQUENCY) != int((tick - 1) * f / MAX_FREQUENCY)
+
+
+class UrServer:
+    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT) -> None:
+        self.ctl, self.host = ctl, host
+        self.ports = {"rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "primary": PRIMARY_PORT,
+                      "secondary": SECONDARY_PORT, "realtime": REALTIME_PORT, "control": control_port}  # fmt: skip
+        self.rtde: list[RtdeSession] = []
+        self.conns: dict[str, list[socket.socket]] = {k: [] for k in self.ports}
+        self.reserve_lock = threading.Lock()
+        self._listeners: list[socket.socket] = []
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.stale = False
+        self.errors: list[str] = []
+        self.frames = 0
+        self.recipes: list[tuple[str, rc.Recipe]] = []  # every setup request answered ('O' | 'I', recipe)
+
+    # ------------------------------------------------------------------ life
+    def start(self) -> UrServer:
+        try:
+            for name, port in self.ports.items():
+                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind((self.host, port))
+                s.listen(8)
+                self._listeners.append(s)
+                self._spawn(self._accept, s, name)
+        except OSError:
+            self.stop()
+            raise
+        self._spawn(self._tick_loop)
+        return self
+
+    def _spawn(self, fn, *args) -> None:
+        t = threading.Thread(target=fn, args=args, daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def stop(self) -> None:
+        self._stop.set()
+        for s in self._listeners:
+            with contextlib.suppress(OSError):
+                s.close()
+        self.drop_all()
+
+    def wait(self) -> None:
+        self._stop.wait()
+
+    def drop_all(self) -> None:
+        for sess in list(self.rtde):
+            sess.close()
+        for socks in self.conns.values():
+            for c in list(socks):
+                with contextlib.suppress(OSError):
+                    c.shutdown(socket.SHUT_RDWR)
+                with contextlib.suppress(OSError):
+                    c.close()
+
+    def reserved_inputs(self, asking: RtdeSession) -> set[str]:
+        out: set[str] = set()
+        for sess in self.rtde:
+            if sess is not asking and not sess.closed:
+                out |= sess.reserved
+        return out
+
+    # ------------------------------------------------------------------ tick
+    def _tick_loop(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now < next_t:
+                time.sleep(next_t - now)
+                continue
+            n = int((now - next_t) / TICK_S) + 1
+            if n > MAX_CATCH_UP:
+                next_t = now - (MAX_CATCH_UP - 1) * TICK_S
+                n = MAX_CATCH_UP
+            next_t += n * TICK_S
+            due: set[RtdeSession] = set()
+            sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
+            for _ in range(n):
+                self.ctl.step()
+                due.update(s for s in sessions if s.due(self.ctl.tick))
+            self._events()
+            if self.stale:
+                continue
+            for sess in due:
+                self._send_frame(sess)
+
+    def _send_frame(self, sess: RtdeSession) -> None:
+        recipe = sess.output
+        if recipe is None:
+            return
+        try:
+            with self.ctl.lock:
+                data = rc.pack_data(recipe, self.ctl.values(recipe.names))
+                messages, self.ctl.messages = self.ctl.messages, []
+            with sess.wlock:
+                if not sess.started:
+                    return
+                sess.sock.sendall(data)
+            sess.frames_sent += 1
+            self.frames += 1
+            for text, level in messages:
+                if sess.protocol >= 2:
+                    sess.send(rc.pack_text(text, "Controller", level))
+        except OSError:
+            sess.close()
+
+    def _events(self) -> None:
+        with self.ctl.lock:
+            events, self.ctl.events = self.ctl.events, []
+        for what in events:
+            self.fault(what)
+
+    def fault(self, what: str) -> str:
+        """Apply a fault by name; returns what was done (the control port's answer)."""
+        ctl = self.ctl
+        if what == "drop":
+            self.drop_all()
+        elif what in ("stale", "stale on"):
+            self.stale = True
+        elif what == "stale off":
+            self.stale = False
+        elif what == "protective_stop":
+            ctl.protective_stop("injected")
+        elif what == "safeguard_stop":
+            ctl.safeguard_stop()
+        elif what == "safeguard_reset":
+            ctl.safeguard_reset()
+        else:
+            return f"unknown fault {what!r}"
+        return "ok"
+
+    # ------------------------------------------------------------------ connections
+    def _accept(self, listener: socket.socket, name: str) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn.settimeout(SEND_TIMEOUT_S)
+            handler = {"rtde": self._serve_rtde, "dashboard": self._serve_dashboard, "control": self._serve_control}
+            self._spawn(handler.get(name, self._serve_script), conn, name)
+
+    def _recv(self, conn: socket.socket) -> bytes:
+        while not self._stop.is_set():
+            try:
+                return conn.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return b""
+        return b""
+
+    def _serve_rtde(self, conn: socket.socket, name: str) -> None:
+        sess = RtdeSession(self, conn)
+        self.rtde.append(sess)
+        deframer = rc.Deframer()
+        try:
+            while not sess.closed:
+                data = self._recv(conn)
+                if not data:
+                    break
+                for command, payload in deframer.feed(data):
+                    sess.handle(command, payload)
+        except (rc.FrameError, struct.error, OSError) as exc:
+            self.errors.append(f"RTDE: {exc}")
+        finally:
+            sess.close()
+            with self.reserve_lock:
+                self.rtde.remove(sess)
+
+    def _lines(self, conn: socket.socket, name: str):
+        self.conns[name].append(conn)
+        buf = b""
+        try:
+            while True:
+                data = self._recv(conn)
+                if not data:
+                    return
+                buf += data
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    yield line.decode("utf-8", "replace")
+                if len(buf) > 65536:
+                    return  # no line in 64 KiB: not a dashboard client
+        finally:
+            with contextlib.suppress(ValueError):
+                self.conns[name].remove(conn)
+            with contextlib.suppress(OSError):
+                conn.close()
+
+    def _serve_dashboard(self, conn: socket.socket, name: str) -> None:
+        try:
+            conn.sendall((dashboard.GREETING + "\n").encode())
+            for line in self._lines(conn, name):
+                with self.ctl.lock:
+                    reply, close = dashboard.answer(line, self.ctl)
+                conn.sendall((reply + "\n").encode())
+                if close:
+                    break
+        except OSError:
+            pass
+        finally:
+            with contextlib.suppress(OSError):
+                conn.close()
+
+    def _serve_control(self, conn: socket.socket, name: str) -> None:
+        try:
+            for line in self._lines(conn, name):
+                cmd = line.strip()
+                if cmd == "state":
+                    recipes = [{"kind": k, "id": r.id, "names": r.names, "types": r.types, "frequency": r.frequency}
+                               for k, r in self.recipes[-64:]]  # fmt: skip
+                    reply = json.dumps(
+                        self.ctl.state()
+                        | {"frames": self.frames, "stale": self.stale, "errors": self.errors[-10:], "recipes": recipes}
+                    )
+                elif cmd == "quit":
+                    conn.sendall(b"ok\n")
+                    self.stop()
+                    return
+                else:
+                    reply = self.fault(cmd)
+                conn.sendall((reply + "\n").encode())
+        except OSError:
+            pass
+
+    def _serve_script(self, conn: socket.socket, name: str) -> None:
+        """Primary (30001), secondary (30002), real-time (30003): programs in; on 30001/30002 the version message
+        and robot state messages out (the real-time port's 500 Hz packages are not emulated)."""
+        self.conns[name].append(conn)
+        if name in ("primary", "secondary"):
+            self._spawn(self._primary_out, conn)
+        text = ""
+        try:
+            while True:
+                data = self._recv(conn)
+                if not data:
+                    break
+                text += data.decode("utf-8", "replace")
+                while (m := _PROGRAM_END.search(text)) is not None:
+                    self.ctl.load_script(m.group(0))
+                    text = text[m.end() :]
+                if len(text) > 1 << 20:
+                    text = ""
+            if text.strip():
+                self.ctl.load_script(text)
+        finally:
+            with contextlib.suppress(ValueError):
+                self.conns[name].remove(conn)
+            with contextlib.suppress(OSError):
+                conn.close()
+
+    def _primary_out(self, conn: socket.socket) -> None:
+        try:
+            with self.ctl.lock:
+                ts = int(self.ctl.timestamp_us())
+                cal = self.ctl.calibration
+            conn.sendall(primary.version_message(self.ctl.version, ts) + primary.robot_state(cal))
+            while not self._stop.wait(PRIMARY_PERIOD_S):
+                conn.sendall(primary.robot_state(cal))
+        except OSError:
+            return
