@@ -316,7 +316,7 @@ class UrRtde:
                               device=self.device)  # fmt: skip
         deadline = time.monotonic() + self.move_timeout_s
         stamp, fresh_at = None, time.monotonic()
-        still_since, last_q = None, None
+        still_since, last_q, last_t = None, None, None
         while True:
             now = time.monotonic()
             reason = self._guard()
@@ -337,17 +337,19 @@ class UrRtde:
                 raise DeviceTimeout(f"no RTDE frame for {self.stale_s:g} s during the move to {target}",
                                     device=self.device)  # fmt: skip
             deg = to_deg(q_now)
-            if all(abs(a - b) <= self.target_tolerance_deg + 1e-9 for a, b in zip(deg, target, strict=True)):
+            still = last_q is not None and t != last_t and _alike(q_now, last_q)  # two frames alike: it stands
+            if still and all(abs(a - b) <= self.target_tolerance_deg + 1e-9 for a, b in zip(deg, target, strict=True)):
                 return
-            if last_q is not None and max(abs(a - b) for a, b in zip(q_now, last_q, strict=True)) < 1e-9:
+            if still:
                 still_since = still_since if still_since is not None else now
                 if now - still_since > self.stall_s and not self._async_running():
                     off = max(abs(a - b) for a, b in zip(deg, target, strict=True))
                     raise DeviceFault(f"the robot stands at {deg}, not at the target {target} (off by {off:.4f} deg): "
                                       "nothing measured there", code="target_mismatch", device=self.device)  # fmt: skip
-            else:
+            elif t != last_t:
                 still_since = None
-            last_q = q_now
+            if t != last_t:
+                last_q, last_t = q_now, t
             if now > deadline:
                 self._brake_quietly()
                 raise DeviceTimeout(f"move to {target} not done within {self.move_timeout_s:g} s", device=self.device)
@@ -385,7 +387,7 @@ class UrRtde:
             t, q, _ = self._sample()
             if t != stamp:
                 stamp = t
-                same = same + 1 if q == last else 0
+                same = same + 1 if last is not None and _alike(q, last) else 0
                 last = q
             if time.monotonic() > deadline:
                 raise DeviceTimeout(f"the arm still moves {self.io_timeout_s:g} s after stopJ", device=self.device)
@@ -493,6 +495,12 @@ class UrRtde:
                 raise DeviceTimeout(f"RTDE frames stopped coming while waiting to settle ({timeout_s} s)",
                                     device=self.device)  # fmt: skip
             time.sleep(POLL_S)
+
+
+def _alike(a_rad: Sequence[float], b_rad: Sequence[float]) -> bool:
+    """Two frames' joints within the interface's resolution of each other (a standing arm; encoder noise of a real
+    one stays below it)."""
+    return max(abs(math.degrees(a - b)) for a, b in zip(a_rad, b_rad, strict=True)) < RESOLUTION_DEG
 
 
 def to_deg(q_rad: Sequence[float]) -> tuple[float, ...]:
