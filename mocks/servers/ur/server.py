@@ -177,15 +177,18 @@ class UrServer:
         for s in self._listeners:
             with contextlib.suppress(OSError):
                 s.close()
-        self.drop_all()
+        self.drop_all(control_too=True)
 
     def wait(self) -> None:
         self._stop.wait()
 
-    def drop_all(self) -> None:
+    def drop_all(self, control_too: bool = False) -> None:
+        """Close every client connection (the control port's too only when the mock stops)."""
         for sess in list(self.rtde):
             sess.close()
-        for socks in self.conns.values():
+        for name, socks in self.conns.items():
+            if name == "control" and not control_too:
+                continue
             for c in list(socks):
                 with contextlib.suppress(OSError):
                     c.shutdown(socket.SHUT_RDWR)
@@ -212,27 +215,28 @@ class UrServer:
                 next_t = now - (MAX_CATCH_UP - 1) * TICK_S
                 n = MAX_CATCH_UP
             next_t += n * TICK_S
-            due: set[RtdeSession] = set()
             sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
+            frames: list[tuple[RtdeSession, bytes]] = []
             for _ in range(n):
                 self.ctl.step()
-                due.update(s for s in sessions if s.due(self.ctl.tick))
+                due = [s for s in sessions if s.due(self.ctl.tick)]
+                if due and not self.stale:  # each frame holds the state of its own tick
+                    frames.extend((s, self._pack_frame(s)) for s in due)
             self._events()
-            if self.stale:
-                continue
-            for sess in due:
-                self._send_frame(sess)
+            for sess, data in frames:
+                self._send_frame(sess, data)
 
-    def _send_frame(self, sess: RtdeSession) -> None:
+    def _pack_frame(self, sess: RtdeSession) -> bytes:
         recipe = sess.output
-        if recipe is None:
-            return
+        assert recipe is not None
+        return rc.pack_data(recipe, self.ctl.values(recipe.names))
+
+    def _send_frame(self, sess: RtdeSession, data: bytes) -> None:
         try:
             with self.ctl.lock:
-                data = rc.pack_data(recipe, self.ctl.values(recipe.names))
                 messages, self.ctl.messages = self.ctl.messages, []
             with sess.wlock:
-                if not sess.started:
+                if not sess.started or sess.closed:
                     return
                 sess.sock.sendall(data)
             sess.frames_sent += 1
