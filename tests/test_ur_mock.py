@@ -134,11 +134,12 @@ def test_urs_python_client_reads_its_own_recipe():
             frames = [con.receive() for _ in range(200)]
             wall = time.monotonic() - t0
             stamps = [f.timestamp for f in frames]
-            steps = [round((b - a) / 0.008) for a, b in zip(stamps, stamps[1:], strict=False)]
+            gaps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+            steps = [round(g / 0.008) for g in gaps]
             # every frame 1/125 s of controller time after the previous one; frames it skipped (it keeps the newest
             # of a burst) are counted by the client
             assert all(s >= 1 for s in steps)
-            assert all(abs((b - a) - s * 0.008) < 1e-6 for (a, b), s in zip(zip(stamps, stamps[1:]), steps))
+            assert all(abs(g - s * 0.008) < 1e-6 for g, s in zip(gaps, steps, strict=True))
             assert sum(steps) == len(frames) - 1 + con.skipped_package_count
             assert (len(frames) + con.skipped_package_count) / wall < 125 * 1.5  # not faster than real time
             assert all(f.actual_q == pytest.approx(HOME) and f.robot_mode == 7 and f.safety_status_bits == 1
@@ -223,7 +224,7 @@ def test_input_frames_of_urs_client_are_read(names, rnd):
     config.names = names
     obj = ur_serialize.DataObject.create_empty(names, 7)
     for n in names:
-        setattr(obj, n, rnd.randrange(-2**31, 2**31) if "int" in n else rnd.uniform(-10, 10))
+        setattr(obj, n, rnd.randrange(-(2**31), 2**31) if "int" in n else rnd.uniform(-10, 10))
     payload = config.pack(obj)
     assert rc.unpack_data(recipe, payload) == {n: getattr(obj, n) for n in names}
 
