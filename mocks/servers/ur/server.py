@@ -10,8 +10,8 @@ the connection, as the real controller drops a client it cannot parse.
 
 Faults (control port or scheduled by the controller): `drop` closes every client connection at once (the controller
 stays reachable), `unreachable S` closes them and refuses connections for S seconds (a controller gone from the
-network for a while; the robot and its program go on), `stale on|off` stops / restarts the RTDE frames while the connections stay open,
-`protective_stop`, `safeguard_stop`, `safeguard_reset`.
+network for a while; the robot and its program go on), `stale on|off` stops / restarts the RTDE frames while the
+connections stay open, `protective_stop`, `safeguard_stop`, `safeguard_reset`.
 """
 
 from __future__ import annotations
