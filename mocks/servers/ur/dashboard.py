@@ -79,8 +79,9 @@ def answer(line: str, ctl: UrController) -> tuple[str, bool]:
         return "Brake releasing", False
     if cmd == "play":
         return ("Starting program" if ctl.dashboard_play() else "Failed to execute: play"), False
-    if cmd == "stop":
-        return ("Stopped" if ctl.dashboard_stop() else "Failed to execute: stop"), False
+    if cmd == "stop":  # a stopped program stops again: ur_rtde stops its script, then calls `stop` and expects this
+        ctl.dashboard_stop()
+        return "Stopped", False
     if cmd == "pause":
         return ("Pausing program" if ctl.dashboard_pause() else "Failed to execute: pause"), False
     if cmd.startswith("load "):

@@ -8,9 +8,10 @@ answer); frames go out at the recipe's frequency, counted on controller ticks (a
 Hz gets the nearest ticks). A stream that is no RTDE (bad size, unknown type, a payload of the wrong size) closes
 the connection, as the real controller drops a client it cannot parse.
 
-Faults (control port or scheduled by the controller): `drop` closes every client connection at once (a controller
-that vanished from the network), `stale on|off` stops / restarts the RTDE frames while the connections stay open,
-`protective_stop`, `safeguard_stop`, `safeguard_reset`.
+Faults (control port or scheduled by the controller): `drop` closes every client connection at once (the controller
+stays reachable), `unreachable S` closes them and refuses connections for S seconds (a controller gone from the
+network for a while; the robot and its program go on), `stale on|off` stops / restarts the RTDE frames while the
+connections stay open, `protective_stop`, `safeguard_stop`, `safeguard_reset`.
 """
 
 from __future__ import annotations
@@ -143,7 +144,7 @@ class UrServer:
         self.rtde: list[RtdeSession] = []
         self.conns: dict[str, list[socket.socket]] = {k: [] for k in self.ports}
         self.reserve_lock = threading.Lock()
-        self._listeners: list[socket.socket] = []
+        self._listeners: dict[str, socket.socket] = {}
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.stale = False
@@ -154,38 +155,74 @@ class UrServer:
     # ------------------------------------------------------------------ life
     def start(self) -> UrServer:
         try:
-            for name, port in self.ports.items():
-                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                s.bind((self.host, port))
-                s.listen(8)
-                self._listeners.append(s)
-                self._spawn(self._accept, s, name)
+            for name in self.ports:
+                self._listen(name)
         except OSError:
             self.stop()
             raise
         self._spawn(self._tick_loop)
         return self
 
+    def _listen(self, name: str) -> None:
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((self.host, self.ports[name]))
+            s.listen(8)
+        except OSError:
+            s.close()
+            raise
+        self._listeners[name] = s
+        self._spawn(self._accept, s, name)
+
     def _spawn(self, fn, *args) -> None:
         t = threading.Thread(target=fn, args=args, daemon=True)
         t.start()
-        self._threads.append(t)
+        self._threads = [th for th in self._threads if th.is_alive()] + [t]
+
+    def _close_listeners(self, keep_control: bool) -> None:
+        for name, s in list(self._listeners.items()):
+            if keep_control and name == "control":
+                continue
+            del self._listeners[name]
+            with contextlib.suppress(OSError):
+                s.shutdown(socket.SHUT_RDWR)  # wakes the thread blocked in accept (close alone does not, on Linux)
+            with contextlib.suppress(OSError):
+                s.close()
+
+    def unreachable(self, seconds: float) -> None:
+        """The controller vanishes from the network for `seconds`: every connection closed, connections refused,
+        then it listens again (the robot and its program went on meanwhile)."""
+        self._close_listeners(keep_control=True)
+        self.drop_all()
+
+        def back() -> None:
+            for name in self.ports:
+                if name not in self._listeners and not self._stop.is_set():
+                    try:
+                        self._listen(name)
+                    except OSError as exc:
+                        self.errors.append(f"cannot listen again on {name}: {exc}")
+
+        timer = threading.Timer(seconds, back)
+        timer.daemon = True
+        timer.start()
 
     def stop(self) -> None:
         self._stop.set()
-        for s in self._listeners:
-            with contextlib.suppress(OSError):
-                s.close()
-        self.drop_all()
+        self._close_listeners(keep_control=False)
+        self.drop_all(control_too=True)
 
     def wait(self) -> None:
         self._stop.wait()
 
-    def drop_all(self) -> None:
+    def drop_all(self, control_too: bool = False) -> None:
+        """Close every client connection (the control port's too only when the mock stops)."""
         for sess in list(self.rtde):
             sess.close()
-        for socks in self.conns.values():
+        for name, socks in self.conns.items():
+            if name == "control" and not control_too:
+                continue
             for c in list(socks):
                 with contextlib.suppress(OSError):
                     c.shutdown(socket.SHUT_RDWR)
@@ -212,27 +249,28 @@ class UrServer:
                 next_t = now - (MAX_CATCH_UP - 1) * TICK_S
                 n = MAX_CATCH_UP
             next_t += n * TICK_S
-            due: set[RtdeSession] = set()
             sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
+            frames: list[tuple[RtdeSession, bytes]] = []
             for _ in range(n):
                 self.ctl.step()
-                due.update(s for s in sessions if s.due(self.ctl.tick))
+                due = [s for s in sessions if s.due(self.ctl.tick)]
+                if due and not self.stale:  # each frame holds the state of its own tick
+                    frames.extend((s, self._pack_frame(s)) for s in due)
             self._events()
-            if self.stale:
-                continue
-            for sess in due:
-                self._send_frame(sess)
+            for sess, data in frames:
+                self._send_frame(sess, data)
 
-    def _send_frame(self, sess: RtdeSession) -> None:
+    def _pack_frame(self, sess: RtdeSession) -> bytes:
         recipe = sess.output
-        if recipe is None:
-            return
+        assert recipe is not None
+        return rc.pack_data(recipe, self.ctl.values(recipe.names))
+
+    def _send_frame(self, sess: RtdeSession, data: bytes) -> None:
         try:
             with self.ctl.lock:
-                data = rc.pack_data(recipe, self.ctl.values(recipe.names))
                 messages, self.ctl.messages = self.ctl.messages, []
             with sess.wlock:
-                if not sess.started:
+                if not sess.started or sess.closed:
                     return
                 sess.sock.sendall(data)
             sess.frames_sent += 1
@@ -254,6 +292,14 @@ class UrServer:
         ctl = self.ctl
         if what == "drop":
             self.drop_all()
+        elif what.startswith("unreachable"):
+            try:
+                seconds = float(what.split()[1])
+            except (IndexError, ValueError):
+                return "unreachable needs seconds: unreachable 5"
+            if not (0 <= seconds <= 3600):
+                return "unreachable needs 0..3600 seconds"
+            self.unreachable(seconds)
         elif what in ("stale", "stale on"):
             self.stale = True
         elif what == "stale off":
