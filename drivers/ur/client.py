@@ -90,7 +90,7 @@ class UrRtde:
         connect_timeout_s: float = 30.0,
         move_timeout_s: float = 300.0,
         io_timeout_s: float = 5.0,
-        stale_s: float = 0.5,
+        stale_s: float = 1.0,
         joint_speed_deg_s: float = 60.0,
         joint_acceleration_deg_s2: float = 80.0,
         stop_deceleration_deg_s2: float = 229.0,

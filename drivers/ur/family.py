@@ -14,7 +14,7 @@ SCHEMAS = {
         "connect_timeout_s": ("timeout", 30.0),
         "move_timeout_s": ("timeout", 300.0),
         "io_timeout_s": ("timeout", 5.0),
-        "stale_s": ("timeout", 0.5),  # no RTDE frame for this long during a move: the stream is stale
+        "stale_s": ("timeout", 1.0),  # no RTDE frame for this long during a move: the stream is stale
         "joint_speed_deg_s": ("positive", 60.0),  # at 100 % override; ur_rtde's moveJ default 1.05 rad/s
         "joint_acceleration_deg_s2": ("positive", 80.0),  # ur_rtde's moveJ default 1.4 rad/s2
         "stop_deceleration_deg_s2": ("positive", 229.0),  # stopJ on the door: 4 rad/s2
