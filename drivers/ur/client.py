@@ -133,6 +133,8 @@ class UrRtde:
         self._stop_asked: str | None = None
         self._fault = ""  # latched until reset_faults: a protective stop seen during a move
         self.stop_sent_at: float | None = None  # time.monotonic() of the last stopJ sent (bench and tests)
+        self.stop_seen: float | None = None  # controller time of the last frame read before that stopJ
+        self._last_stamp: float | None = None
 
     # --- connection -----------------------------------------------------------------------------------------
 
@@ -223,9 +225,11 @@ class UrRtde:
         """(controller timestamp s, joints rad, safety status bits) of the latest frame."""
         rx = self._rx()
         try:
-            return float(rx.getTimestamp()), tuple(float(v) for v in rx.getActualQ()), int(rx.getSafetyStatusBits())
+            out = float(rx.getTimestamp()), tuple(float(v) for v in rx.getActualQ()), int(rx.getSafetyStatusBits())
         except RuntimeError as exc:
             raise ConnectionLost(f"RTDE stream: {exc}", device=self.device) from None
+        self._last_stamp = out[0]
+        return out
 
     def joints(self) -> tuple[float, ...]:
         """Actual joints (deg, 4 decimals): actual_q of the latest RTDE frame."""
@@ -372,7 +376,7 @@ class UrRtde:
 
     def _brake(self) -> None:
         """stopJ at the stop deceleration; returns once the script has brought the arm to a stand."""
-        self.stop_sent_at = time.monotonic()
+        self.stop_sent_at, self.stop_seen = time.monotonic(), self._last_stamp
         try:
             self.control.stopJ(math.radians(self.stop_deceleration_deg_s2), False)
         except RuntimeError as exc:
