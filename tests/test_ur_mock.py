@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import subprocess
 import sys
 import time
 
@@ -19,12 +20,28 @@ from hypothesis import strategies as st
 
 from tests.helpers import ROOT
 from trackcal.mocks.servers.ur import rtde_codec as rc
-from trackcal.mocks.servers.ur.controller import MOVEJ, NORMAL, PLAYING, PROTECTIVE_STOP, STOPJ, UrController
+from trackcal.mocks.servers.ur.controller import (
+    MOVEJ,
+    NORMAL,
+    PAUSED,
+    PLAYING,
+    PROTECTIVE_STOP,
+    SAFEGUARD_STOP,
+    STOPJ,
+    UrController,
+)
+from trackcal.mocks.servers.ur.follow import JointFollower
 from trackcal.mocks.servers.ur.kinematics import NOMINAL_A, NOMINAL_D, factory_calibration
 from trackcal.mocks.servers.ur.motion import TICK_S, UR10_VMAX_RAD_S, Motion
-from trackcal.mocks.servers.ur.primary import kinematics_info, parse_kinematics_info
+from trackcal.mocks.servers.ur.primary import (
+    KINEMATICS_INFO,
+    ROBOT_MESSAGE,
+    ROBOT_STATE,
+    kinematics_info,
+    parse_kinematics_info,
+)
 from trackcal.mocks.servers.ur.process import MockUrProcess
-from trackcal.mocks.servers.ur.server import RTDE_PORT, RtdeSession
+from trackcal.mocks.servers.ur.server import PRIMARY_PORT, RTDE_PORT, RtdeSession
 
 sys.path.insert(0, str(ROOT / "tests" / "thirdparty"))
 from rtde import rtde as ur_rtde_py  # noqa: E402  (UR's client, vendored: tests/thirdparty/rtde/VENDORED.md)
@@ -54,7 +71,10 @@ def test_ur_rtde_reads_moves_and_stops():
         c = rtde_control.RTDEControlInterface(host)
         d = dashboard_client.DashboardClient(host)
         d.connect()
+        seen: list[tuple[float, ...]] = []
+        follower = JointFollower(host, seen.append).start()  # the twin's side: joints in degrees
         try:
+            assert follower.fresh(5.0) and follower.q_deg == (0.0,) * 6
             assert r.getActualQ() == [0.0] * 6
             # UR's published UR10 DH at q = 0: the flange at (a2 + a3, -(d4 + d6), d1 - d5); the mock's factory
             # calibration moves it by a few tenths of a millimetre
@@ -71,6 +91,7 @@ def test_ur_rtde_reads_moves_and_stops():
             # the receive interface's frames trail the control interface's by a cycle or two
             assert wait_until(lambda: r.getActualQ() == pytest.approx(target, abs=1e-4), 1.0)
             assert ur.state()["q"] == target  # the controller ends the profile on the target exactly
+            assert follower.fresh() and follower.q_deg == pytest.approx([math.degrees(v) for v in target], abs=1e-9)
 
             far = [1.3, -1.2, 1.1, -1.0, -1.4, 0.5]  # 1 rad on the base at 0.5 rad/s: 2+ s
             assert c.moveJ(far, 0.5, 1.0, True)
@@ -84,7 +105,9 @@ def test_ur_rtde_reads_moves_and_stops():
             time.sleep(0.1)
             assert r.getActualQ() == stopped  # and stands
             assert ur.state()["commands"] == [MOVEJ, MOVEJ, STOPJ]
+            assert len(seen) == follower.frames and seen[-1] == follower.q_deg
         finally:
+            follower.stop()
             c.stopScript()
             for client in (c, r, d):
                 client.disconnect()
@@ -122,6 +145,14 @@ def test_ur_rtde_protective_stop_then_recovery():
             c.stopScript()
             for client in (c, r, d):
                 client.disconnect()
+
+
+def _connects(host: str, port: int) -> bool:
+    try:
+        socket.create_connection((host, port), timeout=1.0).close()
+    except OSError:
+        return False
+    return True
 
 
 def _unlock(d) -> bool:
@@ -172,6 +203,11 @@ def test_urs_python_client_reads_its_own_recipe():
         finally:
             con.disconnect()
 
+        ur.inject("unreachable 1.5")  # gone from the network: refused, then back
+        with pytest.raises(OSError):
+            socket.create_connection((host, RTDE_PORT), timeout=1.0).close()
+        assert wait_until(lambda: _connects(host, RTDE_PORT), 10.0)
+
         # NOT_FOUND and IN_USE, as the client's serializer reads them
         a, b = ur_rtde_py.RTDE(host, RTDE_PORT), ur_rtde_py.RTDE(host, RTDE_PORT)
         a.connect()
@@ -200,6 +236,38 @@ def test_garbage_closes_the_connection_and_the_mock_serves_on():
         assert r.getActualQ() == pytest.approx(HOME)
         r.disconnect()
         assert any("RTDE" in e for e in ur.state()["errors"])
+
+        # the primary interface: the version message, then robot state with the arm's calibrated DH
+        with socket.create_connection((host, PRIMARY_PORT), timeout=5) as s:
+            version = _primary_message(s)
+            assert version[0] == ROBOT_MESSAGE and version[1][9] == 3  # VERSION
+            name_len = version[1][10]
+            assert version[1][11 : 11 + name_len] == b"URControl"
+            assert struct.unpack_from(">BBii", version[1], 11 + name_len) == (5, 11, 1, 108318)
+            state = _primary_message(s)
+            assert state[0] == ROBOT_STATE and state[1][4] == KINEMATICS_INFO
+            assert parse_kinematics_info(state[1]) == factory_calibration(6)
+
+        # the command line: a mistake is one line and exit 2, also an address in use
+        for args in (["--q0-deg", "1,2"], ["--host", host], ["--speed", "0"]):
+            done = subprocess.run([sys.executable, "-m", "trackcal.mocks.servers.ur", *args], capture_output=True,
+                                  text=True, timeout=60)  # fmt: skip
+            assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def _primary_message(s: socket.socket) -> tuple[int, bytes]:
+    """(type, body) of one primary-interface message: int32 length (header included), uint8 type."""
+
+    def exactly(n: int) -> bytes:
+        buf = b""
+        while len(buf) < n:
+            chunk = s.recv(n - len(buf))
+            assert chunk
+            buf += chunk
+        return buf
+
+    length, kind = struct.unpack(">iB", exactly(5))
+    return kind, exactly(length - 5)
 
 
 # ----------------------------------------------------------------------------------------------- framing
@@ -396,3 +464,40 @@ def test_kinematics_info_round_trip():
     data = kinematics_info(cal)
     assert len(data) == 5 + 6 * 4 + 4 * 6 * 8 + 4  # Client Interface: header, 6 uint32, 4 x 6 double, uint32
     assert parse_kinematics_info(data) == cal
+
+
+def test_safeguard_stop_pauses_and_reset_resumes_the_move():
+    ctl = _started()
+    target = [HOME[0] + 0.6, *HOME[1:]]
+    _command(ctl, MOVEJ, [*target, 1.0, 1.4])
+    _run_ticks(ctl, 150)
+    ctl.safeguard_stop()
+    assert ctl.safety_mode == SAFEGUARD_STOP and ctl.safety_status_bits & (1 << 4) and ctl.runtime_state == PAUSED
+    _run_ticks(ctl, 500)
+    held = ctl.motion.q
+    assert not ctl.motion.moving and ctl.out_int[0] == 1  # braked on the path, the movej not done
+    assert held[0] < target[0]
+    ctl.safeguard_reset()
+    while ctl.out_int[0] != 2:
+        ctl.step()
+    assert list(ctl.motion.q) == target and ctl.safety_mode == NORMAL and ctl.runtime_state == PLAYING
+
+
+def test_faults_scheduled_halfway_through_a_move():
+    ctl = _started()
+    ctl.fault_on_move[1] = "stale"
+    ctl.protective_stop_on_move = 2
+    _command(ctl, MOVEJ, [HOME[0] + 0.5, *HOME[1:], 1.0, 1.4])
+    ctl.step()  # the script reads the command
+    assert ctl.motion.path is not None
+    _run_ticks(ctl, round(ctl.motion.path.total / 2 / TICK_S) - 2)
+    assert ctl.events == []
+    _run_ticks(ctl, 4)
+    assert ctl.events == ["stale"]  # for the server: frames stop
+    while ctl.out_int[0] != 2:
+        ctl.step()
+    _command(ctl, 0)
+    ctl.step()
+    _command(ctl, MOVEJ, [HOME[0], *HOME[1:], 1.0, 1.4])
+    _run_ticks(ctl, 2000)
+    assert ctl.safety_mode == PROTECTIVE_STOP and ctl.motion.q[0] != HOME[0]

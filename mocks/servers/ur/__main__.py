@@ -31,8 +31,13 @@ def _version(text: str) -> tuple[int, int, int, int]:
     return tuple(int(p) for p in parts)  # type: ignore[return-value]
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2 (the house rule; argparse prints its usage too)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m trackcal.mocks.servers.ur",
+    p = _Parser(prog="python -m trackcal.mocks.servers.ur",
                                 description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
                                             "script ports 30001-30003) on one address.")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
@@ -70,6 +75,20 @@ def parser() -> argparse.ArgumentParser:
         help="stop sending RTDE frames halfway through the N-th movej (connections stay open)",
     )
     p.add_argument(
+        "--unreachable-on-move",
+        type=int,
+        default=0,
+        metavar="N",
+        help="halfway through the N-th movej, close every connection and refuse new ones for --unreachable-s",
+    )
+    p.add_argument("--unreachable-s", type=float, default=10.0, help="seconds unreachable (default 10)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="controller seconds per wall second (default 1; faster sends fewer frames, each of its own tick)",
+    )
+    p.add_argument(
         "--control-port",
         type=int,
         default=CONTROL_PORT,
@@ -80,9 +99,12 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    if args.unlock_delay_s < 0:
-        print(f"{parser().prog}: error: --unlock-delay-s must be >= 0", file=sys.stderr)
-        return 2
+    for name, value, ok in (("--unlock-delay-s", args.unlock_delay_s, args.unlock_delay_s >= 0),
+                             ("--unreachable-s", args.unreachable_s, 0 <= args.unreachable_s <= 3600),
+                             ("--speed", args.speed, 0 < args.speed <= 100)):  # fmt: skip
+        if not ok or not math.isfinite(value):
+            print(f"{parser().prog}: error: {name} out of range: {value}", file=sys.stderr)
+            return 2
     ctl = UrController(seed=args.seed, q0=args.q0_deg, version=args.version, unlock_delay_s=args.unlock_delay_s,
                        remote_control=not args.local, powered=not args.powered_off,
                        protective_stop_on_move=args.protective_stop_on_move)  # fmt: skip
@@ -90,7 +112,9 @@ def main(argv: list[str] | None = None) -> int:
         ctl.fault_on_move[args.drop_on_move] = "drop"
     if args.stale_on_move:
         ctl.fault_on_move[args.stale_on_move] = "stale"
-    server = UrServer(ctl, args.host, args.control_port)
+    if args.unreachable_on_move:
+        ctl.fault_on_move[args.unreachable_on_move] = f"unreachable {args.unreachable_s}"
+    server = UrServer(ctl, args.host, args.control_port, speed=args.speed)
     try:
         server.start()
     except OSError as exc:

@@ -105,7 +105,8 @@ class UrController:
         self.inputs: dict[str, object] = {}  # other RTDE inputs (speed slider, outputs masks ...)
         self.tcp = (0.0, 0.0, 0.0)
         self.payload = 0.0
-        self.messages: list[tuple[str, int]] = []  # text messages for RTDE clients (text, level)
+        self.messages: list[tuple[int, str, int]] = []  # text messages for RTDE clients (number, text, level)
+        self.message_count = 0
         self.log: list[str] = []  # controller log (for tests and people)
         self.scripts: list[str] = []  # names of the programs received
         self.commands: list[int] = []  # control script command ids processed
@@ -139,7 +140,8 @@ class UrController:
 
     def _say(self, text: str, level: int = rc.INFO_MESSAGE) -> None:
         self.log.append(text)
-        self.messages.append((text, level))
+        self.message_count += 1
+        self.messages.append((self.message_count, text, level))
         del self.messages[:-64]
         del self.log[:-1000]
 

@@ -51,6 +51,8 @@ class RtdeSession:
         self._next_output_id = 1
         self._next_input_id = 1
         self.frames_sent = 0
+        with server.ctl.lock:
+            self.messages_seen = server.ctl.message_count
 
     def send(self, data: bytes) -> None:
         with self.wlock:
@@ -137,8 +139,12 @@ class RtdeSession:
 
 
 class UrServer:
-    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT) -> None:
+    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT,
+                 speed: float = 1.0) -> None:  # fmt: skip
+        if not speed > 0:
+            raise ValueError("speed must be positive")
         self.ctl, self.host = ctl, host
+        self.speed = float(speed)  # controller seconds per wall second
         self.ports = {"rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "primary": PRIMARY_PORT,
                       "secondary": SECONDARY_PORT, "realtime": REALTIME_PORT, "control": control_port}  # fmt: skip
         self.rtde: list[RtdeSession] = []
@@ -238,27 +244,35 @@ class UrServer:
 
     # ------------------------------------------------------------------ tick
     def _tick_loop(self) -> None:
+        """Controller ticks at `speed` x 500 per wall second. At speed 1 every frame of every tick is sent (after a
+        stall, the missed ones at once, up to MAX_CATCH_UP ticks; beyond, controller time slips). Faster than real
+        time, each connection gets the newest frame due in each 2 ms of wall time (fewer frames, each the state of
+        its own tick)."""
+        period = TICK_S / self.speed if self.speed < 1 else TICK_S
+        per_wake = max(1, round(self.speed))
         next_t = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             if now < next_t:
                 time.sleep(next_t - now)
                 continue
-            n = int((now - next_t) / TICK_S) + 1
-            if n > MAX_CATCH_UP:
-                next_t = now - (MAX_CATCH_UP - 1) * TICK_S
-                n = MAX_CATCH_UP
-            next_t += n * TICK_S
+            late = int((now - next_t) / period) + 1
+            if late > MAX_CATCH_UP:
+                next_t = now - (MAX_CATCH_UP - 1) * period
+                late = MAX_CATCH_UP
+            next_t += late * period
             sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
-            frames: list[tuple[RtdeSession, bytes]] = []
-            for _ in range(n):
+            frames: dict[RtdeSession, list[bytes]] = {}
+            for _ in range(late * per_wake):
                 self.ctl.step()
                 due = [s for s in sessions if s.due(self.ctl.tick)]
                 if due and not self.stale:  # each frame holds the state of its own tick
-                    frames.extend((s, self._pack_frame(s)) for s in due)
+                    for s in due:
+                        frames.setdefault(s, []).append(self._pack_frame(s))
             self._events()
-            for sess, data in frames:
-                self._send_frame(sess, data)
+            for sess, datas in frames.items():
+                for data in datas if per_wake == 1 else datas[-1:]:
+                    self._send_frame(sess, data)
 
     def _pack_frame(self, sess: RtdeSession) -> bytes:
         recipe = sess.output
@@ -267,15 +281,16 @@ class UrServer:
 
     def _send_frame(self, sess: RtdeSession, data: bytes) -> None:
         try:
-            with self.ctl.lock:
-                messages, self.ctl.messages = self.ctl.messages, []
+            with self.ctl.lock:  # each connection gets every message once, from its start on
+                messages = [m for m in self.ctl.messages if m[0] > sess.messages_seen]
+                sess.messages_seen = self.ctl.message_count
             with sess.wlock:
                 if not sess.started or sess.closed:
                     return
                 sess.sock.sendall(data)
             sess.frames_sent += 1
             self.frames += 1
-            for text, level in messages:
+            for _, text, level in messages:
                 if sess.protocol >= 2:
                     sess.send(rc.pack_text(text, "Controller", level))
         except OSError:
