@@ -10,6 +10,8 @@ import math
 import signal
 import sys
 
+from trackcal.calib.model.cell import CellError, load_robot
+from trackcal.calib.model.chain import ChainError
 from trackcal.mocks.servers.ur.controller import HOME_RAD, UrController
 from trackcal.mocks.servers.ur.server import CONTROL_PORT, UrServer
 
@@ -41,6 +43,7 @@ def parser() -> argparse.ArgumentParser:
                                 description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
                                             "script ports 30001-30003) on one address.")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--robot", default="ur10", help="robot model of configs/robots (joint limits; default ur10)")
     p.add_argument("--seed", type=int, default=0, help="serial number, factory calibration, timestamps (default 0)")
     p.add_argument("--q0-deg", type=_joints, default=HOME_RAD, help="initial joints, 6 comma-separated deg")
     p.add_argument(
@@ -105,9 +108,25 @@ def main(argv: list[str] | None = None) -> int:
         if not ok or not math.isfinite(value):
             print(f"{parser().prog}: error: {name} out of range: {value}", file=sys.stderr)
             return 2
-    ctl = UrController(seed=args.seed, q0=args.q0_deg, version=args.version, unlock_delay_s=args.unlock_delay_s,
-                       remote_control=not args.local, powered=not args.powered_off,
-                       protective_stop_on_move=args.protective_stop_on_move)  # fmt: skip
+    try:
+        chain, _ = load_robot(args.robot)
+    except (CellError, ChainError, OSError) as exc:
+        print(f"{parser().prog}: error: --robot {args.robot}: {exc}", file=sys.stderr)
+        return 2
+    if chain.dof != 6:
+        print(f"{parser().prog}: error: --robot {args.robot} has {chain.dof} joints, a UR has 6", file=sys.stderr)
+        return 2
+    limits = [(float(lo), float(hi)) for lo, hi in chain.limits_array()]
+    ctl = UrController(
+        seed=args.seed,
+        q0=args.q0_deg,
+        version=args.version,
+        unlock_delay_s=args.unlock_delay_s,
+        remote_control=not args.local,
+        limits=limits,
+        powered=not args.powered_off,
+        protective_stop_on_move=args.protective_stop_on_move,
+    )
     if args.drop_on_move:
         ctl.fault_on_move[args.drop_on_move] = "drop"
     if args.stale_on_move:

@@ -116,6 +116,7 @@ class UrController:
         self._scheduled: list[tuple[int, str]] = []  # (tick, what)
         self.fault_on_move: dict[int, str] = {}  # move number -> "drop" | "stale" (server faults)
         self._prev_qd = self.motion.qd
+        self._pose_cache: tuple[object, tuple[float, ...]] = (None, ())
         self._paused_move: tuple[tuple[float, ...], float, float] | None = None
         self._reset_script()
 
@@ -444,7 +445,9 @@ class UrController:
         if name == "target_qdd":
             return tuple((a - b) / TICK_S for a, b in zip(qd, self._prev_qd, strict=True))
         if name in ("actual_TCP_pose", "target_TCP_pose"):
-            return tcp_pose(q, self.calibration, self.tcp)
+            if self._pose_cache[0] != (q, self.tcp):
+                self._pose_cache = ((q, self.tcp), tcp_pose(q, self.calibration, self.tcp))
+            return self._pose_cache[1]
         if name == "robot_mode":
             return self.robot_mode
         if name == "joint_mode":

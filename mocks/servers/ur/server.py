@@ -262,17 +262,20 @@ class UrServer:
                 late = MAX_CATCH_UP
             next_t += late * period
             sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
-            frames: dict[RtdeSession, list[bytes]] = {}
-            for _ in range(late * per_wake):
+            first, n = self.ctl.tick + 1, late * per_wake
+            wanted: dict[int, list[RtdeSession]] = {}  # tick -> connections that get that tick's frame
+            for sess in sessions:
+                ticks = [t for t in range(first, first + n) if sess.due(t)]
+                for t in ticks if per_wake == 1 else ticks[-1:]:
+                    wanted.setdefault(t, []).append(sess)
+            frames: list[tuple[RtdeSession, bytes]] = []
+            for _ in range(n):
                 self.ctl.step()
-                due = [s for s in sessions if s.due(self.ctl.tick)]
-                if due and not self.stale:  # each frame holds the state of its own tick
-                    for s in due:
-                        frames.setdefault(s, []).append(self._pack_frame(s))
+                if not self.stale:  # each frame holds the state of its own tick
+                    frames.extend((sess, self._pack_frame(sess)) for sess in wanted.get(self.ctl.tick, ()))
             self._events()
-            for sess, datas in frames.items():
-                for data in datas if per_wake == 1 else datas[-1:]:
-                    self._send_frame(sess, data)
+            for sess, data in frames:
+                self._send_frame(sess, data)
 
     def _pack_frame(self, sess: RtdeSession) -> bytes:
         recipe = sess.output
