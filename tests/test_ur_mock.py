@@ -105,7 +105,21 @@ def test_ur_rtde_reads_moves_and_stops():
             time.sleep(0.1)
             assert r.getActualQ() == stopped  # and stands
             assert ur.state()["commands"] == [MOVEJ, MOVEJ, STOPJ]
+            assert ur.state()["out_int_upper"][0] == 0  # the lower range in use
             assert len(seen) == follower.frames and seen[-1] == follower.q_deg
+
+            # a client on the upper range registers (24..): its script says so, the mock answers there
+            c.stopScript()
+            c.disconnect()
+            flags = rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
+            c = rtde_control.RTDEControlInterface(
+                host, -1.0, flags | rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT
+            )
+            assert c.moveJ(target, 1.05, 1.4)
+            state = ur.state()
+            # the answer went out on output_int_register_24 (2 done, then 1 ready once the client cleared)
+            assert state["reg_offset"] == [24, 24] and state["out_int_upper"][0] in (1, 2)
+            assert state["commands"] == [MOVEJ, MOVEJ, STOPJ, 255, MOVEJ]  # 255: stopScript
         finally:
             follower.stop()
             c.stopScript()

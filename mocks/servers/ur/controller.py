@@ -64,7 +64,9 @@ HOME_RAD = (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)
 STOP_DECEL = 10.0
 
 _SCRIPT_ID = re.compile(r"^def rtde_control\(\):", re.M)
-_REG_OFFSET = re.compile(r"global reg_offset_(int|float)\s*=\s*(\d+)")
+# ur_rtde 1.6.5 writes the offset after the template line's comment, at the start of the next line
+# ("global reg_offset_int = # int register offset\n24    global ..."): URScript reads the assignment on
+_REG_OFFSET = re.compile(r"global reg_offset_(int|float)\s*=\s*(?:#[^\n]*)?\s*(\d+)")
 _PROGRAM = re.compile(r"^(?:def|sec)\s+(\w+)\s*\(\s*\)\s*:", re.M)
 
 
@@ -109,6 +111,7 @@ class UrController:
         self.message_count = 0
         self.log: list[str] = []  # controller log (for tests and people)
         self.scripts: list[str] = []  # names of the programs received
+        self.last_script = ""  # text of the last program received (control port: `script`)
         self.commands: list[int] = []  # control script command ids processed
         self.moves = 0  # movej commands started
         self.safety_since_tick = 0
@@ -151,6 +154,7 @@ class UrController:
         """A program arrived on a script port: it replaces the running one (UR Script Manual: a program sent to
         the secondary/real-time interface stops the running program)."""
         with self.lock:
+            self.last_script = text
             m = _PROGRAM.search(text)
             name = m.group(1) if m else "<unnamed>"
             self.scripts.append(name)
@@ -501,4 +505,5 @@ class UrController:
                     "runtime_state": self.runtime_state, "program": self.program, "moves": self.moves,
                     "commands": list(self.commands), "scripts": list(self.scripts), "log": self.log[-20:],
                     "out_int": self.out_int[:4], "in_int": self.in_int[:2], "busy": self._busy,
+                    "reg_offset": [self.reg_int, self.reg_float], "out_int_upper": self.out_int[24:28],
                     "executing": self._executing, "async_move": self._async_move}  # fmt: skip

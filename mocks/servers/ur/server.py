@@ -418,6 +418,9 @@ class UrServer:
                         self.ctl.state()
                         | {"frames": self.frames, "stale": self.stale, "errors": self.errors[-10:], "recipes": recipes}
                     )
+                elif cmd == "script":
+                    with self.ctl.lock:
+                        reply = json.dumps(self.ctl.last_script)
                 elif cmd == "quit":
                     conn.sendall(b"ok\n")
                     self.stop()
