@@ -515,3 +515,21 @@ def test_faults_scheduled_halfway_through_a_move():
     _command(ctl, MOVEJ, [HOME[0], *HOME[1:], 1.0, 1.4])
     _run_ticks(ctl, 2000)
     assert ctl.safety_mode == PROTECTIVE_STOP and ctl.motion.q[0] != HOME[0]
+
+
+def test_async_stopj_answers_at_once_and_reports_progress():
+    ctl = _started()
+    _command(ctl, MOVEJ, [HOME[0] + 1.0, *HOME[1:], 1.0, 1.4], async_flag=1)
+    ctl.step()
+    assert ctl.out_int[0] == 2 and ctl.out_int[2] & 32768  # done at once; bit 15: an async operation runs
+    _command(ctl, 0)
+    _run_ticks(ctl, 300)
+    _command(ctl, STOPJ, [0.5], async_flag=1)  # exec_stopl_stopj with async = 1: a stop thread
+    ctl.step()
+    assert ctl.out_int[0] == 2 and ctl.out_int[2] & 32768 and ctl.motion.moving
+    _command(ctl, 0)
+    while ctl.motion.moving:
+        ctl.step()
+    ctl.step()
+    assert not ctl.out_int[2] & 32768  # finished once the arm stands
+    assert ctl.motion.q[0] < HOME[0] + 1.0

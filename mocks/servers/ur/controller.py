@@ -14,8 +14,10 @@ What it keeps, with the public source of each rule:
   movej (1): q in input_double_register_0..5, velocity 6, acceleration 7, async flag input_int_register_1; an
   asynchronous move runs in a thread that writes the async progress register (output_int_register_2: bits 24-30
   operation id, 16-23 write count, bit 15 running; -1 written as finished). stopj (34) / stopl (33): deceleration
-  in input_double_register_0. protective_stop (31). Other ids are not emulated: the script ends with a runtime
-  error text, as a failing real script would, so a client sees the program stop instead of a fake success.
+  in input_double_register_0, async flag in input_int_register_1 (exec_stopl_stopj: the stop runs in a thread that
+  reports on the async progress register). protective_stop (31). Other ids are not emulated: the script ends with a
+  runtime error text, as a failing real script would, so a client sees the program stop instead of a fake success.
+  The script text ur_rtde sends (control port `script`) was read to check these: 1175 lines, the main loop above.
 - Motion (motion.py) at the 500 Hz tick; a protective or safeguard stop brakes the arm at `stop_decel` (a
   category 2 stop: decelerate on the path, then hold).
 - A protective stop ends the running program (ur_rtde's documented recovery: unlockProtectiveStop through the
@@ -131,6 +133,7 @@ class UrController:
         self._executing = False
         self._busy: str | None = None  # "move" | "stop": a blocking command waiting for the arm
         self._async_move = False
+        self._async_stop = False
         self._async_wr = 0
         self._async_op = 0
         self._move_args: tuple[tuple[float, ...], float, float] | None = None
@@ -182,7 +185,7 @@ class UrController:
             if self._busy == "move" or self._async_move:
                 self.motion.stop(self.stop_decel)
         self.runtime_state = STOPPED
-        self._busy, self._async_move, self._paused_move = None, False, None
+        self._busy, self._async_move, self._async_stop, self._paused_move = None, False, False, None
 
     def dashboard_stop(self) -> bool:
         with self.lock:
@@ -325,6 +328,9 @@ class UrController:
         if self._async_move and not self.motion.moving and self._paused_move is None:
             self._async_move = False
             self._write_async(-1)  # move_thread: signal_async_operation_finished()
+        if self._async_stop and not self.motion.moving:
+            self._async_stop = False
+            self._write_async(-1)  # stop_thread: signal_async_operation_finished()
         if self._busy is not None:
             if self.motion.moving or self._paused_move is not None:
                 return
@@ -370,11 +376,21 @@ class UrController:
                 self._write_async(0)  # signal_async_operation_started()
             else:
                 self._busy = "move"
-        elif cmd in (STOPJ, STOPL):
+        elif cmd in (STOPJ, STOPL):  # exec_stopl_stopj: deceleration in double 0, async flag in int 1
             decel = self._floats(0, 1)[0]
-            self._stop_async_move(decel)
-            if self.motion.moving:
-                self.motion.stop(decel if decel > 0 else self.stop_decel)
+            decel = decel if decel > 0 else self.stop_decel
+            stop_move = not self._async_stop  # a running async stop already stops the move
+            if self._async_stop:  # kill stop_thrd: signal_async_operation_finished()
+                self._async_stop = False
+                self._write_async(-1)
+            if stop_move:
+                self._stop_async_move(decel)
+            if self.in_int[1 + off] == 1:  # stop_thrd = run stop_thread(): started now, finished when still
+                self._async_stop = True
+                self._write_async(0)
+                self.motion.stop(decel)
+            elif self.motion.moving:
+                self.motion.stop(decel)
                 self._busy = "stop"
         elif cmd == PROTECTIVE_STOP_CMD:
             self.protective_stop("protective_stop() called by the script")
