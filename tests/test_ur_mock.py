@@ -8,6 +8,7 @@ motion and safety rules on the controller alone (no sockets), tick by tick.
 from __future__ import annotations
 
 import math
+import random
 import socket
 import struct
 import subprocess
@@ -41,7 +42,14 @@ from trackcal.mocks.servers.ur.primary import (
     parse_kinematics_info,
 )
 from trackcal.mocks.servers.ur.process import MockUrProcess
-from trackcal.mocks.servers.ur.server import PRIMARY_PORT, RTDE_PORT, RtdeSession
+from trackcal.mocks.servers.ur.server import (
+    DASHBOARD_PORT,
+    PRIMARY_PORT,
+    REALTIME_PORT,
+    RTDE_PORT,
+    SECONDARY_PORT,
+    RtdeSession,
+)
 
 sys.path.insert(0, str(ROOT / "tests" / "thirdparty"))
 from rtde import rtde as ur_rtde_py  # noqa: E402  (UR's client, vendored: tests/thirdparty/rtde/VENDORED.md)
@@ -178,6 +186,14 @@ def _unlock(d) -> bool:
     return True
 
 
+def test_ur_rtde_refuses_a_robot_in_local_control():
+    host = "127.0.0.125"
+    with MockUrProcess(host, seed=7, args=["--local"]) as ur:
+        with pytest.raises(RuntimeError, match="remote control"):  # ur_rtde asks `is in remote control` (5.6+)
+            rtde_control.RTDEControlInterface(host)
+        assert ur.state()["scripts"] == []
+
+
 # ----------------------------------------------------------------------------------------------- UR's client
 def test_urs_python_client_reads_its_own_recipe():
     host = "127.0.0.123"
@@ -262,8 +278,19 @@ def test_garbage_closes_the_connection_and_the_mock_serves_on():
             assert state[0] == ROBOT_STATE and state[1][4] == KINEMATICS_INFO
             assert parse_kinematics_info(state[1]) == factory_calibration(6)
 
+        # garbage on every other port: the mock answers what it can, closes what it cannot, and serves on
+        noise = random.Random(6)
+        for port in (DASHBOARD_PORT, PRIMARY_PORT, SECONDARY_PORT, REALTIME_PORT):
+            with socket.create_connection((host, port), timeout=5) as s:
+                s.sendall(bytes(noise.randrange(256) for _ in range(5000)) + b"\nrobotmode\n")
+        d = dashboard_client.DashboardClient(host)
+        d.connect()
+        assert d.robotmode() == "Robotmode: RUNNING"
+        d.disconnect()
+        assert ur.state()["runtime_state"] != PLAYING  # no program came of it
+
         # the command line: a mistake is one line and exit 2, also an address in use
-        for args in (["--q0-deg", "1,2"], ["--host", host], ["--speed", "0"]):
+        for args in (["--q0-deg", "1,2"], ["--host", host]):
             done = subprocess.run([sys.executable, "-m", "trackcal.mocks.servers.ur", *args], capture_output=True,
                                   text=True, timeout=60)  # fmt: skip
             assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr

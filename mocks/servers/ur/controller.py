@@ -161,6 +161,9 @@ class UrController:
             m = _PROGRAM.search(text)
             name = m.group(1) if m else "<unnamed>"
             self.scripts.append(name)
+            if not self.remote_control:  # local mode: programs from the network are not run
+                self._say(f"program {name} refused: the robot is in local control", rc.ERROR_MESSAGE)
+                return
             self._end_program("replaced by a new program")
             if not _SCRIPT_ID.search(text):
                 self._say(f"program {name} received: the mock runs ur_rtde's rtde_control only, ended at once",

@@ -31,7 +31,8 @@ from trackcal.mocks.servers.ur.motion import TICK_S
 
 RTDE_PORT, DASHBOARD_PORT, PRIMARY_PORT, SECONDARY_PORT, REALTIME_PORT = 30004, 29999, 30001, 30002, 30003
 CONTROL_PORT = 30999  # the mock's own (not a UR port)
-MAX_FREQUENCY = 500.0  # e-Series (RTDE guide: 1..500 Hz; CB3 1..125)
+MAX_FREQUENCY = {True: 500.0, False: 125.0}  # e-Series (major version > 3) / CB3 (RTDE guide: 1..500 Hz; 1..125)
+TICK_HZ = 1.0 / TICK_S
 PRIMARY_PERIOD_S = 0.1  # robot state messages at 10 Hz on the primary / secondary interfaces (Client Interface doc)
 MAX_CATCH_UP = 25  # ticks run at once when the process was descheduled (50 ms); beyond, controller time slips
 SEND_TIMEOUT_S = 2.0
@@ -84,7 +85,8 @@ class RtdeSession:
             else:
                 frequency, names = 125.0, rc.split_names(payload)
             types = tuple(rc.output_type(n) for n in names)
-            ok = bool(names) and rc.NOT_FOUND not in types and 1.0 <= frequency <= MAX_FREQUENCY
+            top = MAX_FREQUENCY[ctl.version[0] > 3]
+            ok = bool(names) and rc.NOT_FOUND not in types and 1.0 <= frequency <= top
             rid = 0
             if ok:
                 rid, self._next_output_id = self._next_output_id, min(255, self._next_output_id + 1)
@@ -135,7 +137,7 @@ class RtdeSession:
     def due(self, tick: int) -> bool:
         """A frame of the output recipe belongs to controller tick `tick`."""
         f = self.output.frequency if self.output else 0.0
-        return f > 0 and int(tick * f / MAX_FREQUENCY) != int((tick - 1) * f / MAX_FREQUENCY)
+        return f > 0 and int(tick * f / TICK_HZ) != int((tick - 1) * f / TICK_HZ)
 
 
 class UrServer:
