@@ -163,6 +163,19 @@ def test_ur_rtde_protective_stop_then_recovery():
             assert wait_until(c.isProgramRunning, 5.0)
             assert c.moveJ(target, 1.05, 1.4)
             assert wait_until(lambda: r.getActualQ() == pytest.approx(target, abs=1e-4), 1.0)
+
+            # a safeguard stop (a door) pauses the move and the program; its reset resumes both
+            back = [0.0, *target[1:]]
+            assert c.moveJ(back, 0.5, 1.0, True)
+            assert wait_until(lambda: r.getActualQ()[0] < 0.7)
+            ur.inject("safeguard_stop")
+            assert wait_until(lambda: r.getSafetyMode() == SAFEGUARD_STOP and r.getSafetyStatusBits() & (1 << 4), 2.0)
+            assert wait_until(lambda: not ur.state()["moving"], 2.0) and ur.state()["runtime_state"] == PAUSED
+            held = r.getActualQ()[0]
+            assert 0.0 < held < 0.7
+            ur.inject("safeguard_reset")
+            assert wait_until(lambda: r.getActualQ() == pytest.approx(back, abs=1e-4), 10.0)
+            assert c.isProgramRunning()
         finally:
             c.stopScript()
             for client in (c, r, d):
@@ -220,6 +233,12 @@ def test_urs_python_client_reads_its_own_recipe():
             assert (len(frames) + con.skipped_package_count) / wall < 125 * 1.5  # not faster than real time
             assert all(f.actual_q == pytest.approx(HOME) and f.robot_mode == 7 and f.safety_status_bits == 1
                        for f in frames)  # fmt: skip
+
+            assert con.send_pause()  # 'P': answered, and no frame after the answer
+            time.sleep(0.2)
+            assert not con.has_data()
+            assert con.send_start()
+            assert con.receive() is not None
 
             ur.inject("stale")  # frames stop, the connection stays
             con.receive()  # one may have been on its way

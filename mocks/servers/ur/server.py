@@ -22,8 +22,8 @@ import re
 import socket
 import struct
 import threading
-import time
 
+from trackcal.drivers.interfaces import RealClock
 from trackcal.mocks.servers.ur import dashboard, primary
 from trackcal.mocks.servers.ur import rtde_codec as rc
 from trackcal.mocks.servers.ur.controller import UrController
@@ -142,10 +142,13 @@ class RtdeSession:
 
 class UrServer:
     def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT,
-                 speed: float = 1.0) -> None:  # fmt: skip
+                 speed: float = 1.0, clock=None) -> None:  # fmt: skip
+        """`clock` paces the ticks (now() / sleep(), default the wall clock, drivers.interfaces.RealClock); the
+        controller itself counts ticks and reads no clock."""
         if not speed > 0:
             raise ValueError("speed must be positive")
         self.ctl, self.host = ctl, host
+        self.clock = clock or RealClock()
         self.speed = float(speed)  # controller seconds per wall second
         self.ports = {"rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "primary": PRIMARY_PORT,
                       "secondary": SECONDARY_PORT, "realtime": REALTIME_PORT, "control": control_port}  # fmt: skip
@@ -252,11 +255,11 @@ class UrServer:
         its own tick)."""
         period = TICK_S / self.speed if self.speed < 1 else TICK_S
         per_wake = max(1, round(self.speed))
-        next_t = time.monotonic()
+        next_t = self.clock.now()
         while not self._stop.is_set():
-            now = time.monotonic()
+            now = self.clock.now()
             if now < next_t:
-                time.sleep(next_t - now)
+                self.clock.sleep(next_t - now)
                 continue
             late = int((now - next_t) / period) + 1
             if late > MAX_CATCH_UP:
