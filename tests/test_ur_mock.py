@@ -8,8 +8,10 @@ motion and safety rules on the controller alone (no sockets), tick by tick.
 from __future__ import annotations
 
 import math
+import random
 import socket
 import struct
+import subprocess
 import sys
 import time
 
@@ -19,12 +21,35 @@ from hypothesis import strategies as st
 
 from tests.helpers import ROOT
 from trackcal.mocks.servers.ur import rtde_codec as rc
-from trackcal.mocks.servers.ur.controller import MOVEJ, NORMAL, PLAYING, PROTECTIVE_STOP, STOPJ, UrController
+from trackcal.mocks.servers.ur.controller import (
+    MOVEJ,
+    NORMAL,
+    PAUSED,
+    PLAYING,
+    PROTECTIVE_STOP,
+    SAFEGUARD_STOP,
+    STOPJ,
+    UrController,
+)
+from trackcal.mocks.servers.ur.follow import JointFollower
 from trackcal.mocks.servers.ur.kinematics import NOMINAL_A, NOMINAL_D, factory_calibration
 from trackcal.mocks.servers.ur.motion import TICK_S, UR10_VMAX_RAD_S, Motion
-from trackcal.mocks.servers.ur.primary import kinematics_info, parse_kinematics_info
+from trackcal.mocks.servers.ur.primary import (
+    KINEMATICS_INFO,
+    ROBOT_MESSAGE,
+    ROBOT_STATE,
+    kinematics_info,
+    parse_kinematics_info,
+)
 from trackcal.mocks.servers.ur.process import MockUrProcess
-from trackcal.mocks.servers.ur.server import RTDE_PORT, RtdeSession
+from trackcal.mocks.servers.ur.server import (
+    DASHBOARD_PORT,
+    PRIMARY_PORT,
+    REALTIME_PORT,
+    RTDE_PORT,
+    SECONDARY_PORT,
+    RtdeSession,
+)
 
 sys.path.insert(0, str(ROOT / "tests" / "thirdparty"))
 from rtde import rtde as ur_rtde_py  # noqa: E402  (UR's client, vendored: tests/thirdparty/rtde/VENDORED.md)
@@ -54,7 +79,10 @@ def test_ur_rtde_reads_moves_and_stops():
         c = rtde_control.RTDEControlInterface(host)
         d = dashboard_client.DashboardClient(host)
         d.connect()
+        seen: list[tuple[float, ...]] = []
+        follower = JointFollower(host, seen.append).start()  # the twin's side: joints in degrees
         try:
+            assert follower.fresh(5.0) and follower.q_deg == (0.0,) * 6
             assert r.getActualQ() == [0.0] * 6
             # UR's published UR10 DH at q = 0: the flange at (a2 + a3, -(d4 + d6), d1 - d5); the mock's factory
             # calibration moves it by a few tenths of a millimetre
@@ -71,6 +99,7 @@ def test_ur_rtde_reads_moves_and_stops():
             # the receive interface's frames trail the control interface's by a cycle or two
             assert wait_until(lambda: r.getActualQ() == pytest.approx(target, abs=1e-4), 1.0)
             assert ur.state()["q"] == target  # the controller ends the profile on the target exactly
+            assert follower.fresh() and follower.q_deg == pytest.approx([math.degrees(v) for v in target], abs=1e-9)
 
             far = [1.3, -1.2, 1.1, -1.0, -1.4, 0.5]  # 1 rad on the base at 0.5 rad/s: 2+ s
             assert c.moveJ(far, 0.5, 1.0, True)
@@ -84,7 +113,23 @@ def test_ur_rtde_reads_moves_and_stops():
             time.sleep(0.1)
             assert r.getActualQ() == stopped  # and stands
             assert ur.state()["commands"] == [MOVEJ, MOVEJ, STOPJ]
+            assert ur.state()["out_int_upper"][0] == 0  # the lower range in use
+            assert len(seen) == follower.frames and seen[-1] == follower.q_deg
+
+            # a client on the upper range registers (24..): its script says so, the mock answers there
+            c.stopScript()
+            c.disconnect()
+            flags = rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
+            c = rtde_control.RTDEControlInterface(
+                host, -1.0, flags | rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT
+            )
+            assert c.moveJ(target, 1.05, 1.4)
+            state = ur.state()
+            # the answer went out on output_int_register_24 (2 done, then 1 ready once the client cleared)
+            assert state["reg_offset"] == [24, 24] and state["out_int_upper"][0] in (1, 2)
+            assert state["commands"] == [MOVEJ, MOVEJ, STOPJ, 255, MOVEJ]  # 255: stopScript
         finally:
+            follower.stop()
             c.stopScript()
             for client in (c, r, d):
                 client.disconnect()
@@ -118,10 +163,31 @@ def test_ur_rtde_protective_stop_then_recovery():
             assert wait_until(c.isProgramRunning, 5.0)
             assert c.moveJ(target, 1.05, 1.4)
             assert wait_until(lambda: r.getActualQ() == pytest.approx(target, abs=1e-4), 1.0)
+
+            # a safeguard stop (a door) pauses the move and the program; its reset resumes both
+            back = [0.45, *target[1:]]
+            assert c.moveJ(back, 0.1, 1.0, True)  # 3.5 s of travel: the stop lands mid-move even on a loaded machine
+            assert wait_until(lambda: r.getActualQ()[0] < 0.75)
+            ur.inject("safeguard_stop")
+            assert wait_until(lambda: r.getSafetyMode() == SAFEGUARD_STOP and r.getSafetyStatusBits() & (1 << 4), 2.0)
+            assert wait_until(lambda: not ur.state()["moving"], 2.0) and ur.state()["runtime_state"] == PAUSED
+            held = r.getActualQ()[0]
+            assert 0.45 < held < 0.75
+            ur.inject("safeguard_reset")
+            assert wait_until(lambda: r.getActualQ() == pytest.approx(back, abs=1e-4), 20.0)
+            assert c.isProgramRunning()
         finally:
             c.stopScript()
             for client in (c, r, d):
                 client.disconnect()
+
+
+def _connects(host: str, port: int) -> bool:
+    try:
+        socket.create_connection((host, port), timeout=1.0).close()
+    except OSError:
+        return False
+    return True
 
 
 def _unlock(d) -> bool:
@@ -131,6 +197,14 @@ def _unlock(d) -> bool:
         assert "Cannot unlock protective stop until 5s after occurrence" in str(exc)
         return False
     return True
+
+
+def test_ur_rtde_refuses_a_robot_in_local_control():
+    host = "127.0.0.125"
+    with MockUrProcess(host, seed=7, args=["--local"]) as ur:
+        with pytest.raises(RuntimeError, match="remote control"):  # ur_rtde asks `is in remote control` (5.6+)
+            rtde_control.RTDEControlInterface(host)
+        assert ur.state()["scripts"] == []
 
 
 # ----------------------------------------------------------------------------------------------- UR's client
@@ -160,6 +234,12 @@ def test_urs_python_client_reads_its_own_recipe():
             assert all(f.actual_q == pytest.approx(HOME) and f.robot_mode == 7 and f.safety_status_bits == 1
                        for f in frames)  # fmt: skip
 
+            assert con.send_pause()  # 'P': answered, and no frame after the answer
+            time.sleep(0.2)
+            assert not con.has_data()
+            assert con.send_start()
+            assert con.receive() is not None
+
             ur.inject("stale")  # frames stop, the connection stays
             con.receive()  # one may have been on its way
             assert con.receive() is None  # the client's 1 s timeout
@@ -171,6 +251,11 @@ def test_urs_python_client_reads_its_own_recipe():
                     con.receive()
         finally:
             con.disconnect()
+
+        ur.inject("unreachable 1.5")  # gone from the network: refused, then back
+        with pytest.raises(OSError):
+            socket.create_connection((host, RTDE_PORT), timeout=1.0).close()
+        assert wait_until(lambda: _connects(host, RTDE_PORT), 10.0)
 
         # NOT_FOUND and IN_USE, as the client's serializer reads them
         a, b = ur_rtde_py.RTDE(host, RTDE_PORT), ur_rtde_py.RTDE(host, RTDE_PORT)
@@ -200,6 +285,49 @@ def test_garbage_closes_the_connection_and_the_mock_serves_on():
         assert r.getActualQ() == pytest.approx(HOME)
         r.disconnect()
         assert any("RTDE" in e for e in ur.state()["errors"])
+
+        # the primary interface: the version message, then robot state with the arm's calibrated DH
+        with socket.create_connection((host, PRIMARY_PORT), timeout=5) as s:
+            version = _primary_message(s)
+            assert version[0] == ROBOT_MESSAGE and version[1][9] == 3  # VERSION
+            name_len = version[1][10]
+            assert version[1][11 : 11 + name_len] == b"URControl"
+            assert struct.unpack_from(">BBii", version[1], 11 + name_len) == (5, 11, 1, 108318)
+            state = _primary_message(s)
+            assert state[0] == ROBOT_STATE and state[1][4] == KINEMATICS_INFO
+            assert parse_kinematics_info(state[1]) == factory_calibration(6)
+
+        # garbage on every other port: the mock answers what it can, closes what it cannot, and serves on
+        noise = random.Random(6)
+        for port in (DASHBOARD_PORT, PRIMARY_PORT, SECONDARY_PORT, REALTIME_PORT):
+            with socket.create_connection((host, port), timeout=5) as s:
+                s.sendall(bytes(noise.randrange(256) for _ in range(5000)) + b"\nrobotmode\n")
+        d = dashboard_client.DashboardClient(host)
+        d.connect()
+        assert d.robotmode() == "Robotmode: RUNNING"
+        d.disconnect()
+        assert ur.state()["runtime_state"] != PLAYING  # no program came of it
+
+        # the command line: a mistake is one line and exit 2, also an address in use
+        for args in (["--q0-deg", "1,2"], ["--host", host]):
+            done = subprocess.run([sys.executable, "-m", "trackcal.mocks.servers.ur", *args], capture_output=True,
+                                  text=True, timeout=60)  # fmt: skip
+            assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def _primary_message(s: socket.socket) -> tuple[int, bytes]:
+    """(type, body) of one primary-interface message: int32 length (header included), uint8 type."""
+
+    def exactly(n: int) -> bytes:
+        buf = b""
+        while len(buf) < n:
+            chunk = s.recv(n - len(buf))
+            assert chunk
+            buf += chunk
+        return buf
+
+    length, kind = struct.unpack(">iB", exactly(5))
+    return kind, exactly(length - 5)
 
 
 # ----------------------------------------------------------------------------------------------- framing
@@ -396,3 +524,58 @@ def test_kinematics_info_round_trip():
     data = kinematics_info(cal)
     assert len(data) == 5 + 6 * 4 + 4 * 6 * 8 + 4  # Client Interface: header, 6 uint32, 4 x 6 double, uint32
     assert parse_kinematics_info(data) == cal
+
+
+def test_safeguard_stop_pauses_and_reset_resumes_the_move():
+    ctl = _started()
+    target = [HOME[0] + 0.6, *HOME[1:]]
+    _command(ctl, MOVEJ, [*target, 1.0, 1.4])
+    _run_ticks(ctl, 150)
+    ctl.safeguard_stop()
+    assert ctl.safety_mode == SAFEGUARD_STOP and ctl.safety_status_bits & (1 << 4) and ctl.runtime_state == PAUSED
+    _run_ticks(ctl, 500)
+    held = ctl.motion.q
+    assert not ctl.motion.moving and ctl.out_int[0] == 1  # braked on the path, the movej not done
+    assert held[0] < target[0]
+    ctl.safeguard_reset()
+    while ctl.out_int[0] != 2:
+        ctl.step()
+    assert list(ctl.motion.q) == target and ctl.safety_mode == NORMAL and ctl.runtime_state == PLAYING
+
+
+def test_faults_scheduled_halfway_through_a_move():
+    ctl = _started()
+    ctl.fault_on_move[1] = "stale"
+    ctl.protective_stop_on_move = 2
+    _command(ctl, MOVEJ, [HOME[0] + 0.5, *HOME[1:], 1.0, 1.4])
+    ctl.step()  # the script reads the command
+    assert ctl.motion.path is not None
+    _run_ticks(ctl, round(ctl.motion.path.total / 2 / TICK_S) - 2)
+    assert ctl.events == []
+    _run_ticks(ctl, 4)
+    assert ctl.events == ["stale"]  # for the server: frames stop
+    while ctl.out_int[0] != 2:
+        ctl.step()
+    _command(ctl, 0)
+    ctl.step()
+    _command(ctl, MOVEJ, [HOME[0], *HOME[1:], 1.0, 1.4])
+    _run_ticks(ctl, 2000)
+    assert ctl.safety_mode == PROTECTIVE_STOP and ctl.motion.q[0] != HOME[0]
+
+
+def test_async_stopj_answers_at_once_and_reports_progress():
+    ctl = _started()
+    _command(ctl, MOVEJ, [HOME[0] + 1.0, *HOME[1:], 1.0, 1.4], async_flag=1)
+    ctl.step()
+    assert ctl.out_int[0] == 2 and ctl.out_int[2] & 32768  # done at once; bit 15: an async operation runs
+    _command(ctl, 0)
+    _run_ticks(ctl, 300)
+    _command(ctl, STOPJ, [0.5], async_flag=1)  # exec_stopl_stopj with async = 1: a stop thread
+    ctl.step()
+    assert ctl.out_int[0] == 2 and ctl.out_int[2] & 32768 and ctl.motion.moving
+    _command(ctl, 0)
+    while ctl.motion.moving:
+        ctl.step()
+    ctl.step()
+    assert not ctl.out_int[2] & 32768  # finished once the arm stands
+    assert ctl.motion.q[0] < HOME[0] + 1.0

@@ -10,6 +10,8 @@ import math
 import signal
 import sys
 
+from trackcal.calib.model.cell import CellError, load_robot
+from trackcal.calib.model.chain import ChainError
 from trackcal.mocks.servers.ur.controller import HOME_RAD, UrController
 from trackcal.mocks.servers.ur.server import CONTROL_PORT, UrServer
 
@@ -31,11 +33,17 @@ def _version(text: str) -> tuple[int, int, int, int]:
     return tuple(int(p) for p in parts)  # type: ignore[return-value]
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2 (the house rule; argparse prints its usage too)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m trackcal.mocks.servers.ur",
+    p = _Parser(prog="python -m trackcal.mocks.servers.ur",
                                 description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
                                             "script ports 30001-30003) on one address.")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--robot", default="ur10", help="robot model of configs/robots (joint limits; default ur10)")
     p.add_argument("--seed", type=int, default=0, help="serial number, factory calibration, timestamps (default 0)")
     p.add_argument("--q0-deg", type=_joints, default=HOME_RAD, help="initial joints, 6 comma-separated deg")
     p.add_argument(
@@ -70,6 +78,20 @@ def parser() -> argparse.ArgumentParser:
         help="stop sending RTDE frames halfway through the N-th movej (connections stay open)",
     )
     p.add_argument(
+        "--unreachable-on-move",
+        type=int,
+        default=0,
+        metavar="N",
+        help="halfway through the N-th movej, close every connection and refuse new ones for --unreachable-s",
+    )
+    p.add_argument("--unreachable-s", type=float, default=10.0, help="seconds unreachable (default 10)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="controller seconds per wall second (default 1; faster sends fewer frames, each of its own tick)",
+    )
+    p.add_argument(
         "--control-port",
         type=int,
         default=CONTROL_PORT,
@@ -80,17 +102,38 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    if args.unlock_delay_s < 0:
-        print(f"{parser().prog}: error: --unlock-delay-s must be >= 0", file=sys.stderr)
+    for name, value, ok in (("--unlock-delay-s", args.unlock_delay_s, args.unlock_delay_s >= 0),
+                             ("--unreachable-s", args.unreachable_s, 0 <= args.unreachable_s <= 3600),
+                             ("--speed", args.speed, 0 < args.speed <= 100)):  # fmt: skip
+        if not ok or not math.isfinite(value):
+            print(f"{parser().prog}: error: {name} out of range: {value}", file=sys.stderr)
+            return 2
+    try:
+        chain, _ = load_robot(args.robot)
+    except (CellError, ChainError, OSError) as exc:
+        print(f"{parser().prog}: error: --robot {args.robot}: {exc}", file=sys.stderr)
         return 2
-    ctl = UrController(seed=args.seed, q0=args.q0_deg, version=args.version, unlock_delay_s=args.unlock_delay_s,
-                       remote_control=not args.local, powered=not args.powered_off,
-                       protective_stop_on_move=args.protective_stop_on_move)  # fmt: skip
+    if chain.dof != 6:
+        print(f"{parser().prog}: error: --robot {args.robot} has {chain.dof} joints, a UR has 6", file=sys.stderr)
+        return 2
+    limits = [(float(lo), float(hi)) for lo, hi in chain.limits_array()]
+    ctl = UrController(
+        seed=args.seed,
+        q0=args.q0_deg,
+        version=args.version,
+        unlock_delay_s=args.unlock_delay_s,
+        remote_control=not args.local,
+        limits=limits,
+        powered=not args.powered_off,
+        protective_stop_on_move=args.protective_stop_on_move,
+    )
     if args.drop_on_move:
         ctl.fault_on_move[args.drop_on_move] = "drop"
     if args.stale_on_move:
         ctl.fault_on_move[args.stale_on_move] = "stale"
-    server = UrServer(ctl, args.host, args.control_port)
+    if args.unreachable_on_move:
+        ctl.fault_on_move[args.unreachable_on_move] = f"unreachable {args.unreachable_s}"
+    server = UrServer(ctl, args.host, args.control_port, speed=args.speed)
     try:
         server.start()
     except OSError as exc:

@@ -14,8 +14,10 @@ What it keeps, with the public source of each rule:
   movej (1): q in input_double_register_0..5, velocity 6, acceleration 7, async flag input_int_register_1; an
   asynchronous move runs in a thread that writes the async progress register (output_int_register_2: bits 24-30
   operation id, 16-23 write count, bit 15 running; -1 written as finished). stopj (34) / stopl (33): deceleration
-  in input_double_register_0. protective_stop (31). Other ids are not emulated: the script ends with a runtime
-  error text, as a failing real script would, so a client sees the program stop instead of a fake success.
+  in input_double_register_0, async flag in input_int_register_1 (exec_stopl_stopj: the stop runs in a thread that
+  reports on the async progress register). protective_stop (31). Other ids are not emulated: the script ends with a
+  runtime error text, as a failing real script would, so a client sees the program stop instead of a fake success.
+  The script text ur_rtde sends (control port `script`) was read to check these: 1175 lines, the main loop above.
 - Motion (motion.py) at the 500 Hz tick; a protective or safeguard stop brakes the arm at `stop_decel` (a
   category 2 stop: decelerate on the path, then hold).
 - A protective stop ends the running program (ur_rtde's documented recovery: unlockProtectiveStop through the
@@ -64,7 +66,9 @@ HOME_RAD = (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)
 STOP_DECEL = 10.0
 
 _SCRIPT_ID = re.compile(r"^def rtde_control\(\):", re.M)
-_REG_OFFSET = re.compile(r"global reg_offset_(int|float)\s*=\s*(\d+)")
+# ur_rtde 1.6.5 writes the offset after the template line's comment, at the start of the next line
+# ("global reg_offset_int = # int register offset\n24    global ..."): URScript reads the assignment on
+_REG_OFFSET = re.compile(r"global reg_offset_(int|float)\s*=\s*(?:#[^\n]*)?\s*(\d+)")
 _PROGRAM = re.compile(r"^(?:def|sec)\s+(\w+)\s*\(\s*\)\s*:", re.M)
 
 
@@ -105,9 +109,11 @@ class UrController:
         self.inputs: dict[str, object] = {}  # other RTDE inputs (speed slider, outputs masks ...)
         self.tcp = (0.0, 0.0, 0.0)
         self.payload = 0.0
-        self.messages: list[tuple[str, int]] = []  # text messages for RTDE clients (text, level)
+        self.messages: list[tuple[int, str, int]] = []  # text messages for RTDE clients (number, text, level)
+        self.message_count = 0
         self.log: list[str] = []  # controller log (for tests and people)
         self.scripts: list[str] = []  # names of the programs received
+        self.last_script = ""  # text of the last program received (control port: `script`)
         self.commands: list[int] = []  # control script command ids processed
         self.moves = 0  # movej commands started
         self.safety_since_tick = 0
@@ -115,6 +121,7 @@ class UrController:
         self._scheduled: list[tuple[int, str]] = []  # (tick, what)
         self.fault_on_move: dict[int, str] = {}  # move number -> "drop" | "stale" (server faults)
         self._prev_qd = self.motion.qd
+        self._pose_cache: tuple[object, tuple[float, ...]] = (None, ())
         self._paused_move: tuple[tuple[float, ...], float, float] | None = None
         self._reset_script()
 
@@ -126,6 +133,7 @@ class UrController:
         self._executing = False
         self._busy: str | None = None  # "move" | "stop": a blocking command waiting for the arm
         self._async_move = False
+        self._async_stop = False
         self._async_wr = 0
         self._async_op = 0
         self._move_args: tuple[tuple[float, ...], float, float] | None = None
@@ -139,7 +147,8 @@ class UrController:
 
     def _say(self, text: str, level: int = rc.INFO_MESSAGE) -> None:
         self.log.append(text)
-        self.messages.append((text, level))
+        self.message_count += 1
+        self.messages.append((self.message_count, text, level))
         del self.messages[:-64]
         del self.log[:-1000]
 
@@ -148,9 +157,13 @@ class UrController:
         """A program arrived on a script port: it replaces the running one (UR Script Manual: a program sent to
         the secondary/real-time interface stops the running program)."""
         with self.lock:
+            self.last_script = text
             m = _PROGRAM.search(text)
             name = m.group(1) if m else "<unnamed>"
             self.scripts.append(name)
+            if not self.remote_control:  # local mode: programs from the network are not run
+                self._say(f"program {name} refused: the robot is in local control", rc.ERROR_MESSAGE)
+                return
             self._end_program("replaced by a new program")
             if not _SCRIPT_ID.search(text):
                 self._say(f"program {name} received: the mock runs ur_rtde's rtde_control only, ended at once",
@@ -175,7 +188,7 @@ class UrController:
             if self._busy == "move" or self._async_move:
                 self.motion.stop(self.stop_decel)
         self.runtime_state = STOPPED
-        self._busy, self._async_move, self._paused_move = None, False, None
+        self._busy, self._async_move, self._async_stop, self._paused_move = None, False, False, None
 
     def dashboard_stop(self) -> bool:
         with self.lock:
@@ -318,6 +331,9 @@ class UrController:
         if self._async_move and not self.motion.moving and self._paused_move is None:
             self._async_move = False
             self._write_async(-1)  # move_thread: signal_async_operation_finished()
+        if self._async_stop and not self.motion.moving:
+            self._async_stop = False
+            self._write_async(-1)  # stop_thread: signal_async_operation_finished()
         if self._busy is not None:
             if self.motion.moving or self._paused_move is not None:
                 return
@@ -363,11 +379,21 @@ class UrController:
                 self._write_async(0)  # signal_async_operation_started()
             else:
                 self._busy = "move"
-        elif cmd in (STOPJ, STOPL):
+        elif cmd in (STOPJ, STOPL):  # exec_stopl_stopj: deceleration in double 0, async flag in int 1
             decel = self._floats(0, 1)[0]
-            self._stop_async_move(decel)
-            if self.motion.moving:
-                self.motion.stop(decel if decel > 0 else self.stop_decel)
+            decel = decel if decel > 0 else self.stop_decel
+            stop_move = not self._async_stop  # a running async stop already stops the move
+            if self._async_stop:  # kill stop_thrd: signal_async_operation_finished()
+                self._async_stop = False
+                self._write_async(-1)
+            if stop_move:
+                self._stop_async_move(decel)
+            if self.in_int[1 + off] == 1:  # stop_thrd = run stop_thread(): started now, finished when still
+                self._async_stop = True
+                self._write_async(0)
+                self.motion.stop(decel)
+            elif self.motion.moving:
+                self.motion.stop(decel)
                 self._busy = "stop"
         elif cmd == PROTECTIVE_STOP_CMD:
             self.protective_stop("protective_stop() called by the script")
@@ -442,7 +468,9 @@ class UrController:
         if name == "target_qdd":
             return tuple((a - b) / TICK_S for a, b in zip(qd, self._prev_qd, strict=True))
         if name in ("actual_TCP_pose", "target_TCP_pose"):
-            return tcp_pose(q, self.calibration, self.tcp)
+            if self._pose_cache[0] != (q, self.tcp):
+                self._pose_cache = ((q, self.tcp), tcp_pose(q, self.calibration, self.tcp))
+            return self._pose_cache[1]
         if name == "robot_mode":
             return self.robot_mode
         if name == "joint_mode":
@@ -496,4 +524,5 @@ class UrController:
                     "runtime_state": self.runtime_state, "program": self.program, "moves": self.moves,
                     "commands": list(self.commands), "scripts": list(self.scripts), "log": self.log[-20:],
                     "out_int": self.out_int[:4], "in_int": self.in_int[:2], "busy": self._busy,
+                    "reg_offset": [self.reg_int, self.reg_float], "out_int_upper": self.out_int[24:28],
                     "executing": self._executing, "async_move": self._async_move}  # fmt: skip

@@ -22,8 +22,8 @@ import re
 import socket
 import struct
 import threading
-import time
 
+from trackcal.drivers.interfaces import RealClock
 from trackcal.mocks.servers.ur import dashboard, primary
 from trackcal.mocks.servers.ur import rtde_codec as rc
 from trackcal.mocks.servers.ur.controller import UrController
@@ -31,7 +31,8 @@ from trackcal.mocks.servers.ur.motion import TICK_S
 
 RTDE_PORT, DASHBOARD_PORT, PRIMARY_PORT, SECONDARY_PORT, REALTIME_PORT = 30004, 29999, 30001, 30002, 30003
 CONTROL_PORT = 30999  # the mock's own (not a UR port)
-MAX_FREQUENCY = 500.0  # e-Series (RTDE guide: 1..500 Hz; CB3 1..125)
+MAX_FREQUENCY = {True: 500.0, False: 125.0}  # e-Series (major version > 3) / CB3 (RTDE guide: 1..500 Hz; 1..125)
+TICK_HZ = 1.0 / TICK_S
 PRIMARY_PERIOD_S = 0.1  # robot state messages at 10 Hz on the primary / secondary interfaces (Client Interface doc)
 MAX_CATCH_UP = 25  # ticks run at once when the process was descheduled (50 ms); beyond, controller time slips
 SEND_TIMEOUT_S = 2.0
@@ -51,6 +52,8 @@ class RtdeSession:
         self._next_output_id = 1
         self._next_input_id = 1
         self.frames_sent = 0
+        with server.ctl.lock:
+            self.messages_seen = server.ctl.message_count
 
     def send(self, data: bytes) -> None:
         with self.wlock:
@@ -82,7 +85,8 @@ class RtdeSession:
             else:
                 frequency, names = 125.0, rc.split_names(payload)
             types = tuple(rc.output_type(n) for n in names)
-            ok = bool(names) and rc.NOT_FOUND not in types and 1.0 <= frequency <= MAX_FREQUENCY
+            top = MAX_FREQUENCY[ctl.version[0] > 3]
+            ok = bool(names) and rc.NOT_FOUND not in types and 1.0 <= frequency <= top
             rid = 0
             if ok:
                 rid, self._next_output_id = self._next_output_id, min(255, self._next_output_id + 1)
@@ -133,12 +137,19 @@ class RtdeSession:
     def due(self, tick: int) -> bool:
         """A frame of the output recipe belongs to controller tick `tick`."""
         f = self.output.frequency if self.output else 0.0
-        return f > 0 and int(tick * f / MAX_FREQUENCY) != int((tick - 1) * f / MAX_FREQUENCY)
+        return f > 0 and int(tick * f / TICK_HZ) != int((tick - 1) * f / TICK_HZ)
 
 
 class UrServer:
-    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT) -> None:
+    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT,
+                 speed: float = 1.0, clock=None) -> None:  # fmt: skip
+        """`clock` paces the ticks (now() / sleep(), default the wall clock, drivers.interfaces.RealClock); the
+        controller itself counts ticks and reads no clock."""
+        if not speed > 0:
+            raise ValueError("speed must be positive")
         self.ctl, self.host = ctl, host
+        self.clock = clock or RealClock()
+        self.speed = float(speed)  # controller seconds per wall second
         self.ports = {"rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "primary": PRIMARY_PORT,
                       "secondary": SECONDARY_PORT, "realtime": REALTIME_PORT, "control": control_port}  # fmt: skip
         self.rtde: list[RtdeSession] = []
@@ -238,24 +249,35 @@ class UrServer:
 
     # ------------------------------------------------------------------ tick
     def _tick_loop(self) -> None:
-        next_t = time.monotonic()
+        """Controller ticks at `speed` x 500 per wall second. At speed 1 every frame of every tick is sent (after a
+        stall, the missed ones at once, up to MAX_CATCH_UP ticks; beyond, controller time slips). Faster than real
+        time, each connection gets the newest frame due in each 2 ms of wall time (fewer frames, each the state of
+        its own tick)."""
+        period = TICK_S / self.speed if self.speed < 1 else TICK_S
+        per_wake = max(1, round(self.speed))
+        next_t = self.clock.now()
         while not self._stop.is_set():
-            now = time.monotonic()
+            now = self.clock.now()
             if now < next_t:
-                time.sleep(next_t - now)
+                self.clock.sleep(next_t - now)
                 continue
-            n = int((now - next_t) / TICK_S) + 1
-            if n > MAX_CATCH_UP:
-                next_t = now - (MAX_CATCH_UP - 1) * TICK_S
-                n = MAX_CATCH_UP
-            next_t += n * TICK_S
+            late = int((now - next_t) / period) + 1
+            if late > MAX_CATCH_UP:
+                next_t = now - (MAX_CATCH_UP - 1) * period
+                late = MAX_CATCH_UP
+            next_t += late * period
             sessions = [s for s in self.rtde if s.started and not s.closed and s.output is not None]
+            first, n = self.ctl.tick + 1, late * per_wake
+            wanted: dict[int, list[RtdeSession]] = {}  # tick -> connections that get that tick's frame
+            for sess in sessions:
+                ticks = [t for t in range(first, first + n) if sess.due(t)]
+                for t in ticks if per_wake == 1 else ticks[-1:]:
+                    wanted.setdefault(t, []).append(sess)
             frames: list[tuple[RtdeSession, bytes]] = []
             for _ in range(n):
                 self.ctl.step()
-                due = [s for s in sessions if s.due(self.ctl.tick)]
-                if due and not self.stale:  # each frame holds the state of its own tick
-                    frames.extend((s, self._pack_frame(s)) for s in due)
+                if not self.stale:  # each frame holds the state of its own tick
+                    frames.extend((sess, self._pack_frame(sess)) for sess in wanted.get(self.ctl.tick, ()))
             self._events()
             for sess, data in frames:
                 self._send_frame(sess, data)
@@ -267,15 +289,16 @@ class UrServer:
 
     def _send_frame(self, sess: RtdeSession, data: bytes) -> None:
         try:
-            with self.ctl.lock:
-                messages, self.ctl.messages = self.ctl.messages, []
+            with self.ctl.lock:  # each connection gets every message once, from its start on
+                messages = [m for m in self.ctl.messages if m[0] > sess.messages_seen]
+                sess.messages_seen = self.ctl.message_count
             with sess.wlock:
                 if not sess.started or sess.closed:
                     return
                 sess.sock.sendall(data)
             sess.frames_sent += 1
             self.frames += 1
-            for text, level in messages:
+            for _, text, level in messages:
                 if sess.protocol >= 2:
                     sess.send(rc.pack_text(text, "Controller", level))
         except OSError:
@@ -400,6 +423,9 @@ class UrServer:
                         self.ctl.state()
                         | {"frames": self.frames, "stale": self.stale, "errors": self.errors[-10:], "recipes": recipes}
                     )
+                elif cmd == "script":
+                    with self.ctl.lock:
+                        reply = json.dumps(self.ctl.last_script)
                 elif cmd == "quit":
                     conn.sendall(b"ok\n")
                     self.stop()
