@@ -111,7 +111,6 @@ def test_mock_writes_a_ur_hardware_file_and_run_hardware_measures_the_sim_rows(p
     assert proc.returncode == 0 and "Traceback" not in stderr, stderr
 
 
-@pytest.mark.slow  # about 40-100 s: 18 settle windows of 1 s in the controller's real time (engine settings)
 def test_one_pose_over_the_mock_ur_measures_the_sim_rows(one_pose, ur_mock, tmp_path):
     """The default (fast) check: one pose, both stations, the three nests, against `run --sim` of the same seed."""
     _, hw = ur_mock

@@ -8,7 +8,6 @@ import threading
 import time
 
 import pytest
-import rtde_receive
 
 from trackcal.campaign.cells.checks import motion_guard
 from trackcal.drivers.errors import DeviceFault
@@ -16,35 +15,28 @@ from trackcal.drivers.interfaces import RealClock
 from trackcal.drivers.plc.client import ModbusCellIO
 from trackcal.drivers.ur.client import UrRtde
 from trackcal.mocks.servers.plc import MockPlc
+from trackcal.mocks.servers.ur.follow import JointFollower
 from trackcal.mocks.servers.ur.process import MockUrProcess
 
 HOST = "127.0.0.29"
 CYCLE_S = 0.002  # RTDE at 500 Hz (e-Series; RTDE guide)
 
 
-class Watcher:
-    """(monotonic time, controller time, q rad, qd rad/s) of every new frame, from a receive client of its own."""
+class Watcher(JointFollower):
+    """Every frame of the controller's stream, in order (a reader of its own: mocks/servers/ur/follow.py), as
+    (controller time s, q rad)."""
 
     def __init__(self, host: str) -> None:
-        self.rx = rtde_receive.RTDEReceiveInterface(host)
-        self.frames: list[tuple[float, float, list[float], list[float]]] = []
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
+        super().__init__(host, lambda q: None)
+        self.seen: list[tuple[float, tuple[float, ...]]] = []
+        self.start()
 
-    def run(self) -> None:
-        stamp = None
-        while not self.stop.is_set():
-            t = self.rx.getTimestamp()
-            if t != stamp:
-                stamp = t
-                self.frames.append((time.monotonic(), t, self.rx.getActualQ(), self.rx.getActualQd()))
-            time.sleep(0.0005)
+    def _frame(self, recipe, body) -> None:
+        super()._frame(recipe, body)
+        self.seen.append((self.timestamp, tuple(math.radians(v) for v in self.q_deg)))
 
     def close(self) -> None:
-        self.stop.set()
-        self.thread.join(timeout=2)
-        self.rx.disconnect()
+        self.stop()
 
 
 @pytest.fixture
@@ -86,24 +78,25 @@ def test_door_opened_20_ms_into_a_move_brakes_within_the_braking_distance_then_s
         robot.move(target, 100)
     assert exc.value.code == "stopped" and 34 in ur.state()["commands"]  # ur_rtde STOPJ reached the script
     time.sleep(0.3)
-    frames = list(watcher.frames)
+    frames = list(watcher.seen)
     sent = robot.stop_sent_at
     assert sent is not None and opened_at and sent >= opened_at[0]
-    # braking starts at the frame of the highest speed (the stopJ reached the controller's cycle there): from it, the
+    # joint speeds from consecutive frames (every frame of the stream, in order)
+    speeds = [tuple((b - a) / (t1 - t0) for a, b in zip(q0, q1, strict=True))
+              for (t0, q0), (t1, q1) in zip(frames, frames[1:], strict=False) if t1 > t0]  # fmt: skip
+    # braking starts at the frame of the highest speed (stopJ reached the controller's cycle there): from it the
     # joints decelerate together to rest in the time the leading one needs at stopJ's deceleration, each travelling
-    # |v| t / 2; allowed on top: two RTDE cycles at that speed and the 0.0001 deg step
-    moving = [f for f in frames if f[1] >= (robot.stop_seen or 0.0) - 0.1]
-    k = max(range(len(moving)), key=lambda i: max(abs(v) for v in moving[i][3]))
-    _, _, q_stop, qd_stop = moving[k]
-    after = moving[k:]
-    a = math.radians(robot.stop_deceleration_deg_s2)
-    t_stop = max(abs(v) for v in qd_stop) / a
-    rest = after[-1][2]
-    assert max(abs(v) for v in qd_stop) > 0  # it was moving when it braked
-    for q0, v, q1 in zip(q_stop, qd_stop, rest, strict=True):
+    # |v| t / 2; allowed on top: two RTDE cycles at that speed (the frame seen, the command's cycle) and the
+    # 0.0001 deg step
+    k = max(range(len(speeds)), key=lambda i: max(abs(v) for v in speeds[i]))
+    v_stop, q_stop = speeds[k], frames[k + 1][1]
+    assert max(abs(v) for v in v_stop) > 0  # it was moving when it braked
+    t_stop = max(abs(v) for v in v_stop) / math.radians(robot.stop_deceleration_deg_s2)
+    rest = frames[-1][1]
+    for q0, v, q1 in zip(q_stop, v_stop, rest, strict=True):
         assert abs(q1 - q0) <= abs(v) * t_stop / 2 + abs(v) * 2 * CYCLE_S + math.radians(1e-4)
     # then still: the last 50 frames (0.1 s) report the same joints, short of the target
-    tail = [f[2] for f in after[-50:]]
+    tail = [q for _, q in frames[-50:]]
     assert all(q == tail[0] for q in tail)
     assert max(abs(math.degrees(q) - t) for q, t in zip(tail[0], target, strict=True)) > 1.0
     print(f"door open -> stopJ sent: {1000 * (sent - opened_at[0]):.1f} ms (wall clock, loaded machine)")

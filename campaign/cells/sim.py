@@ -51,7 +51,7 @@ class TwinMocks:
         if cell.chain.dof != len(HOME_DEG):
             raise InputError(f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has "
                              f"{cell.chain.dof}")  # fmt: skip
-        self.cell, self.seed = cell, seed
+        self.cell, self.seed, self.speed = cell, seed, speed
         self.clock = VirtualClock(real_fraction=0.0 if not speed else 1.0 / speed)
         self.world = World(Twin(cell, seed=seed, effects=effects or {}), self.clock)
         if measured:
@@ -99,7 +99,7 @@ class TwinMocks:
             raise InputError(f"cell {self.cell.name}: no mock controller for the robot's controller {family!r} "
                              f"(mocks serve: {', '.join(served) or 'none'})")  # fmt: skip
         self.world.robot_at(self.world.q_deg if self.world.q_deg.any() else HOME_DEG)
-        self.family_controller = served[family].serve(self.world, self.seed)
+        self.family_controller = served[family].serve(self.world, self.seed, self.speed)
         return self.family_controller.hardware()
 
     def controllers_connected(self) -> int:

@@ -1,25 +1,22 @@
 """The mock UR controller as the twin's robot for `trackcal mock` (mocks/controllers.py): the controller process
-(process.MockUrProcess) on a loopback address of its own (the UR ports are fixed: 29999, 30001-30004), and a
-follower that reads its RTDE stream with ur_rtde's RTDEReceiveInterface (in this process: the controller runs in
-another, so the client's constructor cannot hang it) and puts the twin's robot where the controller reports it,
-at every frame. Joint angles reach the world in degrees; the world rounds them to the 4 decimals the campaign
-stores, so a measurement's noise identity is that of `run --sim` at the same pose.
+(process.MockUrProcess) on a loopback address of its own (the UR ports are fixed: 29999, 30001-30004), and the
+follower (follow.JointFollower) that puts the twin's robot where the controller reports it, at every frame. Joint
+angles reach the world in degrees; the world rounds them to the 4 decimals the campaign stores, so a measurement's
+noise identity is that of `run --sim` at the same pose. The controller runs `speed` times faster than the wall
+clock (default SPEED: the twin's cell is simulated; `trackcal mock --sim-speed` sets another).
 
 Added by the driver side of issue 21 (branch h21-driver) to connect the mock to the twin's cell."""
 
 from __future__ import annotations
 
-import contextlib
-import math
 import socket
-import threading
 
-import rtde_receive
-
+from trackcal.mocks.servers.ur.follow import JointFollower
 from trackcal.mocks.servers.ur.process import MockUrProcess
 from trackcal.mocks.servers.ur.server import RTDE_PORT
 
 CONTROLLER = "ur"
+SPEED = 10.0  # controller seconds per wall second
 FIRST_HOST = 31  # 127.0.0.31 ... 127.0.0.254: the first address where nobody serves RTDE
 
 
@@ -35,29 +32,13 @@ def free_loopback() -> str:
 
 
 class TwinUr:
-    def __init__(self, world, seed: int, host: str | None = None) -> None:
+    def __init__(self, world, seed: int, speed: float | None = None, host: str | None = None) -> None:
         self.world = world
         self.host = host or free_loopback()
         q0 = ",".join(f"{v:.4f}" for v in world.q_deg)
-        self.process = MockUrProcess(self.host, seed=seed, args=["--q0-deg", q0]).start()
-        self._stop = threading.Event()
-        try:
-            self._rx = rtde_receive.RTDEReceiveInterface(self.host)
-        except BaseException:
-            self.process.stop()
-            raise
-        self._thread = threading.Thread(target=self._follow, name="ur-twin-follower", daemon=True)
-        self._thread.start()
-
-    def _follow(self) -> None:
-        stamp = None
-        while not self._stop.is_set():
-            with contextlib.suppress(RuntimeError):
-                t = self._rx.getTimestamp()
-                if t != stamp:
-                    stamp = t
-                    self.world.robot_at([math.degrees(v) for v in self._rx.getActualQ()])
-            self._stop.wait(0.001)
+        self.process = MockUrProcess(self.host, seed=seed,
+                                     args=["--q0-deg", q0, "--speed", f"{speed or SPEED:g}"]).start()  # fmt: skip
+        self.follower = JointFollower(self.host, world.robot_at).start()
 
     def hardware(self) -> dict:
         """The robot section of the hardware file (campaign/cells/hardware.py, drivers/ur/family.py)."""
@@ -71,12 +52,9 @@ class TwinUr:
         return {"UR controller (dashboard 29999, RTDE 30004, script 30003)": self.host}
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        with contextlib.suppress(RuntimeError):
-            self._rx.disconnect()
+        self.follower.stop()
         self.process.stop()
 
 
-def serve(world, seed: int) -> TwinUr:
-    return TwinUr(world, seed)
+def serve(world, seed: int, speed: float | None = None) -> TwinUr:
+    return TwinUr(world, seed, speed)
