@@ -144,6 +144,8 @@ COMMANDS = [
                 arg("--out", required=True, help="CSV to write: the targets plus compensated angles and errors"),
                 arg("--tcp", help="X,Y,Z of the TCP in the last joint frame, mm (default: tool points centroid)"),
                 arg("--krl", metavar="NAME", help="also write a KR C2 program NAME.src / NAME.dat"),
+                arg("--program", metavar="NAME", help="also write the robot controller's program NAME: KRL, or "
+                    "NAME.script (URScript) for a robot whose controller is a UR"),
                 arg("--krl-dir", help="directory of the KRL program (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
             ]),
