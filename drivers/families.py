@@ -42,6 +42,10 @@ class RobotFamily:
     waiting: Callable[[dict], str]
     claim: Callable[[Robot], None] | None = None
     protocols: dict[str, tuple[str, ...]] | None = None
+    # the controller's own calibration, a standard DH table: factory_table(conf=PATH) -> the deltas of its
+    # calibration file, factory_table(host=ADDRESS) -> the calibrated table the controller sends; each as
+    # (theta rad, a mm, d mm, alpha rad, source, is_delta)
+    factory_table: Callable[..., tuple] | None = None
 
 
 def families() -> dict[str, RobotFamily]:

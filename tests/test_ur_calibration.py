@@ -3,14 +3,17 @@ of configs/robots/ur10.yaml, the deltas of a calibration.conf, and the calibrate
 primary interface (KINEMATICS_INFO) against the mock's own forward kinematics."""
 
 import math
+import subprocess
 
 import numpy as np
 import pytest
 
+from tests.helpers import TRACKCAL
 from trackcal.calib.model.cell import load_robot
 from trackcal.calib.model.dh import dh_chain
 from trackcal.calib.model.identifiability import random_configuration
 from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
 from trackcal.drivers.errors import ProtocolError
 from trackcal.drivers.ur.calibration import DhTable, read_calibration_conf, read_kinematics_info
 from trackcal.mocks.servers.ur.kinematics import factory_calibration, flange
@@ -83,3 +86,23 @@ def test_kinematics_info_of_the_mock_gives_the_mocks_own_forward_kinematics():
     # the factory table differs from the published one by its calibration (0.2 mm, 1e-4 rad deviations)
     nominal = points(dh_chain(UR10.theta, UR10.a_mm, UR10.d_mm, UR10.alpha, "n", ur10()), q)[0]
     assert 0.01 < np.abs(ours - nominal).max() < 5.0
+
+
+def test_factory_robot_writes_an_identifiable_robot_with_the_calibrated_lengths(tmp_path):
+    conf = tmp_path / "calibration.conf"
+    conf.write_text(CONF)
+    out = tmp_path / "robot.yaml"
+    r = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "ur10", "--conf", str(conf), "--out", str(out)],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "nominal: the factory calibration of" in r.stdout and "calibration.conf" in r.stdout
+    chain, doc = load_robot(str(out))
+    assert doc["controller"] == "ur" and len(irreducible_params(chain)[0]) == 18  # as the published UR10's
+    # the lengths are the calibrated ones: a2 = -612 + 0.2 mm, a3 = -572.3 - 0.1 mm, d1 = 127.3 + 0.1 mm; a theta
+    # offset turns a link by it: its x component is a cos(theta), 612 mm x (2e-5)^2 / 2 = 1.2e-7 mm shorter
+    assert chain.joints[1].translation[0] == pytest.approx(-611.8, abs=1e-6)
+    assert chain.joints[2].translation[0] == pytest.approx(-572.4, abs=1e-6)
+    assert chain.joints[0].translation[2] == pytest.approx(127.4, abs=1e-9)
+    bad = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "kr270", "--conf", str(conf), "--out", str(out)],
+                         capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1

@@ -22,9 +22,12 @@ from trackcal.calib.model.rigid import rot_axis
 
 
 def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[float], alpha_rad: Sequence[float],
-             name: str = "dh", template: Chain | None = None) -> Chain:  # fmt: skip
+             name: str = "dh", template: Chain | None = None, aligned: bool = False) -> Chain:  # fmt: skip
     """The chain of a standard DH table (mm, rad). `template`: a chain of the same number of joints whose joint
-    names, limits and masses are kept (its centres of mass are taken as given in the frames after the rotations)."""
+    names, limits and masses are kept (its centres of mass are taken as given in the frames after the rotations).
+    `aligned`: each link's fixed rotation rounded to the nearest quarter-turn rotation (the translations kept
+    exact), so that the parameter generation accepts the chain; the small rotations left out (a calibrated table's
+    theta and alpha deviations) are then what identification estimates as joint offsets and tilts."""
     rows = [np.asarray(v, dtype=float) for v in (theta_rad, a_mm, d_mm, alpha_rad)]
     n = len(rows[0])
     if n == 0 or any(r.shape != (n,) for r in rows) or not all(np.all(np.isfinite(r)) for r in rows):
@@ -36,8 +39,37 @@ def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[f
         rz = rot_axis(2, th)
         base = template.joints[i] if template is not None else None
         joints.append(Joint(name=base.name if base else f"J{i + 1}", axis=2, sign=1.0,
-                            translation=rz @ np.array([a, 0.0, d]), rotation=rz @ rot_axis(0, al),
+                            translation=rz @ np.array([a, 0.0, d]),
+                            rotation=_quarter_turns(rz @ rot_axis(0, al)) if aligned else rz @ rot_axis(0, al),
                             limits=base.limits if base else None, mass_kg=base.mass_kg if base else 0.0,
                             com=base.com if base else np.zeros(3)))  # fmt: skip
     base_tf = template.base if template is not None else np.eye(4)
     return Chain(name=name, base=base_tf, joints=tuple(joints))
+
+
+def _quarter_turns(r: np.ndarray) -> np.ndarray:
+    """The signed permutation matrix nearest to a rotation within a few degrees of one."""
+    out = np.zeros((3, 3))
+    for i in range(3):
+        k = int(np.argmax(np.abs(r[i])))
+        out[i, k] = np.sign(r[i, k])
+    if not np.isclose(abs(np.linalg.det(out)), 1.0) or np.abs(r - out).max() > 0.1:
+        raise ChainError("a DH link rotation is not within a few degrees of a quarter-turn rotation")
+    return out
+
+
+def dh_of_chain(chain: Chain) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(theta, a_mm, d_mm, alpha) of a chain whose links are standard DH links with zero theta offsets (every joint
+    about +z, link translation (a, 0, d), fixed rotation Rx(alpha)): the inverse of dh_chain for such chains.
+    ChainError for a chain of another form."""
+    a, d, alpha = [], [], []
+    for j in chain.joints:
+        t, r = j.translation, j.rotation
+        al = float(np.arctan2(r[2, 1], r[1, 1]))
+        if j.axis != 2 or j.sign < 0 or abs(t[1]) > 1e-9 or np.abs(r - rot_axis(0, al)).max() > 1e-12:
+            raise ChainError(f"{chain.name}: joint {j.name} is not a standard DH link (z axis, translation (a, 0, d), "
+                             "rotation about x)")  # fmt: skip
+        a.append(float(t[0]))
+        d.append(float(t[2]))
+        alpha.append(al)
+    return np.zeros(chain.dof), np.array(a), np.array(d), np.array(alpha)

@@ -5,6 +5,7 @@ the dashboard (29999), RTDE (30004) and script (30003) ports, and to nothing els
 from __future__ import annotations
 
 from trackcal.drivers.families import REQUIRED, RobotFamily
+from trackcal.drivers.ur.calibration import read_calibration_conf, read_kinematics_info
 from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde
 
 SCHEMAS = {
@@ -38,5 +39,14 @@ def waiting(r: dict) -> str:
     return f"connecting to the UR controller at {r['host']} (up to {r['connect_timeout_s']:g} s; Remote Control on)"
 
 
+def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
+    """calibration.conf's deltas (conf), or the primary interface's KINEMATICS_INFO of the controller at host."""
+    if conf is not None:
+        t = read_calibration_conf(conf)
+        return t.theta, t.a_mm, t.d_mm, t.alpha, t.source, True
+    t = read_kinematics_info(str(host))
+    return t.theta, t.a_mm, t.d_mm, t.alpha, t.source, False
+
+
 FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
-                     describe=where, where=where, waiting=waiting)  # fmt: skip
+                     describe=where, where=where, waiting=waiting, factory_table=factory_table)  # fmt: skip
