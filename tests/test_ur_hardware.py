@@ -7,6 +7,7 @@ import json
 import os
 import re
 import signal
+import socket
 import sqlite3
 import subprocess
 import time
@@ -18,6 +19,7 @@ from tests.helpers import ROOT, TRACKCAL, wait_for
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
+from trackcal.mocks.servers.ur.server import CONTROL_PORT
 
 # three poses within 8 deg of the cell's test pose, where every nest faces a station (configs/cells/ur10.yaml): short
 # moves keep the real-time UR campaign short
@@ -162,3 +164,35 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_rows(plan, ur_mo
     # a point measured but not stored at the kill is measured again with a new draw of the tracker noise (~0.015 mm
     # RMS, calib.identify.noise); nothing else changes
     assert abs(got.xyz - sim_table.xyz).max() < 0.2
+
+
+def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_mock, tmp_path):
+    """The robot raises a protective stop (injected on the mock's control port, mocks/servers/ur/server.py) during
+    the campaign: it stops safely (exit 2, one line naming the protective stop), nothing measured at a wrong pose;
+    `resume` asks the operator to acknowledge, unlocks the stop through the dashboard (the controller refuses until
+    5 s after it) and completes the campaign with the rows of `run --sim`."""
+    _, hw = ur_mock
+    host = yaml.safe_load(hw.read_text())["robot"]["host"]
+    d = tmp_path / "s"
+    first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(one_pose), "--hardware", str(hw),
+                              "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while count_measurements(d / "session.sqlite") < 2 and time.monotonic() < deadline:
+        assert first.poll() is None, first.stderr.read()
+        time.sleep(0.01)
+    with socket.create_connection((host, CONTROL_PORT), timeout=10) as s:
+        s.sendall(b"protective_stop\n")
+        assert s.recv(100).strip() == b"ok"
+    _, err = first.communicate(timeout=120)
+    assert first.returncode == 2 and err.count("\n") == 1 and "protective stop" in err, err
+    stored = count_measurements(d / "session.sqlite")
+    out = run("resume", str(d), "--no-analysis")
+    assert out.returncode == 0
+    with sqlite3.connect(d / "session.sqlite") as db:
+        resets = [r[0] for r in db.execute("SELECT data FROM events WHERE kind='call'") if '"reset_faults"' in r[0]]
+    assert resets  # the acknowledged resume step reset the robot's faults
+    run("run", "--cell", "ur10", "--plan", str(one_pose), "--sim", "--seed", str(SEED), "--session",
+        str(tmp_path / "sim"), "--no-analysis")  # fmt: skip
+    got, want = table(d, tmp_path / "h.csv"), table(tmp_path / "sim", tmp_path / "sim.csv")
+    same_rows(got, want, upto=stored)

@@ -63,6 +63,8 @@ SAFETY_BITS = ((2, "protective stop"), (4, "safeguard stop"), (5, "system emerge
 PROTECTIVE_STOP_BIT = 2
 EMERGENCY_BITS = (5, 6, 7)
 
+_LOST_LINKS: list = []  # ur_rtde interfaces of lost links, never touched again (see UrRtde.close)
+
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
 
@@ -192,16 +194,23 @@ class UrRtde:
             raise ConnectionLost(f"dashboard {name}: {exc}", device=self.device) from None
 
     def close(self) -> None:
-        for name in ("control", "receive", "dashboard"):
-            dev = getattr(self, name)
-            setattr(self, name, None)
+        # ur_rtde 1.6.5 after a lost link: disconnect() of its interfaces (and their destructors) can crash the
+        # process (tests/test_ur_driver.py, dropped connection); a lost link's interfaces are kept, untouched, until
+        # the process ends
+        lost = self.receive is not None and not _connected(self.receive)
+        lost = lost or (self.control is not None and not _connected(self.control))
+        devices = [(name, getattr(self, name)) for name in ("receive", "dashboard", "control")]
+        self.receive = self.dashboard = self.control = None
+        if lost:
+            _LOST_LINKS.extend(dev for _, dev in devices if dev is not None)
+            return
+        for name, dev in devices:
             if dev is None:
                 continue
-            with contextlib.suppress(RuntimeError):  # a link already gone: nothing left to stop
+            with contextlib.suppress(RuntimeError):
                 if name == "control" and dev.isConnected():
                     dev.stopScript()
-            # disconnected here, ur_rtde's destructor has nothing left to write: on a broken link its own write
-            # would throw from a destructor and abort the process
+            # disconnected here, ur_rtde's destructor has nothing left to write
             with contextlib.suppress(RuntimeError):
                 dev.disconnect()
 
@@ -499,6 +508,13 @@ class UrRtde:
                 raise DeviceTimeout(f"RTDE frames stopped coming while waiting to settle ({timeout_s} s)",
                                     device=self.device)  # fmt: skip
             time.sleep(POLL_S)
+
+
+def _connected(dev) -> bool:
+    try:
+        return bool(dev.isConnected())
+    except RuntimeError:
+        return False
 
 
 def _alike(a_rad: Sequence[float], b_rad: Sequence[float]) -> bool:
