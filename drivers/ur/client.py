@@ -143,7 +143,7 @@ class UrRtde:
     def connect(self) -> None:
         """Dashboard first (version, remote control), then the RTDE stream, then the control script; retried until
         connect_timeout_s while the controller is not reachable yet (it may be booting)."""
-        if self.control is not None:
+        if self.receive is not None:
             return
         deadline = time.monotonic() + self.connect_timeout_s
         last: Exception | None = None
@@ -175,7 +175,14 @@ class UrRtde:
             self.receive = rtde_receive.RTDEReceiveInterface(self.host)
         except RuntimeError as exc:
             raise ConnectionLost(f"RTDE stream (port 30004): {exc}", device=self.device) from None
+        if self.protective_stopped():  # latched from before (a resumed campaign): reset_faults starts the script
+            with self._lock:
+                self._fault = "protective stop"
+            return
         self._require_running("cannot start the control script")
+        self._start_control()
+
+    def _start_control(self) -> None:
         try:
             self.control = rtde_control.RTDEControlInterface(self.host)
         except RuntimeError as exc:
@@ -457,6 +464,11 @@ class UrRtde:
             self._dash("closeSafetyPopup")
             self._dash("closePopup")
         self._require_running("fault reset")
+        if self.control is None:  # connected while protective-stopped: the control script starts now
+            self._start_control()
+            with self._lock:
+                self._fault = ""
+            return
         try:
             if not self.control.isProgramRunning():
                 if not self.control.reuploadScript():
