@@ -5,6 +5,7 @@ import json
 import subprocess
 
 import numpy as np
+import pytest
 
 from tests.helpers import TRACKCAL, feasible_plan
 from trackcal.calib.doe.poses import points_in_box
@@ -36,6 +37,7 @@ def test_test_pose_and_tool_inside_the_box():
     assert np.allclose(d[np.triu_indices(3, 1)], 100 * np.sqrt(3), atol=0.05)
 
 
+@pytest.mark.slow  # 20 s: the same run --sim path as the KR-270 (tests/test_campaign_cli.py)
 def test_run_sim_ur10_end_to_end(tmp_path):
     cell = load_cell("ur10")
     plan = tmp_path / "plan.json"
