@@ -579,3 +579,15 @@ def test_async_stopj_answers_at_once_and_reports_progress():
     ctl.step()
     assert not ctl.out_int[2] & 32768  # finished once the arm stands
     assert ctl.motion.q[0] < HOME[0] + 1.0
+
+
+def test_tcp_speed_of_a_base_rotation_is_omega_cross_r():
+    ctl = UrController()
+    ctl.motion.move([HOME[0] + 1.0, *HOME[1:]], 1.0, 1.4)
+    _run_ticks(ctl, 800)  # cruising
+    qd = ctl.motion.qd[0]
+    v = ctl.value("actual_TCP_speed")
+    x, y, _ = ctl.value("actual_TCP_pose")[:3]
+    # rigid rotation about the base z axis: w = (0, 0, qd), v = w x r
+    assert v[3:] == pytest.approx((0.0, 0.0, qd), abs=1e-9)
+    assert v[:3] == pytest.approx((-qd * y, qd * x, 0.0), rel=1e-3, abs=1e-6)
