@@ -37,7 +37,7 @@ import threading
 from collections.abc import Sequence
 
 from trackcal.mocks.servers.ur import rtde_codec as rc
-from trackcal.mocks.servers.ur.kinematics import Calibration, factory_calibration, tcp_pose
+from trackcal.mocks.servers.ur.kinematics import Calibration, factory_calibration, tcp_pose, tcp_speed
 from trackcal.mocks.servers.ur.motion import TICK_S, UR10_LIMITS_RAD, UR10_VMAX_RAD_S, Motion
 
 # RTDE guide enumerations
@@ -471,6 +471,10 @@ class UrController:
             if self._pose_cache[0] != (q, self.tcp):
                 self._pose_cache = ((q, self.tcp), tcp_pose(q, self.calibration, self.tcp))
             return self._pose_cache[1]
+        if name in ("actual_TCP_speed", "target_TCP_speed"):
+            if not any(qd):
+                return (0.0,) * 6
+            return tcp_speed(q, qd, self.calibration, self.tcp, TICK_S)
         if name == "robot_mode":
             return self.robot_mode
         if name == "joint_mode":

@@ -84,3 +84,16 @@ def tcp_pose(q, cal: Calibration, tcp=(0.0, 0.0, 0.0)) -> tuple[float, ...]:
     pos = [t[i][3] + sum(t[i][k] * tcp[k] for k in range(3)) for i in range(3)]
     rot = [row[:3] for row in t[:3]]
     return (*pos, *rotation_vector(rot))
+
+
+def tcp_speed(q, qd, cal: Calibration, tcp=(0.0, 0.0, 0.0), dt: float = 0.002) -> tuple[float, ...]:
+    """[vx, vy, vz, wx, wy, wz] of the TCP in the base frame (RTDE actual_TCP_speed: linear and angular velocity),
+    by a backward difference over dt."""
+    before = [a - b * dt for a, b in zip(q, qd, strict=True)]
+    t1, t0 = flange(q, cal), flange(before, cal)
+    p1 = [t1[i][3] + sum(t1[i][k] * tcp[k] for k in range(3)) for i in range(3)]
+    p0 = [t0[i][3] + sum(t0[i][k] * tcp[k] for k in range(3)) for i in range(3)]
+    # R1 R0^T = exp([w] dt)
+    rel = [[sum(t1[i][k] * t0[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+    w = rotation_vector(rel)
+    return (*((a - b) / dt for a, b in zip(p1, p0, strict=True)), *(x / dt for x in w))

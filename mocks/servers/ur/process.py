@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 
 from trackcal.mocks.servers.ur.server import CONTROL_PORT, DASHBOARD_PORT, RTDE_PORT
@@ -17,27 +19,40 @@ class MockUrProcess:
     """`with MockUrProcess("127.0.0.5", seed=1) as ur:` ... `ur.inject("protective_stop")`, `ur.state()`."""
 
     def __init__(self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None,
-                 ready_timeout_s: float = 20.0) -> None:  # fmt: skip
+                 ready_timeout_s: float = 20.0, control_port: int = CONTROL_PORT) -> None:  # fmt: skip
         self.host, self.seed = host, seed
-        self.args = list(args or [])
+        self.control_port = control_port
+        self.args = [*(args or []), "--control-port", str(control_port)]
         self.ready_timeout_s = ready_timeout_s
         self.proc: subprocess.Popen | None = None
+        self.proc_returncode: int | None = None
+        self._stderr = None
 
     def start(self) -> MockUrProcess:
         cmd = [sys.executable, "-m", "trackcal.mocks.servers.ur", "--host", self.host, "--seed", str(self.seed),
                *self.args]  # fmt: skip
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        # stderr to a file, not a pipe: nobody reads a pipe while the mock runs, and a full one would block it
+        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 (closed in stop)
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=self._stderr)
         deadline = time.monotonic() + self.ready_timeout_s
         while True:
             if self.proc.poll() is not None:
-                err = self.proc.stderr.read().decode(errors="replace").strip() if self.proc.stderr else ""
-                raise RuntimeError(f"mock UR controller exited with {self.proc.returncode}: {err}")
-            if all(self._accepts(p) for p in (CONTROL_PORT, RTDE_PORT, DASHBOARD_PORT)):
+                err = self.stderr().strip()
+                self.stop()
+                raise RuntimeError(f"mock UR controller exited with {self.proc_returncode}: {err}")
+            if all(self._accepts(p) for p in (self.control_port, RTDE_PORT, DASHBOARD_PORT)):
                 return self
             if time.monotonic() > deadline:
                 self.stop()
                 raise TimeoutError(f"mock UR controller on {self.host} not ready within {self.ready_timeout_s} s")
             time.sleep(0.05)
+
+    def stderr(self) -> str:
+        """What the mock wrote on stderr so far."""
+        if self._stderr is None:
+            return ""
+        fd = self._stderr.fileno()  # pread: the mock's write offset (shared with this file object) stays where it is
+        return os.pread(fd, os.fstat(fd).st_size, 0).decode(errors="replace")
 
     def _accepts(self, port: int) -> bool:
         try:
@@ -47,7 +62,7 @@ class MockUrProcess:
             return False
 
     def control(self, line: str, timeout_s: float = 10.0) -> str:
-        with socket.create_connection((self.host, CONTROL_PORT), timeout=timeout_s) as s:
+        with socket.create_connection((self.host, self.control_port), timeout=timeout_s) as s:
             s.sendall(line.encode() + b"\n")
             buf = b""
             while not buf.endswith(b"\n"):
@@ -76,9 +91,11 @@ class MockUrProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        if self.proc.stderr:
-            self.proc.stderr.close()
+        self.proc_returncode = self.proc.returncode
         self.proc = None
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
 
     def __enter__(self) -> MockUrProcess:
         return self.start()
