@@ -27,6 +27,11 @@ def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:
     return [(float(lo), float(hi)) for lo, hi in usable_limits_deg(cell)]
 
 
+def robot_limits_deg(cell: Cell) -> list[tuple[float, float]]:
+    """The robot's own joint limits (deg, no margin): the software limit switches of the twin's controller."""
+    return [(float(lo), float(hi)) for lo, hi in np.degrees(cell.chain.limits_array())]
+
+
 # The motion guard's stop codes (the stop's DeviceFault code, recorded in the session's error event)
 DOOR_OPEN = "door_open"  # the PLC answered: the cell door is open
 PLC_SILENT = "plc_silent"  # the PLC does not answer: the door cannot be known, so the robot stops as if it were open

@@ -5,9 +5,9 @@
     live = connect_hardware(clients, say, operator)            # engine.Live with every device connected
 
 The keys are the parameter names of the driver constructors (drivers.emscon.client.EmsconTracker,
-drivers.kuka.client.KukaKrc2, drivers.plc.client.ModbusCellIO, drivers.meteo.client.SerialMeteo) and the defaults are
-theirs; only `host`/`port` are grouped per channel for the robot (`eki`, `rsi`), because trackcal listens there and
-the controller connects.
+drivers.plc.client.ModbusCellIO, drivers.meteo.client.SerialMeteo) and the defaults are theirs; the robot section's
+`protocol` names the robot family (drivers/families.py: one `family` module per controller's driver package), which
+gives the section's other keys and builds the client.
 """
 
 from __future__ import annotations
@@ -28,10 +28,8 @@ from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.errors import InputError
 from trackcal.drivers.emscon.client import EmsconTracker
 from trackcal.drivers.errors import DeviceError
-from trackcal.drivers.interfaces import Operator, RealClock
-from trackcal.drivers.kuka.client import KukaKrc2
-from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S
-from trackcal.drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
+from trackcal.drivers.families import RobotFamily, families
+from trackcal.drivers.interfaces import Operator, RealClock, Robot
 from trackcal.drivers.meteo.client import SerialMeteo
 from trackcal.drivers.plc.client import ModbusCellIO
 
@@ -49,27 +47,6 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "search_timeout_s": ("timeout", 10.0),
         "samples_per_second": ("positive", 1000.0),
     },
-    "robot": {
-        "protocol": ("protocol", _REQUIRED),
-        "controller_host": ("host", _REQUIRED),  # the only peer served on the EKI and RSI ports
-        "eki": ("section", _REQUIRED),
-        "rsi": ("section", _REQUIRED),
-        "connect_timeout_s": ("timeout", 60.0),
-        "move_timeout_s": ("timeout", 300.0),
-        "io_timeout_s": ("timeout", 5.0),
-        "rsi_stale_s": ("timeout", 1.0),
-    },
-    "robot.eki": {
-        "host": ("host", _REQUIRED),  # this PC's address on the robot network: no listening on every interface
-        "port": ("port", _REQUIRED),
-    },
-    "robot.rsi": {
-        "protocol": ("protocol", RSI_SHIPPED.protocol),  # protocol and passive: configs/krc2/trackcal_rsi.xml's
-        "passive": ("bool", RSI_SHIPPED.passive),
-        "cycle_s": ("positive", KRC2_CYCLE_S),  # the controller's interpolation cycle: 12 ms KR C2, 4 ms KR C4
-        "host": ("host", _REQUIRED),
-        "port": ("port", _REQUIRED),
-    },
     "plc": {
         "protocol": ("protocol", _REQUIRED),
         "host": ("host", _REQUIRED),
@@ -85,8 +62,7 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "timeout_s": ("timeout", 1.0),
     },
 }
-PROTOCOLS = {"tracker": ("emscon",), "robot": ("krc2",), "robot.rsi": ("tcp", "udp"), "plc": ("modbus",),
-             "meteo": ("serial",)}  # fmt: skip
+PROTOCOLS = {"tracker": ("emscon",), "plc": ("modbus",), "meteo": ("serial",)}
 SECTIONS = ("tracker", "robot", "plc", "meteo")
 OPTIONAL_SECTIONS = ("plc", "meteo")  # without a PLC the operator answers on the console
 
@@ -101,12 +77,14 @@ class Hardware:
     plc: dict | None
     meteo: dict | None
 
+    @property
+    def family(self) -> RobotFamily:
+        """The robot's family (drivers/families.py), named by robot.protocol."""
+        return families()[self.robot["protocol"]]
+
     def describe(self) -> dict[str, str]:
-        r = self.robot
         out = {"tracker": f"emScon {self.tracker['host']}:{self.tracker['port']}",
-               "robot": f"KR C2, listening for EKI on {r['eki']['host']}:{r['eki']['port']} and RSI "
-                        f"{r['rsi']['protocol']} ({'passive' if r['rsi']['passive'] else 'answered'}, "
-                        f"{r['rsi']['cycle_s'] * 1000:g} ms) on {r['rsi']['host']}:{r['rsi']['port']}",
+               "robot": self.family.describe(self.robot),
                "operator": (f"cell PLC {self.plc['host']}:{self.plc['port']} unit {self.plc['unit_id']}"
                             if self.plc else "console (no PLC configured)")}  # fmt: skip
         if self.meteo:
@@ -127,7 +105,7 @@ def load_hardware(path: str | Path, text: str | None = None) -> Hardware:
                 raise InputError(f"{path}: {name}: missing (the {name} section is required)")
             out[name] = None
             continue
-        out[name] = _section(path, name, doc[name])
+        out[name] = _robot(path, doc[name]) if name == "robot" else _section(path, name, doc[name], SCHEMA, PROTOCOLS)
     return Hardware(path, out["tracker"], out["robot"], out["plc"], out["meteo"])  # type: ignore[arg-type]
 
 
@@ -139,8 +117,23 @@ def _unknown(path: Path, doc: dict, known, where: str) -> None:
             raise InputError(f"{path}: {where}{key}: unknown key ({hint})")
 
 
-def _section(path: Path, name: str, doc) -> dict:
-    schema = SCHEMA[name]
+def _robot(path: Path, doc) -> dict:
+    """The robot section, by the schema of the family its `protocol` names."""
+    known = families()
+    protocol = doc.get("protocol") if isinstance(doc, dict) else None
+    if isinstance(doc, dict) and protocol is None:
+        raise InputError(f"{path}: robot.protocol: missing (required: the robot family, one of {', '.join(known)})")
+    if not isinstance(protocol, str) or protocol.lower() not in known:
+        got = protocol if isinstance(doc, dict) else doc
+        raise InputError(f"{path}: robot.protocol: unknown protocol {got!r} (supported: {', '.join(known)})")
+    family = known[protocol.lower()]
+    schemas = {"robot" + (f".{k}" if k else ""): v for k, v in family.schemas.items()}
+    protocols = {"robot": tuple(known), **{f"robot.{k}": v for k, v in (family.protocols or {}).items()}}
+    return _section(path, "robot", doc, schemas, protocols)
+
+
+def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict:
+    schema = schemas[name]
     if not isinstance(doc, dict):
         raise InputError(f"{path}: {name}: expected a mapping of {', '.join(schema)}")
     _unknown(path, doc, schema, f"{name}.")
@@ -156,9 +149,9 @@ def _section(path: Path, name: str, doc) -> dict:
             continue
         v = doc[key]
         if kind == "section":
-            out[key] = _section(path, where, v)
+            out[key] = _section(path, where, v, schemas, protocols)
         elif kind == "protocol":
-            choices = PROTOCOLS[name]
+            choices = protocols[name]
             if not isinstance(v, str) or v.lower() not in choices:
                 raise InputError(f"{path}: {where}: unknown protocol {v!r} (supported: {', '.join(choices)})")
             out[key] = v.lower()
@@ -191,20 +184,20 @@ class CellClients:
 
     hw: Hardware
     tracker: EmsconTracker
-    robot: KukaKrc2
+    robot: Robot
     cellio: ModbusCellIO | None
     meteo: SerialMeteo | None
 
 
 def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
-    """Build the clients of `hw` and bind the robot's EKI and RSI ports, touching no device. The controller
-    connects to those ports only (configs/krc2/XmlApiConfig.xml names one server IP and PORT), so the campaign
-    holding them is the only one the cell serves: a second campaign on this PC finds the EKI port in use (a TCP
-    port has one listener) and is refused here, an InputError naming the reason, before it touches the tracker,
-    the PLC or the meteo sensor of the running one."""
-    if cell.chain.dof != 6:
-        raise InputError(f"{hw.path}: the KR C2 drives 6 axes, robot {cell.chain.name} of cell {cell.name} has "
-                         f"{cell.chain.dof}")  # fmt: skip
+    """Build the clients of `hw` and let the robot's family claim its channel, touching no device (the KR C2's:
+    bind the EKI and RSI ports the controller connects to, so a second campaign on this PC finds them in use and is
+    refused here, an InputError naming the reason, before it touches the tracker, the PLC or the meteo sensor of
+    the running one)."""
+    family = hw.family
+    if cell.chain.dof != family.dof:
+        raise InputError(f"{hw.path}: the {family.title} drives {family.dof} axes, robot {cell.chain.name} of cell "
+                         f"{cell.name} has {cell.chain.dof}")  # fmt: skip
     t, r, p, m = hw.tracker, hw.robot, hw.plc, hw.meteo
     # with trackcal's own meteo sensor the tracker takes the environment trackcal sets; without one, its own
     # weather monitor reads it and computes the refraction (drivers.emscon.client: weather_monitor)
@@ -214,16 +207,11 @@ def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
                             samples_per_second=t["samples_per_second"], weather_monitor=weather_monitor)  # fmt: skip
     cellio = None if p is None else ModbusCellIO(p["host"], p["port"], unit_id=p["unit_id"], timeout_s=p["timeout_s"])
     meteo = None if m is None else SerialMeteo(m["port"], baudrate=m["baudrate"], timeout_s=m["timeout_s"])
-    eki, rsi = r["eki"], r["rsi"]
-    robot = KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
-                     controller_host=r["controller_host"],
-                     rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
-                     joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
-                     motion_guard=None if cellio is None else motion_guard(cellio),
-                     connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                     io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
+    robot = family.build(r, joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
+                         motion_guard=None if cellio is None else motion_guard(cellio))  # fmt: skip
     try:
-        robot.listen()
+        if family.claim is not None:
+            family.claim(robot)
     except DeviceError as exc:
         robot.close()
         cause = exc.__cause__
@@ -270,11 +258,7 @@ def connect_hardware(clients: CellClients, say: Callable[[str], None], console_o
         up("cell PLC", cellio, f"Modbus TCP {p['host']}:{p['port']} unit {p['unit_id']}")
     if meteo is not None:
         up("meteo sensor", meteo, f"serial {m['port']}")
-    eki, rsi = r["eki"], r["rsi"]
-    where = (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
-             f"for the controller at {r['controller_host']} only")  # fmt: skip
-    say(f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where}; start "
-                  "trackcal_eki on the controller)")  # fmt: skip
-    up("robot controller", robot, where)
+    say(hw.family.waiting(r))
+    up("robot controller", robot, hw.family.where(r))
     operator = PlcOperator(cellio, say, poll_s=p["poll_s"]) if cellio is not None else console_operator
     return Live(tracker, robot, operator, RealClock(), cellio, meteo, close=close)

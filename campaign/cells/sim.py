@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable
 
 from trackcal.calib.model.cell import Cell
-from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard
+from trackcal.campaign.cells.checks import cell_box_check, joint_limits_deg, motion_guard, robot_limits_deg
 from trackcal.campaign.cells.operator import PlcOperator
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.errors import InputError
@@ -21,6 +21,7 @@ from trackcal.drivers.meteo.client import SerialMeteo
 from trackcal.drivers.plc.client import ModbusCellIO
 from trackcal.mocks.cell import World
 from trackcal.mocks.clock import VirtualClock
+from trackcal.mocks.controllers import twin_controllers
 from trackcal.mocks.operator import SimHuman
 from trackcal.mocks.servers.emscon import MockEmscon
 from trackcal.mocks.servers.kuka.controller import MockKrc2
@@ -51,12 +52,13 @@ class TwinMocks:
         if cell.chain.dof != len(HOME_DEG):
             raise InputError(f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has "
                              f"{cell.chain.dof}")  # fmt: skip
-        self.cell, self.seed = cell, seed
+        self.cell, self.seed, self.speed = cell, seed, speed
         self.clock = VirtualClock(real_fraction=0.0 if not speed else 1.0 / speed)
         self.world = World(Twin(cell, seed=seed, effects=effects or {}), self.clock)
         if measured:
             self.world.restore_counts(measured)
         self.controller: MockKrc2 | None = None
+        self.family_controller = None  # a twin controller of mocks/controllers.py (serve_family)
         self._started: list = []
         try:
             self.tracker_mock = self._up(
@@ -86,8 +88,21 @@ class TwinMocks:
         cycles nobody reads unless not skip_idle (mocks.servers.kuka.controller)."""
         self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
                                    joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
+                                   soft_limits_deg=robot_limits_deg(self.cell),
                                    connect_timeout_s=connect_timeout_s, delivered=delivered,
                                    skip_idle=skip_idle).start()  # fmt: skip
+
+    def serve_family(self, family: str) -> dict:
+        """Start the twin's controller of robot family `family` (mocks/controllers.py: the controller's own
+        protocols, in a process of its own where the family needs one); returns the hardware file's robot section
+        for it. InputError when no mock serves that family."""
+        served = twin_controllers()
+        if family not in served:
+            raise InputError(f"cell {self.cell.name}: no mock controller for the robot's controller {family!r} "
+                             f"(mocks serve: {', '.join(served) or 'none'})")  # fmt: skip
+        self.world.robot_at(self.world.q_deg if self.world.q_deg.any() else HOME_DEG)
+        self.family_controller = served[family].serve(self.world, self.seed, self.speed)
+        return self.family_controller.hardware()
 
     def controllers_connected(self) -> int:
         """How many times the controller connected to trackcal (one per `run` / `resume` served)."""
@@ -100,6 +115,8 @@ class TwinMocks:
         out = {"tracker (emScon)": f"{host}:{port}",
                "cell PLC (Modbus TCP)": f"{phost}:{pport} unit {self.plc.unit_id}",
                "meteo (serial)": self.meteo_mock.port_path}  # fmt: skip
+        if self.family_controller is not None:
+            out.update(self.family_controller.addresses())
         if self.controller is not None:
             out["KR C2 connects to EKI"] = "{}:{}".format(*self.controller.eki_addr)
             out["KR C2 connects to RSI"] = "{} {}:{}".format(self.controller.rsi_protocol, *self.controller.rsi_addr)
@@ -110,6 +127,9 @@ class TwinMocks:
         if self.controller is not None:
             with contextlib.suppress(Exception):
                 self.controller.stop()
+        if self.family_controller is not None:
+            with contextlib.suppress(Exception):
+                self.family_controller.stop()
 
     def close(self) -> None:
         """The controller first, then the other mocks in reverse order of start; one failing stop never keeps
@@ -227,15 +247,21 @@ def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
-def hardware_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -> dict:
-    """The hardware config (campaign/cells/hardware.py schema) of the running mocks."""
+def krc2_robot_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -> dict:
+    """The hardware file's robot section for the twin's KR C2 (serve_controller), which connects to eki and rsi."""
+    return {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
+            "rsi": {"protocol": mocks.controller.rsi_protocol, "passive": mocks.controller.rsi_passive,
+                    "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0}  # fmt: skip
+
+
+def hardware_doc(mocks: TwinMocks, robot: dict) -> dict:
+    """The hardware config (campaign/cells/hardware.py schema) of the running mocks, with `robot` its robot
+    section."""
     thost, tport = mocks.tracker_mock.address
     phost, pport = mocks.plc.address
     return {
         "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
-        "robot": {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
-                  "rsi": {"protocol": mocks.controller.rsi_protocol, "passive": mocks.controller.rsi_passive,
-                          "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0},
+        "robot": robot,
         "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
                 "poll_s": POLL_S},
         "meteo": {"protocol": "serial", "port": mocks.meteo_mock.port_path, "baudrate": 9600, "timeout_s": 2.0},

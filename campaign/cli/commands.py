@@ -205,8 +205,17 @@ COMMANDS = [
                 arg("--tcp", help="X,Y,Z of the TCP in the last joint frame, mm (default: tool points centroid)"),
                 arg("--krl", metavar="NAME", help="also write a KR C2 program NAME.src / NAME.dat (default: "
                                                           "none)"),
+                arg("--program", metavar="NAME", help="also write the robot controller's program NAME: KRL, or "
+                    "NAME.script (URScript) for a robot whose controller is a UR (default: none)"),
                 arg("--krl-dir", help="directory of the KRL program (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
+            ]),
+    Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
+            "trackcal.campaign.cli.factory:cmd_factory_robot", [
+                arg("--cell", required=True, help=CELL_HELP),
+                arg("--conf", help="the controller's calibration file (a UR's calibration.conf)"),
+                arg("--hardware", help="hardware config: read the calibration from the robot it names"),
+                arg("--out", required=True, help="robot YAML to write"),
             ]),
     Command("report", "HTML report of a campaign: plan, residuals, parameters, diagnosis",
             "trackcal.campaign.cli.report:cmd_report", [

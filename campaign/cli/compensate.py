@@ -10,7 +10,8 @@ from trackcal.campaign.jobs.compensate import CompensateOptions, run_compensate
 
 def cmd_compensate(args) -> int:
     done = run_compensate(CompensateOptions(targets=args.targets, model=args.model, out=args.out, tcp=args.tcp,
-                                            krl=args.krl, krl_dir=args.krl_dir, speed=args.speed))  # fmt: skip
+                                            krl=args.krl, krl_dir=args.krl_dir, speed=args.speed,
+                                            program=args.program))  # fmt: skip
     report, ok = done.report, done.report.ok
     for label, failure in zip(done.labels, report.failures, strict=True):
         if failure:
@@ -39,4 +40,6 @@ def cmd_compensate(args) -> int:
     if done.krl_files is not None:
         src, dat = done.krl_files
         print(f"KRL program written to {src} and {dat}")
+    if done.program_files:
+        print(f"program written to {', '.join(str(p) for p in done.program_files)}")
     return 0

@@ -37,7 +37,7 @@ from rich.table import Table
 
 from trackcal.calib.io.files import write_text
 from trackcal.calib.model.cell import load_cell
-from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc
+from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc, krc2_robot_doc
 from trackcal.campaign.cli.console import console, print_table
 from trackcal.campaign.errors import InputError, UsageError
 from trackcal.campaign.jobs.simulate import parse_effects
@@ -72,9 +72,14 @@ def cmd_mock(args) -> int:
     mocks = None
     try:
         mocks = TwinMocks(cell, args.seed, effects, args.sim_speed)
-        eki, rsi = ("127.0.0.1", free_port()), ("127.0.0.1", free_port(socket.SOCK_DGRAM))
-        mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S)
-        doc = hardware_doc(mocks, eki, rsi)
+        family = cell.robot_doc.get("controller")  # the robot config names its controller's family, if not a KR C2
+        if family:
+            robot = mocks.serve_family(str(family))
+        else:
+            eki, rsi = ("127.0.0.1", free_port()), ("127.0.0.1", free_port(socket.SOCK_DGRAM))
+            mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S)
+            robot = krc2_robot_doc(mocks, eki, rsi)
+        doc = hardware_doc(mocks, robot)
         text = (f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
                 f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
         if out is not None:
@@ -92,7 +97,8 @@ def cmd_mock(args) -> int:
             with os.fdopen(args.ready_fd, "w") as ready:
                 ready.write(f"ready {os.getpid()}\n")
         stop.wait()  # the SIGINT/SIGTERM handler sets it (lock waits are interruptible by signals on POSIX)
-        console.print(f"stopping (the KR C2 mock connected {mocks.controllers_connected()} time(s))")
+        served = "" if family else f" (the KR C2 mock connected {mocks.controllers_connected()} time(s))"
+        console.print(f"stopping{served}")
     finally:
         if mocks is not None:
             mocks.close()

@@ -16,16 +16,20 @@ out of the KRL program, whose E6AXIS points carry the targets' names (campaign.j
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from trackcal.calib.compensate import NEAR_SINGULAR, CompensationReport, compensate, pose_error
+from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import atomic_open, writing
 from trackcal.calib.io.table import joint_columns, read_joint_rows
+from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.errors import CampaignError, InputError, OptionError
+from trackcal.campaign.jobs import urscript
 from trackcal.campaign.jobs.krl import KrlError, check_name, point_names, write_krl
 
 COMP_DECIMALS = 6
@@ -73,8 +77,9 @@ class CompensateOptions:
     out: str  # the compensated CSV
     tcp: str | None = None  # "X,Y,Z" mm in the last joint frame; None: the centroid of the model's tool points
     krl: str | None = None  # also a KR C2 program of this name
-    krl_dir: str | None = None  # its directory; None: the directory of `out`
+    krl_dir: str | None = None  # its directory (and the --program's); None: the directory of `out`
     speed: int = 10  # PTP axis speed and acceleration override, %
+    program: str | None = None  # also the robot controller's program of this name: KRL, or URScript for a UR
 
 
 @dataclass
@@ -84,6 +89,7 @@ class Compensation:
     rounded_mm: np.ndarray  # TCP error of the targets rounded to the 1e-4 deg of the KRL program
     near_singular: np.ndarray  # rows (0-based) of compensated targets near a singularity
     krl_files: tuple[Path, Path] | None = None  # NAME.src, NAME.dat
+    program_files: tuple[Path, ...] = ()  # the --program's files
     doc: dict = field(default_factory=dict)  # report.to_doc()
 
 
@@ -101,14 +107,40 @@ def parse_tcp(text: str | None, model: Model) -> np.ndarray:
     return tcp
 
 
+# The program each robot family's controller runs (the robot config's `controller`, configs/robots; none: the KR C2's
+# KRL): name check and writer (name, q_deg, directory, speed %, row names) -> the files written.
+PROGRAMS = {urscript.CONTROLLER: ("URScript", urscript.check_name, lambda *a: (urscript.write_urscript(*a),))}
+
+
+def controller_of(model: Model) -> str | None:
+    """The controller family of the model's robot: its cell's robot config says (None when the cell is unknown)."""
+    try:
+        return load_cell(str(model.doc.get("cell", ""))).robot_doc.get("controller")
+    except CalibError:
+        return None
+
+
 def run_compensate(opts: CompensateOptions) -> Compensation:
     """`trackcal compensate`: the targets corrected, written to opts.out (and the KRL program); refuses a KRL
     program it cannot write before anything is written, and a file in which no target could be compensated."""
     model = load_model(opts.model)
     q_deg, names = read_targets(opts.targets, model.chain.dof)
     tcp = parse_tcp(opts.tcp, model)
-    if opts.krl_dir and not opts.krl:
+    if opts.krl_dir and not (opts.krl or opts.program):
         raise OptionError("{0} needs {1} NAME", "krl_dir", "krl")
+    program = PROGRAMS.get(controller_of(model)) if opts.program else None
+    if opts.program and program is None:  # the KR C2's KRL program
+        if opts.krl:
+            raise OptionError("{0} and {1} name the same KRL program: give one", "program", "krl")
+        opts = dataclasses.replace(opts, krl=opts.program)
+    if program is not None:
+        try:
+            program[1](opts.program)  # refuse a bad name before anything is written
+        except CampaignError as exc:
+            raise OptionError("{0}: {exc}", "program", exc=exc) from None
+        if model.chain.dof != 6 or not 1 <= opts.speed <= 100:
+            raise OptionError("{0}: a {kind} program needs a 6-axis robot and a speed of 1..100 %", "program",
+                              kind=program[0])  # fmt: skip
     if opts.krl:  # refuse before anything is written
         try:
             check_name(opts.krl)
@@ -132,6 +164,13 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
                          "reason)")  # fmt: skip
     out = Compensation(report, row_labels(opts.targets, names, len(q_deg)), rounded_mm,
                        np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)), doc=report.to_doc())  # fmt: skip
+    if program is not None:
+        try:
+            points = [p for p, k in zip(point_names(names, len(ok)), ok, strict=True) if k]
+            out.program_files = program[2](opts.program, krl_deg[ok], opts.krl_dir or str(Path(opts.out).parent),
+                                           opts.speed, points)  # fmt: skip
+        except CampaignError as exc:
+            raise OptionError("{0}: {exc}", "program", exc=exc) from None
     if opts.krl:
         krl_dir = opts.krl_dir or str(Path(opts.out).parent)
         try:

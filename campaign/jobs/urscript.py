@@ -1,0 +1,85 @@
+"""Universal Robots URScript programs of joint moves: NAME.script, one `movej` per compensated target.
+
+What the generated text relies on (Universal Robots, "The URScript Programming Language", module motion):
+- a program is a function `def NAME():` ... `end`, its body indented, `#` starting a comment; a name is a letter
+  first, then letters, digits and underscores (the language's identifiers);
+- `movej(q, a=1.4, v=1.05, t=0, r=0)`: q the 6 joint positions in radians as a list, a the joint acceleration
+  (rad/s2) and v the joint speed (rad/s) of the leading axis, r = 0 a stop at the target; the defaults 1.4 rad/s2
+  and 1.05 rad/s are those of the manual, which `speed_pct` scales (as the KRL program's $VEL_AXIS / $ACC_AXIS
+  percentages do, campaign/jobs/krl.py).
+The targets are those of the KRL program, row for row (compensate.py: the compensated rows, rounded to the 1e-4 deg
+the controller reports), written in radians with 10 decimals (1e-10 rad: far below the 1e-4 deg = 1.7e-6 rad step).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.io.files import atomic_open
+from trackcal.campaign.errors import CampaignError
+
+CONTROLLER = "ur"  # the robot config's `controller` whose programs these are (configs/robots)
+NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
+AXES = 6
+MOVEJ_A_RAD_S2, MOVEJ_V_RAD_S = 1.4, 1.05  # the URScript manual's movej defaults
+
+
+class UrScriptError(CampaignError):
+    """A program that cannot be written; the message says why."""
+
+
+def check_name(name: str) -> str:
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+        raise UrScriptError(f"URScript program name {name!r} is not valid: a letter first, then letters, digits or _ "
+                            "(at most 63 characters)")  # fmt: skip
+    return name
+
+
+def urscript_text(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> str:
+    """The program moving with movej through the rows of q_deg (N, 6) in degrees; `points` name the rows in a
+    comment each."""
+    check_name(name)
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    if q.ndim != 2 or q.shape[1] != AXES or len(q) == 0:
+        raise UrScriptError(f"a UR program needs rows of {AXES} joint angles, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise UrScriptError("joint angles must be finite numbers")
+    if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
+        raise UrScriptError(f"the joint speed override must be an integer percentage 1..100, got {speed_pct!r}")
+    f = int(speed_pct) / 100.0
+    a, v = f"{MOVEJ_A_RAD_S2 * f:.4f}", f"{MOVEJ_V_RAD_S * f:.4f}"
+    points = points or [f"P{k + 1}" for k in range(len(q))]
+    if len(points) != len(q):
+        raise UrScriptError(f"one name per target expected, got {len(points)} for {len(q)}")
+    lines = [f"def {name}():", f"  # trackcal: {len(q)} compensated joint targets, movej at {int(speed_pct)} % of "
+             f"{MOVEJ_V_RAD_S} rad/s and {MOVEJ_A_RAD_S2} rad/s2"]  # fmt: skip
+    for p, row in zip(points, q, strict=True):
+        rad = ", ".join(_rad(x) for x in row)
+        lines.append(f"  # {re.sub(r'[^ -~]', '_', str(p))}: {', '.join(f'{x:.4f}' for x in row)} deg")
+        lines.append(f"  movej([{rad}], a={a}, v={v})")
+    lines.append("end")
+    return "\n".join(lines) + "\n"
+
+
+def _rad(deg: float) -> str:
+    text = f"{math.radians(deg):.10f}"
+    return "0.0000000000" if text == "-0.0000000000" else text
+
+
+def write_urscript(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
+                   points: list[str] | None = None) -> Path:  # fmt: skip
+    """Write NAME.script into out_dir (created if needed); returns its path."""
+    text = urscript_text(name, q_deg, speed_pct, points)
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / f"{name}.script"
+        with atomic_open(path, "wb") as fh:
+            fh.write(text.encode("ascii"))
+    except OSError as exc:
+        raise UrScriptError(f"{out}: cannot write the URScript program ({exc.strerror or exc})") from None
+    return path

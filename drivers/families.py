@@ -1,0 +1,59 @@
+"""Robot families: which driver a hardware file's `robot.protocol` selects.
+
+Each driver package that drives a robot has a `family` module whose FAMILY is a RobotFamily: the keys of its
+robot section (validated by campaign/cells/hardware.py with the kinds it knows), how to build the client from a
+validated section and the cell's checks, and how to describe it to people. The packages are found by walking
+drivers' sub-packages, so no code outside a family's own package names a controller, and a new family is a new
+package with a `family` module.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import trackcal.drivers as _drivers
+from trackcal.drivers.interfaces import Robot
+
+REQUIRED = ...  # the default of a key the hardware file must give
+
+
+@dataclass(frozen=True)
+class RobotFamily:
+    """One controller family. `schemas`: section path below `robot` ("" the robot section itself, "eki" its eki
+    sub-section ...) -> key -> (kind, default), kinds as campaign/cells/hardware.py validates them (host, port,
+    timeout, positive, bool, protocol, section); `protocols`: the choices of a `protocol` key of a sub-section.
+    `build(section, joint_limits_deg=, cell_box_check=, motion_guard=)` makes the client without I/O; `claim` takes
+    the cell's robot channel before any device is touched (DeviceError when it cannot); `describe` is the robot's
+    line of `trackcal run`'s device list, `where` its address in a connection error, `waiting` the line shown while
+    it connects."""
+
+    name: str
+    title: str
+    dof: int
+    schemas: dict[str, dict[str, tuple[str, Any]]]
+    build: Callable[..., Robot]
+    describe: Callable[[dict], str]
+    where: Callable[[dict], str]
+    waiting: Callable[[dict], str]
+    claim: Callable[[Robot], None] | None = None
+    protocols: dict[str, tuple[str, ...]] | None = None
+    # the controller's own calibration, a standard DH table: factory_table(conf=PATH) -> the deltas of its
+    # calibration file, factory_table(host=ADDRESS) -> the calibrated table the controller sends; each as
+    # (theta rad, a mm, d mm, alpha rad, source, is_delta)
+    factory_table: Callable[..., tuple] | None = None
+
+
+def families() -> dict[str, RobotFamily]:
+    """Every family of the installed drivers, by name."""
+    out: dict[str, RobotFamily] = {}
+    for info in pkgutil.iter_modules(_drivers.__path__):
+        name = f"{_drivers.__name__}.{info.name}.family"
+        if info.ispkg and importlib.util.find_spec(name) is not None:
+            family = importlib.import_module(name).FAMILY
+            out[family.name] = family
+    return dict(sorted(out.items()))

@@ -1,0 +1,60 @@
+"""The mock UR controller as the twin's robot for `trackcal mock` (mocks/controllers.py): the controller process
+(process.MockUrProcess) on a loopback address of its own (the UR ports are fixed: 29999, 30001-30004), and the
+follower (follow.JointFollower) that puts the twin's robot where the controller reports it, at every frame. Joint
+angles reach the world in degrees; the world rounds them to the 4 decimals the campaign stores, so a measurement's
+noise identity is that of `run --sim` at the same pose. The controller runs `speed` times faster than the wall
+clock (default SPEED: the twin's cell is simulated; `trackcal mock --sim-speed` sets another).
+
+Added by the driver side of issue 21 (branch h21-driver) to connect the mock to the twin's cell."""
+
+from __future__ import annotations
+
+import socket
+
+from trackcal.mocks.servers.ur.follow import JointFollower
+from trackcal.mocks.servers.ur.process import MockUrProcess
+from trackcal.mocks.servers.ur.server import RTDE_PORT
+
+CONTROLLER = "ur"
+SPEED = 10.0  # controller seconds per wall second
+FIRST_HOST = 31  # 127.0.0.31 ... 127.0.0.254: the first address where nobody serves RTDE
+
+
+def free_loopback() -> str:
+    """A loopback address where no UR controller (nothing on the RTDE port) serves yet."""
+    for n in range(FIRST_HOST, 255):
+        host = f"127.0.0.{n}"
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, RTDE_PORT)) != 0:
+                return host
+    raise OSError("no free loopback address 127.0.0.31-254 for a mock UR controller")
+
+
+class TwinUr:
+    def __init__(self, world, seed: int, speed: float | None = None, host: str | None = None) -> None:
+        self.world = world
+        self.host = host or free_loopback()
+        q0 = ",".join(f"{v:.4f}" for v in world.q_deg)
+        self.process = MockUrProcess(self.host, seed=seed,
+                                     args=["--q0-deg", q0, "--speed", f"{speed or SPEED:g}"]).start()  # fmt: skip
+        self.follower = JointFollower(self.host, world.robot_at).start()
+
+    def hardware(self) -> dict:
+        """The robot section of the hardware file (campaign/cells/hardware.py, drivers/ur/family.py)."""
+        # the mock's joint speeds are the UR10's (120 deg/s base and shoulder, 180 deg/s the others: mocks/servers/ur
+        # motion.py, which caps any faster request), so the campaign's 30 % override still moves at 120 deg/s; a loaded
+        # test machine may pause the mock a second or two
+        return {"protocol": CONTROLLER, "host": self.host, "connect_timeout_s": 30.0, "joint_speed_deg_s": 400.0,
+                "joint_acceleration_deg_s2": 400.0, "stale_s": 2.5}
+
+    def addresses(self) -> dict[str, str]:
+        return {"UR controller (dashboard 29999, RTDE 30004, script 30003)": self.host}
+
+    def stop(self) -> None:
+        self.follower.stop()
+        self.process.stop()
+
+
+def serve(world, seed: int, speed: float | None = None) -> TwinUr:
+    return TwinUr(world, seed, speed)

@@ -1,0 +1,155 @@
+"""drivers.ur.client.UrRtde against the mock UR controller (mocks/servers/ur) in its own process, through the
+unmodified ur_rtde: connect, read, move and check, stop on the guard, a protective stop and its recovery, a robot in
+local control, lost and stale connections. Each mock runs on its own loopback address (the UR ports are fixed)."""
+
+import math
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, MotionRefused
+from trackcal.drivers.interfaces import Robot
+from trackcal.drivers.ur.client import UrRtde
+from trackcal.mocks.servers.ur.process import MockUrProcess
+
+HOME = (0.0, -90.0, 90.0, -90.0, -90.0, 0.0)  # the mock's initial joints (mocks/servers/ur/controller.py HOME_RAD)
+
+
+@pytest.fixture(scope="module")
+def ur():
+    """One mock for the tests that leave it in a sound state; unlock allowed at once (the real one waits 5 s)."""
+    with MockUrProcess("127.0.0.21", seed=1, args=["--unlock-delay-s", "0"]) as mock:
+        robot = UrRtde("127.0.0.21", connect_timeout_s=10.0)
+        robot.connect()
+        yield mock, robot
+        robot.close()
+
+
+def test_is_a_robot_and_reads_joints_and_tcp(ur):
+    mock, robot = ur
+    assert isinstance(robot, Robot)
+    robot.move(HOME, 100)
+    assert robot.joints() == HOME
+    x, y, z, *_ = robot.tcp_pose()
+    # the controller's own model at HOME: the UR10 flange about 1.3 m from the base axis at most (its reach)
+    assert 0 < math.hypot(x, y) < 1300 and abs(z) < 1300
+    assert robot.robot_mode() == 7 and robot.safety_mode() == 1  # RTDE guide: RUNNING, NORMAL
+    assert robot.state().fault == "" and not robot.protective_stopped()
+
+
+def test_move_ends_at_the_target_exactly(ur):
+    _, robot = ur
+    target = (12.3456, -80.5, 75.25, -95.0, -88.8888, 7.0)
+    robot.move(target, 100)
+    assert robot.joints() == target  # the trust rule: the joints reported equal the target (4 decimals)
+    assert robot.wait_settled(0.001, 0.05, 5.0) == target
+    robot.move(HOME, 100)
+
+
+def test_targets_outside_the_limits_or_box_are_refused_before_anything_moves(ur):
+    mock, robot = ur
+    moves = mock.state()["moves"]
+    with pytest.raises(MotionRefused, match="joint limits"):
+        robot.move((0, 0, 0, 0, 0, 400), 100)
+    boxed = UrRtde("127.0.0.21", cell_box_check=lambda q: "a point leaves the box")
+    with pytest.raises(MotionRefused, match="cell box"):
+        boxed.check_target(HOME)
+    with pytest.raises(MotionRefused, match="speed"):
+        robot.move(HOME, 0)
+    assert mock.state()["moves"] == moves
+
+
+def test_the_guard_stops_a_move_with_stopj_and_the_arm_stands(ur):
+    mock, robot = ur
+    door = threading.Event()
+    robot.motion_guard = lambda: "the cell door opened" if door.is_set() else None
+    try:
+        timer = threading.Timer(0.1, door.set)
+        timer.start()
+        with pytest.raises(DeviceFault, match="door opened") as exc:
+            robot.move((60.0, -60.0, 60.0, -60.0, -60.0, 60.0), 100)
+        assert exc.value.code == "stopped"
+        first = robot.joints()
+        time.sleep(0.2)
+        assert robot.joints() == first != (60.0, -60.0, 60.0, -60.0, -60.0, 60.0)  # stopped short, and still
+        assert 34 in mock.state()["commands"]  # ur_rtde STOPJ
+        with pytest.raises(DeviceFault, match="refused: the cell door opened"):
+            robot.move(HOME, 100)  # no move starts while the guard names a reason
+    finally:
+        robot.motion_guard = None
+    robot.move(HOME, 100)
+
+
+def test_stop_from_another_thread_ends_the_move(ur):
+    _, robot = ur
+    threading.Timer(0.1, robot.stop).start()
+    with pytest.raises(DeviceFault, match="stop requested"):
+        robot.move((-60.0, -100.0, 100.0, -100.0, -100.0, -60.0), 100)
+    assert not robot.state().moving
+    robot.stop()  # no move: a no-op
+    robot.move(HOME, 100)
+
+
+def test_a_protective_stop_ends_the_move_latched_until_reset():
+    with MockUrProcess("127.0.0.22", seed=2, args=["--protective-stop-on-move", "1", "--unlock-delay-s", "0.5"]) as m:
+        robot = UrRtde("127.0.0.22", connect_timeout_s=10.0)
+        robot.connect()
+        try:
+            with pytest.raises(DeviceFault, match="protective stop") as exc:
+                robot.move((40.0, -70.0, 70.0, -90.0, -90.0, 30.0), 100)
+            assert exc.value.code == "protective_stop"
+            assert robot.state().fault == "protective stop" and robot.protective_stopped()
+            with pytest.raises(DeviceFault, match="protective stop"):
+                robot.move(HOME, 100)  # refused while the stop is active
+            robot.reset_faults()  # unlock (retried past the controller's unlock delay), popup, script again
+            assert robot.state().fault == "" and m.state()["safety_mode"] == "NORMAL"
+            robot.move(HOME, 100)
+            assert robot.joints() == HOME
+        finally:
+            robot.close()
+
+
+def test_local_control_is_one_clear_line():
+    with MockUrProcess("127.0.0.23", seed=3, args=["--local"]):
+        robot = UrRtde("127.0.0.23", connect_timeout_s=5.0)
+        with pytest.raises(DeviceFault, match="local control: switch the teach pendant to Remote Control"):
+            robot.connect()
+
+
+def test_nothing_there_is_connection_lost_within_the_timeout():
+    robot = UrRtde("127.0.0.24", connect_timeout_s=1.0)
+    t0 = time.monotonic()
+    with pytest.raises(ConnectionLost, match="not reachable within 1 s") as exc:
+        robot.connect()
+    assert "\n" not in str(exc.value)
+    assert time.monotonic() - t0 < 30  # bounded: the retries stop at the deadline (plus one attempt)
+
+
+LOST = """
+import sys
+from trackcal.drivers.errors import DeviceError
+from trackcal.drivers.ur.client import UrRtde
+from trackcal.mocks.servers.ur.process import MockUrProcess
+with MockUrProcess(sys.argv[1], seed=4, args=[sys.argv[2], "1"]):
+    robot = UrRtde(sys.argv[1], connect_timeout_s=10.0, stale_s=0.3, move_timeout_s=20.0)
+    robot.connect()
+    try:
+        robot.move((30.0, -60.0, 60.0, -60.0, -60.0, 30.0), 100)
+        print("NO ERROR", flush=True)
+    except DeviceError as exc:
+        print(f"ERROR {type(exc).__name__}: {exc}", flush=True)
+    robot.close()
+"""
+
+
+@pytest.mark.parametrize(("host", "fault", "error"), [("127.0.0.25", "--drop-on-move", "ConnectionLost"),
+                                                      ("127.0.0.26", "--stale-on-move", "DeviceTimeout")])  # fmt: skip
+def test_lost_and_stale_streams_end_the_move_in_one_line(host, fault, error):
+    """In a process of its own: after a dropped connection ur_rtde 1.6.5 may crash the process when its interfaces
+    are released at exit (drivers/ur/client.py close), after trackcal has said why it stopped."""
+    out = subprocess.run([sys.executable, "-c", LOST, host, fault], capture_output=True, text=True, timeout=120)
+    lines = [line for line in out.stdout.splitlines() if line.startswith(("ERROR", "NO ERROR"))]
+    assert len(lines) == 1 and lines[0].startswith(f"ERROR {error}: UR {host}: "), out.stdout + out.stderr
