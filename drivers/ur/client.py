@@ -78,6 +78,12 @@ def _version_major_minor(text: str) -> tuple[int, int]:
     return (0, 0)
 
 
+
+def stop_code(reason) -> str:
+    """The DeviceFault code of a guard stop: its StopCause's code (drivers.interfaces: door_open, plc_silent,
+    estop_pressed), "stopped" for a plain reason."""
+    return getattr(reason, "code", "stopped")
+
 class UrRtde:
     """A Universal Robots arm (CB3 or e-Series) driven through ur_rtde; `host` is the controller's address, the
     only peer trackcal connects to (the hardware file's robot.host)."""
@@ -312,7 +318,7 @@ class UrRtde:
         self._require_running(f"move to {target} refused")
         reason = None if self.motion_guard is None else self.motion_guard()
         if reason:
-            raise DeviceFault(f"move to {target} refused: {reason}", code="stopped", device=self.device)
+            raise DeviceFault(f"move to {target} refused: {reason}", code=stop_code(reason), device=self.device)
         with self._lock:
             self._moving, self._stop_asked = True, None
         try:
@@ -342,7 +348,7 @@ class UrRtde:
             reason = self._guard()
             if reason:
                 self._brake()
-                raise DeviceFault(f"move to {target} stopped: {reason}", code="stopped", device=self.device)
+                raise DeviceFault(f"move to {target} stopped: {reason}", code=stop_code(reason), device=self.device)
             t, q_now, bits = self._sample()
             if bits >> PROTECTIVE_STOP_BIT & 1 or any(bits >> b & 1 for b in EMERGENCY_BITS):
                 why = self._safety_text(bits)
@@ -499,7 +505,7 @@ class UrRtde:
         while True:
             reason = self._guard()
             if reason:
-                raise DeviceFault(f"settling stopped: {reason}", code="stopped", device=self.device)
+                raise DeviceFault(f"settling stopped: {reason}", code=stop_code(reason), device=self.device)
             t, q, bits = self._sample()
             if bits >> PROTECTIVE_STOP_BIT & 1:
                 with self._lock:
