@@ -105,9 +105,11 @@ COMMANDS = [
     ]),
     Command("export-urdf", "the calibrated geometric robot as a URDF (and what a URDF cannot hold beside it)",
             "trackcal.campaign.cli.urdf:cmd_export_urdf", [
-                arg("--model", help="model.json from identify or diagnose (the calibrated robot)"),
-                arg("--cell", help="or a cell: its nominal robot and tool points"),
-                arg("--robot", help="or a robot description: configs/robots name, robot YAML or URDF path"),
+                arg("--model", help="model.json from identify or diagnose (the calibrated robot; default: none, one "
+                                    "of --model, --cell, --robot is needed)"),
+                arg("--cell", help="or a cell: its nominal robot and tool points (default: none)"),
+                arg("--robot", help="or a robot description: configs/robots name, robot YAML or URDF path (default: "
+                                    "none)"),
                 arg("--out", required=True, help="URDF to write; NAME.trackcal.json is written beside it"),
             ]),
     Command("plan", "optimal measurement poses for the cell's test pose (or evaluate a plan)",
@@ -213,8 +215,10 @@ COMMANDS = [
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [
                 arg("--cell", required=True, help=CELL_HELP),
-                arg("--conf", help="the controller's calibration file (a UR's calibration.conf)"),
-                arg("--hardware", help="hardware config: read the calibration from the robot it names"),
+                arg("--conf", help="the controller's calibration file (a UR's calibration.conf; default: none, one of "
+                                   "--conf, --hardware is needed)"),
+                arg("--hardware", help="hardware config: read the calibration from the robot it names (default: "
+                                       "none)"),
                 arg("--out", required=True, help="robot YAML to write"),
             ]),
     Command("report", "HTML report of a campaign: plan, residuals, parameters, diagnosis",
