@@ -76,7 +76,9 @@ def test_door_opened_20_ms_into_a_move_brakes_within_the_braking_distance_then_s
     started.set()
     with pytest.raises(DeviceFault, match="the cell door opened") as exc:
         robot.move(target, 100)
-    assert exc.value.code == "stopped" and 34 in ur.state()["commands"]  # ur_rtde STOPJ reached the script
+    # the guard's cause names its code (campaign/cells/checks.motion_guard: door_open); ur_rtde's STOPJ reached
+    # the script
+    assert exc.value.code == "door_open" and 34 in ur.state()["commands"]
     time.sleep(0.3)
     frames = list(watcher.seen)
     sent = robot.stop_sent_at
