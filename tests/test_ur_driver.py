@@ -153,3 +153,40 @@ def test_lost_and_stale_streams_end_the_move_in_one_line(host, fault, error):
     out = subprocess.run([sys.executable, "-c", LOST, host, fault], capture_output=True, text=True, timeout=120)
     lines = [line for line in out.stdout.splitlines() if line.startswith(("ERROR", "NO ERROR"))]
     assert len(lines) == 1 and lines[0].startswith(f"ERROR {error}: UR {host}: "), out.stdout + out.stderr
+
+
+class _Refusing:
+    """ur_rtde's control interface as a protective stop leaves it: its script stopped, moveJ returns False."""
+
+    def moveJ(self, *args):
+        return False
+
+
+class _Stream:
+    """ur_rtde's receive interface showing safety_status_bits with bit 2 (protective stop) after `late` reads: the
+    receive interface trails the control one by a frame or two."""
+
+    def __init__(self, late: int):
+        self.reads = 0
+        self.late = late
+
+    def isConnected(self):
+        return True
+
+    def getSafetyStatusBits(self):
+        self.reads += 1
+        return 1 << 2 if self.reads > self.late else 0
+
+
+def test_a_move_refused_because_of_a_protective_stop_says_so():
+    """A protective stop raised between two moves stops the script; the next moveJ is refused. The cause is the
+    protective stop (code protective_stop, latched), not a script that refuses (seen in the whole-suite run)."""
+    robot = UrRtde("127.0.0.99")
+    robot.control, robot.receive = _Refusing(), _Stream(late=2)
+    with pytest.raises(DeviceFault, match="protective stop") as exc:
+        robot._move((0.0,) * 6, 1.0)
+    assert exc.value.code == "protective_stop" and robot.state().fault == "protective stop"
+    robot.receive = _Stream(late=10**9)  # no safety stop: the script refused for another reason
+    with pytest.raises(DeviceFault, match="not accepted") as exc:
+        robot._move((0.0,) * 6, 1.0)
+    assert exc.value.code == "refused"

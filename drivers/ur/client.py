@@ -61,6 +61,9 @@ SAFETY_BITS = ((2, "protective stop"), (4, "safeguard stop"), (5, "system emerge
                (6, "robot emergency stop"), (7, "emergency stop"), (8, "safety violation"),
                (9, "safety fault"))  # fmt: skip
 PROTECTIVE_STOP_BIT = 2
+# a refused moveJ looks this long for a safety stop that explains it (the receive interface trails the control one by
+# a frame or two: 16 ms at 125 Hz; 0.5 s leaves room for a loaded machine)
+REFUSAL_LOOK_S = 0.5
 EMERGENCY_BITS = (5, 6, 7)
 
 _LOST_LINKS: list = []  # ur_rtde interfaces of lost links, never touched again (see UrRtde.close)
@@ -280,6 +283,23 @@ class UrRtde:
     def _safety_text(self, bits: int) -> str:
         return ", ".join(text for bit, text in SAFETY_BITS if bits >> bit & 1)
 
+    def _explain_refusal(self, target: tuple[float, ...]) -> None:
+        """A moveJ the control script did not accept: when the robot raised a protective or emergency stop meanwhile
+        (the script stops with it; the receive interface shows it a frame or two later), that is the cause, and it
+        is latched as a move ended by it would be."""
+        deadline = time.monotonic() + REFUSAL_LOOK_S
+        while True:
+            bits = self.safety_status_bits()
+            if bits >> PROTECTIVE_STOP_BIT & 1 or any(bits >> b & 1 for b in EMERGENCY_BITS):
+                why = self._safety_text(bits)
+                with self._lock:
+                    self._fault = why
+                raise DeviceFault(f"move to {target} refused by the robot: {why}", code="protective_stop",
+                                  device=self.device)  # fmt: skip
+            if time.monotonic() >= deadline:
+                return
+            time.sleep(0.008)  # an RTDE cycle at 125 Hz
+
     def _require_running(self, what: str) -> None:
         mode = self.robot_mode()
         bits = self.safety_status_bits()
@@ -338,6 +358,7 @@ class UrRtde:
         except RuntimeError as exc:
             raise ConnectionLost(f"moveJ to {target}: {exc}", device=self.device) from None
         if not accepted:
+            self._explain_refusal(target)
             raise DeviceFault(f"moveJ to {target} not accepted by the control script", code="refused",
                               device=self.device)  # fmt: skip
         deadline = time.monotonic() + self.move_timeout_s
