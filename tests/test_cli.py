@@ -18,6 +18,7 @@ from threadpoolctl import threadpool_info
 
 import trackcal.campaign.cli.analysis
 import trackcal.campaign.jobs.limits as limits
+import trackcal.campaign.jobs.plan as plan_job
 from tests.helpers import TRACKCAL, kr270_campaign
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.identify.solver import Identification
@@ -441,8 +442,6 @@ def test_a_detached_mock_serves_when_it_returns_and_stops_on_request(tmp_path):
 
 
 def test_a_scheduler_address_where_nothing_listens_is_one_line_within_the_timeout(tmp_path, monkeypatch, capsys):
-    import trackcal.campaign.jobs.plan as plan_job  # lazy: the module whose timeout the test shortens
-
     pytest.importorskip("distributed")
     monkeypatch.setattr(plan_job, "SCHEDULER_TIMEOUT_S", 1)  # the bound is the option's, not the machine's speed
     closed = socket.create_server(("127.0.0.1", 0))

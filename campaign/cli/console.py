@@ -1,5 +1,6 @@
 """The one rich console of the command line, and the operator who answers on it."""
 
+import contextlib
 import queue
 import sys
 import threading
@@ -93,7 +94,7 @@ class ConsoleOperator:
         self.console.print("[dim](answered elsewhere)[/]")
 
     def _read(self) -> None:
-        try:
+        with contextlib.suppress(OSError, ValueError):  # stdin closed or not readable here (a test's captured stdin)
             while True:
                 try:
                     line = self._readline()
@@ -102,6 +103,4 @@ class ConsoleOperator:
                 if not line:
                     break
                 self._lines.put(line)
-        except (OSError, ValueError):  # stdin closed or not readable here (a test's captured stdin)
-            pass
         self._lines.put(None)

@@ -112,8 +112,8 @@ def read_kinematics_info(host: str, port: int = PRIMARY_PORT, timeout_s: float =
                 if not data:
                     raise ConnectionLost("the primary interface closed the connection", device=where)
                 buf += data
-    except TimeoutError:
-        pass
+    except TimeoutError:  # the deadline passed inside recv: the same answer as a loop that ran out of time
+        raise DeviceTimeout(f"no KINEMATICS_INFO within {timeout_s:g} s", device=where) from None
     except OSError as exc:
         raise ConnectionLost(f"primary interface: {exc.strerror or exc}", device=where) from None
     raise DeviceTimeout(f"no KINEMATICS_INFO within {timeout_s:g} s", device=where)

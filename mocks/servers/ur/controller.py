@@ -109,6 +109,7 @@ class UrController:
         self.inputs: dict[str, object] = {}  # other RTDE inputs (speed slider, outputs masks ...)
         self.tcp = (0.0, 0.0, 0.0)
         self.payload = 0.0
+        self.watchdog_set = False  # the script asked for an RTDE watchdog (recorded; the mock never trips it)
         self.messages: list[tuple[int, str, int]] = []  # text messages for RTDE clients (number, text, level)
         self.message_count = 0
         self.log: list[str] = []  # controller log (for tests and people)
@@ -405,7 +406,7 @@ class UrController:
         elif cmd == SET_TCP:
             self.tcp = self._floats(0, 3)
         elif cmd == SET_WATCHDOG:
-            pass  # the mock does not stop on a missing watchdog update
+            self.watchdog_set = True  # recorded only: the mock does not stop on a missing watchdog update
         elif cmd == IS_JOINTS_WITHIN_LIMITS:
             q = self._floats(0, 6)
             ok = all(lo <= x <= hi for x, (lo, hi) in zip(q, self.limits, strict=True))

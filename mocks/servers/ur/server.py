@@ -399,21 +399,20 @@ class UrServer:
 
     def _serve_dashboard(self, conn: socket.socket, name: str) -> None:
         try:
-            conn.sendall((dashboard.GREETING + "\n").encode())
-            for line in self._lines(conn, name):
-                with self.ctl.lock:
-                    reply, close = dashboard.answer(line, self.ctl)
-                conn.sendall((reply + "\n").encode())
-                if close:
-                    break
-        except OSError:
-            pass
+            with contextlib.suppress(OSError):  # the client went away: nothing to answer
+                conn.sendall((dashboard.GREETING + "\n").encode())
+                for line in self._lines(conn, name):
+                    with self.ctl.lock:
+                        reply, close = dashboard.answer(line, self.ctl)
+                    conn.sendall((reply + "\n").encode())
+                    if close:
+                        break
         finally:
             with contextlib.suppress(OSError):
                 conn.close()
 
     def _serve_control(self, conn: socket.socket, name: str) -> None:
-        try:
+        with contextlib.suppress(OSError):  # the client went away: nothing to answer
             for line in self._lines(conn, name):
                 cmd = line.strip()
                 if cmd == "state":
@@ -433,8 +432,6 @@ class UrServer:
                 else:
                     reply = self.fault(cmd)
                 conn.sendall((reply + "\n").encode())
-        except OSError:
-            pass
 
     def _serve_script(self, conn: socket.socket, name: str) -> None:
         """Primary (30001), secondary (30002), real-time (30003): programs in; on 30001/30002 the version message
