@@ -119,8 +119,9 @@ COMMANDS = [
                 arg("--configs", type=int, default=6, help="number of distinct configurations M"),
                 arg("--repeat", type=int, default=1, help="each configuration measured K times"),
                 arg("--sigma-mm", type=float, help="--noise iid: the noise of one coordinate, mm (default: 0.01)"),
-                arg("--noise", choices=("tracker", "iid"), default="tracker",
-                    help="the AT901 model, as identify weighs the campaign, or i.i.d. --sigma-mm (the paper's)"),
+                arg("--noise", choices=("tracker", "iid"), default="iid",
+                    help="i.i.d. --sigma-mm (the paper's), or the AT901 model identify weighs by (its plans put poses "
+                         "at the edge of a station's view: README)"),
                 arg("--params", help="parameters targeted (default: the cell's plan_params)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),

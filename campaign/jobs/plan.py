@@ -33,7 +33,7 @@ class PlanOptions:
     sigma_mm: float | None = None  # noise="iid": one coordinate's noise; None: 0.01
     # the AT901 model by default: identify, diagnose and run weigh a campaign by it, and rho0 is the test-pose
     # error of the estimate they compute; "iid" (sigma_mm) is the paper's i.i.d. case
-    noise: str = "tracker"
+    noise: str = "iid"  # the tracker model plans poses at the edge of a station's view: README, `trackcal plan`
     visibility: bool = True
     configs: int = 6
     repeat: int = 1
@@ -75,8 +75,8 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
     if opts.sigma_mm is not None and opts.noise != "iid":
-        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the AT901 model, the "
-                          "default, has its own)", "sigma_mm", "noise")  # fmt: skip
+        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the AT901 model has its "
+                          "own)", "sigma_mm", "noise")  # fmt: skip
     noise = TrackerNoise() if opts.noise == "tracker" else None
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
