@@ -101,6 +101,9 @@ def cmd_predict(args) -> int:
     return 0
 
 
+MAX_POINT_ROWS = 20  # locate prints the largest residuals of a long table, all of them in the model file
+
+
 def cmd_locate(args) -> int:
     done = locate(LocateOptions(model=args.model, table=args.table, out=args.out, station=args.station,
                                 name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out))  # fmt: skip
@@ -110,11 +113,15 @@ def cmd_locate(args) -> int:
     for col in ("row", "pose", "point", "dx µm", "dy µm", "dz µm", "|r| µm", "x floor"):
         t.add_column(col, justify="right")
     floor3 = q["noise_floor_mm"] * 3**0.5  # the noise floor of a 3-D distance
-    for p in done.points:
+    shown = sorted(done.points, key=lambda p: -float(np.linalg.norm(p.residual)))[:MAX_POINT_ROWS]
+    for p in sorted(shown, key=lambda p: p.row):
         d = float(np.linalg.norm(p.residual))
         t.add_row(str(p.row), p.pose, p.point, *(f"{v * 1000:+.1f}" for v in p.residual), f"{d * 1000:.1f}",
                   f"{d / floor3:.1f}")  # fmt: skip
     print_table(t)
+    if len(done.points) > len(shown):
+        console.print(f"(the {len(shown)} largest residuals of {len(done.points)}; every point's is in {args.out}, "
+                      f"located.{done.name}.points)")  # fmt: skip
     res = done.doc["located"][done.name]["residuals"]
     console.print(f"residual RMS {res['rms_mm'] * 1000:.1f} µm, max {res['max_mm'] * 1000:.1f} µm (3-D); per "
                   f"coordinate over the {fit.dof} degrees of freedom (3 per point less the station's 6) "
@@ -131,9 +138,11 @@ def cmd_locate(args) -> int:
     if args.predict_out:
         console.print(f"predictions of the held-out rows written to {args.predict_out}")
     if q["fit"] == "poor":
-        print(f"warning: the points fit the station at {q['fit_ratio']:.1f}x the noise floor: the model does not "
-              f"describe this session (a robot that changed, points swapped, a table of another robot?)",
-              file=sys.stderr)  # fmt: skip
+        own = done.doc.get("fit_ratio")
+        print(f"warning: the points fit the station at {q['fit_ratio']:.1f}x the noise floor "
+              + (f"(the model fits its own table at {own:.1f}x)" if own is not None else "")
+              + ": the model does not describe this session to the noise (a robot that changed, points swapped, "
+              "or what the model already missed)", file=sys.stderr)  # fmt: skip
     console.print(("station replaced" if done.replaced else "model with the station written") + f" in {args.out}")
     return 0
 

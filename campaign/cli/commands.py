@@ -276,6 +276,14 @@ COMMANDS = [
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),
+    Command("table", "another tool's tracker export, read through a map (docs/import-map.md)",
+            "trackcal.campaign.cli.importers:cmd_import_table", [
+                arg("file", help="the export (delimited text, UTF-8)"),
+                arg("--map", required=True, help="map YAML: separator, decimal, units, layout, columns "
+                                                 "(docs/import-map.md)"),
+                arg("--out", required=True, help="measurement table to write"),
+            ], group="import",
+            description="Convert another tool's tracker export into a measurement table through a map."),
     Command("plan", "the ISO 9283 cube of the cell, its five poses and the plan `trackcal run` walks",
             "trackcal.campaign.cli.iso9283:cmd_plan", [
                 arg("--cell", required=True, help=CELL_HELP),
