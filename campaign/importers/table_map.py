@@ -236,7 +236,7 @@ def import_table(path: str | Path, m: TableMap) -> MeasurementTable:
     if m.header:
         hrow, header = rows.pop(0)
         names = [r for r in _all_refs(m) if isinstance(r, str)]
-        if not set(names) & set(header):
+        if names and not set(names) & set(header):
             if _looks_separated(raw[hrow - 1], m.separator):
                 raise ImportMapError(_width_note(path, hrow, header, 0, m, raw[hrow - 1]))
             shown = ", ".join(map(repr, names[:4])) + (" ..." if len(names) > 4 else "")
