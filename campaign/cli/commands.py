@@ -278,7 +278,8 @@ COMMANDS = [
                         "measurement tables."),
     Command("table", "another tool's tracker export, read through a map (docs/import-map.md)",
             "trackcal.campaign.cli.importers:cmd_import_table", [
-                arg("file", help="the export (delimited text, UTF-8)"),
+                arg("files", nargs="+", metavar="FILE", help="the export (delimited text, UTF-8); several files: "
+                                                             "one per point (map `point: \"{file}\"`), read in turn"),
                 arg("--map", required=True, help="map YAML: separator, decimal, units, layout, columns "
                                                  "(docs/import-map.md)"),
                 arg("--out", required=True, help="measurement table to write"),

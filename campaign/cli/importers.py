@@ -23,18 +23,18 @@ def cmd_import_ipa(args) -> int:
         write_table(table, args.out)
     except OSError as exc:
         raise IpaFormatError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
-    print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
+    print(f"{', '.join(args.files)}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
     return 0
 
 
 def cmd_import_table(args) -> int:
-    table = import_table(args.file, load_map(args.map))
+    table = import_table(args.files, load_map(args.map))
     try:
         write_table(table, args.out)
     except OSError as exc:
         raise ImportMapError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
     stations = ", ".join(dict.fromkeys(table.station))
     points = ", ".join(dict.fromkeys(table.point))
-    print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points {points}; "
-          f"{table.n_joints} joints) -> {args.out}")
+    print(f"{', '.join(args.files)}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points "
+          f"{points}; {table.n_joints} joints) -> {args.out}")
     return 0

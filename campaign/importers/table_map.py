@@ -19,12 +19,13 @@ The map (YAML; docs/import-map.md documents every key with two examples):
     points:                                   # pose_rows: point id -> its x, y, z columns
       P1: [P1 X, P1 Y, P1 Z]
     station: T1                               # the station id when there is no station column (default T1)
-    point: P1                                 # point_rows without a point column: the one reflector's id
+    point: P1                                 # point_rows without a point column: the one reflector's id, or
+                                              # "{file}": each file's name (one file per point)
 
 Rows are numbered as in the file (its first line is row 1, preamble and header included), columns named by their
-header name and position; every bad cell is one line naming both. Without a pose column, consecutive rows with the
-same joint values share a pose (point_rows) and every row is a pose (pose_rows): ids P0001, P0002, ... In
-pose_rows a point whose three cells are all empty was not measured at that pose and gives no row.
+header name and position; every bad cell is one line naming both. Without a pose column, rows with the same joint
+values share a pose, in every file of one import: ids P0001, P0002, ... in order of first appearance. In pose_rows
+a point whose three cells are all empty was not measured at that pose and gives no row.
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ SEPARATORS = {",": "','", ";": "';'", "\t": "tabs", "|": "'|'"}
 KEYS = ("separator", "decimal", "skip_rows", "header", "positions", "layout", "units", "columns", "points",
         "station", "point")  # fmt: skip
 COLUMN_KEYS = ("joints", "xyz", "point", "pose", "time", "station")
+
+
+FILE_POINT = "{file}"  # the fixed point id that is each file's name without its extension (one file per point)
 
 
 class ImportMapError(TableError):
@@ -225,9 +229,23 @@ def _width_note(path: Path, row: int, cells: list[str], need: int, m: TableMap, 
     return f"{note}, the map needs {need} (column {need} of {m.source})"
 
 
-def import_table(path: str | Path, m: TableMap) -> MeasurementTable:
-    """The measurement table (mm, deg) of the export at `path` read through the map `m`."""
-    path = Path(path)
+def import_table(paths: str | Path | list, m: TableMap) -> MeasurementTable:
+    """The measurement table (mm, deg) of the export at `paths` (one file, or several: one file per point) read
+    through the map `m`, the files' rows one after the other."""
+    paths = [Path(p) for p in ([paths] if isinstance(paths, str | Path) else paths)]
+    poses: dict[tuple, str] = {}
+    parts = [_read_export(p, m, poses) for p in paths]
+    if len(parts) == 1:
+        return parts[0]
+    n = sum(len(t) for t in parts)
+    return MeasurementTable(seq=np.arange(1, n + 1), t_s=np.concatenate([t.t_s for t in parts]),
+                            pose=[v for t in parts for v in t.pose], station=[v for t in parts for v in t.station],
+                            point=[v for t in parts for v in t.point], q_deg=np.vstack([t.q_deg for t in parts]),
+                            xyz=np.vstack([t.xyz for t in parts]), source=", ".join(map(str, paths)))  # fmt: skip
+
+
+def _read_export(path: Path, m: TableMap, poses: dict[tuple, str]) -> MeasurementTable:
+    """One file of the export; `poses` (joint values -> pose id) is shared by the files of one import."""
     rows = _rows(path, m)
     if not rows:
         raise ImportMapError(f"{path}: no rows after the {m.skip_rows} skipped")
@@ -268,22 +286,19 @@ def import_table(path: str | Path, m: TableMap) -> MeasurementTable:
                                  f"{text!r}")  # fmt: skip
         return text
 
+    fixed_point = path.stem if m.point == FILE_POINT else m.point
+    if not fixed_point or not fixed_point.isprintable() or "," in fixed_point:
+        raise ImportMapError(f"{path}: the file's name {fixed_point!r} is no point id (printable, no comma)")
     out_pose, out_station, out_point, out_q, out_xyz, out_t = [], [], [], [], [], []
-    last_q, n_pose = None, 0
     for row, cells in rows:
         if len(cells) < need:
             raise ImportMapError(_width_note(path, row, cells, need, m, raw[row - 1]))
         q = [number(row, cells, c, m.joint_factor) for c in col["joints"]]
         t = number(row, cells, col["time"]) if "time" in col else float(row)  # no time: the file row, an order
         station = ident(row, cells, col["station"]) if "station" in col else m.station
-        if "pose" in col:
-            pose = ident(row, cells, col["pose"])
-        else:
-            if m.layout == "pose_rows" or q != last_q:
-                n_pose += 1
-            pose, last_q = f"P{n_pose:04d}", q
+        pose = ident(row, cells, col["pose"]) if "pose" in col else poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}")
         if m.layout == "point_rows":
-            measured = [(ident(row, cells, col["point"]) if "point" in col else m.point, col["xyz"])]
+            measured = [(ident(row, cells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
         else:
             measured = [(p, cs) for p, cs in pts.items() if any(cells[c.index] for c in cs)]
         for point, cs in measured:
