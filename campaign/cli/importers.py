@@ -23,7 +23,7 @@ def cmd_import_ipa(args) -> int:
         write_table(table, args.out)
     except OSError as exc:
         raise IpaFormatError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
-    print(f"{', '.join(args.files)}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
+    print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
     return 0
 
 
