@@ -61,11 +61,7 @@ class ImportMapError(TableError):
 @dataclass(frozen=True)
 class Column:
     index: int  # 0-based position in a row
-    label: str  # how an error names it: 'X' (column 12) or column 12
-
-    @property
-    def key(self) -> int:
-        return self.index
+    label: str  # how an error names it: column 'X' (position 12), or column 12
 
 
 @dataclass
@@ -205,8 +201,8 @@ def _resolve(m: TableMap, ref: str | int, header: list[str] | None, path: Path, 
     return Column(index, f"column {ref!r} ({'' if m.base is not None else '1-based '}position {pos})")
 
 
-def _rows(path: Path, m: TableMap) -> list[tuple[int, list[str]]]:
-    """(file row number, cells) of every non-blank line after skip_rows."""
+def _rows(path: Path, m: TableMap) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """(the file's lines, (file row number, cells) of every non-blank line after skip_rows)."""
     lines = [line for _, block in read_blocks(path, ImportMapError) for line in split_lines(block)]
     out = []
     try:
@@ -216,7 +212,7 @@ def _rows(path: Path, m: TableMap) -> list[tuple[int, list[str]]]:
     except csv.Error as exc:
         raise ImportMapError(f"{path}: not a {SEPARATORS.get(m.separator, repr(m.separator))}-separated file "
                              f"({exc})") from None  # fmt: skip
-    return out
+    return lines, out
 
 
 def _width_note(path: Path, row: int, cells: list[str], need: int, m: TableMap, line: str) -> str:
@@ -226,7 +222,7 @@ def _width_note(path: Path, row: int, cells: list[str], need: int, m: TableMap, 
     if other is not None:
         return (f"{note}; the file looks {SEPARATORS[other]}-separated: set separator: "
                 f"{other!r}" if other != "\t" else f"{note}; the file looks tab-separated: set separator: '\\t'")
-    return f"{note}, the map needs {need} (column {need} of {m.source})"
+    return f"{note}, the map needs {need} ({m.source})"
 
 
 def import_table(paths: str | Path | list, m: TableMap) -> MeasurementTable:
@@ -246,11 +242,10 @@ def import_table(paths: str | Path | list, m: TableMap) -> MeasurementTable:
 
 def _read_export(path: Path, m: TableMap, poses: dict[tuple, str]) -> MeasurementTable:
     """One file of the export; `poses` (joint values -> pose id) is shared by the files of one import."""
-    rows = _rows(path, m)
+    raw, rows = _rows(path, m)
     if not rows:
         raise ImportMapError(f"{path}: no rows after the {m.skip_rows} skipped")
-    raw = [line for _, block in read_blocks(path, ImportMapError) for line in split_lines(block)]
-    header = None
+    header, hrow = None, m.skip_rows + 1
     if m.header:
         hrow, header = rows.pop(0)
         names = [r for r in _all_refs(m) if isinstance(r, str)]
@@ -259,7 +254,6 @@ def _read_export(path: Path, m: TableMap, poses: dict[tuple, str]) -> Measuremen
                 raise ImportMapError(_width_note(path, hrow, header, 0, m, raw[hrow - 1]))
             shown = ", ".join(map(repr, names[:4])) + (" ..." if len(names) > 4 else "")
             raise ImportMapError(f"{path}: row {hrow}: none of the map's columns ({shown}) is in the header")
-    hrow = m.skip_rows + 1
     col = {k: ([_resolve(m, r, header, path, hrow) for r in v] if isinstance(v, list) else
                _resolve(m, v, header, path, hrow)) for k, v in m.columns.items()}  # fmt: skip
     pts = {p: [_resolve(m, r, header, path, hrow) for r in v] for p, v in (m.points or {}).items()}
