@@ -133,6 +133,9 @@ def good(tmp_path_factory, kr270):
     (d / "verdict.json").write_text(json.dumps(verdict))
     hw = yaml.safe_load((CONFIGS / "hardware" / "example-cell.yaml").read_text())
     (d / "hardware.yaml").write_text(yaml.safe_dump(hw))
+    examples = Path(__file__).resolve().parents[1] / "docs" / "examples"
+    shutil.copyfile(examples / "three-smr-export.csv", d / "export.csv")
+    shutil.copyfile(examples / "three-smr.map.yaml", d / "map.yaml")
     if DATA.is_dir():
         head = (DATA / SERIES["B"]).read_bytes().splitlines(keepends=True)[:12]
         (d / "ipa.csv").write_bytes(b"".join(head))
@@ -154,6 +157,9 @@ CASES = {
     "report": ("report --table {table.csv} --model {model.json} --plan {measured-plan.json} --verdict {verdict.json} "
                "--cell {cell.yaml} --out {out}/r", "table.csv model.json measured-plan.json verdict.json"),
     "import": ("import ipa-ur10 {ipa.csv} --out {out}/t.csv", "ipa.csv"),
+    "import-table": ("import table {export.csv} --map {map.yaml} --out {out}/t.csv", "export.csv map.yaml"),
+    "locate": ("locate --model {model.json} --table {table.csv} --station S1 --poses 3 --out {out}/l.json "
+               "--predict-out {out}/r.csv", "table.csv model.json"),
     "diagnose": ("diagnose {table.csv} --cell {cell.yaml} --folds 2 --json {out}/v.json", "table.csv cell.yaml"),
 }  # fmt: skip
 SLOW_ONLY = {"diagnose", "run"}  # a good input runs a whole diagnosis / campaign: seconds per example

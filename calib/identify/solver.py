@@ -533,7 +533,8 @@ def predict_points(
     """Predicted reflector positions (N, 3) in each row's station frame."""
     for i, (sid, pid) in enumerate(zip(table.station, table.point, strict=True)):
         if sid not in stations:
-            raise IdentificationError(f"{table.source}: row {i + 2}: column station: unknown station {sid!r}")
+            raise IdentificationError(f"{table.source}: row {i + 2}: column station: unknown station {sid!r} (the "
+                                      f"model has {', '.join(stations)}; a tracker set up elsewhere: trackcal locate)")
         if pid not in points:
             raise IdentificationError(f"{table.source}: row {i + 2}: column point: unknown point {pid!r}")
     tool = np.array([points[p] for p in table.point])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+import numpy as np
 from rich.table import Table
 
 from trackcal.campaign.cli.console import console, print_table
@@ -15,6 +16,7 @@ from trackcal.campaign.jobs.identify import (
     identify_table,
     predict,
 )
+from trackcal.campaign.jobs.locate import LocateOptions, locate
 from trackcal.campaign.jobs.simulate import SimulateOptions, parse_effects, simulate
 
 
@@ -96,6 +98,52 @@ def cmd_predict(args) -> int:
     if done.warning:
         print(f"warning: {done.warning}", file=sys.stderr)
     console.print(f"{len(done.table)} predictions written to {args.out}")
+    return 0
+
+
+MAX_POINT_ROWS = 20  # locate prints the largest residuals of a long table, all of them in the model file
+
+
+def cmd_locate(args) -> int:
+    done = locate(LocateOptions(model=args.model, table=args.table, out=args.out, station=args.station,
+                                name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out))  # fmt: skip
+    q, fit = done.quality, done.fit
+    t = Table(title=f"Station {done.name} located on {len(done.points)} points of {len(done.located_poses)} pose(s) "
+                    f"(robot, extension and tool points held from {args.model})")  # fmt: skip
+    for col in ("row", "pose", "point", "dx µm", "dy µm", "dz µm", "|r| µm", "x floor"):
+        t.add_column(col, justify="right")
+    floor3 = q["noise_floor_mm"] * 3**0.5  # the noise floor of a 3-D distance
+    shown = sorted(done.points, key=lambda p: -float(np.linalg.norm(p.residual)))[:MAX_POINT_ROWS]
+    for p in sorted(shown, key=lambda p: p.row):
+        d = float(np.linalg.norm(p.residual))
+        t.add_row(str(p.row), p.pose, p.point, *(f"{v * 1000:+.1f}" for v in p.residual), f"{d * 1000:.1f}",
+                  f"{d / floor3:.1f}")  # fmt: skip
+    print_table(t)
+    if len(done.points) > len(shown):
+        console.print(f"(the {len(shown)} largest residuals of {len(done.points)}; every point's is in {args.out}, "
+                      f"located.{done.name}.points)")  # fmt: skip
+    res = done.doc["located"][done.name]["residuals"]
+    console.print(f"residual RMS {res['rms_mm'] * 1000:.1f} µm, max {res['max_mm'] * 1000:.1f} µm (3-D); per "
+                  f"coordinate over the {fit.dof} degrees of freedom (3 per point less the station's 6) "
+                  f"{q['residual_rms_mm'] * 1000:.1f} µm, {q['fit_ratio']:.1f}x the noise floor "
+                  f"{q['noise_floor_mm'] * 1000:.1f} µm ({q['noise_floor_source']}): fit {q['fit']}")  # fmt: skip
+    c = done.doc["stations"][done.name]
+    ct, cr = c["ci95_translation_mm"], c["ci95_rotation_deg"]
+    console.print(f"station {done.name}: translation ±({ct[0]:.3f}, {ct[1]:.3f}, {ct[2]:.3f}) mm, rotation "
+                  f"±({cr[0]:.4f}, {cr[1]:.4f}, {cr[2]:.4f}) deg (95 %)")  # fmt: skip
+    if done.held_out is not None:
+        h = done.held_out
+        console.print(f"held out: {h['rows']} rows of {h['poses']} poses not used to locate: RMS "
+                      f"{h['dist_rms_mm']:.4f} mm (3-D), max {h['dist_max_mm']:.4f} mm")  # fmt: skip
+    if args.predict_out:
+        console.print(f"predictions of the held-out rows written to {args.predict_out}")
+    if q["fit"] == "poor":
+        own = done.doc.get("fit_ratio")
+        print(f"warning: the points fit the station at {q['fit_ratio']:.1f}x the noise floor "
+              + (f"(the model fits its own table at {own:.1f}x)" if own is not None else "")
+              + ": the model does not describe this session to the noise (a robot that changed, points swapped, "
+              "or what the model already missed)", file=sys.stderr)  # fmt: skip
+    console.print(("station replaced" if done.replaced else "model with the station written") + f" in {args.out}")
     return 0
 
 

@@ -103,6 +103,19 @@ COMMANDS = [
         arg("--model", required=True, help="model.json from identify or diagnose"),
         arg("--out", required=True, help="CSV to write: the rows with x_mm, y_mm, z_mm predicted"),
     ]),
+    Command("locate", "place a tracker station that moved: fit only the station, the robot model held",
+            "trackcal.campaign.cli.analysis:cmd_locate", [
+                arg("--model", required=True, help="model.json from identify or diagnose (held fixed)"),
+                arg("--table", required=True, help=TABLE_HELP + " of the new session (at least 3 points)"),
+                arg("--station", help="the table's station to locate (default: its only one)"),
+                arg("--as", metavar="NAME", help="the station's name in the model written (default: its id in the "
+                                                  "table; a station of that name in the model is replaced)"),
+                arg("--poses", type=int, help="locate on the first K poses of the station (table order), hold "
+                                              "out the rest (default: every pose)"),
+                arg("--out", required=True, help="model.json to write: the model plus the located station"),
+                arg("--predict-out", help="CSV of the held-out rows predicted by the new model (needs --poses; "
+                                          "default: not written)"),
+            ]),
     Command("export-urdf", "the calibrated geometric robot as a URDF (and what a URDF cannot hold beside it)",
             "trackcal.campaign.cli.urdf:cmd_export_urdf", [
                 arg("--model", help="model.json from identify or diagnose (the calibrated robot; default: none, one "
@@ -263,6 +276,15 @@ COMMANDS = [
             ], group="import",
             description="Import the IPA UR10 laser-tracker series (christianlandgraf/ipa-robot-accuracy, MIT) as "
                         "measurement tables."),
+    Command("table", "another tool's tracker export, read through a map (docs/import-map.md)",
+            "trackcal.campaign.cli.importers:cmd_import_table", [
+                arg("files", nargs="+", metavar="FILE", help="the export (delimited text, UTF-8); several files: "
+                                                             "one per point (map `point: \"{file}\"`), read in turn"),
+                arg("--map", required=True, help="map YAML: separator, decimal, units, layout, columns "
+                                                 "(docs/import-map.md)"),
+                arg("--out", required=True, help="measurement table to write"),
+            ], group="import",
+            description="Convert another tool's tracker export into a measurement table through a map."),
     Command("plan", "the ISO 9283 cube of the cell, its five poses and the plan `trackcal run` walks",
             "trackcal.campaign.cli.iso9283:cmd_plan", [
                 arg("--cell", required=True, help=CELL_HELP),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from trackcal.calib.io.table import write_table
 from trackcal.campaign.importers.ipa_ur10 import IpaFormatError, read_ipa_series
+from trackcal.campaign.importers.table_map import ImportMapError, import_table, load_map
 
 # Ceilings of the two numbers the import takes (NaN and inf fail them too): a day between poses, and a lever of
 # 10 m, beyond any probe a UR10 carries (the T-Mac's points are 0.1 m from its centre; ur10-tmac expects 100 mm)
@@ -23,4 +24,17 @@ def cmd_import_ipa(args) -> int:
     except OSError as exc:
         raise IpaFormatError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
     print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
+    return 0
+
+
+def cmd_import_table(args) -> int:
+    table = import_table(args.files, load_map(args.map))
+    try:
+        write_table(table, args.out)
+    except OSError as exc:
+        raise ImportMapError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
+    stations = ", ".join(dict.fromkeys(table.station))
+    points = ", ".join(dict.fromkeys(table.point))
+    print(f"{', '.join(args.files)}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points "
+          f"{points}; {table.n_joints} joints) -> {args.out}")
     return 0
