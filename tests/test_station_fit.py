@@ -4,25 +4,12 @@ the station on the session's table."""
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from tests.helpers import feasible_plan, inproc_live
-from trackcal.calib.model.kinematics import Kinematics
+from tests.helpers import feasible_plan, inproc_live, placed_residuals
 from trackcal.campaign.engine.engine import Document
 from trackcal.campaign.engine.station_fit import StationFits, fit_block, station_blocks
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.session.session import export_table
-
-
-def independent_residuals(cell, table, rows):
-    """Measured minus the nominal model placed on them (scipy's Wahba solution on centred points, not Kabsch)."""
-    q = np.radians(table.q_deg[rows])
-    tool = np.array([cell.tool_points[table.point[i]] for i in rows])
-    nominal = Kinematics(cell.chain, []).points(q, tool)
-    xyz = table.xyz[rows]
-    rot, _ = Rotation.align_vectors(xyz - xyz.mean(axis=0), nominal - nominal.mean(axis=0))
-    r = rot.as_matrix()
-    return xyz - (nominal @ r.T + xyz.mean(axis=0) - r @ nominal.mean(axis=0))
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +41,7 @@ def test_each_block_is_fitted_right_after_its_last_step_and_equals_an_independen
         rows = [i for i, s in enumerate(table.station) if s == d["station"]]
         assert d["measured"] == d["planned"] == len(rows) == len(d["residuals"])
         assert [r["step"] for r in d["residuals"]] == [steps[i] for i in rows]
-        expected = independent_residuals(kr270, table, rows)
+        expected = placed_residuals(kr270, table, rows)
         got = np.array([r["d_mm"] for r in d["residuals"]])
         np.testing.assert_allclose(got, expected, atol=2e-4)  # the document rounds to 0.1 um
         norms = np.linalg.norm(expected, axis=1)

@@ -105,7 +105,8 @@ function promptWords(p) {
 
 function renderAll() {
   const v = page.view, live = page.live;
-  document.body.classList.toggle("lost", !page.connected);
+  // faded while trackcal is not running, unless the campaign is complete: its final state stays easy to read
+  document.body.classList.toggle("lost", !page.connected && !(v && v.run.status === "success"));
   const status = $("status");
   let st = "connecting…", cls = "pill";
   if (v) {
@@ -304,7 +305,7 @@ function renderPlot() {
   const devs = page.points.filter((p) => p.dev_mm !== null);
   const top = 218, hgt = 80, max = Math.max(1, ...devs.map((p) => p.dev_mm));
   svg.append(el("line", { x1: 0, y1: top + hgt, x2: 640, y2: top + hgt, stroke: "#999" }),
-             el("text", { x: 636, y: top - 4, "font-size": 22, fill: "#555", "text-anchor": "end" },
+             el("text", { x: 636, y: top - 6, "font-size": 26, fill: "#555", "text-anchor": "end" },
                 `bar height ${max.toFixed(1)} mm`));
   const bw = 640 / Math.max(page.plan.planned.length, 1);
   devs.forEach((p, i) => {
@@ -326,14 +327,14 @@ function renderFits(fits) {
   svg.replaceChildren();
   const norm = (r) => Math.hypot(...r.d_mm);
   const max = Math.max(1e-3, ...fits.flatMap((f) => f.residuals.map(norm)));
-  const w = 640 / Math.max(stations.length, 1), top = 40, base = 150;
+  const w = 640 / Math.max(stations.length, 1), top = 44, base = 150;
   stations.forEach((sid, k) => {
     const color = COLORS[k % COLORS.length], x0 = k * w;
-    svg.append(el("text", { x: x0 + 6, y: 28, "font-size": 26, "font-weight": 700, fill: color }, sid),
+    svg.append(el("text", { x: x0 + 6, y: 32, "font-size": 30, "font-weight": 700, fill: color }, sid),
                el("line", { x1: x0 + 4, y1: base, x2: x0 + w - 4, y2: base, stroke: "#999" }));
     const mine = fits.filter((f) => f.station === sid);
     if (!mine.length) {
-      svg.append(el("text", { x: x0 + w / 2, y: 100, "font-size": 22, fill: "#777", "text-anchor": "middle" },
+      svg.append(el("text", { x: x0 + w / 2, y: 104, "font-size": 26, fill: "#777", "text-anchor": "middle" },
                     "after its block"));
       return;
     }
@@ -354,7 +355,7 @@ function renderFits(fits) {
       list.append(li);
     }
   });
-  if (fits.length) svg.append(el("text", { x: 636, y: 176, "font-size": 22, fill: "#555", "text-anchor": "end" },
+  if (fits.length) svg.append(el("text", { x: 636, y: 180, "font-size": 26, fill: "#555", "text-anchor": "end" },
                 `bar height ${max < 0.1 ? max.toFixed(3) : max.toFixed(2)} mm`));
 }
 
