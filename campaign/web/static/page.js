@@ -10,6 +10,7 @@ const COLORS = ["#1f5fa8", "#c0582b", "#2c8a4b", "#7a3da0", "#a8871f", "#2b8a8a"
 const page = { view: null, points: [], plan: null, live: {}, csrf: "", connected: false, heard: 0, pending: false,
                answered: null, fresh: [], plotDirty: true, fitsShown: null };
 window.trackcalSeen = {};  // event id of a measurement -> when it was drawn (bench/bench_web.py reads it)
+window.trackcalFitsSeen = {};  // event id of a station fit -> when its residuals were drawn (bench/bench_web.py)
 
 function clientId() {
   let id = sessionStorage.getItem("trackcal-client");
@@ -355,6 +356,8 @@ function renderFits(fits) {
       list.append(li);
     }
   });
+  const now = performance.timeOrigin + performance.now();
+  for (const f of fits) if (!(f.id in window.trackcalFitsSeen)) window.trackcalFitsSeen[f.id] = now;
   if (fits.length) svg.append(el("text", { x: 636, y: 180, "font-size": 26, fill: "#555", "text-anchor": "end" },
                 `bar height ${max < 0.1 ? max.toFixed(3) : max.toFixed(2)} mm`));
 }
