@@ -75,3 +75,7 @@ def test_a_block_with_fewer_than_three_measurements_places_no_station(kr270, cam
     measured = {e.step: e.data for e in store.events("measurement") if e.step in block.steps[:2]}
     d = fit_block(kr270, block, measured)
     assert d["residuals"] == [] and d["measured"] == 2 and "at least 3" in d["note"]
+    # three measurements of one point at one pose (a drift check's revisits): no station is placed on one point
+    one = next(iter(measured.values()))
+    d = fit_block(kr270, block, dict.fromkeys(block.steps[:3], one))
+    assert d["residuals"] == [] and d["measured"] == 3 and "collinear" in d["note"]

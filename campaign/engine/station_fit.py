@@ -54,7 +54,7 @@ def station_blocks(steps: list[Step]) -> list[Block]:
 
 def fit_block(cell: Cell, block: Block, measured: dict[int, dict]) -> dict:
     """The data of the block's `station_fit` document; `measured`: step -> the data of its measurement."""
-    rows = [i for i in block.steps if i in measured]
+    rows = [i for i in block.steps if i in measured and measured[i]["point"] in cell.tool_points]
     doc = {"block": block.index, "station": block.station, "planned": len(block.steps), "measured": len(rows)}
     if len(rows) < 3:
         return doc | {"residuals": [], "note": f"{len(rows)} measurement(s): at least 3 are needed to place the "
@@ -66,7 +66,7 @@ def fit_block(cell: Cell, block: Block, measured: dict[int, dict]) -> dict:
     xyz = np.array([d["xyz_mm"] for d in data], dtype=float)  # the station's frame
     try:
         r, t = kabsch(nominal, xyz)
-    except RigidError as exc:
+    except (RigidError, np.linalg.LinAlgError) as exc:  # collinear points; an SVD that does not converge
         return doc | {"residuals": [], "note": str(exc)}
     res = xyz - (nominal @ r.T + t)
     stats = residual_stats(res)
