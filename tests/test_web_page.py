@@ -314,6 +314,9 @@ def test_kill_9_leaves_a_page_that_says_so_and_resume_brings_it_back(browser, id
         counts = text(page, "#counts").split()  # "N measured, S skipped of P"
         assert int(counts[0]) + int(counts[2]) == int(counts[-1]) > 24
         assert "resuming at step" in text(page, "#warnings")
+        # each block's residuals once, whichever run measured it (a block the kill cut is placed when it ends)
+        fits = page.locator("#fit-list li").all_text_contents()
+        assert [f.split(":")[0] for f in fits] == ["S1", "S2"] and all(": rms " in f for f in fits), fits
         # the analysis: the report's outcome sentence and a link to the report, served while the page lingers
         page.wait_for_selector("#outcome-card:not([hidden])", timeout=180000)
         assert text(page, "#outcome").startswith("The ")
