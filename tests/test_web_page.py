@@ -261,10 +261,12 @@ def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, 
         assert text(page, "#sentence") == "The campaign is complete." and page.locator("#answer").is_disabled()
         page.wait_for_selector("#outcome-card:not([hidden])", timeout=10000)
         assert text(page, "#outcome").startswith(f"Replayed into {into}") and page.locator("#report").is_hidden()
+        assert (into / "table.csv").is_file()  # exported before the page lingers
         shown = page.locator("#fit-list li").all_text_contents()
         shoot({"phone": page}, tmp_path, "replay")
         proc.send_signal(signal.SIGINT)  # ends the lingering
         assert proc.wait(timeout=30) == 0, proc.stdout.read()[-3000:]
+        assert "replayed 24 measurements into" in proc.stdout.read()
     finally:
         context.close()
         if proc.poll() is None:
