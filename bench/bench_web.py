@@ -7,7 +7,9 @@ the CPU time of the process, which a loaded machine disturbs less). With the pag
 a headless chromium (Debian's, through Playwright) watches it over loopback and every prompt is offered to the
 page too, while the simulated person's button answers (so both runs wait on the same operator). The latency of a
 measurement is the wall time from the hub receiving its document (after the store committed it) to the page
-having drawn it (`window.trackcalSeen`, performance.timeOrigin + now(): the same clock on one machine).
+having drawn it (`window.trackcalSeen`, performance.timeOrigin + now(): the same clock on one machine); the same
+for each station block's residuals (`station_fit`, `window.trackcalFitsSeen`), with the time the fit itself takes
+in the engine's thread (campaign/engine/station_fit.py, timed again on the session's measurements).
 
     python -m bench.bench_web [--repeats 2]
 """
@@ -31,6 +33,7 @@ from bench.bench_sim_campaign import SEED, readme_plan
 from bench.goals import check
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cells.sim import SimCell
+from trackcal.campaign.engine.station_fit import fit_block, station_blocks
 from trackcal.campaign.jobs.campaign import new_session, run_session, stored_campaign
 from trackcal.campaign.web.server import WebPage
 
@@ -42,11 +45,12 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--d
 class Watcher(threading.Thread):
     """A headless chromium showing the page until `done` is set; then `seen` holds window.trackcalSeen."""
 
-    def __init__(self, url: str, expect: int) -> None:
+    def __init__(self, url: str, expect: int, expect_fits: int) -> None:
         super().__init__(daemon=True)
-        self.url, self.expect = url, expect
+        self.url, self.expect, self.expect_fits = url, expect, expect_fits
         self.ready, self.done = threading.Event(), threading.Event()
         self.seen: dict[int, float] = {}
+        self.fits_seen: dict[int, float] = {}
         self.error: BaseException | None = None
 
     def run(self) -> None:
@@ -62,18 +66,22 @@ class Watcher(threading.Thread):
                 deadline = time.monotonic() + 20
                 while time.monotonic() < deadline:
                     seen = page.evaluate("window.trackcalSeen")
-                    if len(seen) >= self.expect:
+                    fits = page.evaluate("window.trackcalFitsSeen")
+                    if len(seen) >= self.expect and len(fits) >= self.expect_fits:
                         break
                     time.sleep(0.1)
                 self.seen = {int(k): v / 1000.0 for k, v in seen.items()}
+                self.fits_seen = {int(k): v / 1000.0 for k, v in fits.items()}
                 browser.close()
         except BaseException as exc:  # reported by the main thread
             self.error = exc
             self.ready.set()
 
 
-def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[float, float, list[float]]:
-    """(campaign wall s, CPU s of this process, per-measurement latencies s) of one simulated campaign."""
+def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[float, float, list[float], list[float],
+                                                                              list[float]]:  # fmt: skip
+    """(campaign wall s, CPU s of this process, per-measurement latencies s, per-station-fit latencies s, the
+    station fits' compute times s) of one simulated campaign."""
     directory = root / name
     shutil.rmtree(directory, ignore_errors=True)
     store, _ = new_session(directory, "kr270", plan, "sim", SEED)
@@ -86,7 +94,7 @@ def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[f
             page.attach(store, campaign.cell, campaign.steps)
             live.operator = page.operator(live.operator, None, live.cellio)
             planned = sum(1 for s in campaign.steps if s.kind == "measure")
-            watcher = Watcher(f"http://127.0.0.1:{page.port}/", planned)
+            watcher = Watcher(f"http://127.0.0.1:{page.port}/", planned, len(station_blocks(campaign.steps)))
             watcher.start()
             watcher.ready.wait(60)
             if watcher.error:
@@ -95,7 +103,13 @@ def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[f
         with contextlib.redirect_stdout(io.StringIO()):
             run_session(store, campaign, live, (), page)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-        latencies = []
+        latencies, fit_latencies = [], []
+        measured = {e.step: e.data for e in store.events("measurement")}
+        fit_times = []
+        for block in station_blocks(campaign.steps):
+            t0 = time.perf_counter()
+            fit_block(campaign.cell, block, measured)
+            fit_times.append(time.perf_counter() - t0)
         if watcher is not None:
             watcher.done.set()
             watcher.join(60)
@@ -104,11 +118,16 @@ def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[f
             missing = len(ids) - len(latencies)
             if missing:
                 raise RuntimeError(f"{missing} of {len(ids)} measurements never reached the page")
+            fits = [e.id for e in page.hub.events if e.kind == "station_fit"]
+            fit_latencies = [watcher.fits_seen[i] - page.hub.doc_wall[i] for i in fits if i in watcher.fits_seen]
+            if len(fit_latencies) != len(fits) or not fits:
+                raise RuntimeError(f"{len(fits) - len(fit_latencies)} of {len(fits)} station fits never reached the "
+                                   "page")  # fmt: skip
     finally:
         if page is not None:
             page.close()
         store.close()
-    return wall, cpu, latencies
+    return wall, cpu, latencies, fit_latencies, fit_times
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -125,13 +144,17 @@ def main(argv: list[str] | None = None) -> None:
     walls: dict[bool, list[float]] = {False: [], True: []}
     cpus: dict[bool, list[float]] = {False: [], True: []}
     latencies: list[float] = []
+    fit_latencies: list[float] = []
+    fit_times: list[float] = []
     try:
         for r in range(args.repeats):
             for with_page in (False, True) if r % 2 == 0 else (True, False):  # alternated: no order effect
-                wall, cpu, lat = one_run(cell, plan, root, f"r{r}-{int(with_page)}", with_page)
+                wall, cpu, lat, fit_lat, fit_t = one_run(cell, plan, root, f"r{r}-{int(with_page)}", with_page)
                 walls[with_page].append(wall)
                 cpus[with_page].append(cpu)
                 latencies += lat
+                fit_latencies += fit_lat
+                fit_times += fit_t
     finally:
         shutil.rmtree(root, ignore_errors=True)
     latencies.sort()
@@ -143,6 +166,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"campaign wall time, medians of {args.repeats}: without the page {without:.2f} s, with it {with_:.2f} s "
           f"({(with_ / without - 1) * 100:+.0f} %); runs {', '.join(f'{w:.2f}' for w in walls[False])} / "
           f"{', '.join(f'{w:.2f}' for w in walls[True])}")  # fmt: skip
+    fit_latencies.sort()
+    print(f"station fit -> residual plot on the page, {len(fit_latencies)} blocks: median "
+          f"{statistics.median(fit_latencies) * 1000:.1f} ms, max {fit_latencies[-1] * 1000:.1f} ms; the fit in the "
+          f"engine's thread: median {statistics.median(fit_times) * 1000:.2f} ms, max {max(fit_times) * 1000:.2f} ms "
+          f"over {len(fit_times)}")  # fmt: skip
     # a person at the cell reads a second's delay as "the page is behind": p99 under one second
     cw, cp = statistics.median(cpus[False]), statistics.median(cpus[True])
     print(f"campaign CPU time of the process (every thread: trackcal, the twin's mocks, the page's server), medians: "

@@ -8,9 +8,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.session.session import measured_keys
 from trackcal.mocks.cell import World
@@ -37,6 +39,18 @@ def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
 
     poses = np.degrees(random_feasible_poses(design_for_cell(cell, []), n_poses, np.random.default_rng(seed)))
     return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
+
+
+def placed_residuals(cell, table, rows) -> np.ndarray:
+    """Measured minus the nominal model placed on the `rows` of a measurement table (one station's block): an
+    independent check of campaign/engine/station_fit.py (scipy's Wahba solution on centred points, not Kabsch)."""
+    q = np.radians(table.q_deg[rows])
+    tool = np.array([cell.tool_points[table.point[i]] for i in rows])
+    nominal = Kinematics(cell.chain, []).points(q, tool)
+    xyz = table.xyz[rows]
+    rot, _ = Rotation.align_vectors(xyz - xyz.mean(axis=0), nominal - nominal.mean(axis=0))
+    r = rot.as_matrix()
+    return xyz - (nominal @ r.T + xyz.mean(axis=0) - r @ nominal.mean(axis=0))
 
 
 def inproc_live(cell, seed: int = 3, store=None, operator=None):

@@ -11,11 +11,12 @@ import subprocess
 import threading
 import time
 
+import numpy as np
 import pytest
 
-from tests.helpers import ROOT, TRACKCAL, feasible_plan
+from tests.helpers import ROOT, TRACKCAL, feasible_plan, inproc_live, placed_residuals
 from trackcal.campaign.cells.sim import free_port
-from trackcal.campaign.jobs.campaign import OperatorConsole, new_session, open_cell, run_session
+from trackcal.campaign.jobs.campaign import OperatorConsole, new_session, open_cell, run_session, run_stored
 from trackcal.campaign.session.session import export_table
 from trackcal.campaign.session.store import SessionStore
 from trackcal.campaign.web.server import WebPage
@@ -105,10 +106,19 @@ def shoot(pages, folder, moment):
     for name, page in pages.items():
         path = folder / f"{moment}-{name}.png"
         page.screenshot(path=str(path), full_page=True)
-        assert path.stat().st_size > 0
+        # a full-page screenshot is as wide as the page: wider than the screen, something sticks out (cut)
+        width = int.from_bytes(path.read_bytes()[16:20], "big")  # PNG: the IHDR chunk's width (RFC 2083, 4.1.1)
+        assert width == page.viewport_size["width"], f"{path.name}: the page is {width} px wide on a narrower screen"
 
 
-def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, tmp_path):
+def residual_bars(page) -> list[tuple[str, int, list[float]]]:
+    """(station, step, residual mm) of every bar of the residual plot."""
+    return [(b.get_attribute("data-station"), int(b.get_attribute("data-step")),
+             [float(x) for x in b.get_attribute("data-d").split(",")])
+            for b in page.locator("#fits rect").all()]  # fmt: skip
+
+
+def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, kr270, tmp_path):
     shots = tmp_path / "screenshots"
     shots.mkdir()
     print(f"\nscreenshots in {shots}")
@@ -132,11 +142,16 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, tmp_path):
             if click_next(page):
                 clicks += 1
             if clicks == 9 and not reloaded:  # in the middle: the page comes back from the session
+                # S1's block ended before the prompt to set up S2: its residuals are on the page, S2's not yet
+                s1 = wait_until(page, "#fit-list", lambda t: t.startswith("S1: rms"))
+                assert len(residual_bars(page)) == 9 and "S2" not in s1  # 3 poses x 3 points seen from S1
+                assert "after its block" in text(page, "#fits")
                 before = text(page, "#counts")
                 page.reload()
                 wait_until(page, "#status", lambda t: t == "running")
                 assert text(page, "#control") == "you have control"  # the tab keeps its client id
                 assert int(text(page, "#counts").split()[0]) >= int(before.split()[0])
+                assert text(page, "#fit-list") == s1 and len(residual_bars(page)) == 9  # rebuilt from the session
                 now = text(page, "#counts")
                 wait_until(watcher, "#counts", lambda t, now=now: t == now)
                 shoot({"tablet": page, "phone": watcher}, shots, "2-after-reload")
@@ -147,7 +162,9 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, tmp_path):
         for p in (page, watcher):
             wait_until(p, "#status", lambda t: "complete" in t)
             assert text(p, "#counts") == "24 measured, 0 skipped of 24"
+            wait_until(p, "#fit-list", lambda t: "S2: rms" in t)
         shoot({"tablet": page, "phone": watcher}, shots, "3-complete")
+        bars, shown = residual_bars(page), page.locator("#fit-list li").all_text_contents()
     finally:
         tablet.close()
         phone.close()
@@ -162,6 +179,17 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, tmp_path):
     a, b = export_table(web), export_table(console)
     assert a.pose == b.pose and a.station == b.station and a.point == b.point
     assert (a.xyz == b.xyz).all() and (a.q_deg == b.q_deg).all() and (a.t_s == b.t_s).all()
+    # the residual plot equals the station placed independently on the session's table, bar by bar
+    steps = [e.step for e in web.events("measurement")]
+    for k, sid in enumerate(("S1", "S2")):
+        rows = [i for i, s in enumerate(a.station) if s == sid]
+        expected = placed_residuals(kr270, a, rows)
+        drawn = {step: d for station, step, d in bars if station == sid}
+        assert sorted(drawn) == sorted(steps[i] for i in rows)
+        np.testing.assert_allclose([drawn[steps[i]] for i in rows], expected, atol=2e-4)  # rounded to 0.1 um
+        norms = np.linalg.norm(expected, axis=1)
+        assert shown[k] == (f"{sid}: rms {np.sqrt(np.mean(norms**2)):.3f} mm, max {norms.max():.3f} mm "
+                            f"({len(rows)} of {len(rows)} measured)")  # fmt: skip
 
 
 def test_the_door_opened_while_the_page_shows_a_prompt(browser, kr270, tmp_path):
@@ -212,6 +240,46 @@ def test_the_door_opened_while_the_page_shows_a_prompt(browser, kr270, tmp_path)
     assert result["r"].exit_status == "success"
 
 
+def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, kr270, tmp_path):
+    """`replay --operator web`: the page watches the replay (its answers are the recording's: nothing to answer)
+    and, while it lingers, shows the replayed campaign's final state, its station fits included."""
+    recording = tmp_path / "recording"
+    store, _ = new_session(recording, "kr270", json.loads(plan.read_text()), "sim", 3)
+    try:
+        assert run_stored(store, inproc_live(kr270)[1]).exit_status == "success"  # in-process: a second or two
+    finally:
+        store.close()
+    port, into = free_port(), tmp_path / "replay"
+    proc = subprocess.Popen([*TRACKCAL, "replay", str(recording), "--into", str(into), "--operator", "web",
+                             "--web-port", str(port), "--web-linger", "120"], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
+    context = browser.new_context(viewport=PHONE)
+    try:
+        page = open_page(context, f"http://127.0.0.1:{port}/")
+        wait_until(page, "#status", lambda t: t == "complete")
+        assert text(page, "#counts") == "24 measured, 0 skipped of 24"
+        assert text(page, "#sentence") == "The campaign is complete." and page.locator("#answer").is_disabled()
+        page.wait_for_selector("#outcome-card:not([hidden])", timeout=10000)
+        assert text(page, "#outcome").startswith(f"Replayed into {into}") and page.locator("#report").is_hidden()
+        assert (into / "table.csv").is_file()  # exported before the page lingers
+        shown = page.locator("#fit-list li").all_text_contents()
+        shoot({"phone": page}, tmp_path, "replay")
+        proc.send_signal(signal.SIGINT)  # ends the lingering
+        assert proc.wait(timeout=30) == 0, proc.stdout.read()[-3000:]
+        assert "replayed 24 measurements into" in proc.stdout.read()
+    finally:
+        context.close()
+        if proc.poll() is None:
+            proc.kill()
+    rec, rep = SessionStore.open(recording, readonly=True), SessionStore.open(into, readonly=True)
+    # the prompts and their answers are the recording's, replayed; the fits are made again, the same
+    assert [e.data for e in rep.events("operator")] == [e.data for e in rec.events("operator")]
+    fits = [e.data for e in rec.events("station_fit")]
+    assert [e.data for e in rep.events("station_fit")] == fits and len(fits) == 2
+    assert shown == [f"{f['station']}: rms {f['rms_mm']:.3f} mm, max {f['max_mm']:.3f} mm ({f['measured']} of "
+                     f"{f['planned']} measured)" for f in fits]  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def identifiable_plan(kr270, tmp_path_factory):
     """Ten poses in two passes (tests/test_campaign_cli.py): enough to identify, so the run ends in a report."""
@@ -248,6 +316,9 @@ def test_kill_9_leaves_a_page_that_says_so_and_resume_brings_it_back(browser, id
         counts = text(page, "#counts").split()  # "N measured, S skipped of P"
         assert int(counts[0]) + int(counts[2]) == int(counts[-1]) > 24
         assert "resuming at step" in text(page, "#warnings")
+        # each block's residuals once, whichever run measured it (a block the kill cut is placed when it ends)
+        fits = page.locator("#fit-list li").all_text_contents()
+        assert [f.split(":")[0] for f in fits] == ["S1", "S2"] and all(": rms " in f for f in fits), fits
         # the analysis: the report's outcome sentence and a link to the report, served while the page lingers
         page.wait_for_selector("#outcome-card:not([hidden])", timeout=180000)
         assert text(page, "#outcome").startswith("The ")

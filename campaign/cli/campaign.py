@@ -89,8 +89,13 @@ def analyse_for(store: SessionStore, page: WebPage | None, linger_s: float = 0.0
         page.finish(None, "The campaign is complete but cannot be identified yet (the console says why): no report.")
     else:
         page.finish(analysis.report)
-    if linger_s > 0:
-        console.print(f"the operator's page shows the outcome and the report for {linger_s:g} s (Ctrl-C ends it)")
+    linger(page, linger_s, "the outcome and the report")
+
+
+def linger(page: WebPage | None, linger_s: float, what: str) -> None:
+    """Keep the operator's page up `linger_s` seconds (or until Ctrl-C) once trackcal is done, showing `what`."""
+    if page is not None and linger_s > 0:
+        console.print(f"the operator's page shows {what} for {linger_s:g} s (Ctrl-C ends it)")
         with suppress(KeyboardInterrupt):
             time.sleep(linger_s)
 
@@ -194,12 +199,20 @@ def cmd_replay(args) -> int:
         recording = SessionStore.open(args.session, readonly=True)
         with operator_page(args) as page:
             store = replay(recording, into, args.cell, plan_doc, page=page)  # a failed one leaves nothing at `into`
+            replayed(store, into, page, args.web_linger)
     except (CalibError, CampaignError, OSError, ValueError) as exc:
         if isinstance(exc, ReplayDivergence):
             raise InputError(f"replay diverges from the recording at {exc} ({into} not kept)") from None
         if isinstance(exc, CampaignError):
             raise
         raise InputError(str(exc)) from None
-    n = write_export(store, Path(args.into) / "table.csv")
-    console.print(f"replayed {n} measurements into {args.into} (the recording is unchanged)")
     return 0
+
+
+def replayed(store: SessionStore, into: Path, page: WebPage | None, linger_s: float) -> None:
+    """The replay's table exported, then (`--operator web`) the page kept up `linger_s` seconds."""
+    n = write_export(store, into / "table.csv")
+    console.print(f"replayed {n} measurements into {into} (the recording is unchanged)")
+    if page is not None:
+        page.finish(None, f"Replayed into {into}; a replay is not analysed, so there is no report.")
+        linger(page, linger_s, "the replayed campaign")

@@ -65,7 +65,8 @@ OPERATOR_ARGS = [
                            "that the console prints)"),
     arg("--web-port", type=int, help="--operator web: port, default 8470 (0: a free one)"),
     arg("--web-linger", type=float, default=0.0,
-        help="--operator web: seconds the page stays up after the analysis, with the outcome and the report"),
+        help="--operator web: seconds the page stays up after the analysis (replay: after the replay), with the "
+             "outcome and the report"),
 ]
 
 GROUPS = {

@@ -6,10 +6,11 @@ that each message of a plan is dispatched through, and `emit` handing each docum
 `RunEngineResult` for what a run returns): here the messages are the plan's steps (engine/steps.py), the command
 table is `Engine.handlers`, and the documents are `Document`s: `start`, `step_started`, every device `call` (by the
 recorders around the devices, engine/recording.py), `prompt` and the `operator`'s answer, `measurement`,
-`warning`, `error`, `step_done`, `progress`, and `stop` with the exit status. The session store is one subscriber
-(session/session.py SessionLog), the console's progress another (cli/campaign.py). Subscribers are called
-synchronously, in order, before the engine goes on: a subscriber that must be durable (the store) has committed
-each document before the next device call.
+`warning`, `error`, `step_done`, `progress`, and `stop` with the exit status; `station_fit` comes from a
+subscriber, the residuals of a station block once its last step is done (engine/station_fit.py). The session
+store is one subscriber (session/session.py SessionLog), the console's progress another (cli/campaign.py).
+Subscribers are called synchronously, in order, before the engine goes on: a subscriber that must be durable (the
+store) has committed each document before the next device call.
 
 Rules it keeps:
 - every device call, operator answer and measurement is emitted (so committed by the store) as it happens; a
@@ -67,7 +68,7 @@ class Document:
 
 
 DOCUMENTS = ("start", "step_started", "call", "prompt", "operator", "measurement", "warning", "error", "step_done",
-             "progress", "stop")  # fmt: skip
+             "progress", "stop", "station_fit")  # fmt: skip
 Subscriber = Callable[[Document], None]
 
 

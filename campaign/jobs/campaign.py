@@ -25,6 +25,7 @@ from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
 from trackcal.campaign.engine.expected import expected_position, measurement_tolerance
 from trackcal.campaign.engine.recording import Playback, Recorder
+from trackcal.campaign.engine.station_fit import StationFits
 from trackcal.campaign.engine.steps import Step, plan_steps
 from trackcal.campaign.errors import CampaignError, InputError
 from trackcal.campaign.session.session import (
@@ -101,6 +102,18 @@ def history(store: SessionStore) -> History:
                    measurements=tuple(e.data for e in events if e.kind == "measurement"))  # fmt: skip
 
 
+def run_context(store: SessionStore, campaign: Campaign, subscribers: Iterable[Subscriber]) -> RunContext:
+    """The documents of a run go to the store first, then `subscribers` in order, then the station fits (which
+    emit each station block's residuals into the same run: engine/station_fit.py)."""
+    context = RunContext([SessionLog(store), *subscribers])
+    events = store.events()
+    measured = [(e.step, e.data) for e in events if e.kind == "measurement"]
+    fitted = [e.data["block"] for e in events if e.kind == "station_fit"]
+    context.subscribers.append(StationFits(campaign.cell, campaign.steps, context.emit, measured, fitted,
+                                           store.done_steps()))  # fmt: skip
+    return context
+
+
 def devices(live: Live, context: RunContext, cell: Cell) -> Devices:
     """The live devices wrapped in recorders (each call a `call` document), with the cell's expectations."""
 
@@ -121,7 +134,7 @@ def run_session(store: SessionStore, campaign: Campaign, live: Live,
     The devices are closed at the end."""
     try:
         hub = [] if page is None or page.hub is None else [page.hub]
-        context = RunContext([SessionLog(store), *subscribers, *hub])
+        context = run_context(store, campaign, [*subscribers, *hub])
         return Engine(devices(live, context, campaign.cell), context, history(store)).run(campaign.steps)
     finally:
         live.close()
@@ -248,7 +261,7 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
     try:
         hub = [] if page is None else [page.attach(store, campaign.cell, campaign.steps)]  # watching only
         for run, abrupt in segments(recording.events()):
-            context = RunContext([SessionLog(store), *subscribers, *hub])
+            context = run_context(store, campaign, [*subscribers, *hub])
             playback = Playback(run, context.where, ends_abruptly=abrupt)
             players = Live(*(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
                            cellio=playback.device("cellio") if "cellio" in playback.calls else None,

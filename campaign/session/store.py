@@ -77,6 +77,7 @@ KINDS = (
     "warning",  # {"message"}
     "error",  # {"message", "type"} and, for a device fault, its "code" (the cause of the stop)
     "campaign_done",  # {}
+    "station_fit",  # {"block", "station", "planned", "measured", "residuals": [...], ...}: engine/station_fit.py
 )
 
 

@@ -49,7 +49,7 @@ class PageState:
     """The fold. `view` is the JSON the page renders; `apply` folds one event and returns the keys of `view`
     it changed and the measured points it added (what a page already showing the view needs)."""
 
-    KEYS = ("run", "step", "progress", "prompt", "answer", "cell", "warnings")
+    KEYS = ("run", "step", "progress", "prompt", "answer", "cell", "warnings", "fits")
 
     def __init__(self, steps: list[Step], plan: dict) -> None:
         self.steps = steps
@@ -68,6 +68,7 @@ class PageState:
             "answer": None,
             "cell": {"door_closed": None, "estop_ok": None, "moving": False, "locked": None, "meteo": None},
             "warnings": [],
+            "fits": [],  # the station_fit documents (engine/station_fit.py), one per station block, in block order
         }  # fmt: skip
         self.points: list[dict] = []
 
@@ -128,6 +129,10 @@ class PageState:
         elif e.kind == "warning":
             v["warnings"] = [*v["warnings"], {"id": e.id, "t": round(e.t, 1), "message": e.data.get("message", "")}]
             changed.add("warnings")
+        elif e.kind == "station_fit":
+            fits = [f for f in v["fits"] if f["block"] != e.data.get("block")] + [{**e.data, "id": e.id}]
+            v["fits"] = sorted(fits, key=lambda f: f["block"])
+            changed.add("fits")
         elif e.kind == "call":
             changed |= self._call(e.data)
         return changed, added

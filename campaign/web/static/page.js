@@ -8,8 +8,9 @@ const LOST_AFTER_MS = 3500;  // the server sends a heartbeat every second (app.p
 const COLORS = ["#1f5fa8", "#c0582b", "#2c8a4b", "#7a3da0", "#a8871f", "#2b8a8a"];
 
 const page = { view: null, points: [], plan: null, live: {}, csrf: "", connected: false, heard: 0, pending: false,
-               answered: null, fresh: [], plotDirty: true };
+               answered: null, fresh: [], plotDirty: true, fitsShown: null };
 window.trackcalSeen = {};  // event id of a measurement -> when it was drawn (bench/bench_web.py reads it)
+window.trackcalFitsSeen = {};  // event id of a station fit -> when its residuals were drawn (bench/bench_web.py)
 
 function clientId() {
   let id = sessionStorage.getItem("trackcal-client");
@@ -105,7 +106,8 @@ function promptWords(p) {
 
 function renderAll() {
   const v = page.view, live = page.live;
-  document.body.classList.toggle("lost", !page.connected);
+  // faded while trackcal is not running, unless the campaign is complete: its final state stays easy to read
+  document.body.classList.toggle("lost", !page.connected && !(v && v.run.status === "success"));
   const status = $("status");
   let st = "connecting…", cls = "pill";
   if (v) {
@@ -132,6 +134,7 @@ function renderAll() {
   renderCell(v, live);
   renderWarnings(v);
   if (page.plotDirty) { renderPlot(); page.plotDirty = false; }
+  renderFits(v.fits || []);
   const out = live.outcome;
   $("outcome-card").hidden = !out;
   if (out) {
@@ -303,7 +306,7 @@ function renderPlot() {
   const devs = page.points.filter((p) => p.dev_mm !== null);
   const top = 218, hgt = 80, max = Math.max(1, ...devs.map((p) => p.dev_mm));
   svg.append(el("line", { x1: 0, y1: top + hgt, x2: 640, y2: top + hgt, stroke: "#999" }),
-             el("text", { x: 636, y: top - 4, "font-size": 22, fill: "#555", "text-anchor": "end" },
+             el("text", { x: 636, y: top - 6, "font-size": 26, fill: "#555", "text-anchor": "end" },
                 `bar height ${max.toFixed(1)} mm`));
   const bw = 640 / Math.max(page.plan.planned.length, 1);
   devs.forEach((p, i) => {
@@ -311,6 +314,52 @@ function renderPlot() {
     svg.append(el("rect", { x: i * bw, y: top + hgt - h, width: Math.max(bw - 1, 1), height: h,
                             fill: COLORS[(k < 0 ? 0 : k) % COLORS.length] }));
   });
+}
+
+// the residuals of each station block, from its station_fit document (engine/station_fit.py): one line of
+// figures per station (text: wraps on a phone) and one bar per measurement, one scale for every station
+function renderFits(fits) {
+  const key = fits.map((f) => f.id).join(",") + "|" + (page.plan ? page.plan.cell : "");
+  if (key === page.fitsShown || !page.plan) return;
+  page.fitsShown = key;
+  const stations = Object.keys(page.plan.stations);
+  const list = $("fit-list"), svg = $("fits");
+  list.replaceChildren();
+  svg.replaceChildren();
+  const norm = (r) => Math.hypot(...r.d_mm);
+  const max = Math.max(1e-3, ...fits.flatMap((f) => f.residuals.map(norm)));
+  const w = 640 / Math.max(stations.length, 1), top = 44, base = 150;
+  stations.forEach((sid, k) => {
+    const color = COLORS[k % COLORS.length], x0 = k * w;
+    svg.append(el("text", { x: x0 + 6, y: 32, "font-size": 30, "font-weight": 700, fill: color }, sid),
+               el("line", { x1: x0 + 4, y1: base, x2: x0 + w - 4, y2: base, stroke: "#999" }));
+    const mine = fits.filter((f) => f.station === sid);
+    if (!mine.length) {
+      svg.append(el("text", { x: x0 + w / 2, y: 104, "font-size": 26, fill: "#777", "text-anchor": "middle" },
+                    "after its block"));
+      return;
+    }
+    const rows = mine.flatMap((f) => f.residuals), planned = mine.reduce((n, f) => n + f.planned, 0);
+    const bw = (w - 12) / Math.max(planned, rows.length, 1);
+    rows.forEach((r, i) => {
+      const h = ((base - top) * norm(r)) / max;
+      svg.append(el("rect", { x: x0 + 6 + i * bw, y: base - h, width: Math.max(bw - 1, 1), height: h, fill: color,
+                              "data-station": sid, "data-step": r.step, "data-d": r.d_mm.join(",") }));
+    });
+    for (const f of mine) {
+      const li = document.createElement("li");
+      li.dataset.station = sid;
+      li.dataset.block = String(f.block);
+      li.textContent = f.residuals.length
+        ? `${sid}: rms ${f.rms_mm.toFixed(3)} mm, max ${f.max_mm.toFixed(3)} mm (${f.measured} of ${f.planned} measured)`
+        : `${sid}: not placed (${f.note})`;
+      list.append(li);
+    }
+  });
+  const now = performance.timeOrigin + performance.now();
+  for (const f of fits) if (!(f.id in window.trackcalFitsSeen)) window.trackcalFitsSeen[f.id] = now;
+  if (fits.length) svg.append(el("text", { x: 636, y: 180, "font-size": 26, fill: "#555", "text-anchor": "end" },
+                `bar height ${max < 0.1 ? max.toFixed(3) : max.toFixed(2)} mm`));
 }
 
 connect();
