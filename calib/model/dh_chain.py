@@ -1,8 +1,8 @@
 """Standard Denavit-Hartenberg tables as trackcal Chain objects and back (the robot YAML's `dh` block is read by
-calib.model.dh; this module builds a Chain from the numbers a controller reports, such as a UR's factory DH).
+calib.model.dh; this module builds a Chain from the numbers a controller reports, such as its factory DH).
 
 Link i of a standard DH table is Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i) (Denavit and Hartenberg 1955; the
-convention of Universal Robots' published tables and of the calibrated DH a UR controller keeps). A chain joint turns
+convention of robot makers' published tables and of the calibrated DH some controllers keep). A chain joint turns
 about z of its frame by q_i, then its link translation and fixed rotation lead to the next joint's frame
 (calib.model.chain), so the fixed part of link i is Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i): translation
 Rz(theta_i) (a_i, 0, d_i), rotation Rz(theta_i) Rx(alpha_i). The frame after the last link is the flange.

@@ -7,6 +7,7 @@ from __future__ import annotations
 from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.ur.calibration import read_calibration_conf, read_kinematics_info
 from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde
+from trackcal.drivers.ur.program import PROGRAM
 
 SCHEMAS = {
     "": {
@@ -49,4 +50,5 @@ def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
 
 
 FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
-                     describe=where, where=where, waiting=waiting, factory_table=factory_table)  # fmt: skip
+                     describe=where, where=where, waiting=waiting, factory_table=factory_table,
+                     program=PROGRAM)  # fmt: skip
