@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -80,6 +81,11 @@ def _version_major_minor(text: str) -> tuple[int, int]:
             return int(parts[0]), int(parts[1])
     return (0, 0)
 
+
+
+def claim_address(host: str) -> str:
+    """The abstract Unix socket address (a leading NUL, unix(7)) of this PC's claim on the controller at host."""
+    return f"\0trackcal/ur/{host.strip().lower()}"
 
 
 def stop_code(reason) -> str:
@@ -146,8 +152,28 @@ class UrRtde:
         self.stop_sent_at: float | None = None  # time.monotonic() of the last stopJ sent (bench and tests)
         self.stop_seen: float | None = None  # controller time of the last frame read before that stopJ
         self._last_stamp: float | None = None
+        self._claim: socket.socket | None = None
 
     # --- connection -----------------------------------------------------------------------------------------
+
+    def claim(self) -> None:
+        """Hold this PC's claim on the controller at `host` until close(): an abstract Unix socket named after the
+        address (Linux, unix(7): no file, released by the kernel when the process ends, kill -9 included). The arm
+        runs one control script: every RTDEControlInterface uploads its own when constructed (ur_rtde's docs,
+        "Introduction": the control interface "requires a control script to be running on the robot, which is
+        uploaded automatically"; src/rtde_control_interface.cpp), so a second campaign would take the arm over from
+        the first. A second claim on this PC raises ConnectionLost
+        whose cause is OSError EADDRINUSE, before anything touches the robot. Idempotent."""
+        if self._claim is not None:
+            return
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(claim_address(self.host))
+        except OSError as exc:
+            sock.close()
+            raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
+                                 device=self.device) from exc  # fmt: skip
+        self._claim = sock
 
     def connect(self) -> None:
         """Dashboard first (version, remote control), then the RTDE stream, then the control script; retried until
@@ -164,7 +190,7 @@ class UrRtde:
                 self.close()
                 raise
             except DeviceError as exc:
-                self.close()
+                self._disconnect()  # the claim is kept while retrying
                 last = exc
             if time.monotonic() >= deadline:
                 raise ConnectionLost(f"not reachable within {self.connect_timeout_s:g} s: {last}", device=self.device)
@@ -210,6 +236,13 @@ class UrRtde:
             raise ConnectionLost(f"dashboard {name}: {exc}", device=self.device) from None
 
     def close(self) -> None:
+        """Disconnect and give up the claim."""
+        self._disconnect()
+        if self._claim is not None:
+            self._claim.close()
+            self._claim = None
+
+    def _disconnect(self) -> None:
         # ur_rtde 1.6.5 after a lost link: disconnect() of its interfaces (and their destructors) can crash the
         # process (tests/test_ur_driver.py, dropped connection); a lost link's interfaces are kept, untouched, until
         # the process ends

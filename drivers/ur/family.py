@@ -40,6 +40,11 @@ def waiting(r: dict) -> str:
     return f"connecting to the UR controller at {r['host']} (up to {r['connect_timeout_s']:g} s; Remote Control on)"
 
 
+def claim(robot: UrRtde) -> None:
+    """This PC's claim on the controller (UrRtde.claim): a second campaign on the same arm is refused."""
+    robot.claim()
+
+
 def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
     """calibration.conf's deltas (conf), or the primary interface's KINEMATICS_INFO of the controller at host."""
     if conf is not None:
@@ -50,5 +55,5 @@ def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
 
 
 FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
-                     describe=where, where=where, waiting=waiting, factory_table=factory_table,
+                     describe=where, where=where, waiting=waiting, claim=claim, factory_table=factory_table,
                      program=PROGRAM)  # fmt: skip
