@@ -60,6 +60,9 @@ class RobotFamily:
     # (theta rad, a mm, d mm, alpha rad, source, is_delta)
     factory_table: Callable[..., tuple] | None = None
     program: ProgramWriter | None = None  # the controller's program of joint moves (compensate --program)
+    # native_output(path): what the driver's native library prints on the process's console by itself goes to
+    # this file instead (a campaign's session folder), keeping trackcal's one line alone; returns whether it did
+    native_output: Callable[..., bool] | None = None
 
 
 def families() -> dict[str, RobotFamily]:

@@ -37,7 +37,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -81,6 +83,39 @@ def _version_major_minor(text: str) -> tuple[int, int]:
             return int(parts[0]), int(parts[1])
     return (0, 0)
 
+
+
+_DIVERTED: list[str] = []  # the log native output went to (once per process)
+
+
+def divert_native_output(log_path: str | os.PathLike) -> bool:
+    """Keep ur_rtde's own console lines off trackcal's console: they go to log_path (appended). Its C++ threads write
+    them to the process's file descriptors 2 and 1 whatever the constructors' `verbose` flag says (std::cerr in
+    src/rtde_receive_interface.cpp's receive thread, "RTDEReceiveInterface boost system Exception: ...";
+    std::cerr / std::cout in src/rtde_control_interface.cpp, "RTDEControlInterface: Could not receive data from
+    robot...", "Reconnecting..."), so the descriptors move: Python's sys.stdout and sys.stderr are re-opened on
+    duplicates of fds 1 and 2 (the console, where trackcal's own lines stay), then fds 1 and 2 point at the log.
+    Only when sys.stdout / sys.stderr are fds 1 and 2 themselves (a command line; not under a capturing test
+    runner), once per process; returns whether the output is diverted."""
+    if _DIVERTED:
+        return True
+    try:
+        if sys.stdout.fileno() != 1 or sys.stderr.fileno() != 2:
+            return False
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
+        return False
+    log = os.open(os.fspath(log_path), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    streams = []
+    for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+        stream.flush()
+        streams.append(open(os.dup(fd), "w", encoding=stream.encoding, errors=stream.errors,  # noqa: SIM115
+                            buffering=1 if stream.line_buffering else -1))  # fmt: skip
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    os.close(log)
+    sys.stdout, sys.stderr = streams
+    _DIVERTED.append(os.fspath(log_path))
+    return True
 
 
 def claim_address(host: str) -> str:
