@@ -6,7 +6,7 @@ CampaignError  a file, plan, session, cell or value the campaign cannot use; the
                  command line spells it as its flag (`--params: ...`)
   UsageError   a command-line mistake (a missing or conflicting option): raised by campaign.cli only
 Other subclasses live with their subject: PlanError (engine.steps), StoreError (session.store), ReplayDivergence
-(engine.recording), KrlError (jobs.krl), NotAnalysedError (jobs.end_of_run). A campaign that stops safely is no
+(engine.recording), NotAnalysedError (jobs.end_of_run). A campaign that stops safely is no
 error: the engine's RunResult says so (exit status "stopped"), and the command line makes it one line.
 """
 

@@ -4,6 +4,7 @@ DeviceError
 ├── DeviceTimeout      nothing (or not enough) arrived in time
 ├── ConnectionLost     the peer closed or reset the connection / could not be reached
 ├── ProtocolError      bytes that do not parse, or an answer that does not fit the request
+├── ProgramError       a controller program that cannot be written (drivers/*/program.py): its language refuses it
 └── DeviceFault        the device itself reports a fault, with its own code
     ├── MotionRefused  a motion target rejected before anything was sent (limits, cell box)
     └── TargetNotVisible  the tracker cannot see the reflector from where it stands (no lock, beam broken)
@@ -46,3 +47,8 @@ class MotionRefused(DeviceFault):
 
 class TargetNotVisible(DeviceFault):
     """The tracker cannot measure the reflector from its station: not found, not locked, or beam broken."""
+
+
+class ProgramError(DeviceError):
+    """A controller program that cannot be written (drivers/*/program.py): a name or a target the controller's
+    language refuses; the message says why."""

@@ -23,6 +23,19 @@ REQUIRED = ...  # the default of a key the hardware file must give
 
 
 @dataclass(frozen=True)
+class ProgramWriter:
+    """The program of joint moves a family's controller runs (`trackcal compensate --program`), as text: files are
+    written by the caller (atomically). `language` names it to people; `check_name(name)` returns the name or raises
+    ProgramError; `labels(names, n)` are the rows' names in the program (from the targets' own names, or None);
+    `texts(name, q_deg, speed_pct, labels)` -> {file name: bytes}, q_deg (N, 6) degrees, speed_pct 1..100."""
+
+    language: str
+    check_name: Callable[[str], str]
+    labels: Callable[[list[str] | None, int], list[str]]
+    texts: Callable[..., dict[str, bytes]]
+
+
+@dataclass(frozen=True)
 class RobotFamily:
     """One controller family. `schemas`: section path below `robot` ("" the robot section itself, "eki" its eki
     sub-section ...) -> key -> (kind, default), kinds as campaign/cells/hardware.py validates them (host, port,
@@ -46,6 +59,10 @@ class RobotFamily:
     # calibration file, factory_table(host=ADDRESS) -> the calibrated table the controller sends; each as
     # (theta rad, a mm, d mm, alpha rad, source, is_delta)
     factory_table: Callable[..., tuple] | None = None
+    program: ProgramWriter | None = None  # the controller's program of joint moves (compensate --program)
+    # native_output(path): what the driver's native library prints on the process's console by itself goes to
+    # this file instead (a campaign's session folder), keeping trackcal's one line alone; returns whether it did
+    native_output: Callable[..., bool] | None = None
 
 
 def families() -> dict[str, RobotFamily]:

@@ -24,8 +24,10 @@ from trackcal.calib.model.params import irreducible_params, param_by_name
 from trackcal.calib.model.pinmodel import gravity_torques
 from trackcal.calib.model_file import Model, load_model
 from trackcal.campaign.cli import main
+from trackcal.campaign.jobs.compensate import write_program
 from trackcal.campaign.jobs.identify import choose_params, run_identify
-from trackcal.campaign.jobs.krl import KrlError, krl_texts, point_names, write_krl
+from trackcal.drivers.kuka.program import PROGRAM as KRL
+from trackcal.drivers.kuka.program import KrlError, krl_texts, point_names
 from trackcal.mocks.twin import PAPER_TABLE8
 
 LEVER = 100.0  # mm, the tool points offset along x and y of the last frame (calib.compensate default)
@@ -269,7 +271,7 @@ GOLDEN_DAT = (
 
 def test_krl_program_matches_the_golden_text(tmp_path):
     rows = [[10.0, -90.0, 90.0, 0.0, 45.5, -0.00001], [-12.34567, -100.5, 110.25, 180.0, -30.0, 359.99999]]
-    src, dat = write_krl("COMP_TEST", rows, tmp_path / "krl", speed_pct=20)
+    src, dat = write_program(KRL, "COMP_TEST", rows, tmp_path / "krl", speed_pct=20)
     assert src.name == "COMP_TEST.src" and dat.name == "COMP_TEST.dat"
     assert src.read_bytes() == GOLDEN_SRC.encode()
     assert dat.read_bytes() == GOLDEN_DAT.encode()

@@ -1,4 +1,4 @@
-"""URScript output of `trackcal compensate --program` for a robot whose controller is a UR (campaign/jobs/urscript.py),
+"""URScript output of `trackcal compensate --program` for a robot whose controller is a UR (drivers/ur/program.py),
 the KRL program for the KR C2: the same rows, the same 1e-4 deg rounding, selected by the robot config's controller."""
 
 import math
@@ -8,7 +8,8 @@ import subprocess
 import pytest
 
 from tests.helpers import TRACKCAL
-from trackcal.campaign.jobs.urscript import UrScriptError, urscript_text
+from trackcal.drivers.families import families
+from trackcal.drivers.ur.program import UrScriptError, urscript_text
 
 MOVEJ = re.compile(r"^  movej\(\[([^\]]*)\], a=([0-9.]+), v=([0-9.]+)\)$")
 
@@ -36,6 +37,14 @@ def test_refused(name, q, speed):
         urscript_text(name, q, speed)
 
 
+def test_each_family_carries_its_program():
+    """compensate picks the writer of the family the robot config names (drivers/families.py), by no name of its own."""
+    programs = {name: f.program.language for name, f in families().items()}
+    assert programs == {"krc2": "KRL", "ur": "URScript"}
+    assert list(families()["ur"].program.texts("p", [[0.0] * 6])) == ["p.script"]
+    assert list(families()["krc2"].program.texts("p", [[0.0] * 6])) == ["p.src", "p.dat"]
+
+
 def test_compensate_writes_urscript_for_the_ur_cell_and_krl_for_the_kr270(tmp_path):
     def cli(*args, check=True):
         out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, cwd=tmp_path)
@@ -54,6 +63,7 @@ def test_compensate_writes_urscript_for_the_ur_cell_and_krl_for_the_kr270(tmp_pa
         assert sorted(p.name for p in d.iterdir()) == sorted(["c.csv", *files])
     rows = (tmp_path / "ur10" / "c.csv").read_text().splitlines()
     assert len(rows) == 2
+    assert "\n  # A: " in (tmp_path / "ur10" / "P.script").read_text()  # the target's own name, not a KRL name
     bad = cli("compensate", str(targets), "--model", "ur10.json", "--out", str(tmp_path / "x.csv"), "--program", "9",
               check=False)  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and not (tmp_path / "x.csv").exists()

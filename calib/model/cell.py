@@ -15,7 +15,7 @@ import numpy as np
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
-from trackcal.calib.io.files import read_yaml
+from trackcal.calib.io.files import read_json, read_yaml
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import rot_axis
@@ -67,6 +67,7 @@ class Cell:
     max_skipped_share: float = MAX_SKIPPED_SHARE  # a campaign that skipped more of its planned measurements failed
     repeatability_mm: float = 0.0  # the robot's ISO 9283 pose repeatability RP (datasheet); 0: not stated
     source: str = ""
+    nominal: str = ""  # which nominal robot: `nominal_of` (model.json records it, the report prints it)
 
 
 def usable_limits_deg(cell: Cell, margin_deg: float | None = None) -> np.ndarray:
@@ -107,6 +108,21 @@ def load_robot(ref: str, base_dir: Path | None = None) -> tuple[Chain, dict]:
         raise CellError(str(exc)) from None
 
 
+def nominal_of(ref: str, robot_doc: dict, base_dir: Path | None = None) -> str:
+    """Which nominal robot a cell's `robot:` is, in words: the robot config's own `nominal` (trackcal factory-robot
+    writes the factory calibration it came from), the calibrated model a URDF was exported from (the
+    `<stem>.trackcal.json` beside it that trackcal export-urdf writes names it), else the robot config's file."""
+    if isinstance(robot_doc.get("nominal"), str) and robot_doc["nominal"].strip():
+        return robot_doc["nominal"].strip()
+    path = resolve("robots", ref, base_dir)
+    shown = f"configs/robots/{path.name}" if path.parent == CONFIGS / "robots" else str(path)
+    if path.suffix == ".urdf":
+        side = path.with_name(path.stem + ".trackcal.json")
+        model = read_json(side, CellError).get("model") if side.is_file() else None
+        return f"the calibrated model {model} (exported as {shown})" if model else f"the URDF {shown}"
+    return f"the robot config {shown}"
+
+
 def _non_negative(doc: dict, key: str, where: str, default: float) -> float:
     v = fields.number(doc.get(key, default), f"{where}: {key}", CellError)
     if v < 0:
@@ -142,10 +158,12 @@ def load_cell(ref: str) -> Cell:
     for key in ("robot", "tool"):
         if key not in doc:
             raise CellError(f"{where}: {key}: missing")
-    chain, robot_doc = load_robot(fields.text(doc["robot"], f"{where}: robot", CellError), path.parent)
+    robot_ref = fields.text(doc["robot"], f"{where}: robot", CellError)
+    chain, robot_doc = load_robot(robot_ref, path.parent)
     pts, normals = load_tool(fields.text(doc["tool"], f"{where}: tool", CellError), path.parent)
     name = fields.text(doc.get("name", path.stem), f"{where}: name", CellError)
-    cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where)
+    cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where,
+                nominal=nominal_of(robot_ref, robot_doc, path.parent))  # fmt: skip
     if "box_mm" in doc:
         box = fields.mapping(doc["box_mm"], f"{where}: box_mm", CellError)
         cell.box_min = fields.vector(box.get("min"), f"{where}: box_mm.min", CellError)

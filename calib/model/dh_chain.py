@@ -1,16 +1,16 @@
 """Standard Denavit-Hartenberg tables as trackcal Chain objects and back (the robot YAML's `dh` block is read by
-calib.model.dh; this module builds a Chain from the numbers a controller reports, such as a UR's factory DH).
+calib.model.dh; this module builds a Chain from the numbers a controller reports, such as its factory DH).
 
 Link i of a standard DH table is Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i) (Denavit and Hartenberg 1955; the
-convention of Universal Robots' published tables and of the calibrated DH a UR controller keeps). A chain joint turns
+convention of robot makers' published tables and of the calibrated DH some controllers keep). A chain joint turns
 about z of its frame by q_i, then its link translation and fixed rotation lead to the next joint's frame
 (calib.model.chain), so the fixed part of link i is Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i): translation
 Rz(theta_i) (a_i, 0, d_i), rotation Rz(theta_i) Rx(alpha_i). The frame after the last link is the flange.
 
 Nominal tables (alpha and theta offsets in whole quarter turns) give axis-aligned chains; a calibrated table (small
-theta and alpha deviations) gives a chain with tilted axes, exact for forward kinematics, whose parameters
-calib.model.params generates too (any joint axes); `aligned` keeps the nominal axes and leaves the tilts to
-identification.
+theta and alpha deviations) gives a chain with tilted axes, exact for forward kinematics, whose complete and
+irreducible parameters calib.model.params generates too (any joint axes): the factory's calibration is the nominal
+as it stands, nothing of it rounded away.
 """
 
 from __future__ import annotations
@@ -24,12 +24,9 @@ from trackcal.calib.model.rigid import rot_axis
 
 
 def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[float], alpha_rad: Sequence[float],
-             name: str = "dh", template: Chain | None = None, aligned: bool = False) -> Chain:  # fmt: skip
+             name: str = "dh", template: Chain | None = None) -> Chain:  # fmt: skip
     """The chain of a standard DH table (mm, rad). `template`: a chain of the same number of joints whose joint
-    names, limits and masses are kept (its centres of mass are taken as given in the frames after the rotations).
-    `aligned`: each link's fixed rotation rounded to the nearest quarter-turn rotation (the translations kept
-    exact), so that the parameter generation accepts the chain; the small rotations left out (a calibrated table's
-    theta and alpha deviations) are then what identification estimates as joint offsets and tilts."""
+    names, limits and masses are kept (its centres of mass are taken as given in the frames after the rotations)."""
     rows = [np.asarray(v, dtype=float) for v in (theta_rad, a_mm, d_mm, alpha_rad)]
     n = len(rows[0])
     if n == 0 or any(r.shape != (n,) for r in rows) or not all(np.all(np.isfinite(r)) for r in rows):
@@ -42,22 +39,11 @@ def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[f
         base = template.joints[i] if template is not None else None
         joints.append(Joint(name=base.name if base else f"J{i + 1}", axis=2, sign=1.0,
                             translation=rz @ np.array([a, 0.0, d]),
-                            rotation=_quarter_turns(rz @ rot_axis(0, al)) if aligned else rz @ rot_axis(0, al),
+                            rotation=rz @ rot_axis(0, al),
                             limits=base.limits if base else None, mass_kg=base.mass_kg if base else 0.0,
                             com=base.com if base else np.zeros(3)))  # fmt: skip
     base_tf = template.base if template is not None else np.eye(4)
     return Chain(name=name, base=base_tf, joints=tuple(joints))
-
-
-def _quarter_turns(r: np.ndarray) -> np.ndarray:
-    """The signed permutation matrix nearest to a rotation within a few degrees of one."""
-    out = np.zeros((3, 3))
-    for i in range(3):
-        k = int(np.argmax(np.abs(r[i])))
-        out[i, k] = np.sign(r[i, k])
-    if not np.isclose(abs(np.linalg.det(out)), 1.0) or np.abs(r - out).max() > 0.1:
-        raise ChainError("a DH link rotation is not within a few degrees of a quarter-turn rotation")
-    return out
 
 
 def dh_of_chain(chain: Chain) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -35,6 +35,8 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
             tv = truth.get(name, 0.0)
             row += [f"{tv:+.4f}", "yes" if abs(tv - p["value"]) <= p["ci95"] else "NO"]
         t.add_row(*row)
+    if doc.get("nominal"):
+        console.print(f"nominal robot: {doc['nominal']}", markup=False, highlight=False)
     print_table(t)
     r = doc["residuals"]
     rt = Table(title="Residuals (paper Table 9 style), mm")

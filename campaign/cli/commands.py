@@ -214,7 +214,7 @@ COMMANDS = [
                                                    "for it to exit (default: start a mock)"),
                 arg("--ready-fd", type=int, help=argparse.SUPPRESS),  # --detach's child reports on this pipe
             ]),
-    Command("compensate", "joint targets corrected with an identified model (CSV, KRL)",
+    Command("compensate", "joint targets corrected with an identified model (CSV, controller program)",
             "trackcal.campaign.cli.compensate:cmd_compensate", [
                 arg("targets", help="CSV of nominal joint targets: q1_deg..qn_deg, optional name"),
                 arg("--model", required=True, help="model.json from identify or diagnose"),
@@ -222,16 +222,17 @@ COMMANDS = [
                 arg("--tcp", help="X,Y,Z of the TCP in the last joint frame, mm (default: tool points centroid)"),
                 arg("--krl", metavar="NAME", help="also write a KR C2 program NAME.src / NAME.dat (default: "
                                                           "none)"),
-                arg("--program", metavar="NAME", help="also write the robot controller's program NAME: KRL, or "
-                    "NAME.script (URScript) for a robot whose controller is a UR (default: none)"),
-                arg("--krl-dir", help="directory of the KRL program (default: the directory of --out)"),
+                arg("--program", metavar="NAME", help="also write the program NAME of the model's robot controller, "
+                    "in its language (the controller family its robot config names; KRL without one) (default: "
+                    "none)"),
+                arg("--krl-dir", help="directory of the programs (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
             ]),
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [
                 arg("--cell", required=True, help=CELL_HELP),
-                arg("--conf", help="the controller's calibration file (a UR's calibration.conf; default: none, one of "
-                                   "--conf, --hardware is needed)"),
+                arg("--conf", help="the controller's own calibration file, as its family reads it (default: none, "
+                                   "one of --conf, --hardware is needed)"),
                 arg("--hardware", help="hardware config: read the calibration from the robot it names (default: "
                                        "none)"),
                 arg("--out", required=True, help="robot YAML to write"),

@@ -1,5 +1,5 @@
-"""`trackcal compensate`: joint targets corrected with an identified model, as CSV and optionally KRL
-(campaign.jobs.compensate on typed options)."""
+"""`trackcal compensate`: joint targets corrected with an identified model, as CSV and optionally the controller's
+program (campaign.jobs.compensate on typed options)."""
 
 from __future__ import annotations
 

@@ -169,6 +169,8 @@ def _open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claime
     if meta["mode"] == "hardware":
         copy = SessionFiles(store.directory).hardware
         clients = claimed or claim_cell(load_hardware(copy, session_hardware(store)), cell)
+        if clients.hw.family.native_output is not None:  # the robot library's own console lines: to the session
+            clients.hw.family.native_output(SessionFiles(store.directory).robot_log)
         try:
             return connect_hardware(clients, console.say, console.operator)
         except CampaignError as exc:

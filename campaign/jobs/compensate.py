@@ -1,7 +1,8 @@
 """`compensate` on typed options: joint targets corrected with an identified model (calib.compensate), the
-targets CSV in, the compensated CSV out, and optionally a KR C2 program (campaign.jobs.krl).
+targets CSV in, the compensated CSV out, and optionally the robot controller's program (its family's ProgramWriter,
+drivers/families.py) or a KR C2 program.
 
-    trackcal compensate --model model.json TARGETS.csv --out OUT.csv [--krl NAME --krl-dir DIR] [--tcp X,Y,Z]
+    trackcal compensate --model model.json TARGETS.csv --out OUT.csv [--program NAME | --krl NAME] [--krl-dir DIR]
 
 TARGETS.csv: columns q1_deg..qn_deg (n = the model's joints), optional `name`, other columns ignored.
 OUT.csv: name (if given), status (`ok`, or why the target could not be compensated: outside the joint limits,
@@ -9,14 +10,13 @@ a singular pose such as the KUKA HOME 0,-90,90,0,0,0), q1_deg..qn_deg (nominal),
 (compensated, 1e-6 deg), dq1_deg..dqn_deg (correction), position_error_mm and orientation_error_deg (the identified
 model at the compensated targets against the intended pose), uncompensated_position_mm (the identified model at the
 nominal targets), iterations, rounded_position_error_mm (the TCP error of the targets rounded to the 1e-4 deg the
-KRL program carries). A target that was not compensated keeps its row, the compensated columns empty, and is left
-out of the KRL program, whose E6AXIS points carry the targets' names (campaign.jobs.krl.point_names).
+program carries). A target that was not compensated keeps its row, the compensated columns empty, and is left
+out of the program, whose points carry the targets' names (the writer's `labels`).
 """
 
 from __future__ import annotations
 
 import csv
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +28,9 @@ from trackcal.calib.io.files import atomic_open, writing
 from trackcal.calib.io.table import joint_columns, read_joint_rows
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.errors import CampaignError, InputError, OptionError
-from trackcal.campaign.jobs import urscript
-from trackcal.campaign.jobs.krl import KrlError, check_name, point_names, write_krl
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.drivers.errors import ProgramError
+from trackcal.drivers.families import ProgramWriter, families
 
 COMP_DECIMALS = 6
 
@@ -79,7 +79,7 @@ class CompensateOptions:
     krl: str | None = None  # also a KR C2 program of this name
     krl_dir: str | None = None  # its directory (and the --program's); None: the directory of `out`
     speed: int = 10  # PTP axis speed and acceleration override, %
-    program: str | None = None  # also the robot controller's program of this name: KRL, or URScript for a UR
+    program: str | None = None  # also the program of this name of the model's robot controller (its family's)
 
 
 @dataclass
@@ -88,7 +88,7 @@ class Compensation:
     labels: list[str]  # per target, for messages (`row_labels`)
     rounded_mm: np.ndarray  # TCP error of the targets rounded to the 1e-4 deg of the KRL program
     near_singular: np.ndarray  # rows (0-based) of compensated targets near a singularity
-    krl_files: tuple[Path, Path] | None = None  # NAME.src, NAME.dat
+    krl_files: tuple[Path, ...] | None = None  # NAME.src, NAME.dat
     program_files: tuple[Path, ...] = ()  # the --program's files
     doc: dict = field(default_factory=dict)  # report.to_doc()
 
@@ -107,48 +107,60 @@ def parse_tcp(text: str | None, model: Model) -> np.ndarray:
     return tcp
 
 
-# The program each robot family's controller runs (the robot config's `controller`, configs/robots; none: the KR C2's
-# KRL): name check and writer (name, q_deg, directory, speed %, row names) -> the files written.
-PROGRAMS = {urscript.CONTROLLER: ("URScript", urscript.check_name, lambda *a: (urscript.write_urscript(*a),))}
+# The family whose program --krl writes, and --program for a robot config that names no controller (configs/robots:
+# `controller`): the KR C2, trackcal's first family.
+KRL_FAMILY = "krc2"
 
 
-def controller_of(model: Model) -> str | None:
-    """The controller family of the model's robot: its cell's robot config says (None when the cell is unknown)."""
+def program_of(model: Model) -> ProgramWriter:
+    """The program of the model's robot controller: the family its cell's robot config names (`controller`), else
+    the KR C2's (a cell that cannot be loaded, or a robot config without `controller`)."""
     try:
-        return load_cell(str(model.doc.get("cell", ""))).robot_doc.get("controller")
+        name = load_cell(str(model.doc.get("cell", ""))).robot_doc.get("controller")
     except CalibError:
-        return None
+        name = None
+    family = families().get(str(name)) if name else None
+    return (family.program if family is not None else None) or families()[KRL_FAMILY].program
+
+
+def write_program(writer: ProgramWriter, name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
+                  labels: list[str] | None = None) -> tuple[Path, ...]:  # fmt: skip
+    """The program's files in out_dir (created if needed), each written atomically; their paths. `labels` name the
+    rows (default: the writer's labels of unnamed rows)."""
+    texts = writer.texts(name, q_deg, speed_pct, labels or writer.labels(None, len(q_deg)))
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for file, data in texts.items():
+            with atomic_open(out / file, "wb") as fh:
+                fh.write(data)
+    except OSError as exc:
+        raise ProgramError(f"{out}: cannot write the {writer.language} program ({exc.strerror or exc})") from None
+    return tuple(out / file for file in texts)
 
 
 def run_compensate(opts: CompensateOptions) -> Compensation:
-    """`trackcal compensate`: the targets corrected, written to opts.out (and the KRL program); refuses a KRL
+    """`trackcal compensate`: the targets corrected, written to opts.out (and the programs asked for); refuses a
     program it cannot write before anything is written, and a file in which no target could be compensated."""
     model = load_model(opts.model)
     q_deg, names = read_targets(opts.targets, model.chain.dof)
     tcp = parse_tcp(opts.tcp, model)
     if opts.krl_dir and not (opts.krl or opts.program):
         raise OptionError("{0} needs {1} NAME", "krl_dir", "krl")
-    program = PROGRAMS.get(controller_of(model)) if opts.program else None
-    if opts.program and program is None:  # the KR C2's KRL program
-        if opts.krl:
-            raise OptionError("{0} and {1} name the same KRL program: give one", "program", "krl")
-        opts = dataclasses.replace(opts, krl=opts.program)
-    if program is not None:
+    krl = families()[KRL_FAMILY].program
+    programs = [("program", opts.program, program_of(model))] if opts.program else []
+    programs += [("krl", opts.krl, krl)] if opts.krl else []
+    if len(programs) == 2 and programs[0][2] is krl:
+        raise OptionError("{0} and {1} name the same {language} program: give one", "program", "krl",
+                          language=krl.language)  # fmt: skip
+    for option, name, writer in programs:  # refuse before anything is written
         try:
-            program[1](opts.program)  # refuse a bad name before anything is written
-        except CampaignError as exc:
-            raise OptionError("{0}: {exc}", "program", exc=exc) from None
-        if model.chain.dof != 6 or not 1 <= opts.speed <= 100:
-            raise OptionError("{0}: a {kind} program needs a 6-axis robot and a speed of 1..100 %", "program",
-                              kind=program[0])  # fmt: skip
-    if opts.krl:  # refuse before anything is written
-        try:
-            check_name(opts.krl)
-        except KrlError as exc:
-            raise OptionError("{0}: {exc}", "krl", exc=exc) from None
+            writer.check_name(name)
+        except ProgramError as exc:
+            raise OptionError("{0}: {exc}", option, exc=exc) from None
         if model.chain.dof != 6:
-            raise OptionError("{0}: a KR C2 program needs a 6-axis robot, the model's has {dof}", "krl",
-                              dof=model.chain.dof)
+            raise OptionError("{0}: a {language} program needs a 6-axis robot, the model's has {dof}", option,
+                              language=writer.language, dof=model.chain.dof)  # fmt: skip
         if not 1 <= opts.speed <= 100:
             raise OptionError("{0} {speed}: the axis speed override is a percentage 1..100", "speed", speed=opts.speed)
     qc, report = compensate(model, np.radians(q_deg), tcp)
@@ -164,18 +176,15 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
                          "reason)")  # fmt: skip
     out = Compensation(report, row_labels(opts.targets, names, len(q_deg)), rounded_mm,
                        np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)), doc=report.to_doc())  # fmt: skip
-    if program is not None:
+    directory = opts.krl_dir or str(Path(opts.out).parent)
+    for option, name, writer in programs:
         try:
-            points = [p for p, k in zip(point_names(names, len(ok)), ok, strict=True) if k]
-            out.program_files = program[2](opts.program, krl_deg[ok], opts.krl_dir or str(Path(opts.out).parent),
-                                           opts.speed, points)  # fmt: skip
-        except CampaignError as exc:
-            raise OptionError("{0}: {exc}", "program", exc=exc) from None
-    if opts.krl:
-        krl_dir = opts.krl_dir or str(Path(opts.out).parent)
-        try:
-            points = [p for p, k in zip(point_names(names, len(ok)), ok, strict=True) if k]
-            out.krl_files = write_krl(opts.krl, krl_deg[ok], krl_dir, opts.speed, points)
-        except KrlError as exc:
-            raise OptionError("{0}: {exc}", "krl", exc=exc) from None
+            labels = [p for p, k in zip(writer.labels(names, len(ok)), ok, strict=True) if k]  # named among all rows
+            files = write_program(writer, name, krl_deg[ok], directory, opts.speed, labels)
+        except ProgramError as exc:
+            raise OptionError("{0}: {exc}", option, exc=exc) from None
+        if option == "krl":
+            out.krl_files = files
+        else:
+            out.program_files = files
     return out

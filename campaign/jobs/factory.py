@@ -2,8 +2,9 @@
 to calibrate further. The robot config of the cell names its controller (`controller`, configs/robots); that family
 (drivers/families.py) reads the table: the deltas of the controller's calibration file added to the cell robot's
 published DH table, or the calibrated table the controller sends (from the address the hardware file names, the only
-peer contacted). The chain is built by calib.model.dh with its link rotations aligned (the factory's lengths kept
-exact; its sub-degree tilts and joint offsets left to identification), and written as a robot YAML."""
+peer contacted). The chain is the table exactly (calib.model.dh_chain: its lengths, joint offsets and axis tilts as
+calibrated; calib.model.params generates the parameters of tilted axes), written as a robot YAML whose `nominal` says
+where it came from (identify records it in model.json, the report prints it)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ class FactoryRobot:
     path: Path
     source: str  # which nominal: where the table came from
     max_length_change_mm: float  # against the published table
-    dropped_rotation_deg: float  # the largest link rotation left to identification
+    max_rotation_change_deg: float  # the largest link rotation against the published table
 
 
 def factory_robot(cell_ref: str, out: str, conf: str | None = None, hardware: str | None = None) -> FactoryRobot:
@@ -53,16 +54,18 @@ def factory_robot(cell_ref: str, out: str, conf: str | None = None, hardware: st
     table = [np.asarray(v, dtype=float) for v in (theta, a, d, alpha)]
     if is_delta:
         table = [n + t for n, t in zip(nominal, table, strict=True)]
-    exact = dh_chain(*table, name=f"{cell.chain.name}-factory", template=cell.chain)
-    chain = dh_chain(*table, name=f"{cell.chain.name}-factory", template=cell.chain, aligned=True)
-    dropped = max(float(np.degrees(np.arccos(np.clip((np.trace(j.rotation.T @ e.rotation) - 1) / 2, -1, 1))))
-                  for j, e in zip(chain.joints, exact.joints, strict=True))  # fmt: skip
+    chain = dh_chain(*table, name=f"{cell.chain.name}-factory", template=cell.chain)
+    published = dh_chain(*nominal, name=cell.chain.name, template=cell.chain)
+    turned = max(float(np.degrees(np.arccos(np.clip((np.trace(j.rotation.T @ e.rotation) - 1) / 2, -1, 1))))
+                 for j, e in zip(chain.joints, published.joints, strict=True))  # fmt: skip
     change = float(max(np.abs(table[1] - nominal[1]).max(), np.abs(table[2] - nominal[2]).max()))
     doc = chain_to_dict(chain)
     doc["controller"] = family.name
+    how = f"its deltas added to robot {cell.chain.name}'s table" if is_delta else "the controller's calibrated table"
+    doc["nominal"] = f"the factory calibration of {source} ({how}; trackcal factory-robot)"
     text = (f"# {cell.chain.name} with the factory calibration of {source} as its nominal (trackcal factory-robot):\n"
-            f"# link lengths as calibrated (largest change {change:.4f} mm), link rotations aligned (largest rotation "
-            f"left to identification {dropped:.4f} deg)\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
+            f"# the calibrated DH table exactly: link lengths changed by up to {change:.4f} mm, link rotations by up "
+            f"to {turned:.4f} deg against the published table\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
     path = Path(out)
     write_text(path, text, InputError)
-    return FactoryRobot(path, source, change, dropped)
+    return FactoryRobot(path, source, change, turned)

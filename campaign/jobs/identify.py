@@ -233,6 +233,7 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
     params = res.params
     extra: dict = {
         "cell": cell.name,
+        "nominal": cell.nominal,  # which nominal robot the deviations are from (calib.model.cell.nominal_of)
         "data": table.source,
         "table_sha256": table_sha256,
         "n_measurements": len(table),
@@ -248,8 +249,9 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
-    keys = ("cell", "data", "table_sha256", "n_measurements", "weighting", "fit", "fit_ratio", "residual_rms_mm",
-            "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm", "poorly_determined")
+    keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "fit", "fit_ratio",
+            "residual_rms_mm", "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm",
+            "poorly_determined")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {

@@ -619,6 +619,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("report written", datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")),
         ("trackcal version", version("trackcal")),
         ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
+        ("nominal robot", model_doc.get("nominal") or f"{cell.nominal} (the cell's: the model does not say)"),
         ("measurement table", table.source + digest),
         ("measurements", str(len(table))), ("configurations", str(n_poses)),
         ("stations", ", ".join(dict.fromkeys(table.station))),

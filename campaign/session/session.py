@@ -52,6 +52,11 @@ class SessionFiles:
         return self.directory / HARDWARE_COPY
 
     @property
+    def robot_log(self) -> Path:
+        """What the robot driver's native library printed by itself (drivers/families.py: native_output)."""
+        return self.directory / "robot-native.log"
+
+    @property
     def table(self) -> Path:
         """The measurement table exported at the end of the campaign."""
         return self.directory / "table.csv"

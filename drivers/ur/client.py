@@ -37,6 +37,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
+import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -80,6 +83,44 @@ def _version_major_minor(text: str) -> tuple[int, int]:
             return int(parts[0]), int(parts[1])
     return (0, 0)
 
+
+
+_DIVERTED: list[str] = []  # the log native output went to (once per process)
+
+
+def divert_native_output(log_path: str | os.PathLike) -> bool:
+    """Keep ur_rtde's own console lines off trackcal's console: they go to log_path (appended). Its C++ threads write
+    them to the process's file descriptors 2 and 1 whatever the constructors' `verbose` flag says (std::cerr in
+    src/rtde_receive_interface.cpp's receive thread, "RTDEReceiveInterface boost system Exception: ...";
+    std::cerr / std::cout in src/rtde_control_interface.cpp, "RTDEControlInterface: Could not receive data from
+    robot...", "Reconnecting..."), so the descriptors move: Python's sys.stdout and sys.stderr are re-opened on
+    duplicates of fds 1 and 2 (the console, where trackcal's own lines stay), then fds 1 and 2 point at the log.
+    Only when sys.stdout / sys.stderr are fds 1 and 2 themselves (a command line; not under a capturing test
+    runner), once per process; returns whether the output is diverted."""
+    if _DIVERTED:
+        return True
+    try:
+        if sys.stdout.fileno() != 1 or sys.stderr.fileno() != 2:
+            return False
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
+        return False
+    log = os.open(os.fspath(log_path), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    streams = []
+    for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+        stream.flush()
+        streams.append(open(os.dup(fd), "w", encoding=stream.encoding, errors=stream.errors,  # noqa: SIM115
+                            buffering=1 if stream.line_buffering else -1))  # fmt: skip
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    os.close(log)
+    sys.stdout, sys.stderr = streams
+    _DIVERTED.append(os.fspath(log_path))
+    return True
+
+
+def claim_address(host: str) -> str:
+    """The abstract Unix socket address (a leading NUL, unix(7)) of this PC's claim on the controller at host."""
+    return f"\0trackcal/ur/{host.strip().lower()}"
 
 
 def stop_code(reason) -> str:
@@ -146,8 +187,28 @@ class UrRtde:
         self.stop_sent_at: float | None = None  # time.monotonic() of the last stopJ sent (bench and tests)
         self.stop_seen: float | None = None  # controller time of the last frame read before that stopJ
         self._last_stamp: float | None = None
+        self._claim: socket.socket | None = None
 
     # --- connection -----------------------------------------------------------------------------------------
+
+    def claim(self) -> None:
+        """Hold this PC's claim on the controller at `host` until close(): an abstract Unix socket named after the
+        address (Linux, unix(7): no file, released by the kernel when the process ends, kill -9 included). The arm
+        runs one control script: every RTDEControlInterface uploads its own when constructed (ur_rtde's docs,
+        "Introduction": the control interface "requires a control script to be running on the robot, which is
+        uploaded automatically"; src/rtde_control_interface.cpp), so a second campaign would take the arm over from
+        the first. A second claim on this PC raises ConnectionLost
+        whose cause is OSError EADDRINUSE, before anything touches the robot. Idempotent."""
+        if self._claim is not None:
+            return
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(claim_address(self.host))
+        except OSError as exc:
+            sock.close()
+            raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
+                                 device=self.device) from exc  # fmt: skip
+        self._claim = sock
 
     def connect(self) -> None:
         """Dashboard first (version, remote control), then the RTDE stream, then the control script; retried until
@@ -164,7 +225,7 @@ class UrRtde:
                 self.close()
                 raise
             except DeviceError as exc:
-                self.close()
+                self._disconnect()  # the claim is kept while retrying
                 last = exc
             if time.monotonic() >= deadline:
                 raise ConnectionLost(f"not reachable within {self.connect_timeout_s:g} s: {last}", device=self.device)
@@ -210,6 +271,13 @@ class UrRtde:
             raise ConnectionLost(f"dashboard {name}: {exc}", device=self.device) from None
 
     def close(self) -> None:
+        """Disconnect and give up the claim."""
+        self._disconnect()
+        if self._claim is not None:
+            self._claim.close()
+            self._claim = None
+
+    def _disconnect(self) -> None:
         # ur_rtde 1.6.5 after a lost link: disconnect() of its interfaces (and their destructors) can crash the
         # process (tests/test_ur_driver.py, dropped connection); a lost link's interfaces are kept, untouched, until
         # the process ends

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.ur.calibration import read_calibration_conf, read_kinematics_info
-from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde
+from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde, divert_native_output
+from trackcal.drivers.ur.program import PROGRAM
 
 SCHEMAS = {
     "": {
@@ -39,6 +40,11 @@ def waiting(r: dict) -> str:
     return f"connecting to the UR controller at {r['host']} (up to {r['connect_timeout_s']:g} s; Remote Control on)"
 
 
+def claim(robot: UrRtde) -> None:
+    """This PC's claim on the controller (UrRtde.claim): a second campaign on the same arm is refused."""
+    robot.claim()
+
+
 def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
     """calibration.conf's deltas (conf), or the primary interface's KINEMATICS_INFO of the controller at host."""
     if conf is not None:
@@ -49,4 +55,6 @@ def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
 
 
 FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
-                     describe=where, where=where, waiting=waiting, factory_table=factory_table)  # fmt: skip
+                     describe=where, where=where, waiting=waiting, claim=claim, factory_table=factory_table,
+                     native_output=divert_native_output,
+                     program=PROGRAM)  # fmt: skip

@@ -34,6 +34,7 @@ import math
 import random
 import re
 import threading
+import time
 from collections.abc import Sequence
 
 from trackcal.mocks.servers.ur import rtde_codec as rc
@@ -116,6 +117,9 @@ class UrController:
         self.scripts: list[str] = []  # names of the programs received
         self.last_script = ""  # text of the last program received (control port: `script`)
         self.commands: list[int] = []  # control script command ids processed
+        # when each was taken, CLOCK_MONOTONIC (one clock for every process of the machine, clock_gettime(2)): the
+        # door-to-stop latency of bench/bench_ur_mock.py ends here; not part of the controller's deterministic state
+        self.command_monotonic: list[float] = []
         self.moves = 0  # movej commands started
         self.safety_since_tick = 0
         self.events: list[str] = []  # server-level faults scheduled by the controller ("drop", "stale")
@@ -350,6 +354,7 @@ class UrController:
         elif not self._executing:
             self._executing = True
             self.commands.append(cmd)
+            self.command_monotonic.append(time.monotonic())
             self._process(cmd)
             if self.runtime_state == PLAYING and self._busy is None and cmd != STOP_SCRIPT:
                 self.out_int[off] = 2
@@ -527,7 +532,8 @@ class UrController:
             return {"tick": self.tick, "q": list(self.motion.q), "moving": self.motion.moving,
                     "robot_mode": ROBOT_MODE[self.robot_mode], "safety_mode": SAFETY_MODE[self.safety_mode],
                     "runtime_state": self.runtime_state, "program": self.program, "moves": self.moves,
-                    "commands": list(self.commands), "scripts": list(self.scripts), "log": self.log[-20:],
+                    "commands": list(self.commands), "command_monotonic": self.command_monotonic[-20:],
+                    "scripts": list(self.scripts), "log": self.log[-20:],
                     "out_int": self.out_int[:4], "in_int": self.in_int[:2], "busy": self._busy,
                     "reg_offset": [self.reg_int, self.reg_float], "out_int_upper": self.out_int[24:28],
                     "executing": self._executing, "async_move": self._async_move}  # fmt: skip

@@ -6,29 +6,29 @@ What the generated text relies on (Universal Robots, "The URScript Programming L
 - `movej(q, a=1.4, v=1.05, t=0, r=0)`: q the 6 joint positions in radians as a list, a the joint acceleration
   (rad/s2) and v the joint speed (rad/s) of the leading axis, r = 0 a stop at the target; the defaults 1.4 rad/s2
   and 1.05 rad/s are those of the manual, which `speed_pct` scales (as the KRL program's $VEL_AXIS / $ACC_AXIS
-  percentages do, campaign/jobs/krl.py).
-The targets are those of the KRL program, row for row (compensate.py: the compensated rows, rounded to the 1e-4 deg
-the controller reports), written in radians with 10 decimals (1e-10 rad: far below the 1e-4 deg = 1.7e-6 rad step).
+  percentages do, drivers/kuka/program.py).
+The targets are those of the KRL program, row for row (campaign/jobs/compensate.py: the compensated rows, rounded to
+the 1e-4 deg the controller reports), written in radians with 10 decimals (1e-10 rad: far below the 1e-4 deg =
+1.7e-6 rad step), each under a comment with its name and its degrees. This module makes the text; the caller writes
+it (trackcal compensate, atomically).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.io.files import atomic_open
-from trackcal.campaign.errors import CampaignError
+from trackcal.drivers.errors import ProgramError
+from trackcal.drivers.families import ProgramWriter
 
-CONTROLLER = "ur"  # the robot config's `controller` whose programs these are (configs/robots)
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
 AXES = 6
 MOVEJ_A_RAD_S2, MOVEJ_V_RAD_S = 1.4, 1.05  # the URScript manual's movej defaults
 
 
-class UrScriptError(CampaignError):
+class UrScriptError(ProgramError):
     """A program that cannot be written; the message says why."""
 
 
@@ -70,16 +70,15 @@ def _rad(deg: float) -> str:
     return "0.0000000000" if text == "-0.0000000000" else text
 
 
-def write_urscript(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
-                   points: list[str] | None = None) -> Path:  # fmt: skip
-    """Write NAME.script into out_dir (created if needed); returns its path."""
-    text = urscript_text(name, q_deg, speed_pct, points)
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        path = out / f"{name}.script"
-        with atomic_open(path, "wb") as fh:
-            fh.write(text.encode("ascii"))
-    except OSError as exc:
-        raise UrScriptError(f"{out}: cannot write the URScript program ({exc.strerror or exc})") from None
-    return path
+def labels(names: list[str] | None, n: int) -> list[str]:
+    """The rows' names in the program's comments: the targets' own (P1..Pn without names; the text keeps printable
+    ASCII, others -> _)."""
+    return [(names[k] if names else "").strip() or f"P{k + 1}" for k in range(n)]
+
+
+def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> dict[str, bytes]:
+    """{NAME.script: its bytes}: ASCII, LF."""
+    return {f"{name}.script": urscript_text(name, q_deg, speed_pct, points).encode("ascii")}
+
+
+PROGRAM = ProgramWriter(language="URScript", check_name=check_name, labels=labels, texts=texts)

@@ -12,25 +12,25 @@ What the generated text relies on (checked against public material, not against 
   visose/Robots (Robots/RobotKUKA.cs) writes exactly this sequence for KUKA controllers.
 - KRL names: at most 24 characters, a letter first, then letters, digits and underscores (KUKA system
   software naming rule, as given to this project; KRL is not case-sensitive).
-Files are written with CR LF line ends, as the Windows-based KR C2 editor saves them.
+Files are written with CR LF line ends, as the Windows-based KR C2 editor saves them. This module makes the texts;
+the caller writes them (trackcal compensate, atomically).
 """
 
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.io.files import atomic_open
-from trackcal.campaign.errors import CampaignError
+from trackcal.drivers.errors import ProgramError
+from trackcal.drivers.families import ProgramWriter
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6
 EOL = "\r\n"
 
 
-class KrlError(CampaignError):
+class KrlError(ProgramError):
     """A program that cannot be written; the message says why."""
 
 
@@ -94,17 +94,10 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = 
     return EOL.join(src) + EOL, EOL.join(dat) + EOL
 
 
-def write_krl(name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
-              points: list[str] | None = None) -> tuple[Path, Path]:  # fmt: skip
-    """Write NAME.src and NAME.dat into out_dir (created if needed); returns their paths."""
+def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> dict[str, bytes]:
+    """{NAME.src, NAME.dat: their bytes}: ASCII, CR LF."""
     src, dat = krl_texts(name, q_deg, speed_pct, points)
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        src_path, dat_path = out / f"{name}.src", out / f"{name}.dat"
-        for p, text in ((src_path, src), (dat_path, dat)):
-            with atomic_open(p, "wb") as fh:
-                fh.write(text.encode("ascii"))
-    except OSError as exc:
-        raise KrlError(f"{out}: cannot write the KRL program ({exc.strerror or exc})") from None
-    return src_path, dat_path
+    return {f"{name}.src": src.encode("ascii"), f"{name}.dat": dat.encode("ascii")}
+
+
+PROGRAM = ProgramWriter(language="KRL", check_name=check_name, labels=point_names, texts=texts)
