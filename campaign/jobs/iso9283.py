@@ -141,7 +141,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
-    noise = noise or TrackerNoise()
+    noise = noise or TrackerNoise.of(cell.tracker)
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
     pose_ids = np.asarray(table.pose)

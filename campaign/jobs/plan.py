@@ -77,7 +77,7 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.noise != "iid":
         raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the AT901 model has its "
                           "own)", "sigma_mm", "noise")  # fmt: skip
-    noise = TrackerNoise() if opts.noise == "tracker" else None
+    noise = TrackerNoise.of(cell.tracker) if opts.noise == "tracker" else None
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
         sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
