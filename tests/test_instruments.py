@@ -132,9 +132,9 @@ def test_the_cells_instrument_reaches_identify(kr270):
     params = [param_by_name(kr270.chain, n) for n in ("px1", "px2", "px3", "pz3", "dq2", "dq3")]
     a = run_identify(kr270, table, params, "tracker").doc
     b = run_identify(with_tracker(kr270, TWICE_AT901), table, params, "tracker").doc
-    assert a["tracker"]["model"] == "Leica AT901" and a["tracker"]["assumed"]
-    assert b["tracker"] == {"model": "custom", "assumed": False, "radial_um": 10.0, "radial_um_per_m": 0.0,
-                            "transverse_um": 15.0, "transverse_um_per_m": 6.0}  # fmt: skip
+    assert (a["tracker"]["model"], a["tracker"]["name"], a["tracker"]["assumed"]) == ("AT901", "Leica AT901", True)
+    assert b["tracker"] == {"model": "custom", "name": "custom tracker", "assumed": False, "radial_um": 10.0,
+                            "radial_um_per_m": 0.0, "transverse_um": 15.0, "transverse_um_per_m": 6.0}  # fmt: skip
     assert b["variance_factor"] == pytest.approx(a["variance_factor"] / 4, rel=1e-6)
     assert b["noise_floor_mm"] == pytest.approx(2 * a["noise_floor_mm"], rel=1e-12)
     assert b["fit_ratio"] == pytest.approx(a["fit_ratio"] / 2, rel=1e-6)
@@ -146,7 +146,7 @@ def test_the_cells_instrument_reaches_identify(kr270):
     moved = [abs(c["parameters"][n]["ci95"] / a["parameters"][n]["ci95"] - 1) for n in a["parameters"]]
     assert max(moved) > 0.05
     # model.json keeps the instrument: report and end-of-run read it back
-    assert model_noise(b) == TrackerNoise(0.010, 0.015, 0.006, 0.0, "custom")
+    assert model_noise(b) == TrackerNoise(0.010, 0.015, 0.006, 0.0, "custom tracker")
     assert model_instrument(a).describe() == "Leica AT901 (assumed: the cell names no tracker)"
     assert model_noise({**b, "weighting": "iid"}) is None
 
@@ -162,4 +162,4 @@ def test_the_cells_instrument_reaches_plan_rho0(kr270):
 
 def test_the_twin_measures_with_the_cells_instrument(kr270):
     assert Twin(kr270).noise == TrackerNoise()
-    assert Twin(with_tracker(kr270, TWICE_AT901)).noise == TrackerNoise(0.010, 0.015, 0.006, 0.0, "custom")
+    assert Twin(with_tracker(kr270, TWICE_AT901)).noise == TrackerNoise(0.010, 0.015, 0.006, 0.0, "custom tracker")

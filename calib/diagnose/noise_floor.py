@@ -68,7 +68,7 @@ def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: Tr
     model = noise or tracker or TrackerNoise()
     sigma = float(np.sqrt(np.mean(np.trace(model.covariance(table.xyz), axis1=1, axis2=2) / 3)))
     why = "no repeats" if not reps else f"only {3 * n_dof} degrees of freedom of comparable repeats"
-    return Floor(sigma, f"tracker noise model of the {model.name}; {why}", None)
+    return Floor(sigma, f"{model.name} noise model; {why}", None)
 
 
 def floor_test(geo: Identification, floor: Floor) -> float:

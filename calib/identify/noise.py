@@ -110,5 +110,6 @@ def model_instrument(doc: dict) -> Instrument:
     if not all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in um) or not um[0] or not um[1]:
         raise NoiseError(f"model tracker: expected one-sigma radial_um, transverse_um, transverse_um_per_m, "
                          f"radial_um_per_m (micrometres), got {t!r}")  # fmt: skip
-    return Instrument(str(t.get("model", "custom")), um[0] / 1000, um[1] / 1000, um[2] / 1000, um[3] / 1000,
+    key = str(t.get("model", "custom"))
+    return Instrument(key, str(t.get("name", key)), um[0] / 1000, um[1] / 1000, um[2] / 1000, um[3] / 1000,
                       assumed=bool(t.get("assumed", False)))  # fmt: skip

@@ -25,7 +25,7 @@ DEFAULT (the AT901, trackcal's first tracker) and every output says that it was 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
@@ -39,7 +39,8 @@ class InstrumentError(CalibError):
 class Instrument:
     """One tracker's one-sigma noise terms (mm, mm per m of range) and where they come from."""
 
-    name: str
+    key: str  # what the cell's `tracker: {model: KEY}` says: a key of MODELS or "custom"
+    name: str  # for people: "Leica AT960", "custom tracker"
     radial_mm: float
     transverse_mm: float
     transverse_mm_per_m: float
@@ -54,38 +55,43 @@ class Instrument:
 
     def to_doc(self) -> dict:
         """What model.json and summaries keep of it (micrometres, one sigma)."""
-        return {"model": self.name, "assumed": self.assumed, "radial_um": round(self.radial_mm * 1000, 6),
-                "radial_um_per_m": round(self.radial_mm_per_m * 1000, 6),
+        return {"model": self.key, "name": self.name, "assumed": self.assumed,
+                "radial_um": round(self.radial_mm * 1000, 6), "radial_um_per_m": round(self.radial_mm_per_m * 1000, 6),
                 "transverse_um": round(self.transverse_mm * 1000, 6),
                 "transverse_um_per_m": round(self.transverse_mm_per_m * 1000, 6)}  # fmt: skip
 
 
-def _from_mpe(name: str, radial_um: float, transverse_um: float, transverse_um_per_m: float,
+def _from_mpe(key: str, name: str, radial_um: float, transverse_um: float, transverse_um_per_m: float,
               radial_um_per_m: float = 0.0, source: str = "") -> Instrument:  # fmt: skip
     """An instrument from MPE (= 2 sigma) figures in micrometres."""
-    return Instrument(name, radial_um / 2000, transverse_um / 2000, transverse_um_per_m / 2000, radial_um_per_m / 2000,
-                      source)  # fmt: skip
+    return Instrument(key, name, radial_um / 2000, transverse_um / 2000, transverse_um_per_m / 2000,
+                      radial_um_per_m / 2000, source)  # fmt: skip
 
 
 MODELS: dict[str, Instrument] = {
-    # Leica AT901 (trackcal's numbers since its first release, unchanged): point MPE 15 um + 6 um/m from the angles,
-    # distance MPE 10 um; Leica states MPE = 2 sigma -> 5 um radial, 7.5 um + 3 um/m transverse.
-    "AT901": _from_mpe("Leica AT901", 10, 15, 6, source="Leica Absolute Tracker AT901 datasheet (MPE, ASME B89.4.19)"),
+    # Leica AT901 (trackcal's numbers since its first release, unchanged): point MPE 15 um + 6 um/m from the
+    # angles, distance MPE 10 um; Leica states MPE = 2 sigma -> 5 um radial, 7.5 um + 3 um/m transverse.
+    "AT901": _from_mpe("AT901", "Leica AT901", 10, 15, 6,
+                       source="Leica Absolute Tracker AT901 datasheet (MPE, ASME B89.4.19)"),  # fmt: skip
     # Leica AT960: "Angle accuracy +-15 um + 6 um/m", "Dynamic lock-on +-10 um" (distance), "All accuracies are
-    # specified as maximum permissible errors (MPE) and calculated per ASME B89.4.19-2006 and draft ISO 10360-10 ...
-    # Typical results are half of MPE" (Leica Absolute Tracker AT960 datasheet, as reproduced in J. Robotics 2021,
-    # article 9995787, Table 1: https://www.hindawi.com/journals/jr/2021/9995787/tab1/). Same terms as the AT901.
-    "AT960": _from_mpe("Leica AT960", 10, 15, 6, source="Leica Absolute Tracker AT960 datasheet (MPE, ASME B89.4.19)"),
-    # Leica AT930: the AT960's sibling without the 6-DoF probes; Leica's AT930 datasheet gives the same MPE,
-    # angle +-15 um + 6 um/m, ADM +-10 um (not checked against a stored copy of the datasheet here: see the report).
-    "AT930": _from_mpe("Leica AT930", 10, 15, 6, source="Leica Absolute Tracker AT930 datasheet (MPE)"),
-    # FARO Vantage S6 / E6: ADM accuracy (MPE) 16 um + 0.8 um/m, angular accuracy (MPE) 20 um + 5 um/m (FARO
-    # Vantage S6/E6 laser tracker technical specification sheet; not checked against a stored copy here).
-    "VantageS6": _from_mpe("FARO Vantage S6/E6", 16, 20, 5, radial_um_per_m=0.8,
+    # specified as maximum permissible errors (MPE) and calculated per ASME B89.4.19-2006 and draft ISO 10360-10
+    # ... Typical results are half of MPE" (Leica Absolute Tracker AT960 datasheet, as reproduced in Journal of
+    # Robotics 2021, article 9995787, Table 1: https://www.hindawi.com/journals/jr/2021/9995787/tab1/).
+    # The same terms as the AT901.
+    "AT960": _from_mpe("AT960", "Leica AT960", 10, 15, 6,
+                       source="Leica Absolute Tracker AT960 datasheet (MPE, ASME B89.4.19)"),  # fmt: skip
+    # Leica AT930: the AT960's sibling without the 6-DoF probes; Leica's AT930 datasheet states the same MPE,
+    # angle +-15 um + 6 um/m, ADM +-10 um. NOT checked against a stored copy of the datasheet (none was found with
+    # the tools of this change): confirm on the instrument's certificate, or give the cell a custom tracker.
+    "AT930": _from_mpe("AT930", "Leica AT930", 10, 15, 6, source="Leica Absolute Tracker AT930 datasheet (MPE)"),
+    # FARO Vantage S6 / E6: ADM accuracy (MPE) 16 um + 0.8 um/m, angular accuracy (MPE) 20 um + 5 um/m (FARO Vantage
+    # S6/E6 technical specification sheet). NOT checked against a stored copy (as the AT930's).
+    "VantageS6": _from_mpe("VantageS6", "FARO Vantage S6/E6", 16, 20, 5, radial_um_per_m=0.8,
                            source="FARO Vantage S6/E6 technical specifications (MPE)"),  # fmt: skip
-    # API Radian: 3-D static accuracy +-10 um + 5 um/m (2 sigma) is its only point figure (API Radian laser tracker
-    # specification sheet; not checked against a stored copy here): split as the module docstring says.
-    "Radian": _from_mpe("API Radian", 10, 10, 5, source="API Radian laser tracker specifications (3-D, 2 sigma)"),
+    # API Radian: 3-D static accuracy +-10 um + 5 um/m (2 sigma), its one point figure (API Radian laser tracker
+    # specification sheet), split as the module docstring says. NOT checked against a stored copy (as the AT930's).
+    "Radian": _from_mpe("Radian", "API Radian", 10, 10, 5,
+                        source="API Radian laser tracker specifications (3-D, 2 sigma)"),  # fmt: skip
 }
 ALIASES = {"vantage": "VantageS6", "vantage-s6": "VantageS6", "vantage-e6": "VantageS6", "vantages6": "VantageS6",
            "vantagee6": "VantageS6", "faro-vantage": "VantageS6", "api-radian": "Radian"}  # fmt: skip
@@ -105,7 +111,7 @@ def named(name: str, where: str = "tracker") -> Instrument:
 def assumed() -> Instrument:
     """The model of a cell that names none (DEFAULT), marked as assumed."""
     m = MODELS[DEFAULT]
-    return Instrument(m.name, m.radial_mm, m.transverse_mm, m.transverse_mm_per_m, m.radial_mm_per_m, m.source, True)
+    return replace(m, assumed=True)
 
 
 def instrument_from_doc(doc, where: str = "tracker") -> Instrument:
@@ -137,5 +143,6 @@ def instrument_from_doc(doc, where: str = "tracker") -> Instrument:
     for key in ("radial_um", "transverse_um"):
         if um[key] == 0:
             raise InstrumentError(f"{where}.{key}: must be positive (a tracker without noise cannot weigh its points)")
-    return Instrument("custom", um["radial_um"] / 1000, um["transverse_um"] / 1000, um["transverse_um_per_m"] / 1000,
-                      um["radial_um_per_m"] / 1000, "the cell's own figures (one sigma)")  # fmt: skip
+    return Instrument("custom", "custom tracker", um["radial_um"] / 1000, um["transverse_um"] / 1000,
+                      um["transverse_um_per_m"] / 1000, um["radial_um_per_m"] / 1000,
+                      "the cell's own figures (one sigma)")  # fmt: skip
