@@ -12,12 +12,15 @@ import yaml
 from tests.helpers import kr270_campaign
 from trackcal.calib.doe.design import random_feasible_poses
 from trackcal.calib.identify.noise import TrackerNoise, model_instrument, model_noise, noise_for
+from trackcal.calib.io.table import write_table
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.instruments import InstrumentError, instrument_from_doc, named
 from trackcal.calib.model.params import param_by_name
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.identify import run_identify
 from trackcal.campaign.jobs.plan import PlanOptions, build_design, evaluate_doc
+from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
+from trackcal.campaign.report.html import write_report
 from trackcal.mocks.twin import Twin
 
 RANGES_M = np.array([1.0, 3.0, 10.0])
@@ -163,3 +166,21 @@ def test_the_cells_instrument_reaches_plan_rho0(kr270):
 def test_the_twin_measures_with_the_cells_instrument(kr270):
     assert Twin(kr270).noise == TrackerNoise()
     assert Twin(with_tracker(kr270, TWICE_AT901)).noise == TrackerNoise(0.010, 0.015, 0.006, 0.0, "custom tracker")
+
+
+def test_identify_and_the_report_name_the_instrument(kr270, tmp_path, capsys):
+    _, table = kr270_campaign(kr270, seed=7, n_poses=12)
+    write_table(table, tmp_path / "t.csv")
+    cell = _cell_file(tmp_path, {"model": "AT960"})
+    assert main(["identify", str(tmp_path / "t.csv"), "--cell", cell, "--out", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "tracker Leica AT960" in out and "assumed" not in out
+    assert main(["identify", str(tmp_path / "t.csv"), "--cell", "kr270", "--out", str(tmp_path / "m0.json")]) == 0
+    assert "tracker Leica AT901 (assumed: the cell names no tracker)" in " ".join(capsys.readouterr().out.split())
+    at960 = with_tracker(kr270, "AT960")
+    doc = run_identify(at960, table, [param_by_name(kr270.chain, n) for n in ("px2", "dq2")], "tracker").doc
+    page = write_report(CampaignAnalysis(cell=at960, table=table, table_sha256=None, model=doc, plan=None,
+                                         verdict=None, diagnosis=None, provenance=Provenance()),
+                        tmp_path / "rep").read_text()  # fmt: skip
+    assert '<td class="l">tracker</td><td class="l">Leica AT960</td>' in page
+    assert "(Leica AT960 noise model;" in page  # the noise floor's source

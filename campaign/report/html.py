@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.diagnose.selection import noise_floor
-from trackcal.calib.identify.noise import TrackerNoise, model_noise
+from trackcal.calib.identify.noise import TrackerNoise, model_instrument, model_noise
 from trackcal.calib.identify.solver import identify, residual_stats
 from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable
@@ -623,6 +623,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("measurements", str(len(table))), ("configurations", str(n_poses)),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
+        ("tracker", (model_instrument(model_doc) if "tracker" in model_doc else cell.tracker).describe()),
         ("weighting", model_doc.get("weighting", "-")), ("iterations", str(model_doc.get("iterations", "-"))),
         ("a-posteriori sigma (µm)", fmt(1000 * sigma, 1) if sigma is not None else
          f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)"),
