@@ -3,6 +3,7 @@ the cell's `tracker:` key parsed and refused in one line, and the cell's instrum
 its noise floor, plan's rho0 and the twin."""
 
 import copy
+import json
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from trackcal.calib.model.instruments import InstrumentError, instrument_from_do
 from trackcal.calib.model.params import param_by_name
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.identify import run_identify
-from trackcal.campaign.jobs.plan import PlanOptions, build_design, evaluate_doc
+from trackcal.campaign.jobs.plan import PlanOptions, build_design, evaluate_doc, write_plan_csv
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.html import write_report
 from trackcal.mocks.twin import Twin
@@ -161,6 +162,19 @@ def test_the_cells_instrument_reaches_plan_rho0(kr270):
     design_b = build_design(with_tracker(kr270, TWICE_AT901), opts)
     q = np.vstack([kr270.test_pose, random_feasible_poses(design_a, 11, np.random.default_rng(3))])
     assert evaluate_doc(design_b, q)["rho0_mm"] == pytest.approx(2 * evaluate_doc(design_a, q)["rho0_mm"], rel=1e-9)
+
+
+def test_plan_says_which_instrument_it_planned_for(kr270, tmp_path, capsys):
+    q = random_feasible_poses(build_design(kr270, PlanOptions()), 12, np.random.default_rng(4))
+    write_plan_csv(tmp_path / "p.csv", q, 1)
+    cell = _cell_file(tmp_path, {"model": "VantageS6"})
+    argv = ["plan", "--cell", cell, "--evaluate", str(tmp_path / "p.csv"), "--json", str(tmp_path / "e.json")]
+    assert main([*argv, "--noise", "tracker"]) == 0
+    assert "noise: tracker model of the FARO Vantage S6/E6)" in " ".join(capsys.readouterr().out.split())
+    assert json.loads((tmp_path / "e.json").read_text())["tracker"]["model"] == "VantageS6"
+    assert main(argv) == 0  # i.i.d. (the default): no instrument in it
+    assert "noise: i.i.d.)" in capsys.readouterr().out
+    assert "tracker" not in json.loads((tmp_path / "e.json").read_text())
 
 
 def test_the_twin_measures_with_the_cells_instrument(kr270):

@@ -245,5 +245,7 @@ def plan(cell_ref: str, opts: PlanOptions, json_out: str, evaluate: str | None =
         doc = search_doc(design, opts, progress)
         if csv_out:
             write_plan_csv(Path(csv_out), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
+    if opts.noise == "tracker":  # the instrument rho0 was computed for
+        doc["tracker"] = cell.tracker.to_doc()
     write_json(json_out, doc, InputError)
     return PlanOutcome(doc, evaluated=bool(evaluate))
