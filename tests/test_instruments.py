@@ -60,6 +60,12 @@ def test_each_model_has_its_datasheet_sigmas(name):
     assert np.allclose(np.einsum("nji,njk,nkl->nil", w, w, c), np.eye(3), atol=1e-9)
 
 
+def test_the_radian_split_never_states_less_than_its_3d_figure():
+    # API Radian: 3-D 10 µm + 5 µm/m at 2 sigma -> a 3-D standard deviation of (10 + 5 L) / 2 µm at least
+    sr, st = TrackerNoise.of(named("Radian")).sigmas(np.array([0.5, 2.0, 10.0, 40.0]) * 1000.0)
+    assert np.all(np.sqrt(sr**2 + 2 * st**2) * 1000 >= (10 + 5 * np.array([0.5, 2.0, 10.0, 40.0])) / 2)
+
+
 def test_the_at901_is_still_the_default_and_bit_for_bit_the_old_numbers():
     # trackcal's numbers before instruments: 5 µm radial, 7.5 µm + 3 µm/m transverse (the AT901 datasheet's MPE / 2)
     old = (0.005, 0.0075, 0.003)

@@ -16,7 +16,8 @@ How a datasheet figure becomes a one-sigma term (every model below says which ki
 - a datasheet that gives only a combined 3-D point figure U = a + b/m (API Radian): its constant part is taken as both
   the radial and the transverse constant, its range part as transverse only (a tracker's range-proportional error is
   its angle encoders'; the interferometer's ppm is two orders smaller), so sigma_r = a/2, sigma_t = a/2 + b/2 * range.
-  For a point 3 m away this splits U evenly between the three directions at most: it never under-states the noise.
+  The point's 3-D standard deviation sqrt(sigma_r^2 + 2 sigma_t^2) is then at least U/2 at every range: the split
+  never states less noise than the figure.
 
 A cell names its tracker as `tracker: {model: AT960}` or `tracker: {model: custom, radial_um: 5, transverse_um: 7.5,
 transverse_um_per_m: 3}` (one-sigma values, micrometres; `radial_um_per_m` optional). A cell that names none gets
