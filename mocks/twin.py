@@ -51,13 +51,15 @@ class Twin:
     cell: Cell
     seed: int = 0
     deviations: dict[str, float] | None = None  # name -> mm | deg; default PAPER_TABLE8 for the KR-270
-    noise: TrackerNoise = field(default_factory=TrackerNoise)
+    noise: TrackerNoise | None = None  # None: the cell's instrument (calib.model.instruments; default the AT901)
     point_offset_mm: float = 0.5  # std of the true points around the tool drawing
     station_error_mm: float = 20.0  # std of the true station positions around the cell's nominal ones
     effects: dict[str, float] = field(default_factory=dict)  # hidden effect -> magnitude (mm, see effects.py)
     thermal_pivot: str = "base"  # what thermal growth keeps fixed (effects.THERMAL_PIVOTS)
 
     def __post_init__(self) -> None:
+        if self.noise is None:
+            self.noise = TrackerNoise.of(self.cell.tracker)
         chain = self.cell.chain
         self.params = complete_params(chain)
         self.kin = Kinematics(chain, self.params)

@@ -55,19 +55,20 @@ def comparable_repeats(table: MeasurementTable) -> list[np.ndarray]:
     return out
 
 
-def noise_floor(table: MeasurementTable, noise: TrackerNoise | None) -> Floor:
+def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: TrackerNoise | None = None) -> Floor:
     """The tracker's own scatter: pooled from comparable repeats when they give MIN_FLOOR_DOF degrees of
-    freedom, else the tracker noise model."""
+    freedom, else the tracker noise model: the weighting's (`noise`), else `tracker` (the cell's instrument under
+    i.i.d. weighting), else the AT901's."""
     reps = comparable_repeats(table)
     n_dof = sum(len(g) - 1 for g in reps)
     if n_dof >= MIN_FLOOR_DOF:
         ss = sum(float(np.sum((table.xyz[g] - table.xyz[g].mean(axis=0)) ** 2)) for g in reps)
         return Floor(float(np.sqrt(ss / (3 * n_dof))), f"comparable repeats ({3 * n_dof} degrees of freedom)",
                      3 * n_dof)  # fmt: skip
-    model = noise or TrackerNoise()
+    model = noise or tracker or TrackerNoise()
     sigma = float(np.sqrt(np.mean(np.trace(model.covariance(table.xyz), axis1=1, axis2=2) / 3)))
     why = "no repeats" if not reps else f"only {3 * n_dof} degrees of freedom of comparable repeats"
-    return Floor(sigma, f"tracker noise model ({why})", None)
+    return Floor(sigma, f"{model.name} noise model; {why}", None)
 
 
 def floor_test(geo: Identification, floor: Floor) -> float:

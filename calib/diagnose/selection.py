@@ -348,14 +348,16 @@ def diagnose(
     seed: int = 0,
     causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT),
     geometric: Identification | None = None,
+    tracker: TrackerNoise | None = None,
 ) -> Diagnosis:
     """What the geometric model misses and which causes explain it (the module's docstring). `geometric` is the
     geometric fit of the same table, tool points, params and noise if already computed (`fit_cause(..., "none")`,
-    identify's): it is not fitted again, and the diagnosis is the same."""
+    identify's): it is not fitted again, and the diagnosis is the same. `tracker`: the cell's instrument, the noise
+    floor's model under i.i.d. weighting (default the AT901's)."""
     geo = geometric if geometric is not None else identify(chain, table, tool_points, params, noise=noise)
     n_obs = 3 * len(table)
     n_geo = n_obs - geo.dof
-    floor = noise_floor(table, noise)
+    floor = noise_floor(table, noise, tracker)
     p_floor = floor_test(geo, floor)
     ctx = context(chain, table, params, noise, geo, causes)
     val = Validator(ctx, folds, seed)

@@ -17,6 +17,7 @@ from trackcal.calib.errors import CalibError
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_json, read_yaml
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_from_urdf, chain_to_dict
+from trackcal.calib.model.instruments import Instrument, assumed, instrument_from_doc
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import rot_axis
 
@@ -66,6 +67,7 @@ class Cell:
     measurement_tolerance_mm: float | None = None  # None: from the station set-up (campaign/engine/expected.py)
     max_skipped_share: float = MAX_SKIPPED_SHARE  # a campaign that skipped more of its planned measurements failed
     repeatability_mm: float = 0.0  # the robot's ISO 9283 pose repeatability RP (datasheet); 0: not stated
+    tracker: Instrument = field(default_factory=assumed)  # the cell's `tracker:` (calib.model.instruments)
     source: str = ""
     nominal: str = ""  # which nominal robot: `nominal_of` (model.json records it, the report prints it)
 
@@ -198,6 +200,7 @@ def load_cell(ref: str) -> Cell:
             raise CellError(f"{where}: measurement_tolerance_mm: must be positive")
     cell.max_skipped_share = _non_negative(doc, "max_skipped_share", where, MAX_SKIPPED_SHARE)
     cell.repeatability_mm = _non_negative(doc, "repeatability_mm", where, 0.0)
+    cell.tracker = instrument_from_doc(doc.get("tracker"), f"{where}: tracker")
     if cell.max_skipped_share > 1:
         raise CellError(f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got "
                         f"{cell.max_skipped_share:g}")  # fmt: skip

@@ -7,6 +7,7 @@ import sys
 import numpy as np
 from rich.table import Table
 
+from trackcal.calib.identify.noise import model_instrument
 from trackcal.campaign.cli.console import console, print_table
 from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
 from trackcal.campaign.jobs.identify import (
@@ -57,6 +58,7 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
         ci = s["ci95_translation_mm"]
         console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
     print_extension(doc["extension"])
+    console.print(f"tracker {model_instrument(doc).describe()}")
     console.print(f"weighting {doc['weighting']}; residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm per coordinate, "
                   f"{doc['fit_ratio']:.1f}x the noise floor {doc['noise_floor_mm'] * 1000:.1f} µm "
                   f"({doc['noise_floor_source']}): fit {doc['fit']}")  # fmt: skip
@@ -183,6 +185,7 @@ def cmd_diagnose(args) -> int:
                   um(c["rms_mm"]), f"{c['f_pvalue']:.2g}", f"{c['delta_bic']:.0f}",
                   "yes" if c["significant"] else "no")  # fmt: skip
     print_table(t)
+    console.print(f"tracker {model_instrument(doc).describe()}")
     console.print(f"noise floor {d.noise_floor_mm * 1000:.1f} µm ({d.floor_source}); {doc['noise_note']}; held-out "
                   f"RMS {um(d.holdout_geometric_mm)} -> {um(d.holdout_extended_mm)} µm"
                   + (f" ({d.cv_note})" if d.cv_note else ""))  # fmt: skip

@@ -16,7 +16,8 @@ CAUSE_HELP = ("none (purely geometric), auto (diagnose's choice) or a cause: joi
               "encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
 TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm)"
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
-WEIGHTING_HELP = "the AT901 radial/transverse noise model (calib/identify/noise.py), or i.i.d. least squares"
+WEIGHTING_HELP = ("the radial/transverse noise model of the cell's tracker (cell key tracker:, default the AT901; "
+                  "calib/model/instruments.py), or i.i.d. least squares")
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 
 
@@ -134,8 +135,8 @@ COMMANDS = [
                 arg("--repeat", type=int, default=1, help="each configuration measured K times"),
                 arg("--sigma-mm", type=float, help="--noise iid: the noise of one coordinate, mm (default: 0.01)"),
                 arg("--noise", choices=("tracker", "iid"), default="iid",
-                    help="i.i.d. --sigma-mm (the paper's), or the AT901 model identify weighs by (its plans put poses "
-                         "at the edge of a station's view: README)"),
+                    help="i.i.d. --sigma-mm (the paper's), or the cell's tracker model identify weighs by (its "
+                         "plans put poses at the edge of a station's view: README)"),
                 arg("--params", help="parameters targeted (default: the cell's plan_params)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),

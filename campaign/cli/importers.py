@@ -24,6 +24,9 @@ def cmd_import_ipa(args) -> int:
     except OSError as exc:
         raise IpaFormatError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
     print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
+    # the files name no instrument (ABOUT.md of the data set: "a Leica laser tracker"): say which model is assumed
+    print("tracker: the files do not say which one measured them; identify and diagnose weigh and judge by the "
+          "cell's tracker: key, and ur10-ipa names none, so they assume the Leica AT901 and say so")
     return 0
 
 

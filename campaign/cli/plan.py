@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rich.progress import Progress
 
+from trackcal.calib.identify.noise import model_instrument
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.jobs.plan import PlanOptions, plan
 
@@ -29,6 +30,7 @@ def cmd_plan(args) -> int:
         for q in doc["poses_deg"]:
             console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
     rho0 = f"{doc['rho0_mm'] * 1000:.2f} µm" if doc["rho0_mm"] is not None else doc["rho0_why"]
-    console.print(f"rho0 at the test pose: {rho0}  (parameters: {' '.join(doc['params'])})")
+    noise = f"tracker model of the {model_instrument(doc).describe()}" if "tracker" in doc else "i.i.d."
+    console.print(f"rho0 at the test pose: {rho0}  (parameters: {' '.join(doc['params'])}; noise: {noise})")
     console.print(f"plan written to {args.json}")
     return 0

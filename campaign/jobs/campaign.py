@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from trackcal.calib.identify.drift import DriftTest
+from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
@@ -124,7 +125,7 @@ def devices(live: Live, context: RunContext, cell: Cell) -> Devices:
                    operator=rec("operator", live.operator), clock=rec("clock", live.clock),
                    cellio=rec("cellio", live.cellio), meteo=rec("meteo", live.meteo),
                    expected=expected_position(cell), tolerance=measurement_tolerance(cell),
-                   drift=DriftTest(repeatability_mm=cell.repeatability_mm))  # fmt: skip
+                   drift=DriftTest(TrackerNoise.of(cell.tracker), repeatability_mm=cell.repeatability_mm))  # fmt: skip
 
 
 def run_session(store: SessionStore, campaign: Campaign, live: Live,

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.io.files import write_json
 from trackcal.calib.io.table import read_table
 from trackcal.calib.model.cell import Cell, load_cell
@@ -49,8 +49,8 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
         # list of that many empty blocks); more folds than poses hold out one pose each
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
     params, still = still_warning(cell, table, choose_params(cell, opts.params))
-    d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting), folds=opts.folds,
-                 seed=opts.seed)  # fmt: skip
+    d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting, cell.tracker), folds=opts.folds,
+                 seed=opts.seed, tracker=TrackerNoise.of(cell.tracker))  # fmt: skip
     digest = sha256_of(table.source)
     doc = verdict_doc(cell, d, digest)
     written = plots(cell, d, Path(opts.plots)) if opts.plots else []
@@ -84,6 +84,7 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
                       "p_at_noise_floor": d.variance_factor_pvalue},
         "noise_floor_mm": d.noise_floor_mm,
         "noise_floor_source": d.floor_source,
+        "tracker": cell.tracker.to_doc(),
         "noise_scale": d.noise_scale,
         "noise_note": noise_note(d),
         "structure": d.structure,

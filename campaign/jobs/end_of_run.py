@@ -14,7 +14,7 @@ import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, model_noise
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import dumps_json, read_json, write_bytes, write_text
 from trackcal.calib.io.table import MeasurementTable, as_written, read_table, table_csv
@@ -167,7 +167,8 @@ def read_campaign(cell: Cell, table_path, model_path, plan_path, verdict_path, p
 def diagnosis_of(cell: Cell, table: MeasurementTable, model: dict) -> Diagnosis:
     """The table diagnosed with the model's parameters and weighting."""
     params = [param_by_name(cell.chain, n) for n in model.get("covariance_order", [])]
-    return diagnose(cell.chain, table, cell.tool_points, params, noise_for(model.get("weighting", "iid")))
+    return diagnose(cell.chain, table, cell.tool_points, params, model_noise(model),
+                    tracker=TrackerNoise.of(cell.tracker))  # fmt: skip
 
 
 def _numbers(doc: dict, keys: tuple[str, ...], where: str) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.selection import diagnose, fit_cause, noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.identify.solver import (
     Identification,
     IdentificationError,
@@ -27,6 +27,7 @@ from trackcal.calib.io.table import MeasurementTable, read_table, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
+from trackcal.calib.model.instruments import Instrument
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
@@ -102,10 +103,11 @@ def run_identify(
         raise OptionError("{0} {extend}: choose none, auto or causes joined by + from {causes}", "extend",
                           extend=extend, causes=", ".join(CAUSES))
     params, still = still_warning(cell, table, params)
-    noise = noise_for(weighting)
+    noise = noise_for(weighting, cell.tracker)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
-        extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise).causes)
+        extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise,
+                                                        tracker=TrackerNoise.of(cell.tracker)).causes)
         extend = extend or "none"
     fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
     if fit is None:
@@ -135,10 +137,11 @@ def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
     return outcome
 
 
-def fit_quality(table: MeasurementTable, res: Identification) -> dict:
+def fit_quality(table: MeasurementTable, res: Identification, tracker: Instrument | None = None) -> dict:
     """Does the model reach the noise floor? The residual RMS of one coordinate (over the degrees of freedom)
-    against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model)."""
-    found = noise_floor(table, res.noise)
+    against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model: the weighting's, else
+    `tracker`'s, the cell's instrument)."""
+    found = noise_floor(table, res.noise, None if tracker is None else TrackerNoise.of(tracker))
     floor, source = found.sigma_mm, found.source
     rms_dof = float(np.sqrt(np.sum(res.residuals**2) / max(res.dof, 1)))
     ratio = rms_dof / floor
@@ -238,7 +241,8 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         "table_sha256": table_sha256,
         "n_measurements": len(table),
         "residuals": {"before": residual_stats(before.residuals), "after": residual_stats(res.residuals)},
-        **fit_quality(table, res),
+        "tracker": cell.tracker.to_doc(),
+        **fit_quality(table, res, cell.tracker),
     }
     if cell.test_pose is not None and cell.tcp is not None:
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
@@ -249,7 +253,7 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
-    keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "fit", "fit_ratio",
+    keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "tracker", "fit", "fit_ratio",
             "residual_rms_mm", "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm",
             "poorly_determined")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}

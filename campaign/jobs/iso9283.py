@@ -141,7 +141,8 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
-    noise = noise or TrackerNoise()
+    tracker = noise.name if noise else cell.tracker.describe()  # whose noise U is
+    noise = noise or TrackerNoise.of(cell.tracker)
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
     pose_ids = np.asarray(table.pose)
@@ -171,7 +172,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
                 f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
-        "temperature": _temperature(table), "trackcal version": version("trackcal"),
+        "temperature": _temperature(table), "tracker (its U)": tracker, "trackcal version": version("trackcal"),
     })  # fmt: skip
     return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
+from trackcal.calib.identify.noise import model_noise
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, residual_stats
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, read_table, write_table
@@ -93,7 +93,7 @@ def _split(table: MeasurementTable, rows: np.ndarray, poses: int | None) -> tupl
     return rows[used], rows[~used]
 
 
-def locate_rows(model: Model, rows: MeasurementTable, weighting: str) -> Identification:
+def locate_rows(model: Model, rows: MeasurementTable) -> Identification:
     """The station of `rows` (one station) fitted with every robot, extension and tool-point unknown of `model`
     held: `identify` with LOCATE_ONLY. At least MIN_POINTS rows, not collinear."""
     if len(rows) < MIN_POINTS:
@@ -102,7 +102,7 @@ def locate_rows(model: Model, rows: MeasurementTable, weighting: str) -> Identif
             f"{MIN_POINTS} non-collinear points are needed (reference points x poses)"
         )
     ext, theta = (None, None) if model.cause == "station_shift" else model.extension_for(rows)
-    return identify(model.chain, rows, model.points, model.params, noise=noise_for(weighting), dev0=model.dev,
+    return identify(model.chain, rows, model.points, model.params, noise=model_noise(model.doc), dev0=model.dev,
                     extension=ext, ext0=theta, fixed=LOCATE_ONLY)  # fmt: skip
 
 
@@ -128,7 +128,7 @@ def locate(opts: LocateOptions) -> Location:
                           "nothing is left to predict", "poses", poses=opts.poses, station=station)  # fmt: skip
     sub = table.subset(used)
     sub.station = [name] * len(sub)
-    fit = locate_rows(model, sub, model.doc.get("weighting", DEFAULT_WEIGHTING))
+    fit = locate_rows(model, sub)
     doc = copy.deepcopy(model.doc)
     replaced = name in doc["stations"]
     doc["stations"][name] = station_doc(fit, name)

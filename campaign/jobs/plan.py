@@ -31,8 +31,8 @@ class PlanOptions:
     params: str | None = None  # comma-separated names; None: the cell's plan_params
     test_pose: str | None = None  # "Q1,..,Qn" in degrees; None: the cell's test pose
     sigma_mm: float | None = None  # noise="iid": one coordinate's noise; None: 0.01
-    # the AT901 model by default: identify, diagnose and run weigh a campaign by it, and rho0 is the test-pose
-    # error of the estimate they compute; "iid" (sigma_mm) is the paper's i.i.d. case
+    # the cell's tracker model (the AT901 by default): identify, diagnose and run weigh a campaign by it, and rho0
+    # is the test-pose error of the estimate they compute; "iid" (sigma_mm) is the paper's i.i.d. case
     noise: str = "iid"  # the tracker model plans poses at the edge of a station's view: README, `trackcal plan`
     visibility: bool = True
     configs: int = 6
@@ -75,9 +75,9 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
     if opts.sigma_mm is not None and opts.noise != "iid":
-        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the AT901 model has its "
+        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the tracker model has its "
                           "own)", "sigma_mm", "noise")  # fmt: skip
-    noise = TrackerNoise() if opts.noise == "tracker" else None
+    noise = TrackerNoise.of(cell.tracker) if opts.noise == "tracker" else None
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
         sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
@@ -245,5 +245,7 @@ def plan(cell_ref: str, opts: PlanOptions, json_out: str, evaluate: str | None =
         doc = search_doc(design, opts, progress)
         if csv_out:
             write_plan_csv(Path(csv_out), np.radians(np.array(doc["poses_deg"])), doc["repeat"])
+    if opts.noise == "tracker":  # the instrument rho0 was computed for
+        doc["tracker"] = cell.tracker.to_doc()
     write_json(json_out, doc, InputError)
     return PlanOutcome(doc, evaluated=bool(evaluate))

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.diagnose.selection import noise_floor
-from trackcal.calib.identify.noise import noise_for
+from trackcal.calib.identify.noise import TrackerNoise, model_instrument, model_noise
 from trackcal.calib.identify.solver import identify, residual_stats
 from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable
@@ -91,9 +91,9 @@ def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> R
         raise InputError(f"{table.source}: the table has no x_mm, y_mm, z_mm: nothing to report residuals of")
     model = model_from_doc(model_doc)
     after = table.xyz - predict_table(model, table).xyz
-    noise = noise_for(model_doc.get("weighting", "iid"))
+    noise = model_noise(model_doc)
     before = identify(model.chain, table, cell.tool_points, [], noise=noise).residuals
-    found = noise_floor(table, noise)
+    found = noise_floor(table, noise, TrackerNoise.of(cell.tracker))
     floor, source = found.sigma_mm, found.source
     return Residuals(before, after, residual_stats(before), residual_stats(after), floor, source)
 
@@ -624,6 +624,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("measurements", str(len(table))), ("configurations", str(n_poses)),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
+        ("tracker", (model_instrument(model_doc) if "tracker" in model_doc else cell.tracker).describe()),
         ("weighting", model_doc.get("weighting", "-")), ("iterations", str(model_doc.get("iterations", "-"))),
         ("a-posteriori sigma (µm)", fmt(1000 * sigma, 1) if sigma is not None else
          f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)"),
