@@ -150,10 +150,12 @@ def test_a_semicolon_file_with_the_default_map_says_so(tmp_path):
 
 @pytest.mark.parametrize("name, poses, rows, points", [("three-smr", 4, 12, ["P1", "P2", "P3"]),
                                                         ("one-reflector", 5, 11, ["P1"])])  # fmt: skip
-def test_the_documented_examples_import(tmp_path, name, poses, rows, points):
+def test_the_documented_examples_import(tmp_path, capsys, name, poses, rows, points):
     out = tmp_path / "t.csv"
     assert main(["import", "table", str(EXAMPLES / f"{name}-export.csv"), "--map",
                  str(EXAMPLES / f"{name}.map.yaml"), "--out", str(out)]) == 0  # fmt: skip
+    # an export names no instrument: the import says which model identify will assume (issue 23)
+    assert "the Leica AT901 when the cell names none" in " ".join(capsys.readouterr().out.split())
     t = read_table(out)
     assert (len(set(t.pose)), len(t), sorted(set(t.point))) == (poses, rows, points)
     # both files hold the same twin campaign's first pose seen from S1, P1 at the same place: metres and radians

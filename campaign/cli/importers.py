@@ -40,4 +40,7 @@ def cmd_import_table(args) -> int:
     points = ", ".join(dict.fromkeys(table.point))
     print(f"{', '.join(args.files)}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points "
           f"{points}; {table.n_joints} joints) -> {args.out}")
+    # a map describes columns, not the instrument: say which noise model the table will be weighed by
+    print("tracker: an export does not say which instrument measured it; identify and diagnose weigh and judge by "
+          "the cell's tracker: key (the Leica AT901 when the cell names none, and they say so)")
     return 0
