@@ -16,6 +16,7 @@ CAUSE_HELP = ("none (purely geometric), auto (diagnose's choice) or a cause: joi
               "encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
 TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm)"
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
+TABLE_CELL_HELP = CELL_HELP + ", or a robot YAML/URDF alone (the reference points are then the table's)"
 WEIGHTING_HELP = "the AT901 radial/transverse noise model (calib/identify/noise.py), or i.i.d. least squares"
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 
@@ -78,7 +79,7 @@ COMMANDS = [
     Command("identify", "identify robot parameters, stations and points from a measurement table",
             "trackcal.campaign.cli.analysis:cmd_identify", [
                 arg("data", help=TABLE_HELP),
-                arg("--cell", required=True, help=CELL_HELP),
+                arg("--cell", required=True, help=TABLE_CELL_HELP),
                 arg("--params", help="comma-separated parameter names (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--extend", default="none", help=CAUSE_HELP),
@@ -89,7 +90,7 @@ COMMANDS = [
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
             "trackcal.campaign.cli.analysis:cmd_diagnose", [
                 arg("data", help=TABLE_HELP),
-                arg("--cell", required=True, help=CELL_HELP),
+                arg("--cell", required=True, help=TABLE_CELL_HELP),
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)"),
