@@ -150,13 +150,25 @@ def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndar
     return pts, normals
 
 
+def robot_cell(path: Path) -> Cell:
+    """A robot file standing for a cell: the robot alone, no tool, box, stations or test pose. Enough to identify
+    from a table, whose reference points then start where the measurements put them (calib.identify.points)."""
+    chain, robot_doc = load_robot(str(path))
+    return Cell(name=chain.name, chain=chain, robot_doc=robot_doc, tool_points={}, tool_normals={}, source=str(path),
+                nominal=nominal_of(str(path), robot_doc))  # fmt: skip
+
+
 def load_cell(ref: str) -> Cell:
     path = resolve("cells", ref)
     if not path.exists() and path.parent == CONFIGS / "cells":  # a name, not a path: say which names there are
         known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
         raise CellError(f"cell {ref!r}: no such cell; the cells are {known} (or give the path of a cell YAML)")
+    if path.suffix == ".urdf":
+        return robot_cell(path)
     doc = load_yaml(path)
     where = str(path)
+    if "robot" not in doc and ("joints" in doc or "dh" in doc):
+        return robot_cell(path)
     for key in ("robot", "tool"):
         if key not in doc:
             raise CellError(f"{where}: {key}: missing")

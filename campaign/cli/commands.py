@@ -18,6 +18,7 @@ TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
 WEIGHTING_HELP = ("the radial/transverse noise model of the cell's tracker (cell key tracker:, default the AT901; "
                   "calib/model/instruments.py), or i.i.d. least squares")
+TABLE_CELL_HELP = CELL_HELP + ", or a robot YAML/URDF alone (the reference points are then the table's)"
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 
 
@@ -80,7 +81,7 @@ COMMANDS = [
     Command("identify", "identify robot parameters, stations and points from a measurement table",
             "trackcal.campaign.cli.analysis:cmd_identify", [
                 arg("data", help=TABLE_HELP),
-                arg("--cell", required=True, help=CELL_HELP),
+                arg("--cell", required=True, help=TABLE_CELL_HELP),
                 arg("--params", help="comma-separated parameter names (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--extend", default="none", help=CAUSE_HELP),
@@ -91,7 +92,7 @@ COMMANDS = [
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
             "trackcal.campaign.cli.analysis:cmd_diagnose", [
                 arg("data", help=TABLE_HELP),
-                arg("--cell", required=True, help=CELL_HELP),
+                arg("--cell", required=True, help=TABLE_CELL_HELP),
                 arg("--params", help="geometric parameters (default: the irreducible set)"),
                 arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
                 arg("--folds", type=int, default=5, help="cross-validation folds (whole poses held out)"),

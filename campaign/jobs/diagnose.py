@@ -9,10 +9,9 @@ from pathlib import Path
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.io.files import write_json
-from trackcal.calib.io.table import read_table
-from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.cell import Cell
 from trackcal.campaign.errors import InputError, OptionError
-from trackcal.campaign.jobs.identify import choose_params, model_doc, sha256_of, still_warning
+from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
 
@@ -43,8 +42,7 @@ class DiagnoseOutcome:
 def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     """`trackcal diagnose`: the verdict written to opts.json (its plots to opts.plots, the chosen model to
     opts.out)."""
-    cell = load_cell(opts.cell)
-    table = read_table(opts.data, chain=cell.chain)
+    cell, table = cell_and_table(opts.cell, opts.data)
     if not 2 <= opts.folds <= max(2, len(table)):  # a fold holds at least one row out (and a huge count was a
         # list of that many empty blocks); more folds than poses hold out one pose each
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))

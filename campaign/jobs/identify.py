@@ -4,7 +4,7 @@ its quality against the noise floor, and the model document (model.json) and sum
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +13,7 @@ from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.selection import diagnose, fit_cause, noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
+from trackcal.calib.identify.points import PointsError, points_from_table
 from trackcal.calib.identify.solver import (
     Identification,
     IdentificationError,
@@ -124,10 +125,23 @@ def run_identify(
                            determination=determination_warning(doc), still=still)  # fmt: skip
 
 
+def cell_and_table(cell_ref: str, data: str | Path) -> tuple[Cell, MeasurementTable]:
+    """The cell and the table identify and diagnose read. A cell given as a robot file alone has no tool: its
+    reference points are the table's, starting where the measurements put them (calib.identify.points)."""
+    cell = load_cell(cell_ref)
+    table = read_table(data, chain=cell.chain)
+    if not cell.tool_points:
+        try:
+            points = points_from_table(cell.chain, table)
+        except PointsError as exc:
+            raise InputError(str(exc)) from None
+        cell = replace(cell, tool_points=points, tcp=np.mean(list(points.values()), axis=0))
+    return cell, table
+
+
 def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
     """`trackcal identify`: the model of the table, written to opts.out (and its summary to opts.json)."""
-    cell = load_cell(opts.cell)
-    table = read_table(opts.data, chain=cell.chain)
+    cell, table = cell_and_table(opts.cell, opts.data)
     outcome = run_identify(cell, table, choose_params(cell, opts.params), opts.weighting, opts.extend)
     if opts.extend == "auto":
         outcome.chosen = outcome.doc["extension"]["cause"]
