@@ -1,7 +1,7 @@
 """batch diagnose (issue 26): a plain loop in one process, the local process pool, and a Dask LocalCluster of 2
 worker processes, on the same simulated campaigns of mixed causes, in one run; the verdicts must be identical.
 
-    python -m bench.bench_batch [--n 200] [--poses 30] [--rounds 10]
+    python -m bench.bench_batch [--n 200] [--poses 30] [--rounds 10] [--tables DIR]
 
 N small campaigns (30 poses each by default, so that 200 diagnoses of each kind finish in one sitting; the KR-270
 twin, no hidden effect or one of four causes at 0.05 mm, in turn) are split into rounds; each round is diagnosed by
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import resource
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -29,13 +30,16 @@ EFFECTS = ["", "backlash:0.05", "joint_compliance:0.05", "encoder_scale:0.05", "
 KINDS = ("loop", "pool", "dask")
 
 
-def make_tables(folder: Path, n: int, poses: int, rounds: int) -> list[Path]:
-    """n tables in `rounds` folders."""
+def make_tables(folder: Path, n: int, poses: int, rounds: int, reuse: Path | None = None) -> list[Path]:
+    """n tables in `rounds` folders; `reuse`: copied from a folder of tables an earlier run kept (--keep)."""
     dirs = [folder / f"round{r:02d}" for r in range(rounds)]
     for d in dirs:
         d.mkdir(parents=True)
     for i in range(n):
         effect = EFFECTS[i % len(EFFECTS)]
+        if reuse is not None:
+            shutil.copy(reuse / f"c{i:03d}.csv", dirs[i % rounds] / f"c{i:03d}.csv")
+            continue
         simulate(SimulateOptions(cell="kr270", out=str(dirs[i % rounds] / f"c{i:03d}.csv"), poses=poses,
                                  seed=1000 + i, effects=parse_effects([effect] if effect else None)))  # fmt: skip
     return dirs
@@ -66,11 +70,14 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=200, help="campaigns (default 200, as the issue asks)")
     ap.add_argument("--poses", type=int, default=30, help="poses per campaign")
     ap.add_argument("--rounds", type=int, default=10, help="interleaved rounds")
+    ap.add_argument("--tables", type=Path, help="take the tables c000.csv ... of this folder (simulated by an earlier "
+                                                "run with the same --poses) instead of simulating them")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.monotonic()
-        dirs = make_tables(Path(tmp) / "campaigns", args.n, args.poses, args.rounds)
-        print(f"{args.n} campaigns of {args.poses} poses simulated in {time.monotonic() - t0:.0f} s")
+        dirs = make_tables(Path(tmp) / "campaigns", args.n, args.poses, args.rounds, args.tables)
+        print(f"{args.n} campaigns of {args.poses} poses {'copied' if args.tables else 'simulated'} in "
+              f"{time.monotonic() - t0:.0f} s")  # fmt: skip
         verdicts: dict[str, list] = {k: [] for k in KINDS}
         walls = dict.fromkeys(KINDS, 0.0)
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:

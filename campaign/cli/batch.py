@@ -74,7 +74,8 @@ def cmd_batch(args) -> int:
         console.print("dates: a session's campaign start; a table's file modification time")
     if opts.task != "iso9283":
         console.print("worst parameter change: the largest change against its standard deviation, against the "
-                      "robot's previous campaign (both estimates' uncertainty), or against nominal for its first")  # fmt: skip
+                      "robot's previous campaign (both estimates' uncertainty), or against nominal for its "
+                      "first")  # fmt: skip
     for row in result.failed:
         console.print(f"failed: {row['campaign']}: {row['error']}", soft_wrap=True, markup=False)
     return 2 if result.failed else 0

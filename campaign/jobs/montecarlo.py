@@ -172,7 +172,7 @@ def _design(cell_ref: str, plan_text: str) -> tuple[Design, np.ndarray, int]:
 def rho0_chunk(runs: list[int], cell_ref: str, plan_text: str, seed: int) -> list[float]:
     """|dp| at the test pose (mm) of each simulated campaign, run i drawing from the generator of (seed, i)."""
     design, q, repeat = _design(cell_ref, plan_text)
-    return [float(monte_carlo_rho0(design, q, repeat, 1, np.random.default_rng([seed, i]))[0]) for i in runs]
+    return monte_carlo_rho0(design, q, repeat, len(runs), [np.random.default_rng([seed, i]) for i in runs]).tolist()
 
 
 @dataclass
