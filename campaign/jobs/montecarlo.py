@@ -169,10 +169,11 @@ def _design(cell_ref: str, plan_text: str) -> tuple[Design, np.ndarray, int]:
     return build_design(load_cell(cell_ref), opts), np.radians(np.asarray(doc["poses_deg"], float)), int(doc["repeat"])
 
 
-def rho0_chunk(runs: list[int], cell_ref: str, plan_text: str, seed: int) -> list[float]:
-    """|dp| at the test pose (mm) of each simulated campaign, run i drawing from the generator of (seed, i)."""
+def rho0_chunk(runs: list[int], cell_ref: str, plan_text: str, seed: int) -> list[tuple[int, float]]:
+    """(i, |dp| at the test pose, mm) of each simulated campaign, run i drawing from the generator of (seed, i)."""
     design, q, repeat = _design(cell_ref, plan_text)
-    return monte_carlo_rho0(design, q, repeat, len(runs), [np.random.default_rng([seed, i]) for i in runs]).tolist()
+    errors = monte_carlo_rho0(design, q, repeat, len(runs), [np.random.default_rng([seed, i]) for i in runs])
+    return list(zip(runs, errors.tolist(), strict=True))
 
 
 @dataclass
@@ -198,7 +199,7 @@ def rho0(opts: Rho0Options, progress: Progress | None = None) -> Rho0:
     for part in map_chunks(rho0_chunk, _seeds_chunks(0, opts.runs, opts.chunk), (opts.cell, plan_text, opts.seed),
                            opts.scheduler, progress=progress):  # fmt: skip
         errors.extend(part)
-    e2 = np.square(errors)
+    e2 = np.square([e for _, e in sorted(errors)])  # in run order: the sum does not depend on the chunks' order
     lam = np.linalg.eigvalsh(design.j0 @ np.linalg.inv(design.information(q, repeat)) @ design.j0.T)
     analytic = design.rho0(q, repeat)
     se = float(np.sqrt(2 * np.sum(lam**2) / len(e2)))
