@@ -33,6 +33,7 @@ from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.batch import Progress, map_chunks
 from trackcal.campaign.jobs.identify import choose_params
+from trackcal.campaign.jobs.limits import check_memory
 from trackcal.campaign.jobs.plan import PlanOptions, build_design
 from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 
@@ -42,6 +43,11 @@ LEVEL = 0.95  # the intervals' nominal coverage
 # a count outside the central BAND of Binomial(n, 0.95) says the intervals are dishonest; with ~20 counts checked
 # at once, 99.9 % keeps the chance of a false alarm near 2 %
 BAND = 0.999
+# what the parent holds per seed (its row: the names and one flag per parameter, 1.6 KiB by sys.getsizeof over the
+# row's objects for the KR-270's 18 parameters, doubled for longer names and the transfer) and per run (its index
+# and its error in a tuple, 108 bytes), to refuse a count the machine cannot hold
+SEED_BYTES = 4096
+RUN_BYTES = 200
 # the Monte-Carlo mean of |dp|^2 further than this many of its standard errors from rho0^2 disagrees with rho0
 RHO0_SIGMAS = 4.0
 
@@ -117,6 +123,7 @@ def coverage(opts: CoverageOptions, progress: Progress | None = None) -> Coverag
         raise OptionError("{0} must be at least 2", "seeds")
     if opts.chunk < 1 or opts.poses < 1:
         raise OptionError("{0} and {1} must be at least 1", "chunk", "poses")
+    check_memory("seeds", opts.seeds, lambda n: n * SEED_BYTES, "seed")
     load_cell(opts.cell)  # a wrong cell is one line here, not one per worker
     rows = []
     for part in map_chunks(coverage_chunk, _seeds_chunks(opts.first_seed, opts.seeds, opts.chunk), (opts,),
@@ -192,6 +199,7 @@ def rho0(opts: Rho0Options, progress: Progress | None = None) -> Rho0:
         raise OptionError("{0} must be at least 2", "runs")
     if opts.chunk < 1:
         raise OptionError("{0} must be at least 1", "chunk")
+    check_memory("runs", opts.runs, lambda n: n * RUN_BYTES, "run")
     doc = _plan_doc(opts.plan)
     plan_text = json.dumps(doc, sort_keys=True)
     design, q, repeat = _design(opts.cell, plan_text)
