@@ -36,7 +36,7 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.history import compare_estimates
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING
-from trackcal.calib.io.files import write_json
+from trackcal.calib.io.files import read_yaml, write_json
 from trackcal.calib.model_file import load_model
 from trackcal.campaign.errors import CampaignError, InputError, OptionError
 from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
@@ -83,8 +83,14 @@ def _session(d: Path, robot: str | None, iso: bool) -> Campaign:
 
 
 def _cell_name(cell: str | Path) -> str:
-    """A cell's name: its file's stem, or the name given."""
-    return Path(cell).stem if str(cell).endswith((".yaml", ".yml")) else str(cell)
+    """A cell's name: the `name` its file gives (else the file's stem), or the name given."""
+    if not str(cell).endswith((".yaml", ".yml")):
+        return str(cell)
+    with contextlib.suppress(InputError):  # an unreadable cell fails its campaign, with its line, later
+        name = read_yaml(cell, InputError).get("name")
+        if isinstance(name, str) and name:
+            return name
+    return Path(cell).stem
 
 
 def find_campaigns(inputs: list[str], cell: str | None, iso: bool = False) -> list[Campaign]:
