@@ -83,9 +83,12 @@ def test_an_unchanged_robot_is_not_flagged(kr270, kr270_params):
 
 @pytest.mark.slow
 def test_false_alarm_rate_over_many_robots_campaigns(kr270, kr270_params):
-    """40 pairs: 6 or more alarms have probability 1.4 % if the rate is 5 %; 0 alarms over 40 would say the test is
-    far too cautious (probability 12.9 % at 5 %, so only a warning sign, not asserted)."""
-    assert _false_alarms(kr270, kr270_params, range(40)) <= 5
+    """150 pairs: the number of alarms is Binomial(150, 0.05) if the test holds the 5 % it claims (mean 7.5); its
+    central 99.9 % band is [1, 18], so too many alarms (a test too eager) and none at all (a test too cautious,
+    P(0) = 0.95^150 = 4.6e-4) both fail."""
+    lo, hi = stats.binom.interval(0.999, 150, ALPHA)
+    assert (lo, hi) == (1, 18)
+    assert lo <= _false_alarms(kr270, kr270_params, range(150)) <= hi
 
 
 def test_history_command(kr270, kr270_params, tmp_path):

@@ -442,9 +442,14 @@ def design_for_cell(
     )  # fmt: skip
 
 
-def monte_carlo_rho0(design: Design, q: np.ndarray, repeat: int, runs: int, rng: np.random.Generator) -> np.ndarray:
+def monte_carlo_rho0(design: Design, q: np.ndarray, repeat: int, runs: int,
+                     rng: np.random.Generator | list[np.random.Generator]) -> np.ndarray:  # fmt: skip
     """Simulate `runs` campaigns of the plan (truth at nominal, base and tool known, the design's noise),
-    identify the parameters by Gauss-Newton, and return the TCP error (mm) at the test pose of each run."""
+    identify the parameters by Gauss-Newton, and return the TCP error (mm) at the test pose of each run. `rng`: one
+    generator for all runs, or one per run (a run's result then does not depend on the runs computed with it)."""
+    rngs = rng if isinstance(rng, list) else [rng] * runs
+    if len(rngs) != runs:
+        raise DesignError(f"{len(rngs)} generators for {runs} runs")
     q = np.atleast_2d(q)
     qr = np.repeat(np.tile(q, (repeat, 1)), len(design.tool), axis=0)
     tool = np.tile(design.tool, (len(q) * repeat, 1))
@@ -461,7 +466,7 @@ def monte_carlo_rho0(design: Design, q: np.ndarray, repeat: int, runs: int, rng:
         for s, t in enumerate(trackers):
             rows = np.flatnonzero(vis[:, s])
             x = (exact[rows] - t.position) @ t.rotation  # tracker frame
-            ys.append(x + noise.sample(x, rng))
+            ys.append(x + noise.sample(x, rngs[k]))
             qs.append(rows)
             ws.append(noise.whitening(x))
             ts.append(np.full(len(rows), s))

@@ -73,7 +73,8 @@ OPERATOR_ARGS = [
 
 GROUPS = {
     "import": "convert third-party measurement files into a measurement table",
-    "batch": "identify or diagnose many campaigns at once, on a process pool or a Dask cluster",
+    "batch": "identify, diagnose or ISO-test many campaigns at once, and Monte-Carlo checks, on a process pool or a "
+             "Dask cluster",
     "iso9283": "the ISO 9283 acceptance test: plan it, then compare the figures before and after compensation",
 }
 
@@ -256,6 +257,32 @@ COMMANDS = [
             "trackcal.campaign.cli.batch:cmd_batch", BATCH_ARGS, group="batch"),
     Command("diagnose", "diagnose every campaign (verdict and chosen model of each, one table)",
             "trackcal.campaign.cli.batch:cmd_batch", BATCH_ARGS, group="batch"),
+    Command("iso9283", "the ISO 9283 figures of every test session (AP and RP per session, one table)",
+            "trackcal.campaign.cli.batch:cmd_batch", [
+                arg("inputs", nargs="+", metavar="INPUT", help="sessions of runs of ISO plans, or folders of them"),
+                arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
+                *[a for a in BATCH_ARGS if a[0][0] in ("--out", "--scheduler")],
+            ], group="batch"),
+    Command("coverage", "the honesty check of identification: how often the 95 %% intervals hold the truth",
+            "trackcal.campaign.cli.batch:cmd_coverage", [
+                arg("--cell", required=True, help=CELL_HELP),
+                arg("--seeds", type=int, default=200, help="simulated campaigns, one twin robot each"),
+                arg("--first-seed", type=seed, default=0, help="seed of the first campaign"),
+                arg("--poses", type=int, default=30, help="poses per campaign"),
+                arg("--params", help="parameters (default: the irreducible set)"),
+                arg("--weighting", choices=WEIGHTINGS, default=DEFAULT_WEIGHTING, help=WEIGHTING_HELP),
+                arg("--scheduler", help="Dask scheduler address (default: a local process pool)"),
+                arg("--json", help="counts JSON to write (default: none, the console only)"),
+            ], group="batch"),
+    Command("rho0", "plan's criterion rho0 by Monte-Carlo: simulated campaigns of a plan, identified",
+            "trackcal.campaign.cli.batch:cmd_rho0", [
+                arg("plan", help="plan.json from trackcal plan"),
+                arg("--cell", required=True, help=CELL_HELP),
+                arg("--runs", type=int, default=1000, help="simulated campaigns"),
+                arg("--seed", type=seed, default=0, help="seed of the noise"),
+                arg("--scheduler", help="Dask scheduler address (default: a local process pool)"),
+                arg("--json", help="result JSON to write (default: none, the console only)"),
+            ], group="batch"),
     Command("history", "one robot's calibrations over time: which parameters moved, recalibrate or not",
             "trackcal.campaign.cli.history:cmd_history", [
                 arg("calibrations", nargs="+", metavar="SESSION_OR_MODEL",

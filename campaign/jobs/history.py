@@ -46,6 +46,18 @@ def _utc(t: float) -> datetime:
     return datetime.fromtimestamp(t, UTC)
 
 
+def session_start(directory: Path) -> datetime:
+    """When a session's campaign started: its first event."""
+    store = SessionStore.open(directory, readonly=True)
+    try:
+        first = store.events()[:1]
+    finally:
+        store.close()
+    if not first:
+        raise InputError(f"{directory}: the session holds no event")
+    return _utc(first[0].t_wall)
+
+
 def _date_of(path: Path) -> tuple[Path, datetime, str]:
     """(model.json, date, where the date comes from) of a session folder or a model file."""
     if path.is_dir():
@@ -54,14 +66,7 @@ def _date_of(path: Path) -> tuple[Path, datetime, str]:
         files = SessionFiles(path)
         if not files.model.exists():
             raise InputError(f"{path}: the session has no model.json (run `trackcal resume {path} --analyse`)")
-        store = SessionStore.open(path, readonly=True)
-        try:
-            first = store.events()[:1]
-        finally:
-            store.close()
-        if not first:
-            raise InputError(f"{path}: the session holds no event")
-        return files.model, _utc(first[0].t_wall), "campaign start"
+        return files.model, session_start(path), "campaign start"
     if not path.exists():
         raise InputError(f"{path}: no such session or model")
     return path, _utc(path.stat().st_mtime), "file modified"
