@@ -211,6 +211,9 @@ class IsoFigures:
     commanded_mm: np.ndarray  # (5, 3)
     conditions: dict[str, str]
     notes: list[str] = field(default_factory=list)
+    # multi-directional test (7.3): per pose name, vAP_P and the attained positions (base frame) from each side
+    vap: dict[str, Figure] = field(default_factory=dict)
+    vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -222,5 +225,8 @@ class IsoFigures:
             "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
                        "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
             "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
+            "vAP_P": [{"pose": name, **f.to_doc(),
+                       "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
+                      for name, f in self.vap.items()],
             "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip

@@ -39,11 +39,11 @@ def feasible_plan(cell, n_poses: int, seed: int, repeat: int) -> dict:
     return {"poses_deg": poses.round(4).tolist(), "repeat": repeat}
 
 
-def inproc_live(cell, seed: int = 3, store=None, operator=None):
+def inproc_live(cell, seed: int = 3, store=None, operator=None, effects=None):
     """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
-    measurements the session holds (a resume sees the noise an uninterrupted run would)."""
+    measurements the session holds (a resume sees the noise an uninterrupted run would); `effects` the twin's."""
 
-    world = World(Twin(cell, seed=seed))
+    world = World(Twin(cell, seed=seed, effects=effects or {}))
     if store is not None:
         world.restore_counts(measured_keys(store))
     return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,

@@ -22,7 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.compensate import compensate
-from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, POSE_NAMES, IsoPlan, iso_plan
+from trackcal.calib.doe.iso_cube import (
+    APPROACH_FRACTION,
+    CORNER_FRACTION,
+    CYCLE_ORDER,
+    POSE_NAMES,
+    VAP_POSES,
+    IsoPlan,
+    approach_joints,
+    approach_sides,
+    iso_plan,
+)
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
@@ -33,13 +43,14 @@ from trackcal.calib.iso9283 import (
     PoseFigures,
     distance_accuracy,
     drift,
+    multidirectional_variation,
     pose_accuracy,
     pose_repeatability,
 )
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays
+from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays, vap_block
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.session.session import export_table, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
@@ -54,9 +65,11 @@ class PlanOptions:
     centre_mm: tuple[float, float, float] | None = None
     cycles: int = CYCLES
     seed: int = 0
+    vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
 
 
-def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None) -> dict:
+def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
+             vap: dict | None = None) -> dict:  # fmt: skip
     return {
         "criterion": "iso9283",
         "order": "iso9283",
@@ -75,7 +88,7 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
             "commanded_mm": np.round(plan.commanded_mm, 4).tolist(),
             "nominal_poses_deg": np.round(np.degrees(plan.q_rad), 4).tolist(),
             "compensated_with": compensated_with,
-        },
+        } | ({"vap": vap} if vap else {}),
     }
 
 
@@ -86,9 +99,13 @@ def make_plan(opts: PlanOptions) -> dict:
                           "cycles")  # fmt: skip
     if opts.side_mm is not None and not opts.side_mm > 0:
         raise OptionError("{0} must be a positive length in mm", "side_mm")
+    vap_cycles = opts.cycles if opts.vap_cycles is None else opts.vap_cycles
+    if vap_cycles == 1 or vap_cycles < 0:
+        raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
     plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
     q_deg = np.degrees(plan.q_rad)
+    q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
     compensated_with = None
     if opts.model:
         model = load_model(opts.model)
@@ -99,9 +116,20 @@ def make_plan(opts: PlanOptions) -> dict:
         if failed:
             raise InputError(f"{opts.model}: the ISO poses cannot be compensated: {'; '.join(failed)}")
         q_deg = np.degrees(q_comp)
+        if q_app is not None:  # the approach points compensated too: the robot still comes in along the base axes
+            flat, rep = compensate(model, q_app.reshape(-1, q_app.shape[-1]), cell.tcp)
+            if any(rep.failures):
+                raise InputError(f"{opts.model}: the vAP approach points cannot be compensated: "
+                                 + "; ".join(f for f in rep.failures if f))  # fmt: skip
+            q_app = flat.reshape(q_app.shape)
         compensated_with = {"model": str(opts.model),
                             "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest()}  # fmt: skip
-    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with)
+    vap = None
+    if q_app is not None:
+        vap = {"cycles": vap_cycles, "poses": [POSE_NAMES[i] for i in VAP_POSES], "approaches": approach_sides(plan),
+               "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
+               "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
+    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap)
     write_json(opts.json, doc)
     return doc
 
@@ -120,7 +148,8 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions
+        sides = [e.data.get("approach", "") for e in store.events("measurement")]  # vAP visits (7.3) name theirs
+        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides
     finally:
         store.close()
 
@@ -132,7 +161,7 @@ def _temperature(table) -> str:
 
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
-    cell, plan, table, conditions = _session_inputs(directory)
+    cell, plan, table, conditions, sides = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
@@ -144,15 +173,19 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     noise = noise or TrackerNoise()
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-    pose_ids = np.asarray(table.pose)
+    pose_ids, side_of = np.asarray(table.pose), np.asarray(sides)
+
+    def in_base(rows):
+        """The rows' attained positions in the base frame, R^T (x - t), and their covariances R^T Sigma R."""
+        xyz = table.xyz[rows]
+        return (xyz - station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)
+
     attained, covs, figures = [], [], []
     for i, name in enumerate(POSE_NAMES):
-        rows = keep & (pose_ids == f"Q{i + 1}")
-        xyz = table.xyz[rows]
-        if len(xyz) < 2:
-            raise InputError(f"{directory}: {name} was measured {len(xyz)} times; repeatability needs two cycles")
-        base = (xyz - station.translation) @ rot  # R^T (x - t), row-wise
-        cov = np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)  # R^T Sigma R
+        rows = keep & (pose_ids == f"Q{i + 1}") & (side_of == "")  # the unidirectional test (7.2)
+        base, cov = in_base(rows)
+        if len(base) < 2:
+            raise InputError(f"{directory}: {name} was measured {len(base)} times; repeatability needs two cycles")
         ap, offset = pose_accuracy(base, commanded[i], cov)
         rp, lbar, s = pose_repeatability(base, cov)
         figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
@@ -165,6 +198,17 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
+    vap, vap_attained = {}, {}
+    vap_plan = vap_block(iso, cell) or {"poses": []}
+    for i, sides in zip(vap_plan["poses"], vap_plan.get("approaches", []), strict=True):
+        per_side = {side: in_base(keep & (pose_ids == f"Q{i + 1}") & (side_of == side)) for side in sides}
+        missing = [side for side, (x, _) in per_side.items() if len(x) == 0]
+        if missing:
+            notes.append(f"{POSE_NAMES[i]} was not measured from its {', '.join(missing)} side: no vAP")
+            continue
+        vap[POSE_NAMES[i]] = multidirectional_variation([x for x, _ in per_side.values()],
+                                                        [c for _, c in per_side.values()])  # fmt: skip
+        vap_attained[POSE_NAMES[i]] = {side: x for side, (x, _) in per_side.items()}
     comp = iso.get("compensated_with")
     conditions.update({
         "robot": cell.chain.name, "cell": cell.name, "tool point measured": iso["point"], "station": iso["station"],
@@ -173,7 +217,8 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
         "temperature": _temperature(table), "trackcal version": version("trackcal"),
     })  # fmt: skip
-    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
+    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes, vap,
+                      vap_attained)  # fmt: skip
 
 
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:

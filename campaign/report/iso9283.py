@@ -22,6 +22,9 @@ DEFINITIONS = [
      "ISO 9283:1998, 7.2.1"),
     ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
      "ISO 9283:1998, 7.2.2"),
+    ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
+              "positions attained when the pose is approached from three orthogonal directions parallel to the base "
+              "axes", "ISO 9283:1998, 7.3"),
     ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
      "ISO 9283:1998, 7.4"),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
@@ -106,6 +109,17 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
+    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
+    if vap_poses:
+        out.append("<h2>Multi-directional pose accuracy variation (µm)</h2><table><tr><th class=l>pose</th>")
+        out += [f"<th>vAP_P {lab}</th>" for lab in label]
+        out.append("<th class=l>approached from</th></tr>")
+        for name in vap_poses:
+            sides = next((", ".join(t.vap_attained_mm[name]) for t in tests if name in t.vap_attained_mm), "")
+            cells = [_um(t.vap[name].value, t.vap[name].u95) if name in t.vap else "-" for t in tests]
+            out.append(f"<tr><td class=l>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+                       + f"<td class=l>{sides} sides</td></tr>")  # fmt: skip
+        out.append("</table>")
     for d in drift_list:
         out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
                    f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
