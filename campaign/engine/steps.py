@@ -141,15 +141,16 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
     if iso is not None:
         station, point = iso["station"], iso["point"]
         problems = [p for p in problems if not p.startswith("point ")]  # only the test's point must be seen
-        if vis is not None and not vis[(station, point)].all():
-            problems.append(f"station {station} does not see point {point} at every pose of the ISO test")
+        for pid in iso_points(iso):
+            if vis is not None and not vis[(station, pid)].all():
+                problems.append(f"station {station} does not see point {pid} at every pose of the ISO test")
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
     if iso is None:
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat)
     else:
-        visits = iso9283_order(iso["station"], iso["point"], repeat, CYCLE_ORDER)
+        visits = [v for pid in iso_points(iso) for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]
     vap = vap_block(iso, cell) if iso is not None else None
     if vap is not None:
         problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
@@ -212,9 +213,20 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
         raise PlanError(f"plan: iso9283.station: {iso.get('station')!r} is no station of cell {cell.name}")
     if iso.get("point") not in cell.tool_points:
         raise PlanError(f"plan: iso9283.point: {iso.get('point')!r} is no reference point of cell {cell.name}")
+    points = iso.get("points")
+    if points is not None and (not isinstance(points, list) or not points or points[-1] != iso["point"]
+                               or any(p not in cell.tool_points for p in points) or len(set(points)) != len(points)):
+        raise PlanError(f"plan: iso9283.points: expected distinct reference points of cell {cell.name}, the test's "
+                        f"point {iso['point']!r} last")  # fmt: skip
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     return iso
+
+
+def iso_points(iso: dict) -> list[str]:
+    """The points an ISO test measures in turn, each over all its cycles: `points` (the orientation test: every point
+    of the tool, the test's `point` last, ISO 9283:1998, 7.2.1), else the one `point`."""
+    return list(iso.get("points") or [iso["point"]])
 
 
 def vap_block(iso: dict, cell: Cell) -> dict | None:

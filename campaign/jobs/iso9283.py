@@ -41,16 +41,18 @@ from trackcal.calib.iso9283 import (
     DISTANCE_POSES,
     IsoFigures,
     PoseFigures,
+    attained_orientations,
     distance_accuracy,
     drift,
     multidirectional_variation,
+    orientation_figures,
     pose_accuracy,
     pose_repeatability,
 )
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays, vap_block
+from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.session.session import export_table, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
@@ -66,10 +68,11 @@ class PlanOptions:
     cycles: int = CYCLES
     seed: int = 0
     vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
+    orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2.1, 7.2.2)
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
-             vap: dict | None = None) -> dict:  # fmt: skip
+             vap: dict | None = None, points: list[str] | None = None) -> dict:  # fmt: skip
     return {
         "criterion": "iso9283",
         "order": "iso9283",
@@ -88,7 +91,7 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
             "commanded_mm": np.round(plan.commanded_mm, 4).tolist(),
             "nominal_poses_deg": np.round(np.degrees(plan.q_rad), 4).tolist(),
             "compensated_with": compensated_with,
-        } | ({"vap": vap} if vap else {}),
+        } | ({"vap": vap} if vap else {}) | ({"points": points} if points else {}),
     }
 
 
@@ -124,14 +127,26 @@ def make_plan(opts: PlanOptions) -> dict:
             q_app = flat.reshape(q_app.shape)
         compensated_with = {"model": str(opts.model),
                             "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest()}  # fmt: skip
+    points = orientation_points(cell, plan, q_deg) if opts.orientation else None
     vap = None
     if q_app is not None:
         vap = {"cycles": vap_cycles, "poses": [POSE_NAMES[i] for i in VAP_POSES], "approaches": approach_sides(plan),
                "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
                "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
-    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap)
+    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
     write_json(opts.json, doc)
     return doc
+
+
+def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
+    """Every tool point the test's station sees at all five poses (nominal model), the test's point last; at least
+    three (three points fix the attained orientation: calib.iso9283.attained_orientations), else InputError."""
+    vis = visibility(cell, np.round(q_deg, 4))
+    seen = [p for p in sorted(cell.tool_points) if p != plan.point and vis[(plan.station, p)].all()]
+    if len(seen) < 2:
+        raise InputError(f"--orientation needs three tool points that station {plan.station} sees at all five poses; "
+                         f"it sees {', '.join([*seen, plan.point])}")  # fmt: skip
+    return [*seen, plan.point]
 
 
 def _utc(t_wall: float) -> str:
@@ -198,6 +213,26 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
+    pts = iso_points(iso)
+    if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2.1, 7.2.2)
+        missing = [p for p in pts if p not in model.points]
+        if missing:
+            raise InputError(f"the model knows no reference point {', '.join(missing)} (the ISO orientation test's)")
+        tool = np.array([model.points[p] for p in pts])
+        q_nom = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
+        rot_c, _ = Kinematics(model.chain, []).end_frames(q_nom)  # the commanded orientation of the last joint frame
+        at_station = np.asarray(table.station) == iso["station"]
+        for i, name in enumerate(POSE_NAMES):
+            each = [in_base(at_station & (np.asarray(table.point) == p) & (pose_ids == f"Q{i + 1}") & (side_of == ""))
+                    for p in pts]  # fmt: skip
+            n = min(len(x) for x, _ in each)
+            if n < 2:
+                notes.append(f"{name}: a tool point was measured fewer than two times: no orientation figures")
+                continue
+            x = np.stack([x[:n] for x, _ in each], axis=1)  # (n cycles, k points, 3): cycle j = j-th visit of each
+            c = np.stack([c[:n] for _, c in each], axis=1)
+            w, cov_w = attained_orientations(tool, x, rot_c[i], c)
+            figures[i].orientation = orientation_figures(w, cov_w)
     vap, vap_attained = {}, {}
     vap_plan = vap_block(iso, cell) or {"poses": []}
     for i, sides in zip(vap_plan["poses"], vap_plan.get("approaches", []), strict=True):

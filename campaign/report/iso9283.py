@@ -25,6 +25,12 @@ DEFINITIONS = [
     ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
               "positions attained when the pose is approached from three orthogonal directions parallel to the base "
               "axes", "ISO 9283:1998, 7.3"),
+    ("AP_a, AP_b, AP_c", "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
+                         "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
+                         "the tool's reference points, cycle j taking the j-th visit of each point",
+     "ISO 9283:1998, 7.2.1"),
+    ("RP_a, RP_b, RP_c", "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle "
+                         "about the axis", "ISO 9283:1998, 7.2.2"),
     ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
      "ISO 9283:1998, 7.4"),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
@@ -100,8 +106,23 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
             xyz = ", ".join(f"{v * 1000:.1f}" for v in p.offset_mm)
             out.append(f"<td>{_um(p.ap.value, p.ap.u95)}</td><td>{xyz}</td><td>{_um(p.rp.value, p.rp.u95)}</td>")
         out.append("</tr>")
+    out.append("</table>")
+    if any(p.orientation for t in tests for p in t.poses):
+        out.append("<h2>Orientation characteristics (millidegrees)</h2><table><tr><th class=l>pose</th>")
+        for lab in label:
+            out += [f"<th>AP_a, AP_b, AP_c {lab}</th><th>RP_a, RP_b, RP_c {lab}</th>"]
+        out.append("</tr>")
+        for i, name in enumerate(POSE_NAMES):
+            out.append(f"<tr><td class=l>{name}</td>")
+            for t in tests:
+                o = t.poses[i].orientation
+                for kind in ("AP", "RP"):
+                    figs = [o.get(f"{kind}_{a}") for a in "abc"]
+                    out.append("<td>" + "<br>".join("-" if f is None else _um(f.value, f.u95) for f in figs) + "</td>")
+            out.append("</tr>")
+        out.append("</table>")
     a, b = DISTANCE_POSES
-    out.append(f"</table><h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
+    out.append(f"<h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
     out += [f"<th>AD_P {lab}</th><th>RD {lab}</th>" for lab in label]
     out.append("</tr><tr>")
     for t in tests:
