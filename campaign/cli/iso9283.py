@@ -27,7 +27,7 @@ def _centre(text: str | None) -> tuple[float, float, float] | None:
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
-                       vap_cycles=args.vap_cycles, orientation=args.orientation)  # fmt: skip
+                       vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load)  # fmt: skip
     doc = make_plan(opts)
     iso = doc["iso9283"]
     console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "

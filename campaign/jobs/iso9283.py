@@ -20,6 +20,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from trackcal.calib.compensate import compensate
 from trackcal.calib.doe.iso_cube import (
@@ -69,6 +70,7 @@ class PlanOptions:
     seed: int = 0
     vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
     orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2.1, 7.2.2)
+    load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.2), free text for the report
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -134,8 +136,15 @@ def make_plan(opts: PlanOptions) -> dict:
                "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
                "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
+    if opts.load:
+        doc["iso9283"]["load"] = opts.load
     write_json(opts.json, doc)
     return doc
+
+
+# ISO 9283:1998, clause 6 (test conditions): the tests run with 100 % of the rated load at the mechanical interface
+# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`): trackcal cannot weigh it
+NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
 
 def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
@@ -164,14 +173,23 @@ def _session_inputs(directory: Path):
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
         sides = [e.data.get("approach", "") for e in store.events("measurement")]  # vAP visits (7.3) name theirs
+        overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
+                            and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
+        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % of the controller's joint speed (PTP "
+                               "moves; ISO 9283:1998, clause 6: 100 % of the rated velocity, 50 % and 10 % "
+                               "optionally)") if overrides else "no move recorded"  # fmt: skip
+        tool_doc = store.documents().get("config/tool.yaml")
+        tool = yaml.safe_load(tool_doc).get("name") if tool_doc else None
+        conditions["tool"] = str(tool or "-")
         return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides
     finally:
         store.close()
 
 
-def _temperature(table) -> str:
-    temps = np.array([float(v) for v in table.extra.get("temp_c", [])]) if table.extra else np.zeros(0)
-    return f"{temps.mean():.1f} °C ({temps.min():.1f}-{temps.max():.1f})" if len(temps) else "not recorded"
+def _meteo(table, key: str, unit: str, digits: int) -> str:
+    """Mean (min-max) of a meteo column of the session's measurements (the station's sensor at each measurement)."""
+    v = np.array([float(x) for x in table.extra.get(key, [])]) if table.extra else np.zeros(0)
+    return f"{v.mean():.{digits}f} {unit} ({v.min():.{digits}f}-{v.max():.{digits}f})" if len(v) else "not recorded"
 
 
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
@@ -250,7 +268,9 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
                 f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
-        "temperature": _temperature(table), "trackcal version": version("trackcal"),
+        "load": iso.get("load") or NO_LOAD,
+        "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
+        "humidity": _meteo(table, "humidity_pct", "%", 0), "trackcal version": version("trackcal"),
     })  # fmt: skip
     return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes, vap,
                       vap_attained)  # fmt: skip
