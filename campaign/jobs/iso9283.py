@@ -147,6 +147,12 @@ def make_plan(opts: PlanOptions) -> dict:
 NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
 
+# the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
+CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "load", "speed", "targets", "cube",
+                   "cycles", "temperature", "air pressure", "humidity", "started", "ended", "complete", "mode",
+                   "trackcal version")  # fmt: skip
+
+
 def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
     """Every tool point the test's station sees at all five poses (nominal model), the test's point last; at least
     three (three points fix the attained orientation: calib.iso9283.attained_orientations), else InputError."""
@@ -175,9 +181,9 @@ def _session_inputs(directory: Path):
         sides = [e.data.get("approach", "") for e in store.events("measurement")]  # vAP visits (7.3) name theirs
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
-        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % of the controller's joint speed (PTP "
-                               "moves; ISO 9283:1998, clause 6: 100 % of the rated velocity, 50 % and 10 % "
-                               "optionally)") if overrides else "no move recorded"  # fmt: skip
+        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
+                               "9283:1998, clause 6: 100 %, 50 % and 10 % of the rated velocity)"
+                               ) if overrides else "no move recorded"  # fmt: skip
         tool_doc = store.documents().get("config/tool.yaml")
         tool = yaml.safe_load(tool_doc).get("name") if tool_doc else None
         conditions["tool"] = str(tool or "-")
@@ -264,7 +270,9 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         vap_attained[POSE_NAMES[i]] = {side: x for side, (x, _) in per_side.items()}
     comp = iso.get("compensated_with")
     conditions.update({
-        "robot": cell.chain.name, "cell": cell.name, "tool point measured": iso["point"], "station": iso["station"],
+        "robot": cell.chain.name, "cell": cell.name, "station": iso["station"],
+        "tool point measured": iso["point"] + (f" (for the orientation also {', '.join(pts[:-1])})"
+                                               if len(pts) >= 3 else ""),
         "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
                 f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
@@ -272,6 +280,8 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
         "humidity": _meteo(table, "humidity_pct", "%", 0), "trackcal version": version("trackcal"),
     })  # fmt: skip
+    first = [k for k in CONDITION_ORDER if k in conditions]
+    conditions = {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
     return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes, vap,
                       vap_attained)  # fmt: skip
 

@@ -41,9 +41,9 @@ DEFINITIONS = [
             "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
 ]  # fmt: skip
 
-STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:right}
-th{background:#eee}td.l,th.l{text-align:left}img{max-width:100%}"""
+th{background:#eee}td.l,th.l{text-align:left}td:not(.l),td.c{white-space:nowrap}img{max-width:100%}"""
 
 
 def _um(value: float, u: float | None = None) -> str:
@@ -75,6 +75,7 @@ def cluster_figure(tests: list[IsoFigures], i: int) -> str:
             ax.set_ylabel(f"{'xyz'[b]} − commanded (µm)")
             ax.set_title(f"{POSE_NAMES[i]}, {label} targets", fontsize=9)
             ax.set_aspect("equal", adjustable="datalim")
+            ax.locator_params(nbins=4)  # tick labels of up to five digits side by side on a 3-inch axis
             ax.grid(alpha=0.3)
         row[1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
@@ -87,7 +88,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
            f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
-    out += [f"<th class=l>{html.escape(t.session)}</th>" for t in tests]
+    out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
     out.append("</tr>")
     for k in keys:
         out.append(f"<tr><td class=l>{html.escape(k)}</td>")
@@ -118,7 +119,8 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
                 o = t.poses[i].orientation
                 for kind in ("AP", "RP"):
                     figs = [o.get(f"{kind}_{a}") for a in "abc"]
-                    out.append("<td>" + "<br>".join("-" if f is None else _um(f.value, f.u95) for f in figs) + "</td>")
+                    out.append("<td>" + "<br>".join(f"{a}: " + ("-" if f is None else _um(f.value, f.u95))
+                                                    for a, f in zip("abc", figs, strict=True)) + "</td>")
             out.append("</tr>")
         out.append("</table>")
     a, b = DISTANCE_POSES
@@ -149,7 +151,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
         out.append("</table>")
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
                "<th class=l>clause</th></tr>")  # fmt: skip
-    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class=l>{c}</td></tr>"
+    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class='l c'>{c}</td></tr>"
             for n, d, c in DEFINITIONS]  # fmt: skip
     out.append("</table><h2>Attained positions</h2>")
     out += [f"<p><img alt='{POSE_NAMES[i]}' src='{cluster_figure(tests, i)}'></p>" for i in range(len(POSE_NAMES))]
