@@ -6,6 +6,7 @@ from pathlib import Path
 
 from rich.table import Table
 
+from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
@@ -61,7 +62,9 @@ def _mdeg(fig) -> str:
 
 
 def cmd_compare(args) -> int:
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
+    # the tracker's instrument model: the one the campaigns are weighted with (calib.identify.noise)
+    noise = noise_for(DEFAULT_WEIGHTING)
+    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, noise=noise, json=args.json))
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
     table.add_column("pose")
     for t in tests:
@@ -88,19 +91,20 @@ def cmd_compare(args) -> int:
             vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
         console.print(vt)
     if any(p.orientation for t in tests for p in t.poses):
-        ot = Table(title="ISO 9283:1998, 7.2.1 and 7.2.2 orientation: AP_a, AP_b, AP_c and RP_a, RP_b, RP_c "
-                         "(millidegrees; ± U, k = 2)")  # fmt: skip
-        ot.add_column("pose")
+        ot = Table(title="ISO 9283:1998, 7.2.1 and 7.2.2 orientation AP and RP about the base x (a), y (b), z (c) "
+                         "axes (millidegrees; ± U, k = 2)")  # fmt: skip
+        ot.add_column("pose, axis")
         for t in tests:
             label = "compensated" if t.compensated else "nominal"
-            ot.add_column(f"AP_a, AP_b, AP_c {label}", justify="right", overflow="fold")
-            ot.add_column(f"RP_a, RP_b, RP_c {label}", justify="right", overflow="fold")
+            ot.add_column(f"AP {label}", justify="right", overflow="fold")
+            ot.add_column(f"RP {label}", justify="right", overflow="fold")
         for i, name in enumerate(p.name for p in tests[0].poses):
-            row = [name]
-            for t in tests:
-                o = t.poses[i].orientation
-                row += [", ".join(_mdeg(o.get(f"{kind}_{a}")) for a in "abc") for kind in ("AP", "RP")]
-            ot.add_row(*row)
+            for axis in "abc":
+                row = [f"{name} {axis}"]
+                for t in tests:
+                    o = t.poses[i].orientation
+                    row += [_mdeg(o.get(f"AP_{axis}")), _mdeg(o.get(f"RP_{axis}"))]
+                ot.add_row(*row, end_section=axis == "c")
         console.print(ot)
     for d in drift_list:
         console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.7), µm: "

@@ -198,8 +198,9 @@ def _meteo(table, key: str, unit: str, digits: int) -> str:
     return f"{v.mean():.{digits}f} {unit} ({v.min():.{digits}f}-{v.max():.{digits}f})" if len(v) else "not recorded"
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
-    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
+def session_figures(directory: Path, model: Model, noise: TrackerNoise) -> IsoFigures:
+    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
+    is the tracker's instrument model every figure's uncertainty comes from."""
     cell, plan, table, conditions, sides = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
@@ -209,7 +210,6 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
-    noise = noise or TrackerNoise()
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
     pose_ids, side_of = np.asarray(table.pose), np.asarray(sides)
@@ -302,6 +302,7 @@ def commanded_positions(iso: dict, model: Model) -> np.ndarray:
 class CompareOptions:
     sessions: list[str]
     model: str
+    noise: TrackerNoise  # the tracker's instrument model (calib.identify.noise): the figures' uncertainties
     json: str | None = None
 
 
@@ -324,7 +325,7 @@ def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
     """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
     same targets."""
     model = load_model(opts.model)
-    tests = [session_figures(Path(s), model) for s in opts.sessions]
+    tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:
         write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
