@@ -179,3 +179,13 @@ def test_a_resume_in_a_vap_visit_comes_in_through_its_approach_point(sessions, k
     assert run_stored(store, live).exit_status == "success"
     assert targets[:2] == [steps[visit - 4].q_deg, steps[visit].q_deg]
     store.close()
+
+
+def test_an_approach_point_outside_the_limits_is_refused_before_anything_moves(sessions, kr270):
+    """The approach points are checked as the plan's poses are (joint limits less the margin, cell box)."""
+    _, plan = sessions
+    iso = plan["iso9283"]
+    bad = [[list(q) for q in sides] for sides in iso["vap"]["approach_deg"]]
+    bad[1][2][1] = 10.0  # A2 of P2's z approach at +10 deg: the KR 270's A2 stops at 0 (configs/robots/kr270.yaml)
+    with pytest.raises(PlanError, match="before anything moves: vAP P2's approach along z outside the joint limits"):
+        plan_steps(kr270, {**plan, "iso9283": {**iso, "vap": {**iso["vap"], "approach_deg": bad}}})

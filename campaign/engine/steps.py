@@ -9,6 +9,7 @@ acknowledged.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from enum import StrEnum
@@ -154,7 +155,9 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
     vap = vap_block(iso, cell) if iso is not None else None
     if vap is not None:
         problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
-        problems = [p.replace("pose", "approach point") for p in problems if not p.startswith("point ")]
+        names = [f"{POSE_NAMES[i]}'s approach along {axis}" for i in vap["poses"] for axis in AXES]
+        problems = [re.sub(r"Q(\d+)", lambda m: names[int(m.group(1)) - 1], re.sub(r"\bposes? (?=Q)", "", p))
+                    for p in problems if not p.startswith("point ")]  # fmt: skip
         if problems:
             raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
     where = None
