@@ -6,7 +6,6 @@ from pathlib import Path
 
 from rich.table import Table
 
-from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
@@ -62,9 +61,7 @@ def _mdeg(fig) -> str:
 
 
 def cmd_compare(args) -> int:
-    # the tracker's instrument model: the one the campaigns are weighted with (calib.identify.noise)
-    noise = noise_for(DEFAULT_WEIGHTING)
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, noise=noise, json=args.json))
+    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
     table.add_column("pose")
     for t in tests:

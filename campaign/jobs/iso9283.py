@@ -198,9 +198,9 @@ def _meteo(table, key: str, unit: str, digits: int) -> str:
     return f"{v.mean():.{digits}f} {unit} ({v.min():.{digits}f}-{v.max():.{digits}f})" if len(v) else "not recorded"
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise) -> IsoFigures:
+def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
-    is the tracker's instrument model every figure's uncertainty comes from."""
+    is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
     cell, plan, table, conditions, sides = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
@@ -210,6 +210,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise) -> IsoFi
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
+    noise = noise or TrackerNoise()
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
     pose_ids, side_of = np.asarray(table.pose), np.asarray(sides)
@@ -302,8 +303,8 @@ def commanded_positions(iso: dict, model: Model) -> np.ndarray:
 class CompareOptions:
     sessions: list[str]
     model: str
-    noise: TrackerNoise  # the tracker's instrument model (calib.identify.noise): the figures' uncertainties
     json: str | None = None
+    noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
