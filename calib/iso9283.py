@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.errors import CalibError
+from trackcal.calib.model.rigid import RigidError, kabsch, skew
 
 CYCLES = 30  # ISO 9283:1998, 6.8: pose accuracy and repeatability are tested over 30 cycles
 COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
@@ -51,6 +52,13 @@ class Figure:
 
     def to_doc(self) -> dict:
         return {"value_mm": self.value, "u95_mm": self.u95, "clause": self.clause}
+
+    def to_doc_deg(self) -> dict:
+        """An orientation figure's document (degrees); a number that does not exist is null (strict JSON)."""
+        def num(v):
+            return float(v) if np.isfinite(v) else None
+
+        return {"value_deg": num(self.value), "u95_deg": num(self.u95), "clause": self.clause}
 
 
 def _points(x, name: str, min_rows: int = 1) -> np.ndarray:
@@ -136,6 +144,70 @@ def orientation_repeatability(attained_deg) -> np.ndarray:
     return 3.0 * wrapped.std(axis=0, ddof=1)
 
 
+def log_so3(r: np.ndarray) -> np.ndarray:
+    """The rotation vector w (rad) of a rotation matrix, exp_so3(w) = r, for rotations below a half turn."""
+    c = np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)
+    theta = float(np.arccos(c))
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]) / 2.0
+    return v if theta < 1e-8 else v * theta / np.sin(theta)
+
+
+def attained_orientations(tool_points, attained, commanded_rot, covs=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per cycle the attained orientation's deviation from the commanded one, from the tool's reference points.
+
+    tool_points (k, 3): the points in the last joint frame (k >= 3, not collinear); attained (n, k, 3): their attained
+    positions per cycle (base frame); commanded_rot (3, 3): the commanded orientation of the last joint frame. Each
+    cycle's attained orientation R_j is the least-squares rigid fit of the tool points onto the attained positions
+    (calib.model.rigid.kabsch), and its deviation w_j = log(R_j R_c^T) is a rotation vector about the base axes: for
+    the small deviations of a robot, its components are the differences a_j - a_c, b_j - b_c, c_j - c_c of rotation
+    angles about the base x, y and z axes, the orientation ISO 9283:1998, 7.2.1 compares. Returns w (n, 3) in rad and,
+    with the positions' covariances (n, k, 3, 3), each w_j's covariance (n, 3, 3) by the fit linearised: a rotation
+    omega moves point k by omega x r_k (r_k about the points' centroid), so omega = G sum_k A_k^T dx_k with
+    A_k = -[r_k]x and G = (sum_k A_k^T A_k)^-1, and cov omega = G (sum_k A_k^T Sigma_k A_k) G."""
+    src = np.asarray(tool_points, dtype=float)
+    x = np.asarray(attained, dtype=float)
+    if src.ndim != 2 or src.shape[0] < 3 or x.shape[1:] != src.shape or x.ndim != 3 or not np.isfinite(x).all():
+        raise IsoError(f"orientation: expected n x {len(src)} x 3 attained positions of >= 3 tool points, "
+                       f"got {x.shape}")  # fmt: skip
+    rc = np.asarray(commanded_rot, dtype=float)
+    w, cov_w = np.zeros((len(x), 3)), np.zeros((len(x), 3, 3))
+    try:
+        for j, xj in enumerate(x):
+            r, _ = kabsch(src, xj)
+            w[j] = log_so3(r @ rc.T)
+            if covs is not None:
+                a = -np.array([skew(v) for v in xj - xj.mean(axis=0)])  # (k, 3, 3)
+                g = np.linalg.inv(np.einsum("kji,kjl->il", a, a))
+                cov_w[j] = g @ np.einsum("kji,kjl,klm->im", a, np.asarray(covs[j], float), a) @ g
+    except RigidError as exc:
+        raise IsoError(f"orientation: {exc}") from exc
+    return w, (cov_w if covs is not None else None)
+
+
+def orientation_figures(w: np.ndarray, cov_w: np.ndarray | None = None) -> dict[str, Figure]:
+    """AP_a, AP_b, AP_c (7.2.1: mean attained angle less the commanded, the mean of w) and RP_a, RP_b, RP_c
+    (7.2.2: 3 S_a) in degrees from the per-cycle deviations w (n, 3) rad, each with the instrument's expanded
+    uncertainty from the deviations' covariances (n, 3, 3): u(AP_a)^2 = sum_j var(a_j) / n^2 and, with
+    dS_a/da_j = (a_j - a_bar) / ((n - 1) S_a), u(RP_a)^2 = 9 sum_j (dS_a/da_j)^2 var(a_j)."""
+    n = len(w)
+    deg = np.degrees(w)
+    ap = orientation_accuracy(deg, np.zeros(3))
+    rp = orientation_repeatability(deg) if n >= 2 else np.full(3, np.nan)
+    out = {}
+    for k, axis in enumerate("abc"):
+        u_ap = u_rp = float("nan")
+        if cov_w is not None:
+            var = np.degrees(np.degrees(cov_w[:, k, k]))  # rad^2 -> deg^2
+            u_ap = COVERAGE * float(np.sqrt(var.sum())) / n
+            s = rp[k] / 3.0
+            if n >= 2 and s > 0:
+                g = (deg[:, k] - deg[:, k].mean()) / ((n - 1) * s)
+                u_rp = COVERAGE * 3.0 * float(np.sqrt((g**2 * var).sum()))
+        out[f"AP_{axis}"] = Figure(float(ap[k]), u_ap, "ISO 9283:1998, 7.2.1")
+        out[f"RP_{axis}"] = Figure(float(rp[k]), u_rp, "ISO 9283:1998, 7.2.2")
+    return out
+
+
 def multidirectional_variation(clusters: Sequence, covs: Sequence | None = None) -> Figure:
     """vAP_P (7.3): the largest distance between the barycentres of the clusters attained from different
     approach directions (three, parallel to the base axes, in the standard)."""
@@ -196,6 +268,7 @@ class PoseFigures:
     rp: Figure
     l_bar_mm: float
     s_l_mm: float
+    orientation: dict[str, Figure] = field(default_factory=dict)  # AP_a..c, RP_a..c in deg, with >= 3 tool points
 
 
 @dataclass
@@ -211,6 +284,9 @@ class IsoFigures:
     commanded_mm: np.ndarray  # (5, 3)
     conditions: dict[str, str]
     notes: list[str] = field(default_factory=list)
+    # multi-directional test (7.3): per pose name, vAP_P and the attained positions (base frame) from each side
+    vap: dict[str, Figure] = field(default_factory=dict)
+    vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -220,7 +296,11 @@ class IsoFigures:
             "session": self.session,
             "compensated": self.compensated,
             "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
-                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm} for p in self.poses],
+                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm,
+                       **{k: f.to_doc_deg() for k, f in p.orientation.items()}} for p in self.poses],
             "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
+            "vAP_P": [{"pose": name, **f.to_doc(),
+                       "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
+                      for name, f in self.vap.items()],
             "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip

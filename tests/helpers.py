@@ -53,11 +53,11 @@ def placed_residuals(cell, table, rows) -> np.ndarray:
     return xyz - (nominal @ r.T + xyz.mean(axis=0) - r @ nominal.mean(axis=0))
 
 
-def inproc_live(cell, seed: int = 3, store=None, operator=None):
+def inproc_live(cell, seed: int = 3, store=None, operator=None, effects=None):
     """(world, Live) of the twin's cell on the in-process doubles; with `store`, the world knows the
-    measurements the session holds (a resume sees the noise an uninterrupted run would)."""
+    measurements the session holds (a resume sees the noise an uninterrupted run would); `effects` the twin's."""
 
-    world = World(Twin(cell, seed=seed))
+    world = World(Twin(cell, seed=seed, effects=effects or {}))
     if store is not None:
         world.restore_counts(measured_keys(store))
     return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,

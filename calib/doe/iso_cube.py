@@ -25,6 +25,13 @@ CORNER_FRACTION = 0.10  # ISO 9283:1998, 6.7: P2..P5 at (10 +- 2) % of the diago
 # One test cycle visits P1, P5, P4, P3, P2 (ISO 9283:1998, 7.2.1), each approached in the same direction.
 CYCLE_ORDER = (0, 4, 3, 2, 1)
 POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
+# Multi-directional pose accuracy variation (ISO 9283:1998, 7.3): poses P1, P2 and P4, each approached from three
+# orthogonal directions parallel to the base axes. trackcal comes in from an approach point on one side of the pose
+# along each axis, the side towards the cube's centre (so the approach points stay inside the cube, where the robot
+# was shown to reach; P1's on the - sides); the standard fixes the directions, not their sides.
+VAP_POSES = (0, 1, 3)
+AXES = ("x", "y", "z")
+APPROACH_FRACTION = 0.10  # the approach point lies this fraction of the cube's side before the pose: inside the cube
 
 
 class CubeError(CalibError):
@@ -134,6 +141,48 @@ def _reach(cell: Cell, kin: Kinematics, cube: IsoCube, fraction: float, q_ref: n
     if (sv[:, -1] / sv[:, 0] < NEAR_SINGULAR).any():
         return None, f"P{int(np.argmin(sv[:, -1] / sv[:, 0])) + 1} is near a singularity"
     return q, ""
+
+
+def approach_sides(plan: IsoPlan, poses=VAP_POSES) -> list[list[str]]:
+    """Per pose, the side of its approach point along x, y and z ("-x" or "+x", ...): towards the cube's centre."""
+    centre = np.asarray(plan.cube.centre_mm, float)
+    out = []
+    for i in poses:
+        toward = centre - plan.tcp_mm[i]
+        out.append([("+" if toward[a] > 1e-9 else "-") + axis for a, axis in enumerate(AXES)])
+    return out
+
+
+def approach_joints(cell: Cell, plan: IsoPlan, poses=VAP_POSES, fraction: float = APPROACH_FRACTION):
+    """Joints (len(poses), 3, n) rad of the approach points of `poses`: the TCP `fraction` of the side away from the
+    pose along x, y and z on the side approach_sides gives, the tool orientation of the test, reached from the pose's
+    joints (same branch of the inverse kinematics, so the move from the approach point into the pose is short and
+    direct). Raises CubeError when one is out of reach, outside the joint limits or puts a reference point outside
+    the cell box."""
+    kin = Kinematics(cell.chain, [])
+    tools = cell.tcp + np.array([[0.0, 0.0, 0.0], [LEVER_MM, 0.0, 0.0], [0.0, LEVER_MM, 0.0]])
+    q_pose = plan.q_rad[list(poses)]
+    r, o = kin.end_frames(q_pose)
+    now = o[:, None, :] + np.einsum("nij,kj->nki", r, tools)  # (P, 3 tool points, 3)
+    sign = np.array([[1.0 if side[0] == "+" else -1.0 for side in sides] for sides in approach_sides(plan, poses)])
+    step = fraction * plan.cube.side_mm * sign[:, :, None] * np.eye(3)[None]  # (P, 3 axes, 3)
+    target = now[:, None, :, :] + step[:, :, None, :]  # (P, 3 axes, 3 points, 3)
+    start = np.repeat(q_pose, len(AXES), axis=0)
+    q, _, ok = reach_points(kin, tools, target.reshape(-1, len(tools), 3), start, max_iter=50)
+    q = q.reshape(len(poses), len(AXES), -1)
+    ok = ok.reshape(len(poses), len(AXES))
+    lim = np.radians(usable_limits_deg(cell))
+    inside = np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=2)
+    if cell.box_min is not None:
+        for p in cell.tool_points.values():
+            x = kin.points(q.reshape(-1, q.shape[-1]), p).reshape(*q.shape[:2], 3)
+            inside &= np.all((x >= cell.box_min + BOX_MARGIN_MM) & (x <= cell.box_max - BOX_MARGIN_MM), axis=2)
+    bad = np.argwhere(~(ok & inside))
+    if len(bad):
+        i, k = bad[0]
+        raise CubeError(f"the approach point of {POSE_NAMES[poses[i]]} along {AXES[k]} (vAP, ISO 9283:1998, 7.3) "
+                        "is out of reach, outside the joint limits or puts a reference point outside the cell box")
+    return q
 
 
 def _measured_pair(cell: Cell, q: np.ndarray) -> tuple[str, str] | None:

@@ -26,7 +26,8 @@ def _centre(text: str | None) -> tuple[float, float, float] | None:
 
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
-                       centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed)  # fmt: skip
+                       centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
+                       vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load)  # fmt: skip
     doc = make_plan(opts)
     iso = doc["iso9283"]
     console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
@@ -35,6 +36,16 @@ def cmd_plan(args) -> int:
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
+    if iso.get("points"):
+        console.print(f"orientation: points {', '.join(iso['points'])} measured in turn, each over all the cycles")
+    if iso.get("vap"):
+        vap = iso["vap"]
+        console.print(f"multi-directional test (vAP): {vap['cycles']} cycles of {', '.join(vap['poses'])}, each "
+                      f"approached from {vap['approach_mm']:.1f} mm away along x, y and z ("
+                      + "; ".join(f"{p} from {' '.join(a)}" for p, a in zip(vap["poses"], vap["approaches"],
+                                                                             strict=True))
+                      + ")",
+                      soft_wrap=True)  # fmt: skip
     if iso["compensated_with"]:
         console.print(f"joint targets compensated with {iso['compensated_with']['model']}")
     console.print(f"plan written to {args.json}")
@@ -42,6 +53,10 @@ def cmd_plan(args) -> int:
 
 
 def _um(fig) -> str:
+    return "-" if fig is None else f"{fig.value * 1000:.1f} ± {fig.u95 * 1000:.1f}"
+
+
+def _mdeg(fig) -> str:
     return "-" if fig is None else f"{fig.value * 1000:.1f} ± {fig.u95 * 1000:.1f}"
 
 
@@ -63,6 +78,31 @@ def cmd_compare(args) -> int:
         row += [_um(t.ad), _um(t.rd)]
     table.add_row(*row)
     console.print(table)
+    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
+    if vap_poses:
+        vt = Table(title="ISO 9283:1998, 7.3 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
+        vt.add_column("pose")
+        for t in tests:
+            vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
+        for name in vap_poses:
+            vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
+        console.print(vt)
+    if any(p.orientation for t in tests for p in t.poses):
+        ot = Table(title="ISO 9283:1998, 7.2.1 and 7.2.2 orientation AP and RP about the base x (a), y (b), z (c) "
+                         "axes (millidegrees; ± U, k = 2)")  # fmt: skip
+        ot.add_column("pose, axis")
+        for t in tests:
+            label = "compensated" if t.compensated else "nominal"
+            ot.add_column(f"AP {label}", justify="right", overflow="fold")
+            ot.add_column(f"RP {label}", justify="right", overflow="fold")
+        for i, name in enumerate(p.name for p in tests[0].poses):
+            for axis in "abc":
+                row = [f"{name} {axis}"]
+                for t in tests:
+                    o = t.poses[i].orientation
+                    row += [_mdeg(o.get(f"AP_{axis}")), _mdeg(o.get(f"RP_{axis}"))]
+                ot.add_row(*row, end_section=axis == "c")
+        console.print(ot)
     for d in drift_list:
         console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.7), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),

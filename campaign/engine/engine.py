@@ -305,7 +305,13 @@ class Engine:
                 self._set_up_tracker()  # a restarted process talks to a tracker it has not initialised
         if ctx:
             self._resume_motion()
-        if steps[first].kind in (StepKind.SETTLE, StepKind.MEASURE):
+        here = steps[first]
+        if here.approach and not here.via and here.kind in (StepKind.MOVE, StepKind.SETTLE, StepKind.MEASURE):
+            # an ISO 9283 vAP visit (7.3): the pose is reached from its approach point, so that comes first again
+            via = next(s for s in reversed(before) if s.kind == StepKind.MOVE and s.via)
+            self._move(via)
+            self._settle(via)
+        if here.kind in (StepKind.SETTLE, StepKind.MEASURE):
             move = next(s for s in reversed(before) if s.kind == StepKind.MOVE)
             self._move(move)
             if steps[first].kind == StepKind.MEASURE:
@@ -416,7 +422,7 @@ class Engine:
             "q_deg": [round(float(v), 4) for v in q], "xyz_mm": [m.x_mm, m.y_mm, m.z_mm],
             "std_mm": [m.std_x_mm, m.std_y_mm, m.std_z_mm],
             "env": [env.temperature_c, env.pressure_hpa, env.humidity_pct],
-        }  # fmt: skip
+        } | ({"approach": step.approach} if step.approach else {})  # fmt: skip
         self._emit("measurement", data)
         self.measurements.append(data)
         if step.drift:

@@ -9,6 +9,7 @@ acknowledged.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from enum import StrEnum
@@ -16,7 +17,7 @@ from enum import StrEnum
 import numpy as np
 
 from trackcal.calib.doe.design import design_for_cell
-from trackcal.calib.doe.iso_cube import CYCLE_ORDER
+from trackcal.calib.doe.iso_cube import AXES, CYCLE_ORDER, POSE_NAMES
 from trackcal.calib.doe.order import campaign_order, iso9283_order
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.io import fields
@@ -46,11 +47,18 @@ class Step:
     pose: str = ""
     q_deg: tuple[float, ...] = ()
     drift: bool = False  # a drift-check measurement of the block's reference pose
+    # ISO 9283 vAP (7.3): the side the pose is approached from ("-x", "-y", "-z"); `via` marks the move to (and the
+    # settle at) the approach point before the pose, a move with no measurement
+    approach: str = ""
+    via: bool = False
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
+        for key in ("approach", "via"):  # only where set: the steps of every other plan are recorded as before
+            if not d[key]:
+                del d[key]
         return d
 
     @property
@@ -62,7 +70,12 @@ class Step:
         if self.kind == StepKind.RESUME:
             return "leave the cell, close the door, acknowledge"
         measure = f" ({self.point} from {self.station})" if self.kind == StepKind.MEASURE else ""
-        return f"{self.kind} {self.pose}{measure}"
+        if self.via and self.approach:
+            return f"{self.kind} to the approach point of {self.pose} on its {self.approach} side"
+        if self.via:
+            return f"{self.kind} {self.pose} (an approach: nothing is measured)"
+        side = f" from its {self.approach} side" if self.approach else ""
+        return f"{self.kind} {self.pose}{side}{measure}"
 
 
 class PlanError(CampaignError):
@@ -129,15 +142,24 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
     if iso is not None:
         station, point = iso["station"], iso["point"]
         problems = [p for p in problems if not p.startswith("point ")]  # only the test's point must be seen
-        if vis is not None and not vis[(station, point)].all():
-            problems.append(f"station {station} does not see point {point} at every pose of the ISO test")
+        for pid in iso_points(iso):
+            if vis is not None and not vis[(station, pid)].all():
+                problems.append(f"station {station} does not see point {pid} at every pose of the ISO test")
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
     if iso is None:
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat)
     else:
-        visits = iso9283_order(iso["station"], iso["point"], repeat, CYCLE_ORDER)
+        visits = [v for pid in iso_points(iso) for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]
+    vap = vap_block(iso, cell) if iso is not None else None
+    if vap is not None:
+        problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
+        names = [f"{POSE_NAMES[i]}'s approach along {axis}" for i in vap["poses"] for axis in AXES]
+        problems = [re.sub(r"Q(\d+)", lambda m: names[int(m.group(1)) - 1], re.sub(r"\bposes? (?=Q)", "", p))
+                    for p in problems if not p.startswith("point ")]  # fmt: skip
+        if problems:
+            raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
     where = None
     for v in visits:
         if where is None or v.station != where[0]:
@@ -146,11 +168,30 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         if (v.station, v.point) != where:
             yield Step(StepKind.MOVE_REFLECTOR, station=v.station, point=v.point)
             yield Step(StepKind.RESUME, station=v.station, point=v.point)
+            if iso is not None:  # the first cycle's P1 approached from the cycle's last pose, as every later one
+                last = CYCLE_ORDER[-1]
+                q = tuple(float(x) for x in poses[last])
+                for kind in (StepKind.MOVE, StepKind.SETTLE):
+                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True)
         where = (v.station, v.point)
         q = tuple(float(x) for x in poses[v.pose])
         yield Step(StepKind.MOVE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
         yield Step(StepKind.SETTLE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
         yield Step(StepKind.MEASURE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q, drift=v.drift)
+    if vap is None:
+        return
+    station, point = iso["station"], iso["point"]
+    for _ in range(vap["cycles"]):
+        for i, pose in enumerate(vap["poses"]):
+            q = tuple(float(x) for x in poses[pose])
+            for k, side in enumerate(vap["approaches"][i]):
+                a = tuple(float(x) for x in vap["approach_deg"][i, k])
+                common = {"station": station, "point": point, "pose": ids[pose], "approach": side}
+                yield Step(StepKind.MOVE, q_deg=a, via=True, **common)
+                yield Step(StepKind.SETTLE, q_deg=a, via=True, **common)
+                yield Step(StepKind.MOVE, q_deg=q, **common)
+                yield Step(StepKind.SETTLE, q_deg=q, **common)
+                yield Step(StepKind.MEASURE, q_deg=q, **common)
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
@@ -175,9 +216,55 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
         raise PlanError(f"plan: iso9283.station: {iso.get('station')!r} is no station of cell {cell.name}")
     if iso.get("point") not in cell.tool_points:
         raise PlanError(f"plan: iso9283.point: {iso.get('point')!r} is no reference point of cell {cell.name}")
+    points = iso.get("points")
+    if points is not None and (not isinstance(points, list) or not points or points[-1] != iso["point"]
+                               or any(p not in cell.tool_points for p in points) or len(set(points)) != len(points)):
+        raise PlanError(f"plan: iso9283.points: expected distinct reference points of cell {cell.name}, the test's "
+                        f"point {iso['point']!r} last")  # fmt: skip
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     return iso
+
+
+def iso_points(iso: dict) -> list[str]:
+    """The points an ISO test measures in turn, each over all its cycles: `points` (the orientation test: every point
+    of the tool, the test's `point` last, ISO 9283:1998, 7.2.1), else the one `point`."""
+    return list(iso.get("points") or [iso["point"]])
+
+
+def vap_block(iso: dict, cell: Cell) -> dict | None:
+    """The multi-directional test of an ISO plan (`iso9283.vap`, ISO 9283:1998, 7.3), checked: `cycles` (an integer
+    >= 0), `poses` (names among P1..P5), `approaches` (per pose its sides along x, y, z) and `approach_deg` (per pose,
+    the joints of each approach point, as the controller gets them: 4 decimals); None when the plan has none or zero
+    cycles."""
+    block = iso.get("vap")
+    if block is None:
+        return None
+    block = fields.mapping(block, "plan: iso9283.vap", PlanError)
+    cycles = fields.integer(block.get("cycles", 0), "plan: iso9283.vap.cycles", PlanError)
+    if cycles < 0:
+        raise PlanError(f"plan: iso9283.vap.cycles: expected an integer >= 0, got {cycles}")
+    if cycles == 0:
+        return None
+    names = block.get("poses")
+    if not isinstance(names, list) or not names or any(n not in POSE_NAMES for n in names):
+        raise PlanError(f"plan: iso9283.vap.poses: expected a list of names among {', '.join(POSE_NAMES)}")
+    sides = block.get("approaches")
+    if not isinstance(sides, list) or len(sides) != len(names) or not all(
+            isinstance(per, list) and [str(a)[1:] for a in per] == list(AXES) and all(str(a)[:1] in "+-" for a in per)
+            for per in sides):  # fmt: skip
+        raise PlanError("plan: iso9283.vap.approaches: expected per pose the sides along x, y, z, e.g. [\"-x\", "
+                        "\"+y\", \"-z\"]")  # fmt: skip
+    where = "plan: iso9283.vap.approach_deg"
+    per_pose = fields.sequence(block.get("approach_deg"), where, PlanError)
+    flat = [q for i, sides in enumerate(per_pose) for q in fields.sequence(sides, f"{where}[{i}]", PlanError)]
+    rows = fields.rows(flat, where, PlanError)
+    if rows.shape != (len(names) * len(AXES), cell.chain.dof):
+        raise PlanError(f"plan: iso9283.vap.approach_deg: expected {len(AXES)} joint vectors of "
+                        f"{cell.chain.dof} joints for each of {len(names)} poses")  # fmt: skip
+    approach = np.round(rows, 4).reshape(len(names), len(AXES), cell.chain.dof)
+    return {"cycles": cycles, "poses": [POSE_NAMES.index(n) for n in names], "approaches": sides,
+            "approach_deg": approach}
 
 
 def plan_steps(cell: Cell, plan_doc: dict) -> list[Step]:

@@ -20,9 +20,20 @@ from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from trackcal.calib.compensate import compensate
-from trackcal.calib.doe.iso_cube import CORNER_FRACTION, CYCLE_ORDER, POSE_NAMES, IsoPlan, iso_plan
+from trackcal.calib.doe.iso_cube import (
+    APPROACH_FRACTION,
+    CORNER_FRACTION,
+    CYCLE_ORDER,
+    POSE_NAMES,
+    VAP_POSES,
+    IsoPlan,
+    approach_joints,
+    approach_sides,
+    iso_plan,
+)
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
@@ -31,15 +42,18 @@ from trackcal.calib.iso9283 import (
     DISTANCE_POSES,
     IsoFigures,
     PoseFigures,
+    attained_orientations,
     distance_accuracy,
     drift,
+    multidirectional_variation,
+    orientation_figures,
     pose_accuracy,
     pose_repeatability,
 )
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
-from trackcal.campaign.engine.steps import PlanError, iso_block, plan_arrays
+from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.session.session import export_table, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
@@ -54,9 +68,13 @@ class PlanOptions:
     centre_mm: tuple[float, float, float] | None = None
     cycles: int = CYCLES
     seed: int = 0
+    vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
+    orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2.1, 7.2.2)
+    load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.2), free text for the report
 
 
-def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None) -> dict:
+def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
+             vap: dict | None = None, points: list[str] | None = None) -> dict:  # fmt: skip
     return {
         "criterion": "iso9283",
         "order": "iso9283",
@@ -75,7 +93,7 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
             "commanded_mm": np.round(plan.commanded_mm, 4).tolist(),
             "nominal_poses_deg": np.round(np.degrees(plan.q_rad), 4).tolist(),
             "compensated_with": compensated_with,
-        },
+        } | ({"vap": vap} if vap else {}) | ({"points": points} if points else {}),
     }
 
 
@@ -86,9 +104,13 @@ def make_plan(opts: PlanOptions) -> dict:
                           "cycles")  # fmt: skip
     if opts.side_mm is not None and not opts.side_mm > 0:
         raise OptionError("{0} must be a positive length in mm", "side_mm")
+    vap_cycles = opts.cycles if opts.vap_cycles is None else opts.vap_cycles
+    if vap_cycles == 1 or vap_cycles < 0:
+        raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
     plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
     q_deg = np.degrees(plan.q_rad)
+    q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
     compensated_with = None
     if opts.model:
         model = load_model(opts.model)
@@ -99,11 +121,47 @@ def make_plan(opts: PlanOptions) -> dict:
         if failed:
             raise InputError(f"{opts.model}: the ISO poses cannot be compensated: {'; '.join(failed)}")
         q_deg = np.degrees(q_comp)
+        if q_app is not None:  # the approach points compensated too: the robot still comes in along the base axes
+            flat, rep = compensate(model, q_app.reshape(-1, q_app.shape[-1]), cell.tcp)
+            if any(rep.failures):
+                raise InputError(f"{opts.model}: the vAP approach points cannot be compensated: "
+                                 + "; ".join(f for f in rep.failures if f))  # fmt: skip
+            q_app = flat.reshape(q_app.shape)
         compensated_with = {"model": str(opts.model),
                             "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest()}  # fmt: skip
-    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with)
+    points = orientation_points(cell, plan, q_deg) if opts.orientation else None
+    vap = None
+    if q_app is not None:
+        vap = {"cycles": vap_cycles, "poses": [POSE_NAMES[i] for i in VAP_POSES], "approaches": approach_sides(plan),
+               "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
+               "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
+    doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
+    if opts.load:
+        doc["iso9283"]["load"] = opts.load
     write_json(opts.json, doc)
     return doc
+
+
+# ISO 9283:1998, clause 6 (test conditions): the tests run with 100 % of the rated load at the mechanical interface
+# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`): trackcal cannot weigh it
+NO_LOAD = "not stated (give it with iso9283 plan --load)"
+
+
+# the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
+CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "load", "speed",
+                   "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended", "complete", "mode",
+                   "trackcal version")  # fmt: skip
+
+
+def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
+    """Every tool point the test's station sees at all five poses (nominal model), the test's point last; at least
+    three (three points fix the attained orientation: calib.iso9283.attained_orientations), else InputError."""
+    vis = visibility(cell, np.round(q_deg, 4))
+    seen = [p for p in sorted(cell.tool_points) if p != plan.point and vis[(plan.station, p)].all()]
+    if len(seen) < 2:
+        raise InputError(f"--orientation needs three tool points that station {plan.station} sees at all five poses; "
+                         f"it sees {', '.join([*seen, plan.point])}")  # fmt: skip
+    return [*seen, plan.point]
 
 
 def _utc(t_wall: float) -> str:
@@ -120,19 +178,30 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions
+        sides = [e.data.get("approach", "") for e in store.events("measurement")]  # vAP visits (7.3) name theirs
+        overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
+                            and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
+        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
+                               "9283:1998, clause 6: 100 %, 50 % and 10 % of the rated velocity)"
+                               ) if overrides else "no move recorded"  # fmt: skip
+        tool_doc = store.documents().get("config/tool.yaml")
+        tool = yaml.safe_load(tool_doc).get("name") if tool_doc else None
+        conditions["tool"] = str(tool or "-")
+        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides
     finally:
         store.close()
 
 
-def _temperature(table) -> str:
-    temps = np.array([float(v) for v in table.extra.get("temp_c", [])]) if table.extra else np.zeros(0)
-    return f"{temps.mean():.1f} °C ({temps.min():.1f}-{temps.max():.1f})" if len(temps) else "not recorded"
+def _meteo(table, key: str, unit: str, digits: int) -> str:
+    """Mean (min-max) of a meteo column of the session's measurements (the station's sensor at each measurement)."""
+    v = np.array([float(x) for x in table.extra.get(key, [])]) if table.extra else np.zeros(0)
+    return f"{v.mean():.{digits}f} {unit} ({v.min():.{digits}f}-{v.max():.{digits}f})" if len(v) else "not recorded"
 
 
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
-    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate."""
-    cell, plan, table, conditions = _session_inputs(directory)
+    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
+    is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
+    cell, plan, table, conditions, sides = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
@@ -145,15 +214,19 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     noise = noise or TrackerNoise.of(cell.tracker)
     rot = station.rotation
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-    pose_ids = np.asarray(table.pose)
+    pose_ids, side_of = np.asarray(table.pose), np.asarray(sides)
+
+    def in_base(rows):
+        """The rows' attained positions in the base frame, R^T (x - t), and their covariances R^T Sigma R."""
+        xyz = table.xyz[rows]
+        return (xyz - station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)
+
     attained, covs, figures = [], [], []
     for i, name in enumerate(POSE_NAMES):
-        rows = keep & (pose_ids == f"Q{i + 1}")
-        xyz = table.xyz[rows]
-        if len(xyz) < 2:
-            raise InputError(f"{directory}: {name} was measured {len(xyz)} times; repeatability needs two cycles")
-        base = (xyz - station.translation) @ rot  # R^T (x - t), row-wise
-        cov = np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)  # R^T Sigma R
+        rows = keep & (pose_ids == f"Q{i + 1}") & (side_of == "")  # the unidirectional test (7.2)
+        base, cov = in_base(rows)
+        if len(base) < 2:
+            raise InputError(f"{directory}: {name} was measured {len(base)} times; repeatability needs two cycles")
         ap, offset = pose_accuracy(base, commanded[i], cov)
         rp, lbar, s = pose_repeatability(base, cov)
         figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
@@ -166,15 +239,53 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
+    pts = iso_points(iso)
+    if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2.1, 7.2.2)
+        missing = [p for p in pts if p not in model.points]
+        if missing:
+            raise InputError(f"the model knows no reference point {', '.join(missing)} (the ISO orientation test's)")
+        tool = np.array([model.points[p] for p in pts])
+        q_nom = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
+        rot_c, _ = Kinematics(model.chain, []).end_frames(q_nom)  # the commanded orientation of the last joint frame
+        at_station = np.asarray(table.station) == iso["station"]
+        for i, name in enumerate(POSE_NAMES):
+            each = [in_base(at_station & (np.asarray(table.point) == p) & (pose_ids == f"Q{i + 1}") & (side_of == ""))
+                    for p in pts]  # fmt: skip
+            n = min(len(x) for x, _ in each)
+            if n < 2:
+                notes.append(f"{name}: a tool point was measured fewer than two times: no orientation figures")
+                continue
+            x = np.stack([x[:n] for x, _ in each], axis=1)  # (n cycles, k points, 3): cycle j = j-th visit of each
+            c = np.stack([c[:n] for _, c in each], axis=1)
+            w, cov_w = attained_orientations(tool, x, rot_c[i], c)
+            figures[i].orientation = orientation_figures(w, cov_w)
+    vap, vap_attained = {}, {}
+    vap_plan = vap_block(iso, cell) or {"poses": []}
+    for i, sides in zip(vap_plan["poses"], vap_plan.get("approaches", []), strict=True):
+        per_side = {side: in_base(keep & (pose_ids == f"Q{i + 1}") & (side_of == side)) for side in sides}
+        missing = [side for side, (x, _) in per_side.items() if len(x) == 0]
+        if missing:
+            notes.append(f"{POSE_NAMES[i]} was not measured from its {', '.join(missing)} side: no vAP")
+            continue
+        vap[POSE_NAMES[i]] = multidirectional_variation([x for x, _ in per_side.values()],
+                                                        [c for _, c in per_side.values()])  # fmt: skip
+        vap_attained[POSE_NAMES[i]] = {side: x for side, (x, _) in per_side.items()}
     comp = iso.get("compensated_with")
     conditions.update({
-        "robot": cell.chain.name, "cell": cell.name, "tool point measured": iso["point"], "station": iso["station"],
+        "robot": cell.chain.name, "cell": cell.name, "station": iso["station"],
+        "tool point measured": iso["point"] + (f" (for the orientation also {', '.join(pts[:-1])})"
+                                               if len(pts) >= 3 else ""),
         "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
                 f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
-        "temperature": _temperature(table), "tracker (its U)": tracker, "trackcal version": version("trackcal"),
+        "load": iso.get("load") or NO_LOAD,
+        "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
+        "humidity": _meteo(table, "humidity_pct", "%", 0), "tracker (its U)": tracker, "trackcal version": version("trackcal"),
     })  # fmt: skip
-    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes)
+    first = [k for k in CONDITION_ORDER if k in conditions]
+    conditions = {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
+    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes, vap,
+                      vap_attained)  # fmt: skip
 
 
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:
@@ -194,6 +305,7 @@ class CompareOptions:
     sessions: list[str]
     model: str
     json: str | None = None
+    noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -215,7 +327,7 @@ def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
     """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
     same targets."""
     model = load_model(opts.model)
-    tests = [session_figures(Path(s), model) for s in opts.sessions]
+    tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:
         write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [

@@ -22,6 +22,15 @@ DEFINITIONS = [
      "ISO 9283:1998, 7.2.1"),
     ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
      "ISO 9283:1998, 7.2.2"),
+    ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
+              "positions attained when the pose is approached from three orthogonal directions parallel to the base "
+              "axes", "ISO 9283:1998, 7.3"),
+    ("AP_a, AP_b, AP_c", "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
+                         "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
+                         "the tool's reference points, cycle j taking the j-th visit of each point",
+     "ISO 9283:1998, 7.2.1"),
+    ("RP_a, RP_b, RP_c", "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle "
+                         "about the axis", "ISO 9283:1998, 7.2.2"),
     ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
      "ISO 9283:1998, 7.4"),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
@@ -32,9 +41,9 @@ DEFINITIONS = [
             "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
 ]  # fmt: skip
 
-STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:right}
-th{background:#eee}td.l,th.l{text-align:left}img{max-width:100%}"""
+th{background:#eee}td.l,th.l{text-align:left}td:not(.l),td.c{white-space:nowrap}img{max-width:100%}"""
 
 
 def _um(value: float, u: float | None = None) -> str:
@@ -66,6 +75,7 @@ def cluster_figure(tests: list[IsoFigures], i: int) -> str:
             ax.set_ylabel(f"{'xyz'[b]} − commanded (µm)")
             ax.set_title(f"{POSE_NAMES[i]}, {label} targets", fontsize=9)
             ax.set_aspect("equal", adjustable="datalim")
+            ax.locator_params(nbins=4)  # tick labels of up to five digits side by side on a 3-inch axis
             ax.grid(alpha=0.3)
         row[1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
@@ -78,7 +88,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
            f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
-    out += [f"<th class=l>{html.escape(t.session)}</th>" for t in tests]
+    out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
     out.append("</tr>")
     for k in keys:
         out.append(f"<tr><td class=l>{html.escape(k)}</td>")
@@ -97,8 +107,24 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
             xyz = ", ".join(f"{v * 1000:.1f}" for v in p.offset_mm)
             out.append(f"<td>{_um(p.ap.value, p.ap.u95)}</td><td>{xyz}</td><td>{_um(p.rp.value, p.rp.u95)}</td>")
         out.append("</tr>")
+    out.append("</table>")
+    if any(p.orientation for t in tests for p in t.poses):
+        out.append("<h2>Orientation characteristics (millidegrees)</h2><table><tr><th class=l>pose</th>")
+        for lab in label:
+            out += [f"<th>AP_a, AP_b, AP_c {lab}</th><th>RP_a, RP_b, RP_c {lab}</th>"]
+        out.append("</tr>")
+        for i, name in enumerate(POSE_NAMES):
+            out.append(f"<tr><td class=l>{name}</td>")
+            for t in tests:
+                o = t.poses[i].orientation
+                for kind in ("AP", "RP"):
+                    figs = [o.get(f"{kind}_{a}") for a in "abc"]
+                    out.append("<td>" + "<br>".join(f"{a}: " + ("-" if f is None else _um(f.value, f.u95))
+                                                    for a, f in zip("abc", figs, strict=True)) + "</td>")
+            out.append("</tr>")
+        out.append("</table>")
     a, b = DISTANCE_POSES
-    out.append(f"</table><h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
+    out.append(f"<h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
     out += [f"<th>AD_P {lab}</th><th>RD {lab}</th>" for lab in label]
     out.append("</tr><tr>")
     for t in tests:
@@ -106,6 +132,17 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
+    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
+    if vap_poses:
+        out.append("<h2>Multi-directional pose accuracy variation (µm)</h2><table><tr><th class=l>pose</th>")
+        out += [f"<th>vAP_P {lab}</th>" for lab in label]
+        out.append("<th class=l>approached from</th></tr>")
+        for name in vap_poses:
+            sides = next((", ".join(t.vap_attained_mm[name]) for t in tests if name in t.vap_attained_mm), "")
+            cells = [_um(t.vap[name].value, t.vap[name].u95) if name in t.vap else "-" for t in tests]
+            out.append(f"<tr><td class=l>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+                       + f"<td class=l>{sides} sides</td></tr>")  # fmt: skip
+        out.append("</table>")
     for d in drift_list:
         out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
                    f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
@@ -114,7 +151,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
         out.append("</table>")
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
                "<th class=l>clause</th></tr>")  # fmt: skip
-    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class=l>{c}</td></tr>"
+    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class='l c'>{c}</td></tr>"
             for n, d, c in DEFINITIONS]  # fmt: skip
     out.append("</table><h2>Attained positions</h2>")
     out += [f"<p><img alt='{POSE_NAMES[i]}' src='{cluster_figure(tests, i)}'></p>" for i in range(len(POSE_NAMES))]
