@@ -149,8 +149,8 @@ NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
 CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "load", "speed",
-                   "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended", "complete", "mode",
-                   "trackcal version")  # fmt: skip
+                   "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
+                   "complete", "mode", "trackcal version")  # fmt: skip
 
 
 def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
@@ -280,7 +280,8 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
         "load": iso.get("load") or NO_LOAD,
         "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
-        "humidity": _meteo(table, "humidity_pct", "%", 0), "tracker (its U)": tracker, "trackcal version": version("trackcal"),
+        "humidity": _meteo(table, "humidity_pct", "%", 0), "tracker (its U)": tracker,
+        "trackcal version": version("trackcal"),
     })  # fmt: skip
     first = [k for k in CONDITION_ORDER if k in conditions]
     conditions = {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
