@@ -125,6 +125,25 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
     return out
 
 
+
+def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
+    features (N, n, e), equal features, in np.unique's order of the key [q, features].
+
+    The features are usually a function of the angles (a joint error map: hundreds of columns): then the groups of
+    the angles alone are those of the whole key and in the same order (the key sorts by the angles first), and the
+    sort of a key thousands of columns wide is skipped (issue 26: 5 s of a diagnosis of the UR10's Series B). When
+    they are not (backlash follows the direction of motion), the whole key is sorted as before."""
+    _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    of_row = of_row.ravel()
+    if feats is not None:
+        flat = feats.reshape(len(q), -1)
+        if not np.array_equal(flat, flat[first][of_row]):
+            key = np.hstack([q, flat])
+            _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
+            of_row = of_row.ravel()
+    return first, of_row
+
 @dataclass
 class State:
     dev: np.ndarray  # robot parameter deviations (mm, rad)
@@ -199,10 +218,8 @@ class Problem:
         self.kin = Kinematics(chain, self.params)
         # rows share poses (several points, several stations): the chain is walked once per distinct pose
         # (and joint-offset features, which make the extended joint angles of a row)
-        feats = None if extension is None or extension.joint_features is None else extension.joint_features
-        key = self.q if feats is None else np.hstack([self.q, feats.reshape(self.n_rows, -1)])
-        _, self.pose_first, self.row_pose = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        self.row_pose = self.row_pose.ravel()
+        self.pose_first, self.row_pose = _distinct_poses(
+            self.q, None if extension is None else extension.joint_features)
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
         order = np.argsort(self.row_pose, kind="stable")
         self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
