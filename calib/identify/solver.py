@@ -136,7 +136,7 @@ def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray
     they are not (backlash follows the direction of motion), the whole key is sorted as before."""
     _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
     of_row = of_row.ravel()
-    if feats is not None:
+    if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.reshape(len(q), -1)
         if not np.array_equal(flat, flat[first][of_row]):
             key = np.hstack([q, flat])
@@ -314,6 +314,9 @@ class Problem:
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
         """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
+        if len(ch.groups) == 1 and jc.shape[2] == self.n_all:  # one station, one point: the blocks are every column
+            jm = jc
+            return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
         jm = np.zeros((len(ch.rows), 3, self.n_all))
         for sl, cols, _ in ch.groups:
             jm[sl][:, :, cols] = jc[sl]
@@ -408,8 +411,12 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
     floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
     lam, iterations = 1e-8, 1
     # after a taken step the next trial point is evaluated with its normal equations (steps are nearly always
-    # taken: geometric calibration is close to linear), after a refused one by its residuals alone
-    fused = True
+    # taken: geometric calibration is close to linear), after a refused one by its residuals alone, and so is the
+    # trial after a step taken only once damped more: on a valley the undamped step overshoots every time (the
+    # damping then alternates, one refused trial per iteration), and forming normal equations that are thrown
+    # away doubled the cost of such fits (issue 26: cyclic_error with encoder_scale on the UR10's Series B, 25
+    # iterations). The iterates are the same either way.
+    fused, refused = True, False
     prev = 0.0  # size of the last step taken almost undamped (0: none)
     converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
     eye = np.eye(problem.n_cols)
@@ -453,8 +460,10 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             iterations += 1
             prev = step if lam <= 1e-6 else 0.0
             lam = max(lam / 10.0, 1e-12)
-            fused = True
+            fused = fused or not refused
+            refused = False
         else:
+            refused = True
             lam *= 10.0
             fused = False
             if lam > 1e8:
