@@ -75,9 +75,11 @@ def main(repeat: int = 5) -> None:
             env = dict(os.environ, PYTHONPATH=str(old_root))
             cases["diagnose before"] = ([*CLI, "diagnose", *common, "--json", str(tmp / "before.json")], env)
         times: dict[str, list[tuple[float, float]]] = {name: [] for name in cases}
-        for _ in range(repeat):  # interleaved
+        for i in range(repeat):  # interleaved
             for name, (args, env) in cases.items():
                 times[name].append(run(args, env))
+                print(f"  run {i + 1}/{repeat} {name}: {times[name][-1][0]:.2f} s wall, {times[name][-1][1]:.2f} s CPU",
+                      flush=True)  # fmt: skip
         med = {name: (statistics.median(w for w, _ in ts), statistics.median(c for _, c in ts))
                for name, ts in times.items()}  # fmt: skip
         for name, (wall, cpu) in med.items():
