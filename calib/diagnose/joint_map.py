@@ -120,9 +120,16 @@ def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.nd
     n_rows, n = q.shape
     clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
     feats = np.zeros((n_rows, n, len(names)))
+    # one sine and one cosine call per joint over all its harmonics (a call per coefficient cost 1.4 s of a
+    # diagnosis of Series B, issue 26); the same products h * q and the same values
+    groups: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
     for i, name in enumerate(names):
         kind, h, j = parse_name(name)
-        feats[:, j, i] = (np.sin if kind == "s" else np.cos)(h * clamped[j])
+        cols, hs = groups.setdefault((kind, j), ([], []))
+        cols.append(i)
+        hs.append(h)
+    for (kind, j), (cols, hs) in groups.items():
+        feats[:, j, cols] = (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
     return feats
 
 
@@ -276,23 +283,48 @@ class HeldOutMap:
         self.lever = (rs if problem.w is None else problem.w @ rs) @ d_q
         self.q, self.names = problem.q, list(names)
         self.joints = sorted({parse_name(nm)[2] for nm in names})
+        self._columns: dict[tuple, np.ndarray] = {}  # the same folds are asked again (orders, models of Rejudge)
 
     def columns(self, test: np.ndarray, names: list[str] | None = None) -> np.ndarray:
         """(3 len(test), len(names)) map columns of the `test` rows (indices), clamped to the arcs of the other rows
         (`names`: a subset of the map's coefficients, default all)."""
-        train = np.setdiff1d(np.arange(len(self.q)), test)
-        arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
-        feats = map_features(self.q[test], self.names if names is None else names, arcs)
-        return np.einsum("rcj,rje->rce", self.lever[test], feats).reshape(3 * len(test), -1)
+        key = (np.asarray(test).tobytes(), None if names is None else tuple(names))
+        if key not in self._columns:
+            train = np.setdiff1d(np.arange(len(self.q)), test)
+            arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
+            feats = map_features(self.q[test], self.names if names is None else names, arcs)
+            self._columns[key] = np.einsum("rcj,rje->rce", self.lever[test], feats).reshape(3 * len(test), -1)
+        return self._columns[key]
 
 
-def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas, held: HeldOutMap | None = None):
+class FoldGrams:
+    """The held-out rows' part jm[hold]^T jm[hold] of the Gram matrix of the Jacobian jm, per fold of one fold
+    assignment, formed once: the cross-validations of one linearised problem share their folds (issue 26: the
+    map's search and its comparison without the map; the models of `Rejudge`, which differ in their columns)."""
+
+    def __init__(self, jm: np.ndarray):
+        self.jm = jm
+        self.grams: dict[int, np.ndarray] = {}
+
+    def __call__(self, k: int, hold: np.ndarray) -> np.ndarray:
+        if k not in self.grams:
+            jk = self.jm[hold]
+            self.grams[k] = jk.T @ jk
+        return self.grams[k]
+
+    def columns(self, keep: np.ndarray):
+        """The downdates of jm[:, keep]: blocks of the whole ones."""
+        return lambda k, hold: self(k, hold)[np.ix_(keep, keep)]
+
+
+def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas, held: HeldOutMap | None = None,
+               downdate=None):
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
     order and ridge on the problem linearised at (jm, r): jm (3N, m) Jacobian, r (3N,) residual, whitened,
     gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
     pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
     (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
-    arcs."""
+    arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     row_fold = np.repeat(fold, 3)
@@ -301,7 +333,7 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
     for k in np.unique(fold):
         hold = row_fold == k
         jk, rk = jm[hold], r[hold]
-        g, b = gram - jk.T @ jk, rhs - jk.T @ rk
+        g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
         if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs
             jk = jk.copy()
             jk[:, pen_cols] = held.columns(np.flatnonzero(fold == k))
@@ -380,9 +412,10 @@ def fit_error_map(
         unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
         orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in names_max]] for h in orders]
         gram, rhs = jm.T @ jm, jm.T @ r
+        downdate = FoldGrams(jm)
         ss, ss_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad],
-                               HeldOutMap(problem, state, names_max))  # fmt: skip
-        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0])
+                               HeldOutMap(problem, state, names_max), downdate)  # fmt: skip
+        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate)
         i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
         order, tau = int(orders[i]), float(taus_rad[li])
         cv_rms, cv_without = float(np.sqrt(ss_mm[i, li] / n_coord)), float(np.sqrt(without_mm[0, 0] / n_coord))
@@ -417,6 +450,7 @@ class MapEvidence:
         self.unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
         self.ridge = fit.ridge
         self.gram, self.rhs = self.jm.T @ self.jm, self.jm.T @ self.r
+        self.downdates: dict[bytes, FoldGrams] = {}  # per fold assignment: every model of Rejudge shares them
 
     def _model(self, drop: tuple[int, ...]):
         """(kept columns, penalised positions among them, rhs, residual) with base parameters `drop` at zero."""
@@ -446,8 +480,9 @@ class MapEvidence:
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
         """Held-out RMS of one coordinate (mm) over `fold` (the fold of every row), base parameters `drop` at 0."""
         keep, pen, rhs, r = self._model(drop)
+        whole = self.downdates.setdefault(fold.tobytes(), FoldGrams(self.jm))
         _, ss_mm = _cv_scores(self.jm[:, keep], r, self.gram[np.ix_(keep, keep)], rhs, self.unwhiten, pen, fold,
-                              [pen], [self.ridge], self.held)  # fmt: skip
+                              [pen], [self.ridge], self.held, whole.columns(keep))  # fmt: skip
         return float(np.sqrt(ss_mm[0, 0] / len(r)))
 
 

@@ -29,7 +29,8 @@ joint error and gained nothing beside the map; kept, they made its prediction of
 `none`, with the noise scale reported: a tracker 18 % noisier than its model is not a cause. The noise
 floor (`calib.diagnose.noise_floor`) comes from comparable repeats or the tracker model, and says which.
 
-The fits (`calib.diagnose.crossval`) skip the covariance, start from the geometric solution and cross-validate
+The fits (`calib.diagnose.crossval`) skip the covariance, start where the fit of the largest sub-model already
+fitted stopped (else from the geometric solution) and cross-validate
 by one Gauss-Newton step per fold; the change point (`calib.diagnose.changepoint`) is an exact scan of every
 cut, then one full fit; candidate parameters the data cannot see are dropped and reported.
 """

@@ -125,6 +125,25 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
     return out
 
 
+
+def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
+    features (N, n, e), equal features, in np.unique's order of the key [q, features].
+
+    The features are usually a function of the angles (a joint error map: hundreds of columns): then the groups of
+    the angles alone are those of the whole key and in the same order (the key sorts by the angles first), and the
+    sort of a key thousands of columns wide is skipped (issue 26: 5 s of a diagnosis of the UR10's Series B). When
+    they are not (backlash follows the direction of motion), the whole key is sorted as before."""
+    _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    of_row = of_row.ravel()
+    if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
+        flat = feats.reshape(len(q), -1)
+        if not np.array_equal(flat, flat[first][of_row]):
+            key = np.hstack([q, flat])
+            _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
+            of_row = of_row.ravel()
+    return first, of_row
+
 @dataclass
 class State:
     dev: np.ndarray  # robot parameter deviations (mm, rad)
@@ -199,10 +218,8 @@ class Problem:
         self.kin = Kinematics(chain, self.params)
         # rows share poses (several points, several stations): the chain is walked once per distinct pose
         # (and joint-offset features, which make the extended joint angles of a row)
-        feats = None if extension is None or extension.joint_features is None else extension.joint_features
-        key = self.q if feats is None else np.hstack([self.q, feats.reshape(self.n_rows, -1)])
-        _, self.pose_first, self.row_pose = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        self.row_pose = self.row_pose.ravel()
+        self.pose_first, self.row_pose = _distinct_poses(
+            self.q, None if extension is None else extension.joint_features)
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
         order = np.argsort(self.row_pose, kind="stable")
         self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
@@ -297,6 +314,9 @@ class Problem:
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
         """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
+        if len(ch.groups) == 1 and jc.shape[2] == self.n_all:  # one station, one point: the blocks are every column
+            jm = jc
+            return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
         jm = np.zeros((len(ch.rows), 3, self.n_all))
         for sl, cols, _ in ch.groups:
             jm[sl][:, :, cols] = jc[sl]
@@ -391,8 +411,12 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
     floor = 1e-15 * float(np.linalg.norm(problem._whiten(problem.xyz)))
     lam, iterations = 1e-8, 1
     # after a taken step the next trial point is evaluated with its normal equations (steps are nearly always
-    # taken: geometric calibration is close to linear), after a refused one by its residuals alone
-    fused = True
+    # taken: geometric calibration is close to linear), after a refused one by its residuals alone, and so is the
+    # trial after a step taken only once damped more: on a valley the undamped step overshoots every time (the
+    # damping then alternates, one refused trial per iteration), and forming normal equations that are thrown
+    # away doubled the cost of such fits (issue 26: cyclic_error with encoder_scale on the UR10's Series B, 25
+    # iterations). The iterates are the same either way.
+    fused, refused = True, False
     prev = 0.0  # size of the last step taken almost undamped (0: none)
     converged, message = False, f"stopped after {max_iter} iterations without meeting the step test"
     eye = np.eye(problem.n_cols)
@@ -436,8 +460,10 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             iterations += 1
             prev = step if lam <= 1e-6 else 0.0
             lam = max(lam / 10.0, 1e-12)
-            fused = True
+            fused = fused or not refused
+            refused = False
         else:
+            refused = True
             lam *= 10.0
             fused = False
             if lam > 1e8:
