@@ -61,7 +61,9 @@ def count_events(db):
         return None
 
 
-@pytest.mark.parametrize("fraction", [0.1, 0.45, 0.9])
+# the middle of the campaign by default; its start and end (each ~16 s) with -m slow
+@pytest.mark.parametrize("fraction", [pytest.param(0.1, marks=pytest.mark.slow), 0.45,
+                                      pytest.param(0.9, marks=pytest.mark.slow)])  # fmt: skip
 def test_kill_9_then_resume_loses_and_duplicates_nothing(plan, reference, tmp_path, fraction):
     """kill -9 once a given share of the measurements is stored (polled from outside, so the process dies at
     whatever instruction it is executing then), then `trackcal resume`. The simulated cell runs at 2000x real

@@ -195,6 +195,8 @@ B_BEFORE = {"cause": "cyclic_error", "causes": ["joint_compliance", "cyclic_erro
             "rms_geometric_mm": 0.25695947777930694, "rms_extended_mm": 0.07770870938575124}  # fmt: skip
 
 
+# slow: 12 s of real data; the fast paths are checked against the code they replaced by default (above)
+@pytest.mark.slow
 @pytest.mark.skipif(not (DATA / SERIES["B"]).exists(), reason="IPA data set not present (TRACKCAL_IPA_DATA)")
 def test_series_b_verdict_and_held_out_figures_are_unchanged(tmp_path: Path):
     b = tmp_path / "b.csv"

@@ -185,6 +185,9 @@ def measure_steps(cell, plan: Path) -> int:
     return sum(s.kind == "measure" for s in plan_steps(cell, json.loads(plan.read_text())))
 
 
+# slow: the README runs `trackcal mock` and `run --hardware` in separate processes by default (its UR block); this is
+# the same for the KR C2 mock, 20 s
+@pytest.mark.slow
 def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp_path):
     proc, hw = mock_cell
     assert load_hardware(hw).plc is not None  # the mock writes the schema it is read with
@@ -255,6 +258,9 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(kr270, pla
     assert proc.wait(timeout=15) == 0
 
 
+# slow: the session lock (tests/test_store.py) and the robot claims (tests/test_ur_claim.py) are checked by default;
+# this whole two-process campaign takes about 30 s
+@pytest.mark.slow
 def test_second_campaign_on_a_busy_mock_is_refused_and_the_first_keeps_its_table(kr270, plan, mock_cell, tmp_path):
     """Issue 27, item 8: "two campaigns on one `trackcal mock`: the second leaves an empty session behind, the
     first's tracker noise is no longer the deterministic stream of its seed". The controller connects to one

@@ -123,6 +123,9 @@ def plan(kr270):
     return feasible_plan(kr270, 4, seed=5, repeat=1)
 
 
+# slow: the code and message of a silent PLC are checked by default on a move and a settle (above); this is the whole
+# campaign with its resume, 12 s
+@pytest.mark.slow
 def test_a_silent_plc_mid_campaign_is_recorded_as_such_and_resume_completes(tmp_path, kr270, plan):
     """The PLC falls silent as the third move starts: the robot client's guard names it (not "the door opened"),
     the session's error event carries its code, the stop's line says to check the PLC, and once the PLC answers

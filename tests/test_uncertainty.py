@@ -38,7 +38,8 @@ def check(inside, joint, n):
 
 @pytest.mark.parametrize(
     "weighting, twin_noise",
-    [(None, TrackerNoise.isotropic(0.010)), (TrackerNoise(), TrackerNoise())],
+    # the tracker model (every command's default weighting) by default; i.i.d. (12 s more) with -m slow
+    [pytest.param(None, TrackerNoise.isotropic(0.010), marks=pytest.mark.slow), (TrackerNoise(), TrackerNoise())],
     ids=["iid", "tracker-model"],
 )
 def test_confidence_intervals_are_honest(kr270, kr270_params, weighting, twin_noise):
