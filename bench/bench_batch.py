@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from distributed import LocalCluster
+
 from bench.goals import check
 from trackcal.campaign.cli.blas import limited_blas
 from trackcal.campaign.jobs.batch import BatchOptions, batch, find_campaigns, result_key, run_chunk
@@ -64,7 +66,6 @@ def _maxrss_mb() -> float:
 
 
 def main() -> None:
-    from distributed import LocalCluster  # lazy: optional dependency, only this benchmark
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=200, help="campaigns (default 200, as the issue asks)")
