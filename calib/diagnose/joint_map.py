@@ -399,7 +399,7 @@ def fit_error_map(
         raise IdentificationError(f"{table.source}: no joint error map can be fitted: no joint moves the points")
     search = len(orders) > 1 or len(taus_rad) > 1
     names_max = [nm for j in arcs for nm in harmonic_names(j, max(orders))]
-    ext = _with_base(base, map_extension(np.radians(table.q_deg), names=names_max, arcs=arcs))
+    ext = _with_base(base, map_extension(q, names=names_max, arcs=arcs))
     problem = Problem(chain, table, geo.points, params, noise, extension=ext)
     state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names_max))]))
     r, jm = problem.residual_and_jacobian(state)
@@ -423,7 +423,13 @@ def fit_error_map(
         cv_table = [{"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
                     for a, h in enumerate(orders) for b, t in enumerate(taus_rad)]  # fmt: skip
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
-    res, edf = _penalised_fit(chain, table, geo, params, noise, base, names, arcs, s2 / tau**2)
+    if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise, (r, jm))
+    else:
+        ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
+        problem = Problem(chain, table, geo.points, params, noise, extension=ext)
+        state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise)
     return ErrorMapFit(
         identification=res, names=names, arcs=arcs, orders={j: order for j in arcs}, tau_rad=tau, ridge=s2 / tau**2,
         effective_params=edf, cv_rms_mm=cv_rms, cv_rms_without_mm=cv_without, not_identifiable=not_identifiable,
@@ -557,34 +563,40 @@ def _with_base(base: Extension | None, ext: Extension) -> Extension:
     return ext if base is None else combine([base, ext], cause=CAUSE)
 
 
-def _penalised_fit(chain, table, geo, params, noise, base, names, arcs, lam):
-    """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients) from the fit without the map:
-    (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters)."""
-    ext = _with_base(base, map_extension(np.radians(table.q_deg), names=names, arcs=arcs))
-    problem = Problem(chain, table, geo.points, params, noise, extension=ext)
-    n_base = 0 if base is None else base.size
-    state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
-    k0 = len(params) + n_base
+def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: float, noise: TrackerNoise | None,
+                   at_start: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Identification, float]:
+    """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
+    `state`, the fit without the map (`at_start`: its residual and Jacobian if already formed):
+    (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
+
+    It stops as `calib.identify.solver.solve` does: when a step, or all the steps still to come after it (the rate of
+    the last two steps telling their sum), moves the fit by less than 1e-9 of the residual (issue 26: three
+    Gauss-Newton steps on Series B where a fixed test on the step alone took five, each a Jacobian of ~700 columns;
+    the steps skipped were below 2e-9 of the residual)."""
     pen = np.zeros(problem.n_cols)
-    pen[k0 : k0 + len(names)] = lam
-    converged = False
+    pen[k0 : k0 + n_map] = lam
+    converged, prev, iterations = False, 0.0, 0
+    r, jm = problem.residual_and_jacobian(state) if at_start is None else at_start
     for _ in range(GN_ITERATIONS):
-        r, jm = problem.residual_and_jacobian(state)
-        scale = np.linalg.norm(jm, axis=0)
+        gram = jm.T @ jm
+        scale = np.sqrt(np.diag(gram))
         scale[scale == 0] = 1.0
-        js = jm / scale
         x = np.zeros(problem.n_cols)
-        x[k0 : k0 + len(names)] = state.ext[n_base:]
-        ds = np.linalg.solve(js.T @ js + np.diag(pen / scale**2), js.T @ r - pen * x / scale)
+        x[k0 : k0 + n_map] = state.ext[k0 - len(problem.params) :]
+        ds = np.linalg.solve(gram / np.outer(scale, scale) + np.diag(pen / scale**2), (jm.T @ r - pen * x) / scale)
         state = problem.retract(state, ds / scale)
-        if float(np.linalg.norm(js @ ds)) <= 1e-9 * float(np.linalg.norm(r)):
+        iterations += 1
+        step, tol = float(np.linalg.norm(jm @ (ds / scale))), 1e-9 * float(np.linalg.norm(r))
+        rate = step / prev if prev > 0 else 1.0
+        r, jm = problem.residual_and_jacobian(state)
+        if step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol):
             converged = True
             break
-    r, jm = problem.residual_and_jacobian(state)
-    scale = np.linalg.norm(jm, axis=0)
+        prev = step
+    gram = jm.T @ jm
+    scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
-    js = jm / scale
-    gram = js.T @ js
+    gram /= np.outer(scale, scale)
     h_inv = np.linalg.inv(gram + np.diag(pen / scale**2))
     hat = np.einsum("ij,ji->i", h_inv, gram)  # diagonal of (G + P)^-1 G: each unknown's share of the fit
     edf = float(hat.sum())
@@ -592,11 +604,11 @@ def _penalised_fit(chain, table, geo, params, noise, base, names, arcs, lam):
     s2 = float(r @ r) / dof
     cov = s2 * h_inv / np.outer(scale, scale)
     res = Identification(
-        chain=chain, params=list(params), dev=state.dev, stations=dict(zip(problem.station_ids, state.stations,
-        strict=True)), points={p: state.points[i] for i, p in enumerate(problem.point_ids)}, cov=cov,
+        chain=problem.chain, params=list(problem.params), dev=state.dev, stations=dict(zip(problem.station_ids,
+        state.stations, strict=True)), points={p: state.points[i] for i, p in enumerate(problem.point_ids)}, cov=cov,
         station_ids=problem.station_ids, point_ids=problem.point_ids, residuals=problem.xyz - problem.predicted(state),
-        variance_factor=s2, dof=dof, iterations=GN_ITERATIONS, noise=noise, extension=ext, ext=state.ext,
-        converged=converged, message="the Gauss-Newton step is below 1e-9 of the residual" if converged else
+        variance_factor=s2, dof=dof, iterations=iterations, noise=noise, extension=problem.ext, ext=state.ext,
+        converged=converged, message="the Gauss-Newton steps to come are below 1e-9 of the residual" if converged else
         f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",
     )  # fmt: skip
-    return res, float(hat[k0 : k0 + len(names)].sum())
+    return res, float(hat[k0 : k0 + n_map].sum())
