@@ -4,6 +4,7 @@ not (a warm start stops at the same minimum to the solver's step test). On the r
 set is present) the verdict and its held-out figures are those of the code before issue 26."""
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -209,3 +210,19 @@ def test_series_b_verdict_and_held_out_figures_are_unchanged(tmp_path: Path):
     assert [c["cause"] for c in doc["causes"]] == B_BEFORE["causes"]
     assert doc["holdout"]["rms_geometric_mm"] == pytest.approx(B_BEFORE["rms_geometric_mm"], abs=1e-6)
     assert doc["holdout"]["rms_extended_mm"] == pytest.approx(B_BEFORE["rms_extended_mm"], abs=1e-6)
+
+
+def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
+    """The folds of the joint map's search solved in a thread pool and summed in fold order: every candidate's
+    figures equal those of the diagnosis without threads, to the last bit."""
+    table, params, geo = twin_case
+    plain = selection.diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo)
+    with ThreadPoolExecutor(2) as ex:
+        threaded = selection.diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo,
+                                      executor=ex)  # fmt: skip
+    assert any(c.cause == "cyclic_error" and c.detail.get("error_map") for c in plain.candidates)  # the search ran
+    figures = [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
+               for c in plain.candidates]  # fmt: skip
+    assert figures == [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
+                       for c in threaded.candidates]  # fmt: skip
+    assert (plain.cause, plain.holdout_extended_mm) == (threaded.cause, threaded.holdout_extended_mm)

@@ -12,6 +12,7 @@ Candidate parameters the data cannot see are dropped before any fit.
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +75,7 @@ class Context:
     dropped: dict[str, list[str]] = field(default_factory=dict)  # cause -> parameters the data cannot see
     fits: dict[tuple, Fit] = field(default_factory=dict)  # whole-table fits by sorted causes
     unwhiten: np.ndarray | None = None  # (N, 3, 3) inverse whitening of each row (tracker weighting)
+    executor: Executor | None = None  # runs independent pieces (folds) at once when given (threads)
 
 
 def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int,

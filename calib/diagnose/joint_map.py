@@ -39,6 +39,7 @@ The final fit is Gauss-Newton on the penalised non-linear problem from there (a 
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -319,19 +320,21 @@ class FoldGrams:
 
 
 def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas, held: HeldOutMap | None = None,
-               downdate=None):
+               downdate=None, executor: Executor | None = None):  # fmt: skip
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
     order and ridge on the problem linearised at (jm, r): jm (3N, m) Jacobian, r (3N,) residual, whitened,
     gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
     pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
     (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
-    arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known."""
+    arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known. The folds are
+    solved in `executor` when given (threads: the eigendecompositions release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     row_fold = np.repeat(fold, 3)
-    ss = np.zeros((len(orders_cols), len(lambdas)))
-    ss_mm = np.zeros_like(ss)
-    for k in np.unique(fold):
+
+    def scores(k):
+        ss = np.zeros((len(orders_cols), len(lambdas)))
+        ss_mm = np.zeros_like(ss)
         hold = row_fold == k
         jk, rk = jm[hold], r[hold]
         g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
@@ -358,7 +361,10 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
             if unwhiten is not None:
                 e = np.einsum("nij,njl->nil", unwhiten[fold == k], e.reshape(-1, 3, len(lam))).reshape(e.shape)
             ss_mm[i] += np.sum(e**2, axis=0)
-    return ss, ss_mm
+        return ss, ss_mm
+
+    parts = list((map if executor is None else executor.map)(scores, np.unique(fold)))
+    return sum(p[0] for p in parts), sum(p[1] for p in parts)
 
 
 def fit_error_map(
@@ -373,13 +379,15 @@ def fit_error_map(
     orders: tuple[int, ...] = ORDERS,
     taus_rad: tuple[float, ...] = TAUS_RAD,
     start: Identification | None = None,
+    executor: Executor | None = None,
 ) -> ErrorMapFit:
     """Fit the joint error map jointly with the geometric model, the stations, the reference points and
     `base` (an unpenalised extension of the same table, e.g. joint_compliance); the harmonic order (one for
     every joint) and the ridge by `folds`-fold cross-validation by pose over `orders` x `taus_rad`.
 
     `start` is the fit without the map (geometry + base) if already computed. A single order and a single
-    tau skip the cross-validation (a fit inside another cross-validation reuses the outer choice)."""
+    tau skip the cross-validation (a fit inside another cross-validation reuses the outer choice). The folds of the
+    search run in `executor` when given (`_cv_scores`)."""
     q = np.radians(table.q_deg)
     geo = start if start is not None else identify(chain, table, tool_points, params, noise, extension=base)
     n_base = 0 if base is None else base.size
@@ -415,8 +423,9 @@ def fit_error_map(
         gram, rhs = jm.T @ jm, jm.T @ r
         downdate = FoldGrams(jm)
         ss, ss_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad],
-                               HeldOutMap(problem, state, names_max), downdate)  # fmt: skip
-        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate)
+                               HeldOutMap(problem, state, names_max), downdate, executor)  # fmt: skip
+        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate,
+                                   executor)  # fmt: skip
         i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
         order, tau = int(orders[i]), float(taus_rad[li])
         cv_rms, cv_without = float(np.sqrt(ss_mm[i, li] / n_coord)), float(np.sqrt(without_mm[0, 0] / n_coord))

@@ -180,7 +180,7 @@ def run_one(c: Campaign, opts: BatchOptions, key: str) -> dict:
             row = {"fit": doc["fit"], "fit_ratio": doc["fit_ratio"], "residual_rms_mm": doc["residual_rms_mm"]}
         elif opts.task == "diagnose":
             v = run_diagnose(DiagnoseOptions(data=c.table, cell=c.cell, json=str(out / f"{key}.verdict.json"),
-                                             params=opts.params, weighting=opts.weighting,
+                                             params=opts.params, weighting=opts.weighting, threads=1,
                                              out=str(out / f"{key}.model.json"))).verdict  # fmt: skip
             row = {"cause": v["cause"], "causes": [x["cause"] for x in v["causes"]],
                    "holdout_geometric_mm": v["holdout"]["rms_geometric_mm"],

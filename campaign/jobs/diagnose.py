@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +17,11 @@ from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
+
+# threads of one diagnosis: the cross-validation folds of the joint map's search are eigendecompositions that release
+# the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
+# run theirs on one
+THREADS = min(os.cpu_count() or 1, 2)
 
 
 @dataclass(frozen=True)
@@ -29,6 +37,7 @@ class DiagnoseOptions:
     seed: int = 0  # of the assignment of poses to folds
     plots: str | None = None  # directory for the residual plots
     out: str | None = None  # model.json of the chosen model
+    threads: int = THREADS  # run independent pieces of the diagnosis at once (1: one after the other)
 
 
 @dataclass
@@ -47,8 +56,9 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
         # list of that many empty blocks); more folds than poses hold out one pose each
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
     params, still = still_warning(cell, table, choose_params(cell, opts.params))
-    d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting, cell.tracker), folds=opts.folds,
-                 seed=opts.seed, tracker=TrackerNoise.of(cell.tracker))  # fmt: skip
+    with ThreadPoolExecutor(opts.threads) if opts.threads > 1 else contextlib.nullcontext() as ex:
+        d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting, cell.tracker),
+                     folds=opts.folds, seed=opts.seed, tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
     digest = sha256_of(table.source)
     doc = verdict_doc(cell, d, digest)
     written = plots(cell, d, Path(opts.plots)) if opts.plots else []
