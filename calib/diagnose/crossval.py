@@ -76,6 +76,7 @@ class Context:
     fits: dict[tuple, Fit] = field(default_factory=dict)  # whole-table fits by sorted causes
     unwhiten: np.ndarray | None = None  # (N, 3, 3) inverse whitening of each row (tracker weighting)
     executor: Executor | None = None  # runs independent pieces (folds) at once when given (threads)
+    scans: dict[bytes | None, tuple | None] = field(default_factory=dict)  # change points found, by rows (`scan`)
 
 
 def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int,
@@ -126,14 +127,24 @@ def _identifiable(gram: np.ndarray) -> bool:
     return bool(ev[0] >= SINGULAR**2 * ev[-1])
 
 
+def scan(ctx: Context, rows: np.ndarray | None = None) -> tuple[str, float] | None:
+    """The change point of `rows` (all by default), `shift_scan`'s, found once per set of rows: the scan sees the
+    geometric prediction, the stations, times and measured points, which neither the models tried nor the joint
+    map's correction of the angles change (issue 26: the same training rows were scanned for every model)."""
+    key = None if rows is None else np.asarray(rows).tobytes()
+    if key not in ctx.scans:
+        table = ctx.table if rows is None else ctx.table.subset(rows)
+        ctx.scans[key] = shift_scan(ctx.geo_base if rows is None else ctx.geo_base[rows], table)
+    return ctx.scans[key]
+
+
 def fit_model(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None, max_iter: int = 100) -> Fit:
     """Fit the geometric model plus `causes` on `rows` of the table (all by default), warm-started at the
     geometric solution; station_shift is found by the scan on those rows, then fitted with the rest."""
     table = ctx.table if rows is None else ctx.table.subset(rows)
-    base = ctx.geo_base if rows is None else ctx.geo_base[rows]
     shift = None
     if SHIFT in causes:
-        found = shift_scan(base, table)
+        found = scan(ctx, rows)
         if found is None:
             raise IdentificationError(f"{table.source}: too few rows for a change point")
         shift = {"station": found[0], "after_t_s": found[1]}
@@ -236,7 +247,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
     errs = []
     for test in folds:
         train = np.setdiff1d(np.arange(n), test)
-        if full.shift is not None and shift_scan(ctx.geo_base[train], ctx.table.subset(train)) != (
+        if full.shift is not None and scan(ctx, train) != (
                 full.shift["station"], full.shift["after_t_s"]):  # fmt: skip
             try:
                 fit = fit_model(ctx, causes, train, FOLD_ITERATIONS)

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
 
-from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift, shift_scan
+from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.crossval import (
     TIME_CAUSES,
     Context,
@@ -53,6 +53,7 @@ from trackcal.calib.diagnose.crossval import (
     extension_of,
     fit_model,
     rms,
+    scan,
     visible_extension,
     whole_fit,
 )
@@ -152,7 +153,7 @@ def final_fit(ctx: Context, causes: tuple[str, ...], main: str | None = None) ->
     """The model `causes` identified with its covariance; `main` names the combined extension."""
     table, shift, n_extra = ctx.table, None, 0
     if SHIFT in causes:
-        found = shift_scan(ctx.geo_base, table)
+        found = scan(ctx)
         if found is None:
             return None
         shift = {"station": found[0], "after_t_s": found[1]}
@@ -325,7 +326,7 @@ def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...
     ctx.table = table  # the rows as measured
     shift = None
     if SHIFT in fitted:
-        found = shift_scan(ctx.geo_base, table)
+        found = scan(ctx)
         shift = {"station": found[0], "after_t_s": found[1]}
         table = relabel_shift(table, *found)
     if not refit:
