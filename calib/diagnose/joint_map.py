@@ -433,7 +433,8 @@ def fit_error_map(
                     for a, h in enumerate(orders) for b, t in enumerate(taus_rad)]  # fmt: skip
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
-        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise, (r, jm))
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise,
+                                  (r, jm, gram if search else jm.T @ jm))  # fmt: skip
     else:
         ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
         problem = Problem(chain, table, geo.points, params, noise, extension=ext)
@@ -573,9 +574,9 @@ def _with_base(base: Extension | None, ext: Extension) -> Extension:
 
 
 def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: float, noise: TrackerNoise | None,
-                   at_start: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Identification, float]:
+                   at_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[Identification, float]:
     """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
-    `state`, the fit without the map (`at_start`: its residual and Jacobian if already formed):
+    `state`, the fit without the map (`at_start`: its residual, Jacobian and Gram matrix if already formed):
     (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
 
     It stops as `calib.identify.solver.solve` does: when a step, or all the steps still to come after it (the rate of
@@ -585,9 +586,12 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
     pen = np.zeros(problem.n_cols)
     pen[k0 : k0 + n_map] = lam
     converged, prev, iterations = False, 0.0, 0
-    r, jm = problem.residual_and_jacobian(state) if at_start is None else at_start
-    for _ in range(GN_ITERATIONS):
+    if at_start is None:
+        r, jm = problem.residual_and_jacobian(state)
         gram = jm.T @ jm
+    else:
+        r, jm, gram = at_start
+    for _ in range(GN_ITERATIONS):
         scale = np.sqrt(np.diag(gram))
         scale[scale == 0] = 1.0
         x = np.zeros(problem.n_cols)
@@ -598,11 +602,11 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
         step, tol = float(np.linalg.norm(jm @ (ds / scale))), 1e-9 * float(np.linalg.norm(r))
         rate = step / prev if prev > 0 else 1.0
         r, jm = problem.residual_and_jacobian(state)
+        gram = jm.T @ jm
         if step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol):
             converged = True
             break
         prev = step
-    gram = jm.T @ jm
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram /= np.outer(scale, scale)
