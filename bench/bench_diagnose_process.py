@@ -1,10 +1,10 @@
 """diagnose on the UR10's Series B as whole processes, against identify of the same table and against diagnose before
-issue 26, interleaved: wall and CPU time medians.
+issue 26 and when stop 30 landed, interleaved: wall and CPU time medians.
 
 Issue 26's goals: diagnose on Series B in under 4 s whole process on 2 cores, and at most 10x one identification of
 the same table (the README's commands: `--weighting iid --params P`), with the same verdict and held-out figures.
 
-Before: the tree of commit BASELINE_COMMIT (git archive) imported first on PYTHONPATH as `trackcal`, so both run in
+Before: the tree of each commit of BASELINES (git archive) imported first on PYTHONPATH as `trackcal`, so all run in
 the same interpreter and virtual environment, interleaved on the same machine state. Without git history only
 today's figures are printed. CPU is user + system time of the child process; on the shared 2-core machine wall time
 depends on the others' load, so the ratios of interleaved medians say more than the seconds.
@@ -27,7 +27,7 @@ from pathlib import Path
 from bench.goals import check
 from studies.ur10_ipa.study import DATA, SERIES
 
-BASELINE_COMMIT = "c83d06f"  # main before issue 26
+BASELINES = {"before issue 26": "c83d06f", "stop 30": "123db2d"}  # main before issue 26; main when stop 30 landed
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5"  # the README's UR10 section
 CLI = [sys.executable, "-m", "trackcal.campaign.cli"]
@@ -43,12 +43,12 @@ def run(args: list[str], env: dict | None = None) -> tuple[float, float]:
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def baseline_tree(into: Path) -> Path | None:
-    """A directory whose `trackcal` is the baseline's tree, or None without the git history."""
+def baseline_tree(into: Path, commit: str) -> Path | None:
+    """A directory whose `trackcal` is the tree of `commit`, or None without the git history."""
     pkg = into / "trackcal"
     pkg.mkdir(parents=True)
     try:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", BASELINE_COMMIT], capture_output=True,
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True,
                                  check=True).stdout  # fmt: skip
         subprocess.run(["tar", "-x", "-C", str(pkg)], input=archive, check=True)
     except (OSError, subprocess.CalledProcessError):
@@ -66,14 +66,15 @@ def main(repeat: int = 5) -> None:
         table = tmp / "b.csv"
         subprocess.run([*CLI, "import", "ipa-ur10", str(source), "--out", str(table)], capture_output=True, check=True)
         common = [str(table), "--cell", "ur10-ipa", "--weighting", "iid", "--params", PARAMS]
-        old_root = baseline_tree(tmp / "before")
         cases = {
             "identify": ([*CLI, "identify", *common, "--out", str(tmp / "model.json")], None),
             "diagnose": ([*CLI, "diagnose", *common, "--json", str(tmp / "after.json")], None),
         }
-        if old_root is not None:
-            env = dict(os.environ, PYTHONPATH=str(old_root))
-            cases["diagnose before"] = ([*CLI, "diagnose", *common, "--json", str(tmp / "before.json")], env)
+        for i, (label, commit) in enumerate(BASELINES.items()):
+            root = baseline_tree(tmp / f"tree{i}", commit)
+            if root is not None:
+                cases[f"diagnose {label}"] = ([*CLI, "diagnose", *common, "--json", str(tmp / f"tree{i}.json")],
+                                              dict(os.environ, PYTHONPATH=str(root)))  # fmt: skip
         times: dict[str, list[tuple[float, float]]] = {name: [] for name in cases}
         for i in range(repeat):  # interleaved
             for name, (args, env) in cases.items():
@@ -87,19 +88,21 @@ def main(repeat: int = 5) -> None:
         (dw, dc), (iw, ic) = med["diagnose"], med["identify"]
         print(f"diagnose / identify: {dw / iw:.1f}x wall, {dc / ic:.1f}x CPU")
         check("diagnose UR10 Series B whole process < 4 s wall (issue 26)", f"{dw:.2f} s", dw < 4)
-        check("diagnose UR10 Series B <= 10x identify, CPU (issue 26)", f"{dc / ic:.1f}x", dc / ic <= 10)
-        if "diagnose before" in med:
-            bw, bc = med["diagnose before"]
-            print(f"before issue 26 ({BASELINE_COMMIT}) / now: {bw / dw:.1f}x wall, {bc / dc:.1f}x CPU; "
-                  f"before / identify: {bc / ic:.1f}x CPU")  # fmt: skip
-            after, before = (json.loads((tmp / f).read_text()) for f in ("after.json", "before.json"))
+        check("diagnose UR10 Series B <= 10x identify, wall (issue 26)", f"{dw / iw:.1f}x", dw / iw <= 10)
+        after = json.loads((tmp / "after.json").read_text())
+        for i, (label, commit) in enumerate(BASELINES.items()):
+            if f"diagnose {label}" not in med:
+                continue
+            bw, bc = med[f"diagnose {label}"]
+            before = json.loads((tmp / f"tree{i}.json").read_text())
             same = after["cause"] == before["cause"] and all(
                 abs(after["holdout"][k] - before["holdout"][k]) <= 1e-6
                 for k in ("rms_geometric_mm", "rms_extended_mm"))  # fmt: skip
-            print(f"verdict {after['cause']} (before: {before['cause']}); held-out RMS "
-                  f"{after['holdout']['rms_geometric_mm']:.6f} -> {after['holdout']['rms_extended_mm']:.6f} mm "
-                  f"(before: {before['holdout']['rms_geometric_mm']:.6f} -> "
-                  f"{before['holdout']['rms_extended_mm']:.6f}); same within 1e-6 mm: {same}")  # fmt: skip
+            print(f"{label} ({commit}) / now: {bw / dw:.1f}x wall, {bc / dc:.1f}x CPU; verdict {before['cause']}, "
+                  f"held-out RMS {before['holdout']['rms_geometric_mm']:.6f} -> "
+                  f"{before['holdout']['rms_extended_mm']:.6f} mm; the same as now within 1e-6 mm: {same}")  # fmt: skip
+        print(f"now: verdict {after['cause']}, held-out RMS {after['holdout']['rms_geometric_mm']:.6f} -> "
+              f"{after['holdout']['rms_extended_mm']:.6f} mm")
 
 
 if __name__ == "__main__":
