@@ -213,8 +213,9 @@ def test_series_b_verdict_and_held_out_figures_are_unchanged(tmp_path: Path):
 
 
 def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
-    """The folds of the joint map's search solved in a thread pool and summed in fold order: every candidate's
-    figures equal those of the diagnosis without threads, to the last bit."""
+    """The folds of the joint map's search and of the structure test solved in a thread pool, put together in fold
+    order: every candidate's figures and the structure test equal those of the diagnosis without threads, to the
+    last bit."""
     table, params, geo = twin_case
     plain = selection.diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo)
     with ThreadPoolExecutor(2) as ex:
@@ -226,3 +227,5 @@ def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
     assert figures == [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
                        for c in threaded.candidates]  # fmt: skip
     assert (plain.cause, plain.holdout_extended_mm) == (threaded.cause, threaded.holdout_extended_mm)
+    assert plain.structure == threaded.structure  # the smoother test folds in threads
+    assert "cross-validated smoother" in [t["test"] for t in plain.structure["tests"]]
