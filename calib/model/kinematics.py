@@ -7,6 +7,15 @@ the complete model is applied, so a deviation of any parameter is honoured exact
 Jacobian column is the exact derivative at the current deviations (not only at nominal):
   translation along axis a of frame F:  dp = R_F[:, a]
   rotation about axis a of frame F:     dp = R_F[:, a] x (p - o_F)
+
+Layout: the chain is walked with the coordinate first and the rows last, a rotation held by its columns
+r (3, 3, N) (r[a] is the a-th column of every row's rotation, (3, N)) and an origin as o (3, N). Every step of
+the walk is then a handful of numpy operations on contiguous arrays of all the rows, where the rows-first
+layout (N, 3, 3) took one small BLAS call per row for each product with a fixed matrix or vector (issue 26: a
+forward pass of the UR10's 1495 rows cost ~2 ms). The products with fixed vectors and matrices are written out
+term by term (`_combine`), skipping zero coefficients, so that a row's result never depends on the others.
+`PointJacobian` keeps this layout (its `*_t` arrays, what the solver uses) and gives the rows-first arrays
+(N, 3, ...) of its public properties.
 """
 
 from __future__ import annotations
@@ -18,72 +27,121 @@ import numpy as np
 
 from trackcal.calib.model.chain import Chain, ChainError
 from trackcal.calib.model.params import Param, complete_params
-from trackcal.calib.model.rigid import rot_axis, skew
+from trackcal.calib.model.rigid import rot_axis
+
+
+def _rows_first(a: np.ndarray) -> np.ndarray:
+    """(3, k, N) -> (N, 3, k), contiguous."""
+    return np.ascontiguousarray(a.transpose(2, 0, 1))
 
 
 class PointJacobian:
     """Point and Jacobians of N rows, built from the frames of their M distinct poses (`rows` gives each row's
     pose). Every column is linear in the point p of its row: a rotation about axis w through o gives
-    w x (p - o) = (o x w) - [p]x w, so per pose the chain leaves (o x w) and w, and per row one batched
-    product [p]x w remains. The derivatives are computed when first asked for (identification never needs
-    the joint columns)."""
+    w x (p - o) = (o x w) - p x w, so per pose the chain leaves (o x w) and w, and per row one batched
+    cross product p x w remains. The derivatives are computed when first asked for (identification never needs
+    the joint columns). The `*_t` arrays have the coordinate first and the rows last (the layout of the walk);
+    the public properties are rows first."""
 
-    def __init__(self, p, r_end, pose_p, pose_w, joint_o, joint_w, rows):
-        self.p = p  # (N, 3) point in the robot base frame, mm
-        self._r_end, self._rows = r_end, rows
-        self._pose_p, self._pose_w = pose_p, pose_w  # (M, 3, k): translation axis | o x w; 0 | w
-        self._joint_o, self._joint_w = joint_o, joint_w  # (M, 3, n): origin and axis of every joint
+    def __init__(self, p_t, r_end, pose_p, pose_w, joint_o, joint_w, rows):
+        self.p_t = p_t  # (3, N) point in the robot base frame, mm
+        self._r_end, self._rows = r_end, rows  # columns (3, 3, M) of the last joint frame's rotation
+        self._pose_p, self._pose_w = pose_p, pose_w  # (3, k, M): translation axis | o x w; 0 | w
+        self._joint_o, self._joint_w = joint_o, joint_w  # (3, n, M): origin and axis of every joint
 
     def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
-        return per_pose if self._rows is None else per_pose[self._rows]
+        return per_pose if self._rows is None else per_pose[..., self._rows]
 
     def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
-        return self._per_row(pose_p) - skew(self.p) @ self._per_row(pose_w)
+        return self._per_row(pose_p) - cross3(self.p_t[:, None], self._per_row(pose_w), axis=0)
+
+    @cached_property
+    def d_params_t(self) -> np.ndarray:
+        """(3, k, N) derivative w.r.t. the selected parameters (mm/mm, mm/rad), coordinate first."""
+        return self._columns(self._pose_p, self._pose_w)
+
+    @cached_property
+    def d_point_t(self) -> np.ndarray:
+        """(3, 3, N) derivative w.r.t. the tool point coordinates (= end rotation), coordinate first."""
+        return self._per_row(self._r_end.transpose(1, 0, 2))
+
+    @cached_property
+    def d_q_t(self) -> np.ndarray:
+        """(3, n, N) derivative w.r.t. the joint angles (mm/rad), coordinate first."""
+        return self._columns(cross3(self._joint_o, self._joint_w, axis=0), self._joint_w)
+
+    @cached_property
+    def p(self) -> np.ndarray:
+        """(N, 3) point in the robot base frame, mm."""
+        return np.ascontiguousarray(self.p_t.T)
 
     @cached_property
     def d_params(self) -> np.ndarray:
         """(N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)."""
-        return self._columns(self._pose_p, self._pose_w)
+        return _rows_first(self.d_params_t)
 
     @cached_property
     def d_point(self) -> np.ndarray:
         """(N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)."""
-        return self._per_row(self._r_end)
+        return _rows_first(self.d_point_t)
 
     @cached_property
     def d_q(self) -> np.ndarray:
         """(N, 3, n) derivative w.r.t. the joint angles (mm/rad)."""
-        return self._columns(cross3(self._joint_o, self._joint_w), self._joint_w)
+        return _rows_first(self.d_q_t)
 
     @cached_property
     def joint_axes(self) -> np.ndarray:
         """(N, 3, n) unit axis of each joint in the base frame (signed)."""
-        return self._per_row(self._joint_w)
+        return _rows_first(self._per_row(self._joint_w))
 
     @cached_property
     def rot_axes(self) -> np.ndarray:
         """(N, 3, k) axis of each rotational parameter (zeros for translations)."""
-        return self._per_row(self._pose_w)
+        return _rows_first(self._per_row(self._pose_w))
 
 
-def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product along axis 1 with broadcasting (faster than np.cross for small batched arrays)."""
-    return np.stack(
-        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-         a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]],
-        axis=1,
-    )  # fmt: skip
+def cross3(a: np.ndarray, b: np.ndarray, axis: int = 1) -> np.ndarray:
+    """Cross product along `axis` (the vectors' coordinates) with broadcasting (faster than np.cross for small
+    batched arrays). Written into one output with one scratch array: temporaries of this size cost more to
+    allocate than to fill."""
+    a, b = np.moveaxis(a, axis, 0), np.moveaxis(b, axis, 0)
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape[1 : axis + 1] + (3,) + shape[axis + 1 :])
+    out_c, scratch = np.moveaxis(out, axis, 0), np.empty(shape[1:])
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        np.multiply(a[j], b[k], out=out_c[i])
+        np.subtract(out_c[i], np.multiply(a[k], b[j], out=scratch), out=out_c[i])
+    return out
 
 
 def turned(r: np.ndarray, axis: int, cos, sin) -> np.ndarray:
-    """r @ rot_axis(axis, angle) for rotations r (N, 3, 3): the turn mixes two columns of r (cos, sin of the
-    angle: scalars or (N, 1))."""
+    """r @ rot_axis(axis, angle) for rotations given by their columns r (3, 3, N) (r[a]: the a-th column of each):
+    the turn mixes two columns (cos, sin of the angle: scalars or (N,))."""
     i, j = (axis + 1) % 3, (axis + 2) % 3
     out = np.empty_like(r)
-    out[:, :, axis] = r[:, :, axis]
-    out[:, :, i] = r[:, :, i] * cos + r[:, :, j] * sin
-    out[:, :, j] = r[:, :, j] * cos - r[:, :, i] * sin
+    out[axis] = r[axis]
+    out[i] = r[i] * cos + r[j] * sin
+    out[j] = r[j] * cos - r[i] * sin
     return out
+
+
+def _combine(vectors: np.ndarray, coef: np.ndarray) -> np.ndarray | None:
+    """sum_a coef[a] * vectors[a] over the three stacked vectors (3, 3, N), terms with a zero coefficient left out
+    (None when every one is zero)."""
+    out = None
+    for a in range(3):
+        if coef[a] != 0.0:
+            term = vectors[a] * coef[a]
+            out = term if out is None else out + term
+    return out
+
+
+def _times(r: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """r @ m for rotations given by their columns r (3, 3, N) and one fixed matrix m (3, 3): column b of the
+    product is sum_a m[a, b] r[a]."""
+    return np.stack([_combine(r, m[:, b]) for b in range(3)])
 
 
 class Kinematics:
@@ -98,6 +156,11 @@ class Kinematics:
         for p in self.params:
             if p not in complete:
                 raise ChainError(f"parameter {p.name} is not part of chain {chain.name}")
+        # the frame each parameter acts in (`_forward`'s keys), rotations and translations apart
+        self._rot = [i for i, p in enumerate(self.params) if p.kind != "p"]
+        self._rot_keys = [(p.joint, "dq") if p.kind == "dq" else (p.joint, "phi", p.axis)
+                          for p in self.params if p.kind != "p"]  # fmt: skip
+        self._trans = [i for i, p in enumerate(self.params) if p.kind == "p"]
 
     def _split(self, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = self.chain.dof
@@ -114,35 +177,39 @@ class Kinematics:
     def end_frames(self, q: np.ndarray, dev: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(R, o): rotation (N, 3, 3) and origin (N, 3) of the last joint frame in the base frame."""
         r, o, _ = self._forward(np.atleast_2d(q), dev, record=False)
-        return r, o
+        return np.ascontiguousarray(r.transpose(2, 1, 0)), np.ascontiguousarray(o.T)
 
     def _forward(self, q: np.ndarray, dev: np.ndarray | None, record: bool):
+        """The last joint frame of every row of q (M, n): its rotation by columns r (3, 3, M) and its origin o
+        (3, M); with `record`, the frame (axis | rotation, origin) each parameter acts in."""
         chain = self.chain
         n_rows = q.shape[0]
         if q.shape[1] != chain.dof:
             raise ChainError(f"expected {chain.dof} joint values per row, got {q.shape[1]}")
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
-        r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
-        o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
+        r = np.repeat(chain.base[:3, :3].T[:, :, None], n_rows, axis=2)
+        o = np.repeat(chain.base[:3, 3, None], n_rows, axis=1)
         # r and o are replaced, never changed in place, so the recorded frames may share their memory
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
-                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o)
-            angle = joint.sign * (q[:, j, None] + dq[j])
+                frames[(j, "dq")] = (joint.sign * r[joint.axis], o)
+            angle = joint.sign * (q[:, j] + dq[j])
             r = turned(r, joint.axis, np.cos(angle), np.sin(angle))
             if record:
                 frames[(j, "p")] = (r, None)
-            o = o + r @ (joint.translation + dt[j])
+            step = _combine(r, joint.translation + dt[j])
+            if step is not None:
+                o = o + step
             for a in range(3):
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[:, :, a], o)
+                    frames[(j, "phi", a)] = (r[a], o)
                 if dphi[j, a] != 0.0:
                     r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
             if not self._plain[j]:
-                r = r @ joint.rotation
+                r = _times(r, joint.rotation)
         return r, o, frames
 
     def points(
@@ -150,11 +217,8 @@ class Kinematics:
     ) -> np.ndarray:
         """Points (N, 3) in the base frame; q (N, n) rad, tool (N, 3) or (3,) in the last joint frame; with
         `rows` (N,) q holds the distinct poses and rows[i] is the pose of row i, as in `jacobian`."""
-        r, o = self.end_frames(q, dev)
-        if rows is not None:
-            r, o = r[rows], o[rows]
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
-        return o + np.einsum("nij,nj->ni", r, tool)
+        r, o, _ = self._forward(np.atleast_2d(q), dev, record=False)
+        return np.ascontiguousarray(_tool_point(r, o, tool, rows).T)
 
     def jacobian(
         self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None, rows: np.ndarray | None = None
@@ -165,19 +229,17 @@ class Kinematics:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
         k, n = len(self.params), self.chain.dof
-        pose_t, pose_w, pose_o = (np.zeros((len(q), 3, k)) for _ in range(3))
-        for i, par in enumerate(self.params):
-            if par.kind == "p":
-                pose_t[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
-            else:
-                key = (par.joint, "dq") if par.kind == "dq" else (par.joint, "phi", par.axis)
-                pose_w[:, :, i], pose_o[:, :, i] = frames[key]
-        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=2)
-        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2)
-        r_rows, o_rows = (r, o) if rows is None else (r[rows], o[rows])
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o_rows.shape)
-        p = o_rows + (r_rows @ tool[:, :, None])[:, :, 0]
-        return PointJacobian(p, r, pose_t + cross3(pose_o, pose_w), pose_w, joint_o, joint_w, rows)
+        pose_p, pose_w = np.zeros((3, k, len(q))), np.zeros((3, k, len(q)))
+        for i in self._trans:
+            par = self.params[i]
+            pose_p[:, i] = frames[(par.joint, "p")][0][par.axis]
+        if self._rot:
+            w = np.stack([frames[key][0] for key in self._rot_keys], axis=1)
+            pose_w[:, self._rot] = w
+            pose_p[:, self._rot] = cross3(np.stack([frames[key][1] for key in self._rot_keys], axis=1), w, axis=0)
+        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=1)
+        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=1)
+        return PointJacobian(_tool_point(r, o, tool, rows), r, pose_p, pose_w, joint_o, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""
@@ -200,6 +262,16 @@ class Kinematics:
         mask = self.upstream()[None, None]
         return np.where(mask, up, out)
 
+
+
+def _tool_point(r: np.ndarray, o: np.ndarray, tool: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    """(3, N) the tool point (N, 3) or (3,) of every row from its pose's frame (columns r (3, 3, M), origin
+    (3, M)); `rows` gives each row's pose (None: a pose per row)."""
+    if rows is not None:
+        r, o = r[..., rows], o[:, rows]
+    t = np.asarray(tool, dtype=float).T
+    t = t[:, None] if t.ndim == 1 else t
+    return o + (r[0] * t[0] + r[1] * t[1] + r[2] * t[2])
 
 def calibrated_chain(chain: Chain, params: list[Param], dev: np.ndarray) -> Chain:
     """The chain with the deviations `dev` of `params` folded into its nominal geometry: its forward kinematics at
