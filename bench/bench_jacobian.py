@@ -49,6 +49,7 @@ TOLERANCE = 1e-12  # largest difference allowed, relative to the output's magnit
 
 def baseline_modules() -> types.SimpleNamespace | None:
     """The baseline's kinematics and solver modules (its solver on its kinematics), or None without git history."""
+
     def load(name: str, path: str) -> types.ModuleType:
         source = subprocess.run(["git", "-C", str(ROOT), "show", f"{BASELINE_COMMIT}:{path}"], capture_output=True,
                                 check=True, text=True).stdout  # fmt: skip
@@ -164,9 +165,11 @@ def main(repeat: int = 15) -> None:
             print(f"{name:34s} {fn:22s} {before:9.2f} {after:9.2f} {before / after:6.2f} {diff:12.1e}")
     if base is not None:
         ratio = totals["old"] / totals["new"]
-        print(f"sum of medians: before {totals['old']:.1f} ms, after {totals['new']:.1f} ms: {ratio:.2f}x; "
-              f"{check('solver pass: same outputs', f'max rel diff {worst:.1e}', worst <= TOLERANCE)} "
-              f"(<= {TOLERANCE:g}), {check('solver pass: 2x faster', f'{ratio:.2f}x', ratio >= 2.0)} (>= 2x)")
+        print(
+            f"sum of medians: before {totals['old']:.1f} ms, after {totals['new']:.1f} ms: {ratio:.2f}x; "
+            f"{check('solver pass: same outputs', f'max rel diff {worst:.1e}', worst <= TOLERANCE)} "
+            f"(<= {TOLERANCE:g}), {check('solver pass: 2x faster', f'{ratio:.2f}x', ratio >= 2.0)} (>= 2x)"
+        )
 
 
 if __name__ == "__main__":

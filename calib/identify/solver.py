@@ -156,11 +156,15 @@ class _Chunk(NamedTuple):
     """Rows of one chunk of the normal equations, ordered by (station, point), with what every pass reuses."""
 
     rows: np.ndarray  # table rows
-    order: np.ndarray  # position of each among the rows the chunk was made from
+    order: np.ndarray | None  # position of each among the rows the chunk was made from (None: the same order)
     poses: np.ndarray  # the distinct poses of those rows
-    of_row: np.ndarray  # index into poses of each row
+    of_row: np.ndarray | None  # index into poses of each row (None: a pose per row, in order)
     groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
     # unknowns, and the block of the normal matrix those columns make (np.ix_)
+    take: np.ndarray | slice  # selects the rows from per-row arrays: `rows`, or the slice they make
+    stations: list[tuple[slice, int]]  # rows of one station, and its index
+    xyz: np.ndarray  # (n, 3) their measurements
+    w: np.ndarray | None  # (n, 3, 3) their whitening
 
 
 class Problem:
@@ -221,9 +225,9 @@ class Problem:
         self.pose_first, self.row_pose = _distinct_poses(
             self.q, None if extension is None else extension.joint_features)
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
+        self.w = None if noise is None else noise.whitening(self.xyz)
         order = np.argsort(self.row_pose, kind="stable")
         self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
-        self.w = None if noise is None else noise.whitening(self.xyz)
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
@@ -240,15 +244,28 @@ class Problem:
         order = np.argsort(group, kind="stable")
         rows, group = rows[order], group[order]
         poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
+        of_row = of_row.ravel()
+        if len(poses) == len(rows):  # no two rows share a pose: the chain walked for the rows in their order
+            poses, of_row = self.row_pose[rows], np.arange(len(rows))
         starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
         ends = np.r_[starts[1:], len(rows)]
         c_pt = self.c_st + 6 * self.n_st
-        groups = []
+        groups, stations = [], []
         for a, b in zip(starts, ends, strict=True):
             s, p = divmod(int(group[a]), self.n_pt)
             cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
             groups.append((slice(a, b), cols, np.ix_(cols, cols)))
-        return _Chunk(rows, order, poses, of_row.ravel(), groups)
+            if stations and stations[-1][1] == s:
+                stations[-1] = (slice(stations[-1][0].start, b), s)
+            else:
+                stations.append((slice(a, b), s))
+        # what is in order needs no index: a slice of a per-row array is a view, an index copies (the joint error
+        # map's features: tens of MB per pass; issue 26)
+        in_order = len(rows) == 0 or bool(np.all(np.diff(rows) == 1))
+        take = slice(int(rows[0]), int(rows[-1]) + 1) if in_order and len(rows) else rows
+        return _Chunk(rows, None if np.array_equal(order, np.arange(len(order))) else order, poses,
+                      None if np.array_equal(of_row, np.arange(len(of_row))) else of_row, groups, take, stations,
+                      self.xyz[take], None if self.w is None else self.w[take])  # fmt: skip
 
     @cached_property
     def _every_row(self) -> _Chunk:
@@ -279,30 +296,42 @@ class Problem:
     def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals (n, 3) of the chunk's rows and the non-zero blocks of their Jacobian (n, 3, m):
         the columns of the robot and extension, of the row's station (v, w) and of its point, in that order."""
-        rows, k, c = ch.rows, self.k, self.c_st
-        st_idx, pt_idx = self.st_idx[rows], self.pt_idx[rows]
-        rs = np.array([st.rotation for st in s.stations])[st_idx]
-        ts = np.array([st.translation for st in s.stations])[st_idx]
-        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[pt_idx], s.dev, rows=ch.of_row)
+        rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
+        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev,
+                                rows=ch.of_row)  # fmt: skip
         p, d_params, d_point = jac.p, jac.d_params, jac.d_point
-        w = None if self.w is None else self.w[rows]
-        m = rs if w is None else w @ rs  # station frame, then whitening: one product per row for both
+        # the station frame, then the whitening: one product per row for both (a chunk of one station, unwhitened:
+        # the station's rotation for every row)
+        if len(ch.stations) == 1:
+            st = s.stations[ch.stations[0][1]]
+            rs, ts = st.rotation, st.translation
+        else:
+            rs, ts = np.empty((len(rows), 3, 3)), np.empty((len(rows), 3))
+            for sl, i in ch.stations:
+                rs[sl], ts[sl] = s.stations[i].rotation, s.stations[i].translation
+        w = ch.w
+        m = rs if w is None else w @ rs
         jc = np.empty((len(rows), 3, c + 9))
-        jc[:, :, k:c] = 0.0
         g = self._growth(s)
+        joint = self.ext is not None and self.ext.joint_features is not None
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
-            grow = (1.0 + g[rows])[:, None, None]
+            grow = (1.0 + g[take])[:, None, None]
             rel = p - self.ext.pivot
-            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[rows][:, None, :]
+            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[take][:, None, :]
             p = self.ext.pivot + grow[:, :, 0] * rel
             d_params, d_point = grow * d_params, grow * d_point
-        if self.ext is not None and self.ext.joint_features is not None:
+        elif not joint:
+            jc[:, :, k:c] = 0.0
+        if joint:
             d_q = jac.d_q if g is None else grow * jac.d_q
-            jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[rows]
-        xs = (rs @ p[:, :, None])[:, :, 0] + ts
+            if g is None:
+                np.matmul(m @ d_q, self.ext.joint_features[take], out=jc[:, :, k:c])
+            else:
+                jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[take]
+        xs = (p @ rs.T if rs.ndim == 2 else (rs @ p[:, :, None])[:, :, 0]) + ts
         np.matmul(m, d_params, out=jc[:, :, :k])
         np.matmul(m, d_point, out=jc[:, :, c + 6 :])
-        r = self.xyz[rows] - xs
+        r = ch.xyz - xs
         if w is None:
             jc[:, :, c : c + 3] = np.eye(3)
             jc[:, :, c + 3 : c + 6] = -skew(xs)
@@ -327,6 +356,8 @@ class Problem:
         of the given `rows` (their residuals and Jacobian rows, in that order)."""
         ch = self._every_row if rows is None else self._chunk(np.asarray(rows))
         rb, jc = self._blocks(s, ch)
+        if ch.order is None:
+            return rb.ravel(), self._dense(ch, jc)
         r, jm = np.empty_like(rb), np.empty((len(ch.rows), 3, self.n_cols))
         r[ch.order], jm[ch.order] = rb, self._dense(ch, jc).reshape(-1, 3, self.n_cols)
         return r.ravel(), jm.reshape(-1, self.n_cols)

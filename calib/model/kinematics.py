@@ -53,7 +53,17 @@ class PointJacobian:
         return per_pose if self._rows is None else per_pose[..., self._rows]
 
     def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
-        return self._per_row(pose_p) - cross3(self.p_t[:, None], self._per_row(pose_w), axis=0)
+        """(3, k, N) per row: pose_p - p x pose_w, written into one array (those of this size cost more to
+        allocate than to fill)."""
+        out = pose_p.copy() if self._rows is None else pose_p[..., self._rows]
+        w, p = self._per_row(pose_w), self.p_t[:, None]
+        cross, scratch = np.empty(out.shape[1:]), np.empty(out.shape[1:])
+        for i in range(3):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            np.multiply(p[j], w[k], out=cross)
+            cross -= np.multiply(p[k], w[j], out=scratch)
+            out[i] -= cross
+        return out
 
     @cached_property
     def d_params_t(self) -> np.ndarray:
@@ -122,26 +132,29 @@ def turned(r: np.ndarray, axis: int, cos, sin) -> np.ndarray:
     i, j = (axis + 1) % 3, (axis + 2) % 3
     out = np.empty_like(r)
     out[axis] = r[axis]
-    out[i] = r[i] * cos + r[j] * sin
-    out[j] = r[j] * cos - r[i] * sin
+    np.multiply(r[i], cos, out=out[i])
+    out[i] += r[j] * sin
+    np.multiply(r[j], cos, out=out[j])
+    out[j] -= r[i] * sin
     return out
 
 
 def _combine(vectors: np.ndarray, coef: np.ndarray) -> np.ndarray | None:
-    """sum_a coef[a] * vectors[a] over the three stacked vectors (3, 3, N), terms with a zero coefficient left out
-    (None when every one is zero)."""
+    """sum_a coef[a] * vectors[a] over the three stacked vectors (3, 3, N), in the order a = 0, 1, 2, terms with a
+    zero coefficient left out and a unit one not multiplied (the same sum, exactly); None when every one is zero.
+    May return a view of `vectors`."""
     out = None
     for a in range(3):
         if coef[a] != 0.0:
-            term = vectors[a] * coef[a]
+            term = vectors[a] if coef[a] == 1.0 else vectors[a] * coef[a]
             out = term if out is None else out + term
     return out
 
 
 def _times(r: np.ndarray, m: np.ndarray) -> np.ndarray:
     """r @ m for rotations given by their columns r (3, 3, N) and one fixed matrix m (3, 3): column b of the
-    product is sum_a m[a, b] r[a]."""
-    return np.stack([_combine(r, m[:, b]) for b in range(3)])
+    product is sum_a m[a, b] r[a] (einsum's loop sums in that order, the same as `_combine`)."""
+    return np.einsum("ab,aim->bim", m, r)
 
 
 class Kinematics:
@@ -152,6 +165,7 @@ class Kinematics:
         self.params = list(params)
         self.index = {p: i for i, p in enumerate(self.params)}
         self._plain = [np.array_equal(joint.rotation, np.eye(3)) for joint in chain.joints]  # no fixed rotation
+        self._signs = np.array([joint.sign for joint in chain.joints], dtype=float)
         complete = set(complete_params(chain))
         for p in self.params:
             if p not in complete:
@@ -187,6 +201,8 @@ class Kinematics:
         if q.shape[1] != chain.dof:
             raise ChainError(f"expected {chain.dof} joint values per row, got {q.shape[1]}")
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
+        angle = (q + dq).T * self._signs[:, None]  # (n, M)
+        cos, sin = np.cos(angle), np.sin(angle)
         r = np.repeat(chain.base[:3, :3].T[:, :, None], n_rows, axis=2)
         o = np.repeat(chain.base[:3, 3, None], n_rows, axis=1)
         # r and o are replaced, never changed in place, so the recorded frames may share their memory
@@ -194,21 +210,25 @@ class Kinematics:
         for j, joint in enumerate(chain.joints):
             if record:
                 frames[(j, "dq")] = (joint.sign * r[joint.axis], o)
-            angle = joint.sign * (q[:, j] + dq[j])
-            r = turned(r, joint.axis, np.cos(angle), np.sin(angle))
+            r = turned(r, joint.axis, cos[j], sin[j])
             if record:
                 frames[(j, "p")] = (r, None)
             step = _combine(r, joint.translation + dt[j])
             if step is not None:
                 o = o + step
+            # the rest of the link is one fixed rotation: the deviations about the other two axes, in order, then
+            # the nominal rotation, multiplied once and applied in one product
+            link = None  # the deviations' rotations so far (None: none)
             for a in range(3):
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[a], o)
+                    frames[(j, "phi", a)] = (r[a] if link is None else _combine(r, link[:, a]), o)  # axis a of r link
                 if dphi[j, a] != 0.0:
-                    r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
-            if not self._plain[j]:
+                    link = rot_axis(a, dphi[j, a]) if link is None else link @ rot_axis(a, dphi[j, a])
+            if link is not None:
+                r = _times(r, link @ joint.rotation)
+            elif not self._plain[j]:
                 r = _times(r, joint.rotation)
         return r, o, frames
 
@@ -263,7 +283,6 @@ class Kinematics:
         return np.where(mask, up, out)
 
 
-
 def _tool_point(r: np.ndarray, o: np.ndarray, tool: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     """(3, N) the tool point (N, 3) or (3,) of every row from its pose's frame (columns r (3, 3, M), origin
     (3, M)); `rows` gives each row's pose (None: a pose per row)."""
@@ -272,6 +291,7 @@ def _tool_point(r: np.ndarray, o: np.ndarray, tool: np.ndarray, rows: np.ndarray
     t = np.asarray(tool, dtype=float).T
     t = t[:, None] if t.ndim == 1 else t
     return o + (r[0] * t[0] + r[1] * t[1] + r[2] * t[2])
+
 
 def calibrated_chain(chain: Chain, params: list[Param], dev: np.ndarray) -> Chain:
     """The chain with the deviations `dev` of `params` folded into its nominal geometry: its forward kinematics at
