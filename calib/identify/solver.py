@@ -126,6 +126,26 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
 
 
 
+def _selector(rows: np.ndarray) -> np.ndarray | slice:
+    """What selects `rows` from per-row arrays: the slice they make when they follow each other (a view, where an
+    index copies: the joint error map's features are tens of MB; issue 26), else the rows themselves."""
+    if len(rows) and bool(np.all(np.diff(rows) == 1)):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
+def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """m @ cols row by row, rows first (n, 3, c), from columns given coordinate first (3, c, n); m (3, 3) the same
+    for every row (then one product for all the rows, where a product per row cost ~80 ns each) or (n, 3, 3)."""
+    if m.ndim == 2:
+        prod = (m @ cols.reshape(3, -1)).reshape(cols.shape).transpose(2, 0, 1)
+        if out is None:
+            return np.ascontiguousarray(prod)
+        out[...] = prod
+        return out
+    return np.matmul(m, cols.transpose(2, 0, 1), out=out)
+
+
 def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
     features (N, n, e), equal features, in np.unique's order of the key [q, features].
@@ -193,10 +213,13 @@ class Problem:
                     f"(the tool defines {', '.join(sorted(tool_points))})"
                 )
         self.chain, self.params, self.noise, self.source = chain, list(params), noise, source
-        self.station_ids = sorted(set(table.station), key=table.station.index)
-        self.point_ids = sorted(set(table.point), key=table.point.index)
-        self.st_idx = np.array([self.station_ids.index(s) for s in table.station])
-        self.pt_idx = np.array([self.point_ids.index(p) for p in table.point])
+        self.station_ids = list(dict.fromkeys(table.station))  # in order of first appearance
+        self.point_ids = list(dict.fromkeys(table.point))
+        st_of, pt_of = {s: i for i, s in enumerate(self.station_ids)}, {p: i for i, p in enumerate(self.point_ids)}
+        self.st_idx = np.array([st_of[s] for s in table.station])
+        self.pt_idx = np.array([pt_of[p] for p in table.point])
+        # each station's rows: a slice when they follow each other (a view, not a copy)
+        self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
         self.q = np.radians(table.q_deg)
         self.xyz = table.xyz
         self.ext = extension
@@ -259,10 +282,7 @@ class Problem:
                 stations[-1] = (slice(stations[-1][0].start, b), s)
             else:
                 stations.append((slice(a, b), s))
-        # what is in order needs no index: a slice of a per-row array is a view, an index copies (the joint error
-        # map's features: tens of MB per pass; issue 26)
-        in_order = len(rows) == 0 or bool(np.all(np.diff(rows) == 1))
-        take = slice(int(rows[0]), int(rows[-1]) + 1) if in_order and len(rows) else rows
+        take = _selector(rows)
         return _Chunk(rows, None if np.array_equal(order, np.arange(len(order))) else order, poses,
                       None if np.array_equal(of_row, np.arange(len(of_row))) else of_row, groups, take, stations,
                       self.xyz[take], None if self.w is None else self.w[take])  # fmt: skip
@@ -284,8 +304,7 @@ class Problem:
     def predicted(self, s: State) -> np.ndarray:
         pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
                           (self.pose_first, self.row_pose))  # fmt: skip
-        for i, st in enumerate(s.stations):  # station by station: no per-row rotations held
-            rows = self.st_idx == i
+        for st, rows in zip(s.stations, self.station_rows, strict=True):  # station by station: no per-row rotations
             pb[rows] = st.apply(pb[rows])
         return pb
 
@@ -299,7 +318,7 @@ class Problem:
         rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
         jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev,
                                 rows=ch.of_row)  # fmt: skip
-        p, d_params, d_point = jac.p, jac.d_params, jac.d_point
+        p, d_params, d_point = jac.p, jac.d_params_t, jac.d_point_t  # derivatives coordinate first (3, ., n)
         # the station frame, then the whitening: one product per row for both (a chunk of one station, unwhitened:
         # the station's rotation for every row)
         if len(ch.stations) == 1:
@@ -315,22 +334,22 @@ class Problem:
         g = self._growth(s)
         joint = self.ext is not None and self.ext.joint_features is not None
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
-            grow = (1.0 + g[take])[:, None, None]
+            grow = 1.0 + g[take]
             rel = p - self.ext.pivot
             jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[take][:, None, :]
-            p = self.ext.pivot + grow[:, :, 0] * rel
+            p = self.ext.pivot + grow[:, None] * rel
             d_params, d_point = grow * d_params, grow * d_point
         elif not joint:
             jc[:, :, k:c] = 0.0
         if joint:
-            d_q = jac.d_q if g is None else grow * jac.d_q
+            m_dq = _rotated(m, jac.d_q_t if g is None else grow * jac.d_q_t)
             if g is None:
-                np.matmul(m @ d_q, self.ext.joint_features[take], out=jc[:, :, k:c])
+                np.matmul(m_dq, self.ext.joint_features[take], out=jc[:, :, k:c])
             else:
-                jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[take]
+                jc[:, :, k:c] += m_dq @ self.ext.joint_features[take]
         xs = (p @ rs.T if rs.ndim == 2 else (rs @ p[:, :, None])[:, :, 0]) + ts
-        np.matmul(m, d_params, out=jc[:, :, :k])
-        np.matmul(m, d_point, out=jc[:, :, c + 6 :])
+        _rotated(m, d_params, out=jc[:, :, :k])
+        _rotated(m, d_point, out=jc[:, :, c + 6 :])
         r = ch.xyz - xs
         if w is None:
             jc[:, :, c : c + 3] = np.eye(3)
