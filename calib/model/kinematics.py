@@ -37,38 +37,32 @@ def _rows_first(a: np.ndarray) -> np.ndarray:
 
 class PointJacobian:
     """Point and Jacobians of N rows, built from the frames of their M distinct poses (`rows` gives each row's
-    pose). Every column is linear in the point p of its row: a rotation about axis w through o gives
-    w x (p - o) = (o x w) - p x w, so per pose the chain leaves (o x w) and w, and per row one batched
-    cross product p x w remains. The derivatives are computed when first asked for (identification never needs
-    the joint columns). The `*_t` arrays have the coordinate first and the rows last (the layout of the walk);
-    the public properties are rows first."""
+    pose): per pose the chain leaves the axis of every translation and the axis w and a point o of every
+    rotation, and per row a rotation's column is w x (p - o) = (o - p) x w, one batched cross product. The
+    derivatives are computed when first asked for (identification never needs the joint columns). The `*_t`
+    arrays have the coordinate first and the rows last (the layout of the walk); the public properties are rows
+    first."""
 
-    def __init__(self, p_t, r_end, pose_p, pose_w, joint_o, joint_w, rows):
+    def __init__(self, p_t, r_end, trans, origins, axes, joint_o, joint_w, rows):
         self.p_t = p_t  # (3, N) point in the robot base frame, mm
         self._r_end, self._rows = r_end, rows  # columns (3, 3, M) of the last joint frame's rotation
-        self._pose_p, self._pose_w = pose_p, pose_w  # (3, k, M): translation axis | o x w; 0 | w
+        self._trans = trans  # (3, k, M) axis of each translation parameter (zeros for rotations)
+        self._origins, self._axes = origins, axes  # (3, k, M) o and w of each rotation (zeros for translations)
         self._joint_o, self._joint_w = joint_o, joint_w  # (3, n, M): origin and axis of every joint
 
     def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
         return per_pose if self._rows is None else per_pose[..., self._rows]
 
-    def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
-        """(3, k, N) per row: pose_p - p x pose_w, written into one array (those of this size cost more to
-        allocate than to fill)."""
-        out = pose_p.copy() if self._rows is None else pose_p[..., self._rows]
-        w, p = self._per_row(pose_w), self.p_t[:, None]
-        cross, scratch = np.empty(out.shape[1:]), np.empty(out.shape[1:])
-        for i in range(3):
-            j, k = (i + 1) % 3, (i + 2) % 3
-            np.multiply(p[j], w[k], out=cross)
-            cross -= np.multiply(p[k], w[j], out=scratch)
-            out[i] -= cross
-        return out
+    def _columns(self, origins: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """(3, c, N) per row: (o - p) x w of rotations about the axes w through the origins o."""
+        return cross3(self._per_row(origins) - self.p_t[:, None], self._per_row(axes), axis=0)
 
     @cached_property
     def d_params_t(self) -> np.ndarray:
         """(3, k, N) derivative w.r.t. the selected parameters (mm/mm, mm/rad), coordinate first."""
-        return self._columns(self._pose_p, self._pose_w)
+        out = self._columns(self._origins, self._axes)
+        out += self._per_row(self._trans)  # a translation's column: its axis (its rotation part is zero)
+        return out
 
     @cached_property
     def d_point_t(self) -> np.ndarray:
@@ -78,7 +72,7 @@ class PointJacobian:
     @cached_property
     def d_q_t(self) -> np.ndarray:
         """(3, n, N) derivative w.r.t. the joint angles (mm/rad), coordinate first."""
-        return self._columns(cross3(self._joint_o, self._joint_w, axis=0), self._joint_w)
+        return self._columns(self._joint_o, self._joint_w)
 
     @cached_property
     def p(self) -> np.ndarray:
@@ -108,7 +102,7 @@ class PointJacobian:
     @cached_property
     def rot_axes(self) -> np.ndarray:
         """(N, 3, k) axis of each rotational parameter (zeros for translations)."""
-        return _rows_first(self._per_row(self._pose_w))
+        return _rows_first(self._per_row(self._axes))
 
 
 def cross3(a: np.ndarray, b: np.ndarray, axis: int = 1) -> np.ndarray:
@@ -170,11 +164,6 @@ class Kinematics:
         for p in self.params:
             if p not in complete:
                 raise ChainError(f"parameter {p.name} is not part of chain {chain.name}")
-        # the frame each parameter acts in (`_forward`'s keys), rotations and translations apart
-        self._rot = [i for i, p in enumerate(self.params) if p.kind != "p"]
-        self._rot_keys = [(p.joint, "dq") if p.kind == "dq" else (p.joint, "phi", p.axis)
-                          for p in self.params if p.kind != "p"]  # fmt: skip
-        self._trans = [i for i, p in enumerate(self.params) if p.kind == "p"]
 
     def _split(self, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = self.chain.dof
@@ -249,17 +238,16 @@ class Kinematics:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
         k, n = len(self.params), self.chain.dof
-        pose_p, pose_w = np.zeros((3, k, len(q))), np.zeros((3, k, len(q)))
-        for i in self._trans:
-            par = self.params[i]
-            pose_p[:, i] = frames[(par.joint, "p")][0][par.axis]
-        if self._rot:
-            w = np.stack([frames[key][0] for key in self._rot_keys], axis=1)
-            pose_w[:, self._rot] = w
-            pose_p[:, self._rot] = cross3(np.stack([frames[key][1] for key in self._rot_keys], axis=1), w, axis=0)
+        trans, origins, axes = (np.zeros((3, k, len(q))) for _ in range(3))
+        for i, par in enumerate(self.params):
+            if par.kind == "p":
+                trans[:, i] = frames[(par.joint, "p")][0][par.axis]
+            else:
+                key = (par.joint, "dq") if par.kind == "dq" else (par.joint, "phi", par.axis)
+                axes[:, i], origins[:, i] = frames[key]
         joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=1)
         joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=1)
-        return PointJacobian(_tool_point(r, o, tool, rows), r, pose_p, pose_w, joint_o, joint_w, rows)
+        return PointJacobian(_tool_point(r, o, tool, rows), r, trans, origins, axes, joint_o, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""
