@@ -353,10 +353,10 @@ class Problem:
         r = ch.xyz - xs
         if w is None:
             jc[:, :, c : c + 3] = np.eye(3)
-            jc[:, :, c + 3 : c + 6] = -skew(xs)
+            skew(-xs, out=jc[:, :, c + 3 : c + 6])  # -[x]x: the derivative by the rotation perturbation w
         else:
             jc[:, :, c : c + 3] = w
-            np.matmul(w, -skew(xs), out=jc[:, :, c + 3 : c + 6])
+            np.matmul(w, skew(-xs), out=jc[:, :, c + 3 : c + 6])
             r = (w @ r[:, :, None])[:, :, 0]
         return r, jc
 
