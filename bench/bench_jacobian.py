@@ -85,6 +85,7 @@ def twin_table():
 def cases() -> list[tuple[str, tuple, tuple[str, ...]]]:
     """(name, Problem arguments, functions to time)."""
     every = ("normal_equations", "residual_and_jacobian", "residual", "predicted")
+    parts = (*every, *PARTS)  # the parts too, for a case without and one with an extension
     out = []
     tables = []
     source = DATA / SERIES["B"]
@@ -101,8 +102,9 @@ def cases() -> list[tuple[str, tuple, tuple[str, ...]]]:
         exts = {"none": None, "joint": joint, "growth": growth, "joint+growth": combine([joint, growth])}
         for ext_name, ext in exts.items():
             for weighting, noise in (("iid", None), ("whitened", TrackerNoise())):
+                measured = parts if (ext_name, weighting) in (("none", "iid"), ("joint", "whitened")) else every
                 out.append((f"{label} {ext_name} {weighting}", (cell.chain, table, cell.tool_points, params, noise,
-                                                                 None, ext), every))  # fmt: skip
+                                                                 None, ext), measured))  # fmt: skip
         if label == "Series B":
             wide = map_extension(np.radians(table.q_deg), MAP_HARMONICS)
             out.append((f"{label} map({wide.size}) iid", (cell.chain, table, cell.tool_points, params, None, None,
@@ -119,8 +121,23 @@ def moved(problem, rng: np.random.Generator):
                    s.ext + rng.normal(0, 1e-6, len(s.ext)))  # fmt: skip
 
 
-def call(problem, name: str, state):
-    out = getattr(problem, name)(state)
+def _jacobian(problem, s) -> tuple:
+    """The chain's part of a pass, called as the problem's normal equations call it (its first chunk's poses)."""
+    ch = problem.chunks[0]
+    q, tool = problem.q[problem.pose_first[ch.poses]], s.points[problem.pt_idx[ch.rows]]
+    jac = problem.kin.jacobian(q, tool, s.dev, rows=ch.of_row)
+    return jac.p, jac.d_params, jac.d_point
+
+
+PARTS = {  # the parts of a pass, as the profile names them; the rest are Problem methods of the state
+    "_blocks": lambda problem, s: problem._blocks(s, problem.chunks[0]),  # every table here is one chunk
+    "Kinematics.jacobian": _jacobian,
+    "Kinematics.points": lambda problem, s: problem.kin.points(problem.q, s.points[problem.pt_idx], s.dev),
+}
+
+
+def call(problem, name: str, state) -> tuple:
+    out = PARTS[name](problem, state) if name in PARTS else getattr(problem, name)(state)
     return out if isinstance(out, tuple) else (out,)
 
 

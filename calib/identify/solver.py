@@ -302,8 +302,9 @@ class Problem:
         return None if self.ext is None else self.ext.growth_of(s.ext)
 
     def predicted(self, s: State) -> np.ndarray:
+        shared = len(self.pose_first) < self.n_rows  # else the chain is walked for the rows in order (no gathers)
         pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
-                          (self.pose_first, self.row_pose))  # fmt: skip
+                          (self.pose_first, self.row_pose) if shared else None)  # fmt: skip
         for st, rows in zip(s.stations, self.station_rows, strict=True):  # station by station: no per-row rotations
             pb[rows] = st.apply(pb[rows])
         return pb
