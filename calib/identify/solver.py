@@ -177,7 +177,7 @@ class _Chunk(NamedTuple):
 
     rows: np.ndarray  # table rows
     order: np.ndarray | None  # position of each among the rows the chunk was made from (None: the same order)
-    poses: np.ndarray  # the distinct poses of those rows
+    poses: np.ndarray  # the distinct poses of those rows (in row order when no two rows share one)
     of_row: np.ndarray | None  # index into poses of each row (None: a pose per row, in order)
     groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
     # unknowns, and the block of the normal matrix those columns make (np.ix_)

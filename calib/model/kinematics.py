@@ -12,8 +12,9 @@ Layout: the chain is walked with the coordinate first and the rows last, a rotat
 r (3, 3, N) (r[a] is the a-th column of every row's rotation, (3, N)) and an origin as o (3, N). Every step of
 the walk is then a handful of numpy operations on contiguous arrays of all the rows, where the rows-first
 layout (N, 3, 3) took one small BLAS call per row for each product with a fixed matrix or vector (issue 26: a
-forward pass of the UR10's 1495 rows cost ~2 ms). The products with fixed vectors and matrices are written out
-term by term (`_combine`), skipping zero coefficients, so that a row's result never depends on the others.
+forward pass of the UR10's 1495 rows cost ~2 ms). The products with a fixed vector or matrix are sums over the
+three columns in a fixed order (`_combine`, `_times`), so that a row's result never depends on the others; the
+deviations of a link's rotation and its nominal rotation are multiplied once and applied in one product.
 `PointJacobian` keeps this layout (its `*_t` arrays, what the solver uses) and gives the rows-first arrays
 (N, 3, ...) of its public properties.
 """
@@ -107,8 +108,7 @@ class PointJacobian:
 
 def cross3(a: np.ndarray, b: np.ndarray, axis: int = 1) -> np.ndarray:
     """Cross product along `axis` (the vectors' coordinates) with broadcasting (faster than np.cross for small
-    batched arrays). Written into one output with one scratch array: temporaries of this size cost more to
-    allocate than to fill."""
+    batched arrays), written into one output with one scratch array (few temporaries)."""
     a, b = np.moveaxis(a, axis, 0), np.moveaxis(b, axis, 0)
     shape = np.broadcast_shapes(a.shape, b.shape)
     out = np.empty(shape[1 : axis + 1] + (3,) + shape[axis + 1 :])
@@ -212,7 +212,7 @@ class Kinematics:
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[a] if link is None else _combine(r, link[:, a]), o)  # axis a of r link
+                    frames[(j, "phi", a)] = (r[a] if link is None else _combine(r, link[:, a]), o)  # r @ link, axis a
                 if dphi[j, a] != 0.0:
                     link = rot_axis(a, dphi[j, a]) if link is None else link @ rot_axis(a, dphi[j, a])
             if link is not None:
