@@ -143,7 +143,7 @@ def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> 
             return np.ascontiguousarray(prod)
         out[...] = prod
         return out
-    return np.matmul(m, cols.transpose(2, 0, 1), out=out)
+    return np.matmul(m, np.ascontiguousarray(cols.transpose(2, 0, 1)), out=out)  # BLAS takes contiguous rows
 
 
 def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
