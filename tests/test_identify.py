@@ -9,6 +9,7 @@ from scipy import stats
 from tests.helpers import kr270_campaign, truth_of
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.features import combine
+from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
 from trackcal.calib.io.files import write_json
@@ -236,6 +237,38 @@ def test_jacobian_blocks_match_central_differences(kr270, kr270_params, extended
         # the Jacobian is of the prediction (residual = measured - predicted); truncation O(h^2) and rounding
         # ~1e-16 * 5000 mm / 1e-4 mm ~ 5e-9 relative to a column of unit scale
         np.testing.assert_allclose(-diff[sel] / (2 * h), jm[:, c], rtol=1e-5, atol=1e-6 * np.abs(jm[:, c]).max())
+
+
+@pytest.mark.parametrize("stations", [["S1"], ["S1", "S2"]])
+@pytest.mark.parametrize("noise", [None, TrackerNoise()])
+def test_rows_in_order_give_what_rows_in_any_order_give(kr270, kr270_params, extended, stations, noise):
+    """A pass over rows that follow each other takes the per-row arrays by slices (views), walks the chain once per
+    row in row order and, for one unwhitened station, turns every row in one product: the residuals, Jacobian rows
+    and normal equations are those of the same rows taken in a scrambled order, row for row (to rounding)."""
+    table, ext = extended
+    if stations == ["S1"]:
+        poses = np.degrees(random_poses(kr270, 12, np.random.default_rng(41)))
+        table = simulate_campaign(Twin(kr270, seed=41), poses, stations=["S1"])  # one station: one rotation for all
+        ext = combine([build_extension("backlash", kr270.chain, table), build_extension("thermal_drift", kr270.chain,
+                                                                                       table, names=["e_base"])])
+    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, noise, extension=ext)
+    rng = np.random.default_rng(44)
+    state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
+    r, jm = problem.residual_and_jacobian(state)
+    np.testing.assert_allclose(r, problem.residual(state), rtol=0, atol=1e-12 * np.abs(r).max())  # forward only
+    scrambled = rng.permutation(problem.n_rows)
+    r_s, jm_s = problem.residual_and_jacobian(state, scrambled)
+    sel = (3 * scrambled[:, None] + np.arange(3)).ravel()
+    np.testing.assert_allclose(r_s, r[sel], rtol=0, atol=1e-12 * np.abs(r).max())
+    np.testing.assert_allclose(jm_s, jm[sel], rtol=0, atol=1e-12 * np.abs(jm).max())
+    passes = []
+    for rows in (np.arange(problem.n_rows), scrambled):
+        problem.set_chunks([rows])
+        passes.append(problem.normal_equations(state))
+    (info, g, cost), (info_s, g_s, cost_s) = passes
+    np.testing.assert_allclose(info_s, info, rtol=0, atol=1e-12 * np.abs(info).max())
+    np.testing.assert_allclose(g_s, g, rtol=0, atol=1e-12 * np.abs(g).max())
+    assert cost_s == pytest.approx(cost, rel=1e-12)
 
 
 def test_normal_equations_pass_gives_the_residual_cost(kr270, kr270_params, extended):

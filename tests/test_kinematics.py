@@ -107,6 +107,7 @@ def test_rows_sharing_a_pose_give_the_per_row_result(kr270):
 def test_a_turn_is_the_product_with_the_axis_rotation(axis, angles, w):
     """The forward kinematics turns a frame about one of its axes by mixing two columns: r @ rot_axis."""
     angles = np.array(angles)
-    r = np.repeat(exp_so3(np.array(w))[None], len(angles), axis=0)
-    out = turned(r, axis, np.cos(angles)[:, None], np.sin(angles)[:, None])
-    np.testing.assert_allclose(out, r @ rot_axis(axis, angles), atol=1e-15)
+    r = exp_so3(np.array(w))
+    columns = np.repeat(r.T[:, :, None], len(angles), axis=2)  # r[:, a] of every row: columns[a] (3, rows)
+    out = turned(columns, axis, np.cos(angles), np.sin(angles))
+    np.testing.assert_allclose(out.transpose(2, 1, 0), r @ rot_axis(axis, angles), atol=1e-15)

@@ -126,6 +126,31 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
 
 
 
+def _selector(rows: np.ndarray) -> np.ndarray | slice:
+    """What selects `rows` from per-row arrays: the slice they make when they follow each other (a view, where an
+    index copies: the joint error map's features are tens of MB; issue 26), else the rows themselves."""
+    if len(rows) and bool(np.all(np.diff(rows) == 1)):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
+def _whitened(w: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """w @ r row by row: the whitening w (n, 3, 3) of r (n, 3, ...)."""
+    return np.einsum("nij,nj...->ni...", w, r)
+
+
+def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """m @ cols row by row, rows first (n, 3, c), from columns given coordinate first (3, c, n); m (3, 3) the same
+    for every row (then one product for all the rows, where a product per row cost ~80 ns each) or (n, 3, 3)."""
+    if m.ndim == 2:
+        prod = (m @ cols.reshape(3, -1)).reshape(cols.shape).transpose(2, 0, 1)
+        if out is None:
+            return np.ascontiguousarray(prod)
+        out[...] = prod
+        return out
+    return np.matmul(m, np.ascontiguousarray(cols.transpose(2, 0, 1)), out=out)  # BLAS takes contiguous rows
+
+
 def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
     features (N, n, e), equal features, in np.unique's order of the key [q, features].
@@ -156,11 +181,15 @@ class _Chunk(NamedTuple):
     """Rows of one chunk of the normal equations, ordered by (station, point), with what every pass reuses."""
 
     rows: np.ndarray  # table rows
-    order: np.ndarray  # position of each among the rows the chunk was made from
-    poses: np.ndarray  # the distinct poses of those rows
-    of_row: np.ndarray  # index into poses of each row
+    order: np.ndarray | None  # position of each among the rows the chunk was made from (None: the same order)
+    poses: np.ndarray  # the distinct poses of those rows (in row order when no two rows share one)
+    of_row: np.ndarray | None  # index into poses of each row (None: a pose per row, in order)
     groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
     # unknowns, and the block of the normal matrix those columns make (np.ix_)
+    take: np.ndarray | slice  # selects the rows from per-row arrays: `rows`, or the slice they make
+    stations: list[tuple[slice, int]]  # rows of one station, and its index
+    xyz: np.ndarray  # (n, 3) their measurements
+    w: np.ndarray | None  # (n, 3, 3) their whitening
 
 
 class Problem:
@@ -189,10 +218,13 @@ class Problem:
                     f"(the tool defines {', '.join(sorted(tool_points))})"
                 )
         self.chain, self.params, self.noise, self.source = chain, list(params), noise, source
-        self.station_ids = sorted(set(table.station), key=table.station.index)
-        self.point_ids = sorted(set(table.point), key=table.point.index)
-        self.st_idx = np.array([self.station_ids.index(s) for s in table.station])
-        self.pt_idx = np.array([self.point_ids.index(p) for p in table.point])
+        self.station_ids = list(dict.fromkeys(table.station))  # in order of first appearance
+        self.point_ids = list(dict.fromkeys(table.point))
+        st_of, pt_of = {s: i for i, s in enumerate(self.station_ids)}, {p: i for i, p in enumerate(self.point_ids)}
+        self.st_idx = np.array([st_of[s] for s in table.station])
+        self.pt_idx = np.array([pt_of[p] for p in table.point])
+        # each station's rows: a slice when they follow each other (a view, not a copy)
+        self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
         self.q = np.radians(table.q_deg)
         self.xyz = table.xyz
         self.ext = extension
@@ -221,9 +253,9 @@ class Problem:
         self.pose_first, self.row_pose = _distinct_poses(
             self.q, None if extension is None else extension.joint_features)
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
+        self.w = None if noise is None else noise.whitening(self.xyz)
         order = np.argsort(self.row_pose, kind="stable")
         self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
-        self.w = None if noise is None else noise.whitening(self.xyz)
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
@@ -240,22 +272,32 @@ class Problem:
         order = np.argsort(group, kind="stable")
         rows, group = rows[order], group[order]
         poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
+        of_row = of_row.ravel()
+        if len(poses) == len(rows):  # no two rows share a pose: the chain walked for the rows in their order
+            poses, of_row = self.row_pose[rows], np.arange(len(rows))
         starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
         ends = np.r_[starts[1:], len(rows)]
         c_pt = self.c_st + 6 * self.n_st
-        groups = []
+        groups, stations = [], []
         for a, b in zip(starts, ends, strict=True):
             s, p = divmod(int(group[a]), self.n_pt)
             cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
             groups.append((slice(a, b), cols, np.ix_(cols, cols)))
-        return _Chunk(rows, order, poses, of_row.ravel(), groups)
+            if stations and stations[-1][1] == s:
+                stations[-1] = (slice(stations[-1][0].start, b), s)
+            else:
+                stations.append((slice(a, b), s))
+        take = _selector(rows)
+        return _Chunk(rows, None if np.array_equal(order, np.arange(len(order))) else order, poses,
+                      None if np.array_equal(of_row, np.arange(len(of_row))) else of_row, groups, take, stations,
+                      self.xyz[take], None if self.w is None else self.w[take])  # fmt: skip
 
     @cached_property
     def _every_row(self) -> _Chunk:
         return self._chunk(np.arange(self.n_rows))
 
     def _whiten(self, r: np.ndarray) -> np.ndarray:
-        return r if self.w is None else np.einsum("nij,nj...->ni...", self.w, r)
+        return r if self.w is None else _whitened(self.w, r)
 
     def _q(self, s: State) -> np.ndarray:
         off = None if self.ext is None else self.ext.joint_offsets(s.ext)
@@ -265,10 +307,10 @@ class Problem:
         return None if self.ext is None else self.ext.growth_of(s.ext)
 
     def predicted(self, s: State) -> np.ndarray:
+        shared = len(self.pose_first) < self.n_rows  # else the chain is walked for the rows in order (no gathers)
         pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
-                          (self.pose_first, self.row_pose))  # fmt: skip
-        for i, st in enumerate(s.stations):  # station by station: no per-row rotations held
-            rows = self.st_idx == i
+                          (self.pose_first, self.row_pose) if shared else None)  # fmt: skip
+        for st, rows in zip(s.stations, self.station_rows, strict=True):  # station by station: no per-row rotations
             pb[rows] = st.apply(pb[rows])
         return pb
 
@@ -279,37 +321,50 @@ class Problem:
     def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals (n, 3) of the chunk's rows and the non-zero blocks of their Jacobian (n, 3, m):
         the columns of the robot and extension, of the row's station (v, w) and of its point, in that order."""
-        rows, k, c = ch.rows, self.k, self.c_st
-        st_idx, pt_idx = self.st_idx[rows], self.pt_idx[rows]
-        rs = np.array([st.rotation for st in s.stations])[st_idx]
-        ts = np.array([st.translation for st in s.stations])[st_idx]
-        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[pt_idx], s.dev, rows=ch.of_row)
-        p, d_params, d_point = jac.p, jac.d_params, jac.d_point
-        w = None if self.w is None else self.w[rows]
-        m = rs if w is None else w @ rs  # station frame, then whitening: one product per row for both
+        rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
+        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev,
+                                rows=ch.of_row)  # fmt: skip
+        p, d_params, d_point = jac.p, jac.d_params_t, jac.d_point_t  # derivatives coordinate first (3, ., n)
+        # the station frame, then the whitening: one matrix m per row for both (a chunk of one station: unwhitened,
+        # the station's rotation for every row; whitened, w times it in one (3n, 3) by (3, 3) product, where a
+        # product per row cost ~100 ns each)
+        if len(ch.stations) == 1:
+            st = s.stations[ch.stations[0][1]]
+            rs, ts = st.rotation, st.translation
+        else:
+            rs, ts = np.empty((len(rows), 3, 3)), np.empty((len(rows), 3))
+            for sl, i in ch.stations:
+                rs[sl], ts[sl] = s.stations[i].rotation, s.stations[i].translation
+        w = ch.w
+        m = rs if w is None else ((w.reshape(-1, 3) @ rs).reshape(w.shape) if rs.ndim == 2 else w @ rs)
         jc = np.empty((len(rows), 3, c + 9))
-        jc[:, :, k:c] = 0.0
         g = self._growth(s)
+        joint = self.ext is not None and self.ext.joint_features is not None
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
-            grow = (1.0 + g[rows])[:, None, None]
+            grow = 1.0 + g[take]
             rel = p - self.ext.pivot
-            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[rows][:, None, :]
-            p = self.ext.pivot + grow[:, :, 0] * rel
+            jc[:, :, k:c] = (m @ rel[:, :, None]) * self.ext.growth[take][:, None, :]
+            p = self.ext.pivot + grow[:, None] * rel
             d_params, d_point = grow * d_params, grow * d_point
-        if self.ext is not None and self.ext.joint_features is not None:
-            d_q = jac.d_q if g is None else grow * jac.d_q
-            jc[:, :, k:c] += m @ d_q @ self.ext.joint_features[rows]
-        xs = (rs @ p[:, :, None])[:, :, 0] + ts
-        np.matmul(m, d_params, out=jc[:, :, :k])
-        np.matmul(m, d_point, out=jc[:, :, c + 6 :])
-        r = self.xyz[rows] - xs
+        elif not joint:
+            jc[:, :, k:c] = 0.0
+        if joint:
+            m_dq = _rotated(m, jac.d_q_t if g is None else grow * jac.d_q_t)
+            if g is None:
+                np.matmul(m_dq, self.ext.joint_features[take], out=jc[:, :, k:c])
+            else:
+                jc[:, :, k:c] += m_dq @ self.ext.joint_features[take]
+        xs = (p @ rs.T if rs.ndim == 2 else (rs @ p[:, :, None])[:, :, 0]) + ts
+        _rotated(m, d_params, out=jc[:, :, :k])
+        _rotated(m, d_point, out=jc[:, :, c + 6 :])
+        r = ch.xyz - xs
         if w is None:
             jc[:, :, c : c + 3] = np.eye(3)
-            jc[:, :, c + 3 : c + 6] = -skew(xs)
+            skew(-xs, out=jc[:, :, c + 3 : c + 6])  # -[x]x: the derivative by the rotation perturbation w
         else:
             jc[:, :, c : c + 3] = w
-            np.matmul(w, -skew(xs), out=jc[:, :, c + 3 : c + 6])
-            r = (w @ r[:, :, None])[:, :, 0]
+            np.matmul(w, skew(-xs), out=jc[:, :, c + 3 : c + 6])
+            r = _whitened(w, r)
         return r, jc
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
@@ -327,6 +382,8 @@ class Problem:
         of the given `rows` (their residuals and Jacobian rows, in that order)."""
         ch = self._every_row if rows is None else self._chunk(np.asarray(rows))
         rb, jc = self._blocks(s, ch)
+        if ch.order is None:
+            return rb.ravel(), self._dense(ch, jc)
         r, jm = np.empty_like(rb), np.empty((len(ch.rows), 3, self.n_cols))
         r[ch.order], jm[ch.order] = rb, self._dense(ch, jc).reshape(-1, 3, self.n_cols)
         return r.ravel(), jm.reshape(-1, self.n_cols)

@@ -7,6 +7,16 @@ the complete model is applied, so a deviation of any parameter is honoured exact
 Jacobian column is the exact derivative at the current deviations (not only at nominal):
   translation along axis a of frame F:  dp = R_F[:, a]
   rotation about axis a of frame F:     dp = R_F[:, a] x (p - o_F)
+
+Layout: the chain is walked with the coordinate first and the rows last, a rotation held by its columns
+r (3, 3, N) (r[a] is the a-th column of every row's rotation, (3, N)) and an origin as o (3, N). Every step of
+the walk is then a handful of numpy operations on contiguous arrays of all the rows, where the rows-first
+layout (N, 3, 3) took one small BLAS call per row for each product with a fixed matrix or vector (issue 26: a
+forward pass of the UR10's 1495 rows cost ~2 ms). The products with a fixed vector or matrix are sums over the
+three columns in a fixed order (`_combine`, `_times`), so that a row's result never depends on the others; the
+deviations of a link's rotation and its nominal rotation are multiplied once and applied in one product.
+`PointJacobian` keeps this layout (its `*_t` arrays, what the solver uses) and gives the rows-first arrays
+(N, 3, ...) of its public properties.
 """
 
 from __future__ import annotations
@@ -18,72 +28,127 @@ import numpy as np
 
 from trackcal.calib.model.chain import Chain, ChainError
 from trackcal.calib.model.params import Param, complete_params
-from trackcal.calib.model.rigid import rot_axis, skew
+from trackcal.calib.model.rigid import rot_axis
+
+
+def _rows_first(a: np.ndarray) -> np.ndarray:
+    """(3, k, N) -> (N, 3, k), contiguous."""
+    return np.ascontiguousarray(a.transpose(2, 0, 1))
 
 
 class PointJacobian:
     """Point and Jacobians of N rows, built from the frames of their M distinct poses (`rows` gives each row's
-    pose). Every column is linear in the point p of its row: a rotation about axis w through o gives
-    w x (p - o) = (o x w) - [p]x w, so per pose the chain leaves (o x w) and w, and per row one batched
-    product [p]x w remains. The derivatives are computed when first asked for (identification never needs
-    the joint columns)."""
+    pose): per pose the chain leaves the axis of every translation and the axis w and a point o of every
+    rotation, and per row a rotation's column is w x (p - o) = (o - p) x w, one batched cross product. The
+    derivatives are computed when first asked for (identification never needs the joint columns). The `*_t`
+    arrays have the coordinate first and the rows last (the layout of the walk); the public properties are rows
+    first."""
 
-    def __init__(self, p, r_end, pose_p, pose_w, joint_o, joint_w, rows):
-        self.p = p  # (N, 3) point in the robot base frame, mm
-        self._r_end, self._rows = r_end, rows
-        self._pose_p, self._pose_w = pose_p, pose_w  # (M, 3, k): translation axis | o x w; 0 | w
-        self._joint_o, self._joint_w = joint_o, joint_w  # (M, 3, n): origin and axis of every joint
+    def __init__(self, p_t, r_end, trans, origins, axes, joint_o, joint_w, rows):
+        self.p_t = p_t  # (3, N) point in the robot base frame, mm
+        self._r_end, self._rows = r_end, rows  # columns (3, 3, M) of the last joint frame's rotation
+        self._trans = trans  # (3, k, M) axis of each translation parameter (zeros for rotations)
+        self._origins, self._axes = origins, axes  # (3, k, M) o and w of each rotation (zeros for translations)
+        self._joint_o, self._joint_w = joint_o, joint_w  # (3, n, M): origin and axis of every joint
 
     def _per_row(self, per_pose: np.ndarray) -> np.ndarray:
-        return per_pose if self._rows is None else per_pose[self._rows]
+        return per_pose if self._rows is None else per_pose[..., self._rows]
 
-    def _columns(self, pose_p: np.ndarray, pose_w: np.ndarray) -> np.ndarray:
-        return self._per_row(pose_p) - skew(self.p) @ self._per_row(pose_w)
+    def _columns(self, origins: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """(3, c, N) per row: (o - p) x w of rotations about the axes w through the origins o."""
+        return cross3(self._per_row(origins) - self.p_t[:, None], self._per_row(axes), axis=0)
+
+    @cached_property
+    def d_params_t(self) -> np.ndarray:
+        """(3, k, N) derivative w.r.t. the selected parameters (mm/mm, mm/rad), coordinate first."""
+        out = self._columns(self._origins, self._axes)
+        out += self._per_row(self._trans)  # a translation's column: its axis (its rotation part is zero)
+        return out
+
+    @cached_property
+    def d_point_t(self) -> np.ndarray:
+        """(3, 3, N) derivative w.r.t. the tool point coordinates (= end rotation), coordinate first."""
+        return self._per_row(self._r_end.transpose(1, 0, 2))
+
+    @cached_property
+    def d_q_t(self) -> np.ndarray:
+        """(3, n, N) derivative w.r.t. the joint angles (mm/rad), coordinate first."""
+        return self._columns(self._joint_o, self._joint_w)
+
+    @cached_property
+    def p(self) -> np.ndarray:
+        """(N, 3) point in the robot base frame, mm."""
+        return np.ascontiguousarray(self.p_t.T)
 
     @cached_property
     def d_params(self) -> np.ndarray:
         """(N, 3, k) derivative w.r.t. the selected parameters (mm/mm, mm/rad)."""
-        return self._columns(self._pose_p, self._pose_w)
+        return _rows_first(self.d_params_t)
 
     @cached_property
     def d_point(self) -> np.ndarray:
         """(N, 3, 3) derivative w.r.t. the tool point coordinates (= end rotation)."""
-        return self._per_row(self._r_end)
+        return _rows_first(self.d_point_t)
 
     @cached_property
     def d_q(self) -> np.ndarray:
         """(N, 3, n) derivative w.r.t. the joint angles (mm/rad)."""
-        return self._columns(cross3(self._joint_o, self._joint_w), self._joint_w)
+        return _rows_first(self.d_q_t)
 
     @cached_property
     def joint_axes(self) -> np.ndarray:
         """(N, 3, n) unit axis of each joint in the base frame (signed)."""
-        return self._per_row(self._joint_w)
+        return _rows_first(self._per_row(self._joint_w))
 
     @cached_property
     def rot_axes(self) -> np.ndarray:
         """(N, 3, k) axis of each rotational parameter (zeros for translations)."""
-        return self._per_row(self._pose_w)
+        return _rows_first(self._per_row(self._axes))
 
 
-def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product along axis 1 with broadcasting (faster than np.cross for small batched arrays)."""
-    return np.stack(
-        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-         a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]],
-        axis=1,
-    )  # fmt: skip
+def cross3(a: np.ndarray, b: np.ndarray, axis: int = 1) -> np.ndarray:
+    """Cross product along `axis` (the vectors' coordinates) with broadcasting (faster than np.cross for small
+    batched arrays), written into one output with one scratch array (few temporaries)."""
+    a, b = np.moveaxis(a, axis, 0), np.moveaxis(b, axis, 0)
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape[1 : axis + 1] + (3,) + shape[axis + 1 :])
+    out_c, scratch = np.moveaxis(out, axis, 0), np.empty(shape[1:])
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        np.multiply(a[j], b[k], out=out_c[i])
+        np.subtract(out_c[i], np.multiply(a[k], b[j], out=scratch), out=out_c[i])
+    return out
 
 
 def turned(r: np.ndarray, axis: int, cos, sin) -> np.ndarray:
-    """r @ rot_axis(axis, angle) for rotations r (N, 3, 3): the turn mixes two columns of r (cos, sin of the
-    angle: scalars or (N, 1))."""
+    """r @ rot_axis(axis, angle) for rotations given by their columns r (3, 3, N) (r[a]: the a-th column of each):
+    the turn mixes two columns (cos, sin of the angle: scalars or (N,))."""
     i, j = (axis + 1) % 3, (axis + 2) % 3
     out = np.empty_like(r)
-    out[:, :, axis] = r[:, :, axis]
-    out[:, :, i] = r[:, :, i] * cos + r[:, :, j] * sin
-    out[:, :, j] = r[:, :, j] * cos - r[:, :, i] * sin
+    out[axis] = r[axis]
+    np.multiply(r[i], cos, out=out[i])
+    out[i] += r[j] * sin
+    np.multiply(r[j], cos, out=out[j])
+    out[j] -= r[i] * sin
     return out
+
+
+def _combine(vectors: np.ndarray, coef: np.ndarray) -> np.ndarray | None:
+    """sum_a coef[a] * vectors[a] over the three stacked vectors (3, 3, N), in the order a = 0, 1, 2, terms with a
+    zero coefficient left out and a unit one not multiplied (the same sum, exactly); None when every one is zero.
+    May return a view of `vectors`."""
+    out = None
+    for a in range(3):
+        if coef[a] != 0.0:
+            term = vectors[a] if coef[a] == 1.0 else vectors[a] * coef[a]
+            out = term if out is None else out + term
+    return out
+
+
+def _times(r: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """r @ m for rotations given by their columns r (3, 3, N) and one fixed matrix m (3, 3): column b of the
+    product is sum_a m[a, b] r[a] (einsum's loop sums in that order, the same as `_combine`)."""
+    return np.einsum("ab,aim->bim", m, r)
 
 
 class Kinematics:
@@ -94,6 +159,7 @@ class Kinematics:
         self.params = list(params)
         self.index = {p: i for i, p in enumerate(self.params)}
         self._plain = [np.array_equal(joint.rotation, np.eye(3)) for joint in chain.joints]  # no fixed rotation
+        self._signs = np.array([joint.sign for joint in chain.joints], dtype=float)
         complete = set(complete_params(chain))
         for p in self.params:
             if p not in complete:
@@ -114,35 +180,45 @@ class Kinematics:
     def end_frames(self, q: np.ndarray, dev: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(R, o): rotation (N, 3, 3) and origin (N, 3) of the last joint frame in the base frame."""
         r, o, _ = self._forward(np.atleast_2d(q), dev, record=False)
-        return r, o
+        return np.ascontiguousarray(r.transpose(2, 1, 0)), np.ascontiguousarray(o.T)
 
     def _forward(self, q: np.ndarray, dev: np.ndarray | None, record: bool):
+        """The last joint frame of every row of q (M, n): its rotation by columns r (3, 3, M) and its origin o
+        (3, M); with `record`, the frame (axis | rotation, origin) each parameter acts in."""
         chain = self.chain
         n_rows = q.shape[0]
         if q.shape[1] != chain.dof:
             raise ChainError(f"expected {chain.dof} joint values per row, got {q.shape[1]}")
         dq, dt, dphi = self._split(np.zeros(len(self.params)) if dev is None else dev)
-        r = np.broadcast_to(chain.base[:3, :3], (n_rows, 3, 3)).copy()
-        o = np.broadcast_to(chain.base[:3, 3], (n_rows, 3)).copy()
+        angle = (q + dq).T * self._signs[:, None]  # (n, M)
+        cos, sin = np.cos(angle), np.sin(angle)
+        r = np.repeat(chain.base[:3, :3].T[:, :, None], n_rows, axis=2)
+        o = np.repeat(chain.base[:3, 3, None], n_rows, axis=1)
         # r and o are replaced, never changed in place, so the recorded frames may share their memory
         frames: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         for j, joint in enumerate(chain.joints):
             if record:
-                frames[(j, "dq")] = (joint.sign * r[:, :, joint.axis], o)
-            angle = joint.sign * (q[:, j, None] + dq[j])
-            r = turned(r, joint.axis, np.cos(angle), np.sin(angle))
+                frames[(j, "dq")] = (joint.sign * r[joint.axis], o)
+            r = turned(r, joint.axis, cos[j], sin[j])
             if record:
                 frames[(j, "p")] = (r, None)
-            o = o + r @ (joint.translation + dt[j])
+            step = _combine(r, joint.translation + dt[j])
+            if step is not None:
+                o = o + step
+            # the rest of the link is one fixed rotation: the deviations about the other two axes, in order, then
+            # the nominal rotation, multiplied once and applied in one product
+            link = None  # the deviations' rotations so far (None: none)
             for a in range(3):
                 if a == joint.axis:
                     continue
                 if record:
-                    frames[(j, "phi", a)] = (r[:, :, a], o)
+                    frames[(j, "phi", a)] = (r[a] if link is None else _combine(r, link[:, a]), o)  # r @ link, axis a
                 if dphi[j, a] != 0.0:
-                    r = turned(r, a, np.cos(dphi[j, a]), np.sin(dphi[j, a]))
-            if not self._plain[j]:
-                r = r @ joint.rotation
+                    link = rot_axis(a, dphi[j, a]) if link is None else link @ rot_axis(a, dphi[j, a])
+            if link is not None:
+                r = _times(r, link @ joint.rotation)
+            elif not self._plain[j]:
+                r = _times(r, joint.rotation)
         return r, o, frames
 
     def points(
@@ -150,11 +226,8 @@ class Kinematics:
     ) -> np.ndarray:
         """Points (N, 3) in the base frame; q (N, n) rad, tool (N, 3) or (3,) in the last joint frame; with
         `rows` (N,) q holds the distinct poses and rows[i] is the pose of row i, as in `jacobian`."""
-        r, o = self.end_frames(q, dev)
-        if rows is not None:
-            r, o = r[rows], o[rows]
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o.shape)
-        return o + np.einsum("nij,nj->ni", r, tool)
+        r, o, _ = self._forward(np.atleast_2d(q), dev, record=False)
+        return np.ascontiguousarray(_tool_point(r, o, tool, rows).T)
 
     def jacobian(
         self, q: np.ndarray, tool: np.ndarray, dev: np.ndarray | None = None, rows: np.ndarray | None = None
@@ -165,19 +238,16 @@ class Kinematics:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         r, o, frames = self._forward(q, dev, record=True)
         k, n = len(self.params), self.chain.dof
-        pose_t, pose_w, pose_o = (np.zeros((len(q), 3, k)) for _ in range(3))
+        trans, origins, axes = (np.zeros((3, k, len(q))) for _ in range(3))
         for i, par in enumerate(self.params):
             if par.kind == "p":
-                pose_t[:, :, i] = frames[(par.joint, "p")][0][:, :, par.axis]
+                trans[:, i] = frames[(par.joint, "p")][0][par.axis]
             else:
                 key = (par.joint, "dq") if par.kind == "dq" else (par.joint, "phi", par.axis)
-                pose_w[:, :, i], pose_o[:, :, i] = frames[key]
-        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=2)
-        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=2)
-        r_rows, o_rows = (r, o) if rows is None else (r[rows], o[rows])
-        tool = np.broadcast_to(np.asarray(tool, dtype=float), o_rows.shape)
-        p = o_rows + (r_rows @ tool[:, :, None])[:, :, 0]
-        return PointJacobian(p, r, pose_t + cross3(pose_o, pose_w), pose_w, joint_o, joint_w, rows)
+                axes[:, i], origins[:, i] = frames[key]
+        joint_w = np.stack([frames[(j, "dq")][0] for j in range(n)], axis=1)
+        joint_o = np.stack([frames[(j, "dq")][1] for j in range(n)], axis=1)
+        return PointJacobian(_tool_point(r, o, tool, rows), r, trans, origins, axes, joint_o, joint_w, rows)
 
     def upstream(self) -> np.ndarray:
         """(k, n) bool: parameter i acts before the rotation of joint j (so that rotation moves only p)."""
@@ -199,6 +269,16 @@ class Kinematics:
         up = cross3(jac.rot_axes[:, :, :, None], jac.d_q[:, :, None, :])
         mask = self.upstream()[None, None]
         return np.where(mask, up, out)
+
+
+def _tool_point(r: np.ndarray, o: np.ndarray, tool: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    """(3, N) the tool point (N, 3) or (3,) of every row from its pose's frame (columns r (3, 3, M), origin
+    (3, M)); `rows` gives each row's pose (None: a pose per row)."""
+    if rows is not None:
+        r, o = r[..., rows], o[:, rows]
+    t = np.asarray(tool, dtype=float).T
+    t = t[:, None] if t.ndim == 1 else t
+    return o + (r[0] * t[0] + r[1] * t[1] + r[2] * t[2])
 
 
 def calibrated_chain(chain: Chain, params: list[Param], dev: np.ndarray) -> Chain:

@@ -28,10 +28,13 @@ def rot_axis(axis: int, angle: np.ndarray | float) -> np.ndarray:
     return out
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrices [v]x with [v]x w = v x w; v shape (..., 3)."""
+def skew(v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Skew-symmetric matrices [v]x with [v]x w = v x w; v shape (..., 3); written into `out` if given."""
     v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
+    if out is None:
+        out = np.zeros(v.shape[:-1] + (3, 3))
+    else:
+        out[..., 0, 0] = out[..., 1, 1] = out[..., 2, 2] = 0.0
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
