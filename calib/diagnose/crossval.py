@@ -1,7 +1,8 @@
 """Candidate models fitted fast: whole-table fits without covariance, and their cross-validation.
 
-A model is the geometric one plus a tuple of causes. Its whole-table fit starts where the fit of its largest
-sub-model stopped, or from the geometric solution (a moved station where it was), and skips the covariance.
+A model is the geometric one plus a tuple of causes. Its whole-table fit starts where the best-fitting of its
+sub-models stopped (`warm_start`), or from the geometric solution (a moved station where it was), and skips the
+covariance.
 A fold's fit is one Gauss-Newton step
 from the whole-table fit on the training rows (the Gram matrix of the whole table minus the fold's
 rows): the fold's solution is about a standard deviation away, where the model is linear to far below

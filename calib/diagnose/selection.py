@@ -29,10 +29,11 @@ joint error and gained nothing beside the map; kept, they made its prediction of
 `none`, with the noise scale reported: a tracker 18 % noisier than its model is not a cause. The noise
 floor (`calib.diagnose.noise_floor`) comes from comparable repeats or the tracker model, and says which.
 
-The fits (`calib.diagnose.crossval`) skip the covariance, start where the fit of the largest sub-model already
-fitted stopped (else from the geometric solution) and cross-validate
-by one Gauss-Newton step per fold; the change point (`calib.diagnose.changepoint`) is an exact scan of every
-cut, then one full fit; candidate parameters the data cannot see are dropped and reported.
+The fits (`calib.diagnose.crossval`) skip the covariance, start where the best-fitting of the sub-models already
+fitted stopped (else from the geometric solution) and cross-validate by one Gauss-Newton step per fold; the change
+point (`calib.diagnose.changepoint`) is an exact scan of every cut (once per set of rows), then one full fit;
+candidate parameters the data cannot see are dropped and reported. Given an executor (threads), the folds of the
+map's search and of the structure test run at once; the diagnosis is the same bit for bit.
 """
 
 from __future__ import annotations
