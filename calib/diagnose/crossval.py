@@ -91,8 +91,8 @@ def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max
     problem.initial = State(at.dev.copy(), [st.get(s, st[s.removesuffix(SHIFT_SUFFIX)]) for s in problem.station_ids],
                             np.array([at.points[p] for p in problem.point_ids]),
                             np.array([values.get(key, 0.0) for key in _ext_keys(ext)]))  # fmt: skip
-    sol = solve(problem, problem.initial, max_iter)
-    state, r, jm = sol.state, sol.r, sol.jm
+    state = solve(problem, problem.initial, max_iter).state
+    r, jm = problem.residual_and_jacobian(state)  # one pass for both (the solution's r and jm would be two)
     if not _identifiable(jm.T @ jm):
         raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
     return Fit(state.dev, dict(zip(problem.station_ids, state.stations, strict=True)),
