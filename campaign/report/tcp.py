@@ -17,6 +17,7 @@ the extended one 0.2 mm). The difference is determined when it exceeds twice the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,20 +70,25 @@ def predicted_tcp(cell: Cell, model_doc: dict, station: str) -> np.ndarray:
     return predict_table(model, tcp_rows(cell, sorted(model.points), station)).xyz.mean(axis=0)
 
 
-def _centroid_base(cell: Cell, res: Identification, dev: np.ndarray, points: dict[str, np.ndarray]) -> np.ndarray:
-    """The identification's reference points' centroid at the test pose, robot base frame, extension at its
-    neutral context."""
+def _centroid_base(cell: Cell, res: Identification) -> Callable[[np.ndarray, dict[str, np.ndarray]], np.ndarray]:
+    """centroid(dev, points): the identification's reference points' centroid at the test pose, robot base frame,
+    extension at its neutral context, for deviations `dev` and reference points `points` (the rows, the extension's
+    features and the kinematics made once: `tcp_sigma` asks for twenty of them)."""
     rows = tcp_rows(cell, res.point_ids, res.station_ids[0])
     ext = rebuild(res.extension, cell.chain, rows) if res.extension is not None and len(res.ext) else None
-    tool = np.array([points[p] for p in res.point_ids])
-    kin = Kinematics(res.chain, res.params)
-    return model_points(kin, np.radians(rows.q_deg), tool, dev, ext, res.ext).mean(axis=0)
+    kin, q = Kinematics(res.chain, res.params), np.radians(rows.q_deg)
+
+    def centroid(dev: np.ndarray, points: dict[str, np.ndarray]) -> np.ndarray:
+        tool = np.array([points[p] for p in res.point_ids])
+        return model_points(kin, q, tool, dev, ext, res.ext).mean(axis=0)
+
+    return centroid
 
 
 def identified_tcp(cell: Cell, res: Identification, station: str) -> np.ndarray:
     """The identification's TCP at the test pose in `station`'s frame (what `predicted_tcp` gives of its model
     file)."""
-    return res.stations[station].apply(_centroid_base(cell, res, res.dev, res.points))
+    return res.stations[station].apply(_centroid_base(cell, res)(res.dev, res.points))
 
 
 def _skew(y: np.ndarray) -> np.ndarray:
@@ -100,18 +106,19 @@ def tcp_sigma(cell: Cell, res: Identification, station: str, variance_factor: fl
     k, c_st = len(res.params), len(res.params) + len(res.ext)
     c_pt = c_st + 6 * len(res.station_ids)
     rot = res.stations[station].rotation
-    base = _centroid_base(cell, res, res.dev, res.points)
+    centroid = _centroid_base(cell, res)
+    base = centroid(res.dev, res.points)
     cols, idx = [], []
     for i in range(k):
         dev = res.dev.copy()
         dev[i] += step
-        cols.append(rot @ (_centroid_base(cell, res, dev, res.points) - base) / step)
+        cols.append(rot @ (centroid(dev, res.points) - base) / step)
         idx.append(i)
     for n, pid in enumerate(res.point_ids):
         for a in range(3):
             pts = dict(res.points)
             pts[pid] = pts[pid] + step * np.eye(3)[a]
-            cols.append(rot @ (_centroid_base(cell, res, res.dev, pts) - base) / step)
+            cols.append(rot @ (centroid(res.dev, pts) - base) / step)
             idx.append(c_pt + 3 * n + a)
     y = res.stations[station].apply(base)
     s0 = c_st + 6 * res.station_ids.index(station)
