@@ -12,7 +12,16 @@ import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
 from trackcal.calib.diagnose import crossval, selection
-from trackcal.calib.diagnose.joint_map import Arc, FoldGrams, _cv_scores, harmonic_names, map_features, parse_name
+from trackcal.calib.diagnose.joint_map import (
+    Arc,
+    FoldGrams,
+    HeldOutMap,
+    _cv_scores,
+    harmonic_names,
+    map_extension,
+    map_features,
+    parse_name,
+)
 from trackcal.calib.diagnose.structure import RIDGES, _ridge_fit
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify import solver
@@ -229,3 +238,24 @@ def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
     assert (plain.cause, plain.holdout_extended_mm) == (threaded.cause, threaded.holdout_extended_mm)
     assert plain.structure == threaded.structure  # the smoother test folds in threads
     assert "cross-validated smoother" in [t["test"] for t in plain.structure["tests"]]
+
+
+def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_case):
+    """The held-out rows' map columns formed joint by joint (a coefficient moves its own joint only) equal the
+    columns from the dense (N, n, e) features, as formed before issue 26's last stop, bit for bit."""
+    table, params, geo = twin_case
+    q = np.radians(table.q_deg)
+    arcs = {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}
+    names = [nm for j in arcs for nm in harmonic_names(j, 5)]
+    ext = map_extension(q, names=names, arcs=arcs)
+    problem = Problem(CELL.chain, table, geo.points, params, TrackerNoise(), extension=ext)
+    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
+                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(len(names)))  # fmt: skip
+    held = HeldOutMap(problem, state, names)
+    test = np.arange(0, len(table), 4)
+    train = np.setdiff1d(np.arange(len(table)), test)
+    arcs_train = {j: Arc.covering(q[train, j]) for j in arcs}
+    for subset in (None, names[::3]):
+        feats = map_features(q[test], names if subset is None else subset, arcs_train)
+        ref = np.einsum("rcj,rje->rce", held.lever[test], feats).reshape(3 * len(test), -1)
+        assert np.array_equal(held.columns(test, subset), ref)

@@ -78,6 +78,7 @@ class Context:
     unwhiten: np.ndarray | None = None  # (N, 3, 3) inverse whitening of each row (tracker weighting)
     executor: Executor | None = None  # runs independent pieces (folds) at once when given (threads)
     scans: dict[bytes | None, tuple | None] = field(default_factory=dict)  # change points found, by rows (`scan`)
+    combined: dict[tuple, tuple] = field(default_factory=dict)  # extensions combined (`extension_of`)
 
 
 def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int,
@@ -171,11 +172,17 @@ def whole_fit(ctx: Context, causes: tuple[str, ...]) -> Fit:
 
 def extension_of(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None,
                  main: str | None = None) -> Extension | None:  # fmt: skip
-    """The causes' extensions combined (station_shift has none), `main` naming it (default: the first)."""
+    """The causes' extensions combined (station_shift has none), `main` naming it (default: the first); combined once
+    per set of extensions (thermal_form tries several under one name: they are told apart by identity, and the
+    cache holds them so that identity is not reused)."""
     parts = [ctx.features[c] for c in causes if c != SHIFT]
     if not parts:
         return None
-    ext = combine(parts, main if main in causes and main != SHIFT else None)
+    name = main if main in causes and main != SHIFT else None
+    key = (tuple(id(x) for x in parts), name)
+    if key not in ctx.combined:
+        ctx.combined[key] = (parts, combine(parts, name))
+    ext = ctx.combined[key][1]
     return ext if rows is None else ext.subset(rows)
 
 

@@ -117,13 +117,11 @@ def parse_name(name: str) -> tuple[str, int, int]:
         raise JointMapError(f"{name!r} is not a joint error map coefficient (s<h>_<joint> or c<h>_<joint>)") from None
 
 
-def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.ndarray:
-    """(N, n, e) features: dq_j = features @ c for the coefficients `names`, each joint's angle clamped to its arc."""
-    n_rows, n = q.shape
+def _harmonics(q: np.ndarray, names: list[str], arcs: dict[int, Arc]):
+    """(joint, columns, values (N, len(columns))) of the coefficients `names` grouped by joint and sine/cosine, each
+    joint's angle clamped to its arc: one sine or cosine call per group (a call per coefficient cost 1.4 s of a
+    diagnosis of Series B, issue 26), the same products h * q and the same values."""
     clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
-    feats = np.zeros((n_rows, n, len(names)))
-    # one sine and one cosine call per joint over all its harmonics (a call per coefficient cost 1.4 s of a
-    # diagnosis of Series B, issue 26); the same products h * q and the same values
     groups: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
     for i, name in enumerate(names):
         kind, h, j = parse_name(name)
@@ -131,7 +129,14 @@ def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.nd
         cols.append(i)
         hs.append(h)
     for (kind, j), (cols, hs) in groups.items():
-        feats[:, j, cols] = (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
+        yield j, cols, (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
+
+
+def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.ndarray:
+    """(N, n, e) features: dq_j = features @ c for the coefficients `names`, each joint's angle clamped to its arc."""
+    feats = np.zeros((q.shape[0], q.shape[1], len(names)))
+    for j, cols, values in _harmonics(q, names, arcs):
+        feats[:, j, cols] = values
     return feats
 
 
@@ -294,8 +299,11 @@ class HeldOutMap:
         if key not in self._columns:
             train = np.setdiff1d(np.arange(len(self.q)), test)
             arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
-            feats = map_features(self.q[test], self.names if names is None else names, arcs)
-            self._columns[key] = np.einsum("rcj,rje->rce", self.lever[test], feats).reshape(3 * len(test), -1)
+            names = self.names if names is None else names
+            lever, out = self.lever[test], np.empty((len(test), 3, len(names)))
+            for j, cols, values in _harmonics(self.q[test], names, arcs):  # a coefficient moves its own joint only
+                out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
+            self._columns[key] = out.reshape(3 * len(test), -1)
         return self._columns[key]
 
 
