@@ -144,8 +144,9 @@ def scan(ctx: Context, rows: np.ndarray | None = None) -> tuple[str, float] | No
 
 
 def fit_model(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None, max_iter: int = 100) -> Fit:
-    """Fit the geometric model plus `causes` on `rows` of the table (all by default), warm-started at the
-    geometric solution; station_shift is found by the scan on those rows, then fitted with the rest."""
+    """Fit the geometric model plus `causes` on `rows` of the table (all by default), the whole table from
+    `warm_start`, rows from the geometric solution; station_shift is found by the scan on those rows, then fitted
+    with the rest."""
     table = ctx.table if rows is None else ctx.table.subset(rows)
     shift = None
     if SHIFT in causes:

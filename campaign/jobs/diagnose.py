@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterator
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +41,14 @@ class DiagnoseOptions:
     threads: int = THREADS  # run independent pieces of the diagnosis at once (1: one after the other)
 
 
+@contextlib.contextmanager
+def diagnosis_threads(threads: int = THREADS) -> Iterator[Executor | None]:
+    """The executor a diagnosis runs its independent pieces in (`calib.diagnose.selection.diagnose`): `threads`
+    threads, or None for one."""
+    with ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as ex:
+        yield ex
+
+
 @dataclass
 class DiagnoseOutcome:
     diagnosis: Diagnosis
@@ -56,7 +65,7 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
         # list of that many empty blocks); more folds than poses hold out one pose each
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
     params, still = still_warning(cell, table, choose_params(cell, opts.params))
-    with ThreadPoolExecutor(opts.threads) if opts.threads > 1 else contextlib.nullcontext() as ex:
+    with diagnosis_threads(opts.threads) as ex:
         d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting, cell.tracker),
                      folds=opts.folds, seed=opts.seed, tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
     digest = sha256_of(table.source)

@@ -22,7 +22,7 @@ from trackcal.calib.model.cell import Cell, load_cell, resolve
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import load_model
 from trackcal.campaign.errors import InputError, OptionError
-from trackcal.campaign.jobs.diagnose import verdict_doc
+from trackcal.campaign.jobs.diagnose import diagnosis_threads, verdict_doc
 from trackcal.campaign.jobs.identify import choose_params, model_doc, run_identify, sha256_of
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.html import write_report
@@ -63,8 +63,9 @@ def analyse_session(store: SessionStore) -> CampaignAnalysis:
     table, digest = as_written(exported), hashlib.sha256(data).hexdigest()
     params = choose_params(cell, None)
     outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING, table_sha256=digest)
-    dg = diagnose(cell.chain, table, cell.tool_points, outcome.result.params, outcome.result.noise,
-                  geometric=outcome.result)  # fmt: skip
+    with diagnosis_threads() as ex:
+        dg = diagnose(cell.chain, table, cell.tool_points, outcome.result.params, outcome.result.noise,
+                      geometric=outcome.result, executor=ex)  # fmt: skip
     verdict = written(files.verdict, verdict_doc(cell, dg, digest))
     geometric = None
     if dg.extended is not None:
@@ -167,8 +168,9 @@ def read_campaign(cell: Cell, table_path, model_path, plan_path, verdict_path, p
 def diagnosis_of(cell: Cell, table: MeasurementTable, model: dict) -> Diagnosis:
     """The table diagnosed with the model's parameters and weighting."""
     params = [param_by_name(cell.chain, n) for n in model.get("covariance_order", [])]
-    return diagnose(cell.chain, table, cell.tool_points, params, model_noise(model),
-                    tracker=TrackerNoise.of(cell.tracker))  # fmt: skip
+    with diagnosis_threads() as ex:
+        return diagnose(cell.chain, table, cell.tool_points, params, model_noise(model),
+                        tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
 
 
 def _numbers(doc: dict, keys: tuple[str, ...], where: str) -> None:
