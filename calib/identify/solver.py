@@ -436,24 +436,13 @@ class Problem:
 
 @dataclass
 class Solution:
-    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit). The residuals and the
-    whole Jacobian at `state` are computed when first asked for: the solver itself never holds the Jacobian."""
+    """Where the solver stopped (after scipy's OptimizeResult: success, message, nit); the solver never holds the
+    whole Jacobian (`Problem.residual_and_jacobian` forms it at `state` when a caller needs it)."""
 
     state: State
     nit: int
     converged: bool
     message: str
-    problem: Problem = field(repr=False)
-
-    @cached_property
-    def r(self) -> np.ndarray:
-        """Whitened residuals at `state`."""
-        return self.problem.residual(self.state)
-
-    @cached_property
-    def jm(self) -> np.ndarray:
-        """Their Jacobian in the free unknowns (3N, n_cols)."""
-        return self.problem.residual_and_jacobian(self.state)[1]
 
 
 def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
@@ -526,7 +515,7 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
             if lam > 1e8:
                 message = "the damping exceeded 1e8: no step decreases the cost"
                 break
-    return Solution(state, iterations, converged, message, problem)
+    return Solution(state, iterations, converged, message)
 
 
 def identify(
