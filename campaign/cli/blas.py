@@ -3,7 +3,8 @@
 One on purpose: trackcal's matrices have tens of columns, where a second BLAS thread buys little and, on a
 machine shared with other work, costs much (issue 16, measured on 2 cores: diagnose of a 156-row campaign
 51 s with numpy's default of two threads, 6.4 s with one). Parallelism comes from processes instead (plan
-starts, diagnose folds), each on one thread.
+starts, batches), each on one BLAS thread, and from a diagnosis's own threads, whose folds' LAPACK calls run at once
+(campaign.jobs.diagnose.diagnosis_threads; issue 26).
 """
 
 from __future__ import annotations
