@@ -16,7 +16,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 import trackcal.drivers as _drivers
+from trackcal.drivers.errors import ProgramError
 from trackcal.drivers.interfaces import Robot
 
 REQUIRED = ...  # the default of a key the hardware file must give
@@ -33,6 +36,20 @@ class ProgramWriter:
     check_name: Callable[[str], str]
     labels: Callable[[list[str] | None, int], list[str]]
     texts: Callable[..., dict[str, bytes]]
+
+
+def program_targets(q_deg, speed_pct, controller: str, axes: int, angles: str, speed: str,
+                    error: type[ProgramError]) -> tuple[np.ndarray, int]:  # fmt: skip
+    """(targets (N, axes) degrees, speed override %) of a `controller`'s program, or `error` saying what is wrong:
+    rows of `axes` finite `angles` (as the controller names them), an integer `speed` override of 1..100 %."""
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    if q.ndim != 2 or q.shape[1] != axes or len(q) == 0:
+        raise error(f"a {controller} program needs rows of {axes} {angles}, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise error(f"{angles} must be finite numbers")
+    if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
+        raise error(f"the {speed} speed override must be an integer percentage 1..100, got {speed_pct!r}")
+    return q, int(speed_pct)
 
 
 @dataclass(frozen=True)

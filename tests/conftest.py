@@ -6,13 +6,11 @@ no test may depend on how fast a loaded machine is.
 """
 
 import os
-import signal
-import subprocess
 
 import pytest
 from hypothesis import settings
 
-from tests.helpers import ROOT, TRACKCAL, wait_for
+from tests.helpers import mock_process
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
 
@@ -35,16 +33,5 @@ def kr270_params(kr270):
 def mock_cell(tmp_path):
     """`trackcal mock` in its own process; yields (process, hardware file). Stopped by SIGINT if still running."""
     hw = tmp_path / "H.yaml"
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
-    try:
-        wait_for(hw, proc)
+    with mock_process("kr270", 3, hw) as proc:
         yield proc, hw
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()

@@ -1,10 +1,14 @@
 """What several test modules share: the command line, campaigns on the twin, plans, in-process cells, fault
 injection. Fixtures live in conftest.py; no test module imports another."""
 
+import contextlib
 import re
+import signal
+import sqlite3
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -90,3 +94,38 @@ def wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 30.0) -> Non
         assert proc.poll() is None, f"trackcal mock exited early: {proc.communicate()}"
         assert time.monotonic() < deadline, f"{path} not written within {timeout_s} s"
         time.sleep(0.05)
+
+
+def stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
+    """Ctrl-C a process that still runs (a mock, a campaign), killed if it has not ended within timeout_s."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+@contextlib.contextmanager
+def mock_process(cell: str, seed: int, hw: Path, timeout_s: float = 30.0,
+                 stdout=subprocess.PIPE) -> Iterator[subprocess.Popen]:  # fmt: skip
+    """`trackcal mock --cell CELL` in its own process, yielded once it has written its hardware file `hw`; stopped
+    (`stop`) at the end if still running."""
+    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw)],
+                            stdout=stdout, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    try:
+        wait_for(hw, proc, timeout_s)
+        yield proc
+    finally:
+        stop(proc)
+
+
+def count_measurements(db: Path) -> int:
+    """Measurements stored in a session database so far (0 before it exists)."""
+    try:  # mode=rw: never creates the file, and rolls back a write the kill cut short (read-only cannot)
+        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
+            return conn.execute("SELECT count(*) FROM events WHERE kind='measurement'").fetchone()[0]
+    except sqlite3.Error:
+        return 0

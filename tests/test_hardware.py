@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.helpers import ROOT, TRACKCAL
+from tests.helpers import ROOT, TRACKCAL, count_measurements
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.engine.steps import plan_steps
@@ -213,14 +213,6 @@ def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp
     stdout, stderr = proc.communicate(timeout=15)
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr and "stopping" in stdout
-
-
-def count_measurements(db: Path) -> int:
-    try:  # mode=rw: never creates the file, and rolls back a write the kill cut short (read-only cannot)
-        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
-            return conn.execute("SELECT count(*) FROM events WHERE kind='measurement'").fetchone()[0]
-    except sqlite3.Error:
-        return 0
 
 
 @pytest.mark.slow

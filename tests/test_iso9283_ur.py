@@ -3,14 +3,13 @@ report there too. By default on `run --sim` (the twin behind the in-process lock
 before/after chain against `trackcal mock --cell ur10` (the mock UR controller in its own process, `run --hardware`)
 is slow (`make test-slow`)."""
 
-import signal
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.helpers import ROOT, TRACKCAL, wait_for
+from tests.helpers import TRACKCAL, mock_process
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model_file import Model
@@ -62,20 +61,10 @@ def test_ur10_mock_controller_before_and_after(tmp_path):
     run("iso9283", "plan", *common, "--json", "iso.json", cwd=tmp_path)
     run("iso9283", "plan", *common, "--model", "model.json", "--json", "iso-comp.json", cwd=tmp_path)
     hw = tmp_path / "H.yaml"
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", "ur10", "--seed", str(SEED), "--write-hardware", str(hw)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
-    try:
-        wait_for(hw, proc, timeout_s=60.0)
+    with mock_process("ur10", SEED, hw, timeout_s=60.0):
         for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
             run("run", "--cell", "ur10", "--plan", plan, "--hardware", str(hw), "--session", session,
                 "--no-analysis", cwd=tmp_path)  # fmt: skip
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
     out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--report", "iso.html",
               cwd=tmp_path)  # fmt: skip
     assert "vAP_P nominal" in out and "AP_P compensated" in out

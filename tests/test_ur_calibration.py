@@ -89,14 +89,20 @@ def test_kinematics_info_of_the_mock_gives_the_mocks_own_forward_kinematics():
     assert 0.01 < np.abs(ours - nominal).max() < 5.0
 
 
-def test_factory_robot_writes_an_identifiable_robot_with_the_calibrated_lengths(tmp_path):
+def factory_robot(tmp_path):
+    """`trackcal factory-robot` of CONF for the ur10: (robot file, its output)."""
     conf = tmp_path / "calibration.conf"
     conf.write_text(CONF)
     out = tmp_path / "robot.yaml"
     r = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "ur10", "--conf", str(conf), "--out", str(out)],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0, r.stderr
-    assert "nominal: the factory calibration of" in r.stdout and "calibration.conf" in r.stdout
+    return out, r.stdout
+
+
+def test_factory_robot_writes_an_identifiable_robot_with_the_calibrated_lengths(tmp_path):
+    out, stdout = factory_robot(tmp_path)
+    assert "nominal: the factory calibration of" in stdout and "calibration.conf" in stdout
     chain, doc = load_robot(str(out))
     assert doc["controller"] == "ur" and len(irreducible_params(chain)[0]) == 18  # as the published UR10's
     # the lengths are the calibrated ones: a2 = -612 + 0.2 mm, a3 = -572.3 - 0.1 mm, d1 = 127.3 + 0.1 mm; a theta
@@ -104,6 +110,7 @@ def test_factory_robot_writes_an_identifiable_robot_with_the_calibrated_lengths(
     assert chain.joints[1].translation[0] == pytest.approx(-611.8, abs=1e-6)
     assert chain.joints[2].translation[0] == pytest.approx(-572.4, abs=1e-6)
     assert chain.joints[0].translation[2] == pytest.approx(127.4, abs=1e-9)
+    conf = tmp_path / "calibration.conf"
     bad = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "kr270", "--conf", str(conf), "--out", str(out)],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
@@ -124,16 +131,6 @@ def dh_formula(q, theta, a, d, alpha, point):
         c, s, ca, sa = math.cos(th + qi), math.sin(th + qi), math.cos(al), math.sin(al)
         t = t @ np.array([[c, -s * ca, s * sa, ai * c], [s, c * ca, -c * sa, ai * s], [0, sa, ca, di], [0, 0, 0, 1]])
     return (t @ np.append(point, 1.0))[:3]
-
-
-def factory_robot(tmp_path):
-    conf = tmp_path / "calibration.conf"
-    conf.write_text(CONF)
-    out = tmp_path / "robot.yaml"
-    r = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "ur10", "--conf", str(conf), "--out", str(out)],
-                       capture_output=True, text=True)  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    return out, r.stdout
 
 
 def test_factory_robot_is_the_calibrated_table_exactly_and_identification_stays_well_posed(tmp_path):

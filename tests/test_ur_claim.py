@@ -4,8 +4,6 @@ campaign on the same arm is refused in one line, and the claim ends with the pro
 
 import errno
 import json
-import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -13,7 +11,7 @@ import time
 import pytest
 import yaml
 
-from tests.helpers import ROOT, TRACKCAL, wait_for
+from tests.helpers import ROOT, TRACKCAL, count_measurements, mock_process, stop
 from trackcal.drivers.errors import ConnectionLost
 from trackcal.drivers.families import families
 from trackcal.drivers.ur.client import UrRtde
@@ -85,14 +83,6 @@ def test_run_on_a_claimed_arm_is_refused_in_one_line_before_it_makes_a_session(t
     assert not (tmp_path / "b").exists()
 
 
-def count_measurements(db) -> int:
-    try:
-        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
-            return conn.execute("SELECT count(*) FROM events WHERE kind='measurement'").fetchone()[0]
-    except sqlite3.Error:
-        return 0
-
-
 @pytest.mark.slow
 def test_second_run_against_the_same_mock_ur_while_the_first_runs_is_refused(tmp_path):
     """Two `run --hardware` on one `trackcal mock --cell ur10`: the second is refused in one line while the first
@@ -100,33 +90,25 @@ def test_second_run_against_the_same_mock_ur_while_the_first_runs_is_refused(tmp
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({"poses_deg": [list(Q0), [q + 4 for q in Q0]], "repeat": 1}))
     hw = tmp_path / "H.yaml"
-    mock = subprocess.Popen([*TRACKCAL, "mock", "--cell", "ur10", "--seed", "3", "--write-hardware", str(hw)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
     first = None
-    try:
-        wait_for(hw, mock, timeout_s=60.0)
-        a, b = tmp_path / "a", tmp_path / "b"
-        first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                                  "--session", str(a), "--no-analysis"], stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
-        deadline = time.monotonic() + 120  # bounds a hang only
-        while count_measurements(a / "session.sqlite") < 1 and time.monotonic() < deadline:
-            assert first.poll() is None, first.stderr.read()
-            time.sleep(0.01)
-        assert count_measurements(a / "session.sqlite") >= 1  # the first campaign is running
-        out = subprocess.run([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                              "--session", str(b), "--no-analysis"], capture_output=True, text=True, timeout=120,
-                             cwd=ROOT)  # fmt: skip
-        assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
-        assert "the cell is busy" in out.stderr and not b.exists(), out.stderr
-        _, err = first.communicate(timeout=300)
-        assert first.returncode == 0, err
-    finally:
-        for proc in (first, mock):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=20)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+    with mock_process("ur10", 3, hw, timeout_s=60.0, stdout=subprocess.DEVNULL):
+        try:
+            a, b = tmp_path / "a", tmp_path / "b"
+            first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
+                                      "--session", str(a), "--no-analysis"], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+            deadline = time.monotonic() + 120  # bounds a hang only
+            while count_measurements(a / "session.sqlite") < 1 and time.monotonic() < deadline:
+                assert first.poll() is None, first.stderr.read()
+                time.sleep(0.01)
+            assert count_measurements(a / "session.sqlite") >= 1  # the first campaign is running
+            out = subprocess.run([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
+                                  "--session", str(b), "--no-analysis"], capture_output=True, text=True, timeout=120,
+                                 cwd=ROOT)  # fmt: skip
+            assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
+            assert "the cell is busy" in out.stderr and not b.exists(), out.stderr
+            _, err = first.communicate(timeout=300)
+            assert first.returncode == 0, err
+        finally:
+            if first is not None:
+                stop(first)

@@ -15,7 +15,7 @@ import time
 import pytest
 import yaml
 
-from tests.helpers import ROOT, TRACKCAL, wait_for
+from tests.helpers import ROOT, TRACKCAL, count_measurements, mock_process
 from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
@@ -47,19 +47,8 @@ def one_pose(tmp_path_factory):
 def ur_mock(tmp_path):
     """`trackcal mock --cell ur10` in its own process; yields (process, hardware file)."""
     hw = tmp_path / "H.yaml"
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", "ur10", "--seed", str(SEED), "--write-hardware", str(hw)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
-    try:
-        wait_for(hw, proc, timeout_s=60.0)
+    with mock_process("ur10", SEED, hw, timeout_s=60.0) as proc:
         yield proc, hw
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 def run(*args, timeout=300, check=True):
@@ -86,14 +75,6 @@ def same_rows(a, b, upto=None):
     assert a.pose == b.pose and a.point == b.point and a.station == b.station
     assert (a.q_deg == b.q_deg).all()
     assert (a.xyz[:upto] == b.xyz[:upto]).all()
-
-
-def count_measurements(db) -> int:
-    try:
-        with sqlite3.connect(f"file:{db}?mode=rw", uri=True, timeout=5) as conn:
-            return conn.execute("SELECT count(*) FROM events WHERE kind='measurement'").fetchone()[0]
-    except sqlite3.Error:
-        return 0
 
 
 @pytest.mark.slow

@@ -36,11 +36,11 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.history import compare_estimates
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING
-from trackcal.calib.io.files import read_yaml, write_json
+from trackcal.calib.io.files import read_json, read_yaml, write_json
 from trackcal.calib.model_file import load_model
 from trackcal.campaign.errors import CampaignError, InputError, OptionError
 from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
-from trackcal.campaign.jobs.history import session_start
+from trackcal.campaign.jobs.history import model_estimate, session_start
 from trackcal.campaign.jobs.identify import IdentifyOptions, identify_table
 from trackcal.campaign.jobs.iso9283 import session_figures
 from trackcal.campaign.jobs.plan import executor_for
@@ -270,13 +270,10 @@ def campaign_date(c: Campaign) -> tuple[datetime, str]:
 def _estimate(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, int, dict] | None:
     """(names, values, covariance, dof, units) of a model.json, or None without a covariance."""
     try:
-        doc = json.loads(path.read_text())
-        names = [str(n) for n in doc["covariance_order"]]
-        values = np.array([doc["parameters"][n]["value"] for n in names], float)
-        cov = np.asarray(doc["covariance"], float)
-        units = {n: doc["parameters"][n].get("unit", "") for n in names}
-        return names, values, cov.reshape(len(names), len(names)), int(doc.get("dof", 1)), units
-    except (OSError, ValueError, KeyError, TypeError):
+        doc = read_json(path, InputError)
+        names, values, cov, dof = model_estimate(doc, path)
+        return names, values, cov, dof, {n: doc["parameters"][n].get("unit", "") for n in names}
+    except (InputError, ValueError, KeyError, TypeError):
         return None
 
 

@@ -91,17 +91,22 @@ def _tcp_error(model: Model, values_cov: np.ndarray) -> tuple[float | None, floa
     return err, float(stats.t.ppf(0.975, max(1, int(doc.get("dof", 1))))) * sd
 
 
-def load_calibration(label: str, date: datetime | None = None) -> Calibration:
-    model_path, found, source = _date_of(Path(label))
-    model = load_model(model_path)
-    doc = model.doc
+def model_estimate(doc: dict, path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray, int]:
+    """(parameter names, values in boundary units (mm, deg), their covariance, degrees of freedom) of a model.json
+    document; InputError when it has no covariance."""
     names = [str(n) for n in doc.get("covariance_order", [])]
     cov = np.asarray(doc.get("covariance", []), dtype=float)
     if not names or cov.shape != (len(names), len(names)):
-        raise InputError(f"{model_path}: no parameter covariance (a model from trackcal identify or diagnose has one)")
+        raise InputError(f"{path}: no parameter covariance (a model from trackcal identify or diagnose has one)")
     values = np.array([doc["parameters"][n]["value"] for n in names], dtype=float)
-    cal = Calibration(label, date or found, "given" if date else source, model, names, values, cov,
-                      int(doc.get("dof", 1)))  # fmt: skip
+    return names, values, cov, int(doc.get("dof", 1))
+
+
+def load_calibration(label: str, date: datetime | None = None) -> Calibration:
+    model_path, found, source = _date_of(Path(label))
+    model = load_model(model_path)
+    names, values, cov, dof = model_estimate(model.doc, model_path)
+    cal = Calibration(label, date or found, "given" if date else source, model, names, values, cov, dof)
     cal.tcp_error_mm, cal.tcp_ci95_mm = _tcp_error(model, cov)
     return cal
 

@@ -147,12 +147,11 @@ def locate(opts: LocateOptions) -> Location:
                 write_table(pred, opts.predict_out)
         if held.xyz is not None:
             held_out = {"rows": len(held), "poses": len(set(held.pose)), **residual_stats(held.xyz - pred.xyz)}
-    path = Path(opts.table)
+    path, stats = Path(opts.table), residual_stats(fit.residuals)
     doc.setdefault("located", {})[name] = {
         "table": str(path), "table_sha256": sha256_of(path), "station_in_table": station,
         "poses": located_poses, "n_points": len(sub), **quality,
-        "residuals": {"rms_mm": float(np.sqrt(np.mean(np.sum(fit.residuals**2, axis=1)))),
-                      "max_mm": float(np.max(np.linalg.norm(fit.residuals, axis=1)))},
+        "residuals": {"rms_mm": stats["dist_rms_mm"], "max_mm": stats["dist_max_mm"]},  # 3-D
         "points": [{"row": p.row, "pose": p.pose, "point": p.point, "residual_mm": p.residual.tolist()}
                    for p in points],
         "held_out": held_out,

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 from scipy import stats
@@ -28,7 +27,7 @@ from scipy import stats
 from trackcal.calib.doe.design import Design, monte_carlo_rho0
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, noise_for
 from trackcal.calib.identify.solver import identify
-from trackcal.calib.io.files import write_json
+from trackcal.calib.io.files import read_json, write_json
 from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.batch import Progress, map_chunks
@@ -152,14 +151,9 @@ class Rho0Options:
 
 
 def _plan_doc(path: str) -> dict:
-    try:
-        doc = json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the plan ({exc.strerror})") from None
-    except ValueError:
-        raise InputError(f"{path}: not a JSON plan") from None
+    doc = read_json(path, InputError)
     need = ("poses_deg", "repeat", "params", "test_pose_deg", "noise", "sigma_mm", "visibility")
-    missing = [k for k in need if k not in doc] if isinstance(doc, dict) else list(need)
+    missing = [k for k in need if k not in doc]
     if missing:
         raise InputError(f"{path}: not a plan of `trackcal plan` (no {', '.join(missing)})")
     return doc

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
-
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import ProgramWriter
+from trackcal.drivers.families import ProgramWriter, program_targets
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6
@@ -69,14 +67,7 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = 
     """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees; `points` are the
     rows' KRL names (`point_names`; default XP1..XPn)."""
     check_name(name)
-    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
-    if q.ndim != 2 or q.shape[1] != AXES or len(q) == 0:
-        raise KrlError(f"a KR C2 program needs rows of {AXES} axis angles A1..A6, got shape {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise KrlError("axis angles must be finite numbers")
-    if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
-        raise KrlError(f"the axis speed override must be an integer percentage 1..100, got {speed_pct!r}")
-    pct = int(speed_pct)
+    q, pct = program_targets(q_deg, speed_pct, "KR C2", AXES, "axis angles A1..A6", "axis", KrlError)
     points = points or point_names(None, len(q))
     if len(points) != len(q) or not all(NAME_RE.fullmatch(p) for p in points):
         raise KrlError(f"one valid KRL name per target expected, got {points!r}")

@@ -18,10 +18,8 @@ from __future__ import annotations
 import math
 import re
 
-import numpy as np
-
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import ProgramWriter
+from trackcal.drivers.families import ProgramWriter, program_targets
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
 AXES = 6
@@ -43,14 +41,8 @@ def urscript_text(name: str, q_deg, speed_pct: int = 10, points: list[str] | Non
     """The program moving with movej through the rows of q_deg (N, 6) in degrees; `points` name the rows in a
     comment each."""
     check_name(name)
-    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
-    if q.ndim != 2 or q.shape[1] != AXES or len(q) == 0:
-        raise UrScriptError(f"a UR program needs rows of {AXES} joint angles, got shape {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise UrScriptError("joint angles must be finite numbers")
-    if isinstance(speed_pct, bool) or int(speed_pct) != speed_pct or not 1 <= speed_pct <= 100:
-        raise UrScriptError(f"the joint speed override must be an integer percentage 1..100, got {speed_pct!r}")
-    f = int(speed_pct) / 100.0
+    q, pct = program_targets(q_deg, speed_pct, "UR", AXES, "joint angles", "joint", UrScriptError)
+    f = pct / 100.0
     a, v = f"{MOVEJ_A_RAD_S2 * f:.4f}", f"{MOVEJ_V_RAD_S * f:.4f}"
     points = points or [f"P{k + 1}" for k in range(len(q))]
     if len(points) != len(q):
