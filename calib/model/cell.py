@@ -176,8 +176,12 @@ def load_cell(ref: str) -> Cell:
     chain, robot_doc = load_robot(robot_ref, path.parent)
     pts, normals = load_tool(fields.text(doc["tool"], f"{where}: tool", CellError), path.parent)
     name = fields.text(doc.get("name", path.stem), f"{where}: name", CellError)
+    # `nominal:` in the cell says it in words (a session's copy of its cell records it: its robot file is a
+    # temporary copy whose path would say nothing)
+    nominal = fields.text(doc["nominal"], f"{where}: nominal", CellError) if "nominal" in doc else nominal_of(
+        robot_ref, robot_doc, path.parent)  # fmt: skip
     cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where,
-                nominal=nominal_of(robot_ref, robot_doc, path.parent))  # fmt: skip
+                nominal=nominal)  # fmt: skip
     if "box_mm" in doc:
         box = fields.mapping(doc["box_mm"], f"{where}: box_mm", CellError)
         cell.box_min = fields.vector(box.get("min"), f"{where}: box_mm.min", CellError)

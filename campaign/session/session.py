@@ -86,6 +86,7 @@ def config_documents(cell_ref: str) -> dict[str, str]:
     robot and tool point at their neighbours."""
     cell_path = resolve("cells", cell_ref)
     doc = load_yaml(cell_path)
+    doc.setdefault("nominal", load_cell(cell_ref).nominal)  # which nominal robot, named from where it came
     docs = {}
     for key, kind in (("robot", "robots"), ("tool", "tools")):
         src = resolve(kind, str(doc[key]), cell_path.parent)
