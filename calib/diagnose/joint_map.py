@@ -33,7 +33,8 @@ LEVER_RATIO times the largest joint's drops it, and the fit reports it.
 
 Speed: cross-validation works on the problem linearised at the fit without the map: the Gram matrix of
 the Jacobian is formed once, each fold's is the whole minus the fold's rows, the unpenalised block is
-eliminated (Schur complement) and one eigendecomposition per fold and order serves every ridge value.
+eliminated (Schur complement) and one tridiagonal reduction per fold and order serves every ridge value
+(`calib.diagnose.ridge`).
 The final fit is Gauss-Newton on the penalised non-linear problem from there (a few iterations).
 """
 
@@ -46,6 +47,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
+from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
@@ -335,7 +337,7 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
     pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
     (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
     arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known. The folds are
-    solved in `executor` when given (threads: the eigendecompositions release the GIL), summed in fold order."""
+    solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     row_fold = np.repeat(fold, 3)
@@ -354,15 +356,17 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
         sa = np.sqrt(np.diag(gaa))
         sa[sa == 0] = 1.0
         gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
+        # the Schur complement of every penalised column; an order's is its block (its columns a subset)
+        gpf = g[np.ix_(free, pen_cols)]
+        schur_all = g[np.ix_(pen_cols, pen_cols)] - gpf.T @ gaa_inv @ gpf
+        bf_all = b[pen_cols] - gpf.T @ (gaa_inv @ b[free])
         for i, cols in enumerate(orders_cols):
-            gaf = g[np.ix_(free, cols)]
-            schur = g[np.ix_(cols, cols)] - gaf.T @ gaa_inv @ gaf
-            bf = b[cols] - gaf.T @ gaa_inv @ b[free]
-            if len(lam) == 1:  # one ridge: a solve is a fraction of the eigendecomposition's cost
+            at = np.searchsorted(pen_cols, cols)
+            gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
+            if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
                 c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
             else:
-                mu, v = np.linalg.eigh(0.5 * (schur + schur.T))
-                c = v @ ((v.T @ bf)[:, None] / (np.maximum(mu, 0.0)[:, None] + lam[None]))  # (p, L): every ridge
+                c = ridge_path(schur, bf, lam)  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
             e = rk[:, None] - jk[:, free] @ a - jk[:, cols] @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
@@ -588,9 +592,10 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
     (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
 
     It stops as `calib.identify.solver.solve` does: when a step, or all the steps still to come after it (the rate of
-    the last two steps telling their sum), moves the fit by less than 1e-9 of the residual (issue 26: three
+    the last two steps telling their sum), moves the fit by less than 1e-9 of the residual (issue 26: two
     Gauss-Newton steps on Series B where a fixed test on the step alone took five, each a Jacobian of ~700 columns;
-    the steps skipped were below 2e-9 of the residual)."""
+    the steps skipped were below 2e-9 of the residual). The covariance is taken with the Jacobian of the state
+    before the last step."""
     pen = np.zeros(problem.n_cols)
     pen[k0 : k0 + n_map] = lam
     converged, prev, iterations = False, 0.0, 0
@@ -609,11 +614,14 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
         iterations += 1
         step, tol = float(np.linalg.norm(jm @ (ds / scale))), 1e-9 * float(np.linalg.norm(r))
         rate = step / prev if prev > 0 else 1.0
-        r, jm = problem.residual_and_jacobian(state)
-        gram = jm.T @ jm
         if step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol):
+            # the last step moved the fit by a small multiple of 1e-9 of the residual: the covariance keeps the
+            # Jacobian of the state before it (its entries differ by ~1e-9 relative), and a Jacobian of ~700
+            # columns and its Gram matrix (a third of the fit's time) are not formed again
             converged = True
             break
+        r, jm = problem.residual_and_jacobian(state)
+        gram = jm.T @ jm
         prev = step
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
@@ -622,12 +630,14 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
     hat = np.einsum("ij,ji->i", h_inv, gram)  # diagonal of (G + P)^-1 G: each unknown's share of the fit
     edf = float(hat.sum())
     dof = max(int(round(3 * problem.n_rows - edf)), 1)
+    residuals = problem.xyz - problem.predicted(state)
+    r = problem._whiten(residuals).ravel()
     s2 = float(r @ r) / dof
     cov = s2 * h_inv / np.outer(scale, scale)
     res = Identification(
         chain=problem.chain, params=list(problem.params), dev=state.dev, stations=dict(zip(problem.station_ids,
         state.stations, strict=True)), points={p: state.points[i] for i, p in enumerate(problem.point_ids)}, cov=cov,
-        station_ids=problem.station_ids, point_ids=problem.point_ids, residuals=problem.xyz - problem.predicted(state),
+        station_ids=problem.station_ids, point_ids=problem.point_ids, residuals=residuals,
         variance_factor=s2, dof=dof, iterations=iterations, noise=noise, extension=problem.ext, ext=state.ext,
         converged=converged, message="the Gauss-Newton steps to come are below 1e-9 of the residual" if converged else
         f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",

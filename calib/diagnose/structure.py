@@ -17,6 +17,7 @@ from scipy.special import fdtrc, stdtr  # F and t tails (scipy.stats: ~1 s to im
 
 from trackcal.calib.diagnose.crossval import Context, Fit
 from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import skew
@@ -62,14 +63,11 @@ def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: i
 
 
 def _ridge_fit(x: np.ndarray, y: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """(len(lams), p) ridge coefficients for every ridge value, one eigendecomposition of x^T x.
-
-    (x^T x + lam I)^-1 x^T y = V (mu + lam)^-1 V^T x^T y. Before issue 26 an SVD of x gave the same for 5x the cost
-    (x has thousands of rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x
-    (eps times its largest eigenvalue), so the digits squaring loses do not reach the coefficients."""
-    mu, v = np.linalg.eigh(x.T @ x)
-    vxy = v.T @ (x.T @ y)
-    return np.array([v @ (vxy / (np.maximum(mu, 0.0) + lam)) for lam in lams])
+    """(len(lams), p) ridge coefficients (x^T x + lam I)^-1 x^T y for every ridge value, from one tridiagonal
+    reduction of x^T x (`ridge_path`). Before issue 26 an SVD of x gave the same for 5x the cost (x has thousands of
+    rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x (eps times its
+    largest eigenvalue), so the digits squaring loses do not reach the coefficients."""
+    return ridge_path(x.T @ x, x.T @ y, lams).T
 
 
 def _ridge_predict(x_tr: np.ndarray, y_tr: np.ndarray, x_te: np.ndarray, pose_tr: np.ndarray) -> np.ndarray:
@@ -104,7 +102,7 @@ def smoother_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[n
         return np.sum((y[te3] ** 2 - (y[te3] - pred) ** 2).reshape(-1, 3), axis=1)
 
     gain = np.zeros(len(table))
-    # the folds in the context's threads when it has them (their eigendecompositions release the GIL)
+    # the folds in the context's threads when it has them (their LAPACK calls release the GIL)
     for test, g in zip(folds, (map if ctx.executor is None else ctx.executor.map)(fold_gain, folds), strict=True):
         gain[test] = g
     pose_arr = np.array(table.pose)

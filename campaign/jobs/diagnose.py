@@ -19,7 +19,7 @@ from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
 
-# threads of one diagnosis: the cross-validation folds of the joint map's search are eigendecompositions that release
+# threads of one diagnosis: the cross-validation folds of the joint map's search are LAPACK reductions that release
 # the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
 # run theirs on one
 THREADS = min(os.cpu_count() or 1, 2)

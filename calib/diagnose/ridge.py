@@ -1,0 +1,60 @@
+"""Ridge paths: (S + lam I)^-1 b for every lam of a list, S symmetric positive semi-definite, for about the cost of one
+factorisation of S.
+
+S = Q T Q^T with T tridiagonal (LAPACK dsytrd, Householder reflectors Q), so that
+
+    (S + lam I)^-1 b = Q (T + lam I)^-1 Q^T b,
+
+and each lam costs one tridiagonal solve (dgtsv, O(p)) between two applications of the reflectors (dormqr, O(p^2)).
+The eigendecomposition S = V diag(mu) V^T gives the same, but its eigenvectors cost about twice the reduction to
+T (measured on 640 columns: 30 ms against 69 ms for the whole path of 17 ridges; issue 26). Golub & Van Loan,
+Matrix Computations (4th ed.), 8.3.1 (Householder tridiagonalisation); LAPACK's dormtr applies the reflectors of a
+lower-stored reduction as dormqr on A(2:p, 1:p-1) and C(2:p, :), which is what `_apply_q` does.
+
+Should T + lam I be singular for some lam (S singular and lam = 0, or rounding below -lam in a direction of S
+with no information), the path falls back to the eigendecomposition with S's eigenvalues clipped at 0, as before.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import lapack
+
+
+def _apply_q(a: np.ndarray, tau: np.ndarray, c: np.ndarray, trans: str) -> np.ndarray:
+    """Q c (trans "N") or Q^T c (trans "T"), Q from dsytrd(lower=1)'s a and tau; c (p, k)."""
+    out = c.copy()
+    if len(c) > 1:
+        lwork = 64 * max(c.shape[1], 1)
+        out[1:], _, info = lapack.dormqr("L", trans, a[1:, :-1], tau, c[1:], lwork)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"dormqr: info {info}")
+    return out
+
+
+def _eigen_path(s: np.ndarray, b: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    mu, v = np.linalg.eigh(0.5 * (s + s.T))
+    return v @ ((v.T @ b)[:, None] / (np.maximum(mu, 0.0)[:, None] + lams[None]))
+
+
+def ridge_path(s: np.ndarray, b: np.ndarray, lams) -> np.ndarray:
+    """(p, len(lams)): column i is (s + lams[i] I)^-1 b; s (p, p) symmetric (its lower triangle is read), b (p,)."""
+    lams = np.asarray(lams, dtype=float)
+    p = len(s)
+    if p == 0:
+        return np.zeros((0, len(lams)))
+    lwork = int(lapack.dsytrd_lwork(p, lower=1)[0])
+    a, d, e, tau, info = lapack.dsytrd(s, lower=1, lwork=max(lwork, 1))
+    if info != 0:
+        return _eigen_path(s, b, lams)
+    y = _apply_q(a, tau, np.asarray(b, dtype=float)[:, None], "T")[:, 0]
+    if p == 1:  # T is its diagonal (dgtsv wants a sub-diagonal)
+        with np.errstate(divide="ignore"):
+            return y[:, None] / (np.maximum(d[:, None], 0.0) + lams[None])
+    x = np.empty((p, len(lams)))
+    for i, lam in enumerate(lams):
+        *_, xi, info = lapack.dgtsv(e, d + lam, e, y)
+        if info != 0:
+            return _eigen_path(s, b, lams)
+        x[:, i] = xi
+    return _apply_q(a, tau, x, "N")
