@@ -1,6 +1,8 @@
 """The pieces of diagnose checked against slow references: the change-point scan's closed-form rigid fits
 against Kabsch per prefix, the linearised folds against full refits, invisible joints, comparable repeats."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -182,3 +184,27 @@ def test_time_folds_cut_at_a_change_point_train_on_both_sides_of_it(n1, n2, afte
             assert len(side) < 2 or np.isin(side, train).any()
     plain = dg.fold_rows(table, "time", folds, 0)
     assert [g.tolist() for g in dg.fold_rows(table, "time", folds, 0, cut=("S9", cut))] == [g.tolist() for g in plain]
+
+
+def test_map_evidence_reuses_the_searchs_problem_only_where_it_is_the_same(kr270):
+    # issue 26: the re-judging linearises at the fit the map's search started from; from the same start, base and
+    # coefficients it takes the search's Jacobian, Gram matrix and held-out columns, and every figure equals the
+    # one it forms itself
+    ctx = kr270_context(kr270, {"encoder_scale": 3e-4, "cyclic_error": 2e-4}, n_poses=30)
+    base = build_extension("encoder_scale", ctx.chain, ctx.table)
+    start = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
+    mf = fit_error_map(ctx.chain, ctx.table, ctx.geo.points, ctx.params, base=base, orders=(4,), start=start)
+    shared = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, mf)
+    own = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, dataclasses.replace(mf, linearised=None))
+    assert shared.jm is mf.linearised.jm and own.jm is not mf.linearised.jm
+    fold = np.arange(len(ctx.table)) % 5
+    for drop in ((), (0,), tuple(range(base.size))):
+        assert shared.whole(drop) == own.whole(drop)
+        assert shared.cv_rms_mm(fold, drop) == own.cv_rms_mm(fold, drop)
+    # another start (the same fit, another object), another base or a lower order: it forms its own
+    other = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, other, mf).jm is not mf.linearised.jm
+    again = build_extension("encoder_scale", ctx.chain, ctx.table)
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, again, start, mf).jm is not mf.linearised.jm
+    lower = dataclasses.replace(mf, orders={j: 2 for j in mf.orders})
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, lower).jm is not mf.linearised.jm

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
@@ -195,6 +196,28 @@ def _map_names(wanted: list[str], arcs: dict[int, Arc]) -> list[str]:
     return list(wanted)
 
 
+class Linearised(NamedTuple):
+    """The map search's problem linearised at `start` (the fit without the map) with the map's coefficients of the
+    largest order searched at zero: what `MapEvidence` forms again for the same start, base and coefficients."""
+
+    start: object
+    base: Extension | None
+    table: MeasurementTable
+    names: list[str]
+    r: np.ndarray
+    jm: np.ndarray
+    gram: np.ndarray
+    rhs: np.ndarray
+    held: HeldOutMap
+    unwhiten: np.ndarray | None
+
+    def serves(self, start, base: Extension | None, table: MeasurementTable, names: list[str]) -> bool:
+        """Whether it is the problem of that start, base, table (its rows as labelled) and map coefficients."""
+        t = self.table
+        return (self.start is start and self.base is base and self.names == names and t.station == table.station
+                and np.array_equal(t.q_deg, table.q_deg) and np.array_equal(t.xyz, table.xyz))  # fmt: skip
+
+
 @dataclass
 class ErrorMapFit:
     identification: Identification  # geometry + optional base extension + map, jointly; ext ordered base, map
@@ -209,6 +232,7 @@ class ErrorMapFit:
     not_identifiable: dict[int, str]  # joint -> why it is not mapped
     cv_table: list[dict] = field(default_factory=list)  # every (order, tau) tried with its CV RMS
     n_base: int = 0  # how many of identification.ext belong to the base extension
+    linearised: Linearised | None = field(default=None, repr=False, compare=False)  # the search's problem
 
     @property
     def coefficients(self) -> np.ndarray:
@@ -397,7 +421,8 @@ def fit_error_map(
     `base` (an unpenalised extension of the same table, e.g. joint_compliance); the harmonic order (one for
     every joint) and the ridge by `folds`-fold cross-validation by pose over `orders` x `taus_rad`.
 
-    `start` is the fit without the map (geometry + base) if already computed. A single order and a single
+    `start` is the fit without the map (geometry + base) if already computed (an Identification, or anything with
+    its dev, stations, points and ext). A single order and a single
     tau skip the cross-validation (a fit inside another cross-validation reuses the outer choice). The folds of the
     search run in `executor` when given (`_cv_scores`)."""
     q = np.radians(table.q_deg)
@@ -426,16 +451,17 @@ def fit_error_map(
     pen_all = len(params) + n_base + np.arange(len(names_max))
     s2 = float(r @ r) / max(len(r) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     n_coord = 3 * len(table)
-    cv_table, cv_rms, cv_without = [], None, None
+    cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
     if search:
         fold = _fold_ids(table, folds, seed)
         unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
         orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in names_max]] for h in orders]
         gram, rhs = jm.T @ jm, jm.T @ r
-        downdate = FoldGrams(jm)
+        downdate, held = FoldGrams(jm), HeldOutMap(problem, state, names_max)
+        linearised = Linearised(geo, base, table, names_max, r, jm, gram, rhs, held, unwhiten)
         ss, ss_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad],
-                               HeldOutMap(problem, state, names_max), downdate, executor)  # fmt: skip
+                               held, downdate, executor)  # fmt: skip
         _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate,
                                    executor)  # fmt: skip
         i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
@@ -455,7 +481,7 @@ def fit_error_map(
     return ErrorMapFit(
         identification=res, names=names, arcs=arcs, orders={j: order for j in arcs}, tau_rad=tau, ridge=s2 / tau**2,
         effective_params=edf, cv_rms_mm=cv_rms, cv_rms_without_mm=cv_without, not_identifiable=not_identifiable,
-        cv_table=cv_table, n_base=n_base,
+        cv_table=cv_table, n_base=n_base, linearised=linearised,
     )  # fmt: skip
 
 
@@ -478,16 +504,19 @@ class MapEvidence:
     def __init__(self, chain: Chain, table: MeasurementTable, params: list[Param], noise: TrackerNoise | None,
                  base: Extension | None, start, fit: ErrorMapFit):  # fmt: skip
         names = [nm for j in fit.arcs for nm in harmonic_names(j, max(fit.orders.values()))]
-        ext = _with_base(base, map_extension(np.radians(table.q_deg), names=names, arcs=fit.arcs))
-        problem = Problem(chain, table, start.points, params, noise, extension=ext)
-        state = _state_from(problem, start, np.concatenate([start.ext, np.zeros(len(names))]))
-        self.r, self.jm = problem.residual_and_jacobian(state)
-        self.held = HeldOutMap(problem, state, names)
+        lin = fit.linearised
+        if lin is None or not lin.serves(start, base, table, names):  # else the map's search formed it already
+            ext = _with_base(base, map_extension(np.radians(table.q_deg), names=names, arcs=fit.arcs))
+            problem = Problem(chain, table, start.points, params, noise, extension=ext)
+            state = _state_from(problem, start, np.concatenate([start.ext, np.zeros(len(names))]))
+            r, jm = problem.residual_and_jacobian(state)
+            lin = Linearised(start, base, table, names, r, jm, jm.T @ jm, jm.T @ r, HeldOutMap(problem, state, names),
+                             None if problem.w is None else np.linalg.inv(problem.w))  # fmt: skip
+        self.r, self.jm, self.gram, self.rhs, self.held, self.unwhiten = lin.r, lin.jm, lin.gram, lin.rhs, lin.held, \
+            lin.unwhiten
         self.k, self.x_base = len(params), np.asarray(start.ext, dtype=float)
         self.n_pen = len(names)
-        self.unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
         self.ridge = fit.ridge
-        self.gram, self.rhs = self.jm.T @ self.jm, self.jm.T @ self.r
         self.pen = self.k + len(self.x_base) + np.arange(self.n_pen)  # the map's columns
         self.base_cols = self.k + np.arange(len(self.x_base))  # the base extension's columns
         # column scaling (the column norms of the Jacobian) keeps the factorisations accurate
@@ -625,7 +654,7 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
         prev = step
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
-    gram /= np.outer(scale, scale)
+    gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)
     h_inv = np.linalg.inv(gram + np.diag(pen / scale**2))
     hat = np.einsum("ij,ji->i", h_inv, gram)  # diagonal of (G + P)^-1 G: each unknown's share of the fit
     edf = float(hat.sum())

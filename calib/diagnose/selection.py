@@ -213,9 +213,10 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     orders = tuple(h for h in orders if h <= top)
     if not orders:
         return None
-    try:
+    try:  # from the whole-table fit of `fitted`, which `Rejudge` linearises at too (`Linearised`)
         mf = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
-                           folds=folds, seed=seed, orders=orders, executor=ctx.executor)  # fmt: skip
+                           folds=folds, seed=seed, orders=orders, start=whole_fit(ctx, fitted),
+                           executor=ctx.executor)  # fmt: skip
     except IdentificationError:
         return None
     res = mf.identification
