@@ -1,5 +1,5 @@
 """diagnose on the UR10's Series B as whole processes, against identify of the same table and against diagnose before
-issue 26 and when stop 30 landed, interleaved: wall and CPU time medians.
+issue 26 and when stops 30 and 31 landed, interleaved: wall and CPU time medians.
 
 Issue 26's goals: diagnose on Series B in under 4 s whole process on 2 cores, and at most 10x one identification of
 the same table (the README's commands: `--weighting iid --params P`), with the same verdict and held-out figures.
@@ -27,7 +27,8 @@ from pathlib import Path
 from bench.goals import check
 from studies.ur10_ipa.study import DATA, SERIES
 
-BASELINES = {"before issue 26": "c83d06f", "stop 30": "123db2d"}  # main before issue 26; main when stop 30 landed
+BASELINES = {"before issue 26": "c83d06f", "stop 30": "123db2d", "stop 31": "54ba974"}  # main before issue 26; when
+# stop 30 and stop 31 landed
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5"  # the README's UR10 section
 CLI = [sys.executable, "-m", "trackcal.campaign.cli"]
