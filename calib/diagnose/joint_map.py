@@ -384,6 +384,7 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
         gpf = g[np.ix_(free, pen_cols)]
         schur_all = g[np.ix_(pen_cols, pen_cols)] - gpf.T @ gaa_inv @ gpf
         bf_all = b[pen_cols] - gpf.T @ (gaa_inv @ b[free])
+        j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
             at = np.searchsorted(pen_cols, cols)
             gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
@@ -392,7 +393,7 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
             else:
                 c = ridge_path(schur, bf, lam)  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
-            e = rk[:, None] - jk[:, free] @ a - jk[:, cols] @ c  # (3 n_k, L)
+            e = rk[:, None] - j_free @ a - jk[:, cols] @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
             if unwhiten is not None:
                 e = np.einsum("nij,njl->nil", unwhiten[fold == k], e.reshape(-1, 3, len(lam))).reshape(e.shape)

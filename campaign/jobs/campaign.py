@@ -91,7 +91,7 @@ def new_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed:
     session exists (a cell or plan that cannot run makes no session)."""
     cell = load_cell(cell_ref)
     campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc))
-    store = create_session(directory, cell_ref, plan_doc, mode, seed, hardware, effects, extra)
+    store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra)
     return store, campaign
 
 

@@ -81,12 +81,13 @@ class SessionFiles:
         return self.directory / "report"
 
 
-def config_documents(cell_ref: str) -> dict[str, str]:
+def config_documents(cell_ref: str, nominal: str) -> dict[str, str]:
     """The cell and the robot and tool it names, as texts under their session names (config/...); the cell's
-    robot and tool point at their neighbours."""
+    robot and tool point at their neighbours, and the copy of the cell names its `nominal` robot (the loaded
+    cell's: its robot file's path, once copied, would say nothing)."""
     cell_path = resolve("cells", cell_ref)
     doc = load_yaml(cell_path)
-    doc.setdefault("nominal", load_cell(cell_ref).nominal)  # which nominal robot, named from where it came
+    doc.setdefault("nominal", nominal)
     docs = {}
     for key, kind in (("robot", "robots"), ("tool", "tools")):
         src = resolve(kind, str(doc[key]), cell_path.parent)
@@ -123,13 +124,13 @@ def changed_copies(store: SessionStore) -> list[str]:
     return changed
 
 
-def create_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
+def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict, mode: str, seed: int | None,
                    hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
                    extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
-    """A new session holding its lock, with the cell, robot, tool, plan and (`hardware`: text, source path) the
-    hardware config stored in it. The caller has checked the cell and the plan (campaign/jobs/campaign.py): a
-    cell or plan that cannot run makes no session."""
-    documents = {**config_documents(cell_ref), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
+    """A new session holding its lock, with the cell (`nominal`: its loaded Cell's), robot, tool, plan and
+    (`hardware`: text, source path) the hardware config stored in it. The caller has checked the cell and the plan
+    (campaign/jobs/campaign.py): a cell or plan that cannot run makes no session."""
+    documents = {**config_documents(cell_ref, nominal), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
     meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
             **(extra or {})}  # fmt: skip
     if hardware is not None:
