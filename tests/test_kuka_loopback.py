@@ -59,6 +59,11 @@ def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, 
     )
     client.listen()
     clock, seen = clock or VirtualClock(), []
+    # the real controller wants an answer within ~10 ms of wall time; on a loaded CI machine a thread can wait
+    # longer than the mock's default 0.25 s (test_udp_rsi counted one late packet there), which is not what these
+    # tests check: their budget is generous, and lateness itself is tested with its own small budget and a client
+    # that sleeps (test_late_rsi_answers_stop_the_robot)
+    mock_kw.setdefault("answer_budget_s", 5.0)
     mock = MockKrc2(
         client.eki.address,
         client.rsi.address,
