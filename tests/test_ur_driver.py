@@ -12,6 +12,7 @@ import pytest
 
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, MotionRefused
 from trackcal.drivers.interfaces import Robot
+from trackcal.drivers.ur import client
 from trackcal.drivers.ur.client import UrRtde
 from trackcal.mocks.servers.ur.process import MockUrProcess
 
@@ -190,3 +191,39 @@ def test_a_move_refused_because_of_a_protective_stop_says_so():
     with pytest.raises(DeviceFault, match="not accepted") as exc:
         robot._move((0.0,) * 6, 1.0)
     assert exc.value.code == "refused"
+
+
+class _StuckControl:
+    """A control interface whose stopScript never returns until released (ur_rtde 1.6.5 once a stop has ended the
+    script: tests/test_ur_safety.py hung in its teardown)."""
+
+    def __init__(self) -> None:
+        self.release, self.disconnected = threading.Event(), False
+
+    def isConnected(self) -> bool:  # noqa: N802 (ur_rtde's name)
+        return True
+
+    def stopScript(self) -> None:  # noqa: N802
+        self.release.wait()
+
+    def disconnect(self) -> None:
+        self.disconnected = True
+
+
+class _Interface(_StuckControl):
+    def stopScript(self) -> None:  # noqa: N802
+        raise AssertionError("only a control interface has a script to stop")
+
+
+def test_close_gives_up_on_an_interface_whose_call_never_returns():
+    robot = client.UrRtde("127.0.0.1", io_timeout_s=0.2)
+    stuck, receive, dashboard = _StuckControl(), _Interface(), _Interface()
+    robot.control, robot.receive, robot.dashboard = stuck, receive, dashboard
+    robot.close()  # returns: it waited io_timeout_s for the stuck call, not forever
+    try:
+        assert receive.disconnected and dashboard.disconnected  # the others are closed as before
+        assert stuck in client._LOST_LINKS and not stuck.disconnected  # kept, never touched again
+        assert robot.control is None and robot.receive is None and robot.dashboard is None
+    finally:
+        stuck.release.set()
+        client._LOST_LINKS.remove(stuck)

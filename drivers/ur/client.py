@@ -289,14 +289,8 @@ class UrRtde:
             _LOST_LINKS.extend(dev for _, dev in devices if dev is not None)
             return
         for name, dev in devices:
-            if dev is None:
-                continue
-            with contextlib.suppress(RuntimeError):
-                if name == "control" and dev.isConnected():
-                    dev.stopScript()
-            # disconnected here, ur_rtde's destructor has nothing left to write
-            with contextlib.suppress(RuntimeError):
-                dev.disconnect()
+            if dev is not None and not _bounded(lambda d=dev, n=name: _shut(d, n == "control"), self.io_timeout_s):
+                _LOST_LINKS.append(dev)  # still inside its call: never touched again
 
     def __enter__(self) -> UrRtde:
         self.connect()
@@ -615,6 +609,26 @@ class UrRtde:
                 raise DeviceTimeout(f"RTDE frames stopped coming while waiting to settle ({timeout_s} s)",
                                     device=self.device)  # fmt: skip
             time.sleep(POLL_S)
+
+
+def _shut(dev, control: bool) -> None:
+    """Stop a control interface's script, then disconnect the interface: ur_rtde's destructor has nothing left to
+    write."""
+    with contextlib.suppress(RuntimeError):
+        if control and dev.isConnected():
+            dev.stopScript()
+    with contextlib.suppress(RuntimeError):
+        dev.disconnect()
+
+
+def _bounded(call: Callable[[], None], timeout_s: float) -> bool:
+    """Whether `call` returned within `timeout_s`, run in a daemon thread (ur_rtde's calls release the GIL). ur_rtde
+    1.6.5's stopScript can wait forever once a stop has ended the script: tests/test_ur_safety.py hung in its
+    teardown on a loaded machine, the door's stopJ sent; close() then gives up on that interface."""
+    worker = threading.Thread(target=call, daemon=True, name="ur_rtde close")
+    worker.start()
+    worker.join(timeout_s)
+    return not worker.is_alive()
 
 
 def _connected(dev) -> bool:
