@@ -149,9 +149,9 @@ def reference_solve(problem, state, max_iter=100):
 
 
 def test_solver_takes_the_same_steps_with_fewer_normal_equations(twin_case):
-    """From far off (the station turned by 1.8 rad and moved by 100 mm, the points by 50 mm), where the undamped step
+    """From far off (the station turned by 2.5 rad and moved by 100 mm, the points by 50 mm), where the undamped step
     overshoots and steps are refused, the solver walks the same iterates as before and forms fewer normal
-    equations."""
+    equations (72 iterations: 74 against 94; from 1.8 rad on this table nothing was refused, 14 against 14)."""
     table, params, _ = twin_case
     calls = {"new": 0, "old": 0}
     results = {}
@@ -159,7 +159,7 @@ def test_solver_takes_the_same_steps_with_fewer_normal_equations(twin_case):
                        ("old", reference_solve)):  # fmt: skip
         problem = Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise())
         s0 = problem.initial
-        turn = exp_so3(1.8 * np.array([0.3, -0.2, 1.0]))
+        turn = exp_so3(2.5 * np.array([0.3, -0.2, 1.0]))
         start = State(s0.dev, [Station(turn @ st.rotation, st.translation + 100.0) for st in s0.stations],
                       s0.points + 50.0, s0.ext)  # fmt: skip
         counted = problem.normal_equations

@@ -10,9 +10,10 @@ from trackcal.calib.identify.solver import identify
 from trackcal.calib.model.params import irreducible_params
 from trackcal.campaign.engine.engine import Live, Progress
 from trackcal.campaign.engine.recording import ReplayDivergence
-from trackcal.campaign.engine.steps import PlanError, campaign_steps
-from trackcal.campaign.jobs.campaign import new_session, replay, run_stored
-from trackcal.campaign.session.session import export_table, write_export
+from trackcal.campaign.engine.steps import PlanError, StepKind, campaign_steps, plan_steps
+from trackcal.campaign.jobs.campaign import new_session, replay, run_stored, stored_campaign
+from trackcal.campaign.jobs.completeness import completeness
+from trackcal.campaign.session.session import APPROACHED, export_table, write_export
 from trackcal.campaign.session.store import SessionStore
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -42,8 +43,10 @@ def test_step_order_groups_operator_actions(cell, plan):
     for i, s in enumerate(steps):
         if s.kind in ("change_station", "move_reflector"):
             assert steps[i + 1].kind == "resume"
-    # passes alternate: the second pass visits the poses in reverse order
-    block = [s.pose for s in steps if s.kind == "measure" and s.station == "S1" and s.point == "P1" and not s.drift]
+    # passes alternate: the second pass visits the poses in reverse order (between the block's drift revisits)
+    block = [s for s in steps if s.kind == "measure" and s.station == "S1" and s.point == "P1"]
+    revisits = [i for i, s in enumerate(block) if s.drift]
+    block = [s.pose for s in block[revisits[0] + 1:revisits[-1]]]
     half = len(block) // 2
     assert block[:half] == block[half:][::-1]
     # drift checks at the start and end of each point block
@@ -116,6 +119,22 @@ def test_crash_then_resume_gives_the_uninterrupted_table(tmp_path, cell, plan, f
     np.testing.assert_array_equal(a.q_deg, b.q_deg)
     np.testing.assert_array_equal(a.xyz, b.xyz)
     # the replay of the interrupted-and-resumed session gives the same table, byte for byte
+    write_export(store, tmp_path / "s.csv")
+    write_export(replay(store, tmp_path / "replay"), tmp_path / "r.csv")
+    assert (tmp_path / "s.csv").read_bytes() == (tmp_path / "r.csv").read_bytes()
+
+
+def test_a_session_made_before_the_approached_revisits_walks_its_own_order(tmp_path, cell, plan):
+    """A session made before each block opened on the pose its closing drift revisit comes from (calib.doe.order)
+    holds no `approached_revisits` meta: run, resume, check and replay walk the order it was made with, so its
+    stored step numbers still name the same steps."""
+    store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3, approached=False)
+    store.conn.execute("DELETE FROM meta WHERE key = ?", (APPROACHED,))  # what a session made before holds
+    legacy = plan_steps(cell, plan, approached=False)
+    assert stored_campaign(store).steps == legacy != plan_steps(cell, plan)
+    run_stored(store, live(cell)[1])
+    done = completeness(store)
+    assert done.complete and done.planned == sum(s.kind == StepKind.MEASURE for s in legacy) == done.measured
     write_export(store, tmp_path / "s.csv")
     write_export(replay(store, tmp_path / "replay"), tmp_path / "r.csv")
     assert (tmp_path / "s.csv").read_bytes() == (tmp_path / "r.csv").read_bytes()

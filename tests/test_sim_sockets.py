@@ -235,7 +235,10 @@ def test_door_opened_during_a_move_brakes_the_robot_and_resume_completes(tmp_pat
         # all axes decelerate uniformly to rest together, in the time the fastest needs at the braking deceleration
         # rounded up to whole cycles (< v_max / a + cycle): each travels v t / 2; plus the controller's 0.0001 deg
         assert abs(b - a) <= abs(v) * t_stop / 2 + 1e-4
-    assert after_stop == [] and ctl.joints_deg == q_rest  # and then it stands: no joint change after rest
+    # and then it stands: no joint change after rest. The cycle that reaches rest records the stop before it reports
+    # its joints, so the rest position itself may be the one report after it (when its last braking step shows in
+    # the controller's 0.0001 deg: it did for the fifth move of the plan once each block opened on an extra pose)
+    assert after_stop in ([], [q_rest]) and ctl.joints_deg == q_rest
     assert store.events("error")[-1].data["type"] == "DeviceFault"
     assert store.events("error")[-1].data["code"] == "door_open"  # issue 27, finding 7: the session records the cause
     stored = len(store.events("measurement"))

@@ -46,7 +46,7 @@ def browser():
 
 @pytest.fixture(scope="module")
 def plan(kr270, tmp_path_factory):
-    """Three poses seen from both stations: 24 measurements, 16 prompts (a few seconds on the twin)."""
+    """Three poses seen from both stations: 27 measurements, 16 prompts (a few seconds on the twin)."""
     path = tmp_path_factory.mktemp("plan") / "plan.json"
     path.write_text(json.dumps(feasible_plan(kr270, 3, seed=11, repeat=1)))
     return path
@@ -161,7 +161,7 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, kr270, tmp
         assert reloaded and clicks == 16, clicks  # every prompt: 2 stations, 6 reflector moves, each then resumed
         for p in (page, watcher):
             wait_until(p, "#status", lambda t: "complete" in t)
-            assert text(p, "#counts") == "24 measured, 0 skipped of 24"
+            assert text(p, "#counts") == "27 measured, 0 skipped of 27"
             wait_until(p, "#fit-list", lambda t: "S2: rms" in t)
         shoot({"tablet": page, "phone": watcher}, shots, "3-complete")
         bars, shown = residual_bars(page), page.locator("#fit-list li").all_text_contents()
@@ -257,8 +257,10 @@ def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, 
     try:
         page = open_page(context, f"http://127.0.0.1:{port}/")
         wait_until(page, "#status", lambda t: t == "complete")
-        assert text(page, "#counts") == "24 measured, 0 skipped of 24"
+        assert text(page, "#counts") == "27 measured, 0 skipped of 27"
         assert text(page, "#sentence") == "The campaign is complete." and page.locator("#answer").is_disabled()
+        # nobody has control of a replay: its recording answers (the page said "you have control" before)
+        assert text(page, "#control") == "replay: the recording answers" and page.locator("#take").is_hidden()
         page.wait_for_selector("#outcome-card:not([hidden])", timeout=10000)
         assert text(page, "#outcome").startswith(f"Replayed into {into}") and page.locator("#report").is_hidden()
         assert (into / "table.csv").is_file()  # exported before the page lingers
@@ -266,7 +268,7 @@ def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, 
         shoot({"phone": page}, tmp_path, "replay")
         proc.send_signal(signal.SIGINT)  # ends the lingering
         assert proc.wait(timeout=30) == 0, proc.stdout.read()[-3000:]
-        assert "replayed 24 measurements into" in proc.stdout.read()
+        assert "replayed 27 measurements into" in proc.stdout.read()
     finally:
         context.close()
         if proc.poll() is None:

@@ -6,7 +6,11 @@ of the plan per point. Between passes over the poses the order alternates (each 
 both directions: backlash becomes visible), and the block's reference pose (the pose the station sees
 the most points from, the first on ties) is revisited at the start and the end of every point block,
 i.e. at the start, middle and end of each station block (drift checks: thermal drift and moved stations
-become visible). Pure: from who sees what, the sequence of visits; no robot, no tracker, no clock.
+become visible). Both revisits of a block are approached from the same pose (the block opens by measuring
+the pose its closing revisit comes from): a joint's backlash then shifts them alike, so a difference between
+them is a drift. Before, the opening revisit came from wherever the robot was, and on the twin a 0.05 mm backlash
+alone raised a drift alarm (0.18 mm, "has station S1 moved?"). Pure: from who sees what, the sequence of visits;
+no robot, no tracker, no clock.
 """
 
 from __future__ import annotations
@@ -33,11 +37,14 @@ def campaign_order(
     points: Sequence[str],
     seen: Mapping[tuple[str, str], np.ndarray],
     repeat: int = 1,
+    approached: bool = True,
 ) -> list[Visit]:
     """The visits of a campaign of `n_poses` poses passed over `repeat` times, in campaign order.
 
     `seen[(station, point)]` is an (n_poses,) bool array: that station sees that point at that pose. A pose
     not seen is skipped, a point seen at no pose has no block, a station seeing nothing has no block.
+    `approached`: each block opens with a measurement of the pose its closing revisit is approached from, so the
+    two revisits it compares are approached alike (False: the order of sessions made before, which they walk).
     """
     order = list(range(n_poses))
     visits = []
@@ -48,10 +55,17 @@ def campaign_order(
         ref = int(np.argmax(sum(v.astype(int) for v in vis.values())))
         for pid in points:
             v = vis[pid]
-            blocks = [([ref], True)] if v[ref] else []
-            blocks += [(order if k % 2 == 0 else order[::-1], False) for k in range(repeat)]
-            blocks += [([ref], True)] if v[ref] else []
-            visits += [Visit(sid, pid, i, drift) for block, drift in blocks for i in block if v[i]]
+            passes = [i for k in range(repeat) for i in (order if k % 2 == 0 else order[::-1]) if v[i]]
+            if not v[ref]:
+                visits += [Visit(sid, pid, i) for i in passes]
+                continue
+            # the closing revisit is approached from the last other pose of the passes; the opening one is too, so
+            # that both see every joint's backlash from the same side (an opening revisit reached from wherever the
+            # robot was would differ from the closing one by the backlash, not by a drift)
+            before = next((i for i in reversed(passes) if i != ref), None) if approached else None
+            opening = [Visit(sid, pid, before)] if before is not None else []
+            visits += [*opening, Visit(sid, pid, ref, True), *(Visit(sid, pid, i) for i in passes),
+                       Visit(sid, pid, ref, True)]  # fmt: skip
     return visits
 
 

@@ -134,9 +134,10 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> tuple[list[str], dict[tuple
     return problems, vis
 
 
-def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict | None = None) -> Iterator[Step]:
-    """The steps of a plan: the one campaign order (calib.doe.order), or with `iso` (the plan's `iso9283` block) the
-    ISO 9283 pose test: its one point from its one station, cycle after cycle."""
+def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict | None = None,
+                   approached: bool = True) -> Iterator[Step]:  # fmt: skip
+    """The steps of a plan: the one campaign order (calib.doe.order; `approached` as there), or with `iso` (the
+    plan's `iso9283` block) the ISO 9283 pose test: its one point from its one station, cycle after cycle."""
     poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)  # as the controller gets them
     problems, vis = check_plan(cell, poses)  # the visibility of the check: computed once
     if iso is not None:
@@ -149,7 +150,7 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
     if iso is None:
-        visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat)
+        visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat, approached)
     else:
         visits = [v for pid in iso_points(iso) for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]
     vap = vap_block(iso, cell) if iso is not None else None
@@ -267,9 +268,10 @@ def vap_block(iso: dict, cell: Cell) -> dict | None:
             "approach_deg": approach}
 
 
-def plan_steps(cell: Cell, plan_doc: dict) -> list[Step]:
-    """The steps of a plan in a cell; the whole plan is checked first (PlanError)."""
+def plan_steps(cell: Cell, plan_doc: dict, approached: bool = True) -> list[Step]:
+    """The steps of a plan in a cell (`approached`: calib.doe.order); the whole plan is checked first
+    (PlanError)."""
     poses, repeat = plan_arrays(plan_doc)
     if poses.shape[1] != cell.chain.dof:
         raise PlanError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
-    return list(campaign_steps(cell, poses, repeat, iso_block(plan_doc, cell, len(poses))))
+    return list(campaign_steps(cell, poses, repeat, iso_block(plan_doc, cell, len(poses)), approached))

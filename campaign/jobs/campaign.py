@@ -33,6 +33,7 @@ from trackcal.campaign.session.session import (
     SessionFiles,
     SessionLog,
     create_session,
+    session_approached,
     session_cell,
     session_hardware,
     session_plan,
@@ -81,17 +82,19 @@ class OperatorConsole:
 def stored_campaign(store: SessionStore) -> Campaign:
     """The campaign a session holds, from its stored cell and plan (never the files beside the database)."""
     cell, plan = session_cell(store), session_plan(store)
-    return Campaign(cell, plan, plan_steps(cell, plan))
+    return Campaign(cell, plan, plan_steps(cell, plan, session_approached(store)))
 
 
 def new_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
                 hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                extra: dict[str, str] | None = None) -> tuple[SessionStore, Campaign]:  # fmt: skip
+                extra: dict[str, str] | None = None,
+                approached: bool = True) -> tuple[SessionStore, Campaign]:  # fmt: skip
     """A new session (session.create_session) and its campaign: the cell and the plan are checked before the
     session exists (a cell or plan that cannot run makes no session)."""
     cell = load_cell(cell_ref)
-    campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc))
-    store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra)
+    campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc, approached))
+    store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra,
+                           approached)  # fmt: skip
     return store, campaign
 
 
@@ -255,12 +258,13 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
     meta = recording.meta()
     plan_doc = plan_doc or session_plan(recording)
     seed = int(meta["seed"]) if meta["seed"] else None
-    extra = {"replay_of": str(recording.directory)}
+    extra, approached = {"replay_of": str(recording.directory)}, session_approached(recording)
     if cell_ref is not None:
-        store, campaign = new_session(staging, cell_ref, plan_doc, "replay", seed, extra=extra)
+        store, campaign = new_session(staging, cell_ref, plan_doc, "replay", seed, extra=extra, approached=approached)
     else:
         with stored_config(recording) as cell_path:
-            store, campaign = new_session(staging, str(cell_path), plan_doc, "replay", seed, extra=extra)
+            store, campaign = new_session(staging, str(cell_path), plan_doc, "replay", seed, extra=extra,
+                                          approached=approached)  # fmt: skip
     try:
         hub = [] if page is None else [page.attach(store, campaign.cell, campaign.steps)]  # watching only
         for run, abrupt in segments(recording.events()):

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from trackcal.campaign.engine.steps import StepKind, plan_steps
-from trackcal.campaign.session.session import session_cell, session_plan
+from trackcal.campaign.session.session import session_approached, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
 
 
@@ -38,7 +38,7 @@ class Completeness:
 
 def completeness(store: SessionStore) -> Completeness:
     cell = session_cell(store)
-    steps = plan_steps(cell, session_plan(store))
+    steps = plan_steps(cell, session_plan(store), session_approached(store))
     measure = {i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE}
     measured = len(store.events("measurement"))
     skipped = max(0, len(measure & store.done_steps()) - measured)

@@ -31,6 +31,9 @@ from trackcal.campaign.session.store import SessionStore, StoreError
 PLAN_DOC = "plan.json"
 CELL_DOC = "config/cell.yaml"
 HARDWARE_COPY = "config/hardware.yaml"  # a hardware session's config
+# meta: "1" in a session whose blocks open on the pose their closing drift revisit is approached from
+# (calib.doe.order); a session made before that walks the order it was made with
+APPROACHED = "approached_revisits"
 
 
 @dataclass(frozen=True)
@@ -126,13 +129,14 @@ def changed_copies(store: SessionStore) -> list[str]:
 
 def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict, mode: str, seed: int | None,
                    hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                   extra: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
+                   extra: dict[str, str] | None = None, approached: bool = True) -> SessionStore:  # fmt: skip
     """A new session holding its lock, with the cell (`nominal`: its loaded Cell's), robot, tool, plan and
-    (`hardware`: text, source path) the hardware config stored in it. The caller has checked the cell and the plan
-    (campaign/jobs/campaign.py): a cell or plan that cannot run makes no session."""
+    (`hardware`: text, source path) the hardware config stored in it, and which campaign order it walks
+    (`approached`: calib.doe.order). The caller has checked the cell and the plan (campaign/jobs/campaign.py): a
+    cell or plan that cannot run makes no session."""
     documents = {**config_documents(cell_ref, nominal), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
     meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
-            **(extra or {})}  # fmt: skip
+            APPROACHED: "1" if approached else "0", **(extra or {})}  # fmt: skip
     if hardware is not None:
         documents[HARDWARE_COPY], meta["hardware_source"] = hardware
     store = SessionStore.create(directory, meta, documents)
@@ -154,6 +158,11 @@ def session_cell(store: SessionStore) -> Cell:
 
 def session_plan(store: SessionStore) -> dict:
     return json.loads(store.documents()[PLAN_DOC])
+
+
+def session_approached(store: SessionStore) -> bool:
+    """Does the session walk the order whose drift revisits are approached alike (calib.doe.order)?"""
+    return store.meta().get(APPROACHED) == "1"
 
 
 def session_hardware(store: SessionStore) -> str:

@@ -88,7 +88,8 @@ class WebPage:
     def attach(self, store: SessionStore, cell: Cell, steps: Sequence[Step]) -> Hub:
         """Serve the campaign of `store` (its events so far and every document from now on)."""
         steps = list(steps)
-        self.hub = Hub(store, plan_view(cell, steps))
+        # a replay's prompts are answered by its recording: the page only watches it
+        self.hub = Hub(store, plan_view(cell, steps) | {"replay": store.meta().get("mode") == "replay"})
         self.report_dir = store.directory / "report"
         hosts = {f"{h}:{self.port}" for h in ("127.0.0.1", "localhost", "[::1]")} if self.loopback else None
         app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing)

@@ -125,10 +125,11 @@ function renderAll() {
   status.textContent = st; status.className = cls;
   if (!v) return;
   $("cellname").textContent = page.plan ? "cell " + page.plan.cell : "";
-  const mine = live.controller === CLIENT;
-  $("control").textContent = !page.connected ? "not connected" : mine ? "you have control" : "watching (read-only)";
+  const replay = Boolean(page.plan && page.plan.replay), mine = live.controller === CLIENT && !replay;
+  $("control").textContent = !page.connected ? "not connected" : replay ? "replay: the recording answers"
+    : mine ? "you have control" : "watching (read-only)";
   $("control").className = !page.connected ? "pill" : mine ? "pill ok" : "pill warn";
-  $("take").hidden = mine || !page.connected;
+  $("take").hidden = mine || replay || !page.connected;
   renderPrompt(v, live, mine);
   renderProgress(v);
   renderCell(v, live);
@@ -173,7 +174,8 @@ function renderPrompt(v, live, mine) {
   button.textContent = label;
   const open = live.open === p.id;
   button.disabled = !(open && mine && page.connected && !page.pending && page.answered !== p.id);
-  if (!mine) $("answer-note").textContent = "Another page holds control: press “Take control” to answer here.";
+  if (page.plan && page.plan.replay) $("answer-note").textContent = "A replay: the recording's answer is played back.";
+  else if (!mine) $("answer-note").textContent = "Another page holds control: press “Take control” to answer here.";
   else if (!open) $("answer-note").textContent = "Waiting for the cell…";
   else if ($("answer-note").textContent.startsWith("Waiting") || $("answer-note").textContent.startsWith("Another"))
     $("answer-note").textContent = "";
