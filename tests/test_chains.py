@@ -199,3 +199,30 @@ def test_diagnose_goes_on_past_a_joint_that_never_moves(kr270, tmp_path):
     done = run_diagnose(DiagnoseOptions(data=table.source, cell="kr270", json=str(tmp_path / "v.json"), folds=2,
                                         weighting="iid"))  # fmt: skip
     assert done.still is not None and done.still.startswith("joint A4 never moves in")
+
+
+@pytest.mark.parametrize("tilt_rad", [1.7e-12, 1e-7])
+def test_intersecting_axes_tilted_below_the_trackers_precision_coincide(tilt_rad):
+    # hypothesis found joints 1 and 2 on the x axis through the origin, joint 1's link turned by 1.7e-12 rad about z
+    # (with the rest of its chain, the rotation's pivot came out just above the old absolute 1e-9 mm): the
+    # elimination took that tilt for real and kept a set whose Jacobian lacks one rank at RTOL. So it did for any
+    # tilt up to 1e-6 rad (1e-7 here). A tilt that moves the far end by less than 1e-6 of the reach is none.
+    joints = [{"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, float(np.degrees(tilt_rad))]},
+              {"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, 1]},
+              {"axis": "x", "link_mm": [0, 0, 224]}, {"axis": "x", "link_mm": [0, 0, 349]}]  # fmt: skip
+    with pytest.raises(ChainError, match="coincide"):
+        irreducible_params(chain_from_dict({"name": "random", "joints": joints}))
+
+
+@pytest.mark.parametrize("tilt_rad", [1e-9, 1e-7, 1e-3])
+def test_parallel_axes_keep_one_complete_irreducible_set_whatever_their_tilt(tilt_rad):
+    # Hayati's case: offset parallel axes keep both rotations, tilted by nothing, by less than the tracker resolves
+    # or by 0.06 deg: the same set, complete and irreducible
+    def chain(tilt):
+        return chain_from_dict({"name": "random", "joints": [
+            {"axis": "z", "link_mm": [0, 0, 0]}, {"axis": "y", "link_mm": [400, 0, 0], "link_rpy_deg": [tilt, 0, 0]},
+            {"axis": "y", "link_mm": [300, 0, 0]}, {"axis": "y", "link_mm": [0, 0, 100]}, {"axis": "z"}]})  # fmt: skip
+
+    tilted = chain(float(np.degrees(tilt_rad)))
+    assert irreducible_params(tilted)[0] == irreducible_params(chain(0.0))[0]
+    check_complete_and_irreducible(tilted, 0)

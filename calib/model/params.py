@@ -118,6 +118,13 @@ def _reach_mm(chain: Chain) -> float:
 # Below this a dependency coefficient is zero: the aligned robots' geometry is exact to ~1e-16 and datasheet DH
 # angles turned into rotations to ~1e-15; the old aligned-axis test used the same 1e-9.
 TOL = 1e-9
+# A dependency coefficient below this share of its row's scale is no pivot (the scale: the lever for the pair rows,
+# whose joint offsets move the far end by about the lever; 1 for the tool row, a direction): its parameter moves the
+# far end by less than 1e-6 of what the row's others do, the relative precision of a laser tracker and the rank
+# tolerance of the identifiability checks (tests/test_chains.py: RTOL). Two intersecting axes tilted by 1.7e-12 rad
+# (a hypothesis draw) made a rotation the pivot at 1e-9 mm and the kept set was rank deficient by one; such axes
+# now coincide, and the chain is refused as redundant.
+PIVOT_SHARE = 1e-6
 
 
 Row = dict[Param, float]  # a linear dependency among parameter columns: coefficient of each (rotations at the lever)
@@ -156,16 +163,16 @@ def _tool_row(chain: Chain) -> Row:
     return row
 
 
-def _eliminate(rows: list[tuple[Row, str]], droppable: set[Param], offsets: set[Param]) -> dict[Param, int]:
+def _eliminate(rows: list[tuple[Row, str, float]], droppable: set[Param], offsets: set[Param]) -> dict[Param, int]:
     """One parameter per dependency such that the rest are independent: Gaussian elimination row by row, each row's
     pivot the droppable parameter with the largest coefficient once the earlier pivots are eliminated from it (the
     first of equals), so that the set kept is the best conditioned. Returns {parameter: row index}; a row with no
     droppable coefficient left but a joint offset that is kept (a dependency among those offsets alone) is a
-    ChainError with the row's text."""
+    ChainError with the row's text. A coefficient below PIVOT_SHARE of the row's scale (its third item) is none."""
     done: list[tuple[Row, Param]] = []
     out: dict[Param, int] = {}
-    for r, (row, why) in enumerate(rows):
-        row = dict(row)
+    for r, (row, why, scale) in enumerate(rows):
+        row, negligible = dict(row), max(PIVOT_SHARE * scale, TOL)
         for prev, piv in done:
             f = row.get(piv, 0.0) / prev[piv]
             if f:
@@ -173,7 +180,7 @@ def _eliminate(rows: list[tuple[Row, str]], droppable: set[Param], offsets: set[
                     row[key] = row.get(key, 0.0) - f * val
         best = None
         for key, val in row.items():
-            if key not in droppable or key in out or abs(val) <= TOL:
+            if key not in droppable or key in out or abs(val) <= negligible:
                 continue
             if best is None or abs(val) > abs(row[best]) * (1 + 1e-12):
                 best = key
@@ -200,9 +207,10 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
 
     lever = _reach_mm(chain)
     rows = [(_pair_row(chain, k, lever),
-             f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant")
+             f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant", lever)
             for k in range(n - 1)]  # fmt: skip
-    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated"))
+    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated",
+                 1.0))  # fmt: skip
     free = [p for p in complete_params(chain) if p not in removed]
     for p, r in _eliminate(rows, {p for p in free if p.kind != "dq"}, {p for p in free if p.kind == "dq"}).items():
         if r == n - 1:
