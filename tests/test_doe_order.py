@@ -55,7 +55,6 @@ def test_engine_steps_and_twin_table_walk_the_same_order(kr270):
     ]
 
 
-
 @pytest.mark.parametrize("approached", [True, False])
 def test_a_blocks_two_revisits_see_the_same_backlash(kr270, approached):
     """The twin with every joint's backlash (0.05 mm), noise-free, walked in campaign order: the opening and the

@@ -172,7 +172,7 @@ def _eliminate(rows: list[tuple[Row, str, float]], droppable: set[Param], offset
     done: list[tuple[Row, Param]] = []
     out: dict[Param, int] = {}
     for r, (row, why, scale) in enumerate(rows):
-        row, negligible = dict(row), max(PIVOT_SHARE * scale, TOL)
+        row, negligible = dict(row), PIVOT_SHARE * scale
         for prev, piv in done:
             f = row.get(piv, 0.0) / prev[piv]
             if f:
