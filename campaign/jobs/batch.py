@@ -9,10 +9,11 @@ of one robot, named by its folder; otherwise the robot is the cell's, a cell hol
 result goes to DIR under a key: the sha256 of the table's bytes (an ISO session: of its measurements and plan), the
 cell's, the task and its options. A result already in DIR is not computed again, so a killed batch, run again, does
 only what is left; a campaign that fails is reported with its one line and does not stop the others (its error is
-not kept: run again, it is tried again). Work is sent in chunks of several campaigns (`map_chunks`, shared with the
-Monte-Carlo runs of campaign.jobs.montecarlo), so that a worker's start-up (numpy, scipy, pinocchio) is paid once
-per chunk, on a local process pool by default or on a Dask cluster (`--scheduler`), through the same executor
-`trackcal plan` uses.
+not kept: run again, it is tried again), also when its pool worker dies (`worker died: signal 9`, map_chunks); a
+lost Dask scheduler ends the batch in one line, the results written kept. Work is sent in chunks of several
+campaigns (`map_chunks`, shared with the Monte-Carlo runs of campaign.jobs.montecarlo), so that a worker's start-up
+(numpy, scipy, pinocchio) is paid once per chunk, on a local process pool by default or on a Dask cluster
+(`--scheduler`), through the same executor `trackcal plan` uses.
 
 The summary adds to each result its robot, its date (a session's first event, a table's file modification time),
 and the parameter that changed most against its uncertainty: against the previous campaign of the same robot
@@ -24,9 +25,11 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import signal
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, Executor, Future, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -43,7 +46,9 @@ from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
 from trackcal.campaign.jobs.history import model_estimate, session_start
 from trackcal.campaign.jobs.identify import IdentifyOptions, identify_table
 from trackcal.campaign.jobs.iso9283 import session_figures
-from trackcal.campaign.jobs.plan import executor_for
+from trackcal.campaign.jobs.plan import SCHEDULER_TIMEOUT_S, executor_for
+from trackcal.campaign.jobs.pool import chunk_marks, how_it_died, run_marked, sealed
+from trackcal.campaign.jobs.scheduler import SchedulerWatch
 from trackcal.campaign.session.session import PLAN_DOC, SessionFiles
 from trackcal.campaign.session.store import DB_NAME, SessionStore
 
@@ -195,6 +200,17 @@ def run_one(c: Campaign, opts: BatchOptions, key: str) -> dict:
     return row
 
 
+def lost_chunk(items: list[tuple[Campaign, str]], out: Path, how: str) -> list[dict]:
+    """The rows of a chunk whose worker died: the results it wrote before, an error line for the others."""
+    rows = []
+    for c, key in items:
+        row = None
+        with contextlib.suppress(OSError, ValueError):
+            row = json.loads((out / f"{key}.json").read_text())
+        rows.append(row or {"campaign": c.label, "key": key, "error": f"worker died: {how}"})
+    return rows
+
+
 def run_chunk(items: list[tuple[Campaign, str]], opts: BatchOptions) -> list[dict]:
     return [run_one(c, opts, key) for c, key in items]
 
@@ -214,40 +230,104 @@ def _slots(ex: Executor) -> int:
     return 1
 
 
+class SchedulerLost(CampaignError):
+    """The Dask scheduler was lost mid-map (killed, or silent for SCHEDULER_TIMEOUT_S): the chunks not finished are
+    not done."""
+
+
+# a pool that breaks while none of its workers died on its own (each ended by the pool's SIGTERM): the running chunks
+# are run again on a new pool, so many times in a row at most
+BLIND_REBUILDS = 3
+
+
+def _dead_workers(processes: dict) -> dict[int, str]:
+    """pid -> how it died, of the pool's workers that died on their own (the pool ends the others with SIGTERM)."""
+    return {pid: how_it_died(p.exitcode) for pid, p in processes.items()
+            if how_it_died(p.exitcode) and p.exitcode != -signal.SIGTERM}  # fmt: skip
+
+
 def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
                failed: Callable[[object], bool] = lambda r: False, progress: Progress | None = None,
-               ) -> Iterator[list]:  # fmt: skip
+               lost: Callable[[list, str], list] | None = None) -> Iterator[list]:  # fmt: skip
     """fn(chunk, *args) for every chunk, on executor_for(scheduler); each chunk's list of results as it finishes.
     Progress counts items: done, running (the chunks being computed: those a process pool says run, or on a cluster
     that does not say, the first of those not finished, as many as the cluster runs at once), failed (`failed` of
-    a result), and the time left at the rate so far."""
+    a result), and the time left at the rate so far.
+
+    A pool worker that dies (killed: an out-of-memory kill is SIGKILL) costs the chunk it was running:
+    `lost(chunk, "signal 9")` gives that chunk's results (without `lost`: a CampaignError); the pool is made again
+    and the other chunks go on. A Dask scheduler that is killed, or silent for SCHEDULER_TIMEOUT_S (stopped), ends
+    the map with SchedulerLost; what was yielded stays yielded."""
     total = sum(len(c) for c in chunks)
     done = bad = 0
     start = time.monotonic()
 
-    def report(pending: dict[Future, int], ex: Executor) -> None:
+    def report(pending: dict[Future, int], slots: int) -> None:
         if not progress:
             return
-        running = sum(pending[f] for f in pending if f.running())
+        running = sum(len(todo[pending[f]]) for f in pending if f.running())
         if not running and pending:
-            running = sum(list(pending.values())[: _slots(ex)])
+            running = sum(len(todo[i]) for i in list(pending.values())[:slots])
         left = None if not done else (time.monotonic() - start) / done * (total - done)
         progress(done, running, bad, total, left)
 
-    if not chunks:
-        return
-    with executor_for(scheduler) as ex:
-        pending = {ex.submit(fn, chunk, *args): len(chunk) for chunk in chunks}
-        report(pending, ex)
-        while pending:
-            finished, _ = wait(list(pending), timeout=PROGRESS_EVERY_S, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                del pending[fut]
-                rows = fut.result()
-                done += len(rows)
-                bad += sum(1 for r in rows if failed(r))
-                yield rows
-            report(pending, ex)
+    def count(rows: list) -> list:
+        nonlocal done, bad
+        done += len(rows)
+        bad += sum(1 for r in rows if failed(r))
+        return rows
+
+    todo = dict(enumerate(chunks))  # index -> chunk, until its results are yielded
+    blind = 0
+    while todo:
+        marks = None if scheduler else chunk_marks(len(chunks))
+        broken = False
+        with executor_for(scheduler, marks) as ex:
+            watch = SchedulerWatch(ex._client, SCHEDULER_TIMEOUT_S) if scheduler else None
+            try:
+                pending = {ex.submit(run_marked, sealed(fn, i, chunk, args)): i for i, chunk in todo.items()}
+                processes = getattr(ex, "_processes", None) or {}  # a process pool's pid -> Process, kept after it ends
+                slots = _slots(ex)  # asked once: a scheduler that stops answering would not answer again
+                report(pending, slots)
+                while pending and not broken:
+                    finished, _ = wait(list(pending), timeout=PROGRESS_EVERY_S, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        try:
+                            rows = fut.result()
+                        except BrokenProcessPool:
+                            broken = True
+                            continue
+                        except CancelledError:  # the client gave up on the scheduler
+                            break
+                        del todo[pending.pop(fut)]
+                        yield count(rows)
+                    why = watch.lost() if watch else None
+                    if why or (watch and any(f.cancelled() for f in pending)):
+                        raise SchedulerLost(f"the Dask scheduler {scheduler} was lost mid-run: "
+                                            f"{why or 'the client gave up reconnecting'}")  # fmt: skip
+                    report(pending, slots)
+            finally:
+                if watch:
+                    watch.close()
+        if not broken:
+            continue
+        # the pool has shut down: every worker's exit code is known
+        for fut, i in pending.items():  # finished before the pool broke
+            if fut.done() and not isinstance(fut.exception(), BrokenProcessPool):
+                del todo[i]
+                yield count(fut.result())
+        dead = _dead_workers(processes)
+        culprits = [i for i in todo if marks[i] in dead]
+        for i in culprits:
+            how = dead[marks[i]]
+            if lost is None:
+                raise CampaignError(f"a worker of the process pool died ({how}: out of memory?) and its runs are "
+                                    "lost")  # fmt: skip
+            yield count(lost(todo.pop(i), how))
+        blind = 0 if culprits else blind + 1
+        if blind > BLIND_REBUILDS:
+            raise CampaignError(f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "
+                                "none of them on its own): something on this machine stops them")  # fmt: skip
 
 
 @dataclass
@@ -342,12 +422,18 @@ def batch(opts: BatchOptions, progress: Progress | None = None) -> BatchResult:
     chunks = [[(c, k) for k, c in todo[i : i + opts.chunk]] for i in range(0, len(todo), opts.chunk)]
     results: dict[str, dict] = dict(found)
     failed: dict[str, dict] = {}
-    for chunk_rows in map_chunks(run_chunk, chunks, (opts,), opts.scheduler, lambda r: "error" in r, progress):
-        for row in chunk_rows:
-            if "error" in row:
-                failed[row["key"]] = row
-            else:
-                results[row["key"]] = row
+    try:
+        for chunk_rows in map_chunks(run_chunk, chunks, (opts,), opts.scheduler, lambda r: "error" in r, progress,
+                                     lambda chunk, how: lost_chunk(chunk, out, how)):  # fmt: skip
+            for row in chunk_rows:
+                if "error" in row:
+                    failed[row["key"]] = row
+                else:
+                    results[row["key"]] = row
+    except SchedulerLost as exc:
+        written = sum(1 for k, _ in todo if (out / f"{k}.json").exists())
+        raise SchedulerLost(f"{exc}; results written are kept ({written} of {len(todo)} in {out}): run the same "
+                            "batch again to do the rest") from None  # fmt: skip
     rows = [dict(results.get(k) or failed[k], campaign=c.label) for c, k in zip(campaigns, keys, strict=True)]
     annotate(campaigns, rows, out)
     return BatchResult(rows, len(todo) - len(failed), len(found), [r for r in rows if "error" in r])

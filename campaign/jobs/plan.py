@@ -5,9 +5,10 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import logging
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.params import Param, irreducible_params, param_by_name
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.limits import check_memory, check_table_rows
+from trackcal.campaign.jobs.pool import local_pool
 
 
 @dataclass(frozen=True)
@@ -86,11 +88,14 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
 
 # how long `--scheduler` waits for a Dask scheduler to answer (distributed.Client's connect timeout)
 SCHEDULER_TIMEOUT_S = 10
+CLOSE_TIMEOUT_S = 2  # how long a client's goodbye to its scheduler may take
 
 
 @contextlib.contextmanager
-def executor_for(scheduler: str | None) -> Iterator[Executor]:
-    """A local process pool by default; a Dask distributed cluster when given its scheduler address."""
+def executor_for(scheduler: str | None, started=None) -> Iterator[Executor]:
+    """A local process pool by default (campaign.jobs.pool: its workers die with this process; `started`, a
+    pool.chunk_marks, records which worker takes which chunk); a Dask distributed cluster when given its scheduler
+    address."""
     if scheduler:
         try:
             from distributed import Client  # optional dependency (trackcal[dask]): only with a scheduler
@@ -106,12 +111,21 @@ def executor_for(scheduler: str | None) -> Iterator[Executor]:
             raise OptionError("{0} {scheduler}: no Dask scheduler answers there (the server's reply is not Dask's "
                               "protocol: {kind})", "scheduler", scheduler=scheduler,
                               kind=type(exc).__name__) from None  # fmt: skip
+        # a lost scheduler is our one line, not distributed's log of tracebacks (its loggers have levels of their
+        # own, dask's logging config: their handlers, on the `distributed` logger, are silenced)
+        handlers = logging.getLogger("distributed").handlers
+        levels = [h.level for h in handlers]
+        for h in handlers:
+            h.setLevel(logging.CRITICAL + 1)
         try:
             yield client.get_executor()
         finally:
-            client.close()
+            with contextlib.suppress(Exception):  # a scheduler that does not answer cannot be told goodbye
+                client.close(timeout=CLOSE_TIMEOUT_S)
+            for h, level in zip(handlers, levels, strict=True):
+                h.setLevel(level)
     else:
-        with ProcessPoolExecutor(max_workers=WORKERS) as pool:
+        with local_pool(WORKERS, started) as pool:
             yield pool
 
 
