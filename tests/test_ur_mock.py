@@ -137,6 +137,55 @@ def test_ur_rtde_reads_moves_and_stops():
                 client.disconnect()
 
 
+def test_ur_rtde_moves_at_the_requested_speed_and_stopj_stops_it_short():
+    """Issue 42: ur_rtde's moveJ(q, 0.1, 0.1) over 0.1 rad of the base takes d/v + v/a = 2 s (URScript movej: "v:
+    joint speed of leading axis, a: joint acceleration of leading axis"; at v^2/a = d the trapezoid has no cruise), on
+    the controller's clock (RTDE timestamp) and so at least that on the wall clock (the mock at --speed 1 never runs
+    ahead of it; a loaded machine only makes it slower, so these are lower bounds); no reported speed above v. Then
+    a two-joint move: the other joint scaled to the leading one (its speed half the base's in every frame), and a
+    stopJ once the base cruises stops it short of the target, at least v^2 / 2D past where the stop was sent."""
+    host = "127.0.0.126"
+    with MockUrProcess(host, seed=5, args=["--q0-deg", "0,0,0,0,0,0"]):
+        r = rtde_receive.RTDEReceiveInterface(host)
+        c = rtde_control.RTDEControlInterface(host)
+        try:
+            d, v, a = 0.1, 0.1, 0.1
+            target = [d, 0.0, 0.0, 0.0, 0.0, 0.0]
+            ts0, t0 = r.getTimestamp(), time.monotonic()
+            assert c.moveJ(target, v, a, True)
+            peak = 0.0
+            while r.getActualQ() != target and time.monotonic() - t0 < 60:
+                peak = max(peak, abs(r.getActualQd()[0]))
+                time.sleep(0.002)
+            wall, controller = time.monotonic() - t0, r.getTimestamp() - ts0
+            assert r.getActualQ() == target
+            assert controller >= d / v + v / a - 2 * TICK_S and wall >= d / v + v / a - 2 * TICK_S
+            assert 0.5 * v < peak <= v * (1 + 1e-9)
+
+            far = [1.2, 0.6, 0.0, 0.0, 0.0, 0.0]  # from `target`: the base leads (1.1 rad), the shoulder 0.6 rad
+            v, a, decel = 0.3, 0.6, 0.6
+            assert c.moveJ(far, v, a, True)
+            ratio = 0.6 / 1.1
+            t0 = time.monotonic()
+            while True:
+                qd = r.getActualQd()
+                assert qd[1] == pytest.approx(ratio * qd[0], abs=1e-9)  # one frame's speeds: synchronised
+                if qd[0] >= v * (1 - 1e-9) or time.monotonic() - t0 > 60:
+                    break
+                time.sleep(0.002)
+            q_sent = r.getActualQ()[0]
+            c.stopJ(decel, False)  # returns when the arm stands (the script's blocking stopj)
+            assert wait_until(lambda: r.getActualQd() == [0.0] * 6, 5.0)
+            q_stop = r.getActualQ()
+            assert q_stop[0] >= q_sent + v * v / (2 * decel) - 1e-6  # braking from v at D: v^2 / 2D
+            assert q_stop[0] < far[0] - 0.1  # short of the target
+            assert q_stop[1] - target[1] == pytest.approx(ratio * (q_stop[0] - target[0]), abs=1e-9)  # on the path
+        finally:
+            c.stopScript()
+            c.disconnect()
+            r.disconnect()
+
+
 def test_ur_rtde_protective_stop_then_recovery():
     host = "127.0.0.122"
     args = ["--protective-stop-on-move", "1", "--unlock-delay-s", "0.5"]
