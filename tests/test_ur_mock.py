@@ -25,6 +25,7 @@ from tests.helpers import ROOT
 from trackcal.mocks.servers.ur import rtde_codec as rc
 from trackcal.mocks.servers.ur.controller import (
     MOVEJ,
+    MOVEL,
     NORMAL,
     PAUSED,
     PLAYING,
@@ -34,7 +35,7 @@ from trackcal.mocks.servers.ur.controller import (
     UrController,
 )
 from trackcal.mocks.servers.ur.follow import JointFollower
-from trackcal.mocks.servers.ur.kinematics import NOMINAL_A, NOMINAL_D, factory_calibration
+from trackcal.mocks.servers.ur.kinematics import NOMINAL_A, NOMINAL_D, factory_calibration, tcp_pose
 from trackcal.mocks.servers.ur.motion import TICK_S, UR10_VMAX_RAD_S, Motion
 from trackcal.mocks.servers.ur.primary import (
     KINEMATICS_INFO,
@@ -180,6 +181,66 @@ def test_ur_rtde_moves_at_the_requested_speed_and_stopj_stops_it_short():
             assert q_stop[0] >= q_sent + v * v / (2 * decel) - 1e-6  # braking from v at D: v^2 / 2D
             assert q_stop[0] < far[0] - 0.1  # short of the target
             assert q_stop[1] - target[1] == pytest.approx(ratio * (q_stop[0] - target[0]), abs=1e-9)  # on the path
+        finally:
+            c.stopScript()
+            c.disconnect()
+            r.disconnect()
+
+
+def _off_line(p, a, b) -> float:
+    """Distance of point p from the line through a and b (m)."""
+    u = [y - x for x, y in zip(a, b, strict=True)]
+    n = math.sqrt(sum(x * x for x in u))
+    w = [y - x for x, y in zip(a, p, strict=True)]
+    along = sum(x * y for x, y in zip(w, u, strict=True)) / n
+    return math.sqrt(max(0.0, sum(x * x for x in w) - along * along))
+
+
+def test_ur_rtde_movel_keeps_the_tcp_on_the_line_at_the_tool_speed():
+    """Issue 42: URScript movel(pose, a, v), "linear in tool-space", a and v of the tool (UR Script Manual, movel);
+    the mock ended the script on it ("not emulated"). 0.1 m along x at v = 0.05 m/s, a = 0.1 m/s^2 takes d/v + v/a
+    = 2.5 s (a trapezoid: v^2/a = 0.025 m < d) on the controller's clock, so at least that on the wall clock; every
+    TCP pose read is on the line (10 um: the joints are linear between inverse-kinematics waypoints 1 mm apart here,
+    mocks/servers/ur/linear.py), no TCP speed above v (0.1 %: RTDE's TCP speed is a difference over one tick), the
+    orientation kept, the target reached to a micrometre. Then stopL mid-move stops the tool short of the target, on
+    the line, at least v^2 / 2D past where the stop was sent."""
+    host = "127.0.0.127"
+    with MockUrProcess(host, seed=6, args=["--q0-deg", "0,-60,80,-110,-90,0"]) as ur:
+        r = rtde_receive.RTDEReceiveInterface(host)
+        c = rtde_control.RTDEControlInterface(host)
+        try:
+            start = r.getActualTCPPose()
+            d, v, a = 0.1, 0.05, 0.1
+            target = [start[0] + d, *start[1:]]
+            ts0, t0 = r.getTimestamp(), time.monotonic()
+            assert c.moveL(target, v, a, True)
+            off = fastest = 0.0
+            while time.monotonic() - t0 < 60:
+                pose, speed = r.getActualTCPPose(), r.getActualTCPSpeed()
+                off = max(off, _off_line(pose[:3], start[:3], target[:3]))
+                fastest = max(fastest, math.sqrt(sum(x * x for x in speed[:3])))
+                if pose[:3] == pytest.approx(target[:3], abs=1e-6):
+                    break
+                time.sleep(0.002)
+            wall, controller = time.monotonic() - t0, r.getTimestamp() - ts0
+            assert r.getActualTCPPose()[:3] == pytest.approx(target[:3], abs=1e-6), ur.state()["log"]
+            assert controller >= d / v + v / a - 2 * TICK_S and wall >= d / v + v / a - 2 * TICK_S
+            assert off < 1e-5 and 0.5 * v < fastest <= v * 1.001
+            assert r.getActualTCPPose()[3:] == pytest.approx(start[3:], abs=1e-6)
+
+            back = [start[0] - 0.1, *start[1:]]  # 0.2 m back at 0.1 m/s: cruising from 0.025 m to 0.175 m
+            v, a, decel = 0.1, 0.2, 0.5
+            assert c.moveL(back, v, a, True)
+            t0 = time.monotonic()
+            while math.sqrt(sum(x * x for x in r.getActualTCPSpeed()[:3])) < 0.99 * v and time.monotonic() - t0 < 60:
+                time.sleep(0.002)
+            x_sent = r.getActualTCPPose()[0]
+            c.stopL(decel, False)  # returns when the tool stands
+            assert wait_until(lambda: r.getActualQd() == [0.0] * 6, 5.0)
+            stop = r.getActualTCPPose()
+            assert x_sent - stop[0] >= 0.99 * v * v / (2 * decel)  # braking from (at least 99 % of) v at D
+            assert stop[0] > back[0] + 0.01 and _off_line(stop[:3], target[:3], back[:3]) < 1e-5
+            assert ur.state()["commands"] == [3, 3, 33]  # movel, movel, stopl (ur_rtde's command ids)
         finally:
             c.stopScript()
             c.disconnect()
@@ -506,6 +567,30 @@ def test_movej_follows_a_trapezoid_and_answers_done():
     _command(ctl, 0)
     ctl.step()
     assert ctl.out_int[0] == 1  # ready again after the clear command
+
+
+def test_movel_takes_its_trapezoid_on_the_controllers_clock_and_refuses_what_it_cannot_reach():
+    """movel (ur_rtde's command 3) on the controller alone, tick by tick: 0.1 m along x at 0.05 m/s and 0.1 m/s^2
+    takes d/v + v/a = 2.5 s of controller ticks and ends on the target; a target 3 m away, beyond a UR10's 1300 mm
+    reach (UR10 datasheet), ends the program with a runtime error before the arm moves."""
+    ctl = _started()
+    start = tcp_pose(ctl.motion.q, ctl.calibration, ctl.tcp)
+    target = [start[0] + 0.1, *start[1:]]
+    _command(ctl, MOVEL, [*target, 0.05, 0.1])
+    ticks = 0
+    while ctl.out_int[0] != 2:  # signal_done_with_cmd after the blocking movel
+        ctl.step()
+        ticks += 1
+        assert ticks < 5000
+    assert ticks * TICK_S == pytest.approx(0.1 / 0.05 + 0.05 / 0.1, abs=3 * TICK_S)
+    assert tcp_pose(ctl.motion.q, ctl.calibration, ctl.tcp)[:3] == pytest.approx(target[:3], abs=1e-9)
+    _command(ctl, 0)
+    ctl.step()
+    q = ctl.motion.q
+    _command(ctl, MOVEL, [start[0] + 3.0, *start[1:], 0.05, 0.1])
+    ctl.step()
+    assert ctl.runtime_state != PLAYING and ctl.motion.q == q
+    assert any("inverse kinematics failed" in line for line in ctl.log)
 
 
 def test_rated_speed_caps_the_leading_joint():

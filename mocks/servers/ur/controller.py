@@ -11,15 +11,17 @@ What it keeps, with the public source of each rule:
   registers); id 0 -> executing_cmd = False and signal_ready (output_int_register_0 = 1); realtime ids (servo,
   speed, force) -> process and signal_ready; any other id, once per command -> process_cmd, which blocks for a
   synchronous move and ends with signal_done_with_cmd (output_int_register_0 = 2) unless it was STOP_SCRIPT (255).
-  movej (1): q in input_double_register_0..5, velocity 6, acceleration 7, async flag input_int_register_1; an
+  movej (1): q in input_double_register_0..5, velocity 6, acceleration 7, async flag input_int_register_1 (movel
+  (3) the same with a pose p[x, y, z, rx, ry, rz] and the tool's speed and acceleration: linear.py); an
   asynchronous move runs in a thread that writes the async progress register (output_int_register_2: bits 24-30
   operation id, 16-23 write count, bit 15 running; -1 written as finished). stopj (34) / stopl (33): deceleration
   in input_double_register_0, async flag in input_int_register_1 (exec_stopl_stopj: the stop runs in a thread that
   reports on the async progress register). protective_stop (31). Other ids are not emulated: the script ends with a
   runtime error text, as a failing real script would, so a client sees the program stop instead of a fake success.
   The script text ur_rtde sends (control port `script`) was read to check these: 1175 lines, the main loop above.
-- Motion (motion.py) at the 500 Hz tick; a protective or safeguard stop brakes the arm at `stop_decel` (a
-  category 2 stop: decelerate on the path, then hold).
+- Motion (motion.py, linear.py) at the 500 Hz tick; a stop's deceleration is in the running path's units (rad/s^2
+  of the leading joint on a movej, m/s^2 of the tool on a movel: stopj and stopl alike); a protective or safeguard
+  stop brakes the arm at `stop_decel` (a category 2 stop: decelerate on the path, then hold).
 - A protective stop ends the running program (ur_rtde's documented recovery: unlockProtectiveStop through the
   dashboard, then reuploadScript). Unlocking is refused until 5 s after the stop (Dashboard Server e-Series manual:
   "Cannot unlock protective stop until 5s after occurrence...", `unlock_delay_s`). A safeguard stop pauses the
@@ -35,11 +37,12 @@ import random
 import re
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from trackcal.mocks.servers.ur import rtde_codec as rc
 from trackcal.mocks.servers.ur.kinematics import Calibration, factory_calibration, tcp_pose, tcp_speed
-from trackcal.mocks.servers.ur.motion import TICK_S, UR10_LIMITS_RAD, UR10_VMAX_RAD_S, Motion
+from trackcal.mocks.servers.ur.linear import LinearPath
+from trackcal.mocks.servers.ur.motion import TICK_S, UR10_LIMITS_RAD, UR10_VMAX_RAD_S, Motion, Path, Profile
 
 # RTDE guide enumerations
 ROBOT_MODE = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
@@ -55,7 +58,7 @@ JOINT_RUNNING_MODE = 253  # RTDE guide joint_mode
 SAFETY_BITS = {NORMAL: 1 << 0, PROTECTIVE_STOP: (1 << 2) | (1 << 10), SAFEGUARD_STOP: (1 << 4) | (1 << 10)}
 
 # ur_rtde RTDE::RobotCommand::Type ids emulated (scripts/rtde_control.script process_cmd)
-MOVEJ, PROTECTIVE_STOP_CMD, STOPL, STOPJ, STOP_SCRIPT = 1, 31, 33, 34, 255
+MOVEJ, MOVEL, PROTECTIVE_STOP_CMD, STOPL, STOPJ, STOP_SCRIPT = 1, 3, 31, 33, 34, 255
 SET_PAYLOAD, SET_TCP, SET_WATCHDOG, IS_JOINTS_WITHIN_LIMITS, GET_TCP_OFFSET = 17, 29, 35, 37, 40
 GET_FK_DEFAULT, GET_FK_ARGS, IS_STEADY = 43, 44, 47
 # realtime ids of the 1.6.5 main loop ("if cmd == 24 or cmd == 11 or ...": processed every cycle)
@@ -127,7 +130,7 @@ class UrController:
         self.fault_on_move: dict[int, str] = {}  # move number -> "drop" | "stale" (server faults)
         self._prev_qd = self.motion.qd
         self._pose_cache: tuple[object, tuple[float, ...]] = (None, ())
-        self._paused_move: tuple[tuple[float, ...], float, float] | None = None
+        self._paused_move: Callable[[], Profile] | None = None  # the path from where the arm stands, on resume
         self._reset_script()
 
     # ------------------------------------------------------------------ script emulation state
@@ -141,7 +144,7 @@ class UrController:
         self._async_stop = False
         self._async_wr = 0
         self._async_op = 0
-        self._move_args: tuple[tuple[float, ...], float, float] | None = None
+        self._move_args: Callable[[], Profile] | None = None  # the running move, from where the arm stands
 
     @property
     def time_s(self) -> float:
@@ -266,9 +269,8 @@ class UrController:
 
     def _resume_motion(self) -> None:
         if self._paused_move is not None and not self.motion.moving:
-            target, v, a = self._paused_move
-            self._paused_move = None
-            self.motion.move(target, v, a)
+            restart, self._paused_move = self._paused_move, None
+            self.motion.follow(restart())
 
     def power(self, on: bool) -> None:
         with self.lock:
@@ -371,20 +373,21 @@ class UrController:
             if any(not (lo <= x <= hi) for x, (lo, hi) in zip(q, self.limits, strict=True)) or not (v > 0 and a > 0):
                 self._runtime_error(f"movej({list(q)}, a={a}, v={v}): target outside the joint limits or bad speed")
                 return
-            self.moves += 1
-            self._move_args = (q, v, a)
-            self.motion.move(q, v, a)
-            if self.motion.path is not None and self.moves == self.protective_stop_on_move:
-                self._scheduled.append((self.tick + max(1, round(self.motion.path.total / 2 / TICK_S)),
-                                        "protective_stop"))  # fmt: skip
-            if self.moves in self.fault_on_move and self.motion.path is not None:
-                half = max(1, round(self.motion.path.total / 2 / TICK_S))
-                self._scheduled.append((self.tick + half, self.fault_on_move[self.moves]))
-            if asynchronous:
-                self._async_move = True
-                self._write_async(0)  # signal_async_operation_started()
-            else:
-                self._busy = "move"
+            self._start_move(lambda: Path(self.motion.q, q, v, a, self.motion.vmax), asynchronous)
+        elif cmd == MOVEL:  # exec movel: pose in double 0..5, tool speed 6, tool acceleration 7, async flag int 1
+            pose, (v, a) = self._floats(0, 6), self._floats(6, 2)
+            asynchronous = self.in_int[1 + off] == 1
+            self._stop_async_move()
+
+            def line() -> LinearPath:
+                return LinearPath(self.motion.q, pose, v, a, self.calibration, self.tcp, self.motion.vmax, self.limits)
+
+            try:
+                first = line()  # what a real controller finds out on the way, the mock before the arm moves
+            except ValueError as exc:
+                self._runtime_error(f"movel({list(pose)}, a={a}, v={v}): {exc}")
+                return
+            self._start_move(line, asynchronous, first)
         elif cmd in (STOPJ, STOPL):  # exec_stopl_stopj: deceleration in double 0, async flag in int 1
             decel = self._floats(0, 1)[0]
             decel = decel if decel > 0 else self.stop_decel
@@ -429,6 +432,23 @@ class UrController:
                 self.out_double[i + self.reg_float] = v
         else:
             self._unsupported(cmd)
+
+    def _start_move(self, path: Callable[[], Profile], asynchronous: bool, first: Profile | None = None) -> None:
+        """movej / movel: the path (made from where the arm stands, again on a resume), its faults, its answer."""
+        self.moves += 1
+        self._move_args = path
+        self.motion.follow(first or path())
+        if self.motion.path is not None and self.moves == self.protective_stop_on_move:
+            self._scheduled.append((self.tick + max(1, round(self.motion.path.total / 2 / TICK_S)),
+                                    "protective_stop"))  # fmt: skip
+        if self.moves in self.fault_on_move and self.motion.path is not None:
+            half = max(1, round(self.motion.path.total / 2 / TICK_S))
+            self._scheduled.append((self.tick + half, self.fault_on_move[self.moves]))
+        if asynchronous:
+            self._async_move = True
+            self._write_async(0)  # signal_async_operation_started()
+        else:
+            self._busy = "move"
 
     def _stop_async_move(self, decel: float | None = None) -> None:
         """stop_async_move() of the script: kills the move thread (the arm brakes) and signals it finished."""

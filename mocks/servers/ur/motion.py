@@ -19,29 +19,15 @@ UR10_VMAX_RAD_S = tuple(math.radians(v) for v in (120.0, 120.0, 180.0, 180.0, 18
 UR10_LIMITS_RAD = tuple((-2 * math.pi, 2 * math.pi) for _ in range(6))
 
 
-class Path:
-    """q(s) = q0 + (q1 - q0) s, s in [0, 1]; the scalar s follows a trapezoidal profile or a braking ramp."""
+class Profile:
+    """The path parameter s in [0, 1] over time: a trapezoid of path speed sv and acceleration sa (s units per
+    second), a triangle when the path is too short to reach sv."""
 
-    def __init__(self, q0: Sequence[float], q1: Sequence[float], speed: float, acc: float,
-                 vmax: Sequence[float]) -> None:  # fmt: skip
-        if not (speed > 0 and acc > 0):
-            raise ValueError("movej needs a positive speed and acceleration")
-        self.q0 = tuple(float(v) for v in q0)
-        self.q1 = tuple(float(v) for v in q1)
-        self.d = tuple(b - a for a, b in zip(self.q0, self.q1, strict=True))
-        lead = max(abs(x) for x in self.d)
-        self.lead = lead
-        if lead == 0.0:
-            self.sv = self.sa = 1.0
-            self.ta = self.tc = self.total = 0.0
-            return
-        # path speed / acceleration (units of s per second): the leading joint at (speed, acc), every joint under
-        # its rated speed
-        sv = speed / lead
-        for dj, vj in zip(self.d, vmax, strict=True):
-            if dj != 0.0:
-                sv = min(sv, vj / abs(dj))
-        sa = acc / lead
+    lead = 0.0  # the path's length in the units its speed and acceleration are given in (stop's deceleration too)
+    sv = sa = 1.0
+    ta = tc = total = 0.0
+
+    def _shape(self, sv: float, sa: float) -> None:
         if sv * sv / sa >= 1.0:  # triangle: never reaches sv
             self.ta, self.tc = math.sqrt(1.0 / sa), 0.0
             sv = sa * self.ta
@@ -65,9 +51,42 @@ class Path:
         return 1.0 - 0.5 * self.sa * r * r, self.sa * r
 
     def at(self, s: float) -> tuple[float, ...]:
+        raise NotImplementedError
+
+    def rate(self, s: float) -> tuple[float, ...]:
+        """dq/ds at s."""
+        raise NotImplementedError
+
+
+class Path(Profile):
+    """q(s) = q0 + (q1 - q0) s, s in [0, 1]; the scalar s follows a trapezoidal profile or a braking ramp."""
+
+    def __init__(self, q0: Sequence[float], q1: Sequence[float], speed: float, acc: float,
+                 vmax: Sequence[float]) -> None:  # fmt: skip
+        if not (speed > 0 and acc > 0):
+            raise ValueError("movej needs a positive speed and acceleration")
+        self.q0 = tuple(float(v) for v in q0)
+        self.q1 = tuple(float(v) for v in q1)
+        self.d = tuple(b - a for a, b in zip(self.q0, self.q1, strict=True))
+        lead = max(abs(x) for x in self.d)
+        self.lead = lead
+        if lead == 0.0:
+            return
+        # path speed / acceleration (units of s per second): the leading joint at (speed, acc), every joint under
+        # its rated speed
+        sv = speed / lead
+        for dj, vj in zip(self.d, vmax, strict=True):
+            if dj != 0.0:
+                sv = min(sv, vj / abs(dj))
+        self._shape(sv, acc / lead)
+
+    def at(self, s: float) -> tuple[float, ...]:
         if s >= 1.0:
             return self.q1
         return tuple(a + dj * s for a, dj in zip(self.q0, self.d, strict=True))
+
+    def rate(self, s: float) -> tuple[float, ...]:
+        return self.d
 
 
 class Motion:
@@ -77,7 +96,7 @@ class Motion:
         self.q = tuple(float(v) for v in q)
         self.qd = tuple(0.0 for _ in self.q)
         self.vmax = tuple(float(v) for v in vmax)
-        self.path: Path | None = None
+        self.path: Profile | None = None
         self._tick = 0  # ticks since the path started
         # braking: (s at the start, ds/dt at the start, deceleration in s units, ticks since the start)
         self._brake: tuple[float, float, float] | None = None
@@ -88,7 +107,11 @@ class Motion:
         return self.path is not None
 
     def move(self, target: Sequence[float], speed: float, acc: float) -> None:
-        self.path = Path(self.q, target, speed, acc, self.vmax)
+        self.follow(Path(self.q, target, speed, acc, self.vmax))
+
+    def follow(self, path: Profile) -> None:
+        """Start a path from where the arm stands (movej's Path, movel's linear.LinearPath)."""
+        self.path = path
         self._tick, self._brake = 0, None
         if self.path.total == 0.0:
             self.path = None
@@ -118,7 +141,7 @@ class Motion:
             done = sd <= 0.0 or s >= 1.0  # a gentle stop may reach the target first
             sd = 0.0 if done else sd
         self.q = path.at(s)
-        self.qd = tuple(dj * sd for dj in path.d)
+        self.qd = tuple(dj * sd for dj in path.rate(s))
         if done:
             self.path, self._brake = None, None
             self.qd = tuple(0.0 for _ in self.q)
