@@ -286,7 +286,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
             watch = SchedulerWatch(ex._client, SCHEDULER_TIMEOUT_S) if scheduler else None
             try:
                 pending = {ex.submit(run_marked, sealed(fn, i, chunk, args)): i for i, chunk in todo.items()}
-                processes = getattr(ex, "_processes", None) or {}  # a process pool's pid -> Process, kept after it ends
+                processes = getattr(ex, "_processes", None)  # a process pool's pid -> Process, kept after it ends
                 slots = _slots(ex)  # asked once: a scheduler that stops answering would not answer again
                 report(pending, slots)
                 while pending and not broken:
@@ -316,7 +316,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
             if fut.done() and not isinstance(fut.exception(), BrokenProcessPool):
                 del todo[i]
                 yield count(fut.result())
-        dead = _dead_workers(processes)
+        dead = _dead_workers(processes or {})
         culprits = [i for i in todo if marks[i] in dead]
         for i in culprits:
             how = dead[marks[i]]
