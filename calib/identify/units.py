@@ -17,7 +17,7 @@ before anything is fitted:
   metres writes as 1 to 80 "mm"; it is given with the verdict.
 - Joints. A campaign spans the joints' ranges (paper section 6: the configurations are chosen over the whole joint
   space). Written in radians, every value lies within the joint's limits read in radians (pi where the robot file
-  gives none; +-2 pi for a UR's +-360 deg), which in degrees is a few degrees about zero. A table whose every joint
+  gives none; +-2 pi for a joint of +-360 deg), which in degrees is a few degrees about zero. A table whose every joint
   value lies so, while some joint moves by more than RADIAN_SPREAD (0.5 rad = 29 deg, read as radians; in degrees, a
   campaign whose joints never leave a few degrees about zero, which identifies nothing), is in radians. A table
   that does not move (one pose repeated) has no spread to tell by and passes.
