@@ -12,10 +12,11 @@ from trackcal.calib.identify.drift import RP_PER_SIGMA, DriftTest
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import load_cell, usable_limits_deg
 from trackcal.campaign.engine.engine import Live, drift_checks
-from trackcal.campaign.engine.steps import campaign_steps, points_in_box, visibility
+from trackcal.campaign.engine.steps import StepKind, campaign_steps, points_in_box, visibility
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.report.html import section_warnings
 from trackcal.campaign.session.session import campaign_warnings, export_table
+from trackcal.drivers.errors import TargetNotVisible
 from trackcal.mocks.cell import World
 from trackcal.mocks.effects import Effects
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -173,3 +174,32 @@ def test_a_block_whose_reference_pose_hides_its_point_warns_and_the_report_says_
     stored = campaign_warnings(store)
     assert len([w for w in stored if "no drift check for P3 from S1" in w]) == 1
     assert "no drift check for P3 from S1" in section_warnings(stored, len(store.events("measurement")))
+
+
+class LosesTheFirstRevisit(InprocTracker):
+    """The beam broken at the campaign's second and third measurements: the first block's opening reference revisit
+    (calib.doe.order: the block opens with the pose its closing revisit is approached from, then the revisit),
+    looked at again and skipped."""
+
+    calls = 0
+
+    def measure(self):
+        self.calls += 1
+        if self.calls in (2, 3):
+            raise TargetNotVisible("beam broken", code="beam", device="tracker (test)")
+        return super().measure()
+
+
+def test_a_lost_reference_revisit_warns_that_its_block_has_no_drift_check(tmp_path):
+    """Before, the closing revisit was compared with itself, without a word."""
+    plan = feasible_plan(CELL, 4, seed=2, repeat=1)
+    store, campaign = new_session(tmp_path / "s", "kr270", plan, "sim", 2)
+    first = next(s for s in campaign.steps if s.kind == StepKind.MEASURE and s.drift)
+    assert [s for s in campaign.steps if s.kind == StepKind.MEASURE].index(first) == 1
+    world = World(Twin(CELL, seed=2))
+    result = run_stored(store, Live(LosesTheFirstRevisit(world), InprocRobot(world), SimOperator(world), world.clock,
+                                    InprocCellIO(world)))  # fmt: skip
+    warned = [w for w in result.warnings if w.startswith("no drift check")]
+    assert warned == [f"no drift check for {first.point} from {first.station} in this block: its reference pose "
+                      f"{first.pose} could not be measured, so a move of station {first.station} during the block "
+                      "goes unnoticed"]  # fmt: skip
