@@ -25,7 +25,10 @@ The map (YAML; docs/import-map.md documents every key with two examples):
 Rows are numbered as in the file (its first line is row 1, preamble and header included), columns named by their
 header name and position; every bad cell is one line naming both. Without a pose column, rows with the same joint
 values share a pose, in every file of one import: ids P0001, P0002, ... in order of first appearance. In pose_rows
-a point whose three cells are all empty was not measured at that pose and gives no row.
+a point whose three cells are all empty was not measured at that pose and gives no row. A position with a NaN (or,
+in point_rows, three empty cells) is a row where the tracker had no reading: skipped and counted (MAX_MISSING).
+A file ending in .mat is read as MATLAB's (campaign/importers/mat_file.py); with a joints file, the positions files
+are joined to it by row.
 """
 
 from __future__ import annotations
