@@ -10,11 +10,13 @@ import pytest
 from tests.helpers import feasible_plan
 from trackcal.calib.identify.drift import RP_PER_SIGMA, DriftTest
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.cell import load_cell, usable_limits_deg
 from trackcal.campaign.engine.engine import Live, drift_checks
-from trackcal.campaign.engine.steps import campaign_steps
+from trackcal.campaign.engine.steps import StepKind, campaign_steps, points_in_box, visibility
 from trackcal.campaign.jobs.campaign import new_session, run_stored
-from trackcal.campaign.session.session import export_table
+from trackcal.campaign.report.html import section_warnings
+from trackcal.campaign.session.session import campaign_warnings, export_table
+from trackcal.drivers.errors import TargetNotVisible
 from trackcal.mocks.cell import World
 from trackcal.mocks.effects import Effects
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -140,3 +142,64 @@ def test_an_arm_growing_three_thresholds_in_a_block_warns():
     rate = 3 * largest_threshold_mm(seed) / ((end - start) * 2500.0)
     warned, _ = run_campaign(seed, Effects(thermal_per_s=rate))
     assert warned
+
+
+def test_a_block_whose_reference_pose_hides_its_point_warns_and_the_report_says_so(tmp_path):
+    """issue 35: a point block without a drift check is one warning, stored and in the report. P3's nest faces +y in
+    the flange frame while P1 and P2 face +x (acceptance 90 deg): the poses where S1 sees P1 and P2 but not P3 see the
+    most points, so one of them is S1's reference pose (calib.doe.order), and P3's block from S1 has no revisit to
+    compare. Before, that block went without a word."""
+    root = Path(__file__).resolve().parents[1] / "configs"
+    tool = (root / "tools" / "kr270-3point.yaml").read_text()
+    (tmp_path / "tool.yaml").write_text(tool.replace("P3: {xyz_mm: [278, 104, -2],  normal: [1, 0, 0]}",
+                                                     "P3: {xyz_mm: [278, 104, -2],  normal: [0, 1, 0]}"))  # fmt: skip
+    cell_text = (root / "cells" / "kr270.yaml").read_text().replace("tool: kr270-3point", "tool: tool.yaml")
+    (tmp_path / "cell.yaml").write_text(cell_text)
+    cell = load_cell(str(tmp_path / "cell.yaml"))
+    rng = np.random.default_rng(5)
+    lim = usable_limits_deg(cell)
+    q = rng.uniform(lim[:, 0], lim[:, 1], size=(400, cell.chain.dof)).round(4)
+    q = q[points_in_box(cell, np.radians(q))]
+    vis = visibility(cell, q)
+    both = vis[("S1", "P1")] & vis[("S1", "P2")]
+    plan = {"poses_deg": [*q[both & ~vis[("S1", "P3")]][:2].tolist(),
+                          *q[~vis[("S1", "P1")] & ~vis[("S1", "P2")] & vis[("S1", "P3")]][:3].tolist()], "repeat": 1}
+    store, _ = new_session(tmp_path / "s", str(tmp_path / "cell.yaml"), plan, "sim", 7)
+    world = World(Twin(cell, seed=7))
+    result = run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
+                                    InprocCellIO(world)))  # fmt: skip
+    assert result.exit_status == "success"
+    warned = [w for w in result.warnings if w.startswith("no drift check")]
+    assert len(warned) == 1 and "for P3 from S1: the block's reference pose Q1 does not see P3" in warned[0], warned
+    stored = campaign_warnings(store)
+    assert len([w for w in stored if "no drift check for P3 from S1" in w]) == 1
+    assert "no drift check for P3 from S1" in section_warnings(stored, len(store.events("measurement")))
+
+
+class LosesTheFirstRevisit(InprocTracker):
+    """The beam broken at the campaign's second and third measurements: the first block's opening reference revisit
+    (calib.doe.order: the block opens with the pose its closing revisit is approached from, then the revisit),
+    looked at again and skipped."""
+
+    calls = 0
+
+    def measure(self):
+        self.calls += 1
+        if self.calls in (2, 3):
+            raise TargetNotVisible("beam broken", code="beam", device="tracker (test)")
+        return super().measure()
+
+
+def test_a_lost_reference_revisit_warns_that_its_block_has_no_drift_check(tmp_path):
+    """Before, the closing revisit was compared with itself, without a word."""
+    plan = feasible_plan(CELL, 4, seed=2, repeat=1)
+    store, campaign = new_session(tmp_path / "s", "kr270", plan, "sim", 2)
+    first = next(s for s in campaign.steps if s.kind == StepKind.MEASURE and s.drift)
+    assert [s for s in campaign.steps if s.kind == StepKind.MEASURE].index(first) == 1
+    world = World(Twin(CELL, seed=2))
+    result = run_stored(store, Live(LosesTheFirstRevisit(world), InprocRobot(world), SimOperator(world), world.clock,
+                                    InprocCellIO(world)))  # fmt: skip
+    warned = [w for w in result.warnings if w.startswith("no drift check")]
+    assert warned == [f"no drift check for {first.point} from {first.station} in this block: its reference pose "
+                      f"{first.pose} could not be measured, so a move of station {first.station} during the block "
+                      "goes unnoticed"]  # fmt: skip

@@ -96,7 +96,7 @@ def test_a_table_in_any_layout_reads_back_through_its_map(tmp_path_factory, expo
     d = tmp_path_factory.mktemp("rt")
     (d / "map.yaml").write_text(yaml.safe_dump(doc))
     (d / "export.txt").write_text(text)
-    table = import_table(d / "export.txt", load_map(d / "map.yaml"))
+    table = import_table(d / "export.txt", load_map(d / "map.yaml")).table
     assert len(table) == len(expected)
     assert table.station == [e[2] for e in expected] and table.point == [e[3] for e in expected]
     np.testing.assert_allclose(table.q_deg, [e[4] for e in expected], rtol=1e-12, atol=1e-9)  # unit round trip
@@ -120,7 +120,9 @@ MAP = {"columns": {"joints": ["A1", "A2"], "xyz": ["X", "Y", "Z"]}}
 
 @pytest.mark.parametrize("text, doc, message", [
     ("A1,A2,X,Y,Z\n1,2,3,4,5\n1,2,3,x4,5\n", MAP, "row 3: column 'Y' (1-based position 4): not a number: 'x4'"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,nan\n", MAP, "row 2: column 'Z' (1-based position 5): not a finite number: 'nan'"),
+    ("A1,A2,X,Y,Z\n1,nan,3,4,5\n", MAP, "row 2: column 'A2' (1-based position 2): not a finite number: 'nan'"),
+    ("A1,A2,X,Y,Z\n1,2,3,4,inf\n", MAP, "row 2: column 'Z' (1-based position 5): not a finite number: 'inf'"),
+    ("A1,A2,X,Y,Z\n1,2,3,4,nan\n", MAP, "point P1: 1 of 1 rows have no reading (NaN or empty), more than 50%"),
     ("A1;A2;X;Y;Z\n1,5;2;3;4;5\n", MAP, "row 1 has 1 column; the file looks ';'-separated: set separator: ';'"),
     ("A1;A2;X;Y;Z\n1,5;2;3;4;5\n", {**MAP, "separator": ";"},
      "row 2: column 'A1' (1-based position 1): not a number: '1,5' (a decimal comma? set decimal: ',')"),

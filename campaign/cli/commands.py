@@ -309,11 +309,19 @@ COMMANDS = [
                         "measurement tables."),
     Command("table", "another tool's tracker export, read through a map (docs/import-map.md)",
             "trackcal.campaign.cli.importers:cmd_import_table", [
-                arg("files", nargs="+", metavar="FILE", help="the export (delimited text, UTF-8); several files: "
-                                                             "one per point (map `point: \"{file}\"`), read in turn"),
+                arg("files", nargs="+", metavar="FILE", help="the export (delimited text, UTF-8, or MATLAB .mat); "
+                                                             "several files: one per point (map `point: \"{file}\"`), "
+                                                             "read in turn"),
                 arg("--map", required=True, help="map YAML: separator, decimal, units, layout, columns "
                                                  "(docs/import-map.md)"),
-                arg("--out", required=True, help="measurement table to write"),
+                arg("--out", required=True, help="measurement table to write (with --holdout: the training poses)"),
+                arg("--joints", metavar="FILE", help="the robot's side (joints, time, pose, station columns) in a "
+                                                     "file of its own; each FILE then holds positions alone, joined "
+                                                     "to it by row"),
+                arg("--holdout", type=float, metavar="FRACTION", help="hold this share of the poses out as a test "
+                                                                      "table (--test-out), drawn with --seed"),
+                arg("--seed", type=seed, default=0, help="the seed of the --holdout draw"),
+                arg("--test-out", help="with --holdout: the test table to write (no pose in both)"),
             ], group="import",
             description="Convert another tool's tracker export into a measurement table through a map."),
     Command("plan", "the ISO 9283 cube of the cell, its five poses and the plan `trackcal run` walks",

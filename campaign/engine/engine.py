@@ -205,6 +205,27 @@ class Settings:
     measure_attempts: int = 2  # a beam broken by someone walking through it is transient: look again once
 
 
+def undrifted_blocks(steps: list[Step]) -> dict[int, str]:
+    """The point blocks the plan gives no drift check: step index of each one's first measurement -> the warning.
+    A station's reference pose is the pose its drift revisits measure (calib.doe.order: the pose it sees the most
+    points from); a point that station does not see at that pose has no revisit to compare, so a move of the
+    station during that block goes unnoticed. A station with no revisit at all (an ISO 9283 test: its repeats are
+    its drift data) has no such block."""
+    refs = {s.station: s.pose for s in steps if s.kind == StepKind.MEASURE and s.drift}
+    checked = {(s.station, s.point) for s in steps if s.kind == StepKind.MEASURE and s.drift}
+    out: dict[int, str] = {}
+    seen: set[tuple[str, str]] = set()
+    for i, s in enumerate(steps):
+        key = (s.station, s.point)
+        if s.kind != StepKind.MEASURE or s.station not in refs or key in checked or key in seen:
+            continue
+        seen.add(key)
+        out[i] = (f"no drift check for {s.point} from {s.station}: the block's reference pose {refs[s.station]} "
+                  f"does not see {s.point} from {s.station}, so a move of station {s.station} during this block goes "
+                  "unnoticed")  # fmt: skip
+    return out
+
+
 def drift_checks(steps: list[Step]) -> int:
     """How many drift comparisons the plan makes: every revisit of a block's reference measurement after its first."""
     seen: dict[tuple[str, str, str], int] = {}
@@ -227,6 +248,7 @@ class Engine:
         self.t0 = 0.0
         self.drift = self.dev.drift
         self.offset = 0.0
+        self.undrifted: dict[int, str] = {}  # step -> the warning its block has no drift check (undrifted_blocks)
         self.interlock = DoorInterlock(lambda: self.dev.cellio is None or self.dev.cellio.door_closed())
         self.handlers: dict[StepKind, Callable[[Step], None]] = {
             StepKind.CHANGE_STATION: self._change_station,
@@ -260,6 +282,7 @@ class Engine:
         self.t0 = self.dev.clock.now()
         first = next((i for i in range(len(steps)) if i not in done), len(steps))
         self.drift = replace(self.dev.drift, checks=drift_checks(steps))
+        self.undrifted = undrifted_blocks(steps)
         measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
         n_done = sum(1 for k in measures if k in done or k < first)
         try:
@@ -397,6 +420,8 @@ class Engine:
                                   device="robot")  # fmt: skip
 
     def _measure(self, step: Step) -> None:
+        if self.context.step in self.undrifted:  # the block's first measurement: said once, as the block starts
+            self._warn(self.undrifted[self.context.step])
         q = self.dev.robot.joints()
         env = self.dev.meteo.read() if self.dev.meteo is not None else None
         expected = self.dev.expected(step) if self.dev.expected is not None else None
@@ -411,6 +436,10 @@ class Engine:
                 then = "skipped here" if last else "looking again"
                 where = f"{step.point} not measurable from {step.station} at {step.pose}"
                 self._warn(f"{where}: {exc}; {then}")
+                if last and step.drift:  # a reference revisit lost: the block's drift check with it
+                    self._warn(f"no drift check for {step.point} from {step.station} in this block: its reference "
+                               f"pose {step.pose} could not be measured, so a move of station {step.station} during "
+                               "the block goes unnoticed")  # fmt: skip
                 if last:
                     return
         if expected is not None and self.dev.tolerance is not None:

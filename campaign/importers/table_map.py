@@ -25,7 +25,10 @@ The map (YAML; docs/import-map.md documents every key with two examples):
 Rows are numbered as in the file (its first line is row 1, preamble and header included), columns named by their
 header name and position; every bad cell is one line naming both. Without a pose column, rows with the same joint
 values share a pose, in every file of one import: ids P0001, P0002, ... in order of first appearance. In pose_rows
-a point whose three cells are all empty was not measured at that pose and gives no row.
+a point whose three cells are all empty was not measured at that pose and gives no row. A position with a NaN (or,
+in point_rows, three empty cells) is a row where the tracker had no reading: skipped and counted (MAX_MISSING).
+A file ending in .mat is read as MATLAB's (campaign/importers/mat_file.py); with a joints file, the positions files
+are joined to it by row.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import numpy as np
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_yaml
 from trackcal.calib.io.table import MeasurementTable, TableError, read_blocks, split_lines
+from trackcal.campaign.importers.mat_file import MatColumns, is_mat, read_mat
 
 LAYOUTS = ("point_rows", "pose_rows")
 JOINT_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
@@ -49,6 +53,13 @@ SEPARATORS = {",": "','", ";": "';'", "\t": "tabs", "|": "'|'"}
 KEYS = ("separator", "decimal", "skip_rows", "header", "positions", "layout", "units", "columns", "points",
         "station", "point")  # fmt: skip
 COLUMN_KEYS = ("joints", "xyz", "point", "pose", "time", "station")
+ROBOT_KEYS = ("joints", "pose", "time", "station")  # joined by row: the joints file's columns
+POSITION_KEYS = ("xyz", "point")  # joined by row: each positions file's columns
+# A point with more than this share of its rows without a reading is refused: the tracker loses the beam at some
+# poses (a link in the line of sight, a nest turned past its acceptance angle), but when the rows without a reading
+# outnumber those with one, the map more likely names the wrong columns (another reflector's, a status column), or
+# the tracker did not follow that reflector: the campaign the export describes is not the one measured.
+MAX_MISSING = 0.5
 
 
 FILE_POINT = "{file}"  # the fixed point id that is each file's name without its extension (one file per point)
@@ -184,14 +195,22 @@ def _looks_separated(line: str, separator: str) -> str | None:
     return best if counts[best] > line.count(separator) else None
 
 
-def _resolve(m: TableMap, ref: str | int, header: list[str] | None, path: Path, row: int) -> Column:
+def _resolve(m: TableMap, ref: str | int, header: list[str] | None, path: Path, row: int,
+             mat: MatColumns | None = None) -> Column:  # fmt: skip
     if isinstance(ref, int):
         index = ref - m.base
         if index < 0:
             raise ImportMapError(f"{m.source}: column {ref}: positions are {'1' if m.base else '0'}-based, the first "
                                  f"column is {m.base}")  # fmt: skip
+        if mat is not None and index >= len(header):
+            raise ImportMapError(f"{path}: column {ref}: the file has {len(header)} columns; it holds {mat.holds}")
         name = header[index] if header is not None and index < len(header) else None
         return Column(index, f"column {ref}" + (f" ({name!r})" if name else ""))
+    if ref not in header and mat is not None:
+        k = mat.matrices.get(ref)
+        hint = f"; {ref!r} is a matrix: name its columns '{ref}(:,1)' ... '{ref}(:,{k})'" if k else ""
+        raise ImportMapError(f"{path}: no variable {ref!r} (the map {m.source} names it); the file holds "
+                             f"{mat.holds}{hint}")  # fmt: skip
     if ref not in header:
         known = ", ".join(repr(h) for h in header[:12]) + (" ..." if len(header) > 12 else "")
         raise ImportMapError(f"{path}: row {row}: no column {ref!r} (the map {m.source} names it); the header has "
@@ -225,89 +244,175 @@ def _width_note(path: Path, row: int, cells: list[str], need: int, m: TableMap, 
     return f"{note}, the map needs {need} ({m.source})"
 
 
-def import_table(paths: str | Path | list, m: TableMap) -> MeasurementTable:
-    """The measurement table (mm, deg) of the export at `paths` (one file, or several: one file per point) read
-    through the map `m`, the files' rows one after the other."""
+@dataclass
+class Imported:
+    """An import: the table, and per point the rows read and those skipped for having no reading."""
+
+    table: MeasurementTable
+    rows: dict[str, int]  # point -> rows read (with a reading or without)
+    missing: dict[str, int]  # point -> rows without a reading (NaN or empty x, y, z), skipped
+
+
+@dataclass
+class _Source:
+    """One file of an import: its rows (file row number, cells), and its text lines to explain a short row."""
+
+    path: Path
+    rows: list[tuple[int, list[str]]]
+    raw: list[str] | None  # None: a .mat file
+    col: dict  # map key -> Column or list of Columns, resolved in this file
+    pts: dict  # pose_rows: point -> [x, y, z] Columns
+
+
+def import_table(paths: str | Path | list, m: TableMap, joints: str | Path | None = None) -> Imported:
+    """The measurement table (mm, deg) of the export at `paths` (one file, or several: one file per point, text or
+    MATLAB .mat) read through the map `m`, the files' rows one after the other. With `joints`, the robot's side
+    (joints, time, pose, station) is that file's and `paths` hold the positions alone, joined to it by row: row k of
+    each is measured at row k of `joints`. Rows without a reading (NaN or empty x, y, z) are skipped and counted;
+    more than MAX_MISSING of a point's rows without one is an error."""
     paths = [Path(p) for p in ([paths] if isinstance(paths, str | Path) else paths)]
     poses: dict[tuple, str] = {}
-    parts = [_read_export(p, m, poses) for p in paths]
-    if len(parts) == 1:
-        return parts[0]
+    counts: dict[str, list[int]] = {}  # point -> [rows, missing]
+    robot = None if joints is None else _open(Path(joints), m, ROBOT_KEYS, with_points=False)
+    parts = []
+    for p in paths:
+        if robot is None:
+            src = _open(p, m, COLUMN_KEYS, with_points=True)
+            parts.append(_read_rows(src, src, m, poses, counts))
+            continue
+        src = _open(p, m, POSITION_KEYS, with_points=True)
+        if len(src.rows) != len(robot.rows):
+            raise ImportMapError(f"{p}: {len(src.rows)} rows, the joints file {robot.path} {len(robot.rows)}: files "
+                                 "joined by row need as many rows each")  # fmt: skip
+        parts.append(_read_rows(robot, src, m, poses, counts))
+    sources = ", ".join(map(str, ([robot.path] if robot else []) + paths))
+    for point, (n, k) in counts.items():
+        if k > MAX_MISSING * n:
+            raise ImportMapError(f"{sources}: point {point}: {k} of {n} rows have no reading (NaN or empty), more "
+                                 f"than {MAX_MISSING:.0%}: does the map name the right columns?")  # fmt: skip
+    parts = [t for t in parts if t is not None]
+    if not parts:
+        raise ImportMapError(f"{sources}: no measured point in any row")
     n = sum(len(t) for t in parts)
-    return MeasurementTable(seq=np.arange(1, n + 1), t_s=np.concatenate([t.t_s for t in parts]),
-                            pose=[v for t in parts for v in t.pose], station=[v for t in parts for v in t.station],
-                            point=[v for t in parts for v in t.point], q_deg=np.vstack([t.q_deg for t in parts]),
-                            xyz=np.vstack([t.xyz for t in parts]), source=", ".join(map(str, paths)))  # fmt: skip
+    table = parts[0] if len(parts) == 1 else MeasurementTable(
+        seq=np.arange(1, n + 1), t_s=np.concatenate([t.t_s for t in parts]), pose=[v for t in parts for v in t.pose],
+        station=[v for t in parts for v in t.station], point=[v for t in parts for v in t.point],
+        q_deg=np.vstack([t.q_deg for t in parts]), xyz=np.vstack([t.xyz for t in parts]), source=sources)  # fmt: skip
+    return Imported(table, {p: c[0] for p, c in counts.items()}, {p: c[1] for p, c in counts.items()})
 
 
-def _read_export(path: Path, m: TableMap, poses: dict[tuple, str]) -> MeasurementTable:
-    """One file of the export; `poses` (joint values -> pose id) is shared by the files of one import."""
-    raw, rows = _rows(path, m)
-    if not rows:
-        raise ImportMapError(f"{path}: no rows after the {m.skip_rows} skipped")
-    header, hrow = None, m.skip_rows + 1
-    if m.header:
-        hrow, header = rows.pop(0)
-        names = [r for r in _all_refs(m) if isinstance(r, str)]
-        if names and not set(names) & set(header):
-            if _looks_separated(raw[hrow - 1], m.separator):
-                raise ImportMapError(_width_note(path, hrow, header, 0, m, raw[hrow - 1]))
-            shown = ", ".join(map(repr, names[:4])) + (" ..." if len(names) > 4 else "")
-            raise ImportMapError(f"{path}: row {hrow}: none of the map's columns ({shown}) is in the header")
-    col = {k: ([_resolve(m, r, header, path, hrow) for r in v] if isinstance(v, list) else
-               _resolve(m, v, header, path, hrow)) for k, v in m.columns.items()}  # fmt: skip
-    pts = {p: [_resolve(m, r, header, path, hrow) for r in v] for p, v in (m.points or {}).items()}
-    need = 1 + max(c.index for c in _flat(col, pts))
+def _open(path: Path, m: TableMap, keys: tuple[str, ...], with_points: bool) -> _Source:
+    """The file at `path` (a text export, or a .mat file by its suffix) with the map's columns `keys` (and, with
+    `with_points`, the points of pose_rows) resolved in it."""
+    refs = {k: v for k, v in m.columns.items() if k in keys}
+    pts_refs = (m.points or {}) if with_points else {}
+    wanted = [r for v in [*refs.values(), *pts_refs.values()] for r in (v if isinstance(v, list) else [v])]
+    if is_mat(path):
+        mat = read_mat(path, ImportMapError)
+        header, hrow, raw, rows = mat.header, 0, None, []
+    else:
+        mat = None
+        raw, rows = _rows(path, m)
+        if not rows:
+            raise ImportMapError(f"{path}: no rows after the {m.skip_rows} skipped")
+        header, hrow = None, m.skip_rows + 1
+        if m.header:
+            hrow, header = rows.pop(0)
+            names = [r for r in wanted if isinstance(r, str)]
+            if names and not set(names) & set(header):
+                if _looks_separated(raw[hrow - 1], m.separator):
+                    raise ImportMapError(_width_note(path, hrow, header, 0, m, raw[hrow - 1]))
+                shown = ", ".join(map(repr, names[:4])) + (" ..." if len(names) > 4 else "")
+                raise ImportMapError(f"{path}: row {hrow}: none of the map's columns ({shown}) is in the header")
+    col = {k: ([_resolve(m, r, header, path, hrow, mat) for r in v] if isinstance(v, list) else
+               _resolve(m, v, header, path, hrow, mat)) for k, v in refs.items()}  # fmt: skip
+    pts = {p: [_resolve(m, r, header, path, hrow, mat) for r in v] for p, v in pts_refs.items()}
+    if mat is not None:
+        used = sorted({c.index for c in _flat(col, pts)})
+        lengths = {header[i]: len(mat.cells[i]) for i in used}
+        if len(set(lengths.values())) > 1:
+            shown = ", ".join(f"{h} {n}" for h, n in lengths.items())
+            raise ImportMapError(f"{path}: the map's columns have different row counts ({shown}); each needs one "
+                                 "row per measurement")  # fmt: skip
+        n = next(iter(lengths.values()), 0)
+        keep = set(used)
+        rows = [(k + 1, [mat.cells[i][k] if i in keep else "" for i in range(len(header))]) for k in range(n)]
     if not rows:
         raise ImportMapError(f"{path}: no data rows")
+    return _Source(path, rows, raw, col, pts)
 
-    def number(row: int, cells: list[str], c: Column, factor: float = 1.0) -> float:
+
+def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, str],
+               counts: dict[str, list[int]]) -> MeasurementTable | None:  # fmt: skip
+    """The rows of one file (`robot` is `meas`), or of a positions file `meas` joined by row to the joints file
+    `robot`; `poses` (joint values -> pose id) is shared by the files of one import, `counts` (point -> [rows,
+    without a reading]) is added to. None when no row has a reading."""
+    need_r = 1 + max(c.index for c in _flat(robot.col, {}))
+    need_m = 1 + max(c.index for c in _flat(meas.col, meas.pts)) if meas is not robot else need_r
+
+    def number(src: _Source, row: int, cells: list[str], c: Column, factor: float = 1.0) -> float:
         text = cells[c.index]
         t = text.replace(",", ".") if m.decimal == "," else text
         try:
             v = float(t)
         except ValueError:
             hint = " (a decimal comma? set decimal: ',')" if m.decimal == "." and "," in text else ""
-            raise ImportMapError(f"{path}: row {row}: {c.label}: not a number: {text!r}{hint}") from None
+            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a number: {text!r}{hint}") from None
         if not math.isfinite(v) or t.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
-            raise ImportMapError(f"{path}: row {row}: {c.label}: not a finite number: {text!r}")
+            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a finite number: {text!r}")
         return v * factor
 
-    def ident(row: int, cells: list[str], c: Column) -> str:
+    def reading(row: int, cells: list[str], cs: list[Column]) -> list[float] | None:
+        """The position in mm, or None when the tracker had no reading there (a NaN or all three empty)."""
+        texts = [cells[c.index].strip().lower().lstrip("+-") for c in cs]
+        if "nan" in texts or not any(texts):
+            return None
+        return [number(meas, row, cells, c, m.length_factor) for c in cs]
+
+    def ident(src: _Source, row: int, cells: list[str], c: Column) -> str:
         text = cells[c.index]
         if not text or not text.isprintable() or "," in text:
-            raise ImportMapError(f"{path}: row {row}: {c.label}: not an id (printable, no comma, not empty): "
+            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not an id (printable, no comma, not empty): "
                                  f"{text!r}")  # fmt: skip
         return text
 
-    fixed_point = path.stem if m.point == FILE_POINT else m.point
+    fixed_point = meas.path.stem if m.point == FILE_POINT else m.point
     if not fixed_point or not fixed_point.isprintable() or "," in fixed_point:
-        raise ImportMapError(f"{path}: the file's name {fixed_point!r} is no point id (printable, no comma)")
+        raise ImportMapError(f"{meas.path}: the file's name {fixed_point!r} is no point id (printable, no comma)")
+    col = {**robot.col, **meas.col}
     out_pose, out_station, out_point, out_q, out_xyz, out_t = [], [], [], [], [], []
-    for row, cells in rows:
-        if len(cells) < need:
-            raise ImportMapError(_width_note(path, row, cells, need, m, raw[row - 1]))
-        q = [number(row, cells, c, m.joint_factor) for c in col["joints"]]
-        t = number(row, cells, col["time"]) if "time" in col else float(row)  # no time: the file row, an order
-        station = ident(row, cells, col["station"]) if "station" in col else m.station
-        pose = ident(row, cells, col["pose"]) if "pose" in col else poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}")
+    for (row, cells), (mrow, mcells) in zip(robot.rows, meas.rows, strict=True):
+        for src, r, c, need in ((robot, row, cells, need_r), (meas, mrow, mcells, need_m)):
+            if len(c) < need:
+                raise ImportMapError(_width_note(src.path, r, c, need, m, src.raw[r - 1]))
+        q = [number(robot, row, cells, c, m.joint_factor) for c in col["joints"]]
+        t = number(robot, row, cells, col["time"]) if "time" in col else float(row)  # no time: the row, an order
+        station = ident(robot, row, cells, col["station"]) if "station" in col else m.station
+        pose = (ident(robot, row, cells, col["pose"]) if "pose" in col else
+                poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}"))  # fmt: skip
         if m.layout == "point_rows":
-            measured = [(ident(row, cells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
-        else:
-            measured = [(p, cs) for p, cs in pts.items() if any(cells[c.index] for c in cs)]
+            measured = [(ident(meas, mrow, mcells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
+        else:  # a point whose three cells are empty was not measured at this pose: no row, nothing missing
+            measured = [(p, cs) for p, cs in meas.pts.items() if any(mcells[c.index] for c in cs)]
         for point, cs in measured:
-            out_xyz.append([number(row, cells, c, m.length_factor) for c in cs])
+            xyz = reading(mrow, mcells, cs)
+            count = counts.setdefault(point, [0, 0])
+            count[0] += 1
+            if xyz is None:
+                count[1] += 1
+                continue
+            out_xyz.append(xyz)
             out_pose.append(pose)
             out_station.append(station)
             out_point.append(point)
             out_q.append(q)
             out_t.append(t)
     if not out_xyz:
-        raise ImportMapError(f"{path}: no measured point in any row")
+        return None
     n = len(out_xyz)
     return MeasurementTable(seq=np.arange(1, n + 1), t_s=np.array(out_t), pose=out_pose, station=out_station,
                             point=out_point, q_deg=np.array(out_q, dtype=float), xyz=np.array(out_xyz, dtype=float),
-                            source=str(path))  # fmt: skip
+                            source=str(meas.path))  # fmt: skip
 
 
 def _all_refs(m: TableMap) -> list[str | int]:

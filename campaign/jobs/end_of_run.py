@@ -15,9 +15,10 @@ import numpy as np
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, model_noise
+from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import dumps_json, read_json, write_bytes, write_text
-from trackcal.calib.io.table import MeasurementTable, as_written, read_table, table_csv
+from trackcal.calib.io.table import MeasurementTable, as_written, table_csv
 from trackcal.calib.model.cell import Cell, load_cell, resolve
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import load_model
@@ -156,7 +157,7 @@ def read_campaign(cell: Cell, table_path, model_path, plan_path, verdict_path, p
     diagnosed again with the model's parameters and weighting (deterministic: the diagnosis the verdict was made
     from, for the report's plots)."""
     model = load_model(model_path).doc  # validated with the model's own messages
-    table = read_table(table_path, chain=cell.chain)
+    table = read_measured(table_path, cell.chain)
     plan, verdict = read_plan(plan_path, cell.chain.dof), read_verdict(verdict_path)
     digest = sha256_of(table.source)
     check_one_campaign(table, digest, cell, [(str(model_path), model), (str(verdict_path), verdict),

@@ -23,8 +23,9 @@ from trackcal.calib.identify.solver import (
     residual_stats,
     significance,
 )
+from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io.files import write_json, writing
-from trackcal.calib.io.table import MeasurementTable, read_table, write_table
+from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
@@ -129,7 +130,7 @@ def cell_and_table(cell_ref: str, data: str | Path) -> tuple[Cell, MeasurementTa
     """The cell and the table identify and diagnose read. A cell given as a robot file alone has no tool: its
     reference points are the table's, starting where the measurements put them (calib.identify.points)."""
     cell = load_cell(cell_ref)
-    table = read_table(data, chain=cell.chain)
+    table = read_measured(data, cell.chain)
     if not cell.tool_points:
         try:
             points = points_from_table(cell.chain, table)
@@ -303,7 +304,7 @@ class Prediction:
 def predict(opts: PredictOptions) -> Prediction:
     """`trackcal predict`: reflector positions of the rows predicted by the model, written to opts.out."""
     model = load_model(opts.model)
-    rows = read_table(opts.rows, require_xyz=False, chain=model.chain)
+    rows = read_measured(opts.rows, model.chain, require_xyz=False)
     pred = predict_table(model, rows)
     warning = model.range_warning(np.radians(rows.q_deg))
     with writing(opts.out, InputError):

@@ -22,8 +22,9 @@ import numpy as np
 
 from trackcal.calib.identify.noise import model_noise
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, residual_stats
+from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io.files import write_json, writing
-from trackcal.calib.io.table import MeasurementTable, read_table, write_table
+from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model_file import Model, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import fit_quality, sha256_of
@@ -119,7 +120,7 @@ def locate(opts: LocateOptions) -> Location:
         raise OptionError("{0} needs {1} K: the rows of the poses after the first K are the ones predicted",
                           "predict_out", "poses")  # fmt: skip
     model = load_model(opts.model)
-    table = read_table(opts.table, chain=model.chain)
+    table = read_measured(opts.table, model.chain)
     station, rows = _station_rows(table, opts.station)
     name = opts.name or station
     used, rest = _split(table, rows, opts.poses)
