@@ -93,7 +93,7 @@ class WebPage:
         self.hub = Hub(store, plan_view(cell, steps) | {"replay": store.meta().get("mode") == "replay"})
         self.report_dir = store.directory / "report"
         hosts = {f"{h}:{self.port}" for h in ("127.0.0.1", "localhost", "[::1]")} if self.loopback else None
-        app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing)
+        app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing, self.say)
         config = uvicorn.Config(app, log_level="error", access_log=False, lifespan="off",
                                 timeout_graceful_shutdown=2)  # fmt: skip
         self.server = uvicorn.Server(config)
