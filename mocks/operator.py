@@ -8,6 +8,7 @@ from __future__ import annotations
 import threading
 import time
 
+from trackcal.drivers.plc.codec import hmi_text
 from trackcal.mocks.cell import World
 from trackcal.mocks.servers.plc import MockPlc
 
@@ -53,10 +54,11 @@ class SimHuman:
     def _do(self, kind: str, target: str) -> None:
         self.log.append((kind, target, f"{kind.replace('_', ' ')} {target}".strip()))
         self.plc.open_door()  # he walks into the cell
+        cell = self.world.twin.cell
         if kind == "change_station":
-            self.world.station = target
+            self.world.station = _named(target, cell.stations)
         elif kind == "move_reflector":
-            self.world.point = target
+            self.world.point = _named(target, cell.tool_points)
         self.world.clock.sleep(self.action_s)
         self.plc.close_door()  # and out again
         if not self.acknowledges:
@@ -69,3 +71,11 @@ class SimHuman:
             time.sleep(0.002)
         self.plc.release_acknowledge()
         self.acted += 1
+
+
+def _named(shown: str, names) -> str:
+    """The name the HMI showed as `shown` (its first 16 ASCII characters: drivers.plc.codec.hmi_text), as a person
+    reads the display and finds the nest or station so labelled; `shown` itself when none is (the world then says
+    there is no such place)."""
+    found = [name for name in names if hmi_text(name) == shown]
+    return found[0] if len(found) == 1 else shown

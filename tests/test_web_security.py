@@ -6,6 +6,8 @@ thread), no browser needed."""
 import http.client
 import json
 import re
+import socket
+import time
 
 import pytest
 
@@ -14,6 +16,7 @@ from trackcal.campaign.cli import main
 from trackcal.campaign.engine.engine import Document
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.jobs.campaign import new_session
+from trackcal.campaign.web.app import MAX_BODY_BYTES, MAX_STREAMS
 from trackcal.campaign.web.hub import PageOperator
 from trackcal.campaign.web.server import WebPage, is_loopback
 
@@ -139,3 +142,104 @@ def test_the_page_options_belong_to_operator_web(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.strip() == "error: --web-host, --web-port and --web-linger are for --operator web"
     assert not (tmp_path / "s").exists()
+
+
+def raw_request(page, head: str, body: bytes = b"", timeout_s: float = 10.0):
+    """A request over a raw socket; the open socket and the response's status line and headers (the body is left
+    unread: an event stream goes on)."""
+    s = socket.create_connection((page.host, page.port), timeout=timeout_s)
+    s.sendall(head.encode("latin-1") + body)
+    data = b""
+    while b"\r\n\r\n" not in data:
+        chunk = s.recv(4096)
+        if not chunk:
+            break
+        data += chunk
+    return s, data.split(b"\r\n\r\n", 1)[0].decode("latin-1")
+
+
+def stream_head(page, csrf: str, client: str = "abcdefgh1234") -> str:
+    return (f"GET /events?client={client}&csrf={csrf} HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\n"
+            "Sec-Fetch-Site: same-origin\r\n\r\n")  # fmt: skip
+
+
+@pytest.mark.parametrize("served", ["127.0.0.1"], indirect=True)
+def test_the_event_stream_needs_the_page_token(served):
+    """A page of another origin opens the stream first (an EventSource needs no CORS to be sent): refused, and
+    control stays free for the cell's page, which reads the token from /session (another origin cannot)."""
+    page, hub = served
+    own = f"http://127.0.0.1:{page.port}"
+
+    def stream_status(query: str, headers: dict) -> str:  # the status line alone: a stream that opened goes on
+        extra = "".join(f"{k}: {v}\r\n" for k, v in headers.items())
+        s, head = raw_request(page, f"GET /events?{query} HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\n{extra}\r\n")
+        s.close()
+        return head.split("\r\n")[0]
+
+    for headers in ({}, {"Origin": "http://evil.example", "Sec-Fetch-Site": "cross-site"}):
+        assert " 403 " in stream_status("client=evilpage1234", headers), headers
+    for headers in ({"Origin": "http://evil.example"}, {"Sec-Fetch-Site": "same-site"}):
+        status, _, _ = fetch(page, "GET", "/session", headers)
+        assert status == 403, headers
+        assert " 403 " in stream_status(f"client=evilpage1234&csrf={hub.csrf}", headers), headers
+    assert " 403 " in stream_status("client=evilpage1234&csrf=guess", {})
+    assert hub.live["controller"] is None
+    status, _, body = fetch(page, "GET", "/session", {"Sec-Fetch-Site": "same-origin"})
+    assert status == 200 and json.loads(body)["csrf"] == hub.csrf
+    status, _, _ = fetch(page, "GET", "/session", {"Origin": own})  # a same-origin fetch may send its Origin
+    assert status == 200
+    assert " 200 " in stream_status(f"client=cellpage1234&csrf={hub.csrf}", {"Sec-Fetch-Site": "same-origin"})
+    assert hub.live["controller"] == "cellpage1234"
+
+
+@pytest.mark.parametrize("served", ["127.0.0.1"], indirect=True)
+def test_a_large_body_is_refused_unread(served):
+    """A 300 MB answer (issue 42: it took the process to 638 MB): 413 on its stated length alone, before one byte of
+    it is sent; a chunked body is read up to the cap only."""
+    page, hub = served
+    head = (f"POST /answer HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\nOrigin: http://127.0.0.1:{page.port}\r\n"
+            f"Content-Type: application/json\r\nX-Trackcal-CSRF: {hub.csrf}\r\n")  # fmt: skip
+    s, status = raw_request(page, head + f"Content-Length: {300 * 2**20}\r\n\r\n", timeout_s=5.0)
+    with s:
+        assert status.startswith("HTTP/1.1 413"), status
+    chunk = b"%x\r\n%s\r\n" % (4096, b" " * 4096)
+    s, status = raw_request(page, head + "Transfer-Encoding: chunked\r\n\r\n", chunk * (MAX_BODY_BYTES // 4096 + 1),
+                            timeout_s=5.0)  # fmt: skip
+    with s:
+        assert status.startswith("HTTP/1.1 413"), status
+    assert MAX_BODY_BYTES <= 64 * 1024  # a small stated size: an answer is ~60 bytes of JSON
+
+
+def test_event_streams_are_capped(kr270, tmp_path):
+    """300 streams were accepted (issue 42): beyond MAX_STREAMS a page gets 503, the console one line however many
+    are refused; a stream that closes makes room again."""
+    store, campaign = new_session(tmp_path / "s", "kr270", feasible_plan(kr270, 3, seed=11, repeat=1), "sim", 1)
+    said = []
+    page = WebPage("127.0.0.1", 0, say=said.append, out=lambda text: None)
+    hub = page.attach(store, campaign.cell, campaign.steps)
+    said.clear()
+    opened = []
+    try:
+        for k in range(MAX_STREAMS):
+            s, head = raw_request(page, stream_head(page, hub.csrf, f"client{k:04d}"))
+            opened.append(s)
+            assert head.startswith("HTTP/1.1 200"), (k, head)
+        for k in range(3):
+            s, head = raw_request(page, stream_head(page, hub.csrf, f"refused{k:04d}"))
+            s.close()
+            assert head.startswith("HTTP/1.1 503"), head
+        assert len(said) == 1 and f"{MAX_STREAMS} event streams open" in str(said[0])
+        opened.pop().close()
+        deadline = time.monotonic() + 10  # the server sees the closed stream at its next heartbeat
+        while True:
+            s, head = raw_request(page, stream_head(page, hub.csrf, "again0001"))
+            s.close()
+            if head.startswith("HTTP/1.1 200") or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        assert head.startswith("HTTP/1.1 200"), head
+    finally:
+        for s in opened:
+            s.close()
+        page.close()
+        store.close()

@@ -7,6 +7,7 @@ the caller's error class with one line: where, what was expected, what was found
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -45,6 +46,25 @@ def number(value, where: str, error: type[Exception]) -> float:
     if not math.isfinite(v):
         raise error(f"{where}: expected a finite number, got {_got(value)}")
     return v
+
+
+# What PyYAML (YAML 1.1) leaves a string although YAML 1.2 reads it as a number: an exponent without a dot (`1e3`)
+_YAML11_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+def yaml_number(value, where: str, error: type[Exception]) -> float:
+    """A finite number of a YAML document, never text: a quoted "12" is refused (a number in quotes is a slip the file
+    should not hide), `1e3`, which PyYAML reads as a string, is taken."""
+    if isinstance(value, str) and not _YAML11_FLOAT.fullmatch(value.strip()):
+        raise error(f"{where}: expected a number, got the string {_got(value)}")
+    return number(value, where, error)
+
+
+def bounded(value: float, limit: float, unit: str, where: str, error: type[Exception], why: str) -> float:
+    """`value` when |value| <= limit, else `error` saying the range and `why` it is the range."""
+    if abs(value) > limit:
+        raise error(f"{where}: {value:g} {unit} is outside +-{limit:g} {unit} ({why})")
+    return value
 
 
 def json_number(value, where: str, error: type[Exception]) -> float:

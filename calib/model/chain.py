@@ -9,6 +9,7 @@ R_nom,j from that frame to the next joint's frame. Lengths in mm, angles in rad 
 from __future__ import annotations
 
 import os
+import re
 import sys
 import tempfile
 from dataclasses import dataclass, field
@@ -24,6 +25,11 @@ from trackcal.calib.model.rigid import AXIS_INDEX, AXIS_NAME, homogeneous, rpy_m
 # The fixed joint of a URDF written by trackcal (calib.model.urdf) that leads from the last joint to the flange, the
 # frame of the tool points: chain_from_urdf takes the last link from it, so a written URDF reads back exactly.
 FLANGE_JOINT = "trackcal_flange"
+# A URDF with more joints (movable and fixed) is refused before pinocchio reads it: a serial arm has 6 or 7, its URDF
+# with tool, sensor and point frames a few dozen; pinocchio's parser recurses once per joint and took the process down
+# (a segmentation fault, no error) on a 5000-joint chain.
+MAX_URDF_JOINTS = 100
+_URDF_JOINT = re.compile(rb"<joint[\s>/]")
 
 
 class ChainError(CalibError):
@@ -139,6 +145,13 @@ def _urdf_model(path: str):
 
     if not Path(path).is_file():
         raise ChainError(f"{path}: no such file")
+    try:
+        n = len(_URDF_JOINT.findall(Path(path).read_bytes()))
+    except OSError as exc:
+        raise ChainError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if n > MAX_URDF_JOINTS:
+        raise ChainError(f"{path}: {n} joints, more than the {MAX_URDF_JOINTS} a robot's URDF has (a serial arm: 6 or "
+                         "7, with its tool and sensor frames a few dozen)")  # fmt: skip
     with tempfile.TemporaryFile() as sink:
         sys.stdout.flush()
         sys.stderr.flush()

@@ -35,6 +35,20 @@ from trackcal.calib.model.rigid import homogeneous, rot_axis, rpy_matrix
 
 CONVENTIONS = ("standard", "modified")
 ROW_KEYS = {"a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "sign", "name", "limits_deg", "mass_kg", "com_mm"}
+# The physical range of a table's values: the largest industrial arms reach under 5 m (FANUC M-2000iA/2300: 3.7 m;
+# KUKA KR 1000 titan: 3.2 m), so no link length or offset of an arm is 20 m; an angle is within one turn.
+MAX_LENGTH_MM = 20_000.0
+MAX_ANGLE_DEG = 360.0
+
+
+def _length(row: dict, key: str, where: str, error: type[Exception]) -> float:
+    v = fields.yaml_number(row.get(key, 0.0), where, error)
+    return fields.bounded(v, MAX_LENGTH_MM, "mm", where, error, "no arm's link is that long")
+
+
+def _angle(row: dict, key: str, where: str, error: type[Exception]) -> float:
+    v = fields.yaml_number(row.get(key, 0.0), where, error)
+    return np.radians(fields.bounded(v, MAX_ANGLE_DEG, "deg", where, error, "one turn"))
 
 
 def standard_dh(a: float, alpha: float, d: float, theta: float) -> np.ndarray:
@@ -78,22 +92,24 @@ def dh_joints(doc: dict, where: str, error: type[Exception]) -> tuple[np.ndarray
         unknown = sorted(set(row) - ROW_KEYS)
         if unknown:
             raise error(f"{rw}: unknown key {unknown[0]!r} (a row has {', '.join(sorted(ROW_KEYS))})")
-        sign = fields.number(row.get("sign", 1), f"{rw}.sign", error)
+        sign = fields.yaml_number(row.get("sign", 1), f"{rw}.sign", error)
         if sign not in (1.0, -1.0):
             raise error(f"{rw}.sign: expected 1 or -1, got {row['sign']!r}")
         parsed.append({
-            "a": fields.number(row.get("a_mm", 0.0), f"{rw}.a_mm", error),
-            "alpha": np.radians(fields.number(row.get("alpha_deg", 0.0), f"{rw}.alpha_deg", error)),
-            "d": fields.number(row.get("d_mm", 0.0), f"{rw}.d_mm", error),
-            "offset": np.radians(fields.number(row.get("theta_offset_deg", 0.0), f"{rw}.theta_offset_deg", error)),
+            "a": _length(row, "a_mm", f"{rw}.a_mm", error),
+            "alpha": _angle(row, "alpha_deg", f"{rw}.alpha_deg", error),
+            "d": _length(row, "d_mm", f"{rw}.d_mm", error),
+            "offset": _angle(row, "theta_offset_deg", f"{rw}.theta_offset_deg", error),
             "sign": sign,
             "extra": {key: row[key] for key in ("name", "limits_deg", "mass_kg", "com_mm") if key in row},
         })  # fmt: skip
     flange_doc = fields.mapping(doc.get("flange") or {}, f"{where}.flange", error)
     flange = homogeneous(
         rpy_matrix(*np.radians(fields.vector(flange_doc.get("rpy_deg", [0, 0, 0]), f"{where}.flange.rpy_deg", error))),
-        fields.vector(flange_doc.get("translation_mm", [0, 0, 0]), f"{where}.flange.translation_mm", error),
-    )
+        np.array([fields.bounded(v, MAX_LENGTH_MM, "mm", f"{where}.flange.translation_mm[{k}]", error,
+                                 "no tool is that long") for k, v in enumerate(fields.vector(
+            flange_doc.get("translation_mm", [0, 0, 0]), f"{where}.flange.translation_mm", error))]),
+    )  # fmt: skip
     base = np.eye(4)
     links = []  # the fixed transform that follows each joint's rotation
     if convention == "standard":

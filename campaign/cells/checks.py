@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from trackcal.calib.doe.poses import points_in_box
-from trackcal.calib.model.cell import Cell, usable_limits_deg
+from trackcal.calib.model.cell import Cell, CellError, usable_limits_deg
 from trackcal.drivers.errors import DeviceError
 from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.plc.client import ModbusCellIO
+from trackcal.drivers.plc.codec import REQUEST_TARGET_CHARS, hmi_text
 
 
 def cell_box_check(cell: Cell):
@@ -20,6 +21,20 @@ def cell_box_check(cell: Cell):
         return "a reference point of the target pose leaves the cell box"
 
     return check
+
+
+def names_told_apart(cell: Cell) -> None:
+    """Refuse (CellError, one line) a cell two of whose points, or two of whose stations, the cell HMI shows alike
+    (drivers.plc.codec.hmi_text: the first 16 characters, ASCII): the operator could not tell which one a request
+    asks for."""
+    for what, names in (("points", cell.tool_points), ("stations", cell.stations)):
+        seen: dict[str, str] = {}
+        for name in names:
+            shown = hmi_text(name)
+            if shown in seen:
+                raise CellError(f"{cell.source}: {what} {seen[shown]!r} and {name!r} both show as {shown!r} on "
+                                f"the cell display (first {REQUEST_TARGET_CHARS} characters, ASCII): rename one")
+            seen[shown] = name
 
 
 def joint_limits_deg(cell: Cell) -> list[tuple[float, float]]:

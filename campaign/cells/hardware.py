@@ -225,7 +225,7 @@ def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
 
 def connect_hardware(clients: CellClients, say: Callable[[str], None], console_operator: Operator) -> Live:
     """The claimed clients (claim_cell), connected, as an engine.Live (operator: PlcOperator with a PLC, else
-    `console_operator`; clock: the real one). `say` shows a line (rich markup) to whoever runs the campaign. A
+    `console_operator`; clock: the real one). `say` shows a line as it is to whoever runs the campaign. A
     device that cannot be reached is a InputError naming it, its host and port; whatever was connected before
     is closed again, the robot's ports with it."""
     hw, tracker, robot, cellio, meteo = clients.hw, clients.tracker, clients.robot, clients.cellio, clients.meteo
@@ -237,7 +237,7 @@ def connect_hardware(clients: CellClients, say: Callable[[str], None], console_o
             try:
                 dev.close()
             except Exception as exc:  # one failing close never keeps the others open
-                say(f"[yellow]warning[/]: closing {getattr(dev, 'device', dev)}: {exc}")
+                say(f"warning: closing {getattr(dev, 'device', dev)}: {exc}")
         opened.clear()
 
     def up(what: str, dev, where: str):

@@ -6,6 +6,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
+from rich.text import Text
+
 from trackcal.drivers.errors import ConnectionLost, DeviceError, ProtocolError
 from trackcal.drivers.interfaces import SharedOperator
 
@@ -19,10 +21,10 @@ class PlcOperator:
 
     Nothing waits forever unnoticed: every `remind_s` the request is repeated on the console. A PLC program
     without the request registers (it answers with a Modbus exception) still gets lamp and button: the HMI
-    display is dropped with one warning. `say` shows a line (rich markup) on the console of whoever runs the
-    campaign."""
+    display is dropped with one warning. `say` shows a line on the console of whoever runs the campaign, as it is
+    (a rich Text carries the colour: the target's name is data, never markup)."""
 
-    def __init__(self, cellio, say: Callable[[str], None], poll_s: float = 0.1, remind_s: float = 60.0,
+    def __init__(self, cellio, say: Callable[[str | Text], None], poll_s: float = 0.1, remind_s: float = 60.0,
                  sleep=time.sleep):  # fmt: skip
         self.cellio, self.say, self.poll_s, self.remind_s, self.sleep = cellio, say, poll_s, remind_s, sleep
         self.hmi = hasattr(cellio, "show_request")
@@ -31,13 +33,13 @@ class PlcOperator:
         self._hmi(self.cellio.show_request if self.hmi else None, kind, target)
         try:
             self.cellio.set_request_lamp(True)
-            self.say(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
+            self.say(Text.assemble(("OPERATOR", "bold yellow"), f": {text} (press the acknowledge button)"))
             waited = 0.0
             while not self.cellio.acknowledge_pressed():
                 self.sleep(self.poll_s)
                 waited += self.poll_s
                 if waited >= self.remind_s:
-                    self.say(f"[yellow]still waiting[/]: {text}")
+                    self.say(Text.assemble(("still waiting", "yellow"), f": {text}"))
                     waited = 0.0
         finally:
             try:
@@ -52,7 +54,7 @@ class PlcOperator:
     def offer(self, kind: str, target: str, text: str) -> None:
         self._hmi(self.cellio.show_request if self.hmi else None, kind, target)
         self.cellio.set_request_lamp(True)
-        self.say(f"[bold yellow]OPERATOR[/]: {text} (press the acknowledge button)")
+        self.say(Text.assemble(("OPERATOR", "bold yellow"), f": {text} (press the acknowledge button)"))
 
     def poll(self) -> str | None:
         if not self.cellio.acknowledge_pressed():
@@ -75,8 +77,8 @@ class PlcOperator:
             fn(*args)
         except ProtocolError as exc:
             self.hmi = False
-            self.say(f"[yellow]warning[/]: the cell HMI shows no requests ({exc}); "
-                               "lamp and acknowledge button only")  # fmt: skip
+            self.say(Text.assemble(("warning", "yellow"), f": the cell HMI shows no requests ({exc}); lamp and "
+                                   "acknowledge button only"))  # fmt: skip
 
 
 class FirstAnswer:
@@ -90,7 +92,7 @@ class FirstAnswer:
     `watch_s` while a prompt waits (the page shows the door and the E-stop from it: reading them here keeps
     each device client in one thread)."""
 
-    def __init__(self, operators: Sequence[SharedOperator], say: Callable[[str], None], poll_s: float = 0.02,
+    def __init__(self, operators: Sequence[SharedOperator], say: Callable[[str | Text], None], poll_s: float = 0.02,
                  watch: Callable[[], None] | None = None, watch_s: float = 0.25, sleep=time.sleep):  # fmt: skip
         self.operators, self.say, self.poll_s = list(operators), say, poll_s
         self.watch, self.watch_s, self.sleep = watch, watch_s, sleep
@@ -128,5 +130,6 @@ class FirstAnswer:
             if op in self.operators:
                 self.operators.remove(op)
                 left = len(self.operators)
-                self.say(f"[yellow]note[/]: {exc}; {left} other way{'s' if left != 1 else ''} to answer left")
+                ways = "way" if left == 1 else "ways"
+                self.say(Text.assemble(("note", "yellow"), f": {exc}; {left} other {ways} to answer left"))
             return None

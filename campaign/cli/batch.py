@@ -7,6 +7,7 @@ from contextlib import contextmanager
 
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.jobs.batch import BatchOptions, batch
@@ -20,8 +21,9 @@ def _mm(v) -> str:
 @contextmanager
 def _progress(what: str):
     """A progress line: done, running, failed, time left."""
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[state]}"),
-                  TimeElapsedColumn(), console=console, transient=True) as bar:  # fmt: skip
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(),
+                  TextColumn("{task.fields[state]}", markup=False), TimeElapsedColumn(), console=console,
+                  transient=True) as bar:  # fmt: skip
         task = bar.add_task(what, total=None, state="")
 
         def show(done: int, running: int, failed: int, total: int, seconds_left: float | None) -> None:
@@ -58,7 +60,7 @@ def cmd_batch(args) -> int:
     for row in result.rows:
         head = (row["robot"], row["campaign"], row["date"][:10])
         if "error" in row:
-            cells = ("[red]failed[/]", row["error"], "")
+            cells = (Text("failed", style="red"), row["error"], "")
         elif opts.task == "identify":
             cells = (row["fit"], _mm(row["residual_rms_mm"]), f"{row['fit_ratio']:.2f}")
         elif opts.task == "diagnose":

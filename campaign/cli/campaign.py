@@ -8,13 +8,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import read_json
 from trackcal.campaign.cells.checks import DOOR_OPEN, ESTOP_PRESSED, PLC_SILENT
-from trackcal.campaign.cli.console import ConsoleOperator, console
+from trackcal.campaign.cli.console import ConsoleOperator, console, labelled
 from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.engine.engine import TARGET_MISMATCH, Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
@@ -36,7 +35,8 @@ class ConsoleProgress:
     def __init__(self) -> None:
         self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                             TextColumn("({task.fields[skipped]} skipped)"), TimeRemainingColumn(),
-                            TextColumn("next: {task.fields[next]}"), console=console, transient=False)  # fmt: skip
+                            TextColumn("next: {task.fields[next]}", markup=False), console=console,
+                            transient=False)  # fmt: skip
         self.task = self.bar.add_task("measurements", total=None, next="", skipped=0)
         self.shown = False
 
@@ -49,7 +49,7 @@ class ConsoleProgress:
             self.bar.update(self.task, completed=p["measured"] + p["skipped"], total=p["planned"],
                             skipped=p["skipped"], next=p["next_action"] or "-")  # fmt: skip
         elif doc.name == "warning":
-            console.print(f"[yellow]warning[/]: {escape(doc.data['message'])}", highlight=False)
+            console.print(labelled("warning", "yellow", doc.data["message"]))
         elif doc.name == "stop":
             self.close()
 
@@ -178,8 +178,9 @@ def cmd_resume(args) -> int:
 def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -> int:
     changed = changed_copies(store)
     if changed:
-        console.print(f"[yellow]note[/]: {', '.join(changed)} in {store.directory} differ from the copies stored "
-                      "at the session's creation: resume uses the stored copies", soft_wrap=True)  # fmt: skip
+        console.print(labelled("note", "yellow", f"{', '.join(changed)} in {store.directory} differ from the "
+                               "copies stored at the session's creation: resume uses the stored copies"),
+                      soft_wrap=True)  # fmt: skip
     if store.events("campaign_done"):
         console.print(f"{store.directory}: the campaign is already complete"
                       + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip

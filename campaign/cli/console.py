@@ -6,12 +6,19 @@ import sys
 import threading
 
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 from trackcal.drivers.errors import ConnectionLost
 
-console = Console(highlight=False)
+# Markup off: whatever is printed is shown as it is, so a point, station, file or folder name holding rich markup
+# (`P2[/bold]`, `m[red]x`) is data, never a style nor a MarkupError; colour is asked for with a rich Text.
+console = Console(highlight=False, markup=False)
+
+
+def labelled(label: str, style: str, text: str) -> Text:
+    """`label: text`, the label in `style` (rich's style syntax), the text shown as it is."""
+    return Text.assemble((label, style), ": ", text)
 
 
 def print_table(table: Table) -> None:
@@ -47,7 +54,7 @@ class ConsoleOperator:
 
     def ask(self, kind: str, target: str, text: str) -> str:
         word = ANSWERS.get(kind, "done")
-        self.console.print(f"[bold yellow]OPERATOR[/]: {escape(text)}")
+        self.console.print(labelled("OPERATOR", "bold yellow", text))
         for _ in range(self.max_wrong):
             try:
                 line = self.console.input(f"type {word} and press Enter when done: ")
@@ -57,7 +64,7 @@ class ConsoleOperator:
                 line = "(not text)"
             if line.strip().lower() == word:
                 return "console"
-            self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {word!r}")
+            self.console.print(labelled("not an acknowledgement", "yellow", f"{line[:40]!r}; expected {word!r}"))
         raise ConnectionLost(f"{self.max_wrong} answers in a row were not {word!r}, nobody acknowledges",
                              device="operator console")  # fmt: skip
 
@@ -73,7 +80,7 @@ class ConsoleOperator:
                 self._lines.put(None)  # the end of input stays the end
                 break
         self._word, self._wrong = ANSWERS.get(kind, "done"), 0
-        self.console.print(f"[bold yellow]OPERATOR[/]: {escape(text)} (type {self._word} and press Enter)")
+        self.console.print(labelled("OPERATOR", "bold yellow", f"{text} (type {self._word} and press Enter)"))
 
     def poll(self) -> str | None:
         while self._lines is not None and not self._lines.empty():
@@ -87,11 +94,11 @@ class ConsoleOperator:
             if self._wrong >= self.max_wrong:
                 raise ConnectionLost(f"{self.max_wrong} answers in a row were not {self._word!r} on the console",
                                      device="operator console")  # fmt: skip
-            self.console.print(f"[yellow]not an acknowledgement[/]: {escape(line[:40])!r}; expected {self._word!r}")
+            self.console.print(labelled("not an acknowledgement", "yellow", f"{line[:40]!r}; expected {self._word!r}"))
         return None
 
     def withdraw(self) -> None:
-        self.console.print("[dim](answered elsewhere)[/]")
+        self.console.print(Text("(answered elsewhere)", style="dim"))
 
     def _read(self) -> None:
         with contextlib.suppress(OSError, ValueError):  # stdin closed or not readable here (a test's captured stdin)

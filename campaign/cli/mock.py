@@ -37,6 +37,7 @@ from rich.table import Table
 
 from trackcal.calib.io.files import write_text
 from trackcal.calib.model.cell import load_cell
+from trackcal.campaign.cells.checks import names_told_apart
 from trackcal.campaign.cells.sim import CONTROLLER_CONNECT_S, TwinMocks, free_port, hardware_doc, krc2_robot_doc
 from trackcal.campaign.cli.console import console, print_table
 from trackcal.campaign.errors import InputError, UsageError
@@ -67,6 +68,7 @@ def cmd_mock(args) -> int:
             raise UsageError("--detach needs --write-hardware FILE: the hardware config is how run finds the mock")
         return detach(args, out)
     cell = load_cell(args.cell)
+    names_told_apart(cell)  # its simulated operator reads the cell display
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     mocks = None

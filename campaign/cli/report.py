@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rich.text import Text
+
 from trackcal.calib.identify.solver import IdentificationError
-from trackcal.campaign.cli.console import console
+from trackcal.campaign.cli.console import console, labelled
 from trackcal.campaign.cli.session import incomplete_note
 from trackcal.campaign.errors import InputError, UsageError
 from trackcal.campaign.jobs.end_of_run import NotAnalysedError, analyse_session, report_files, report_session
@@ -54,10 +56,10 @@ def print_analysis(analysis: CampaignAnalysis) -> None:
                   f"{cause} ({files.verdict}); report {analysis.report}")  # fmt: skip
     warnings = analysis.warnings
     if warnings:
-        console.print(f"[yellow]{len(warnings)} campaign warning(s)[/], in short (each as raised: in the report):",
-                      highlight=False)  # fmt: skip
+        console.print(Text.assemble((f"{len(warnings)} campaign warning(s)", "yellow"),
+                                    ", in short (each as raised: in the report):"))  # fmt: skip
         for line in summarise_warnings(warnings, len(analysis.table)):
-            console.print(f"  {line}", markup=False, highlight=False)
+            console.print(f"  {line}")
 
 
 def analyse_and_print(store: SessionStore) -> CampaignAnalysis | None:
@@ -66,7 +68,7 @@ def analyse_and_print(store: SessionStore) -> CampaignAnalysis | None:
     try:
         analysis = analyse_session(store)
     except IdentificationError as exc:
-        console.print(f"[yellow]identification not possible yet[/]: {exc}")
+        console.print(labelled("identification not possible yet", "yellow", str(exc)))
         return None
     print_analysis(analysis)
     return analysis

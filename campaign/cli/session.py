@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trackcal.campaign.cli.console import console
+from trackcal.campaign.cli.console import console, labelled
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.session.session import changed_copies, write_export
@@ -16,7 +16,7 @@ def incomplete_note(store: SessionStore) -> None:
     """The first line of what `export` and `report` print for a session whose campaign has not reached its end."""
     done = completeness(store)
     if not done.complete:
-        console.print(f"[yellow]note[/]: {store.directory}: {done.sentence()}", soft_wrap=True)
+        console.print(labelled("note", "yellow", f"{store.directory}: {done.sentence()}"), soft_wrap=True)
 
 
 def cmd_export(args) -> int:
@@ -40,6 +40,6 @@ def cmd_check(args) -> int:
                   "recomputes it)", soft_wrap=True)  # fmt: skip
     changed = changed_copies(store)
     if changed:
-        console.print(f"[yellow]note[/]: {', '.join(changed)} beside the database differ from the stored copies "
-                      "(the stored copies are the record)", soft_wrap=True)  # fmt: skip
+        console.print(labelled("note", "yellow", f"{', '.join(changed)} beside the database differ from the stored "
+                               "copies (the stored copies are the record)"), soft_wrap=True)  # fmt: skip
     return 0

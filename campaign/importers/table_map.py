@@ -327,6 +327,7 @@ def _open(path: Path, m: TableMap, keys: tuple[str, ...], with_points: bool) -> 
     col = {k: ([_resolve(m, r, header, path, hrow, mat) for r in v] if isinstance(v, list) else
                _resolve(m, v, header, path, hrow, mat)) for k, v in refs.items()}  # fmt: skip
     pts = {p: [_resolve(m, r, header, path, hrow, mat) for r in v] for p, v in pts_refs.items()}
+    _one_role_each(col, pts, m.source)
     if mat is not None:
         used = sorted({c.index for c in _flat(col, pts)})
         lengths = {header[i]: len(mat.cells[i]) for i in used}
@@ -431,3 +432,17 @@ def _flat(col: dict, pts: dict) -> list[Column]:
     for v in pts.values():
         out += v
     return out
+
+
+def _one_role_each(col: dict, pts: dict, source) -> None:
+    """Refuse a map that reads two things from one column (two reflectors' x, all six joints): the table would hold
+    the same number twice as if measured twice."""
+    roles: dict[int, tuple[str, Column]] = {}
+    named = [(f"joint {k + 1}" if key == "joints" else f"{key} {'xyz'[k]}" if key == "xyz" else key, c)
+             for key, v in col.items() for k, c in enumerate(v if isinstance(v, list) else [v])]
+    named += [(f"point {p} {'xyz'[k]}", c) for p, cs in pts.items() for k, c in enumerate(cs)]
+    for role, c in named:
+        if c.index in roles:
+            raise ImportMapError(f"{source}: {roles[c.index][0]} and {role} are both read from {c.label}: "
+                                 "each comes from a column of its own")  # fmt: skip
+        roles[c.index] = (role, c)

@@ -17,10 +17,13 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from rich.text import Text
+
 from trackcal.calib.identify.drift import DriftTest
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.campaign.cells.checks import names_told_apart
 from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
@@ -72,10 +75,10 @@ class HardwareOptions:
 
 @dataclass(frozen=True)
 class OperatorConsole:
-    """Whoever runs the campaign: `say` shows a line (rich markup) to them, `operator` answers the prompts in a
-    cell without a PLC."""
+    """Whoever runs the campaign: `say` shows a line to them as it is (a rich Text for colour), `operator` answers
+    the prompts in a cell without a PLC."""
 
-    say: Callable[[str], None]
+    say: Callable[[str | Text], None]
     operator: Operator
 
 
@@ -92,6 +95,7 @@ def new_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed:
     """A new session (session.create_session) and its campaign: the cell and the plan are checked before the
     session exists (a cell or plan that cannot run makes no session)."""
     cell = load_cell(cell_ref)
+    names_told_apart(cell)
     campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc, approached))
     store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra,
                            approached)  # fmt: skip

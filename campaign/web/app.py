@@ -13,6 +13,11 @@ Closed by default (README, "The operator's page"):
   header or send JSON without a preflight, which this server never grants), and it is refused when the browser
   says it comes from another site: `Origin` must be this server's (RFC 6454; browsers send it on every POST) and
   `Sec-Fetch-Site`, when sent, `same-origin` (W3C Fetch Metadata Request Headers).
+- The event stream needs the page's token like a POST (the page reads it from /session, which only a page of this
+  server's own origin can read), and is refused, as a POST is, when the browser says it comes from another origin:
+  a page elsewhere cannot open it first and take control.
+- A request body is at most MAX_BODY_BYTES (413 without reading more); at most MAX_STREAMS event streams are open
+  at once (503 beyond, one line on the console when the cap is reached).
 - One page holds control (the first to connect, or the last to press "take control"); the others watch.
 """
 
@@ -47,6 +52,11 @@ COOKIE = "trackcal_token"
 CLIENT_ID = re.compile(r"^[A-Za-z0-9_-]{8,64}$")
 STATIC = {"page.js": "text/javascript; charset=utf-8", "page.css": "text/css; charset=utf-8"}
 HEARTBEAT_S = 1.0  # the page says the campaign stopped when it hears nothing for a few of these (page.js)
+# An answer is ~60 bytes of JSON: 16 KiB is room for anything the page sends and bounds what a request can cost.
+MAX_BODY_BYTES = 16 * 1024
+# The cell's tablet, a few phones watching, the tabs of a reload: 16 open streams. Each costs a queue of the
+# campaign's documents and a task; a page beyond the cap is refused with 503 and retries (page.js RECONNECT_MS).
+MAX_STREAMS = 16
 
 
 def static_text(name: str) -> bytes:
@@ -58,7 +68,8 @@ def _refuse(why: str = "forbidden") -> Response:
 
 
 class Guard:
-    """ASGI middleware: the token (off loopback), the Host (on loopback), and the security headers."""
+    """ASGI middleware: the token (off loopback), the Host (on loopback), the body's size, and the security
+    headers."""
 
     def __init__(self, app, token: str | None, loopback_hosts: set[str] | None) -> None:
         self.app, self.token, self.hosts = app, token, loopback_hosts
@@ -89,9 +100,55 @@ class Guard:
                 message = {**message, "headers": [*message.get("headers", []), *extra]}
             await send(message)
 
+        if refused is None:
+            receive, refused = await _capped(headers, receive)
         if refused is not None:
             return await refused(scope, receive, send_with_headers)
         return await self.app(scope, receive, send_with_headers)
+
+
+async def _capped(headers: dict[str, str], receive):
+    """(receive, None) for a body of at most MAX_BODY_BYTES, else (receive, a 413 response). A stated length is
+    judged before a byte is read; a chunked body is read up to the cap and handed on from memory."""
+    too_large = Response(f"request body over {MAX_BODY_BYTES} bytes\n", status_code=413, media_type="text/plain")
+    length = headers.get("content-length")
+    if length is not None:
+        ok = length.isdigit() and int(length) <= MAX_BODY_BYTES
+        return receive, None if ok else too_large
+    if "chunked" not in headers.get("transfer-encoding", "").lower():
+        return receive, None
+    body, more = b"", True
+    while more:
+        message = await receive()
+        if message["type"] != "http.request":
+            return receive, None  # the client went away: the app sees it
+        body += message.get("body", b"")
+        more = message.get("more_body", False)
+        if len(body) > MAX_BODY_BYTES:
+            return receive, too_large
+    sent = False
+
+    async def replay():
+        nonlocal sent
+        if not sent:
+            sent = True
+            return {"type": "http.request", "body": body, "more_body": False}
+        return await receive()
+
+    return replay, None
+
+
+class _Released:
+    """A response (ASGI) that calls `release` once it has ended, however it ended."""
+
+    def __init__(self, response: Response, release) -> None:
+        self.response, self.release = response, release
+
+    async def __call__(self, scope, receive, send) -> None:
+        try:
+            await self.response(scope, receive, send)
+        finally:
+            self.release()
 
 
 def _cookie(header: str, name: str) -> str:
@@ -103,9 +160,11 @@ def _cookie(header: str, name: str) -> str:
 
 
 def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: set[str] | None,
-              report_dir: Path | None = None, closing=None) -> Guard:  # fmt: skip
+              report_dir: Path | None = None, closing=None, say=lambda line: None) -> Guard:  # fmt: skip
     """The application around a hub; `report_dir`: the session's report folder (served once the outcome is set);
-    `closing`: an event (threading.Event) set when the server is about to stop, which ends the event streams."""
+    `closing`: an event (threading.Event) set when the server is about to stop, which ends the event streams;
+    `say`: a line on the console (the stream cap reached)."""
+    streams = {"open": 0, "said": False}  # touched in the server's event loop only
 
     async def index(request: Request) -> Response:
         return Response(static_text("index.html"), media_type="text/html; charset=utf-8")
@@ -116,10 +175,26 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
             return Response("not found\n", status_code=404, media_type="text/plain")
         return Response(static_text(name), media_type=STATIC[name])
 
+    async def session(request: Request) -> Response:
+        why = _other_origin(request)
+        return _refuse(why) if why else JSONResponse({"csrf": hub.csrf})
+
     async def events(request: Request) -> Response:
+        why = _other_origin(request)
+        if not why and not hmac.compare_digest(request.query_params.get("csrf", ""), hub.csrf):
+            why = "forbidden: no valid page token (the page reads it from /session)"
+        if why:
+            return _refuse(why)
         client = request.query_params.get("client", "")
         if not CLIENT_ID.match(client):
             return Response("client: 8 to 64 letters, digits, - or _\n", status_code=400, media_type="text/plain")
+        if streams["open"] >= MAX_STREAMS:
+            if not streams["said"]:
+                streams["said"] = True
+                say(f"warning: the operator's page has {MAX_STREAMS} event streams open, the most it serves: "
+                    "another page is refused until one closes")  # fmt: skip
+            return Response("too many pages open\n", status_code=503, media_type="text/plain",
+                            headers={"Retry-After": "2"})  # fmt: skip
         queue: asyncio.Queue = asyncio.Queue()
         loop = asyncio.get_running_loop()
 
@@ -135,7 +210,7 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
             try:
                 yield f"retry: {int(HEARTBEAT_S * 1000)}\n\n"
                 yield _sse("snapshot", {"view": state.view, "points": state.points, "plan": hub.plan,
-                                        "live": {**live, "controller": hub.live["controller"]}, "csrf": hub.csrf,
+                                        "live": {**live, "controller": hub.live["controller"]},
                                         "events": len(past)})  # fmt: skip
                 while True:
                     try:
@@ -167,7 +242,15 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
             finally:
                 hub.unsubscribe(push)
 
-        return StreamingResponse(stream(), media_type="text/event-stream", headers={"X-Accel-Buffering": "no"})
+        def release() -> None:  # however the response ends, even before the stream started
+            hub.unsubscribe(push)
+            streams["open"] -= 1
+            if streams["open"] < MAX_STREAMS:
+                streams["said"] = False
+
+        streams["open"] += 1  # no await since the count was read: no other request came in between
+        return _Released(StreamingResponse(stream(), media_type="text/event-stream",
+                                           headers={"X-Accel-Buffering": "no"}), release)  # fmt: skip
 
     async def post(request: Request, action) -> Response:
         why = _cross_site(request, hub.csrf)
@@ -212,7 +295,7 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         return FileResponse(path)
 
     routes = [
-        Route("/", index), Route("/static/{name}", static), Route("/events", events),
+        Route("/", index), Route("/static/{name}", static), Route("/session", session), Route("/events", events),
         Route("/answer", answer, methods=["POST"]), Route("/control", control, methods=["POST"]),
         Route("/report/{path:path}", report),
         Route("/favicon.ico", lambda request: Response(status_code=204)),
@@ -220,13 +303,26 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
     return Guard(Starlette(routes=routes), token, loopback_hosts)
 
 
-def _cross_site(request: Request, csrf: str) -> str:
-    """Why a POST is refused as coming from another site ("" when it is not)."""
+def _other_origin(request: Request) -> str:
+    """Why a GET of the page's own (its token, its stream) is refused as coming from another origin ("" when it is
+    not): a browser sends `Origin` on every cross-origin fetch or EventSource (and may omit it on a same-origin GET),
+    and `Sec-Fetch-Site` names the requester's relation to this server."""
     origin = request.headers.get("origin")
-    if origin is None or origin != f"{request.url.scheme}://{request.headers.get('host', '')}":
+    if origin is not None and origin != f"{request.url.scheme}://{request.headers.get('host', '')}":
         return "forbidden: cross-origin request"
     if request.headers.get("sec-fetch-site", "same-origin") != "same-origin":
         return "forbidden: cross-site request"
+    return ""
+
+
+def _cross_site(request: Request, csrf: str) -> str:
+    """Why a POST is refused as coming from another site ("" when it is not): as `_other_origin`, and `Origin` must
+    be sent."""
+    if request.headers.get("origin") is None:
+        return "forbidden: cross-origin request"
+    why = _other_origin(request)
+    if why:
+        return why
     if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
         return "forbidden: not JSON"
     if not hmac.compare_digest(request.headers.get("x-trackcal-csrf", ""), csrf):

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import segno
 import uvicorn
+from rich.text import Text
 
 from trackcal.calib.model.cell import Cell
 from trackcal.campaign.cells.operator import FirstAnswer
@@ -55,9 +56,9 @@ def _reachable_address() -> str:
 class WebPage:
     """`trackcal run|resume|replay --operator web`: binds now; `attach` serves a session's campaign; `operator`
     makes the prompt shared between the console (and the cell's button) and the page; `finish` shows the report's
-    outcome; `close` ends it. `say` prints a line (rich markup) on the console."""
+    outcome; `close` ends it. `say` prints a line on the console as it is (a rich Text for colour)."""
 
-    def __init__(self, host: str = LOOPBACK, port: int = DEFAULT_PORT, say: Callable[[str], None] = print,
+    def __init__(self, host: str = LOOPBACK, port: int = DEFAULT_PORT, say: Callable[[str | Text], None] = print,
                  out: Callable[[str], None] = print) -> None:  # fmt: skip
         self.host, self.say, self.out = host, say, out
         self.loopback = is_loopback(host)
@@ -92,7 +93,7 @@ class WebPage:
         self.hub = Hub(store, plan_view(cell, steps) | {"replay": store.meta().get("mode") == "replay"})
         self.report_dir = store.directory / "report"
         hosts = {f"{h}:{self.port}" for h in ("127.0.0.1", "localhost", "[::1]")} if self.loopback else None
-        app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing)
+        app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing, self.say)
         config = uvicorn.Config(app, log_level="error", access_log=False, lifespan="off",
                                 timeout_graceful_shutdown=2)  # fmt: skip
         self.server = uvicorn.Server(config)
@@ -104,7 +105,7 @@ class WebPage:
         return self.hub
 
     def announce(self) -> None:
-        self.say(f"[bold]operator's page[/]: {self.url}")
+        self.say(Text.assemble(("operator's page", "bold"), f": {self.url}"))
         if self.token:
             qr = io.StringIO()
             segno.make(self.url, error="m").terminal(out=qr, compact=True)

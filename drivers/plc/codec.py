@@ -65,15 +65,21 @@ class OperatorRequest:
     target: str
 
 
+def hmi_text(target: str) -> str:
+    """What the HMI shows of a target's name: ASCII ('?' for any other character and for NUL), cut to
+    REQUEST_TARGET_CHARS. Two names shown alike cannot be told apart at the cell (campaign.cells.checks refuses
+    such a cell)."""
+    return target.encode("ascii", errors="replace")[:REQUEST_TARGET_CHARS].replace(b"\0", b"?").decode("ascii")
+
+
 def encode_request(kind: str | None, seq: int, target: str = "") -> list[int]:
     """The REQUEST_REGISTERS register values of a request (kind None: no request pending).
 
-    The target is sent as ASCII ('?' for any other character) and cut to REQUEST_TARGET_CHARS: the HMI shows
-    what fits; the full text is on the trackcal console."""
+    The target is sent as `hmi_text` shows it: the HMI shows what fits; the full text is on the trackcal console."""
     if kind is not None and kind not in REQUEST_KINDS:
         raise ValueError(f"unknown operator request kind {kind!r} (known: {', '.join(REQUEST_KINDS)})")
-    raw = target.encode("ascii", errors="replace")[:REQUEST_TARGET_CHARS] if kind is not None else b""
-    raw = raw.replace(b"\0", b"?").ljust(REQUEST_TARGET_CHARS, b"\0")
+    raw = hmi_text(target).encode("ascii").ljust(REQUEST_TARGET_CHARS, b"\0") if kind is not None else bytes(
+        REQUEST_TARGET_CHARS)  # fmt: skip
     chars = [(raw[i] << 8) | raw[i + 1] for i in range(0, REQUEST_TARGET_CHARS, 2)]
     return [REQUEST_KINDS[kind] if kind is not None else 0, seq & 0xFFFF, *chars]
 

@@ -5,6 +5,7 @@
 
 const SVG = "http://www.w3.org/2000/svg";
 const LOST_AFTER_MS = 3500;  // the server sends a heartbeat every second (app.py HEARTBEAT_S)
+const RECONNECT_MS = 2000;  // a refused stream (a restarted server, too many pages open) is asked for again
 const COLORS = ["#1f5fa8", "#c0582b", "#2c8a4b", "#7a3da0", "#a8871f", "#2b8a8a"];
 
 const page = { view: null, points: [], plan: null, live: {}, csrf: "", connected: false, heard: 0, pending: false,
@@ -32,11 +33,22 @@ function el(tag, attrs, text) {
   return e;
 }
 
-function connect() {
-  const src = new EventSource("/events?client=" + CLIENT);
+// The stream needs the page's token (GET /session: only a page of this server's own origin can read it), so a
+// page of another origin cannot open it and take control. A server that restarted (trackcal resume) has a new
+// token: a stream it refuses is closed, and the page asks again.
+async function connect() {
+  try {
+    const r = await fetch("/session", { credentials: "same-origin" });
+    if (!r.ok) throw new Error("refused (" + r.status + ")");
+    page.csrf = (await r.json()).csrf;
+  } catch (e) {
+    setTimeout(connect, RECONNECT_MS);
+    return;
+  }
+  const src = new EventSource("/events?client=" + CLIENT + "&csrf=" + encodeURIComponent(page.csrf));
   src.addEventListener("snapshot", (m) => {
     const d = JSON.parse(m.data);
-    page.view = d.view; page.points = d.points; page.plan = d.plan; page.live = d.live; page.csrf = d.csrf;
+    page.view = d.view; page.points = d.points; page.plan = d.plan; page.live = d.live;
     heard();
     page.fresh.push(...page.points);
     page.plotDirty = true;
@@ -52,7 +64,10 @@ function connect() {
   });
   src.addEventListener("live", (m) => { Object.assign(page.live, JSON.parse(m.data)); heard(); schedule(); });
   src.addEventListener("ping", heard);
-  src.onerror = () => { page.connected = false; renderAll(); };
+  src.onerror = () => {
+    page.connected = false; renderAll();
+    if (src.readyState === EventSource.CLOSED) setTimeout(connect, RECONNECT_MS);
+  };
 }
 
 // one render per frame however many messages arrive (a campaign sends bursts)
