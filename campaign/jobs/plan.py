@@ -225,6 +225,8 @@ def plan_bytes(design: Design, opts: PlanOptions) -> dict[str, float]:
 def check_plan_size(design: Design, opts: PlanOptions) -> None:
     """Refuse a search the machine cannot hold, naming the option that makes it large, before any allocation;
     and a plan whose campaign's table could not be read back."""
+    configs, repeat, _ = plan_size(design, opts.configs, opts.repeat)
+    opts = dataclasses.replace(opts, configs=configs, repeat=repeat)
     if opts.configs < 1 or opts.repeat < 1:
         raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
     if opts.starts < 1 or opts.refined < 1:
