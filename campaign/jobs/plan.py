@@ -237,10 +237,10 @@ def check_plan_size(design: Design, opts: PlanOptions) -> None:
     def total(**change: int) -> float:
         return sum(plan_bytes(design, dataclasses.replace(opts, **change)).values())
 
+    if opts.starts / 1000 > opts.configs / 6:  # the count further above its default (the best screened are refined)
+        check_memory("starts", opts.starts, lambda n: total(starts=n, refined=min(opts.refined, n)), "screened plan")
     if largest == "tasks":
         check_memory("refined", opts.refined, lambda n: total(refined=n), "refined plan")
-    elif largest == "screening" and opts.starts / 1000 > opts.configs / 6:  # the count further above its default
-        check_memory("starts", opts.starts, lambda n: total(starts=n), "screened plan")
     check_memory("configs", opts.configs, lambda n: total(configs=n), "configuration")
     rows = opts.configs * opts.repeat * len(design.tool) * max(1, len(design.trackers))
     if opts.repeat >= opts.configs:
