@@ -83,6 +83,9 @@ class Design:
     length_scale_mm: float = 1000.0
     joint_bounds: np.ndarray | None = None  # (n, 2) rad; default the chain's joint limits
     known: tuple[str, ...] = ()  # groups held at nominal (calib.identify.unknowns.KNOWABLE; the paper's section 7.2)
+    # a (point, station) pair counts as seen only this far inside the acceptance cone, and a feasible pose has none
+    # within this of its edge: where the nominal cell cannot tell whether the real station will see it
+    visibility_margin_deg: float = 0.0
 
     def __post_init__(self) -> None:
         self.kin = Kinematics(self.chain, self.params)
@@ -97,7 +100,8 @@ class Design:
         self.unknowns = campaign_unknowns(self.params, len(stations), len(self.tool), tuple(self.known))
         self.j0 = self.test_pose_jacobian()
         self.scale = self.unknowns.scale(self.length_scale_mm)
-        self.cos_accept = float(np.cos(np.radians(self.acceptance_deg)))
+        self.cos_accept = float(np.cos(np.radians(self.acceptance_deg - self.visibility_margin_deg)))
+        self.cos_reject = float(np.cos(np.radians(min(self.acceptance_deg + self.visibility_margin_deg, 180.0))))
 
     # ------------------------------------------------------------------ rows of a plan
     def _rows(self, q: np.ndarray):
@@ -190,7 +194,11 @@ class Design:
         q = np.atleast_2d(q)
         p, nw = self._points_and_normals(q)
         ok = np.all(np.abs(self.box_violation(p)) <= 1e-9, axis=1)
-        ok &= np.max(self._margins(p, nw), axis=1) >= 0.0
+        margins = self._margins(p, nw)
+        ok &= np.max(margins, axis=1) >= 0.0
+        if self.visibility_margin_deg > 0 and self.trackers:  # no pair at the cone's edge
+            cos = margins + self.cos_accept
+            ok &= ~np.any((cos < self.cos_accept) & (cos > self.cos_reject), axis=1)
         ok = ok.reshape(len(q), len(self.tool)).all(axis=1)
         return ok & np.all((q >= self.limits[:, 0]) & (q <= self.limits[:, 1]), axis=1)
 
@@ -574,6 +582,7 @@ def design_for_cell(
     noise: TrackerNoise | None = None,
     visibility: bool = True,
     known: tuple[str, ...] = (),
+    visibility_margin_deg: float = 0.0,
 ) -> Design:
     """A Design from a `calib.model.cell.Cell`: its tool, TCP, test pose, box and (optionally) stations; the
     unknowns those of a campaign (calib.identify.unknowns) with the robot parameters `params`, `known` the groups
@@ -590,7 +599,7 @@ def design_for_cell(
         normals=np.array([cell.tool_normals[p] for p in pids]), acceptance_deg=cell.acceptance_deg,
         box_min=None if cell.box_min is None else cell.box_min + PLAN_BOX_MARGIN_MM,
         box_max=None if cell.box_max is None else cell.box_max - PLAN_BOX_MARGIN_MM,
-        joint_bounds=plan_joint_bounds(cell), known=tuple(known),
+        joint_bounds=plan_joint_bounds(cell), known=tuple(known), visibility_margin_deg=visibility_margin_deg,
     )  # fmt: skip
 
 

@@ -107,6 +107,15 @@ def plan_size(design: Design, configs: int | None, repeat: int | None) -> tuple[
     return chosen, repeat, why
 
 
+# How far inside a station's acceptance cone a planned (point, station) pair must be, and how far outside an unseen
+# one: the plan is made on the nominal cell, the campaign sees from where the tracker really stands. A station set up
+# 20 mm off per axis (the digital twin's placement error, mocks/twin.py) turns the direction to a reflector 2.5 m away
+# by atan(20 sqrt(2) / 2500) = 0.65 deg (1 sigma, the two axes across the line of sight), 1.9 deg at 3 sigma; the
+# robot's own errors add ~0.05 deg. Without it, the default plan (its stations unknown, so it wants rows from both)
+# put P3 at the edge of S2's cone: the demo skipped 29 of 86 measurements there.
+PLAN_VISIBILITY_MARGIN_DEG = 2.0
+
+
 def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
@@ -117,6 +126,7 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
         sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
+        visibility_margin_deg=PLAN_VISIBILITY_MARGIN_DEG,
     )  # fmt: skip
 
 
