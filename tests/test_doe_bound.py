@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from trackcal.calib.doe.bound import derivative, multiplicative_weights, rho0_lower_bound
 from trackcal.calib.doe.design import design_for_cell, optimize_plan, random_feasible_poses
+from trackcal.calib.identify.unknowns import PAPER_KNOWN
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import param_by_name
 
@@ -14,7 +15,9 @@ from trackcal.calib.model.params import param_by_name
 def design(name: str, q0_deg=None, sigma_mm: float = 0.01):
     cell = load_cell(name)
     params = [param_by_name(cell.chain, n) for n in cell.plan_params]
-    return design_for_cell(cell, params, None if q0_deg is None else np.radians(q0_deg), sigma_mm=sigma_mm)
+    # the paper's planning assumption (section 7.2: base and tool known), as in its tables
+    return design_for_cell(cell, params, None if q0_deg is None else np.radians(q0_deg), sigma_mm=sigma_mm,
+                           known=PAPER_KNOWN)
 
 
 @pytest.fixture(scope="module")

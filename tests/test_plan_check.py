@@ -11,6 +11,7 @@ import pytest
 
 from tests.helpers import assert_stopped, feasible_plan, inproc_live
 from trackcal.calib.doe.design import design_for_cell, optimize_plan
+from trackcal.calib.identify.unknowns import PAPER_KNOWN
 from trackcal.calib.model.cell import CellError, load_cell, usable_limits_deg
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import param_by_name
@@ -58,7 +59,8 @@ def test_the_cell_box_is_checked_after_the_controllers_rounding(kr270, plan):
 def test_plans_keep_the_joint_margin(kr270):
     # a D-optimal plan of the paper's cell: optimal poses sit on the planner's bounds (section 7.2 parameters)
     params = [param_by_name(kr270.chain, n) for n in kr270.plan_params]
-    plan = optimize_plan(design_for_cell(kr270, params), 6, criterion="D", starts=20, refined=2, seed=2)
+    plan = optimize_plan(design_for_cell(kr270, params, known=PAPER_KNOWN), 6, criterion="D", starts=20, refined=2,
+                         seed=2)
     rounded = np.round(np.degrees(plan.poses), 4)  # as `trackcal plan` writes them
     lim = usable_limits_deg(kr270)
     assert np.all((rounded >= lim[:, 0]) & (rounded <= lim[:, 1]))

@@ -359,8 +359,8 @@ def test_every_figure_of_the_report_of_every_cause(kr270, tmp_path, effect):
 
 @pytest.fixture(scope="module")
 def readme_plan(tmp_path_factory):
-    """The README's plan: `trackcal plan --cell kr270 --configs 6 --repeat 3` (optimised for the cell's nine plan
-    parameters)."""
+    """The README's plan: `trackcal plan --cell kr270 --configs 6 --repeat 3` (optimised for the campaign's unknowns:
+    18 robot parameters, the stations and the points)."""
     out = tmp_path_factory.mktemp("plan") / "plan.json"
     return plan("kr270", PlanOptions(configs=6, repeat=3), str(out)).doc
 

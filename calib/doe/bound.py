@@ -58,12 +58,13 @@ def _direction(design: Design, infos: np.ndarray, w: np.ndarray) -> tuple[float,
 
 
 def derivative(design: Design, x: np.ndarray, a: np.ndarray, w_rows: np.ndarray) -> tuple[float, np.ndarray]:
-    """d(x) = trace(I(x) A) of one pose x (n,) with the row weights w_rows (P, 3, 3) held fixed, and its
-    gradient: d d / d x_j = 2 sum_rows <W_r J_r A, dJ_r/dx_j>."""
+    """d(x) = trace(I(x) A) of one pose x (n,) with the row weights w_rows (P, S, 3, 3) held fixed, and its
+    gradient: d d / d x_j = 2 sum_rows <W_r J_r A, dJ_r/dx_j> (J_r the row's Jacobian over every unknown)."""
     jac = design._rows(x[None])
-    wj = np.einsum("rab,rbk->rak", w_rows, jac.d_params)
-    value = float(np.einsum("rak,kl,ral->", wj, a, jac.d_params))
-    return value, 2.0 * np.einsum("rak,kl,ralj->j", wj, a, design.kin.d_params_dq(jac))
+    rows, _ = design.row_jacobian(jac)
+    wj = np.einsum("nsab,nsbk->nsak", w_rows, rows)
+    value = float(np.einsum("nsak,kl,nsal->", wj, a, rows))
+    return value, 2.0 * np.einsum("nsak,kl,nsalj->j", wj, a, design.row_jacobian_dq(jac), optimize=True)
 
 
 def _local_max(design: Design, x0: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray] | None:

@@ -133,13 +133,15 @@ COMMANDS = [
             "trackcal.campaign.cli.plan:cmd_plan", [
                 arg("--cell", required=True, help=CELL_HELP),
                 arg("--test-pose", help="Q1,..,Qn in degrees (default: the cell's test pose)"),
-                arg("--configs", type=int, default=6, help="number of distinct configurations M"),
-                arg("--repeat", type=int, default=1, help="each configuration measured K times"),
+                arg("--configs", type=int, help="number of distinct configurations M (default: chosen from the "
+                                                "cell's unknowns, said in the output)"),
+                arg("--repeat", type=int, help="each configuration measured K times (default: 1)"),
                 arg("--sigma-mm", type=float, help="--noise iid: the noise of one coordinate, mm (default: 0.01)"),
                 arg("--noise", choices=("tracker", "iid"), default="iid",
                     help="i.i.d. --sigma-mm (the paper's), or the cell's tracker model identify weighs by (its "
                          "plans put poses at the edge of a station's view: README)"),
-                arg("--params", help="parameters targeted (default: the cell's plan_params)"),
+                arg("--params", help="robot parameters the campaign identifies (default: identify's, the "
+                                     "irreducible set)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),
                 arg("--seed", type=seed, default=0, help="seed of the random starting plans"),

@@ -24,9 +24,11 @@ def cmd_demo(args) -> int:
     cell = load_cell(args.cell)
     console.rule(f"trackcal demo: cell {cell.name} on the digital twin")
     with console.status("planning: test-pose optimal poses (paper section 6)"):
-        plan_doc = plan(args.cell, PlanOptions(configs=6, repeat=3, seed=args.seed), str(out / "plan.json")).doc
-    console.print(f"plan: 6 configurations x 3, rho0 at the test pose {um(plan_doc['rho0_mm'], 2)} µm "
-                  f"({out / 'plan.json'})")  # fmt: skip
+        # the default plan (`trackcal plan --cell C`): its size from the cell's unknowns
+        plan_doc = plan(args.cell, PlanOptions(seed=args.seed), str(out / "plan.json")).doc
+    console.print(f"plan: {len(plan_doc['poses_deg'])} configurations x {plan_doc['repeat']}, rho0 at the test pose "
+                  f"{um(plan_doc['rho0_mm'], 2)} µm ({out / 'plan.json'})")  # fmt: skip
+    console.print(f"plan size: {plan_doc['why']}")
     store, _ = new_session(out / "session", args.cell, plan_doc, "sim", args.seed)
     drive(store)
     analysis = analyse_and_print(store)

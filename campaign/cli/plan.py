@@ -24,13 +24,18 @@ def cmd_plan(args) -> int:
             console.print(f"warning: rows {doc['infeasible_rows']} leave the cell box or are not visible")
     else:
         with Progress(console=console, transient=True) as bar:
-            task = bar.add_task(f"searching {opts.configs} configurations ({opts.criterion})", total=opts.refined)
+            task = bar.add_task(f"searching a plan ({opts.criterion})", total=opts.refined)
             doc = plan(args.cell, opts, args.json, csv_out=args.csv,
                        progress=lambda done, total: bar.update(task, completed=done, total=total)).doc  # fmt: skip
         for q in doc["poses_deg"]:
             console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
+        if doc["why"] != "as asked":
+            console.print(f"plan size: {doc['why']}")
     rho0 = f"{doc['rho0_mm'] * 1000:.2f} µm" if doc["rho0_mm"] is not None else doc["rho0_why"]
     noise = f"tracker model of the {model_instrument(doc).describe()}" if "tracker" in doc else "i.i.d."
-    console.print(f"rho0 at the test pose: {rho0}  (parameters: {' '.join(doc['params'])}; noise: {noise})")
+    u = doc["unknowns"]
+    console.print(f"rho0 at the test pose: {rho0}  (the predicted 1-sigma uncertainty of the reference points' "
+                  f"centroid there; unknowns: {u['robot_params']} robot parameters, {u['stations']} stations, "
+                  f"{u['points']} points; noise: {noise})")  # fmt: skip
     console.print(f"plan written to {args.json}")
     return 0

@@ -24,13 +24,14 @@ from trackcal.calib.identify.solver import (
     significance,
 )
 from trackcal.calib.identify.units import read_measured
+from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.instruments import Instrument
-from trackcal.calib.model.params import Param, irreducible_params, param_by_name
+from trackcal.calib.model.params import Param, param_by_name
 from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
 from trackcal.campaign.errors import InputError, OptionError
 
@@ -46,7 +47,9 @@ def sha256_of(path: str | Path) -> str:
 
 
 def choose_params(cell: Cell, names: str | None) -> list[Param]:
-    kept, _ = irreducible_params(cell.chain)
+    """The `params` option, else the robot parameters a campaign identifies (calib.identify.unknowns: the plan is
+    scored for the same ones)."""
+    kept = campaign_params(cell.chain)
     if not names:
         return kept
     try:
@@ -167,7 +170,7 @@ def fit_quality(table: MeasurementTable, res: Identification, tracker: Instrumen
 def left_out(cell: Cell, params: list[Param]) -> list[str]:
     """The irreducible parameters a subset leaves at nominal."""
     chosen = {p.name for p in params}
-    return [p.name for p in irreducible_params(cell.chain)[0] if p.name not in chosen]
+    return [p.name for p in campaign_params(cell.chain) if p.name not in chosen]
 
 
 def _fit_jacobian(res: Identification, table: MeasurementTable, params: list[Param]) -> np.ndarray:

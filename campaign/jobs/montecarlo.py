@@ -9,9 +9,10 @@ twin's true deviation, and how often the joint 95 % region (F test of the whole 
 With honest intervals each count is Binomial(N, 0.95) exactly (linear-Gaussian theory; the KR-270 problem is linear
 to far below the noise at its deviations), so a count outside the binomial band says the intervals are too narrow
 or too wide. `rho0`: plan's criterion by simulation: N campaigns of the plan (calib.doe.design.monte_carlo_rho0:
-truth at nominal, base and tool known, the plan's noise), each identified; the mean squared TCP error at the test
-pose against rho0^2, whose Monte-Carlo standard error is sqrt(2 sum lambda_i^2 / N) (|dp|^2 is a sum of chi2(1)
-weighted by the eigenvalues lambda_i of J0 C J0^T). Every seed and run draws from its own generator, so the
+truth at nominal, the plan's noise), each identified as a campaign is (robot parameters, stations and points); the
+mean squared error of the points' centroid at the test pose (first station's frame) against rho0^2, whose
+Monte-Carlo standard error is sqrt(2 sum lambda_i^2 / N) (|dp|^2 is a sum of chi2(1) weighted by the eigenvalues
+lambda_i of G C G^T). Every seed and run draws from its own generator, so the
 result does not depend on how the work is split or where it runs.
 """
 
@@ -37,7 +38,7 @@ from trackcal.campaign.jobs.plan import PlanOptions, build_design
 from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 
 COVERAGE_CHUNK = 8  # seeds per task (one identification each, ~0.1 s)
-RHO0_CHUNK = 200  # runs per task (three Gauss-Newton steps each, ~5 ms)
+RHO0_CHUNK = 20  # runs per task (one identification each, ~0.1 s)
 LEVEL = 0.95  # the intervals' nominal coverage
 # a count outside the central BAND of Binomial(n, 0.95) says the intervals are dishonest; with ~20 counts checked
 # at once, 99.9 % keeps the chance of a false alarm near 2 %

@@ -14,13 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.doe.design import CRITERIA, Design, DesignError, design_for_cell, optimize_plan
+from trackcal.calib.doe.design import (
+    CRITERIA,
+    SCREEN_CHUNK,
+    Design,
+    DesignError,
+    design_for_cell,
+    optimize_plan,
+)
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.files import atomic_open, finite_or_null, write_json, writing
 from trackcal.calib.io.table import joint_columns, read_joint_rows
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
-from trackcal.calib.model.params import Param, irreducible_params, param_by_name
+from trackcal.calib.model.params import Param, param_by_name
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.limits import check_memory, check_table_rows
 from trackcal.campaign.jobs.pool import local_pool
@@ -30,15 +38,15 @@ from trackcal.campaign.jobs.pool import local_pool
 class PlanOptions:
     """What `trackcal plan` is asked: the design (parameters, test pose, noise, visibility) and the search."""
 
-    params: str | None = None  # comma-separated names; None: the cell's plan_params
+    params: str | None = None  # comma-separated robot parameters; None: those identify fits (the irreducible set)
     test_pose: str | None = None  # "Q1,..,Qn" in degrees; None: the cell's test pose
     sigma_mm: float | None = None  # noise="iid": one coordinate's noise; None: 0.01
     # the cell's tracker model (the AT901 by default): identify, diagnose and run weigh a campaign by it, and rho0
     # is the test-pose error of the estimate they compute; "iid" (sigma_mm) is the paper's i.i.d. case
     noise: str = "iid"  # the tracker model plans poses at the edge of a station's view: README, `trackcal plan`
     visibility: bool = True
-    configs: int = 6
-    repeat: int = 1
+    configs: int | None = None  # None: chosen from the cell (`plan_size`)
+    repeat: int | None = None  # None: 1 when configs are chosen or given
     criterion: str = "rho0"
     starts: int = 1000
     refined: int = 16
@@ -47,12 +55,12 @@ class PlanOptions:
 
 
 def plan_params(cell: Cell, names: str | None) -> list[Param]:
-    """The `params` option, else the cell's plan_params, else the irreducible set plus dq1 (base and tool known)."""
-    chosen = names.split(",") if names else cell.plan_params
-    if not chosen:
-        return [param_by_name(cell.chain, "dq1"), *irreducible_params(cell.chain)[0]]
+    """The `params` option, else the robot parameters a campaign identifies (identify's default: the irreducible
+    set). A plan is scored for every unknown of the campaign: these, every station and every reference point."""
+    if not names:
+        return campaign_params(cell.chain)
     try:
-        return [param_by_name(cell.chain, n.strip()) for n in chosen if n.strip()]
+        return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
     except ChainError as exc:
         raise OptionError("{0}: {exc}", "params", exc=exc) from None
 
@@ -73,6 +81,43 @@ def parse_test_pose(cell: Cell, text: str | None) -> np.ndarray:
     return np.radians(q)
 
 
+# Distinct configurations a default plan has per unknown of the campaign, counted in equations: each configuration
+# gives x, y, z of every reference point (from at least one station). Three equations per unknown leave the fit
+# 2 K degrees of freedom, so the noise level the campaign estimates from its residuals (and scales every stated
+# uncertainty by) has a relative standard deviation of sqrt(2 / 2K) = 1/sqrt(K) in variance, half that in sigma:
+# 8 % for the KR-270's 39 unknowns.
+EQUATIONS_PER_UNKNOWN = 3
+
+
+def plan_size(design: Design, configs: int | None, repeat: int | None) -> tuple[int, int, str]:
+    """(configurations, repeats, why): the given ones, or the plan a customer should measure. With stations and
+    points unknown, distinct poses come before repeats: a repeat only averages the noise of a pose already
+    measured, where a new pose also separates parameters the others leave correlated (rho0 of a plan repeated k
+    times is rho0 / sqrt(k), paper section 6.3; a new pose usually does better)."""
+    u = design.unknowns
+    if configs is not None:
+        return configs, 1 if repeat is None else repeat, "as asked"
+    per_config = 3 * len(design.tool)
+    chosen = -(-EQUATIONS_PER_UNKNOWN * u.size // per_config)
+    repeat = 1 if repeat is None else repeat
+    free = " and ".join(f"{n} {what}" for n, what in ((u.n_stations, "stations"), (u.n_points, "reference points"))
+                        if n) or "no stations or points"  # fmt: skip
+    why = (f"{chosen} configurations x {repeat}: the campaign identifies {u.size} unknowns ({u.k} robot parameters, "
+           f"{free}), each configuration gives {per_config} coordinates, and {EQUATIONS_PER_UNKNOWN} equations per "
+           "unknown let the noise be estimated to 8 % or better; distinct poses before repeats, since a repeat only "
+           "averages noise where a new pose also separates the parameters")  # fmt: skip
+    return chosen, repeat, why
+
+
+# How far inside a station's acceptance cone a planned (point, station) pair must be, and how far outside an unseen
+# one: the plan is made on the nominal cell, the campaign sees from where the tracker really stands. A station set up
+# 20 mm off per axis (the digital twin's placement error, mocks/twin.py) turns the direction to a reflector 2.5 m away
+# by atan(20 sqrt(2) / 2500) = 0.65 deg (1 sigma, the two axes across the line of sight), 1.9 deg at 3 sigma; the
+# robot's own errors add ~0.05 deg. Without it, the default plan (its stations unknown, so it wants rows from both)
+# put P3 at the edge of S2's cone: the demo skipped 29 of 86 measurements there.
+PLAN_VISIBILITY_MARGIN_DEG = 2.0
+
+
 def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
@@ -83,6 +128,7 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     return design_for_cell(
         cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
         sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
+        visibility_margin_deg=PLAN_VISIBILITY_MARGIN_DEG,
     )  # fmt: skip
 
 
@@ -147,6 +193,14 @@ def write_plan_csv(path: Path, poses_rad: np.ndarray, repeat: int) -> None:
 NOT_IDENTIFIABLE = "not identifiable: the plan's information matrix is singular"
 
 
+def unknowns_doc(design: Design) -> dict:
+    """What rho0 was computed for: the campaign's unknowns and the quantity it predicts."""
+    u = design.unknowns
+    return {"robot_params": u.k, "stations": u.n_stations, "points": u.n_points, "total": u.size,
+            "rho0_is": "the predicted 1-sigma 3-D uncertainty of the reference points' centroid at the test pose, in "
+                       "the first station's frame (what identify and the report state after the campaign)"}  # fmt: skip
+
+
 def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
     """Criteria of a plan given as rows (repeated rows are repetitions)."""
     crit = finite_or_null(design.criteria(poses), NOT_IDENTIFIABLE)
@@ -155,6 +209,7 @@ def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
         **crit,
         "measurements": len(poses),
         "params": [p.name for p in design.params],
+        "unknowns": unknowns_doc(design),
         "infeasible_rows": [int(i) + 2 for i in np.flatnonzero(~feasible)],
     }
 
@@ -171,26 +226,31 @@ REFINE_COPIES = 9
 
 def plan_bytes(design: Design, opts: PlanOptions) -> dict[str, float]:
     """Peak memory of a plan search by its stages, bytes, from the arrays optimize_plan makes (float64):
-    screening holds the information matrices of `starts` plans of `configs` poses (starts x configs x k x k, k
-    parameters: 60.3 GiB for 100,000 configurations); the pool's poses and matrices are held once, and each
-    refinement task holds its plan's pool indices and its two results (configs x dof), plus the pool's matrices
-    when a Dask cluster serialises every task; each worker's refinement holds the constraint Jacobian (configs x
-    points x (6 box faces + stations) rows, configs x dof columns) REFINE_COPIES times (ours, SLSQP's copies
-    and work arrays): quadratic in configs."""
-    k, m, dof = len(design.params), opts.configs, design.chain.dof
+    screening holds the information matrices of SCREEN_CHUNK plans of `configs` poses at a time (chunk x configs x
+    K x K, K the campaign's unknowns: 39 on the KR-270) and the pool indices of every screened plan; the pool's
+    poses and matrices are held once, and each refinement task holds its plan's pool indices and its two results
+    (configs x dof), plus the pool's matrices when a Dask cluster serialises every task; each worker's refinement
+    holds the constraint Jacobian (configs x points x (6 box faces + stations) rows, configs x dof columns)
+    REFINE_COPIES times (ours, SLSQP's copies and work arrays): quadratic in configs; and the rows' Jacobian and
+    its derivative by the joints (configs x points x stations x 3 x K x (dof + 2)), linear."""
+    k, m, dof = design.unknowns.size, opts.configs, design.chain.dof
     pool = 8.0 * max(POOL, m + 1) * (k * k + dof)
     task = 8.0 * m * (1 + 2 * dof) + 256 + (pool if opts.scheduler else 0.0)
+    stations = max(1, len(design.trackers))
     rows = len(design.tool) * (6 + len(design.trackers))
+    row_jacobians = 8.0 * m * len(design.tool) * stations * 3 * k * (dof + 2)
     return {
-        "screening": 8.0 * opts.starts * m * (k * k + 1),
+        "screening": 8.0 * (min(opts.starts, SCREEN_CHUNK) * m * k * k + opts.starts * m),
         "tasks": pool + task * min(opts.refined, opts.starts),  # the best screened plans are refined
-        "refinement": WORKERS * REFINE_COPIES * 8.0 * (m * rows) * (m * dof),
+        "refinement": WORKERS * (REFINE_COPIES * 8.0 * (m * rows) * (m * dof) + row_jacobians),
     }
 
 
 def check_plan_size(design: Design, opts: PlanOptions) -> None:
     """Refuse a search the machine cannot hold, naming the option that makes it large, before any allocation;
     and a plan whose campaign's table could not be read back."""
+    configs, repeat, _ = plan_size(design, opts.configs, opts.repeat)
+    opts = dataclasses.replace(opts, configs=configs, repeat=repeat)
     if opts.configs < 1 or opts.repeat < 1:
         raise OptionError("{0} and {1} must be at least 1", "configs", "repeat")
     if opts.starts < 1 or opts.refined < 1:
@@ -201,10 +261,10 @@ def check_plan_size(design: Design, opts: PlanOptions) -> None:
     def total(**change: int) -> float:
         return sum(plan_bytes(design, dataclasses.replace(opts, **change)).values())
 
+    if opts.starts / 1000 > opts.configs / 6:  # the count further above its default (the best screened are refined)
+        check_memory("starts", opts.starts, lambda n: total(starts=n, refined=min(opts.refined, n)), "screened plan")
     if largest == "tasks":
         check_memory("refined", opts.refined, lambda n: total(refined=n), "refined plan")
-    elif largest == "screening" and opts.starts / 1000 > opts.configs / 6:  # the count further above its default
-        check_memory("starts", opts.starts, lambda n: total(starts=n), "screened plan")
     check_memory("configs", opts.configs, lambda n: total(configs=n), "configuration")
     rows = opts.configs * opts.repeat * len(design.tool) * max(1, len(design.trackers))
     if opts.repeat >= opts.configs:
@@ -213,6 +273,8 @@ def check_plan_size(design: Design, opts: PlanOptions) -> None:
 
 
 def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int], None] | None = None) -> dict:
+    configs, repeat, why = plan_size(design, opts.configs, opts.repeat)
+    opts = dataclasses.replace(opts, configs=configs, repeat=repeat)
     check_plan_size(design, opts)
     if opts.criterion not in CRITERIA:
         raise OptionError("{0} must be one of {criteria}", "criterion", criteria=", ".join(CRITERIA))
@@ -238,6 +300,8 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
         "criteria": criteria,
         "starts": plan.starts,
         "refined": plan.refined,
+        "unknowns": unknowns_doc(design),
+        "why": why,
     }
 
 
