@@ -1,15 +1,17 @@
 """The digital twin: the "true" robot, its tracker stations and an AT901-like tracker.
 
 One deterministic world for the whole project: the true chain is the nominal one plus hidden deviations
-(any parameter of the complete model), the true reference points and station placements differ from
-the nominal ones, optional hidden non-geometric effects (`mocks.effects`) act on the real joint angles,
+(any parameter of the complete model; by default the paper's Table 8 for the KR-270 and, for any other robot, every
+irreducible parameter drawn from the seed, `drawn_deviations`), the true reference points and station placements
+differ from the nominal ones, optional hidden non-geometric effects (`mocks.effects`) act on the real joint angles,
 the arm's size or a station, and every measurement's noise is a pure function of (seed, identity of
 the step), so a campaign resumed after a crash sees exactly the numbers an uninterrupted one sees.
 
 The twin is a small stateful world: `move_to` tells it where the robot was commanded (the direction each
 joint last moved in matters for backlash), `measure` takes the time since the campaign start (thermal
 drift: every length grows, tool included, about the pivot `thermal_pivot`; station shift).
-`simulate_campaign` is the table a campaign of given poses would record on it, in the campaign order.
+`simulate_campaign` is the table a campaign of given poses would record on it, in the campaign order; `Twin.truth`
+is what it really is, for `simulate --truth` and `run --sim --truth`.
 """
 
 from __future__ import annotations

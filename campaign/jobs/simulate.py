@@ -94,7 +94,5 @@ def write_truth(path: str | Path, cell: Cell, seed: int, effects: dict[str, floa
 
 
 def twin_truth(cell: Cell, seed: int) -> dict[str, float]:
-    """The twin's true parameter deviations in boundary units (mm, deg)."""
-    twin = Twin(cell, seed=seed)
-    return {p.name: (v if p.is_length else float(np.degrees(v))) for p, v in zip(twin.params, twin.true_dev,
-                                                                                strict=True)}  # fmt: skip
+    """The twin's true parameter deviations in boundary units (mm, deg): those of its truth file."""
+    return {name: p["value"] for name, p in Twin(cell, seed=seed).truth()["parameters"].items()}
