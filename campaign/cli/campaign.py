@@ -147,8 +147,10 @@ def cmd_run(args) -> int:
     if bool(args.sim) == bool(args.hardware):
         raise UsageError("give exactly one of --sim or --hardware FILE")
     plan_doc = read_json(args.plan, InputError)
-    if args.hardware and (args.effect or args.sim_speed is not None or args.truth):
-        raise UsageError("--effect, --sim-speed and --truth are for --sim only (with hardware: `trackcal mock`)")
+    if args.hardware and (args.effect or args.sim_speed is not None):
+        raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
+    if args.hardware and args.truth:
+        raise UsageError("--truth is for --sim only: the twin's truth (a real robot's is what you measure)")
     effects = parse_effects(args.effect) if args.sim else {}
     if args.operator != "web" and (args.web_host or args.web_port is not None or args.web_linger):
         raise UsageError("--web-host, --web-port and --web-linger are for --operator web")
