@@ -11,7 +11,10 @@
  "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
  "converged": the solver's stopping test was met, "message": why it stopped,
  "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
- nominal because of them (only then), ...}
+ nominal because of them (only then),
+ "test_pose": {"joints_deg", "station", "tcp_mm", "sigma_mm", "sigma_xyz_mm", "correction_mm", "note"}: the TCP at
+ the cell's test pose and its 1-sigma 3-D uncertainty from the full covariance (calib.test_pose; with a test pose
+ only), ...}
 A model written before "converged" and "message" were recorded still loads (`Model.converged` is then None).
 """
 
@@ -35,6 +38,7 @@ from trackcal.calib.io.files import read_json
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from trackcal.calib.model.params import Param, param_by_name
+from trackcal.calib.test_pose import figure_at_test_pose
 
 FORMAT = "trackcal-model/1"
 
@@ -84,7 +88,9 @@ def fitted_causes(ext: Extension, shift: dict | None = None) -> list[str]:
     return out + (["station_shift"] if shift is not None and "station_shift" not in out else [])
 
 
-def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None) -> dict:
+def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None,
+                          test_pose: np.ndarray | None = None) -> dict:  # fmt: skip
+    """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.test_pose)."""
     ci = res.param_ci95()
     unit = np.array([1.0 if p.is_length else np.degrees(1.0) for p in res.params])
     cov = res.param_cov() * np.outer(unit, unit)
@@ -123,6 +129,8 @@ def identification_to_doc(res: Identification, extra: dict | None = None, shift:
         }
     for pid, x in res.points.items():
         doc["tool_points"][pid] = {"xyz_mm": x.tolist(), "ci95_mm": res.point_ci95(pid).tolist()}
+    if test_pose is not None:
+        doc["test_pose"] = figure_at_test_pose(res, test_pose).to_doc()
     doc.update(extra or {})
     return doc
 

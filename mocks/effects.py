@@ -80,6 +80,32 @@ class Effects:
             shift=shift,
         )  # fmt: skip
 
+    def to_doc(self) -> dict:
+        """The hidden effects' true parameters in boundary units (deg, mm, s), for the twin's truth file; {} when
+        there are none."""
+        doc: dict = {}
+        if self.compliance is not None:
+            doc["joint_compliance"] = {"deg_per_n_m": np.degrees(self.compliance).tolist()}
+            if self.mass_chain is not None:
+                doc["joint_compliance"]["masses"] = [{"joint": j.name, "mass_kg": float(j.mass_kg),
+                                                      "com_mm": np.asarray(j.com, dtype=float).tolist()}
+                                                     for j in self.mass_chain.joints]  # fmt: skip
+        if self.backlash is not None:
+            doc["backlash"] = {"full_width_deg": np.degrees(self.backlash).tolist()}
+        if self.encoder_scale is not None:
+            doc["encoder_scale"] = {"scale": np.asarray(self.encoder_scale, dtype=float).tolist()}
+        if self.cyclic:
+            doc["cyclic_error"] = [{"joint": int(j) + 1, "harmonic": int(h), "amplitude_deg": float(np.degrees(a)),
+                                    "phase_rad": float(ph)} for j, h, a, ph in self.cyclic]  # fmt: skip
+        if self.thermal_per_s:
+            doc["thermal_drift"] = {"growth_per_s": float(self.thermal_per_s),
+                                    "pivot_mm": np.asarray(self.thermal_pivot, dtype=float).tolist()}  # fmt: skip
+        if self.shift is not None:
+            sid, t, rvec, tvec = self.shift
+            doc["station_shift"] = {"station": sid, "after_t_s": float(t), "rotation_vector_deg":
+                                    np.degrees(rvec).tolist(), "translation_mm": np.asarray(tvec).tolist()}  # fmt: skip
+        return doc
+
     def station_shift(self, station: str, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """(rotation, translation) applied to the station's measurements after the change point."""
         if self.shift is None or station != self.shift[0] or t_s <= self.shift[1]:

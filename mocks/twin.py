@@ -1,15 +1,17 @@
 """The digital twin: the "true" robot, its tracker stations and an AT901-like tracker.
 
 One deterministic world for the whole project: the true chain is the nominal one plus hidden deviations
-(any parameter of the complete model), the true reference points and station placements differ from
-the nominal ones, optional hidden non-geometric effects (`mocks.effects`) act on the real joint angles,
+(any parameter of the complete model; by default the paper's Table 8 for the KR-270 and, for any other robot, every
+irreducible parameter drawn from the seed, `drawn_deviations`), the true reference points and station placements
+differ from the nominal ones, optional hidden non-geometric effects (`mocks.effects`) act on the real joint angles,
 the arm's size or a station, and every measurement's noise is a pure function of (seed, identity of
 the step), so a campaign resumed after a crash sees exactly the numbers an uninterrupted one sees.
 
 The twin is a small stateful world: `move_to` tells it where the robot was commanded (the direction each
 joint last moved in matters for backlash), `measure` takes the time since the campaign start (thermal
 drift: every length grows, tool included, about the pivot `thermal_pivot`; station shift).
-`simulate_campaign` is the table a campaign of given poses would record on it, in the campaign order.
+`simulate_campaign` is the table a campaign of given poses would record on it, in the campaign order; `Twin.truth`
+is what it really is, for `simulate --truth` and `run --sim --truth`.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, Station
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
+from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import complete_params, irreducible_params, param_by_name
 from trackcal.calib.model.rigid import exp_so3
@@ -46,11 +49,29 @@ def stable_seed(seed: int, key: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), int.from_bytes(digest, "little")])
 
 
+# Every other robot's hidden truth: each irreducible parameter's deviation drawn from N(0, sigma), seeded. The
+# magnitudes are those of an uncalibrated industrial robot: its absolute positioning error is about 1 mm while its
+# repeatability is far smaller (ISO 9283 RP on the data sheets: KR 270 0.06 mm, UR10 0.1 mm, IRB 120 0.01 mm), i.e.
+# a few tenths of a millimetre per link and a few hundredths of a degree per joint; the paper's Table 8 (above) has
+# an RMS of 0.33 mm over its 7 lengths and of 0.016 deg over its 11 angles, the same range.
+DEVIATION_SIGMA_MM = 0.3
+DEVIATION_SIGMA_DEG = 0.02
+
+
+def drawn_deviations(chain: Chain, seed: int) -> dict[str, float]:
+    """The deviations (mm, deg) of every irreducible parameter of `chain`, drawn from N(0, DEVIATION_SIGMA_MM) for
+    lengths and N(0, DEVIATION_SIGMA_DEG) for angles; a pure function of (seed, chain name)."""
+    rng = stable_seed(seed, f"twin/deviations/{chain.name}")
+    return {p.name: float(rng.normal(0.0, DEVIATION_SIGMA_MM if p.is_length else DEVIATION_SIGMA_DEG))
+            for p in irreducible_params(chain)[0]}  # fmt: skip
+
+
 @dataclass
 class Twin:
     cell: Cell
     seed: int = 0
-    deviations: dict[str, float] | None = None  # name -> mm | deg; default PAPER_TABLE8 for the KR-270
+    deviations: dict[str, float] | None = None  # name -> mm | deg; default PAPER_TABLE8 for the KR-270, else drawn
+    # (drawn_deviations); {} for the nominal robot
     noise: TrackerNoise | None = None  # None: the cell's instrument (calib.model.instruments; default the AT901)
     point_offset_mm: float = 0.5  # std of the true points around the tool drawing
     station_error_mm: float = 20.0  # std of the true station positions around the cell's nominal ones
@@ -65,7 +86,7 @@ class Twin:
         self.kin = Kinematics(chain, self.params)
         devs = self.deviations
         if devs is None:
-            devs = PAPER_TABLE8 if self.cell.chain.name == "kr270" else {}
+            devs = PAPER_TABLE8 if chain.name == "kr270" else drawn_deviations(chain, self.seed)
         self.true_dev = np.zeros(len(self.params))
         for name, v in devs.items():
             p = param_by_name(chain, name)
@@ -131,6 +152,58 @@ class Twin:
             self.move_to(q)
             out.append(self.exact(q, pt, st, t))
         return np.array(out)
+
+    # ------------------------------------------------------------------ the truth
+    def test_pose_points(self) -> dict[str, dict[str, np.ndarray]] | None:
+        """{station: {point: true reflector position}} at the cell's test pose in each station's frame, at the
+        neutral context the models' test-pose figure has (no approach history, the campaign's start); None
+        without a test pose."""
+        if self.cell.test_pose is None:
+            return None
+        saved = self.approach
+        self.approach = np.zeros(self.cell.chain.dof)
+        q = np.degrees(self.cell.test_pose)
+        try:
+            return {sid: {pid: self.exact(q, pid, sid) for pid in sorted(self.true_points)}
+                    for sid in sorted(self.true_stations)}  # fmt: skip
+        finally:
+            self.approach = saved
+
+    def truth(self) -> dict:
+        """What the twin really is, in boundary units (mm, deg), laid out as model.json lays out a model: the
+        parameter deviations (the irreducible set and any other deviating parameter), the stations (station <-
+        base), the reference points (last joint frame), the hidden effects and the true reflector positions and
+        their centroid at the cell's test pose in each station's frame."""
+        kept = set(irreducible_params(self.cell.chain)[0])
+        pars = {}
+        for p, v in zip(self.params, self.true_dev, strict=True):
+            if p in kept or v != 0.0:
+                pars[p.name] = {"value": float(v) if p.is_length else float(np.degrees(v)),
+                                "unit": "mm" if p.is_length else "deg",
+                                "nominal": float(self.cell.chain.joints[p.joint].translation[p.axis])
+                                if p.kind == "p" else 0.0}  # fmt: skip
+        if self.deviations is not None:
+            source = "given"
+        elif self.cell.chain.name == "kr270":
+            source = "paper Table 8"
+        else:
+            source = (f"drawn: N(0, {DEVIATION_SIGMA_MM} mm) per length, N(0, {DEVIATION_SIGMA_DEG} deg) per angle, "
+                      f"seed {self.seed}")  # fmt: skip
+        at_test = self.test_pose_points()
+        test = None if at_test is None else {
+            "joints_deg": np.degrees(self.cell.test_pose).tolist(),
+            "points_mm": {sid: {pid: x.tolist() for pid, x in pts.items()} for sid, pts in at_test.items()},
+            "centroid_mm": {sid: np.mean(list(pts.values()), axis=0).tolist() for sid, pts in at_test.items()},
+        }  # fmt: skip
+        return {
+            "format": "trackcal-twin-truth/1", "cell": self.cell.name, "robot": self.cell.chain.name,
+            "seed": int(self.seed), "deviations": source, "parameters": pars,
+            "stations": {sid: {"rotation": st.rotation.tolist(), "translation_mm": st.translation.tolist()}
+                         for sid, st in sorted(self.true_stations.items())},
+            "tool_points": {pid: {"xyz_mm": x.tolist()} for pid, x in sorted(self.true_points.items())},
+            "effects": {"magnitudes_mm": dict(sorted(self.effects.items())), "parameters": self.hidden.to_doc()},
+            "test_pose": test,
+        }  # fmt: skip
 
     # ------------------------------------------------------------------ hidden effects
     def _add_effect(self, name: str, magnitude_mm: float) -> None:

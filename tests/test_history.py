@@ -30,8 +30,7 @@ def calibrate(cell, params, noise_seed: int, dq2_shift_deg: float = 0.0, n_poses
     poses = np.degrees(random_poses(cell, n_poses, np.random.default_rng(noise_seed)))
     table = simulate_campaign(twin, poses)
     res = identify(cell.chain, table, dict(cell.tool_points), params, noise=TrackerNoise())
-    return identification_to_doc(res, {"test_pose_deg": np.degrees(cell.test_pose).tolist(),
-                                       "tcp_mm": cell.tcp.tolist()})  # as identify writes them
+    return identification_to_doc(res, test_pose=cell.test_pose)  # as identify writes it
 
 
 def change(a: dict, b: dict):
@@ -105,9 +104,10 @@ def test_history_command(kr270, kr270_params, tmp_path):
     assert doc["steps"][0]["changed"] and not doc["steps"][1]["changed"]
     assert doc["sentence"].startswith("recalibrate: the robot changed since 2026-04-01") and "dq2" in doc["sentence"]
     assert doc["sentence"] in done.stdout.replace("\n", " ") or doc["sentence"][:40] in done.stdout
-    # the TCP error at the test pose: 0.003 deg of dq2 moves it by about 0.1 mm, well beyond its interval
-    tcp = [c["tcp_error_mm"] for c in doc["calibrations"]]
-    assert abs(tcp[1] - tcp[0]) > doc["calibrations"][0]["tcp_ci95_mm"]
+    # the correction at the test pose: 0.003 deg of dq2 moves the TCP by about 0.1 mm, determined when beyond twice
+    # the two calibrations' combined 1-sigma 3-D uncertainty there (calib.test_pose; campaign/report/tcp.py)
+    a, b = doc["calibrations"][:2]
+    assert abs(b["tcp_correction_mm"] - a["tcp_correction_mm"]) > 2.0 * np.hypot(a["tcp_sigma_mm"], b["tcp_sigma_mm"])
     bad = subprocess.run([*TRACKCAL, "history", "a.json", "--dates", "yesterday"], cwd=tmp_path, capture_output=True,
                          text=True)  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--dates" in bad.stderr

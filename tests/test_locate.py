@@ -189,6 +189,9 @@ def test_a_station_of_the_same_name_is_replaced_and_another_name_added(session, 
         assert set(doc["stations"]) == set(m["stations"]) | {name}
         assert doc["stations"][name] != m["stations"].get(name)  # S1 replaced by the moved station
         assert doc["located"][name]["station_in_table"] == "G" and doc["located"][name]["n_points"] == 36
+        # the TCP figure at the test pose is in S1's frame: it goes with the replaced S1, stays beside a new station
+        assert m["test_pose"]["station"] == "S1"
+        assert doc.get("test_pose") == (None if name == "S1" else m["test_pose"])
     assert "station replaced" in capsys.readouterr().out.split("G2")[0]
 
 

@@ -27,7 +27,8 @@ from trackcal.campaign.cli.mock import mock_pid, running_mock
 README = ROOT / "README.md"
 NOT_RUN = "# not run by the README test:"
 # options whose value is a file or directory the command writes (checked to exist after the example)
-OUTPUT_OPTIONS = ("--out", "--json", "--csv", "--session", "--into", "--plots", "--write-hardware", "--krl-dir")
+OUTPUT_OPTIONS = ("--out", "--json", "--csv", "--session", "--into", "--plots", "--write-hardware", "--krl-dir",
+                  "--truth")
 IPA_DATA = Path(os.environ.get("TRACKCAL_IPA_DATA") or ROOT.parent / "shared" / "data" / "ipa-robot-accuracy")
 
 

@@ -27,12 +27,12 @@ from trackcal.calib.io.table import read_table
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import model_from_doc, predict_table
+from trackcal.calib.test_pose import tcp_rows
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.jobs.end_of_run import analyse_session
 from trackcal.campaign.jobs.plan import PlanOptions, plan
 from trackcal.campaign.report.html import HOLDOUT_TRUST
-from trackcal.campaign.report.tcp import tcp_rows
 from trackcal.mocks.cell import World
 from trackcal.mocks.effects import CAUSES
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -317,7 +317,7 @@ def check_report(kr270, analysis, tmp_path: Path) -> None:
         tcp = [forward(chain, m, q0, points, [station] * len(points)).mean(axis=0) for m in (geometric, model)]
         # backlash at the neutral context (no approach side) is nil: the direct kinematics of the two files
         direct = float(np.linalg.norm(tcp[1] - tcp[0])) if model["extension"]["cause"] == "backlash" else None
-        rows_ = tcp_rows(kr270, points, station)
+        rows_ = tcp_rows(kr270.test_pose, points, station)
         by_predict = [predict_table(model_from_doc(m), rows_).xyz.mean(axis=0) for m in (geometric, model)]
         predicted_diff = float(np.linalg.norm(by_predict[1] - by_predict[0]))
         if direct is not None:

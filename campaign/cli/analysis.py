@@ -54,6 +54,8 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
             "TCP error at the test pose when one parameter is left at nominal (section 7.3): "
             + ", ".join(f"{k} {v * 1000:.0f} µm" for k, v in sig)
         )
+    if "test_pose" in doc:
+        console.print(tcp_at_test_pose_line(doc["test_pose"]), markup=False, highlight=False, soft_wrap=True)
     for sid, s in doc["stations"].items():
         ci = s["ci95_translation_mm"]
         console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
@@ -62,6 +64,14 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
     console.print(f"weighting {doc['weighting']}; residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm per coordinate, "
                   f"{doc['fit_ratio']:.1f}x the noise floor {doc['noise_floor_mm'] * 1000:.1f} µm "
                   f"({doc['noise_floor_source']}): fit {doc['fit']}")  # fmt: skip
+
+
+def tcp_at_test_pose_line(tp: dict) -> str:
+    """model.json's `test_pose` in one line: the TCP there and its 1-sigma uncertainty (calib.test_pose)."""
+    x, y, z = tp["tcp_mm"]
+    return (f"TCP at the test pose: ({x:.3f}, {y:.3f}, {z:.3f}) mm in station {tp['station']}'s frame, "
+            f"±{tp['sigma_mm'] * 1000:.1f} µm (1σ 3-D, full covariance: robot, stations, points); the calibration "
+            f"moves it {tp['correction_mm'] * 1000:.0f} µm from the nominal robot's")
 
 
 def print_extension(ext: dict) -> None:
@@ -154,8 +164,9 @@ def cmd_locate(args) -> int:
 def cmd_simulate(args) -> int:
     _, _, table = simulate(SimulateOptions(cell=args.cell, out=args.out, poses=args.poses, seed=args.seed,
                                            repeat=args.repeat, noise_free=args.noise_free,
-                                           effects=parse_effects(args.effect)))  # fmt: skip
-    console.print(f"{len(table)} simulated measurements written to {args.out}")
+                                           effects=parse_effects(args.effect), truth=args.truth))  # fmt: skip
+    console.print(f"{len(table)} simulated measurements written to {args.out}"
+                  + (f"; the twin's truth to {args.truth}" if args.truth else ""))  # fmt: skip
     return 0
 
 

@@ -149,12 +149,15 @@ def cmd_run(args) -> int:
     plan_doc = read_json(args.plan, InputError)
     if args.hardware and (args.effect or args.sim_speed is not None):
         raise UsageError("--effect and --sim-speed are for --sim only (with hardware: `trackcal mock`)")
+    if args.hardware and args.truth:
+        raise UsageError("--truth is for --sim only: the twin's truth (a real robot's is what you measure)")
     effects = parse_effects(args.effect) if args.sim else {}
     if args.operator != "web" and (args.web_host or args.web_port is not None or args.web_linger):
         raise UsageError("--web-host, --web-port and --web-linger are for --operator web")
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
-    cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed)
+    cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed,
+                                                                                   args.truth)
     with operator_page(args) as page:
         with ConsoleProgress() as progress:
             store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page)

@@ -20,6 +20,8 @@ WEIGHTING_HELP = ("the radial/transverse noise model of the cell's tracker (cell
                   "calib/model/instruments.py), or i.i.d. least squares")
 TABLE_CELL_HELP = CELL_HELP + ", or a robot YAML/URDF alone (the reference points are then the table's)"
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
+TRUTH_HELP = ("JSON of the twin's truth to write: parameter deviations, stations, points, hidden effects, the true "
+              "reflector positions at the cell's test pose")
 
 
 def arg(*flags: str, **options) -> tuple[tuple[str, ...], dict]:
@@ -162,6 +164,7 @@ COMMANDS = [
                 arg("--noise-free", action="store_true", help="no tracker noise"),
                 arg("--effect", action="append", help=EFFECT_HELP + " (default: none)"),
                 arg("--out", required=True, help="measurement table to write"),
+                arg("--truth", help=TRUTH_HELP + " (default: not written)"),
             ]),
     Command("demo", "plan, simulated campaign, identification, diagnosis on the embedded defaults",
             "trackcal.campaign.cli.demo:cmd_demo", [
@@ -179,6 +182,7 @@ COMMANDS = [
         arg("--seed", type=seed, default=1, help="--sim: the twin's seed"),
         arg("--effect", action="append", help="--sim: " + EFFECT_HELP + " (default: none)"),
         arg("--sim-speed", type=float, help="--sim: simulated seconds per real second (default: flat out)"),
+        arg("--truth", help="--sim: " + TRUTH_HELP + " (default: not written)"),
         arg("--session", required=True, help="session directory to create"),
         arg("--no-analysis", action="store_true", help="skip identification, diagnosis and report at the end"),
         *OPERATOR_ARGS,

@@ -27,8 +27,9 @@ def cmd_history(args) -> int:
             moved = step is not None and name in step.names and bool(step.moved[step.names.index(name)])
             row.append(f"{p['value']:.4f} ± {p['ci95']:.4f}{' *' if moved else ''}")
         table.add_row(*row)
-    tcp = ["TCP error at the test pose (mm)"]
-    tcp += ["-" if c.tcp_error_mm is None else f"{c.tcp_error_mm:.3f} ± {c.tcp_ci95_mm:.3f}" for c in h.calibrations]
+    tcp = ["TCP at the test pose: correction (mm) ± 1σ 3-D"]
+    tcp += ["-" if c.tcp_sigma_mm is None else f"{c.tcp_correction_mm:.3f} ± {c.tcp_sigma_mm:.3f}"
+            for c in h.calibrations]  # fmt: skip
     table.add_row(*tcp)
     console.print(table)
     for note in h.notes:

@@ -32,6 +32,7 @@ from trackcal.campaign.engine.recording import Playback, Recorder
 from trackcal.campaign.engine.station_fit import StationFits
 from trackcal.campaign.engine.steps import Step, plan_steps
 from trackcal.campaign.errors import CampaignError, InputError
+from trackcal.campaign.jobs.simulate import write_truth
 from trackcal.campaign.session.session import (
     SessionFiles,
     SessionLog,
@@ -64,6 +65,7 @@ class SimOptions:
     seed: int = 1
     effects: dict[str, float] = field(default_factory=dict)
     speed: float | None = None
+    truth: str | None = None  # the twin's truth to write (campaign.jobs.simulate.write_truth); None: not written
 
 
 @dataclass(frozen=True)
@@ -213,6 +215,8 @@ def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | H
     extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
     store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
                                   extra=extra)  # fmt: skip
+    if cell.truth:  # the twin SimCell serves is a pure function of the cell, the seed and the effects
+        write_truth(cell.truth, campaign.cell, cell.seed, cell.effects)
     return store, run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
 
 

@@ -6,7 +6,8 @@ Each argument is a session folder (its model.json, dated by the campaign's first
 `--dates` or its file's modification time, said so). In time order: every identified parameter with its 95 %
 interval; between each calibration and the next, and between the first and the last, the test of
 `calib.history` (one F test for the whole robot at 5 %, the parameters that moved beyond their Bonferroni-corrected
-interval); the TCP error each model predicts at the cell's test pose, with its 95 % interval; one sentence:
+interval); how far each model moves the TCP at the cell's test pose from the nominal robot's, with the 1-sigma 3-D
+uncertainty of the model's TCP there (model.json's test_pose, calib.test_pose); one sentence:
 "recalibrate: ... changed since <date>" or "no significant change since <date>".
 """
 
@@ -17,11 +18,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from trackcal.calib.history import Change, compare_estimates
+from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
-from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model, load_model
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.session.session import SessionFiles
@@ -38,8 +38,8 @@ class Calibration:
     values: np.ndarray  # boundary units (mm, deg)
     cov: np.ndarray
     dof: int
-    tcp_error_mm: float | None = None
-    tcp_ci95_mm: float | None = None
+    tcp_correction_mm: float | None = None  # model.json's test_pose (calib.test_pose)
+    tcp_sigma_mm: float | None = None  # 1-sigma 3-D
 
 
 def _utc(t: float) -> datetime:
@@ -72,23 +72,16 @@ def _date_of(path: Path) -> tuple[Path, datetime, str]:
     return path, _utc(path.stat().st_mtime), "file modified"
 
 
-def _tcp_error(model: Model, values_cov: np.ndarray) -> tuple[float | None, float | None]:
-    """|TCP(model) - TCP(nominal)| at the model's test pose (mm) and its 95 % half-width (linearised)."""
-    doc = model.doc
-    if doc.get("test_pose_deg") is None or doc.get("tcp_mm") is None:
+def _tcp_figure(model: Model, path: str | Path) -> tuple[float | None, float | None]:
+    """(how far the calibration moves the TCP at the test pose from the nominal robot's, mm; the model's 1-sigma 3-D
+    uncertainty of the TCP there, mm): model.json's `test_pose` (calib.test_pose, the figure identify prints and the
+    report shows); (None, None) for a model without one (no test pose, or written before it was recorded)."""
+    tp = model.doc.get("test_pose")
+    if tp is None:
         return None, None
-    q0 = np.radians(np.asarray(doc["test_pose_deg"], float))[None]
-    tcp = np.asarray(doc["tcp_mm"], float)
-    kin = Kinematics(model.chain, model.params)
-    jac = kin.jacobian(q0, tcp, model.dev)
-    d = jac.p[0] - kin.points(q0, tcp)[0]
-    err = float(np.linalg.norm(d))
-    # the Jacobian is in internal units (mm, rad), the covariance in boundary units (mm, deg)
-    scale = np.array([1.0 if p.kind == "p" else np.pi / 180.0 for p in model.params])
-    j = jac.d_params[0] * scale[None, :]
-    u = d / err if err > 0 else np.zeros(3)
-    sd = float(np.sqrt(u @ j @ values_cov @ j.T @ u))
-    return err, float(stats.t.ppf(0.975, max(1, int(doc.get("dof", 1))))) * sd
+    tp = fields.mapping(tp, f"{path}: test_pose", InputError)
+    return (fields.json_number(tp.get("correction_mm"), f"{path}: test_pose.correction_mm", InputError),
+            fields.json_number(tp.get("sigma_mm"), f"{path}: test_pose.sigma_mm", InputError))  # fmt: skip
 
 
 def model_estimate(doc: dict, path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray, int]:
@@ -107,7 +100,7 @@ def load_calibration(label: str, date: datetime | None = None) -> Calibration:
     model = load_model(model_path)
     names, values, cov, dof = model_estimate(model.doc, model_path)
     cal = Calibration(label, date or found, "given" if date else source, model, names, values, cov, dof)
-    cal.tcp_error_mm, cal.tcp_ci95_mm = _tcp_error(model, cov)
+    cal.tcp_correction_mm, cal.tcp_sigma_mm = _tcp_figure(model, model_path)
     return cal
 
 
@@ -195,7 +188,8 @@ def _change_doc(c: Change) -> dict:
 def history_doc(h: History) -> dict:
     return {
         "calibrations": [{"source": c.label, "date": c.date.isoformat(), "date_source": c.date_source,
-                          "robot": c.model.chain.name, "tcp_error_mm": c.tcp_error_mm, "tcp_ci95_mm": c.tcp_ci95_mm,
+                          "robot": c.model.chain.name, "tcp_correction_mm": c.tcp_correction_mm,
+                          "tcp_sigma_mm": c.tcp_sigma_mm,
                           "parameters": {n: {"value": float(v), "ci95": c.model.doc["parameters"][n]["ci95"]}
                                          for n, v in zip(c.names, c.values, strict=True)}}
                          for c in h.calibrations],

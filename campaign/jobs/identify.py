@@ -266,14 +266,14 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
         extra["tcp_mm"] = cell.tcp.tolist()
         extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
-    return identification_to_doc(res, extra, shift)
+    return identification_to_doc(res, extra, shift, cell.test_pose)
 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
     keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "tracker", "fit", "fit_ratio",
             "residual_rms_mm", "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm",
-            "poorly_determined")
+            "poorly_determined", "test_pose")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {

@@ -133,6 +133,8 @@ def locate(opts: LocateOptions) -> Location:
     doc = copy.deepcopy(model.doc)
     replaced = name in doc["stations"]
     doc["stations"][name] = station_doc(fit, name)
+    if replaced and (doc.get("test_pose") or {}).get("station") == name:
+        del doc["test_pose"]  # its TCP was in the frame of the station now replaced, its figure from the old fit
     quality = fit_quality(sub, fit)
     points = [PointFit(int(i) + 2, table.pose[i], table.point[i], r) for i, r in zip(used, fit.residuals, strict=True)]
     located_poses = list(dict.fromkeys(sub.pose))

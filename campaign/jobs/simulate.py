@@ -4,12 +4,14 @@ hidden effects a simulated campaign is given, and the twin's true parameters."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.doe.design import DesignError
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.io.files import write_json
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.errors import InputError, OptionError
@@ -63,6 +65,7 @@ class SimulateOptions:
     repeat: int = 1
     noise_free: bool = False
     effects: dict[str, float] = field(default_factory=dict)  # cause -> magnitude (mm), `parse_effects`
+    truth: str | None = None  # the twin's truth (JSON, `write_truth`) to write; None: not written
 
 
 def simulate(opts: SimulateOptions) -> tuple[Cell, Twin, MeasurementTable]:
@@ -76,14 +79,20 @@ def simulate(opts: SimulateOptions) -> tuple[Cell, Twin, MeasurementTable]:
     except DesignError as exc:
         raise InputError(str(exc)) from None
     twin = Twin(cell, seed=opts.seed, effects=opts.effects)
+    if opts.truth:
+        write_json(opts.truth, twin.truth(), InputError)
     table = simulate_campaign(twin, poses, repeat=opts.repeat, noise_free=opts.noise_free)
     if opts.out:
         write_table(table, opts.out)
     return cell, twin, table
 
 
+def write_truth(path: str | Path, cell: Cell, seed: int, effects: dict[str, float]) -> None:
+    """The truth of the twin of `cell`, `seed` and hidden `effects` (mocks.twin.Twin.truth: what `simulate --truth`
+    and `run --sim --truth` write), atomically; a file that cannot be written is an InputError."""
+    write_json(path, Twin(cell, seed=seed, effects=effects).truth(), InputError)
+
+
 def twin_truth(cell: Cell, seed: int) -> dict[str, float]:
-    """The twin's true parameter deviations in boundary units (mm, deg)."""
-    twin = Twin(cell, seed=seed)
-    return {p.name: (v if p.is_length else float(np.degrees(v))) for p, v in zip(twin.params, twin.true_dev,
-                                                                                strict=True)}  # fmt: skip
+    """The twin's true parameter deviations in boundary units (mm, deg): those of its truth file."""
+    return {name: p["value"] for name, p in Twin(cell, seed=seed).truth()["parameters"].items()}
