@@ -13,7 +13,7 @@
  "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
  nominal because of them (only then),
  "test_pose": {"joints_deg", "station", "tcp_mm", "sigma_mm", "sigma_xyz_mm", "correction_mm", "note"}: the TCP at
- the cell's test pose and its 1-sigma 3-D uncertainty from the full covariance (calib.test_pose; with a test pose
+ the cell's test pose and its 1-sigma 3-D uncertainty from the full covariance (calib.tcp_figure; with a test pose
  only), ...}
 A model written before "converged" and "message" were recorded still loads (`Model.converged` is then None).
 """
@@ -38,7 +38,7 @@ from trackcal.calib.io.files import read_json
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from trackcal.calib.model.params import Param, param_by_name
-from trackcal.calib.test_pose import figure_at_test_pose
+from trackcal.calib.tcp_figure import figure_at_test_pose
 
 FORMAT = "trackcal-model/1"
 
@@ -90,7 +90,7 @@ def fitted_causes(ext: Extension, shift: dict | None = None) -> list[str]:
 
 def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None,
                           test_pose: np.ndarray | None = None) -> dict:  # fmt: skip
-    """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.test_pose)."""
+    """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.tcp_figure)."""
     ci = res.param_ci95()
     unit = np.array([1.0 if p.is_length else np.degrees(1.0) for p in res.params])
     cov = res.param_cov() * np.outer(unit, unit)

@@ -105,7 +105,7 @@ def test_history_command(kr270, kr270_params, tmp_path):
     assert doc["sentence"].startswith("recalibrate: the robot changed since 2026-04-01") and "dq2" in doc["sentence"]
     assert doc["sentence"] in done.stdout.replace("\n", " ") or doc["sentence"][:40] in done.stdout
     # the correction at the test pose: 0.003 deg of dq2 moves the TCP by about 0.1 mm, determined when beyond twice
-    # the two calibrations' combined 1-sigma 3-D uncertainty there (calib.test_pose; campaign/report/tcp.py)
+    # the two calibrations' combined 1-sigma 3-D uncertainty there (calib.tcp_figure; campaign/report/tcp.py)
     a, b = doc["calibrations"][:2]
     assert abs(b["tcp_correction_mm"] - a["tcp_correction_mm"]) > 2.0 * np.hypot(a["tcp_sigma_mm"], b["tcp_sigma_mm"])
     bad = subprocess.run([*TRACKCAL, "history", "a.json", "--dates", "yesterday"], cwd=tmp_path, capture_output=True,

@@ -17,9 +17,9 @@ from trackcal.calib.identify.solver import identify
 from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.tcp_figure import tcp_sigma
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.plan import EQUATIONS_PER_UNKNOWN, PlanOptions, build_design, plan_size
-from trackcal.campaign.report.tcp import tcp_sigma
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 
@@ -63,7 +63,7 @@ def test_rho0_is_the_prediction_of_the_reports_tcp_sigma(kr270, tracker):
         q = random_feasible_poses(design, 8, np.random.default_rng(seed))
         table = noise_free_table(kr270, design, q, 2, seed)
         res = identify(kr270.chain, table, kr270.tool_points, campaign_params(kr270.chain), noise)
-        stated = tcp_sigma(kr270, res, table.station[0], 1.0 if tracker else 0.01**2)
+        stated = tcp_sigma(res, kr270.test_pose, table.station[0], 1.0 if tracker else 0.01**2)
         assert design.rho0(q, 2) == pytest.approx(stated, rel=0.01)
 
 
@@ -130,7 +130,7 @@ def truth_and_model(cell, poses_deg, seed, params):
     tool = np.array([res.points[p] for p in res.point_ids])
     model = res.stations[station].apply(Kinematics(cell.chain, params).points(
         np.repeat(cell.test_pose[None], len(tool), axis=0), tool, res.dev).mean(axis=0))
-    return model - truth, tcp_sigma(cell, res, station)
+    return model - truth, tcp_sigma(res, cell.test_pose, station)
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,7 @@ from trackcal.calib.io.table import read_table
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import model_from_doc, predict_table
-from trackcal.calib.test_pose import tcp_rows
+from trackcal.calib.tcp_figure import tcp_rows
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.jobs.end_of_run import analyse_session

@@ -1,5 +1,5 @@
 """A twin that deviates for every robot, the truth it writes (`simulate --truth`, `run --sim --truth`), and the one
-figure at the test pose (calib/test_pose.py) checked against that truth on a UR10 campaign: identify recovers the
+figure at the test pose (calib/tcp_figure.py) checked against that truth on a UR10 campaign: identify recovers the
 true deviations within their intervals and compensation brings the true robot to the intended TCP."""
 
 import json
@@ -133,7 +133,7 @@ def test_a_ur10_twin_campaign_recovers_the_truth_and_compensation_pays_off(tmp_p
 
 def test_one_figure_at_the_test_pose_in_model_summary_report_and_history(tmp_path, capsys):
     """model.json's test_pose is the identify summary's, the line identify prints, the report's figure and history's:
-    one computation (calib.test_pose), 1-sigma everywhere."""
+    one computation (calib.tcp_figure), 1-sigma everywhere."""
     _, _, outcome, _ = _ur10_campaign(tmp_path, 1)
     summary = tmp_path / "summary.json"
     capsys.readouterr()

@@ -67,7 +67,7 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
 
 
 def tcp_at_test_pose_line(tp: dict) -> str:
-    """model.json's `test_pose` in one line: the TCP there and its 1-sigma uncertainty (calib.test_pose)."""
+    """model.json's `test_pose` in one line: the TCP there and its 1-sigma uncertainty (calib.tcp_figure)."""
     x, y, z = tp["tcp_mm"]
     return (f"TCP at the test pose: ({x:.3f}, {y:.3f}, {z:.3f}) mm in station {tp['station']}'s frame, "
             f"±{tp['sigma_mm'] * 1000:.1f} µm (1σ 3-D, full covariance: robot, stations, points); the calibration "

@@ -7,7 +7,7 @@ Each argument is a session folder (its model.json, dated by the campaign's first
 interval; between each calibration and the next, and between the first and the last, the test of
 `calib.history` (one F test for the whole robot at 5 %, the parameters that moved beyond their Bonferroni-corrected
 interval); how far each model moves the TCP at the cell's test pose from the nominal robot's, with the 1-sigma 3-D
-uncertainty of the model's TCP there (model.json's test_pose, calib.test_pose); one sentence:
+uncertainty of the model's TCP there (model.json's test_pose, calib.tcp_figure); one sentence:
 "recalibrate: ... changed since <date>" or "no significant change since <date>".
 """
 
@@ -38,7 +38,7 @@ class Calibration:
     values: np.ndarray  # boundary units (mm, deg)
     cov: np.ndarray
     dof: int
-    tcp_correction_mm: float | None = None  # model.json's test_pose (calib.test_pose)
+    tcp_correction_mm: float | None = None  # model.json's test_pose (calib.tcp_figure)
     tcp_sigma_mm: float | None = None  # 1-sigma 3-D
 
 
@@ -74,7 +74,7 @@ def _date_of(path: Path) -> tuple[Path, datetime, str]:
 
 def _tcp_figure(model: Model, path: str | Path) -> tuple[float | None, float | None]:
     """(how far the calibration moves the TCP at the test pose from the nominal robot's, mm; the model's 1-sigma 3-D
-    uncertainty of the TCP there, mm): model.json's `test_pose` (calib.test_pose, the figure identify prints and the
+    uncertainty of the TCP there, mm): model.json's `test_pose` (calib.tcp_figure, the figure identify prints and the
     report shows); (None, None) for a model without one (no test pose, or written before it was recorded)."""
     tp = model.doc.get("test_pose")
     if tp is None:

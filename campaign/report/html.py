@@ -37,7 +37,7 @@ from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model_file import model_from_doc, predict_table
-from trackcal.calib.test_pose import figure_at_test_pose
+from trackcal.calib.tcp_figure import figure_at_test_pose
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.diagnosis_plots import plots
@@ -602,7 +602,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
     d = analysis.diagnosis if verdict_doc else None
     tcp = tcp_difference(cell, d.geometric, d.extended) if d is not None else None
     planned = list(plan_doc.get("params") or []) if plan_doc else None
-    model_sigma = (model_doc.get("test_pose") or {}).get("sigma_mm")  # calib.test_pose, as identify wrote it
+    model_sigma = (model_doc.get("test_pose") or {}).get("sigma_mm")  # calib.tcp_figure, as identify wrote it
     if model_sigma is None and analysis.diagnosis is not None and cell.test_pose is not None:  # an older model
         fit = analysis.diagnosis.extended or analysis.diagnosis.geometric
         model_sigma = figure_at_test_pose(fit, cell.test_pose).sigma_mm

@@ -1,7 +1,7 @@
 """How far the extended model's TCP at the cell's test pose is from the geometric one's, and whether this campaign
 determines that figure at all.
 
-The TCP and its uncertainty are those of calib.test_pose (the reference points' centroid as each model places it,
+The TCP and its uncertainty are those of calib.tcp_figure (the reference points' centroid as each model places it,
 in the frame of the table's first station; each model's own covariance of the robot parameters, that station and
 the points, propagated to the centroid), each at the noise the extended model leaves (its variance factor: the
 geometric model's own one also holds the misfit the cause explains, which is what the difference measures, not
@@ -21,7 +21,7 @@ import numpy as np
 from trackcal.calib.identify.solver import Identification
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model_file import model_from_doc, predict_table
-from trackcal.calib.test_pose import identified_tcp, tcp_rows, tcp_sigma
+from trackcal.calib.tcp_figure import identified_tcp, tcp_rows, tcp_sigma
 
 # a difference is determined when it exceeds this many combined 1-sigma (3-D) uncertainties: about the 95 %
 # one-sided bound of the length of a difference that is noise alone
