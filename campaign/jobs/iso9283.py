@@ -112,15 +112,17 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     if vap_cycles == 1 or vap_cycles < 0:
         raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
-    plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
-    q_deg = np.degrees(plan.q_rad)
-    q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
-    compensated_with = None
-    if opts.model:
+    model = None
+    if opts.model:  # checked before the cube is placed
         model, checked = trusted_model(opts.model, opts.accept_edited)
         checked += usable_model(model, opts.model, opts.accept_poor)
         if warnings is not None:
             warnings += checked
+    plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
+    q_deg = np.degrees(plan.q_rad)
+    q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
+    compensated_with = None
+    if model is not None:
         if model.chain.dof != cell.chain.dof:
             raise InputError(f"{opts.model}: a model of {model.chain.dof} joints for a cell of {cell.chain.dof}")
         bound = (cell.max_correction_mm, cell.max_correction_deg)
