@@ -300,6 +300,7 @@ COMMANDS = [
                     help="session folders (dated by their campaign) or model.json files (dated by --dates, else by "
                          "the file's modification time)"),
                 arg("--dates", help="comma-separated ISO dates, one per calibration (default: see above)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg("--json", help="history JSON to write (default: none, the console only)"),
             ]),
     Command("ipa-ur10", "IPA UR10 + Leica T-Mac series (Landgraf et al., CASE 2021)",
@@ -354,5 +355,6 @@ COMMANDS = [
                 arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
                 arg("--json", help="figures JSON to write (default: none, the console only)"),
                 arg("--report", help="HTML report to write, self-contained (default: none, the console only)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ], group="iso9283"),
 ]  # fmt: skip

@@ -66,7 +66,11 @@ def _mdeg(fig) -> str:
 
 
 def cmd_compare(args) -> int:
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
+    warnings: list[str] = []
+    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
+                                               accept_edited=args.accept_edited), warnings)  # fmt: skip
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
     table.add_column("pose")
     for t in tests:

@@ -47,9 +47,14 @@ def read_targets(path: str, dof: int) -> tuple[np.ndarray, list[str] | None]:
     return q, others.get("name")
 
 
+def row_label(i: int, names: list[str] | None) -> str:
+    """Row i (0-based) of the CSV (header = row 1) and the target's name when it has one."""
+    return f"row {i + 2}" + (f" ({names[i]})" if names and names[i] else "")
+
+
 def row_labels(path: str, names: list[str] | None, n: int) -> list[str]:
-    """Labels for messages: the CSV row (header = row 1) and the target's name when it has one."""
-    return [f"{path}: row {i + 2}" + (f" ({names[i]})" if names and names[i] else "") for i in range(n)]
+    """Labels for messages: the file, the CSV row and the target's name when it has one."""
+    return [f"{path}: {row_label(i, names)}" for i in range(n)]
 
 
 def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report, rounded_mm: np.ndarray) -> None:
@@ -208,7 +213,7 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
     out = Compensation(report, labels, rounded_mm, np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)),
                        doc=report.to_doc(), model_warnings=model_warnings)  # fmt: skip
     if programs and opts.strict and not ok.all():
-        failed = [f"{labels[i].split(': ', 1)[1]}: {report.failures[i]}" for i in np.flatnonzero(~ok)]
+        failed = [f"{row_label(i, names)}: {report.failures[i]}" for i in np.flatnonzero(~ok)]
         raise OptionError("{0}: {n} target(s) could not be compensated ({first}{more}): no program written ({out} has "
                           "each row's reason)", "strict", n=len(failed), first=failed[0],
                           more=" ..." if len(failed) > 1 else "", out=opts.out)  # fmt: skip

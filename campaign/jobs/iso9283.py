@@ -52,7 +52,7 @@ from trackcal.calib.iso9283 import (
 )
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
-from trackcal.calib.model_file import Model, load_model
+from trackcal.calib.model_file import Model
 from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
@@ -317,6 +317,7 @@ class CompareOptions:
     model: str
     json: str | None = None
     noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
+    accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -334,10 +335,12 @@ def drifts(tests: list[IsoFigures]) -> list[dict]:
     return out
 
 
-def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
+def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[list[IsoFigures], list[dict]]:
     """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
-    same targets."""
-    model = load_model(opts.model)
+    same targets; the model checked first (campaign.jobs.trusted, its warning lines added to `warnings`)."""
+    model, checked = trusted_model(opts.model, opts.accept_edited)
+    if warnings is not None:
+        warnings += checked
     tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:
