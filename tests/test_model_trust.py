@@ -307,7 +307,7 @@ def test_the_geometric_model_of_a_backlash_campaign_is_marked_unusable(tmp_path,
     out = " ".join(capfd.readouterr().out.split())
     geo = json.loads((s / "model-geometric.json").read_text())
     assert geo["poorly_determined"] and geo["usable"] is False
-    assert "model-geometric.json is UNUSABLE: " in out.replace(str(s) + "/", "")  # the console folds long lines
+    assert "model-geometric.jsonisUNUSABLE:" in re.sub(r"\s", "", out)  # the console folds long lines
     page = (s / "report" / "report.html").read_text()
     assert "UNUSABLE: The purely geometric model" in page
     write_targets(tmp_path / "t.csv", [("weld 1", WELD)])
