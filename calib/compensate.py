@@ -33,6 +33,7 @@ import numpy as np
 from trackcal.calib.diagnose.extensions import build_parts
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.cell import MAX_CORRECTION_DEG, MAX_CORRECTION_MM
 from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
@@ -166,6 +167,25 @@ def _limit_violations(q: np.ndarray, limits: np.ndarray, joint_names: list[str])
     return out
 
 
+def _bound_corrections(failures: list[str], dq: np.ndarray, tcp_mm: np.ndarray, bound: tuple[float, float],
+                       joint_names: list[str]) -> None:  # fmt: skip
+    """Mark (in `failures`) every target not yet failed whose joint correction dq (N, n) rad or TCP correction
+    tcp_mm (N,) exceeds `bound` (mm, deg)."""
+    mm, deg = bound
+    for i in range(len(failures)):
+        if failures[i]:
+            continue
+        d = np.degrees(np.abs(dq[i]))
+        j = int(np.argmax(d))
+        if d[j] > deg:
+            failures[i] = (f"its correction of {joint_names[j]}, {np.degrees(dq[i, j]):+.4f} deg, exceeds the cell's "
+                           f"max_correction of {deg:g} deg: not written (a singular pose or a model far from the "
+                           "robot: check it)")  # fmt: skip
+        elif tcp_mm[i] > mm:
+            failures[i] = (f"the model moves its TCP by {tcp_mm[i]:.3f} mm, more than the cell's max_correction of "
+                           f"{mm:g} mm: not written (a model far from the robot: check it)")  # fmt: skip
+
+
 def pose_error(
     model: Model, q_cmd: np.ndarray, q_nominal: np.ndarray, tcp_mm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -189,14 +209,17 @@ def compensate(
     lever_mm: float = 100.0,
     tol_mm: float = 1e-10,
     max_iter: int = 20,
+    max_correction: tuple[float, float] = (MAX_CORRECTION_MM, MAX_CORRECTION_DEG),
 ) -> tuple[np.ndarray, CompensationReport]:
     """Joint targets (N, n) rad with which `model` reaches the pose the nominal model reaches at q_nominal.
 
     Converged when each of the three tool points is within `tol_mm` of its intended position. Each target is
     compensated on its own: one outside the joint limits, one whose compensated angles leave them, and one that
     does not converge (a singular pose such as the KUKA HOME with A5 = 0, a chain that cannot reach the pose) keeps
-    its nominal angles and its reason in `report.failures`; the others are compensated. CompensationError only for
-    a request that cannot be run at all (shapes, TCP, lever)."""
+    its nominal angles and its reason in `report.failures`; the others are compensated. So does one whose correction
+    exceeds `max_correction` (mm of TCP displacement the model asks to correct, deg of any joint's correction; the
+    cell's `max_correction`, calib.model.cell): it is never written. CompensationError only for a request that cannot
+    be run at all (shapes, TCP, lever)."""
     chain = model.chain
     n = chain.dof
     q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
@@ -230,11 +253,12 @@ def compensate(
     for i, v in enumerate(_limit_violations(q, limits, joint_names)):
         if v and not failures[i]:
             failures[i] = f"the compensated target leaves the joint limits: {v}"
+    pos_err0, ori_err0 = pose_error(model, q0, q0, tcp)
+    _bound_corrections(failures, q - q0, pos_err0, max_correction, joint_names)
     failed = np.array([bool(f) for f in failures])
     q[failed] = q0[failed]
 
     pos_err, ori_err = pose_error(model, q, q0, tcp)
-    pos_err0, ori_err0 = pose_error(model, q0, q0, tcp)
     qt, dqt = _true_joints(offsets, q)
     d_q = kin.jacobian(np.repeat(qt, 3, axis=0), tool_rows, model.dev).d_q.reshape(n_rows, 9, n)
     jq = np.einsum("nij,njk->nik", d_q, dqt)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import pkgutil
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -30,12 +31,28 @@ class ProgramWriter:
     """The program of joint moves a family's controller runs (`trackcal compensate --program`), as text: files are
     written by the caller (atomically). `language` names it to people; `check_name(name)` returns the name or raises
     ProgramError; `labels(names, n)` are the rows' names in the program (from the targets' own names, or None);
-    `texts(name, q_deg, speed_pct, labels)` -> {file name: bytes}, q_deg (N, 6) degrees, speed_pct 1..100."""
+    `texts(name, q_deg, speed_pct, labels, notes=None)` -> {file name: bytes}, q_deg (N, 6) degrees, speed_pct 1..100;
+    `notes[i]`, when not None, is a comment the program carries above row i (e.g. why that target is its nominal one,
+    not compensated): every row is a move of the program, none is left out."""
 
     language: str
     check_name: Callable[[str], str]
     labels: Callable[[list[str] | None, int], list[str]]
     texts: Callable[..., dict[str, bytes]]
+
+
+def comment_text(text: str) -> str:
+    """`text` for a program's comment line: printable ASCII (others -> _), one line."""
+    return re.sub(r"[^ -~]", "_", str(text))
+
+
+def program_notes(notes: list[str | None] | None, n: int, error: type[ProgramError]) -> list[str | None]:
+    """One note (or None) per row of the program, each made a comment's text."""
+    if notes is None:
+        return [None] * n
+    if len(notes) != n:
+        raise error(f"one note (or none) per target expected, got {len(notes)} for {n}")
+    return [None if t is None else comment_text(t) for t in notes]
 
 
 def program_targets(q_deg, speed_pct, controller: str, axes: int, angles: str, speed: str,

@@ -128,6 +128,12 @@ def good(tmp_path_factory, kr270):
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["identify", str(d / "table.csv"), "--cell", str(d / "cell.yaml"), "--out", str(d / "m.json")]) == 0
     (d / "model.json").write_text((d / "m.json").read_text())  # it names its cell, kr270: report gets --cell
+    # 8 poses leave parameters poorly determined, a model compensate refuses (calib.model_trust); 30 determine them
+    _, table30 = kr270_campaign(kr270, seed=5, n_poses=30)
+    write_table(table30, d / "table30.csv")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["identify", str(d / "table30.csv"), "--cell", "kr270", "--out", str(d / "usable.json")]) == 0
+    assert json.loads((d / "usable.json").read_text())["usable"] is True
     verdict = {"cause": "none", "candidates": [], "geometric": {"rms_mm": 0.01}, "noise_floor_mm": 0.01,
                "holdout": {"rms_geometric_mm": 0.012, "rms_extended_mm": None, "rms_extended_why": "none"}}  # fmt: skip
     (d / "verdict.json").write_text(json.dumps(verdict))
@@ -152,8 +158,8 @@ CASES = {
     "run": ("run --cell {cell.yaml} --plan {plan.json} --sim --no-analysis --session {out}/s", "plan.json cell.yaml"),
     "run-hardware": ("run --cell {cell.yaml} --plan {plan.json} --hardware {hardware.yaml} --session {out}/s",
                      "hardware.yaml"),
-    "compensate": ("compensate {targets.csv} --model {model.json} --out {out}/c.csv --krl PROG",
-                   "targets.csv model.json"),
+    "compensate": ("compensate {targets.csv} --model {usable.json} --out {out}/c.csv --krl PROG",
+                   "targets.csv usable.json"),
     "report": ("report --table {table.csv} --model {model.json} --plan {measured-plan.json} --verdict {verdict.json} "
                "--cell {cell.yaml} --out {out}/r", "table.csv model.json measured-plan.json verdict.json"),
     "import": ("import ipa-ur10 {ipa.csv} --out {out}/t.csv", "ipa.csv"),

@@ -59,7 +59,10 @@ def test_compensate_writes_urscript_for_the_ur_cell_and_krl_for_the_kr270(tmp_pa
         targets.write_text(f"name,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\nA,{q0}\n")
         d = tmp_path / cell
         d.mkdir()
-        cli("compensate", str(targets), "--model", f"{cell}.json", "--out", str(d / "c.csv"), "--program", "P")
+        # 12 random poses leave some of the KR-270's 18 parameters poorly determined: the model is marked unusable
+        # (calib.model_trust), accepted here for the program it writes
+        cli("compensate", str(targets), "--model", f"{cell}.json", "--out", str(d / "c.csv"), "--program", "P",
+            "--accept-poor")
         assert sorted(p.name for p in d.iterdir()) == sorted(["c.csv", *files])
     rows = (tmp_path / "ur10" / "c.csv").read_text().splitlines()
     assert len(rows) == 2

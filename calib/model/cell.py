@@ -48,6 +48,16 @@ class StationPlacement:
 # it by 1/sqrt(1 - s); at most 10 % worse: s <= 1 - 1/1.1^2 = 0.17.
 MAX_SKIPPED_SHARE = round(1.0 - 1.0 / 1.1**2, 2)
 
+# The largest correction `compensate` writes (cell key `max_correction: {mm: .., deg: ..}`); a target that needs more
+# is refused, its nominal kept. An uncalibrated robot misses its targets by about a millimetre: 1.31 mm at most on the
+# paper's KR-270 (Wu, Klimchik et al., RCIM 2015, Table 9, before calibration), 1-2 mm being what makers state for
+# the absolute accuracy of uncalibrated arms. A model that moves the TCP by 5-10 times that, 10 mm, does not describe
+# that robot (or its mastering was lost: master it again before calibrating). Corrected at the shortest lever that
+# matters, the wrist centre to the TCP (KR-270: about 0.2 m to the flange plus the tool's 0.28 m), 10 mm turn a wrist
+# joint by 1.2 deg: a joint correction above 2 deg is a target near a singularity or a wrong model.
+MAX_CORRECTION_MM = 10.0
+MAX_CORRECTION_DEG = 2.0
+
 
 @dataclass
 class Cell:
@@ -67,6 +77,8 @@ class Cell:
     measurement_tolerance_mm: float | None = None  # None: from the station set-up (campaign/engine/expected.py)
     max_skipped_share: float = MAX_SKIPPED_SHARE  # a campaign that skipped more of its planned measurements failed
     repeatability_mm: float = 0.0  # the robot's ISO 9283 pose repeatability RP (datasheet); 0: not stated
+    max_correction_mm: float = MAX_CORRECTION_MM  # compensate: the largest TCP correction it writes
+    max_correction_deg: float = MAX_CORRECTION_DEG  # compensate: the largest joint correction it writes
     tracker: Instrument = field(default_factory=assumed)  # the cell's `tracker:` (calib.model.instruments)
     source: str = ""
     nominal: str = ""  # which nominal robot: `nominal_of` (model.json records it, the report prints it)
@@ -130,6 +142,21 @@ def _non_negative(doc: dict, key: str, where: str, default: float) -> float:
     if v < 0:
         raise CellError(f"{where}: {key}: must be a non-negative number, got {v:g}")
     return v
+
+
+def max_correction(doc: dict, where: str) -> tuple[float, float]:
+    """The cell's `max_correction: {mm, deg}` (each optional, positive; defaults MAX_CORRECTION_MM, _DEG)."""
+    entry = fields.mapping(doc.get("max_correction") or {}, f"{where}: max_correction (mm, deg)", CellError)
+    unknown = sorted(set(map(str, entry)) - {"mm", "deg"})
+    if unknown:
+        raise CellError(f"{where}: max_correction.{unknown[0]}: unknown key (mm and deg are known)")
+    out = []
+    for key, default in (("mm", MAX_CORRECTION_MM), ("deg", MAX_CORRECTION_DEG)):
+        v = fields.number(entry.get(key, default), f"{where}: max_correction.{key}", CellError)
+        if not v > 0:
+            raise CellError(f"{where}: max_correction.{key}: must be a positive number, got {v:g}")
+        out.append(v)
+    return out[0], out[1]
 
 
 def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -216,6 +243,7 @@ def load_cell(ref: str) -> Cell:
             raise CellError(f"{where}: measurement_tolerance_mm: must be positive")
     cell.max_skipped_share = _non_negative(doc, "max_skipped_share", where, MAX_SKIPPED_SHARE)
     cell.repeatability_mm = _non_negative(doc, "repeatability_mm", where, 0.0)
+    cell.max_correction_mm, cell.max_correction_deg = max_correction(doc, where)
     cell.tracker = instrument_from_doc(doc.get("tracker"), f"{where}: tracker")
     if cell.max_skipped_share > 1:
         raise CellError(f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got "

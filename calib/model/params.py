@@ -108,7 +108,7 @@ def next_axis_direction(chain: Chain, j: int) -> np.ndarray:
     return _unit(chain.joints[j].rotation @ np.eye(3)[chain.joints[j + 1].axis])
 
 
-def _reach_mm(chain: Chain) -> float:
+def reach_mm(chain: Chain) -> float:
     """The lever at which a link rotation is weighed against a link translation: the chain's reach (the sum of its
     nominal link lengths), so that a parameter's column in the identification Jacobian is compared at the size of
     the point displacement it causes (a rotation of 1 rad moves the far end by about the reach)."""
@@ -205,7 +205,7 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
         if p.joint == n - 1 and p.kind != "dq":
             removed[p] = "last-link parameter merges into the tool points"
 
-    lever = _reach_mm(chain)
+    lever = reach_mm(chain)
     rows = [(_pair_row(chain, k, lever),
              f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant", lever)
             for k in range(n - 1)]  # fmt: skip

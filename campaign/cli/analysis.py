@@ -99,18 +99,20 @@ def cmd_identify(args) -> int:
     if outcome.chosen is not None:
         console.print(f"--extend auto: diagnose chose {outcome.chosen}"
                       + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
-    warnings = [w for w in (outcome.still, outcome.warning, outcome.determination, convergence_warning(outcome.doc))
-                if w]  # fmt: skip
+    unusable = None if outcome.doc.get("usable", True) else (
+        f"the model is UNUSABLE: {outcome.doc['unusable_why']} (compensate refuses it without --accept-poor)")
+    warnings = [w for w in (unusable, outcome.still, outcome.warning, outcome.determination,
+                            convergence_warning(outcome.doc)) if w]  # fmt: skip
     if warnings:  # one line on stderr, whatever the fit's troubles (scripts read the first line)
         print(f"warning: {'; and '.join(warnings)}", file=sys.stderr)
-    console.print(f"model written to {args.out}")
+    console.print(f"model written to {args.out}" + (" (marked unusable)" if unusable else ""))
     return 0
 
 
 def cmd_predict(args) -> int:
-    done = predict(PredictOptions(model=args.model, rows=args.rows, out=args.out))
-    if done.warning:
-        print(f"warning: {done.warning}", file=sys.stderr)
+    done = predict(PredictOptions(model=args.model, rows=args.rows, out=args.out, accept_edited=args.accept_edited))
+    for warning in [*done.model_warnings, *([done.warning] if done.warning else [])]:
+        print(f"warning: {warning}", file=sys.stderr)
     console.print(f"{len(done.table)} predictions written to {args.out}")
     return 0
 
@@ -120,7 +122,8 @@ MAX_POINT_ROWS = 20  # locate prints the largest residuals of a long table, all 
 
 def cmd_locate(args) -> int:
     done = locate(LocateOptions(model=args.model, table=args.table, out=args.out, station=args.station,
-                                name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out))  # fmt: skip
+                                name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out,
+                                accept_edited=args.accept_edited))  # fmt: skip
     q, fit = done.quality, done.fit
     t = Table(title=f"Station {done.name} located on {len(done.points)} points of {len(done.located_poses)} pose(s) "
                     f"(robot, extension and tool points held from {args.model})")  # fmt: skip

@@ -22,6 +22,10 @@ TABLE_CELL_HELP = CELL_HELP + ", or a robot YAML/URDF alone (the reference point
 EFFECT_HELP = "hidden effect NAME:MAGNITUDE_MM, a cause of `trackcal diagnose` (repeatable)"
 TRUTH_HELP = ("JSON of the twin's truth to write: parameter deviations, stations, points, hidden effects, the true "
               "reflector positions at the cell's test pose")
+ACCEPT_EDITED = ("--accept-edited", {"action": "store_true", "help": "use a model whose digest does not match its "
+                 "content (edited by hand); its units, physical bounds and covariance are checked all the same"})
+ACCEPT_POOR = ("--accept-poor", {"action": "store_true", "help": "use a model marked unusable (parameters poorly "
+               "determined by its table, or a TCP uncertainty above the uncalibrated error)"})
 
 
 def arg(*flags: str, **options) -> tuple[tuple[str, ...], dict]:
@@ -108,6 +112,7 @@ COMMANDS = [
         arg("rows", help="CSV with the measurement-table columns (x,y,z optional, ignored)"),
         arg("--model", required=True, help="model.json from identify or diagnose"),
         arg("--out", required=True, help="CSV to write: the rows with x_mm, y_mm, z_mm predicted"),
+        arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
     ]),
     Command("locate", "place a tracker station that moved: fit only the station, the robot model held",
             "trackcal.campaign.cli.analysis:cmd_locate", [
@@ -121,6 +126,7 @@ COMMANDS = [
                 arg("--out", required=True, help="model.json to write: the model plus the located station"),
                 arg("--predict-out", help="CSV of the held-out rows predicted by the new model (needs --poses; "
                                           "default: not written)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ]),
     Command("export-urdf", "the calibrated geometric robot as a URDF (and what a URDF cannot hold beside it)",
             "trackcal.campaign.cli.urdf:cmd_export_urdf", [
@@ -130,6 +136,7 @@ COMMANDS = [
                 arg("--robot", help="or a robot description: configs/robots name, robot YAML or URDF path (default: "
                                     "none)"),
                 arg("--out", required=True, help="URDF to write; NAME.trackcal.json is written beside it"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ]),
     Command("plan", "optimal measurement poses for the cell's test pose (or evaluate a plan)",
             "trackcal.campaign.cli.plan:cmd_plan", [
@@ -236,6 +243,10 @@ COMMANDS = [
                     "none)"),
                 arg("--krl-dir", help="directory of the programs (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
+                arg("--strict", action="store_true", help="write no program when a target cannot be compensated "
+                    "(default: the program moves to its nominal target, under a comment saying why)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
+                arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),
             ]),
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [
@@ -295,6 +306,7 @@ COMMANDS = [
                     help="session folders (dated by their campaign) or model.json files (dated by --dates, else by "
                          "the file's modification time)"),
                 arg("--dates", help="comma-separated ISO dates, one per calibration (default: see above)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg("--json", help="history JSON to write (default: none, the console only)"),
             ]),
     Command("ipa-ur10", "IPA UR10 + Leica T-Mac series (Landgraf et al., CASE 2021)",
@@ -348,6 +360,8 @@ COMMANDS = [
                 arg("--load", help="what the robot carries during the test, for the report (ISO 9283:1998, clause 6: "
                                    "100 %% of the rated load), e.g. '270 kg, 100 %% rated' (default: not stated)"),
                 arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
+                arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),
             ], group="iso9283"),
     Command("compare", "the ISO 9283 figures of test sessions side by side (e.g. before and after compensation)",
             "trackcal.campaign.cli.iso9283:cmd_compare", [
@@ -355,5 +369,6 @@ COMMANDS = [
                 arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
                 arg("--json", help="figures JSON to write (default: none, the console only)"),
                 arg("--report", help="HTML report to write, self-contained (default: none, the console only)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ], group="iso9283"),
 ]  # fmt: skip

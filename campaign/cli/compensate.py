@@ -11,11 +11,15 @@ from trackcal.campaign.jobs.compensate import CompensateOptions, run_compensate
 def cmd_compensate(args) -> int:
     done = run_compensate(CompensateOptions(targets=args.targets, model=args.model, out=args.out, tcp=args.tcp,
                                             krl=args.krl, krl_dir=args.krl_dir, speed=args.speed,
-                                            program=args.program))  # fmt: skip
+                                            program=args.program, strict=args.strict, accept_edited=args.accept_edited,
+                                            accept_poor=args.accept_poor))  # fmt: skip
     report, ok = done.report, done.report.ok
+    for warning in done.model_warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     for label, failure in zip(done.labels, report.failures, strict=True):
         if failure:
-            print(f"warning: {label}: not compensated: {failure}", file=sys.stderr)
+            kept = " (its nominal target in the program, commented)" if done.krl_files or done.program_files else ""
+            print(f"warning: {label}: not compensated{kept}: {failure}", file=sys.stderr)
     for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:

@@ -10,7 +10,8 @@ from trackcal.campaign.jobs.history import HistoryOptions, history
 
 def cmd_history(args) -> int:
     dates = args.dates.split(",") if args.dates else None
-    h = history(HistoryOptions(calibrations=args.calibrations, dates=dates, json=args.json))
+    h = history(HistoryOptions(calibrations=args.calibrations, dates=dates, json=args.json,
+                               accept_edited=args.accept_edited))
     table = Table(title="identified parameters (± 95 %); * moved since the previous calibration")
     table.add_column("parameter", overflow="fold")
     for c in h.calibrations:

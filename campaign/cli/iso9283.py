@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from rich.table import Table
@@ -27,8 +28,12 @@ def _centre(text: str | None) -> tuple[float, float, float] | None:
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
-                       vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load)  # fmt: skip
-    doc = make_plan(opts)
+                       vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
+                       accept_edited=args.accept_edited, accept_poor=args.accept_poor)  # fmt: skip
+    warnings: list[str] = []
+    doc = make_plan(opts, warnings)
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     iso = doc["iso9283"]
     console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
                   f"({', '.join(f'{v:.1f}' for v in iso['cube_centre_mm'])}) mm; point {iso['point']} measured from "
@@ -61,7 +66,11 @@ def _mdeg(fig) -> str:
 
 
 def cmd_compare(args) -> int:
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json))
+    warnings: list[str] = []
+    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
+                                               accept_edited=args.accept_edited), warnings)  # fmt: skip
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
     table.add_column("pose")
     for t in tests:

@@ -8,6 +8,7 @@ from pathlib import Path
 from rich.text import Text
 
 from trackcal.calib.identify.solver import IdentificationError
+from trackcal.calib.model_trust import unusable_why
 from trackcal.campaign.cli.console import console, labelled
 from trackcal.campaign.cli.session import incomplete_note
 from trackcal.campaign.errors import InputError, UsageError
@@ -54,6 +55,11 @@ def print_analysis(analysis: CampaignAnalysis) -> None:
     console.print(f"{len(analysis.table)} measurements -> {files.table}; {what}: coordinate RMS "
                   f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
                   f"{cause} ({files.verdict}); report {analysis.report}")  # fmt: skip
+    for path, doc in ((files.model, model), (files.geometric_model, analysis.geometric_model)):
+        why = None if doc is None else unusable_why(doc)
+        if why:
+            console.print(f"warning: {path} is UNUSABLE: {why} (compensate refuses it without --accept-poor)",
+                          markup=False, highlight=False)  # fmt: skip
     warnings = analysis.warnings
     if warnings:
         console.print(Text.assemble((f"{len(warnings)} campaign warning(s)", "yellow"),

@@ -14,6 +14,7 @@ from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.io.files import write_json
 from trackcal.calib.model.cell import Cell
+from trackcal.calib.model_trust import sealed
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
@@ -73,7 +74,7 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     written = plots(cell, d, Path(opts.plots)) if opts.plots else []
     write_json(opts.json, doc, InputError)
     if opts.out:
-        write_json(opts.out, model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest),
+        write_json(opts.out, sealed(model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest)),
                    InputError)  # fmt: skip
     return DiagnoseOutcome(d, doc, written, still)
 

@@ -22,6 +22,7 @@ from trackcal.calib.io.table import MeasurementTable, as_written, table_csv
 from trackcal.calib.model.cell import Cell, load_cell, resolve
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import load_model
+from trackcal.calib.model_trust import sealed, unusable_why
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.diagnose import diagnosis_threads, verdict_doc
 from trackcal.campaign.jobs.identify import choose_params, model_doc, run_identify, sha256_of
@@ -70,10 +71,10 @@ def analyse_session(store: SessionStore) -> CampaignAnalysis:
     verdict = written(files.verdict, verdict_doc(cell, dg, digest))
     geometric = None
     if dg.extended is not None:
-        model = model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift, digest)
-        geometric = written(files.geometric_model, outcome.doc)
+        model = sealed(model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift, digest))
+        geometric = written(files.geometric_model, sealed(outcome.doc))
     else:
-        model = outcome.doc
+        model = sealed(outcome.doc)
         files.geometric_model.unlink(missing_ok=True)
     analysis = CampaignAnalysis(
         cell=cell, table=table, table_sha256=digest, model=written(files.model, model), geometric_model=geometric,
@@ -103,8 +104,9 @@ def session_provenance(store: SessionStore, files: SessionFiles, cell_name: str)
     duration = events[-1].t_wall - events[0].t_wall if events else None
     notes = []
     if files.geometric_model.exists():
+        why = unusable_why(read_json(files.geometric_model, InputError))
         notes.append(f"{files.model} is the model extended by the diagnosed cause; the purely geometric "
-                     f"model is {files.geometric_model}.")  # fmt: skip
+                     f"model is {files.geometric_model}" + (f" (UNUSABLE: {why})." if why else "."))  # fmt: skip
     return Provenance(session=str(files.directory), campaign_started=started, campaign_ended=ended,
                       duration_s=duration, model_path=str(files.model),
                       cell_ref=session_cell_ref(store, files, cell_name), notes=notes)  # fmt: skip

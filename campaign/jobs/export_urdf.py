@@ -21,7 +21,7 @@ JSON file beside it (`<stem>.trackcal.json`), which holds, in the units of model
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +30,8 @@ from trackcal.calib.io.files import write_json, write_text
 from trackcal.calib.model.cell import load_cell, load_robot
 from trackcal.calib.model.kinematics import calibrated_chain
 from trackcal.calib.model.urdf import chain_to_urdf
-from trackcal.calib.model_file import load_model
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.trusted import trusted_model
 
 SIDECAR_FORMAT = "trackcal-urdf-sidecar/1"
 
@@ -42,6 +42,7 @@ class ExportUrdfOptions:
     model: str | None = None  # model.json: the calibrated robot
     cell: str | None = None  # or a cell: its nominal robot and tool points
     robot: str | None = None  # or a robot description (configs/robots name, YAML or URDF path)
+    accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
 
 
 @dataclass
@@ -50,6 +51,7 @@ class ExportUrdfOutcome:
     sidecar: Path
     joints: int
     cause: str
+    warnings: list[str] = field(default_factory=list)  # e.g. a model without a digest
 
 
 def sidecar_path(urdf: str | Path) -> Path:
@@ -65,9 +67,10 @@ def export_urdf(opts: ExportUrdfOptions) -> ExportUrdfOutcome:
     if not opts.out.endswith(".urdf"):
         raise OptionError("{0} {out}: a URDF file name ends in .urdf", "out", out=opts.out)
     side = sidecar_path(opts.out)
+    warnings: list[str] = []
     doc: dict = {"format": SIDECAR_FORMAT, "urdf": Path(opts.out).name, "model": None}
     if opts.model:
-        model = load_model(opts.model)
+        model, warnings = trusted_model(opts.model, opts.accept_edited)
         chain = calibrated_chain(model.chain, model.params, model.dev)
         points = model.points
         src = model.doc
@@ -98,4 +101,4 @@ def export_urdf(opts: ExportUrdfOptions) -> ExportUrdfOutcome:
                "beside this file.")  # fmt: skip
     write_text(opts.out, chain_to_urdf(chain, points, comment), InputError)
     write_json(side, doc, InputError)
-    return ExportUrdfOutcome(Path(opts.out), side, chain.dof, doc["extension"].get("cause", "none"))
+    return ExportUrdfOutcome(Path(opts.out), side, chain.dof, doc["extension"].get("cause", "none"), warnings)

@@ -22,8 +22,9 @@ import numpy as np
 from trackcal.calib.history import Change, compare_estimates
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
-from trackcal.calib.model_file import Model, load_model
+from trackcal.calib.model_file import Model
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.trusted import trusted_model
 from trackcal.campaign.session.session import SessionFiles
 from trackcal.campaign.session.store import DB_NAME, SessionStore
 
@@ -40,6 +41,7 @@ class Calibration:
     dof: int
     tcp_correction_mm: float | None = None  # model.json's test_pose (calib.tcp_figure)
     tcp_sigma_mm: float | None = None  # 1-sigma 3-D
+    checked: list[str] = field(default_factory=list)  # the model's warning lines (campaign.jobs.trusted)
 
 
 def _utc(t: float) -> datetime:
@@ -95,11 +97,13 @@ def model_estimate(doc: dict, path: str | Path) -> tuple[list[str], np.ndarray, 
     return names, values, cov, int(doc.get("dof", 1))
 
 
-def load_calibration(label: str, date: datetime | None = None) -> Calibration:
+def load_calibration(label: str, date: datetime | None = None, accept_edited: bool = False) -> Calibration:
+    """One calibration, its model checked (campaign.jobs.trusted; its warning lines in `checked`)."""
     model_path, found, source = _date_of(Path(label))
-    model = load_model(model_path)
+    model, checked = trusted_model(str(model_path), accept_edited)
     names, values, cov, dof = model_estimate(model.doc, model_path)
     cal = Calibration(label, date or found, "given" if date else source, model, names, values, cov, dof)
+    cal.checked = checked
     cal.tcp_correction_mm, cal.tcp_sigma_mm = _tcp_figure(model, model_path)
     return cal
 
@@ -109,6 +113,7 @@ class HistoryOptions:
     calibrations: list[str]
     dates: list[str] | None = None  # ISO dates, one per calibration
     json: str | None = None
+    accept_edited: bool = False  # use models whose digest does not match their content (calib.model_trust)
 
 
 @dataclass
@@ -144,7 +149,7 @@ def _change(a: Calibration, b: Calibration) -> Change:
 def history(opts: HistoryOptions) -> History:
     if not opts.calibrations:
         raise OptionError("{0}: give at least one session or model", "calibrations")
-    cals = [load_calibration(c, d) for c, d in zip(opts.calibrations, _dates(opts), strict=True)]
+    cals = [load_calibration(c, d, opts.accept_edited) for c, d in zip(opts.calibrations, _dates(opts), strict=True)]
     cals.sort(key=lambda c: c.date)
     robots = {c.model.chain.name for c in cals}
     if len(robots) > 1:
@@ -172,6 +177,7 @@ def history(opts: HistoryOptions) -> History:
                     f"against them (the test alone says: {sentence}); identify with the cause `trackcal diagnose` "
                     "names, then compare again")  # fmt: skip
     notes = [f"{c.label}: dated by its {c.date_source}" for c in cals if c.date_source == "file modified"]
+    notes += [w for c in cals for w in c.checked]
     out = History(cals, steps, overall, sentence, notes)
     if opts.json:
         write_json(opts.json, history_doc(out))

@@ -4,7 +4,7 @@ its quality against the noise floor, and the model document (model.json) and sum
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +32,10 @@ from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.instruments import Instrument
 from trackcal.calib.model.params import Param, param_by_name
-from trackcal.calib.model_file import identification_to_doc, load_model, predict_table
+from trackcal.calib.model_file import identification_to_doc, predict_table
+from trackcal.calib.model_trust import sealed
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.trusted import trusted_model
 
 # Above twice the noise floor three quarters of the residual variance (1 - 1/2^2) is something the model does not
 # describe; the intervals assume what is left is tracker noise, so they cannot be trusted (a parameter subset or a
@@ -149,6 +151,7 @@ def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
     outcome = run_identify(cell, table, choose_params(cell, opts.params), opts.weighting, opts.extend)
     if opts.extend == "auto":
         outcome.chosen = outcome.doc["extension"]["cause"]
+    outcome.doc = sealed(outcome.doc)  # its usability judged, its digest
     write_json(opts.out, outcome.doc, InputError)
     if opts.json:
         write_json(opts.json, summary_of(outcome), InputError)
@@ -273,7 +276,7 @@ def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
     keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "tracker", "fit", "fit_ratio",
             "residual_rms_mm", "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm",
-            "poorly_determined", "test_pose")
+            "poorly_determined", "test_pose", "usable", "unusable_why")
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {
@@ -296,20 +299,22 @@ class PredictOptions:
     model: str  # model.json
     rows: str  # the rows (measurement-table columns, x,y,z optional)
     out: str  # the table to write
+    accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
 
 
 @dataclass
 class Prediction:
     table: MeasurementTable
     warning: str | None  # rows outside the joint range the model was identified on
+    model_warnings: list[str] = field(default_factory=list)  # e.g. a model without a digest
 
 
 def predict(opts: PredictOptions) -> Prediction:
     """`trackcal predict`: reflector positions of the rows predicted by the model, written to opts.out."""
-    model = load_model(opts.model)
+    model, checked = trusted_model(opts.model, opts.accept_edited)
     rows = read_measured(opts.rows, model.chain, require_xyz=False)
     pred = predict_table(model, rows)
     warning = model.range_warning(np.radians(rows.q_deg))
     with writing(opts.out, InputError):
         write_table(pred, opts.out)
-    return Prediction(pred, warning)
+    return Prediction(pred, warning, checked)

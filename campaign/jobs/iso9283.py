@@ -52,9 +52,10 @@ from trackcal.calib.iso9283 import (
 )
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
-from trackcal.calib.model_file import Model, load_model
+from trackcal.calib.model_file import Model
 from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.session.session import export_table, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
 
@@ -71,6 +72,8 @@ class PlanOptions:
     vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
     orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2.1, 7.2.2)
     load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.2), free text for the report
+    accept_edited: bool = False  # --model: use it though its digest does not match its content (calib.model_trust)
+    accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -97,8 +100,9 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
     }
 
 
-def make_plan(opts: PlanOptions) -> dict:
-    """The ISO 9283 plan of a cell, written to opts.json; with a model, its compensated targets."""
+def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
+    """The ISO 9283 plan of a cell, written to opts.json; with a model (checked: campaign.jobs.trusted, its warning
+    lines added to `warnings`), its compensated targets."""
     if opts.cycles < 2:
         raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
                           "cycles")  # fmt: skip
@@ -108,21 +112,27 @@ def make_plan(opts: PlanOptions) -> dict:
     if vap_cycles == 1 or vap_cycles < 0:
         raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
+    model = None
+    if opts.model:  # checked before the cube is placed
+        model, checked = trusted_model(opts.model, opts.accept_edited)
+        checked += usable_model(model, opts.model, opts.accept_poor)
+        if warnings is not None:
+            warnings += checked
     plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
     q_deg = np.degrees(plan.q_rad)
     q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
     compensated_with = None
-    if opts.model:
-        model = load_model(opts.model)
+    if model is not None:
         if model.chain.dof != cell.chain.dof:
             raise InputError(f"{opts.model}: a model of {model.chain.dof} joints for a cell of {cell.chain.dof}")
-        q_comp, report = compensate(model, plan.q_rad, cell.tcp)
+        bound = (cell.max_correction_mm, cell.max_correction_deg)
+        q_comp, report = compensate(model, plan.q_rad, cell.tcp, max_correction=bound)
         failed = [f"{POSE_NAMES[i]}: {f}" for i, f in enumerate(report.failures) if f]
         if failed:
             raise InputError(f"{opts.model}: the ISO poses cannot be compensated: {'; '.join(failed)}")
         q_deg = np.degrees(q_comp)
         if q_app is not None:  # the approach points compensated too: the robot still comes in along the base axes
-            flat, rep = compensate(model, q_app.reshape(-1, q_app.shape[-1]), cell.tcp)
+            flat, rep = compensate(model, q_app.reshape(-1, q_app.shape[-1]), cell.tcp, max_correction=bound)
             if any(rep.failures):
                 raise InputError(f"{opts.model}: the vAP approach points cannot be compensated: "
                                  + "; ".join(f for f in rep.failures if f))  # fmt: skip
@@ -307,6 +317,7 @@ class CompareOptions:
     model: str
     json: str | None = None
     noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
+    accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -324,10 +335,12 @@ def drifts(tests: list[IsoFigures]) -> list[dict]:
     return out
 
 
-def compare(opts: CompareOptions) -> tuple[list[IsoFigures], list[dict]]:
+def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[list[IsoFigures], list[dict]]:
     """The figures of each session, in the order given (e.g. before, after), and the drifts between tests with the
-    same targets."""
-    model = load_model(opts.model)
+    same targets; the model checked first (campaign.jobs.trusted, its warning lines added to `warnings`)."""
+    model, checked = trusted_model(opts.model, opts.accept_edited)
+    if warnings is not None:
+        warnings += checked
     tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:

@@ -25,9 +25,11 @@ from trackcal.calib.identify.solver import Identification, IdentificationError, 
 from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, write_table
-from trackcal.calib.model_file import Model, load_model, predict_table
+from trackcal.calib.model_file import Model, predict_table
+from trackcal.calib.model_trust import sealed
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import fit_quality, sha256_of
+from trackcal.campaign.jobs.trusted import trusted_model
 
 LOCATE_ONLY = ("robot", "points")  # the unknowns held: every robot, extension and tool-point unknown
 MIN_POINTS = 3  # a rigid transform needs 3 non-collinear points
@@ -44,6 +46,7 @@ class LocateOptions:
     name: str | None = None  # the located station's name in the model (`--as`; default: the table's id)
     poses: int | None = None  # locate on the first K poses, predict the rest (default: every pose)
     predict_out: str | None = None  # the held-out rows predicted by the new model (needs poses)
+    accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
 
 
 @dataclass
@@ -119,7 +122,7 @@ def locate(opts: LocateOptions) -> Location:
     if opts.predict_out and opts.poses is None:
         raise OptionError("{0} needs {1} K: the rows of the poses after the first K are the ones predicted",
                           "predict_out", "poses")  # fmt: skip
-    model = load_model(opts.model)
+    model, _ = trusted_model(opts.model, opts.accept_edited)  # the model written is sealed anew: check it first
     table = read_measured(opts.table, model.chain)
     station, rows = _station_rows(table, opts.station)
     name = opts.name or station
@@ -159,5 +162,6 @@ def locate(opts: LocateOptions) -> Location:
                    for p in points],
         "held_out": held_out,
     }  # fmt: skip
+    doc = sealed(doc)
     write_json(opts.out, doc, InputError)
     return Location(name, fit, points, quality, located_poses, held_out, replaced, doc)

@@ -37,6 +37,7 @@ from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model_file import model_from_doc, predict_table
+from trackcal.calib.model_trust import unusable_why
 from trackcal.calib.tcp_figure import figure_at_test_pose
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
@@ -60,6 +61,7 @@ img { max-width: 100%; border: 1px solid #ddd; margin: 0.4em 0; }
 .note { color: #555; font-size: 0.9em; } .warn { color: #a40; }
 p.verdict { font-size: 1.15em; background: #f4f4f4; border-left: 4px solid #444; padding: 0.5em 0.8em; }
 code { background: #f4f4f4; padding: 0.1em 0.3em; }
+p.unusable { font-size: 1.1em; font-weight: bold; color: #fff; background: #b00; padding: 0.6em 0.8em; }
 """
 # what a campaign must contain to reveal each cause (README, `trackcal diagnose`): the re-plan advice
 CAUSE_NEEDS = {
@@ -581,6 +583,24 @@ def _extra_images(out_dir: Path, extra_images) -> list[Path]:
     return names
 
 
+def unusable_banner(analysis: CampaignAnalysis) -> str:
+    """A red paragraph at the top of the page for each of the campaign's models marked unusable (calib.model_trust):
+    compensate refuses them; empty when both are usable."""
+    prov, files = analysis.provenance, analysis.files
+    models = [(prov.model_path, "The model", analysis.model)]
+    if analysis.geometric_model is not None:
+        where = str(files.geometric_model) if files is not None else "the geometric model"
+        models.append((where, "The purely geometric model", analysis.geometric_model))
+    out = []
+    for path, what, doc in models:
+        why = unusable_why(doc)
+        if why:
+            out.append(f"<p class='unusable'>UNUSABLE: {esc(what)} ({esc(path)}) must not be used to "
+                       f"compensate the robot: {esc(why)}. <code>trackcal compensate</code> refuses it (unless "
+                       "<code>--accept-poor</code>).</p>")  # fmt: skip
+    return f"<div id='unusable'>{''.join(out)}</div>" if out else ""
+
+
 def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None = None) -> Path:
     """Write out_dir/report.html and its PNG plots for `analysis`; returns the HTML path.
 
@@ -635,6 +655,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
     ]  # fmt: skip
     body = [
         f"<h1>{esc(title)}</h1>",
+        unusable_banner(analysis),
         f"<p class='verdict' id='verdict'>{esc(verdict_sentence(model_doc, verdict_doc, res))}</p>",
         table_html(None, [list(f) for f in facts], left=2),
         "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),

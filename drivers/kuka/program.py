@@ -21,7 +21,7 @@ from __future__ import annotations
 import re
 
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import ProgramWriter, program_targets
+from trackcal.drivers.families import ProgramWriter, program_notes, program_targets
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6
@@ -63,19 +63,26 @@ def _angle(v: float) -> str:
     return "0.0000" if text == "-0.0000" else text
 
 
-def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> tuple[str, str]:
+def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
+              notes: list[str | None] | None = None) -> tuple[str, str]:  # fmt: skip
     """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees; `points` are the
-    rows' KRL names (`point_names`; default XP1..XPn)."""
+    rows' KRL names (`point_names`; default XP1..XPn); `notes[i]`, when not None, a comment line above row i's PTP
+    (a target left at its nominal angles says so and why)."""
     check_name(name)
     q, pct = program_targets(q_deg, speed_pct, "KR C2", AXES, "axis angles A1..A6", "axis", KrlError)
     points = points or point_names(None, len(q))
     if len(points) != len(q) or not all(NAME_RE.fullmatch(p) for p in points):
         raise KrlError(f"one valid KRL name per target expected, got {points!r}")
-    src = [f"DEF {name}()", f"; trackcal: {len(q)} compensated joint targets, PTP at {pct} % axis speed",
-           "BAS(#INITMOV,0)"]  # fmt: skip
+    notes = program_notes(notes, len(q), KrlError)
+    nominal = sum(t is not None for t in notes)
+    what = (f"{len(q)} compensated joint targets" if not nominal else
+            f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)")  # fmt: skip
+    src = [f"DEF {name}()", f"; trackcal: {what}, PTP at {pct} % axis speed", "BAS(#INITMOV,0)"]
     src += [f"$VEL_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
     src += [f"$ACC_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
-    src += [f"PTP {p}" for p in points]
+    for p, note in zip(points, notes, strict=True):
+        src += [f"; {p}: {note}"] if note is not None else []
+        src.append(f"PTP {p}")
     src.append("END")
     dat = [f"DEFDAT {name} PUBLIC", "EXT BAS (BAS_COMMAND :IN,REAL :IN )"]
     for p, row in zip(points, q, strict=True):
@@ -85,9 +92,10 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = 
     return EOL.join(src) + EOL, EOL.join(dat) + EOL
 
 
-def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None) -> dict[str, bytes]:
+def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
+          notes: list[str | None] | None = None) -> dict[str, bytes]:  # fmt: skip
     """{NAME.src, NAME.dat: their bytes}: ASCII, CR LF."""
-    src, dat = krl_texts(name, q_deg, speed_pct, points)
+    src, dat = krl_texts(name, q_deg, speed_pct, points, notes)
     return {f"{name}.src": src.encode("ascii"), f"{name}.dat": dat.encode("ascii")}
 
 
