@@ -52,6 +52,8 @@ GEOMETRIC_ONLY = {
 NEAR_SINGULAR = 2e-3
 FD_STEP_RAD = 1e-6  # central differences of the extension's joint offsets (smooth in q)
 
+OUTSIDE_RANGES = "outside the joint ranges the model's extension was fitted on"
+
 
 class CompensationError(CalibError):
     """A request that cannot be compensated at all (shapes, TCP, lever); the message says why."""
@@ -189,13 +191,16 @@ def compensate(
     lever_mm: float = 100.0,
     tol_mm: float = 1e-10,
     max_iter: int = 20,
+    allow_outside: bool = False,
 ) -> tuple[np.ndarray, CompensationReport]:
     """Joint targets (N, n) rad with which `model` reaches the pose the nominal model reaches at q_nominal.
 
     Converged when each of the three tool points is within `tol_mm` of its intended position. Each target is
     compensated on its own: one outside the joint limits, one whose compensated angles leave them, and one that
     does not converge (a singular pose such as the KUKA HOME with A5 = 0, a chain that cannot reach the pose) keeps
-    its nominal angles and its reason in `report.failures`; the others are compensated. CompensationError only for
+    its nominal angles and its reason in `report.failures`; the others are compensated. So does a target outside the
+    joint ranges the model's extension was fitted on (`Model.outside`) unless `allow_outside` (it is then
+    compensated with the extension held at the nearest fitted angle, and the report warns). CompensationError only for
     a request that cannot be run at all (shapes, TCP, lever)."""
     chain = model.chain
     n = chain.dof
@@ -215,6 +220,14 @@ def compensate(
     failures = [f"nominal target outside the joint limits: {v}" if v else "" for v in
                 _limit_violations(q0, limits, joint_names)]  # fmt: skip
     offsets, ignored, notes = joint_error_function(model)
+    ranges = model.ranges()
+    if offsets is not None and ranges is not None and not allow_outside:  # known only where it was fitted
+        out = ranges.outside(q0)
+        for i in np.flatnonzero(out.any(axis=1)):
+            joints = "; ".join(f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, "
+                               f"{np.degrees(hi):.4f}]" for j, (lo, hi) in enumerate(ranges.joints_rad) if out[i, j])
+            failures[i] = failures[i] or (f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
+                                          "extension is then held at the nearest fitted angle)")  # fmt: skip
 
     tools = tcp + np.array([[0.0, 0.0, 0.0], [lever_mm, 0.0, 0.0], [0.0, lever_mm, 0.0]])  # last joint frame
     tool_rows = np.tile(tools, (n_rows, 1))

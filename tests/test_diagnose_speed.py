@@ -187,10 +187,10 @@ def test_warm_started_fit_stops_at_the_same_minimum(twin_case):
     folds = crossval.fold_rows(table, "pose", 5, 0)
     warm = crossval.fit_model(ctx, causes)
     ctx.fits[tuple(sorted(causes))] = warm
-    hold_warm = crossval.cross_validate(ctx, causes, folds)
+    hold_warm = crossval.cross_validate(ctx, causes, folds).rms_mm
     cold = crossval._whole_fit(ctx, ctx.table, crossval.extension_of(ctx, causes), 100)
     ctx.fits[tuple(sorted(causes))] = cold
-    hold_cold = crossval.cross_validate(ctx, causes, folds)
+    hold_cold = crossval.cross_validate(ctx, causes, folds).rms_mm
     assert warm.rss == pytest.approx(cold.rss, rel=1e-9)
     assert hold_warm == pytest.approx(hold_cold, abs=1e-6)
     assert np.allclose(warm.ext, cold.ext, rtol=1e-6, atol=1e-9)

@@ -230,6 +230,9 @@ COMMANDS = [
                     "none)"),
                 arg("--krl-dir", help="directory of the programs (default: the directory of --out)"),
                 arg("--speed", type=int, default=10, help="PTP axis speed and acceleration override, %% (1-100)"),
+                arg("--allow-outside", action="store_true", help="also compensate targets outside the joint ranges "
+                    "the model's extension was fitted on, the extension held at the nearest fitted angle (default: "
+                    "such targets are refused, kept nominal)"),
             ]),
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [

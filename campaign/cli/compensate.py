@@ -5,17 +5,21 @@ from __future__ import annotations
 
 import sys
 
+from trackcal.calib.compensate import OUTSIDE_RANGES
 from trackcal.campaign.jobs.compensate import CompensateOptions, run_compensate
 
 
 def cmd_compensate(args) -> int:
     done = run_compensate(CompensateOptions(targets=args.targets, model=args.model, out=args.out, tcp=args.tcp,
                                             krl=args.krl, krl_dir=args.krl_dir, speed=args.speed,
-                                            program=args.program))  # fmt: skip
+                                            program=args.program, allow_outside=args.allow_outside))  # fmt: skip
     report, ok = done.report, done.report.ok
     for label, failure in zip(done.labels, report.failures, strict=True):
         if failure:
             print(f"warning: {label}: not compensated: {failure}", file=sys.stderr)
+    if any(f.startswith(OUTSIDE_RANGES) for f in report.failures):
+        print("note: --allow-outside compensates the targets outside the fitted joint ranges (the model's extension "
+              "held at the nearest fitted angle)")  # fmt: skip
     for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:

@@ -80,6 +80,7 @@ class CompensateOptions:
     krl_dir: str | None = None  # its directory (and the --program's); None: the directory of `out`
     speed: int = 10  # PTP axis speed and acceleration override, %
     program: str | None = None  # also the program of this name of the model's robot controller (its family's)
+    allow_outside: bool = False  # compensate targets outside the joint ranges the model's extension was fitted on
 
 
 @dataclass
@@ -163,7 +164,7 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
                               language=writer.language, dof=model.chain.dof)  # fmt: skip
         if not 1 <= opts.speed <= 100:
             raise OptionError("{0} {speed}: the axis speed override is a percentage 1..100", "speed", speed=opts.speed)
-    qc, report = compensate(model, np.radians(q_deg), tcp)
+    qc, report = compensate(model, np.radians(q_deg), tcp, allow_outside=opts.allow_outside)
     qc_deg = np.degrees(qc)
     # the KRL program carries 1e-4 deg (as the controller reports angles): what rounding costs at the TCP
     krl_deg = np.round(qc_deg, 4)
