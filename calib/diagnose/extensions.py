@@ -66,14 +66,16 @@ def build_extension(
     for cyclic_error `arcs` are the joints' fitted arcs (default: the table's own), for thermal_drift the
     name picks the form (THERMAL_FORMS; default `e`). `ranges`: the joint angles and times the extension was
     fitted on (default: the table's own); features are computed at the rows' angles and times clamped into them
-    (`Ranges`: held outside, every term alike), backlash's approach directions excepted (bounded as they are)."""
+    (`Ranges`: held outside, every unbounded term alike), except two bounded by their physics and defined
+    everywhere: backlash (+-b/2 by the approach direction) and joint_compliance (a gravity torque, at most the
+    arm's weight times its reach, and its deflection within `calib.diagnose.plausibility`'s range)."""
     q_read = np.radians(table.q_deg)
     ranges = Ranges.of(q_read, table.t_s) if ranges is None else ranges
     q = ranges.clamp_q(q_read)
     n_rows, n = q.shape
     if cause in ("joint_compliance", "backlash", "encoder_scale"):
         signature = {
-            "joint_compliance": lambda: gravity_torques(chain, q),  # N m
+            "joint_compliance": lambda: gravity_torques(chain, q_read),  # N m
             "backlash": lambda: 0.5 * approach_signs(q_read),
             "encoder_scale": lambda: q,
         }[cause]()

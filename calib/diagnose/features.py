@@ -26,8 +26,9 @@ UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0))
 @dataclass(frozen=True)
 class Ranges:
     """What an extension was fitted on: each joint's range of angles (rad) and the span of the rows' times (s).
-    Outside them every extension is held at its value at the nearest fitted point, all its terms alike (the
-    features are computed at the angles and times clamped into the ranges): no term is extrapolated against a
+    Outside them every extension is held at its value at the nearest fitted point, all its unbounded terms alike
+    (the features are computed at the angles and times clamped into the ranges; backlash and gravity compliance are
+    bounded by their physics, `calib.diagnose.extensions.build_extension`): no term is extrapolated against a
     held one (issue 36: an encoder scale kept linear beyond a joint's range while the joint map was held broke a
     cancellation inside it, and an unseen ABB IRB 120 was 7x worse than with the geometric model)."""
 

@@ -18,8 +18,8 @@ datasheet-level magnitudes of the literature, so that a real effect of an unusua
   heavy arms are of order 1e6 N m/rad (Dumas et al., "Joint stiffness identification of industrial serial robots",
   Robotica 30, 2012, a KUKA KR 240: the paper's ref. [59]); at the ~10 kN m a KR 270's shoulder holds at full payload
   that is a few mrad, a few mm at its 2.7 m reach. 0.25 deg (4.4 mrad, 12 mm at 2.7 m) is above any of them.
-- thermal_drift |g| <= 230 ppm over the campaign: 11.5 um/m/K for steel, 23 for aluminium links, warming by a few
-  K over a campaign (a warm-up of 5 to 10 K at most): 23 um/m/K x 10 K.
+- thermal_drift |g| <= 500 ppm over the campaign: 11.5 um/m/K for steel, 23 for aluminium links, warming by a few
+  K over a campaign and some 10 to 20 K near the motors: 23 um/m/K x 20 K is 460 ppm.
 - station_shift has no parameter of its own (a station's pose after the change point, as free as before it).
 """
 
@@ -33,7 +33,7 @@ ENCODER_SCALE_MAX = 5e-3  # |k|, dimensionless (0.5 %)
 CYCLIC_MAX_RAD = float(np.radians(0.5))  # |e_j(q)| of the joint error map over the rows
 BACKLASH_MAX_RAD = float(np.radians(0.2))  # dead band width b_j
 DEFLECTION_MAX_RAD = float(np.radians(0.25))  # |c_j tau_j| over the rows
-GROWTH_MAX = 230e-6  # |fractional growth| over the campaign's time span
+GROWTH_MAX = 500e-6  # |fractional growth| over the campaign's time span
 
 
 def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
@@ -65,3 +65,4 @@ def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
                 out.append(f"thermal_drift growth up to {1e6 * growth:.3g} ppm over the campaign (physical: <= "
                            f"{1e6 * GROWTH_MAX:g} ppm)")  # fmt: skip
     return out
+

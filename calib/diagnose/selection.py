@@ -71,7 +71,7 @@ from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
 from trackcal.calib.diagnose.plausibility import implausible
-from trackcal.calib.diagnose.significance import HeldOut, significant
+from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.diagnose.structure import structure_test
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, model_points
@@ -222,6 +222,11 @@ def _map_candidate(ctx: Context, val: Validator, fitted: tuple[str, ...], curren
                                                                    current.shift["after_t_s"])  # fmt: skip
     # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
     top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
+    # and orders a joint's angles can resolve: a series of order H has 2 H + 1 coefficients, which the n distinct
+    # angles of n poses determine only when n >= 2 (2 H + 1) (each coefficient over-determined twice). Beyond it a
+    # harmonic of the pose sample's own aliases is fitted (issue 36: motor-side gear harmonics, at the gear ratio
+    # times the angle, aliased by 20 scattered poses, were taken for an order-16 map that made fresh poses worse)
+    top = min(top, (len(set(table.pose)) // 2 - 1) // 2)
     orders = tuple(h for h in orders if h <= top)
     if not orders:
         return None
@@ -245,7 +250,7 @@ def _map_candidate(ctx: Context, val: Validator, fitted: tuple[str, ...], curren
     held = held_out_errors(mf, list(val.fold_sets["pose"] or []) + val.edges, len(ctx.params), ctx.executor) if (
         p < alpha and d_bic < 0 and val.fold_sets["pose"]) else None  # fmt: skip
     with_map, without = (HeldOut(*held[0]), HeldOut(*held[1])) if held is not None else (None, None)
-    gain_ok, p_held = significant(without, with_map, table.pose)
+    gain_ok, p_held = significant(without, with_map, table.pose, MAP_LEVEL)
     cand = Candidate(MAP, int(round(n_extra)), rss, int(dof), p, d_bic,
                      mf.cv_rms_mm if with_map is None else with_map.rms_mm, rms(res.residuals),
                      {"error_map": mf.to_doc(), "heldout_pvalue": p_held, **(current.shift or {})}, step=step,
@@ -429,6 +434,8 @@ def diagnose(
             if cause in ctx.dropped:
                 cand.detail["not_identifiable"] = list(ctx.dropped[cause])
             refused = implausible(fit.extension, fit.ext) if passes else []
+            if passes and cause == "thermal_drift" and not refused:
+                refused = _growth_between_stations(ctx, fitted, current, dof, alpha)
             if refused:
                 cand.detail["implausible"] = refused
             cand.significant = bool(passes and gain_ok and not refused)
@@ -542,6 +549,38 @@ def diagnose(
               for c in selected]  # fmt: skip
     return Diagnosis(main.cause, extended=res, extension=ext, table=tab, shift=shift, causes=causes,
                      noise_scale=_scale(res.residuals, res, floor), **doc)  # fmt: skip
+
+
+WITHIN = "thermal_drift within stations"  # ctx.features key of the growth's part within each station's time
+
+
+def _growth_between_stations(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: int, alpha: float) -> list[str]:
+    """[] when the arm's growth is significant within each station's own time, else one phrase: a growth constant
+    over one station's rows is exactly that station's range scale (about its origin) and a translation of it, so
+    between stations measured one after the other (the campaign order) a growth cannot be told from one station's
+    wrong air data (issue 36: a station's ranges 30 ppm off were named thermal_drift, and poses measured after
+    the campaign were predicted with the growth at every station). The part within stations (each station's mean
+    growth removed) must pass the same F test."""
+    ext = ctx.features["thermal_drift"]
+    stations = np.array(ctx.table.station)
+    if len(set(stations)) < 2:
+        return []
+    g = ext.growth.copy()
+    for sid in set(stations):
+        g[stations == sid] -= g[stations == sid].mean(axis=0)
+    ctx.features[WITHIN] = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot)
+    try:
+        fit = whole_fit(ctx, (*fitted, WITHIN))
+    except IdentificationError:
+        return ["thermal_drift: its growth within each station's own time cannot be identified"]
+    finally:
+        del ctx.features[WITHIN]
+    f = (current.rss - fit.rss) / (fit.rss / dof) if fit.rss > 0 else 0.0
+    p = float(fdtrc(1, dof, f)) if f > 0 else 1.0
+    if p < alpha:
+        return []
+    return [f"thermal_drift: within each station's own time the growth is not significant (F test p = {p:.2g}); "
+            "between stations measured one after the other it is one station's range scale (its air data) as well"]
 
 
 def _measurement_needed(table: MeasurementTable) -> str:
