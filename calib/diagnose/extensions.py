@@ -66,9 +66,11 @@ def build_extension(
     for cyclic_error `arcs` are the joints' fitted arcs (default: the table's own), for thermal_drift the
     name picks the form (THERMAL_FORMS; default `e`). `ranges`: the joint angles and times the extension was
     fitted on (default: the table's own); features are computed at the rows' angles and times clamped into them
-    (`Ranges`: held outside, every unbounded term alike), except two bounded by their physics and defined
-    everywhere: backlash (+-b/2 by the approach direction) and joint_compliance (a gravity torque, at most the
-    arm's weight times its reach, and its deflection within `calib.diagnose.plausibility`'s range)."""
+    (`Ranges`: held outside, every unbounded term alike); the joint error map is periodic and held outside its
+    fitted arcs instead (an angle beyond a joint's range but inside its arc modulo 360 deg is inside the map); two
+    are bounded by their physics and defined everywhere: backlash (+-b/2 by the approach direction) and
+    joint_compliance (a gravity torque, at most the arm's weight times its reach, and its deflection within
+    `calib.diagnose.plausibility`'s range)."""
     q_read = np.radians(table.q_deg)
     ranges = Ranges.of(q_read, table.t_s) if ranges is None else ranges
     q = ranges.clamp_q(q_read)
@@ -90,7 +92,7 @@ def build_extension(
         feats, kept = select_columns(feats, [f"{letter}{j + 1}" for j in range(n)], names)
         return Extension(cause, kept, [unit] * len(kept), np.full(len(kept), factor), feats, meta={"ranges": ranges})
     if cause == MAP:
-        ext = map_extension(q, harmonics, names, arcs)
+        ext = map_extension(q_read, harmonics, names, arcs)  # periodic: held outside its arcs (`Arc.clamp`)
         ext.meta["ranges"] = ranges
         return ext
     if cause == "thermal_drift":

@@ -593,8 +593,8 @@ def _measurement_needed(table: MeasurementTable) -> str:
         named = ", ".join(alone[:3]) + (f" and {len(alone) - 3} more" if len(alone) > 3 else "")
         return (f"reference point(s) {named} are measured at one pose only: measure every reference point at two "
                 "or more poses (better: every point at every pose) so that a pose can be held out")
-    return ("measure more poses than the model has parameters per point and station, or repeat the poses in a "
-            "second pass, so that a pose or a pass can be held out")
+    return ("measure more poses (the poses left when one is held out must identify the geometric model), or repeat "
+            "the poses in a second pass, so that a pose or a pass can be held out")
 
 
 def _scale(residuals: np.ndarray, res: Identification, floor: Floor) -> float:
