@@ -61,15 +61,16 @@ class Ranges:
 
     @staticmethod
     def from_doc(doc: dict, n: int) -> Ranges:
-        """From model.json's extension.valid, `n` joints (KeyError, TypeError, ValueError when malformed)."""
+        """From model.json's extension.valid, `n` joints (ExtensionError, or KeyError / TypeError / ValueError of the
+        document's access, when malformed)."""
         joints = doc["joints"]
         rows = [joints[f"joint_{j + 1}"] for j in range(n)]
         lims = tuple((float(np.radians(float(r["from_deg"]))), float(np.radians(float(r["to_deg"])))) for r in rows)
         if any(not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi) for lo, hi in lims):
-            raise ValueError("a joint range must be two finite angles, from <= to")
+            raise ExtensionError("a joint range must be two finite angles, from <= to")
         t0, t1 = float(doc["time_s"]["from"]), float(doc["time_s"]["to"])
         if not (np.isfinite(t0) and np.isfinite(t1) and t0 <= t1):
-            raise ValueError("time_s must be two finite times, from <= to")
+            raise ExtensionError("time_s must be two finite times, from <= to")
         return Ranges(lims, (t0, t1))
 
 
