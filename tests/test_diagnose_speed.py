@@ -201,8 +201,11 @@ def test_warm_started_fit_stops_at_the_same_minimum(twin_case):
 # the verdict's figures are computed by the same arithmetic today (the warm starts move the candidates' figures by
 # ~1e-12 mm, the structure test's by ~1e-16 relative).
 B_PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5"
+# Issue 36 added the edge folds (each joint's extreme poses held out) to the held-out figures, on purpose: the
+# verdict is unchanged, its figures are now those of the partition and the edge folds (before: 0.25695947777930694
+# -> 0.07770870938575124 on the partition alone).
 B_BEFORE = {"cause": "cyclic_error", "causes": ["joint_compliance", "cyclic_error"],
-            "rms_geometric_mm": 0.25695947777930694, "rms_extended_mm": 0.07770870938575124}  # fmt: skip
+            "rms_geometric_mm": 0.25725176765956365, "rms_extended_mm": 0.10522610739998324}  # fmt: skip
 
 
 # slow: 12 s of real data; the fast paths are checked against the code they replaced by default (above)
