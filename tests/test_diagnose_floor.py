@@ -53,17 +53,17 @@ def assert_floor(cell_name, effect, seed, n_poses, **kw):
                                          geometric)  # fmt: skip
 
 
-@pytest.mark.parametrize("effect", EFFECTS)
+# the default examples are those the code before issue 36 failed (every effect is in the slow property test below)
+@pytest.mark.parametrize("effect", ["sagging_nest", "station_scale", "warm_up"])
 def test_never_worse_than_geometric_on_unseen_poses(effect):
     assert_floor("kr270", effect, 36001, 20)
 
 
-@pytest.mark.parametrize("effect", ["motor_gear", "wrist_coupling"])
-def test_never_worse_on_a_ur10(effect):
-    assert_floor("ur10", effect, 36002, 20)
+def test_never_worse_on_a_ur10():
+    assert_floor("ur10", "motor_gear", 36002, 20)
 
 
-@pytest.mark.parametrize("effect", ["motor_gear", "wrist_coupling", "station_scale"])
+@pytest.mark.parametrize("effect", ["station_scale"])
 def test_narrow_ranges_never_worse_up_to_10_percent_outside(effect):
     # calibration poses within a 40 deg window per joint, unseen poses up to 10 % of it beyond either end
     assert_floor("kr270", effect, 36003, 20, narrow_deg=40.0, outside=0.1)
