@@ -53,6 +53,8 @@ GEOMETRIC_ONLY = {
 NEAR_SINGULAR = 2e-3
 FD_STEP_RAD = 1e-6  # central differences of the extension's joint offsets (smooth in q)
 
+OUTSIDE_RANGES = "outside the joint ranges the model's extension was fitted on"
+
 
 class CompensationError(CalibError):
     """A request that cannot be compensated at all (shapes, TCP, lever); the message says why."""
@@ -210,6 +212,7 @@ def compensate(
     tol_mm: float = 1e-10,
     max_iter: int = 20,
     max_correction: tuple[float, float] = (MAX_CORRECTION_MM, MAX_CORRECTION_DEG),
+    allow_outside: bool = False,
 ) -> tuple[np.ndarray, CompensationReport]:
     """Joint targets (N, n) rad with which `model` reaches the pose the nominal model reaches at q_nominal.
 
@@ -219,7 +222,9 @@ def compensate(
     its nominal angles and its reason in `report.failures`; the others are compensated. So does one whose correction
     exceeds `max_correction` (mm of TCP displacement the model asks to correct, deg of any joint's correction; the
     cell's `max_correction`, calib.model.cell): it is never written. CompensationError only for a request that cannot
-    be run at all (shapes, TCP, lever)."""
+    be run at all (shapes, TCP, lever). A target outside the joint ranges the model's extension
+    was fitted on (`Model.outside`) is refused likewise unless `allow_outside` (it is then compensated with the
+    extension held at the nearest fitted angle, and the report warns)."""
     chain = model.chain
     n = chain.dof
     q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
@@ -238,6 +243,14 @@ def compensate(
     failures = [f"nominal target outside the joint limits: {v}" if v else "" for v in
                 _limit_violations(q0, limits, joint_names)]  # fmt: skip
     offsets, ignored, notes = joint_error_function(model)
+    ranges = model.ranges()
+    if offsets is not None and ranges is not None and not allow_outside:  # known only where it was fitted
+        out = ranges.outside(q0)
+        for i in np.flatnonzero(out.any(axis=1)):
+            joints = "; ".join(f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, "
+                               f"{np.degrees(hi):.4f}]" for j, (lo, hi) in enumerate(ranges.joints_rad) if out[i, j])
+            failures[i] = failures[i] or (f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
+                                          "extension is then held at the nearest fitted angle)")  # fmt: skip
 
     tools = tcp + np.array([[0.0, 0.0, 0.0], [lever_mm, 0.0, 0.0], [0.0, lever_mm, 0.0]])  # last joint frame
     tool_rows = np.tile(tools, (n_rows, 1))

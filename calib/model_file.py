@@ -10,6 +10,8 @@
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
  "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
  "converged": the solver's stopping test was met, "message": why it stopped,
+ "extension" also holds "valid": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "time_s": {"from", "to"}}, the
+ ranges of the rows it was fitted on (outside them it is held; predict warns, compensate refuses unless asked),
  "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
  nominal because of them (only then),
  "test_pose": {"joints_deg", "station", "tcp_mm", "sigma_mm", "sigma_xyz_mm", "correction_mm", "note"}: the TCP at
@@ -28,7 +30,7 @@ import numpy as np
 
 from trackcal.calib.diagnose.changepoint import relabel_shift
 from trackcal.calib.diagnose.extensions import CAUSES, build_parts
-from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension
+from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.diagnose.joint_map import Arc, range_warning
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import WEIGHTINGS
@@ -55,10 +57,12 @@ def to_boundary(p: Param, v: float) -> float:
     return float(v) if p.is_length else float(np.degrees(v))
 
 
-def extension_doc(res: Identification, shift: dict | None = None) -> dict:
+def extension_doc(res: Identification, shift: dict | None = None, ranges: Ranges | None = None) -> dict:
     """{"cause": ..., "parameters": {name: {value, ci95, unit}}} in boundary units; station_shift adds
     {"station", "after_t_s"} (the moved station's later transform is the station "<id>~shift"), also next to
-    the parameters of other causes."""
+    the parameters of other causes; `ranges` (the joint angles and times of the rows it was fitted on) adds
+    "valid": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "time_s": {"from", "to"}}, where it holds: outside
+    them the extension is held at its value at the nearest fitted point (`Ranges`)."""
     ext = res.extension
     if ext is None:
         return {"cause": "none"} if shift is None else {"cause": "station_shift", "causes": ["station_shift"],
@@ -76,6 +80,8 @@ def extension_doc(res: Identification, shift: dict | None = None) -> dict:
         doc["parts"] = [{"cause": c, "parameters": list(names)} for c, names in ext.parts()]
     if "arcs" in ext.meta:
         doc["arcs"] = {f"joint_{j + 1}": arc.to_doc() for j, arc in sorted(ext.meta["arcs"].items())}
+    if ranges is not None:
+        doc["valid"] = ranges.to_doc()
     return doc if shift is None else {**doc, **shift}
 
 
@@ -89,15 +95,16 @@ def fitted_causes(ext: Extension, shift: dict | None = None) -> list[str]:
 
 
 def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None,
-                          test_pose: np.ndarray | None = None) -> dict:  # fmt: skip
-    """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.tcp_figure)."""
+                          test_pose: np.ndarray | None = None, ranges: Ranges | None = None) -> dict:  # fmt: skip
+    """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.tcp_figure);
+    `ranges`: those of the rows it was fitted on (`extension_doc`)."""
     ci = res.param_ci95()
     unit = np.array([1.0 if p.is_length else np.degrees(1.0) for p in res.params])
     cov = res.param_cov() * np.outer(unit, unit)
     doc = {
         "format": FORMAT,
         "robot": chain_to_dict(res.chain),
-        "extension": extension_doc(res, shift),
+        "extension": extension_doc(res, shift, ranges),
         "parameters": {
             p.name: {
                 "value": to_boundary(p, v),
@@ -191,18 +198,48 @@ class Model:
         arcs = self.doc.get("extension", {}).get("arcs", {})
         return {int(k.split("_")[1]) - 1: Arc.from_doc(v) for k, v in arcs.items()}
 
+    def ranges(self) -> Ranges | None:
+        """The joint angles and times the extension was fitted on (None: no extension, or a model written before
+        they were recorded: its extension is then evaluated at the rows' own angles and times, as it was)."""
+        valid = self.doc.get("extension", {}).get("valid")
+        return None if valid is None or not self.parts() else Ranges.from_doc(valid, self.chain.dof)
+
     def extension_for(self, rows: MeasurementTable) -> tuple[Extension | None, np.ndarray | None]:
-        """(extension features for `rows`, parameter values) as identified; (None, None) without one."""
+        """(extension features for `rows`, parameter values) as identified, held outside the ranges it was fitted
+        on; (None, None) without one."""
         parts = self.parts()
         if not parts:
             return None, None
         _, theta = self.extension_values()
-        return build_parts(parts, self.chain, rows, self.arcs(), self.cause), theta
+        return build_parts(parts, self.chain, rows, self.arcs(), self.cause, self.ranges()), theta
+
+    def outside(self, q: np.ndarray) -> np.ndarray:
+        """(N,) bool: rows whose joint angles q (N, n) rad leave the ranges the extension was fitted on."""
+        ranges = self.ranges()
+        return np.zeros(len(q), dtype=bool) if ranges is None else ranges.outside(q).any(axis=1)
 
     def range_warning(self, q: np.ndarray) -> str | None:
-        """One line when joint angles q (N, n) rad leave the joint error map's fitted range, else None."""
-        arcs = self.arcs()
-        return range_warning(q, arcs) if arcs else None
+        """One line when joint angles q (N, n) rad leave the ranges the extension was fitted on (naming the rows and
+        joints) or the joint error map's fitted arcs, else None."""
+        arcs, ranges = self.arcs(), self.ranges()
+        lines = [w for w in [outside_warning(q, ranges) if ranges is not None else None,
+                             range_warning(q, arcs) if arcs else None] if w]  # fmt: skip
+        return "; ".join(lines) if lines else None
+
+
+def outside_warning(q: np.ndarray, ranges: Ranges) -> str | None:
+    """One line naming the rows (1-based, the first ten) whose angles q (N, n) rad leave `ranges`, and per joint how
+    many and the fitted range; None when none does."""
+    out = ranges.outside(q)
+    rows = np.flatnonzero(out.any(axis=1))
+    if len(rows) == 0:
+        return None
+    named = ", ".join(str(r + 1) for r in rows[:10]) + (f" and {len(rows) - 10} more" if len(rows) > 10 else "")
+    per_joint = ", ".join(f"joint {j + 1}: {int(out[:, j].sum())} (fitted {np.degrees(lo):.1f} .. "
+                          f"{np.degrees(hi):.1f} deg)" for j, (lo, hi) in enumerate(ranges.joints_rad)
+                          if out[:, j].any())  # fmt: skip
+    return (f"rows {named} of {len(q)} leave the joint ranges the model's extension was fitted on ({per_joint}); "
+            "the extension is held there at its value at the nearest fitted angle")  # fmt: skip
 
 
 def _extension_values(ext: dict, where: str) -> None:
@@ -285,7 +322,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
                              f"beginning with extension.cause, got {causes!r}")  # fmt: skip
     model = Model(chain, params, dev, stations, points, doc)
     try:
-        model.parts(), model.arcs(), model.extension_values()  # the extension is readable
+        model.parts(), model.arcs(), model.extension_values(), model.ranges()  # the extension is readable
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:
         raise ModelError(f"{path}: extension: incomplete or malformed ({exc})") from None
     return model

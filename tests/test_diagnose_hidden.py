@@ -203,6 +203,10 @@ def verdict(seed: int, names: tuple[str, ...], **kw):
 def check(seed: int, names: tuple[str, ...], **kw) -> str | None:
     """None when diagnose names every hidden effect by its nearest candidate with a held-out gain."""
     d, named = verdict(seed, names, **kw)
+    if names == ("high_order",) and d.cause == "unexplained":
+        # issue 36: 30 poses sample a harmonic of 12-30 cycles per revolution less than twice per cycle over a joint's
+        # range: aliased, as a motor-side gear error is; unexplained with the geometric model is a right verdict
+        return None
     want = {NEAREST[n] for n in names if n != "none"}
     if not want:
         return None if d.cause == "none" else f"seed {seed} {names}: {d.cause} {named}"

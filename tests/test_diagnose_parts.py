@@ -53,7 +53,7 @@ def test_linearised_folds_match_full_refits(kr270):
     ctx = kr270_context(kr270, {"backlash": 0.05})
     folds = dg.fold_rows(ctx.table, "pose", 5, 0)
     for causes in ((), ("backlash",)):
-        fast = dg.cross_validate(ctx, causes, folds)
+        fast = dg.cross_validate(ctx, causes, folds).rms_mm
         errs = []
         for test in folds:
             fit = dg.fit_model(ctx, causes, np.setdiff1d(np.arange(len(ctx.table)), test))

@@ -187,10 +187,10 @@ def test_warm_started_fit_stops_at_the_same_minimum(twin_case):
     folds = crossval.fold_rows(table, "pose", 5, 0)
     warm = crossval.fit_model(ctx, causes)
     ctx.fits[tuple(sorted(causes))] = warm
-    hold_warm = crossval.cross_validate(ctx, causes, folds)
+    hold_warm = crossval.cross_validate(ctx, causes, folds).rms_mm
     cold = crossval._whole_fit(ctx, ctx.table, crossval.extension_of(ctx, causes), 100)
     ctx.fits[tuple(sorted(causes))] = cold
-    hold_cold = crossval.cross_validate(ctx, causes, folds)
+    hold_cold = crossval.cross_validate(ctx, causes, folds).rms_mm
     assert warm.rss == pytest.approx(cold.rss, rel=1e-9)
     assert hold_warm == pytest.approx(hold_cold, abs=1e-6)
     assert np.allclose(warm.ext, cold.ext, rtol=1e-6, atol=1e-9)
@@ -201,8 +201,11 @@ def test_warm_started_fit_stops_at_the_same_minimum(twin_case):
 # the verdict's figures are computed by the same arithmetic today (the warm starts move the candidates' figures by
 # ~1e-12 mm, the structure test's by ~1e-16 relative).
 B_PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5"
+# Issue 36 added the edge folds (each joint's extreme poses held out) to the held-out figures, on purpose: the
+# verdict is unchanged, its figures are now those of the partition and the edge folds (before: 0.25695947777930694
+# -> 0.07770870938575124 on the partition alone).
 B_BEFORE = {"cause": "cyclic_error", "causes": ["joint_compliance", "cyclic_error"],
-            "rms_geometric_mm": 0.25695947777930694, "rms_extended_mm": 0.07770870938575124}  # fmt: skip
+            "rms_geometric_mm": 0.25725176765956365, "rms_extended_mm": 0.10522610739998324}  # fmt: skip
 
 
 # slow: 12 s of real data; the fast paths are checked against the code they replaced by default (above)

@@ -6,8 +6,9 @@ covariance.
 A fold's fit is one Gauss-Newton step
 from the whole-table fit on the training rows (the Gram matrix of the whole table minus the fold's
 rows): the fold's solution is about a standard deviation away, where the model is linear to far below
-the noise. Folds are whole poses, passes of the plan, or blocks of time within each station; a scheme
-whose training sets cannot identify the model gives None, and the comparison moves to the next.
+the noise. Folds are whole poses (with edge folds: each joint's extreme poses held out, so that extrapolation is
+judged), passes of the plan, or blocks of time within each station; a scheme whose training sets cannot identify
+the model gives None, and the comparison moves to the next.
 Candidate parameters the data cannot see are dropped before any fit.
 """
 
@@ -21,6 +22,7 @@ import numpy as np
 from trackcal.calib.diagnose.changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.features import Extension, combine
+from trackcal.calib.diagnose.significance import HeldOut
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
     Identification,
@@ -41,6 +43,7 @@ SINGULAR = 1e-7  # smallest / largest singular value of the column-scaled Jacobi
 VISIBLE = 1e-6  # an extension column whose part independent of the geometric ones is below this is dropped
 LEVER_RATIO = 1e-3  # a joint moving the points less than this fraction of the most moving joint is not seen
 FOLD_ITERATIONS = 30
+EDGE_SHARE = 0.1  # the share of each joint's poses, at either end of its range, an edge fold holds out
 
 
 def rms(residuals: np.ndarray) -> float:
@@ -242,9 +245,11 @@ def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int,
     return groups if len(groups) > 1 else None
 
 
-def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray]) -> float | None:
-    """Held-out RMS (mm, per coordinate) of the model `causes` over the folds; None when a training set
-    cannot be identified or a held-out row cannot be predicted.
+def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray]) -> HeldOut | None:
+    """Held-out errors of the model `causes` over the folds (`HeldOut`: per row, its squared error summed over
+    every fold that held it out; `.rms_mm` the RMS of one coordinate); None when a training set cannot be
+    identified or a held-out row cannot be predicted. The folds need not partition the rows (edge folds,
+    `edge_rows`, hold out again rows a partition held out).
 
     Each fold's fit is one Gauss-Newton step from the whole-table solution on the training rows (the
     Gram matrix of the whole table minus the fold's rows): the fold's solution differs from the whole
@@ -256,7 +261,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
         return None
     n = len(ctx.table)
     gram, grad = full.jm.T @ full.jm, full.jm.T @ full.r
-    errs = []
+    sq, count = np.zeros(n), np.zeros(n, dtype=int)
     for test in folds:
         train = np.setdiff1d(np.arange(n), test)
         if full.shift is not None and scan(ctx, train) != (
@@ -268,33 +273,75 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
             pred = predict_rows(ctx, fit, test, extension_of(ctx, causes, test))
             if pred is None:
                 return None
-            errs.append(ctx.table.xyz[test] - pred)
+            e = ctx.table.xyz[test] - pred
+        else:
+            te3 = (3 * test[:, None] + np.arange(3)).ravel()
+            jt, rt = full.jm[te3], full.r[te3]
+            g = gram - jt.T @ jt
+            if not _identifiable(g):
+                return None
+            d = np.sqrt(np.diag(g))
+            step = np.linalg.solve(g / np.outer(d, d), (grad - jt.T @ rt) / d) / d
+            e = (rt - jt @ step).reshape(-1, 3)
+            e = e if ctx.unwhiten is None else np.einsum("nij,nj->ni", ctx.unwhiten[test], e)
+        np.add.at(sq, test, np.sum(e**2, axis=1))
+        np.add.at(count, test, 1)
+    return HeldOut(sq, count)
+
+
+def trainable(ctx: Context, causes: tuple[str, ...], test: np.ndarray) -> bool:
+    """Whether the rows other than `test` identify the model `causes` (its whole-table fit's Gram matrix less
+    the held-out rows')."""
+    try:
+        full = whole_fit(ctx, causes)
+    except IdentificationError:
+        return False
+    jt = full.jm[(3 * np.asarray(test)[:, None] + np.arange(3)).ravel()]
+    return _identifiable(full.jm.T @ full.jm - jt.T @ jt)
+
+
+def edge_rows(table: MeasurementTable, share: float = EDGE_SHARE) -> list[np.ndarray]:
+    """Folds that judge extrapolation: for every joint that moves, the poses in the lowest `share` of its range and,
+    apart, those in the highest (by the joint's angle at the pose; at least one pose each), whole poses held out.
+    A model fitted without a joint's extreme poses then predicts them as it will predict a pose beyond the
+    campaign's range (issue 36: an encoder scale and a joint map that cancelled inside the fitted range made an
+    unseen ABB IRB 120 7x worse just outside it). Folds holding out the same poses are kept once."""
+    pose_arr = np.array(table.pose)
+    poses, first = np.unique(pose_arr, return_index=True)
+    if len(poses) < 3:
+        return []
+    q = table.q_deg[first]
+    k = max(1, int(round(share * len(poses))))
+    out, seen = [], set()
+    for j in range(q.shape[1]):
+        if np.ptp(q[:, j]) <= 0:
             continue
-        te3 = (3 * test[:, None] + np.arange(3)).ravel()
-        jt, rt = full.jm[te3], full.r[te3]
-        g = gram - jt.T @ jt
-        if not _identifiable(g):
-            return None
-        d = np.sqrt(np.diag(g))
-        step = np.linalg.solve(g / np.outer(d, d), (grad - jt.T @ rt) / d) / d
-        e = (rt - jt @ step).reshape(-1, 3)
-        errs.append(e if ctx.unwhiten is None else np.einsum("nij,nj->ni", ctx.unwhiten[test], e))
-    return rms(np.concatenate(errs))
+        order = np.argsort(q[:, j], kind="stable")
+        for group in (order[:k], order[-k:]):
+            key = tuple(sorted(group.tolist()))
+            if key not in seen:
+                seen.add(key)
+                out.append(np.flatnonzero(np.isin(pose_arr, poses[group])))
+    return out
 
 
 class Validator:
-    """Held-out comparisons of two models on the same folds, the scheme chosen per comparison."""
+    """Held-out comparisons of two models on the same folds, the scheme chosen per comparison. The pose scheme's
+    folds are its partition and the edge folds (`edge_rows`) whose training rows identify the geometric model."""
 
     def __init__(self, ctx: Context, folds: int, seed: int):
         self.ctx, self.folds, self.seed = ctx, folds, seed
-        self.cache: dict[tuple, float | None] = {}
+        self.cache: dict[tuple, HeldOut | None] = {}
         self.fold_sets = {s: fold_rows(ctx.table, s, folds, seed) for s in ("pose", "pass", "time")}
+        self.edges = [g for g in edge_rows(ctx.table) if trainable(ctx, (), g)] if self.fold_sets["pose"] else []
 
-    def cv(self, causes: tuple[str, ...], scheme: str, cut: tuple[str, float] | None = None) -> float | None:
+    def cv(self, causes: tuple[str, ...], scheme: str, cut: tuple[str, float] | None = None) -> HeldOut | None:
         key = (tuple(sorted(causes)), scheme, cut)
         if key not in self.cache:
             folds = self.fold_sets[scheme] if cut is None else fold_rows(self.ctx.table, scheme, self.folds,
                                                                          self.seed, cut)  # fmt: skip
+            if folds is not None and scheme == "pose":
+                folds = folds + self.edges
             self.cache[key] = None if folds is None else cross_validate(self.ctx, causes, folds)
         return self.cache[key]
 
@@ -308,12 +355,13 @@ class Validator:
             return None
         return None if shift is None else (shift["station"], float(shift["after_t_s"]))
 
-    def compare(self, base: tuple[str, ...], model: tuple[str, ...]) -> tuple[str | None, float | None, float | None]:
-        """(scheme, held-out RMS of base, of model) on the same folds: time blocks first for a time-dependent
+    def compare(self, base: tuple[str, ...], model: tuple[str, ...]) -> tuple[str | None, HeldOut | None,
+                                                                          HeldOut | None]:
+        """(scheme, held-out errors of base, of model) on the same folds: time blocks first for a time-dependent
         cause, cut on both sides of the model's change point when it has one (`fold_rows`).
 
         The scheme is the first on which the base model can be cross-validated: the campaign supports it. When the
-        model cannot be on that scheme (a training set of its folds does not identify it), its held-out RMS is None
+        model cannot be on that scheme (a training set of its folds does not identify it), its held-out errors are None
         and no other scheme is tried: the campaign cannot support the model. Before issue 25 the next scheme was
         tried, and a joint cause judged by time blocks was judged on poses its training rows had seen (the same
         pose measured with the other points and stations), so a model that over-fitted the joint angles of 30 poses

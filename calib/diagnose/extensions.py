@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
+from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, Ranges, combine, select_columns
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import Arc, map_extension
 from trackcal.calib.io.table import MeasurementTable
@@ -59,18 +59,26 @@ def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
 
 def build_extension(
     cause: str, chain: Chain, table: MeasurementTable, harmonics: int = 2, names: list[str] | None = None,
-    arcs: dict[int, Arc] | None = None,
+    arcs: dict[int, Arc] | None = None, ranges: Ranges | None = None,
 ) -> Extension:
     """The extension `cause` for the rows of `table` (time order), in internal units (rad, N m, s).
     `names` selects the parameters (as a fitted model lists them) instead of keeping every varying one;
     for cyclic_error `arcs` are the joints' fitted arcs (default: the table's own), for thermal_drift the
-    name picks the form (THERMAL_FORMS; default `e`)."""
-    q = np.radians(table.q_deg)
+    name picks the form (THERMAL_FORMS; default `e`). `ranges`: the joint angles and times the extension was
+    fitted on (default: the table's own); features are computed at the rows' angles and times clamped into them
+    (`Ranges`: held outside, every unbounded term alike); the joint error map is periodic and held outside its
+    fitted arcs instead (an angle beyond a joint's range but inside its arc modulo 360 deg is inside the map); two
+    are bounded by their physics and defined everywhere: backlash (+-b/2 by the approach direction) and
+    joint_compliance (a gravity torque, at most the arm's weight times its reach, and its deflection within
+    `calib.diagnose.plausibility`'s range)."""
+    q_read = np.radians(table.q_deg)
+    ranges = Ranges.of(q_read, table.t_s) if ranges is None else ranges
+    q = ranges.clamp_q(q_read)
     n_rows, n = q.shape
     if cause in ("joint_compliance", "backlash", "encoder_scale"):
         signature = {
-            "joint_compliance": lambda: gravity_torques(chain, q),  # N m
-            "backlash": lambda: 0.5 * approach_signs(q),
+            "joint_compliance": lambda: gravity_torques(chain, q_read),  # N m
+            "backlash": lambda: 0.5 * approach_signs(q_read),
             "encoder_scale": lambda: q,
         }[cause]()
         feats = np.zeros((n_rows, n, n))
@@ -82,9 +90,11 @@ def build_extension(
             "encoder_scale": ("k", "ppm", UNIT_FACTORS["ppm"]),
         }[cause]
         feats, kept = select_columns(feats, [f"{letter}{j + 1}" for j in range(n)], names)
-        return Extension(cause, kept, [unit] * len(kept), np.full(len(kept), factor), feats)
+        return Extension(cause, kept, [unit] * len(kept), np.full(len(kept), factor), feats, meta={"ranges": ranges})
     if cause == MAP:
-        return map_extension(q, harmonics, names, arcs)
+        ext = map_extension(q_read, harmonics, names, arcs)  # periodic: held outside its arcs (`Arc.clamp`)
+        ext.meta["ranges"] = ranges
+        return ext
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:
@@ -92,20 +102,21 @@ def build_extension(
                              f"{', '.join(THERMAL_FORMS)}")  # fmt: skip
         pivot = np.zeros(3) if forms[0] == "e_base" else np.array(chain.base[:3, 3], dtype=float)
         return Extension(cause, list(forms), ["ppm/h"], np.array([UNIT_FACTORS["ppm/h"]]),
-                         growth=np.asarray(table.t_s, float)[:, None], pivot=pivot)  # fmt: skip
+                         growth=ranges.clamp_t(table.t_s)[:, None], pivot=pivot, meta={"ranges": ranges})  # fmt: skip
     raise ExtensionError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
 
 
 def build_parts(
     parts: list[tuple[str, list[str]]], chain: Chain, table: MeasurementTable, arcs: dict[int, Arc] | None = None,
-    cause: str | None = None,
+    cause: str | None = None, ranges: Ranges | None = None,
 ) -> Extension:
     """The extension made of `parts` ((cause, parameter names), as `Extension.parts` lists them) for the rows of
-    `table`; `arcs` are the joint error map's fitted arcs, `cause` the main cause (default: the first part's)."""
-    return combine([build_extension(c, chain, table, names=list(n), arcs=arcs if c == "cyclic_error" else None)
-                    for c, n in parts], cause)  # fmt: skip
+    `table`; `arcs` are the joint error map's fitted arcs, `cause` the main cause (default: the first part's),
+    `ranges` those it was fitted on (default: the table's own)."""
+    return combine([build_extension(c, chain, table, names=list(n), arcs=arcs if c == "cyclic_error" else None,
+                                    ranges=ranges) for c, n in parts], cause)  # fmt: skip
 
 
 def rebuild(ext: Extension, chain: Chain, table: MeasurementTable) -> Extension:
-    """A fitted extension's features for the rows of another table (same parameters, same fitted arcs)."""
-    return build_parts(ext.parts(), chain, table, ext.meta.get("arcs"), ext.cause)
+    """A fitted extension's features for the rows of another table (same parameters, same fitted arcs and ranges)."""
+    return build_parts(ext.parts(), chain, table, ext.meta.get("arcs"), ext.cause, ext.meta.get("ranges"))

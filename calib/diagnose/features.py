@@ -23,6 +23,57 @@ UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0))
                 "ppm/h": 1e6 * 3600.0}  # fmt: skip
 
 
+@dataclass(frozen=True)
+class Ranges:
+    """What an extension was fitted on: each joint's range of angles (rad) and the span of the rows' times (s).
+    Outside them every extension is held at its value at the nearest fitted point, all its unbounded terms alike
+    (the features are computed at the angles and times clamped into the ranges; backlash and gravity compliance are
+    bounded by their physics, `calib.diagnose.extensions.build_extension`): no term is extrapolated against a
+    held one (issue 36: an encoder scale kept linear beyond a joint's range while the joint map was held broke a
+    cancellation inside it, and an unseen ABB IRB 120 was 7x worse than with the geometric model)."""
+
+    joints_rad: tuple[tuple[float, float], ...]  # (low, high) per joint
+    time_s: tuple[float, float]
+
+    @staticmethod
+    def of(q: np.ndarray, t_s: np.ndarray) -> Ranges:
+        """The ranges of joint angles q (N, n) rad and times t_s (N,)."""
+        t = np.asarray(t_s, dtype=float)
+        return Ranges(tuple((float(lo), float(hi)) for lo, hi in zip(q.min(axis=0), q.max(axis=0), strict=True)),
+                      (float(t.min()), float(t.max())) if len(t) else (0.0, 0.0))  # fmt: skip
+
+    def clamp_q(self, q: np.ndarray) -> np.ndarray:
+        lim = np.array(self.joints_rad)
+        return np.clip(q, lim[:, 0], lim[:, 1])
+
+    def clamp_t(self, t_s: np.ndarray) -> np.ndarray:
+        return np.clip(np.asarray(t_s, dtype=float), *self.time_s)
+
+    def outside(self, q: np.ndarray) -> np.ndarray:
+        """(N, n) bool: the angles outside their joint's range (beyond 1e-9 rad of rounding)."""
+        lim = np.array(self.joints_rad)
+        return (q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9)
+
+    def to_doc(self) -> dict:
+        return {"joints": {f"joint_{j + 1}": {"from_deg": float(np.degrees(lo)), "to_deg": float(np.degrees(hi))}
+                           for j, (lo, hi) in enumerate(self.joints_rad)},
+                "time_s": {"from": self.time_s[0], "to": self.time_s[1]}}  # fmt: skip
+
+    @staticmethod
+    def from_doc(doc: dict, n: int) -> Ranges:
+        """From model.json's extension.valid, `n` joints (ExtensionError, or KeyError / TypeError / ValueError of the
+        document's access, when malformed)."""
+        joints = doc["joints"]
+        rows = [joints[f"joint_{j + 1}"] for j in range(n)]
+        lims = tuple((float(np.radians(float(r["from_deg"]))), float(np.radians(float(r["to_deg"])))) for r in rows)
+        if any(not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi) for lo, hi in lims):
+            raise ExtensionError("a joint range must be two finite angles, from <= to")
+        t0, t1 = float(doc["time_s"]["from"]), float(doc["time_s"]["to"])
+        if not (np.isfinite(t0) and np.isfinite(t1) and t0 <= t1):
+            raise ExtensionError("time_s must be two finite times, from <= to")
+        return Ranges(lims, (t0, t1))
+
+
 class ExtensionError(CalibError):
     """A model extension that does not exist or cannot be built: an unknown cause or parameter, parts that do not
     fit together."""
@@ -37,7 +88,7 @@ class Extension:
     joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
     growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
     pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
-    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"
+    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"; "ranges": Ranges
 
     @property
     def size(self) -> int:

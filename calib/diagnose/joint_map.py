@@ -354,9 +354,12 @@ class FoldGrams:
 
 
 def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas, held: HeldOutMap | None = None,
-               downdate=None, executor: Executor | None = None):  # fmt: skip
+               downdate=None, executor: Executor | None = None, per_row: bool = False):  # fmt: skip
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
-    order and ridge on the problem linearised at (jm, r): jm (3N, m) Jacobian, r (3N,) residual, whitened,
+    order and ridge on the problem linearised at (jm, r); with `per_row`, also the first order's and ridge's
+    squared held-out error of every row (mm^2, summed over its coordinates and the folds that held it out) and how
+    many folds held it out. `fold`: the fold of every row (N,), or a list of held-out row indices (folds that need
+    not partition the rows: edge folds). jm (3N, m) Jacobian, r (3N,) residual, whitened,
     gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
     pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
     (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
@@ -364,17 +367,23 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
     solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
-    row_fold = np.repeat(fold, 3)
+    groups = [np.flatnonzero(fold == k) for k in np.unique(fold)] if isinstance(fold, np.ndarray) else [
+        np.sort(g) for g in fold]  # fmt: skip
+    n_rows = len(r) // 3
 
     def scores(k):
         ss = np.zeros((len(orders_cols), len(lambdas)))
         ss_mm = np.zeros_like(ss)
-        hold = row_fold == k
+        rows = groups[k]
+        hold = np.zeros(n_rows, dtype=bool)
+        hold[rows] = True
+        hold = np.repeat(hold, 3)
         jk, rk = jm[hold], r[hold]
         g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
         if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs
             jk = jk.copy()
-            jk[:, pen_cols] = held.columns(np.flatnonzero(fold == k))
+            jk[:, pen_cols] = held.columns(rows)
+        first = None
         gaa = g[np.ix_(free, free)]
         # unpenalised block a = gaa^-1 (b_a - g_af c); column scaling keeps the inverse accurate
         sa = np.sqrt(np.diag(gaa))
@@ -396,12 +405,21 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
             e = rk[:, None] - j_free @ a - jk[:, cols] @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
             if unwhiten is not None:
-                e = np.einsum("nij,njl->nil", unwhiten[fold == k], e.reshape(-1, 3, len(lam))).reshape(e.shape)
+                e = np.einsum("nij,njl->nil", unwhiten[rows], e.reshape(-1, 3, len(lam))).reshape(e.shape)
             ss_mm[i] += np.sum(e**2, axis=0)
-        return ss, ss_mm
+            if i == 0:
+                first = np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1)
+        return ss, ss_mm, first
 
-    parts = list((map if executor is None else executor.map)(scores, np.unique(fold)))
-    return sum(p[0] for p in parts), sum(p[1] for p in parts)
+    parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
+    out = sum(p[0] for p in parts), sum(p[1] for p in parts)
+    if not per_row:
+        return out
+    sq, count = np.zeros(n_rows), np.zeros(n_rows, dtype=int)
+    for rows, p in zip(groups, parts, strict=True):
+        np.add.at(sq, rows, p[2])
+        np.add.at(count, rows, 1)
+    return (*out, sq, count)
 
 
 def fit_error_map(
@@ -484,6 +502,25 @@ def fit_error_map(
         effective_params=edf, cv_rms_mm=cv_rms, cv_rms_without_mm=cv_without, not_identifiable=not_identifiable,
         cv_table=cv_table, n_base=n_base, linearised=linearised,
     )  # fmt: skip
+
+
+def held_out_errors(mf: ErrorMapFit, groups: list[np.ndarray], n_params: int,
+                    executor: Executor | None = None) -> tuple[tuple, tuple] | None:  # fmt: skip
+    """((squared error, times held out) of every row with the map at its order and ridge, the same without the map),
+    over the folds `groups` (held-out row indices; need not partition the rows), on the map search's linearised
+    problem: what the paired test of its held-out gain needs (`calib.diagnose.significance`). None when the map was
+    not searched (a single order and ridge: nothing was cross-validated). `n_params`: the geometric parameters."""
+    lin = mf.linearised
+    if lin is None:
+        return None
+    pen = n_params + mf.n_base + np.arange(len(lin.names))
+    order = max(mf.orders.values())
+    cols = pen[[parse_name(nm)[1] <= order for nm in lin.names]]
+    with_map = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen, groups, [cols], [mf.ridge], lin.held,
+                          None, executor, per_row=True)  # fmt: skip
+    without = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen, groups, [pen[:0]], [1.0], None, None,
+                         executor, per_row=True)  # fmt: skip
+    return with_map[2:], without[2:]
 
 
 class MapEvidence:

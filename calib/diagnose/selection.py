@@ -7,16 +7,23 @@ current model by evidence that survives over-fitting:
 
 - a nested F test (whitened residuals), at alpha = 1e-3 / number of candidates left;
 - the Bayesian information criterion (it must improve);
-- cross-validation: the candidate must predict held-out rows better than the current model. Folds are
-  whole poses, or (when a time-dependent cause is judged: thermal drift, station shift) blocks of time
-  within each station, so a drift is judged by how it extrapolates. When a fold scheme leaves a training
-  set that cannot identify the current model (a planned campaign of few configurations), the next scheme is
-  used (pose, pass, time); when none works the verdict says so and rests on the F test and BIC. A candidate
-  the current model's scheme cannot identify is not significant (`Validator.compare`): the campaign cannot
-  tell it from over-fitting.
+- cross-validation: the candidate must predict held-out rows better than the current model, significantly: a
+  one-sided signed-rank test on the per-pose held-out errors at 1 % with the held-out RMS lower
+  (`calib.diagnose.significance`; issue 36: "any positive gain" let a cause join on 0.2 um). Folds are
+  whole poses, with edge folds holding out each joint's extreme poses so that extrapolation is judged
+  (`calib.diagnose.crossval.edge_rows`), or (when a time-dependent cause is judged: thermal drift, station
+  shift) blocks of time within each station, so a drift is judged by how it extrapolates. When a fold scheme
+  leaves a training set that cannot identify the current model (a planned campaign of few configurations), the
+  next scheme is used (pose, pass, time); when none works no cause enters on the F test and BIC alone: the
+  verdict is `unexplained` with the geometric model, and its note says what measurement would allow the check.
+  A candidate the current model's scheme cannot identify is not significant (`Validator.compare`): the campaign
+  cannot tell it from over-fitting;
+- physical plausibility: a fit whose parameters leave their physical range (`calib.diagnose.plausibility`: an
+  encoder scale of percents, a joint error of degrees) is refused as a cause and named in `refused`.
 
 The significant candidate with the largest held-out gain joins the model, until none is left. `cause` is
-the one with the largest gain, `causes` the selected set in order.
+the one with the largest gain, `causes` the selected set in order. The chosen model is held outside the joint
+ranges and times it was fitted on (`calib.diagnose.features.Ranges`).
 
 The joint error map (cyclic_error of any order, `calib.diagnose.joint_map`) is tried once the causes of few
 parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in
@@ -61,8 +68,10 @@ from trackcal.calib.diagnose.crossval import (
 from trackcal.calib.diagnose.extensions import JOINT_CAUSES, THERMAL_FORMS, build_extension
 from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
-from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map
+from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
+from trackcal.calib.diagnose.plausibility import implausible
+from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.diagnose.structure import structure_test
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, model_points
@@ -122,6 +131,7 @@ class Diagnosis:
     cv_note: str | None = None  # why a held-out figure is missing
     cv_scheme: str | None = None  # folds of the held-out figures: pose, pass or time (blocks within stations)
     not_identifiable: dict = field(default_factory=dict)  # cause -> parameters the data cannot see
+    refused: list[dict] = field(default_factory=list)  # {cause, step, why}: fits outside their physical range
 
 
 class CauseFit(NamedTuple):
@@ -200,16 +210,23 @@ def thermal_form(ctx: Context, arm: Extension) -> Extension:
     return forms[int(np.argmin(rss))]
 
 
-def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float, alpha: float,
-                   step: int, folds: int, seed: int,
+def _map_candidate(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float,
+                   alpha: float, step: int, folds: int, seed: int,
                    orders: tuple[int, ...] = ORDERS) -> tuple[Candidate, ErrorMapFit] | None:  # fmt: skip
     """The joint error map on top of the model `fitted` (`calib.diagnose.joint_map`: order (of `orders`) and ridge by
-    its own cross-validation by pose, which also gives the held-out gain; the F test and BIC count its
-    effective number of parameters)."""
+    its own cross-validation by pose; the F test and BIC count its effective number of parameters). Its held-out
+    gain is judged by the paired test (`calib.diagnose.significance`) on the search's folds and the edge folds
+    of `val` (the map clamped to each fold's training arcs, as predict clamps it), and a map beyond the physical
+    range of a transmission error is refused (`calib.diagnose.plausibility`)."""
     table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
                                                                    current.shift["after_t_s"])  # fmt: skip
     # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
     top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
+    # and orders a joint's angles can resolve: a series of order H has 2 H + 1 coefficients, which the n distinct
+    # angles of n poses determine only when n >= 2 (2 H + 1) (each coefficient over-determined twice). Beyond it a
+    # harmonic of the pose sample's own aliases is fitted (issue 36: motor-side gear harmonics, at the gear ratio
+    # times the angle, aliased by 20 scattered poses, were taken for an order-16 map that made fresh poses worse)
+    top = min(top, (len(set(table.pose)) // 2 - 1) // 2)
     orders = tuple(h for h in orders if h <= top)
     if not orders:
         return None
@@ -229,11 +246,20 @@ def _map_candidate(ctx: Context, fitted: tuple[str, ...], current: Fit, n_obs: i
     f = ((current.rss - rss) / n_extra) / (rss / dof)
     p = float(fdtrc(n_extra, dof, f)) if f > 0 else 1.0
     d_bic = float(n_obs * np.log(rss / current.rss) + n_extra * np.log(n_obs))
-    cand = Candidate(MAP, int(round(n_extra)), rss, int(dof), p, d_bic, mf.cv_rms_mm, rms(res.residuals),
-                     {"error_map": mf.to_doc(), **(current.shift or {})}, step=step,
-                     holdout_base_mm=mf.cv_rms_without_mm, cv_scheme="pose")  # fmt: skip
-    hold_ok = mf.cv_rms_mm is not None and mf.cv_rms_mm < mf.cv_rms_without_mm
-    cand.significant = bool(p < alpha and d_bic < 0 and hold_ok)
+    # the held-out gain judged on the search's folds and the edge folds (extrapolation), by the paired test
+    held = held_out_errors(mf, list(val.fold_sets["pose"] or []) + val.edges, len(ctx.params), ctx.executor) if (
+        p < alpha and d_bic < 0 and val.fold_sets["pose"]) else None  # fmt: skip
+    with_map, without = (HeldOut(*held[0]), HeldOut(*held[1])) if held is not None else (None, None)
+    gain_ok, p_held = significant(without, with_map, table.pose, MAP_LEVEL)
+    cand = Candidate(MAP, int(round(n_extra)), rss, int(dof), p, d_bic,
+                     mf.cv_rms_mm if with_map is None else with_map.rms_mm, rms(res.residuals),
+                     {"error_map": mf.to_doc(), "heldout_pvalue": p_held, **(current.shift or {})}, step=step,
+                     holdout_base_mm=mf.cv_rms_without_mm if without is None else without.rms_mm,
+                     cv_scheme="pose")  # fmt: skip
+    refused = implausible(res.extension, res.ext)
+    if refused:
+        cand.detail["implausible"] = refused
+    cand.significant = bool(p < alpha and d_bic < 0 and gain_ok and not refused)
     return cand, mf
 
 
@@ -377,6 +403,7 @@ def diagnose(
     candidates: list[Candidate] = []
     selected: list[Candidate] = []
     step = 0
+    untested = False  # a candidate passed the F test and BIC where no held-out check was possible
     map_open = MAP in open_causes  # the full joint error map: tried once the low-order causes are exhausted
     while open_causes or map_open:
         step += 1
@@ -395,29 +422,37 @@ def diagnose(
             f = ((current.rss - fit.rss) / n_extra) / (fit.rss / dof) if fit.rss > 0 else 0.0
             p = float(fdtrc(n_extra, dof, f)) if f > 0 else 1.0
             d_bic = float(n_obs * np.log(max(fit.rss, 1e-300) / current.rss) + n_extra * np.log(n_obs))
-            scheme, hold_b, hold_m = val.compare(fitted, model) if p < alpha and d_bic < 0 else (None, None, None)
-            cand = Candidate(cause, n_extra, fit.rss, dof, p, d_bic, hold_m, rms(fit.residuals), dict(fit.shift or {}),
-                             step=step, holdout_base_mm=hold_b, cv_scheme=scheme)  # fmt: skip
+            passes = p < alpha and d_bic < 0
+            scheme, hold_b, hold_m = val.compare(fitted, model) if passes else (None, None, None)
+            # the held-out gain must be significant (a paired test per pose, `calib.diagnose.significance`); with
+            # no held-out figure (no scheme: the F test and BIC alone; or the folds the campaign supports cannot
+            # identify the model: it cannot be told from over-fitting) no cause enters (issue 36)
+            gain_ok, p_held = significant(hold_b, hold_m, ctx.table.pose)
+            cand = Candidate(cause, n_extra, fit.rss, dof, p, d_bic, None if hold_m is None else hold_m.rms_mm,
+                             rms(fit.residuals), {**(fit.shift or {}), "heldout_pvalue": p_held}, step=step,
+                             holdout_base_mm=None if hold_b is None else hold_b.rms_mm, cv_scheme=scheme)  # fmt: skip
             if cause in ctx.dropped:
                 cand.detail["not_identifiable"] = list(ctx.dropped[cause])
-            # no held-out figure: on no scheme (the F test and BIC decide), or the folds the campaign supports
-            # cannot identify this model (it cannot be told from over-fitting: not significant)
-            unsupported = scheme is not None and hold_m is None
-            cand.significant = bool(p < alpha and d_bic < 0 and not unsupported
-                                    and (hold_m is None or hold_m < hold_b))  # fmt: skip
+            refused = implausible(fit.extension, fit.ext) if passes else []
+            if passes and cause == "thermal_drift" and not refused:
+                refused = _growth_between_stations(ctx, fitted, current, dof, alpha)
+            if refused:
+                cand.detail["implausible"] = refused
+            cand.significant = bool(passes and gain_ok and not refused)
+            untested |= bool(passes and scheme is None and not refused)
             if hold_m is None:
-                rejected = not (p < alpha and d_bic < 0)
-                cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if rejected else
+                cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if not passes else
                                 f"a training set of the {scheme} folds cannot identify it: this campaign cannot tell "
-                                "it from over-fitting" if unsupported else
-                                "cross-validation not possible on this design")  # fmt: skip
+                                "it from over-fitting" if scheme is not None else
+                                "cross-validation not possible on this design: the F test and BIC alone admit no "
+                                "cause")  # fmt: skip
             trial.append((cand, fit))
         if map_open and not any(c.significant for c, _ in trial):
             # cyclic_error's low-order form (if chosen) gives way to the map of any order; judged last, since a
             # generic map would absorb a compliance or an encoder scale of few parameters
             map_open = False
             base = tuple(c for c in fitted if c != MAP)
-            cand = _map_candidate(ctx, base, current, n_obs, n_geo, alpha, step, folds, seed)
+            cand = _map_candidate(ctx, val, base, current, n_obs, n_geo, alpha, step, folds, seed)
             trial += [] if cand is None else [cand]
         candidates.extend(c for c, _ in trial)
         winners = [t for t in trial if t[0].significant]
@@ -443,7 +478,7 @@ def diagnose(
                 gone = max(weak, key=lambda c: judged[c]["delta_bic"])
                 fitted = tuple(c for c in fitted if c != gone)
                 removed.append({"cause": gone, **judged.pop(gone)})
-            again = _map_candidate(ctx, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds, seed,
+            again = _map_candidate(ctx, val, fitted, whole_fit(ctx, fitted), n_obs, n_geo, alpha, step, folds, seed,
                                    (max(fit.orders.values()),)) if removed else None
             if removed and (again is None or not again[0].significant):
                 fitted, removed, judged = kept, [], {}
@@ -474,6 +509,8 @@ def diagnose(
             fitted = (*fitted, best.cause)
             current = fit
 
+    refused = [{"cause": c.cause, "step": c.step, "why": "; ".join(c.detail["implausible"])} for c in candidates
+               if "implausible" in c.detail]  # fmt: skip
     structure = structure_test(ctx, current, ctx.table if current.shift is None else relabel_shift(
         ctx.table, current.shift["station"], current.shift["after_t_s"]), val.fold_sets["pose"], seed,
         ALPHA)  # fmt: skip
@@ -484,14 +521,20 @@ def diagnose(
         scheme, hold_g, hold_e = val.compare((), chosen) if selected else next(
             ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
             (None, None, None))  # fmt: skip
+        hold_g, hold_e = (None if h is None else h.rms_mm for h in (hold_g, hold_e))
     cv_note = None if hold_g is not None else (
-        "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves "
-        "a training set that cannot be identified; the verdict rests on the F test and BIC")  # fmt: skip
+        "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves a "
+        "training set that cannot be identified, and the F test and BIC alone admit no cause (the geometric model is "
+        f"kept); {_measurement_needed(table)}")  # fmt: skip
     doc = dict(geometric=geo, candidates=candidates, holdout_geometric_mm=hold_g, holdout_extended_mm=hold_e,
                noise_floor_mm=floor.sigma_mm, floor_source=floor.source, variance_factor_pvalue=p_floor,
-               structure=structure, cv_note=cv_note, cv_scheme=scheme, not_identifiable=dict(ctx.dropped))  # fmt: skip
+               structure=structure, cv_note=cv_note, cv_scheme=scheme, not_identifiable=dict(ctx.dropped),
+               refused=refused)  # fmt: skip
     if not selected:
-        return Diagnosis("unexplained" if structure["structure"] else "none", extended=None, extension=None,
+        # residuals with structure, a cause the data could not check (no held-out poses), or one refused as
+        # unphysical: what the geometric model misses is not explained
+        found = structure["structure"] or untested or bool(refused)
+        return Diagnosis("unexplained" if found else "none", extended=None, extension=None,
                          table=table, noise_scale=_scale(geo.residuals, geo, floor), **doc)  # fmt: skip
     by_gain = sorted(selected, key=lambda c: c.gain_mm if c.gain_mm is not None else -c.delta_bic, reverse=True)
     main = by_gain[0]
@@ -506,6 +549,52 @@ def diagnose(
               for c in selected]  # fmt: skip
     return Diagnosis(main.cause, extended=res, extension=ext, table=tab, shift=shift, causes=causes,
                      noise_scale=_scale(res.residuals, res, floor), **doc)  # fmt: skip
+
+
+WITHIN = "thermal_drift within stations"  # ctx.features key of the growth's part within each station's time
+
+
+def _growth_between_stations(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: int, alpha: float) -> list[str]:
+    """[] when the arm's growth is significant within each station's own time, else one phrase: a growth constant
+    over one station's rows is exactly that station's range scale (about its origin) and a translation of it, so
+    between stations measured one after the other (the campaign order) a growth cannot be told from one station's
+    wrong air data (issue 36: a station's ranges 30 ppm off were named thermal_drift, and poses measured after
+    the campaign were predicted with the growth at every station). The part within stations (each station's mean
+    growth removed) must pass the same F test."""
+    ext = ctx.features["thermal_drift"]
+    stations = np.array(ctx.table.station)
+    if len(set(stations)) < 2:
+        return []
+    g = ext.growth.copy()
+    for sid in set(stations):
+        g[stations == sid] -= g[stations == sid].mean(axis=0)
+    ctx.features[WITHIN] = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot)
+    try:
+        fit = whole_fit(ctx, (*fitted, WITHIN))
+    except IdentificationError:
+        return ["thermal_drift: its growth within each station's own time cannot be identified"]
+    finally:
+        del ctx.features[WITHIN]
+    f = (current.rss - fit.rss) / (fit.rss / dof) if fit.rss > 0 else 0.0
+    p = float(fdtrc(1, dof, f)) if f > 0 else 1.0
+    if p < alpha:
+        return []
+    return [f"thermal_drift: within each station's own time the growth is not significant (F test p = {p:.2g}); "
+            "between stations measured one after the other it is one station's range scale (its air data) as well"]
+
+
+def _measurement_needed(table: MeasurementTable) -> str:
+    """What measurement would let held-out poses check a cause on a campaign where none can."""
+    poses_of: dict[str, set] = {}
+    for pose, point in zip(table.pose, table.point, strict=True):
+        poses_of.setdefault(point, set()).add(pose)
+    alone = sorted(p for p, poses in poses_of.items() if len(poses) < 2)
+    if alone:
+        named = ", ".join(alone[:3]) + (f" and {len(alone) - 3} more" if len(alone) > 3 else "")
+        return (f"reference point(s) {named} are measured at one pose only: measure every reference point at two "
+                "or more poses (better: every point at every pose) so that a pose can be held out")
+    return ("measure more poses (the poses left when one is held out must identify the geometric model), or repeat "
+            "the poses in a second pass, so that a pose or a pass can be held out")
 
 
 def _scale(residuals: np.ndarray, res: Identification, floor: Floor) -> float:

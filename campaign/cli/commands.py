@@ -247,6 +247,9 @@ COMMANDS = [
                     "(default: the program moves to its nominal target, under a comment saying why)"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),
+                arg("--allow-outside", action="store_true", help="also compensate targets outside the joint ranges "
+                    "the model's extension was fitted on, the extension held at the nearest fitted angle (default: "
+                    "such targets are refused, kept nominal)"),
             ]),
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 
+from trackcal.calib.compensate import OUTSIDE_RANGES
 from trackcal.campaign.jobs.compensate import CompensateOptions, run_compensate
 
 
@@ -12,7 +13,8 @@ def cmd_compensate(args) -> int:
     done = run_compensate(CompensateOptions(targets=args.targets, model=args.model, out=args.out, tcp=args.tcp,
                                             krl=args.krl, krl_dir=args.krl_dir, speed=args.speed,
                                             program=args.program, strict=args.strict, accept_edited=args.accept_edited,
-                                            accept_poor=args.accept_poor))  # fmt: skip
+                                            accept_poor=args.accept_poor,
+                                            allow_outside=args.allow_outside))  # fmt: skip
     report, ok = done.report, done.report.ok
     for warning in done.model_warnings:
         print(f"warning: {warning}", file=sys.stderr)
@@ -20,6 +22,9 @@ def cmd_compensate(args) -> int:
         if failure:
             kept = " (its nominal target in the program, commented)" if done.krl_files or done.program_files else ""
             print(f"warning: {label}: not compensated{kept}: {failure}", file=sys.stderr)
+    if any(f.startswith(OUTSIDE_RANGES) for f in report.failures):
+        print("note: --allow-outside compensates the targets outside the fitted joint ranges (the model's extension "
+              "held at the nearest fitted angle)")  # fmt: skip
     for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:

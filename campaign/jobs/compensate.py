@@ -94,6 +94,7 @@ class CompensateOptions:
     strict: bool = False  # a target that cannot be compensated: no program at all (default: its nominal, commented)
     accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
     accept_poor: bool = False  # use a model marked unusable (poorly determined, calib.model_trust)
+    allow_outside: bool = False  # compensate targets outside the joint ranges the model's extension was fitted on
 
 
 @dataclass
@@ -198,7 +199,8 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
                               language=writer.language, dof=model.chain.dof)  # fmt: skip
         if not 1 <= opts.speed <= 100:
             raise OptionError("{0} {speed}: the axis speed override is a percentage 1..100", "speed", speed=opts.speed)
-    qc, report = compensate(model, np.radians(q_deg), tcp, max_correction=correction_bound(model))
+    qc, report = compensate(model, np.radians(q_deg), tcp, max_correction=correction_bound(model),
+                            allow_outside=opts.allow_outside)
     qc_deg = np.degrees(qc)
     # the KRL program carries 1e-4 deg (as the controller reports angles): what rounding costs at the TCP
     krl_deg = np.round(qc_deg, 4)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
+from trackcal.calib.diagnose.significance import LEVEL, MAP_LEVEL
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.io.files import write_json
 from trackcal.calib.model.cell import Cell
@@ -24,6 +25,9 @@ from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
 # the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
 # run theirs on one
 THREADS = min(os.cpu_count() or 1, 2)
+HELD_OUT_TEST = (f"a cause joins when its gain on held-out poses (partition and edge folds) passes a one-sided "
+                 f"Wilcoxon signed-rank test per pose at {100 * LEVEL:g} % ({100 * MAP_LEVEL:g} % for the joint error "
+                 "map), and its fit is physically plausible")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -108,7 +112,8 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
         "structure": d.structure,
         "not_identifiable": d.not_identifiable,
         "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm,
-                    "folds": d.cv_scheme, "note": d.cv_note},
+                    "folds": d.cv_scheme, "note": d.cv_note, "test": HELD_OUT_TEST},
+        "refused": d.refused,
     }  # fmt: skip
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.features import Ranges
 from trackcal.calib.diagnose.selection import diagnose, fit_cause, noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
@@ -269,7 +270,8 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
         extra["tcp_mm"] = cell.tcp.tolist()
         extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
-    return identification_to_doc(res, extra, shift, cell.test_pose)
+    ranges = None if res.extension is None else Ranges.of(np.radians(table.q_deg), table.t_s)
+    return identification_to_doc(res, extra, shift, cell.test_pose, ranges)
 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:

@@ -1,0 +1,68 @@
+"""Physical ranges of the causes' parameters: a fit outside them is not the cause it is named after.
+
+A cause of few parameters fitted to residuals it does not explain can take any value the residuals ask for: on a
+real ABB IRB 120 an encoder scale of -49 % on joint 2 and a 39 deg first harmonic cancelled each other inside the
+fitted range (issue 36). No reducer, encoder, link or tracker does that. A candidate whose whole-table fit leaves
+these ranges is refused as a cause and named in the verdict (`implausible`); every limit is generous, a few times the
+datasheet-level magnitudes of the literature, so that a real effect of an unusual cell still passes:
+
+- encoder_scale |k| <= 0.5 %: a gear-ratio or encoder-gain error. Reducer ratios are ratios of tooth counts, exact;
+  what is left is a fraction of a percent (a mis-set ratio of percents would move a joint by degrees over its
+  range: a commissioning fault seen by eye, not a calibration residual).
+- cyclic_error (any order, the joint error map) |e_j(q)| <= 0.5 deg over the rows: a transmission error. Robot
+  reducers are specified at about 1 arcmin of angular transmission error (Nabtesco RV-N, Harmonic Drive CSG
+  catalogues: 1 to 1.5 arcmin); 0.5 deg is 30 arcmin.
+- backlash b_j <= 0.2 deg: lost motion of robot reducers is about 1 arcmin new (the same catalogues), a few arcmin
+  worn; 0.2 deg is 12 arcmin.
+- joint_compliance |c_j tau_j| <= 0.25 deg over the rows: the deflection gravity gives a joint. Joint stiffnesses of
+  heavy arms are of order 1e6 N m/rad (Dumas et al., "Joint stiffness identification of industrial serial robots",
+  Robotica 30, 2012, a KUKA KR 240: the paper's ref. [59]); at the ~10 kN m a KR 270's shoulder holds at full payload
+  that is a few mrad, a few mm at its 2.7 m reach. 0.25 deg (4.4 mrad, 12 mm at 2.7 m) is above any of them.
+- thermal_drift |g| <= 500 ppm over the campaign: 11.5 um/m/K for steel, 23 for aluminium links, warming by a few
+  K over a campaign and some 10 to 20 K near the motors: 23 um/m/K x 20 K is 460 ppm.
+- station_shift has no parameter of its own (a station's pose after the change point, as free as before it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trackcal.calib.diagnose.features import Extension
+
+ENCODER_SCALE_MAX = 5e-3  # |k|, dimensionless (0.5 %)
+CYCLIC_MAX_RAD = float(np.radians(0.5))  # |e_j(q)| of the joint error map over the rows
+BACKLASH_MAX_RAD = float(np.radians(0.2))  # dead band width b_j
+DEFLECTION_MAX_RAD = float(np.radians(0.25))  # |c_j tau_j| over the rows
+GROWTH_MAX = 500e-6  # |fractional growth| over the campaign's time span
+
+
+def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
+    """One phrase per parameter (or joint) of a fitted extension outside its physical range (module docstring);
+    [] when every part is inside. `ext` carries the rows it was fitted on, `theta` its values (internal units)."""
+    if ext is None:
+        return []
+    theta = np.asarray(theta, dtype=float)
+    out, at = [], 0
+    for cause, names in ext.parts():
+        cols = np.arange(at, at + len(names))
+        at += len(names)
+        values = theta[cols]
+        if cause == "encoder_scale":
+            out += [f"encoder_scale {nm} = {100 * v:+.3g} % (physical: |k| <= {100 * ENCODER_SCALE_MAX:g} %)"
+                    for nm, v in zip(names, values, strict=True) if abs(v) > ENCODER_SCALE_MAX]  # fmt: skip
+        elif cause == "backlash":
+            out += [f"backlash {nm} = {np.degrees(v):.3g} deg (physical: 0 .. {np.degrees(BACKLASH_MAX_RAD):g} deg)"
+                    for nm, v in zip(names, values, strict=True) if abs(v) > BACKLASH_MAX_RAD]  # fmt: skip
+        elif cause in ("joint_compliance", "cyclic_error"):
+            limit = DEFLECTION_MAX_RAD if cause == "joint_compliance" else CYCLIC_MAX_RAD
+            peak = np.max(np.abs(np.einsum("rje,e->rj", ext.joint_features[:, :, cols], values)), axis=0)
+            what = "deflection" if cause == "joint_compliance" else "joint error"
+            out += [f"{cause} {what} of joint {j + 1} up to {np.degrees(p):.3g} deg (physical: <= "
+                    f"{np.degrees(limit):g} deg)" for j, p in enumerate(peak) if p > limit]  # fmt: skip
+        elif cause == "thermal_drift":
+            growth = np.max(np.abs(ext.growth[:, cols] @ values))
+            if growth > GROWTH_MAX:
+                out.append(f"thermal_drift growth up to {1e6 * growth:.3g} ppm over the campaign (physical: <= "
+                           f"{1e6 * GROWTH_MAX:g} ppm)")  # fmt: skip
+    return out
+
