@@ -28,14 +28,16 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
     code = ("import sys, trackcal.campaign as campaign, trackcal.calib.model.cell as cell; "
             "from trackcal.campaign.cli import main; "
             "print(campaign.__file__, cell.CONFIGS); sys.exit(main(sys.argv[1:]))")  # fmt: skip
-    out = subprocess.run([sys.executable, "-c", code, "plan", "--cell", "kr270", "--configs", "3", "--repeat", "1",
+    out = subprocess.run([sys.executable, "-c", code, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "1",
                           "--starts", "20", "--refined", "1", "--json", "plan.json"],
                          cwd=work, env=env, capture_output=True, text=True)  # fmt: skip
     assert out.returncode == 0, out.stderr
     module_file, configs = out.stdout.splitlines()[0].split()
     assert module_file.startswith(str(site)) and configs.startswith(str(site)), out.stdout
     plan = json.loads((work / "plan.json").read_text())
-    assert len(plan["poses_deg"]) == 3 and plan["rho0_mm"] > 0
+    # 6 configurations x 3 points x 2 stations: 36 rows at most (108 coordinates) for the KR-270 campaign's 39
+    # unknowns (18 robot parameters, 2 stations x 6, 3 points x 3), so rho0 exists
+    assert len(plan["poses_deg"]) == 6 and plan["rho0_mm"] > 0
 
 
 def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):

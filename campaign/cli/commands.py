@@ -338,11 +338,12 @@ COMMANDS = [
                 arg("--out", required=True, help="measurement table to write (with --holdout: the training poses)"),
                 arg("--joints", metavar="FILE", help="the robot's side (joints, time, pose, station columns) in a "
                                                      "file of its own; each FILE then holds positions alone, joined "
-                                                     "to it by row"),
+                                                     "to it by row (default: none, every FILE holds both)"),
                 arg("--holdout", type=float, metavar="FRACTION", help="hold this share of the poses out as a test "
-                                                                      "table (--test-out), drawn with --seed"),
+                    "table (--test-out), drawn with --seed (default: none held out)"),
                 arg("--seed", type=seed, default=0, help="the seed of the --holdout draw"),
-                arg("--test-out", help="with --holdout: the test table to write (no pose in both)"),
+                arg("--test-out", help="with --holdout: the test table to write (no pose in both; default: none, "
+                    "--holdout needs it)"),
             ], group="import",
             description="Convert another tool's tracker export into a measurement table through a map."),
     Command("plan", "the ISO 9283 cube of the cell, its five poses and the plan `trackcal run` walks",

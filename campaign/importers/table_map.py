@@ -348,7 +348,7 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
     """The rows of one file (`robot` is `meas`), or of a positions file `meas` joined by row to the joints file
     `robot`; `poses` (joint values -> pose id) is shared by the files of one import, `counts` (point -> [rows,
     without a reading]) is added to. None when no row has a reading."""
-    need_r = 1 + max(c.index for c in _flat(robot.col, {}))
+    need_r = 1 + max(c.index for c in _flat(robot.col, robot.pts))  # a joints file has no points
     need_m = 1 + max(c.index for c in _flat(meas.col, meas.pts)) if meas is not robot else need_r
 
     def number(src: _Source, row: int, cells: list[str], c: Column, factor: float = 1.0) -> float:
