@@ -90,9 +90,11 @@ def report(results: dict, locate: int, seed: int) -> str:
         f"D's station located on {locate} of its 632 poses (drawn with seed {seed}); the figures are over the other "
         "poses, none of which the models saw. AP_P is ISO 9283:1998, 7.2.1 with one cycle per pose (D commands each "
         "pose once; the standard's 30 cycles and its repeatability RP need repeats, which D does not hold): the "
-        "distance between the attained T-Mac centre and where the model puts it at the commanded joints, i.e. what "
-        "the robot attains once its targets are compensated with that model. U is the AT901 model's expanded "
-        "uncertainty (k = 2) of one AP_P.",
+        "distance between the attained T-Mac centre and where the model puts it at the commanded joints. The nominal "
+        "figures are measured (the robot as it stood); the calibrated models' figures are **predicted**: each model's "
+        "residuals on poses it never saw, what the robot would attain with targets compensated by that model if the "
+        "model holds. No compensated UR10 was measured again (the data set holds none). U is the AT901 model's "
+        "expanded uncertainty (k = 2) of one AP_P.",
         "",
         "| model | poses | AP_P mean (mm) | median | 95th percentile | max | RMS | mean offset x, y, z (mm) "
         "| U median (mm) |",
