@@ -52,7 +52,12 @@ def cmd_plan(args) -> int:
                       + ")",
                       soft_wrap=True)  # fmt: skip
     if iso["compensated_with"]:
-        console.print(f"joint targets compensated with {iso['compensated_with']['model']}")
+        comp = iso["compensated_with"]
+        figure = comp.get("test_pose") or {}
+        stated = ("" if figure.get("sigma_mm") is None else
+                  f"; its stated TCP uncertainty at the cell's test pose: ±{figure['sigma_mm'] * 1000:.1f} µm 1-sigma "
+                  "(predicted from its covariance; the test measures what the robot attains)")  # fmt: skip
+        console.print(f"joint targets compensated with {comp['model']}{stated}", soft_wrap=True)
     console.print(f"plan written to {args.json}")
     return 0
 

@@ -138,7 +138,8 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
                                  + "; ".join(f for f in rep.failures if f))  # fmt: skip
             q_app = flat.reshape(q_app.shape)
         compensated_with = {"model": str(opts.model),
-                            "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest()}  # fmt: skip
+                            "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest(),
+                            "test_pose": model.doc.get("test_pose")}  # the model's stated figure (calib.tcp_figure)
     points = orientation_points(cell, plan, q_deg) if opts.orientation else None
     vap = None
     if q_app is not None:
