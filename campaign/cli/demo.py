@@ -13,7 +13,7 @@ from trackcal.campaign.cli.console import console
 from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.jobs.campaign import new_session
 from trackcal.campaign.jobs.plan import PlanOptions, plan
-from trackcal.campaign.jobs.simulate import twin_truth
+from trackcal.campaign.jobs.simulate import test_pose_miss_mm, twin_truth
 
 
 def cmd_demo(args) -> int:
@@ -34,4 +34,10 @@ def cmd_demo(args) -> int:
     analysis = analyse_and_print(store)
     if analysis is not None:  # the geometric model's parameters against the twin's truth
         print_identification(analysis.geometric, twin_truth(cell, args.seed))
+        figure = analysis.geometric.get("test_pose")
+        miss = test_pose_miss_mm(cell, args.seed, figure)
+        if miss is not None:  # stated against delivered: the twin's truth, which no fit computed
+            console.print(f"against the twin's truth: the model puts the TCP at the test pose {um(miss, 1)} µm from "
+                          f"where the twin has it; stated ±{um(figure['sigma_mm'], 1)} µm (1σ 3-D), planned "
+                          f"{um(plan_doc['rho0_mm'], 1)} µm")  # fmt: skip
     return 0

@@ -93,6 +93,16 @@ def write_truth(path: str | Path, cell: Cell, seed: int, effects: dict[str, floa
     write_json(path, Twin(cell, seed=seed, effects=effects).truth(), InputError)
 
 
+def test_pose_miss_mm(cell: Cell, seed: int, figure: dict | None) -> float | None:
+    """How far a model's TCP at the test pose (model.json's `test_pose`, calib.tcp_figure) is from where the twin of
+    `seed` really has it (its truth file's centroid, the same station's frame): the figure the model states,
+    checked against a truth the model did not compute. None without a test pose."""
+    truth = Twin(cell, seed=seed).truth()["test_pose"]
+    if truth is None or not figure or figure.get("station") not in truth["centroid_mm"]:
+        return None
+    return float(np.linalg.norm(np.subtract(figure["tcp_mm"], truth["centroid_mm"][figure["station"]])))
+
+
 def twin_truth(cell: Cell, seed: int) -> dict[str, float]:
     """The twin's true parameter deviations in boundary units (mm, deg): those of its truth file."""
     return {name: p["value"] for name, p in Twin(cell, seed=seed).truth()["parameters"].items()}
