@@ -23,14 +23,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tests.independent_twin import TrueCell
 from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Station, identify
+from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import load_cell
-from trackcal.calib.model.kinematics import Kinematics
-from trackcal.calib.model.params import complete_params, irreducible_params
+from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.pinmodel import gravity_torques
 from trackcal.calib.model.rigid import exp_so3
 from trackcal.campaign.cli import main
@@ -41,22 +41,12 @@ CELL = load_cell("kr270")
 PARAMS = irreducible_params(CELL.chain)[0]
 
 
-class World:
-    """A true KR-270 cell: robot deviations, stations and points drawn from the seed."""
+class World(TrueCell):
+    """A true KR-270 cell: robot deviations (~0.3 mm lengths, ~0.02 deg angles: paper Table 8 orders of magnitude),
+    stations and points drawn from the seed, as the independent twin draws them (tests/independent_twin.py)."""
 
     def __init__(self, rng: np.random.Generator):
-        chain = CELL.chain
-        self.params = complete_params(chain)
-        # deviations of a real arm: ~0.3 mm lengths, ~0.02 deg angles (paper Table 8 orders of magnitude)
-        self.dev = np.array([rng.normal(0, 0.3) if p.is_length else np.radians(rng.normal(0, 0.02))
-                             for p in self.params])  # fmt: skip
-        self.kin = Kinematics(chain, self.params)
-        self.points = {k: v + rng.normal(0, 0.5, 3) for k, v in sorted(CELL.tool_points.items())}
-        self.stations = {}
-        for sid, pl in sorted(CELL.stations.items()):
-            r = pl.rotation @ exp_so3(rng.normal(0, np.radians(0.5), 3))
-            pos = pl.position + rng.normal(0, 20.0, 3)
-            self.stations[sid] = Station(r.T, -r.T @ pos)
+        super().__init__(CELL, rng)
 
     def rows(self, poses: np.ndarray, passes: int = 1):
         """Campaign order: station by station, point by point, pass by pass, poses in order."""

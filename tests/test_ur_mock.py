@@ -556,15 +556,21 @@ def _started(seed: int = 0) -> UrController:
     return ctl
 
 
+def _ticks_until_done(ctl) -> int:
+    """Controller ticks until signal_done_with_cmd (output int 2) after a blocking move."""
+    ticks = 0
+    while ctl.out_int[0] != 2:
+        ctl.step()
+        ticks += 1
+        assert ticks < 5000
+    return ticks
+
+
 def test_movej_follows_a_trapezoid_and_answers_done():
     ctl = _started()
     target = [HOME[0] + 1.0, *HOME[1:]]  # 1 rad on the base
     _command(ctl, MOVEJ, [*target, 1.0, 1.4])
-    ticks = 0
-    while ctl.out_int[0] != 2:  # signal_done_with_cmd after the blocking movej
-        ctl.step()
-        ticks += 1
-        assert ticks < 5000
+    ticks = _ticks_until_done(ctl)
     # trapezoid: v/a accelerating + decelerating, D/v in total at cruise: T = v/a + D/v (physics of the profile)
     assert ticks * TICK_S == pytest.approx(1.0 / 1.4 + 1.0 / 1.0, abs=3 * TICK_S)
     assert list(ctl.motion.q) == target
@@ -581,11 +587,7 @@ def test_movel_takes_its_trapezoid_on_the_controllers_clock_and_refuses_what_it_
     start = tcp_pose(ctl.motion.q, ctl.calibration, ctl.tcp)
     target = [start[0] + 0.1, *start[1:]]
     _command(ctl, MOVEL, [*target, 0.05, 0.1])
-    ticks = 0
-    while ctl.out_int[0] != 2:  # signal_done_with_cmd after the blocking movel
-        ctl.step()
-        ticks += 1
-        assert ticks < 5000
+    ticks = _ticks_until_done(ctl)
     assert ticks * TICK_S == pytest.approx(0.1 / 0.05 + 0.05 / 0.1, abs=3 * TICK_S)
     assert tcp_pose(ctl.motion.q, ctl.calibration, ctl.tcp)[:3] == pytest.approx(target[:3], abs=1e-9)
     _command(ctl, 0)

@@ -10,6 +10,7 @@ its rated speed (`vmax`), so v is capped per joint and the slowest joint sets th
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 
 TICK_S = 0.002  # e-Series controller period (RTDE guide: 500 Hz on e-Series)
@@ -19,7 +20,7 @@ UR10_VMAX_RAD_S = tuple(math.radians(v) for v in (120.0, 120.0, 180.0, 180.0, 18
 UR10_LIMITS_RAD = tuple((-2 * math.pi, 2 * math.pi) for _ in range(6))
 
 
-class Profile:
+class Profile(ABC):
     """The path parameter s in [0, 1] over time: a trapezoid of path speed sv and acceleration sa (s units per
     second), a triangle when the path is too short to reach sv."""
 
@@ -50,12 +51,13 @@ class Profile:
         r = self.total - t
         return 1.0 - 0.5 * self.sa * r * r, self.sa * r
 
+    @abstractmethod
     def at(self, s: float) -> tuple[float, ...]:
-        raise NotImplementedError
+        """The joints at s."""
 
+    @abstractmethod
     def rate(self, s: float) -> tuple[float, ...]:
         """dq/ds at s."""
-        raise NotImplementedError
 
 
 class Path(Profile):
