@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # which no test simulates), and on a shared disk that alone made the campaign tests 2-3x slower.
 TEST_TMP := $(shell test -d /dev/shm && test -w /dev/shm && echo /dev/shm || echo /tmp)
 
-.PHONY: setup test test-slow lint demo bench clean
+.PHONY: setup test test-slow lint demo bench docs clean
 
 setup: $(STAMP)
 
@@ -34,5 +34,10 @@ demo: setup
 bench: setup
 	$(BIN)/python -m bench
 
+# The manual (docs/, mkdocs.yml) into site/; --strict: a broken link, a page outside the nav or a usage marker naming
+# no command fails the build
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build site *.egg-info .pytest_cache .ruff_cache

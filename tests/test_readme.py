@@ -1,11 +1,14 @@
-"""Every ```sh example of README.md runs verbatim, in order, in one temporary directory, and makes the files it names.
+"""Every ```sh example of README.md and of the manual's pages (docs/) runs verbatim, in a declared order, in one
+temporary directory, and makes the files it names.
 
-The examples build their own fixtures (the first simulates a small table on the digital twin), so a newcomer can
-paste them one after the other. A command line ending in `# not run by the README test: REASON` (hardware, a
-cluster, many minutes) is shown but skipped here; a block that uses $TRACKCAL_IPA_DATA runs only where the IPA
-data set is (next to the repository, as in CI, or where TRACKCAL_IPA_DATA points). A `python -m MODULE` line
-that is not run must still name a module the empty directory can import. A block that starts a detached
-`trackcal mock` must stop it: a mock still running after the block fails the test (and is stopped).
+The examples build their own fixtures (the README's campaign makes the plan and the session that later pages read), so
+a newcomer can paste them one after the other. PAGES is the order: a page may read what the pages before it made;
+every other page of docs/ runs after them, in name order (a new page's examples run without being listed). A command
+line ending in `# not run by the README test: REASON` (hardware, a cluster, many minutes) is shown but skipped here;
+a block that uses $TRACKCAL_IPA_DATA runs only where the IPA data set is (next to the repository, as in CI, or where
+TRACKCAL_IPA_DATA points). A `python -m MODULE` line that is not run must still name a module the empty directory can
+import. A block that starts a detached `trackcal mock` must stop it: a mock still running after the block fails the
+test (and is stopped).
 """
 
 from __future__ import annotations
@@ -25,6 +28,15 @@ from tests.helpers import ROOT
 from trackcal.campaign.cli.mock import mock_pid, running_mock
 
 README = ROOT / "README.md"
+# The order of the examples: the README first (its campaign makes plan.json, plan.csv and sessions/kr270-a), then the
+# pages whose files later pages read, in the order they are made (table.csv, model.json, kr270-a.csv, cal.json,
+# ur10-model.json, iso-before/iso-after ...). Pages not listed run after these, in name order.
+PAGES = ["README.md", "docs/reference/index.md", "docs/reference/identify.md", "docs/reference/predict.md",
+         "docs/reference/locate.md", "docs/reference/export-urdf.md", "docs/reference/plan.md",
+         "docs/reference/diagnose.md", "docs/reference/simulate.md", "docs/reference/run.md",
+         "docs/reference/operator-page.md", "docs/reference/mock.md", "docs/guides/ur-cell.md",
+         "docs/reference/report.md", "docs/reference/compensate.md", "docs/guides/iso9283.md", "docs/guides/fleet.md",
+         "docs/guides/new-robot.md", "docs/design/real-data.md"]  # fmt: skip
 NOT_RUN = "# not run by the README test:"
 # options whose value is a file or directory the command writes (checked to exist after the example)
 OUTPUT_OPTIONS = ("--out", "--json", "--csv", "--session", "--into", "--plots", "--write-hardware", "--krl-dir",
@@ -34,9 +46,14 @@ IPA_DATA = Path(os.environ.get("TRACKCAL_IPA_DATA") or ROOT.parent / "shared" / 
 
 @dataclass
 class Example:
-    line: int  # where the block starts in README.md
+    page: str  # README.md or docs/...
+    line: int  # where the block starts in it
     commands: list[str]  # logical command lines (continuations joined), skipped ones left out
     skipped: list[str]
+
+    @property
+    def where(self) -> str:
+        return f"{self.page}:{self.line}"
 
 
 def commands_of(block: str) -> tuple[list[str], list[str]]:
@@ -53,12 +70,19 @@ def commands_of(block: str) -> tuple[list[str], list[str]]:
     return run, skipped
 
 
+def pages() -> list[str]:
+    """README.md and every page of docs/, in the order their examples run."""
+    rest = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").rglob("*.md"))
+    return PAGES + [p for p in rest if p not in PAGES]
+
+
 def examples() -> list[Example]:
-    text = README.read_text(encoding="utf-8")
     out = []
-    for m in re.finditer(r"^```sh\n(.*?)^```", text, re.S | re.M):
-        run, skipped = commands_of(m.group(1))
-        out.append(Example(text.count("\n", 0, m.start()) + 1, run, skipped))
+    for page in pages():
+        text = (ROOT / page).read_text(encoding="utf-8")
+        for m in re.finditer(r"^```sh\n(.*?)^```", text, re.S | re.M):
+            run, skipped = commands_of(m.group(1))
+            out.append(Example(page, text.count("\n", 0, m.start()) + 1, run, skipped))
     return out
 
 
@@ -88,10 +112,17 @@ def test_the_readme_has_examples_and_marks_the_ones_it_does_not_run():
     for ex in EXAMPLES:
         for line in ex.skipped:
             reason = line.split(NOT_RUN, 1)[1].strip()
-            assert reason, f"README.md:{ex.line}: say why it is not run: {line}"
+            assert reason, f"{ex.where}: say why it is not run: {line}"
 
 
-@pytest.mark.parametrize("example", EXAMPLES, ids=[f"README.md:{e.line}" for e in EXAMPLES])
+def test_every_declared_page_exists_and_the_readme_runs_first():
+    """A page renamed or removed would silently drop its examples out of the order."""
+    missing = [p for p in PAGES if not (ROOT / p).is_file()]
+    assert not missing, f"PAGES names pages that do not exist: {missing}"
+    assert EXAMPLES[0].page == "README.md" and any(e.page.startswith("docs/") for e in EXAMPLES)
+
+
+@pytest.mark.parametrize("example", EXAMPLES, ids=[e.where for e in EXAMPLES])
 def test_example_runs_verbatim(example: Example, workdir: Path):
     if not example.commands:
         pytest.skip("every command of this block needs what the test does not have (see its comments)")
@@ -100,17 +131,17 @@ def test_example_runs_verbatim(example: Example, workdir: Path):
         pytest.skip(f"the IPA data set is not at {IPA_DATA} (set TRACKCAL_IPA_DATA)")
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
                TRACKCAL_IPA_DATA=str(IPA_DATA), OPENBLAS_NUM_THREADS="1")  # fmt: skip
-    script = (f"set -eo pipefail\ntrap 'echo \"README.md:{example.line}: failed: $BASH_COMMAND\" >&2' ERR\n"
+    script = (f"set -eo pipefail\ntrap 'echo \"{example.where}: failed: $BASH_COMMAND\" >&2' ERR\n"
               "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n" + script + "\n")  # fmt: skip
     try:
         done = subprocess.run(["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True,
                               stdin=subprocess.DEVNULL)  # fmt: skip
     finally:  # a detached mock outlives the shell: the block must stop it, and a failed block leaves none either
         left = left_running(workdir, example.commands)
-    assert done.returncode == 0, f"README.md:{example.line}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
-    assert not left, f"README.md:{example.line} left its trackcal mock running (pids {left}; now stopped)"
+    assert done.returncode == 0, f"{example.where}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
+    assert not left, f"{example.where} left its trackcal mock running (pids {left}; now stopped)"
     missing = [p for c in example.commands for p in outputs_of(c) if not (workdir / p).exists()]
-    assert not missing, f"README.md:{example.line}: the example did not make {missing}"
+    assert not missing, f"{example.where}: the example did not make {missing}"
 
 
 def left_running(workdir: Path, commands: list[str]) -> list[int]:
@@ -131,7 +162,7 @@ def test_the_readme_starts_a_mock_and_stops_it():
     """The mock block runs (it is not all marked not run) and stops its mock: test_example_runs_verbatim fails a
     block that leaves one running."""
     blocks = [e for e in EXAMPLES if any(c.startswith("trackcal mock") for c in e.commands)]
-    assert blocks and any("--detach" in c for c in blocks[0].commands), "the README runs no detached mock"
+    assert blocks and any("--detach" in c for c in blocks[0].commands), "no example runs a detached mock"
     assert any(c.startswith("trackcal mock --stop") for c in blocks[0].commands)
 
 
