@@ -44,7 +44,9 @@ def test_the_site_builds_strictly(tmp_path):
                           cwd=ROOT, env=env, capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 0, done.stderr[-4000:]
     page = (tmp_path / "site" / "reference" / "plan" / "index.html").read_text(encoding="utf-8")
-    assert "--configs" in page and "usage: " not in page  # the generated usage, not a marker left as it was
+    assert "--configs" in page and "<!-- cli:" not in page  # the generated usage, not the marker
+    start = (tmp_path / "site" / "getting-started" / "index.html").read_text(encoding="utf-8")
+    assert "--session sessions/kr270-a" in re.sub(r"<[^>]+>", "", start)  # the README's campaign, shown, not copied
 
 
 def test_every_command_has_its_reference_page():

@@ -65,7 +65,7 @@ class Command:
     description: str | None = None
 
 
-# `--operator web`: the operator's page beside the console (campaign/web; README "The operator's page")
+# `--operator web`: the operator's page beside the console (campaign/web; docs/reference/operator-page.md)
 OPERATOR_ARGS = [
     arg("--operator", choices=("console", "web"), default="console",
         help="web: also serve the operator's page (the first answer from page, console or cell button wins)"),
@@ -148,7 +148,7 @@ COMMANDS = [
                 arg("--sigma-mm", type=float, help="--noise iid: the noise of one coordinate, mm (default: 0.01)"),
                 arg("--noise", choices=("tracker", "iid"), default="iid",
                     help="i.i.d. --sigma-mm (the paper's), or the cell's tracker model identify weighs by (its "
-                         "plans put poses at the edge of a station's view: README)"),
+                         "plans put poses at the edge of a station's view: docs/reference/plan.md)"),
                 arg("--params", help="robot parameters the campaign identifies (default: identify's, the "
                                      "irreducible set)"),
                 arg("--criterion", default="rho0", help="rho0 (paper eq. 34) or D, A, E for comparison"),
