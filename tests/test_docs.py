@@ -72,3 +72,10 @@ def test_the_generated_usage_has_every_option_and_its_help(words):
 def test_a_marker_naming_no_command_fails_the_build():
     with pytest.raises(PluginError, match="no command"):
         hook().on_page_markdown("<!-- cli: calibrate -->", page=None, config=None, files=None)
+
+
+def test_a_readme_section_is_shown_with_its_links_made_relative_and_a_missing_one_fails_the_build():
+    shown = hook().on_page_markdown("<!-- readme: campaign -->", page=None, config=None, files=None)
+    assert "trackcal run --cell kr270" in shown and "](docs/" not in shown and "](reference/run.md)" in shown
+    with pytest.raises(PluginError, match="no section"):
+        hook().on_page_markdown("<!-- readme: nowhere -->", page=None, config=None, files=None)
