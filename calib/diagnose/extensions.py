@@ -81,6 +81,11 @@ def warmup_growth(t_s: np.ndarray, tau_s: float, t0_s: float) -> np.ndarray:
     return -np.expm1(-np.maximum(np.asarray(t_s, dtype=float) - t0_s, 0.0) / tau_s)
 
 
+def warmup_pivot(chain: Chain, form: str) -> np.ndarray:
+    """The point (mm, robot base frame) thermal_warmup's form (WARMUP_FORMS) keeps fixed."""
+    return np.zeros(3) if form == "e_inf_base" else np.array(chain.base[:3, 3], dtype=float)
+
+
 def row_loads(table: MeasurementTable, default: float | None = None) -> np.ndarray | None:
     """(N,) the payload (kg) mounted at each row: the table's LOAD_COLUMN, else `default` at every row; None when
     neither is known (ExtensionError for a load that is not a finite number >= 0)."""
@@ -186,7 +191,7 @@ def _warmup(chain: Chain, table: MeasurementTable, names: list[str] | None, rang
     tau = float((form or {}).get("tau_s", max(t1 - t0, 1.0) / 3.0))
     if not (np.isfinite(tau) and tau > 0):
         raise ExtensionError(f"thermal_warmup: the time constant tau_s must be a positive number, got {tau!r}")
-    pivot = np.zeros(3) if forms[0] == "e_inf_base" else np.array(chain.base[:3, 3], dtype=float)
+    pivot = warmup_pivot(chain, forms[0])
     doc = {"tau_s": tau, **{k: v for k, v in (form or {}).items() if k != "tau_s"}}
     return Extension("thermal_warmup", list(forms), ["ppm"], np.array([UNIT_FACTORS["ppm"]]),
                      growth=warmup_growth(table.t_s, tau, t0)[:, None], pivot=pivot,
@@ -199,7 +204,7 @@ def _payload(chain: Chain, table: MeasurementTable, q_read: np.ndarray, names: l
     loads = row_loads(table, form.get("final_load_kg"))
     n_rows, n = q_read.shape
     com = np.asarray(form.get("com_mm", chain.joints[-1].com), dtype=float)
-    if loads is None or (names is None and (len(loads) == 0 or np.ptp(loads) <= 0)):  # no change of load: joint_compliance
+    if loads is None or (names is None and (len(loads) == 0 or np.ptp(loads) <= 0)):  # no change: joint_compliance
         return Extension("payload_compliance", [], [], np.zeros(0), np.zeros((n_rows, n, 0)), meta={"ranges": ranges})
     tau = payload_torques(chain, q_read, loads, com)  # N m, bounded by the arm's and payload's weight
     feats = np.zeros((n_rows, n, n))
