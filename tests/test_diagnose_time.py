@@ -12,6 +12,7 @@ import pytest
 
 from trackcal.calib.compensate import compensate, pose_error
 from trackcal.calib.diagnose.extensions import LOAD_COLUMN, build_extension
+from trackcal.calib.diagnose.features import ExtensionError
 from trackcal.calib.diagnose.plausibility import COMPLIANCE_MAX, GROWTH_MAX, implausible
 from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.diagnose.warmup import warmup_candidate
@@ -116,6 +117,14 @@ def test_a_table_without_a_load_change_has_no_payload_candidate(kr270):
     assert build_extension("payload_compliance", kr270.chain, table).size == 0  # no load column
     table.extra[LOAD_COLUMN] = np.full(len(table), "40")
     assert build_extension("payload_compliance", kr270.chain, table).size == 0  # the same load throughout
+
+
+def test_a_load_column_that_is_no_load_is_one_clear_error(kr270):
+    _, table, _ = twin_campaign(kr270, "joint_compliance", 36106, 10)
+    for bad, said in (("heavy", "numbers"), ("-3", "finite loads >= 0 kg"), ("nan", "finite loads >= 0")):
+        table.extra[LOAD_COLUMN] = np.array(["0"] * (len(table) - 1) + [bad])
+        with pytest.raises(ExtensionError, match=f"column {LOAD_COLUMN} must hold {said}"):
+            build_extension("payload_compliance", kr270.chain, table)
 
 
 def test_implausible_warmup_and_payload_fits_are_refused(kr270):
