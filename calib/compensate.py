@@ -14,11 +14,18 @@ analytic joint Jacobians of `calib.model.kinematics` (times dq_true/dq_cmd for a
 quadratically; the corrections are small (deviations of tenths of a mm), so two to four iterations reach
 rounding level.
 
-Extensions with a static compensation: joint_compliance (the gravity torque at the commanded pose),
+Extensions with a static compensation: joint_compliance (the gravity torque at the commanded pose), payload_compliance
+(the gravity torque at the commanded pose with the payload the fitted campaign ended with: model.json's
+extension.forms),
 encoder_scale, cyclic_error (the joint error map; outside the angles it was fitted over it keeps its value
 at the nearest fitted angle, and the report warns: `CompensationReport.warnings`). backlash depends on the
 approach direction and thermal_drift on time: no static correction exists for them; they are ignored and
 reported in `CompensationReport.ignored`.
+thermal_warmup is compensated for the warm robot: its growth saturates at e_inf (within a few time constants of
+power-on: the robot in production), a uniform scale about its pivot, so the identified model reaches the intended
+TCP when its own (unscaled) TCP reaches it scaled by 1 / (1 + e_inf) about the pivot (the three tool points moved
+with it, rigidly); the orientation is unchanged by a uniform scale. A note says so (a cold robot is off by up to
+that growth).
 station_shift is a tracker matter and leaves the robot model purely geometric.
 """
 
@@ -30,7 +37,7 @@ from functools import partial
 
 import numpy as np
 
-from trackcal.calib.diagnose.extensions import build_parts
+from trackcal.calib.diagnose.extensions import build_parts, warmup_pivot
 from trackcal.calib.errors import CalibError
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import MAX_CORRECTION_DEG, MAX_CORRECTION_MM
@@ -38,7 +45,8 @@ from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 
-STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error")
+STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error", "payload_compliance")
+WARM_GROWTH = "thermal_warmup"  # compensated at its saturated growth (`warm_growth`)
 NO_STATIC_COMPENSATION = {
     "backlash": "backlash depends on the direction each joint approaches the target from; it has no static "
     "compensation and is ignored (approach every target from the same side to make it repeatable)",
@@ -124,16 +132,20 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     if cause in GEOMETRIC_ONLY:
         return None, [], [GEOMETRIC_ONLY[cause]]
     parts = model.parts()
-    unknown = [c for c, _ in parts if c not in STATIC_JOINT_CAUSES and c not in NO_STATIC_COMPENSATION]
+    unknown = [c for c, _ in parts if c not in (*STATIC_JOINT_CAUSES, WARM_GROWTH, *NO_STATIC_COMPENSATION)]
     if unknown:
         raise CompensationError(f"model extension {unknown[0]!r} is unknown; cannot compensate it")
     ignored = [NO_STATIC_COMPENSATION[c] for c, _ in parts if c in NO_STATIC_COMPENSATION]
+    g, _ = warm_growth(model)
+    notes = [f"thermal_warmup: compensated for the warm robot (its growth saturated at {1e6 * g:+.3g} ppm, reached "
+             f"within a few of its time constant of {model.forms()[WARM_GROWTH]['tau_s'] / 60:.3g} min after "
+             "power-on); a cold robot is off by up to that growth"] if g else []  # fmt: skip
     names, theta = model.extension_values()
     static = [(c, n) for c, n in parts if c in STATIC_JOINT_CAUSES]
     if not static:
-        return None, ignored, []
+        return None, ignored, notes
     keep = np.array([names.index(nm) for _, n in static for nm in n], dtype=int)
-    chain, arcs = model.chain, model.arcs()
+    chain, arcs, forms = model.chain, model.arcs(), model.forms()
 
     def offsets(q: np.ndarray) -> np.ndarray:
         n_rows = len(q)
@@ -141,9 +153,19 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
             seq=np.arange(n_rows), t_s=np.zeros(n_rows), pose=["c"] * n_rows, station=["-"] * n_rows,
             point=["-"] * n_rows, q_deg=np.degrees(q), xyz=None, source="compensation targets",
         )  # fmt: skip
-        return build_parts(static, chain, rows, arcs).joint_offsets(theta[keep])
+        return build_parts(static, chain, rows, arcs, forms=forms).joint_offsets(theta[keep])
 
-    return offsets, ignored, []
+    return offsets, ignored, notes
+
+
+def warm_growth(model: Model) -> tuple[float, np.ndarray]:
+    """(g, pivot mm): the fractional growth of the warm robot (thermal_warmup's e_inf, the saturated warm-up) and the
+    point it keeps fixed; (0, 0) without a warm-up."""
+    for cause, names in model.parts():
+        if cause == WARM_GROWTH:
+            all_names, theta = model.extension_values()
+            return float(theta[all_names.index(names[0])]), warmup_pivot(model.chain, names[0])
+    return 0.0, np.zeros(3)
 
 
 def _true_joints(offsets, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,7 +222,8 @@ def pose_error(
     r_id, o_id = kin.end_frames(qt, model.dev)
     r_nom, o_nom = kin.end_frames(q_nominal)
     tcp = np.asarray(tcp_mm, dtype=float)
-    d = (o_id + r_id @ tcp) - (o_nom + r_nom @ tcp)
+    g, pivot = warm_growth(model)
+    d = (pivot + (1.0 + g) * (o_id + r_id @ tcp - pivot)) - (o_nom + r_nom @ tcp)
     return np.linalg.norm(d, axis=1), np.degrees(rotation_angle(r_nom, r_id))
 
 
@@ -256,6 +279,8 @@ def compensate(
     tool_rows = np.tile(tools, (n_rows, 1))
     kin = Kinematics(chain, model.params)
     target = kin.points(np.repeat(q0, 3, axis=0), tool_rows).reshape(n_rows, 3, 3)
+    g, pivot = warm_growth(model)  # the warm robot's TCP grows by 1 + g about the pivot: aim it short (orientation:
+    target = target - (g / (1.0 + g)) * (target[:, :1] - pivot)  # unchanged by a uniform scale; tool points rigid)
 
     outside = np.array([bool(f) for f in failures])  # targets outside the limits are not iterated
     true_joints = None if offsets is None else partial(_true_joints, offsets)

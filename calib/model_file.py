@@ -2,7 +2,9 @@
 
 {"format": "trackcal-model/1", "robot": <configs/robots schema>, "extension": {"cause": "none"},
  (an extension: {"cause", "parameters": {name: {value, ci95, unit}}, "parts": [{"cause", "parameters": [names]}]
-  when it carries several causes, "arcs": {"joint_<j>": {"from_deg", "to_deg"}} for the joint error map},
+  when it carries several causes, "arcs": {"joint_<j>": {"from_deg", "to_deg"}} for the joint error map,
+  "forms": {cause: form} for what thermal_warmup ({"tau_s", "tau_ci95_s"}) and payload_compliance ({"com_mm",
+  "final_load_kg"}) need beyond the rows (calib.diagnose.extensions)},
  "parameters": {name: {"value": deviation, "ci95": half-width, "unit": "mm"|"deg", "nominal": value}},
  "stations": {id: {"rotation": 3x3 station<-base, "translation_mm": [..], "ci95_translation_mm": [..],
                    "ci95_rotation_deg": [..]}},
@@ -30,7 +32,7 @@ import numpy as np
 
 from trackcal.calib.diagnose.changepoint import relabel_shift
 from trackcal.calib.diagnose.extensions import CAUSES, build_parts
-from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, Ranges
+from trackcal.calib.diagnose.features import FORMS, UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.diagnose.joint_map import Arc, range_warning
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import WEIGHTINGS
@@ -78,6 +80,8 @@ def extension_doc(res: Identification, shift: dict | None = None, ranges: Ranges
     }
     if len(ext.parts()) > 1:
         doc["parts"] = [{"cause": c, "parameters": list(names)} for c, names in ext.parts()]
+    if ext.meta.get(FORMS):
+        doc["forms"] = {c: dict(f) for c, f in ext.meta[FORMS].items()}
     if "arcs" in ext.meta:
         doc["arcs"] = {f"joint_{j + 1}": arc.to_doc() for j, arc in sorted(ext.meta["arcs"].items())}
     if ranges is not None:
@@ -198,6 +202,13 @@ class Model:
         arcs = self.doc.get("extension", {}).get("arcs", {})
         return {int(k.split("_")[1]) - 1: Arc.from_doc(v) for k, v in arcs.items()}
 
+    def forms(self) -> dict:
+        """{cause: form} of the causes whose features need more than the rows (`build_extension`'s `form`)."""
+        forms = self.doc.get("extension", {}).get("forms", {})
+        if not isinstance(forms, dict) or not all(isinstance(f, dict) for f in forms.values()):
+            raise ModelError("extension.forms: expected {cause: {...}}")
+        return forms
+
     def ranges(self) -> Ranges | None:
         """The joint angles and times the extension was fitted on (None: no extension, or a model written before
         they were recorded: its extension is then evaluated at the rows' own angles and times, as it was)."""
@@ -211,7 +222,7 @@ class Model:
         if not parts:
             return None, None
         _, theta = self.extension_values()
-        return build_parts(parts, self.chain, rows, self.arcs(), self.cause, self.ranges()), theta
+        return build_parts(parts, self.chain, rows, self.arcs(), self.cause, self.ranges(), self.forms()), theta
 
     def outside(self, q: np.ndarray) -> np.ndarray:
         """(N,) bool: rows whose joint angles q (N, n) rad leave the ranges the extension was fitted on."""
@@ -322,7 +333,7 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
                              f"beginning with extension.cause, got {causes!r}")  # fmt: skip
     model = Model(chain, params, dev, stations, points, doc)
     try:
-        model.parts(), model.arcs(), model.extension_values(), model.ranges()  # the extension is readable
+        model.parts(), model.arcs(), model.extension_values(), model.ranges(), model.forms()  # readable
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:
         raise ModelError(f"{path}: extension: incomplete or malformed ({exc})") from None
     return model

@@ -15,6 +15,12 @@ point of it about the chain's first frame, so the reflector moves to pivot + (1 
 (THERMAL_PIVOTS) a parameter of the effect: `base`, the robot bolted to its mount grows as a whole away from the
 base frame's origin; `first_joint`, the base column keeps its length (a massive casting that lags behind the
 warming motors, or a temperature-controlled pedestal) and the arm grows about the first joint's frame.
+
+A first-order warm-up (thermal_warmup) grows every length by g(t) = e_inf (1 - exp(-t / tau)) about its pivot, the
+same pivots; a payload (payload_compliance) of a stated mass is bolted to the flange at a time of the campaign, its
+centre of mass at the last link's (the robot config's), and every joint deflects by its compliance times the gravity
+torque it then holds (the config's mass model with the payload: the cell states both); the table records the load
+of each row (column `load_kg`).
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.extensions import CAUSES, payload_torques
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.pinmodel import gravity_torques
 from trackcal.calib.model.rigid import exp_so3
@@ -34,6 +40,8 @@ THERMAL_PIVOTS = ("base", "first_joint")
 # 1 K per hour after power-on grows 11.8 ppm/h: the shape of the twin's growth before it is scaled.
 STEEL_PER_K = 11.8e-6
 WARMUP_K_PER_S = 1.0 / 3600.0
+WARMUP_K = 10.0  # a first-order warm-up's steady rise of the links (K): the unit shape of thermal_warmup
+PAYLOAD_KG = 150.0  # the payload bolted on during the campaign (a KR 270's rated payload is 270 kg)
 
 
 @dataclass
@@ -48,10 +56,25 @@ class Effects:
     thermal_per_s: float = 0.0  # growth rate of every length
     thermal_pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
     shift: tuple[str, float, np.ndarray, np.ndarray] | None = None  # (station, after t_s, rotation, translation)
+    warmup_inf: float = 0.0  # saturated growth of every length (first-order warm-up)
+    warmup_tau_s: float = 1.0
+    warmup_pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    payload_compliance: np.ndarray | None = None  # (n,) rad per N m
+    payload_chain: Chain | None = None  # the mass model the payload's torques are computed with (the config's)
+    payload: tuple[float, float] | None = None  # (kg, mounted after t_s)
 
-    def joint_errors(self, q: np.ndarray, approach: np.ndarray) -> np.ndarray:
-        """(N, n) rad: true minus reported joint angles for reported q (N, n) and approach signs (N, n)."""
+    def load_at(self, t_s: np.ndarray) -> np.ndarray:
+        """(N,) the payload (kg) mounted at times t_s."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        return np.zeros(len(t)) if self.payload is None else np.where(t > self.payload[1], self.payload[0], 0.0)
+
+    def joint_errors(self, q: np.ndarray, approach: np.ndarray, t_s: float = 0.0) -> np.ndarray:
+        """(N, n) rad: true minus reported joint angles for reported q (N, n) and approach signs (N, n) at time t_s."""
         dq = np.zeros_like(q)
+        if self.payload_compliance is not None:
+            chain = self.payload_chain
+            loads = np.full(len(q), float(self.load_at(t_s)[0]))
+            dq += self.payload_compliance * payload_torques(chain, q, loads, np.asarray(chain.joints[-1].com, float))
         if self.compliance is not None:
             dq += self.compliance * gravity_torques(self.mass_chain, q)
         if self.backlash is not None:
@@ -64,7 +87,11 @@ class Effects:
 
     def grown(self, p: np.ndarray, t_s: float) -> np.ndarray:
         """Points p (..., 3) of the rigid robot (base frame, mm) after t_s of uniform thermal growth."""
-        return self.thermal_pivot + (1.0 + self.thermal_per_s * t_s) * (p - self.thermal_pivot)
+        p = self.thermal_pivot + (1.0 + self.thermal_per_s * t_s) * (p - self.thermal_pivot)
+        if self.warmup_inf:
+            g = -self.warmup_inf * np.expm1(-t_s / self.warmup_tau_s)
+            p = self.warmup_pivot + (1.0 + g) * (p - self.warmup_pivot)
+        return p
 
     def scaled(self, factor: float) -> Effects:
         def mul(v):
@@ -77,7 +104,7 @@ class Effects:
         return replace(
             self, compliance=mul(self.compliance), backlash=mul(self.backlash), encoder_scale=mul(self.encoder_scale),
             cyclic=[(j, h, a * factor, p) for j, h, a, p in self.cyclic], thermal_per_s=self.thermal_per_s * factor,
-            shift=shift,
+            shift=shift, warmup_inf=self.warmup_inf * factor, payload_compliance=mul(self.payload_compliance),
         )  # fmt: skip
 
     def to_doc(self) -> dict:
@@ -100,6 +127,13 @@ class Effects:
         if self.thermal_per_s:
             doc["thermal_drift"] = {"growth_per_s": float(self.thermal_per_s),
                                     "pivot_mm": np.asarray(self.thermal_pivot, dtype=float).tolist()}  # fmt: skip
+        if self.warmup_inf:
+            doc["thermal_warmup"] = {"e_inf": float(self.warmup_inf), "tau_s": float(self.warmup_tau_s),
+                                     "pivot_mm": np.asarray(self.warmup_pivot, dtype=float).tolist()}  # fmt: skip
+        if self.payload_compliance is not None and self.payload is not None:
+            doc["payload_compliance"] = {"deg_per_n_m": np.degrees(self.payload_compliance).tolist(),
+                                         "load_kg": float(self.payload[0]), "mounted_after_t_s": float(self.payload[1]),
+                                         "com_mm": np.asarray(self.payload_chain.joints[-1].com, float).tolist()}
         if self.shift is not None:
             sid, t, rvec, tvec = self.shift
             doc["station_shift"] = {"station": sid, "after_t_s": float(t), "rotation_vector_deg":
@@ -137,6 +171,15 @@ def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: lis
             raise ValueError(f"unknown thermal pivot {thermal_pivot!r}; choose from {', '.join(THERMAL_PIVOTS)}")
         pivot = np.zeros(3) if thermal_pivot == "base" else np.array(chain.base[:3, 3], dtype=float)
         return Effects(thermal_per_s=STEEL_PER_K * WARMUP_K_PER_S, thermal_pivot=pivot)
+    if name == "thermal_warmup":  # tau of 10 to 30 min (t_mid: about a quarter of the 80 min reference campaign)
+        if thermal_pivot not in THERMAL_PIVOTS:
+            raise ValueError(f"unknown thermal pivot {thermal_pivot!r}; choose from {', '.join(THERMAL_PIVOTS)}")
+        pivot = np.zeros(3) if thermal_pivot == "base" else np.array(chain.base[:3, 3], dtype=float)
+        return Effects(warmup_inf=STEEL_PER_K * WARMUP_K, warmup_tau_s=t_mid * rng.uniform(0.5, 1.5),
+                       warmup_pivot=pivot)  # fmt: skip
+    if name == "payload_compliance":  # bolted on halfway through the first station's block
+        shape = np.array([1.0, 1.0, 1.0] + [2.0] * (n - 3))[:n]
+        return Effects(payload_compliance=1e-7 * shape, payload_chain=chain, payload=(PAYLOAD_KG, t_mid))
     if name == "station_shift":
         return Effects(shift=(stations[0], t_mid, rng.normal(0, 1e-5, 3), rng.normal(0, 0.1, 3)))
     raise ValueError(f"unknown effect {name!r}; choose from {', '.join(CAUSES)}")

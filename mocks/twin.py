@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from trackcal.calib.diagnose.extensions import LOAD_COLUMN
 from trackcal.calib.doe.order import campaign_order
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
@@ -118,7 +119,7 @@ class Twin:
     # ------------------------------------------------------------------ measurements
     def point_in_base(self, q_deg: np.ndarray, point: str, t_s: float = 0.0) -> np.ndarray:
         q = np.radians(np.atleast_2d(np.asarray(q_deg, dtype=float)))
-        q_true = q + self.hidden.joint_errors(q, self.approach[None])
+        q_true = q + self.hidden.joint_errors(q, self.approach[None], t_s)
         r, o = self.kin.end_frames(q_true, self.true_dev)
         return self.hidden.grown(o[0] + r[0] @ self.true_points[point], t_s)
 
@@ -237,6 +238,12 @@ class Twin:
         if scaled.thermal_per_s:
             merged.thermal_per_s, merged.thermal_pivot = scaled.thermal_per_s, scaled.thermal_pivot
         merged.shift = scaled.shift or merged.shift
+        if scaled.warmup_inf:
+            merged.warmup_inf, merged.warmup_tau_s = scaled.warmup_inf, scaled.warmup_tau_s
+            merged.warmup_pivot = scaled.warmup_pivot
+        if scaled.payload_compliance is not None:
+            merged.payload_compliance, merged.payload_chain = scaled.payload_compliance, scaled.payload_chain
+            merged.payload = scaled.payload
 
 
 def simulate_campaign(
@@ -272,6 +279,8 @@ def simulate_campaign(
         x = twin.exact(q, v.point, v.station, t) if noise_free else twin.measure(q, v.point, v.station, key, t)
         rows.append((f"Q{v.pose + 1}", v.station, v.point, q, x, t))
     n = len(rows)
+    t_rows = np.array([r[5] for r in rows], dtype=float)
+    extra = {} if twin.hidden.payload is None else {LOAD_COLUMN: [f"{m:g}" for m in twin.hidden.load_at(t_rows)]}
     return MeasurementTable(
         seq=np.arange(1, n + 1),
         t_s=np.array([r[5] for r in rows], dtype=float),
@@ -280,5 +289,6 @@ def simulate_campaign(
         point=[r[2] for r in rows],
         q_deg=np.array([r[3] for r in rows]).reshape(n, poses.shape[1]),
         xyz=np.array([r[4] for r in rows]).reshape(n, 3),
+        extra=extra,  # the payload mounted at each row, when the campaign changes it
         source="twin",
     )

@@ -38,7 +38,7 @@ from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
 
-TIME_CAUSES = ("thermal_drift", SHIFT)
+TIME_CAUSES = ("thermal_drift", SHIFT, "thermal_warmup")
 SINGULAR = 1e-7  # smallest / largest singular value of the column-scaled Jacobian of an identifiable fit
 VISIBLE = 1e-6  # an extension column whose part independent of the geometric ones is below this is dropped
 LEVER_RATIO = 1e-3  # a joint moving the points less than this fraction of the most moving joint is not seen

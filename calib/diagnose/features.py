@@ -21,6 +21,7 @@ from trackcal.calib.errors import CalibError
 # boundary unit -> factor from internal units (rad, N m, s)
 UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
                 "ppm/h": 1e6 * 3600.0}  # fmt: skip
+FORMS = "forms"  # Extension.meta key: {cause: what its features need beyond the table} (model.json: extension.forms)
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,8 @@ class Extension:
     joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
     growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
     pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
-    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"; "ranges": Ranges
+    meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"; "ranges": Ranges;
+    # FORMS: {cause: form} (thermal_warmup's time constant, payload_compliance's payload)
 
     @property
     def size(self) -> int:
@@ -138,7 +140,10 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
         if x.growth is not None:
             gr[:, at : at + x.size] = x.growth
         at += x.size
-    meta = {k: v for x in extensions for k, v in x.meta.items() if k != "parts"}
+    meta = {k: v for x in extensions for k, v in x.meta.items() if k not in ("parts", FORMS)}
+    forms = {c: f for x in extensions for c, f in x.meta.get(FORMS, {}).items()}
+    if forms:
+        meta[FORMS] = forms
     meta["parts"] = [part for x in extensions for part in x.parts()]
     return Extension(
         cause or extensions[0].cause, [nm for x in extensions for nm in x.names],

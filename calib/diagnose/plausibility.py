@@ -20,6 +20,14 @@ datasheet-level magnitudes of the literature, so that a real effect of an unusua
   that is a few mrad, a few mm at its 2.7 m reach. 0.25 deg (4.4 mrad, 12 mm at 2.7 m) is above any of them.
 - thermal_drift |g| <= 500 ppm over the campaign: 11.5 um/m/K for steel, 23 for aluminium links, warming by a few
   K over a campaign and some 10 to 20 K near the motors: 23 um/m/K x 20 K is 460 ppm.
+- thermal_warmup |e_inf| <= 500 ppm (the saturated growth, the same physics as thermal_drift) and its time constant
+  tau in [5 min, 8 h]: robot warm-up curves reach their steady state in one to a few hours (Gong, Yuan, Ni,
+  IJMTM 40(14), 2000: time constants of tens of minutes; ISO 230-3 thermal tests of machine tools run 4 h and more
+  for the same first-order behaviour); a tau of seconds is a settling transient, one of days no warm-up.
+- payload_compliance: the deflection |c_j tau_j| <= 0.25 deg over the rows as joint_compliance, and |c_j| <=
+  10 urad/(N m): joint stiffnesses of heavy six-revolute robots are 1e6 to 1e7 N m/rad (Dumas, Caro, Garnier,
+  Furet, Robotics and Computer-Integrated Manufacturing 27(4), 2011, a KUKA KR 240-2: compliances of 0.1 to
+  1 urad/(N m)); ten times the softest.
 - station_shift has no parameter of its own (a station's pose after the change point, as free as before it).
 """
 
@@ -27,13 +35,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackcal.calib.diagnose.features import Extension
+from trackcal.calib.diagnose.features import FORMS, Extension
 
 ENCODER_SCALE_MAX = 5e-3  # |k|, dimensionless (0.5 %)
 CYCLIC_MAX_RAD = float(np.radians(0.5))  # |e_j(q)| of the joint error map over the rows
 BACKLASH_MAX_RAD = float(np.radians(0.2))  # dead band width b_j
 DEFLECTION_MAX_RAD = float(np.radians(0.25))  # |c_j tau_j| over the rows
 GROWTH_MAX = 500e-6  # |fractional growth| over the campaign's time span
+WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S = 300.0, 8 * 3600.0  # the warm-up's time constant
+COMPLIANCE_MAX = 1e-5  # |c_j| rad per N m under a payload
 
 
 def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
@@ -53,12 +63,23 @@ def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
         elif cause == "backlash":
             out += [f"backlash {nm} = {np.degrees(v):.3g} deg (physical: 0 .. {np.degrees(BACKLASH_MAX_RAD):g} deg)"
                     for nm, v in zip(names, values, strict=True) if abs(v) > BACKLASH_MAX_RAD]  # fmt: skip
-        elif cause in ("joint_compliance", "cyclic_error"):
-            limit = DEFLECTION_MAX_RAD if cause == "joint_compliance" else CYCLIC_MAX_RAD
+        elif cause in ("joint_compliance", "cyclic_error", "payload_compliance"):
+            limit = CYCLIC_MAX_RAD if cause == "cyclic_error" else DEFLECTION_MAX_RAD
             peak = np.max(np.abs(np.einsum("rje,e->rj", ext.joint_features[:, :, cols], values)), axis=0)
-            what = "deflection" if cause == "joint_compliance" else "joint error"
+            what = "joint error" if cause == "cyclic_error" else "deflection"
             out += [f"{cause} {what} of joint {j + 1} up to {np.degrees(p):.3g} deg (physical: <= "
                     f"{np.degrees(limit):g} deg)" for j, p in enumerate(peak) if p > limit]  # fmt: skip
+            if cause == "payload_compliance":
+                out += [f"payload_compliance {nm} = {1e6 * v:.3g} urad/(N m) (physical: <= {1e6 * COMPLIANCE_MAX:g})"
+                        for nm, v in zip(names, values, strict=True) if abs(v) > COMPLIANCE_MAX]  # fmt: skip
+        elif cause == "thermal_warmup":
+            tau = ext.meta.get(FORMS, {}).get(cause, {}).get("tau_s", WARMUP_TAU_MIN_S)
+            if abs(values[0]) > GROWTH_MAX:
+                out.append(f"thermal_warmup e_inf = {1e6 * values[0]:.3g} ppm (physical: |e_inf| <= "
+                           f"{1e6 * GROWTH_MAX:g} ppm)")  # fmt: skip
+            if not WARMUP_TAU_MIN_S <= tau <= WARMUP_TAU_MAX_S:
+                out.append(f"thermal_warmup tau = {tau / 60:.3g} min (physical: {WARMUP_TAU_MIN_S / 60:g} to "
+                           f"{WARMUP_TAU_MAX_S / 3600:g} h)")  # fmt: skip
         elif cause == "thermal_drift":
             growth = np.max(np.abs(ext.growth[:, cols] @ values))
             if growth > GROWTH_MAX:

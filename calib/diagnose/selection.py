@@ -73,6 +73,7 @@ from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
 from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.diagnose.structure import structure_test
+from trackcal.calib.diagnose.warmup import warmup_candidate
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, identify, model_points
 from trackcal.calib.io.table import MeasurementTable
@@ -183,7 +184,8 @@ def context(chain, table, params, noise, geo, causes) -> Context:
         if c == SHIFT:
             continue
         try:
-            ext, dropped = visible_extension(chain, table, geo, noise, params, c)
+            ext, dropped = (warmup_candidate(chain, table, geo, noise, params) if c == "thermal_warmup" else
+                            visible_extension(chain, table, geo, noise, params, c))  # tau profiled (`warmup`)
         except IdentificationError:  # more unknowns with this cause than the table has equations: not revealable
             continue
         if c == "thermal_drift" and ext is not None:
@@ -377,7 +379,7 @@ def diagnose(
     noise: TrackerNoise | None = None,
     folds: int = 5,
     seed: int = 0,
-    causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT),
+    causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT, "thermal_warmup", "payload_compliance"),
     geometric: Identification | None = None,
     tracker: TrackerNoise | None = None,
     executor: Executor | None = None,
@@ -434,8 +436,8 @@ def diagnose(
             if cause in ctx.dropped:
                 cand.detail["not_identifiable"] = list(ctx.dropped[cause])
             refused = implausible(fit.extension, fit.ext) if passes else []
-            if passes and cause == "thermal_drift" and not refused:
-                refused = _growth_between_stations(ctx, fitted, current, dof, alpha)
+            if passes and cause in ("thermal_drift", "thermal_warmup") and not refused:
+                refused = _growth_between_stations(ctx, fitted, current, dof, alpha, cause)
             if refused:
                 cand.detail["implausible"] = refused
             cand.significant = bool(passes and gain_ok and not refused)
@@ -551,35 +553,37 @@ def diagnose(
                      noise_scale=_scale(res.residuals, res, floor), **doc)  # fmt: skip
 
 
-WITHIN = "thermal_drift within stations"  # ctx.features key of the growth's part within each station's time
+WITHIN = " within stations"  # ctx.features key (after the cause's name) of the growth's part within each station's time
 
 
-def _growth_between_stations(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: int, alpha: float) -> list[str]:
+def _growth_between_stations(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: int, alpha: float,
+                             cause: str = "thermal_drift") -> list[str]:  # fmt: skip
     """[] when the arm's growth is significant within each station's own time, else one phrase: a growth constant
     over one station's rows is exactly that station's range scale (about its origin) and a translation of it, so
     between stations measured one after the other (the campaign order) a growth cannot be told from one station's
     wrong air data (issue 36: a station's ranges 30 ppm off were named thermal_drift, and poses measured after
     the campaign were predicted with the growth at every station). The part within stations (each station's mean
     growth removed) must pass the same F test."""
-    ext = ctx.features["thermal_drift"]
+    ext = ctx.features[cause]
     stations = np.array(ctx.table.station)
     if len(set(stations)) < 2:
         return []
     g = ext.growth.copy()
     for sid in set(stations):
         g[stations == sid] -= g[stations == sid].mean(axis=0)
-    ctx.features[WITHIN] = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot)
+    within = cause + WITHIN
+    ctx.features[within] = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot)
     try:
-        fit = whole_fit(ctx, (*fitted, WITHIN))
+        fit = whole_fit(ctx, (*fitted, within))
     except IdentificationError:
-        return ["thermal_drift: its growth within each station's own time cannot be identified"]
+        return [f"{cause}: its growth within each station's own time cannot be identified"]
     finally:
-        del ctx.features[WITHIN]
+        del ctx.features[within]
     f = (current.rss - fit.rss) / (fit.rss / dof) if fit.rss > 0 else 0.0
     p = float(fdtrc(1, dof, f)) if f > 0 else 1.0
     if p < alpha:
         return []
-    return [f"thermal_drift: within each station's own time the growth is not significant (F test p = {p:.2g}); "
+    return [f"{cause}: within each station's own time the growth is not significant (F test p = {p:.2g}); "
             "between stations measured one after the other it is one station's range scale (its air data) as well"]
 
 

@@ -13,7 +13,8 @@ from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, WEIGHTINGS
 from trackcal.campaign.importers.ipa_ur10 import DEFAULT_PERIOD_S, VIRTUAL_DIRECTIONS
 
 CAUSE_HELP = ("none (purely geometric), auto (diagnose's choice) or a cause: joint_compliance, backlash, "
-              "encoder_scale, cyclic_error, thermal_drift, station_shift")  # fmt: skip
+              "encoder_scale, cyclic_error, thermal_drift, station_shift, thermal_warmup, "
+              "payload_compliance")  # fmt: skip
 TABLE_HELP = "measurement table (CSV: seq,t_s,pose,station,point,q1_deg..qn_deg,x_mm,y_mm,z_mm)"
 CELL_HELP = "cell name (configs/cells/NAME.yaml) or path"
 WEIGHTING_HELP = ("the radial/transverse noise model of the cell's tracker (cell key tracker:, default the AT901; "

@@ -16,6 +16,7 @@ The map (YAML; docs/import-map.md documents every key with two examples):
       pose: Pose                              # optional: pose ids (default: sequential, see below)
       time: Time                              # optional: seconds (default: the row index, not a time)
       station: Station                        # optional (default: the fixed `station` below)
+      load: Load                              # optional: the payload mounted (kg), table column load_kg
     points:                                   # pose_rows: point id -> its x, y, z columns
       P1: [P1 X, P1 Y, P1 Z]
     station: T1                               # the station id when there is no station column (default T1)
@@ -40,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.diagnose.extensions import LOAD_COLUMN
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_yaml
 from trackcal.calib.io.table import MeasurementTable, TableError, read_blocks, split_lines
@@ -52,8 +54,8 @@ POSITIONS = {"1-based": 1, "0-based": 0}
 SEPARATORS = {",": "','", ";": "';'", "\t": "tabs", "|": "'|'"}
 KEYS = ("separator", "decimal", "skip_rows", "header", "positions", "layout", "units", "columns", "points",
         "station", "point")  # fmt: skip
-COLUMN_KEYS = ("joints", "xyz", "point", "pose", "time", "station")
-ROBOT_KEYS = ("joints", "pose", "time", "station")  # joined by row: the joints file's columns
+COLUMN_KEYS = ("joints", "xyz", "point", "pose", "time", "station", "load")
+ROBOT_KEYS = ("joints", "pose", "time", "station", "load")  # joined by row: the joints file's columns
 POSITION_KEYS = ("xyz", "point")  # joined by row: each positions file's columns
 # A point with more than this share of its rows without a reading is refused: the tracker loses the beam at some
 # poses (a link in the line of sight, a nest turned past its acceptance angle), but when the rows without a reading
@@ -153,7 +155,7 @@ def load_map(path: str | Path) -> TableMap:
     if "joints" not in cols:
         raise ImportMapError(f"{path}: columns.joints: missing (the joint columns, in joint order)")
     m.columns = {"joints": _refs(cols["joints"], "columns.joints", path)}
-    for key in ("point", "pose", "time", "station"):
+    for key in ("point", "pose", "time", "station", "load"):
         if cols.get(key) is not None:
             m.columns[key] = _ref(cols[key], f"columns.{key}", path)
     if m.layout == "point_rows":
@@ -173,7 +175,7 @@ def load_map(path: str | Path) -> TableMap:
     m.station = fields.text(doc.get("station", "T1"), f"{path}: station", ImportMapError)
     m.point = fields.text(doc.get("point", "P1"), f"{path}: point", ImportMapError)
     all_refs = [*m.columns["joints"], *m.columns.get("xyz", []),
-                *(m.columns[k] for k in ("point", "pose", "time", "station") if k in m.columns),
+                *(m.columns[k] for k in ("point", "pose", "time", "station", "load") if k in m.columns),
                 *(r for v in (m.points or {}).values() for r in v)]  # fmt: skip
     if any(isinstance(r, int) for r in all_refs):
         if "positions" not in doc:
@@ -297,7 +299,8 @@ def import_table(paths: str | Path | list, m: TableMap, joints: str | Path | Non
     table = parts[0] if len(parts) == 1 else MeasurementTable(
         seq=np.arange(1, n + 1), t_s=np.concatenate([t.t_s for t in parts]), pose=[v for t in parts for v in t.pose],
         station=[v for t in parts for v in t.station], point=[v for t in parts for v in t.point],
-        q_deg=np.vstack([t.q_deg for t in parts]), xyz=np.vstack([t.xyz for t in parts]), source=sources)  # fmt: skip
+        q_deg=np.vstack([t.q_deg for t in parts]), xyz=np.vstack([t.xyz for t in parts]), source=sources,
+        extra={k: np.concatenate([t.extra[k] for t in parts]) for k in parts[0].extra})  # fmt: skip
     return Imported(table, {p: c[0] for p, c in counts.items()}, {p: c[1] for p, c in counts.items()})
 
 
@@ -381,13 +384,17 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
     if not fixed_point or not fixed_point.isprintable() or "," in fixed_point:
         raise ImportMapError(f"{meas.path}: the file's name {fixed_point!r} is no point id (printable, no comma)")
     col = {**robot.col, **meas.col}
-    out_pose, out_station, out_point, out_q, out_xyz, out_t = [], [], [], [], [], []
+    out_pose, out_station, out_point, out_q, out_xyz, out_t, out_load = [], [], [], [], [], [], []
     for (row, cells), (mrow, mcells) in zip(robot.rows, meas.rows, strict=True):
         for src, r, c, need in ((robot, row, cells, need_r), (meas, mrow, mcells, need_m)):
             if len(c) < need:
                 raise ImportMapError(_width_note(src.path, r, c, need, m, src.raw[r - 1]))
         q = [number(robot, row, cells, c, m.joint_factor) for c in col["joints"]]
         t = number(robot, row, cells, col["time"]) if "time" in col else float(row)  # no time: the row, an order
+        load = number(robot, row, cells, col["load"]) if "load" in col else 0.0
+        if not load >= 0:
+            raise ImportMapError(f"{robot.path}: row {row}: {col['load'].label}: a payload of {load:g} kg (a load is "
+                                 ">= 0 kg)")  # fmt: skip
         station = ident(robot, row, cells, col["station"]) if "station" in col else m.station
         pose = (ident(robot, row, cells, col["pose"]) if "pose" in col else
                 poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}"))  # fmt: skip
@@ -408,12 +415,14 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
             out_point.append(point)
             out_q.append(q)
             out_t.append(t)
+            out_load.append(load)
     if not out_xyz:
         return None
     n = len(out_xyz)
+    extra = {LOAD_COLUMN: [f"{v:.10g}" for v in out_load]} if "load" in col else {}
     return MeasurementTable(seq=np.arange(1, n + 1), t_s=np.array(out_t), pose=out_pose, station=out_station,
                             point=out_point, q_deg=np.array(out_q, dtype=float), xyz=np.array(out_xyz, dtype=float),
-                            source=str(meas.path))  # fmt: skip
+                            extra=extra, source=str(meas.path))  # fmt: skip
 
 
 def _all_refs(m: TableMap) -> list[str | int]:

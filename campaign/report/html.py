@@ -71,6 +71,8 @@ CAUSE_NEEDS = {
     "cyclic_error": "joint angles spread over the period",
     "thermal_drift": "repeated poses at different times (drift checks over a longer campaign)",
     "station_shift": "drift-check poses revisited within each station block",
+    "thermal_warmup": "rows spread over the warm-up (a campaign longer than its time constant, drift checks)",
+    "payload_compliance": "poses of different gravity loads measured with each payload (the table's load_kg column)",
 }
 NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
 

@@ -1,0 +1,104 @@
+"""The warm-up's time constant: thermal_warmup's growth e_inf (1 - exp(-(t - t0) / tau)) is linear in e_inf at a
+given tau, so tau is profiled: at each tau of a grid over the physical range (`calib.diagnose.plausibility`: 5 min
+to 8 h) e_inf is fitted linearly, and the tau of least residual is kept (refined between its grid neighbours).
+
+The profile is taken at the geometric solution, linearised: the residual r and the Jacobian of the geometric, station
+and point columns B are those of the geometric fit; the growth column of a tau is the reflector's lever about the
+pivot (the Jacobian column of a unit growth) times the row's warm-up shape. The residual sum left by a tau is
+|r_perp|^2 - (c_perp . r_perp)^2 / |c_perp|^2, `_perp` the part orthogonal to B: one Jacobian per pivot form, then
+a few vector products per tau. The effect is small (micrometres against metres), where the model is linear to far
+below the noise (as `calib.diagnose.crossval`'s one-step folds).
+
+The linear drift (thermal_drift, g = e t) is the warm-up's limit of a tau long against the campaign. The warm-up is a
+candidate only when its curvature is significant: the residual sum at its tau against the linear drift's, an F test
+of one degree of freedom (tau) at ALPHA; else the campaign cannot tell a warm-up from a drift, and the linear drift
+(the candidate of fewer assumptions) is left to describe it. tau's 95 % interval is the profile's: the taus whose
+residual sum is within chi2(1, 0.95) of the least, in units of the residual variance (Venzon and Moolgavkar's
+profile likelihood interval, 1988).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.special import fdtrc
+
+from trackcal.calib.diagnose.extensions import WARMUP_FORMS, build_extension, warmup_growth
+from trackcal.calib.diagnose.features import Extension
+from trackcal.calib.diagnose.plausibility import WARMUP_TAU_MAX_S, WARMUP_TAU_MIN_S
+from trackcal.calib.identify.solver import Identification, Problem, State
+from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.chain import Chain
+
+ALPHA = 1e-3  # the curvature's F test (selection's level for one candidate)
+GRID = 60  # taus of the profile, log-spaced over the physical range
+CHI2_1_95 = 3.841458820694124  # chi-square quantile, 1 degree of freedom, 0.95 (tables: 3.841)
+
+
+def _orthogonal(chain: Chain, table: MeasurementTable, geo: Identification, noise, params, form: str):
+    """(r_perp, lever, basis Q, residual dof): the geometric fit's whitened residual and a unit growth's column about
+    the form's pivot, both before removing the geometric, station and point columns (orthonormal basis Q)."""
+    ext = build_extension("thermal_warmup", chain, table, names=[form])
+    ext = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=np.ones((len(table), 1)), pivot=ext.pivot)
+    problem = Problem(chain, table, geo.points, params, noise, geo.dev, ext)
+    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
+                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(1))  # fmt: skip
+    r, jm = problem.residual_and_jacobian(state)
+    k = len(params)
+    base = np.delete(jm, k, axis=1)
+    norms = np.linalg.norm(base, axis=0)
+    q, _ = np.linalg.qr(base[:, norms > 0] / norms[norms > 0])
+    r_perp = r - q @ (q.T @ r)
+    return r_perp, jm[:, k], q, len(r) - base.shape[1] - 1
+
+
+def _rss(r_perp: np.ndarray, lever: np.ndarray, q: np.ndarray, shape: np.ndarray) -> float:
+    c = lever * np.repeat(shape, 3)
+    c = c - q @ (q.T @ c)
+    cc = float(c @ c)
+    return float(r_perp @ r_perp) - (float(c @ r_perp) ** 2 / cc if cc > 0 else 0.0)
+
+
+def profile(chain: Chain, table: MeasurementTable, geo: Identification, noise, params) -> dict:
+    """The profile of tau over the physical range: {"form", "tau_s", "tau_ci95_s": [lo, hi], "rss", "rss_linear",
+    "dof", "pvalue"} (the curvature's F test against the linear drift of the same pivot)."""
+    t = np.asarray(table.t_s, dtype=float)
+    t0 = float(t.min()) if len(t) else 0.0
+    taus = np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, GRID)
+    best = None
+    for form in WARMUP_FORMS:
+        r_perp, lever, q, dof = _orthogonal(chain, table, geo, noise, params, form)
+
+        def rss(log_tau, r_perp=r_perp, lever=lever, q=q):
+            return _rss(r_perp, lever, q, warmup_growth(t, float(np.exp(log_tau)), t0))
+
+        grid = np.array([rss(np.log(tau)) for tau in taus])
+        i = int(np.argmin(grid))
+        lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, GRID - 1)])
+        found = minimize_scalar(rss, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+        log_tau, least = (found.x, float(found.fun)) if found.fun < grid[i] else (np.log(taus[i]), float(grid[i]))
+        linear = _rss(r_perp, lever, q, t - t0)
+        if best is None or least < best["rss"]:
+            s2 = least / max(dof, 1)
+            fine = np.linspace(np.log(WARMUP_TAU_MIN_S), np.log(WARMUP_TAU_MAX_S), 400)
+            inside = fine[np.array([rss(x) for x in fine]) <= least + CHI2_1_95 * s2]
+            ci = [float(np.exp(min(inside.min(), log_tau))), float(np.exp(max(inside.max(), log_tau)))]
+            f = (linear - least) / s2 if s2 > 0 else 0.0
+            best = {"form": form, "tau_s": float(np.exp(log_tau)), "tau_ci95_s": ci, "rss": least,
+                    "rss_linear": linear, "dof": int(dof), "pvalue": float(fdtrc(1, dof, f)) if f > 0 else 1.0}
+    return best
+
+
+def warmup_candidate(chain: Chain, table: MeasurementTable, geo: Identification, noise,
+                     params) -> tuple[Extension | None, list[str]]:  # fmt: skip
+    """thermal_warmup at its profiled tau and pivot form, with its profile in `meta[FORMS]`; (None, [why]) when its
+    curvature is not significant against the linear drift (the module's docstring)."""
+    if len(table) < 2 or np.ptp(table.t_s) <= 0:
+        return None, ["tau: the rows span no time"]
+    prof = profile(chain, table, geo, noise, params)
+    if prof["pvalue"] >= ALPHA:
+        return None, [f"tau: the growth's curvature is not significant against a linear drift (F test p = "
+                      f"{prof['pvalue']:.2g}): thermal_drift describes it"]  # fmt: skip
+    form = {"tau_s": prof["tau_s"], "tau_ci95_s": prof["tau_ci95_s"], "profile_pvalue": prof["pvalue"]}
+    ext = build_extension("thermal_warmup", chain, table, names=[prof["form"]], form=form)
+    return ext, []
