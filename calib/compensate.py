@@ -19,7 +19,10 @@ encoder_scale, cyclic_error (the joint error map; outside the angles it was fitt
 at the nearest fitted angle, and the report warns: `CompensationReport.warnings`). backlash depends on the
 approach direction and thermal_drift on time: no static correction exists for them; they are ignored and
 reported in `CompensationReport.ignored`.
-station_shift is a tracker matter and leaves the robot model purely geometric.
+wrist_coupling (the wrist's coupling ratios, a joint error linear in the driving axis) is static: corrected.
+station_shift, range_scale (a station's air data) and nest_sag (a reflector nest sagging in its seat) are matters of
+the measurement, not of the robot: the TCP is where the geometric model puts it, and they leave the compensation
+geometric (a note says so).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 
-STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error")
+STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error", "wrist_coupling")
 NO_STATIC_COMPENSATION = {
     "backlash": "backlash depends on the direction each joint approaches the target from; it has no static "
     "compensation and is ignored (approach every target from the same side to make it repeatable)",
@@ -47,6 +50,10 @@ NO_STATIC_COMPENSATION = {
 }
 GEOMETRIC_ONLY = {
     "station_shift": "station_shift concerns a tracker station, not the robot: the compensation is geometric",
+    "range_scale": "range_scale concerns a tracker station's air data (its distances), not the robot: nothing of it "
+    "to compensate",
+    "nest_sag": "nest_sag concerns the reflector's nest on the measurement tool, not the robot's TCP: nothing of it "
+    "to compensate",
 }
 # below this conditioning a pose is close to a singularity: small Cartesian errors need large joint corrections
 # (on the KR-270 ~1e-3 is where corrections of Table 8 size deviations exceed one degree)
@@ -121,17 +128,19 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     cause = model.cause
     if cause in ("none", "unexplained"):
         return None, [], []
-    if cause in GEOMETRIC_ONLY:
+    if cause in GEOMETRIC_ONLY and not model.parts():
         return None, [], [GEOMETRIC_ONLY[cause]]
     parts = model.parts()
-    unknown = [c for c, _ in parts if c not in STATIC_JOINT_CAUSES and c not in NO_STATIC_COMPENSATION]
+    unknown = [c for c, _ in parts if c not in STATIC_JOINT_CAUSES and c not in NO_STATIC_COMPENSATION
+               and c not in GEOMETRIC_ONLY]  # fmt: skip
     if unknown:
         raise CompensationError(f"model extension {unknown[0]!r} is unknown; cannot compensate it")
     ignored = [NO_STATIC_COMPENSATION[c] for c, _ in parts if c in NO_STATIC_COMPENSATION]
+    notes = [GEOMETRIC_ONLY[c] for c, _ in parts if c in GEOMETRIC_ONLY]
     names, theta = model.extension_values()
     static = [(c, n) for c, n in parts if c in STATIC_JOINT_CAUSES]
     if not static:
-        return None, ignored, []
+        return None, ignored, notes
     keep = np.array([names.index(nm) for _, n in static for nm in n], dtype=int)
     chain, arcs = model.chain, model.arcs()
 
@@ -143,7 +152,7 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
         )  # fmt: skip
         return build_parts(static, chain, rows, arcs).joint_offsets(theta[keep])
 
-    return offsets, ignored, []
+    return offsets, ignored, notes
 
 
 def _true_joints(offsets, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

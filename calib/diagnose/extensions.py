@@ -20,6 +20,10 @@ Growth cause:
   column grows too (pivot: the robot base frame's origin, a robot warming as a whole). Both have one
   parameter: the data choose (fit both, the lower residual wins).
 
+Physical candidates of real cells, forms and sources in `calib.diagnose.point_effects`: range_scale (one station's
+distances scaled: its air data), nest_sag (a reflector nest displaced along gravity) and wrist_coupling (a joint cause:
+the wrist's coupling ratios, dq5 = c54 q4, dq6 = c64 q4 + c65 q5).
+
 station_shift (a tracker station moved during the campaign) is handled by re-labelling the station after
 the change point (calib.diagnose), not here.
 
@@ -36,12 +40,22 @@ import numpy as np
 from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, Ranges, combine, select_columns
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import Arc, map_extension
+from trackcal.calib.diagnose.point_effects import (
+    NEST_SAG,
+    POINT_CAUSES,
+    RANGE_SCALE,
+    WRIST_COUPLING,
+    nest_sag_extension,
+    range_scale_extension,
+    wrist_coupling_extension,
+)
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.pinmodel import gravity_torques
 
-CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift")
-JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error")
+CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift",
+          WRIST_COUPLING, *POINT_CAUSES)  # fmt: skip
+JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", WRIST_COUPLING)
 THERMAL_FORMS = ("e", "e_base")  # arm + tool about the first joint's frame; base column too, about the base origin
 
 
@@ -95,6 +109,12 @@ def build_extension(
         ext = map_extension(q_read, harmonics, names, arcs)  # periodic: held outside its arcs (`Arc.clamp`)
         ext.meta["ranges"] = ranges
         return ext
+    if cause == WRIST_COUPLING:
+        return wrist_coupling_extension(q_read, names, ranges)
+    if cause == RANGE_SCALE:
+        return range_scale_extension(table, names, ranges)
+    if cause == NEST_SAG:
+        return nest_sag_extension(table, names, ranges)
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:
