@@ -71,6 +71,9 @@ CAUSE_NEEDS = {
     "cyclic_error": "joint angles spread over the period",
     "thermal_drift": "repeated poses at different times (drift checks over a longer campaign)",
     "station_shift": "drift-check poses revisited within each station block",
+    "wrist_coupling": "a wide range of the wrist's angles (A4 and A5 turned far both ways)",
+    "range_scale": "the same poses measured from two or more stations (a scale is relative to the first station)",
+    "nest_sag": "two or more reference points measured over many flange orientations",
 }
 NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
 
