@@ -26,7 +26,10 @@ power-on: the robot in production), a uniform scale about its pivot, so the iden
 TCP when its own (unscaled) TCP reaches it scaled by 1 / (1 + e_inf) about the pivot (the three tool points moved
 with it, rigidly); the orientation is unchanged by a uniform scale. A note says so (a cold robot is off by up to
 that growth).
-station_shift is a tracker matter and leaves the robot model purely geometric.
+wrist_coupling (the wrist's coupling ratios, a joint error linear in the driving axis) is static: corrected.
+station_shift, range_scale (a station's air data) and nest_sag (a reflector nest sagging in its seat) are matters of
+the measurement, not of the robot: the TCP is where the geometric model puts it, and they leave the compensation
+geometric (a note says so).
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 
-STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error", "payload_compliance")
+STATIC_JOINT_CAUSES = ("joint_compliance", "encoder_scale", "cyclic_error", "payload_compliance", "wrist_coupling")
 WARM_GROWTH = "thermal_warmup"  # compensated at its saturated growth (`warm_growth`)
 NO_STATIC_COMPENSATION = {
     "backlash": "backlash depends on the direction each joint approaches the target from; it has no static "
@@ -55,6 +58,10 @@ NO_STATIC_COMPENSATION = {
 }
 GEOMETRIC_ONLY = {
     "station_shift": "station_shift concerns a tracker station, not the robot: the compensation is geometric",
+    "range_scale": "range_scale concerns a tracker station's air data (its distances), not the robot: nothing of it "
+    "to compensate",
+    "nest_sag": "nest_sag concerns the reflector's nest on the measurement tool, not the robot's TCP: nothing of it "
+    "to compensate",
 }
 # below this conditioning a pose is close to a singularity: small Cartesian errors need large joint corrections
 # (on the KR-270 ~1e-3 is where corrections of Table 8 size deviations exceed one degree)
@@ -129,10 +136,11 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     cause = model.cause
     if cause in ("none", "unexplained"):
         return None, [], []
-    if cause in GEOMETRIC_ONLY:
+    if cause in GEOMETRIC_ONLY and not model.parts():
         return None, [], [GEOMETRIC_ONLY[cause]]
     parts = model.parts()
-    unknown = [c for c, _ in parts if c not in (*STATIC_JOINT_CAUSES, WARM_GROWTH, *NO_STATIC_COMPENSATION)]
+    unknown = [c for c, _ in parts if c not in (*STATIC_JOINT_CAUSES, WARM_GROWTH, *NO_STATIC_COMPENSATION,
+                                               *GEOMETRIC_ONLY)]  # fmt: skip
     if unknown:
         raise CompensationError(f"model extension {unknown[0]!r} is unknown; cannot compensate it")
     ignored = [NO_STATIC_COMPENSATION[c] for c, _ in parts if c in NO_STATIC_COMPENSATION]
@@ -140,6 +148,7 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     notes = [f"thermal_warmup: compensated for the warm robot (its growth saturated at {1e6 * g:+.3g} ppm, reached "
              f"within a few of its time constant of {model.forms()[WARM_GROWTH]['tau_s'] / 60:.3g} min after "
              "power-on); a cold robot is off by up to that growth"] if g else []  # fmt: skip
+    notes += [GEOMETRIC_ONLY[c] for c, _ in parts if c in GEOMETRIC_ONLY]
     names, theta = model.extension_values()
     static = [(c, n) for c, n in parts if c in STATIC_JOINT_CAUSES]
     if not static:

@@ -62,6 +62,9 @@ class Effects:
     payload_compliance: np.ndarray | None = None  # (n,) rad per N m
     payload_chain: Chain | None = None  # the mass model the payload's torques are computed with (the config's)
     payload: tuple[float, float] | None = None  # (kg, mounted after t_s)
+    coupling: np.ndarray | None = None  # (n, n): dq = coupling @ q, the wrist's coupling-ratio errors
+    range_scale: dict[str, float] = field(default_factory=dict)  # station -> k: it measures (1 + k) x
+    nest_sag: dict[str, float] = field(default_factory=dict)  # point -> mm along gravity (base -z)
 
     def load_at(self, t_s: np.ndarray) -> np.ndarray:
         """(N,) the payload (kg) mounted at times t_s."""
@@ -83,7 +86,13 @@ class Effects:
             dq += self.encoder_scale * q
         for j, h, amp, phase in self.cyclic:
             dq[:, j] += amp * np.sin(h * q[:, j] + phase)
+        if self.coupling is not None:
+            dq += q @ self.coupling.T
         return dq
+
+    def sag(self, point: str) -> np.ndarray:
+        """(3,) mm: the displacement of the reflector in its nest, along gravity (base -z), in the base frame."""
+        return np.array([0.0, 0.0, -self.nest_sag.get(point, 0.0)])
 
     def grown(self, p: np.ndarray, t_s: float) -> np.ndarray:
         """Points p (..., 3) of the rigid robot (base frame, mm) after t_s of uniform thermal growth."""
@@ -105,6 +114,8 @@ class Effects:
             self, compliance=mul(self.compliance), backlash=mul(self.backlash), encoder_scale=mul(self.encoder_scale),
             cyclic=[(j, h, a * factor, p) for j, h, a, p in self.cyclic], thermal_per_s=self.thermal_per_s * factor,
             shift=shift, warmup_inf=self.warmup_inf * factor, payload_compliance=mul(self.payload_compliance),
+            coupling=mul(self.coupling), range_scale={k: v * factor for k, v in self.range_scale.items()},
+            nest_sag={k: v * factor for k, v in self.nest_sag.items()},
         )  # fmt: skip
 
     def to_doc(self) -> dict:
@@ -138,6 +149,14 @@ class Effects:
             sid, t, rvec, tvec = self.shift
             doc["station_shift"] = {"station": sid, "after_t_s": float(t), "rotation_vector_deg":
                                     np.degrees(rvec).tolist(), "translation_mm": np.asarray(tvec).tolist()}  # fmt: skip
+        if self.coupling is not None:
+            n = len(self.coupling)
+            doc["wrist_coupling"] = {f"c{i + 1}{j + 1}": float(self.coupling[i, j]) for i in range(n) for j in range(n)
+                                     if self.coupling[i, j]}  # fmt: skip
+        if self.range_scale:
+            doc["range_scale"] = {"scale": dict(sorted(self.range_scale.items()))}
+        if self.nest_sag:
+            doc["nest_sag"] = {"sag_mm": dict(sorted(self.nest_sag.items()))}
         return doc
 
     def station_shift(self, station: str, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -148,9 +167,9 @@ class Effects:
 
 
 def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: list[str], t_mid: float,
-                thermal_pivot: str = "base") -> Effects:  # fmt: skip
+                thermal_pivot: str = "base", points: tuple[str, ...] = ()) -> Effects:  # fmt: skip
     """The shape of each effect at an arbitrary scale (then scaled to the requested magnitude); `thermal_pivot`
-    (THERMAL_PIVOTS) is the point thermal growth keeps fixed."""
+    (THERMAL_PIVOTS) is the point thermal growth keeps fixed; `points` the reference points (nest_sag)."""
     n = chain.dof
     if name == "joint_compliance":
         # the true masses differ from the config's rough model by ~15 %; wrist joints are softer
@@ -182,4 +201,13 @@ def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: lis
         return Effects(payload_compliance=1e-7 * shape, payload_chain=chain, payload=(PAYLOAD_KG, t_mid))
     if name == "station_shift":
         return Effects(shift=(stations[0], t_mid, rng.normal(0, 1e-5, 3), rng.normal(0, 0.1, 3)))
+    if name == "wrist_coupling":  # the wrist's coupling ratios off: A5 by A4, A6 by A4 and by A5
+        c = np.zeros((n, n))
+        for driven, driving in ((n - 2, n - 3), (n - 1, n - 3), (n - 1, n - 2)):
+            c[driven, driving] = 1e-5 * rng.choice([-1.0, 1.0]) * rng.uniform(0.5, 1.0)
+        return Effects(coupling=c)
+    if name == "range_scale":  # the last station's air data wrong; the first station is the model's reference
+        return Effects(range_scale={stations[-1]: 1e-5 * rng.choice([-1.0, 1.0])})
+    if name == "nest_sag":  # every nest sags by its own amount (their common part is a translation of the cell)
+        return Effects(nest_sag={p: 0.01 * rng.uniform(0.2, 1.0) for p in points})
     raise ValueError(f"unknown effect {name!r}; choose from {', '.join(CAUSES)}")

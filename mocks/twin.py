@@ -121,13 +121,14 @@ class Twin:
         q = np.radians(np.atleast_2d(np.asarray(q_deg, dtype=float)))
         q_true = q + self.hidden.joint_errors(q, self.approach[None], t_s)
         r, o = self.kin.end_frames(q_true, self.true_dev)
-        return self.hidden.grown(o[0] + r[0] @ self.true_points[point], t_s)
+        return self.hidden.grown(o[0] + r[0] @ self.true_points[point], t_s) + self.hidden.sag(point)
 
     def exact(self, q_deg: np.ndarray, point: str, station: str, t_s: float = 0.0) -> np.ndarray:
         """Noise-free reflector position in the station frame (robot state as set by `move_to`)."""
         x = self.true_stations[station].apply(self.point_in_base(q_deg, point, t_s))
         shift = self.hidden.station_shift(station, t_s)
-        return x if shift is None else shift[0] @ x + shift[1]
+        x = x if shift is None else shift[0] @ x + shift[1]
+        return x * (1.0 + self.hidden.range_scale.get(station, 0.0))  # its air data wrong: its distances scaled
 
     def measure(self, q_deg: np.ndarray, point: str, station: str, key: str, t_s: float = 0.0) -> np.ndarray:
         """One tracker measurement; the noise depends only on (seed, key)."""
@@ -215,7 +216,8 @@ class Twin:
         base = simulate_campaign(self, poses, noise_free=True)
         first = sorted(self.true_stations)[0]  # a station shift happens halfway through this station's block
         t_mid = float(np.median(base.t_s[np.array(base.station) == first]))
-        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid, self.thermal_pivot)
+        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid, self.thermal_pivot,
+                           tuple(sorted(self.true_points)))  # fmt: skip
         self.hidden = unit
         shifted = self._exact_rows(base)
         self.hidden = saved
@@ -244,6 +246,9 @@ class Twin:
         if scaled.payload_compliance is not None:
             merged.payload_compliance, merged.payload_chain = scaled.payload_compliance, scaled.payload_chain
             merged.payload = scaled.payload
+        merged.coupling = scaled.coupling if scaled.coupling is not None else merged.coupling
+        merged.range_scale.update(scaled.range_scale)
+        merged.nest_sag.update(scaled.nest_sag)
 
 
 def simulate_campaign(

@@ -14,6 +14,7 @@ import pytest
 
 from trackcal.calib.diagnose import selection
 from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.plausibility import NEST_SAG_MAX_MM, RANGE_SCALE_MAX
 from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
@@ -36,6 +37,21 @@ def hidden_campaign(cell, seed: int, cause: str):
     return simulate_campaign(twin, poses), magnitude
 
 
+def beyond_physics(cell, seed: int, cause: str, magnitude: float, table, d) -> bool:
+    """Whether the twin's effect, scaled to `magnitude`, is beyond the cause's physical range and the diagnosis
+    refused it as the cause (calib/diagnose/plausibility.py): most of a station's range scale or of a nest's sag is
+    absorbed by the station's pose, so hiding 2x-5x the noise can take more than the physics allows (a range scale
+    of 40 um unabsorbed: ~110 ppm, against the 100 ppm of no air data 2500 m up)."""
+    if cause not in ("range_scale", "nest_sag") or cause not in [r["cause"] for r in d.refused]:
+        return False
+    hidden = Twin(cell, seed=seed, effects={cause: magnitude}).hidden
+    if cause == "range_scale":
+        ref = hidden.range_scale.get(table.station[0], 0.0)
+        return any(abs(k - ref) > RANGE_SCALE_MAX for k in hidden.range_scale.values())
+    ref = hidden.nest_sag.get(table.point[0], 0.0)
+    return any(abs(c - ref) > NEST_SAG_MAX_MM for c in hidden.nest_sag.values())
+
+
 def check_verdicts(cell, seeds):
     params = irreducible_params(cell.chain)[0]
     failures = []
@@ -44,7 +60,8 @@ def check_verdicts(cell, seeds):
             table, magnitude = hidden_campaign(cell, seed, cause)
             d = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise(), seed=seed)
             gained = d.holdout_extended_mm < d.holdout_geometric_mm
-            if d.cause != cause or (cause != "none" and not gained):
+            if (d.cause != cause or (cause != "none" and not gained)) and not (
+                    d.cause == "unexplained" and beyond_physics(cell, seed, cause, magnitude, table, d)):
                 failures.append((seed, cause, round(magnitude, 4), d.cause, d.holdout_geometric_mm,
                                  d.holdout_extended_mm))  # fmt: skip
     assert not failures, failures

@@ -37,6 +37,9 @@ Time-dependent causes of the campaign's own history (`calib.diagnose.warmup` fit
   Caro, Garnier, Furet, "Joint stiffness identification of six-revolute industrial serial robots", Robotics and
   Computer-Integrated Manufacturing 27(4), 2011): a candidate only when the load changes over the rows (else it is
   joint_compliance). Rows without the column (predict, compensate) carry the load the fitted campaign ended with.
+Physical candidates of real cells, forms and sources in `calib.diagnose.point_effects`: range_scale (one station's
+distances scaled: its air data), nest_sag (a reflector nest displaced along gravity) and wrist_coupling (a joint cause:
+the wrist's coupling ratios, dq5 = c54 q4, dq6 = c64 q4 + c65 q5).
 
 station_shift (a tracker station moved during the campaign) is handled by re-labelling the station after
 the change point (calib.diagnose), not here.
@@ -64,13 +67,22 @@ from trackcal.calib.diagnose.features import (
 )
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import Arc, map_extension
+from trackcal.calib.diagnose.point_effects import (
+    NEST_SAG,
+    POINT_CAUSES,
+    RANGE_SCALE,
+    WRIST_COUPLING,
+    nest_sag_extension,
+    range_scale_extension,
+    wrist_coupling_extension,
+)
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.pinmodel import gravity_torques
 
 CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift",
-          "thermal_warmup", "payload_compliance")  # fmt: skip
-JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error")
+          "thermal_warmup", "payload_compliance", WRIST_COUPLING, *POINT_CAUSES)  # fmt: skip
+JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", WRIST_COUPLING)
 THERMAL_FORMS = ("e", "e_base")  # arm + tool about the first joint's frame; base column too, about the base origin
 WARMUP_FORMS = ("e_inf", "e_inf_base")  # the same pivots, the saturated growth
 LOAD_COLUMN = "load_kg"  # the payload mounted at each row (optional table column)
@@ -166,6 +178,12 @@ def build_extension(
         ext = map_extension(q_read, harmonics, names, arcs)  # periodic: held outside its arcs (`Arc.clamp`)
         ext.meta["ranges"] = ranges
         return ext
+    if cause == WRIST_COUPLING:
+        return wrist_coupling_extension(q_read, names, ranges)
+    if cause == RANGE_SCALE:
+        return range_scale_extension(table, names, ranges)
+    if cause == NEST_SAG:
+        return nest_sag_extension(table, names, ranges)
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:

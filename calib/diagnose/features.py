@@ -4,7 +4,12 @@ Two kinds of features (`calib.diagnose.extensions` lists the causes, `calib.diag
 
 - joint features Phi (N, n, e): the joint angle the controller reports is off, q_true = q_read + Phi theta;
 - growth features G (N, e): the arm grows by the fraction g = G theta about a pivot (robot base frame),
-  p_true = pivot + (1 + g) (p - pivot), p the reflector position of the rigid model.
+  p_true = pivot + (1 + g) (p - pivot), p the reflector position of the rigid model;
+- point features, on the measured point rather than the arm: a displacement D (N, 3, e) of the reflector in the robot
+  base frame, p_true = p + D theta (after any growth: a nest that sags, `calib.diagnose.point_effects`), and a range
+  scale S (N, e) of the row's station, x_measured = (1 + S theta) x (x the reflector in the station frame: the
+  station's distances scaled about its origin, wrong air data). Both are linear in theta; the solver's Jacobian of
+  them is exact (`calib.identify.solver.Problem`).
 
 Several causes at once: `combine` stacks extensions into one (parameters in order, features padded with
 zeros); `Extension.parts` lists the (cause, parameter names) it carries.
@@ -20,7 +25,7 @@ from trackcal.calib.errors import CalibError
 
 # boundary unit -> factor from internal units (rad, N m, s)
 UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
-                "ppm/h": 1e6 * 3600.0}  # fmt: skip
+                "ppm/h": 1e6 * 3600.0, "mm": 1.0}  # fmt: skip
 FORMS = "forms"  # Extension.meta key: {cause: what its features need beyond the table} (model.json: extension.forms)
 
 
@@ -89,6 +94,8 @@ class Extension:
     joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
     growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
     pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
+    displacement: np.ndarray | None = None  # (N, 3, e): the reflector moves by displacement @ theta (mm, base frame)
+    range_scale: np.ndarray | None = None  # (N, e): the row's station measures (1 + range_scale @ theta) x
     meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"; "ranges": Ranges;
     # FORMS: {cause: form} (thermal_warmup's time constant, payload_compliance's payload)
 
@@ -96,12 +103,17 @@ class Extension:
     def size(self) -> int:
         return len(self.names)
 
+    @property
+    def n_rows(self) -> int:
+        return next(len(f) for f in self._features() if f is not None)
+
+    def _features(self) -> tuple:
+        return self.joint_features, self.growth, self.displacement, self.range_scale
+
     def subset(self, rows: np.ndarray) -> Extension:
-        return Extension(
-            self.cause, self.names, self.units, self.to_boundary,
-            None if self.joint_features is None else self.joint_features[rows],
-            None if self.growth is None else self.growth[rows], self.pivot, dict(self.meta),
-        )  # fmt: skip
+        jf, gr, dp, rs = (None if f is None else f[rows] for f in self._features())
+        return Extension(self.cause, self.names, self.units, self.to_boundary, jf, gr, self.pivot, dp, rs,
+                         dict(self.meta))  # fmt: skip
 
     def joint_offsets(self, theta: np.ndarray) -> np.ndarray | None:
         if self.joint_features is None:
@@ -111,6 +123,14 @@ class Extension:
     def growth_of(self, theta: np.ndarray) -> np.ndarray | None:
         """(N,) fractional growth of the arm, or None without growth features."""
         return None if self.growth is None else self.growth @ theta
+
+    def displacement_of(self, theta: np.ndarray) -> np.ndarray | None:
+        """(N, 3) displacement of the reflector (mm, robot base frame), or None without displacement features."""
+        return None if self.displacement is None else np.einsum("rke,e->rk", self.displacement, theta)
+
+    def range_of(self, theta: np.ndarray) -> np.ndarray | None:
+        """(N,) fractional range scale of each row's station, or None without range features."""
+        return None if self.range_scale is None else self.range_scale @ theta
 
     def parts(self) -> list[tuple[str, list[str]]]:
         """(cause, parameter names) of every extension combined into this one, in parameter order."""
@@ -122,7 +142,7 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     the first's). Growth extensions must share their pivot."""
     if len(extensions) == 1 and cause in (None, extensions[0].cause):
         return extensions[0]
-    rows = {len(x.joint_features if x.joint_features is not None else x.growth) for x in extensions}
+    rows = {x.n_rows for x in extensions}
     if len(rows) != 1:
         raise ExtensionError("extensions of tables with different rows cannot be combined")
     pivots = {tuple(x.pivot) for x in extensions if x.growth is not None}
@@ -133,12 +153,19 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     e = sum(x.size for x in extensions)
     jf = np.zeros((n_rows, n, e)) if n else None
     gr = np.zeros((n_rows, e)) if pivots else None
+    dp = np.zeros((n_rows, 3, e)) if any(x.displacement is not None for x in extensions) else None
+    rs = np.zeros((n_rows, e)) if any(x.range_scale is not None for x in extensions) else None
     at = 0
     for x in extensions:
+        cols = slice(at, at + x.size)
         if x.joint_features is not None:
-            jf[:, :, at : at + x.size] = x.joint_features
+            jf[:, :, cols] = x.joint_features
         if x.growth is not None:
-            gr[:, at : at + x.size] = x.growth
+            gr[:, cols] = x.growth
+        if x.displacement is not None:
+            dp[:, :, cols] = x.displacement
+        if x.range_scale is not None:
+            rs[:, cols] = x.range_scale
         at += x.size
     meta = {k: v for x in extensions for k, v in x.meta.items() if k not in ("parts", FORMS)}
     forms = {c: f for x in extensions for c, f in x.meta.get(FORMS, {}).items()}
@@ -148,7 +175,7 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     return Extension(
         cause or extensions[0].cause, [nm for x in extensions for nm in x.names],
         [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]), jf, gr,
-        np.array(pivots.pop()) if pivots else np.zeros(3), meta,
+        np.array(pivots.pop()) if pivots else np.zeros(3), dp, rs, meta,
     )  # fmt: skip
 
 

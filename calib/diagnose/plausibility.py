@@ -28,6 +28,16 @@ datasheet-level magnitudes of the literature, so that a real effect of an unusua
   10 urad/(N m): joint stiffnesses of heavy six-revolute robots are 1e6 to 1e7 N m/rad (Dumas, Caro, Garnier,
   Furet, Robotics and Computer-Integrated Manufacturing 27(4), 2011, a KUKA KR 240-2: compliances of 0.1 to
   1 urad/(N m)); ten times the softest.
+- range_scale |k_s| <= 100 ppm: a station's air data wrong (`calib.diagnose.point_effects`: the group refractive
+  index of air moves by ~0.95 ppm/K and 0.27 ppm/hPa, Ciddor 1996, Edlen 1966). A weather station a few K off gives a
+  few ppm; a set-up with no air data at all (the tracker's default 20 degC, 1013.25 hPa) in a plant 1500 m up (845 hPa)
+  and 10 K warmer is 45 + 10 ppm; 100 ppm is a plant 2500 m up (750 hPa: 71 ppm) 20 K off (19 ppm), a few K to spare.
+- nest_sag |c_i| <= 0.5 mm: a reflector nest's displacement along gravity relative to the reference nest. A 1.5 in
+  SMR (170 g, 1.67 N) at the end of a stalk 10 mm across deflects F L^3 / (3 E I) (I = pi d^4 / 64 = 491 mm^4): on
+  50 mm of steel (E = 210 GPa) 0.7 um, on 100 mm of aluminium (70 GPa) 16 um, on 100 mm of a polymer extension
+  (POM, E ~ 3 GPa) 0.38 mm; a magnetic nest's seat adds microns. 0.5 mm is above the softest of them.
+- wrist_coupling |c| <= 0.5 %: a coupling ratio of the wrist's gear train is a ratio of tooth counts, like a
+  reducer's (encoder_scale): a mis-set factor is a fraction of a percent.
 - station_shift has no parameter of its own (a station's pose after the change point, as free as before it).
 """
 
@@ -44,6 +54,9 @@ DEFLECTION_MAX_RAD = float(np.radians(0.25))  # |c_j tau_j| over the rows
 GROWTH_MAX = 500e-6  # |fractional growth| over the campaign's time span
 WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S = 300.0, 8 * 3600.0  # the warm-up's time constant
 COMPLIANCE_MAX = 1e-5  # |c_j| rad per N m under a payload
+RANGE_SCALE_MAX = 100e-6  # |k_s|, dimensionless (100 ppm)
+NEST_SAG_MAX_MM = 0.5  # |c_i| along gravity, relative to the reference nest
+COUPLING_MAX = 5e-3  # |c| of a wrist coupling ratio, dimensionless (0.5 %)
 
 
 def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
@@ -60,6 +73,13 @@ def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
         if cause == "encoder_scale":
             out += [f"encoder_scale {nm} = {100 * v:+.3g} % (physical: |k| <= {100 * ENCODER_SCALE_MAX:g} %)"
                     for nm, v in zip(names, values, strict=True) if abs(v) > ENCODER_SCALE_MAX]  # fmt: skip
+        elif cause in ("range_scale", "wrist_coupling"):
+            limit = RANGE_SCALE_MAX if cause == "range_scale" else COUPLING_MAX
+            out += [f"{cause} {nm} = {1e6 * v:+.3g} ppm (physical: |{nm[0]}| <= {1e6 * limit:g} ppm)"
+                    for nm, v in zip(names, values, strict=True) if abs(v) > limit]  # fmt: skip
+        elif cause == "nest_sag":
+            out += [f"nest_sag {nm} = {1e3 * v:+.3g} um (physical: |c| <= {1e3 * NEST_SAG_MAX_MM:g} um)"
+                    for nm, v in zip(names, values, strict=True) if abs(v) > NEST_SAG_MAX_MM]  # fmt: skip
         elif cause == "backlash":
             out += [f"backlash {nm} = {np.degrees(v):.3g} deg (physical: 0 .. {np.degrees(BACKLASH_MAX_RAD):g} deg)"
                     for nm, v in zip(names, values, strict=True) if abs(v) > BACKLASH_MAX_RAD]  # fmt: skip

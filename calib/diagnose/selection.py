@@ -71,6 +71,7 @@ from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, MapEvidence, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
 from trackcal.calib.diagnose.plausibility import implausible
+from trackcal.calib.diagnose.point_effects import POINT_CAUSES
 from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.diagnose.structure import structure_test
 from trackcal.calib.diagnose.warmup import warmup_candidate
@@ -379,7 +380,8 @@ def diagnose(
     noise: TrackerNoise | None = None,
     folds: int = 5,
     seed: int = 0,
-    causes: tuple[str, ...] = (*JOINT_CAUSES, "thermal_drift", SHIFT, "thermal_warmup", "payload_compliance"),
+    causes: tuple[str, ...] = (*JOINT_CAUSES, *POINT_CAUSES, "thermal_drift", SHIFT, "thermal_warmup",
+                               "payload_compliance"),
     geometric: Identification | None = None,
     tracker: TrackerNoise | None = None,
     executor: Executor | None = None,

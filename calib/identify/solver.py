@@ -312,7 +312,8 @@ class Problem:
                           (self.pose_first, self.row_pose) if shared else None)  # fmt: skip
         for st, rows in zip(s.stations, self.station_rows, strict=True):  # station by station: no per-row rotations
             pb[rows] = st.apply(pb[rows])
-        return pb
+        scale = None if self.ext is None else self.ext.range_of(s.ext)
+        return pb if scale is None else (1.0 + scale)[:, None] * pb
 
     def residual(self, s: State) -> np.ndarray:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
@@ -354,16 +355,26 @@ class Problem:
                 np.matmul(m_dq, self.ext.joint_features[take], out=jc[:, :, k:c])
             else:
                 jc[:, :, k:c] += m_dq @ self.ext.joint_features[take]
+        if self.ext is not None and self.ext.displacement is not None:  # p + D theta (base frame): D's columns
+            dp = self.ext.displacement[take]
+            p = p + np.einsum("rke,e->rk", dp, s.ext)
+            jc[:, :, k:c] += m @ dp
         xs = (p @ rs.T if rs.ndim == 2 else (rs @ p[:, :, None])[:, :, 0]) + ts
         _rotated(m, d_params, out=jc[:, :, :k])
         _rotated(m, d_point, out=jc[:, :, c + 6 :])
-        r = ch.xyz - xs
         if w is None:
             jc[:, :, c : c + 3] = np.eye(3)
             skew(-xs, out=jc[:, :, c + 3 : c + 6])  # -[x]x: the derivative by the rotation perturbation w
         else:
             jc[:, :, c : c + 3] = w
             np.matmul(w, skew(-xs), out=jc[:, :, c + 3 : c + 6])
+        if self.ext is not None and self.ext.range_scale is not None:  # (1 + S theta) x: every column scaled, S's
+            sc = self.ext.range_scale[take]
+            jc *= (1.0 + sc @ s.ext)[:, None, None]
+            jc[:, :, k:c] += (xs if w is None else (w @ xs[:, :, None])[:, :, 0])[:, :, None] * sc[:, None, :]
+            xs = (1.0 + sc @ s.ext)[:, None] * xs
+        r = ch.xyz - xs
+        if w is not None:
             r = _whitened(w, r)
         return r, jc
 
@@ -589,7 +600,8 @@ def model_points(
     g = None if ext is None else ext.growth_of(theta)
     if g is not None:  # thermal: every length grows about the pivot
         pb = ext.pivot + (1.0 + g)[:, None] * (pb - ext.pivot)
-    return pb
+    d = None if ext is None else ext.displacement_of(theta)
+    return pb if d is None else pb + d
 
 
 def predict_points(
@@ -613,7 +625,9 @@ def predict_points(
     pb = model_points(Kinematics(result_chain, params), np.radians(table.q_deg), tool, dev, ext, theta)
     rs = np.array([stations[s].rotation for s in table.station])
     ts = np.array([stations[s].translation for s in table.station])
-    return np.einsum("nij,nj->ni", rs, pb) + ts
+    xs = np.einsum("nij,nj->ni", rs, pb) + ts
+    scale = None if ext is None else ext.range_of(theta)
+    return xs if scale is None else (1.0 + scale)[:, None] * xs
 
 
 def residual_stats(residuals: np.ndarray) -> dict[str, float]:

@@ -73,6 +73,9 @@ CAUSE_NEEDS = {
     "station_shift": "drift-check poses revisited within each station block",
     "thermal_warmup": "rows spread over the warm-up (a campaign longer than its time constant, drift checks)",
     "payload_compliance": "poses of different gravity loads measured with each payload (the table's load_kg column)",
+    "wrist_coupling": "a wide range of the wrist's angles (A4 and A5 turned far both ways)",
+    "range_scale": "the same poses measured from two or more stations (a scale is relative to the first station)",
+    "nest_sag": "two or more reference points measured over many flange orientations",
 }
 NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
 
