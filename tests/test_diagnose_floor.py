@@ -17,9 +17,10 @@ from hypothesis import strategies as st
 
 from tests.independent_twin import EFFECTS, campaign
 from trackcal.calib.compensate import compensate
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.features import Ranges
+from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.plausibility import ENCODER_SCALE_MAX, implausible
-from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.diagnose.significance import HeldOut, paired_pvalue
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import MeasurementTable
