@@ -6,7 +6,9 @@
   one-sided signed-rank test on the per-pose held-out errors with the held-out RMS lower
   (`calib.diagnose.significance`), on the folds `calib.diagnose.crossval.Validator.compare` chooses. With no held-out
   figure (no fold scheme, or folds whose training sets cannot identify the model) no cause enters (issue 36);
-- physical plausibility (`calib.diagnose.plausibility`): a fit outside its physical range is refused and named.
+- physical plausibility (`calib.diagnose.plausibility`): a fit outside its physical range is refused and named;
+- for the time causes, what the campaign order confounds (`calib.diagnose.confounds`): a station shift between two
+  reflector blocks, or a growth not seen within a reflector's block, is one reflector's displacement as well.
 
 `judge_cause` judges a cause of few parameters, `judge_map` the joint error map (its order and ridge chosen by its
 own cross-validation, its held-out gain held to a stricter level).
@@ -20,9 +22,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
 
-from trackcal.calib.diagnose.changepoint import relabel_shift
+from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
+from trackcal.calib.diagnose.confounds import growth_between_blocks, shift_between_blocks
 from trackcal.calib.diagnose.crossval import Validator
-from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.fits import Context, Fit, extension_of, n_extra, rms, whole_fit
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map, held_out_errors
@@ -96,7 +98,9 @@ def judge_cause(ctx: Context, val: Validator, fitted: tuple[str, ...], current: 
         cand.detail["not_identifiable"] = list(ctx.dropped[cause])
     refused = implausible(fit.extension, fit.ext) if passes else []
     if passes and cause == "thermal_drift" and not refused:
-        refused = growth_between_stations(ctx, fitted, current, dof, alpha)
+        refused = growth_between_blocks(ctx, fitted, current, dof, alpha)
+    if passes and cause == SHIFT and not refused:
+        refused = shift_between_blocks(ctx.table, fit.shift)
     if refused:
         cand.detail["implausible"] = refused
     cand.significant = bool(passes and gain_ok and not refused)
@@ -160,35 +164,3 @@ def judge_map(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fi
         cand.detail["implausible"] = refused
     cand.significant = bool(p < alpha and d_bic < 0 and gain_ok and not refused)
     return Trial(cand, mf)
-
-
-WITHIN = "thermal_drift within stations"  # ctx.features key of the growth's part within each station's time
-
-
-def growth_between_stations(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: int, alpha: float) -> list[str]:
-    """[] when the arm's growth is significant within each station's own time, else one phrase: a growth constant
-    over one station's rows is exactly that station's range scale (about its origin) and a translation of it, so
-    between stations measured one after the other (the campaign order) a growth cannot be told from one station's
-    wrong air data (issue 36: a station's ranges 30 ppm off were named thermal_drift, and poses measured after
-    the campaign were predicted with the growth at every station). The part within stations (each station's mean
-    growth removed) must pass the same F test."""
-    ext = ctx.features["thermal_drift"]
-    stations = np.array(ctx.table.station)
-    if len(set(stations)) < 2:
-        return []
-    g = ext.growth.copy()
-    for sid in set(stations):
-        g[stations == sid] -= g[stations == sid].mean(axis=0)
-    ctx.features[WITHIN] = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot)
-    try:
-        fit = whole_fit(ctx, (*fitted, WITHIN))
-    except IdentificationError:
-        return ["thermal_drift: its growth within each station's own time cannot be identified"]
-    finally:
-        del ctx.features[WITHIN]
-    f = (current.rss - fit.rss) / (fit.rss / dof) if fit.rss > 0 else 0.0
-    p = float(fdtrc(1, dof, f)) if f > 0 else 1.0
-    if p < alpha:
-        return []
-    return [f"thermal_drift: within each station's own time the growth is not significant (F test p = {p:.2g}); "
-            "between stations measured one after the other it is one station's range scale (its air data) as well"]
