@@ -74,7 +74,7 @@ def test_narrow_ranges_never_worse_up_to_10_percent_outside(effect):
 
 
 # Before the reflector-block rules (calib.diagnose.confounds) a warm-up on a narrow UR10 campaign (30 poses, seed
-# 40002: its own test above) was taken for a station shift + compliance, 8 % worse; with them the 30 examples hold.
+# 40002: its own test below) was taken for a station shift + compliance, 8 % worse; with them the 30 examples hold.
 @pytest.mark.slow
 @settings(max_examples=30, suppress_health_check=list(HealthCheck))
 @given(cell_name=st.sampled_from(sorted(CELLS)), effect=st.sampled_from([e for e in EFFECTS if e != "sagging_nest"]),
