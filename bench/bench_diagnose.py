@@ -28,7 +28,7 @@ import numpy as np
 
 from bench.goals import check
 from studies.ur10_ipa.study import DATA, SERIES
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import load_cell
@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 UR10_SCRIPT = """
 import time, numpy as np
 from bench.bench_diagnose import series_b
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose import diagnose
 chain, b, tmac, params = series_b()
 t = time.process_time()
 d = diagnose(chain, b, tmac, params, None)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from trackcal.calib.compensate import GEOMETRIC_ONLY, joint_error_function
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.features import combine
 from trackcal.calib.diagnose.plausibility import COUPLING_MAX, NEST_SAG_MAX_MM, RANGE_SCALE_MAX, implausible
-from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem

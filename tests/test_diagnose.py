@@ -12,10 +12,10 @@ import json
 import numpy as np
 import pytest
 
-from trackcal.calib.diagnose import selection
+from trackcal.calib.diagnose import diagnose, diagnosis, fits
 from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.plausibility import NEST_SAG_MAX_MM, RANGE_SCALE_MAX
-from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
@@ -148,7 +148,8 @@ def test_diagnose_and_fit_cause_reuse_a_given_geometric_fit(kr270, monkeypatch):
             geometric_fits.append(args)
         return identify(*args, **kw)
 
-    monkeypatch.setattr(selection, "identify", counting)
+    monkeypatch.setattr(diagnosis, "identify", counting)
+    monkeypatch.setattr(fits, "identify", counting)
     again = diagnose(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), seed=1, geometric=geo)
     refit = fit_cause(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), "backlash", geometric=geo)
     assert geometric_fits == [] and again.geometric is geo

@@ -17,11 +17,15 @@ from hypothesis import strategies as st
 
 from tests.independent_twin import EFFECTS, campaign
 from trackcal.calib.compensate import compensate
+from trackcal.calib.diagnose import diagnose
+from trackcal.calib.diagnose.confounds import growth_between_blocks, shift_between_blocks
 from trackcal.calib.diagnose.features import Ranges
+from trackcal.calib.diagnose.fits import context, fit_cause, whole_fit
 from trackcal.calib.diagnose.plausibility import ENCODER_SCALE_MAX, implausible
-from trackcal.calib.diagnose.selection import diagnose, fit_cause
+from trackcal.calib.diagnose.selection import ALPHA
 from trackcal.calib.diagnose.significance import HeldOut, paired_pvalue
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model_file import model_from_doc, predict_table
@@ -69,10 +73,9 @@ def test_narrow_ranges_never_worse_up_to_10_percent_outside(effect):
     assert_floor("kr270", effect, 36003, 20, narrow_deg=40.0, outside=0.1)
 
 
-# Known not to hold everywhere yet: a warm-up on a narrow UR10 campaign (30 poses, seed 40002) was taken for a
-# station shift + compliance, 8 % worse on fresh poses measured after the campaign; non-strict until it does.
+# Before the reflector-block rules (calib.diagnose.confounds) a warm-up on a narrow UR10 campaign (30 poses, seed
+# 40002: its own test below) was taken for a station shift + compliance, 8 % worse; with them the 30 examples hold.
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 36: a warm-up can still be taken for a station shift", strict=False)
 @settings(max_examples=30, suppress_health_check=list(HealthCheck))
 @given(cell_name=st.sampled_from(sorted(CELLS)), effect=st.sampled_from([e for e in EFFECTS if e != "sagging_nest"]),
        seed=st.integers(40000, 49999), n_poses=st.integers(15, 60), narrow=st.booleans())  # fmt: skip
@@ -81,14 +84,58 @@ def test_never_worse_property(cell_name, effect, seed, n_poses, narrow):
     assert_floor(cell_name, effect, seed, n_poses, **kw)
 
 
-# Not yet: in the campaign order (station by station, point by point) a nest measured last at a station sags in a
-# block of time of its own, and a station shift (seed 36002: 11 % worse) or a thermal drift significant within the
-# station (seed 36004: 57 % worse) absorbs it; the per-station nest displacement candidate of issue 36 is for it.
+# In the campaign order (station by station, point by point) a nest measured last at a station sags in a block of time
+# of its own: a station shift between two reflector blocks (seed 36002: 11 % worse before) or a growth within each
+# station's time (seed 36004: 57 % worse before) absorbed it. Neither is seen within a reflector's block
+# (calib.diagnose.confounds): unexplained, the geometric model kept.
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 36: a sagging nest is absorbed by station_shift or thermal_drift", strict=False)
 @pytest.mark.parametrize("seed", [36002, 36004])
 def test_sagging_nest_never_worse(seed):
     assert_floor("kr270", "sagging_nest", seed, 20)
+
+
+@pytest.mark.slow
+def test_warm_up_on_a_narrow_ur10_never_worse():
+    # before: taken for a station shift + compliance, 8 % worse on the fresh poses measured after the campaign
+    assert_floor("ur10", "warm_up", 40002, 30, narrow_deg=40.0, outside=0.1)
+
+
+def rows_by_blocks(points_per_station: int, poses: int) -> MeasurementTable:
+    """Station by station, reflector by reflector, 20 s a row (tests/independent_twin.py's order); no measurement."""
+    pose, station, point = [], [], []
+    for sid in ("S1", "S2"):
+        for k in range(points_per_station):
+            for i in range(poses):
+                pose.append(f"Q{i + 1}")
+                station.append(sid)
+                point.append(f"P{k + 1}")
+    n = len(pose)
+    return MeasurementTable(np.arange(n), 20.0 * np.arange(n), pose, station, point, np.zeros((n, 6)), None)
+
+
+def test_a_station_shift_between_reflector_blocks_is_not_a_move():
+    # 3 reflectors x 4 poses per station: S2's rows are t = 240 .. 460 s, P1 until 300 s, P2 from 320 to 380 s
+    table = rows_by_blocks(3, 4)
+    between = shift_between_blocks(table, {"station": "S2", "after_t_s": 300.0})
+    assert len(between) == 1 and "station S2" in between[0] and "revisit" in between[0]
+    assert shift_between_blocks(table, {"station": "S2", "after_t_s": 340.0}) == []  # P2 on both sides
+    assert shift_between_blocks(table, None) == []
+
+
+def growth_refusal(effect: str, seed: int) -> list[str]:
+    cell = CELLS["kr270"]
+    c = campaign(cell, effect, seed, 20)
+    geo = identify(cell.chain, c.table, cell.tool_points, c.params, noise=TrackerNoise())
+    ctx = context(cell.chain, c.table, c.params, TrackerNoise(), geo, ("thermal_drift",))
+    return growth_between_blocks(ctx, (), whole_fit(ctx, ()), geo.dof - 1, ALPHA)
+
+
+def test_a_growth_carried_by_one_reflector_is_not_a_warm_up():
+    # seed 36004: the sagging nest is measured last at both stations; its sag was a growth within each station's time
+    refused = growth_refusal("sagging_nest", 36004)
+    assert len(refused) == 1 and "displacement of reflector" in refused[0]
+    # a warm-up of the whole arm (seed 36001) is seen across the reflectors: it stays a cause
+    assert growth_refusal("warm_up", 36001) == []
 
 
 def test_paired_test_needs_more_than_a_positive_gain():

@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
-from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import load_cell

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from tests.independent_twin import TrueCell
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify

@@ -8,8 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trackcal.calib.diagnose import crossval as dg
-from trackcal.calib.diagnose import selection as diagnose
+from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.joint_map import MapEvidence, fit_error_map
@@ -46,19 +45,19 @@ def kr270_context(cell, effects, seed=11, n_poses=25):
     table = simulate_campaign(Twin(cell, seed=seed, effects=effects),
                               np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed))))  # fmt: skip
     geo = identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
-    return diagnose.context(cell.chain, table, params, TrackerNoise(), geo, ("backlash",))
+    return fits.context(cell.chain, table, params, TrackerNoise(), geo, ("backlash",))
 
 
 def test_linearised_folds_match_full_refits(kr270):
     ctx = kr270_context(kr270, {"backlash": 0.05})
-    folds = dg.fold_rows(ctx.table, "pose", 5, 0)
+    folds = crossval.fold_rows(ctx.table, "pose", 5, 0)
     for causes in ((), ("backlash",)):
-        fast = dg.cross_validate(ctx, causes, folds).rms_mm
+        fast = crossval.cross_validate(ctx, causes, folds).rms_mm
         errs = []
         for test in folds:
-            fit = dg.fit_model(ctx, causes, np.setdiff1d(np.arange(len(ctx.table)), test))
-            errs.append(ctx.table.xyz[test] - dg.predict_rows(ctx, fit, test, dg.extension_of(ctx, causes, test)))
-        slow = dg.rms(np.concatenate(errs))
+            fit = fits.fit_model(ctx, causes, np.setdiff1d(np.arange(len(ctx.table)), test))
+            errs.append(ctx.table.xyz[test] - fits.predict_rows(ctx, fit, test, fits.extension_of(ctx, causes, test)))
+        slow = fits.rms(np.concatenate(errs))
         # one Gauss-Newton step from a solution ~1 sigma away: the second-order error is ~(sigma/lever)^2
         # of the held-out error, parts per million here
         assert abs(fast - slow) <= 1e-3 * slow
@@ -76,7 +75,7 @@ def test_joint_that_does_not_move_the_point_is_dropped():
                              ["tmac"] * 60, np.degrees(q), x)  # fmt: skip
     params = identifiable_subset(cell.chain, params, q, point)[0]
     geo = identify(cell.chain, table, point, params)
-    ext, dropped = dg.visible_extension(cell.chain, table, geo, None, params, "encoder_scale")
+    ext, dropped = fits.visible_extension(cell.chain, table, geo, None, params, "encoder_scale")
     assert "k6" in dropped and "k6" not in ext.names
 
 
@@ -127,7 +126,7 @@ def test_map_evidence_matches_direct_penalised_fits(kr270):
             held = j[test3]
             held[:, pen] = ev.held.columns(np.flatnonzero(fold == k))
             errs.append(r[test3] - held @ solve(np.setdiff1d(everything, test3)))
-        assert ev.cv_rms_mm(fold, drop) == pytest.approx(dg.rms(np.concatenate(errs)), rel=1e-6)
+        assert ev.cv_rms_mm(fold, drop) == pytest.approx(fits.rms(np.concatenate(errs)), rel=1e-6)
 
 
 def test_map_evidence_by_constraints_equals_each_model_eliminated_alone(kr270):
@@ -181,14 +180,15 @@ def test_time_folds_cut_at_a_change_point_train_on_both_sides_of_it(n1, n2, afte
                              ["P1"] * n, np.zeros((n, 6)), np.zeros((n, 3)))  # fmt: skip
     cut = float(np.floor(after * (n1 - 1)))
     s1_before, s1_after = np.flatnonzero(t <= cut), np.flatnonzero((t > cut) & (t < 100.0))
-    groups = dg.fold_rows(table, "time", folds, 0, cut=("S1", cut))
+    groups = crossval.fold_rows(table, "time", folds, 0, cut=("S1", cut))
     assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(n))  # a partition of the rows
     for test in groups:
         train = np.setdiff1d(np.arange(n), test)
         for side in (s1_before, s1_after):  # rows before and after the move in every training set (of two or more)
             assert len(side) < 2 or np.isin(side, train).any()
-    plain = dg.fold_rows(table, "time", folds, 0)
-    assert [g.tolist() for g in dg.fold_rows(table, "time", folds, 0, cut=("S9", cut))] == [g.tolist() for g in plain]
+    plain = crossval.fold_rows(table, "time", folds, 0)
+    other = crossval.fold_rows(table, "time", folds, 0, cut=("S9", cut))
+    assert [g.tolist() for g in other] == [g.tolist() for g in plain]
 
 
 def test_map_evidence_reuses_the_searchs_problem_only_where_it_is_the_same(kr270):

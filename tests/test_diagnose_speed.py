@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
-from trackcal.calib.diagnose import crossval, selection
+from trackcal.calib.diagnose import crossval, diagnose, fits
 from trackcal.calib.diagnose.joint_map import (
     Arc,
     FoldGrams,
@@ -181,14 +181,14 @@ def test_warm_started_fit_stops_at_the_same_minimum(twin_case):
     same residual sum to 1e-9 and the same held-out RMS to 1e-6 mm."""
     table, params, geo = twin_case
     causes = ("joint_compliance", "backlash")
-    ctx = selection.context(CELL.chain, table, params, TrackerNoise(), geo, causes)
-    crossval.whole_fit(ctx, causes[:1])
-    assert crossval.warm_start(ctx, causes) is ctx.fits[causes[:1]]
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, causes)
+    fits.whole_fit(ctx, causes[:1])
+    assert fits.warm_start(ctx, causes) is ctx.fits[causes[:1]]
     folds = crossval.fold_rows(table, "pose", 5, 0)
-    warm = crossval.fit_model(ctx, causes)
+    warm = fits.fit_model(ctx, causes)
     ctx.fits[tuple(sorted(causes))] = warm
     hold_warm = crossval.cross_validate(ctx, causes, folds).rms_mm
-    cold = crossval._whole_fit(ctx, ctx.table, crossval.extension_of(ctx, causes), 100)
+    cold = fits._whole_fit(ctx, ctx.table, fits.extension_of(ctx, causes), 100)
     ctx.fits[tuple(sorted(causes))] = cold
     hold_cold = crossval.cross_validate(ctx, causes, folds).rms_mm
     assert warm.rss == pytest.approx(cold.rss, rel=1e-9)
@@ -229,9 +229,9 @@ def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
     order: every candidate's figures and the structure test equal those of the diagnosis without threads, to the
     last bit."""
     table, params, geo = twin_case
-    plain = selection.diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo)
+    plain = diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo)
     with ThreadPoolExecutor(2) as ex:
-        threaded = selection.diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo,
+        threaded = diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo,
                                       executor=ex)  # fmt: skip
     assert any(c.cause == "cyclic_error" and c.detail.get("error_map") for c in plain.candidates)  # the search ran
     figures = [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from trackcal.calib.compensate import compensate, pose_error
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import LOAD_COLUMN, build_extension
 from trackcal.calib.diagnose.features import ExtensionError
+from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.plausibility import COMPLIANCE_MAX, GROWTH_MAX, implausible
-from trackcal.calib.diagnose.selection import diagnose, fit_cause
 from trackcal.calib.diagnose.warmup import warmup_candidate
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise

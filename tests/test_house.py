@@ -194,3 +194,19 @@ def test_the_ur_words_are_found(line):
 @pytest.mark.parametrize("line", ["the UR10 data set", "protocol: ur", "pure", "ipa-ur10", "cursor"])
 def test_the_ur_words_spare_robot_names_and_other_words(line):
     assert not UR_WORDS.search(line)
+
+
+MAX_FUNCTION_LINES = 80  # issue 37: a function an editor can follow on one screen, or split by what it does
+SHORT_FUNCTION_FOLDERS = ("calib/diagnose",)  # the rest of the package joins as its long functions are split
+
+
+def test_no_function_over_80_lines():
+    bad = []
+    for p in python_files(*SHORT_FUNCTION_FOLDERS):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                start = min([node.lineno] + [d.lineno for d in node.decorator_list])
+                if node.end_lineno - start + 1 > MAX_FUNCTION_LINES:
+                    bad.append(f"{p.relative_to(ROOT)}:{node.lineno}: {node.name} is {node.end_lineno - start + 1} "
+                               f"lines (at most {MAX_FUNCTION_LINES})")  # fmt: skip
+    assert not bad, "\n".join(bad)

@@ -10,9 +10,9 @@ import pytest
 from studies.ur10_ipa.error_map_check import on_other_series
 from studies.ur10_ipa.orientation import angular_rms_mrad
 from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.joint_map import fit_error_map
-from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import read_table
 from trackcal.calib.model.cell import load_cell, load_robot

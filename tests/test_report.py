@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import kr270_campaign
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.campaign.cli import main

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from trackcal.calib.diagnose.selection import diagnose
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.kinematics import Kinematics

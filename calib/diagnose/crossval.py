@@ -1,203 +1,33 @@
-"""Candidate models fitted fast: whole-table fits without covariance, and their cross-validation.
+"""Cross-validation of the candidate models: folds, held-out errors, and comparisons of two models on the same folds.
 
-A model is the geometric one plus a tuple of causes. Its whole-table fit starts where the best-fitting of its
-sub-models stopped (`warm_start`), or from the geometric solution (a moved station where it was), and skips the
-covariance.
-A fold's fit is one Gauss-Newton step
-from the whole-table fit on the training rows (the Gram matrix of the whole table minus the fold's
-rows): the fold's solution is about a standard deviation away, where the model is linear to far below
-the noise. Folds are whole poses (with edge folds: each joint's extreme poses held out, so that extrapolation is
-judged), passes of the plan, or blocks of time within each station; a scheme whose training sets cannot identify
-the model gives None, and the comparison moves to the next.
-Candidate parameters the data cannot see are dropped before any fit.
+A fold's fit is one Gauss-Newton step from the whole-table fit (`calib.diagnose.fits.whole_fit`) on the training
+rows (the Gram matrix of the whole table minus the fold's rows): the fold's solution is about a standard deviation
+away, where the model is linear to far below the noise. Folds are whole poses (with edge folds: each joint's extreme
+poses held out, so that extrapolation is judged), passes of the plan, or blocks of time within each station; a
+scheme whose training sets cannot identify the model gives None, and the comparison moves to the next.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from trackcal.calib.diagnose.changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
-from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.features import Extension, combine
-from trackcal.calib.diagnose.significance import HeldOut
-from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import (
-    Identification,
-    IdentificationError,
-    Problem,
-    State,
-    Station,
-    predict_points,
-    solve,
+from trackcal.calib.diagnose.changepoint import SHIFT
+from trackcal.calib.diagnose.fits import (
+    Context,
+    extension_of,
+    fit_model,
+    identifiable,
+    predict_rows,
+    scan,
+    whole_fit,
 )
+from trackcal.calib.diagnose.significance import HeldOut
+from trackcal.calib.identify.solver import IdentificationError
 from trackcal.calib.io.table import MeasurementTable
-from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.kinematics import Kinematics
-from trackcal.calib.model.params import Param
 
-TIME_CAUSES = ("thermal_drift", SHIFT, "thermal_warmup")
-SINGULAR = 1e-7  # smallest / largest singular value of the column-scaled Jacobian of an identifiable fit
-VISIBLE = 1e-6  # an extension column whose part independent of the geometric ones is below this is dropped
-LEVER_RATIO = 1e-3  # a joint moving the points less than this fraction of the most moving joint is not seen
+TIME_CAUSES = ("thermal_drift", SHIFT, "thermal_warmup")  # judged by blocks of time within each station first
 FOLD_ITERATIONS = 30
 EDGE_SHARE = 0.1  # the share of each joint's poses, at either end of its range, an edge fold holds out
-
-
-def rms(residuals: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(residuals**2)))
-
-
-@dataclass
-class Fit:
-    """A fitted model (no covariance): enough to predict rows and to compare residual sums."""
-
-    dev: np.ndarray
-    stations: dict[str, Station]
-    points: dict[str, np.ndarray]
-    ext: np.ndarray
-    extension: Extension | None
-    rss: float  # whitened
-    n_cols: int
-    residuals: np.ndarray
-    r: np.ndarray  # whitened residual vector (3N,) at the solution
-    jm: np.ndarray  # whitened Jacobian of the prediction (3N, n_cols) at the solution
-    shift: dict | None = None  # {"station", "after_t_s"}
-
-
-@dataclass
-class Context:
-    chain: Chain
-    table: MeasurementTable
-    params: list[Param]
-    noise: TrackerNoise | None
-    geo: Identification
-    features: dict[str, Extension]  # cause -> its extension on the whole table (visible parameters only)
-    geo_base: np.ndarray  # (N, 3) geometric prediction in the robot base frame (the change-point scan)
-    dropped: dict[str, list[str]] = field(default_factory=dict)  # cause -> parameters the data cannot see
-    fits: dict[tuple, Fit] = field(default_factory=dict)  # whole-table fits by sorted causes
-    unwhiten: np.ndarray | None = None  # (N, 3, 3) inverse whitening of each row (tracker weighting)
-    executor: Executor | None = None  # runs independent pieces (folds) at once when given (threads)
-    scans: dict[bytes | None, tuple | None] = field(default_factory=dict)  # change points found, by rows (`scan`)
-    combined: dict[tuple, tuple] = field(default_factory=dict)  # extensions combined (`extension_of`)
-
-
-def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int,
-               start: Fit | None = None) -> Fit:  # fmt: skip
-    """Levenberg-Marquardt from `start` (a fit of fewer causes, or of the same causes on more rows; its parameters
-    where the model shares them, the others at zero) or from the geometric solution; a moved station starts where
-    it was."""
-    problem = Problem(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, ctx.geo.dev, ext)
-    at = ctx.geo if start is None else start
-    st, values = at.stations, _ext_values(at.extension, at.ext)
-    problem.initial = State(at.dev.copy(), [st.get(s, st[s.removesuffix(SHIFT_SUFFIX)]) for s in problem.station_ids],
-                            np.array([at.points[p] for p in problem.point_ids]),
-                            np.array([values.get(key, 0.0) for key in _ext_keys(ext)]))  # fmt: skip
-    state = solve(problem, problem.initial, max_iter).state
-    r, jm = problem.residual_and_jacobian(state)  # one pass for both (the solution's r and jm would be two)
-    if not _identifiable(jm.T @ jm):
-        raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
-    return Fit(state.dev, dict(zip(problem.station_ids, state.stations, strict=True)),
-               {p: state.points[i] for i, p in enumerate(problem.point_ids)}, state.ext, ext, float(r @ r),
-               problem.n_cols, problem.xyz - problem.predicted(state), r=r, jm=jm)  # fmt: skip
-
-
-def _ext_keys(ext: Extension | None) -> list[tuple[str, str]]:
-    """(cause, parameter name) of every parameter of an extension, in order."""
-    return [] if ext is None else [(cause, nm) for cause, names in ext.parts() for nm in names]
-
-
-def _ext_values(ext: Extension | None, values) -> dict[tuple[str, str], float]:
-    return dict(zip(_ext_keys(ext), np.asarray(values, dtype=float).tolist(), strict=True))
-
-
-def warm_start(ctx: Context, causes: tuple[str, ...]) -> Fit | None:
-    """The whole-table fit closest to the data (least residual) among the sub-models of `causes` already fitted
-    (None: none): a model with one cause more starts where the best model without it stopped. Both stop at the same
-    minimum (to 1e-9 of the noise, the solver's step test), and a fit of a hard pair (cyclic_error with
-    encoder_scale, 25 iterations from the geometric solution on the UR10's Series B) is not walked again for every
-    cause tried beside it (issue 26). Of two sub-models of as many causes, the one that already walked the pair's
-    valley fits better: from it, cyclic_error + encoder_scale + backlash takes 6 iterations, from cyclic_error +
-    backlash 22 (the first of the largest, as chosen before, was either)."""
-    inside = [ctx.fits[key] for key in list(ctx.fits) if set(key) < set(causes)]
-    return min(inside, key=lambda fit: fit.rss) if inside else None
-
-
-def _identifiable(gram: np.ndarray) -> bool:
-    """Whether a Gram matrix J^T J is regular (smallest / largest singular value of the column-scaled J
-    above SINGULAR)."""
-    d = np.sqrt(np.diag(gram))
-    if np.any(d == 0):
-        return False
-    ev = np.linalg.eigvalsh(gram / np.outer(d, d))
-    return bool(ev[0] >= SINGULAR**2 * ev[-1])
-
-
-def scan(ctx: Context, rows: np.ndarray | None = None) -> tuple[str, float] | None:
-    """The change point of `rows` (all by default), `shift_scan`'s, found once per set of rows: the scan sees the
-    geometric prediction, the stations, times and measured points, which neither the models tried nor the joint
-    map's correction of the angles change (issue 26: the same training rows were scanned for every model)."""
-    key = None if rows is None else np.asarray(rows).tobytes()
-    if key not in ctx.scans:
-        table = ctx.table if rows is None else ctx.table.subset(rows)
-        ctx.scans[key] = shift_scan(ctx.geo_base if rows is None else ctx.geo_base[rows], table)
-    return ctx.scans[key]
-
-
-def fit_model(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None, max_iter: int = 100) -> Fit:
-    """Fit the geometric model plus `causes` on `rows` of the table (all by default), the whole table from
-    `warm_start`, rows from the geometric solution; station_shift is found by the scan on those rows, then fitted
-    with the rest."""
-    table = ctx.table if rows is None else ctx.table.subset(rows)
-    shift = None
-    if SHIFT in causes:
-        found = scan(ctx, rows)
-        if found is None:
-            raise IdentificationError(f"{table.source}: too few rows for a change point")
-        shift = {"station": found[0], "after_t_s": found[1]}
-        table = relabel_shift(table, *found)
-    ext = extension_of(ctx, causes, rows)
-    # a fold's own fit (a change point that moved) starts from the geometric solution, as before issue 26: its
-    # training rows can leave the shifted station's pose weakly determined, and its held-out rows then depend
-    # on where in that valley the fit stops (3e-6 mm of a 0.23 mm held-out RMS when started elsewhere)
-    fit = _whole_fit(ctx, table, ext, max_iter, warm_start(ctx, causes) if rows is None else None)
-    fit.shift = shift
-    return fit
-
-
-def whole_fit(ctx: Context, causes: tuple[str, ...]) -> Fit:
-    key = tuple(sorted(causes))
-    if key not in ctx.fits:
-        ctx.fits[key] = fit_model(ctx, causes)
-    return ctx.fits[key]
-
-
-def extension_of(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None,
-                 main: str | None = None) -> Extension | None:  # fmt: skip
-    """The causes' extensions combined (station_shift has none), `main` naming it (default: the first); combined once
-    per set of extensions (thermal_form tries several under one name: they are told apart by identity, and the
-    cache holds them so that identity is not reused)."""
-    parts = [ctx.features[c] for c in causes if c != SHIFT]
-    if not parts:
-        return None
-    name = main if main in causes and main != SHIFT else None
-    key = (tuple(id(x) for x in parts), name)
-    if key not in ctx.combined:
-        ctx.combined[key] = (parts, combine(parts, name))
-    ext = ctx.combined[key][1]
-    return ext if rows is None else ext.subset(rows)
-
-
-def predict_rows(ctx: Context, fit: Fit, rows: np.ndarray, ext: Extension | None) -> np.ndarray | None:
-    """Predictions of `rows` (station frames) with a fit; None when a row's station is unknown to it."""
-    table = ctx.table.subset(rows)
-    if fit.shift is not None:
-        table = relabel_shift(table, fit.shift["station"], fit.shift["after_t_s"])
-    if any(s not in fit.stations for s in table.station) or any(p not in fit.points for p in table.point):
-        return None
-    return predict_points(ctx.chain, ctx.params, fit.dev, fit.stations, fit.points, table, ext, fit.ext)
 
 
 def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int,
@@ -278,7 +108,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
             te3 = (3 * test[:, None] + np.arange(3)).ravel()
             jt, rt = full.jm[te3], full.r[te3]
             g = gram - jt.T @ jt
-            if not _identifiable(g):
+            if not identifiable(g):
                 return None
             d = np.sqrt(np.diag(g))
             step = np.linalg.solve(g / np.outer(d, d), (grad - jt.T @ rt) / d) / d
@@ -297,7 +127,7 @@ def trainable(ctx: Context, causes: tuple[str, ...], test: np.ndarray) -> bool:
     except IdentificationError:
         return False
     jt = full.jm[(3 * np.asarray(test)[:, None] + np.arange(3)).ravel()]
-    return _identifiable(full.jm.T @ full.jm - jt.T @ jt)
+    return identifiable(full.jm.T @ full.jm - jt.T @ jt)
 
 
 def edge_rows(table: MeasurementTable, share: float = EDGE_SHARE) -> list[np.ndarray]:
@@ -374,46 +204,3 @@ class Validator:
             if hb is not None:
                 return scheme, hb, self.cv(model, scheme, at)
         return None, None, None
-
-
-def visible_extension(chain, table, geo: Identification, noise, params, cause: str) -> tuple[Extension | None, list]:
-    """The extension `cause` keeping only parameters the data can see: acting on a joint whose rotation
-    moves the measured points (lever above LEVER_RATIO of the largest joint's), with Jacobian columns (at
-    the geometric fit) that have a part independent of the geometric, station and point columns and of
-    each other. Returns it and the dropped names."""
-    ext = build_extension(cause, chain, table)
-    if ext.size == 0:
-        return None, []
-    seen = np.ones(ext.size, dtype=bool)
-    if ext.joint_features is not None:
-        tool = np.array([geo.points[p] for p in table.point])
-        d_q = Kinematics(chain, params).jacobian(np.radians(table.q_deg), tool, geo.dev).d_q
-        lever = np.sqrt(np.mean(np.sum(d_q**2, axis=1), axis=0))  # (n,) mm per rad
-        acts = np.abs(ext.joint_features).max(axis=0) > 0  # (n, e): which joints each parameter moves
-        seen = acts[lever >= LEVER_RATIO * lever.max()].any(axis=0)
-    problem = Problem(chain, table, geo.points, params, noise, geo.dev, ext)
-    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
-                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(ext.size))  # fmt: skip
-    _, jm = problem.residual_and_jacobian(state)
-    k, e = len(params), ext.size
-    cols = np.r_[np.arange(k), np.arange(k + e, jm.shape[1])]
-    base = jm[:, cols]
-    base = base / np.where(np.linalg.norm(base, axis=0) > 0, np.linalg.norm(base, axis=0), 1.0)
-    q, _ = np.linalg.qr(base)
-    je = jm[:, k : k + e]
-    norms = np.linalg.norm(je, axis=0)
-    free = je - q @ (q.T @ je)
-    keep: list[int] = []
-    basis = np.zeros((jm.shape[0], 0))
-    for i in np.argsort(-np.linalg.norm(free, axis=0) / np.where(norms > 0, norms, 1.0)):
-        v = free[:, i] - basis @ (basis.T @ free[:, i])
-        if seen[i] and norms[i] > 0 and np.linalg.norm(v) > VISIBLE * norms[i]:
-            keep.append(int(i))
-            basis = np.column_stack([basis, v / np.linalg.norm(v)])
-    keep.sort()
-    dropped = [n for i, n in enumerate(ext.names) if i not in keep]
-    if not keep:
-        return None, dropped
-    if not dropped:
-        return ext, []
-    return build_extension(cause, chain, table, names=[ext.names[i] for i in keep]), dropped

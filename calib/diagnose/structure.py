@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtrc, stdtr  # F and t tails (scipy.stats: ~1 s to import)
 
-from trackcal.calib.diagnose.crossval import Context, Fit
 from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.diagnose.fits import Context, Fit
 from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.kinematics import Kinematics

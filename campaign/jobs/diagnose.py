@@ -10,7 +10,8 @@ from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from trackcal.calib.diagnose.selection import Diagnosis, diagnose, rms
+from trackcal.calib.diagnose import Diagnosis, diagnose
+from trackcal.calib.diagnose.fits import rms
 from trackcal.calib.diagnose.significance import LEVEL, MAP_LEVEL
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.io.files import write_json
@@ -48,7 +49,7 @@ class DiagnoseOptions:
 
 @contextlib.contextmanager
 def diagnosis_threads(threads: int = THREADS) -> Iterator[Executor | None]:
-    """The executor a diagnosis runs its independent pieces in (`calib.diagnose.selection.diagnose`): `threads`
+    """The executor a diagnosis runs its independent pieces in (`calib.diagnose.diagnose`): `threads`
     threads, or None for one."""
     with ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as ex:
         yield ex

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.diagnose import Diagnosis, diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
-from trackcal.calib.diagnose.selection import Diagnosis, diagnose
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, model_noise
 from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io import fields

@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.features import Ranges
-from trackcal.calib.diagnose.selection import diagnose, fit_cause, noise_floor
+from trackcal.calib.diagnose.fits import fit_cause
+from trackcal.calib.diagnose.noise_floor import noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.identify.points import PointsError, points_from_table

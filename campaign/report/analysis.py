@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from trackcal.calib.diagnose.selection import Diagnosis
+from trackcal.calib.diagnose import Diagnosis
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
 from trackcal.campaign.session.session import SessionFiles

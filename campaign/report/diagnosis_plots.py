@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.diagnose import Diagnosis
 from trackcal.calib.diagnose.extensions import approach_signs
+from trackcal.calib.diagnose.fits import rms
 from trackcal.calib.diagnose.joint_map import map_curve
-from trackcal.calib.diagnose.selection import Diagnosis, rms
 from trackcal.calib.identify.solver import Identification
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.diagnose.selection import noise_floor
+from trackcal.calib.diagnose.noise_floor import noise_floor
 from trackcal.calib.identify.noise import TrackerNoise, model_instrument, model_noise
 from trackcal.calib.identify.solver import identify, residual_stats
 from trackcal.calib.io.files import write_text

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import rebuild
-from trackcal.calib.diagnose.selection import diagnose
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, identify, model_points
 from trackcal.calib.iso9283 import pose_accuracy

@@ -9,7 +9,7 @@ Increasing the Absolute Accuracy of Industrial Robots", IEEE CASE 2021, pp. 468-
 3. Identify on B (robot deviations, station, tool point; i.i.d. weighting), and the reverse on D.
 4. Validate on the other series with robot and tool point fixed: `identify(..., fixed=("robot", "points"))`
    re-estimates only its station.
-5. Diagnose B (`calib.diagnose.selection.diagnose`, what `trackcal diagnose --weighting iid --params ...` runs),
+5. Diagnose B (`calib.diagnose.diagnose`, what `trackcal diagnose --weighting iid --params ...` runs),
    validate every joint-type candidate on D the same way, and test the temperature column.
 6. Write docs/ur10-real-data.md and plots under docs/img/.
 
@@ -31,9 +31,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from trackcal.calib.diagnose import Diagnosis, diagnose
 from trackcal.calib.diagnose.extensions import JOINT_CAUSES
 from trackcal.calib.diagnose.features import Extension
-from trackcal.calib.diagnose.selection import Diagnosis, diagnose, fit_cause
+from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.identify.solver import Identification, identify, residual_stats
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell, load_cell
