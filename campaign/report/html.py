@@ -512,7 +512,7 @@ def header_facts(analysis: CampaignAnalysis) -> list[list[str]]:
 
 
 def section_residuals(res: Residuals, out_dir: Path) -> str:
-    return "".join([
+    return "\n".join([
         "<h2>Residuals before and after calibration (Table 9)</h2>",
         table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
         "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
@@ -526,7 +526,7 @@ def section_residuals(res: Residuals, out_dir: Path) -> str:
 def section_parameters(analysis: CampaignAnalysis, par_plot: Path | None) -> str:
     model_doc, plan_doc = analysis.model, analysis.plan
     planned = list(plan_doc.get("params") or []) if plan_doc else None
-    return "".join([
+    return "\n".join([
         "<h2>Identified parameters (Table 8)</h2>",
         table_html(["parameter", "unit", "nominal", "deviation", "95 % CI", "significant", "in the plan"],
                    parameter_rows(model_doc, planned)),
