@@ -18,9 +18,10 @@ from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.instruments import InstrumentError, instrument_from_doc, named
 from trackcal.calib.model.params import param_by_name
 from trackcal.campaign.cli import main
+from trackcal.campaign.jobs.end_of_run import analysed
 from trackcal.campaign.jobs.identify import run_identify
 from trackcal.campaign.jobs.plan import PlanOptions, build_design, evaluate_doc, write_plan_csv
-from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
+from trackcal.campaign.report.analysis import Provenance
 from trackcal.campaign.report.html import write_report
 from trackcal.mocks.twin import Twin
 
@@ -192,8 +193,6 @@ def test_identify_and_the_report_name_the_instrument(kr270, tmp_path, capsys):
     assert "tracker Leica AT901 (assumed: the cell names no tracker)" in " ".join(capsys.readouterr().out.split())
     at960 = with_tracker(kr270, "AT960")
     doc = run_identify(at960, table, [param_by_name(kr270.chain, n) for n in ("px2", "dq2")], "tracker").doc
-    page = write_report(CampaignAnalysis(cell=at960, table=table, table_sha256=None, model=doc, plan=None,
-                                         verdict=None, diagnosis=None, provenance=Provenance()),
-                        tmp_path / "rep").read_text()  # fmt: skip
+    page = write_report(analysed(at960, table, doc, provenance=Provenance()), tmp_path / "rep").read_text()
     assert '<td class="l">tracker</td><td class="l">Leica AT960</td>' in page
     assert "(Leica AT960 noise model;" in page  # the noise floor's source

@@ -21,9 +21,9 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import read_table, write_table
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.diagnose import verdict_doc
-from trackcal.campaign.jobs.end_of_run import diagnosis_of
+from trackcal.campaign.jobs.end_of_run import analysed, diagnosis_of
 from trackcal.campaign.jobs.identify import choose_params, run_identify, sha256_of
-from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
+from trackcal.campaign.report.analysis import Provenance
 from trackcal.campaign.report.html import summarise_warnings, write_report
 
 ODD_STATION = 'S"1<&>'  # a station id HTML must escape
@@ -37,8 +37,8 @@ def render(out, cell, table, model, plan, verdict, prov, warnings=None, extra_im
     report` does)."""
     if verdict is not None and diagnosis is None:
         diagnosis = diagnosis_of(cell, table, model)
-    analysis = CampaignAnalysis(cell=cell, table=table, table_sha256=None, model=model, plan=plan, verdict=verdict,
-                                diagnosis=diagnosis, warnings=warnings, provenance=prov)  # fmt: skip
+    analysis = analysed(cell, table, model, plan=plan, verdict=verdict, diagnosis=diagnosis, warnings=warnings,
+                        provenance=prov)  # fmt: skip
     return write_report(analysis, out, extra_images)
 
 

@@ -20,11 +20,12 @@ from hypothesis import strategies as st
 from rich.console import Console
 
 from tests.helpers import ROOT, TRACKCAL, assert_stopped, before_call, feasible_plan, inproc_live
+from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cli import main
 from trackcal.campaign.cli.campaign import campaign_exit
 from trackcal.campaign.cli.console import ConsoleOperator
 from trackcal.campaign.jobs.campaign import new_session, run_stored
-from trackcal.campaign.jobs.completeness import completeness
+from trackcal.campaign.jobs.completeness import completeness, run_completeness
 from trackcal.campaign.session.session import export_table, session_plan
 from trackcal.campaign.session.store import SessionStore, StoreError
 from trackcal.drivers.errors import ConnectionLost
@@ -433,7 +434,8 @@ def test_a_campaign_that_measured_nothing_ends_with_exit_code_3(kr270, plan, tmp
     store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     result = run_stored(store, inproc_live(kr270)[1])
     assert result.exit_status == "success" and result.measured == 0  # the engine went through every step
-    assert campaign_exit(store) == 3
+    assert campaign_exit(store, completeness(store)) == 3
+    assert campaign_exit(store, run_completeness(result, kr270)) == 3  # what `trackcal run` decides it from
     assert "it measured nothing" in capsys.readouterr().err
 
 
@@ -452,10 +454,11 @@ def test_a_campaign_may_skip_the_cells_share_and_no_more(kr270, plan, tmp_path, 
         cell = tmp_path / f"cell-{share}.yaml"
         cell.write_text((ROOT / "configs" / "cells" / "kr270.yaml").read_text() + f"max_skipped_share: {share}\n")
         store, _ = new_session(tmp_path / f"s{share}", str(cell), plan, "sim", 3)
-        run_stored(store, inproc_live(kr270)[1])
+        result = run_stored(store, inproc_live(kr270)[1])
         done = completeness(store)
         assert 0 < done.skipped < done.planned and done.measured + done.skipped == done.planned
-        assert campaign_exit(store) == code
+        assert run_completeness(result, load_cell(str(cell))) == done  # the run's counts are the session's
+        assert campaign_exit(store, done) == code
 
 
 def console_reading(monkeypatch, answers: str) -> ConsoleOperator:

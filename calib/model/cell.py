@@ -7,6 +7,7 @@ a .yaml suffix is taken as a path. Units in the files: mm and degrees.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -97,26 +98,55 @@ def plan_joint_bounds(cell: Cell) -> np.ndarray:
     return np.radians(usable_limits_deg(cell, cell.joint_margin_deg + CONTROLLER_STEP_DEG / 2))
 
 
-def resolve(kind: str, ref: str, base_dir: Path | None = None) -> Path:
+class Files:
+    """Where a cell's files are read: the disk. A session reads its cell from the copies it stores (StoredFiles)."""
+
+    def exists(self, path: Path) -> bool:
+        return path.exists()
+
+    def read(self, path: Path) -> str | None:
+        """The file's text; None: read it from the disk where it is used."""
+        return None
+
+
+DISK = Files()
+
+
+class StoredFiles(Files):
+    """A cell's files as texts by their relative paths (a session's stored documents: config/cell.yaml, ...)."""
+
+    def __init__(self, texts: Mapping[str, str]) -> None:
+        self.texts = texts
+
+    def exists(self, path: Path) -> bool:
+        return path.as_posix() in self.texts
+
+    def read(self, path: Path) -> str:
+        if not self.exists(path):
+            raise CellError(f"{path}: not stored")
+        return self.texts[path.as_posix()]
+
+
+def resolve(kind: str, ref: str, base_dir: Path | None = None, files: Files = DISK) -> Path:
     p = Path(ref)
     if p.suffix in (".yaml", ".yml", ".urdf") or "/" in ref:
-        if not p.is_absolute() and base_dir is not None and not p.exists():
+        if not p.is_absolute() and base_dir is not None and not files.exists(p):
             p = base_dir / p
         return p
     return CONFIGS / kind / f"{ref}.yaml"
 
 
-def load_yaml(path: Path) -> dict:
-    return read_yaml(path, CellError)
+def load_yaml(path: Path, files: Files = DISK) -> dict:
+    return read_yaml(path, CellError, files.read(path))
 
 
-def load_robot(ref: str, base_dir: Path | None = None) -> tuple[Chain, dict]:
-    path = resolve("robots", ref, base_dir)
+def load_robot(ref: str, base_dir: Path | None = None, files: Files = DISK) -> tuple[Chain, dict]:
+    path = resolve("robots", ref, base_dir, files)
     try:
         if path.suffix == ".urdf":
-            chain = chain_from_urdf(str(path))
+            chain = chain_from_urdf(str(path), xml=files.read(path))
             return chain, chain_to_dict(chain)
-        doc = load_yaml(path)
+        doc = load_yaml(path, files)
         return chain_from_dict(doc, str(path)), doc
     except ChainError as exc:
         raise CellError(str(exc)) from None
@@ -159,9 +189,10 @@ def max_correction(doc: dict, where: str) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def load_tool(ref: str, base_dir: Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    path = resolve("tools", ref, base_dir)
-    doc = load_yaml(path)
+def load_tool(ref: str, base_dir: Path | None = None,
+              files: Files = DISK) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:  # fmt: skip
+    path = resolve("tools", ref, base_dir, files)
+    doc = load_yaml(path, files)
     pts, normals = {}, {}
     points = fields.mapping(doc.get("points"), f"{path}: points", CellError)
     if not points:
@@ -185,14 +216,16 @@ def robot_cell(path: Path) -> Cell:
                 nominal=nominal_of(str(path), robot_doc))  # fmt: skip
 
 
-def load_cell(ref: str) -> Cell:
-    path = resolve("cells", ref)
-    if not path.exists() and path.parent == CONFIGS / "cells":  # a name, not a path: say which names there are
+def load_cell(ref: str, files: Files = DISK) -> Cell:
+    """The cell `ref` names (a name in configs/cells or a path), its robot and tool beside it; `files`: where they
+    are read (a session's stored copies: StoredFiles)."""
+    path = resolve("cells", ref, files=files)
+    if not files.exists(path) and path.parent == CONFIGS / "cells":  # a name, not a path: say which names there are
         known = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml")))
         raise CellError(f"cell {ref!r}: no such cell; the cells are {known} (or give the path of a cell YAML)")
     if path.suffix == ".urdf":
         return robot_cell(path)
-    doc = load_yaml(path)
+    doc = load_yaml(path, files)
     where = str(path)
     if "robot" not in doc and ("joints" in doc or "dh" in doc):
         return robot_cell(path)
@@ -200,8 +233,8 @@ def load_cell(ref: str) -> Cell:
         if key not in doc:
             raise CellError(f"{where}: {key}: missing")
     robot_ref = fields.text(doc["robot"], f"{where}: robot", CellError)
-    chain, robot_doc = load_robot(robot_ref, path.parent)
-    pts, normals = load_tool(fields.text(doc["tool"], f"{where}: tool", CellError), path.parent)
+    chain, robot_doc = load_robot(robot_ref, path.parent, files)
+    pts, normals = load_tool(fields.text(doc["tool"], f"{where}: tool", CellError), path.parent, files)
     name = fields.text(doc.get("name", path.stem), f"{where}: name", CellError)
     # `nominal:` in the cell says it in words (a session's copy of its cell records it: its robot file is a
     # temporary copy whose path would say nothing)

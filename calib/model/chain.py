@@ -137,16 +137,16 @@ def chain_from_dict(doc: dict, source: str = "robot") -> Chain:
     return Chain(name=name, base=base, joints=tuple(joints))
 
 
-def _urdf_model(path: str):
-    """pinocchio's model of a URDF file. Its parser (urdfdom) reports problems on the C stdout/stderr, which
-    no Python redirection reaches: file descriptors 1 and 2 point at a temporary file during the load, and
-    its first line goes into the one-line error."""
+def _urdf_model(path: str, xml: str | None = None):
+    """pinocchio's model of a URDF file (`xml`: its text when the caller holds it, `path` then only names it). Its
+    parser (urdfdom) reports problems on the C stdout/stderr, which no Python redirection reaches: file descriptors
+    1 and 2 point at a temporary file during the load, and its first line goes into the one-line error."""
     import pinocchio as pin  # lazy: pinocchio costs ~0.5 s at start-up and only URDF robots need it
 
-    if not Path(path).is_file():
+    if xml is None and not Path(path).is_file():
         raise ChainError(f"{path}: no such file")
     try:
-        n = len(_URDF_JOINT.findall(Path(path).read_bytes()))
+        n = len(_URDF_JOINT.findall(Path(path).read_bytes() if xml is None else xml.encode()))
     except OSError as exc:
         raise ChainError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if n > MAX_URDF_JOINTS:
@@ -160,7 +160,7 @@ def _urdf_model(path: str):
             os.dup2(sink.fileno(), 1)
             os.dup2(sink.fileno(), 2)
             try:
-                return pin.buildModelFromUrdf(str(path))
+                return pin.buildModelFromUrdf(str(path)) if xml is None else pin.buildModelFromXML(xml)
             except Exception as exc:  # pinocchio raises ValueError / RuntimeError with its own text
                 failure = str(exc)
         finally:
@@ -173,15 +173,15 @@ def _urdf_model(path: str):
     raise ChainError(f"{path}: not a valid URDF ({detail})")
 
 
-def chain_from_urdf(path: str, tip_joint: str | None = None) -> Chain:
+def chain_from_urdf(path: str, tip_joint: str | None = None, xml: str | None = None) -> Chain:
     """Load a serial chain of revolute joints from a URDF through pinocchio (metres -> mm).
 
     Joint i's placement in its parent joint frame becomes the link block of joint i-1 (translation
     and fixed rotation); the first placement is the base transform; the last joint's link block is the placement of
     the fixed joint FLANGE_JOINT when the URDF has one on the last joint (a URDF trackcal wrote), else none.
-    Inertias give the mass model.
+    Inertias give the mass model. `xml`: the URDF's text when the caller holds it (`path` then names it).
     """
-    model = _urdf_model(path)
+    model = _urdf_model(path, xml)
     names = list(model.names)[1:]
     if not names:
         raise ChainError(f"{path}: the URDF has no movable joints")

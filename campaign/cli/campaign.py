@@ -18,8 +18,17 @@ from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.engine.engine import TARGET_MISMATCH, Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
-from trackcal.campaign.jobs.campaign import HardwareOptions, OperatorConsole, SimOptions, replay, resume, run_new
-from trackcal.campaign.jobs.completeness import completeness
+from trackcal.campaign.jobs.campaign import (
+    Campaign,
+    HardwareOptions,
+    OperatorConsole,
+    SimOptions,
+    replay,
+    resume,
+    run_new,
+    stored_campaign,
+)
+from trackcal.campaign.jobs.completeness import Completeness, completeness, run_completeness
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
@@ -79,10 +88,10 @@ def operator_page(args) -> Iterator[WebPage | None]:
         page.close()
 
 
-def analyse_for(store: SessionStore, page: WebPage | None, linger_s: float = 0.0) -> None:
-    """The end-of-run analysis on the console, and its outcome on the page (kept up `linger_s` seconds, or until
-    Ctrl-C, so that the operator can open the report on the tablet)."""
-    analysis = analyse_and_print(store)
+def analyse_for(store: SessionStore, campaign: Campaign | None, page: WebPage | None, linger_s: float = 0.0) -> None:
+    """The end-of-run analysis of the session's `campaign` (None: its stored one) on the console, and its outcome on
+    the page (kept up `linger_s` seconds, or until Ctrl-C, so that the operator can open the report on the tablet)."""
+    analysis = analyse_and_print(store, campaign)
     if page is None:
         return
     if analysis is None:
@@ -123,10 +132,10 @@ def stopped_safely(store: SessionStore, result: RunResult) -> None:
         raise CampaignError(f"{result.message}. {advice}: trackcal resume {store.directory}")
 
 
-def campaign_exit(store: SessionStore) -> int:
+def campaign_exit(store: SessionStore, done: Completeness) -> int:
     """The exit code of a campaign that reached its end: 0, or 3 when it measured nothing or skipped more of its
-    planned measurements than the cell's max_skipped_share (the plan's promise is not kept: README, exit codes)."""
-    done = completeness(store)
+    planned measurements than the cell's max_skipped_share (the plan's promise is not kept: README, exit codes).
+    `done`: after a run, its result's (run_completeness); else the session's (completeness)."""
     if not done.failed:
         return 0
     why = "it measured nothing" if done.measured == 0 else (
@@ -136,11 +145,12 @@ def campaign_exit(store: SessionStore) -> int:
     return 3
 
 
-def drive(store: SessionStore, page: WebPage | None = None) -> None:
-    """Continue the session's campaign on its cell, with the console's progress (and the operator's page)."""
+def drive(store: SessionStore, campaign: Campaign, page: WebPage | None = None) -> RunResult:
+    """Continue the session's `campaign` on its cell, with the console's progress (and the operator's page)."""
     with ConsoleProgress() as progress:
-        result = resume(store, at_console(), [progress], page)
+        result = resume(store, campaign, at_console(), [progress], page)
     stopped_safely(store, result)
+    return result
 
 
 def cmd_run(args) -> int:
@@ -160,11 +170,12 @@ def cmd_run(args) -> int:
                                                                                    args.truth)
     with operator_page(args) as page:
         with ConsoleProgress() as progress:
-            store, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page)
+            store, campaign, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress],
+                                              page)  # fmt: skip
         stopped_safely(store, result)
         if not args.no_analysis:
-            analyse_for(store, page, args.web_linger)
-        return campaign_exit(store)
+            analyse_for(store, campaign, page, args.web_linger)
+        return campaign_exit(store, run_completeness(result, campaign.cell))
 
 
 def cmd_resume(args) -> int:
@@ -187,13 +198,15 @@ def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -
     if store.events("campaign_done"):
         console.print(f"{store.directory}: the campaign is already complete"
                       + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
+        campaign, done = None, completeness(store)
         if not args.analyse:
-            return campaign_exit(store)
+            return campaign_exit(store, done)
     else:
-        drive(store, page)
+        campaign = stored_campaign(store)
+        done = run_completeness(drive(store, campaign, page), campaign.cell)
     if not args.no_analysis:
-        analyse_for(store, page, getattr(args, "web_linger", 0.0))
-    return campaign_exit(store)
+        analyse_for(store, campaign, page, getattr(args, "web_linger", 0.0))
+    return campaign_exit(store, done)
 
 
 def cmd_replay(args) -> int:

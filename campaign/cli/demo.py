@@ -29,9 +29,9 @@ def cmd_demo(args) -> int:
     console.print(f"plan: {len(plan_doc['poses_deg'])} configurations x {plan_doc['repeat']}, rho0 at the test pose "
                   f"{um(plan_doc['rho0_mm'], 2)} µm ({out / 'plan.json'})")  # fmt: skip
     console.print(f"plan size: {plan_doc['why']}")
-    store, _ = new_session(out / "session", args.cell, plan_doc, "sim", args.seed)
-    drive(store)
-    analysis = analyse_and_print(store)
+    store, campaign = new_session(out / "session", args.cell, plan_doc, "sim", args.seed, cell=cell)
+    drive(store, campaign)
+    analysis = analyse_and_print(store, campaign)
     if analysis is not None:  # the geometric model's parameters against the twin's truth
         print_identification(analysis.geometric, twin_truth(cell, args.seed))
         figure = analysis.geometric.get("test_pose")

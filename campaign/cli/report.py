@@ -12,6 +12,7 @@ from trackcal.calib.model_trust import unusable_why
 from trackcal.campaign.cli.console import console, labelled
 from trackcal.campaign.cli.session import incomplete_note
 from trackcal.campaign.errors import InputError, UsageError
+from trackcal.campaign.jobs.campaign import Campaign
 from trackcal.campaign.jobs.end_of_run import NotAnalysedError, analyse_session, report_files, report_session
 from trackcal.campaign.report.analysis import CampaignAnalysis
 from trackcal.campaign.report.html import summarise_warnings
@@ -68,11 +69,11 @@ def print_analysis(analysis: CampaignAnalysis) -> None:
             console.print(f"  {line}")
 
 
-def analyse_and_print(store: SessionStore) -> CampaignAnalysis | None:
-    """The end-of-run analysis of a session (campaign.jobs.end_of_run.analyse_session) on the console; None, with
-    one line saying why, when the session cannot be identified yet."""
+def analyse_and_print(store: SessionStore, campaign: Campaign | None = None) -> CampaignAnalysis | None:
+    """The end-of-run analysis of a session (campaign.jobs.end_of_run.analyse_session; `campaign`: the one just run)
+    on the console; None, with one line saying why, when the session cannot be identified yet."""
     try:
-        analysis = analyse_session(store)
+        analysis = analyse_session(store, campaign)
     except IdentificationError as exc:
         console.print(labelled("identification not possible yet", "yellow", str(exc)))
         return None

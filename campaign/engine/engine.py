@@ -48,6 +48,19 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from trackcal.calib.identify.drift import DriftTest
+from trackcal.campaign.engine.documents import (
+    SCHEMAS,
+    ErrorDoc,
+    MeasurementDoc,
+    OperatorDoc,
+    ProgressDoc,
+    PromptDoc,
+    StartDoc,
+    StepDoneDoc,
+    StepStartedDoc,
+    StopDoc,
+    WarningDoc,
+)
 from trackcal.campaign.engine.recording import EndOfSegment
 from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
 from trackcal.drivers.errors import DeviceError, DeviceFault, TargetNotVisible
@@ -67,8 +80,7 @@ class Document:
     t: float = 0.0
 
 
-DOCUMENTS = ("start", "step_started", "call", "prompt", "operator", "measurement", "warning", "error", "step_done",
-             "progress", "stop", "station_fit")  # fmt: skip
+DOCUMENTS = tuple(SCHEMAS)  # their schemas: engine/documents.py
 Subscriber = Callable[[Document], None]
 
 
@@ -109,7 +121,7 @@ class History:
     done: frozenset[int] = frozenset()
     resumed: bool = False
     t_last: float = 0.0
-    measurements: tuple[dict, ...] = ()
+    measurements: tuple[MeasurementDoc, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -270,7 +282,7 @@ class Engine:
 
     def _warn(self, message: str) -> None:
         self.warnings.append(message)
-        self._emit("warning", {"message": message})
+        self._emit("warning", WarningDoc(message=message))
 
     # ------------------------------------------------------------------ running
     def run(self, steps: list[Step]) -> RunResult:
@@ -278,7 +290,7 @@ class Engine:
         result (any other error propagates: nothing after it is emitted)."""
         done = self.history.done
         self.offset = self.context.t = self.history.t_last
-        self._emit("start", {"resumed": self.history.resumed, "steps": len(steps), "done": len(done)})
+        self._emit("start", StartDoc(resumed=self.history.resumed, steps=len(steps), done=len(done)))
         self.t0 = self.dev.clock.now()
         first = next((i for i in range(len(steps)) if i not in done), len(steps))
         self.drift = replace(self.dev.drift, checks=drift_checks(steps))
@@ -299,7 +311,7 @@ class Engine:
                 nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
                 progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures),
                                     nxt)  # fmt: skip
-                self._emit("progress", asdict(progress))
+                self._emit("progress", ProgressDoc(**asdict(progress)))
         except _Stop as stop:
             return self._end("stopped", stop.reason, stop.step, n_done, len(measures), stop.code)
         except EndOfSegment as end:
@@ -312,7 +324,7 @@ class Engine:
         measured = len(self.measurements)
         result = RunResult(status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings),
                            code)  # fmt: skip
-        self._emit("stop", {"exit_status": status, "reason": reason})
+        self._emit("stop", StopDoc(exit_status=status, reason=reason))
         return result
 
     def _restore_context(self, steps: list[Step], first: int) -> None:
@@ -343,19 +355,21 @@ class Engine:
     def _execute(self, i: int, step: Step) -> None:
         self.context.step = i
         self.tick()
-        self._emit("step_started", {"step": step.to_dict()})
+        self._emit("step_started", StepStartedDoc(step=step.to_dict()))
         try:
             self.handlers[step.kind](step)
         except DeviceError as exc:
             raise self._stop_for(i, exc) from exc
-        self._emit("step_done", {})
+        self._emit("step_done", StepDoneDoc())
 
     def _stop_for(self, i: int, exc: DeviceError) -> _Stop:
         """The safe stop at step i for a device error, its error document emitted (with the fault's code, which
         names the cause: the session records which)."""
         code = getattr(exc, "code", None)
-        self._emit("error", {"type": type(exc).__name__, "message": str(exc)} | ({} if code is None else
-                                                                                  {"code": code}))  # fmt: skip
+        doc = ErrorDoc(type=type(exc).__name__, message=str(exc))
+        if code is not None:
+            doc["code"] = code
+        self._emit("error", doc)
         return _Stop(i, str(exc), code)
 
     # ------------------------------------------------------------------ step kinds
@@ -369,17 +383,17 @@ class Engine:
 
     def _prompt(self, kind: str, target: str, text: str) -> None:
         self.interlock.close()
-        self._emit("prompt", {"kind": kind, "target": target, "text": text})
+        self._emit("prompt", PromptDoc(kind=kind, target=target, text=text))
         answer = self.dev.operator.ask(kind, target, text)
-        self._emit("operator", {"answer": answer})
+        self._emit("operator", OperatorDoc(answer=answer))
 
     def _resume_motion(self) -> None:
         """Door closed + acknowledge: only then may the robot move again."""
         text = "Leave the cell, close the door and acknowledge to resume motion"
         while True:
-            self._emit("prompt", {"kind": StepKind.RESUME, "target": "", "text": text})
+            self._emit("prompt", PromptDoc(kind=StepKind.RESUME, target="", text=text))
             answer = self.dev.operator.ask(StepKind.RESUME, "", text)
-            self._emit("operator", {"answer": answer})
+            self._emit("operator", OperatorDoc(answer=answer))
             if self.interlock.release():
                 self.dev.robot.reset_faults()  # the operator acknowledged: the controller's latched faults go
                 return
@@ -446,12 +460,13 @@ class Engine:
             self._check_plausible(step, expected, m)
         env = env or m.environment
         self.tick()
-        data = {
-            "pose": step.pose, "station": step.station, "point": step.point, "drift": step.drift,
-            "q_deg": [round(float(v), 4) for v in q], "xyz_mm": [m.x_mm, m.y_mm, m.z_mm],
-            "std_mm": [m.std_x_mm, m.std_y_mm, m.std_z_mm],
-            "env": [env.temperature_c, env.pressure_hpa, env.humidity_pct],
-        } | ({"approach": step.approach} if step.approach else {})  # fmt: skip
+        data = MeasurementDoc(
+            pose=step.pose, station=step.station, point=step.point, drift=step.drift,
+            q_deg=[round(float(v), 4) for v in q], xyz_mm=[m.x_mm, m.y_mm, m.z_mm],
+            std_mm=[m.std_x_mm, m.std_y_mm, m.std_z_mm], env=[env.temperature_c, env.pressure_hpa, env.humidity_pct],
+        )  # fmt: skip
+        if step.approach:
+            data["approach"] = step.approach
         self._emit("measurement", data)
         self.measurements.append(data)
         if step.drift:
@@ -468,11 +483,11 @@ class Engine:
                    "the expected distance from the tracker), so it is not stored as a measurement. Likely causes: the "
                    "tracker's units or coordinate system were changed (by another program?), the wrong reflector, "
                    f"or station {step.station} moved")  # fmt: skip
-        self._emit("error", {"type": "ImplausibleMeasurement", "message": message, "xyz_mm": x.tolist(),
-                               "expected_mm": e.tolist()})  # fmt: skip
+        self._emit("error", ErrorDoc(type="ImplausibleMeasurement", message=message, xyz_mm=x.tolist(),
+                                     expected_mm=e.tolist()))  # fmt: skip
         raise _Stop(self.context.step, message)
 
-    def _check_drift(self, data: dict) -> None:
+    def _check_drift(self, data: MeasurementDoc) -> None:
         first = next(
             (m for m in self.measurements
              if m["drift"] and (m["station"], m["point"], m["pose"]) ==

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 import trackcal.drivers.errors as derr
+from trackcal.campaign.engine.documents import CallDoc, CallError
 from trackcal.campaign.errors import CampaignError
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement, TrackerStatus
 
@@ -58,9 +59,9 @@ def decode(value: Any) -> Any:
     return value
 
 
-def encode_error(exc: BaseException) -> dict:
-    return {"type": type(exc).__name__, "message": str(exc), "code": getattr(exc, "code", None),
-            "device": getattr(exc, "device", "")}  # fmt: skip
+def encode_error(exc: BaseException) -> CallError:
+    return CallError(type=type(exc).__name__, message=str(exc), code=getattr(exc, "code", None),
+                     device=getattr(exc, "device", ""))  # fmt: skip
 
 
 def decode_error(err: dict) -> BaseException:
@@ -90,13 +91,13 @@ class Recorder:
 
         def call(*args):
             step, t = self._context.where()
-            record = {"device": self._name, "op": op, "args": encode(list(args))}
+            record = CallDoc(device=self._name, op=op, args=encode(list(args)))
             try:
                 result = fn(*args)
             except derr.DeviceError as exc:
-                self._context.emit("call", {**record, "error": encode_error(exc)}, step, t)
+                self._context.emit("call", CallDoc(**record, error=encode_error(exc)), step, t)
                 raise
-            self._context.emit("call", {**record, "result": encode(result)}, step, t)
+            self._context.emit("call", CallDoc(**record, result=encode(result)), step, t)
             return result
 
         return call

@@ -28,6 +28,7 @@ from trackcal.calib.identify.solver import residual_stats
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import RigidError, kabsch
+from trackcal.campaign.engine.documents import MeasurementDoc, StationFitDoc, StationResidual
 from trackcal.campaign.engine.steps import Step, StepKind
 
 
@@ -52,13 +53,13 @@ def station_blocks(steps: list[Step]) -> list[Block]:
     return [Block(k, station, tuple(idx)) for k, (station, idx) in enumerate(runs)]
 
 
-def fit_block(cell: Cell, block: Block, measured: dict[int, dict]) -> dict:
+def fit_block(cell: Cell, block: Block, measured: dict[int, MeasurementDoc]) -> StationFitDoc:
     """The data of the block's `station_fit` document; `measured`: step -> the data of its measurement."""
     rows = [i for i in block.steps if i in measured and measured[i]["point"] in cell.tool_points]
-    doc = {"block": block.index, "station": block.station, "planned": len(block.steps), "measured": len(rows)}
+    head = {"block": block.index, "station": block.station, "planned": len(block.steps), "measured": len(rows)}
     if len(rows) < 3:
-        return doc | {"residuals": [], "note": f"{len(rows)} measurement(s): at least 3 are needed to place the "
-                                                 f"station"}  # fmt: skip
+        return StationFitDoc(**head, residuals=[],
+                             note=f"{len(rows)} measurement(s): at least 3 are needed to place the station")
     data = [measured[i] for i in rows]
     q = np.radians(np.array([d["q_deg"] for d in data], dtype=float))
     tool = np.array([cell.tool_points[d["point"]] for d in data], dtype=float)
@@ -67,15 +68,15 @@ def fit_block(cell: Cell, block: Block, measured: dict[int, dict]) -> dict:
     try:
         r, t = kabsch(nominal, xyz)
     except (RigidError, np.linalg.LinAlgError) as exc:  # collinear points; an SVD that does not converge
-        return doc | {"residuals": [], "note": str(exc)}
+        return StationFitDoc(**head, residuals=[], note=str(exc))
     res = xyz - (nominal @ r.T + t)
     stats = residual_stats(res)
-    return doc | {
-        "rms_mm": round(stats["dist_rms_mm"], 4), "max_mm": round(stats["dist_max_mm"], 4),
-        "position_mm": [round(float(v), 3) for v in -r.T @ t],  # the station's origin in the robot's base frame
-        "residuals": [{"step": i, "pose": d["pose"], "point": d["point"], "d_mm": [round(float(v), 4) for v in e]}
-                      for i, d, e in zip(rows, data, res, strict=True)],
-    }  # fmt: skip
+    return StationFitDoc(
+        **head, rms_mm=round(stats["dist_rms_mm"], 4), max_mm=round(stats["dist_max_mm"], 4),
+        position_mm=[round(float(v), 3) for v in -r.T @ t],  # the station's origin in the robot's base frame
+        residuals=[StationResidual(step=i, pose=d["pose"], point=d["point"], d_mm=[round(float(v), 4) for v in e])
+                   for i, d, e in zip(rows, data, res, strict=True)],
+    )  # fmt: skip
 
 
 class StationFits:
@@ -85,7 +86,7 @@ class StationFits:
     steps done (a block finished before a kill, its document not made yet, gets it at the next `start`)."""
 
     def __init__(self, cell: Cell, steps: list[Step], emit: Callable[..., None],
-                 measured: Iterable[tuple[int, dict]] = (), fitted: Iterable[int] = (),
+                 measured: Iterable[tuple[int, MeasurementDoc]] = (), fitted: Iterable[int] = (),
                  done: Iterable[int] = ()) -> None:  # fmt: skip
         self.cell, self.emit = cell, emit
         self.blocks = station_blocks(steps)

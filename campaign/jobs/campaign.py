@@ -26,6 +26,7 @@ from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.checks import names_told_apart
 from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
 from trackcal.campaign.cells.sim import SimCell
+from trackcal.campaign.engine.documents import measurement
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
 from trackcal.campaign.engine.expected import expected_position, measurement_tolerance
 from trackcal.campaign.engine.recording import Playback, Recorder
@@ -34,6 +35,7 @@ from trackcal.campaign.engine.steps import Step, plan_steps
 from trackcal.campaign.errors import CampaignError, InputError
 from trackcal.campaign.jobs.simulate import write_truth
 from trackcal.campaign.session.session import (
+    CELL_DOC,
     SessionFiles,
     SessionLog,
     create_session,
@@ -92,15 +94,16 @@ def stored_campaign(store: SessionStore) -> Campaign:
 
 def new_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
                 hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                extra: dict[str, str] | None = None,
-                approached: bool = True) -> tuple[SessionStore, Campaign]:  # fmt: skip
+                extra: dict[str, str] | None = None, approached: bool = True, cell: Cell | None = None,
+                config: dict[str, str] | None = None) -> tuple[SessionStore, Campaign]:  # fmt: skip
     """A new session (session.create_session) and its campaign: the cell and the plan are checked before the
-    session exists (a cell or plan that cannot run makes no session)."""
-    cell = load_cell(cell_ref)
+    session exists (a cell or plan that cannot run makes no session). `cell`: `cell_ref` already loaded; `config`:
+    its documents when they come from another session (create_session)."""
+    cell = cell or load_cell(cell_ref)
     names_told_apart(cell)
     campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc, approached))
     store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra,
-                           approached)  # fmt: skip
+                           approached, config)  # fmt: skip
     return store, campaign
 
 
@@ -109,7 +112,7 @@ def history(store: SessionStore) -> History:
     events = store.events()
     return History(done=frozenset(store.done_steps()), resumed=any(e.kind == "campaign_started" for e in events),
                    t_last=events[-1].t_campaign if events else 0.0,
-                   measurements=tuple(e.data for e in events if e.kind == "measurement"))  # fmt: skip
+                   measurements=tuple(measurement(e.data) for e in events if e.kind == "measurement"))  # fmt: skip
 
 
 def run_context(store: SessionStore, campaign: Campaign, subscribers: Iterable[Subscriber]) -> RunContext:
@@ -117,7 +120,7 @@ def run_context(store: SessionStore, campaign: Campaign, subscribers: Iterable[S
     emit each station block's residuals into the same run: engine/station_fit.py)."""
     context = RunContext([SessionLog(store), *subscribers])
     events = store.events()
-    measured = [(e.step, e.data) for e in events if e.kind == "measurement"]
+    measured = [(e.step, measurement(e.data)) for e in events if e.kind == "measurement"]
     fitted = [e.data["block"] for e in events if e.kind == "station_fit"]
     context.subscribers.append(StationFits(campaign.cell, campaign.steps, context.emit, measured, fitted,
                                            store.done_steps()))  # fmt: skip
@@ -196,34 +199,37 @@ def _open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claime
 
 def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | HardwareOptions,
             console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
-            page: WebPage | None = None) -> tuple[SessionStore, RunResult]:  # fmt: skip
+            page: WebPage | None = None) -> tuple[SessionStore, Campaign, RunResult]:  # fmt: skip
     """`trackcal run`: a new session of the plan in the cell (simulated or real), run to its end or to a safe
-    stop. A hardware config is checked before the session exists, then the cell and the plan; then the cell is
-    claimed (cells.hardware.claim_cell): a cell another campaign is running on makes no session. A device that
-    cannot be reached leaves the session, with its copy of the hardware config, for `trackcal resume`."""
+    stop; returns the session, its campaign (the cell loaded once, for the analysis after) and the run's result. A
+    hardware config is checked before the session exists, then the cell and the plan; then the cell is claimed
+    (cells.hardware.claim_cell): a cell another campaign is running on makes no session. A device that cannot be
+    reached leaves the session, with its copy of the hardware config, for `trackcal resume`."""
     if isinstance(cell, HardwareOptions):
         text = read_text(cell.config, InputError)
-        clients = claim_cell(load_hardware(cell.config, text), load_cell(cell_ref))
+        loaded = load_cell(cell_ref)
+        clients = claim_cell(load_hardware(cell.config, text), loaded)
         try:
             store, campaign = new_session(directory, cell_ref, plan_doc, "hardware", None,
-                                          hardware=(text, str(Path(cell.config).resolve())))  # fmt: skip
+                                          hardware=(text, str(Path(cell.config).resolve())), cell=loaded)  # fmt: skip
         except BaseException:
             clients.robot.close()
             raise
         live = open_cell(store, campaign, console, clients, page)
-        return store, run_session(store, campaign, live, subscribers, page)
+        return store, campaign, run_session(store, campaign, live, subscribers, page)
     extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
     store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
                                   extra=extra)  # fmt: skip
     if cell.truth:  # the twin SimCell serves is a pure function of the cell, the seed and the effects
         write_truth(cell.truth, campaign.cell, cell.seed, cell.effects)
-    return store, run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
+    live = open_cell(store, campaign, console, page=page)
+    return store, campaign, run_session(store, campaign, live, subscribers, page)
 
 
-def resume(store: SessionStore, console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
+def resume(store: SessionStore, campaign: Campaign, console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
            page: WebPage | None = None) -> RunResult:  # fmt: skip
-    """`trackcal resume`: continue the session's campaign (its stored cell and plan) on its cell."""
-    campaign = stored_campaign(store)
+    """`trackcal resume`: continue the session's campaign (`campaign`: its stored cell and plan, stored_campaign) on
+    its cell."""
     return run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
 
 
@@ -269,10 +275,9 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
     extra, approached = {"replay_of": str(recording.directory)}, session_approached(recording)
     if cell_ref is not None:
         store, campaign = new_session(staging, cell_ref, plan_doc, "replay", seed, extra=extra, approached=approached)
-    else:
-        with stored_config(recording) as cell_path:
-            store, campaign = new_session(staging, str(cell_path), plan_doc, "replay", seed, extra=extra,
-                                          approached=approached)  # fmt: skip
+    else:  # the recording's own cell, from its stored documents
+        store, campaign = new_session(staging, CELL_DOC, plan_doc, "replay", seed, extra=extra, approached=approached,
+                                      cell=session_cell(recording), config=stored_config(recording))  # fmt: skip
     try:
         hub = [] if page is None else [page.attach(store, campaign.cell, campaign.steps)]  # watching only
         for run, abrupt in segments(recording.events()):

@@ -1,11 +1,14 @@
 """How much of its plan a session holds: complete or not, measurements planned, stored and skipped (what `trackcal
 check` says, what `export` and `report` of an incomplete session say first, and what ends a campaign with exit 3).
-Light: the stored cell and plan and the events, no device and no analysis."""
+Light: the stored cell and plan and the events, no device and no analysis; after a run, the run's result says it
+(`run_completeness`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from trackcal.calib.model.cell import Cell
+from trackcal.campaign.engine.engine import RunResult
 from trackcal.campaign.engine.steps import StepKind, plan_steps
 from trackcal.campaign.session.session import session_approached, session_cell, session_plan
 from trackcal.campaign.session.store import SessionStore
@@ -37,9 +40,18 @@ class Completeness:
 
 
 def completeness(store: SessionStore) -> Completeness:
+    """What a session holds of its plan, from its stored cell, plan and events (`check`, `export`, `report`, and
+    `resume` of a campaign already complete)."""
     cell = session_cell(store)
     steps = plan_steps(cell, session_plan(store), session_approached(store))
     measure = {i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE}
     measured = len(store.events("measurement"))
     skipped = max(0, len(measure & store.done_steps()) - measured)
     return Completeness(bool(store.events("campaign_done")), len(measure), measured, skipped, cell.max_skipped_share)
+
+
+def run_completeness(result: RunResult, cell: Cell) -> Completeness:
+    """What a session holds of its plan after a run, as the run's result counts it (the session's measurements,
+    skips and planned measurements: nothing to load or build again)."""
+    return Completeness(result.exit_status == "success", result.planned, result.measured, result.skipped,
+                        cell.max_skipped_share)

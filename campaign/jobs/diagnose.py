@@ -20,7 +20,7 @@ from trackcal.calib.model_trust import sealed
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model_doc, sha256_of, still_warning
 from trackcal.campaign.report.diagnosis_plots import plots
-from trackcal.campaign.report.tcp import tcp_difference, tcp_doc
+from trackcal.campaign.report.tcp import NOT_DERIVED, NotDerived, TcpDifference, tcp_difference, tcp_doc
 
 # threads of one diagnosis: the cross-validation folds of the joint map's search are LAPACK reductions that release
 # the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
@@ -84,10 +84,12 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
     return DiagnoseOutcome(d, doc, written, still)
 
 
-def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
+def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None,
+                tcp: TcpDifference | None | NotDerived = NOT_DERIVED) -> dict:  # fmt: skip
     """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
     their structure and the gain; the cell and the sha256 of the table it was made from (a report refuses files of
-    different campaigns). A figure that cannot be computed is null, with a note saying why."""
+    different campaigns); `tcp`: the diagnosis' TCP difference at the test pose when the caller has it
+    (report.tcp.tcp_difference). A figure that cannot be computed is null, with a note saying why."""
     geo = d.geometric
     doc = {
         "cause": d.cause,
@@ -118,7 +120,8 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None) -> dict:
     }  # fmt: skip
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}
-    tcp = tcp_difference(cell, geo, d.extended)
+    if isinstance(tcp, NotDerived):
+        tcp = tcp_difference(cell, geo, d.extended)
     if tcp is not None:
         doc["test_pose"] = tcp_doc(tcp)
     return doc

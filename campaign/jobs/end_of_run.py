@@ -14,7 +14,9 @@ import numpy as np
 
 from trackcal.calib.diagnose import Diagnosis, diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
+from trackcal.calib.diagnose.noise_floor import Floor
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, model_noise
+from trackcal.calib.identify.solver import Identification
 from trackcal.calib.identify.units import read_measured
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import dumps_json, read_json, write_bytes, write_text
@@ -23,11 +25,15 @@ from trackcal.calib.model.cell import Cell, load_cell, resolve
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import load_model
 from trackcal.calib.model_trust import sealed, unusable_why
+from trackcal.calib.tcp_figure import figure_at_test_pose
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.campaign import Campaign
 from trackcal.campaign.jobs.diagnose import diagnosis_threads, verdict_doc
-from trackcal.campaign.jobs.identify import choose_params, model_doc, run_identify, sha256_of
+from trackcal.campaign.jobs.identify import choose_params, fit_model, identify_outcome, model_doc, sha256_of
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.html import write_report
+from trackcal.campaign.report.residuals import residuals_of
+from trackcal.campaign.report.tcp import NOT_DERIVED, NotDerived, TcpDifference, tcp_difference
 from trackcal.campaign.session.session import (
     SessionFiles,
     campaign_warnings,
@@ -53,36 +59,64 @@ def written(path: Path, doc: dict) -> dict:
     return json.loads(text)
 
 
-def analyse_session(store: SessionStore) -> CampaignAnalysis:
-    """End of a campaign: export, identification, diagnosis and report, into the session directory. When the
-    diagnosis names a cause, the model is the one extended by it and the geometric model is written beside it.
-    An IdentificationError (too few measurements yet) comes after the table is written."""
+def analyse_session(store: SessionStore, campaign: Campaign | None = None) -> CampaignAnalysis:
+    """End of a campaign: export, identification, diagnosis and report, into the session directory; `campaign`: the
+    one just run (its cell and plan), else the session's stored one. When the diagnosis names a cause, the model is
+    the one extended by it and the geometric model is written beside it. Each result is derived once (the geometric
+    fit feeds the diagnosis, whose noise floor the models' documents and the report use). An IdentificationError (too
+    few measurements yet) comes after the table is written."""
     files = SessionFiles(store.directory)
-    cell = session_cell(store)
+    cell, plan = (campaign.cell, campaign.plan) if campaign is not None else (session_cell(store), session_plan(store))
     exported = export_table(store, str(files.table))
     data = table_csv(exported).encode()
     write_bytes(files.table, data, InputError)
     table, digest = as_written(exported), hashlib.sha256(data).hexdigest()
-    params = choose_params(cell, None)
-    outcome = run_identify(cell, table, params, DEFAULT_WEIGHTING, table_sha256=digest)
+    fitted = fit_model(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING)
     with diagnosis_threads() as ex:
-        dg = diagnose(cell.chain, table, cell.tool_points, outcome.result.params, outcome.result.noise,
-                      geometric=outcome.result, executor=ex)  # fmt: skip
-    verdict = written(files.verdict, verdict_doc(cell, dg, digest))
+        dg = diagnose(cell.chain, table, cell.tool_points, fitted.params, fitted.result.noise, geometric=fitted.result,
+                      tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
+    floor = diagnosis_floor(dg)
+    outcome = identify_outcome(cell, table, fitted, digest, floor)
+    tcp = tcp_difference(cell, dg.geometric, dg.extended)
+    verdict = written(files.verdict, verdict_doc(cell, dg, digest, tcp))
     geometric = None
-    if dg.extended is not None:
-        model = sealed(model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift, digest))
+    if dg.extended is not None:  # fitted on the diagnosis' table (corrected by a joint map): its own floor then
+        model = sealed(model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift, digest,
+                                 floor if dg.table is table else None))  # fmt: skip
         geometric = written(files.geometric_model, sealed(outcome.doc))
     else:
         model = sealed(outcome.doc)
         files.geometric_model.unlink(missing_ok=True)
-    analysis = CampaignAnalysis(
-        cell=cell, table=table, table_sha256=digest, model=written(files.model, model), geometric_model=geometric,
-        verdict=verdict, plan=session_plan(store), diagnosis=dg, warnings=campaign_warnings(store),
-        provenance=session_provenance(store, files, cell.name), files=files,
-    )  # fmt: skip
+    analysis = analysed(cell, table, written(files.model, model), table_sha256=digest, plan=plan, verdict=verdict,
+                        diagnosis=dg, before=outcome.before, tcp=tcp, geometric_model=geometric,
+                        warnings=campaign_warnings(store), provenance=session_provenance(store, files, cell.name),
+                        files=files)  # fmt: skip
     analysis.report = write_report(analysis, files.report)
     return analysis
+
+
+def diagnosis_floor(d: Diagnosis) -> Floor:
+    """The noise floor a diagnosis judged its table against (its figure and source: what the documents show)."""
+    return Floor(d.noise_floor_mm, d.floor_source, None)
+
+
+def analysed(cell: Cell, table: MeasurementTable, model: dict, *, table_sha256: str | None = None,
+             plan: dict | None = None, verdict: dict | None = None, diagnosis: Diagnosis | None = None,
+             before: Identification | None = None, tcp: TcpDifference | None | NotDerived = NOT_DERIVED,
+             **more) -> CampaignAnalysis:  # fmt: skip
+    """The CampaignAnalysis of one campaign's documents with every result the report shows, each derived once: what
+    the caller holds (the nominal robot's "before" fit, the TCP difference) is used as it is, the noise floor is the
+    diagnosis' when there is one, and the rest is derived here. `more`: CampaignAnalysis' other fields."""
+    floor = diagnosis_floor(diagnosis) if diagnosis is not None else None
+    residuals = residuals_of(cell, table, model, before, floor)
+    if isinstance(tcp, NotDerived):
+        tcp = tcp_difference(cell, diagnosis.geometric, diagnosis.extended) if verdict and diagnosis else None
+    sigma = (model.get("test_pose") or {}).get("sigma_mm")  # calib.tcp_figure, as identify wrote it
+    if sigma is None and diagnosis is not None and cell.test_pose is not None:  # an older model
+        sigma = figure_at_test_pose(diagnosis.extended or diagnosis.geometric, cell.test_pose).sigma_mm
+    return CampaignAnalysis(cell=cell, table=table, table_sha256=table_sha256, model=model, residuals=residuals,
+                            plan=plan, verdict=verdict, diagnosis=diagnosis, tcp=tcp, test_pose_sigma_mm=sigma,
+                            **more)  # fmt: skip
 
 
 def utc_text(t_wall: float) -> str:
@@ -164,8 +198,8 @@ def read_campaign(cell: Cell, table_path, model_path, plan_path, verdict_path, p
     digest = sha256_of(table.source)
     check_one_campaign(table, digest, cell, [(str(model_path), model), (str(verdict_path), verdict),
                                              (str(plan_path), plan)])  # fmt: skip
-    return CampaignAnalysis(cell=cell, table=table, table_sha256=digest, model=model, verdict=verdict, plan=plan,
-                            diagnosis=diagnosis_of(cell, table, model) if verdict else None, provenance=prov)
+    return analysed(cell, table, model, table_sha256=digest, plan=plan, verdict=verdict,
+                    diagnosis=diagnosis_of(cell, table, model) if verdict else None, provenance=prov)
 
 
 def diagnosis_of(cell: Cell, table: MeasurementTable, model: dict) -> Diagnosis:

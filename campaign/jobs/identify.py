@@ -13,7 +13,7 @@ from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.features import Ranges
 from trackcal.calib.diagnose.fits import fit_cause
-from trackcal.calib.diagnose.noise_floor import noise_floor
+from trackcal.calib.diagnose.noise_floor import Floor, noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
 from trackcal.calib.identify.noise import DEFAULT_WEIGHTING, TrackerNoise, noise_for
 from trackcal.calib.identify.points import PointsError, points_from_table
@@ -103,12 +103,23 @@ def still_warning(cell: Cell, table: MeasurementTable, params: list[Param]) -> t
         f"joint {names} {verb} in {table.source}: {left} not identifiable from it, left at nominal")
 
 
-def run_identify(
-    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
-    extend: str = "none", table_sha256: str | None = None,
-) -> IdentifyOutcome:  # fmt: skip
-    """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's).
-    `table_sha256`: of the table's file (default: the file it was read from)."""
+@dataclass(frozen=True)
+class Fitted:
+    """An identification before its document: the parameters fitted (those of joints that never move left out, `still`
+    says which), the nominal robot's "before" fit and the model's fit (`table`: the table it was fitted on)."""
+
+    params: list[Param]
+    still: str | None
+    before: Identification
+    result: Identification
+    shift: object  # calib.diagnose's station shift of the fit (None without one)
+    table: MeasurementTable
+
+
+def fit_model(cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
+              extend: str = "none") -> Fitted:  # fmt: skip
+    """Fit the geometric model, or the geometric model extended by a cause (`auto`: diagnose's), and the nominal
+    robot's "before" fit."""
     if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
         raise OptionError("{0} {extend}: choose none, auto or causes joined by + from {causes}", "extend",
                           extend=extend, causes=", ".join(CAUSES))
@@ -123,15 +134,32 @@ def run_identify(
     if fit is None:
         raise OptionError("{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend",
                           extend=extend)
-    doc = model_doc(cell, table, fit.result, before, fit.shift, table_sha256)
-    doc["poorly_determined"] = poorly_determined(fit.result, fit.table)
-    if still:
-        doc["not_identifiable"] = still
-    missing = left_out(cell, params)
-    advice = determinable(fit.result, fit.table, [param_by_name(cell.chain, n) for n in missing]) if (
+    return Fitted(params, still, before, fit.result, fit.shift, fit.table)
+
+
+def identify_outcome(cell: Cell, table: MeasurementTable, fitted: Fitted, table_sha256: str | None = None,
+                     floor: Floor | None = None) -> IdentifyOutcome:  # fmt: skip
+    """The model document of a fit and its warnings. `table_sha256`: of the table's file (default: the file it was
+    read from); `floor`: the table's noise floor when already found (default: calib.diagnose.noise_floor)."""
+    doc = model_doc(cell, table, fitted.result, fitted.before, fitted.shift, table_sha256, floor)
+    doc["poorly_determined"] = poorly_determined(fitted.result, fitted.table)
+    if fitted.still:
+        doc["not_identifiable"] = fitted.still
+    missing = left_out(cell, fitted.params)
+    advice = determinable(fitted.result, fitted.table, [param_by_name(cell.chain, n) for n in missing]) if (
         doc["fit"] == "poor" and missing) else missing  # fmt: skip
-    return IdentifyOutcome(result=fit.result, before=before, doc=doc, warning=fit_warning(doc, advice, missing),
-                           determination=determination_warning(doc), still=still)  # fmt: skip
+    return IdentifyOutcome(result=fitted.result, before=fitted.before, doc=doc,
+                           warning=fit_warning(doc, advice, missing), determination=determination_warning(doc),
+                           still=fitted.still)  # fmt: skip
+
+
+def run_identify(
+    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
+    extend: str = "none", table_sha256: str | None = None,
+) -> IdentifyOutcome:  # fmt: skip
+    """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's).
+    `table_sha256`: of the table's file (default: the file it was read from)."""
+    return identify_outcome(cell, table, fit_model(cell, table, params, weighting, extend), table_sha256)
 
 
 def cell_and_table(cell_ref: str, data: str | Path) -> tuple[Cell, MeasurementTable]:
@@ -161,16 +189,16 @@ def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
     return outcome
 
 
-def fit_quality(table: MeasurementTable, res: Identification, tracker: Instrument | None = None) -> dict:
+def fit_quality(table: MeasurementTable, res: Identification, tracker: Instrument | None = None,
+                floor: Floor | None = None) -> dict:  # fmt: skip
     """Does the model reach the noise floor? The residual RMS of one coordinate (over the degrees of freedom)
     against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model: the weighting's, else
-    `tracker`'s, the cell's instrument)."""
-    found = noise_floor(table, res.noise, None if tracker is None else TrackerNoise.of(tracker))
-    floor, source = found.sigma_mm, found.source
+    `tracker`'s, the cell's instrument), or `floor` when the caller found it already."""
+    found = floor or noise_floor(table, res.noise, None if tracker is None else TrackerNoise.of(tracker))
     rms_dof = float(np.sqrt(np.sum(res.residuals**2) / max(res.dof, 1)))
-    ratio = rms_dof / floor
+    ratio = rms_dof / found.sigma_mm
     return {"fit": "poor" if ratio > POOR_FIT_RATIO else "good", "fit_ratio": ratio, "residual_rms_mm": rms_dof,
-            "noise_floor_mm": floor, "noise_floor_source": source}  # fmt: skip
+            "noise_floor_mm": found.sigma_mm, "noise_floor_source": found.source}  # fmt: skip
 
 
 def left_out(cell: Cell, params: list[Param]) -> list[str]:
@@ -252,9 +280,9 @@ def convergence_warning(doc: dict) -> str | None:
 
 
 def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: Identification, shift,
-              table_sha256: str | None = None) -> dict:  # fmt: skip
+              table_sha256: str | None = None, floor: Floor | None = None) -> dict:  # fmt: skip
     """model.json; `table_sha256` of the table's file (default: the file the table was read from, None when it
-    was not read from a file)."""
+    was not read from a file); `floor`: the table's noise floor when already found (fit_quality)."""
     if table_sha256 is None and Path(table.source).is_file():
         table_sha256 = sha256_of(table.source)
     params = res.params
@@ -266,7 +294,7 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         "n_measurements": len(table),
         "residuals": {"before": residual_stats(before.residuals), "after": residual_stats(res.residuals)},
         "tracker": cell.tracker.to_doc(),
-        **fit_quality(table, res, cell.tracker),
+        **fit_quality(table, res, cell.tracker, floor),
     }
     if cell.test_pose is not None and cell.tcp is not None:
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()

@@ -35,8 +35,10 @@ from trackcal.calib.doe.iso_cube import (
     iso_plan,
 )
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Station
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import write_json
+from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.iso9283 import (
     CYCLES,
     DISTANCE_POSES,
@@ -50,13 +52,13 @@ from trackcal.calib.iso9283 import (
     pose_accuracy,
     pose_repeatability,
 )
-from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
-from trackcal.campaign.session.session import export_table, session_cell, session_plan
+from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
 from trackcal.campaign.session.store import SessionStore
 
 
@@ -189,7 +191,7 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        sides = [e.data.get("approach", "") for e in store.events("measurement")]  # vAP visits (7.3) name theirs
+        sides = [m.get("approach", "") for m in stored_measurements(store)]  # vAP visits (7.3) name theirs
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
         conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
@@ -209,6 +211,20 @@ def _meteo(table, key: str, unit: str, digits: int) -> str:
     return f"{v.mean():.{digits}f} {unit} ({v.min():.{digits}f}-{v.max():.{digits}f})" if len(v) else "not recorded"
 
 
+@dataclass(frozen=True)
+class InBase:
+    """The attained positions of a session's rows in the base frame of the model's estimate of the ISO station,
+    R^T (x - t), and their covariances R^T Sigma R (Sigma: `noise`, the tracker's)."""
+
+    table: MeasurementTable
+    station: Station
+    noise: TrackerNoise
+
+    def __call__(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rot, xyz = self.station.rotation, self.table.xyz[rows]
+        return (xyz - self.station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, self.noise.covariance(xyz), rot)
+
+
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
     is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
@@ -222,27 +238,10 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
     tracker = noise.name if noise else cell.tracker.describe()  # whose noise U is
-    noise = noise or TrackerNoise.of(cell.tracker)
-    rot = station.rotation
+    in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-    pose_ids, side_of = np.asarray(table.pose), np.asarray(sides)
-
-    def in_base(rows):
-        """The rows' attained positions in the base frame, R^T (x - t), and their covariances R^T Sigma R."""
-        xyz = table.xyz[rows]
-        return (xyz - station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, noise.covariance(xyz), rot)
-
-    attained, covs, figures = [], [], []
-    for i, name in enumerate(POSE_NAMES):
-        rows = keep & (pose_ids == f"Q{i + 1}") & (side_of == "")  # the unidirectional test (7.2)
-        base, cov = in_base(rows)
-        if len(base) < 2:
-            raise InputError(f"{directory}: {name} was measured {len(base)} times; repeatability needs two cycles")
-        ap, offset = pose_accuracy(base, commanded[i], cov)
-        rp, lbar, s = pose_repeatability(base, cov)
-        figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
-        attained.append(base)
-        covs.append(cov)
+    visit = Visits(np.asarray(table.pose), np.asarray(sides))
+    figures, attained, covs = _pose_figures(directory, in_base, keep, visit, commanded)
     a, b = DISTANCE_POSES
     ad = rd = None
     notes = []
@@ -252,28 +251,73 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
     pts = iso_points(iso)
     if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2.1, 7.2.2)
-        missing = [p for p in pts if p not in model.points]
-        if missing:
-            raise InputError(f"the model knows no reference point {', '.join(missing)} (the ISO orientation test's)")
-        tool = np.array([model.points[p] for p in pts])
-        q_nom = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
-        rot_c, _ = Kinematics(model.chain, []).end_frames(q_nom)  # the commanded orientation of the last joint frame
-        at_station = np.asarray(table.station) == iso["station"]
-        for i, name in enumerate(POSE_NAMES):
-            each = [in_base(at_station & (np.asarray(table.point) == p) & (pose_ids == f"Q{i + 1}") & (side_of == ""))
-                    for p in pts]  # fmt: skip
-            n = min(len(x) for x, _ in each)
-            if n < 2:
-                notes.append(f"{name}: a tool point was measured fewer than two times: no orientation figures")
-                continue
-            x = np.stack([x[:n] for x, _ in each], axis=1)  # (n cycles, k points, 3): cycle j = j-th visit of each
-            c = np.stack([c[:n] for _, c in each], axis=1)
-            w, cov_w = attained_orientations(tool, x, rot_c[i], c)
-            figures[i].orientation = orientation_figures(w, cov_w)
+        notes += _orientations(iso, pts, model, in_base, visit, figures)
+    vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
+    conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
+    return IsoFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
+                      conditions, notes, vap, vap_attained)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Visits:
+    """Which of a session's rows are the visits of pose Qi from a side ("" for the unidirectional test, 7.2)."""
+
+    pose: np.ndarray
+    side: np.ndarray
+
+    def of(self, i: int, side: str = "") -> np.ndarray:
+        return (self.pose == f"Q{i + 1}") & (self.side == side)
+
+
+def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray):
+    """The pose accuracy and repeatability of each pose (7.2), with its attained positions and covariances."""
+    attained, covs, figures = [], [], []
+    for i, name in enumerate(POSE_NAMES):
+        base, cov = in_base(keep & visit.of(i))
+        if len(base) < 2:
+            raise InputError(f"{directory}: {name} was measured {len(base)} times; repeatability needs two cycles")
+        ap, offset = pose_accuracy(base, commanded[i], cov)
+        rp, lbar, s = pose_repeatability(base, cov)
+        figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
+        attained.append(base)
+        covs.append(cov)
+    return figures, attained, covs
+
+
+def _orientations(iso: dict, pts: list[str], model: Model, in_base: InBase, visit: Visits,
+                  figures: list[PoseFigures]) -> list[str]:  # fmt: skip
+    """The attained orientation of each pose from the tool's points, cycle by cycle (7.2.1, 7.2.2), into `figures`;
+    returns the notes of the poses without them."""
+    missing = [p for p in pts if p not in model.points]
+    if missing:
+        raise InputError(f"the model knows no reference point {', '.join(missing)} (the ISO orientation test's)")
+    tool = np.array([model.points[p] for p in pts])
+    q_nom = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
+    rot_c, _ = Kinematics(model.chain, []).end_frames(q_nom)  # the commanded orientation of the last joint frame
+    table = in_base.table
+    at_station = np.asarray(table.station) == iso["station"]
+    notes = []
+    for i, name in enumerate(POSE_NAMES):
+        each = [in_base(at_station & (np.asarray(table.point) == p) & visit.of(i)) for p in pts]
+        n = min(len(x) for x, _ in each)
+        if n < 2:
+            notes.append(f"{name}: a tool point was measured fewer than two times: no orientation figures")
+            continue
+        x = np.stack([x[:n] for x, _ in each], axis=1)  # (n cycles, k points, 3): cycle j = j-th visit of each
+        c = np.stack([c[:n] for _, c in each], axis=1)
+        w, cov_w = attained_orientations(tool, x, rot_c[i], c)
+        figures[i].orientation = orientation_figures(w, cov_w)
+    return notes
+
+
+def _multidirectional(iso: dict, cell: Cell, in_base: InBase, keep: np.ndarray, visit: Visits,
+                      notes: list[str]) -> tuple[dict, dict]:  # fmt: skip
+    """The multi-directional pose accuracy variation (7.3) of each vAP pose, and its attained positions per side;
+    a pose not measured from one of its sides gets a note in `notes` instead."""
     vap, vap_attained = {}, {}
     vap_plan = vap_block(iso, cell) or {"poses": []}
     for i, sides in zip(vap_plan["poses"], vap_plan.get("approaches", []), strict=True):
-        per_side = {side: in_base(keep & (pose_ids == f"Q{i + 1}") & (side_of == side)) for side in sides}
+        per_side = {side: in_base(keep & visit.of(i, side)) for side in sides}
         missing = [side for side, (x, _) in per_side.items() if len(x) == 0]
         if missing:
             notes.append(f"{POSE_NAMES[i]} was not measured from its {', '.join(missing)} side: no vAP")
@@ -281,6 +325,12 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
         vap[POSE_NAMES[i]] = multidirectional_variation([x for x, _ in per_side.values()],
                                                         [c for _, c in per_side.values()])  # fmt: skip
         vap_attained[POSE_NAMES[i]] = {side: x for side, (x, _) in per_side.items()}
+    return vap, vap_attained
+
+
+def _iso_conditions(conditions: dict, cell: Cell, iso: dict, table: MeasurementTable, pts: list[str], cycles: int,
+                    tracker: str) -> dict:  # fmt: skip
+    """The test conditions the report states (ISO 9283 clause 6), in CONDITION_ORDER first."""
     comp = iso.get("compensated_with")
     conditions.update({
         "robot": cell.chain.name, "cell": cell.name, "station": iso["station"],
@@ -288,16 +338,14 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
                                                if len(pts) >= 3 else ""),
         "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
                 f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
-        "cycles": str(len(attained[0])), "targets": f"compensated with {comp['model']}" if comp else "nominal",
+        "cycles": str(cycles), "targets": f"compensated with {comp['model']}" if comp else "nominal",
         "load": iso.get("load") or NO_LOAD,
         "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
         "humidity": _meteo(table, "humidity_pct", "%", 0), "tracker (its U)": tracker,
         "trackcal version": version("trackcal"),
     })  # fmt: skip
     first = [k for k in CONDITION_ORDER if k in conditions]
-    conditions = {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
-    return IsoFigures(str(directory), bool(comp), figures, ad, rd, attained, commanded, conditions, notes, vap,
-                      vap_attained)  # fmt: skip
+    return {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
 
 
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:

@@ -10,11 +10,10 @@ residual statistics before and after (Table 9: coordinate- and distance-based, m
 factor), the stations and reference points with their intervals, the model extension, and the diagnosis
 (verdict of `trackcal diagnose`, its plots).
 
-The residuals are recomputed from the model and the table given, so a report on a validation table
-(poses not used for identification) shows how the model predicts: "after" is the table minus the model's
-prediction (`trackcal predict`, extension honoured); "before" is the purely nominal robot with the
-stations and reference points fitted to the same table (what `trackcal identify` reports as before).
-No external CSS or JavaScript; every text is HTML-escaped.
+It renders what the analysis holds and computes nothing: the residuals (campaign.report.residuals: "after" is the
+table minus the model's prediction, so a report on a validation table shows how the model predicts), the diagnosis,
+the TCP difference and the test-pose figure were derived once when the analysis was made; the plots are
+campaign.report.plots. No external CSS or JavaScript; every text is HTML-escaped.
 """
 
 from __future__ import annotations
@@ -30,20 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.diagnose.noise_floor import noise_floor
-from trackcal.calib.identify.noise import TrackerNoise, model_instrument, model_noise
-from trackcal.calib.identify.solver import identify, residual_stats
+from trackcal.calib.identify.noise import model_instrument
 from trackcal.calib.io.files import write_text
-from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
-from trackcal.calib.model_file import model_from_doc, predict_table
 from trackcal.calib.model_trust import unusable_why
-from trackcal.calib.tcp_figure import figure_at_test_pose
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
 from trackcal.campaign.report.diagnosis_plots import plots
-from trackcal.campaign.report.figures import pyplot, save_png
-from trackcal.campaign.report.tcp import DETERMINED_SIGMAS, TcpDifference, tcp_difference
+from trackcal.campaign.report.plots import plot_histograms, plot_parameters, plot_per_pose, plot_plan
+from trackcal.campaign.report.residuals import Residuals, pose_order
+from trackcal.campaign.report.tcp import DETERMINED_SIGMAS, TcpDifference
 
 TABLE9_ROWS = (
     ("coord_max_mm", "coordinate-based, max"),
@@ -82,145 +77,6 @@ NO_STATIC_COMPENSATION = ("backlash", "thermal_drift")
 
 def esc(value) -> str:
     return html.escape(str(value), quote=True)
-
-
-@dataclass
-class Residuals:
-    before: np.ndarray  # (N, 3) mm, station frames: nominal robot, stations and points fitted
-    after: np.ndarray  # (N, 3) mm: measured - predicted by the model
-    stats_before: dict[str, float]
-    stats_after: dict[str, float]
-    floor_mm: float  # expected RMS of one coordinate from the tracker alone (calib.diagnose.noise_floor)
-    floor_source: str
-
-
-def compute_residuals(cell: Cell, table: MeasurementTable, model_doc: dict) -> Residuals:
-    if table.xyz is None:
-        raise InputError(f"{table.source}: the table has no x_mm, y_mm, z_mm: nothing to report residuals of")
-    model = model_from_doc(model_doc)
-    after = table.xyz - predict_table(model, table).xyz
-    noise = model_noise(model_doc)
-    before = identify(model.chain, table, cell.tool_points, [], noise=noise).residuals
-    found = noise_floor(table, noise, TrackerNoise.of(cell.tracker))
-    floor, source = found.sigma_mm, found.source
-    return Residuals(before, after, residual_stats(before), residual_stats(after), floor, source)
-
-
-# ------------------------------------------------------------------------------------------------ plots
-def plot_histograms(res: Residuals, path: Path) -> Path:
-    """Paper Fig. 10: residuals after calibration per axis, with the fitted normal density."""
-    plt = pyplot()
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
-    for a, ax in enumerate(axes):
-        r = res.after[:, a] * 1000.0
-        mu, sd = float(r.mean()), float(r.std(ddof=1)) if len(r) > 1 else 0.0
-        counts, edges, _ = ax.hist(r, bins=max(8, min(40, len(r) // 6)), color="#4a7ebb", alpha=0.75)
-        if sd > 0:
-            x = np.linspace(edges[0], edges[-1], 200)
-            density = np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2.0 * np.pi))  # the normal pdf
-            ax.plot(x, len(r) * (edges[1] - edges[0]) * density, "k-", lw=1.5,
-                    label=f"N({mu:.1f}, {sd:.1f}) µm")  # fmt: skip
-        for sign in (-1, 1):
-            ax.axvline(sign * res.floor_mm * 1000.0, color="#c0504d", ls="--", lw=1.2,
-                       label=f"± noise floor {res.floor_mm * 1000:.1f} µm (per coordinate)" if sign > 0 else None)
-        ax.set_ylim(0.0, 1.35 * max(float(counts.max()), 1.0))  # head room: the legend covers no bar
-        ax.legend(loc="upper center", fontsize=7, framealpha=0.95)
-        ax.set_xlabel(f"residual {'xyz'[a]} (µm)")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("measurements")
-    fig.suptitle("residuals after calibration, per axis (station frames), with the fitted normal")
-    fig.tight_layout()
-    return save_png(fig, path, dpi=100)
-
-
-def pose_order(table: MeasurementTable) -> list[str]:
-    return list(dict.fromkeys(table.pose))
-
-
-def per_pose_rms(table: MeasurementTable, residuals: np.ndarray) -> np.ndarray:
-    """RMS residual distance (mm) of every configuration (pose id), in order of first measurement."""
-    dist = np.linalg.norm(residuals, axis=1)
-    pose = np.array(table.pose)
-    return np.array([np.sqrt(np.mean(dist[pose == p] ** 2)) for p in pose_order(table)])
-
-
-def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
-    """Paper Fig. 11: residual distance per configuration, before and after calibration."""
-    plt = pyplot()
-    poses = pose_order(table)
-    x = np.arange(len(poses))
-    fig, axes = plt.subplots(2, 1, figsize=(13, 6), sharex=True)
-    for ax, r, label, color in ((axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
-                                (axes[1], res.after, "after calibration", "#4a7ebb")):  # fmt: skip
-        ax.bar(x, per_pose_rms(table, r) * 1000.0, color=color, label="RMS distance")
-        # the RMS 3-D distance that tracker noise alone gives: sqrt(3) x the floor of one coordinate
-        rms_pose = per_pose_rms(table, r) * 1000.0
-        floor3 = np.sqrt(3.0) * res.floor_mm * 1000.0
-        floor_label = f"noise floor of a 3-D distance: √3 × {res.floor_mm * 1000:.1f} = {floor3:.1f} µm"
-        ax.axhline(floor3, color="k", ls="--", lw=1.2, label=floor_label)
-        ax.set_ylim(0.0, 1.3 * max(float(rms_pose.max()), floor3))  # head room: the legend covers no bar
-        ax.legend(loc="upper center", fontsize=8, ncol=2, framealpha=0.95)
-        ax.set_ylabel("RMS distance (µm)")
-        ax.set_title(f"{label}: residual distance per configuration", fontsize=10)
-        ax.grid(alpha=0.3, axis="y")
-    step = max(1, len(poses) // 40)
-    axes[1].set_xticks(x[::step])
-    axes[1].set_xticklabels([poses[i].replace("$", r"\$") for i in x[::step]], rotation=90, fontsize=7)
-    axes[1].set_xlabel("configuration (pose id)")
-    fig.tight_layout()
-    return save_png(fig, path, dpi=100)
-
-
-def plot_parameters(model_doc: dict, path: Path) -> Path | None:
-    """Deviations with their 95 % intervals, lengths and angles in two panels."""
-    pars = model_doc.get("parameters", {})
-    if not pars:
-        return None
-    plt = pyplot()
-    groups = [(u, [(n, p) for n, p in pars.items() if p.get("unit") == u]) for u in ("mm", "deg")]
-    groups = [(u, g) for u, g in groups if g]
-    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups) + 1, 3.8), squeeze=False)
-    for ax, (unit, items) in zip(axes[0], groups, strict=True):
-        y = np.arange(len(items))
-        ax.errorbar([p["value"] for _, p in items], y, xerr=[p["ci95"] for _, p in items], fmt="o", capsize=3)
-        ax.axvline(0.0, color="k", lw=0.8)
-        ax.set_yticks(y)
-        ax.set_yticklabels([n for n, _ in items])
-        ax.invert_yaxis()
-        ax.set_xlabel(f"deviation from nominal ({unit}), 95 % interval")
-        ax.grid(alpha=0.3)
-    fig.suptitle("identified parameters")
-    fig.tight_layout()
-    return save_png(fig, path, dpi=100)
-
-
-def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
-    """The plan's configurations against the joint limits (and the test pose)."""
-    poses = np.asarray(plan_doc.get("poses_deg") or [], dtype=float)
-    if poses.ndim != 2 or poses.shape[1] != cell.chain.dof:
-        return None
-    plt = pyplot()
-    n = cell.chain.dof
-    fig, ax = plt.subplots(figsize=(9, 3.8))
-    lim = np.degrees(cell.chain.limits_array())
-    j = np.arange(1, n + 1)
-    finite = np.isfinite(lim).all(axis=1)
-    ax.bar(j[finite], (lim[finite, 1] - lim[finite, 0]), bottom=lim[finite, 0], width=0.35, color="#ddd",
-           label="joint range")  # fmt: skip
-    for k, q in enumerate(poses):
-        ax.plot(j, q, "o-", lw=1, ms=4, label=f"configuration {k + 1}")
-    if plan_doc.get("test_pose_deg") is not None:
-        ax.plot(j, plan_doc["test_pose_deg"], "k*--", ms=9, lw=1, label="test pose")
-    ax.set_xticks(j)
-    ax.set_xticklabels([jt.name for jt in cell.chain.joints])
-    ax.set_ylabel("angle (deg)")
-    ax.legend(fontsize=7, ncol=2, loc="best")
-    ax.grid(alpha=0.3)
-    rho = plan_doc.get("rho0_mm")
-    ax.set_title("measurement plan" + (f": rho0 = {rho * 1000:.2f} µm at the test pose" if rho is not None else ""))
-    fig.tight_layout()
-    return save_png(fig, path, dpi=100)
 
 
 # ------------------------------------------------------------------------------------------------- html
@@ -569,11 +425,6 @@ def section_warnings(warnings: list[str] | None, measured: int) -> str:
             f"<details><summary>every warning as raised ({len(warnings)})</summary><ul>{raw}</ul></details>")
 
 
-def diagnosis_images(out_dir: Path, cell: Cell, diagnosis) -> list[Path]:
-    """The diagnosis plots (campaign.report.diagnosis_plots.plots) of the diagnosis the verdict was made from."""
-    return plots(cell, diagnosis, out_dir / "diagnosis")
-
-
 def _extra_images(out_dir: Path, extra_images) -> list[Path]:
     names = []
     for p in extra_images or []:
@@ -606,36 +457,40 @@ def unusable_banner(analysis: CampaignAnalysis) -> str:
     return f"<div id='unusable'>{''.join(out)}</div>" if out else ""
 
 
-def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None = None) -> Path:
-    """Write out_dir/report.html and its PNG plots for `analysis`; returns the HTML path.
-
-    With a verdict and the diagnosis it was made from, the diagnosis plots are drawn; `extra_images` are PNGs
-    copied next to the report and shown in the diagnosis section."""
-    cell, table, model_doc = analysis.cell, analysis.table, analysis.model
-    plan_doc, verdict_doc, prov = analysis.plan, analysis.verdict, analysis.provenance
+def report_dir(out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"{out_dir}: cannot create the report directory ({exc.strerror or exc})") from None
-    res = compute_residuals(cell, table, model_doc)
+    return out_dir
+
+
+@dataclass(frozen=True)
+class Drawn:
+    """The report's plots, drawn in its folder: the parameters' (None without parameters) and the diagnosis'."""
+
+    parameters: Path | None
+    diagnosis: list[Path]
+
+
+def draw(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None) -> Drawn:
+    """The plots of `analysis` in `out_dir` (the plan's is drawn with its section); with a verdict and the diagnosis
+    it was made from, the diagnosis plots, then `extra_images` copied beside them."""
+    res, table = analysis.residuals, analysis.table
     plot_histograms(res, out_dir / "residuals_xyz.png")
     plot_per_pose(table, res, out_dir / "residuals_per_pose.png")
-    par_plot = plot_parameters(model_doc, out_dir / "parameters.png")
-    images = diagnosis_images(out_dir, cell, analysis.diagnosis) if verdict_doc and analysis.diagnosis else []
-    images += _extra_images(out_dir, extra_images)
-    d = analysis.diagnosis if verdict_doc else None
-    tcp = tcp_difference(cell, d.geometric, d.extended) if d is not None else None
-    planned = list(plan_doc.get("params") or []) if plan_doc else None
-    model_sigma = (model_doc.get("test_pose") or {}).get("sigma_mm")  # calib.tcp_figure, as identify wrote it
-    if model_sigma is None and analysis.diagnosis is not None and cell.test_pose is not None:  # an older model
-        fit = analysis.diagnosis.extended or analysis.diagnosis.geometric
-        model_sigma = figure_at_test_pose(fit, cell.test_pose).sigma_mm
+    par_plot = plot_parameters(analysis.model, out_dir / "parameters.png")
+    d = analysis.diagnosis
+    images = plots(analysis.cell, d, out_dir / "diagnosis") if analysis.verdict and d is not None else []
+    return Drawn(par_plot, images + _extra_images(out_dir, extra_images))
 
-    next_steps = what_next(model_doc, plan_doc, verdict_doc, prov, cell.name)
+
+def header_facts(analysis: CampaignAnalysis) -> list[list[str]]:
+    """The facts under the title: the session, the campaign, the cell and the fit."""
+    cell, table, model_doc, prov, res = (analysis.cell, analysis.table, analysis.model, analysis.provenance,
+                                         analysis.residuals)  # fmt: skip
     digest = f" (sha256 {analysis.table_sha256[:12]})" if analysis.table_sha256 else ""
-    title = f"Calibration report: {prov.session or Path(table.source).name}, cell {cell.name}"
-    n_poses = len(pose_order(table))
     sigma = model_doc.get("sigma_mm")
     facts = [
         ("session", prov.session or "none (a report from files)"),
@@ -647,7 +502,7 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
         ("nominal robot", model_doc.get("nominal") or f"{cell.nominal} (the cell's: the model does not say)"),
         ("measurement table", table.source + digest),
-        ("measurements", str(len(table))), ("configurations", str(n_poses)),
+        ("measurements", str(len(table))), ("configurations", str(len(pose_order(table)))),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
         ("tracker", (model_instrument(model_doc) if "tracker" in model_doc else cell.tracker).describe()),
@@ -658,15 +513,11 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         ("noise floor (µm)", floor_text(res)),
         ("model extension", (model_doc.get("extension") or {}).get("cause", "none")),
     ]  # fmt: skip
-    body = [
-        f"<h1>{esc(title)}</h1>",
-        unusable_banner(analysis),
-        f"<p class='verdict' id='verdict'>{esc(verdict_sentence(model_doc, verdict_doc, res))}</p>",
-        table_html(None, [list(f) for f in facts], left=2),
-        "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),
-        "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in next_steps) + "</ul>",
-        section_warnings(analysis.warnings, len(table)),
-        section_plan(plan_doc, cell, out_dir),
+    return [list(f) for f in facts]
+
+
+def section_residuals(res: Residuals, out_dir: Path) -> str:
+    return "\n".join([
         "<h2>Residuals before and after calibration (Table 9)</h2>",
         table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
         "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
@@ -674,15 +525,45 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone gives.</p>",
         img_html(out_dir / "residuals_xyz.png", "residual histograms per axis"),
         img_html(out_dir / "residuals_per_pose.png", "residual distance per configuration"),
+    ])  # fmt: skip
+
+
+def section_parameters(analysis: CampaignAnalysis, par_plot: Path | None) -> str:
+    model_doc, plan_doc = analysis.model, analysis.plan
+    planned = list(plan_doc.get("params") or []) if plan_doc else None
+    return "\n".join([
         "<h2>Identified parameters (Table 8)</h2>",
         table_html(["parameter", "unit", "nominal", "deviation", "95 % CI", "significant", "in the plan"],
                    parameter_rows(model_doc, planned)),
-        f"<p class='note'>{esc(parameters_note(model_doc, plan_doc, model_sigma))}</p>",
+        f"<p class='note'>{esc(parameters_note(model_doc, plan_doc, analysis.test_pose_sigma_mm))}</p>",
         img_html(par_plot, "identified parameters") if par_plot is not None else "",
+    ])  # fmt: skip
+
+
+def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None = None) -> Path:
+    """Write out_dir/report.html and its PNG plots for `analysis`; returns the HTML path. `extra_images` are PNGs
+    copied next to the report and shown in the diagnosis section."""
+    cell, model_doc, plan_doc, verdict_doc, prov = (analysis.cell, analysis.model, analysis.plan, analysis.verdict,
+                                                    analysis.provenance)  # fmt: skip
+    out_dir = report_dir(out_dir)
+    drawn = draw(analysis, out_dir, extra_images)
+    next_steps = what_next(model_doc, plan_doc, verdict_doc, prov, cell.name)
+    title = f"Calibration report: {prov.session or Path(analysis.table.source).name}, cell {cell.name}"
+    body = [
+        f"<h1>{esc(title)}</h1>",
+        unusable_banner(analysis),
+        f"<p class='verdict' id='verdict'>{esc(verdict_sentence(model_doc, verdict_doc, analysis.residuals))}</p>",
+        table_html(None, header_facts(analysis), left=2),
+        "".join(f"<p class='note'>{esc(n)}</p>" for n in prov.notes),
+        "<h2 id='what-next'>What next</h2><ul>" + "".join(f"<li>{s}</li>" for s in next_steps) + "</ul>",
+        section_warnings(analysis.warnings, len(analysis.table)),
+        section_plan(plan_doc, cell, out_dir),
+        section_residuals(analysis.residuals, out_dir),
+        section_parameters(analysis, drawn.parameters),
         section_stations_points(model_doc),
         section_extension(model_doc),
-        section_diagnosis(verdict_doc, images, tcp, plan_doc, model_doc),
-    ]  # fmt: skip
+        section_diagnosis(verdict_doc, drawn.diagnosis, analysis.tcp, plan_doc, model_doc),
+    ]
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")  # fmt: skip

@@ -28,6 +28,13 @@ from trackcal.calib.tcp_figure import identified_tcp, tcp_rows, tcp_sigma
 DETERMINED_SIGMAS = 2.0
 
 
+class NotDerived:
+    """The default of a `tcp` argument the caller did not derive (tcp_difference is then called once, there)."""
+
+
+NOT_DERIVED = NotDerived()
+
+
 @dataclass(frozen=True)
 class TcpDifference:
     station: str  # the frame the positions are in

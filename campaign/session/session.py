@@ -14,9 +14,6 @@ measurement table is derived from the stored `measurement` events (`export_table
 from __future__ import annotations
 
 import json
-import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +22,8 @@ import yaml
 
 from trackcal.calib.io.files import write_text
 from trackcal.calib.io.table import MeasurementTable, write_table
-from trackcal.calib.model.cell import Cell, load_cell, load_yaml, resolve
+from trackcal.calib.model.cell import Cell, StoredFiles, load_cell, load_yaml, resolve
+from trackcal.campaign.engine.documents import MeasurementDoc, measurement
 from trackcal.campaign.session.store import SessionStore, StoreError
 
 PLAN_DOC = "plan.json"
@@ -102,16 +100,10 @@ def config_documents(cell_ref: str, nominal: str) -> dict[str, str]:
     return docs
 
 
-@contextmanager
-def stored_config(store: SessionStore) -> Iterator[Path]:
-    """The session's stored config documents written out in a temporary directory; yields the cell file."""
-    with tempfile.TemporaryDirectory(prefix="trackcal-config-") as tmp:
-        for name, text in store.documents().items():
-            if name.startswith("config/"):
-                path = Path(tmp) / name
-                path.parent.mkdir(exist_ok=True)
-                path.write_text(text)
-        yield Path(tmp) / CELL_DOC
+def stored_config(store: SessionStore) -> dict[str, str]:
+    """The session's stored cell, robot and tool documents (config/..., as config_documents made them)."""
+    return {name: text for name, text in store.documents().items()
+            if name.startswith("config/") and name != HARDWARE_COPY}  # fmt: skip
 
 
 def changed_copies(store: SessionStore) -> list[str]:
@@ -129,12 +121,15 @@ def changed_copies(store: SessionStore) -> list[str]:
 
 def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict, mode: str, seed: int | None,
                    hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                   extra: dict[str, str] | None = None, approached: bool = True) -> SessionStore:  # fmt: skip
+                   extra: dict[str, str] | None = None, approached: bool = True,
+                   config: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
     """A new session holding its lock, with the cell (`nominal`: its loaded Cell's), robot, tool, plan and
     (`hardware`: text, source path) the hardware config stored in it, and which campaign order it walks
-    (`approached`: calib.doe.order). The caller has checked the cell and the plan (campaign/jobs/campaign.py): a
-    cell or plan that cannot run makes no session."""
-    documents = {**config_documents(cell_ref, nominal), PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
+    (`approached`: calib.doe.order); `config`: the cell's documents when they come from another session (its
+    stored_config), else config_documents(cell_ref). The caller has checked the cell and the plan
+    (campaign/jobs/campaign.py): a cell or plan that cannot run makes no session."""
+    config = config if config is not None else config_documents(cell_ref, nominal)
+    documents = {**config, PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
     meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
             APPROACHED: "1" if approached else "0", **(extra or {})}  # fmt: skip
     if hardware is not None:
@@ -152,8 +147,8 @@ def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict,
 
 
 def session_cell(store: SessionStore) -> Cell:
-    with stored_config(store) as cell_path:
-        return load_cell(str(cell_path))
+    """The cell the session was created with, from its stored documents (never the files beside the database)."""
+    return load_cell(CELL_DOC, StoredFiles(stored_config(store)))
 
 
 def session_plan(store: SessionStore) -> dict:
@@ -194,7 +189,12 @@ class SessionLog:
 def measured_keys(store: SessionStore) -> list[tuple[str, str, tuple[float, ...]]]:
     """(station, point, joints) of every stored measurement: what a simulated world needs on resume so that
     each measurement keeps the noise of an uninterrupted run."""
-    return [(e.data["station"], e.data["point"], tuple(e.data["q_deg"])) for e in store.events("measurement")]
+    return [(m["station"], m["point"], tuple(m["q_deg"])) for m in stored_measurements(store)]
+
+
+def stored_measurements(store: SessionStore) -> list[MeasurementDoc]:
+    """The data of every stored measurement, in order (engine/documents.py MeasurementDoc)."""
+    return [measurement(e.data) for e in store.events("measurement")]
 
 
 def campaign_warnings(store: SessionStore) -> list[str]:
@@ -208,7 +208,7 @@ def export_table(store: SessionStore, source: str = "session") -> MeasurementTab
     n = len(events)
     if n == 0:
         raise StoreError(f"{store.directory}: the session holds no measurement yet")
-    d = [e.data for e in events]
+    d = [measurement(e.data) for e in events]
     extra = {
         "drift": ["1" if x["drift"] else "0" for x in d],
         "std_x_mm": [f"{x['std_mm'][0]:.4f}" for x in d],

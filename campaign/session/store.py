@@ -66,18 +66,18 @@ def refuse_links(directory: Path, *names: str) -> None:
         if path.is_symlink():
             raise StoreError(f"{path}: a symbolic link: trackcal opens no session folder or file through a link "
                              f"(copy the session to a real directory)")  # fmt: skip
-KINDS = (
-    "campaign_started",  # {"resumed": bool}
-    "step_started",  # {"step": {...}}
-    "step_done",  # {}
-    "call",  # {"device", "op", "args", "result" | "error": {"type", "message", "code"}}
-    "measurement",  # {"pose", "station", "point", "q_deg", "xyz_mm", "std_mm", "env"}
-    "prompt",  # {"kind", "text"}
-    "operator",  # {"answer"}
-    "warning",  # {"message"}
-    "error",  # {"message", "type"} and, for a device fault, its "code" (the cause of the stop)
-    "campaign_done",  # {}
-    "station_fit",  # {"block", "station", "planned", "measured", "residuals": [...], ...}: engine/station_fit.py
+KINDS = (  # the engine's documents (their data's schema: campaign/engine/documents.py, one TypedDict per kind)
+    "campaign_started",  # StartDoc
+    "step_started",  # StepStartedDoc
+    "step_done",  # StepDoneDoc
+    "call",  # CallDoc
+    "measurement",  # MeasurementDoc
+    "prompt",  # PromptDoc
+    "operator",  # OperatorDoc
+    "warning",  # WarningDoc
+    "error",  # ErrorDoc
+    "campaign_done",  # {}: a successful StopDoc
+    "station_fit",  # StationFitDoc (engine/station_fit.py)
 )
 
 

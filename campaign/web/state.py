@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackcal.calib.model.cell import Cell
+from trackcal.campaign.engine.documents import measurement
 from trackcal.campaign.engine.expected import expected_position
 from trackcal.campaign.engine.steps import Step, StepKind
 
@@ -104,10 +105,10 @@ class PageState:
         elif e.kind in ("step_done", "measurement"):
             if e.kind == "measurement":
                 self.measured_steps.add(e.step)
-                exp = self.expected.get(e.step)
-                dev = None if exp is None else round(float(np.linalg.norm(np.subtract(e.data["xyz_mm"], exp))), 3)
-                point = {"id": e.id, "step": e.step, "station": e.data["station"], "point": e.data["point"],
-                         "pose": e.data["pose"], "xyz": [round(x, 3) for x in e.data["xyz_mm"]], "dev_mm": dev}
+                exp, m = self.expected.get(e.step), measurement(e.data)
+                dev = None if exp is None else round(float(np.linalg.norm(np.subtract(m["xyz_mm"], exp))), 3)
+                point = {"id": e.id, "step": e.step, "station": m["station"], "point": m["point"], "pose": m["pose"],
+                         "xyz": [round(x, 3) for x in m["xyz_mm"]], "dev_mm": dev}  # fmt: skip
                 self.points.append(point)
                 added.append(point)
                 v["cell"] = {**v["cell"], "locked": True, "meteo": e.data.get("env") or v["cell"]["meteo"]}
