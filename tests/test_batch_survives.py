@@ -142,10 +142,18 @@ def _dask(*args: str, log: Path) -> subprocess.Popen:
 def dask_cluster(tmp_path):
     """A `dask scheduler` and a `dask worker` (1 thread, the stand-in campaigns preloaded) in processes of their own
     on loopback."""
+    with _cluster(tmp_path, STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n") as c:
+        yield c
+
+
+@contextlib.contextmanager
+def _cluster(tmp_path: Path, preloaded: str):
+    """A `dask scheduler` and a `dask worker` (1 thread, `preloaded` run by the worker at its start); yields the
+    scheduler's process and address."""
     pytest.importorskip("distributed")
     port = _free_port()
     preload = tmp_path / "stand_in_preload.py"
-    preload.write_text(STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n")
+    preload.write_text(preloaded)
     scheduler = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
                       log=tmp_path / "scheduler.log")  # fmt: skip
     deadline = time.monotonic() + 60
@@ -192,3 +200,43 @@ def test_a_lost_scheduler_is_one_line_and_keeps_the_results(tmp_path, dask_clust
     assert proc.returncode == 2 and err.count("\n") == 1, err
     assert f"the Dask scheduler {address} was lost mid-run" in err and f"kept (1 of 3 in {out})" in err, err
     assert {p.name: p.read_bytes() for p in out.glob("*.json")} == kept
+
+
+# the plan's exchange task (calib.doe.design._exchanged, which the client sends by reference) replaced in the Dask
+# worker: it says it started, then computes for an hour
+PLAN_STAND_IN = """
+import time
+from pathlib import Path
+from trackcal.calib.doe import design
+
+def hang(task):
+    Path({mark!r}).write_text("started")
+    time.sleep(3600)
+
+design._exchanged = hang
+"""
+
+
+@pytest.mark.parametrize("how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)],
+                         ids=["killed", "stopped"])  # stopped: 10 s of silence at least
+def test_a_plan_whose_scheduler_is_lost_is_one_line(tmp_path, how):
+    """`plan --scheduler`: once the worker computes, the scheduler is killed or stopped. The plan ends in one line and
+    exit 2 within 60 s (the 10 s `--scheduler` waits, campaign.jobs.plan, plus a probe's second), writing nothing;
+    it waited for ever on a stopped scheduler, and a killed one ended in CancelledError's traceback."""
+    mark, out = tmp_path / "started", tmp_path / "plan.json"
+    with _cluster(tmp_path, PLAN_STAND_IN.format(mark=str(mark))) as (scheduler, address):
+        proc = subprocess.Popen([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "4", "--starts", "20",
+                                 "--json", str(out), "--scheduler", address], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+        try:
+            deadline = time.monotonic() + 120
+            while not mark.exists() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert mark.exists(), proc.stderr.read() if proc.poll() is not None else "the worker never started"
+            os.kill(scheduler.pid, how)
+            _, err = proc.communicate(timeout=60)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 2 and err.count("\n") == 1, err
+    assert f"the Dask scheduler {address} was lost mid-run" in err and not out.exists(), err

@@ -46,9 +46,9 @@ from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
 from trackcal.campaign.jobs.history import model_estimate, session_start
 from trackcal.campaign.jobs.identify import IdentifyOptions, identify_table
 from trackcal.campaign.jobs.iso9283 import session_figures
-from trackcal.campaign.jobs.plan import SCHEDULER_TIMEOUT_S, executor_for
+from trackcal.campaign.jobs.plan import executor_for
 from trackcal.campaign.jobs.pool import chunk_marks, how_it_died, run_marked, sealed
-from trackcal.campaign.jobs.scheduler import SchedulerWatch
+from trackcal.campaign.jobs.scheduler import SchedulerLost
 from trackcal.campaign.session.session import PLAN_DOC, SessionFiles
 from trackcal.campaign.session.store import DB_NAME, SessionStore
 
@@ -230,11 +230,6 @@ def _slots(ex: Executor) -> int:
     return 1
 
 
-class SchedulerLost(CampaignError):
-    """The Dask scheduler was lost mid-map (killed, or silent for SCHEDULER_TIMEOUT_S): the chunks not finished are
-    not done."""
-
-
 # a pool that breaks while none of its workers died on its own (each ended by the pool's SIGTERM): the running chunks
 # are run again on a new pool, so many times in a row at most
 BLIND_REBUILDS = 3
@@ -283,7 +278,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
         marks = None if scheduler else chunk_marks(len(chunks))
         broken = False
         with executor_for(scheduler, marks) as ex:
-            watch = SchedulerWatch(ex._client, SCHEDULER_TIMEOUT_S) if scheduler else None
+            watch = ex.watch if scheduler else None  # executor_for's scheduler.WatchedExecutor
             try:
                 pending = {ex.submit(run_marked, sealed(fn, i, chunk, args)): i for i, chunk in todo.items()}
                 processes = getattr(ex, "_processes", None)  # a process pool's pid -> Process, kept after it ends
