@@ -241,6 +241,17 @@ def _dead_workers(processes: dict) -> dict[int, str]:
             if how_it_died(p.exitcode) and p.exitcode != -signal.SIGTERM}  # fmt: skip
 
 
+# how a chunk whose Dask workers died is reported (distributed's KilledWorker: no signal is known)
+KILLED_WORKERS = "every Dask worker that ran it died (KilledWorker: killed, out of memory?)"
+
+
+def _lost(lost: Callable[[list, str], list] | None, chunk: list, how: str) -> list:
+    """The rows of a chunk whose worker died (`lost`), or without `lost` a CampaignError."""
+    if lost is None:
+        raise CampaignError(f"a worker died ({how}: out of memory?) and its runs are lost")
+    return lost(chunk, how)
+
+
 def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
                failed: Callable[[object], bool] = lambda r: False, progress: Progress | None = None,
                lost: Callable[[list, str], list] | None = None) -> Iterator[list]:  # fmt: skip
@@ -251,7 +262,9 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
 
     A pool worker that dies (killed: an out-of-memory kill is SIGKILL) costs the chunk it was running:
     `lost(chunk, "signal 9")` gives that chunk's results (without `lost`: a CampaignError); the pool is made again
-    and the other chunks go on. A Dask scheduler that is killed, or silent for SCHEDULER_TIMEOUT_S (stopped), ends
+    and the other chunks go on. On Dask a killed worker's chunk is run again on another (or the restarted) worker,
+    as many times as the scheduler allows; after that it is lost the same way (KILLED_WORKERS). A Dask scheduler
+    that is killed, or silent for SCHEDULER_TIMEOUT_S (stopped), ends
     the map with SchedulerLost; what was yielded stays yielded."""
     total = sum(len(c) for c in chunks)
     done = bad = 0
@@ -294,6 +307,12 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
                             continue
                         except CancelledError:  # the client gave up on the scheduler
                             break
+                        except Exception as exc:
+                            if type(exc).__name__ != "KilledWorker":  # distributed's, without importing it
+                                raise
+                            # Dask ran the chunk again on a restarted worker (its allowed failures) and each died
+                            yield count(_lost(lost, todo.pop(pending.pop(fut)), KILLED_WORKERS))
+                            continue
                         del todo[pending.pop(fut)]
                         yield count(rows)
                     why = watch.lost() if watch else None
@@ -314,11 +333,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
         dead = _dead_workers(processes or {})
         culprits = [i for i in todo if marks[i] in dead]
         for i in culprits:
-            how = dead[marks[i]]
-            if lost is None:
-                raise CampaignError(f"a worker of the process pool died ({how}: out of memory?) and its runs are "
-                                    "lost")  # fmt: skip
-            yield count(lost(todo.pop(i), how))
+            yield count(_lost(lost, todo.pop(i), dead[marks[i]]))
         blind = 0 if culprits else blind + 1
         if blind > BLIND_REBUILDS:
             raise CampaignError(f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "
