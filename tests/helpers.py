@@ -109,12 +109,13 @@ def stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
 
 
 @contextlib.contextmanager
-def mock_process(cell: str, seed: int, hw: Path, timeout_s: float = 30.0,
-                 stdout=subprocess.PIPE) -> Iterator[subprocess.Popen]:  # fmt: skip
-    """`trackcal mock --cell CELL` in its own process, yielded once it has written its hardware file `hw`; stopped
-    (`stop`) at the end if still running."""
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw)],
-                            stdout=stdout, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+def mock_process(cell: str, seed: int, hw: Path, timeout_s: float = 30.0, stdout=subprocess.PIPE,
+                 sim_speed: float | None = None) -> Iterator[subprocess.Popen]:  # fmt: skip
+    """`trackcal mock --cell CELL [--sim-speed X]` in its own process, yielded once it has written its hardware file
+    `hw`; stopped (`stop`) at the end if still running. Without sim_speed the mock runs in real time (its default)."""
+    speed = [] if sim_speed is None else ["--sim-speed", repr(sim_speed)]
+    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw),
+                             *speed], stdout=stdout, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
     try:
         wait_for(hw, proc, timeout_s)
         yield proc

@@ -133,27 +133,37 @@ def _accepts(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
-def _dask(*args: str, log: Path) -> subprocess.Popen:
+def _dask(*args: str, log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]], cwd=ROOT,
-                            stdout=log.open("w"), stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+                            stdout=log.open("w"), stderr=subprocess.STDOUT, start_new_session=True,
+                            env={**os.environ, **(env or {})})  # fmt: skip
 
 
 @pytest.fixture
 def dask_cluster(tmp_path):
     """A `dask scheduler` and a `dask worker` (1 thread, the stand-in campaigns preloaded) in processes of their own
     on loopback."""
+    with _cluster(tmp_path, STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n") as c:
+        yield c
+
+
+@contextlib.contextmanager
+def _cluster(tmp_path: Path, preloaded: str, nanny: bool = False, env: dict[str, str] | None = None):
+    """A `dask scheduler` (its environment plus `env`) and a `dask worker` (1 thread, `preloaded` run by the worker
+    at its start; under a nanny that starts it again when it dies, if `nanny`); yields the scheduler's process and
+    address."""
     pytest.importorskip("distributed")
     port = _free_port()
     preload = tmp_path / "stand_in_preload.py"
-    preload.write_text(STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n")
+    preload.write_text(preloaded)
     scheduler = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
-                      log=tmp_path / "scheduler.log")  # fmt: skip
+                      log=tmp_path / "scheduler.log", env=env)  # fmt: skip
     deadline = time.monotonic() + 60
     while not _accepts(port):
         assert scheduler.poll() is None and time.monotonic() < deadline, (tmp_path / "scheduler.log").read_text()
         time.sleep(0.1)
-    worker = _dask("worker", f"tcp://127.0.0.1:{port}", "--no-nanny", "--nthreads", "1", "--no-dashboard",
-                   "--preload", str(preload), log=tmp_path / "worker.log")  # fmt: skip
+    worker = _dask("worker", f"tcp://127.0.0.1:{port}", *([] if nanny else ["--no-nanny"]), "--nthreads", "1",
+                   "--no-dashboard", "--preload", str(preload), log=tmp_path / "worker.log")  # fmt: skip
     try:
         yield scheduler, f"tcp://127.0.0.1:{port}"
     finally:
@@ -192,3 +202,67 @@ def test_a_lost_scheduler_is_one_line_and_keeps_the_results(tmp_path, dask_clust
     assert proc.returncode == 2 and err.count("\n") == 1, err
     assert f"the Dask scheduler {address} was lost mid-run" in err and f"kept (1 of 3 in {out})" in err, err
     assert {p.name: p.read_bytes() for p in out.glob("*.json")} == kept
+
+
+def test_a_dask_worker_that_dies_costs_its_chunk_and_the_others_are_done(tmp_path):
+    """t2 kills its Dask worker (SIGKILL, as the kernel's out-of-memory killer does) every time it runs; its nanny
+    starts the worker again and the scheduler runs the chunk again (once: allowed-failures 1 here, Dask's
+    distributed.scheduler.allowed-failures), then gives up (KilledWorker). The chunk's campaigns not finished are one
+    line each, t1's result (written before) kept, the next chunk done; exit 2, no traceback (it was KilledWorker's
+    traceback, exit 1, the other campaigns lost)."""
+    tables = _tables(tmp_path / "in", {"t1": "ok", "t2": "die", "t3": "ok", "t4": "ok", "t5": "ok", "t6": "ok"})
+    preload = STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n"
+    # worker-saturation 1: the scheduler sends the worker one chunk per thread, so the next chunk is not on it when it
+    # dies (Dask counts the death against every task the worker held)
+    once = {"DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1",
+            "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
+    with _cluster(tmp_path, preload, nanny=True, env=once) as (_, address):
+        out = subprocess.run([*TRACKCAL, "batch", "identify", str(tables), "--cell", "kr270", "--out",
+                              str(tmp_path / "res"), "--scheduler", address], capture_output=True, text=True,
+                             timeout=600)  # fmt: skip
+    assert out.returncode == 2 and "Traceback" not in out.stdout + out.stderr, out.stderr
+    failed = [line for line in out.stdout.splitlines() if line.startswith("failed: ")]
+    assert failed == [f"failed: {tables / f't{i}.csv'}: worker died: {batch_job.KILLED_WORKERS}"
+                      for i in range(2, batch_job.CHUNK + 1)], out.stdout  # fmt: skip
+    written = sorted(json.loads(p.read_text())["campaign"] for p in (tmp_path / "res").glob("*.json"))
+    assert [Path(c).stem for c in written] == ["t1", "t5", "t6"]
+
+
+# the plan's exchange task (calib.doe.design._exchanged, which the client sends by reference) replaced in the Dask
+# worker: it says it started, then computes for an hour
+PLAN_STAND_IN = """
+import time
+from pathlib import Path
+from trackcal.calib.doe import design
+
+def hang(task):
+    Path({mark!r}).write_text("started")
+    time.sleep(3600)
+
+design._exchanged = hang
+"""
+
+
+@pytest.mark.parametrize("how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)],
+                         ids=["killed", "stopped"])  # stopped: 10 s of silence at least
+def test_a_plan_whose_scheduler_is_lost_is_one_line(tmp_path, how):
+    """`plan --scheduler`: once the worker computes, the scheduler is killed or stopped. The plan ends in one line and
+    exit 2 within 60 s (the 10 s `--scheduler` waits, campaign.jobs.plan, plus a probe's second), writing nothing;
+    it waited for ever on a stopped scheduler, and a killed one ended in CancelledError's traceback."""
+    mark, out = tmp_path / "started", tmp_path / "plan.json"
+    with _cluster(tmp_path, PLAN_STAND_IN.format(mark=str(mark))) as (scheduler, address):
+        proc = subprocess.Popen([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "4", "--starts", "20",
+                                 "--json", str(out), "--scheduler", address], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+        try:
+            deadline = time.monotonic() + 120
+            while not mark.exists() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert mark.exists(), proc.stderr.read() if proc.poll() is not None else "the worker never started"
+            os.kill(scheduler.pid, how)
+            _, err = proc.communicate(timeout=60)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 2 and err.count("\n") == 1, err
+    assert f"the Dask scheduler {address} was lost mid-run" in err and not out.exists(), err

@@ -9,7 +9,7 @@ import pytest
 
 from trackcal.drivers.kuka.eki_codec import ERR_STOPPED, KIND_MOVE, Command
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S
-from trackcal.mocks.servers.kuka.motion import Motion, quintic, quintic_rate
+from trackcal.mocks.servers.kuka.motion import RAISE_TIME_S, Motion, quintic, quintic_rate
 
 HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)  # kuka_experimental KR_C2/ros_rsi.src HOME
 TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
@@ -41,11 +41,38 @@ def test_a_move_lasts_its_ptp_time_then_the_dwell_and_ends_on_the_target():
     m.begin(cmd)
     assert m.moving and m.command == cmd
     cycles, (ended, done, error) = run_until_ended(m)
-    # the largest axis moves 15 deg at 50 % of 100 deg/s: T = 1.875 * 15 / 50 = 0.5625 s, rounded up to whole
-    # 12 ms cycles (47), then the 0.3 s dwell (25 cycles)
-    assert cycles == 47 + 25
+    # the largest axis moves 15 deg at 50 % of 100 deg/s and of 100 / RAISE_TIME_S deg/s^2: the quintic's peak speed
+    # is 1.875x the mean (T >= 1.875 * 15 / 50 = 0.5625 s) and its peak acceleration 10/sqrt(3) x span / T^2
+    # (T >= sqrt(10/sqrt(3) * 15 / a)); the longer, rounded up to whole 12 ms cycles, then the 0.3 s dwell (25 cycles)
+    a = 50.0 / RAISE_TIME_S
+    t = max(1.875 * 15 / 50, math.sqrt(10 / math.sqrt(3) * 15 / a))
+    assert cycles == math.ceil(t / KRC2_CYCLE_S - 1e-9) + 25
     assert (ended, done, error) == (cmd, True, 0)
     assert m.joints_deg == TARGET and m.still and m.command is None
+
+
+@pytest.mark.parametrize("span", [0.5, 2.0, 15.0, 60.0])
+def test_a_move_accelerates_within_the_axes_limit(span):
+    """The KR C2 accelerates an axis to its rated speed in $RAISE_TIME (KR C2 Machine Data 2.1.47; the KRL sets
+    $ACC_AXIS to the request's speed %), so no reported joint speeds up faster than rated speed / RAISE_TIME_S, nor runs
+    faster than the rated speed; a short move is the longer for it (a 2 deg move at 100 % took 39 ms, 1.875 * 2 / 96,
+    at 12,000 deg/s^2). Speeds and accelerations as differences of the 12 ms cycles' joints (the RSI positions)."""
+    m = Motion(HOME, random.Random(0), joint_speed_deg_s=100.0, settle_s=0.3, cycle_s=KRC2_CYCLE_S,
+               overshoot_deg=0.0, brake_deg_s2=200.0)  # fmt: skip
+    target = (HOME[0] + span, *HOME[1:])
+    m.begin(Command(1, KIND_MOVE, target, 100))
+    q = [m.q[0]]
+    while m.mode == "moving":
+        m.step()
+        q.append(m.q[0])
+    dt = KRC2_CYCLE_S
+    speeds = [(b - a) / dt for a, b in zip(q, q[1:], strict=False)]
+    accelerations = [(b - a) / dt for a, b in zip([0.0, *speeds], [*speeds, 0.0], strict=True)]
+    assert max(abs(v) for v in speeds) <= 100.0 * (1 + 1e-9)
+    # the quintic's peak acceleration, sampled every cycle, stays under the limit (a cycle's rounding up of T only
+    # lowers it); 2 % for the differences taken over a cycle instead of the instant
+    assert max(abs(x) for x in accelerations) <= 100.0 / RAISE_TIME_S * 1.02
+    assert q[-1] == target[0]
 
 
 def test_after_arrival_the_residual_oscillation_decays():

@@ -17,6 +17,7 @@ from trackcal.campaign.session.session import write_export
 from trackcal.drivers.errors import MotionRefused
 from trackcal.drivers.kuka.rsi_codec import ipoc_of
 from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
+from trackcal.mocks.servers.kuka.motion import RAISE_TIME_S
 
 SEED = 3
 SPEED_PCT = 30.0  # campaign.engine.engine.Settings' speed override
@@ -78,10 +79,13 @@ def test_every_cycle_of_a_move_is_exchanged_and_a_standing_robot_s_frames_jump(k
             robot.move(target, SPEED_PCT)
             assert robot.joints() == tuple(round(v, 4) for v in target)
             # the frame of now the freshness check asks for before the move, then the move: a synchronous quintic
-            # PTP lasts 1.875 max|dq| / speed (mocks.servers.kuka), then the program dwells settle_s; each of those
+            # PTP lasts 1.875 max|dq| / speed, or sqrt(10/sqrt(3) max|dq| / acceleration) if longer, the acceleration
+            # speed / RAISE_TIME_S (mocks.servers.kuka.motion), then the program dwells settle_s; each of those
             # cycles is one frame, 12 ms of IPOC after the one before
             span = max(abs(b - a) for a, b in zip(HOME_DEG, target, strict=True))
-            moving = math.ceil(1.875 * span / (SIM_JOINT_SPEED_DEG_S * SPEED_PCT / 100) / ctl.cycle_s - 1e-9)
+            speed = SIM_JOINT_SPEED_DEG_S * SPEED_PCT / 100
+            duration = max(1.875 * span / speed, math.sqrt(10 / math.sqrt(3) * span * RAISE_TIME_S / speed))
+            moving = math.ceil(duration / ctl.cycle_s - 1e-9)
             dwell = math.ceil(ctl.settle_s / ctl.cycle_s - 1e-9)
             assert len(seen) == 1 + moving + dwell
             assert all(b - a == 12 for a, b in zip(seen, seen[1:], strict=False))

@@ -91,7 +91,7 @@ def test_second_run_against_the_same_mock_ur_while_the_first_runs_is_refused(tmp
     plan.write_text(json.dumps({"poses_deg": [list(Q0), [q + 4 for q in Q0]], "repeat": 1}))
     hw = tmp_path / "H.yaml"
     first = None
-    with mock_process("ur10", 3, hw, timeout_s=60.0, stdout=subprocess.DEVNULL):
+    with mock_process("ur10", 3, hw, timeout_s=60.0, stdout=subprocess.DEVNULL, sim_speed=10.0):
         try:
             a, b = tmp_path / "a", tmp_path / "b"
             first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),

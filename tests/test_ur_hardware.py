@@ -47,7 +47,7 @@ def one_pose(tmp_path_factory):
 def ur_mock(tmp_path):
     """`trackcal mock --cell ur10` in its own process; yields (process, hardware file)."""
     hw = tmp_path / "H.yaml"
-    with mock_process("ur10", SEED, hw, timeout_s=60.0) as proc:
+    with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=10.0) as proc:
         yield proc, hw
 
 

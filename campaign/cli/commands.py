@@ -223,7 +223,9 @@ COMMANDS = [
                 arg("--effect", action="append", help="hidden effect NAME[:MAGNITUDE_MM] (repeatable; default: none)"),
                 arg("--write-hardware", metavar="FILE", help="write the hardware config of the mocks here "
                                                                           "(default: printed on the console only)"),
-                arg("--sim-speed", type=float, help="simulated seconds per real second (default: flat out)"),
+                arg("--sim-speed", type=float, default=1.0,
+                    help="simulated seconds per real second (default 1: moves and measurements take the device's "
+                         "own time; more, e.g. 50, runs the cell faster for tests)"),
                 arg("--detach", action="store_true",
                     help="serve in a process of its own, returning once every server listens and the hardware file "
                          "is written (its output in FILE.log)"),

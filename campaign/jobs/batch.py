@@ -46,9 +46,9 @@ from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
 from trackcal.campaign.jobs.history import model_estimate, session_start
 from trackcal.campaign.jobs.identify import IdentifyOptions, identify_table
 from trackcal.campaign.jobs.iso9283 import session_figures
-from trackcal.campaign.jobs.plan import SCHEDULER_TIMEOUT_S, executor_for
+from trackcal.campaign.jobs.plan import executor_for
 from trackcal.campaign.jobs.pool import chunk_marks, how_it_died, run_marked, sealed
-from trackcal.campaign.jobs.scheduler import SchedulerWatch
+from trackcal.campaign.jobs.scheduler import SchedulerLost
 from trackcal.campaign.session.session import PLAN_DOC, SessionFiles
 from trackcal.campaign.session.store import DB_NAME, SessionStore
 
@@ -230,11 +230,6 @@ def _slots(ex: Executor) -> int:
     return 1
 
 
-class SchedulerLost(CampaignError):
-    """The Dask scheduler was lost mid-map (killed, or silent for SCHEDULER_TIMEOUT_S): the chunks not finished are
-    not done."""
-
-
 # a pool that breaks while none of its workers died on its own (each ended by the pool's SIGTERM): the running chunks
 # are run again on a new pool, so many times in a row at most
 BLIND_REBUILDS = 3
@@ -244,6 +239,17 @@ def _dead_workers(processes: dict) -> dict[int, str]:
     """pid -> how it died, of the pool's workers that died on their own (the pool ends the others with SIGTERM)."""
     return {pid: how_it_died(p.exitcode) for pid, p in processes.items()
             if how_it_died(p.exitcode) and p.exitcode != -signal.SIGTERM}  # fmt: skip
+
+
+# how a chunk whose Dask workers died is reported (distributed's KilledWorker: no signal is known)
+KILLED_WORKERS = "every Dask worker that ran it died (KilledWorker: killed, out of memory?)"
+
+
+def _lost(lost: Callable[[list, str], list] | None, chunk: list, how: str) -> list:
+    """The rows of a chunk whose worker died (`lost`), or without `lost` a CampaignError."""
+    if lost is None:
+        raise CampaignError(f"a worker died ({how}: out of memory?) and its runs are lost")
+    return lost(chunk, how)
 
 
 def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
@@ -256,7 +262,9 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
 
     A pool worker that dies (killed: an out-of-memory kill is SIGKILL) costs the chunk it was running:
     `lost(chunk, "signal 9")` gives that chunk's results (without `lost`: a CampaignError); the pool is made again
-    and the other chunks go on. A Dask scheduler that is killed, or silent for SCHEDULER_TIMEOUT_S (stopped), ends
+    and the other chunks go on. On Dask a killed worker's chunk is run again on another (or the restarted) worker,
+    as many times as the scheduler allows; after that it is lost the same way (KILLED_WORKERS). A Dask scheduler
+    that is killed, or silent for SCHEDULER_TIMEOUT_S (stopped), ends
     the map with SchedulerLost; what was yielded stays yielded."""
     total = sum(len(c) for c in chunks)
     done = bad = 0
@@ -283,7 +291,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
         marks = None if scheduler else chunk_marks(len(chunks))
         broken = False
         with executor_for(scheduler, marks) as ex:
-            watch = SchedulerWatch(ex._client, SCHEDULER_TIMEOUT_S) if scheduler else None
+            watch = ex.watch if scheduler else None  # executor_for's scheduler.WatchedExecutor
             try:
                 pending = {ex.submit(run_marked, sealed(fn, i, chunk, args)): i for i, chunk in todo.items()}
                 processes = getattr(ex, "_processes", None)  # a process pool's pid -> Process, kept after it ends
@@ -299,6 +307,12 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
                             continue
                         except CancelledError:  # the client gave up on the scheduler
                             break
+                        except Exception as exc:
+                            if type(exc).__name__ != "KilledWorker":  # distributed's, without importing it
+                                raise
+                            # Dask ran the chunk again on a restarted worker (its allowed failures) and each died
+                            yield count(_lost(lost, todo.pop(pending.pop(fut)), KILLED_WORKERS))
+                            continue
                         del todo[pending.pop(fut)]
                         yield count(rows)
                     why = watch.lost() if watch else None
@@ -319,11 +333,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
         dead = _dead_workers(processes or {})
         culprits = [i for i in todo if marks[i] in dead]
         for i in culprits:
-            how = dead[marks[i]]
-            if lost is None:
-                raise CampaignError(f"a worker of the process pool died ({how}: out of memory?) and its runs are "
-                                    "lost")  # fmt: skip
-            yield count(lost(todo.pop(i), how))
+            yield count(_lost(lost, todo.pop(i), dead[marks[i]]))
         blind = 0 if culprits else blind + 1
         if blind > BLIND_REBUILDS:
             raise CampaignError(f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "

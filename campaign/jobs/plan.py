@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import logging
 import os
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from trackcal.calib.model.params import Param, param_by_name
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.limits import check_memory, check_table_rows
 from trackcal.campaign.jobs.pool import local_pool
+from trackcal.campaign.jobs.scheduler import SchedulerWatch, WatchedExecutor
 
 
 @dataclass(frozen=True)
@@ -141,7 +143,7 @@ CLOSE_TIMEOUT_S = 2  # how long a client's goodbye to its scheduler may take
 def executor_for(scheduler: str | None, started=None) -> Iterator[Executor]:
     """A local process pool by default (campaign.jobs.pool: its workers die with this process; `started`, a
     pool.chunk_marks, records which worker takes which chunk); a Dask distributed cluster when given its scheduler
-    address."""
+    address, watched (scheduler.WatchedExecutor: its maps end in SchedulerLost once the scheduler is lost)."""
     if scheduler:
         try:
             from distributed import Client  # optional dependency (trackcal[dask]): only with a scheduler
@@ -163,9 +165,15 @@ def executor_for(scheduler: str | None, started=None) -> Iterator[Executor]:
         levels = [h.level for h in handlers]
         for h in handlers:
             h.setLevel(logging.CRITICAL + 1)
+        watched = WatchedExecutor(client.get_executor(), SchedulerWatch(client, SCHEDULER_TIMEOUT_S), scheduler)
         try:
-            yield client.get_executor()
+            with warnings.catch_warnings():
+                # each plan task carries the design and its candidate pool (a few MB): distributed's advice to load
+                # data with Dask is not the user's to act on, and not a line of our output
+                warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
+                yield watched
         finally:
+            watched.watch.close()
             with contextlib.suppress(Exception):  # a scheduler that does not answer cannot be told goodbye
                 client.close(timeout=CLOSE_TIMEOUT_S)
             for h, level in zip(handlers, levels, strict=True):

@@ -1,4 +1,5 @@
-"""Whether a Dask scheduler still answers while a map runs on it (campaign.jobs.batch.map_chunks).
+"""Whether a Dask scheduler still answers while a map runs on it (campaign.jobs.batch.map_chunks, and through
+WatchedExecutor every map of `plan --scheduler`).
 
 A scheduler that is killed closes its connections, and distributed's client tries to reconnect for its timeout
 before it cancels every future; one that is stopped (SIGSTOP, a hung machine) keeps its connections open and never
@@ -12,6 +13,10 @@ from __future__ import annotations
 import re
 import threading
 import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import CancelledError, Executor, Future, wait
+
+from trackcal.campaign.errors import CampaignError
 
 PROBE_S = 1.0
 _IN_COMM = re.compile(r"^in <[^>]*>: ")
@@ -50,3 +55,48 @@ class SchedulerWatch:
 
     def close(self) -> None:
         self._stop.set()
+
+
+class SchedulerLost(CampaignError):
+    """The Dask scheduler was lost mid-map (killed, or silent for the watch's timeout): what was not finished is not
+    done."""
+
+
+class WatchedExecutor(Executor):
+    """A Dask client's executor (distributed's ClientExecutor) with its scheduler watched: `map` gives its results in
+    order as they come and raises SchedulerLost once the scheduler is lost (killed: the client gives up and cancels
+    the futures; stopped: no answer for the watch's timeout), where the plain executor's map would wait for ever on a
+    stopped one. `watch` and `_client` stay reachable for the batch's own loop."""
+
+    def __init__(self, inner: Executor, watch: SchedulerWatch, scheduler: str) -> None:
+        self._inner, self.watch, self.scheduler = inner, watch, scheduler
+        self._client = getattr(inner, "_client", None)
+
+    def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        return self._inner.submit(fn, *args, **kwargs)
+
+    def map(self, fn: Callable, *iterables: Iterable, timeout=None, chunksize: int = 1) -> Iterator:
+        futures = [self._inner.submit(fn, *args) for args in zip(*iterables, strict=False)]
+        return self._results(futures)
+
+    def _results(self, futures: list[Future]) -> Iterator:
+        for fut in futures:
+            while not wait([fut], timeout=PROBE_S).done:
+                self.check(cancelled=False)
+            if fut.cancelled():
+                self.check(cancelled=True)
+            try:
+                yield fut.result()
+            except CancelledError:  # the client gave up on the scheduler
+                self.check(cancelled=True)
+                raise
+
+    def check(self, cancelled: bool) -> None:
+        """SchedulerLost if the scheduler is lost (or the client cancelled a future: it gave up reconnecting)."""
+        why = self.watch.lost() or ("the client gave up reconnecting" if cancelled else None)
+        if why:
+            raise SchedulerLost(f"the Dask scheduler {self.scheduler} was lost mid-run: {why}")
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self.watch.close()
+        self._inner.shutdown(wait=False)

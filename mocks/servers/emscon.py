@@ -329,128 +329,126 @@ class MockEmscon:
         return True
 
     def _respond(self, request: Request, conn: socket.socket, out: list[bytes]) -> list[Message]:
-        """The packets answering `request`. Long operations advance the clock; StartMeasurement flushes its
-        acknowledgement before the measurement time passes (unless coalescing)."""
-        cmd = request.COMMAND
-
-        def answer(status: ResultStatus, *after: Message) -> list[Message]:
-            self.last_result_status = status
-            return [CommandAnswer(cmd, status), *after]
-
+        """The packets answering `request` (its handler of _HANDLERS). Long operations advance the clock;
+        StartMeasurement flushes its acknowledgement before the measurement time passes (unless coalescing)."""
         needs_init = (StartMeasurement, GoPosition, FindReflector, GoBirdBath)
         if isinstance(request, needs_init) and not self.initialized:
-            return answer(ResultStatus.TRACKER_NOT_INITIALIZED)
-
-        if isinstance(request, Initialize):
-            self.clock.sleep(self.motion_time_s)
-            with self._state_lock:
-                self.initialized, self.locked = True, False
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.INITIALIZATION_STATUS_CHANGED))
-        if isinstance(request, GetSystemStatus):
-            processor = (
-                TrackerProcessorStatus.INITIALIZED
-                if self.initialized
-                else TrackerProcessorStatus.COMPENSATION_SET
-            )
-            return [
-                SystemStatusAnswer(
-                    ResultStatus.ALL_OK,
-                    self.last_result_status,
-                    processor,
-                    LaserProcessorStatus.LASER_READY,
-                    ADMStatus.ADM_READY,
-                    _VERSION,
-                    self.system_settings.weather_monitor,
-                    0,
-                    self.serial_number,
-                )
-            ]
-        if isinstance(request, GetTrackerStatus):
-            state = TrackerStatus.READY if self.initialized else TrackerStatus.NOT_READY
-            return [TrackerStatusAnswer(ResultStatus.ALL_OK, state)]
-        if isinstance(request, GetMeasurementStatusInfo):
-            flags = (
-                MeasurementStatusInfo.TRACKER_FOUND
-                | MeasurementStatusInfo.TRACKER_COMPENSATION_FOUND
-                | MeasurementStatusInfo.ADM_FOUND
-                | MeasurementStatusInfo.ADM_COMPENSATION_FOUND
-            )
-            if self.locked:
-                flags |= MeasurementStatusInfo.REFLECTOR_FOUND
-            if self.initialized:
-                flags |= MeasurementStatusInfo.INITIALIZED
-            return [MeasurementStatusInfoAnswer(ResultStatus.ALL_OK, self.last_result_status, int(flags))]
+            return self._answer(request, ResultStatus.TRACKER_NOT_INITIALIZED)
+        if isinstance(request, StartMeasurement):
+            return self._measure(conn, out)
         readback = self._readback(request)
         if readback is not None:
-            return [SettingAnswer(cmd, ResultStatus.ALL_OK, readback)]
-        if isinstance(request, SetUnits):
-            with self._state_lock:
-                self.units = request
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.UNITS_CHANGED))
-        if isinstance(request, SetCoordinateSystemType):
-            with self._state_lock:
-                self.coordinate_system = request.coordinate_system
-            return answer(
-                ResultStatus.ALL_OK, StatusChange(SystemStatusChange.COORDINATE_SYSTEM_TYPE_CHANGED)
-            )
-        if isinstance(request, SetMeasurementMode):
-            if request.mode != MeasMode.STATIONARY:
-                return answer(ResultStatus.NOT_IMPLEMENTED)
-            self.meas_mode = request.mode
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.MEASUREMENT_MODE_CHANGED))
-        if isinstance(request, SetStatisticMode):
-            with self._state_lock:
-                self.statistic = request
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.STATISTIC_MODE_CHANGED))
-        if isinstance(request, SetSystemSettings):
-            with self._state_lock:
-                self.system_settings = request
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.SYSTEM_SETTINGS_CHANGED))
-        if isinstance(request, SetStationaryModeParams):
-            if request.meas_time_ms <= 0:
-                return answer(ResultStatus.PARAMETER1_OUT_OF_RANGE_NOK)
-            self.meas_time_ms = request.meas_time_ms
-            return answer(
-                ResultStatus.ALL_OK, StatusChange(SystemStatusChange.STATIONARY_MODE_PARAMS_CHANGED)
-            )
-        if isinstance(request, SetEnvironmentParams):
-            u = self.units
-            t, p = units.temperature_from_units(u, request.temperature), units.pressure_from_units(u, request.pressure)
-            self.set_environment(Environment(t, p, request.humidity))
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.ENVIRONMENT_PARAMS_CHANGED))
-        if isinstance(request, SetReflector):
-            if request.reflector_id < 0:
-                return answer(ResultStatus.WRONG_PARAMETER1)
-            self.reflector_id = request.reflector_id
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.REFLECTOR_CHANGED))
-        if isinstance(request, SetSearchParams):
-            if request.search_radius <= 0 or request.timeout_ms <= 0:
-                return answer(ResultStatus.WRONG_PARAMETER)
-            self.search_radius = request.search_radius * units.MM_PER_LENGTH[self.units.length]
-            self.search_timeout_ms = request.timeout_ms
-            return answer(ResultStatus.ALL_OK, StatusChange(SystemStatusChange.SEARCH_PARAMS_CHANGED))
-        if isinstance(request, GoPosition):
-            self.clock.sleep(self.motion_time_s)
-            values = units.from_units(self.units, self.coordinate_system, (request.x, request.y, request.z))
-            with self._state_lock:
-                self.expected_mm = units.from_type(self.coordinate_system, values)
-                self.locked = self._present() and request.use_adm
-            return answer(ResultStatus.ALL_OK)
-        if isinstance(request, FindReflector):
-            if not self._present():
-                self.clock.sleep(self.search_timeout_ms / 1000.0)
-                return answer(ResultStatus.MEASUREMENT_STATUS_NOT_READY)
-            self.clock.sleep(self.motion_time_s)
-            with self._state_lock:
-                self.locked = True
-            return answer(ResultStatus.ALL_OK)
-        if isinstance(request, GoBirdBath):
-            self.clock.sleep(self.motion_time_s)
-            with self._state_lock:
-                self.expected_mm, self.locked = None, self._present()
-            return answer(ResultStatus.ALL_OK)
-        assert isinstance(request, StartMeasurement), f"no answer for {request}"
-        return self._measure(conn, out)
+            return [SettingAnswer(request.COMMAND, ResultStatus.ALL_OK, readback)]
+        handler = next((_HANDLERS[t] for t in type(request).__mro__ if t in _HANDLERS), None)
+        assert handler is not None, f"no answer for {request}"
+        return handler(self, request)
+
+    def _answer(self, request: Request, status: ResultStatus, *after: Message) -> list[Message]:
+        """The request's CommandAnswer with `status` (remembered as the last result), then `after`."""
+        self.last_result_status = status
+        return [CommandAnswer(request.COMMAND, status), *after]
+
+    def _changed(self, request: Request, change: SystemStatusChange) -> list[Message]:
+        return self._answer(request, ResultStatus.ALL_OK, StatusChange(change))
+
+    def _initialize(self, request: Initialize) -> list[Message]:
+        self.clock.sleep(self.motion_time_s)
+        with self._state_lock:
+            self.initialized, self.locked = True, False
+        return self._changed(request, SystemStatusChange.INITIALIZATION_STATUS_CHANGED)
+
+    def _system_status(self, request: GetSystemStatus) -> list[Message]:
+        processor = TrackerProcessorStatus.INITIALIZED if self.initialized else TrackerProcessorStatus.COMPENSATION_SET
+        return [SystemStatusAnswer(ResultStatus.ALL_OK, self.last_result_status, processor,
+                                   LaserProcessorStatus.LASER_READY, ADMStatus.ADM_READY, _VERSION,
+                                   self.system_settings.weather_monitor, 0, self.serial_number)]  # fmt: skip
+
+    def _tracker_status(self, request: GetTrackerStatus) -> list[Message]:
+        state = TrackerStatus.READY if self.initialized else TrackerStatus.NOT_READY
+        return [TrackerStatusAnswer(ResultStatus.ALL_OK, state)]
+
+    def _measurement_status(self, request: GetMeasurementStatusInfo) -> list[Message]:
+        flags = (MeasurementStatusInfo.TRACKER_FOUND | MeasurementStatusInfo.TRACKER_COMPENSATION_FOUND
+                 | MeasurementStatusInfo.ADM_FOUND | MeasurementStatusInfo.ADM_COMPENSATION_FOUND)  # fmt: skip
+        if self.locked:
+            flags |= MeasurementStatusInfo.REFLECTOR_FOUND
+        if self.initialized:
+            flags |= MeasurementStatusInfo.INITIALIZED
+        return [MeasurementStatusInfoAnswer(ResultStatus.ALL_OK, self.last_result_status, int(flags))]
+
+    def _set_units(self, request: SetUnits) -> list[Message]:
+        with self._state_lock:
+            self.units = request
+        return self._changed(request, SystemStatusChange.UNITS_CHANGED)
+
+    def _set_coordinate_system(self, request: SetCoordinateSystemType) -> list[Message]:
+        with self._state_lock:
+            self.coordinate_system = request.coordinate_system
+        return self._changed(request, SystemStatusChange.COORDINATE_SYSTEM_TYPE_CHANGED)
+
+    def _set_measurement_mode(self, request: SetMeasurementMode) -> list[Message]:
+        if request.mode != MeasMode.STATIONARY:
+            return self._answer(request, ResultStatus.NOT_IMPLEMENTED)
+        self.meas_mode = request.mode
+        return self._changed(request, SystemStatusChange.MEASUREMENT_MODE_CHANGED)
+
+    def _set_statistic_mode(self, request: SetStatisticMode) -> list[Message]:
+        with self._state_lock:
+            self.statistic = request
+        return self._changed(request, SystemStatusChange.STATISTIC_MODE_CHANGED)
+
+    def _set_system_settings(self, request: SetSystemSettings) -> list[Message]:
+        with self._state_lock:
+            self.system_settings = request
+        return self._changed(request, SystemStatusChange.SYSTEM_SETTINGS_CHANGED)
+
+    def _set_stationary_params(self, request: SetStationaryModeParams) -> list[Message]:
+        if request.meas_time_ms <= 0:
+            return self._answer(request, ResultStatus.PARAMETER1_OUT_OF_RANGE_NOK)
+        self.meas_time_ms = request.meas_time_ms
+        return self._changed(request, SystemStatusChange.STATIONARY_MODE_PARAMS_CHANGED)
+
+    def _set_environment(self, request: SetEnvironmentParams) -> list[Message]:
+        u = self.units
+        t, p = units.temperature_from_units(u, request.temperature), units.pressure_from_units(u, request.pressure)
+        self.set_environment(Environment(t, p, request.humidity))
+        return self._changed(request, SystemStatusChange.ENVIRONMENT_PARAMS_CHANGED)
+
+    def _set_reflector(self, request: SetReflector) -> list[Message]:
+        if request.reflector_id < 0:
+            return self._answer(request, ResultStatus.WRONG_PARAMETER1)
+        self.reflector_id = request.reflector_id
+        return self._changed(request, SystemStatusChange.REFLECTOR_CHANGED)
+
+    def _set_search_params(self, request: SetSearchParams) -> list[Message]:
+        if request.search_radius <= 0 or request.timeout_ms <= 0:
+            return self._answer(request, ResultStatus.WRONG_PARAMETER)
+        self.search_radius = request.search_radius * units.MM_PER_LENGTH[self.units.length]
+        self.search_timeout_ms = request.timeout_ms
+        return self._changed(request, SystemStatusChange.SEARCH_PARAMS_CHANGED)
+
+    def _go_position(self, request: GoPosition) -> list[Message]:
+        self.clock.sleep(self.motion_time_s)
+        values = units.from_units(self.units, self.coordinate_system, (request.x, request.y, request.z))
+        with self._state_lock:
+            self.expected_mm = units.from_type(self.coordinate_system, values)
+            self.locked = self._present() and request.use_adm
+        return self._answer(request, ResultStatus.ALL_OK)
+
+    def _find_reflector(self, request: FindReflector) -> list[Message]:
+        if not self._present():
+            self.clock.sleep(self.search_timeout_ms / 1000.0)
+            return self._answer(request, ResultStatus.MEASUREMENT_STATUS_NOT_READY)
+        self.clock.sleep(self.motion_time_s)
+        with self._state_lock:
+            self.locked = True
+        return self._answer(request, ResultStatus.ALL_OK)
+
+    def _go_bird_bath(self, request: GoBirdBath) -> list[Message]:
+        self.clock.sleep(self.motion_time_s)
+        with self._state_lock:
+            self.expected_mm, self.locked = None, self._present()
+        return self._answer(request, ResultStatus.ALL_OK)
 
     def _readback(self, request: Request) -> Request | None:
         """The current setting a Get* request asks for, as the Set* request that would set it (or None)."""
@@ -521,6 +519,28 @@ class MockEmscon:
                     conn.sendall(chunk)
         except OSError:
             pass  # the client went away; the serve loop notices on its next read
+
+
+
+# request type -> MockEmscon's handler (StartMeasurement and the Get* readbacks are answered in _respond itself)
+_HANDLERS: dict[type, Callable[[MockEmscon, Request], list[Message]]] = {
+    Initialize: MockEmscon._initialize,
+    GetSystemStatus: MockEmscon._system_status,
+    GetTrackerStatus: MockEmscon._tracker_status,
+    GetMeasurementStatusInfo: MockEmscon._measurement_status,
+    SetUnits: MockEmscon._set_units,
+    SetCoordinateSystemType: MockEmscon._set_coordinate_system,
+    SetMeasurementMode: MockEmscon._set_measurement_mode,
+    SetStatisticMode: MockEmscon._set_statistic_mode,
+    SetSystemSettings: MockEmscon._set_system_settings,
+    SetStationaryModeParams: MockEmscon._set_stationary_params,
+    SetEnvironmentParams: MockEmscon._set_environment,
+    SetReflector: MockEmscon._set_reflector,
+    SetSearchParams: MockEmscon._set_search_params,
+    GoPosition: MockEmscon._go_position,
+    FindReflector: MockEmscon._find_reflector,
+    GoBirdBath: MockEmscon._go_bird_bath,
+}
 
 
 def _close(sock: socket.socket) -> None:

@@ -182,8 +182,10 @@ class MockKrc2:
         self._rsi = RsiEnd(rsi_addr, rsi_protocol, self.sen_type, self.errors, self._rsi_lost)
         self._next_attempt = 0.0
         self._last_cycle = 0.0  # wall time of the last cycle's end (passive pacing)
+        self._init_observables()
 
-        # observable state for tests
+    def _init_observables(self) -> None:
+        """The state tests and people watch (counters, what was received and sent, how it ended)."""
         self.cycles = 0
         self.frames_sent = 0  # RSI frames sent
         self.idle_skipped = 0  # lockstep with skip_idle: cycles the robot stood through, not exchanged

@@ -1,8 +1,14 @@
 """The mock KR C2's motion model: joint state over interpolation cycles. Pure: no sockets, no threads, no clock.
 
 Motion is a synchronous PTP (all axes start and stop together) with a quintic profile
-s(u) = 10u^3 - 15u^4 + 6u^5, whose peak speed is 1.875x the mean, so the duration is
-T = 1.875 * max|dq| / (joint_speed_deg_s * speed% / 100). After arrival a damped residual oscillation
+s(u) = 10u^3 - 15u^4 + 6u^5, whose peak speed is 1.875x the mean and peak acceleration 10/sqrt(3) x span / T^2, so
+the duration is the longer of T = 1.875 * max|dq| / v and T = sqrt(10/sqrt(3) * max|dq| / a), with the leading
+axis's speed v = joint_speed_deg_s * speed% / 100 and acceleration a = joint_speed_deg_s / raise_time_s * speed% / 100
+(a short move is acceleration-limited, a long one speed-limited). The acceleration is the KR C2's: "$RAISE_TIME +
+$FILTER/2 is the time in ms in which the axis can be accelerated to its rated speed ($VEL_AXIS_MA)", and the command
+acceleration is at most $ACC_ACT_MA/100 * rated speed / $RAISE_TIME (KUKA, KR C2 Machine Data, Maschinendaten
+12.0400 en, 2.1.47 and 2.1.115); configs/krc2/trackcal_eki.src sets $VEL_AXIS[i] and $ACC_AXIS[i] both to the
+request's speed %. After arrival a damped residual oscillation
 overshoot * exp(-t / (settle_s / 5)) * cos(2 pi 1.5 Hz t) decays (e^-5 < 1 % of it is left after settle_s):
 this is what trackcal's wait_settled must see through. The program's dwell is settle_s; then the move is done
 (the controller reports $AXIS_ACT, 4 decimals). BRAKE (a Kind 2 stop of the running move): the axes decelerate
@@ -21,6 +27,11 @@ from collections.abc import Sequence
 from trackcal.drivers.kuka.eki_codec import ERR_STOPPED, Command
 
 _RESIDUAL_HZ = 1.5
+# $RAISE_TIME + $DEF_FLT_PTP / 2 of the mock's axes (s): a KR 270's own value is in its $machine.dat, which KUKA does
+# not publish (with KUKA robots the controller also adapts it to the load); half a second to the rated speed is the
+# mock's choice, so a 2 deg move at 100 % takes 0.25 s instead of the 39 ms a speed-only profile gave it
+RAISE_TIME_S = 0.5
+QUINTIC_PEAK_ACCELERATION = 10.0 / math.sqrt(3.0)  # max of s''(u) = 60u - 180u^2 + 120u^3, at u = (3 - sqrt 3) / 6
 
 Stop = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]  # joints, axis speeds, joints at standstill
 
@@ -50,9 +61,11 @@ class Motion:
         cycle_s: float,
         overshoot_deg: float,
         brake_deg_s2: float,
+        raise_time_s: float = RAISE_TIME_S,
     ) -> None:
         q0 = tuple(float(v) for v in initial_joints_deg)
         self.joint_speed_deg_s = float(joint_speed_deg_s)
+        self.raise_time_s = float(raise_time_s)  # 0: no acceleration limit (a speed-only profile)
         self.settle_s = float(settle_s)
         self.cycle_s = float(cycle_s)
         self.overshoot_deg = float(overshoot_deg)
@@ -95,10 +108,13 @@ class Motion:
         deltas = [b - a for a, b in zip(start, cmd.target_deg, strict=True)]
         span = max(abs(d) for d in deltas)
         speed = self.joint_speed_deg_s * cmd.speed_pct / 100.0
+        duration = 1.875 * span / speed
+        if self.raise_time_s > 0:  # the acceleration limit: $ACC_AXIS[i] = speed % of rated speed / $RAISE_TIME
+            duration = max(duration, math.sqrt(QUINTIC_PEAK_ACCELERATION * span * self.raise_time_s / speed))
         self.command, self._start, self._target = cmd, start, tuple(cmd.target_deg)
         self._dirs = tuple(d / span for d in deltas) if span > 0 else (0.0,) * len(start)
         self._amp = self.overshoot_deg * (0.5 + 0.5 * self._rng.random()) if span > 0 else 0.0
-        self._n_move = math.ceil(1.875 * span / speed / self.cycle_s - 1e-9) if span > 0 else 0
+        self._n_move = math.ceil(duration / self.cycle_s - 1e-9) if span > 0 else 0
         self._k = 0
         if self._n_move == 0:
             self.mode, self._since_arrival = "dwell", 0

@@ -138,9 +138,12 @@ class Motion:
         else:
             s0, sd0, dec = self._brake
             self._brake_tick += 1
-            tau = min(self._brake_tick * TICK_S, sd0 / dec)
+            t_stop = sd0 / dec
+            tau = min(self._brake_tick * TICK_S, t_stop)
             s, sd = s0 + sd0 * tau - 0.5 * dec * tau * tau, sd0 - dec * tau
-            done = sd <= 0.0 or s >= 1.0  # a gentle stop may reach the target first
+            # braked once the brake's time has run (never on sd reaching exactly 0: sd0 - dec * (sd0 / dec) may round
+            # to a residue above zero, and the move would never end); a gentle stop may reach the target first
+            done = tau >= t_stop or sd <= 0.0 or s >= 1.0
             sd = 0.0 if done else sd
         self.q = path.at(s)
         self.qd = tuple(dj * sd for dj in path.rate(s))

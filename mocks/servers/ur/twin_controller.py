@@ -3,7 +3,8 @@
 follower (follow.JointFollower) that puts the twin's robot where the controller reports it, at every frame. Joint
 angles reach the world in degrees; the world rounds them to the 4 decimals the campaign stores, so a measurement's
 noise identity is that of `run --sim` at the same pose. The controller runs `speed` times faster than the wall
-clock (default SPEED: the twin's cell is simulated; `trackcal mock --sim-speed` sets another).
+clock (`trackcal mock --sim-speed`; default 1, real time: a third-party client driving `trackcal mock` sees a move
+take the time a UR takes), at most MAX_SPEED (the bound of the mock controller's --speed).
 
 Added by the driver side of issue 21 (branch h21-driver) to connect the mock to the twin's cell."""
 
@@ -16,7 +17,7 @@ from trackcal.mocks.servers.ur.process import MockUrProcess
 from trackcal.mocks.servers.ur.server import RTDE_PORT
 
 CONTROLLER = "ur"
-SPEED = 10.0  # controller seconds per wall second
+MAX_SPEED = 100.0  # controller seconds per wall second: the most python -m trackcal.mocks.servers.ur --speed takes
 FIRST_HOST = 31  # 127.0.0.31 ... 127.0.0.254: the first address where nobody serves RTDE
 
 
@@ -36,8 +37,8 @@ class TwinUr:
         self.world = world
         self.host = host or free_loopback()
         q0 = ",".join(f"{v:.4f}" for v in world.q_deg)
-        self.process = MockUrProcess(self.host, seed=seed,
-                                     args=["--q0-deg", q0, "--speed", f"{speed or SPEED:g}"]).start()  # fmt: skip
+        rate = f"{min(speed or 1.0, MAX_SPEED):g}"
+        self.process = MockUrProcess(self.host, seed=seed, args=["--q0-deg", q0, "--speed", rate]).start()
         self.follower = JointFollower(self.host, world.robot_at).start()
 
     def hardware(self) -> dict:
