@@ -156,7 +156,7 @@ COMMANDS = [
                 arg("--no-visibility", action="store_true", help="ignore tracker stations and reflector cones"),
                 arg("--seed", type=seed, default=0, help="seed of the random starting plans"),
                 arg("--starts", type=int, default=1000, help="random plans of the candidate pool scored (screening)"),
-                arg("--refined", type=int, default=16, help="best screened plans exchanged, then refined"),
+                arg("--refined", type=int, default=4, help="best screened plans exchanged, then refined"),
                 arg("--scheduler", help="Dask scheduler address (default: local process pool)"),
                 arg("--evaluate", help="CSV of poses (q1_deg..qn_deg, one row per measurement) to evaluate "
                                           "(default: search a plan)"),

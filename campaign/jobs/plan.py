@@ -51,7 +51,7 @@ class PlanOptions:
     repeat: int | None = None  # None: 1 when configs are chosen or given
     criterion: str = "rho0"
     starts: int = 1000
-    refined: int = 16
+    refined: int = 4
     seed: int = 0
     scheduler: str | None = None  # Dask scheduler address; None: a local process pool
 

@@ -173,6 +173,19 @@ def parameters_note(model_doc: dict, plan_doc: dict | None, sigma_mm: float | No
     return text
 
 
+def plan_unknown_rows(plan_doc: dict, cell: Cell) -> list[tuple[str, str]]:
+    """The stations and reference points the plan counted as unknowns besides the robot's (calib.identify.unknowns:
+    6 per station, 3 per point), with their names from the cell; "-" for a plan that does not record them."""
+    u = plan_doc.get("unknowns") or {}
+    rows = []
+    for key, label, per, names in (("stations", "stations", 6, list(cell.stations)),
+                                   ("points", "reference points", 3, sorted(cell.tool_points))):  # fmt: skip
+        n = u.get(key)
+        text = "-" if n is None else "known (held at nominal)" if n == 0 else f"{n}: {' '.join(names[:n])}"
+        rows.append((f"{label} ({per} unknowns each)", text))
+    return rows
+
+
 def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
     if not plan_doc:
         return "<h2>Measurement plan</h2><p class='note'>No plan given.</p>"
@@ -180,7 +193,7 @@ def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
     rho = plan_doc.get("rho0_mm")
     facts = [("criterion", plan_doc.get("criterion", "-")), ("repeat", plan_doc.get("repeat", "-")),
              ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
-             ("parameters", " ".join(plan_doc.get("params", [])) or "-"),
+             ("robot parameters", " ".join(plan_doc.get("params", [])) or "-"), *plan_unknown_rows(plan_doc, cell),
              ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []) or "-")]  # fmt: skip
     parts.append(table_html(None, [list(f) for f in facts], left=2))
     poses = plan_doc.get("poses_deg") or []
