@@ -8,7 +8,6 @@ from __future__ import annotations
 import subprocess
 import sys
 
-import pytest
 
 from bench.bench_identify import campaign
 from trackcal.calib.io.table import write_table
@@ -30,7 +29,7 @@ def peak_kb(table_path, out_path) -> int:
     return int(done.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.slow  # two fresh processes and a 50k-row twin campaign: about 6 s of CPU
+# two fresh processes and a 50k-row campaign: about 4 s (6 s of CPU, mostly generating the table)
 def test_identify_memory_per_row(tmp_path):
     peaks, rows = [], (100, 50_000)
     for n in rows:  # the benchmark's KR-270 campaigns: random poses, 2 stations x 3 points, the twin's noise
