@@ -8,7 +8,6 @@ from __future__ import annotations
 import subprocess
 import sys
 
-
 from bench.bench_identify import campaign
 from trackcal.calib.io.table import write_table
 
