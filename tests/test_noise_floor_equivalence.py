@@ -107,6 +107,16 @@ def test_drawn_tables_give_the_same_floor_as_the_row_loop(table):
     assert_same(table)
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 30).flatmap(lambda n: st.lists(
+    st.lists(st.sampled_from([0.0, 5e-8, -5e-8, 1e-7, 2e-7, -3e-7, 0.25, -1.5, np.nan]), min_size=3, max_size=3),
+    min_size=n, max_size=n)))  # fmt: skip
+def test_drawn_joint_paths_give_the_same_approach_directions(steps):
+    # moves at and around the 1e-7 rad tolerance, standing joints, a reading lost (NaN): the same array exactly
+    q = np.cumsum(np.array(steps, dtype=float).reshape(-1, 3), axis=0)
+    np.testing.assert_array_equal(approach_signs(q), old_approach_signs(q))
+
+
 def test_no_python_step_per_row():
     # the cost of the check is whole-array work: the Python lines run do not grow with the rows (the row loop ran
     # several lines per row: over 100,000 on this table); a line per group of repeats returned, and here none are
