@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 
 from tests.test_determined import UR10_P
@@ -15,7 +15,7 @@ from trackcal.calib.diagnose.selection import fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.determined import noise_floor_ratios
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Identification, Problem, State
+from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State
 from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import param_by_name
@@ -108,5 +108,8 @@ def test_drawn_campaigns_judged_the_same(seed, poses, drop):
     cell = load_cell("kr270")
     table = simulate(SimulateOptions("kr270", poses=poses, seed=seed))[2]
     params = [p for i, p in enumerate(campaign_params(cell.chain)) if i not in drop]
-    res, fit_table = fitted(cell, table, params)
+    try:
+        res, fit_table = fitted(cell, table, params)
+    except IdentificationError:  # a drawn campaign too small to separate the unknowns: nothing to judge
+        reject()
     assert_same_ratios(res, fit_table)
