@@ -129,12 +129,13 @@ def payload_torques(chain: Chain, q: np.ndarray, loads: np.ndarray, com_mm: np.n
 def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
     """(N, n): the direction (+1 / -1) each joint last moved in before each row, 0 before its first move."""
     out = np.zeros_like(q)
-    state = np.zeros(q.shape[1])
-    for r in range(1, len(q)):
-        d = q[r] - q[r - 1]
-        moved = np.abs(d) > tol
-        state = np.where(moved, np.sign(d), state)
-        out[r] = state
+    if len(q) < 2:
+        return out
+    d = np.diff(q, axis=0)
+    moved = np.abs(d) > tol
+    # forward fill, the whole array at once: the last row (of the differences) where each joint moved
+    last = np.maximum.accumulate(np.where(moved, np.arange(len(d))[:, None], -1), axis=0)
+    out[1:] = np.where(last >= 0, np.sign(np.take_along_axis(d, np.maximum(last, 0), axis=0)), 0.0)
     return out
 
 

@@ -25,10 +25,13 @@ import numpy as np
 POORLY_DETERMINED = 10.0
 
 
-def noise_floor_ratios(jm: np.ndarray, cols: np.ndarray | list[int]) -> np.ndarray:
+def noise_floor_ratios(jm: np.ndarray, cols: np.ndarray | list[int], n_eq: int | None = None) -> np.ndarray:
     """ratio_p (module docstring) of the columns `cols` of the whitened Jacobian `jm` (3N, m) of a fit; inf for a
-    column the others make singular."""
+    column the others make singular. `jm` may be any matrix with the Jacobian's column products, its R factor
+    (J = QR: column norms, Gram matrix and least-squares residuals between columns are R's), with `n_eq` the
+    Jacobian's rows, 3N (default: jm's)."""
     cols = np.asarray(cols, dtype=int)
+    n_eq = jm.shape[0] if n_eq is None else n_eq
     scale = np.linalg.norm(jm, axis=0)
     scale[scale == 0] = 1.0
     js = jm / scale
@@ -43,8 +46,8 @@ def noise_floor_ratios(jm: np.ndarray, cols: np.ndarray | list[int]) -> np.ndarr
             coef, *_ = np.linalg.lstsq(a, js[:, c], rcond=1e-12)
             free = float(np.sum((js[:, c] - a @ coef) ** 2))
             if free > 1e-24:
-                out[i] = 1.96 / np.sqrt(free) / np.sqrt(jm.shape[0])
+                out[i] = 1.96 / np.sqrt(free) / np.sqrt(n_eq)
         return out
     inv_diag = np.diag(np.linalg.inv(gram))[cols]
     # sqrt((J^T J)^-1_pp) in unscaled columns is sqrt(inv_diag) / scale_p, rms(J_p) = scale_p / sqrt(3N)
-    return 1.96 * np.sqrt(np.maximum(inv_diag, 0.0)) / np.sqrt(jm.shape[0])
+    return 1.96 * np.sqrt(np.maximum(inv_diag, 0.0)) / np.sqrt(n_eq)

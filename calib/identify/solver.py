@@ -69,6 +69,9 @@ class Identification:
     ext: np.ndarray = field(default_factory=lambda: np.zeros(0))  # extension parameters (internal units)
     converged: bool = True  # the solver's stopping test was met (scipy OptimizeResult's `success`)
     message: str = ""  # why the solver stopped
+    # R of the whitened Jacobian at the solution, free columns (R^T R = J^T J; None: not kept): what judges the
+    # parameters' determination afterwards without forming the Jacobian again (calib.identify.determined)
+    r_factor: np.ndarray | None = None
 
     @property
     def _c_st(self) -> int:
@@ -583,6 +586,7 @@ def identify(
         ext=state.ext,
         converged=sol.converged,
         message=sol.message,
+        r_factor=rf,
     )
 
 

@@ -17,8 +17,6 @@ from trackcal.campaign.jobs.identify import (
     identify_table,
     predict,
 )
-from trackcal.campaign.jobs.locate import LocateOptions, locate
-from trackcal.campaign.jobs.simulate import SimulateOptions, parse_effects, simulate
 
 
 def print_identification(doc: dict, truth: dict[str, float] | None = None) -> None:
@@ -121,6 +119,8 @@ MAX_POINT_ROWS = 20  # locate prints the largest residuals of a long table, all 
 
 
 def cmd_locate(args) -> int:
+    from trackcal.campaign.jobs.locate import LocateOptions, locate  # lazy: identify's start-up skips it (issue 41)
+
     done = locate(LocateOptions(model=args.model, table=args.table, out=args.out, station=args.station,
                                 name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out,
                                 accept_edited=args.accept_edited))  # fmt: skip
@@ -165,6 +165,12 @@ def cmd_locate(args) -> int:
 
 
 def cmd_simulate(args) -> int:
+    from trackcal.campaign.jobs.simulate import (  # lazy: the twin and the plans, which identify's start-up skips
+        SimulateOptions,
+        parse_effects,
+        simulate,
+    )
+
     _, _, table = simulate(SimulateOptions(cell=args.cell, out=args.out, poses=args.poses, seed=args.seed,
                                            repeat=args.repeat, noise_free=args.noise_free,
                                            effects=parse_effects(args.effect), truth=args.truth))  # fmt: skip

@@ -207,21 +207,24 @@ def left_out(cell: Cell, params: list[Param]) -> list[str]:
     return [p.name for p in campaign_params(cell.chain) if p.name not in chosen]
 
 
-def _fit_jacobian(res: Identification, table: MeasurementTable, params: list[Param]) -> np.ndarray:
-    """The whitened Jacobian of `res`'s model at its solution, with `params` as its parameters (those of `res` first,
-    any others at nominal)."""
+def _fit_r_factor(res: Identification, table: MeasurementTable, params: list[Param]) -> np.ndarray:
+    """R of the whitened Jacobian J = QR of `res`'s model at its solution, with `params` as its parameters (those of
+    `res` first, any others at nominal): the solver's own when `params` are `res`'s, else accumulated over row
+    chunks (`Problem.r_factor`). Never J itself: 3 KB per row, once the memory peak of identify (issue 41)."""
     extra = len(params) - len(res.params)
+    if extra == 0 and res.r_factor is not None and len(res.r_factor) == len(res.cov):  # every unknown free
+        return res.r_factor
     problem = Problem(res.chain, table, res.points, params, res.noise, np.r_[res.dev, np.zeros(extra)],
                       extension=res.extension, ext0=res.ext)  # fmt: skip
     state = State(problem.initial.dev, [res.stations[s] for s in problem.station_ids],
                   np.array([res.points[p] for p in problem.point_ids]), np.asarray(res.ext, dtype=float))  # fmt: skip
-    return problem.residual_and_jacobian(state)[1]
+    return problem.r_factor(state)
 
 
 def poorly_determined(res: Identification, table: MeasurementTable) -> dict[str, float]:
     """{name: ratio} of the fitted parameters the table does not determine (calib.identify.determined: moved alone by
     its 95 % interval, one would displace the reflectors by more than POORLY_DETERMINED noise floors)."""
-    ratios = noise_floor_ratios(_fit_jacobian(res, table, res.params), np.arange(len(res.params)))
+    ratios = noise_floor_ratios(_fit_r_factor(res, table, res.params), np.arange(len(res.params)), 3 * len(table))
     return {p.name: float(r) if np.isfinite(r) else None for p, r in zip(res.params, ratios, strict=True)
             if not r <= POORLY_DETERMINED}  # fmt: skip
 
@@ -230,15 +233,16 @@ def determinable(res: Identification, table: MeasurementTable, candidates: list[
     """The `candidates` (parameters left out) the table would determine if added, in order, each judged with those
     kept before it and the fitted model (calib.identify.determined); advice names only these."""
     try:
-        jm = _fit_jacobian(res, table, [*res.params, *candidates])
+        jm = _fit_r_factor(res, table, [*res.params, *candidates])
     except IdentificationError:  # more unknowns than equations with all of them: judge none
         return []
+    n_eq = 3 * len(table)
     k, n_all = len(res.params), jm.shape[1]
     rest = list(range(k + len(candidates), n_all))  # the extension, stations and points
     kept: list[int] = []
     for i in range(len(candidates)):
         cols = list(range(k)) + [k + c for c in kept] + [k + i] + rest
-        if noise_floor_ratios(jm[:, cols], [k + len(kept)])[0] <= POORLY_DETERMINED:
+        if noise_floor_ratios(jm[:, cols], [k + len(kept)], n_eq)[0] <= POORLY_DETERMINED:
             kept.append(i)
     return [candidates[i].name for i in kept]
 
