@@ -18,7 +18,7 @@ from trackcal.campaign.jobs.iso9283 import drifts
 from trackcal.mocks.twin import Twin
 
 SEED = 1
-CYCLES = 3  # the standard asks for 30 (6.8); 3 keep the test short and still give a repeatability
+CYCLES = 3  # the standard asks for 30 (6.9); 3 keep the test short and still give a repeatability
 
 
 def run(*argv, cwd):
@@ -89,7 +89,7 @@ def test_console_shows_both_tests(acceptance):
 
 
 def test_iso_plan_walks_cycles_in_one_direction(acceptance, kr270):
-    """A campaign of an ISO plan: one station, one point, then `repeat` cycles of P1, P5, P4, P3, P2 (7.2.1)."""
+    """A campaign of an ISO plan: one station, one point, then `repeat` cycles of P1, P5, P4, P3, P2 (7.2)."""
     _, plan, _, _ = acceptance
     steps = plan_steps(kr270, plan)
     measured = [s.pose for s in steps if s.kind == StepKind.MEASURE and not s.approach]

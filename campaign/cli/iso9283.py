@@ -94,7 +94,7 @@ def cmd_compare(args) -> int:
     console.print(table)
     vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
     if vap_poses:
-        vt = Table(title="ISO 9283:1998, 7.3 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
+        vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
         vt.add_column("pose")
         for t in tests:
             vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
@@ -102,7 +102,7 @@ def cmd_compare(args) -> int:
             vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
         console.print(vt)
     if any(p.orientation for t in tests for p in t.poses):
-        ot = Table(title="ISO 9283:1998, 7.2.1 and 7.2.2 orientation AP and RP about the base x (a), y (b), z (c) "
+        ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
                          "axes (millidegrees; ± U, k = 2)")  # fmt: skip
         ot.add_column("pose, axis")
         for t in tests:
@@ -118,7 +118,7 @@ def cmd_compare(args) -> int:
                 ot.add_row(*row, end_section=axis == "c")
         console.print(ot)
     for d in drift_list:
-        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.7), µm: "
+        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
                       soft_wrap=True)  # fmt: skip
     for t in tests:

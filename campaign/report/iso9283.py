@@ -12,31 +12,32 @@ from pathlib import Path
 from trackcal.calib.doe.iso_cube import POSE_NAMES
 from trackcal.calib.io.files import write_text
 from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
+from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
 
 DEFINITIONS = [
     ("AP_P", "pose accuracy: |x̄ − c|, the distance from the commanded position c to the barycentre x̄ of the n "
-             "attained positions", "ISO 9283:1998, 7.2.1"),
+             "attained positions", clause("AP")),
     ("AP_x, AP_y, AP_z", "the barycentre's offset from the commanded position along each base axis",
-     "ISO 9283:1998, 7.2.1"),
+     clause("AP")),
     ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
-     "ISO 9283:1998, 7.2.2"),
+     clause("RP")),
     ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
               "positions attained when the pose is approached from three orthogonal directions parallel to the base "
-              "axes", "ISO 9283:1998, 7.3"),
+              "axes", clause("vAP")),
     ("AP_a, AP_b, AP_c", "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
                          "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
                          "the tool's reference points, cycle j taking the j-th visit of each point",
-     "ISO 9283:1998, 7.2.1"),
+     clause("AP")),
     ("RP_a, RP_b, RP_c", "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle "
-                         "about the axis", "ISO 9283:1998, 7.2.2"),
+                         "about the axis", clause("RP")),
     ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
-     "ISO 9283:1998, 7.4"),
+     clause("AD")),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
-     "ISO 9283:1998, 7.4"),
+     clause("RD")),
     ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
-                 "targets repeated over time, RP alike", "ISO 9283:1998, 7.7"),
+                 "targets repeated over time, RP alike", clause("drift")),
     ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
             "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
 ]  # fmt: skip
