@@ -373,6 +373,13 @@ COMMANDS = [
                 arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
                 arg("--json", help="figures JSON to write (default: none, the console only)"),
                 arg("--report", help="HTML report to write, self-contained (default: none, the console only)"),
+                arg("--pdf", metavar="FILE", help="the same report as a PDF, printed by headless chromium, with the "
+                                                  "report id and page numbers on every page (default: none)"),
+                arg("--tolerance", metavar="FIG=MM,...", help="upper limits in mm of AP, RP, vAP, AD (|AD_P|), RD, "
+                    "e.g. AP=0.5,RP=0.1: each figure is then stated pass, fail or not proven (default: none)"),
+                arg("--decision-rule", choices=("simple", "guarded"), default="guarded",
+                    help="with --tolerance: simple acceptance (ILAC-G8:09/2019, the value decides) or guarded "
+                         "acceptance (ISO 14253-1:2017, the tolerance less U; default)"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ], group="iso9283"),
 ]  # fmt: skip
