@@ -46,7 +46,7 @@ def test_pose_repeatability_by_hand():
 
 def test_distance_accuracy_and_repeatability_by_hand():
     # Commanded poses 10 mm apart along x; attained distances D_j = 10, 12, 11, 11:
-    # D_bar = 11, AD_P = 11 - 10 = 1; S_D = sqrt((1 + 1 + 0 + 0) / 3) = 0.8164966, RD = 3 S_D = 2.4494897  (7.4)
+    # D_bar = 11, AD_P = 11 - 10 = 1; S_D = sqrt((1 + 1 + 0 + 0) / 3) = 0.8164966, RD = 3 S_D = 2.4494897  (7.3)
     x2 = np.zeros((4, 3))
     x1 = np.array([[10.0, 0, 0], [0, 12.0, 0], [0, 0, 11.0], [-11.0, 0, 0]])
     ad, rd = distance_accuracy(x1, x2, [10, 0, 0], [0, 0, 0])
@@ -56,7 +56,7 @@ def test_distance_accuracy_and_repeatability_by_hand():
 
 def test_multidirectional_variation_by_hand():
     # Barycentres of three approaches: (0,0,0), (0.03,0,0), (0,0.04,0); the largest distance is between the
-    # second and the third: sqrt(0.03^2 + 0.04^2) = 0.05  (7.3)
+    # second and the third: sqrt(0.03^2 + 0.04^2) = 0.05  (7.2)
     a = np.zeros((3, 3))
     b = a + [0.03, 0, 0]
     c = a + [0, 0.04, 0]

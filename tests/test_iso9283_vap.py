@@ -161,7 +161,7 @@ def test_a_broken_vap_block_is_refused(sessions, kr270):
 
 def test_a_resume_in_a_vap_visit_comes_in_through_its_approach_point(sessions, kr270, tmp_path):
     """An emergency stop on the move into a vAP pose, then a resume: the robot goes to that visit's approach point
-    before the pose, so the measurement keeps its approach direction (7.3)."""
+    before the pose, so the measurement keeps its approach direction (7.2)."""
     _, plan = sessions
     steps = plan_steps(kr270, plan)
     visit = next(i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE and s.approach)
