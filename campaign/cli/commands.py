@@ -379,7 +379,7 @@ COMMANDS = [
                     "e.g. AP=0.5,RP=0.1: each figure is then stated pass, fail or not proven (default: none)"),
                 arg("--decision-rule", choices=("simple", "guarded"), default="guarded",
                     help="with --tolerance: simple acceptance (ILAC-G8:09/2019, the value decides) or guarded "
-                         "acceptance (ISO 14253-1:2017, the tolerance less U) (default: guarded)"),
+                         "acceptance (ISO 14253-1:2017, the tolerance less U)"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ], group="iso9283"),
 ]  # fmt: skip
