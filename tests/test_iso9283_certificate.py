@@ -32,6 +32,7 @@ from trackcal.calib.iso9283 import (
 )
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.report import iso9283 as report_iso
+from trackcal.campaign.report import pdf as pdf_module
 from trackcal.campaign.report.iso9283 import render, report_id
 from trackcal.campaign.report.iso9283_conformity import parse_tolerances, verdicts
 from trackcal.campaign.report.pdf import html_to_pdf
@@ -186,3 +187,11 @@ def test_cli_refuses_a_bad_tolerance_in_one_line(tmp_path):
     done = subprocess.run([*TRACKCAL, "iso9283", "compare", "nosuch", "--model", "m.json", "--tolerance", "AP=x"],
                           cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "--tolerance" in done.stderr, done.stderr
+
+
+def test_no_chromium_is_one_line_naming_the_package(tmp_path, monkeypatch):
+    monkeypatch.setattr(pdf_module.shutil, "which", lambda name: None)
+    with pytest.raises(pdf_module.PdfError) as err:
+        html_to_pdf("<p>1</p>", tmp_path / "x.pdf", "id")
+    assert "\n" not in str(err.value) and "apt-get install chromium" in str(err.value)
+    assert not (tmp_path / "x.pdf").exists()
