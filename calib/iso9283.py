@@ -1,17 +1,18 @@
 """ISO 9283:1998 pose characteristics from attained positions, with their uncertainty from the instrument.
 
 ISO 9283:1998, *Manipulating industrial robots -- Performance criteria and related test methods*, clause 7. A test
-commands the same pose `n` times (30 cycles, clause 6.8) and measures the attained positions x_j (j = 1..n) of the
-reference point; c is the commanded position. Every figure below is the standard's formula, cited by clause:
+commands the same pose `n` times (30 cycles, clause 6.9) and measures the attained positions x_j (j = 1..n) of the
+reference point; c is the commanded position. Every figure below is the standard's formula, cited by clause
+(calib.iso9283_clauses: the numbers checked against the standard's contents):
 
-- 7.2.1 pose accuracy:       AP_P = |x_bar - c|,  AP_x = x_bar - c_x (each coordinate),  x_bar = (1/n) sum x_j;
+- 7.2 pose accuracy:         AP_P = |x_bar - c|,  AP_x = x_bar - c_x (each coordinate),  x_bar = (1/n) sum x_j;
                               orientation AP_a = a_bar - a_c (b, c alike)
-- 7.2.2 pose repeatability:  RP_l = l_bar + 3 S_l,  l_j = |x_j - x_bar|,  l_bar = (1/n) sum l_j,
+- 7.2 pose repeatability:    RP_l = l_bar + 3 S_l,  l_j = |x_j - x_bar|,  l_bar = (1/n) sum l_j,
                               S_l = sqrt(sum (l_j - l_bar)^2 / (n - 1));  orientation RP_a = 3 S_a
-- 7.3 multi-directional pose accuracy variation: vAP_P = max over approach directions h, k of |x_bar_h - x_bar_k|
-- 7.4 distance accuracy:     AD_P = D_bar - D_c,  D_j = |x1_j - x2_j|,  D_c = |c1 - c2|
+- 7.2 multi-directional pose accuracy variation: vAP_P = max over approach directions h, k of |x_bar_h - x_bar_k|
+- 7.3 distance accuracy:     AD_P = D_bar - D_c,  D_j = |x1_j - x2_j|,  D_c = |c1 - c2|
        distance repeatability: RD = 3 sqrt(sum (D_j - D_bar)^2 / (n - 1))
-- 7.7 drift:                 dAP = |AP_(t=1) - AP_(t=T)|,  dRP = |RP_(t=1) - RP_(t=T)|
+- 7.6 drift:                 dAP = |AP_(t=1) - AP_(t=T)|,  dRP = |RP_(t=1) - RP_(t=T)|
 
 Uncertainty: each attained position is a tracker measurement with covariance Sigma_j (the instrument model,
 calib.identify.noise); a figure f(x_1..x_n) then carries the instrument's standard uncertainty
@@ -29,9 +30,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.errors import CalibError
+from trackcal.calib.iso9283_clauses import clause
 from trackcal.calib.model.rigid import RigidError, kabsch, skew
 
-CYCLES = 30  # ISO 9283:1998, 6.8: pose accuracy and repeatability are tested over 30 cycles
+CYCLES = 30  # ISO 9283:1998, 6.9: pose accuracy and repeatability are tested over 30 cycles
 COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
 
 
@@ -93,13 +95,13 @@ def _norm_grad(d: np.ndarray) -> np.ndarray:
 
 
 def pose_accuracy(attained, commanded, cov=None) -> tuple[Figure, np.ndarray]:
-    """AP_P (7.2.1) and the per-coordinate offsets AP_x, AP_y, AP_z = x_bar - c."""
+    """AP_P (7.2) and the per-coordinate offsets AP_x, AP_y, AP_z = x_bar - c."""
     x = _points(attained, "attained positions")
     c = np.asarray(commanded, dtype=float).reshape(3)
     n = len(x)
     offset = x.mean(axis=0) - c
     grad = np.broadcast_to(_norm_grad(offset) / n, (n, 3))
-    return Figure(float(np.linalg.norm(offset)), _u95(grad, _covs(cov, n)), "ISO 9283:1998, 7.2.1"), offset
+    return Figure(float(np.linalg.norm(offset)), _u95(grad, _covs(cov, n)), clause("AP")), offset
 
 
 def _repeatability_parts(x: np.ndarray):
@@ -112,7 +114,7 @@ def _repeatability_parts(x: np.ndarray):
 
 
 def pose_repeatability(attained, cov=None) -> tuple[Figure, float, float]:
-    """RP_l = l_bar + 3 S_l (7.2.2); also l_bar and S_l."""
+    """RP_l = l_bar + 3 S_l (7.2); also l_bar and S_l."""
     x = _points(attained, "attained positions", min_rows=2)
     n = len(x)
     d, ell, lbar, s = _repeatability_parts(x)
@@ -124,11 +126,11 @@ def pose_repeatability(attained, cov=None) -> tuple[Figure, float, float]:
     w = (ell - lbar)[:, None] * u
     g_s = (w - w.mean(axis=0)) / ((n - 1) * s) if s > 0 else np.zeros_like(x)
     grad = g_lbar + 3.0 * g_s
-    return Figure(float(lbar + 3.0 * s), _u95(grad, _covs(cov, n)), "ISO 9283:1998, 7.2.2"), float(lbar), s
+    return Figure(float(lbar + 3.0 * s), _u95(grad, _covs(cov, n)), clause("RP")), float(lbar), s
 
 
 def orientation_accuracy(attained_deg, commanded_deg) -> np.ndarray:
-    """AP_a, AP_b, AP_c = mean attained angle - commanded angle (7.2.1), in degrees; angles are unwrapped about
+    """AP_a, AP_b, AP_c = mean attained angle - commanded angle (7.2), in degrees; angles are unwrapped about
     the commanded one first (a cluster straddling +-180 deg averages to its centre, not to 0)."""
     a = _points(attained_deg, "attained orientations")
     c = np.asarray(commanded_deg, dtype=float).reshape(3)
@@ -137,7 +139,7 @@ def orientation_accuracy(attained_deg, commanded_deg) -> np.ndarray:
 
 
 def orientation_repeatability(attained_deg) -> np.ndarray:
-    """RP_a, RP_b, RP_c = 3 S_a (7.2.2: the standard writes +-3 S_a), in degrees."""
+    """RP_a, RP_b, RP_c = 3 S_a (7.2: the standard writes +-3 S_a), in degrees."""
     a = _points(attained_deg, "attained orientations", min_rows=2)
     ref = a[0]
     wrapped = (a - ref + 180.0) % 360.0 - 180.0
@@ -160,7 +162,7 @@ def attained_orientations(tool_points, attained, commanded_rot, covs=None) -> tu
     cycle's attained orientation R_j is the least-squares rigid fit of the tool points onto the attained positions
     (calib.model.rigid.kabsch), and its deviation w_j = log(R_j R_c^T) is a rotation vector about the base axes: for
     the small deviations of a robot, its components are the differences a_j - a_c, b_j - b_c, c_j - c_c of rotation
-    angles about the base x, y and z axes, the orientation ISO 9283:1998, 7.2.1 compares. Returns w (n, 3) in rad and,
+    angles about the base x, y and z axes, the orientation ISO 9283:1998, 7.2 compares. Returns w (n, 3) in rad and,
     with the positions' covariances (n, k, 3, 3), each w_j's covariance (n, 3, 3) by the fit linearised: a rotation
     omega moves point k by omega x r_k (r_k about the points' centroid), so omega = G sum_k A_k^T dx_k with
     A_k = -[r_k]x and G = (sum_k A_k^T A_k)^-1, and cov omega = G (sum_k A_k^T Sigma_k A_k) G."""
@@ -185,8 +187,8 @@ def attained_orientations(tool_points, attained, commanded_rot, covs=None) -> tu
 
 
 def orientation_figures(w: np.ndarray, cov_w: np.ndarray | None = None) -> dict[str, Figure]:
-    """AP_a, AP_b, AP_c (7.2.1: mean attained angle less the commanded, the mean of w) and RP_a, RP_b, RP_c
-    (7.2.2: 3 S_a) in degrees from the per-cycle deviations w (n, 3) rad, each with the instrument's expanded
+    """AP_a, AP_b, AP_c (7.2: mean attained angle less the commanded, the mean of w) and RP_a, RP_b, RP_c
+    (7.2: 3 S_a) in degrees from the per-cycle deviations w (n, 3) rad, each with the instrument's expanded
     uncertainty from the deviations' covariances (n, 3, 3): u(AP_a)^2 = sum_j var(a_j) / n^2 and, with
     dS_a/da_j = (a_j - a_bar) / ((n - 1) S_a), u(RP_a)^2 = 9 sum_j (dS_a/da_j)^2 var(a_j)."""
     n = len(w)
@@ -203,13 +205,13 @@ def orientation_figures(w: np.ndarray, cov_w: np.ndarray | None = None) -> dict[
             if n >= 2 and s > 0:
                 g = (deg[:, k] - deg[:, k].mean()) / ((n - 1) * s)
                 u_rp = COVERAGE * 3.0 * float(np.sqrt((g**2 * var).sum()))
-        out[f"AP_{axis}"] = Figure(float(ap[k]), u_ap, "ISO 9283:1998, 7.2.1")
-        out[f"RP_{axis}"] = Figure(float(rp[k]), u_rp, "ISO 9283:1998, 7.2.2")
+        out[f"AP_{axis}"] = Figure(float(ap[k]), u_ap, clause("AP"))
+        out[f"RP_{axis}"] = Figure(float(rp[k]), u_rp, clause("RP"))
     return out
 
 
 def multidirectional_variation(clusters: Sequence, covs: Sequence | None = None) -> Figure:
-    """vAP_P (7.3): the largest distance between the barycentres of the clusters attained from different
+    """vAP_P (7.2): the largest distance between the barycentres of the clusters attained from different
     approach directions (three, parallel to the base axes, in the standard)."""
     xs = [_points(c, f"approach {k + 1}") for k, c in enumerate(clusters)]
     if len(xs) < 2:
@@ -230,11 +232,11 @@ def multidirectional_variation(clusters: Sequence, covs: Sequence | None = None)
             for i, sign in ((h, 1.0), (k, -1.0))
         )
         u = float(np.sqrt(var))
-    return Figure(best, u, "ISO 9283:1998, 7.3")
+    return Figure(best, u, clause("vAP"))
 
 
 def distance_accuracy(attained1, attained2, commanded1, commanded2, cov1=None, cov2=None) -> tuple[Figure, Figure]:
-    """AD_P = D_bar - D_c (7.4.1) and RD = 3 S_D (7.4.2), D_j = |x1_j - x2_j| over the n cycles."""
+    """AD_P = D_bar - D_c and RD = 3 S_D (7.3), D_j = |x1_j - x2_j| over the n cycles."""
     x1 = _points(attained1, "attained positions of the first pose", min_rows=2)
     x2 = _points(attained2, "attained positions of the second pose", min_rows=2)
     if len(x1) != len(x2):
@@ -248,15 +250,15 @@ def distance_accuracy(attained1, attained2, commanded1, commanded2, cov1=None, c
     u = _norm_grad(diff)
     c1, c2 = _covs(cov1, n), _covs(cov2, n)
     both = None if c1 is None or c2 is None else c1 + c2  # dD_j/dx1_j = u_j = -dD_j/dx2_j
-    ad = Figure(float(dbar - dc), _u95(u / n, both), "ISO 9283:1998, 7.4.1")
+    ad = Figure(float(dbar - dc), _u95(u / n, both), clause("AD"))
     g_s = ((dj - dbar)[:, None] * u) / ((n - 1) * s) if s > 0 else np.zeros_like(u)
-    rd = Figure(3.0 * s, _u95(3.0 * g_s, both), "ISO 9283:1998, 7.4.2")
+    rd = Figure(3.0 * s, _u95(3.0 * g_s, both), clause("RD"))
     return ad, rd
 
 
 def drift(first: Figure, last: Figure) -> Figure:
-    """dAP or dRP (7.7): |figure at the first test - figure at the last|, their uncertainties added in quadrature."""
-    return Figure(abs(first.value - last.value), float(np.hypot(first.u95, last.u95)), "ISO 9283:1998, 7.7")
+    """dAP or dRP (7.6): |figure at the first test - figure at the last|, their uncertainties added in quadrature."""
+    return Figure(abs(first.value - last.value), float(np.hypot(first.u95, last.u95)), clause("drift"))
 
 
 @dataclass
@@ -284,7 +286,7 @@ class IsoFigures:
     commanded_mm: np.ndarray  # (5, 3)
     conditions: dict[str, str]
     notes: list[str] = field(default_factory=list)
-    # multi-directional test (7.3): per pose name, vAP_P and the attained positions (base frame) from each side
+    # multi-directional test (7.2): per pose name, vAP_P and the attained positions (base frame) from each side
     vap: dict[str, Figure] = field(default_factory=dict)
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 

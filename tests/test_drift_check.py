@@ -26,7 +26,7 @@ CELL = load_cell("kr270")
 
 
 def test_iso9283_repeatability_to_sigma():
-    """RP = mean + 3 std of the distance of an arrival from the mean arrival (ISO 9283 section 7.2.2); for an isotropic
+    """RP = mean + 3 std of the distance of an arrival from the mean arrival (ISO 9283:1998, 7.2); for an isotropic
     normal scatter that distance is Maxwell distributed. Checked by sampling, not by the formula."""
     x = np.random.default_rng(0).standard_normal((400_000, 3))
     d = np.linalg.norm(x, axis=1)

@@ -28,16 +28,16 @@ CROSS = np.array([[3.0, 0, 0], [1.0, 0, 0], [2.0, 3, 0], [2.0, -3, 0]])
 
 
 def test_pose_accuracy_by_hand():
-    # x_bar = (2, 0, 0), c = 0: AP_P = 2, (AP_x, AP_y, AP_z) = (2, 0, 0)  (7.2.1)
+    # x_bar = (2, 0, 0), c = 0: AP_P = 2, (AP_x, AP_y, AP_z) = (2, 0, 0)  (7.2)
     ap, offset = pose_accuracy(CROSS, [0, 0, 0])
     assert ap.value == pytest.approx(2.0, abs=1e-12)
     assert offset == pytest.approx([2.0, 0.0, 0.0], abs=1e-12)
-    assert ap.clause.endswith("7.2.1")
+    assert ap.clause.endswith("7.2")
 
 
 def test_pose_repeatability_by_hand():
     # l = 1, 1, 3, 3: l_bar = 2; S_l = sqrt((1 + 1 + 1 + 1) / 3) = sqrt(4/3) = 1.1547005;
-    # RP_l = 2 + 3 * 1.1547005 = 5.4641016  (7.2.2)
+    # RP_l = 2 + 3 * 1.1547005 = 5.4641016  (7.2)
     rp, lbar, s = pose_repeatability(CROSS)
     assert lbar == pytest.approx(2.0, abs=1e-12)
     assert s == pytest.approx(np.sqrt(4.0 / 3.0), abs=1e-12)
@@ -46,7 +46,7 @@ def test_pose_repeatability_by_hand():
 
 def test_distance_accuracy_and_repeatability_by_hand():
     # Commanded poses 10 mm apart along x; attained distances D_j = 10, 12, 11, 11:
-    # D_bar = 11, AD_P = 11 - 10 = 1; S_D = sqrt((1 + 1 + 0 + 0) / 3) = 0.8164966, RD = 3 S_D = 2.4494897  (7.4)
+    # D_bar = 11, AD_P = 11 - 10 = 1; S_D = sqrt((1 + 1 + 0 + 0) / 3) = 0.8164966, RD = 3 S_D = 2.4494897  (7.3)
     x2 = np.zeros((4, 3))
     x1 = np.array([[10.0, 0, 0], [0, 12.0, 0], [0, 0, 11.0], [-11.0, 0, 0]])
     ad, rd = distance_accuracy(x1, x2, [10, 0, 0], [0, 0, 0])
@@ -56,7 +56,7 @@ def test_distance_accuracy_and_repeatability_by_hand():
 
 def test_multidirectional_variation_by_hand():
     # Barycentres of three approaches: (0,0,0), (0.03,0,0), (0,0.04,0); the largest distance is between the
-    # second and the third: sqrt(0.03^2 + 0.04^2) = 0.05  (7.3)
+    # second and the third: sqrt(0.03^2 + 0.04^2) = 0.05  (7.2)
     a = np.zeros((3, 3))
     b = a + [0.03, 0, 0]
     c = a + [0, 0.04, 0]
@@ -67,14 +67,14 @@ def test_multidirectional_variation_by_hand():
 
 def test_orientation_figures_by_hand_and_across_180():
     # Angles about the commanded (179, 0, 0): attained 179.5 and -179.5 (= 180.5) average to 180 (not 0):
-    # AP_a = 180 - 179 = 1 deg; S_a of (0.5, 1.5) about their mean = 0.7071 deg, RP_a = 2.1213 deg  (7.2.1, 7.2.2)
+    # AP_a = 180 - 179 = 1 deg; S_a of (0.5, 1.5) about their mean = 0.7071 deg, RP_a = 2.1213 deg  (7.2)
     att = np.array([[179.5, 1.0, 0.0], [-179.5, 3.0, 0.0]])
     assert orientation_accuracy(att, [179.0, 0.0, 0.0]) == pytest.approx([1.0, 2.0, 0.0], abs=1e-9)
     assert orientation_repeatability(att) == pytest.approx([3 * np.sqrt(0.5), 3 * np.sqrt(2.0), 0.0], abs=1e-9)
 
 
 def test_drift_by_hand():
-    d = drift(Figure(0.30, 0.03, "7.2.1"), Figure(0.22, 0.04, "7.2.1"))
+    d = drift(Figure(0.30, 0.03, "7.2"), Figure(0.22, 0.04, "7.2"))
     assert d.value == pytest.approx(0.08, abs=1e-12)
     assert d.u95 == pytest.approx(0.05, abs=1e-12)  # sqrt(0.03^2 + 0.04^2)
 

@@ -1,4 +1,4 @@
-"""The multi-directional part of the ISO 9283 test (vAP, ISO 9283:1998, 7.3) as a campaign: the plan approaches P1, P2
+"""The multi-directional part of the ISO 9283 test (vAP, ISO 9283:1998, 7.2) as a campaign: the plan approaches P1, P2
 and P4 from an approach point along x, y and z, the campaign moves through it (a move with no measurement) before
 each measured visit, and `compare` computes vAP_P. On the twin, backlash (a joint's true angle depends on the
 direction it last moved in) makes vAP what the twin's own noise-free replay of the same moves gives; without it
@@ -23,7 +23,7 @@ from trackcal.campaign.session.store import SessionStore
 from trackcal.mocks.twin import Twin
 
 SEED = 2
-CYCLES, VAP_CYCLES = 2, 3  # the standard asks for 30 of each (6.8); these keep the test short
+CYCLES, VAP_CYCLES = 2, 3  # the standard asks for 30 of each (6.9); these keep the test short
 BACKLASH = {"backlash": 0.15}  # mm: what a geometric calibration cannot absorb (mocks/effects.py)
 # The 99.9 % quantile of a chi distribution with 3 degrees of freedom, sqrt(chi2_3(0.999)) = sqrt(16.27): a 3-d
 # Gaussian difference of standard deviation at most s per direction exceeds 4.03 s with probability below 0.1 %.
@@ -140,7 +140,7 @@ def test_figures_document_vap_apart_from_ap_and_rp(sessions):
     figs = session_figures(Path(d / "backlash"), model, TrackerNoise())
     out = figs.to_doc()
     assert [v["pose"] for v in out["vAP_P"]] == ["P1", "P2", "P4"]
-    assert all(v["clause"] == "ISO 9283:1998, 7.3" for v in out["vAP_P"])
+    assert all(v["clause"] == "ISO 9283:1998, 7.2" for v in out["vAP_P"])
     assert all(set(v["cycles"].values()) == {VAP_CYCLES} for v in out["vAP_P"])
     # AP and RP keep to the unidirectional visits (7.2): CYCLES per pose, not the vAP visits too
     assert [p["cycles"] for p in out["poses"]] == [CYCLES] * 5
@@ -161,7 +161,7 @@ def test_a_broken_vap_block_is_refused(sessions, kr270):
 
 def test_a_resume_in_a_vap_visit_comes_in_through_its_approach_point(sessions, kr270, tmp_path):
     """An emergency stop on the move into a vAP pose, then a resume: the robot goes to that visit's approach point
-    before the pose, so the measurement keeps its approach direction (7.3)."""
+    before the pose, so the measurement keeps its approach direction (7.2)."""
     _, plan = sessions
     steps = plan_steps(kr270, plan)
     visit = next(i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE and s.approach)

@@ -1,4 +1,4 @@
-"""The ISO 9283 test cube and its five poses (ISO 9283:1998, 6.7: location of the cube, poses to be used).
+"""The ISO 9283 test cube and its five poses (ISO 9283:1998, 6.8: definitions of poses to be tested).
 
 The cube has its edges parallel to the base frame and the largest volume the usable workspace allows; the poses
 lie on the diagonal plane C1-C2-C7-C8, the rectangle through two opposite edges of the cube: P1 at the centre of
@@ -21,11 +21,11 @@ from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.calib.model.inverse import reach_points
 from trackcal.calib.model.kinematics import Kinematics
 
-CORNER_FRACTION = 0.10  # ISO 9283:1998, 6.7: P2..P5 at (10 +- 2) % of the diagonal from the corners
-# One test cycle visits P1, P5, P4, P3, P2 (ISO 9283:1998, 7.2.1), each approached in the same direction.
+CORNER_FRACTION = 0.10  # ISO 9283:1998, 6.8: P2..P5 at (10 +- 2) % of the diagonal from the corners
+# One test cycle visits P1, P5, P4, P3, P2 (ISO 9283:1998, 7.2), each approached in the same direction.
 CYCLE_ORDER = (0, 4, 3, 2, 1)
 POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
-# Multi-directional pose accuracy variation (ISO 9283:1998, 7.3): poses P1, P2 and P4, each approached from three
+# Multi-directional pose accuracy variation (ISO 9283:1998, 7.2): poses P1, P2 and P4, each approached from three
 # orthogonal directions parallel to the base axes. trackcal comes in from an approach point on one side of the pose
 # along each axis, the side towards the cube's centre (so the approach points stay inside the cube, where the robot
 # was shown to reach; P1's on the - sides); the standard fixes the directions, not their sides.
@@ -180,7 +180,7 @@ def approach_joints(cell: Cell, plan: IsoPlan, poses=VAP_POSES, fraction: float 
     bad = np.argwhere(~(ok & inside))
     if len(bad):
         i, k = bad[0]
-        raise CubeError(f"the approach point of {POSE_NAMES[poses[i]]} along {AXES[k]} (vAP, ISO 9283:1998, 7.3) "
+        raise CubeError(f"the approach point of {POSE_NAMES[poses[i]]} along {AXES[k]} (vAP, ISO 9283:1998, 7.2) "
                         "is out of reach, outside the joint limits or puts a reference point outside the cell box")
     return q
 

@@ -71,6 +71,6 @@ def campaign_order(
 
 def iso9283_order(station: str, point: str, cycles: int, sequence: Sequence[int]) -> list[Visit]:
     """The visits of an ISO 9283 pose test: one point from one station, `cycles` cycles each visiting the poses in
-    `sequence` (P1, P5, P4, P3, P2: ISO 9283:1998, 7.2.1), always in the same order so that every pose is approached
+    `sequence` (P1, P5, P4, P3, P2: ISO 9283:1998, 7.2), always in the same order so that every pose is approached
     from the same direction; no drift revisits (the test's own repeats are its drift data, clause 7.7)."""
     return [Visit(station, point, i) for _ in range(cycles) for i in sequence]

@@ -358,13 +358,13 @@ COMMANDS = [
                 arg("--side", type=float, help="cube side, mm (default: the largest the robot reaches)"),
                 arg("--centre", help="X,Y,Z of the cube centre in the base frame, mm (default: the TCP at the test "
                                      "pose)"),
-                arg("--cycles", type=int, default=30, help="test cycles (ISO 9283:1998, 6.8: 30)"),
+                arg("--cycles", type=int, default=30, help="test cycles (ISO 9283:1998, 6.9: 30)"),
                 arg("--vap-cycles", type=int, help="cycles of the multi-directional test, P1, P2, P4 each approached "
-                                                   "from -x, -y, -z (ISO 9283:1998, 7.3; default: --cycles; 0: none)"),
+                                                   "from -x, -y, -z (ISO 9283:1998, 7.2; default: --cycles; 0: none)"),
                 arg("--orientation", action="store_true",
                     help="also measure every tool point the station sees (at least 3), point after point, for the "
-                         "orientation figures AP_a..RP_c (ISO 9283:1998, 7.2.1, 7.2.2; default: the one point)"),
-                arg("--load", help="what the robot carries during the test, for the report (ISO 9283:1998, clause 6: "
+                         "orientation figures AP_a..RP_c (ISO 9283:1998, 7.2; default: the one point)"),
+                arg("--load", help="what the robot carries during the test, for the report (ISO 9283:1998, 6.6: "
                                    "100 %% of the rated load), e.g. '270 kg, 100 %% rated' (default: not stated)"),
                 arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
@@ -376,6 +376,13 @@ COMMANDS = [
                 arg("--model", required=True, help="model.json whose station estimate gives the base frame"),
                 arg("--json", help="figures JSON to write (default: none, the console only)"),
                 arg("--report", help="HTML report to write, self-contained (default: none, the console only)"),
+                arg("--pdf", metavar="FILE", help="the same report as a PDF, printed by headless chromium, with the "
+                                                  "report id and page numbers on every page (default: none)"),
+                arg("--tolerance", metavar="FIG=MM,...", help="upper limits in mm of AP, RP, vAP, AD (|AD_P|), RD, "
+                    "e.g. AP=0.5,RP=0.1: each figure is then stated pass, fail or not proven (default: none)"),
+                arg("--decision-rule", choices=("simple", "guarded"), default="guarded",
+                    help="with --tolerance: simple acceptance (ILAC-G8:09/2019, the value decides) or guarded "
+                         "acceptance (ISO 14253-1:2017, the tolerance less U)"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
             ], group="iso9283"),
 ]  # fmt: skip

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
 from rich.table import Table
 
+from trackcal.calib.decision_rule import RULES
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
-from trackcal.campaign.report.iso9283 import write_iso_report
+from trackcal.campaign.report.iso9283 import write_iso_pdf, write_iso_report
+from trackcal.campaign.report.iso9283_conformity import Verdict, parse_tolerances, verdicts
 
 
 def _centre(text: str | None) -> tuple[float, float, float] | None:
@@ -70,7 +73,20 @@ def _mdeg(fig) -> str:
     return "-" if fig is None else f"{fig.value * 1000:.1f} ± {fig.u95 * 1000:.1f}"
 
 
+def _conformity(found: list[Verdict], rule: str) -> None:
+    table = Table(title=f"conformity, {rule} acceptance (µm; ± U, k = 2)")
+    for col in ("test", "figure", "value ± U", "tolerance", "verdict"):
+        table.add_column(col, justify="right" if col in ("value ± U", "tolerance") else "left", overflow="fold")
+    for v in found:
+        u = f"{v.u95_mm * 1000:.1f}" if math.isfinite(v.u95_mm) else "not stated"
+        table.add_row(f"{v.session} ({'compensated' if v.compensated else 'nominal'})", v.figure,
+                      f"{v.value_mm * 1000:.1f} ± {u}", f"{v.limit_mm * 1000:g}", v.verdict)  # fmt: skip
+    console.print(table)
+    console.print("decision rule: " + RULES[rule], soft_wrap=True)
+
+
 def cmd_compare(args) -> int:
+    tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
     tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
                                                accept_edited=args.accept_edited), warnings)  # fmt: skip
@@ -94,7 +110,7 @@ def cmd_compare(args) -> int:
     console.print(table)
     vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
     if vap_poses:
-        vt = Table(title="ISO 9283:1998, 7.3 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
+        vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
         vt.add_column("pose")
         for t in tests:
             vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
@@ -102,7 +118,7 @@ def cmd_compare(args) -> int:
             vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
         console.print(vt)
     if any(p.orientation for t in tests for p in t.poses):
-        ot = Table(title="ISO 9283:1998, 7.2.1 and 7.2.2 orientation AP and RP about the base x (a), y (b), z (c) "
+        ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
                          "axes (millidegrees; ± U, k = 2)")  # fmt: skip
         ot.add_column("pose, axis")
         for t in tests:
@@ -118,7 +134,7 @@ def cmd_compare(args) -> int:
                 ot.add_row(*row, end_section=axis == "c")
         console.print(ot)
     for d in drift_list:
-        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.7), µm: "
+        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
                       soft_wrap=True)  # fmt: skip
     for t in tests:
@@ -126,6 +142,13 @@ def cmd_compare(args) -> int:
             console.print(f"note: {t.session}: {note}")
     if args.json:
         console.print(f"figures written to {args.json}")
+    conformity = None
+    if tolerances:
+        conformity = (args.decision_rule, tolerances, verdicts(tests, tolerances, args.decision_rule))
+        _conformity(conformity[2], args.decision_rule)
     if args.report:
-        console.print(f"report written to {write_iso_report(tests, drift_list, args.model, Path(args.report))}")
+        path = write_iso_report(tests, drift_list, args.model, Path(args.report), conformity)
+        console.print(f"report written to {path}")
+    if args.pdf:
+        console.print(f"PDF written to {write_iso_pdf(tests, drift_list, args.model, Path(args.pdf), conformity)}")
     return 0

@@ -342,7 +342,7 @@ class Engine:
             self._resume_motion()
         here = steps[first]
         if here.approach and not here.via and here.kind in (StepKind.MOVE, StepKind.SETTLE, StepKind.MEASURE):
-            # an ISO 9283 vAP visit (7.3): the pose is reached from its approach point, so that comes first again
+            # an ISO 9283 vAP visit (7.2): the pose is reached from its approach point, so that comes first again
             via = next(s for s in reversed(before) if s.kind == StepKind.MOVE and s.via)
             self._move(via)
             self._settle(via)

@@ -47,7 +47,7 @@ class Step:
     pose: str = ""
     q_deg: tuple[float, ...] = ()
     drift: bool = False  # a drift-check measurement of the block's reference pose
-    # ISO 9283 vAP (7.3): the side the pose is approached from ("-x", "-y", "-z"); `via` marks the move to (and the
+    # ISO 9283 vAP (7.2): the side the pose is approached from ("-x", "-y", "-z"); `via` marks the move to (and the
     # settle at) the approach point before the pose, a move with no measurement
     approach: str = ""
     via: bool = False
@@ -229,12 +229,12 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
 
 def iso_points(iso: dict) -> list[str]:
     """The points an ISO test measures in turn, each over all its cycles: `points` (the orientation test: every point
-    of the tool, the test's `point` last, ISO 9283:1998, 7.2.1), else the one `point`."""
+    of the tool, the test's `point` last, ISO 9283:1998, 7.2), else the one `point`."""
     return list(iso.get("points") or [iso["point"]])
 
 
 def vap_block(iso: dict, cell: Cell) -> dict | None:
-    """The multi-directional test of an ISO plan (`iso9283.vap`, ISO 9283:1998, 7.3), checked: `cycles` (an integer
+    """The multi-directional test of an ISO plan (`iso9283.vap`, ISO 9283:1998, 7.2), checked: `cycles` (an integer
     >= 0), `poses` (names among P1..P5), `approaches` (per pose its sides along x, y, z) and `approach_deg` (per pose,
     the joints of each approach point, as the controller gets them: 4 decimals); None when the plan has none or zero
     cycles."""

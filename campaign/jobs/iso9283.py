@@ -71,9 +71,9 @@ class PlanOptions:
     centre_mm: tuple[float, float, float] | None = None
     cycles: int = CYCLES
     seed: int = 0
-    vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.3); None: as `cycles`
-    orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2.1, 7.2.2)
-    load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.2), free text for the report
+    vap_cycles: int | None = None  # the multi-directional test's cycles (ISO 9283:1998, 7.2); None: as `cycles`
+    orientation: bool = False  # measure every tool point the station sees, for AP_a..RP_c (7.2)
+    load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.6), free text for the report
     accept_edited: bool = False  # --model: use it though its digest does not match its content (calib.model_trust)
     accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
 
@@ -155,7 +155,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     return doc
 
 
-# ISO 9283:1998, clause 6 (test conditions): the tests run with 100 % of the rated load at the mechanical interface
+# ISO 9283:1998, 6.6 (load to the mechanical interface): tests run with 100 % of the rated load
 # (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`): trackcal cannot weigh it
 NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
@@ -191,11 +191,11 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        sides = [m.get("approach", "") for m in stored_measurements(store)]  # vAP visits (7.3) name theirs
+        sides = [m.get("approach", "") for m in stored_measurements(store)]  # vAP visits (7.2) name theirs
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
         conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
-                               "9283:1998, clause 6: 100 %, 50 % and 10 % of the rated velocity)"
+                               "9283:1998, 6.7: 100 %, 50 % and 10 % of the rated velocity)"
                                ) if overrides else "no move recorded"  # fmt: skip
         tool_doc = store.documents().get("config/tool.yaml")
         tool = yaml.safe_load(tool_doc).get("name") if tool_doc else None
@@ -250,7 +250,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
     pts = iso_points(iso)
-    if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2.1, 7.2.2)
+    if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2)
         notes += _orientations(iso, pts, model, in_base, visit, figures)
     vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
@@ -286,7 +286,7 @@ def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Vis
 
 def _orientations(iso: dict, pts: list[str], model: Model, in_base: InBase, visit: Visits,
                   figures: list[PoseFigures]) -> list[str]:  # fmt: skip
-    """The attained orientation of each pose from the tool's points, cycle by cycle (7.2.1, 7.2.2), into `figures`;
+    """The attained orientation of each pose from the tool's points, cycle by cycle (7.2), into `figures`;
     returns the notes of the poses without them."""
     missing = [p for p in pts if p not in model.points]
     if missing:
@@ -370,7 +370,7 @@ class CompareOptions:
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
-    """dAP and dRP per pose (ISO 9283:1998, 7.7) between the first and the last of the tests run with the same
+    """dAP and dRP per pose (ISO 9283:1998, 7.6) between the first and the last of the tests run with the same
     targets, in the order given (the standard repeats the test over hours: give the sessions in time order)."""
     out = []
     for targets in dict.fromkeys(t.conditions["targets"] for t in tests):

@@ -5,45 +5,54 @@ positions around the commanded one, before and after compensation."""
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import io
+import json
+import math
 from pathlib import Path
 
+from trackcal.calib.decision_rule import FAIL, NOT_PROVEN, PASS, RULES
 from trackcal.calib.doe.iso_cube import POSE_NAMES
 from trackcal.calib.io.files import write_text
 from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
+from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
+from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
+from trackcal.campaign.report.pdf import html_to_pdf
 
 DEFINITIONS = [
     ("AP_P", "pose accuracy: |x̄ − c|, the distance from the commanded position c to the barycentre x̄ of the n "
-             "attained positions", "ISO 9283:1998, 7.2.1"),
+             "attained positions", clause("AP")),
     ("AP_x, AP_y, AP_z", "the barycentre's offset from the commanded position along each base axis",
-     "ISO 9283:1998, 7.2.1"),
+     clause("AP")),
     ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
-     "ISO 9283:1998, 7.2.2"),
+     clause("RP")),
     ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
               "positions attained when the pose is approached from three orthogonal directions parallel to the base "
-              "axes", "ISO 9283:1998, 7.3"),
+              "axes", clause("vAP")),
     ("AP_a, AP_b, AP_c", "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
                          "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
                          "the tool's reference points, cycle j taking the j-th visit of each point",
-     "ISO 9283:1998, 7.2.1"),
+     clause("AP")),
     ("RP_a, RP_b, RP_c", "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle "
-                         "about the axis", "ISO 9283:1998, 7.2.2"),
+                         "about the axis", clause("RP")),
     ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
-     "ISO 9283:1998, 7.4"),
+     clause("AD")),
     ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
-     "ISO 9283:1998, 7.4"),
+     clause("RD")),
     ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
-                 "targets repeated over time, RP alike", "ISO 9283:1998, 7.7"),
+                 "targets repeated over time, RP alike", clause("drift")),
     ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
             "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
 ]  # fmt: skip
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:right}
-th{background:#eee}td.l,th.l{text-align:left}td:not(.l),td.c{white-space:nowrap}img{max-width:100%}"""
+th{background:#eee}td.l,th.l{text-align:left}td:not(.l),td.c{white-space:nowrap}img{max-width:100%}
+td.pass{background:#dfd}td.fail{background:#fdd}td.open{background:#ffd}table.sign td{height:2.2em;min-width:14em}
+@media print{body{max-width:none;margin:0;padding:0;font-size:10pt}tr,img{break-inside:avoid}h2{break-after:avoid}}"""
 
 
 def _um(value: float, u: float | None = None) -> str:
@@ -82,10 +91,44 @@ def cluster_figure(tests: list[IsoFigures], i: int) -> str:
     return _png(fig)
 
 
-def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> str:
+def report_id(tests: list[IsoFigures]) -> str:
+    """The report's id: a digest of the figures it states (the same tests give the same id; any change, another)."""
+    doc = json.dumps([t.to_doc() for t in tests], sort_keys=True, default=str).encode()
+    return "ISO9283-" + hashlib.sha256(doc).hexdigest()[:10].upper()
+
+
+def _conformity(rule: str, tolerances: dict[str, float], found: list[Verdict]) -> list[str]:
+    out = ["<h2>Conformity statement</h2>",
+           f"<p>Decision rule: {html.escape(RULES[rule])}.</p><p>Tolerances (upper limits): "
+           + ", ".join(f"{TOLERANCED[k]} ≤ {v * 1000:g} µm" for k, v in tolerances.items()) + ".</p>",
+           "<table><tr><th class=l>test</th><th class=l>figure</th><th>value ± U (µm)</th><th>tolerance (µm)</th>"
+           "<th class=l>verdict</th><th class=l>clause</th></tr>"]  # fmt: skip
+    css = {PASS: "pass", FAIL: "fail", NOT_PROVEN: "open"}
+    for v in found:
+        u = f"{v.u95_mm * 1000:.1f}" if math.isfinite(v.u95_mm) else "not stated"
+        out.append(f"<tr><td class=l>{html.escape(v.session)} ({'compensated' if v.compensated else 'nominal'})</td>"
+                   f"<td class=l>{html.escape(v.figure)}</td><td>{v.value_mm * 1000:.1f} ± {u}</td>"
+                   f"<td>{v.limit_mm * 1000:g}</td><td class='l {css[v.verdict]}'>{v.verdict}</td>"
+                   f"<td class='l c'>{clause(v.key)}</td></tr>")  # fmt: skip
+    counts = {k: sum(v.verdict == k for v in found) for k in (PASS, FAIL, NOT_PROVEN)}
+    out.append("</table><p>" + ", ".join(f"{n} {k}" for k, n in counts.items()) + f" of {len(found)} figures.</p>")
+    return out
+
+
+def _signatures() -> list[str]:
+    rows = "".join(f"<tr><td class=l>{who}</td>" + "<td></td>" * 4 + "</tr>" for who in ("Tested by", "Authorised by"))
+    return ["<h2>Authorisation</h2><table class=sign><tr><th class=l></th><th class=l>Name</th><th class=l>Role</th>"
+            f"<th class=l>Date</th><th class=l>Signature</th></tr>{rows}</table>"]  # fmt: skip
+
+
+def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
+           conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> str:
+    """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement."""
     label = ["compensated" if t.compensated else "nominal" for t in tests]
-    out = ["<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test</title>",
-           f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>"]  # fmt: skip
+    rid = report_id(tests)
+    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
+           f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>",
+           f"<p>Report {rid}</p>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
     out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
@@ -149,6 +192,8 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
         out += [f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
                 f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>" for p in d["poses"]]  # fmt: skip
         out.append("</table>")
+    if conformity is not None:
+        out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
                "<th class=l>clause</th></tr>")  # fmt: skip
     out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class='l c'>{c}</td></tr>"
@@ -158,11 +203,20 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str) -> 
     notes = [f"{t.session}: {n}" for t in tests for n in t.notes]
     if notes:
         out.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+    out += _signatures()
     out.append("</body></html>\n")
     return "\n".join(out)
 
 
-def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path) -> Path:
-    write_text(path, render(tests, drift_list, model_path), InputError)
+def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
+                     conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> Path:
+    write_text(path, render(tests, drift_list, model_path, conformity), InputError)
     return path
+
+
+def write_iso_pdf(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
+                  conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> Path:
+    """The same page as a PDF (headless chromium), the report id and "page N of M" at the foot of every page."""
+    return html_to_pdf(render(tests, drift_list, model_path, conformity), path,
+                       f"ISO 9283:1998 acceptance test, report {report_id(tests)}")
 

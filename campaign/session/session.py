@@ -218,7 +218,7 @@ def export_table(store: SessionStore, source: str = "session") -> MeasurementTab
         "pressure_hpa": [f"{x['env'][1]:.2f}" for x in d],
         "humidity_pct": [f"{x['env'][2]:.1f}" for x in d],
     }
-    if any("approach" in x for x in d):  # ISO 9283 with its multi-directional test (7.3): the side each came from
+    if any("approach" in x for x in d):  # ISO 9283 with its multi-directional test (7.2): the side each came from
         extra["approach"] = [x.get("approach", "none") for x in d]
     return MeasurementTable(
         seq=np.arange(1, n + 1), t_s=np.array([e.t_campaign for e in events]), pose=[x["pose"] for x in d],

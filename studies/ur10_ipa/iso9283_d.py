@@ -7,7 +7,7 @@ Series D holds 632 poses on ISO 9283-style cubes, each commanded once, measured 
 tracker set up elsewhere. For each model (nominal: the datasheet geometry with the T-Mac's nominal offset;
 geometric: identified on B, `studies.ur10_ipa.study`'s fit; diagnose's: the geometric model extended by the causes
 `trackcal diagnose` names on B) the station of D is located on LOCATE poses of D drawn at random (robot and tool
-point held), and the other poses are held out. On them, the pose accuracy of ISO 9283:1998, 7.2.1 with one cycle
+point held), and the other poses are held out. On them, the pose accuracy of ISO 9283:1998, 7.2 with one cycle
 per pose: AP_P = |x - c|, x the attained T-Mac centre (measured, in the base frame of the located station), c where
 the model puts it at the commanded joints: what the robot would attain if its targets were compensated with that
 model (compensation makes the model reach the commanded pose; the robot then misses it by
@@ -88,7 +88,7 @@ def report(results: dict, locate: int, seed: int) -> str:
         "Made by `python -m studies.ur10_ipa.iso9283_d`.",
         "",
         f"D's station located on {locate} of its 632 poses (drawn with seed {seed}); the figures are over the other "
-        "poses, none of which the models saw. AP_P is ISO 9283:1998, 7.2.1 with one cycle per pose (D commands each "
+        "poses, none of which the models saw. AP_P is ISO 9283:1998, 7.2 with one cycle per pose (D commands each "
         "pose once; the standard's 30 cycles and its repeatability RP need repeats, which D does not hold): the "
         "distance between the attained T-Mac centre and where the model puts it at the commanded joints. The nominal "
         "figures are measured (the robot as it stood); the calibrated models' figures are **predicted**: each model's "
