@@ -312,7 +312,7 @@ def _orientations(iso: dict, pts: list[str], model: Model, in_base: InBase, visi
 
 def _multidirectional(iso: dict, cell: Cell, in_base: InBase, keep: np.ndarray, visit: Visits,
                       notes: list[str]) -> tuple[dict, dict]:  # fmt: skip
-    """The multi-directional pose accuracy variation (7.3) of each vAP pose, and its attained positions per side;
+    """The multi-directional pose accuracy variation (7.2) of each vAP pose, and its attained positions per side;
     a pose not measured from one of its sides gets a note in `notes` instead."""
     vap, vap_attained = {}, {}
     vap_plan = vap_block(iso, cell) or {"poses": []}
