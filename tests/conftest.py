@@ -3,9 +3,15 @@
 HYPOTHESIS_PROFILE=ci (what .ci/run sets): derandomized, so CI runs the same examples every time; the default
 `dev` profile draws new examples on every run and keeps the failing ones in .hypothesis/. Neither has a deadline:
 no test may depend on how fast a loaded machine is.
+
+The repository root is on sys.path in a test run (pyproject's pythonpath, `python -m pytest`) for tests/ and
+studies/; its rooms are importable only as trackcal.<room>, so that each module is one module object (issue 37: from
+the root, `campaign.cli` and `trackcal.campaign.cli` were two, and an `except` on one's error class missed the other's).
 """
 
+import importlib.abc
 import os
+import sys
 
 import pytest
 from hypothesis import settings
@@ -13,6 +19,20 @@ from hypothesis import settings
 from tests.helpers import mock_process
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
+
+ROOMS = ("calib", "campaign", "drivers", "mocks", "configs")
+
+
+class RoomsOnlyInsideTrackcal(importlib.abc.MetaPathFinder):
+    """Refuses `import calib` (and the other rooms) at the top level: the one way in is `trackcal.calib`."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name in ROOMS:
+            raise ModuleNotFoundError(f"import trackcal.{name}, not {name} (the rooms live inside trackcal)", name=name)
+        return None
+
+
+sys.meta_path.insert(0, RoomsOnlyInsideTrackcal())
 
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
 settings.register_profile("dev", deadline=None)
