@@ -24,15 +24,22 @@ $(STAMP): pyproject.toml constraints.txt Makefile
 	ln -sfn ../.. $(VENV)/links/trackcal
 	ln -sfn ../../tests $(VENV)/links/tests
 	ln -sfn ../../studies $(VENV)/links/studies
+	ln -sfn ../../bench $(VENV)/links/bench
+	# pinocchio lives where only cmeel's import hook finds it
+	ln -sfn "$$($(BIN)/python -c 'import os, pinocchio; print(os.path.dirname(pinocchio.__file__))')" $(VENV)/links/pinocchio
 	npm install --prefix $(VENV)/node --no-save --no-audit --no-fund --loglevel=error pyright@$(PYRIGHT)
 	touch $(STAMP)
 
+# -n auto: one pytest-xdist worker per core; loadgroup keeps the tests that share a resource (tests/conftest.py:
+# xdist_group) on one worker. The statistical acceptance checks are the slow suite, CI's own step.
+XDIST := -n auto --dist loadgroup
+
 test: setup
 	$(BIN)/ruff check .
-	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest
+	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST)
 
 test-slow: setup
-	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest -m slow
+	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST) -m slow --timeout 1800
 
 lint: setup
 	$(BIN)/ruff check .

@@ -9,9 +9,12 @@ studies/; its rooms are importable only as trackcal.<room>, so that each module 
 the root, `campaign.cli` and `trackcal.campaign.cli` were two, and an `except` on one's error class missed the other's).
 """
 
+import functools
 import importlib.abc
 import os
+import re
 import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -33,6 +36,24 @@ class RoomsOnlyInsideTrackcal(importlib.abc.MetaPathFinder):
 
 
 sys.meta_path.insert(0, RoomsOnlyInsideTrackcal())
+
+# The mock UR controller serves fixed ports (29999, 30001-30004) on a loopback address, picked free from 127.0.0.31
+# up or named by the test: two xdist workers (make test: -n auto, --dist loadgroup) could take the same one, so the
+# test modules that start one, and the README's examples (a `trackcal mock --cell ur10`), share a worker.
+UR_PORTS = re.compile(r"127\.0\.0\.([3-9]|[1-9][0-9]+)\b|MockUr|TwinUr|free_loopback|UrServer|JointFollower"
+                      r"|UrController|mocks\.servers\.ur|mock --cell ur")  # fmt: skip
+
+
+@functools.cache
+def starts_a_ur_controller(path: Path) -> bool:
+    return path.name == "test_readme.py" or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if starts_a_ur_controller(item.path):
+            item.add_marker(pytest.mark.xdist_group("ur-ports"))
+
 
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
 settings.register_profile("dev", deadline=None)
