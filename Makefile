@@ -3,6 +3,8 @@ PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# pyright, the analyser of VS Code, pinned: tests/test_layout.py runs it (docs/layout.md)
+PYRIGHT := 1.1.414
 # Test sessions live on a tmpfs when the machine has one: the session store fsyncs every event (power-loss safety,
 # which no test simulates), and on a shared disk that alone made the campaign tests 2-3x slower.
 TEST_TMP := $(shell test -d /dev/shm && test -w /dev/shm && echo /dev/shm || echo /tmp)
@@ -11,19 +13,33 @@ TEST_TMP := $(shell test -d /dev/shm && test -w /dev/shm && echo /dev/shm || ech
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt Makefile
 	@command -v $(PY) >/dev/null 2>&1 || { echo "error: $(PY) not found (trackcal needs Python 3.11)"; exit 1; }
+	@command -v npm >/dev/null 2>&1 || { echo "error: npm not found (make setup installs pyright with it)"; exit 1; }
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev]'
+	# the editor's view of the package: one link, so files added later resolve without a re-install (docs/layout.md)
+	mkdir -p $(VENV)/links
+	ln -sfn ../.. $(VENV)/links/trackcal
+	ln -sfn ../../tests $(VENV)/links/tests
+	ln -sfn ../../studies $(VENV)/links/studies
+	ln -sfn ../../bench $(VENV)/links/bench
+	# pinocchio lives where only cmeel's import hook finds it
+	ln -sfn "$$($(BIN)/python -c 'import os, pinocchio; print(os.path.dirname(pinocchio.__file__))')" $(VENV)/links/pinocchio
+	npm install --prefix $(VENV)/node --no-save --no-audit --no-fund --loglevel=error pyright@$(PYRIGHT)
 	touch $(STAMP)
+
+# -n auto: one pytest-xdist worker per core; loadgroup keeps the tests that share a resource (tests/conftest.py:
+# xdist_group) on one worker. The statistical acceptance checks are the slow suite, CI's own step.
+XDIST := -n auto --dist loadgroup
 
 test: setup
 	$(BIN)/ruff check .
-	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest
+	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST)
 
 test-slow: setup
-	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest -m slow
+	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST) -m slow --timeout 1800
 
 lint: setup
 	$(BIN)/ruff check .

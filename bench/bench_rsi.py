@@ -85,7 +85,8 @@ def _load(kind: str) -> list:
             p.start()
         return procs
     if kind == "tests":
-        cmd = [sys.executable, "-m", "pytest", "-q", "-x", "tests/test_kuka_codecs.py", "tests/test_identify.py"]
+        cmd = [sys.executable, "-m", "pytest", "-q", "-x", "tests/drivers/kuka/test_kuka_codecs.py",
+               "tests/calib/identify/test_identify.py"]
         return [subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     return []
 

@@ -27,7 +27,7 @@ import hashlib
 import json
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Executor, Future, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -252,6 +252,23 @@ def _lost(lost: Callable[[list, str], list] | None, chunk: list, how: str) -> li
     return lost(chunk, how)
 
 
+def _after_a_broken_pool(pending: dict[Future, int], todo: dict[int, list], marks, processes: dict,
+                         lost: Callable[[list, str], list] | None,
+                         count: Callable[[list], list]) -> Generator[list, None, int]:  # fmt: skip
+    """map_chunks once its process pool has shut down (every worker's exit code is known): yields the chunks that
+    finished before it broke, then each dead worker's chunk through `lost`, taking them out of `todo`; returns how
+    many chunks a dead worker was running."""
+    for fut, i in pending.items():  # finished before the pool broke
+        if fut.done() and not isinstance(fut.exception(), BrokenProcessPool):
+            del todo[i]
+            yield count(fut.result())
+    dead = _dead_workers(processes)
+    culprits = [i for i in todo if marks[i] in dead]
+    for i in culprits:
+        yield count(_lost(lost, todo.pop(i), dead[marks[i]]))
+    return len(culprits)
+
+
 def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
                failed: Callable[[object], bool] = lambda r: False, progress: Progress | None = None,
                lost: Callable[[list, str], list] | None = None) -> Iterator[list]:  # fmt: skip
@@ -325,15 +342,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
                     watch.close()
         if not broken:
             continue
-        # the pool has shut down: every worker's exit code is known
-        for fut, i in pending.items():  # finished before the pool broke
-            if fut.done() and not isinstance(fut.exception(), BrokenProcessPool):
-                del todo[i]
-                yield count(fut.result())
-        dead = _dead_workers(processes or {})
-        culprits = [i for i in todo if marks[i] in dead]
-        for i in culprits:
-            yield count(_lost(lost, todo.pop(i), dead[marks[i]]))
+        culprits = yield from _after_a_broken_pool(pending, todo, marks, processes or {}, lost, count)
         blind = 0 if culprits else blind + 1
         if blind > BLIND_REBUILDS:
             raise CampaignError(f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "

@@ -28,6 +28,7 @@ import contextlib
 import hmac
 import json
 import re
+from collections.abc import AsyncIterator
 from importlib import resources
 from pathlib import Path
 from urllib.parse import parse_qs
@@ -206,42 +207,6 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         hub.claim_control(client)
         state = PageState(steps, hub.plan).fold(past)
 
-        async def stream():
-            try:
-                yield f"retry: {int(HEARTBEAT_S * 1000)}\n\n"
-                yield _sse("snapshot", {"view": state.view, "points": state.points, "plan": hub.plan,
-                                        "live": {**live, "controller": hub.live["controller"]},
-                                        "events": len(past)})  # fmt: skip
-                while True:
-                    try:
-                        kind, item = await asyncio.wait_for(queue.get(), timeout=HEARTBEAT_S)
-                    except TimeoutError:
-                        if closing is not None and closing.is_set():
-                            return
-                        yield _sse("ping", {})
-                        continue
-                    # everything already waiting goes in one message (a campaign emits bursts of documents)
-                    batch = [(kind, item)]
-                    while not queue.empty():
-                        batch.append(queue.get_nowait())
-                    changed, added, live_now, last = set(), [], {}, None
-                    for kind, item in batch:
-                        if kind == "close":
-                            return
-                        if kind == "live":
-                            live_now.update(item)
-                            continue
-                        c, a = state.apply(item)
-                        changed |= c
-                        added += a
-                        last = item.id
-                    if live_now:
-                        yield _sse("live", live_now)
-                    if changed or added:
-                        yield _sse("patch", {"id": last, "set": {k: state.view[k] for k in changed}, "add": added})
-            finally:
-                hub.unsubscribe(push)
-
         def release() -> None:  # however the response ends, even before the stream started
             hub.unsubscribe(push)
             streams["open"] -= 1
@@ -249,50 +214,18 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
                 streams["said"] = False
 
         streams["open"] += 1  # no await since the count was read: no other request came in between
-        return _Released(StreamingResponse(stream(), media_type="text/event-stream",
+        return _Released(StreamingResponse(_event_stream(hub, state, past, live, queue, closing, push),
+                                           media_type="text/event-stream",
                                            headers={"X-Accel-Buffering": "no"}), release)  # fmt: skip
 
-    async def post(request: Request, action) -> Response:
-        why = _cross_site(request, hub.csrf)
-        if why:
-            return _refuse(why)
-        try:
-            body = json.loads(await request.body())
-        except ValueError:
-            return JSONResponse({"ok": False, "why": "not JSON"}, status_code=400)
-        client = body.get("client") if isinstance(body, dict) else None
-        if not isinstance(client, str) or not CLIENT_ID.match(client):
-            return JSONResponse({"ok": False, "why": "no client"}, status_code=400)
-        return action(request, body, client)
-
-    def do_answer(request: Request, body: dict, client: str) -> Response:
-        prompt = body.get("prompt")
-        if not isinstance(prompt, int) or isinstance(prompt, bool):
-            return JSONResponse({"ok": False, "why": "no prompt"}, status_code=400)
-        source = f"page {client[:8]} from {request.client.host if request.client else '?'}"
-        why = hub.answer(prompt, client, source)
-        if why:
-            return JSONResponse({"ok": False, "why": why}, status_code=409)
-        return JSONResponse({"ok": True})
-
-    def do_control(request: Request, body: dict, client: str) -> Response:
-        hub.take_control(client)
-        return JSONResponse({"ok": True})
-
     async def answer(request: Request) -> Response:
-        return await post(request, do_answer)
+        return await _post(request, hub, _do_answer)
 
     async def control(request: Request) -> Response:
-        return await post(request, do_control)
+        return await _post(request, hub, _do_control)
 
     async def report(request: Request) -> Response:
-        if report_dir is None or hub.live.get("outcome") is None:
-            return Response("no report yet\n", status_code=404, media_type="text/plain")
-        base = report_dir.resolve()
-        path = (base / request.path_params["path"]).resolve()
-        if not path.is_relative_to(base) or not path.is_file():
-            return Response("not found\n", status_code=404, media_type="text/plain")
-        return FileResponse(path)
+        return _report_file(request, hub, report_dir)
 
     routes = [
         Route("/", index), Route("/static/{name}", static), Route("/session", session), Route("/events", events),
@@ -301,6 +234,86 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         Route("/favicon.ico", lambda request: Response(status_code=204)),
     ]  # fmt: skip
     return Guard(Starlette(routes=routes), token, loopback_hosts)
+
+
+async def _event_stream(hub: Hub, state: PageState, past: list, live: dict, queue: asyncio.Queue, closing,
+                        push) -> AsyncIterator[str]:  # fmt: skip
+    """One page's server-sent events: the snapshot of what happened so far, then a patch per burst of documents,
+    the live values, a ping every HEARTBEAT_S; ends on the hub's close or once `closing` is set."""
+    try:
+        yield f"retry: {int(HEARTBEAT_S * 1000)}\n\n"
+        yield _sse("snapshot", {"view": state.view, "points": state.points, "plan": hub.plan,
+                                "live": {**live, "controller": hub.live["controller"]},
+                                "events": len(past)})  # fmt: skip
+        while True:
+            try:
+                kind, item = await asyncio.wait_for(queue.get(), timeout=HEARTBEAT_S)
+            except TimeoutError:
+                if closing is not None and closing.is_set():
+                    return
+                yield _sse("ping", {})
+                continue
+            # everything already waiting goes in one message (a campaign emits bursts of documents)
+            batch = [(kind, item)]
+            while not queue.empty():
+                batch.append(queue.get_nowait())
+            changed, added, live_now, last = set(), [], {}, None
+            for kind, item in batch:
+                if kind == "close":
+                    return
+                if kind == "live":
+                    live_now.update(item)
+                    continue
+                c, a = state.apply(item)
+                changed |= c
+                added += a
+                last = item.id
+            if live_now:
+                yield _sse("live", live_now)
+            if changed or added:
+                yield _sse("patch", {"id": last, "set": {k: state.view[k] for k in changed}, "add": added})
+    finally:
+        hub.unsubscribe(push)
+
+
+async def _post(request: Request, hub: Hub, action) -> Response:
+    """A POST of the page (an answer, taking control): refused unless same-site with the page token and a client id."""
+    why = _cross_site(request, hub.csrf)
+    if why:
+        return _refuse(why)
+    try:
+        body = json.loads(await request.body())
+    except ValueError:
+        return JSONResponse({"ok": False, "why": "not JSON"}, status_code=400)
+    client = body.get("client") if isinstance(body, dict) else None
+    if not isinstance(client, str) or not CLIENT_ID.match(client):
+        return JSONResponse({"ok": False, "why": "no client"}, status_code=400)
+    return action(request, hub, body, client)
+
+def _do_answer(request: Request, hub: Hub, body: dict, client: str) -> Response:
+    prompt = body.get("prompt")
+    if not isinstance(prompt, int) or isinstance(prompt, bool):
+        return JSONResponse({"ok": False, "why": "no prompt"}, status_code=400)
+    source = f"page {client[:8]} from {request.client.host if request.client else '?'}"
+    why = hub.answer(prompt, client, source)
+    if why:
+        return JSONResponse({"ok": False, "why": why}, status_code=409)
+    return JSONResponse({"ok": True})
+
+def _do_control(request: Request, hub: Hub, body: dict, client: str) -> Response:
+    hub.take_control(client)
+    return JSONResponse({"ok": True})
+
+
+def _report_file(request: Request, hub: Hub, report_dir: Path | None) -> Response:
+    """A file of the session's report folder, once the campaign's outcome is set; nothing outside the folder."""
+    if report_dir is None or hub.live.get("outcome") is None:
+        return Response("no report yet\n", status_code=404, media_type="text/plain")
+    base = report_dir.resolve()
+    path = (base / request.path_params["path"]).resolve()
+    if not path.is_relative_to(base) or not path.is_file():
+        return Response("not found\n", status_code=404, media_type="text/plain")
+    return FileResponse(path)
 
 
 def _other_origin(request: Request) -> str:

@@ -108,6 +108,7 @@ from trackcal.drivers.emscon.messages import (
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement
 from trackcal.drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
+from trackcal.drivers.transport import require_positive
 
 DEFAULT_PORT = 700  # the TCP port of emScon TPI's binary C variant
 _RECV_BYTES = 65536
@@ -181,15 +182,8 @@ class EmsconTracker:
         samples_per_second: float = 1000.0,
         weather_monitor: str = "not_connected",
     ) -> None:
-        for name, value in (
-            ("timeout_s", timeout_s),
-            ("measure_timeout_s", measure_timeout_s),
-            ("motion_timeout_s", motion_timeout_s),
-            ("search_timeout_s", search_timeout_s),
-            ("samples_per_second", samples_per_second),
-        ):
-            if not value > 0:
-                raise ValueError(f"{name} must be positive: nothing waits forever")
+        require_positive(timeout_s=timeout_s, measure_timeout_s=measure_timeout_s, motion_timeout_s=motion_timeout_s,
+                         search_timeout_s=search_timeout_s, samples_per_second=samples_per_second)  # fmt: skip
         try:
             self.weather_monitor = WeatherMonitorStatus[weather_monitor.upper()]
         except KeyError:

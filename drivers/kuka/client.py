@@ -68,6 +68,7 @@ from trackcal.drivers.kuka.eki_link import EkiLink
 from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
 from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
+from trackcal.drivers.transport import require_positive, require_settle_limits
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
 # the faults the KRL program latches until a reset finds them gone (trackcal_eki.src); other errors refuse one request
@@ -104,15 +105,8 @@ class KukaKrc2:
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
-        for name, v in (
-            ("connect_timeout_s", connect_timeout_s),
-            ("move_timeout_s", move_timeout_s),
-            ("io_timeout_s", io_timeout_s),
-            ("rsi_stale_s", rsi_stale_s),
-            ("rsi_cycle_s", rsi_cycle_s),
-        ):
-            if not v > 0:
-                raise ValueError(f"{name} must be positive: nothing waits forever")
+        require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
+                         rsi_stale_s=rsi_stale_s, rsi_cycle_s=rsi_cycle_s)  # fmt: skip
         limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
         if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
             raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
@@ -330,8 +324,7 @@ class KukaKrc2:
         frame for window_s of controller time; returns the last of them. The motion guard is polled every
         GUARD_S, and the RSI stream's freshness: a reason ends the wait (DeviceFault, the cause's code). The settled
         joints must agree with EKI's answer to the last move (DeviceFault CHANNELS_DISAGREE otherwise)."""
-        if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
-            raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
+        require_settle_limits(tolerance_deg, window_s, timeout_s)
         self._require_connected()
         rsi = self.rsi
         cycle = rsi.cycle_s

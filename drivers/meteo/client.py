@@ -24,6 +24,7 @@ import serial
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import Environment
 from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, MAX_SEQ, parse_line, request
+from trackcal.drivers.transport import require_positive
 
 _POLL_S = 0.02  # per-read timeout slice; the overall deadline is timeout_s
 
@@ -32,8 +33,7 @@ class SerialMeteo:
     """A T/P/H sensor on a serial line. `port` is a device path or a pyserial URL."""
 
     def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0) -> None:
-        if timeout_s <= 0:
-            raise ValueError("timeout_s must be positive: nothing waits forever")
+        require_positive(timeout_s=timeout_s)
         self.port = port
         self.baudrate = baudrate
         self.timeout_s = timeout_s

@@ -47,6 +47,7 @@ from trackcal.drivers.plc.codec import (
     decode_request,
     encode_request,
 )
+from trackcal.drivers.transport import require_positive
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +63,7 @@ class ModbusCellIO:
         timeout_s: float = 1.0,
         register_map: PlcRegisterMap = DEFAULT_REGISTER_MAP,
     ) -> None:
-        if timeout_s <= 0:
-            raise ValueError("timeout_s must be positive: nothing waits forever")
+        require_positive(timeout_s=timeout_s)
         self.host = host
         self.port = port
         self.unit_id = unit_id

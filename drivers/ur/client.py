@@ -50,6 +50,7 @@ import rtde_receive
 
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout, MotionRefused
 from trackcal.drivers.interfaces import RobotState
+from trackcal.drivers.transport import require_settle_limits
 
 AXES = ("base", "shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3")
 POLL_S = 0.002  # one RTDE cycle at 500 Hz (e-Series); the guard and the stream are read this often during moves
@@ -578,8 +579,7 @@ class UrRtde:
         """Joints of frames arriving after the call that stay within tolerance_deg of the window's first frame
         for window_s of controller time (the RTDE timestamp); returns the last of them. The motion guard is polled
         every POLL_S: a reason ends the wait (DeviceFault code "stopped")."""
-        if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
-            raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
+        require_settle_limits(tolerance_deg, window_s, timeout_s)
         real_deadline = time.monotonic() + timeout_s + self.stale_s
         start, _, _ = self._sample()
         stamp = start

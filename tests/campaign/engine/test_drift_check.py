@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.helpers import feasible_plan
+from tests.helpers import ROOT, feasible_plan
 from trackcal.calib.identify.drift import RP_PER_SIGMA, DriftTest
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.model.cell import load_cell, usable_limits_deg
@@ -149,7 +149,7 @@ def test_a_block_whose_reference_pose_hides_its_point_warns_and_the_report_says_
     the flange frame while P1 and P2 face +x (acceptance 90 deg): the poses where S1 sees P1 and P2 but not P3 see the
     most points, so one of them is S1's reference pose (calib.doe.order), and P3's block from S1 has no revisit to
     compare. Before, that block went without a word."""
-    root = Path(__file__).resolve().parents[1] / "configs"
+    root = ROOT / "configs"
     tool = (root / "tools" / "kr270-3point.yaml").read_text()
     (tmp_path / "tool.yaml").write_text(tool.replace("P3: {xyz_mm: [278, 104, -2],  normal: [1, 0, 0]}",
                                                      "P3: {xyz_mm: [278, 104, -2],  normal: [0, 1, 0]}"))  # fmt: skip

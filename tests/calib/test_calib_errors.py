@@ -2,11 +2,11 @@
 
 import ast
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.helpers import ROOT
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.features import ExtensionError
 from trackcal.calib.diagnose.joint_map import Arc, JointMapError, parse_name
@@ -18,7 +18,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import RigidError, kabsch
 from trackcal.mocks.twin import Twin, simulate_campaign
 
-CALIB = Path(__file__).resolve().parents[1] / "calib"
+CALIB = ROOT / "calib"
 PLAIN = ("ValueError", "TypeError", "KeyError", "IndexError", "RuntimeError", "Exception")
 
 

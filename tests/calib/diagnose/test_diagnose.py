@@ -67,6 +67,7 @@ def check_verdicts(cell, seeds):
     assert not failures, failures
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 def test_every_hidden_cause_is_named(kr270):
     check_verdicts(kr270, [20001])
 

@@ -2,7 +2,6 @@
 the importer, and a calibration on Series B validated on Series D."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +9,7 @@ import pytest
 from studies.ur10_ipa.error_map_check import on_other_series
 from studies.ur10_ipa.orientation import angular_rms_mrad
 from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
+from tests.helpers import ROOT
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.diagnose.joint_map import fit_error_map
@@ -196,7 +196,7 @@ def test_cli_import_writes_a_design_table(tmp_path, capsys):
 def test_ur10_config_is_the_dh_urdf_joint_by_joint():
     # configs/robots/ur10.yaml and tests/data/ur_like_dh.urdf both write Universal Robots' DH table; the
     # URDF stops at the wrist_3 frame, the config adds d6 = 92.2 mm to reach the flange
-    urdf = chain_from_urdf(str(Path(__file__).parent / "data" / "ur_like_dh.urdf"))
+    urdf = chain_from_urdf(str(ROOT / "tests" / "data" / "ur_like_dh.urdf"))
     ur10, _ = load_robot("ur10")
     q = np.random.default_rng(5).uniform(-np.pi, np.pi, size=(30, 6))
     r_u, o_u = Kinematics(urdf, []).end_frames(q)

@@ -81,6 +81,7 @@ def check_campaign(case) -> None:
     assert not worse, f"{case}: {d.cause} {[c['cause'] for c in d.causes]}: {why}"
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @settings(max_examples=3, suppress_health_check=[HealthCheck.too_slow])
 @given(case=campaigns())
 def test_chosen_model_never_predicts_unseen_poses_worse(case):

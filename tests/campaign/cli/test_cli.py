@@ -8,7 +8,6 @@ import re
 import socket
 import subprocess
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ from threadpoolctl import threadpool_info
 import trackcal.campaign.cli.analysis
 import trackcal.campaign.jobs.limits as limits
 import trackcal.campaign.jobs.plan as plan_job
-from tests.helpers import TRACKCAL, kr270_campaign
+from tests.helpers import ROOT, TRACKCAL, kr270_campaign
 from trackcal.calib.doe.design import SCREEN_CHUNK
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.identify.solver import Identification
@@ -211,7 +210,7 @@ def leaf_parsers(parser: argparse.ArgumentParser):
 
 
 def test_every_option_has_help_and_shows_its_default():
-    root = Path(__file__).resolve().parents[1]
+    root = ROOT
     for parser in leaf_parsers(build_parser()):
         text = parser.format_help()
         for action in parser._actions:

@@ -249,6 +249,7 @@ def test_coverage_over_many_seeds_is_95_percent():
     assert c.honest, c.sentence
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 def test_monte_carlo_rho0_on_pool_and_dask(tmp_path, cluster):
     """plan's criterion by simulation through the batch engine: the same runs on the process pool and on Dask (each
     run has its own generator), and the mean squared TCP error agrees with rho0^2 within 4 standard errors

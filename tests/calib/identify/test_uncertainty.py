@@ -36,9 +36,10 @@ def check(inside, joint, n):
     assert stats.binomtest(int(joint), n, 0.95).pvalue > 1e-4, (joint, n)
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @pytest.mark.parametrize(
     "weighting, twin_noise",
-    # the tracker model (every command's default weighting) by default; i.i.d. (12 s more) with -m slow
+    # the tracker model (every command's default weighting) and i.i.d. (12 s more), both in the slow suite
     [pytest.param(None, TrackerNoise.isotropic(0.010), marks=pytest.mark.slow), (TrackerNoise(), TrackerNoise())],
     ids=["iid", "tracker-model"],
 )

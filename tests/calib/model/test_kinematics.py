@@ -1,12 +1,12 @@
 """Forward kinematics against pinocchio, analytic Jacobians against finite differences."""
 
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import ROOT
 from trackcal.calib.model.chain import chain_from_urdf
 from trackcal.calib.model.kinematics import Kinematics, turned
 from trackcal.calib.model.params import complete_params
@@ -28,7 +28,7 @@ def test_nominal_fk_matches_pinocchio(kr270):
 
 
 def test_urdf_chain_matches_pinocchio_urdf():
-    path = Path(__file__).parent / "data" / "ur_like_dh.urdf"
+    path = ROOT / "tests" / "data" / "ur_like_dh.urdf"
     chain = chain_from_urdf(str(path))
     model = pin.buildModelFromUrdf(str(path))
     data = model.createData()

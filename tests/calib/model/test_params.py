@@ -1,10 +1,10 @@
 """The complete and irreducible parameter set (paper section 3) and its numerical verification."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.helpers import ROOT
 from trackcal.calib.model.cell import load_robot
 from trackcal.calib.model.chain import ChainError, chain_from_dict, chain_from_urdf
 from trackcal.calib.model.identifiability import identification_jacobian, numerical_rank, random_configuration
@@ -19,7 +19,7 @@ PAPER_EQ6 = [
 # Paper section 3: eliminated from the redundant model (4) by the rules for consecutive joints.
 PAPER_ELIMINATED_BY_RULES = {"phiy1", "pz2", "phix3", "phiy4", "px5", "phix5"}
 
-UR_LIKE_URDF = Path(__file__).parent / "data" / "ur_like_dh.urdf"
+UR_LIKE_URDF = ROOT / "tests" / "data" / "ur_like_dh.urdf"
 
 TOOL = np.array([[277.0, -47, -94], [276, -48, 94], [278, 104, -2]])
 

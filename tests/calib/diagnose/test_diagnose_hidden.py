@@ -218,6 +218,7 @@ def finite_or_null(obj) -> bool:
     return True
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @pytest.mark.parametrize("names", [("tanh_backlash",), ("payload_off",), ("warm_up",), ("drifting_station",)])
 def test_out_of_form_effect_is_named_by_its_nearest_cause(names):
     assert check(5001, names) is None
@@ -227,6 +228,7 @@ def test_harmonic_3_4_joint_error_is_cyclic_error():
     assert check(5001, ("harmonic34",)) is None
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @pytest.mark.parametrize("names", [("payload_off", "tanh_backlash"), ("encoder", "warm_up")])
 def test_two_effects_are_both_named(names):
     assert check(5002, names) is None
@@ -238,10 +240,12 @@ def test_high_order_joint_error_is_never_noise():
     assert d.cause != "none" and (d.causes or d.structure["structure"]), (d.cause, named)
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 def test_high_order_joint_error_is_cyclic_error():
     assert check(5003, ("high_order",)) is None
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @pytest.mark.parametrize("seed", [5004, 5005, 5006])
 def test_noisier_tracker_is_none_with_its_noise_scale(seed):
     d, named = verdict(seed, ("none",), noise_factor=1.5)
@@ -251,6 +255,7 @@ def test_noisier_tracker_is_none_with_its_noise_scale(seed):
     assert d.noise_scale == pytest.approx(1.5, abs=0.2)
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 @pytest.mark.parametrize("seed", [5010, 5011])
 def test_tracker_noisier_along_its_line_of_sight_is_none(seed):
     # the distance meter 2x noisier than the model, the angles as modelled: a noise model wrong in shape,
@@ -299,6 +304,7 @@ def test_station_step_change_point_is_found_exactly():
     assert d.shift == {"station": sid, "after_t_s": float(cut)}
 
 
+@pytest.mark.slow  # a statistical acceptance check, among make test's slowest (issue 37): make test-slow
 def test_floor_from_comparable_repeats_ignores_backlash():
     # three passes: repeats of a pose with the same approach directions, a pass apart; a backlash seen
     # from alternating directions must not enter the floor, which is then the tracker's own scatter

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from studies.ur10_ipa.study import DATA, SERIES
-from tests.helpers import feasible_plan, kr270_campaign
+from tests.helpers import ROOT, feasible_plan, kr270_campaign
 from trackcal.calib.io.table import write_table
 from trackcal.calib.model.cell import CONFIGS
 from trackcal.campaign.cli import main
@@ -139,7 +139,7 @@ def good(tmp_path_factory, kr270):
     (d / "verdict.json").write_text(json.dumps(verdict))
     hw = yaml.safe_load((CONFIGS / "hardware" / "example-cell.yaml").read_text())
     (d / "hardware.yaml").write_text(yaml.safe_dump(hw))
-    examples = Path(__file__).resolve().parents[1] / "docs" / "examples"
+    examples = ROOT / "docs" / "examples"
     shutil.copyfile(examples / "three-smr-export.csv", d / "export.csv")
     shutil.copyfile(examples / "three-smr.map.yaml", d / "map.yaml")
     if DATA.is_dir():
