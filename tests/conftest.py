@@ -46,7 +46,7 @@ UR_PORTS = re.compile(r"127\.0\.0\.([3-9]|[1-9][0-9]+)\b|MockUr|TwinUr|free_loop
 
 @functools.cache
 def starts_a_ur_controller(path: Path) -> bool:
-    return path.name == "test_readme.py" or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
+    return path.name in ("test_readme.py", "test_docs.py") or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
 
 
 def pytest_collection_modifyitems(config, items):

@@ -12,7 +12,7 @@ from trackcal.calib.iso9283 import Figure, distance_accuracy, drift, multidirect
 from trackcal.calib.iso9283_clauses import CLAUSES, clause
 from trackcal.campaign.report.iso9283 import DEFINITIONS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # ISO 9283:1998(E), second edition 1998-04-01, "Contents" (the public sample pages of the standard and of its
 # adoption SIST EN ISO 9283:2003): the clause numbers and titles of clauses 6 and 7, written from that page
