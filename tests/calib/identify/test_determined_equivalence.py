@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 
-from tests.test_determined import UR10_P
-from trackcal.calib.diagnose.selection import fit_cause
+from tests.calib.identify.test_determined import UR10_P
+from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.determined import noise_floor_ratios
 from trackcal.calib.identify.noise import TrackerNoise
