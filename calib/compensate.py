@@ -236,6 +236,35 @@ def pose_error(
     return np.linalg.norm(d, axis=1), np.degrees(rotation_angle(r_nom, r_id))
 
 
+def _checked_request(chain, q_nominal_rad, tcp_mm, lever_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(q0 (N, n) rad, tcp (3,) mm) of a compensation request, or CompensationError for one that cannot be run."""
+    n = chain.dof
+    q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
+    if q0.ndim != 2 or q0.shape[1] != n:
+        raise CompensationError(f"expected joint targets with {n} angles per row, got shape {q0.shape}")
+    if not np.all(np.isfinite(q0)):
+        raise CompensationError("joint targets must be finite numbers")
+    tcp = np.asarray(tcp_mm, dtype=float)
+    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)):
+        raise CompensationError(f"the TCP must be 3 finite coordinates (mm), got {tcp_mm!r}")
+    if not lever_mm > 0:
+        raise CompensationError("lever_mm must be positive")
+    return q0, tcp
+
+
+def _refuse_outside(model: Model, q0: np.ndarray, joint_names: list[str], failures: list[str]) -> None:
+    """Marks in `failures` the targets outside the joint ranges the model's extension was fitted on."""
+    ranges = model.ranges()
+    if ranges is None:
+        return
+    out = ranges.outside(q0)
+    for i in np.flatnonzero(out.any(axis=1)):
+        joints = "; ".join(f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, "
+                           f"{np.degrees(hi):.4f}]" for j, (lo, hi) in enumerate(ranges.joints_rad) if out[i, j])
+        failures[i] = failures[i] or (f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
+                                      "extension is then held at the nearest fitted angle)")  # fmt: skip
+
+
 def compensate(
     model: Model,
     q_nominal_rad: np.ndarray,
@@ -259,30 +288,15 @@ def compensate(
     extension held at the nearest fitted angle, and the report warns)."""
     chain = model.chain
     n = chain.dof
-    q0 = np.atleast_2d(np.asarray(q_nominal_rad, dtype=float))
-    if q0.ndim != 2 or q0.shape[1] != n:
-        raise CompensationError(f"expected joint targets with {n} angles per row, got shape {q0.shape}")
-    if not np.all(np.isfinite(q0)):
-        raise CompensationError("joint targets must be finite numbers")
-    tcp = np.asarray(tcp_mm, dtype=float)
-    if tcp.shape != (3,) or not np.all(np.isfinite(tcp)):
-        raise CompensationError(f"the TCP must be 3 finite coordinates (mm), got {tcp_mm!r}")
-    if not lever_mm > 0:
-        raise CompensationError("lever_mm must be positive")
+    q0, tcp = _checked_request(chain, q_nominal_rad, tcp_mm, lever_mm)
     n_rows = len(q0)
     limits = chain.limits_array()
     joint_names = [j.name for j in chain.joints]
     failures = [f"nominal target outside the joint limits: {v}" if v else "" for v in
                 _limit_violations(q0, limits, joint_names)]  # fmt: skip
     offsets, ignored, notes = joint_error_function(model)
-    ranges = model.ranges()
-    if offsets is not None and ranges is not None and not allow_outside:  # known only where it was fitted
-        out = ranges.outside(q0)
-        for i in np.flatnonzero(out.any(axis=1)):
-            joints = "; ".join(f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, "
-                               f"{np.degrees(hi):.4f}]" for j, (lo, hi) in enumerate(ranges.joints_rad) if out[i, j])
-            failures[i] = failures[i] or (f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
-                                          "extension is then held at the nearest fitted angle)")  # fmt: skip
+    if offsets is not None and not allow_outside:  # the extension is known only where it was fitted
+        _refuse_outside(model, q0, joint_names, failures)
 
     tools = tcp + np.array([[0.0, 0.0, 0.0], [lever_mm, 0.0, 0.0], [0.0, lever_mm, 0.0]])  # last joint frame
     tool_rows = np.tile(tools, (n_rows, 1))

@@ -151,21 +151,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
             out.append(f"<td>{_um(p.ap.value, p.ap.u95)}</td><td>{xyz}</td><td>{_um(p.rp.value, p.rp.u95)}</td>")
         out.append("</tr>")
     out.append("</table>")
-    if any(p.orientation for t in tests for p in t.poses):
-        out.append("<h2>Orientation characteristics (millidegrees)</h2><table><tr><th class=l>pose</th>")
-        for lab in label:
-            out += [f"<th>AP_a, AP_b, AP_c {lab}</th><th>RP_a, RP_b, RP_c {lab}</th>"]
-        out.append("</tr>")
-        for i, name in enumerate(POSE_NAMES):
-            out.append(f"<tr><td class=l>{name}</td>")
-            for t in tests:
-                o = t.poses[i].orientation
-                for kind in ("AP", "RP"):
-                    figs = [o.get(f"{kind}_{a}") for a in "abc"]
-                    out.append("<td>" + "<br>".join(f"{a}: " + ("-" if f is None else _um(f.value, f.u95))
-                                                    for a, f in zip("abc", figs, strict=True)) + "</td>")
-            out.append("</tr>")
-        out.append("</table>")
+    out += _orientation_section(tests, label)
     a, b = DISTANCE_POSES
     out.append(f"<h2>Distance characteristics, {POSE_NAMES[a]}–{POSE_NAMES[b]} (µm)</h2><table><tr>")
     out += [f"<th>AD_P {lab}</th><th>RD {lab}</th>" for lab in label]
@@ -175,23 +161,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
-    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
-    if vap_poses:
-        out.append("<h2>Multi-directional pose accuracy variation (µm)</h2><table><tr><th class=l>pose</th>")
-        out += [f"<th>vAP_P {lab}</th>" for lab in label]
-        out.append("<th class=l>approached from</th></tr>")
-        for name in vap_poses:
-            sides = next((", ".join(t.vap_attained_mm[name]) for t in tests if name in t.vap_attained_mm), "")
-            cells = [_um(t.vap[name].value, t.vap[name].u95) if name in t.vap else "-" for t in tests]
-            out.append(f"<tr><td class=l>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells)
-                       + f"<td class=l>{sides} sides</td></tr>")  # fmt: skip
-        out.append("</table>")
-    for d in drift_list:
-        out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
-                   f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
-        out += [f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
-                f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>" for p in d["poses"]]  # fmt: skip
-        out.append("</table>")
+    out += _vap_section(tests, label) + _drift_sections(drift_list)
     if conformity is not None:
         out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
@@ -206,6 +176,57 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
     out += _signatures()
     out.append("</body></html>\n")
     return "\n".join(out)
+
+
+def _orientation_section(tests: list[IsoFigures], label: list[str]) -> list[str]:
+    """The orientation characteristics' table (none when no test measured orientations)."""
+    out: list[str] = []
+    if not any(p.orientation for t in tests for p in t.poses):
+        return out
+    out.append("<h2>Orientation characteristics (millidegrees)</h2><table><tr><th class=l>pose</th>")
+    for lab in label:
+        out += [f"<th>AP_a, AP_b, AP_c {lab}</th><th>RP_a, RP_b, RP_c {lab}</th>"]
+    out.append("</tr>")
+    for i, name in enumerate(POSE_NAMES):
+        out.append(f"<tr><td class=l>{name}</td>")
+        for t in tests:
+            o = t.poses[i].orientation
+            for kind in ("AP", "RP"):
+                figs = [o.get(f"{kind}_{a}") for a in "abc"]
+                out.append("<td>" + "<br>".join(f"{a}: " + ("-" if f is None else _um(f.value, f.u95))
+                                                for a, f in zip("abc", figs, strict=True)) + "</td>")
+        out.append("</tr>")
+    out.append("</table>")
+    return out
+
+
+def _vap_section(tests: list[IsoFigures], label: list[str]) -> list[str]:
+    """The multi-directional pose accuracy variation's table (none without vAP visits)."""
+    out: list[str] = []
+    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
+    if vap_poses:
+        out.append("<h2>Multi-directional pose accuracy variation (µm)</h2><table><tr><th class=l>pose</th>")
+        out += [f"<th>vAP_P {lab}</th>" for lab in label]
+        out.append("<th class=l>approached from</th></tr>")
+        for name in vap_poses:
+            sides = next((", ".join(t.vap_attained_mm[name]) for t in tests if name in t.vap_attained_mm), "")
+            cells = [_um(t.vap[name].value, t.vap[name].u95) if name in t.vap else "-" for t in tests]
+            out.append(f"<tr><td class=l>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+                       + f"<td class=l>{sides} sides</td></tr>")  # fmt: skip
+        out.append("</table>")
+    return out
+
+
+def _drift_sections(drift_list: list[dict]) -> list[str]:
+    """One table per drift comparison."""
+    out: list[str] = []
+    for d in drift_list:
+        out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
+                   f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
+        out += [f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
+                f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>" for p in d["poses"]]  # fmt: skip
+        out.append("</table>")
+    return out
 
 
 def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
