@@ -49,6 +49,7 @@ def starts_a_ur_controller(path: Path) -> bool:
     return path.name in ("test_readme.py", "test_docs.py") or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the group into the node id
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if starts_a_ur_controller(item.path):

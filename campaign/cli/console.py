@@ -13,7 +13,9 @@ from trackcal.drivers.errors import ConnectionLost
 
 # Markup off: whatever is printed is shown as it is, so a point, station, file or folder name holding rich markup
 # (`P2[/bold]`, `m[red]x`) is data, never a style nor a MarkupError; colour is asked for with a rich Text.
-console = Console(highlight=False, markup=False)
+# Into a pipe or a file (a log, a test) a line is written whole, never folded at 80 columns: a path or a command
+# the user copies from it stays one word; on a terminal, rich fits the text to its width.
+console = Console(highlight=False, markup=False, soft_wrap=not sys.stdout.isatty())
 
 
 def labelled(label: str, style: str, text: str) -> Text:

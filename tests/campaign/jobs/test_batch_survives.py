@@ -228,7 +228,7 @@ def test_a_dask_worker_that_dies_costs_its_chunk_and_the_others_are_done(tmp_pat
     assert [Path(c).stem for c in written] == ["t1", "t5", "t6"]
 
 
-# the plan's exchange task (calib.doe.design._exchanged, which the client sends by reference) replaced in the Dask
+# the plan's start task (calib.doe.design._exchanged_refined, which the client sends by reference) replaced in the Dask
 # worker: it says it started, then computes for an hour
 PLAN_STAND_IN = """
 import time
@@ -239,7 +239,7 @@ def hang(task):
     Path({mark!r}).write_text("started")
     time.sleep(3600)
 
-design._exchanged = hang
+design._exchanged_refined = hang  # the task each start is (calib.doe.design.optimize_plan)
 """
 
 
