@@ -92,8 +92,9 @@ def diagnose(
     ctx = context(chain, table, params, noise, geo, causes)
     ctx.executor = executor
     sel = Selection.start(ctx, folds, seed, causes)
-    while sel.step():
-        pass
+    stepping = True
+    while stepping:  # one forward-selection step at a time, until a step admits no cause
+        stepping = sel.step()
     return _verdict(sel, table, floor, p_floor)
 
 
