@@ -22,6 +22,7 @@ import numpy as np
 import trackcal.drivers as _drivers
 from trackcal.drivers.errors import ProgramError
 from trackcal.drivers.interfaces import Robot
+from trackcal.drivers.program_text import ProgramRead
 
 REQUIRED = ...  # the default of a key the hardware file must give
 
@@ -97,6 +98,9 @@ class RobotFamily:
     # native_output(path): what the driver's native library prints on the process's console by itself goes to
     # this file instead (a campaign's session folder), keeping trackcal's one line alone; returns whether it did
     native_output: Callable[..., bool] | None = None
+    # the controller's programs read for filtering (`trackcal filter`): a file suffix (".src", ".script", ".mod")
+    # -> reader(files) -> ProgramRead, files {name: text} (a KRL .src with its .dat and the cell's $config.dat)
+    readers: dict[str, Callable[[dict[str, str]], ProgramRead]] | None = None
 
 
 def families() -> dict[str, RobotFamily]:
@@ -108,3 +112,8 @@ def families() -> dict[str, RobotFamily]:
             family = importlib.import_module(name).FAMILY
             out[family.name] = family
     return dict(sorted(out.items()))
+
+
+def program_readers() -> dict[str, Callable[[dict[str, str]], ProgramRead]]:
+    """Every family's program readers by file suffix (lower case)."""
+    return {suffix: reader for family in families().values() for suffix, reader in (family.readers or {}).items()}

@@ -1,0 +1,1 @@
+"""ABB robot controllers (RobotWare): Robot Web Services, EGM and RAPID programs."""
