@@ -254,6 +254,24 @@ COMMANDS = [
                     "the model's extension was fitted on, the extension held at the nearest fitted angle (default: "
                     "such targets are refused, kept nominal)"),
             ]),
+    Command("filter", "a robot program's targets corrected for an identified model, each with its predicted "
+            "accuracy (KRL, URScript, RAPID: the reader its suffix names)",
+            "trackcal.campaign.cli.filter:cmd_filter", [
+                arg("program", help="the program's main file (.src, .script, .mod ...: its suffix picks the reader)"),
+                arg("more", nargs="*", metavar="MORE", help="the program's other files (a KRL .dat, $config.dat)"),
+                arg("--model", required=True, help="model.json from identify or diagnose"),
+                arg("--out", required=True, help="directory of the filtered program (same file names; never an "
+                    "input's own) and of filter.json / filter.html"),
+                arg("--tolerance-mm", type=float, help="each target passes when its 95 %% bound is within this "
+                    "(default: no pass/fail)"),
+                arg("--strict", action="store_true", help="exit 1 when a target fails the tolerance (the files are "
+                    "written all the same)"),
+                arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
+                arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),
+                arg("--allow-outside", action="store_true", help="also filter targets outside the joint ranges the "
+                    "model's extension was fitted on, the extension held at the nearest fitted angle (default: "
+                    "such targets are kept as they were)"),
+            ]),
     Command("factory-robot", "a robot config whose nominal is the robot controller's own (factory) calibration",
             "trackcal.campaign.cli.factory:cmd_factory_robot", [
                 arg("--cell", required=True, help=CELL_HELP),

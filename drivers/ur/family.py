@@ -8,6 +8,7 @@ from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.ur.calibration import read_calibration_conf, read_kinematics_info
 from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde, divert_native_output
 from trackcal.drivers.ur.program import PROGRAM
+from trackcal.drivers.ur.urscript_reader import read_urscript
 
 SCHEMAS = {
     "": {
@@ -57,4 +58,4 @@ def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
 FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
                      describe=where, where=where, waiting=waiting, claim=claim, factory_table=factory_table,
                      native_output=divert_native_output,
-                     program=PROGRAM)  # fmt: skip
+                     program=PROGRAM, readers={".script": read_urscript, ".urscript": read_urscript})  # fmt: skip

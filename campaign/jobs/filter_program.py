@@ -1,0 +1,173 @@
+"""`filter` on typed options: a robot program's targets corrected for an identified model (calib.program_filter), the
+filtered program, its report (filter.json, filter.html).
+
+    trackcal filter PROGRAM [MORE FILES] --model model.json --out DIR [--tolerance-mm X] [--strict]
+
+The reader is the one a controller family registers for PROGRAM's suffix (drivers.families.program_readers); MORE
+FILES are read with it (a KRL .src's .dat and the cell's $config.dat). The filtered files are written into DIR under
+their own names, never over an input. A target that is not corrected keeps its text and gets an end-of-line comment
+saying why (ProgramRead.write). The model is checked as `compensate` checks it (campaign.jobs.trusted).
+
+The files are read and written as Latin-1: every byte maps to one character and back, so everything but the targets'
+text stays byte for byte whatever the controller's code page (KRL editors write Windows-1252, the pendants UTF-8).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trackcal.calib.io.files import atomic_open, write_json
+from trackcal.calib.model_file import Model
+from trackcal.calib.program_filter import FilterResult, filter_targets
+from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.compensate import correction_bound
+from trackcal.campaign.jobs.trusted import trusted_model, usable_model
+from trackcal.campaign.report.filter_page import write_filter_page
+from trackcal.drivers.errors import ProgramError
+from trackcal.drivers.families import program_readers
+from trackcal.drivers.program_text import ProgramRead
+
+FORMAT = "trackcal-filter/1"
+ENCODING = "latin-1"  # byte-transparent (module docstring)
+NOTE = ("correction: how far the filter moves the TCP and turns the tool (the nominal robot's, mm and deg); "
+        "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
+        "there when kept); sigma_mm: the 1-sigma 3-D uncertainty of the model's TCP there (its parameters' "
+        "covariance through the TCP Jacobian); bound95_mm: predicted_mm plus the radius holding the TCP with 95 % "
+        "probability; pass: bound95_mm <= tolerance_mm")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """What `trackcal filter` is asked."""
+
+    program: str  # the program's main file; its suffix picks the reader
+    model: str  # model.json
+    out: str  # directory of the filtered files and the report
+    more: tuple[str, ...] = ()  # the program's other files (a KRL .dat, $config.dat)
+    tolerance_mm: float | None = None  # pass/fail of each target's 95 % bound
+    strict: bool = False  # the job says whether any target fails the tolerance (the CLI exits 1)
+    accept_edited: bool = False
+    accept_poor: bool = False
+    allow_outside: bool = False  # also filter targets outside the joint ranges the model's extension was fitted on
+
+
+@dataclass
+class FilterOutcome:
+    read: ProgramRead
+    result: FilterResult
+    rows: list[dict]  # filter.json's targets
+    written: list[Path]  # the filtered program's files
+    report_json: Path
+    report_html: Path
+    model_warnings: list[str] = field(default_factory=list)
+
+    @property
+    def failed(self) -> int:
+        """Targets that fail the tolerance (kept ones included)."""
+        return sum(1 for r in self.rows if r["pass"] is False)
+
+
+def read_program(opts: FilterOptions) -> ProgramRead:
+    """The program read by its family's reader, every file under its own name."""
+    readers = program_readers()
+    suffix = Path(opts.program).suffix.lower()
+    if suffix not in readers:
+        known = ", ".join(sorted(readers)) or "none"
+        raise InputError(f"{opts.program}: no reader for {suffix or 'a file without a suffix'} programs (known: "
+                         f"{known})")  # fmt: skip
+    files: dict[str, str] = {}
+    for path in (opts.program, *opts.more):
+        name = Path(path).name
+        if name in files:
+            raise InputError(f"{path}: two files named {name}: give each once")
+        try:
+            files[name] = Path(path).read_bytes().decode(ENCODING)
+        except FileNotFoundError:
+            raise InputError(f"{path}: no such file") from None
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return readers[suffix](files)
+    except ProgramError as exc:
+        raise InputError(str(exc)) from None
+
+
+def reference_joints(model: Model) -> np.ndarray:
+    """(n,) deg: where the robot is taken to be before the program's first target: the cell's test pose recorded in
+    the model, else the middle of each joint's range (within a half turn of zero)."""
+    test = model.doc.get("test_pose") or {}
+    q = test.get("joints_deg")
+    if isinstance(q, list) and len(q) == model.chain.dof:
+        return np.asarray(q, dtype=float)
+    lim = np.clip(model.chain.limits_array(), -np.pi, np.pi)
+    return np.degrees(lim.mean(axis=1))
+
+
+def _number(v) -> float | None:
+    return float(v) if v is not None and np.isfinite(v) else None
+
+
+def target_rows(read: ProgramRead, res: FilterResult, tolerance_mm: float | None) -> list[dict]:
+    """filter.json's targets: where each is, what was done, its predicted accuracy and pass/fail."""
+    rows = []
+    for i, t in enumerate(read.targets):
+        bound = _number(res.bound95_mm[i])
+        dq = res.q_calibrated_deg[i] - res.q_nominal_deg[i]
+        rows.append({
+            "file": t.file, "line": t.line, "name": t.name, "kind": "joint" if t.joint else "cartesian",
+            "motion": t.motion, "status": "filtered" if not res.why[i] else "kept", "why": res.why[i] or None,
+            "correction_mm": float(res.correction_mm[i]), "correction_deg": float(res.correction_deg[i]),
+            "joint_correction_deg": _number(np.max(np.abs(dq))) if not res.why[i] else None,
+            "predicted_mm": _number(res.predicted_mm[i]), "sigma_mm": _number(res.sigma_mm[i]), "bound95_mm": bound,
+            "outside_fitted_ranges": bool(res.outside[i]),
+            "pass": None if tolerance_mm is None else bool(bound is not None and bound <= tolerance_mm),
+        })  # fmt: skip
+    return rows
+
+
+def _out_paths(opts: FilterOptions, read: ProgramRead) -> dict[str, Path]:
+    """Each file's output path; refused when one would overwrite an input."""
+    out = Path(opts.out)
+    inputs = {Path(p).resolve() for p in (opts.program, *opts.more)}
+    paths = {name: out / name for name in read.files}
+    for path in paths.values():
+        if path.resolve() in inputs:
+            raise OptionError("{0} {out}: would overwrite the input {path}: give another directory", "out",
+                              out=opts.out, path=path)  # fmt: skip
+    return paths
+
+
+def run_filter(opts: FilterOptions) -> FilterOutcome:
+    """`trackcal filter`: the program filtered into opts.out, with filter.json and filter.html."""
+    if opts.tolerance_mm is not None and not (np.isfinite(opts.tolerance_mm) and opts.tolerance_mm > 0):
+        raise OptionError("{0} {tol}: a tolerance is a positive number of mm", "tolerance_mm", tol=opts.tolerance_mm)
+    model, warnings = trusted_model(opts.model, opts.accept_edited)
+    warnings += usable_model(model, opts.model, opts.accept_poor)
+    read = read_program(opts)
+    if not read.targets:
+        raise InputError(f"{opts.program}: no {read.language} target to filter (no literal pose or joint values "
+                         "used by a move)")  # fmt: skip
+    paths = _out_paths(opts, read)
+    res = filter_targets(model, read.targets, reference_joints(model), correction_bound(model), opts.allow_outside)
+    values = {i: v for i, v in enumerate(res.values) if v is not None}
+    notes = {i: f"trackcal filter: kept as it was: {w}" for i, w in enumerate(res.why) if w}
+    texts = read.write(values, notes)
+    rows = target_rows(read, res, opts.tolerance_mm)
+    out = Path(opts.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for name, text in texts.items():
+            with atomic_open(paths[name], "wb") as fh:
+                fh.write(text.encode(ENCODING, errors="replace"))
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write the filtered program ({exc.strerror or exc})") from None
+    doc = {"format": FORMAT, "program": str(opts.program), "language": read.language, "model": str(opts.model),
+           "tolerance_mm": opts.tolerance_mm, "targets": rows, "filtered": int(res.ok.sum()),
+           "kept": int((~res.ok).sum()), "failed": sum(1 for r in rows if r["pass"] is False),
+           "warnings": [*warnings, *res.warnings], "note": NOTE}  # fmt: skip
+    write_json(out / "filter.json", doc, InputError)
+    page = write_filter_page(out / "filter.html", doc)
+    return FilterOutcome(read, res, rows, list(paths.values()), out / "filter.json", page, warnings)
