@@ -1,0 +1,109 @@
+"""`trackcal filter` (campaign/jobs/filter_program.py, campaign/cli/filter.py): the sample URScript program filtered
+with a model of the UR10 twin; the files, filter.json, filter.html; targets kept with their reason; one-line refusals.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from trackcal.calib.model_file import load_model
+from trackcal.campaign.cli import main
+from trackcal.drivers.ur.urscript_reader import read_urscript
+
+SAMPLE = Path(__file__).resolve().parents[3] / "configs" / "programs" / "ur" / "cell_demo.script"
+
+
+@pytest.fixture(scope="module")
+def ur10_model(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("model")
+    assert main(["simulate", "--cell", "ur10", "--poses", "20", "--seed", "1", "--out", str(d / "t.csv")]) == 0
+    assert main(["identify", str(d / "t.csv"), "--cell", "ur10", "--out", str(d / "m.json")]) == 0
+    return d / "m.json"
+
+
+def strict_json(path: Path) -> dict:
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_the_sample_program_filtered(ur10_model, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["filter", str(SAMPLE), "--model", str(ur10_model), "--out", str(out), "--tolerance-mm", "0.5"]) == 0
+    printed = capsys.readouterr().out
+    assert "8 of 8 targets filtered; 0 fail the tolerance of 0.5 mm" in printed
+    source = SAMPLE.read_text()
+    written = (out / SAMPLE.name).read_text()
+    before, after = read_urscript({"s": source}), read_urscript({"s": written})
+    assert len(after.targets) == len(before.targets) == 8
+    # only the targets' text changed: the rest (comments, speeds, logic) is the same, line for line
+    for a, b in zip(source.splitlines(), written.splitlines(), strict=True):
+        if "p[" not in a and "movej([" not in a and not a.startswith("  home ="):
+            assert a == b
+    doc = strict_json(out / "filter.json")
+    assert doc["language"] == "URScript" and doc["filtered"] == 8 and doc["kept"] == 0
+    model = load_model(ur10_model)
+    for row, t in zip(doc["targets"], after.targets, strict=True):
+        assert row["status"] == "filtered" and row["pass"] is True
+        assert row["line"] == t.line and row["name"] == t.name
+        # the model moves the UR10's TCP by about its deviations (0.3 mm per link, mocks.twin): well under 10 mm
+        assert 0.0 < row["correction_mm"] < 10.0
+        assert 0.0 < row["sigma_mm"] <= row["bound95_mm"]
+    assert model.cause == "none"
+    assert "<table>" in (out / "filter.html").read_text()
+
+
+def test_an_unreachable_target_is_kept_and_marked(ur10_model, tmp_path, capsys):
+    script = tmp_path / "far.script"
+    script.write_text("def far():\n  movej([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])\n"
+                      "  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5, v=0.1)  # 3 m\n"
+                      "end\n")  # fmt: skip
+    out = tmp_path / "out"
+    args = ["filter", str(script), "--model", str(ur10_model), "--out", str(out), "--tolerance-mm", "0.5"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "line 3 (line 3): kept as it was (commented): unreachable" in captured.err
+    lines = (out / "far.script").read_text().splitlines()
+    assert lines[2].startswith("  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5")
+    assert lines[2].endswith("# 3 m # trackcal filter: kept as it was: unreachable: the nominal kinematics has no "
+                             "solution for it (outside the workspace)")  # fmt: skip
+    doc = strict_json(out / "filter.json")
+    assert [r["status"] for r in doc["targets"]] == ["filtered", "kept"]
+    assert doc["targets"][1]["bound95_mm"] is None and doc["targets"][1]["pass"] is False
+    assert main([*args, "--strict"]) == 1  # a target fails the tolerance: --strict says so
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["nope.txt"], "no reader for .txt programs"),
+    (["missing.script"], "missing.script: no such file"),
+    (["broken.script"], "broken.script: line 2: a pose p[x, y, z, rx, ry, rz] needs 6 numbers, got 3"),
+    (["ok.script", "--tolerance-mm", "-1"], "--tolerance-mm -1"),
+    (["ok.script", "--out", "."], "would overwrite the input"),
+])  # fmt: skip
+def test_mistakes_are_one_line(ur10_model, tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    Path("nope.txt").write_text("x")
+    Path("broken.script").write_text("def a():\n  movel(p[0.1, 0.2, 0.3])\nend\n")
+    Path("ok.script").write_text("def a():\n  movel(p[0.5, 0.2, 0.3, 3.14, 0, 0])\nend\n")
+    out = [] if "--out" in argv else ["--out", "o"]
+    assert main(["filter", *argv, "--model", str(ur10_model), *out]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert Path("ok.script").read_text().startswith("def a():\n  movel(p[0.5, ")  # never written over
+
+
+def test_a_filtered_program_filtered_again_moves_little(ur10_model, tmp_path):
+    """Filtering is not idempotent (the second pass corrects the corrected targets), but a target's second correction
+    is the model's correction at a pose 1-2 mm away: the same to first order, so the two passes differ by far less
+    than the first correction."""
+    assert main(["filter", str(SAMPLE), "--model", str(ur10_model), "--out", str(tmp_path / "a")]) == 0
+    assert main(["filter", str(tmp_path / "a" / SAMPLE.name), "--model", str(ur10_model), "--out",
+                 str(tmp_path / "b")]) == 0  # fmt: skip
+    first = strict_json(tmp_path / "a" / "filter.json")["targets"]
+    second = strict_json(tmp_path / "b" / "filter.json")["targets"]
+    for a, b in zip(first, second, strict=True):
+        assert abs(a["correction_mm"] - b["correction_mm"]) < 0.05 * a["correction_mm"] + 1e-3
+    assert np.isfinite([t["sigma_mm"] for t in second]).all()
