@@ -255,7 +255,7 @@ COMMANDS = [
                     "such targets are refused, kept nominal)"),
             ]),
     Command("filter", "a robot program's targets corrected for an identified model, each with its predicted "
-            "accuracy (KRL, URScript, RAPID: the reader its suffix names)",
+            "accuracy (the controller family that reads its suffix)",
             "trackcal.campaign.cli.filter:cmd_filter", [
                 arg("program", help="the program's main file (.src, .script, .mod ...: its suffix picks the reader)"),
                 arg("more", nargs="*", metavar="MORE", help="the program's other files (a KRL .dat, $config.dat)"),
