@@ -28,7 +28,8 @@ def cmd_filter(args) -> int:
     print_table(table)
     kept = [r for r in done.rows if r["status"] == "kept"]
     for r in kept:
-        print(f"warning: {r['file']}: line {r['line']} ({r['name']}): kept as it was (commented): {r['why']}",
+        named = "" if r["name"] == f"line {r['line']}" else f" ({r['name']})"
+        print(f"warning: {r['file']}: line {r['line']}{named}: kept as it was (commented): {r['why']}",
               file=sys.stderr)  # fmt: skip
     n = len(done.rows)
     tol = "" if args.tolerance_mm is None else f"; {done.failed} fail the tolerance of {args.tolerance_mm:g} mm"

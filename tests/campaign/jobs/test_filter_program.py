@@ -65,7 +65,7 @@ def test_an_unreachable_target_is_kept_and_marked(ur10_model, tmp_path, capsys):
     args = ["filter", str(script), "--model", str(ur10_model), "--out", str(out), "--tolerance-mm", "0.5"]
     assert main(args) == 0
     captured = capsys.readouterr()
-    assert "line 3 (line 3): kept as it was (commented): unreachable" in captured.err
+    assert "far.script: line 3: kept as it was (commented): unreachable" in captured.err
     lines = (out / "far.script").read_text().splitlines()
     assert lines[2].startswith("  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5")
     assert lines[2].endswith("# 3 m # trackcal filter: kept as it was: unreachable: the nominal kinematics has no "
