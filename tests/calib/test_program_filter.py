@@ -25,6 +25,7 @@ from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import model_from_doc
 from trackcal.calib.program_filter import filter_targets, radius95
 from trackcal.campaign.jobs.identify import run_identify
+from trackcal.drivers.program_text import ProgramRead, ProgramTarget
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "robots"
@@ -201,3 +202,31 @@ def test_unreachable_and_singular_targets_are_kept_with_the_reason():
     # kept: near the singularity, or its correction diverges (beyond the limits or the cell's max_correction)
     assert re.search(r"singular|max_correction|leaves the joint limits|did not converge", res.why[1]), res.why[1]
     assert np.isnan(res.bound95_mm[0]) and np.isfinite(res.bound95_mm[1])
+
+
+def test_a_synthetic_kuka_program_read_is_filtered_and_written():
+    """The shape the KRL reader returns (drivers.program_text), built here by hand for the KR-270: an E6AXIS-like
+    joint target, an E6POS-like one in a base with a tool and a configuration, an unreachable one."""
+    cell, twin, model = identified("kr270", 5)
+    q_axis = np.array([5.0, -70.0, 95.0, 10.0, 35.0, -15.0])
+    q_pos = np.radians([20.0, -85.0, 105.0, -20.0, 50.0, 30.0])
+    pos = np.linalg.inv(BASE) @ independent_fk("kr270", q_pos) @ TOOL
+    far = frame([0, 0, 0], [9000.0, 0.0, 0.0])  # 9 m: the KR 270 reaches 2.7 m (its data sheet)
+    text = "HOME: AXIS\nP1: POS\nP2: POS\n"
+
+    def target(i, joint, value):
+        start = text.index(":", sum(len(x) + 1 for x in text.splitlines()[:i])) + 2
+        end = text.index("\n", start)
+        return ProgramTarget(file="a.src", start=start, end=end, line=i + 1, name=f"P{i}",
+                             joint=joint, value=value, base=np.eye(4) if joint else BASE, tool=TOOL, config=(2,),
+                             accepts=kuka_config, render=lambda v: "NEW", motion="PTP")  # fmt: skip
+
+    read = ProgramRead("KRL", {"a.src": text}, [target(0, True, q_axis), target(1, False, pos), target(2, False, far)],
+                       ";")  # fmt: skip
+    res = filter_targets(model, read.targets, q_axis)
+    assert res.why[0] == res.why[1] == "" and res.why[2].startswith("unreachable")
+    out = read.write({i: v for i, v in enumerate(res.values) if v is not None}, {2: res.why[2]})["a.src"]
+    assert out.splitlines()[:2] == ["HOME: NEW", "P1: NEW"] and out.splitlines()[2].startswith("P2: POS ; unreachable")
+    reached = (true_flange(twin, np.radians(res.q_calibrated_deg[1])) @ TOOL)[:3, 3]
+    assert np.linalg.norm(reached - (BASE @ pos)[:3, 3]) <= max(res.bound95_mm[1], 0.05)
+    assert kuka_config(res.q_nominal_deg[1])

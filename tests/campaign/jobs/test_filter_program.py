@@ -107,3 +107,17 @@ def test_a_filtered_program_filtered_again_moves_little(ur10_model, tmp_path):
     for a, b in zip(first, second, strict=True):
         assert abs(a["correction_mm"] - b["correction_mm"]) < 0.05 * a["correction_mm"] + 1e-3
     assert np.isfinite([t["sigma_mm"] for t in second]).all()
+
+
+def test_an_edited_model_is_refused_as_compensate_refuses_it(ur10_model, tmp_path, capsys):
+    doc = json.loads(ur10_model.read_text())
+    name = next(iter(doc["parameters"]))
+    doc["parameters"][name]["value"] += 0.5  # edited by hand: its digest no longer matches (calib.model_trust)
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(doc))
+    argv = ["filter", str(SAMPLE), "--model", str(edited), "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--accept-edited" in err[0]
+    assert not (tmp_path / "o").exists()
+    assert main([*argv, "--accept-edited"]) == 0
