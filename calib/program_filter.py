@@ -57,7 +57,7 @@ SAME_SOLUTION_RAD = 1e-6  # two converged starts within this on every joint (mod
 SOBOL_POINTS = 2**16  # the normal sample of the 95 % radius's table (its quantile to ~1e-3 relative)
 RATIO_GRID = 20  # the table's steps in each eigenvalue ratio (the quantile is smooth in them)
 COVERAGE = 0.95
-CHUNK = 2000  # targets per batch of the nominal IK (memory: CHUNK x (IK_STARTS + 1) x 3 rows)
+CHUNK = 500  # targets per batch of the nominal IK (memory: CHUNK x (IK_STARTS + 1) x 3 rows)
 
 
 class FilterError(CalibError):
