@@ -301,5 +301,8 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
         sigma[found] = np.sqrt(np.clip(np.trace(cov, axis1=1, axis2=2), 0.0, None))
         bound[found] = predicted[found] + radius95(cov)
         outside[found] = model.outside(q_eval[found])
+    if model.doc.get("covariance") is None:
+        warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error alone, not its "
+                        "uncertainty")  # fmt: skip
     return FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
                         outside, warnings)  # fmt: skip

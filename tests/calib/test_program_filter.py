@@ -230,3 +230,11 @@ def test_a_synthetic_kuka_program_read_is_filtered_and_written():
     reached = (true_flange(twin, np.radians(res.q_calibrated_deg[1])) @ TOOL)[:3, 3]
     assert np.linalg.norm(reached - (BASE @ pos)[:3, 3]) <= max(res.bound95_mm[1], 0.05)
     assert kuka_config(res.q_nominal_deg[1])
+
+
+def test_a_model_without_covariance_says_its_bounds_hold_no_uncertainty():
+    cell, _, model = identified("ur10", 1)
+    model.doc = {k: v for k, v in model.doc.items() if k != "covariance"}
+    q = np.radians([-16.0, -49.0, 59.0, -19.0, -104.0, -12.0])  # the cell's test pose (configs/cells/ur10.yaml)
+    res = filter_targets(model, [Target(True, np.degrees(q), np.eye(4), TOOL)], np.degrees(q))
+    assert res.sigma_mm[0] == 0.0 and any("no covariance" in w for w in res.warnings)
