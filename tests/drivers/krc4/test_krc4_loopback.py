@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from trackcal.drivers.errors import DeviceError, DeviceFault
+from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault
 from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.krc4.client import KRC4_CYCLE_S, KukaKrc4
 from trackcal.drivers.kuka.client import GUARD_S
@@ -112,3 +112,20 @@ def test_a_controller_that_disappears_ends_the_next_move_with_a_device_error():
         assert time.monotonic() - t0 < 10.0
     finally:
         client.close()
+
+
+def test_a_second_client_for_the_same_rsi_port_is_refused_until_the_first_closes():
+    """One campaign per arm: the claim is the RSI port, which a second client on this PC cannot take (a UDP port
+    alone could be bound twice with SO_REUSEADDR)."""
+    port = free_udp()
+    first = KukaKrc4(54600, "127.0.0.1", port, controller_host="127.0.0.1")
+    second = KukaKrc4(54600, "127.0.0.1", port, controller_host="127.0.0.1")
+    try:
+        first.listen()
+        with pytest.raises(ConnectionLost, match=f"cannot listen for the claim of this robot .* on 127.0.0.1:{port}"):
+            second.listen()
+        first.close()
+        second.listen()  # released
+    finally:
+        first.close()
+        second.close()
