@@ -1,8 +1,9 @@
 """The KR C4 / KR C5 family of the hardware file (`robot.protocol: krc4`; drivers/families.py): KSS 8 with
 EthernetKRL 3.x and RSI 4.x/5.x (drivers.krc4.client.KukaKrc4, configs/krc4). trackcal connects to the
 controller's EKI server (`controller_host`, `eki.port`) and listens for its RSI stream (`rsi.host`, `rsi.port`,
-UDP); the controller named is the only peer served. The KRL program reader and writer are the kuka family's (the
-same language); this family writes none of its own."""
+UDP); the controller named is the only peer served. The compensated program is KRL written by the kuka family's
+writer (drivers.kuka.program: PTP over E6AXIS data, the syntax KSS 8 loads as KSS 5 did); the KRL reader of program
+filtering is registered once, by the kuka family."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.krc4.client import DEFAULT_EKI_PORT, KRC4_CYCLE_S, TITLE, KukaKrc4
 from trackcal.drivers.krc4.configs import RSI
 from trackcal.drivers.kuka.eki_codec import AXES
+from trackcal.drivers.kuka.program import PROGRAM
 
 SCHEMAS = {
     "": {
@@ -67,4 +69,4 @@ def claim(robot: KukaKrc4) -> None:
 
 
 FAMILY = RobotFamily(name="krc4", title=TITLE, dof=len(AXES), schemas=SCHEMAS, build=build, describe=describe,
-                     where=where, waiting=waiting, claim=claim)  # fmt: skip
+                     where=where, waiting=waiting, claim=claim, program=PROGRAM)  # fmt: skip
