@@ -14,9 +14,11 @@ lateness) with what KSS 8 changes:
   the joints reported (AIPos, EKI's $AXIS_ACT_MEAS, the twin's robot) are the PTP's plus the correction. This is
   how kuka_rsi_hw_interface moves a robot (src/kuka_hardware_interface.cpp: correction = command - the ASPos
   of the first frame).
-- Lateness is counted only while an EKI client is connected and once it has answered a frame (the RSI context
-  waits for its partner; the mock does not stop the robot because nobody has started trackcal yet), and a new
-  EKI client starts from a clean RSI state (the operator restarted the program after an RSI stop).
+- Lateness: more than max_late_packages late answers in a row stop the robot, as the ETHERNET object's Timeout
+  parameter does (100 by default: kuka_rsi_hw_interface/krl/KR_C4_RSI_4+/README.md). Late answers are counted
+  only while an EKI client is connected (the mock does not stop the robot because nobody has started trackcal
+  yet, nor when a judge speaks RSI alone), and a new EKI client starts from a clean RSI state (the operator
+  restarted the program after an RSI stop).
 """
 
 from __future__ import annotations
@@ -29,18 +31,19 @@ from trackcal.mocks.servers.krc4.links import EkiServerEnd, RsiUdpEnd
 from trackcal.mocks.servers.kuka.controller import MockKrc2
 
 KRC4_CYCLE_S = 0.004  # IPO_FAST (drivers.krc4.client.KRC4_CYCLE_S)
+ETHERNET_TIMEOUT = 100  # the ETHERNET object's Timeout: late packets before RSI stops (KR_C4_RSI_4+/README.md)
 
 
 class MockKrc4(MockKrc2):
     def __init__(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int], clock, initial_joints_deg: Sequence[float],
-                 *, cycle_s: float = KRC4_CYCLE_S, rsi_passive: bool = RSI.passive, **options) -> None:  # fmt: skip
+                 *, cycle_s: float = KRC4_CYCLE_S, rsi_passive: bool = RSI.passive,
+                 max_late_packages: int = ETHERNET_TIMEOUT, **options) -> None:  # fmt: skip
         super().__init__(eki_addr, rsi_addr, clock, initial_joints_deg, rsi_protocol="udp", rsi_passive=rsi_passive,
-                         cycle_s=cycle_s, **options)  # fmt: skip
+                         cycle_s=cycle_s, max_late_packages=max_late_packages, **options)  # fmt: skip
         self._eki = EkiServerEnd(eki_addr, self.errors)
         self.eki_addr = self._eki.addr
         self._rsi = RsiUdpEnd(rsi_addr, "udp", self.sen_type, self.errors, self._rsi_lost)
         self.correction_deg: tuple[float, ...] = (0.0,) * 6
-        self._partner = False  # an answer came since the EKI client connected
 
     @property
     def joints_deg(self) -> tuple[float, ...]:
@@ -58,7 +61,7 @@ class MockKrc4(MockKrc2):
         was = self._eki.connected
         failure = super()._reconnect()
         if not was and self._eki.connected:  # a new client: the program was started afresh
-            self._partner, self.consecutive_late = False, 0
+            self.consecutive_late = 0
             if self.rsi_stopped:
                 self.rsi_stopped, self._fault = False, 0 if self._fault == ERR_RSI_STOPPED else self._fault
                 self._rsi.open_udp()
@@ -71,6 +74,5 @@ class MockKrc4(MockKrc2):
         answer = self._rsi.answer
         if answer is not before and answer is not None:
             self.correction_deg = tuple(float(v) for v in answer.corrections)
-            self._partner = self._eki.connected
-        elif not (self._partner and self._eki.connected):  # nobody to be late for: not counted
+        elif not self._eki.connected:  # nobody to be late for: not counted
             self.late_packets, self.consecutive_late = late, consecutive

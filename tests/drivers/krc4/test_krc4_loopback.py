@@ -15,9 +15,10 @@ from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault
 from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.krc4.client import KRC4_CYCLE_S, KukaKrc4
 from trackcal.drivers.kuka.client import GUARD_S
+from trackcal.drivers.kuka.eki_codec import ERR_DRIVES_OFF, ERROR_TEXT
 from trackcal.drivers.kuka.rsi_codec import RobFrame, encode_rob
 from trackcal.mocks.clock import VirtualClock
-from trackcal.mocks.servers.krc4.controller import MockKrc4
+from trackcal.mocks.servers.krc4.controller import ETHERNET_TIMEOUT, MockKrc4
 
 HOME = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)
 TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
@@ -129,3 +130,39 @@ def test_a_second_client_for_the_same_rsi_port_is_refused_until_the_first_closes
     finally:
         first.close()
         second.close()
+
+
+def test_drives_off_mid_move_ends_the_move_with_the_controllers_code():
+    client, mock, _ = open_cell()
+    try:
+        threading.Thread(target=lambda: wait_moving(mock) and mock.drives_off(), daemon=True).start()
+        with pytest.raises(DeviceFault) as exc:
+            client.move(TARGET, 2)
+        assert exc.value.code == ERR_DRIVES_OFF  # configs/krc4/trackcal_eki.src FaultCode: 2 = drives not ready
+        assert client.state().fault == ERROR_TEXT[ERR_DRIVES_OFF]
+        client.reset_faults()  # drives on again (the mock's drives come back with the reset)
+        client.move(TARGET, 100)
+    finally:
+        client.close()
+        mock.stop()
+    assert mock.crashed is None, mock.errors
+
+
+def test_late_rsi_answers_stop_the_robot_after_the_ethernet_timeout():
+    client, mock, _ = open_cell(answer_budget_s=1e-9)  # every answer misses the budget
+    try:
+        with pytest.raises((DeviceFault, DeviceError)):
+            client.move(TARGET, 20)
+        # more than the ETHERNET object's Timeout (100 late packets, KR_C4_RSI_4+/README.md) in a row
+        assert mock.rsi_stopped and mock.consecutive_late == ETHERNET_TIMEOUT + 1
+    finally:
+        client.close()
+        mock.stop()
+    assert mock.crashed is None
+
+
+def wait_moving(mock, timeout_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not mock.moving and time.monotonic() < deadline:
+        time.sleep(0.001)
+    return mock.moving
