@@ -114,6 +114,7 @@ class RsiEnd:
         self.on_lost = on_lost
         self.sock: socket.socket | None = None
         self._framer = sen_framer()
+        self.answer = None  # the last <Sen> answered in time (its AK corrections: a KR C4 applies them)
 
     @property
     def connected(self) -> bool:
@@ -186,7 +187,7 @@ class RsiEnd:
                 if sen.sen_type != self.sen_type:
                     self.errors.append(f"RSI: answer of Type {sen.sen_type!r}, configured {self.sen_type!r}")
                 elif sen.ipoc == ipoc:
-                    ok = True  # answers with another IPOC are stale answers to late packets: ignored
+                    ok, self.answer = True, sen  # answers with another IPOC are stale answers to late packets: ignored
             if ok:
                 return True
 

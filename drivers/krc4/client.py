@@ -1,0 +1,57 @@
+"""KUKA KR C4 / KR C5 client (drivers.interfaces.Robot): the KR C2's (drivers.kuka.client.KukaKrc2: moves, stops,
+resets, the motion guard, settling on RSI frames, the two channels cross-checked) with what KSS 8 changes:
+
+- EKI: the controller serves, trackcal connects (drivers.krc4.eki_link, configs/krc4/TrackcalEki.xml);
+- RSI: UDP only (the ETHERNET object of RSI 4.x/5.x; configs/krc4/trackcal_rsi_ethernet.xml has no PROTOCOL),
+  answered by default (ONLYSEND FALSE: zero AK corrections with the frame's IPOC), every IPO_FAST cycle of 4 ms
+  (or 12 ms: the hardware file says which, rsi.cycle_s). No empty-IPOC opener as the KR C2 sends: the RSI link
+  follows the controller's address from its first frame (drivers.kuka.rsi_link).
+- The claim (one campaign per arm): the RSI port is a UDP port, which Linux lets a second socket bind too
+  (SO_REUSEADDR), so `listen()` also holds a TCP listener on the same port number; a second campaign on this PC
+  cannot bind it (ConnectionLost naming the port), and the kernel releases it when the process ends, even on kill -9.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+
+from trackcal.drivers.krc4.configs import EKI, RSI
+from trackcal.drivers.krc4.eki_link import EkiClientLink
+from trackcal.drivers.kuka.client import KukaKrc2
+from trackcal.drivers.kuka.peers import bind
+
+# IPO_FAST: "The RSI interface operates at 250 Hz (4ms cycle)" (kuka_rsi_hw_interface/krl/KR_C4_RSI_4+/README.md)
+KRC4_CYCLE_S = 0.004
+TITLE = "KR C4"
+
+
+class KukaKrc4(KukaKrc2):
+    """A KR C4 / KR C5 with configs/krc4's trackcal_eki program and its RSI context running."""
+
+    def __init__(self, eki_port: int, rsi_host: str, rsi_port: int, *, controller_host: str,
+                 rsi_passive: bool = RSI.passive, rsi_cycle_s: float = KRC4_CYCLE_S, **options) -> None:  # fmt: skip
+        super().__init__(controller_host, eki_port, rsi_host, rsi_port, "udp", controller_host=controller_host,
+                         rsi_passive=rsi_passive, rsi_cycle_s=rsi_cycle_s, **options)  # fmt: skip
+        mode = "passive" if rsi_passive else "answered"
+        device = f"{TITLE} {controller_host} eki {eki_port} rsi udp {mode} {rsi_host}:{rsi_port}"
+        self.device = self._peers.device = self.rsi.device = device
+        self.eki = EkiClientLink(eki_port, self._peers, io_timeout_s=self.io_timeout_s)
+        self._claim: socket.socket | None = None
+
+    def listen(self) -> None:
+        """Bind the RSI port and hold the arm's claim on it (see the module docstring). Idempotent."""
+        super().listen()
+        if self._claim is None:
+            host, port = self.rsi.address
+            self._claim = bind(socket.SOCK_STREAM, host, port, "the claim of this robot (RSI port, TCP)", self.device)
+
+    def close(self) -> None:
+        super().close()
+        claim, self._claim = self._claim, None
+        if claim is not None:
+            with contextlib.suppress(OSError):
+                claim.close()
+
+
+DEFAULT_EKI_PORT = EKI.port
