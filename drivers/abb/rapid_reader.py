@@ -108,10 +108,21 @@ class _Scope:
             if d.module == module and d.routine is None:
                 return d
         others = [d for d in candidates if d.routine is None and not d.local]
+        if len(others) > 1 and all(d.storage == "PERS" and _same(d.value, others[0].value) for d in others):
+            return others[0]  # one persistent declared alike in several modules (RAPID allows it): one value
         if len(others) > 1:
             where = " and ".join(f"{d.file}:{d.line}" for d in others)
             raise fail(file, line, f"{name} is declared globally twice ({where})")
         return others[0] if others else None
+
+
+def _same(a: Node | None, b: Node | None) -> bool:
+    """Whether two literals hold the same values (their spelling aside)."""
+    if a is None or b is None:
+        return a is b
+    if a.kind != b.kind or a.value != b.value or len(a.items) != len(b.items):
+        return False
+    return a.kind != "expr" and all(_same(x, y) for x, y in zip(a.items, b.items, strict=True))
 
 
 def _declared_targets(declarations: list[Declaration]) -> dict[tuple, _Target]:
@@ -165,6 +176,8 @@ def _resolve(scope: _Scope, targets: dict[tuple, _Target], move: Move, arg: Targ
         name = f"line {arg.line}"
         _check(move.file, arg.node, name, not move.cartesian)
         return [((move.file, arg.node.start), _Target(move.file, arg.node, name, not move.cartesian))]
+    if arg.name.upper in move.parameters:
+        return []  # a parameter of the move's routine: the caller's data, not known here
     d = scope.find(arg.name.text, move.file, move.module, move.routine, move.line)
     if d is None or d.value is None:
         return []
@@ -183,10 +196,13 @@ def _frames(scope: _Scope, move: Move) -> tuple[tuple, tuple[str, str], np.ndarr
 
 def _frame_data(scope: _Scope, move: Move, name: str, type_: str) -> tuple[int | str, np.ndarray]:
     """(identity of the declaration, frame) of the tool or work object `name` a move uses."""
+    what = type_.lower()
+    if name.upper() in move.parameters:
+        raise fail(move.file, move.line, f"{move.instruction}'s {what} {name} is a parameter of its routine: its frame "
+                                         "is not known from the program's text")  # fmt: skip
     d = scope.find(name, move.file, move.module, move.routine, move.line)
     if d is None and PREDEFINED.get(name.upper()) == type_:
         return name.upper(), WRIST_IN_FLANGE if type_ == "TOOLDATA" else IDENTITY
-    what = type_.lower()
     if d is None:
         raise fail(move.file, move.line, f"{move.instruction} uses {what} {name}, which the files given do not declare "
                                          "(give the module that declares it too)")  # fmt: skip

@@ -49,6 +49,7 @@ class Declaration:
     line: int
     dims: int  # 0 a scalar, 1 an array {n}, 2 {n, m} ...
     value: Node | None
+    storage: str = "VAR"  # CONST, PERS or VAR
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,7 @@ class Move:
     targets: tuple[TargetArgument, ...]
     tool: Token | None
     wobj: Token | None
+    parameters: frozenset[str] = frozenset()  # the names of its routine's parameter list, upper case
 
 
 class Walker:
@@ -85,6 +87,7 @@ class Walker:
         self.file, self.tokens, self.module = file, tokens, module
         self.declarations: list[Declaration] = []
         self.moves: list[Move] = []
+        self.parameters: frozenset[str] = frozenset()  # those of the routine being read
 
     def at(self, i: int, expected: str) -> Token:
         """tokens[i], or the error that the file ends where `expected` was expected."""
@@ -155,6 +158,7 @@ class Walker:
 
     def declaration(self, i: int, routine: str | None, local: bool) -> int:
         """Reads `CONST|PERS|VAR type name [{dims}] [:= value];` at tokens[i]; returns the index after the `;`."""
+        start = i
         type_ = self.name_at(i + 1, "a data type")
         name = self.name_at(i + 2, "the data's name")
         i += 3
@@ -175,7 +179,7 @@ class Walker:
                                                        f"found {self.tokens[i].text!r}")  # fmt: skip
         if type_.upper in READ_TYPES:
             self.declarations.append(Declaration(self.file, self.module, routine, local, type_.upper, name.text,
-                                                 name.line, dims, value))  # fmt: skip
+                                                 name.line, dims, value, self.tokens[start].upper))  # fmt: skip
         return i + 1
 
     def statement_end(self, i: int) -> int:
@@ -201,7 +205,11 @@ class Walker:
         if kind != "TRAP":
             if self.at(i, "'('").text != "(":
                 raise fail(self.file, self.tokens[i].line, f"expected '(' after {kind} {name.text}")
-            i = self.closing(i, "(", ")") + 1
+            end = self.closing(i, "(", ")")
+            self.parameters = frozenset(t.upper for t in self.tokens[i + 1 : end] if t.kind == "name")
+            i = end + 1
+        else:
+            self.parameters = frozenset()
         while True:
             t = self.at(i, f"{end_word} of {name.text}")
             if t.upper == end_word:
@@ -229,10 +237,12 @@ class Walker:
         instruction, n_targets = MOVES[self.tokens[i].upper]
         end = self.statement_end(i + 1)
         line = self.tokens[i].line
-        pieces = [piece for piece in split(self.tokens[i + 1 : end], ",")]
+        pieces = split(self.tokens[i + 1 : end], ",")
         positional, options = [], {}
         for piece in pieces:
             main, opts = optional_arguments(piece)
+            if not main and not opts:
+                raise fail(self.file, line, f"an empty argument of {instruction} (expected an argument)")
             if main:
                 positional.append(main)
             options.update(opts)
@@ -245,7 +255,7 @@ class Walker:
         wobj = options.get("WOBJ")
         wobj = None if wobj is None else self.single_name(wobj, f"a wobjdata name after {instruction}'s \\WObj:=")
         self.moves.append(Move(self.file, self.module, routine, instruction, line, n_targets > 0,
-                               tuple(t for t in targets if t is not None), tool, wobj))  # fmt: skip
+                               tuple(t for t in targets if t is not None), tool, wobj, self.parameters))  # fmt: skip
         return end + 1
 
     def single_name(self, tokens: list[Token], what: str) -> Token:

@@ -4,8 +4,9 @@ The lexical rules followed (ABB, "Technical reference manual - RAPID kernel", 3H
 elements", and "RAPID Overview", 3HAC050947-001, "Basic RAPID programming: program structure"):
 - identifiers: a letter, then letters, digits and underscores (up to 32 characters); case-insensitive, so the names
   and reserved words are compared in upper case (`upper`);
-- numeric literals: an integer, a decimal (`1.5`, `.5`, `5.`) with an optional exponent (`1.5E-3`, `9E+09`); the sign
-  is the unary operator before it (a separate token);
+- numeric literals: an integer, a decimal (`1.5`, `.5`, `5.`) with an optional exponent (`1.5E-3`, `9E+09`), and
+  the hexadecimal, binary and octal integers of RobotWare 6.x+ (`0xFF`, `0b101`, `0o17`); the sign is the unary
+  operator before it (a separate token);
 - string literals: between double quotes on one line, a quote inside written `""`, a backslash `\\` (and `\\hh` a
   character by its hex code);
 - comments: from `!` to the end of the line;
@@ -25,7 +26,7 @@ from trackcal.drivers.program_text import ProgramReadError
 PUNCT = "[](){},;\\:+-*/<>=.%?|"
 TWO_CHAR = (":=", "<>", "<=", ">=")
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
-_NUMBER = re.compile(r"(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_NUMBER = re.compile(r"0[xX][0-9A-Fa-f]+|0[bB][01]+|0[oO][0-7]+|(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _SPACE = re.compile(r"[ \t\r\n\f\v]+")
 
 
@@ -43,6 +44,16 @@ class Token:
     def upper(self) -> str:
         """The token's text in upper case: RAPID's names and reserved words are case-insensitive."""
         return self.text.upper()
+
+
+def number_value(text: str) -> float:
+    """The value of a numeric literal token (a decimal, or a 0x / 0b / 0o integer)."""
+    if text[:2].lower() not in ("0x", "0b", "0o"):
+        return float(text)
+    try:
+        return float(int(text, 0))
+    except OverflowError:  # beyond a double: out of range like 1E999 (the readers refuse it where they need it)
+        return float("inf")
 
 
 def fail(file: str, line: int, what: str) -> ProgramReadError:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackcal.drivers.abb.rapid_tokens import Token, fail
+from trackcal.drivers.abb.rapid_tokens import Token, fail, number_value
 
 
 @dataclass(frozen=True)
@@ -57,9 +57,9 @@ def parse_literal(file: str, tokens: list[Token], i: int) -> tuple[Node, int]:
             i += 1
     if t.text in ("+", "-") and i + 1 < len(tokens) and tokens[i + 1].kind == "num" and _ends_value(tokens, i + 2):
         sign = -1.0 if t.text == "-" else 1.0
-        return Node("num", t.start, tokens[i + 1].end, t.line, sign * float(tokens[i + 1].text)), i + 2
+        return Node("num", t.start, tokens[i + 1].end, t.line, sign * number_value(tokens[i + 1].text)), i + 2
     if t.kind == "num" and _ends_value(tokens, i + 1):
-        return Node("num", t.start, t.end, t.line, float(t.text)), i + 1
+        return Node("num", t.start, t.end, t.line, number_value(t.text)), i + 1
     if t.upper in ("TRUE", "FALSE") and _ends_value(tokens, i + 1):
         return Node("bool", t.start, t.end, t.line, t.upper == "TRUE"), i + 1
     if t.kind == "str" and _ends_value(tokens, i + 1):

@@ -343,3 +343,38 @@ def test_any_text_reads_or_fails_in_one_line(text):
 
 def test_sample_is_a_file_of_the_project():
     assert Path(SAMPLE).is_file() and "MoveC" in _SAMPLE_TEXT and "MoveAbsJ" in _SAMPLE_TEXT
+
+
+def test_hexadecimal_binary_octal_literals_read():
+    # RobotWare 6.x+ writes integers also as 0x.., 0b.., 0o.. (RAPID kernel, numeric literals): 0x10 = 16, 0b11 = 3
+    files = module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[0x10,0b11,0o10],[1,0,0,0],[0,0,0,0],{EXTAX}];")
+    np.testing.assert_allclose(read_rapid(files).targets[0].value[:3, 3], [16, 3, 8])
+
+
+def test_routine_parameters_are_the_callers_data():
+    # in PROC GoTo(robtarget p), `p` is the caller's argument, not the module's p: the module's p is used by no move
+    data = P + "\nPERS tooldata t1:=[TRUE,[[0,0,50],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
+    files = {"T.mod": f"MODULE T\n{data}\nPROC GoTo(robtarget p, \\switch Fast)\n  MoveL p, v100, fine, t1;\n"
+                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    assert [(t.name, t.motion) for t in read_rapid(files).targets] == [("p", "")]
+    # a tool given as a parameter has no frame in the text: a target moved with it is refused, not guessed
+    files = {"T.mod": f"MODULE T\n{data}\nPROC Draw(PERS tooldata tUse)\n  MoveL p, v100, fine, tUse;\n"
+                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    with pytest.raises(ProgramReadError, match="T.mod:5: MoveL's tooldata tUse is a parameter of its routine"):
+        read_rapid(files)
+
+
+def test_an_empty_argument_is_an_error():
+    with pytest.raises(ProgramReadError, match="T.mod:4: an empty argument of MoveL"):
+        read_rapid(module("MoveL p,, v100, fine, tool0;", P))
+
+
+def test_a_persistent_declared_alike_in_two_modules_is_one():
+    # PERS data may be declared in several modules of a task with the same value (RAPID kernel, persistents)
+    tool = "PERS tooldata tG:=[TRUE,[[0,0,80],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
+    files = {"A.mod": f"MODULE A\n{tool}\nENDMODULE\n", "B.mod": f"MODULE B\n  {tool}\nENDMODULE\n",
+             **module("MoveL p, v100, fine, tG;", P)}  # fmt: skip
+    np.testing.assert_allclose(read_rapid(files).targets[0].tool[:3, 3], [80, 0, 0], atol=1e-12)
+    files["B.mod"] = files["B.mod"].replace("80", "81")
+    with pytest.raises(ProgramReadError, match="tG is declared globally twice"):
+        read_rapid(files)
