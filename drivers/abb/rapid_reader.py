@@ -34,7 +34,7 @@ import numpy as np
 from trackcal.drivers.abb.rapid_render import config_accepts, joint_renderer, robtarget_renderer
 from trackcal.drivers.abb.rapid_structure import Declaration, Move, TargetArgument, Walker
 from trackcal.drivers.abb.rapid_tokens import fail, tokenize
-from trackcal.drivers.abb.rapid_values import Node, jointtarget, robtarget, tool_frame, work_object_frame
+from trackcal.drivers.abb.rapid_values import Node, jointtarget, robtarget, tool_frame, value_of, work_object_frame
 from trackcal.drivers.program_text import ProgramRead, ProgramTarget
 
 IDENTITY = np.eye(4)
@@ -176,7 +176,7 @@ def _resolve(scope: _Scope, targets: dict[tuple, _Target], move: Move, arg: Targ
         name = f"line {arg.line}"
         _check(move.file, arg.node, name, not move.cartesian)
         return [((move.file, arg.node.start), _Target(move.file, arg.node, name, not move.cartesian))]
-    if arg.name.upper in move.parameters:
+    if arg.name is None or arg.name.upper in move.parameters:
         return []  # a parameter of the move's routine: the caller's data, not known here
     d = scope.find(arg.name.text, move.file, move.module, move.routine, move.line)
     if d is None or d.value is None:
@@ -217,18 +217,20 @@ def _frame_data(scope: _Scope, move: Move, name: str, type_: str) -> tuple[int |
 
 def _program_target(files: dict[str, str], t: _Target) -> ProgramTarget:
     """The ProgramTarget of a target read, with its one pair of frames (refusing a target used with two)."""
-    first = t.uses[0] if t.uses else None
-    other = next((u for u in t.uses if u.frames != first.frames), None) if first else None
-    if other is not None:
-        raise fail(t.file, other.line, f"{t.name} is used with tool {first.names[0]} in work object {first.names[1]} "
-                                       f"(line {first.line}) and with tool {other.names[0]} in {other.names[1]}: one "
-                                       "corrected value cannot serve both")  # fmt: skip
-    tool, base = (first.tool, first.base) if first else (WRIST_IN_FLANGE, IDENTITY)
+    tool, base = WRIST_IN_FLANGE, IDENTITY
+    if t.uses:
+        first = t.uses[0]
+        other = next((u for u in t.uses if u.frames != first.frames), None)
+        if other is not None:
+            raise fail(t.file, other.line, f"{t.name} is used with tool {first.names[0]} in work object "
+                                           f"{first.names[1]} (line {first.line}) and with tool {other.names[0]} in "
+                                           f"{other.names[1]}: one corrected value cannot serve both")  # fmt: skip
+        tool, base = first.tool, first.base
     motion = ", ".join(dict.fromkeys(u.label for u in t.uses))
     text = files[t.file][t.node.start : t.node.end]
     if t.joint:
         robax = jointtarget(t.file, t.node, t.name)
-        value = np.array([n.value for n in robax], dtype=float)
+        value = np.array([value_of(n) for n in robax], dtype=float)
         render = joint_renderer(text, t.node.start, robax)
         return ProgramTarget(t.file, t.node.start, t.node.end, t.node.line, t.name, True, value, IDENTITY.copy(),
                              IDENTITY.copy(), (), _any_joints, render, motion)  # fmt: skip

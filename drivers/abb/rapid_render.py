@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from trackcal.drivers.abb.rapid_values import Node, matrix_quaternion
+from trackcal.drivers.abb.rapid_values import Node, matrix_quaternion, value_of
 from trackcal.drivers.program_text import ProgramReadError
 
 MM_DECIMALS = 4
@@ -41,7 +41,7 @@ def robtarget_renderer(text: str, offset: int, trans: list[Node], rot: list[Node
     """render(pose 4 x 4, mm) -> the robtarget literal `text` (which starts at `offset` of its file) with trans and
     rot replaced. The quaternion keeps the source's hemisphere (q and -q are the same rotation: the sign whose dot
     product with the source's is not negative), so a target read and rendered unchanged reads the same."""
-    source = np.array([n.value for n in rot], dtype=float)
+    source = np.array([value_of(n) for n in rot], dtype=float)
 
     def render(value: np.ndarray) -> str:
         pose = np.asarray(value, dtype=float)

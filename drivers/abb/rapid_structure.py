@@ -75,7 +75,7 @@ class Move:
     line: int
     cartesian: bool
     targets: tuple[TargetArgument, ...]
-    tool: Token | None
+    tool: Token
     wobj: Token | None
     parameters: frozenset[str] = frozenset()  # the names of its routine's parameter list, upper case
 

@@ -11,6 +11,7 @@ elements", and "RAPID Overview", 3HAC050947-001, "Basic RAPID programming: progr
   character by its hex code);
 - comments: from `!` to the end of the line;
 - punctuation and operators: `:=` `<>` `<=` `>=` and the single characters of PUNCT;
+- a byte order mark opening the file (RobotStudio may save UTF-8 with one) is white space;
 - the `%%%` header of an S4C `.prg` file (`%%% VERSION:1 LANGUAGE:ENGLISH %%%`, RAPID kernel "Program
   modules") is skipped as a whole.
 Any other character outside a string or a comment is an error naming the file, the line and the character.
@@ -65,6 +66,7 @@ def tokenize(file: str, text: str) -> list[Token]:
     """The tokens of one file's text, comments and white space left out."""
     tokens: list[Token] = []
     pos, line = _header_end(file, text), 1
+    pos += pos == 0 and text.startswith("\ufeff")
     line += text.count("\n", 0, pos)
     n = len(text)
     while pos < n:
@@ -92,8 +94,9 @@ def _one_token(file: str, text: str, pos: int, line: int) -> Token:
     for kind, pattern in (("name", _NAME), ("num", _NUMBER)):
         m = pattern.match(text, pos)
         if m:
-            if kind == "num" and _NAME.match(text, m.end()):  # 12abc: no RAPID token
-                raise fail(file, line, f"a number followed by a name: {text[pos:_NAME.match(text, m.end()).end()]!r}")
+            after = _NAME.match(text, m.end()) if kind == "num" else None
+            if after:  # 12abc: no RAPID token
+                raise fail(file, line, f"a number followed by a name: {text[pos : after.end()]!r}")
             return Token(kind, m.group(), pos, m.end(), line)
     two = text[pos : pos + 2]
     if two in TWO_CHAR:
@@ -124,7 +127,7 @@ def _string_text(file: str, text: str, pos: int, line: int) -> str:
 
 def _header_end(file: str, text: str) -> int:
     """Where the text starts after an S4C `.prg` file's `%%% ... %%%` header (0 when it has none)."""
-    m = re.match(r"[ \t\r\n]*%%%", text)
+    m = re.match(r"\ufeff?[ \t\r\n]*%%%", text)
     if not m:
         return 0
     close = text.find("%%%", m.end())

@@ -105,6 +105,11 @@ def numbers(file: str, node: Node, n: int, what: str) -> list[Node]:
     return list(items)
 
 
+def value_of(node: Node) -> float:
+    """The number of a "num" leaf (`numbers` has checked the kind)."""
+    return float(node.value) if isinstance(node.value, int | float) else float("nan")
+
+
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     """The rotation matrix of the quaternion (q1 scalar, q2..q4 vector), normalised first."""
     w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
@@ -142,8 +147,8 @@ def pose_matrix(file: str, node: Node, what: str) -> np.ndarray:
 
 def frame_matrix(file: str, trans: list[Node], rot: list[Node], what: str) -> np.ndarray:
     """The 4 x 4 transform of a position (mm) and an orientation quaternion, each given as number leaves."""
-    p = np.array([n.value for n in trans], dtype=float)
-    q = np.array([n.value for n in rot], dtype=float)
+    p = np.array([value_of(n) for n in trans], dtype=float)
+    q = np.array([value_of(n) for n in rot], dtype=float)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
         raise fail(file, trans[0].line, f"{what}: a number out of range")
     norm = float(np.linalg.norm(q))
@@ -172,11 +177,11 @@ def robtarget(file: str, node: Node, name: str) -> RobTarget:
     t = numbers(file, trans, 3, f"{what}'s trans [x, y, z]")
     r = numbers(file, rot, 4, f"{what}'s rot [q1, q2, q3, q4]")
     cf = numbers(file, conf, 4, f"{what}'s robconf [cf1, cf4, cf6, cfx]")
-    if not all(float(c.value).is_integer() for c in cf):
+    if not all(value_of(c).is_integer() for c in cf):
         raise fail(file, conf.line, f"{what}: robconf [cf1, cf4, cf6, cfx] must be integers")
     _items(file, extax, 6, f"{what}'s extax of 6 values")
-    config = tuple(int(c.value) for c in cf)
-    return RobTarget(t, r, config, frame_matrix(file, t, r, what))  # type: ignore[arg-type]
+    cf1, cf4, cf6, cfx = (int(value_of(c)) for c in cf)
+    return RobTarget(t, r, (cf1, cf4, cf6, cfx), frame_matrix(file, t, r, what))
 
 
 def jointtarget(file: str, node: Node, name: str) -> list[Node]:
@@ -184,7 +189,7 @@ def jointtarget(file: str, node: Node, name: str) -> list[Node]:
     robax, extax = _items(file, node, 2, f"jointtarget {name} as [[rax_1, .., rax_6], [extax]]")
     _items(file, extax, 6, f"jointtarget {name}'s extax of 6 values")
     leaves = numbers(file, robax, 6, f"jointtarget {name}'s robax [rax_1, .., rax_6]")
-    if not all(np.isfinite(n.value) for n in leaves):
+    if not all(np.isfinite(value_of(n)) for n in leaves):
         raise fail(file, robax.line, f"jointtarget {name}: a number out of range")
     return leaves
 

@@ -378,3 +378,13 @@ def test_a_persistent_declared_alike_in_two_modules_is_one():
     files["B.mod"] = files["B.mod"].replace("80", "81")
     with pytest.raises(ProgramReadError, match="tG is declared globally twice"):
         read_rapid(files)
+
+
+def test_byte_order_mark_and_crlf_lines():
+    # a module saved with a UTF-8 byte order mark and Windows line ends reads, and round-trips byte for byte
+    text = "\ufeff" + SAMPLE.read_text().replace("\n", "\r\n")
+    program = read_rapid({"CellDemo.mod": text})
+    assert program.write({}, {}) == {"CellDemo.mod": text}
+    assert by_name(program, "line 52").line == 52
+    rewritten = program.write({0: program.targets[0].value}, {0: "kept"})["CellDemo.mod"]
+    assert "[[0,0,0,0,30,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]; ! kept\r\n" in rewritten
