@@ -16,13 +16,17 @@ rapid_structure.py, tokens in rapid_tokens.py):
   p's correction, not their own: Offs adds (dx, dy, dz) in the work object's frame, so an offset point moves by p's
   translation correction exactly, and its error is how much the robot's error changes over the offset distance;
   RelTool's offset is in p's tool frame, so it also turns with p's rotation correction (1e-4 rad over 100 mm: 10 um);
-- a robtarget that no move of these files uses (passed to a routine, used in an expression) is a target with motion
-  "": its tool and work object are not known, so it is read in wobj0 with tool0.
+- a procedure call `MoveTo p10, tGripper, wobjTable;` to a PROC of the files: the moves of that PROC whose target,
+  tool or work object are its parameters use the call's arguments (motion "MoveL via MoveTo"); one level deep (a
+  parameter passed on again is not followed);
+- a robtarget that no move of these files uses (used in an expression, passed on through two routines) is a target
+  with motion "": its tool and work object are not known, so it is read in wobj0 with tool0.
 Not targets (left as written): a robtarget given by an expression (`:= Offs(p1, ...)`, CRobT()) and a move's target
 written as one; program displacements (PDispOn/PDispSet, EOffsSet) are the controller's at run time, not read.
 Refused with a one-line ProgramReadError: a stationary tool (tooldata robhold FALSE, wobjdata robhold TRUE), a
 coordinated work object (ufprog FALSE, ufmec set), one robtarget used with two different tool/work object pairs (one
-corrected value cannot serve both), a tool or work object a move names that the files do not declare.
+corrected value cannot serve both), a tool or work object a move names that the files do not declare, a tool or work
+object that is a routine's parameter when no call of the files gives it.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.drivers.abb.rapid_render import config_accepts, joint_renderer, robtarget_renderer
-from trackcal.drivers.abb.rapid_structure import Declaration, Move, TargetArgument, Walker
+from trackcal.drivers.abb.rapid_structure import Call, Declaration, Move, Procedure, TargetArgument, Walker
 from trackcal.drivers.abb.rapid_tokens import fail, tokenize
 from trackcal.drivers.abb.rapid_values import Node, jointtarget, robtarget, tool_frame, value_of, work_object_frame
 from trackcal.drivers.program_text import ProgramRead, ProgramTarget
@@ -74,16 +78,32 @@ def read_rapid(files: dict[str, str]) -> ProgramRead:
     """Reads RAPID modules {file name: text}; the targets in file order, then text order."""
     declarations: list[Declaration] = []
     moves: list[Move] = []
+    procedures: list[Procedure] = []
+    calls: list[Call] = []
     module = 0
     for name, text in files.items():
         walker = Walker(name, tokenize(name, text), module)
         module = walker.walk()
         declarations += walker.declarations
         moves += walker.moves
+        procedures += walker.procedures
+        calls += walker.calls
     scope = _Scope(declarations)
     targets = _declared_targets(declarations)
     for move in moves:
-        _add_uses(scope, targets, move)
+        if not _frames_are_parameters(move):
+            _add_uses(scope, targets, move)
+    given = set()  # the moves whose frames a call gave
+    for call in calls:
+        procedure = _procedure(procedures, call)
+        for move in moves:
+            if procedure and (move.file, move.module, move.routine) == (procedure.file, procedure.module,
+                                                                        procedure.name.upper()):  # fmt: skip
+                _add_uses(scope, targets, move, call, procedure)
+                given.add(id(move))
+    for move in moves:
+        if _frames_are_parameters(move) and id(move) not in given:
+            _add_uses(scope, targets, move)  # its own targets with frames no call gives: refused (_frame_data)
     order = {name: k for k, name in enumerate(files)}
     ordered = sorted(targets.values(), key=lambda t: (order[t.file], t.node.start))
     return ProgramRead("RAPID", dict(files), [_program_target(files, t) for t in ordered], "!")
@@ -156,29 +176,56 @@ def _check(file: str, node: Node, name: str, joint: bool) -> None:
         robtarget(file, node, name)
 
 
-def _add_uses(scope: _Scope, targets: dict[tuple, _Target], move: Move) -> None:
-    """Records on each target `move` names: the motion label and the frames it is used in."""
+def _add_uses(scope: _Scope, targets: dict[tuple, _Target], move: Move, call: Call | None = None,
+              procedure: Procedure | None = None) -> None:  # fmt: skip
+    """Records on each target `move` names its motion label and the frames it is used in. With `call`, `move` sits in
+    the called `procedure`: its targets, tool and work object that are the procedure's parameters are the call's
+    arguments (looked up where the call is); its other targets are read only when its frames depend on the call."""
     frames = None
     for arg in move.targets:
-        for key, target in _resolve(scope, targets, move, arg):
-            label = f"{move.instruction} {arg.via}".strip()
+        where, bound, via = _bound_target(move, arg, call, procedure)
+        if bound is None:
+            continue
+        for key, target in _resolve(scope, targets, where, bound, move.cartesian):
             if target.joint != (not move.cartesian):
                 continue  # a robtarget given to MoveAbsJ, a jointtarget to MoveL: RAPID refuses it; not a target here
             if frames is None:
-                frames = _frames(scope, move) if move.cartesian else ((), ("", ""), IDENTITY, IDENTITY)
-            targets.setdefault(key, target).uses.append(_Use(label, *frames, move.line))
+                frames = _frames(scope, move, call, procedure) if move.cartesian else ((), ("", ""), IDENTITY, IDENTITY)
+            label = " ".join(w for w in (move.instruction, via, f"via {call.instruction}" if call else "") if w)
+            targets.setdefault(key, target).uses.append(_Use(label, *frames, where.line))
 
 
-def _resolve(scope: _Scope, targets: dict[tuple, _Target], move: Move, arg: TargetArgument) -> list:
-    """The (key, target) pairs a move's target argument names: an inline literal's new target, or the declared
-    target(s) of a name (every element when the array index is not a literal)."""
+def _bound_target(move: Move, arg: TargetArgument, call: Call | None,
+                  procedure: Procedure | None) -> tuple[Move | Call, TargetArgument | None, str]:  # fmt: skip
+    """(where to look the target up, the target argument there or None to skip it, its offset function)."""
+    if call is None or procedure is None:
+        return move, arg, arg.via
+    if arg.name is not None and arg.name.upper in procedure.positional:
+        k = procedure.positional.index(arg.name.upper)
+        given = call.targets[k] if k < len(call.targets) else None
+        if given is None or (arg.via and given.via):
+            return call, None, ""
+        return call, given, arg.via or given.via
+    return move, (arg if _frames_are_parameters(move) else None), arg.via
+
+
+def _frames_are_parameters(move: Move) -> bool:
+    """Whether a Cartesian move's tool or work object is a parameter of its routine (known only at a call)."""
+    names = [move.tool] + ([move.wobj] if move.wobj is not None else [])
+    return move.cartesian and any(t.upper in move.parameters for t in names)
+
+
+def _resolve(scope: _Scope, targets: dict[tuple, _Target], where: Move | Call, arg: TargetArgument,
+             cartesian: bool) -> list:  # fmt: skip
+    """The (key, target) pairs a target argument names where it is written: an inline literal's new target, or the
+    declared target(s) of a name (every element when the array index is not a literal)."""
     if arg.node is not None:
         name = f"line {arg.line}"
-        _check(move.file, arg.node, name, not move.cartesian)
-        return [((move.file, arg.node.start), _Target(move.file, arg.node, name, not move.cartesian))]
-    if arg.name is None or arg.name.upper in move.parameters:
-        return []  # a parameter of the move's routine: the caller's data, not known here
-    d = scope.find(arg.name.text, move.file, move.module, move.routine, move.line)
+        _check(where.file, arg.node, name, not cartesian)
+        return [((where.file, arg.node.start), _Target(where.file, arg.node, name, not cartesian))]
+    if arg.name is None or arg.name.upper in where.parameters:
+        return []  # a parameter of the routine: the caller's data (read at the calls of the files)
+    d = scope.find(arg.name.text, where.file, where.module, where.routine, where.line)
     if d is None or d.value is None:
         return []
     if arg.index is None or arg.index == ():
@@ -186,33 +233,52 @@ def _resolve(scope: _Scope, targets: dict[tuple, _Target], move: Move, arg: Targ
     return [((id(d), arg.index), targets[(id(d), arg.index)])] if (id(d), arg.index) in targets else []
 
 
-def _frames(scope: _Scope, move: Move) -> tuple[tuple, tuple[str, str], np.ndarray, np.ndarray]:
-    """(the tool's and work object's declarations, their names, tool frame, base frame) of a Cartesian move."""
-    tool_d, tool = _frame_data(scope, move, move.tool.text, "TOOLDATA")
-    wobj_name = move.wobj.text if move.wobj is not None else "wobj0"
-    wobj_d, base = _frame_data(scope, move, wobj_name, "WOBJDATA")
-    return (tool_d, wobj_d), (move.tool.text, wobj_name), tool, base
+def _frames(scope: _Scope, move: Move, call: Call | None,
+            procedure: Procedure | None) -> tuple[tuple, tuple[str, str], np.ndarray, np.ndarray]:  # fmt: skip
+    """(the tool's and work object's declarations, their names, tool frame, base frame) of a Cartesian move; a tool
+    or work object that is a parameter of the called `procedure` is the `call`'s argument."""
+    named = []
+    for token, default in ((move.tool, ""), (move.wobj, "wobj0")):
+        where, name = move, token.text if token is not None else default
+        if call is not None and procedure is not None and name.upper() in procedure.positional:
+            k = procedure.positional.index(name.upper())
+            given = call.names[k] if k < len(call.names) else None
+            if given is None:
+                raise fail(call.file, call.line, f"{call.instruction}'s argument for {name} is not a tooldata or "
+                                                 "wobjdata name: its frame is not known from the text")  # fmt: skip
+            where, name = call, given.text
+        named.append((where, name))
+    (tool_where, tool_name), (wobj_where, wobj_name) = named
+    tool_d, tool = _frame_data(scope, tool_where, tool_name, "TOOLDATA")
+    wobj_d, base = _frame_data(scope, wobj_where, wobj_name, "WOBJDATA")
+    return (tool_d, wobj_d), (tool_name, wobj_name), tool, base
 
 
-def _frame_data(scope: _Scope, move: Move, name: str, type_: str) -> tuple[int | str, np.ndarray]:
-    """(identity of the declaration, frame) of the tool or work object `name` a move uses."""
+def _frame_data(scope: _Scope, where: Move | Call, name: str, type_: str) -> tuple[int | str, np.ndarray]:
+    """(identity of the declaration, frame) of the tool or work object `name` a move (or a call) names."""
     what = type_.lower()
-    if name.upper() in move.parameters:
-        raise fail(move.file, move.line, f"{move.instruction}'s {what} {name} is a parameter of its routine: its frame "
-                                         "is not known from the program's text")  # fmt: skip
-    d = scope.find(name, move.file, move.module, move.routine, move.line)
+    if name.upper() in where.parameters:
+        raise fail(where.file, where.line, f"{where.instruction}'s {what} {name} is a parameter of its routine and no "
+                                           "call in the files gives it: its frame is not known")  # fmt: skip
+    d = scope.find(name, where.file, where.module, where.routine, where.line)
     if d is None and PREDEFINED.get(name.upper()) == type_:
         return name.upper(), WRIST_IN_FLANGE if type_ == "TOOLDATA" else IDENTITY
     if d is None:
-        raise fail(move.file, move.line, f"{move.instruction} uses {what} {name}, which the files given do not declare "
-                                         "(give the module that declares it too)")  # fmt: skip
+        raise fail(where.file, where.line, f"{where.instruction} uses {what} {name}, which the files given do not "
+                                           "declare (give the module that declares it too)")  # fmt: skip
     if d.type != type_ or d.dims:
-        raise fail(move.file, move.line, f"{move.instruction} uses {name} as its {what}, declared as another type")
+        raise fail(where.file, where.line, f"{where.instruction} uses {name} as its {what}, declared as another type")
     if d.value is None:
-        raise fail(move.file, move.line, f"{what} {name} has no literal value in the files (its frame is unknown)")
+        raise fail(where.file, where.line, f"{what} {name} has no literal value in the files (its frame is unknown)")
     if type_ == "TOOLDATA":
         return id(d), WRIST_IN_FLANGE @ tool_frame(d.file, d.value, d.name)
     return id(d), work_object_frame(d.file, d.value, d.name)
+
+
+def _procedure(procedures: list[Procedure], call: Call) -> Procedure | None:
+    """The PROC a call names: its own module's, else a global one of the files (None: not in the files)."""
+    named = [p for p in procedures if p.name.upper() == call.name.upper]
+    return next((p for p in named if p.module == call.module), None) or next((p for p in named if not p.local), None)
 
 
 def _program_target(files: dict[str, str], t: _Target) -> ProgramTarget:

@@ -6,8 +6,9 @@ declarations; "RAPID Instructions, Functions and Data types", 3HAC050917-001: th
 - `MODULE name [(attributes)] ... ENDMODULE`, one or more per file; in a module, data declarations
   `[LOCAL | TASK] CONST | PERS | VAR type name [{dims}] [:= value];`, routines `[LOCAL] PROC name (params) ...
   ENDPROC`, `FUNC type name (params) ... ENDFUNC`, `TRAP name ... ENDTRAP`, and `RECORD ... ENDRECORD`;
-- in a routine, its own data declarations, then statements: what is not a declaration or a move is skipped with its
-  brackets balanced (IF/WHILE/FOR/TEST blocks need no tracking: a move is a move wherever it sits);
+- in a routine, its own data declarations, then statements: what is not a declaration, a move or a procedure call
+  (`Name arg, ...;` at a statement's start, Name no reserved word) is skipped with its brackets balanced
+  (IF/WHILE/FOR/TEST blocks need no tracking: a move is a move wherever it sits);
 - `MoveJ [\\Conc,] ToPoint [\\ID], Speed [\\V | \\T], Zone [\\Z] [\\Inpos], Tool [\\WObj] [\\Corr] [\\TLoad];` and
   MoveL alike; `MoveC [\\Conc,] CirPoint, ToPoint, ...` (two targets); `MoveAbsJ ToJointPos [\\NoEOffs], Speed, Zone,
   Tool [\\WObj];` (a jointtarget); the DO, AO, GO and Sync forms (MoveLDO ...) take the same arguments up to the tool
@@ -33,6 +34,14 @@ MOVES = {name.upper(): (name, n) for name, n in (
 OFFSET_FUNCTIONS = {"OFFS": "Offs", "RELTOOL": "RelTool"}
 ROUTINES = {"PROC": "ENDPROC", "FUNC": "ENDFUNC", "TRAP": "ENDTRAP"}
 BLOCK_WORDS = {"MODULE", "ENDMODULE", *ROUTINES, *ROUTINES.values(), "RECORD", "ENDRECORD"}
+# RAPID's reserved words (RAPID kernel, "Reserved words"): a statement starting with one is no procedure call
+RESERVED = {"ALIAS", "AND", "BACKWARD", "CASE", "CONNECT", "CONST", "DEFAULT", "DIV", "DO", "ELSE", "ELSEIF", "ENDFOR",
+            "ENDFUNC", "ENDIF", "ENDMODULE", "ENDPROC", "ENDRECORD", "ENDTEST", "ENDTRAP", "ENDWHILE", "ERROR", "EXIT",
+            "FALSE", "FOR", "FROM", "FUNC", "GOTO", "IF", "INOUT", "LOCAL", "MOD", "MODULE", "NOSTEPIN", "NOT",
+            "NOVIEW", "OR", "PERS", "PROC", "RAISE", "READONLY", "RECORD", "RETRY", "RETURN", "STEP", "SYSMODULE",
+            "TEST", "THEN", "TO", "TRAP", "TRUE", "TRYNEXT", "UNDO", "VAR", "VIEWONLY", "WHILE", "WITH", "XOR"}
+# the words after which a new statement starts (besides `;` and a CASE's or a label's `:`)
+OPENERS = {"THEN", "ELSE", "DO", "ENDIF", "ENDWHILE", "ENDFOR", "ENDTEST", "ERROR", "UNDO", "BACKWARD"}
 
 
 @dataclass(frozen=True)
@@ -80,6 +89,36 @@ class Move:
     parameters: frozenset[str] = frozenset()  # the names of its routine's parameter list, upper case
 
 
+@dataclass(frozen=True)
+class Procedure:
+    """A PROC: where it is, and the names (upper case) of its required parameters in order."""
+
+    file: str
+    module: int
+    name: str
+    local: bool
+    positional: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Call:
+    """A procedure call statement `Name arg, arg ...;`: its positional arguments read as targets (None: an expression
+    that is none) and as names (a single name: a tool or work object passed on)."""
+
+    file: str
+    module: int
+    routine: str | None
+    line: int
+    name: Token
+    targets: tuple[TargetArgument | None, ...]
+    names: tuple[Token | None, ...]
+    parameters: frozenset[str] = frozenset()
+
+    @property
+    def instruction(self) -> str:
+        return self.name.text
+
+
 class Walker:
     """Walks one file's tokens, collecting its declarations and moves; `module` is the next module's number."""
 
@@ -88,6 +127,8 @@ class Walker:
         self.declarations: list[Declaration] = []
         self.moves: list[Move] = []
         self.parameters: frozenset[str] = frozenset()  # those of the routine being read
+        self.procedures: list[Procedure] = []
+        self.calls: list[Call] = []
 
     def at(self, i: int, expected: str) -> Token:
         """tokens[i], or the error that the file ends where `expected` was expected."""
@@ -144,7 +185,7 @@ class Walker:
             if t.upper in ("CONST", "PERS", "VAR"):
                 i = self.declaration(i, None, local)
             elif t.upper in ROUTINES:
-                i = self.routine(i)
+                i = self.routine(i, local)
             elif t.upper == "RECORD":
                 i = self.skip_to(i, "ENDRECORD")
             else:
@@ -196,32 +237,51 @@ class Walker:
                 raise fail(self.file, t.line, f"unbalanced brackets before {t.text!r}")
             i += 1
 
-    def routine(self, i: int) -> int:
-        """Reads a PROC, FUNC or TRAP: its data declarations and moves; returns the index after its END word."""
+    def routine(self, i: int, local: bool = False) -> int:
+        """Reads a PROC, FUNC or TRAP: its data declarations, moves and calls; returns the index after its END word."""
         kind = self.tokens[i].upper
         end_word = ROUTINES[kind]
         name = self.name_at(i + 2 if kind == "FUNC" else i + 1, "the routine's name")
         i += 3 if kind == "FUNC" else 2
+        self.parameters = frozenset()
         if kind != "TRAP":
             if self.at(i, "'('").text != "(":
                 raise fail(self.file, self.tokens[i].line, f"expected '(' after {kind} {name.text}")
             end = self.closing(i, "(", ")")
-            self.parameters = frozenset(t.upper for t in self.tokens[i + 1 : end] if t.kind == "name")
+            params = self.tokens[i + 1 : end]
+            self.parameters = frozenset(t.upper for t in params if t.kind == "name")
+            if kind == "PROC":
+                self.procedures.append(Procedure(self.file, self.module, name.text, local, positional(params)))
             i = end + 1
-        else:
-            self.parameters = frozenset()
+        routine, starts = name.text.upper(), True
         while True:
             t = self.at(i, f"{end_word} of {name.text}")
             if t.upper == end_word:
                 return i + 1
             if t.upper in BLOCK_WORDS:
                 raise fail(self.file, t.line, f"expected {end_word} of {name.text} before {t.text}")
+            after = self.at(i + 1, "';'").text if t.kind == "name" else ""
             if t.upper in ("CONST", "PERS", "VAR"):
-                i = self.declaration(i, name.text.upper(), False)
-            elif t.upper in MOVES and self.at(i + 1, "';'").text not in ("(", ":=", "."):
-                i = self.move(i, name.text.upper())
+                i = self.declaration(i, routine, False)
+            elif t.upper in MOVES and after not in ("(", ":=", "."):
+                i = self.move(i, routine)
+            elif starts and t.kind == "name" and t.upper not in RESERVED and after not in ("(", ":=", ".", "{", ":"):
+                i = self.call(i, routine)
             else:
                 i = self.statement_part_end(i)
+            previous = self.tokens[i - 1]
+            starts = previous.text in (";", ":") or previous.upper in OPENERS
+
+    def call(self, i: int, routine: str) -> int:
+        """Reads a procedure call statement at tokens[i]; returns the index after its `;`."""
+        end = self.statement_end(i + 1)
+        mains = [optional_arguments(piece)[0] for piece in split(self.tokens[i + 1 : end], ",")]
+        mains = [m for m in mains if m]
+        targets = tuple(self.target(m) for m in mains)
+        names = tuple(m[0] if len(m) == 1 and m[0].kind == "name" else None for m in mains)
+        self.calls.append(Call(self.file, self.module, routine, self.tokens[i].line, self.tokens[i], targets, names,
+                               self.parameters))  # fmt: skip
+        return end + 1
 
     def statement_part_end(self, i: int) -> int:
         """Skips one token of a statement that is not read, checking its brackets; returns the next index."""
@@ -284,6 +344,20 @@ class Walker:
             numbers = tuple(int(x[0].text) for x in index) if literal else ()
             return TargetArgument(first.line, via, name=first, index=numbers)
         return None
+
+
+def positional(params: list[Token]) -> tuple[str, ...]:
+    """The names (upper case) of a parameter list's required parameters in order (`\\optional` ones and
+    alternatives `|` left out): each is the last name before its `{*}`."""
+    out = []
+    for piece in split(params, ","):
+        if not piece or piece[0].text == "\\" or any(t.text == "|" for t in piece):
+            continue
+        brace = next((k for k, t in enumerate(piece) if t.text == "{"), len(piece))
+        names = [t for t in piece[:brace] if t.kind == "name"]
+        if names:
+            out.append(names[-1].upper)
+    return tuple(out)
 
 
 def split(tokens: list[Token], separator: str) -> list[list[Token]]:

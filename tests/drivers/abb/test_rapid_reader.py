@@ -388,3 +388,18 @@ def test_byte_order_mark_and_crlf_lines():
     assert by_name(program, "line 52").line == 52
     rewritten = program.write({0: program.targets[0].value}, {0: "kept"})["CellDemo.mod"]
     assert "[[0,0,0,0,30,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]; ! kept\r\n" in rewritten
+
+
+def test_targets_tool_and_work_object_passed_to_a_procedure():
+    # a common cell pattern: a PROC that moves to the robtarget, with the tool and work object it is given; the
+    # call's arguments are what the move uses (uframe (0, 0, 100): the base 100 mm up; tool 80 mm along tool0's z)
+    data = (P + "\nPERS tooldata tG:=[TRUE,[[0,0,80],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
+            '\nPERS wobjdata wT:=[FALSE,TRUE,"",[[0,0,100],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];')  # fmt: skip
+    files = {"T.mod": f"MODULE T\n{data}\nPROC main()\n  MoveTo p, tG, wT;\nENDPROC\n"
+                      "PROC MoveTo(robtarget pTo, PERS tooldata t, PERS wobjdata w)\n"
+                      "  MoveL Offs(pTo, 0, 0, 10), v100, z10, t\\WObj:=w;\n  MoveL pTo, v100, fine, t\\WObj:=w;\n"
+                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    t = read_rapid(files).targets[0]
+    assert (t.name, t.motion) == ("p", "MoveL Offs via MoveTo, MoveL via MoveTo")
+    np.testing.assert_allclose(t.base[:3, 3], [0, 0, 100])
+    np.testing.assert_allclose(t.tool[:3, 3], [80, 0, 0], atol=1e-12)  # tool0's z is the configs' flange x
