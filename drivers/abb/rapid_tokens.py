@@ -11,7 +11,9 @@ elements", and "RAPID Overview", 3HAC050947-001, "Basic RAPID programming: progr
   character by its hex code);
 - comments: from `!` to the end of the line;
 - punctuation and operators: `:=` `<>` `<=` `>=` and the single characters of PUNCT;
-- a byte order mark opening the file (RobotStudio may save UTF-8 with one) is white space;
+- a byte order mark opening the file (RobotStudio may save UTF-8 with one) is white space, whether the bytes were
+  decoded as UTF-8 ("\\ufeff") or byte for byte as Latin-1 (the three characters of EF BB BF, as `trackcal filter`
+  reads files);
 - the `%%%` header of an S4C `.prg` file (`%%% VERSION:1 LANGUAGE:ENGLISH %%%`, RAPID kernel "Program
   modules") is skipped as a whole.
 Any other character outside a string or a comment is an error naming the file, the line and the character.
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 
 from trackcal.drivers.program_text import ProgramReadError
 
+BOMS = ("\ufeff", "\xef\xbb\xbf")  # a UTF-8 byte order mark decoded as UTF-8, and as Latin-1
 PUNCT = "[](){},;\\:+-*/<>=.%?|"
 TWO_CHAR = (":=", "<>", "<=", ">=")
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
@@ -66,7 +69,8 @@ def tokenize(file: str, text: str) -> list[Token]:
     """The tokens of one file's text, comments and white space left out."""
     tokens: list[Token] = []
     pos, line = _header_end(file, text), 1
-    pos += pos == 0 and text.startswith("\ufeff")
+    if pos == 0:
+        pos = next((len(bom) for bom in BOMS if text.startswith(bom)), 0)
     line += text.count("\n", 0, pos)
     n = len(text)
     while pos < n:
@@ -127,7 +131,7 @@ def _string_text(file: str, text: str, pos: int, line: int) -> str:
 
 def _header_end(file: str, text: str) -> int:
     """Where the text starts after an S4C `.prg` file's `%%% ... %%%` header (0 when it has none)."""
-    m = re.match(r"\ufeff?[ \t\r\n]*%%%", text)
+    m = re.match(r"(?:\ufeff|\xef\xbb\xbf)?[ \t\r\n]*%%%", text)
     if not m:
         return 0
     close = text.find("%%%", m.end())

@@ -380,9 +380,10 @@ def test_a_persistent_declared_alike_in_two_modules_is_one():
         read_rapid(files)
 
 
-def test_byte_order_mark_and_crlf_lines():
+@pytest.mark.parametrize("bom", ["\ufeff", "\xef\xbb\xbf"])  # decoded as UTF-8, and byte for byte as Latin-1
+def test_byte_order_mark_and_crlf_lines(bom):
     # a module saved with a UTF-8 byte order mark and Windows line ends reads, and round-trips byte for byte
-    text = "\ufeff" + SAMPLE.read_text().replace("\n", "\r\n")
+    text = bom + SAMPLE.read_text().replace("\n", "\r\n")
     program = read_rapid({"CellDemo.mod": text})
     assert program.write({}, {}) == {"CellDemo.mod": text}
     assert by_name(program, "line 52").line == 52
