@@ -5,7 +5,8 @@ Syntax followed (ABB "Technical reference manual - RAPID kernel", 3HAC050946-001
 declarations; "RAPID Instructions, Functions and Data types", 3HAC050917-001: the move instructions):
 - `MODULE name [(attributes)] ... ENDMODULE`, one or more per file; in a module, data declarations
   `[LOCAL | TASK] CONST | PERS | VAR type name [{dims}] [:= value];`, routines `[LOCAL] PROC name (params) ...
-  ENDPROC`, `FUNC type name (params) ... ENDFUNC`, `TRAP name ... ENDTRAP`, and `RECORD ... ENDRECORD`;
+  ENDPROC`, `FUNC type name (params) ... ENDFUNC`, `TRAP name ... ENDTRAP`, `RECORD ... ENDRECORD` and
+  `ALIAS type name;`;
 - in a routine, its own data declarations, then statements: what is not a declaration, a move or a procedure call
   (`Name arg, ...;` at a statement's start, Name no reserved word) is skipped with its brackets balanced
   (IF/WHILE/FOR/TEST blocks need no tracking: a move is a move wherever it sits);
@@ -120,7 +121,8 @@ class Call:
 
 
 class Walker:
-    """Walks one file's tokens, collecting its declarations and moves; `module` is the next module's number."""
+    """Walks one file's tokens, collecting its declarations, moves, procedures and calls; `module` is the next
+    module's number."""
 
     def __init__(self, file: str, tokens: list[Token], module: int) -> None:
         self.file, self.tokens, self.module = file, tokens, module
@@ -188,6 +190,8 @@ class Walker:
                 i = self.routine(i, local)
             elif t.upper == "RECORD":
                 i = self.skip_to(i, "ENDRECORD")
+            elif t.upper == "ALIAS":  # ALIAS num level; (RAPID kernel, alias types)
+                i = self.statement_end(i + 1) + 1
             else:
                 raise fail(self.file, t.line, "expected a declaration, PROC, FUNC, TRAP, RECORD or ENDMODULE, "
                                               f"found {t.text!r}")  # fmt: skip

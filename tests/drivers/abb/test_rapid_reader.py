@@ -404,3 +404,25 @@ def test_targets_tool_and_work_object_passed_to_a_procedure():
     assert (t.name, t.motion) == ("p", "MoveL Offs via MoveTo, MoveL via MoveTo")
     np.testing.assert_allclose(t.base[:3, 3], [0, 0, 100])
     np.testing.assert_allclose(t.tool[:3, 3], [80, 0, 0], atol=1e-12)  # tool0's z is the configs' flange x
+
+
+@pytest.mark.parametrize("robot", ["irb120", "irb120-dh"])
+def test_the_wrist_flip_of_a_sample_pose_is_another_configuration(robot):
+    # (q4 + 180, -q5, q6 + 180) reaches the same flange pose (axes 4 and 6 along the same line through the wrist
+    # centre when axis 5 is turned back), checked with the project's kinematics; robconf tells the two apart: cf4 and
+    # cf6 quadrants 2 and 1 instead of 0 and -1, and axis 5 negative against cfx 0
+    program = read_rapid({"CellDemo.mod": SAMPLE.read_text(), "X.mod": "MODULE X\nENDMODULE\n"})
+    t = by_name(program, "pApproach")
+    q = np.array(SAMPLE_JOINTS["pApproach"], dtype=float)
+    flipped = q + [0, 0, 0, 180, 0, 180]
+    flipped[4] = -q[4]
+    kin = Kinematics(load_robot(robot)[0], [])
+    (r1, r2), (o1, o2) = kin.end_frames(np.radians([q, flipped]))
+    np.testing.assert_allclose(r1, r2, atol=1e-9)
+    np.testing.assert_allclose(o1, o2, atol=1e-6)
+    assert t.accepts(q) and not t.accepts(flipped)
+
+
+def test_alias_declarations_are_skipped():
+    files = module("MoveL p, v100, fine, tool0;", "ALIAS num level;\n" + P)
+    assert [t.name for t in read_rapid(files).targets] == ["p"]
