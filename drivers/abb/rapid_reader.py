@@ -90,17 +90,23 @@ def read_rapid(files: dict[str, str]) -> ProgramRead:
         calls += walker.calls
     scope = _Scope(declarations)
     targets = _declared_targets(declarations)
+    for key in targets:
+        scope.elements.setdefault(key[0], []).append(key)
     for move in moves:
         if not _frames_are_parameters(move):
             _add_uses(scope, targets, move)
     given = set()  # the moves whose frames a call gave
+    by_routine: dict[tuple, list[Move]] = {}
+    for move in moves:
+        by_routine.setdefault((move.module, move.routine), []).append(move)
+    procedures_by_name: dict[str, list[Procedure]] = {}
+    for p in procedures:
+        procedures_by_name.setdefault(p.name.upper(), []).append(p)
     for call in calls:
-        procedure = _procedure(procedures, call)
-        for move in moves:
-            if procedure and (move.file, move.module, move.routine) == (procedure.file, procedure.module,
-                                                                        procedure.name.upper()):  # fmt: skip
-                _add_uses(scope, targets, move, call, procedure)
-                given.add(id(move))
+        procedure = _procedure(procedures_by_name.get(call.name.upper, []), call)
+        for move in by_routine.get((procedure.module, procedure.name.upper()), []) if procedure else []:
+            _add_uses(scope, targets, move, call, procedure)
+            given.add(id(move))
     for move in moves:
         if _frames_are_parameters(move) and id(move) not in given:
             _add_uses(scope, targets, move)  # its own targets with frames no call gives: refused (_frame_data)
@@ -114,6 +120,8 @@ class _Scope:
 
     def __init__(self, declarations: list[Declaration]) -> None:
         self.by_name: dict[str, list[Declaration]] = {}
+        self.elements: dict[int, list[tuple]] = {}  # a robtarget/jointtarget declaration -> its targets' keys
+        self.frames: dict[int, np.ndarray] = {}  # a tooldata/wobjdata declaration -> its frame, read once
         for d in declarations:
             self.by_name.setdefault(d.name.upper(), []).append(d)
 
@@ -229,7 +237,7 @@ def _resolve(scope: _Scope, targets: dict[tuple, _Target], where: Move | Call, a
     if d is None or d.value is None:
         return []
     if arg.index is None or arg.index == ():
-        return [(k, t) for k, t in targets.items() if k[0] == id(d)]
+        return [(k, targets[k]) for k in scope.elements.get(id(d), [])]
     return [((id(d), arg.index), targets[(id(d), arg.index)])] if (id(d), arg.index) in targets else []
 
 
@@ -270,14 +278,17 @@ def _frame_data(scope: _Scope, where: Move | Call, name: str, type_: str) -> tup
         raise fail(where.file, where.line, f"{where.instruction} uses {name} as its {what}, declared as another type")
     if d.value is None:
         raise fail(where.file, where.line, f"{what} {name} has no literal value in the files (its frame is unknown)")
-    if type_ == "TOOLDATA":
-        return id(d), WRIST_IN_FLANGE @ tool_frame(d.file, d.value, d.name)
-    return id(d), work_object_frame(d.file, d.value, d.name)
+    if id(d) not in scope.frames:
+        if type_ == "TOOLDATA":
+            scope.frames[id(d)] = WRIST_IN_FLANGE @ tool_frame(d.file, d.value, d.name)
+        else:
+            scope.frames[id(d)] = work_object_frame(d.file, d.value, d.name)
+    return id(d), scope.frames[id(d)]
 
 
-def _procedure(procedures: list[Procedure], call: Call) -> Procedure | None:
-    """The PROC a call names: its own module's, else a global one of the files (None: not in the files)."""
-    named = [p for p in procedures if p.name.upper() == call.name.upper]
+def _procedure(named: list[Procedure], call: Call) -> Procedure | None:
+    """The PROC a call names (`named`: the files' PROCs of that name): its own module's, else a global one (None:
+    not in the files)."""
     return next((p for p in named if p.module == call.module), None) or next((p for p in named if not p.local), None)
 
 

@@ -10,7 +10,7 @@ elements", and "RAPID Overview", 3HAC050947-001, "Basic RAPID programming: progr
 - string literals: between double quotes on one line, a quote inside written `""`, a backslash `\\` (and `\\hh` a
   character by its hex code);
 - comments: from `!` to the end of the line;
-- punctuation and operators: `:=` `<>` `<=` `>=` and the single characters of PUNCT;
+- punctuation and operators: `:=` `<>` `<=` `>=` and the single characters `[](){},;\\:+-*/<>=.%?|`;
 - a byte order mark opening the file (RobotStudio may save UTF-8 with one) is white space, whether the bytes were
   decoded as UTF-8 ("\\ufeff") or byte for byte as Latin-1 (the three characters of EF BB BF, as `trackcal filter`
   reads files);
@@ -22,20 +22,16 @@ Any other character outside a string or a comment is an error naming the file, t
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from trackcal.drivers.program_text import ProgramReadError
 
 BOMS = ("\ufeff", "\xef\xbb\xbf")  # a UTF-8 byte order mark decoded as UTF-8, and as Latin-1
-PUNCT = "[](){},;\\:+-*/<>=.%?|"
-TWO_CHAR = (":=", "<>", "<=", ">=")
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 _NUMBER = re.compile(r"0[xX][0-9A-Fa-f]+|0[bB][01]+|0[oO][0-7]+|(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
-_SPACE = re.compile(r"[ \t\r\n\f\v]+")
 
 
-@dataclass(frozen=True)
-class Token:
+class Token(NamedTuple):
     """One token: kind "name", "num", "str" or "punct"; `text` as written; text[start:end] of its file; 1-based line."""
 
     kind: str
@@ -65,68 +61,39 @@ def fail(file: str, line: int, what: str) -> ProgramReadError:
     return ProgramReadError(f"{file}:{line}: {what}")
 
 
+_TOKEN = re.compile(
+    r"(?P<space>[ \t\r\n\f\v]+)|(?P<comment>![^\n]*)|(?P<str>\"(?:[^\"\n]|\"\")*\")"
+    r"|(?P<name>[A-Za-z][A-Za-z0-9_]*)|(?P<num>" + _NUMBER.pattern + ")"
+    r"|(?P<punct>:=|<>|<=|>=|[\[\](){},;\\:+\-*/<>=.%?|])"
+)  # one pattern, the alternatives tried in this order at each position
+
+
 def tokenize(file: str, text: str) -> list[Token]:
     """The tokens of one file's text, comments and white space left out."""
     tokens: list[Token] = []
-    pos, line = _header_end(file, text), 1
+    pos = _header_end(file, text)
     if pos == 0:
         pos = next((len(bom) for bom in BOMS if text.startswith(bom)), 0)
-    line += text.count("\n", 0, pos)
+    line = 1 + text.count("\n", 0, pos)
     n = len(text)
+    match = _TOKEN.match
     while pos < n:
-        c = text[pos]
-        m = _SPACE.match(text, pos)
-        if m:
-            line += text.count("\n", pos, m.end())
-            pos = m.end()
-            continue
-        if c == "!":
-            eol = text.find("\n", pos)
-            pos = n if eol < 0 else eol
-            continue
-        token = _one_token(file, text, pos, line)
-        tokens.append(token)
-        pos = token.end
+        m = match(text, pos)
+        if m is None:
+            if text[pos] == '"':
+                raise fail(file, line, "a string not closed on its line (expected '\"')")
+            raise fail(file, line, f"unexpected character {text[pos]!r} outside a string or a comment")
+        kind, end = m.lastgroup, m.end()
+        if kind == "space":
+            line += text.count("\n", pos, end)
+        elif kind == "str":
+            tokens.append(Token("str", text[pos + 1 : end - 1].replace('""', '"'), pos, end, line))
+        elif kind == "num" and (after := _NAME.match(text, end)):  # 12abc: no RAPID token
+            raise fail(file, line, f"a number followed by a name: {text[pos : after.end()]!r}")
+        elif kind != "comment":
+            tokens.append(Token(str(kind), m.group(), pos, end, line))
+        pos = end
     return tokens
-
-
-def _one_token(file: str, text: str, pos: int, line: int) -> Token:
-    """The token starting at `pos` (not white space or a comment)."""
-    c = text[pos]
-    if c == '"':
-        return Token("str", _string_text(file, text, pos, line), pos, _string_end(file, text, pos, line), line)
-    for kind, pattern in (("name", _NAME), ("num", _NUMBER)):
-        m = pattern.match(text, pos)
-        if m:
-            after = _NAME.match(text, m.end()) if kind == "num" else None
-            if after:  # 12abc: no RAPID token
-                raise fail(file, line, f"a number followed by a name: {text[pos : after.end()]!r}")
-            return Token(kind, m.group(), pos, m.end(), line)
-    two = text[pos : pos + 2]
-    if two in TWO_CHAR:
-        return Token("punct", two, pos, pos + 2, line)
-    if c in PUNCT:
-        return Token("punct", c, pos, pos + 1, line)
-    raise fail(file, line, f"unexpected character {c!r} outside a string or a comment")
-
-
-def _string_end(file: str, text: str, pos: int, line: int) -> int:
-    """The index after the closing quote of the string literal opening at `pos` (a `""` inside is one quote)."""
-    i = pos + 1
-    while True:
-        j = text.find('"', i)
-        eol = text.find("\n", i)
-        if j < 0 or (0 <= eol < j):
-            raise fail(file, line, "a string not closed on its line (expected '\"')")
-        if text.startswith('""', j):
-            i = j + 2
-            continue
-        return j + 1
-
-
-def _string_text(file: str, text: str, pos: int, line: int) -> str:
-    """The string literal's value (quotes removed, `""` as one quote; backslash codes kept as written)."""
-    return text[pos + 1 : _string_end(file, text, pos, line) - 1].replace('""', '"')
 
 
 def _header_end(file: str, text: str) -> int:

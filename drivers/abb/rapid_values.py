@@ -17,14 +17,14 @@ Layouts, from ABB "Technical reference manual - RAPID Instructions, Functions an
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from trackcal.drivers.abb.rapid_tokens import Token, fail, number_value
 
 
-@dataclass(frozen=True)
-class Node:
+class Node(NamedTuple):
     """One element of a literal: kind "list" (`items`), "num" (`value`, its text includes a unary sign), "bool",
     "str", or "expr" (anything else: a name, a call, arithmetic; not read). text[start:end] of its file."""
 
