@@ -60,6 +60,12 @@ COVERAGE = 0.95
 CHUNK = 500  # targets per batch of the nominal IK (memory: CHUNK x (IK_STARTS + 1) x 3 rows)
 
 
+# a declared target no move of the given files uses: the tool and base it is used with are not known (a reader gives
+# it the language's default frames), so correcting it could move it the wrong way
+UNUSED = ("no move in the given files uses it: the tool and base frame it runs with are not known (give the files "
+          "that use it)")
+
+
 class FilterError(CalibError):
     """A request that cannot be filtered at all (shapes, frames); the message says why."""
 
@@ -71,6 +77,7 @@ class Target(Protocol):
     value: np.ndarray
     base: np.ndarray  # 4 x 4 user frame in the robot's base frame, mm
     tool: np.ndarray  # 4 x 4 TCP in the flange (the chain's last joint frame), mm
+    motion: str  # the moves that use it; "" when none of the given files' moves does
 
     def accepts(self, q_deg: np.ndarray) -> bool: ...
 
@@ -233,6 +240,9 @@ def nominal_joints(chain: Chain, targets: list[Target], reference_deg, starts: i
     q_nom, why = np.full((len(targets), n), np.nan), [""] * len(targets)
     ref = np.radians(np.asarray(reference_deg, dtype=float))
     for i, t in enumerate(targets):
+        if not t.motion:
+            why[i] = UNUSED
+            continue
         if t.joint:
             q_nom[i] = ref = np.radians(np.asarray(t.value, dtype=float))
             continue

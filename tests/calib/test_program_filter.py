@@ -23,7 +23,7 @@ from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import model_from_doc
-from trackcal.calib.program_filter import filter_targets, radius95
+from trackcal.calib.program_filter import UNUSED, filter_targets, radius95
 from trackcal.campaign.jobs.identify import run_identify
 from trackcal.drivers.program_text import ProgramRead, ProgramTarget
 from trackcal.mocks.twin import Twin, simulate_campaign
@@ -40,6 +40,7 @@ class Target:
     base: np.ndarray
     tool: np.ndarray
     config: object = field(default=None)  # accepts(q_deg) -> bool, None: any
+    motion: str = "PTP"  # a move uses it
 
     def accepts(self, q_deg) -> bool:
         return True if self.config is None else bool(self.config(q_deg))
@@ -202,6 +203,18 @@ def test_unreachable_and_singular_targets_are_kept_with_the_reason():
     # kept: near the singularity, or its correction diverges (beyond the limits or the cell's max_correction)
     assert re.search(r"singular|max_correction|leaves the joint limits|did not converge", res.why[1]), res.why[1]
     assert np.isnan(res.bound95_mm[0]) and np.isfinite(res.bound95_mm[1])
+
+
+def test_a_target_no_move_uses_is_kept_not_corrected_in_default_frames():
+    """A declared pose no move of the given files uses has no known tool and base (a reader gives it the
+    language's defaults); correcting it in those frames would move it by the wrong correction: it is kept."""
+    cell, _, model = identified("ur10", 1)
+    q = np.radians([10, -70, 80, -100, 60, 30])
+    pose = np.linalg.inv(BASE) @ independent_fk("ur10", q) @ TOOL
+    res = filter_targets(model, [Target(False, pose, BASE, TOOL, motion=""), Target(False, pose, BASE, TOOL)],
+                         np.degrees(q))  # fmt: skip
+    assert res.values[0] is None and res.why[0] == UNUSED
+    assert res.values[1] is not None and not res.why[1]
 
 
 def test_a_synthetic_kuka_program_read_is_filtered_and_written():
