@@ -100,11 +100,12 @@ class _Walk:
     def file(self, name: str) -> None:
         text = self.files[name]
         stmts = statements(tokenize(name, text))
-        _check_blocks(name, stmts)
+        _check_blocks(name, stmts, max(1, text.count("\n") + (not text.endswith("\n"))))
         for toks in stmts:
             self.statement(name, toks, text)
 
     def statement(self, file: str, toks: list[Token], text: str) -> None:
+        _expression_end(file, toks, 0, ())  # every line's brackets pair up
         words = [t.upper for t in toks]
         head = words[1] if words[0] == "GLOBAL" and len(words) > 1 else words[0]
         if head in BLOCKS or head in BLOCKS.values() or head in ("STRUC", "ENUM", "EXT", "EXTFCT"):
@@ -313,7 +314,7 @@ def _assignment(toks: list[Token]) -> int:
     return j if 0 < j < len(toks) and toks[j].text == "=" else 0
 
 
-def _check_blocks(file: str, stmts: list[list[Token]]) -> None:
+def _check_blocks(file: str, stmts: list[list[Token]], last_line: int) -> None:
     """DEF/END, DEFFCT/ENDFCT and DEFDAT/ENDDAT pair up; nothing stands outside them."""
     open_: tuple[str, int] | None = None
     for toks in stmts:
@@ -335,7 +336,7 @@ def _check_blocks(file: str, stmts: list[list[Token]]) -> None:
             raise ProgramReadError(f"{where(file, toks[0].line)}: expected DEF, DEFFCT or DEFDAT before "
                                    f"{toks[0].text!r}")  # fmt: skip
     if open_:
-        raise ProgramReadError(f"{where(file, stmts[-1][-1].line)}: expected {open_[0]} (for line {open_[1]}) before "
+        raise ProgramReadError(f"{where(file, last_line)}: expected {open_[0]} (for line {open_[1]}) before "
                                "the file's end")  # fmt: skip
 
 

@@ -141,9 +141,9 @@ def pose_of(agg: Aggregate) -> np.ndarray:
 
 
 def _wrap(angle: float, near: float) -> float:
-    """angle (deg) in (-180, 180], the one of angle + k 360 nearest `near` when that is within it too."""
-    out = (angle + 180.0) % 360.0 - 180.0
-    return 180.0 if out == -180.0 and near > 0 else out
+    """angle + k 360 (deg) nearest `near` (180, not -180, next to a written 180), within [-180, 180] up to rounding."""
+    out = angle + 360.0 * round((near - angle) / 360.0)
+    return out if abs(out) <= 180.0 + 1e-6 else (out + 180.0) % 360.0 - 180.0
 
 
 def abc_of(rot: np.ndarray, near: tuple[float, float, float]) -> tuple[float, float, float]:
