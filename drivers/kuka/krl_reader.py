@@ -301,12 +301,13 @@ def _assignment(toks: list[Token]) -> int:
     while j < len(toks) and toks[j].kind == "name":
         j += 1
         while j < len(toks) and toks[j].text == "[":
-            depth = 0
-            for k in range(j, len(toks)):
+            depth, k = 0, j
+            while k < len(toks):
                 depth += (toks[k].text == "[") - (toks[k].text == "]")
+                k += 1
                 if depth == 0:
                     break
-            j = k + 1 if depth == 0 else len(toks)
+            j = k
         if j < len(toks) and toks[j].text == ".":
             j += 1
             continue
@@ -356,6 +357,10 @@ def _config(site: _Site) -> tuple[int, int]:
     return out[0], out[1]
 
 
+def _same(a: Frame, b: Frame) -> bool:
+    return a.pose is not None and b.pose is not None and bool(np.array_equal(a.pose, b.pose))
+
+
 def _frames(site: _Site) -> tuple[np.ndarray, np.ndarray]:
     """(base, tool) of a Cartesian target moved to as written; ProgramReadError when not one known pair."""
     first = None
@@ -370,7 +375,7 @@ def _frames(site: _Site) -> tuple[np.ndarray, np.ndarray]:
                 raise ProgramReadError(f"{at}: its {what} is {frame.label}")
         if first is None:
             first = u
-        elif not (np.array_equal(u.base.pose, first.base.pose) and np.array_equal(u.tool.pose, first.tool.pose)):
+        elif not (_same(u.base, first.base) and _same(u.tool, first.tool)):
             raise ProgramReadError(f"{at} is in base {u.base.label}, tool {u.tool.label}, and at line {first.line} "
                                    f"in base {first.base.label}, tool {first.tool.label}: one taught value cannot "
                                    "be corrected for both")  # fmt: skip

@@ -151,7 +151,8 @@ def abc_of(rot: np.ndarray, near: tuple[float, float, float]) -> tuple[float, fl
     nearest `near` (the value it replaces), so a small correction gives small changes of the written angles."""
     cb = math.hypot(rot[0, 0], rot[1, 0])
     first = math.atan2(rot[1, 0], rot[0, 0]) if cb > 1e-9 else math.radians(near[0])
-    best, cost = (0.0, 0.0, 0.0), math.inf
+    best: tuple[float, ...] = (0.0, 0.0, 0.0)
+    cost = math.inf
     for a in (first, first + math.pi) if cb > 1e-9 else (first,):
         m = np.array([[math.cos(a), math.sin(a), 0], [-math.sin(a), math.cos(a), 0], [0, 0, 1]]) @ rot  # Rz(-A) R
         b, c = math.atan2(-m[2, 0], m[0, 0]), math.atan2(-m[1, 2], m[1, 1])
@@ -159,8 +160,8 @@ def abc_of(rot: np.ndarray, near: tuple[float, float, float]) -> tuple[float, fl
         abc = tuple(_wrap(v, n) for v, n in zip(abc, near, strict=True))
         d = sum(abs((v - n + 180.0) % 360.0 - 180.0) for v, n in zip(abc, near, strict=True))
         if d < cost:
-            best, cost = abc, d  # type: ignore[assignment]
-    return best
+            best, cost = abc, d
+    return best[0], best[1], best[2]
 
 
 def _number_text(v: float, source: str, minimum: int) -> str:
