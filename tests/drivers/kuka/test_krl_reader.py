@@ -172,6 +172,14 @@ def test_status_turn_acceptance(s, t, q, ok, why):
     assert status_turn(s, t)(np.array(q, dtype=float)) is ok, why
 
 
+@given(st.lists(st.floats(-350, 350).filter(lambda v: abs(v) > 1e-9), min_size=6, max_size=6), st.integers(0, 5))
+def test_turn_is_the_signs_of_the_axes(q, flip):
+    # T's definition: bit i set exactly when A(i+1) < 0 (robot-forum.com thread 13092; ISG "Status & Turn")
+    t = sum(1 << i for i, v in enumerate(q) if v < 0)
+    assert status_turn(None, t)(np.array(q))
+    assert not status_turn(None, t ^ (1 << flip))(np.array(q))
+
+
 def test_status_turn_read_from_the_program():
     program = read_krl(_program("PTP XP1", "DECL E6POS XP1={X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,S 'B110',T 'B010010'}"))
     accepts = program.targets[0].accepts
