@@ -30,10 +30,10 @@ class Token:
     start: int  # text[start:end] of the file
     end: int
     line: int  # 1-based
+    upper: str = ""  # text in upper case (KRL names are not case-sensitive)
 
-    @property
-    def upper(self) -> str:
-        return self.text.upper()
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "upper", self.text.upper())
 
 
 _SPACE = " \t\r\f"
@@ -89,15 +89,32 @@ def _scan_one(file: str, text: str, i: int, line: int, line_start: bool) -> Toke
                            "or a ; comment expected)")  # fmt: skip
 
 
+# one pattern for the tokens that need no check beyond their form; the others (a header line, an unclosed string or
+# bit pattern, a character KRL does not have) go through _scan_one, which reads them or says what was expected
+_FAST = re.compile(
+    r"(?P<eol>\n)|(?P<space>[ \t\r\f]+)|(?P<comment>;[^\n]*)|(?P<string>\"[^\"\n]*\")"
+    r"|(?P<bits>'(?:[Bb][01]+|[Hh][0-9A-Fa-f]+)')|(?P<number>(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)"
+    r"|(?P<enum>#[A-Za-z_$][A-Za-z0-9_$]*)|(?P<name>[A-Za-z_$][A-Za-z0-9_$]*)|(?P<op>==|<>|<=|>=|[{}()\[\],:=<>+\-*/.])"
+)
+
+
 def tokenize(file: str, text: str) -> list[Token]:
     """Every token of a file's text, comments and line ends included; ProgramReadError (file:line) otherwise."""
     out: list[Token] = []
     i, line, line_start = 0, 1, True
     while i < len(text):
-        if text[i] in _SPACE:
-            i += 1
+        m = _FAST.match(text, i)
+        kind = m.lastgroup if m else None
+        if kind == "space":
+            i = m.end()  # type: ignore[union-attr]
             continue
-        tok = _scan_one(file, text, i, line, line_start)
+        if m is None or (line_start and text[i] == "&"):
+            tok = _scan_one(file, text, i, line, line_start)
+        else:
+            end = m.end()
+            if kind == "comment" and text[end - 1] == "\r":
+                end -= 1  # the CR of CR LF belongs to the line end
+            tok = Token(kind, text[i:end], i, end, line)  # type: ignore[arg-type]
         out.append(tok)
         i, line_start = tok.end, tok.kind == "eol"
         line += tok.kind == "eol"
