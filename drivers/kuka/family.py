@@ -7,6 +7,7 @@ from __future__ import annotations
 from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.kuka.client import KukaKrc2
 from trackcal.drivers.kuka.eki_codec import AXES
+from trackcal.drivers.kuka.krl_reader import read_krl
 from trackcal.drivers.kuka.program import PROGRAM
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S
 from trackcal.drivers.kuka.rsi_codec import SHIPPED as RSI_SHIPPED
@@ -71,4 +72,4 @@ def claim(robot: KukaKrc2) -> None:
 
 FAMILY = RobotFamily(name="krc2", title="KR C2", dof=len(AXES), schemas=SCHEMAS, build=build, describe=describe,
                      where=where, waiting=waiting, claim=claim, protocols={"rsi": ("tcp", "udp")},
-                     program=PROGRAM)  # fmt: skip
+                     program=PROGRAM, readers={".src": read_krl})  # fmt: skip
