@@ -53,7 +53,8 @@ LEVER_MM = 100.0  # the flange points' offset along its x and y axes (as calib.c
 IK_TOL_MM = 1e-8  # each of the three flange points within this of its target: the pose to ~1e-10 rad
 IK_STARTS = 24  # random starts of the nominal IK besides the reference (a 6R arm has up to 8 solutions at a pose)
 IK_ITER = 40
-SAME_SOLUTION_RAD = 1e-6  # two converged starts within this on every joint (modulo a turn) are one solution
+RETRY_STARTS = 8 * IK_STARTS  # a target none of whose solutions is accepted: its IK again with these
+SAME_SOLUTION_RAD = 1e-4  # two converged starts within this on every joint (modulo a turn) are one solution
 SOBOL_POINTS = 2**16  # the normal sample of the 95 % radius's table (its quantile to ~1e-3 relative)
 RATIO_GRID = 20  # the table's steps in each eigenvalue ratio (the quantile is smooth in them)
 COVERAGE = 0.95
@@ -250,6 +251,9 @@ def nominal_joints(chain: Chain, targets: list[Target], reference_deg, starts: i
             why[i] = "unreachable: the nominal kinematics has no solution for it (outside the workspace)"
             continue
         q = nearest_solution(cands[i], limits, ref, t.accepts)
+        if q is None:  # random starts may miss a branch: once more with many (only for these, so cheap overall)
+            cands[i] = ik_candidates(chain, flanges[cart.index(i)][None], RETRY_STARTS, seed + 1 + i)[0]
+            q = nearest_solution(cands[i], limits, ref, t.accepts)
         if q is None:
             why[i] = (f"none of the nominal kinematics' {len(cands[i])} solutions is in the target's configuration "
                       "within the joint limits")  # fmt: skip

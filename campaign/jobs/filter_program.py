@@ -14,6 +14,7 @@ text stays byte for byte whatever the controller's code page (KRL editors write 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +32,9 @@ from trackcal.drivers.families import program_readers
 from trackcal.drivers.program_text import ProgramRead
 
 FORMAT = "trackcal-filter/1"
+# the motions the readers name for a move relative to the current pose or through an expression (KRL LIN_REL,
+# `LIN XP1:{X 10}`; RAPID Offs/RelTool)
+RELATIVE = re.compile(r"_REL\b|\(expression\)|\bOffs\b|\bRelTool\b")
 ENCODING = "latin-1"  # byte-transparent (module docstring)
 NOTE = ("correction: how far the filter moves the TCP and turns the tool (the nominal robot's, mm and deg); "
         "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
@@ -152,6 +156,9 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
                          "used by a move)")  # fmt: skip
     paths = _out_paths(opts, read)
     res = filter_targets(model, read.targets, reference_joints(model), correction_bound(model), opts.allow_outside)
+    for i, t in enumerate(read.targets):  # a reader accepts no joints for a relative or computed move
+        if RELATIVE.search(t.motion) and res.why[i]:
+            res.why[i] = f"a relative or computed move ({t.motion}): where it goes depends on where the robot is"
     values = {i: v for i, v in enumerate(res.values) if v is not None}
     notes = {i: f"trackcal filter: kept as it was: {w}" for i, w in enumerate(res.why) if w}
     texts = read.write(values, notes)

@@ -69,15 +69,16 @@ def test_krc2_sample_frames_from_config_and_program():
     np.testing.assert_allclose(p1.base, _kuka(1500.0, -500.0, 400.0, 90.0, 0.0, 0.0), atol=1e-12)
     np.testing.assert_allclose(p1.tool, _kuka(0.0, 0.0, 200.0, 0.0, 0.0, 0.0), atol=1e-12)
     np.testing.assert_allclose(p1.value, _kuka(120.5, -35.25, 310.0, 30.0, 0.0, 180.0), atol=1e-12)
-    assert p1.config == (6, 27) and p1.file == "PALLET.dat"
+    # S/T: the KR-270 configuration that reaches it within its limits (tests/integration/test_filter_samples.py)
+    assert p1.config == (2, 3) and p1.file == "PALLET.dat"
     for name in ("XP3", "XP4"):  # CIRC's auxiliary and end point, S and T written as bit patterns
-        assert _by_name(program, name).motion == "CIRC" and _by_name(program, name).config == (0b110, 0b011011)
+        assert _by_name(program, name).motion == "CIRC" and _by_name(program, name).config == (0b010, 0b000011)
     place = [t for t in program.targets if t.file == "PALLET.src" and t.motion == "LIN"]
     assert len(place) == 2  # the inline LINs after $TOOL=TOOL_DATA[2] and $BASE={...} set directly
     for t in place:
         np.testing.assert_allclose(t.base, _kuka(2100.0, 650.0, 180.0, 90.0, 0.0, 0.0), atol=1e-12)
         np.testing.assert_allclose(t.tool, _kuka(0.0, 45.0, 185.5, 0.0, -15.0, 0.0), atol=1e-12)
-        assert t.config == (0b010, 0b100010)
+        assert t.config == (0b010, 0b101010)
     joints = {t.name: t for t in program.targets if t.joint}
     np.testing.assert_allclose(joints["XPREPLACE"].value, [62.5, -75.0, 98.25, 0.0, 66.75, -12.5])
     assert joints["XHOME"].file == "$config.dat" and joints["XHOME"].motion == "PTP"
@@ -192,7 +193,7 @@ def test_status_turn_read_from_the_program():
 def test_render_keeps_every_byte_but_the_position_members():
     program = read_krl(_sample("krc2"))
     p1 = _by_name(program, "XP1")
-    assert p1.render(p1.value) == ("{X 120.5000,Y -35.2500,Z 310.0000,A 30.00000,B 0.00000,C 180.00000,S 6,T 27,"
+    assert p1.render(p1.value) == ("{X 120.5000,Y -35.2500,Z 310.0000,A 30.00000,B 0.00000,C 180.00000,S 2,T 3,"
                                    "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")  # fmt: skip
     xa = _by_name(program, "XPREPLACE")
     assert xa.render(xa.value + 0.5) == ("{A1 63.00000,A2 -74.50000,A3 98.75000,A4 0.50000,A5 67.25000,A6 -12.00000,"
@@ -217,7 +218,7 @@ def test_a_corrected_value_reads_back(dx, dy, dz, da, db):
     np.testing.assert_allclose(t.value[:3, 3], moved[:3, 3], atol=1e-4)  # 4 decimals of mm
     np.testing.assert_allclose(t.value[:3, :3], moved[:3, :3], atol=1e-6)  # 5 decimals of deg: < 1e-7 rad
     text = again.files["DEBURR.dat"]
-    assert text[t.start : t.end].endswith(",S 2,T 35,E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
+    assert text[t.start : t.end].endswith(",S 2,T 3,E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
 
 
 def test_render_at_b_90_keeps_a():
