@@ -31,7 +31,7 @@ EOL = "\r\n"  # RobotStudio and the FlexPendant save modules with CR LF
 
 def joint_value(q_deg) -> str:
     """A jointtarget's RAPID value: six robot axes at 4 decimals (the interface's 0.0001 deg), no external axes."""
-    axes = ",".join("0" if f"{v:.4f}" == "-0.0000" else f"{v:.4f}" for v in q_deg)
+    axes = ",".join("0.0000" if f"{v:.4f}" == "-0.0000" else f"{v:.4f}" for v in q_deg)
     return f"[[{axes}],[{','.join([NO_AXIS] * 6)}]]"
 
 
