@@ -272,9 +272,10 @@ class AbbRws:
 
     def _check_controller(self, what: str) -> None:
         """DeviceFault (latched) when the controller left motoron or RAPID stopped."""
+        execution = self._value("rw/rapid/execution", "ctrlexecstate")  # first: a stop that explains it shows next
         state = self._value("rw/panel/ctrlstate", "ctrlstate")
         code = CTRL_FAULTS.get(state)
-        if code is None and self._value("rw/rapid/execution", "ctrlexecstate") != "running":
+        if code is None and execution != "running":
             state, code = "RAPID stopped", RAPID_STOPPED
         if code is not None:
             with self._motion:

@@ -12,7 +12,8 @@ from trackcal.drivers.abb.rws import digest_response, parse_challenge, states
 
 # RFC 2617 section 3.5, the worked example: user Mufasa, password "Circle Of Life", GET /dir/index.html
 RFC2617_CHALLENGE = ('Digest realm="testrealm@host.com", qop="auth,auth-int", '
-                     'nonce="dcd98b7102dd2f0e8b11d0f600bfb0c093", opaque="5ccc069c403ebaf9f0171e9517f40e41"')  # fmt: skip
+                     'nonce="dcd98b7102dd2f0e8b11d0f600bfb0c093", '
+                     'opaque="5ccc069c403ebaf9f0171e9517f40e41"')
 RFC2617_RESPONSE = "6629fae49393a05397450978507c4ef1"  # the example's response field
 
 
