@@ -244,8 +244,7 @@ class RwsServer:
         self._busy = 0
         self._busy_lock = threading.Lock()
         self.requests = 0
-        self.httpd = ThreadingHTTPServer((host, port), _handler(self))
-        self.httpd.daemon_threads = True
+        self.httpd = _Httpd((host, port), self)
         self._thread: threading.Thread | None = None
 
     @property
@@ -278,109 +277,121 @@ class RwsServer:
             self._thread.join(timeout=5.0)
 
 
-def _handler(server: RwsServer) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-        server_version = "Appweb/4"  # RobotWare 6's RWS runs on the Appweb embedded web server
+class _Httpd(ThreadingHTTPServer):
+    daemon_threads = True
 
-        def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
-            pass
+    def __init__(self, address, owner: RwsServer) -> None:
+        self.owner = owner
+        super().__init__(address, _Handler)
 
-        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
-            self._serve("GET")
 
-        def do_POST(self) -> None:  # noqa: N802
-            self._serve("POST")
+class _Handler(BaseHTTPRequestHandler):
+    """One connection's requests, answered for the RwsServer that owns the HTTP server."""
 
-        def do_PUT(self) -> None:  # noqa: N802
-            self._serve("PUT")
+    protocol_version = "HTTP/1.1"
+    server_version = "Appweb/4"  # RobotWare 6's RWS runs on the Appweb embedded web server
+    server: _Httpd
 
-        def do_DELETE(self) -> None:  # noqa: N802
-            self._serve("DELETE")
+    @property
+    def owner(self) -> RwsServer:
+        return self.server.owner
 
-        def _serve(self, method: str) -> None:
-            url = urllib.parse.urlsplit(self.path)
-            query = dict(urllib.parse.parse_qsl(url.query))
-            as_json = query.pop("json", "0") == "1"
-            path = url.path.strip("/")
-            length = int(self.headers.get("Content-Length") or 0)
-            body = self.rfile.read(length) if length else b""
-            cookies = _cookies(self.headers.get("Cookie", ""))
-            set_cookies: list[str] = []
-            try:
-                if server.take_busy():
-                    raise Answer(503, ERR_BUSY, "controller busy")
-                set_cookies = self._authorize(method, cookies)
-                items = self._dispatch(method, path, query, body, cookies)
-            except Answer as answer:
-                self._error(answer, as_json, set_cookies)
-                return
-            except Exception as exc:  # a bug of the mock: an answer all the same, never a dropped connection
-                answer = Answer(500, ERR_REFUSED, f"internal error: {type(exc).__name__}: {exc}")
-                self._error(answer, as_json, set_cookies)
-                return
-            self._send(200 if items is not None else 204, items, path, as_json, set_cookies)
+    def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
+        pass
 
-        def _authorize(self, method: str, cookies: dict[str, str]) -> list[str]:
-            if server.sessions.known(cookies):
-                return []
-            if not server.sessions.authenticate(method, self.headers.get("Authorization", "")):
-                raise Answer(401, 0, "authentication required")
-            opened = server.sessions.new()
-            if opened is None:
-                raise Answer(503, ERR_BUSY, f"too many sessions (at most {MAX_SESSIONS})")
-            cookies.update({"-http-session-": opened[0], "ABBCX": opened[1]})
-            return [f"-http-session-={opened[0]}; path=/; httponly", f"ABBCX={opened[1]}; path=/; httponly"]
+    def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+        self._serve("GET")
 
-        def _dispatch(self, method, path, query, body, cookies) -> list[dict] | None:
-            if path == "logout" and method == "GET":
-                server.sessions.end(cookies)
-                return None
-            if method == "GET":
-                return server.resources.get(path, query)
-            if method == "POST":
-                form = dict(urllib.parse.parse_qsl(body.decode("utf-8", "replace")))
-                server.resources.post(path, query, form)
-                return None
-            raise Answer(405, ERR_REFUSED, f"{method} not allowed on {path}")
+    def do_POST(self) -> None:  # noqa: N802
+        self._serve("POST")
 
-        def _error(self, answer: Answer, as_json: bool, set_cookies: list[str]) -> None:
-            extra = {"WWW-Authenticate": server.sessions.challenge()} if answer.status == 401 else {}
-            if answer.status == 401:
-                payload, ctype = b"", "text/html"
-            elif as_json:
-                doc = {"_links": {"base": {"href": "/"}},
-                       "_embedded": {"status": {"code": answer.code, "msg": answer.msg}}}  # fmt: skip
-                payload, ctype = json.dumps(doc).encode(), "application/json"
-            else:
-                payload = _xhtml("error", [item("status", "status", code=str(answer.code), msg=answer.msg)])
-                ctype = "application/xhtml+xml"
-            self._write(answer.status, payload, ctype, set_cookies, extra)
+    def do_PUT(self) -> None:  # noqa: N802
+        self._serve("PUT")
 
-        def _send(self, status, items, path, as_json, set_cookies) -> None:
-            if items is None:
-                self._write(status, b"", "text/plain", set_cookies, {})
-                return
-            base = "/" + path.rsplit("/", 1)[0] + "/" if "/" in path else "/"
-            if as_json:
-                doc = {"_links": {"base": {"href": base}}, "_embedded": {"_state": items}}
-                self._write(status, json.dumps(doc).encode(), "application/json", set_cookies, {})
-            else:
-                self._write(status, _xhtml(path, items), "application/xhtml+xml", set_cookies, {})
+    def do_DELETE(self) -> None:  # noqa: N802
+        self._serve("DELETE")
 
-        def _write(self, status, payload, ctype, set_cookies, extra) -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(payload)))
-            for line in set_cookies:
-                self.send_header("Set-Cookie", line)
-            for k, v in extra.items():
-                self.send_header(k, v)
-            self.end_headers()
-            if payload and self.command != "HEAD":
-                self.wfile.write(payload)
+    def _serve(self, method: str) -> None:
+        url = urllib.parse.urlsplit(self.path)
+        query = dict(urllib.parse.parse_qsl(url.query))
+        as_json = query.pop("json", "0") == "1"
+        path = url.path.strip("/")
+        length = int(self.headers.get("Content-Length") or 0)
+        body = self.rfile.read(length) if length else b""
+        cookies = _cookies(self.headers.get("Cookie", ""))
+        set_cookies: list[str] = []
+        try:
+            if self.owner.take_busy():
+                raise Answer(503, ERR_BUSY, "controller busy")
+            set_cookies = self._authorize(method, cookies)
+            items = self._dispatch(method, path, query, body, cookies)
+        except Answer as answer:
+            self._error(answer, as_json, set_cookies)
+            return
+        except Exception as exc:  # a bug of the mock: an answer all the same, never a dropped connection
+            answer = Answer(500, ERR_REFUSED, f"internal error: {type(exc).__name__}: {exc}")
+            self._error(answer, as_json, set_cookies)
+            return
+        self._send(200 if items is not None else 204, items, path, as_json, set_cookies)
 
-    return Handler
+    def _authorize(self, method: str, cookies: dict[str, str]) -> list[str]:
+        if self.owner.sessions.known(cookies):
+            return []
+        if not self.owner.sessions.authenticate(method, self.headers.get("Authorization", "")):
+            raise Answer(401, 0, "authentication required")
+        opened = self.owner.sessions.new()
+        if opened is None:
+            raise Answer(503, ERR_BUSY, f"too many sessions (at most {MAX_SESSIONS})")
+        cookies.update({"-http-session-": opened[0], "ABBCX": opened[1]})
+        return [f"-http-session-={opened[0]}; path=/; httponly", f"ABBCX={opened[1]}; path=/; httponly"]
+
+    def _dispatch(self, method, path, query, body, cookies) -> list[dict] | None:
+        if path == "logout" and method == "GET":
+            self.owner.sessions.end(cookies)
+            return None
+        if method == "GET":
+            return self.owner.resources.get(path, query)
+        if method == "POST":
+            form = dict(urllib.parse.parse_qsl(body.decode("utf-8", "replace")))
+            self.owner.resources.post(path, query, form)
+            return None
+        raise Answer(405, ERR_REFUSED, f"{method} not allowed on {path}")
+
+    def _error(self, answer: Answer, as_json: bool, set_cookies: list[str]) -> None:
+        extra = {"WWW-Authenticate": self.owner.sessions.challenge()} if answer.status == 401 else {}
+        if answer.status == 401:
+            payload, ctype = b"", "text/html"
+        elif as_json:
+            doc = {"_links": {"base": {"href": "/"}},
+                   "_embedded": {"status": {"code": answer.code, "msg": answer.msg}}}  # fmt: skip
+            payload, ctype = json.dumps(doc).encode(), "application/json"
+        else:
+            payload = _xhtml("error", [item("status", "status", code=str(answer.code), msg=answer.msg)])
+            ctype = "application/xhtml+xml"
+        self._write(answer.status, payload, ctype, set_cookies, extra)
+
+    def _send(self, status, items, path, as_json, set_cookies) -> None:
+        if items is None:
+            self._write(status, b"", "text/plain", set_cookies, {})
+            return
+        base = "/" + path.rsplit("/", 1)[0] + "/" if "/" in path else "/"
+        if as_json:
+            doc = {"_links": {"base": {"href": base}}, "_embedded": {"_state": items}}
+            self._write(status, json.dumps(doc).encode(), "application/json", set_cookies, {})
+        else:
+            self._write(status, _xhtml(path, items), "application/xhtml+xml", set_cookies, {})
+
+    def _write(self, status, payload, ctype, set_cookies, extra) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(payload)))
+        for line in set_cookies:
+            self.send_header("Set-Cookie", line)
+        for k, v in extra.items():
+            self.send_header(k, v)
+        self.end_headers()
+        if payload and self.command != "HEAD":
+            self.wfile.write(payload)
 
 
 def _cookies(header: str) -> dict[str, str]:
