@@ -23,6 +23,7 @@ import threading
 import urllib.parse
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -290,11 +291,10 @@ class _Handler(BaseHTTPRequestHandler):
 
     protocol_version = "HTTP/1.1"
     server_version = "Appweb/4"  # RobotWare 6's RWS runs on the Appweb embedded web server
-    server: _Httpd
 
     @property
     def owner(self) -> RwsServer:
-        return self.server.owner
+        return cast(_Httpd, self.server).owner
 
     def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
         pass

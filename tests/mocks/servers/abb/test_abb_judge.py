@@ -86,6 +86,7 @@ def test_a_controller_that_disappears_is_a_connection_error_for_the_judge():
     with MockAbbProcess(seed=12) as gone:
         proc = subprocess.Popen([str(JUDGE), str(SCRIPT), "http://{}:{}".format(*gone.address), "gone"],
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+        assert proc.stdout is not None
         try:
             first = json.loads(proc.stdout.readline())
             assert first["before"] == "motoron"
