@@ -29,6 +29,13 @@ def _joints(text: str) -> tuple[float, ...]:
     return q
 
 
+def _address(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # one line, exit 2 (the house rule; argparse prints its usage too)
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -44,6 +51,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="serial number and session tokens (default 0)")
     p.add_argument("--q0-deg", type=_joints, default=HOME_DEG, help="initial joints, 6 comma-separated deg")
     p.add_argument("--speed", type=float, default=1.0, help="controller seconds per wall second (default 1)")
+    p.add_argument("--egm", type=_address, default=None, metavar="HOST:PORT",
+                   help="stream EGM (UDP, one EgmRobot per 4 ms tick) to the sensor at HOST:PORT (default: none)")
     p.add_argument("--motors-off", action="store_true", help="start with the motors off and RAPID stopped")
     return p
 
@@ -68,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         controller.start()
     try:
         server = AbbServer(controller, flange_of(chain), args.host, args.port, args.control_port, seed=args.seed,
-                           speed=args.speed).start()  # fmt: skip
+                           speed=args.speed, egm=args.egm).start()  # fmt: skip
     except OSError as exc:
         print(f"{prog}: error: cannot serve on {args.host}: {exc.strerror or exc}", file=sys.stderr)
         return 2

@@ -259,6 +259,8 @@ class AbbController:
     def snapshot(self) -> dict:
         with self.lock:
             m = self.motion
+            planned = list(m.q1) if m is not None else list(self.q)
             moving = m is not None and (self.execution == "running" or not m.standing)
             return {"ctrlstate": self.ctrlstate, "opmode": self.opmode, "execution": self.execution,
-                    "q_deg": list(self.q), "pers": dict(self.pers), "ticks": self.ticks, "moving": moving}  # fmt: skip
+                    "q_deg": list(self.q), "pers": dict(self.pers), "ticks": self.ticks, "moving": moving,
+                    "planned_deg": planned}  # fmt: skip

@@ -1,6 +1,7 @@
 """The mock IRC5 controller as a whole: the controller (controller.AbbController) ticking every TICK_S / speed of wall
-time on a thread, its Robot Web Services (rws_server.RwsServer), and the mock's own control port (no ABB port: a line
-protocol for tests and the twin):
+time on a thread, its Robot Web Services (rws_server.RwsServer), the EGM position stream (one EgmRobot datagram per
+tick to the sensor's address, drivers.abb.egm_codec, when `egm` names one), and the mock's own control port (no ABB
+port: a line protocol for tests and the twin):
 
     state                  -> one JSON line: the controller's snapshot
     fault KIND             -> ok (guardstop, emergencystop, motoroff, release, rapid_error)
@@ -18,15 +19,19 @@ import socketserver
 import threading
 import time
 
+from trackcal.drivers.abb.egm_codec import EgmRobot, encode
 from trackcal.mocks.servers.abb.controller import TICK_S, AbbController, RapidError
 from trackcal.mocks.servers.abb.rws_server import RwsServer
 
 
 class AbbServer:
     def __init__(self, controller: AbbController, flange, host: str = "127.0.0.1", port: int = 0,
-                 control_port: int = 0, seed: int = 0, speed: float = 1.0) -> None:  # fmt: skip
+                 control_port: int = 0, seed: int = 0, speed: float = 1.0,
+                 egm: tuple[str, int] | None = None) -> None:  # fmt: skip
         self.controller = controller
         self.speed = speed
+        self.egm = egm  # where the EGM position stream goes (the sensor's address), None: no stream
+        self._egm_sock: socket.socket | None = None
         self.rws = RwsServer(controller, flange, host, port, seed=seed)
         self.stopped = threading.Event()
         self.control = _ControlServer((host, control_port), self)
@@ -54,11 +59,24 @@ class AbbServer:
         next_at = time.monotonic()
         while not self.stopped.is_set():
             self.controller.tick()
+            if self.egm is not None:
+                self._send_egm()
             next_at += period
             delay = next_at - time.monotonic()
             if delay < -1.0:  # a paused process does not catch up a second of ticks at once
                 next_at = time.monotonic()
             self.stopped.wait(max(0.0, delay))
+
+    def _send_egm(self) -> None:
+        """One EgmRobot datagram of the tick to the sensor (EGM position streaming: one message per 4 ms cycle)."""
+        snap = self.controller.snapshot()
+        msg = EgmRobot(seqno=snap["ticks"] & 0xFFFFFFFF, tm_ms=int(snap["ticks"] * TICK_S * 1000) & 0xFFFFFFFF,
+                       joints_deg=tuple(snap["q_deg"]), planned_deg=tuple(snap["planned_deg"]),
+                       motors_on=snap["ctrlstate"] == "motoron", rapid_running=snap["execution"] == "running")
+        if self._egm_sock is None:
+            self._egm_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        with contextlib.suppress(OSError):  # nobody listening yet: a real controller's datagrams go unread too
+            self._egm_sock.sendto(encode(msg), self.egm)
 
     def command(self, line: str) -> str:
         words = line.split()

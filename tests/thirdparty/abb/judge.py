@@ -6,6 +6,7 @@ import json
 import sys
 import time
 
+from abb_robot_client.egm import EGM
 from abb_robot_client.rws import RWS
 
 MOD = "TrackcalRws"
@@ -54,6 +55,19 @@ def scenario(name, url):
         rws.start(cycle="forever")
         out["started"] = rws.get_execution_state().ctrlexecstate
         rws.logout()
+    elif name == "egm":  # the client's EGM class on argv[1]'s port: its view of the next 50 messages
+        egm = EGM(port=int(url))
+        got = []
+        deadline = time.monotonic() + 20
+        while len(got) < 50 and time.monotonic() < deadline:
+            ok, state = egm.receive_from_robot(timeout=0.5)
+            if ok:
+                got.append(state)
+        last = got[-1]
+        out = {"count": len(got), "joints": [float(v) for v in last.joint_angles],
+               "planned": [float(v) for v in last.joint_angles_planned], "motors_on": bool(last.motors_on),
+               "rapid_running": bool(last.rapid_running),
+               "seqnos": [int(s.robot_message.header.seqno) for s in got]}
     elif name == "password":
         RWS(url, password="wrong").get_controller_state()
     elif name == "busy":

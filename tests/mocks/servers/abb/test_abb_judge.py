@@ -9,6 +9,7 @@ IRB 120's forward kinematics."""
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 
 import numpy as np
@@ -96,3 +97,20 @@ def test_a_controller_that_disappears_is_a_connection_error_for_the_judge():
             if proc.poll() is None:
                 proc.kill()
     assert json.loads(out.strip().splitlines()[-1])["error"] == "ConnectionError"
+
+
+def test_the_judge_receives_the_egm_stream_as_the_twin_says():
+    """abb-robot-client's EGM class (its own egm_pb2, Google protobuf) reads the mock's EgmRobot datagrams (trackcal's
+    hand codec): the joints, the planned target, motors on and RAPID running, one sequence number per 4 ms tick."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a free UDP port for the judge to bind
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with MockAbbProcess(seed=13, args=["--q0-deg", ",".join(map(str, Q0)), "--egm", f"127.0.0.1:{port}"]) as m:
+        out = judge(str(port), "egm")
+        state = m.state()
+    assert "error" not in out, out
+    assert out["count"] == 50 and out["motors_on"] and out["rapid_running"]
+    assert out["joints"] == pytest.approx(Q0, abs=0) == state["q_deg"]
+    assert out["planned"] == pytest.approx(Q0, abs=0)  # standing: the planned position is where it stands
+    steps = np.diff(out["seqnos"])
+    assert (steps >= 1).all()  # increasing: none repeated, none out of order on loopback
