@@ -24,8 +24,11 @@ path, drives on) and the move end in DeviceFault with the StopCause's code ("sto
 the move in DeviceFault with that code, latched in `state()` until `reset_faults()` finds it gone, turns the motors
 on and starts RAPID again from `main` (the stopped move is not resumed: trackcal_done := trackcal_move first).
 
-Joints come from RWS polling (every GUARD_S during a settle). EGM (the UDP joint stream at 4 ms) is not used yet:
-a later session adds it for the guard and settling; until then a settle is judged on the wall clock.
+With `egm` (this PC's address and port for the controller's EGM position stream, drivers.abb.egm_link) the stream is
+the joint monitor, as RSI is the KR C2's: a move is refused while it is stale, a stream that goes silent during a
+move or a settle stops it (code egm_stale), and a settle is judged on its frames in controller time (one EGM cycle
+each), the settled joints checked against RWS's (CHANNELS_DISAGREE). Without it, joints and settling come from RWS
+polling every GUARD_S, the settle judged on the wall clock.
 """
 
 from __future__ import annotations
@@ -37,10 +40,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from trackcal.drivers.abb.egm_link import EGM_STALE, EgmLink
 from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value, symbol_path
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused
-from trackcal.drivers.interfaces import RobotState
+from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
 from trackcal.drivers.transport import require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
@@ -51,6 +55,7 @@ CTRL_FAULTS = {"motoroff": "motors_off", "guardstop": "guard_stop", "emergencyst
                "emergencystopreset": "emergency_stop", "sysfail": "system_failure", "init": "motors_off"}  # fmt: skip
 RAPID_STOPPED = "rapid_stopped"  # RAPID stopped by itself (an error in the task, the FlexPendant's stop)
 STOPPED = "stopped"  # stopped on trackcal's request (a plain guard reason, stop())
+CHANNELS_DISAGREE = "channels_disagree"  # EGM's settled joints are not those RWS reports
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
@@ -80,9 +85,10 @@ class AbbRws:
     def __init__(self, host: str, port: int = 80, *, user: str = DEFAULT_USER, password: str = DEFAULT_PASSWORD,
                  joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
                  cell_box_check: CellBoxCheck | None = None, motion_guard: MotionGuard | None = None,
-                 connect_timeout_s: float = 30.0, move_timeout_s: float = 300.0,
-                 io_timeout_s: float = 5.0) -> None:  # fmt: skip
-        require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s)
+                 connect_timeout_s: float = 30.0, move_timeout_s: float = 300.0, io_timeout_s: float = 5.0,
+                 egm: tuple[str, int] | None = None, egm_stale_s: float = 1.0) -> None:  # fmt: skip
+        require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
+                         egm_stale_s=egm_stale_s)  # fmt: skip
         limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
         if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
             raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
@@ -95,6 +101,8 @@ class AbbRws:
         self.io_timeout_s = io_timeout_s
         self.rws = RwsSession(host, port, user=user, password=password, io_timeout_s=io_timeout_s)
         self.device = self.rws.device
+        # the EGM position stream this PC listens for (host, port), None: joints and settling by RWS polling only
+        self.egm = None if egm is None else EgmLink(egm[0], egm[1], host, stale_s=egm_stale_s)
         self.identity: Identity | None = None
         self._next = 1
         self._motion = threading.Condition()  # guards the four below between the moving thread and stop()/state()
@@ -126,6 +134,8 @@ class AbbRws:
         """Reach the controller (retried until connect_timeout_s while it is not reachable), check AUTO mode and
         the module, read the identity; motors on and RAPID running unless a fault is latched (reset_faults)."""
         deadline = time.monotonic() + self.connect_timeout_s
+        if self.egm is not None:
+            self.egm.listen()
         while True:
             try:
                 self.identity = self._identity()
@@ -139,6 +149,8 @@ class AbbRws:
         if mode != "AUTO":
             raise DeviceFault(f"the controller is in {mode} mode: switch it to AUTO", code="not_auto",
                               device=self.device)  # fmt: skip
+        if self.egm is not None:
+            self.egm.wait_first(max(0.1, deadline - time.monotonic()))
         done, move = self._num(DONE), self._num(MOVE)
         self._next = int(max(done, move)) % MAX_MOVE_ID + 1
         state = self._value("rw/panel/ctrlstate", "ctrlstate")
@@ -156,6 +168,8 @@ class AbbRws:
 
     def close(self) -> None:
         self.rws.close()
+        if self.egm is not None:
+            self.egm.close()
         if self._claim is not None:
             self._claim.close()
             self._claim = None
@@ -235,6 +249,8 @@ class AbbRws:
             if self._fault:
                 raise DeviceFault(f"move refused: {self._fault} latched (acknowledge to reset)", code="latched",
                                   device=self.device)  # fmt: skip
+        if self.egm is not None:
+            self.egm.require_fresh()  # never move without the monitor
         number, self._next = self._next, self._next % MAX_MOVE_ID + 1
         with self._motion:
             self._moving, self._stop_asked = number, None
@@ -305,6 +321,10 @@ class AbbRws:
             reason = self.motion_guard()
             if reason:
                 return reason
+        if self.egm is not None:
+            stale = self.egm.stale()
+            if stale:
+                return StopCause(f"the EGM stream stopped ({stale})", EGM_STALE)
         with self._motion:
             return self._stop_asked
 
@@ -312,6 +332,8 @@ class AbbRws:
         """Joints read every GUARD_S that stay within tolerance_deg of the window's first for window_s (wall clock);
         the motion guard polled as often (DeviceFault with its code), the controller's state checked."""
         require_settle_limits(tolerance_deg, window_s, timeout_s)
+        if self.egm is not None:
+            return self._settle_on_egm(self.egm, tolerance_deg, window_s, timeout_s)
         deadline = time.monotonic() + timeout_s
         anchor: tuple[float, ...] | None = None
         since = 0.0
@@ -330,6 +352,42 @@ class AbbRws:
                 raise DeviceTimeout(f"joints not settled within {tolerance_deg} deg over {window_s} s after "
                                     f"{timeout_s} s", device=self.device)  # fmt: skip
             time.sleep(max(0.0, min(GUARD_S, window_s) - (time.monotonic() - now)))
+
+    def _settle_on_egm(self, egm: EgmLink, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple:
+        """Settling judged on EGM frames arriving after the call, one EGM cycle of controller time each; the joints
+        RWS reports then must agree with the stream's (CHANNELS_DISAGREE otherwise: the stream is not this arm's)."""
+        cycle = egm.cycle_s
+        real_deadline = time.monotonic() + timeout_s + egm.stale_s
+        start = next_seq = egm.last_seq + 1
+        anchor: tuple[float, ...] | None = None
+        anchor_seq = 0
+        while True:
+            reason = self._guard()
+            if reason:
+                raise DeviceFault(f"settling stopped: {reason}", code=stop_code(reason), device=self.device)
+            for seq, frame in egm.frames_from(next_seq):
+                next_seq = seq + 1
+                q = tuple(round(v, 4) for v in frame.joints_deg)
+                if anchor is None or any(abs(a - b) > tolerance_deg for a, b in zip(q, anchor, strict=True)):
+                    anchor, anchor_seq = q, seq
+                if (seq - anchor_seq) * cycle >= window_s - 1e-9:
+                    self._check_channels(q, tolerance_deg)
+                    return q
+                if (seq - start + 1) * cycle > timeout_s:
+                    raise DeviceTimeout(f"joints not settled within {tolerance_deg} deg over {window_s} s after "
+                                        f"{timeout_s} s of controller time", device=self.device)  # fmt: skip
+            if time.monotonic() > real_deadline:
+                raise DeviceTimeout("EGM frames stopped coming while waiting to settle", device=self.device)
+            egm.wait_for_frame(next_seq, GUARD_S)
+
+    def _check_channels(self, settled: tuple[float, ...], tolerance_deg: float) -> None:
+        rws = self.joints()
+        allowed = tolerance_deg + JOINT_RESOLUTION_DEG
+        for name, e, r in zip(AXES, settled, rws, strict=True):
+            if abs(e - r) > allowed + 1e-9:
+                raise DeviceFault(f"EGM and RWS disagree on {name}: EGM {e:.4f} deg, RWS {r:.4f} deg (more than "
+                                  f"{allowed:g} deg apart): is the EGM stream this arm's?", code=CHANNELS_DISAGREE,
+                                  device=self.device)  # fmt: skip
 
     def stop(self) -> None:
         """Brake the running move (the moving thread stops RAPID within GUARD_S); returns once the arm stands. A

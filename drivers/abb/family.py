@@ -19,18 +19,26 @@ SCHEMAS = {
         "connect_timeout_s": ("timeout", 30.0),
         "move_timeout_s": ("timeout", 300.0),
         "io_timeout_s": ("timeout", 5.0),
+        "egm": ("section", None),  # optional: the EGM position stream as the joint monitor (drivers.abb.egm_link)
+        "egm_stale_s": ("timeout", 1.0),  # no EGM frame for this long during a move or a settle: the stream is stale
+    },
+    "egm": {
+        "host": ("host", REQUIRED),  # this PC's address on the robot network (the controller's EGM config names it)
+        "port": ("port", REQUIRED),
     },
 }
 
 
 def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> AbbRws:
-    keys = [k for k in SCHEMAS[""] if k not in ("protocol", "host")]
+    keys = [k for k in SCHEMAS[""] if k not in ("protocol", "host", "egm")]
+    egm = (r["egm"]["host"], r["egm"]["port"]) if r.get("egm") else None
     return AbbRws(r["host"], joint_limits_deg=joint_limits_deg, cell_box_check=cell_box_check,
-                  motion_guard=motion_guard, **{k: r[k] for k in keys})  # fmt: skip
+                  motion_guard=motion_guard, egm=egm, **{k: r[k] for k in keys})  # fmt: skip
 
 
 def where(r: dict) -> str:
-    return f"ABB controller at {r['host']}: Robot Web Services on port {r['port']}"
+    egm = f", EGM to {r['egm']['host']}:{r['egm']['port']}" if r.get("egm") else ""
+    return f"ABB controller at {r['host']}: Robot Web Services on port {r['port']}{egm}"
 
 
 def waiting(r: dict) -> str:

@@ -6,6 +6,7 @@ port: a line protocol for tests and the twin):
     state                  -> one JSON line: the controller's snapshot
     fault KIND             -> ok (guardstop, emergencystop, motoroff, release, rapid_error)
     busy N                 -> ok: the next N RWS requests get 503
+    egm off | egm on       -> ok: the EGM stream stops (the controller goes on) or sends again
     follow                 -> one line of six joint angles (deg, comma-separated) now and at every tick after
     quit                   -> ok, then the mock stops
 """
@@ -32,6 +33,7 @@ class AbbServer:
         self.speed = speed
         self.egm = egm  # where the EGM position stream goes (the sensor's address), None: no stream
         self._egm_sock: socket.socket | None = None
+        self.egm_paused = False  # the control port's `egm off`: the stream stops, the controller goes on
         self.rws = RwsServer(controller, flange, host, port, seed=seed)
         self.stopped = threading.Event()
         self.control = _ControlServer((host, control_port), self)
@@ -59,7 +61,7 @@ class AbbServer:
         next_at = time.monotonic()
         while not self.stopped.is_set():
             self.controller.tick()
-            if self.egm is not None:
+            if self.egm is not None and not self.egm_paused:
                 self._send_egm()
             next_at += period
             delay = next_at - time.monotonic()
@@ -87,6 +89,9 @@ class AbbServer:
                 return json.dumps(self.controller.snapshot())
             if words[0] == "fault" and len(words) == 2:
                 self.controller.fault(words[1])
+                return "ok"
+            if words[0] == "egm" and len(words) == 2 and words[1] in ("on", "off"):
+                self.egm_paused = words[1] == "off"
                 return "ok"
             if words[0] == "busy" and len(words) == 2:
                 self.rws.busy(int(words[1]))

@@ -1,7 +1,8 @@
 """The mock ABB controller as the twin's robot for `trackcal mock` (mocks/controllers.py): the controller process
 (process.MockAbbProcess) on free loopback ports, and a follower on its control port (`follow`: the joints at every
 4 ms tick) that puts the twin's robot where the controller says it is, so the tracker mock measures the arm there.
-The controller runs `speed` times faster than the wall clock (`trackcal mock --sim-speed`; default 1), at most
+The controller streams EGM to a free UDP port of this machine, which the hardware file names as trackcal's. The
+controller runs `speed` times faster than the wall clock (`trackcal mock --sim-speed`; default 1), at most
 MAX_SPEED."""
 
 from __future__ import annotations
@@ -76,7 +77,11 @@ class TwinAbb:
     def __init__(self, world, seed: int, speed: float | None = None) -> None:
         q0 = ",".join(f"{v:.4f}" for v in world.q_deg)
         rate = f"{min(speed or 1.0, MAX_SPEED):g}"
-        self.process = MockAbbProcess(seed=seed, args=["--q0-deg", q0, "--speed", rate]).start()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # the port trackcal will listen on for EGM
+            s.bind(("127.0.0.1", 0))
+            self.egm_port = s.getsockname()[1]
+        self.process = MockAbbProcess(seed=seed, args=["--q0-deg", q0, "--speed", rate, "--egm",
+                                                       f"127.0.0.1:{self.egm_port}"]).start()  # fmt: skip
         try:
             self.follower = JointFollower(("127.0.0.1", self.process.control_port), world.robot_at).start()
         except BaseException:
@@ -86,7 +91,8 @@ class TwinAbb:
     def hardware(self) -> dict:
         """The robot section of the hardware file (campaign/cells/hardware.py, drivers/abb/family.py)."""
         host, port = self.process.address
-        return {"protocol": CONTROLLER, "host": host, "port": port, "connect_timeout_s": 30.0}
+        return {"protocol": CONTROLLER, "host": host, "port": port, "connect_timeout_s": 30.0,
+                "egm": {"host": "127.0.0.1", "port": self.egm_port}}
 
     def addresses(self) -> dict[str, str]:
         host, port = self.process.address

@@ -4,6 +4,7 @@ disappears, one campaign per arm."""
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 
@@ -149,3 +150,33 @@ def test_a_controller_that_disappears_mid_move_is_connection_lost_or_timeout():
             r.move((100, 0, 0, 0, 30, 0), 5)
         assert time.monotonic() - t0 < 5.0  # within a few io timeouts, not the move timeout
         r.close()
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_with_egm_a_settle_counts_frames_and_a_silent_stream_stops_the_move():
+    port = free_udp_port()
+    with MockAbbProcess(seed=8, args=["--egm", f"127.0.0.1:{port}"]) as m:
+        r = AbbRws(*m.address, egm=("127.0.0.1", port), egm_stale_s=0.3, io_timeout_s=3.0)
+        r.connect()
+        try:
+            target = (5.0, 5.0, 5.0, 5.0, 35.0, 5.0)
+            r.move(target, 100)
+            t0 = time.monotonic()
+            assert r.wait_settled(1e-3, 0.2, 5.0) == target  # 0.2 s of controller time: 50 EGM frames of 4 ms
+            assert time.monotonic() - t0 < 5.0
+            assert m.control("egm off") == "ok"
+            with pytest.raises(DeviceFault) as err:
+                r.move((-60.0, 5.0, 5.0, 5.0, 35.0, 5.0), 10)
+            assert err.value.code == "egm_stale"
+            assert m.control("egm on") == "ok"
+            time.sleep(0.1)
+            r.reset_faults()
+            r.move(target, 100)
+            assert r.joints() == target
+        finally:
+            r.close()
