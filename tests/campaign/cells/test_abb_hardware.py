@@ -56,7 +56,9 @@ def test_the_abb_section_needs_the_controllers_address_and_takes_its_credentials
     path = tmp_path / "h.yaml"
     cases = (({"protocol": "abb"}, "robot.host: missing (required)"),
              ({"protocol": "abb", "host": "192.168.0.7", "user": 3}, "robot.user: expected a non-empty text"),
-             ({"protocol": "abb", "host": "192.168.0.7", "eki": {}}, "robot.eki: unknown key"))  # fmt: skip
+             ({"protocol": "abb", "host": "192.168.0.7", "eki": {}}, "robot.eki: unknown key"),
+             ({"protocol": "abb", "host": "192.168.0.7", "egm": {"host": "192.168.0.2"}},
+              "robot.egm.port: missing (required)"))  # fmt: skip
     for robot, message in cases:
         path.write_text(yaml.safe_dump({**doc, "robot": robot}))
         with pytest.raises(InputError, match=re.escape(message)):
@@ -66,4 +68,9 @@ def test_the_abb_section_needs_the_controllers_address_and_takes_its_credentials
     # the defaults: RWS on HTTP port 80 as "Default User" / robotics (the Robot Web Services manual's sample calls)
     assert hardware.robot["port"] == 80 and hardware.robot["user"] == "Default User"
     assert hardware.robot["password"] == "robotics"
-    assert "192.168.0.7" in hardware.describe()["robot"]
+    assert "192.168.0.7" in hardware.describe()["robot"] and "egm" not in hardware.robot
+    path.write_text(yaml.safe_dump({**doc, "robot": {"protocol": "abb", "host": "192.168.0.7",
+                                                     "egm": {"host": "192.168.0.2", "port": 6510}}}))  # fmt: skip
+    hardware = load_hardware(path)
+    assert hardware.robot["egm"] == {"host": "192.168.0.2", "port": 6510} and hardware.robot["egm_stale_s"] == 1.0
+    assert "192.168.0.2:6510" in hardware.describe()["robot"]
