@@ -49,6 +49,7 @@ from trackcal.drivers.transport import require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
 GUARD_S = 0.04  # the guard, the answer and the controller's state are polled at least this often (25 Hz)
+GUARD_SLICE_S = 0.01  # between two polls of the answer the guard is asked every 10 ms (the PLC's door: 100 Hz)
 MAX_MOVE_ID = 1_000_000  # move numbers stay exact in a RAPID num (a 32-bit float: integers to 2**24)
 # controller states (Robot Web Services manual, "Get Controller State") -> the fault code of a move they end
 CTRL_FAULTS = {"motoroff": "motors_off", "guardstop": "guard_stop", "emergencystop": "emergency_stop",
@@ -70,9 +71,10 @@ class Identity:
     robotware: str  # rw/system's rwversion
 
 
-def claim_address(host: str) -> str:
-    """The abstract Unix socket address (unix(7)) of this PC's claim on the controller at host."""
-    return f"\0trackcal/abb/{host.strip().lower()}"
+def claim_address(host: str, port: int) -> str:
+    """The abstract Unix socket address (unix(7)) of this PC's claim on the controller at host:port (a controller is
+    its RWS address: two mock controllers on one loopback address are two arms)."""
+    return f"\0trackcal/abb/{host.strip().lower()}:{port}"
 
 
 def stop_code(reason) -> str:
@@ -123,7 +125,7 @@ class AbbRws:
             return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            sock.bind(claim_address(self.host))
+            sock.bind(claim_address(self.host, self.port))
         except OSError as exc:
             sock.close()
             raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
@@ -271,20 +273,27 @@ class AbbRws:
 
     def _await_done(self, number: int) -> str | None:
         """Poll until RAPID answers move `number` (None), or the guard stops it (its reason, once the arm stands);
-        DeviceFault when the controller stops the move itself, DeviceTimeout after move_timeout_s."""
+        DeviceFault when the controller stops the move itself, DeviceTimeout after move_timeout_s. The guard is asked
+        before every request (each one an HTTP round trip), so a door opened is acted on within one of them."""
         deadline = time.monotonic() + self.move_timeout_s
+        steps = (lambda: self._num(DONE) == number, lambda: self._check_controller(f"move {number}"))
         while True:
             started = time.monotonic()
-            reason = self._guard()
-            if reason:
-                self._halt()
-                return reason
-            if self._num(DONE) == number:
-                return None
-            self._check_controller(f"move {number}")
+            for step in steps:
+                reason = self._guard()
+                if reason:
+                    self._halt()
+                    return reason
+                if step():
+                    return None
             if started > deadline:
                 raise DeviceTimeout(f"move {number} not done within {self.move_timeout_s:g} s", device=self.device)
-            time.sleep(max(0.0, GUARD_S - (time.monotonic() - started)))
+            while time.monotonic() - started < GUARD_S:
+                reason = self._guard()
+                if reason:
+                    self._halt()
+                    return reason
+                time.sleep(GUARD_SLICE_S)
 
     def _check_controller(self, what: str) -> None:
         """DeviceFault (latched) when the controller left motoron or RAPID stopped."""
