@@ -6,6 +6,7 @@ WAN port), and to nothing else."""
 from __future__ import annotations
 
 from trackcal.drivers.abb.client import AXES, AbbRws
+from trackcal.drivers.abb.program import PROGRAM
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER
 from trackcal.drivers.families import REQUIRED, RobotFamily
 
@@ -52,4 +53,4 @@ def claim(robot: AbbRws) -> None:
 
 
 FAMILY = RobotFamily(name="abb", title="ABB", dof=len(AXES), schemas=SCHEMAS, build=build, describe=where,
-                     where=where, waiting=waiting, claim=claim)  # fmt: skip
+                     where=where, waiting=waiting, claim=claim, program=PROGRAM)  # fmt: skip

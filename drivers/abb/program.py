@@ -1,5 +1,6 @@
-"""The RAPID module trackcal's ABB client drives the arm through (TrackcalRws.mod, loaded in task T_ROB1 and started
-from its `main`): the same pattern as the KR C2's EKI program, a request, a move, an answer.
+"""RAPID for the ABB family: the module trackcal's ABB client drives the arm through (TrackcalRws.mod, loaded in task
+T_ROB1 and started from its `main`: the same pattern as the KR C2's EKI program, a request, a move, an answer), and the
+program of compensated joint targets (`trackcal compensate --program NAME`: NAME.mod, PROGRAM below).
 
 - `trackcal_target` (PERS jointtarget): the move's target, written by trackcal over RWS;
 - `trackcal_speed` (PERS num): the speed override, percent of the programmed speed (VelSet);
@@ -21,6 +22,11 @@ the stopped move is not resumed (drivers.abb.client).
 """
 
 from __future__ import annotations
+
+import re
+
+from trackcal.drivers.errors import ProgramError
+from trackcal.drivers.families import ProgramWriter, program_notes, program_targets
 
 MODULE = "TrackcalRws"
 TASK = "T_ROB1"
@@ -60,3 +66,63 @@ def module_text(home_deg=(0.0, 0.0, 0.0, 0.0, 30.0, 0.0)) -> str:
 def symbol_path(name: str) -> str:
     """The RWS resource of one of the module's variables."""
     return f"rw/rapid/symbol/data/RAPID/{TASK}/{MODULE}/{name}"
+
+
+# RAPID identifiers: a letter, then letters, digits or underscores, at most 32 characters, case-insensitive (RAPID
+# manual, "Basic RAPID programming", identifiers)
+NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}")
+
+
+class RapidError(ProgramError):
+    """A RAPID program that cannot be written; the message says why."""
+
+
+def check_name(name: str) -> str:
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+        raise RapidError(f"RAPID module name {name!r} is not valid: at most 32 characters, a letter first, then "
+                         "letters, digits or _")  # fmt: skip
+    return name
+
+
+def target_names(names: list[str] | None, n: int) -> list[str]:
+    """RAPID names of the targets' jointtargets: J and the target's name made an identifier (unique without regard to
+    case, at most 32 characters), or J1..Jn for targets without a name."""
+    out: list[str] = []
+    seen: set[str] = set()
+    for k in range(n):
+        raw = (names[k] if names else "").strip()
+        base = ("J" + re.sub(r"[^A-Za-z0-9_]", "_", raw))[:32] if raw else f"J{k + 1}"
+        name, i = base, 2
+        while name.upper() in seen:
+            suffix = f"_{i}"
+            name, i = base[: 32 - len(suffix)] + suffix, i + 1
+        seen.add(name.upper())
+        out.append(name)
+    return out
+
+
+def texts(name: str, q_deg, speed_pct: int = 10, labels: list[str] | None = None,
+          notes: list[str | None] | None = None) -> dict[str, bytes]:  # fmt: skip
+    """{NAME.mod: its bytes}: a module whose `main` moves MoveAbsJ ... fine through the rows of q_deg (N, 6) at
+    speed_pct % of v5000 (VelSet), each target a CONST jointtarget; `notes[i]` a comment above row i's move."""
+    check_name(name)
+    q, pct = program_targets(q_deg, speed_pct, "ABB", 6, "axis angles rax_1..rax_6", "VelSet", RapidError)
+    labels = labels or target_names(None, len(q))
+    if len(labels) != len(q) or not all(NAME_RE.fullmatch(t) for t in labels) or \
+            len({t.upper() for t in labels}) != len(labels):  # fmt: skip
+        raise RapidError(f"one valid RAPID name per target expected (unique without regard to case), got {labels!r}")
+    notes = program_notes(notes, len(q), RapidError)
+    nominal = sum(t is not None for t in notes)
+    what = (f"{len(q)} compensated joint targets" if not nominal else
+            f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)")  # fmt: skip
+    lines = [f"MODULE {name}", f"  ! trackcal: {what}, MoveAbsJ at {pct} % speed"]
+    lines += [f"  CONST jointtarget {t} := {joint_value(row)};" for t, row in zip(labels, q, strict=True)]
+    lines += ["  PROC main()", f"    VelSet {pct}, 5000;"]
+    for t, note in zip(labels, notes, strict=True):
+        lines += [f"    ! {t}: {note}"] if note is not None else []
+        lines.append(f"    MoveAbsJ {t}, v5000, fine, tool0;")
+    lines += ["  ENDPROC", "ENDMODULE"]
+    return {f"{name}.mod": (EOL.join(lines) + EOL).encode("ascii")}
+
+
+PROGRAM = ProgramWriter(language="RAPID", check_name=check_name, labels=target_names, texts=texts)
