@@ -9,6 +9,8 @@ import json
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trackcal.calib.model.cell import load_robot
 from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value
@@ -171,3 +173,33 @@ def test_the_robtarget_at_the_calibration_position_is_the_datasheets_flange(serv
     assert [float(item[k]) for k in ("x", "y", "z")] == pytest.approx([374, 0, 630], abs=1e-3)
     h = math.sqrt(0.5)
     assert [float(item[k]) for k in ("q1", "q2", "q3", "q4")] == pytest.approx([h, 0, h, 0], abs=1e-6)
+
+
+@settings(max_examples=60)
+@given(method=st.sampled_from(["GET", "POST", "PUT", "DELETE"]),
+       path=st.lists(st.sampled_from(["rw", "rapid", "symbol", "data", "RAPID", "T_ROB1", "TrackcalRws",
+                                      "trackcal_move", "panel", "ctrlstate", "execution", "x", "%00", "..", ""]),
+                     max_size=8),
+       action=st.sampled_from(["", "set", "start", "stop", "resetpp", "setctrlstate", "junk"]),
+       body=st.binary(max_size=40))  # fmt: skip
+def test_any_request_gets_an_http_answer_never_a_500(method, path, action, body):
+    """Whatever a client sends with a session, the mock answers as a controller does: never an internal error, never a
+    dropped connection (a RobotWare controller answers 400, 404 or 405)."""
+    server = _SERVED[0]
+    url = "/" + "/".join(path) + (f"?action={action}&json=1" if action else "?json=1")
+    status, _, _ = raw(server, method, url, {"Cookie": _SERVED[1]}, body)
+    assert status in (200, 204, 400, 404, 405)
+
+
+_SERVED: list = []
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_server_for_the_fuzzer():
+    chain, _ = load_robot("irb120")
+    server = AbbServer(AbbController(HOME), flange_of(chain), seed=9).start()
+    rws = RwsSession(*server.address)
+    rws.get("rw/panel/ctrlstate")
+    _SERVED[:] = [server, "; ".join(f"{k}={v}" for k, v in rws.cookies.items())]
+    yield
+    server.stop()
