@@ -56,7 +56,7 @@ CTRL_FAULTS = {"motoroff": "motors_off", "guardstop": "guard_stop", "emergencyst
                "emergencystopreset": "emergency_stop", "sysfail": "system_failure", "init": "motors_off"}  # fmt: skip
 RAPID_STOPPED = "rapid_stopped"  # RAPID stopped by itself (an error in the task, the FlexPendant's stop)
 STOPPED = "stopped"  # stopped on trackcal's request (a plain guard reason, stop())
-CHANNELS_DISAGREE = "channels_disagree"  # EGM's settled joints are not those RWS reports
+CHANNELS_DISAGREE = "monitor_disagrees"  # EGM's settled joints are not those RWS reports
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
