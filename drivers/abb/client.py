@@ -258,10 +258,13 @@ class AbbRws:
             self._moving, self._stop_asked = number, None
         stood = False
         try:
-            self._set(TARGET, joint_value(target))
-            self._set(SPEED, f"{round(speed):d}")
-            self._set(MOVE, f"{number:d}")
-            stopped = self._await_done(number)
+            stopped = None
+            for name, value in ((TARGET, joint_value(target)), (SPEED, f"{round(speed):d}"), (MOVE, f"{number:d}")):
+                stopped = self._guard()  # asked before each write: a door opened now needs no stop, nothing moved
+                if stopped:
+                    break
+                self._set(name, value)
+            stopped = stopped or self._await_done(number)
             stood = True
         finally:
             with self._motion:
@@ -276,7 +279,10 @@ class AbbRws:
         DeviceFault when the controller stops the move itself, DeviceTimeout after move_timeout_s. The guard is asked
         before every request (each one an HTTP round trip), so a door opened is acted on within one of them."""
         deadline = time.monotonic() + self.move_timeout_s
-        steps = (lambda: self._num(DONE) == number, lambda: self._check_controller(f"move {number}"))
+        seen: dict[str, str] = {}
+        steps = (lambda: self._num(DONE) == number,
+                 lambda: seen.update(execution=self._value("rw/rapid/execution", "ctrlexecstate")),
+                 lambda: self._check_controller(f"move {number}", seen["execution"]))  # fmt: skip
         while True:
             started = time.monotonic()
             for step in steps:
@@ -295,9 +301,11 @@ class AbbRws:
                     return reason
                 time.sleep(GUARD_SLICE_S)
 
-    def _check_controller(self, what: str) -> None:
-        """DeviceFault (latched) when the controller left motoron or RAPID stopped."""
-        execution = self._value("rw/rapid/execution", "ctrlexecstate")  # first: a stop that explains it shows next
+    def _check_controller(self, what: str, execution: str | None = None) -> None:
+        """DeviceFault (latched) when the controller left motoron or RAPID stopped; `execution` the RAPID execution
+        state read just before (read here when not given): first, so that a stop that explains it shows next."""
+        if execution is None:
+            execution = self._value("rw/rapid/execution", "ctrlexecstate")
         state = self._value("rw/panel/ctrlstate", "ctrlstate")
         code = CTRL_FAULTS.get(state)
         if code is None and execution != "running":

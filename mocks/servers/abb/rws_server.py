@@ -19,6 +19,7 @@ import hashlib
 import html
 import json
 import math
+import socket
 import threading
 import urllib.parse
 from collections.abc import Callable
@@ -295,6 +296,12 @@ class _Handler(BaseHTTPRequestHandler):
     @property
     def owner(self) -> RwsServer:
         return cast(_Httpd, self.server).owner
+
+    def setup(self) -> None:
+        super().setup()
+        # headers and body leave in two writes: without TCP_NODELAY the body waits for the client's delayed ACK
+        # (Nagle's algorithm, RFC 896, against RFC 1122's delayed ACK: 40 ms on Linux)
+        self.connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
         pass
