@@ -13,7 +13,7 @@ TEST_TMP := $(shell test -d /dev/shm && test -w /dev/shm && echo /dev/shm || ech
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml constraints.txt Makefile
+$(STAMP): pyproject.toml constraints.txt tests/thirdparty/abb/constraints.txt Makefile
 	@command -v $(PY) >/dev/null 2>&1 || { echo "error: $(PY) not found (trackcal needs Python 3.11)"; exit 1; }
 	@command -v npm >/dev/null 2>&1 || { echo "error: npm not found (make setup installs pyright with it)"; exit 1; }
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -27,6 +27,9 @@ $(STAMP): pyproject.toml constraints.txt Makefile
 	ln -sfn ../../bench $(VENV)/links/bench
 	# pinocchio lives where only cmeel's import hook finds it
 	ln -sfn "$$($(BIN)/python -c 'import os, pinocchio; print(os.path.dirname(pinocchio.__file__))')" $(VENV)/links/pinocchio
+	# the ABB judge: abb-robot-client, unmodified, in a venv of its own (tests/thirdparty/abb/README.md)
+	test -x $(VENV)/judge-abb/bin/python || $(PY) -m venv $(VENV)/judge-abb
+	$(VENV)/judge-abb/bin/python -m pip install -q -c tests/thirdparty/abb/constraints.txt abb-robot-client
 	npm install --prefix $(VENV)/node --no-save --no-audit --no-fund --loglevel=error pyright@$(PYRIGHT)
 	touch $(STAMP)
 

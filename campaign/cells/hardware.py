@@ -167,6 +167,10 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
             if not lo <= v <= hi:
                 raise InputError(f"{path}: {where}: {v} out of range {lo}..{hi}")
             out[key] = v
+        elif kind == "text":  # a name with spaces (a controller's user name)
+            if not isinstance(v, str) or not v.strip():
+                raise InputError(f"{path}: {where}: expected a non-empty text, got {v!r}")
+            out[key] = v
         elif kind == "bool":
             if not isinstance(v, bool):
                 raise InputError(f"{path}: {where}: expected true or false, got {v!r}")

@@ -70,7 +70,7 @@ BAD = [  # (document or raw YAML text, what the message must say after "FILE: ")
     (variant("robot.rsi.protocl", "tcp"), r"robot\.rsi\.protocl: unknown key \(did you mean protocol\?\)"),
     (variant("tracker.protocol", "leica"), r"tracker\.protocol: unknown protocol 'leica' \(supported: emscon\)"),
     (variant("tracker.protocol", DELETE), r"tracker\.protocol: missing"),
-    (variant("robot.protocol", "fanuc"), r"robot\.protocol: unknown protocol 'fanuc' \(supported: .*krc2, krc4.*\)"),
+    (variant("robot.protocol", "fanuc"), r"robot\.protocol: unknown protocol 'fanuc' \(supported: abb, krc2, krc4, ur\)"),
     (variant("robot.rsi.protocol", "serial"), r"robot\.rsi\.protocol: unknown protocol 'serial' \(supported: tcp, udp"),
     (variant("robot.rsi.passive", "yes"), r"robot\.rsi\.passive: expected true or false, got 'yes'"),
     (variant("robot.rsi.cycle_s", 0), r"robot\.rsi\.cycle_s: expected a positive number, got 0"),
