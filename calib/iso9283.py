@@ -32,6 +32,7 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.calib.model.rigid import RigidError, kabsch, skew
+from trackcal.calib.uncertainty_budget import Budget
 
 CYCLES = 30  # ISO 9283:1998, 6.9: pose accuracy and repeatability are tested over 30 cycles
 COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
@@ -271,6 +272,7 @@ class PoseFigures:
     l_bar_mm: float
     s_l_mm: float
     orientation: dict[str, Figure] = field(default_factory=dict)  # AP_a..c, RP_a..c in deg, with >= 3 tool points
+    budgets: dict[str, Budget] = field(default_factory=dict)  # "AP_P", "RP_l": calib.uncertainty_budget
 
 
 @dataclass
@@ -289,6 +291,7 @@ class IsoFigures:
     # multi-directional test (7.2): per pose name, vAP_P and the attained positions (base frame) from each side
     vap: dict[str, Figure] = field(default_factory=dict)
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    ad_budget: Budget | None = None  # AD_P's (calib.uncertainty_budget)
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -299,10 +302,12 @@ class IsoFigures:
             "compensated": self.compensated,
             "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
                        "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm,
-                       **{k: f.to_doc_deg() for k, f in p.orientation.items()}} for p in self.poses],
+                       **{k: f.to_doc_deg() for k, f in p.orientation.items()},
+                       "budget": {k: b.to_doc() for k, b in p.budgets.items()}} for p in self.poses],
             "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
             "vAP_P": [{"pose": name, **f.to_doc(),
                        "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
                       for name, f in self.vap.items()],
+            "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
             "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip

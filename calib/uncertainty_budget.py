@@ -205,6 +205,17 @@ def pose_inputs(x: np.ndarray, covs: np.ndarray, s: PoseSetting) -> list[Input]:
     return out
 
 
+def joint_draws(inputs: list[Input], rng: np.random.Generator, m: int) -> np.ndarray:
+    """m draws (m, 3) of the sum of the inputs' errors: the normal inputs' sum is normal with the sum of their
+    covariances (drawn as one), the rectangular ones drawn each (their columns of no effect left out)."""
+    normal = sum((i.cov() for i in inputs if i.distribution == "normal"), np.zeros((3, 3)))
+    total = rng.standard_normal((m, 3)) @ _sqrt_psd(normal).T
+    for i in inputs:
+        if i.distribution == "rectangular" and np.abs(i.a).max() > 0:
+            total += i.draw(rng, m)
+    return total
+
+
 def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> Budget:
     """AP_P = |o| (ISO 9283:1998, 7.2): each line's GUM contribution sqrt(e^T A A^T e), e = o/|o|, and the shortest
     95 % interval of |o + sum_i A_i z_i| over MC_TRIALS draws (the offset's state of knowledge, JCGM 101:2008)."""
@@ -213,8 +224,7 @@ def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> B
     e = o / value if value > 0 else np.zeros(3)
     lines = [Line(i.name, i.source, i.distribution, i.u_text, float(np.sqrt(max(e @ i.cov() @ e, 0.0))))
              for i in inputs]  # fmt: skip
-    rng = np.random.default_rng(seed)
-    draws = o + sum(i.draw(rng, MC_TRIALS) for i in inputs)
+    draws = o + joint_draws(inputs, np.random.default_rng(seed), MC_TRIALS)
     return Budget("AP_P", value, lines, interval=shortest_interval(np.linalg.norm(draws, axis=1)),
                   method=f"Monte-Carlo (JCGM 101:2008), M = {MC_TRIALS}, shortest 95 % interval; lines by the GUM "
                          "law of propagation (JCGM 100:2008, 5.1.2)")  # fmt: skip

@@ -92,7 +92,7 @@ def cmd_compare(args) -> int:
                                                accept_edited=args.accept_edited), warnings)  # fmt: skip
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
+    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
     table.add_column("pose")
     for t in tests:
         label = "compensated" if t.compensated else "nominal"

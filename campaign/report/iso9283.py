@@ -19,6 +19,7 @@ from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
+from trackcal.campaign.report.iso9283_budget import budget_section
 from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
 from trackcal.campaign.report.pdf import html_to_pdf
 
@@ -44,8 +45,10 @@ DEFINITIONS = [
      clause("RD")),
     ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
                  "targets repeated over time, RP alike", clause("drift")),
-    ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
-            "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
+    ("± U", "the figure's expanded uncertainty from its budget (section Uncertainty budget): the tracker, the "
+            "calibration's station and tool point, the reflector's centring, the temperature and the robot's "
+            "repeatability for AP_P and AD_P (GUM, JCGM 100:2008; AP_P and RP_l by Monte-Carlo, JCGM 101:2008); the "
+            "tracker's alone (k = 2) for vAP_P, RD and the orientation figures, whose other inputs cancel", ""),
 ]  # fmt: skip
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
@@ -161,7 +164,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
-    out += _vap_section(tests, label) + _drift_sections(drift_list)
+    out += _vap_section(tests, label) + _drift_sections(drift_list) + budget_section(tests)
     if conformity is not None:
         out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"

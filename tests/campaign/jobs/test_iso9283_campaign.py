@@ -162,6 +162,37 @@ def test_report_figures_by_a_second_route(acceptance):
                 assert f"{fig[key]['value_mm'] * 1000:.1f} ± {fig[key]['u95_mm'] * 1000:.1f}" in page
 
 
+def test_every_figure_carries_its_budget_by_a_second_route(acceptance):
+    """`compare --json` and the report carry each pose's AP_P and RP_l budget and AD_P's (#39). Recomputed from the
+    files alone: the station lines from model.json's 95 % intervals (/ 1.96) and rotation, the sensitivity of AP_P the
+    unit vector of its AP_x, AP_y, AP_z (e^T R^T diag(u^2) R e for the translation); u_c the root sum of squares of the
+    lines; the U beside AP_P the larger distance from the value to the Monte-Carlo interval's ends, which hold it."""
+    d, plan, cmp, _ = acceptance
+    model = json.loads((d / "model.json").read_text())
+    st = model["stations"][plan["iso9283"]["station"]]
+    rot, u_t = np.array(st["rotation"]), np.array(st["ci95_translation_mm"]) / 1.96
+    page = (d / "iso.html").read_text(encoding="utf-8")
+    assert "<h2>Uncertainty budget</h2>" in page
+    for test in cmp["tests"]:
+        ad = test["AD_P_budget"]
+        assert ad["figure"] == "AD_P" and ad["U_mm"] == pytest.approx(test["AD_P"]["u95_mm"])
+        for pose in test["poses"]:
+            ap, rp = pose["budget"]["AP_P"], pose["budget"]["RP_l"]
+            lines = {ln["input"]: ln["contribution_mm"] for ln in ap["lines"]}
+            assert {"tracker", "station estimate, translation", "station estimate, rotation", "tool point estimate",
+                    "robot repeatability (as measured)"} <= set(lines)  # fmt: skip
+            e = np.array(pose["AP_xyz_mm"]) / pose["AP_P"]["value_mm"]
+            g = rot @ e  # the offset moves by -R^T v: e^T R^T v
+            assert lines["station estimate, translation"] == pytest.approx(np.sqrt((g**2 * u_t**2).sum()), rel=1e-6)
+            assert ap["u_c_mm"] == pytest.approx(np.sqrt(sum(v**2 for v in lines.values())), rel=1e-9)
+            lo, hi = ap["interval95_mm"]
+            assert lo < pose["AP_P"]["value_mm"] < hi
+            assert pose["AP_P"]["u95_mm"] == pytest.approx(max(pose["AP_P"]["value_mm"] - lo,
+                                                               hi - pose["AP_P"]["value_mm"]))  # fmt: skip
+            assert pose["RP_l"]["u95_mm"] == pytest.approx(rp["U_decision_mm"])
+            assert f"<td>{lines['station estimate, translation'] * 1000:.2f}</td>" in page
+
+
 def test_drift_between_first_and_last_tests_of_the_same_targets():
     """dAP = |AP(first) - AP(last)| per pose over the tests of one kind of targets (7.6); a single test of a kind has
     no drift. By hand: AP 0.30 then 0.25 then 0.22 mm -> dAP 0.08 mm (first and last, not neighbours)."""
