@@ -89,7 +89,8 @@ def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
     tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
-                                               accept_edited=args.accept_edited), warnings)  # fmt: skip
+                                               accept_edited=args.accept_edited, tolerances=tolerances,
+                                               decision_rule=args.decision_rule), warnings)  # fmt: skip
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")

@@ -66,6 +66,7 @@ from trackcal.campaign.jobs.iso9283_budget import (
     temperature_halfrange,
 )
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
+from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
 from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
 from trackcal.campaign.session.store import SessionStore
 
@@ -396,6 +397,8 @@ class CompareOptions:
     json: str | None = None
     noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
     accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
+    tolerances: dict[str, float] | None = None  # upper limits (mm) by figure key: the verdicts go into the JSON
+    decision_rule: str = "guarded"  # calib.decision_rule.RULES
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -422,7 +425,11 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
     drift_list = drifts(tests)
     if opts.json:
+        conformity = None
+        if opts.tolerances:
+            found = verdicts(tests, opts.tolerances, opts.decision_rule)
+            conformity = conformity_doc(opts.decision_rule, opts.tolerances, found)
         write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
             {**d, "poses": [{"pose": p["pose"], "dAP": p["dAP"].to_doc(), "dRP": p["dRP"].to_doc()}
-                            for p in d["poses"]]} for d in drift_list]})  # fmt: skip
+                            for p in d["poses"]]} for d in drift_list], "conformity": conformity})  # fmt: skip
     return tests, drift_list

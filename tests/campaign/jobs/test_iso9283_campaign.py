@@ -106,6 +106,28 @@ def test_compare_states_conformity_and_prints_the_pdf(acceptance):
     assert (d / "iso.pdf").read_bytes().startswith(b"%PDF-")
 
 
+def test_compare_json_states_the_verdicts_with_their_guard_bands(acceptance):
+    """`compare --json --tolerance AP=0.5,RP=0.1`: the JSON holds the rule and every verdict with its guard band (#39):
+    guarded acceptance (ISO 14253-1:2017) narrows the acceptance zone to T - U and widens the rejection zone to T + U;
+    the nominal AP_P (above 1 mm: test_figures_against_the_twin) fails 0.5 mm, the compensated (below 0.05 mm)
+    passes; under simple acceptance (ILAC-G8) the guard band is 0."""
+    d = acceptance[0]
+    for rule in ("guarded", "simple"):
+        run("iso9283", "compare", "before", "after", "--model", "model.json", "--tolerance", "AP=0.5,RP=0.1",
+            "--decision-rule", rule, "--json", f"tol-{rule}.json", cwd=d)  # fmt: skip
+        doc = json.loads((d / f"tol-{rule}.json").read_text())["conformity"]
+        assert doc["decision_rule"] == rule and doc["tolerances_mm"] == {"AP": 0.5, "RP": 0.1}
+        found = doc["verdicts"]
+        assert len(found) == 2 * 5 * 2 and sum(doc["counts"].values()) == len(found)  # 2 tests, 5 poses, AP and RP
+        for v in found:
+            w = v["u95_mm"] if rule == "guarded" else 0.0
+            assert v["guard_band_mm"] == pytest.approx(w)
+            assert v["acceptance_limit_mm"] == pytest.approx(v["tolerance_mm"] - w)
+            assert v["rejection_limit_mm"] == pytest.approx(v["tolerance_mm"] + w)
+            if v["figure"].startswith("AP_P"):
+                assert v["verdict"] == ("pass" if v["compensated"] else "fail"), v
+
+
 def test_iso_plan_walks_cycles_in_one_direction(acceptance, kr270):
     """A campaign of an ISO plan: one station, one point, then `repeat` cycles of P1, P5, P4, P3, P2 (7.2)."""
     _, plan, _, _ = acceptance
