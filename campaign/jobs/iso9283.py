@@ -65,6 +65,7 @@ from trackcal.campaign.jobs.iso9283_budget import (
     pose_budgets,
     temperature_halfrange,
 )
+from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
 from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
@@ -170,7 +171,8 @@ NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
-CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "load", "speed",
+CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
+                   "tracker certificate", "reflector centring", "load", "speed",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
 
@@ -209,6 +211,7 @@ def _session_inputs(directory: Path):
         tool_text = store.documents().get("config/tool.yaml")
         tool_doc = yaml.safe_load(tool_text) if tool_text else None
         conditions["tool"] = str((tool_doc or {}).get("name") or "-")
+        conditions.update(traceability(store, directory))
         conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
                                             if centring_mm(tool_doc) is not None else "not stated by the tool file")
         return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides,
@@ -399,6 +402,8 @@ class CompareOptions:
     accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
     tolerances: dict[str, float] | None = None  # upper limits (mm) by figure key: the verdicts go into the JSON
     decision_rule: str = "guarded"  # calib.decision_rule.RULES
+    certificate: bool = False  # a report or PDF will be made: a tracker certificate past its due date is refused
+    accept_expired: bool = False  # ... unless this: then a warning and a note on the report
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -422,7 +427,15 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     model, checked = trusted_model(opts.model, opts.accept_edited)
     if warnings is not None:
         warnings += checked
+    expired = [m for m in map(expired_certificate, opts.sessions) if m]
+    if expired and opts.certificate and not opts.accept_expired:
+        raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
+                         "test anyway (the report then says so)")  # fmt: skip
     tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
+    for t in tests:
+        t.notes += [m.removeprefix(f"{t.session}: ") for m in expired if m.startswith(f"{t.session}: ")]
+    if warnings is not None:
+        warnings += expired
     drift_list = drifts(tests)
     if opts.json:
         conformity = None
