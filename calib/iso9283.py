@@ -17,9 +17,10 @@ reference point; c is the commanded position. Every figure below is the standard
 Uncertainty: each attained position is a tracker measurement with covariance Sigma_j (the instrument model,
 calib.identify.noise); a figure f(x_1..x_n) then carries the instrument's standard uncertainty
 u(f)^2 = sum_j g_j^T Sigma_j g_j with g_j = df/dx_j, the GUM's law of propagation (JCGM 100:2008, 5.1.2), from the
-exact gradients below (tests compare them with finite differences). The figures are reported with the expanded
-uncertainty U = 2 u (k = 2, about 95 %). The robot's own scatter is not an uncertainty of the figures: it is what
-RP measures.
+exact gradients below (tests compare them with finite differences), the expanded uncertainty U = 2 u (k = 2, about
+95 %). This is the tracker's line of a figure's budget: calib.uncertainty_budget adds the calibration's station and
+tool point, the reflector, the temperature and the robot's repeatability (for AP_P and AD_P), and propagates AP_P and
+RP_l by Monte-Carlo; `iso9283 compare` states the budget's U (campaign.jobs.iso9283_budget).
 """
 
 from __future__ import annotations
