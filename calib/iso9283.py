@@ -293,6 +293,7 @@ class IsoFigures:
     vap: dict[str, Figure] = field(default_factory=dict)
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     ad_budget: Budget | None = None  # AD_P's (calib.uncertainty_budget)
+    other_budgets: dict[str, Budget] = field(default_factory=dict)  # "RD", "vAP_P P1", ...: the tracker's line alone
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -310,5 +311,6 @@ class IsoFigures:
                        "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
                       for name, f in self.vap.items()],
             "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
+            "other_budgets": {k: b.to_doc() for k, b in self.other_budgets.items()},
             "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip

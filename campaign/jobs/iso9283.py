@@ -62,6 +62,7 @@ from trackcal.campaign.jobs.iso9283_budget import (
     BudgetContext,
     ad_budget_of,
     centring_mm,
+    other_budgets,
     pose_budgets,
     temperature_halfrange,
 )
@@ -275,7 +276,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
     return IsoFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
-                      conditions, notes, vap, vap_attained, ad_budget)  # fmt: skip
+                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker))  # fmt: skip
 
 
 @dataclass(frozen=True)

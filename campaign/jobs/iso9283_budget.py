@@ -18,6 +18,7 @@ from trackcal.calib.uncertainty_budget import (
     ap_budget,
     pose_inputs,
     rp_budget,
+    tracker_budget,
 )
 from trackcal.campaign.errors import InputError
 
@@ -88,3 +89,13 @@ def ad_budget_of(ad: Figure, c1: np.ndarray, c2: np.ndarray, context: BudgetCont
     """AD_P's budget (ad: with its tracker-only U from calib.iso9283), over the commanded distance |c1 - c2|."""
     return ad_budget(ad.value, ad.u95, float(np.linalg.norm(np.asarray(c1) - np.asarray(c2))), context.halfrange,
                      context.tracker)
+
+
+def other_budgets(rd: Figure | None, vap: dict[str, Figure], tracker: str) -> dict[str, Budget]:
+    """The budgets of RD and of each pose's vAP_P: the tracker's line (their U, k = 2), the inputs that move both poses
+    of a cycle (RD) or every approach of a pose (vAP_P) alike listed with none."""
+    common = "moves both poses of a cycle (RD) or every approach of a pose (vAP_P) alike: cancels"
+    out = {} if rd is None else {"RD": tracker_budget("RD", rd.value, rd.u95, tracker, common)}
+    out.update({f"vAP_P {name}": tracker_budget(f"vAP_P {name}", f.value, f.u95, tracker, common)
+                for name, f in vap.items()})  # fmt: skip
+    return out

@@ -60,6 +60,8 @@ def budget_section(tests: list[IsoFigures]) -> list[str]:
                 out += _table(f"{key}, {label}", [p.name for p in poses], [p.budgets[key] for p in poses])
         if t.ad_budget is not None:
             out += _table(f"AD_P, {label}", ["AD_P"], [t.ad_budget])
+        if t.other_budgets:
+            out += _table(f"RD and vAP_P, {label}", list(t.other_budgets), list(t.other_budgets.values()))
         method = next((p.budgets["AP_P"].method for p in t.poses if "AP_P" in p.budgets), "")
         out.append(f"<p>AP_P, RP_l: {html.escape(method)}.</p>")
     return out

@@ -198,6 +198,7 @@ def test_every_figure_carries_its_budget_by_a_second_route(acceptance):
     for test in cmp["tests"]:
         ad = test["AD_P_budget"]
         assert ad["figure"] == "AD_P" and ad["U_mm"] == pytest.approx(test["AD_P"]["u95_mm"])
+        assert test["other_budgets"]["RD"]["U_mm"] == pytest.approx(test["RD"]["u95_mm"])  # the tracker's alone
         for pose in test["poses"]:
             ap, rp = pose["budget"]["AP_P"], pose["budget"]["RP_l"]
             lines = {ln["input"]: ln["contribution_mm"] for ln in ap["lines"]}
