@@ -17,9 +17,10 @@ reference point; c is the commanded position. Every figure below is the standard
 Uncertainty: each attained position is a tracker measurement with covariance Sigma_j (the instrument model,
 calib.identify.noise); a figure f(x_1..x_n) then carries the instrument's standard uncertainty
 u(f)^2 = sum_j g_j^T Sigma_j g_j with g_j = df/dx_j, the GUM's law of propagation (JCGM 100:2008, 5.1.2), from the
-exact gradients below (tests compare them with finite differences). The figures are reported with the expanded
-uncertainty U = 2 u (k = 2, about 95 %). The robot's own scatter is not an uncertainty of the figures: it is what
-RP measures.
+exact gradients below (tests compare them with finite differences), the expanded uncertainty U = 2 u (k = 2, about
+95 %). This is the tracker's line of a figure's budget: calib.uncertainty_budget adds the calibration's station and
+tool point, the reflector, the temperature and the robot's repeatability (for AP_P and AD_P), and propagates AP_P and
+RP_l by Monte-Carlo; `iso9283 compare` states the budget's U (campaign.jobs.iso9283_budget).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.calib.model.rigid import RigidError, kabsch, skew
+from trackcal.calib.uncertainty_budget import Budget
 
 CYCLES = 30  # ISO 9283:1998, 6.9: pose accuracy and repeatability are tested over 30 cycles
 COVERAGE = 2.0  # expanded uncertainty U = k u with k = 2 (JCGM 100:2008, 6.2)
@@ -271,6 +273,7 @@ class PoseFigures:
     l_bar_mm: float
     s_l_mm: float
     orientation: dict[str, Figure] = field(default_factory=dict)  # AP_a..c, RP_a..c in deg, with >= 3 tool points
+    budgets: dict[str, Budget] = field(default_factory=dict)  # "AP_P", "RP_l": calib.uncertainty_budget
 
 
 @dataclass
@@ -289,6 +292,8 @@ class IsoFigures:
     # multi-directional test (7.2): per pose name, vAP_P and the attained positions (base frame) from each side
     vap: dict[str, Figure] = field(default_factory=dict)
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    ad_budget: Budget | None = None  # AD_P's (calib.uncertainty_budget)
+    other_budgets: dict[str, Budget] = field(default_factory=dict)  # "RD", "vAP_P P1", ...: the tracker's line alone
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -299,10 +304,13 @@ class IsoFigures:
             "compensated": self.compensated,
             "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
                        "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm,
-                       **{k: f.to_doc_deg() for k, f in p.orientation.items()}} for p in self.poses],
+                       **{k: f.to_doc_deg() for k, f in p.orientation.items()},
+                       "budget": {k: b.to_doc() for k, b in p.budgets.items()}} for p in self.poses],
             "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
             "vAP_P": [{"pose": name, **f.to_doc(),
                        "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
                       for name, f in self.vap.items()],
+            "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
+            "other_budgets": {k: b.to_doc() for k, b in self.other_budgets.items()},
             "conditions": self.conditions, "notes": self.notes,
         }  # fmt: skip

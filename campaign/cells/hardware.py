@@ -12,6 +12,7 @@ gives the section's other keys and builds the client.
 
 from __future__ import annotations
 
+import datetime
 import difflib
 import errno
 import math
@@ -46,6 +47,12 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "motion_timeout_s": ("timeout", 120.0),
         "search_timeout_s": ("timeout", 10.0),
         "samples_per_second": ("positive", 1000.0),
+        # traceability (#39): the tracker's serial number and its calibration certificate, its date and due date, for
+        # the ISO 9283 report; a certificate past its due date at the test is refused for a report unless asked
+        "serial": ("text", None),
+        "certificate": ("text", None),
+        "certificate_date": ("date", None),
+        "certificate_due": ("date", None),
     },
     "plc": {
         "protocol": ("protocol", _REQUIRED),
@@ -106,7 +113,22 @@ def load_hardware(path: str | Path, text: str | None = None) -> Hardware:
             out[name] = None
             continue
         out[name] = _robot(path, doc[name]) if name == "robot" else _section(path, name, doc[name], SCHEMA, PROTOCOLS)
+    tracker = out["tracker"] or {}
+    if tracker.get("certificate_date") and tracker.get("certificate_due") and \
+            tracker["certificate_due"] < tracker["certificate_date"]:  # fmt: skip
+        raise InputError(f"{path}: tracker.certificate_due: {tracker['certificate_due']} is before its "
+                         f"certificate_date {tracker['certificate_date']}")  # fmt: skip
     return Hardware(path, out["tracker"], out["robot"], out["plc"], out["meteo"])  # type: ignore[arg-type]
+
+
+def _date(path: Path, where: str, v) -> str:
+    """A calendar date, YYYY-MM-DD (YAML reads an unquoted one as a date), as its ISO text."""
+    if isinstance(v, datetime.date) and not isinstance(v, datetime.datetime):
+        return v.isoformat()
+    try:
+        return datetime.date.fromisoformat(str(v)).isoformat()
+    except ValueError:
+        raise InputError(f"{path}: {where}: expected a date YYYY-MM-DD, got {v!r}") from None
 
 
 def _unknown(path: Path, doc: dict, known, where: str) -> None:
@@ -143,7 +165,7 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
         if key not in doc or doc[key] is None:
             if default is _REQUIRED:
                 raise InputError(f"{path}: {where}: missing (required)")
-            if kind == "section":
+            if kind == "section" or (default is None and kind in ("text", "date")):  # left out: no key
                 continue
             out[key] = default
             continue
@@ -175,6 +197,12 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
             if not isinstance(v, bool):
                 raise InputError(f"{path}: {where}: expected true or false, got {v!r}")
             out[key] = v
+        elif kind == "text":
+            if not isinstance(v, str | int) or isinstance(v, bool) or not str(v).strip():
+                raise InputError(f"{path}: {where}: expected a non-empty text, got {v!r}")
+            out[key] = str(v).strip()
+        elif kind == "date":
+            out[key] = _date(path, where, v)
         elif kind in ("timeout", "positive"):
             if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"{path}: {where}: expected a positive number, got {v!r}")

@@ -12,7 +12,7 @@ from trackcal.calib.decision_rule import RULES
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
-from trackcal.campaign.report.iso9283 import write_iso_pdf, write_iso_report
+from trackcal.campaign.report.iso9283 import Item, write_iso_pdf, write_iso_report
 from trackcal.campaign.report.iso9283_conformity import Verdict, parse_tolerances, verdicts
 
 
@@ -89,10 +89,13 @@ def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
     tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
-                                               accept_edited=args.accept_edited), warnings)  # fmt: skip
+                                               accept_edited=args.accept_edited, tolerances=tolerances,
+                                               decision_rule=args.decision_rule,
+                                               certificate=bool(args.report or args.pdf),
+                                               accept_expired=args.accept_expired_certificate), warnings)  # fmt: skip
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± the tracker's expanded uncertainty, k = 2)")
+    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
     table.add_column("pose")
     for t in tests:
         label = "compensated" if t.compensated else "nominal"
@@ -146,9 +149,11 @@ def cmd_compare(args) -> int:
     if tolerances:
         conformity = (args.decision_rule, tolerances, verdicts(tests, tolerances, args.decision_rule))
         _conformity(conformity[2], args.decision_rule)
+    item = Item(args.customer, args.report_id, args.authorised_by)
     if args.report:
-        path = write_iso_report(tests, drift_list, args.model, Path(args.report), conformity)
+        path = write_iso_report(tests, drift_list, args.model, Path(args.report), conformity, item)
         console.print(f"report written to {path}")
     if args.pdf:
-        console.print(f"PDF written to {write_iso_pdf(tests, drift_list, args.model, Path(args.pdf), conformity)}")
+        path = write_iso_pdf(tests, drift_list, args.model, Path(args.pdf), conformity, item)
+        console.print(f"PDF written to {path}")
     return 0

@@ -42,6 +42,7 @@ from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.iso9283 import (
     CYCLES,
     DISTANCE_POSES,
+    Figure,
     IsoFigures,
     PoseFigures,
     attained_orientations,
@@ -57,7 +58,17 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.iso9283_budget import (
+    BudgetContext,
+    ad_budget_of,
+    centring_mm,
+    other_budgets,
+    pose_budgets,
+    temperature_halfrange,
+)
+from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
+from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
 from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
 from trackcal.campaign.session.store import SessionStore
 
@@ -161,7 +172,8 @@ NO_LOAD = "not stated (give it with iso9283 plan --load)"
 
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
-CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "load", "speed",
+CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
+                   "tracker certificate", "reflector centring", "load", "speed",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
 
@@ -197,10 +209,14 @@ def _session_inputs(directory: Path):
         conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
                                "9283:1998, 6.7: 100 %, 50 % and 10 % of the rated velocity)"
                                ) if overrides else "no move recorded"  # fmt: skip
-        tool_doc = store.documents().get("config/tool.yaml")
-        tool = yaml.safe_load(tool_doc).get("name") if tool_doc else None
-        conditions["tool"] = str(tool or "-")
-        return session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides
+        tool_text = store.documents().get("config/tool.yaml")
+        tool_doc = yaml.safe_load(tool_text) if tool_text else None
+        conditions["tool"] = str((tool_doc or {}).get("name") or "-")
+        conditions.update(traceability(store, directory))
+        conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
+                                            if centring_mm(tool_doc) is not None else "not stated by the tool file")
+        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides,
+                centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
 
@@ -228,7 +244,7 @@ class InBase:
 def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
     is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
-    cell, plan, table, conditions, sides = _session_inputs(directory)
+    cell, plan, table, conditions, sides, centring = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
@@ -241,12 +257,17 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
     keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
     visit = Visits(np.asarray(table.pose), np.asarray(sides))
-    figures, attained, covs = _pose_figures(directory, in_base, keep, visit, commanded)
+    temps = table.extra.get("temp_c") if table.extra else None
+    context = BudgetContext(model, iso["station"], iso["point"], _commanded_rotations(iso, model), tracker, centring,
+                            temperature_halfrange(None if temps is None else [temps[k] for k in np.flatnonzero(keep)]))
+    figures, attained, covs = _pose_figures(directory, in_base, keep, visit, commanded, context)
     a, b = DISTANCE_POSES
-    ad = rd = None
+    ad = rd = ad_budget = None
     notes = []
     if len(attained[a]) == len(attained[b]):
         ad, rd = distance_accuracy(attained[a], attained[b], commanded[a], commanded[b], covs[a], covs[b])
+        ad_budget = ad_budget_of(ad, commanded[a], commanded[b], context)
+        ad = Figure(ad.value, ad_budget.expanded, ad.clause)
     else:
         notes.append(f"{POSE_NAMES[a]} and {POSE_NAMES[b]} have different numbers of cycles: no AD/RD")
     pts = iso_points(iso)
@@ -255,7 +276,7 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
     return IsoFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
-                      conditions, notes, vap, vap_attained)  # fmt: skip
+                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -269,16 +290,22 @@ class Visits:
         return (self.pose == f"Q{i + 1}") & (self.side == side)
 
 
-def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray):
-    """The pose accuracy and repeatability of each pose (7.2), with its attained positions and covariances."""
+def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray,
+                  context: BudgetContext):  # fmt: skip
+    """The pose accuracy and repeatability of each pose (7.2), with its attained positions and covariances; their U
+    is their uncertainty budget's (campaign.jobs.iso9283_budget)."""
     attained, covs, figures = [], [], []
     for i, name in enumerate(POSE_NAMES):
-        base, cov = in_base(keep & visit.of(i))
+        rows = keep & visit.of(i)
+        base, cov = in_base(rows)
         if len(base) < 2:
             raise InputError(f"{directory}: {name} was measured {len(base)} times; repeatability needs two cycles")
         ap, offset = pose_accuracy(base, commanded[i], cov)
         rp, lbar, s = pose_repeatability(base, cov)
-        figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s))
+        budgets = pose_budgets(base, cov, offset, rp, context.setting(i, in_base.table.xyz[rows]))
+        ap = Figure(ap.value, budgets["AP_P"].expanded, ap.clause)
+        rp = Figure(rp.value, budgets["RP_l"].expanded, rp.clause)
+        figures.append(PoseFigures(name, len(base), ap, offset, rp, lbar, s, budgets=budgets))
         attained.append(base)
         covs.append(cov)
     return figures, attained, covs
@@ -348,6 +375,13 @@ def _iso_conditions(conditions: dict, cell: Cell, iso: dict, table: MeasurementT
     return {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
 
 
+def _commanded_rotations(iso: dict, model: Model) -> np.ndarray:
+    """(5, 3, 3) the commanded orientation of the last joint frame at each pose (the nominal chain at the plan's
+    nominal joints, as commanded_positions)."""
+    q = np.radians(fields.rows(iso.get("nominal_poses_deg"), "plan: iso9283.nominal_poses_deg", PlanError))
+    return Kinematics(model.chain, []).end_frames(q)[0]
+
+
 def commanded_positions(iso: dict, model: Model) -> np.ndarray:
     """(5, 3) where the measured point is meant to be: the nominal chain at the nominal joints of the plan, with the
     point where the calibration found it on the tool (model.points). The plan's own `commanded_mm` uses the cell's
@@ -367,6 +401,10 @@ class CompareOptions:
     json: str | None = None
     noise: TrackerNoise | None = None  # the tracker's model, the figures' uncertainties (None: each session's)
     accept_edited: bool = False  # use a model whose digest does not match its content (calib.model_trust)
+    tolerances: dict[str, float] | None = None  # upper limits (mm) by figure key: the verdicts go into the JSON
+    decision_rule: str = "guarded"  # calib.decision_rule.RULES
+    certificate: bool = False  # a report or PDF will be made: a tracker certificate past its due date is refused
+    accept_expired: bool = False  # ... unless this: then a warning and a note on the report
 
 
 def drifts(tests: list[IsoFigures]) -> list[dict]:
@@ -390,10 +428,22 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     model, checked = trusted_model(opts.model, opts.accept_edited)
     if warnings is not None:
         warnings += checked
+    expired = [m for m in map(expired_certificate, opts.sessions) if m]
+    if expired and opts.certificate and not opts.accept_expired:
+        raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
+                         "test anyway (the report then says so)")  # fmt: skip
     tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
+    for t in tests:
+        t.notes += [m.removeprefix(f"{t.session}: ") for m in expired if m.startswith(f"{t.session}: ")]
+    if warnings is not None:
+        warnings += expired
     drift_list = drifts(tests)
     if opts.json:
+        conformity = None
+        if opts.tolerances:
+            found = verdicts(tests, opts.tolerances, opts.decision_rule)
+            conformity = conformity_doc(opts.decision_rule, opts.tolerances, found)
         write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
             {**d, "poses": [{"pose": p["pose"], "dAP": p["dAP"].to_doc(), "dRP": p["dRP"].to_doc()}
-                            for p in d["poses"]]} for d in drift_list]})  # fmt: skip
+                            for p in d["poses"]]} for d in drift_list], "conformity": conformity})  # fmt: skip
     return tests, drift_list

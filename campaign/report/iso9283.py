@@ -10,6 +10,7 @@ import html
 import io
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 from trackcal.calib.decision_rule import FAIL, NOT_PROVEN, PASS, RULES
@@ -19,6 +20,7 @@ from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
+from trackcal.campaign.report.iso9283_budget import budget_section
 from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
 from trackcal.campaign.report.pdf import html_to_pdf
 
@@ -44,8 +46,10 @@ DEFINITIONS = [
      clause("RD")),
     ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
                  "targets repeated over time, RP alike", clause("drift")),
-    ("± U", "the tracker's expanded uncertainty (k = 2) of the figure: the instrument model propagated through the "
-            "figure's exact gradient (GUM, JCGM 100:2008, 5.1.2); the calibration's own uncertainty is not in it", ""),
+    ("± U", "the figure's expanded uncertainty from its budget (section Uncertainty budget): the tracker, the "
+            "calibration's station and tool point, the reflector's centring, the temperature and the robot's "
+            "repeatability for AP_P and AD_P (GUM, JCGM 100:2008; AP_P and RP_l by Monte-Carlo, JCGM 101:2008); the "
+            "tracker's alone (k = 2) for vAP_P, RD and the orientation figures, whose other inputs cancel", ""),
 ]  # fmt: skip
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
@@ -91,6 +95,16 @@ def cluster_figure(tests: list[IsoFigures], i: int) -> str:
     return _png(fig)
 
 
+@dataclass(frozen=True)
+class Item:
+    """What the report states about itself beyond the tests: the customer, its id (None: `report_id`'s digest) and
+    the person authorising it (`iso9283 compare --customer --report-id --authorised-by`)."""
+
+    customer: str | None = None
+    report_id: str | None = None
+    authorised_by: str | None = None
+
+
 def report_id(tests: list[IsoFigures]) -> str:
     """The report's id: a digest of the figures it states (the same tests give the same id; any change, another)."""
     doc = json.dumps([t.to_doc() for t in tests], sort_keys=True, default=str).encode()
@@ -115,20 +129,24 @@ def _conformity(rule: str, tolerances: dict[str, float], found: list[Verdict]) -
     return out
 
 
-def _signatures() -> list[str]:
-    rows = "".join(f"<tr><td class=l>{who}</td>" + "<td></td>" * 4 + "</tr>" for who in ("Tested by", "Authorised by"))
+def _signatures(authorised_by: str | None = None) -> list[str]:
+    names = {"Tested by": "", "Authorised by": html.escape(authorised_by or "")}
+    rows = "".join(f"<tr><td class=l>{who}</td><td class=l>{name}</td>" + "<td></td>" * 3 + "</tr>"
+                   for who, name in names.items())  # fmt: skip
     return ["<h2>Authorisation</h2><table class=sign><tr><th class=l></th><th class=l>Name</th><th class=l>Role</th>"
             f"<th class=l>Date</th><th class=l>Signature</th></tr>{rows}</table>"]  # fmt: skip
 
 
 def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
-           conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> str:
-    """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement."""
+           conformity: tuple[str, dict[str, float], list[Verdict]] | None = None, item: Item | None = None) -> str:
+    """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement, `item` the
+    customer, the report's id and the person authorising it."""
     label = ["compensated" if t.compensated else "nominal" for t in tests]
-    rid = report_id(tests)
+    item = item or Item()
+    rid = html.escape(item.report_id or report_id(tests))
     out = [f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
            f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>",
-           f"<p>Report {rid}</p>"]  # fmt: skip
+           f"<p>Report {rid}</p><p>Customer: {html.escape(item.customer or 'not stated')}</p>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
     out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
@@ -161,7 +179,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
-    out += _vap_section(tests, label) + _drift_sections(drift_list)
+    out += _vap_section(tests, label) + _drift_sections(drift_list) + budget_section(tests)
     if conformity is not None:
         out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
@@ -173,7 +191,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
     notes = [f"{t.session}: {n}" for t in tests for n in t.notes]
     if notes:
         out.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
-    out += _signatures()
+    out += _signatures(item.authorised_by)
     out.append("</body></html>\n")
     return "\n".join(out)
 
@@ -230,14 +248,17 @@ def _drift_sections(drift_list: list[dict]) -> list[str]:
 
 
 def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
-                     conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> Path:
-    write_text(path, render(tests, drift_list, model_path, conformity), InputError)
+                     conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
+                     item: Item | None = None) -> Path:  # fmt: skip
+    write_text(path, render(tests, drift_list, model_path, conformity, item), InputError)
     return path
 
 
 def write_iso_pdf(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
-                  conformity: tuple[str, dict[str, float], list[Verdict]] | None = None) -> Path:
+                  conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
+                  item: Item | None = None) -> Path:  # fmt: skip
     """The same page as a PDF (headless chromium), the report id and "page N of M" at the foot of every page."""
-    return html_to_pdf(render(tests, drift_list, model_path, conformity), path,
-                       f"ISO 9283:1998 acceptance test, report {report_id(tests)}")
+    rid = (item.report_id if item else None) or report_id(tests)
+    return html_to_pdf(render(tests, drift_list, model_path, conformity, item), path,
+                       f"ISO 9283:1998 acceptance test, report {rid}")
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from trackcal.calib.decision_rule import RULES, decide
+from trackcal.calib.decision_rule import FAIL, NOT_PROVEN, PASS, RULES, decide
 from trackcal.calib.iso9283 import Figure, IsoFigures
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import OptionError
@@ -25,11 +25,19 @@ class Verdict:
     u95_mm: float
     limit_mm: float
     verdict: str  # calib.decision_rule: "pass", "fail" or "not proven"
+    guard_mm: float = 0.0  # the rule's guard band w: U under guarded acceptance (nan: no U stated), 0 under simple
 
     def to_doc(self) -> dict:
-        return {"session": self.session, "figure": self.figure, "clause": clause(self.key),
-                "value_mm": self.value_mm, "u95_mm": self.u95_mm if math.isfinite(self.u95_mm) else None,
-                "tolerance_mm": self.limit_mm, "verdict": self.verdict}  # fmt: skip
+        """Strict JSON: with the guard band w, the acceptance limit T - w (a value at or below it passes) and the
+        rejection limit T + w (a value above it fails); a number that does not exist is null."""
+        def num(v: float) -> float | None:
+            return v if math.isfinite(v) else None
+
+        return {"session": self.session, "compensated": self.compensated, "figure": self.figure,
+                "clause": clause(self.key), "value_mm": self.value_mm, "u95_mm": num(self.u95_mm),
+                "tolerance_mm": self.limit_mm, "guard_band_mm": num(self.guard_mm),
+                "acceptance_limit_mm": num(self.limit_mm - self.guard_mm),
+                "rejection_limit_mm": num(self.limit_mm + self.guard_mm), "verdict": self.verdict}  # fmt: skip
 
 
 def parse_tolerances(text: str | None) -> dict[str, float]:
@@ -66,5 +74,13 @@ def verdicts(tests: list[IsoFigures], tolerances: dict[str, float], rule: str) -
     if rule not in RULES:
         raise OptionError("{0}: expected one of {rules}, got {rule!r}", "decision_rule", rules=", ".join(RULES),
                           rule=rule)  # fmt: skip
-    return [Verdict(t.session, t.compensated, name, key, f.value, f.u95, limit, decide(f.value, f.u95, limit, rule))
+    return [Verdict(t.session, t.compensated, name, key, f.value, f.u95, limit, decide(f.value, f.u95, limit, rule),
+                    f.u95 if rule == "guarded" else 0.0)
             for t in tests for key, limit in tolerances.items() for name, f in _figures(t, key)]  # fmt: skip
+
+
+def conformity_doc(rule: str, tolerances: dict[str, float], found: list[Verdict]) -> dict:
+    """The conformity statement of `compare --json`: the rule, its text, the tolerances and every verdict."""
+    return {"decision_rule": rule, "rule": RULES[rule], "tolerances_mm": dict(tolerances),
+            "verdicts": [v.to_doc() for v in found],
+            "counts": {k: sum(v.verdict == k for v in found) for k in (PASS, FAIL, NOT_PROVEN)}}  # fmt: skip

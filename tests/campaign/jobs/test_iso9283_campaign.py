@@ -106,6 +106,28 @@ def test_compare_states_conformity_and_prints_the_pdf(acceptance):
     assert (d / "iso.pdf").read_bytes().startswith(b"%PDF-")
 
 
+def test_compare_json_states_the_verdicts_with_their_guard_bands(acceptance):
+    """`compare --json --tolerance AP=0.5,RP=0.1`: the JSON holds the rule and every verdict with its guard band (#39):
+    guarded acceptance (ISO 14253-1:2017) narrows the acceptance zone to T - U and widens the rejection zone to T + U;
+    the nominal AP_P (above 1 mm: test_figures_against_the_twin) fails 0.5 mm, the compensated (below 0.05 mm)
+    passes; under simple acceptance (ILAC-G8) the guard band is 0."""
+    d = acceptance[0]
+    for rule in ("guarded", "simple"):
+        run("iso9283", "compare", "before", "after", "--model", "model.json", "--tolerance", "AP=0.5,RP=0.1",
+            "--decision-rule", rule, "--json", f"tol-{rule}.json", cwd=d)  # fmt: skip
+        doc = json.loads((d / f"tol-{rule}.json").read_text())["conformity"]
+        assert doc["decision_rule"] == rule and doc["tolerances_mm"] == {"AP": 0.5, "RP": 0.1}
+        found = doc["verdicts"]
+        assert len(found) == 2 * 5 * 2 and sum(doc["counts"].values()) == len(found)  # 2 tests, 5 poses, AP and RP
+        for v in found:
+            w = v["u95_mm"] if rule == "guarded" else 0.0
+            assert v["guard_band_mm"] == pytest.approx(w)
+            assert v["acceptance_limit_mm"] == pytest.approx(v["tolerance_mm"] - w)
+            assert v["rejection_limit_mm"] == pytest.approx(v["tolerance_mm"] + w)
+            if v["figure"].startswith("AP_P"):
+                assert v["verdict"] == ("pass" if v["compensated"] else "fail"), v
+
+
 def test_iso_plan_walks_cycles_in_one_direction(acceptance, kr270):
     """A campaign of an ISO plan: one station, one point, then `repeat` cycles of P1, P5, P4, P3, P2 (7.2)."""
     _, plan, _, _ = acceptance
@@ -160,6 +182,38 @@ def test_report_figures_by_a_second_route(acceptance):
                 # the export writes 4 decimals (0.05 µm rounding per coordinate): the figures agree to 0.1 µm
                 assert fig[key]["value_mm"] == pytest.approx(value, abs=1e-4), (session, i, key)
                 assert f"{fig[key]['value_mm'] * 1000:.1f} ± {fig[key]['u95_mm'] * 1000:.1f}" in page
+
+
+def test_every_figure_carries_its_budget_by_a_second_route(acceptance):
+    """`compare --json` and the report carry each pose's AP_P and RP_l budget and AD_P's (#39). Recomputed from the
+    files alone: the station lines from model.json's 95 % intervals (/ 1.96) and rotation, the sensitivity of AP_P the
+    unit vector of its AP_x, AP_y, AP_z (e^T R^T diag(u^2) R e for the translation); u_c the root sum of squares of the
+    lines; the U beside AP_P the larger distance from the value to the Monte-Carlo interval's ends, which hold it."""
+    d, plan, cmp, _ = acceptance
+    model = json.loads((d / "model.json").read_text())
+    st = model["stations"][plan["iso9283"]["station"]]
+    rot, u_t = np.array(st["rotation"]), np.array(st["ci95_translation_mm"]) / 1.96
+    page = (d / "iso.html").read_text(encoding="utf-8")
+    assert "<h2>Uncertainty budget</h2>" in page
+    for test in cmp["tests"]:
+        ad = test["AD_P_budget"]
+        assert ad["figure"] == "AD_P" and ad["U_mm"] == pytest.approx(test["AD_P"]["u95_mm"])
+        assert test["other_budgets"]["RD"]["U_mm"] == pytest.approx(test["RD"]["u95_mm"])  # the tracker's alone
+        for pose in test["poses"]:
+            ap, rp = pose["budget"]["AP_P"], pose["budget"]["RP_l"]
+            lines = {ln["input"]: ln["contribution_mm"] for ln in ap["lines"]}
+            assert {"tracker", "station estimate, translation", "station estimate, rotation", "tool point estimate",
+                    "robot repeatability (as measured)"} <= set(lines)  # fmt: skip
+            e = np.array(pose["AP_xyz_mm"]) / pose["AP_P"]["value_mm"]
+            g = rot @ e  # the offset moves by -R^T v: e^T R^T v
+            assert lines["station estimate, translation"] == pytest.approx(np.sqrt((g**2 * u_t**2).sum()), rel=1e-6)
+            assert ap["u_c_mm"] == pytest.approx(np.sqrt(sum(v**2 for v in lines.values())), rel=1e-9)
+            lo, hi = ap["interval95_mm"]
+            assert lo < pose["AP_P"]["value_mm"] < hi
+            assert pose["AP_P"]["u95_mm"] == pytest.approx(max(pose["AP_P"]["value_mm"] - lo,
+                                                               hi - pose["AP_P"]["value_mm"]))  # fmt: skip
+            assert pose["RP_l"]["u95_mm"] == pytest.approx(rp["U_decision_mm"])
+            assert f"<td>{lines['station estimate, translation'] * 1000:.2f}</td>" in page
 
 
 def test_drift_between_first_and_last_tests_of_the_same_targets():

@@ -1,0 +1,290 @@
+"""The uncertainty budget of an ISO 9283 figure: every input with its standard uncertainty, its source and its
+contribution, the combined standard uncertainty u_c, the coverage factor k and U (GUM, JCGM 100:2008), and, where the
+figure is not linear in its inputs, the 95 % coverage interval by Monte-Carlo (GUM Supplement 1, JCGM 101:2008).
+
+The figures of a pose are functions of its attained positions expressed in the robot base frame, x_j = R^T (y_j - t)
+(y_j the tracker's measurement in its station's frame, R and t the calibration's estimate of that station) and of the
+commanded position c = K_nom(q, p) (the nominal chain at the commanded joints, p the calibration's estimate of the
+measured tool point). Each input below moves the offset o = x_bar - c by a vector delta = A z, z of unit variance
+(normal, or rectangular on [-sqrt 3, sqrt 3]), A a 3 x m matrix the input's line carries:
+
+- the tracker: each measurement's covariance Sigma_j from the instrument model (calib.identify.noise: the datasheet's
+  MPE read as 2 sigma, Leica's "typical results are half of the MPE"; normal), averaged: Sigma_o = sum Sigma_j / n^2;
+- the station estimate (model.json, its 95 % half-widths / 1.96 as standard uncertainties, its 6 components taken
+  independent): a translation error v moves x by -R^T v, a rotation error w (the solver's update R' = exp([w]) R,
+  t' = exp([w]) t + v) by R^T [y_bar]x w;
+- the tool point estimate (model.json likewise): the commanded position moves by R_nom(q) dp;
+- the reflector's centring in its nest (the tool file's `reflector.centring_um`, a maximum: rectangular per axis), for
+  a reflector seated again between the calibration and the test;
+- the temperature (the meteo record of the test: its half-range h, rectangular): the arm (steel, 11.5e-6/K) grows
+  about its base, x alpha_steel dT, the tool (aluminium, 23e-6/K) about the flange, R_nom p alpha_al dT; the air along
+  the beam differs from the tracker's sensor by as much, its refractive index by -0.93 ppm/K, the range by as much;
+- the robot's repeatability as measured (a Type A evaluation, JCGM 100:2008, 4.2): the scatter of the x_j about their
+  mean less the tracker's share, divided by n, the uncertainty of the barycentre of n cycles.
+
+AP_P = |o| is not linear near o = 0 (its GUM sensitivity o/|o| is not defined there) and RP_l = l_bar + 3 S_l is not
+linear in the x_j: both are propagated by Monte-Carlo too, M = MC_TRIALS trials with a fixed seed (the same inputs
+give the same budget), the coverage interval the shortest 95 % one (JCGM 101:2008, 7.7.2), and their U the larger
+distance from the value to the interval's ends, the guard band of a decision (calib.decision_rule).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trackcal.calib.errors import CalibError
+from trackcal.calib.model.rigid import skew
+
+COVERAGE = 2.0  # k = 2: about 95 % for a normal output (JCGM 100:2008, 6.2.1, 6.3.3)
+PROBABILITY = 0.95
+# JCGM 101:2008, 7.2.2: M should be large compared with 1/(1 - p), "e.g. at least 10^4 times greater": 10^4 / 0.05
+MC_TRIALS = 200_000
+MC_SEED = 9283
+MC_CHUNK = 10_000  # trials per batch of RP's Monte-Carlo (30 cycles x 3 coordinates each: ~7 MB per batch)
+# linear expansion coefficients at 20 degC, 1/K: carbon steel 11.5e-6 ... (structural steel 11-13e-6), aluminium
+# 23e-6 (The Engineering ToolBox, "Coefficients of Linear Thermal Expansion",
+# https://www.engineeringtoolbox.com/linear-expansion-coefficients-d_95.html; the brief's values)
+ALPHA_STEEL = 11.5e-6
+ALPHA_ALUMINIUM = 23e-6
+# the air's refractivity by Edlen's simplified equation n - 1 = 7.86e-4 P / (273 + T) (as quoted in
+# https://hackaday.io/project/1408/log/4229; P in kPa: 2.72e-4 at 101.325 kPa, 20 degC, the refractivity of standard
+# air): d(n - 1)/dT = -7.86e-4 P / (273 + T)^2 = -0.93e-6 /K at 101.325 kPa, 20 degC
+REFRACTION_PER_K = 7.86e-4 * 101.325 / 293.15**2
+# a standard uncertainty from a model.json 95 % half-width (its t-quantile for the hundreds of degrees of freedom of a
+# calibration: 1.96 to within 1 %)
+CI95_TO_SIGMA = 1.0 / 1.96
+
+
+class BudgetError(CalibError):
+    """Inputs an uncertainty budget cannot be made of."""
+
+
+@dataclass(frozen=True)
+class Input:
+    """One line of a budget: what moves the pose's offset o by A z (z of unit variance, `distribution`)."""
+
+    name: str
+    source: str
+    distribution: str  # "normal" or "rectangular"
+    u_text: str  # the input's standard uncertainty, as the source states it, with its unit
+    a: np.ndarray  # (3, m)
+
+    def cov(self) -> np.ndarray:
+        return self.a @ self.a.T
+
+    def draw(self, rng: np.random.Generator, m: int) -> np.ndarray:
+        """m draws of the offset's error, (m, 3)."""
+        k = self.a.shape[1]
+        z = rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), (m, k)) if self.distribution == "rectangular" else \
+            rng.standard_normal((m, k))  # fmt: skip
+        return z @ self.a.T
+
+
+@dataclass(frozen=True)
+class Line:
+    """A budget's line as the report prints it: the input, its source and distribution, its standard uncertainty and
+    its contribution |c_i| u(x_i) to the figure (mm)."""
+
+    name: str
+    source: str
+    distribution: str
+    u_text: str
+    contribution_mm: float
+
+    def to_doc(self) -> dict:
+        return {"input": self.name, "source": self.source, "distribution": self.distribution,
+                "standard_uncertainty": self.u_text, "contribution_mm": self.contribution_mm}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The budget of one figure: its lines, u_c = sqrt(sum contribution^2) (JCGM 100:2008, 5.1.2), k, U = k u_c and,
+    by Monte-Carlo, the shortest 95 % coverage interval (None for a linear figure: value -+ U)."""
+
+    figure: str
+    value: float
+    lines: list[Line]
+    k: float = COVERAGE
+    interval: tuple[float, float] | None = None
+    method: str = "GUM law of propagation of uncertainty (JCGM 100:2008, 5.1.2)"
+
+    @property
+    def u_c(self) -> float:
+        return float(np.sqrt(sum(line.contribution_mm**2 for line in self.lines)))
+
+    @property
+    def expanded(self) -> float:
+        """U for a decision: k u_c, or for a Monte-Carlo figure the larger distance from the value to its interval."""
+        if self.interval is None:
+            return self.k * self.u_c
+        lo, hi = self.interval
+        return float(max(self.value - lo, hi - self.value))
+
+    def to_doc(self) -> dict:
+        return {"figure": self.figure, "value_mm": self.value, "lines": [line.to_doc() for line in self.lines],
+                "u_c_mm": self.u_c, "k": self.k, "U_mm": self.k * self.u_c, "method": self.method,
+                "interval95_mm": None if self.interval is None else list(self.interval),
+                "U_decision_mm": self.expanded}  # fmt: skip
+
+
+def shortest_interval(samples: np.ndarray, p: float = PROBABILITY) -> tuple[float, float]:
+    """The shortest interval holding a share p of the samples (JCGM 101:2008, 7.7.2: over the sorted values, the
+    least y_(r + q) - y_(r), q = pM rounded to an integer, r = 1..M - q)."""
+    y = np.sort(np.asarray(samples, dtype=float))
+    q = int(round(p * len(y)))
+    if not 0 < q < len(y):
+        raise BudgetError(f"{len(y)} Monte-Carlo trials cannot give a {p:.0%} coverage interval")
+    widths = y[q:] - y[: len(y) - q]
+    r = int(np.argmin(widths))
+    return float(y[r]), float(y[r + q])
+
+
+def _sqrt_psd(c: np.ndarray) -> np.ndarray:
+    """A with A A^T = c for a symmetric positive semi-definite c (negative eigenvalues from rounding set to 0)."""
+    w, v = np.linalg.eigh(0.5 * (c + c.T))
+    return v * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _um(v: float) -> str:
+    return f"{v * 1000:.2f} µm"
+
+
+@dataclass(frozen=True)
+class PoseSetting:
+    """What a pose's budget knows besides its attained positions: the station estimate and the measured tool point with
+    their standard uncertainties, the commanded orientation of the last joint frame, the reflector and the
+    temperature record."""
+
+    y_station: np.ndarray  # (n, 3) mm: the measurements in the station's frame
+    rotation: np.ndarray  # (3, 3) the station estimate, station <- base
+    station_u: np.ndarray  # (6,) translation mm, rotation rad: standard uncertainties
+    tool_rotation: np.ndarray  # (3, 3) R_nom(q): the last joint frame at the commanded joints
+    tool_point: np.ndarray  # (3,) mm, in the last joint frame
+    point_u: np.ndarray  # (3,) mm
+    tracker: str  # the instrument, for the tracker line's source
+    centring_mm: float | None = None  # the reflector's centring in its nest (a maximum), None: not stated
+    temp_halfrange_k: float | None = None  # half the range of the temperatures recorded, None: not recorded
+
+
+def pose_inputs(x: np.ndarray, covs: np.ndarray, s: PoseSetting) -> list[Input]:
+    """The inputs of one pose's offset o = x_bar - c (module docstring), in the order the report lists them."""
+    n = len(x)
+    ybar = s.y_station.mean(axis=0)
+    rt = s.rotation.T
+    out = [
+        Input("tracker", f"{s.tracker}: datasheet MPE read as 2 sigma, mean of {n} measurements", "normal",
+              f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement",
+              _sqrt_psd(covs.sum(axis=0) / n**2)),
+        Input("station estimate, translation", "model.json: the calibration's 95 % interval / 1.96", "normal",
+              ", ".join(_um(v) for v in s.station_u[:3]), -rt * s.station_u[:3]),
+        Input("station estimate, rotation", "model.json: the calibration's 95 % interval / 1.96", "normal",
+              ", ".join(f"{np.degrees(v) * 3600:.2f}\"" for v in s.station_u[3:]),
+              rt @ skew(ybar) * s.station_u[3:]),
+        Input("tool point estimate", "model.json: the calibration's 95 % interval / 1.96", "normal",
+              ", ".join(_um(v) for v in s.point_u), s.tool_rotation * s.point_u),
+    ]  # fmt: skip
+    c = s.centring_mm
+    out.append(Input("reflector centring in its nest", "the tool file's reflector.centring_um (a maximum)" if c
+                     is not None else "not stated by the tool file (reflector.centring_um): left out", "rectangular",
+                     "-" if c is None else f"±{_um(c)} per axis", np.eye(3) * ((c or 0.0) / np.sqrt(3.0))))
+    h = s.temp_halfrange_k
+    hu = 0.0 if h is None else h / np.sqrt(3.0)  # a rectangular half-width h: u = h / sqrt 3 (JCGM 100:2008, 4.3.7)
+    source = "not recorded: left out" if h is None else f"meteo record of the test: ±{h:.2f} K (half its range)"
+    grow = ALPHA_STEEL * x.mean(axis=0) + ALPHA_ALUMINIUM * (s.tool_rotation @ s.tool_point)
+    out.append(Input("temperature: arm (steel) and tool (aluminium) expansion", source, "rectangular",
+                     f"{hu:.3f} K", (grow * hu)[:, None]))  # fmt: skip
+    beam = rt @ ybar * REFRACTION_PER_K  # the range scales by -0.93 ppm/K along the beam (its sign is immaterial)
+    out.append(Input("temperature: air along the beam (refraction)", source, "rectangular", f"{hu:.3f} K",
+                     (beam * hu)[:, None]))
+    scatter = np.cov(x.T, ddof=1) - covs.mean(axis=0) if n >= 2 else np.zeros((3, 3))
+    robot = _sqrt_psd(scatter) / np.sqrt(n)
+    out.append(Input("robot repeatability (as measured)", f"Type A: scatter of the {n} cycles less the tracker's, / n",
+                     "normal", f"{_um(float(np.sqrt(max(np.trace(robot @ robot.T), 0.0) / 3)))} per axis", robot))
+    return out
+
+
+def joint_draws(inputs: list[Input], rng: np.random.Generator, m: int) -> np.ndarray:
+    """m draws (m, 3) of the sum of the inputs' errors: the normal inputs' sum is normal with the sum of their
+    covariances (drawn as one), the rectangular ones drawn each (their columns of no effect left out)."""
+    normal = sum((i.cov() for i in inputs if i.distribution == "normal"), np.zeros((3, 3)))
+    total = rng.standard_normal((m, 3)) @ _sqrt_psd(normal).T
+    for i in inputs:
+        if i.distribution == "rectangular" and np.abs(i.a).max() > 0:
+            total += i.draw(rng, m)
+    return total
+
+
+def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> Budget:
+    """AP_P = |o| (ISO 9283:1998, 7.2): each line's GUM contribution sqrt(e^T A A^T e), e = o/|o|, and the shortest
+    95 % interval of |o + sum_i A_i z_i| over MC_TRIALS draws (the offset's state of knowledge, JCGM 101:2008)."""
+    o = np.asarray(offset, dtype=float).reshape(3)
+    value = float(np.linalg.norm(o))
+    e = o / value if value > 0 else np.zeros(3)
+    lines = [Line(i.name, i.source, i.distribution, i.u_text, float(np.sqrt(max(e @ i.cov() @ e, 0.0))))
+             for i in inputs]  # fmt: skip
+    draws = o + joint_draws(inputs, np.random.default_rng(seed), MC_TRIALS)
+    return Budget("AP_P", value, lines, interval=shortest_interval(np.linalg.norm(draws, axis=1)),
+                  method=f"Monte-Carlo (JCGM 101:2008), M = {MC_TRIALS}, shortest 95 % interval; lines by the GUM "
+                         "law of propagation (JCGM 100:2008, 5.1.2)")  # fmt: skip
+
+
+def repeatability(x: np.ndarray) -> np.ndarray:
+    """RP_l = l_bar + 3 S_l (ISO 9283:1998, 7.2) of each of a stack of cycles' positions (..., n, 3)."""
+    ell = np.linalg.norm(x - x.mean(axis=-2, keepdims=True), axis=-1)
+    return ell.mean(axis=-1) + 3.0 * ell.std(axis=-1, ddof=1)
+
+
+# what moves every cycle of a pose alike cancels in x_j - x_bar and so in RP (and in vAP, a difference of barycentres
+# of the same pose; and, but for its scale, in a distance between two poses)
+COMMON = ("station estimate", "tool point estimate", "reflector centring in its nest")
+
+
+def rp_budget(x: np.ndarray, covs: np.ndarray, u_gum: float, tracker: str, seed: int = MC_SEED) -> Budget:
+    """RP_l from the n cycles x (n, 3) with the tracker's covariances (n, 3, 3): its tracker line's GUM contribution
+    `u_gum` (calib.iso9283.pose_repeatability's exact gradient), the shortest 95 % interval of RP_l over MC_TRIALS
+    draws of the tracker's noise on every cycle; the inputs common to every cycle listed with no contribution, and the
+    robot's scatter none: it is what RP measures."""
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    chol = np.array([_sqrt_psd(c) for c in covs])  # (n, 3, 3)
+    rng = np.random.default_rng(seed)
+    draws = []
+    for start in range(0, MC_TRIALS, MC_CHUNK):
+        m = min(MC_CHUNK, MC_TRIALS - start)
+        z = rng.standard_normal((m, n, 3))
+        draws.append(repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
+    lines = [Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma, each of {n} measurements", "normal",
+                  f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement", u_gum)]
+    lines += [Line(name, "common to every cycle: cancels in x_j - x_bar", "-", "-", 0.0) for name in COMMON]
+    lines.append(Line("robot repeatability", "the measurand itself (not an input)", "-", "-", 0.0))
+    return Budget("RP_l", float(repeatability(x)), lines, interval=shortest_interval(np.concatenate(draws)),
+                  method=f"Monte-Carlo (JCGM 101:2008), M = {MC_TRIALS}, shortest 95 % interval; the tracker's "
+                         "line by the GUM law of propagation (JCGM 100:2008, 5.1.2)")  # fmt: skip
+
+
+def tracker_budget(figure: str, value: float, u95: float, tracker: str, common: str) -> Budget:
+    """A figure whose only input that does not cancel is the tracker (vAP, RD, the orientation's): its U (k = 2)
+    from calib.iso9283's exact gradient, the common inputs listed as `common` says."""
+    lines = [Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma", "normal", "-", u95 / COVERAGE)]
+    lines += [Line(name, common, "-", "-", 0.0) for name in COMMON]
+    return Budget(figure, value, lines)
+
+
+def ad_budget(value: float, u95_tracker: float, distance_mm: float, temp_halfrange_k: float | None,
+              tracker: str) -> Budget:  # fmt: skip
+    """AD_P = D_bar - D_c (ISO 9283:1998, 7.3), linear: the tracker (its exact gradient), the temperature (the arm's
+    steel and the air's refraction scale a distance D by alpha dT and 0.93e-6 dT), the common inputs cancel (a rigid
+    move of both poses, the same nest; the tool point's estimate moves both commanded positions alike at one tool
+    orientation)."""
+    h = temp_halfrange_k
+    hu = 0.0 if h is None else h / np.sqrt(3.0)
+    source = "not recorded: left out" if h is None else f"meteo record of the test: ±{h:.2f} K (half its range)"
+    lines = [Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma", "normal", "-", u95_tracker / COVERAGE),
+             Line("temperature: arm (steel) expansion", source, "rectangular", f"{hu:.3f} K",
+                  ALPHA_STEEL * distance_mm * hu),
+             Line("temperature: air along the beam (refraction)", source, "rectangular", f"{hu:.3f} K",
+                  REFRACTION_PER_K * distance_mm * hu)]  # fmt: skip
+    lines += [Line(name, "common to both poses: cancels in their distance", "-", "-", 0.0) for name in COMMON]
+    return Budget("AD_P", value, lines)

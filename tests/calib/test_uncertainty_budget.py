@@ -1,0 +1,153 @@
+"""The uncertainty budget of the ISO 9283 figures (calib.uncertainty_budget): each line's contribution recomputed by a
+second method (finite differences of the figure computed from scratch, or a plain Monte-Carlo of the figure), the
+temperature lines by hand, the coverage interval against distributions whose quantiles are known."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from trackcal.calib.iso9283 import pose_accuracy, pose_repeatability
+from trackcal.calib.uncertainty_budget import (
+    ALPHA_STEEL,
+    REFRACTION_PER_K,
+    PoseSetting,
+    ap_budget,
+    pose_inputs,
+    rp_budget,
+    shortest_interval,
+)
+
+RNG = np.random.default_rng(39)
+R_STATION = Rotation.from_rotvec([0.3, -0.2, 2.5]).as_matrix()  # station <- base
+T_STATION = np.array([-900.0, 3100.0, -700.0])
+R_TOOL = Rotation.from_rotvec([0.1, 1.2, -0.4]).as_matrix()  # the last joint frame at the commanded joints
+O_TOOL = np.array([1500.0, 300.0, 1200.0])
+POINT = np.array([277.0, -47.0, -94.0])  # the KR-270 tool's P1 (configs/tools/kr270-3point.yaml)
+STATION_U = np.array([0.004, 0.003, 0.005, 2e-6, 3e-6, 1.5e-6])  # mm, rad
+POINT_U = np.array([0.002, 0.003, 0.0025])
+OFFSET_TRUE = np.array([0.9, -0.5, 0.7])  # mm: a robot that misses by 1.2 mm
+
+
+def scene(n=30, sigma=0.005):
+    """n measurements (station frame) of a point attained OFFSET_TRUE away from the commanded one, isotropic tracker
+    noise sigma."""
+    c = O_TOOL + R_TOOL @ POINT
+    x = c + OFFSET_TRUE + RNG.normal(0.0, sigma, (n, 3))
+    y = x @ R_STATION.T + T_STATION
+    covs = np.broadcast_to(np.eye(3) * sigma**2, (n, 3, 3)).copy()
+    return c, x, y, covs
+
+
+def ap_from_scratch(y, rot, t, point):
+    """AP_P with the station (rot, t) and the tool point given: the standard's |x_bar - c|, x = rot^T (y - t)."""
+    x = (y - t) @ rot
+    return np.linalg.norm(x.mean(axis=0) - (O_TOOL + R_TOOL @ point))
+
+
+def line(budget, name):
+    return next(ln for ln in budget.lines if ln.name == name).contribution_mm
+
+
+def test_station_and_point_lines_by_finite_differences():
+    """Each calibration line's contribution sqrt(sum_k (dAP/dtheta_k u_k)^2), the derivatives by central differences
+    of AP recomputed from scratch with the station moved as the solver moves it (R' = exp([w]) R, t' = exp([w]) t + v)
+    or the tool point moved: within 1 % of the budget's (the budget's are exact gradients; 10 % is the issue's
+    bound)."""
+    c, x, y, covs = scene()
+    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker")
+    b = ap_budget(x.mean(axis=0) - c, pose_inputs(x, covs, s))
+    h = 1e-6  # small: a 1e-4 rad turn moves the point 0.3 mm, and |o| curves over that
+
+    def d_station(k):
+        d = np.zeros(6)
+        d[k] = h
+        out = []
+        for sign in (1, -1):
+            e = Rotation.from_rotvec(sign * d[3:]).as_matrix()
+            out.append(ap_from_scratch(y, e @ R_STATION, e @ T_STATION + sign * d[:3], POINT))
+        return (out[0] - out[1]) / (2 * h)
+
+    def d_point(k):
+        d = np.eye(3)[k] * h
+        return (ap_from_scratch(y, R_STATION, T_STATION, POINT + d)
+                - ap_from_scratch(y, R_STATION, T_STATION, POINT - d)) / (2 * h)  # fmt: skip
+
+    translation = np.sqrt(sum((d_station(k) * STATION_U[k]) ** 2 for k in range(3)))
+    rotation = np.sqrt(sum((d_station(k) * STATION_U[k]) ** 2 for k in range(3, 6)))
+    point = np.sqrt(sum((d_point(k) * POINT_U[k]) ** 2 for k in range(3)))
+    assert translation > 1e-3 and rotation > 1e-3 and point > 1e-3  # each line matters here
+    assert line(b, "station estimate, translation") == pytest.approx(translation, rel=0.01)
+    assert line(b, "station estimate, rotation") == pytest.approx(rotation, rel=0.01)
+    assert line(b, "tool point estimate") == pytest.approx(point, rel=0.01)
+
+
+def test_each_line_by_a_plain_monte_carlo():
+    """Each input alone: the standard deviation of AP over 20000 draws of that input (a plain Monte-Carlo of the
+    figure, normal or rectangular as the line states) is its GUM contribution within 10 % (the issue's bound)."""
+    c, x, y, covs = scene()
+    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker", centring_mm=0.01,
+                    temp_halfrange_k=0.5)  # fmt: skip
+    offset = x.mean(axis=0) - c
+    inputs = pose_inputs(x, covs, s)
+    b = ap_budget(offset, inputs)
+    rng = np.random.default_rng(5)
+    for inp, ln in zip(inputs, b.lines, strict=True):
+        if ln.contribution_mm < 1e-5:
+            continue
+        draws = np.linalg.norm(offset + inp.draw(rng, 20000), axis=1)
+        assert draws.std() == pytest.approx(ln.contribution_mm, rel=0.1), ln.name
+
+
+def test_temperature_lines_by_hand():
+    """A barycentre 2000 mm from the base along x, tool at the flange's origin (point 0), 5000 mm from the tracker
+    along the beam, temperatures within +-1 K: u(dT) = 1/sqrt 3 = 0.577 K (rectangular, JCGM 100:2008, 4.3.7); the
+    steel arm moves the point by 11.5e-6 /K * 2000 mm * 0.577 K = 13.28 µm, the air's refraction (-0.927 ppm/K,
+    Edlen) the range by 0.927e-6 * 5000 mm * 0.577 K = 2.68 µm."""
+    x = np.array([[2000.0, 0.0, 0.0]] * 3)
+    y = np.array([[5000.0, 0.0, 0.0]] * 3)
+    s = PoseSetting(y, np.eye(3), np.zeros(6), np.eye(3), np.zeros(3), np.zeros(3), "t", temp_halfrange_k=1.0)
+    inputs = pose_inputs(x, np.zeros((3, 3, 3)), s)
+    b = ap_budget(np.array([0.5, 0.0, 0.0]), inputs)
+    assert ALPHA_STEEL == 11.5e-6
+    assert abs(REFRACTION_PER_K - 0.927e-6) < 1e-9
+    assert line(b, "temperature: arm (steel) and tool (aluminium) expansion") == pytest.approx(0.01328, rel=1e-3)
+    assert line(b, "temperature: air along the beam (refraction)") == pytest.approx(0.00268, rel=3e-3)
+
+
+def test_shortest_interval_of_known_distributions():
+    """N(0, 1): the shortest 95 % interval is -+1.95996 (the normal quantile); Exp(1), a decreasing density: it starts
+    at 0 and ends at -ln 0.05 = 2.9957 (JCGM 101:2008, 7.7.2: shortest, not symmetric)."""
+    rng = np.random.default_rng(1)
+    lo, hi = shortest_interval(rng.standard_normal(400_000))
+    assert lo == pytest.approx(-1.96, abs=0.02) and hi == pytest.approx(1.96, abs=0.02)
+    lo, hi = shortest_interval(rng.exponential(1.0, 400_000))
+    assert lo == pytest.approx(0.0, abs=0.005) and hi == pytest.approx(2.9957, abs=0.03)
+
+
+def test_ap_budget_is_deterministic_and_its_interval_holds_the_value():
+    """The same inputs give the same budget (a fixed seed: a report's numbers are reproducible); far from AP = 0 the
+    Monte-Carlo interval is value -+ about 2 u_c (a nearly linear figure: k = 2 covers about 95 %)."""
+    c, x, y, covs = scene()
+    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker")
+    a = ap_budget(x.mean(axis=0) - c, pose_inputs(x, covs, s))
+    b = ap_budget(x.mean(axis=0) - c, pose_inputs(x, covs, s))
+    assert a.to_doc() == b.to_doc()
+    lo, hi = a.interval
+    assert lo < a.value < hi
+    assert (hi - lo) / 2 == pytest.approx(1.96 * a.u_c, rel=0.05)
+
+
+def test_rp_budget_matches_its_linear_propagation():
+    """A robot scattering 50 µm per axis measured with 5 µm tracker noise: RP_l is nearly linear in the noise, so
+    the Monte-Carlo interval's half-width is 1.96 times the tracker line's GUM contribution within 10 %, and the
+    inputs common to every cycle contribute nothing."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(0.0, 0.05, (30, 3))
+    covs = np.broadcast_to(np.eye(3) * 0.005**2, (30, 3, 3)).copy()
+    rp, _, _ = pose_repeatability(x, covs)
+    b = rp_budget(x, covs, rp.u95 / 2, "test tracker")
+    lo, hi = b.interval
+    assert b.value == pytest.approx(rp.value)
+    assert (hi - lo) / 2 == pytest.approx(1.96 * rp.u95 / 2, rel=0.1)
+    assert [ln.contribution_mm for ln in b.lines[1:]] == [0.0] * (len(b.lines) - 1)
+    assert pose_accuracy(x, np.zeros(3), covs)[0].value >= 0.0
