@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from trackcal.drivers.abb.client import AXES, AbbRws
 from trackcal.drivers.abb.program import PROGRAM
+from trackcal.drivers.abb.rapid_reader import read_rapid
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER
 from trackcal.drivers.families import REQUIRED, RobotFamily
 
@@ -53,4 +54,5 @@ def claim(robot: AbbRws) -> None:
 
 
 FAMILY = RobotFamily(name="abb", title="ABB", dof=len(AXES), schemas=SCHEMAS, build=build, describe=where,
-                     where=where, waiting=waiting, claim=claim, program=PROGRAM)  # fmt: skip
+                     where=where, waiting=waiting, claim=claim, program=PROGRAM,
+                     readers={".mod": read_rapid, ".modx": read_rapid, ".prg": read_rapid})  # fmt: skip

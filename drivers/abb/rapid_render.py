@@ -67,9 +67,18 @@ def joint_renderer(text: str, offset: int, robax: list[Node]) -> Callable[[np.nd
     return render
 
 
+BOUNDARY_DEG = 1e-6  # rounding of an angle at a quadrant's end (far below the 1e-5 deg the jointtargets carry)
+
+
 def quadrant(angle_deg: float) -> int:
     """The quadrant of an axis angle as confdata numbers it: 0 for [0, 90) deg, 1 for [90, 180), -1 for [-90, 0) ..."""
     return math.floor(angle_deg / 90.0)
+
+
+def in_quadrant(angle_deg: float, cf: int) -> bool:
+    """Whether an angle is in quadrant `cf`, an angle within BOUNDARY_DEG of the quadrant's ends counting as in it: a
+    target written at a boundary (axis 4 at 0 deg, common) comes back from an inverse kinematics as -1e-13 deg."""
+    return cf * 90.0 - BOUNDARY_DEG <= angle_deg < (cf + 1) * 90.0 + BOUNDARY_DEG
 
 
 def config_accepts(config: tuple[int, int, int, int]) -> Callable[[np.ndarray], bool]:
@@ -91,7 +100,7 @@ def config_accepts(config: tuple[int, int, int, int]) -> Callable[[np.ndarray], 
         q = np.asarray(q_deg, dtype=float).ravel()
         if q.shape[0] < 6 or not np.all(np.isfinite(q[:6])):
             return False
-        wrist_flip = bool(q[4] < 0) if q[4] != 0 else bool(cfx & 1)
-        return (quadrant(q[0]), quadrant(q[3]), quadrant(q[5])) == (cf1, cf4, cf6) and wrist_flip == bool(cfx & 1)
+        wrist_flip = bool(q[4] < 0) if abs(q[4]) > BOUNDARY_DEG else bool(cfx & 1)
+        return all(in_quadrant(q[j], cf) for j, cf in ((0, cf1), (3, cf4), (5, cf6))) and wrist_flip == bool(cfx & 1)
 
     return accepts

@@ -122,7 +122,9 @@ def test_sample_program_moves_and_motions():
     ([30, 10, 10, 45, -20, 100], False, "axis 1 in [0, 90) is quadrant 0, not -1"),
     ([-90, 10, 10, 45, -20, 100], True, "-90 deg opens quadrant -1 ([-90, 0))"),
     ([-90.001, 10, 10, 45, -20, 100], False, "just below -90 deg is quadrant -2"),
-    ([-30, 10, 10, 90, -20, 100], False, "axis 4 at 90 deg is quadrant 1"),
+    ([-30, 10, 10, 90.001, -20, 100], False, "axis 4 past 90 deg is quadrant 1"),
+    ([-30, 10, 10, 90, -20, 100], True, "axis 4 at 90 deg: a boundary, within rounding of quadrant 0's end (an IK "
+                                        "returns a target written at 0 or 90 deg as +-1e-13 deg off)"),
     ([-30, 10, 10, 45, -20, 89.9], False, "axis 6 below 90 deg is quadrant 0"),
     ([-30, 10, 10, 45, -20, 460], False, "axis 6 one turn further (460 deg) is quadrant 5, not 1"),
     ([-30, 10, 10, 45, 20, 100], False, "cfx odd: axis 5 must be negative"),
