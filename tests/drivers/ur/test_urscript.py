@@ -40,7 +40,7 @@ def test_refused(name, q, speed):
 def test_each_family_carries_its_program():
     """compensate picks the writer of the family the robot config names (drivers/families.py), by no name of its own."""
     programs = {name: f.program.language for name, f in families().items()}
-    assert programs == {"abb": "RAPID", "krc2": "KRL", "ur": "URScript"}
+    assert programs == {"abb": "RAPID", "krc2": "KRL", "krc4": "KRL", "ur": "URScript"}
     assert list(families()["abb"].program.texts("p", [[0.0] * 6])) == ["p.mod"]
     assert list(families()["ur"].program.texts("p", [[0.0] * 6])) == ["p.script"]
     assert list(families()["krc2"].program.texts("p", [[0.0] * 6])) == ["p.src", "p.dat"]
