@@ -33,10 +33,10 @@ $(STAMP): pyproject.toml constraints.txt tests/thirdparty/abb/constraints.txt Ma
 	npm install --prefix $(VENV)/node --no-save --no-audit --no-fund --loglevel=error pyright@$(PYRIGHT)
 	touch $(STAMP)
 
-# The suite runs in one process by default: on the merged tree, two runs of `-n auto --dist loadgroup` in three split
-# the README's examples (which build on each other) and the fixed-port UR tests over two workers although
-# tests/conftest.py puts them in one xdist_group. `make test XDIST="-n auto --dist loadgroup"` runs it parallel.
-XDIST ?=
+# The suite runs on every core: the README's examples (which build on each other) and the fixed-port UR tests stay on
+# one worker (tests/conftest.py's UrGroupScheduling: xdist 3.8's own loadgroup lost its groups under pytest 9.2, and
+# each test of the group fails if a second worker ran one). `make test XDIST=` runs it in one process.
+XDIST ?= -n auto --dist loadgroup
 
 test: setup
 	$(BIN)/ruff check .

@@ -32,7 +32,6 @@ import numpy as np
 
 from trackcal.calib.diagnose.changepoint import relabel_shift
 from trackcal.calib.diagnose.extensions import CAUSES, build_parts
-from trackcal.calib.diagnose.features import FORMS, UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.diagnose.joint_map import Arc, range_warning
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import WEIGHTINGS
@@ -41,6 +40,7 @@ from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_json
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
+from trackcal.calib.model.extension import FORMS, UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.model.params import Param, param_by_name
 from trackcal.calib.tcp_figure import figure_at_test_pose
 

@@ -23,10 +23,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
 
-from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.fits import Context, Fit, whole_fit
 from trackcal.calib.identify.solver import IdentificationError
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.extension import Extension
 
 WITHIN = " within"  # ctx.features keys, after the growth cause: its parts tested (`growth_between_blocks`)
 

@@ -6,7 +6,7 @@ poses with edge folds that judge extrapolation, passes, or blocks of time within
 `calib.diagnose.crossval`), physical plausibility. When no fold scheme works no cause enters on the F test and BIC
 alone: the verdict is `unexplained` with the geometric model, and its note says what measurement would allow the
 check. `cause` is the selected cause with the largest gain, `causes` the selected set in order. The chosen model is
-held outside the joint ranges and times it was fitted on (`calib.diagnose.features.Ranges`).
+held outside the joint ranges and times it was fitted on (`calib.model.extension.Ranges`).
 
 `none` or `unexplained` is decided by structure, not by the scale of the noise model
 (`calib.diagnose.structure`): with no cause selected, residuals that can be predicted are `unexplained`, others
@@ -29,7 +29,6 @@ import numpy as np
 
 from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.extensions import JOINT_CAUSES
-from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.fits import Context, context, extension_of, final_fit, scan
 from trackcal.calib.diagnose.joint_map import ErrorMapFit, fit_error_map
 from trackcal.calib.diagnose.judge import Candidate
@@ -41,6 +40,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import Extension
 from trackcal.calib.model.params import Param
 
 

@@ -1,6 +1,6 @@
 """Non-geometric model extensions: physical causes with few parameters, added to the geometric model.
 
-Every extension is linear in its parameters theta (`calib.diagnose.features`: joint features, the reported joint
+Every extension is linear in its parameters theta (`calib.model.extension`: joint features, the reported joint
 angles are off by Phi theta; growth features, the arm grows by the fraction G theta about a pivot).
 
 Joint-type causes:
@@ -56,15 +56,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from trackcal.calib.diagnose.features import (
-    FORMS,
-    UNIT_FACTORS,
-    Extension,
-    ExtensionError,
-    Ranges,
-    combine,
-    select_columns,
-)
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import Arc, map_extension
 from trackcal.calib.diagnose.point_effects import (
@@ -78,6 +69,15 @@ from trackcal.calib.diagnose.point_effects import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import (
+    FORMS,
+    UNIT_FACTORS,
+    Extension,
+    ExtensionError,
+    Ranges,
+    combine,
+    select_columns,
+)
 from trackcal.calib.model.pinmodel import gravity_torques
 
 CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift",

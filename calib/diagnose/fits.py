@@ -18,7 +18,6 @@ import numpy as np
 
 from trackcal.calib.diagnose.changepoint import SHIFT, SHIFT_SUFFIX, relabel_shift, shift_scan
 from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension
-from trackcal.calib.diagnose.features import Extension, combine
 from trackcal.calib.diagnose.warmup import warmup_candidate
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
@@ -34,6 +33,7 @@ from trackcal.calib.identify.solver import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import Extension, combine
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
 

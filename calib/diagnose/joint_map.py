@@ -47,13 +47,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
-from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
 from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
 from trackcal.calib.model.params import Param
 
 CAUSE = "cyclic_error"

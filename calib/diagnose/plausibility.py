@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackcal.calib.diagnose.features import FORMS, Extension
+from trackcal.calib.model.extension import FORMS, Extension
 
 ENCODER_SCALE_MAX = 5e-3  # |k|, dimensionless (0.5 %)
 CYCLIC_MAX_RAD = float(np.radians(0.5))  # |e_j(q)| of the joint error map over the rows

@@ -25,7 +25,7 @@
   (joint features, q_true = q_read + Phi theta, the last three joints the wrist A4, A5, A6). The ratios are ratios of
   tooth counts; an error is a mis-set factor of a fraction of a percent.
 
-All three are linear in their parameters (`calib.diagnose.features`: range features, displacement features, joint
+All three are linear in their parameters (`calib.model.extension`: range features, displacement features, joint
 features).
 """
 
@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackcal.calib.diagnose.features import UNIT_FACTORS, Extension, ExtensionError, Ranges, select_columns
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.extension import UNIT_FACTORS, Extension, ExtensionError, Ranges, select_columns
 
 RANGE_SCALE, NEST_SAG, WRIST_COUPLING = "range_scale", "nest_sag", "wrist_coupling"
 POINT_CAUSES = (RANGE_SCALE, NEST_SAG)

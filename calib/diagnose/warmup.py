@@ -24,11 +24,11 @@ from scipy.optimize import minimize_scalar
 from scipy.special import fdtrc
 
 from trackcal.calib.diagnose.extensions import WARMUP_FORMS, build_extension, warmup_growth
-from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.plausibility import WARMUP_TAU_MAX_S, WARMUP_TAU_MIN_S
 from trackcal.calib.identify.solver import Identification, Problem, State
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import Extension
 
 ALPHA = 1e-3  # the curvature's F test (selection's level for one candidate)
 GRID = 60  # taus of the profile, log-spaced over the physical range

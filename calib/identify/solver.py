@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import stdtrit
@@ -27,11 +27,9 @@ from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
+from trackcal.calib.model.extension import Extension
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
-
-if TYPE_CHECKING:  # the solver takes a cause's columns as given; calib.diagnose builds them (and calls the solver)
-    from trackcal.calib.diagnose.features import Extension  # annotations only: TYPE_CHECKING
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized

@@ -23,7 +23,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -32,8 +32,16 @@ from trackcal.calib.io import csv_grid
 from trackcal.calib.io.csv_grid import TEXT
 from trackcal.calib.io.files import atomic_open
 
-if TYPE_CHECKING:  # a table is checked against a chain's joints; chains read their files with calib.io
-    from trackcal.calib.model.chain import Chain  # annotations only: TYPE_CHECKING
+
+class JointLimits(Protocol):
+    """What a table is checked against: a robot's joint count and limits (calib.model.chain.Chain is one). Declared
+    here, on the floor below the model, which reads its files with calib.io (issue 37: no circle of types)."""
+
+    @property
+    def dof(self) -> int: ...
+
+    def limits_array(self) -> np.ndarray: ...  # (dof, 2): each joint's (low, high), rad
+
 
 XYZ = ("x_mm", "y_mm", "z_mm")
 IDS = ("pose", "station", "point")
@@ -344,7 +352,7 @@ class _Columns:
 
 
 def read_table(
-    path: str | Path, require_xyz: bool = True, n_joints: int | None = None, chain: Chain | None = None
+    path: str | Path, require_xyz: bool = True, n_joints: int | None = None, chain: JointLimits | None = None
 ) -> MeasurementTable:
     """The table at `path`; with the robot's `chain`, its joint count is required and joint values more than
     JOINT_LIMIT_MARGIN_DEG outside its limits are refused."""

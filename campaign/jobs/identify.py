@@ -11,7 +11,6 @@ import numpy as np
 
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
-from trackcal.calib.diagnose.features import Ranges
 from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.noise_floor import Floor, noise_floor
 from trackcal.calib.identify.determined import POORLY_DETERMINED, noise_floor_ratios
@@ -32,6 +31,7 @@ from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, write_table
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
+from trackcal.calib.model.extension import Ranges
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.instruments import Instrument
 from trackcal.calib.model.params import Param, param_by_name

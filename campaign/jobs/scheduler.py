@@ -6,6 +6,11 @@ before it cancels every future; one that is stopped (SIGSTOP, a hung machine) ke
 answers: the client waits on its futures for ever. A thread asks the scheduler who it is (its `identity` handler)
 every PROBE_S; the scheduler is lost when a question fails, or when SCHEDULER_TIMEOUT_S (the time `--scheduler`
 waits to connect, campaign.jobs.plan) have passed since its last answer.
+
+A scheduler that answers can still have no worker: each one died (killed, out of memory) and none came back (a
+nanny that failed to start its worker again logs it and stays up). Its tasks then wait for a worker for ever, and so
+did `batch --scheduler` (a killed-worker test once waited past its 600 s, issue 37): the cluster counts as lost once
+the scheduler has said for NO_WORKER_S that it has no worker.
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ from concurrent.futures import CancelledError, Executor, Future, wait
 from trackcal.campaign.errors import CampaignError
 
 PROBE_S = 1.0
+# how long the scheduler may have no worker at all: Dask's own time to live of a silent worker (distributed's
+# distributed.scheduler.worker-ttl, "5 minutes"), ample for a nanny's restart or an adaptive cluster's first worker
+NO_WORKER_S = 300.0
 _IN_COMM = re.compile(r"^in <[^>]*>: ")
 
 
@@ -26,7 +34,7 @@ class SchedulerWatch:
     def __init__(self, client, timeout_s: float) -> None:
         self._client = client
         self.timeout_s = timeout_s
-        self._answered = time.monotonic()
+        self._answered = self._staffed = time.monotonic()  # _staffed: when the scheduler last had a worker
         self._error: str | None = None
         self._stop = threading.Event()
         # a daemon: a question to a stopped scheduler waits its own timeout, and nobody needs its answer then
@@ -35,13 +43,15 @@ class SchedulerWatch:
     def _probe(self) -> None:
         while not self._stop.is_set():
             try:
-                self._client.sync(self._client.scheduler.identity, callback_timeout=self.timeout_s)
+                who = self._client.sync(self._client.scheduler.identity, callback_timeout=self.timeout_s)
             except Exception as exc:  # noqa: BLE001 - whatever the client raises, the scheduler did not answer
                 if not self._stop.is_set():
                     text = _IN_COMM.sub("", " ".join(str(exc).split()))  # distributed's "in <TCP ...>: " prefix
                     self._error = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
                 return
             self._answered = time.monotonic()
+            if not isinstance(who, dict) or who.get("n_workers", 1):  # one that does not say counts as staffed
+                self._staffed = self._answered
             self._stop.wait(PROBE_S)
 
     def lost(self) -> str | None:
@@ -51,6 +61,9 @@ class SchedulerWatch:
         silent = time.monotonic() - self._answered
         if silent > self.timeout_s:
             return f"it has not answered for {silent:.0f} s"
+        alone = time.monotonic() - self._staffed
+        if alone > NO_WORKER_S:
+            return f"it has had no worker for {alone:.0f} s (each one died, or none joined)"
         return None
 
     def close(self) -> None:

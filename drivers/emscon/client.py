@@ -108,7 +108,7 @@ from trackcal.drivers.emscon.messages import (
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
 from trackcal.drivers.interfaces import Environment, TrackerMeasurement
 from trackcal.drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
-from trackcal.drivers.transport import require_positive
+from trackcal.drivers.transport import receive, require_positive
 
 DEFAULT_PORT = 700  # the TCP port of emScon TPI's binary C variant
 _RECV_BYTES = 65536
@@ -431,25 +431,12 @@ class EmsconTracker:
 
     def _next_message(self, deadline: float, what: str, timeout_s: float) -> FromTracker:
         while not self._inbox:
-            sock = self._require(what)
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            data = receive(self._require(what), _RECV_BYTES, deadline - time.monotonic(), device=self.device,
+                           failed=f"receive failed while {what}",
+                           closed=f"the tracker closed the connection while {what}", drop=self.close)  # fmt: skip
+            if data is None:
                 self.close()
                 raise DeviceTimeout(f"no answer within {timeout_s} s while {what}", device=self.device)
-            sock.settimeout(remaining)
-            try:
-                data = sock.recv(_RECV_BYTES)
-            except TimeoutError:
-                self.close()
-                raise DeviceTimeout(
-                    f"no answer within {timeout_s} s while {what}", device=self.device
-                ) from None
-            except OSError as exc:
-                self.close()
-                raise ConnectionLost(f"receive failed while {what}: {exc}", device=self.device) from exc
-            if not data:
-                self.close()
-                raise ConnectionLost(f"the tracker closed the connection while {what}", device=self.device)
             try:
                 for packet in self._reader.feed(data):
                     self._inbox.append(decode_packet(packet, Direction.FROM_TRACKER))  # type: ignore[arg-type]

@@ -27,6 +27,7 @@ from trackcal.drivers.kuka.eki_codec import (
     parse_state,
 )
 from trackcal.drivers.kuka.peers import ControllerPeers, accept_controller, bind
+from trackcal.drivers.transport import receive
 
 _RECV_BYTES = 4096
 
@@ -87,19 +88,11 @@ class EkiLink:
         timeout_s, else None. Answers to earlier requests that timed out here are stale: skipped."""
         sock = self._sock
         assert sock is not None
-        sock.settimeout(timeout_s)
-        try:
-            data = sock.recv(_RECV_BYTES)
-        except TimeoutError:
+        data = receive(sock, _RECV_BYTES, timeout_s, device=self.device, failed="EKI receive failed",
+                       closed=f"the controller closed the EKI connection during request {command_id}",
+                       drop=self.drop)  # fmt: skip
+        if data is None:
             return None
-        except OSError as exc:
-            self.drop()
-            raise ConnectionLost(f"EKI receive failed: {exc}", device=self.device) from exc
-        if not data:
-            self.drop()
-            raise ConnectionLost(
-                f"the controller closed the EKI connection during request {command_id}", device=self.device
-            )
         try:
             docs = self._framer.feed(data)
             states = [parse_state(doc) for doc in docs]

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import socket
-import time
 
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout
+from trackcal.drivers.transport import time_left
 
 
 class ControllerPeers:
@@ -81,13 +81,13 @@ def accept_controller(
     listener: socket.socket, peers: ControllerPeers, deadline: float, timeout_s: float, what: str
 ) -> socket.socket:
     """The first connection from the controller before `deadline` (monotonic); any other is closed at once."""
+
+    def expired() -> DeviceTimeout:
+        return DeviceTimeout(f"no connection within {timeout_s} s: waited for {what}{peers.note()}",
+                             device=peers.device)  # fmt: skip
+
     while True:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            raise DeviceTimeout(
-                f"no connection within {timeout_s} s: waited for {what}{peers.note()}", device=peers.device
-            )
-        listener.settimeout(remaining)
+        listener.settimeout(time_left(deadline, expired))
         try:
             conn, peer = listener.accept()
         except TimeoutError:

@@ -49,6 +49,7 @@ from collections.abc import Callable
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, MotionRefused, ProtocolError
 from trackcal.drivers.kuka.peers import ControllerPeers, accept_controller, bind
 from trackcal.drivers.kuka.rsi_codec import MAX_FRAME_BYTES, SenFrame, encode_sen, ipoc_of, parse_rob, rob_framer
+from trackcal.drivers.transport import time_left
 
 POLL_S = 0.05  # socket timeout slice of the background threads
 STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more than this many cycles
@@ -152,13 +153,13 @@ class RsiLink:
     def _first_datagram(self, deadline: float, timeout_s: float, what: str) -> None:
         sock = self._listener
         assert sock is not None
+
+        def expired() -> DeviceTimeout:
+            return DeviceTimeout(f"no datagram within {timeout_s} s: waited for {what}{self.peers.note()}",
+                                 device=self.device)  # fmt: skip
+
         while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise DeviceTimeout(
-                    f"no datagram within {timeout_s} s: waited for {what}{self.peers.note()}", device=self.device
-                )
-            sock.settimeout(remaining)
+            sock.settimeout(time_left(deadline, expired))
             try:
                 data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
             except TimeoutError:

@@ -17,6 +17,7 @@ pyserial notes (installed pyserial 3.5, serial/serialutil.py and serial/serialpo
 from __future__ import annotations
 
 import contextlib
+import functools
 import time
 
 import serial
@@ -24,7 +25,7 @@ import serial
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import Environment
 from trackcal.drivers.meteo.codec import MAX_LINE_BYTES, MAX_SEQ, parse_line, request
-from trackcal.drivers.transport import require_positive
+from trackcal.drivers.transport import require_positive, time_left
 
 _POLL_S = 0.02  # per-read timeout slice; the overall deadline is timeout_s
 
@@ -100,13 +101,14 @@ class SerialMeteo:
                     f"no line end within {MAX_LINE_BYTES} bytes (got {bytes(buffer[:40])!r}...)",
                     device=self.device,
                 )
-            if time.monotonic() >= deadline:
-                got = f"; partial line {bytes(buffer)!r}" if buffer else ""
-                if skipped:
-                    got += f"; discarded {skipped} answer(s) to other requests (another reader on the port?)"
-                raise DeviceTimeout(f"no answer to request M{seq} within {self.timeout_s} s{got}",
-                                    device=self.device)  # fmt: skip
+            time_left(deadline, functools.partial(self._no_answer, seq, buffer, skipped))
             buffer += port.read(max(1, min(port.in_waiting, MAX_LINE_BYTES + 1)))
+
+    def _no_answer(self, seq: int, buffer: bytearray, skipped: int) -> DeviceTimeout:
+        got = f"; partial line {bytes(buffer)!r}" if buffer else ""
+        if skipped:
+            got += f"; discarded {skipped} answer(s) to other requests (another reader on the port?)"
+        return DeviceTimeout(f"no answer to request M{seq} within {self.timeout_s} s{got}", device=self.device)
 
     def close(self) -> None:
         port, self._serial = self._serial, None

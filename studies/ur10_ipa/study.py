@@ -33,11 +33,11 @@ from scipy.spatial.transform import Rotation
 
 from trackcal.calib.diagnose import Diagnosis, diagnose
 from trackcal.calib.diagnose.extensions import JOINT_CAUSES
-from trackcal.calib.diagnose.features import Extension
 from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.identify.solver import Identification, identify, residual_stats
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell, load_cell
+from trackcal.calib.model.extension import Extension
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param, irreducible_params
 from trackcal.calib.model.rigid import rot_axis

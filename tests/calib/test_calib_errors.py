@@ -8,12 +8,12 @@ import pytest
 
 from tests.helpers import ROOT
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.features import ExtensionError
 from trackcal.calib.diagnose.joint_map import Arc, JointMapError, parse_name
 from trackcal.calib.doe.design import DesignError, design_for_cell
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import NoiseError, noise_for
 from trackcal.calib.model.chain import ChainError
+from trackcal.calib.model.extension import ExtensionError
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import RigidError, kabsch
 from trackcal.mocks.twin import Twin, simulate_campaign

@@ -14,11 +14,11 @@ import pytest
 from trackcal.calib.compensate import GEOMETRIC_ONLY, joint_error_function
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.features import combine
 from trackcal.calib.diagnose.plausibility import COUPLING_MAX, NEST_SAG_MAX_MM, RANGE_SCALE_MAX, implausible
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem
+from trackcal.calib.model.extension import combine
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import model_from_doc, predict_table
 from trackcal.campaign.jobs.identify import model_doc

@@ -19,7 +19,6 @@ from tests.independent_twin import EFFECTS, campaign
 from trackcal.calib.compensate import compensate
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.confounds import growth_between_blocks, shift_between_blocks
-from trackcal.calib.diagnose.features import Ranges
 from trackcal.calib.diagnose.fits import context, fit_cause, whole_fit
 from trackcal.calib.diagnose.plausibility import ENCODER_SCALE_MAX, implausible
 from trackcal.calib.diagnose.selection import ALPHA
@@ -28,6 +27,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.extension import Ranges
 from trackcal.calib.model_file import model_from_doc, predict_table
 from trackcal.campaign.jobs.identify import model_doc
 

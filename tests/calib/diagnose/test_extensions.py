@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension
-from trackcal.calib.diagnose.features import combine
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import Problem, Station, identify, predict_points
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.model.extension import combine
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.rigid import exp_so3

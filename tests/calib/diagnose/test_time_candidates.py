@@ -13,13 +13,13 @@ import pytest
 from trackcal.calib.compensate import compensate, pose_error
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import LOAD_COLUMN, build_extension
-from trackcal.calib.diagnose.features import ExtensionError
 from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.plausibility import COMPLIANCE_MAX, GROWTH_MAX, implausible
 from trackcal.calib.diagnose.warmup import warmup_candidate
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
+from trackcal.calib.model.extension import ExtensionError
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import model_from_doc, predict_table

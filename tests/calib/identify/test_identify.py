@@ -8,11 +8,11 @@ from scipy import stats
 
 from tests.helpers import kr270_campaign, truth_of
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.features import combine
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, identify, residual_stats, significance, solve
 from trackcal.calib.io.files import write_json
+from trackcal.calib.model.extension import combine
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.rigid import exp_so3, kabsch
 from trackcal.calib.model_file import ModelError, identification_to_doc, load_model

@@ -21,7 +21,9 @@ import pytest
 from tests.helpers import ROOT, TRACKCAL
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs import batch as batch_job
+from trackcal.campaign.jobs import scheduler as scheduler_job
 from trackcal.campaign.jobs.batch import BatchOptions, batch
+from trackcal.campaign.jobs.scheduler import SchedulerLost
 
 # run_one of a stand-in campaign (tests only): its row written at once; the table's text says what else it does
 STAND_IN = '''
@@ -204,7 +206,28 @@ def test_a_lost_scheduler_is_one_line_and_keeps_the_results(tmp_path, dask_clust
     assert {p.name: p.read_bytes() for p in out.glob("*.json")} == kept
 
 
-@pytest.mark.slow  # in one full run of 2 xdist workers on 2 cores it waited past its 600 s (a hang to find, issue 42)
+def test_a_cluster_left_without_a_worker_ends_the_batch_in_one_line(tmp_path, dask_cluster, monkeypatch):
+    """t2 kills the cluster's one worker (no nanny: nothing starts it again) after t1 was written; the scheduler still
+    answers, saying it has no worker. The batch ends (SchedulerLost: one line and exit 2 on the command line) once
+    the scheduler has had no worker for scheduler.NO_WORKER_S (here 1 s), t1's result kept; it waited for ever."""
+    distributed = pytest.importorskip("distributed")
+    _, address = dask_cluster
+    with distributed.Client(address, timeout="60s") as client:
+        client.wait_for_workers(1, timeout=120)  # the bound counts from the batch's start: its worker is there
+    monkeypatch.setattr(scheduler_job, "NO_WORKER_S", 1.0)
+    tables = _tables(tmp_path / "in", {"t1": "ok", "t2": "die", "t3": "ok"})
+    out = tmp_path / "res"
+    with pytest.raises(SchedulerLost, match="has had no worker for") as lost:
+        batch(BatchOptions(task="identify", inputs=[str(tables)], out=str(out), cell="kr270", scheduler=address))
+    assert "kept (1 of 3" in str(lost.value) and "\n" not in str(lost.value)
+    assert [json.loads(p.read_text())["campaign"] for p in out.glob("*.json")] == [str(tables / "t1.csv")]
+
+
+# slow: its worker is started again twice by its nanny (a process that imports numpy, scipy, pinocchio each time):
+# about a minute on a loaded 2-core machine. It once waited past its 600 s: a nanny that fails to start its worker
+# again leaves the cluster without one, and the batch waited for one for ever; now it gives up after
+# scheduler.NO_WORKER_S (test_a_cluster_left_without_a_worker_ends_the_batch_in_one_line)
+@pytest.mark.slow
 def test_a_dask_worker_that_dies_costs_its_chunk_and_the_others_are_done(tmp_path):
     """t2 kills its Dask worker (SIGKILL, as the kernel's out-of-memory killer does) every time it runs; its nanny
     starts the worker again and the scheduler runs the chunk again (once: allowed-failures 1 here, Dask's

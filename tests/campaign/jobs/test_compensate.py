@@ -16,9 +16,9 @@ from hypothesis import strategies as st
 
 from tests.helpers import kr270_campaign
 from trackcal.calib.compensate import compensate
-from trackcal.calib.diagnose.features import UNIT_FACTORS
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.extension import UNIT_FACTORS
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params, param_by_name
 from trackcal.calib.model.pinmodel import gravity_torques

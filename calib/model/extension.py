@@ -1,4 +1,6 @@
-"""A model extension: features linear in its parameters, computed from the rows of a table.
+"""A model extension: features linear in its parameters, computed from the rows of a table. It sits with the model,
+below the solver that fits it (calib.identify), the causes that build it (calib.diagnose) and the model file that
+stores it (calib.model_file).
 
 Two kinds of features (`calib.diagnose.extensions` lists the causes, `calib.diagnose.joint_map` the joint error map):
 
