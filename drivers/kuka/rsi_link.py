@@ -30,8 +30,11 @@ passive flag are the defaults): trackcal listens, only the controller is served 
   controller for its frame of now, or for the cycles its window still needs, and freshness is judged in controller
   time: the latest frame's IPOC at most STALE_CYCLES cycles behind the controller's (the IPOC counts milliseconds
   of controller time, kuka_rsi_simulator in ros-industrial/kuka_experimental). `frame_received` is what the
-  lockstep controller waits on. Without `sync` (a real controller, `trackcal mock`) nothing of this runs: every
-  cycle's frame is received as it comes and freshness is wall time.
+  lockstep controller waits on. With a passive controller the link then starts no thread (`pumped`): whoever
+  looks at the stream (that wait, the client's reads) takes every datagram the socket holds through the steps the
+  two threads take (issue 41: handing each frame through three threads was most of a simulated campaign's CPU).
+  Without `sync` (a real controller, `trackcal mock`) nothing of this runs: every cycle's frame is received as it
+  comes and freshness is wall time.
 """
 
 from __future__ import annotations
