@@ -30,8 +30,11 @@ passive flag are the defaults): trackcal listens, only the controller is served 
   controller for its frame of now, or for the cycles its window still needs, and freshness is judged in controller
   time: the latest frame's IPOC at most STALE_CYCLES cycles behind the controller's (the IPOC counts milliseconds
   of controller time, kuka_rsi_simulator in ros-industrial/kuka_experimental). `frame_received` is what the
-  lockstep controller waits on. Without `sync` (a real controller, `trackcal mock`) nothing of this runs: every
-  cycle's frame is received as it comes and freshness is wall time.
+  lockstep controller waits on. With a passive controller the link then starts no thread (`pumped`): whoever
+  looks at the stream (that wait, the client's reads) takes every datagram the socket holds through the steps the
+  two threads take (issue 41: handing each frame through three threads was most of a simulated campaign's CPU).
+  Without `sync` (a real controller, `trackcal mock`) nothing of this runs: every cycle's frame is received as it
+  comes and freshness is wall time.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import contextlib
 import itertools
 import logging
 import queue
+import select
 import socket
 import threading
 import time
@@ -114,6 +118,9 @@ class RsiLink:
         self._last_ipoc: int | None = None  # the answering thread's: the last IPOC taken
         self._logged: set[str] = set()
         self._opened = False  # UDP: the session began with the controller's first frame (else: a running stream)
+        self._framer = rob_framer()  # TCP: the stream cut into frames
+        self.pumped = False  # no threads: the frames are read by whoever asks (start, _pump)
+        self._pump_lock = threading.Lock()
 
     # --- address and connection -----------------------------------------------------------------------------
 
@@ -173,8 +180,16 @@ class RsiLink:
             return
 
     def start(self) -> None:
-        """Start the answering and the monitor thread on the accepted stream."""
+        """Start the answering and the monitor thread on the accepted stream; in lockstep with a passive controller
+        (`pumped`) none: the frames are read by whoever asks (`_pump`)."""
         self._stop.clear()
+        self._framer = rob_framer()
+        self.pumped = self.sync is not None and self.passive
+        if self.pumped:
+            assert self._sock is not None
+            self._sock.setblocking(False)  # a socket with a timeout would wait for data before the MSG_DONTWAIT read
+            self._threads = []
+            return
         self._threads = [
             threading.Thread(target=self._answer_loop, name="krc2-rsi-answer", daemon=True),
             threading.Thread(target=self._monitor_loop, name="krc2-rsi-monitor", daemon=True),
@@ -203,38 +218,46 @@ class RsiLink:
     def _answer_loop(self) -> None:
         sock = self._sock
         assert sock is not None
-        framer = rob_framer()
         sock.settimeout(POLL_S)
         try:
             while not self._stop.is_set():
                 try:
-                    if self.protocol == "tcp":
-                        data = sock.recv(_RECV_BYTES)
-                        if not data:
-                            raise ConnectionLost("the controller closed the RSI connection", device=self.device)
-                        for doc in framer.feed(data):
-                            self._take(sock, doc)
-                        self._framer_pending = framer.pending
-                    else:
-                        data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1)
-                        if peer == self._peer:
-                            self._take(sock, data)
-                        elif self.peers.accepts(peer):
-                            if not self._opened and _is_opener(data):  # the controller's session starts now
-                                self._peer, self._opened, self._last_ipoc = peer, True, None
-                                self._inbox.put((time.monotonic(), _NEW_SESSION))
-                                self._take(sock, data)
-                            else:
-                                self._foreign(peer, f"not the peer of the controller's RSI session {self._peer}")
+                    self._receive(sock, 0)
                 except TimeoutError:
                     continue
-        except DeviceError as exc:
+        except (DeviceError, OSError) as exc:
+            self._receive_failed(exc)
+
+    def _receive(self, sock: socket.socket, flags: int) -> None:
+        """One read of the stream: its frames answered and handed on (`_take`). TimeoutError (or BlockingIOError
+        with MSG_DONTWAIT) when nothing came; DeviceError when the stream ended or cannot be read."""
+        if self.protocol == "tcp":
+            data = sock.recv(_RECV_BYTES, flags)
+            if not data:
+                raise ConnectionLost("the controller closed the RSI connection", device=self.device)
+            for doc in self._framer.feed(data):
+                self._take(sock, doc)
+            self._framer_pending = self._framer.pending
+            return
+        data, peer = sock.recvfrom(MAX_FRAME_BYTES + 1, flags)
+        if peer == self._peer:
+            self._take(sock, data)
+        elif self.peers.accepts(peer):
+            if not self._opened and _is_opener(data):  # the controller's session starts now
+                self._peer, self._opened, self._last_ipoc = peer, True, None
+                self._inbox.put((time.monotonic(), _NEW_SESSION))
+                self._take(sock, data)
+            else:
+                self._foreign(peer, f"not the peer of the controller's RSI session {self._peer}")
+
+    def _receive_failed(self, exc: DeviceError | OSError) -> None:
+        """The end of the stream, handed on as the answering thread's last item."""
+        if isinstance(exc, DeviceError):
             if not exc.device:  # e.g. the framer's ProtocolError: name the device and the interface
                 exc = type(exc)(f"RSI: {exc}", device=self.device)
             self._inbox.put((time.monotonic(), exc))
-        except OSError as exc:
-            if not self._stop.is_set():
-                self._inbox.put((time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device)))
+        elif not self._stop.is_set():
+            self._inbox.put((time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device)))
 
     def _foreign(self, peer: tuple, why: str) -> None:
         """A datagram from the controller's address that is not its RSI session's: counted, logged once."""
@@ -272,34 +295,66 @@ class RsiLink:
                 arrived, item = self._inbox.get(timeout=POLL_S)
             except queue.Empty:
                 continue
-            if isinstance(item, DeviceError):
-                self._set_error(item)
+            if not self._read(arrived, item):
                 return
-            if item is _NEW_SESSION:  # what the stream said before the controller's session is not the robot's
-                with self._cond:
-                    self._frames.clear()
-                    self._latest = self._latest_at = self._latest_ipoc = None
-                continue
-            try:
-                frame = parse_rob(item)
-            except ProtocolError as exc:
-                if self.protocol == "tcp":  # a byte stream cannot be resynchronised
-                    self._set_error(ProtocolError(f"RSI: {exc}", device=self.device))
-                    return
-                with self._cond:  # one bad datagram is not the end of the stream: the stale check decides
-                    self.frames_unreadable += 1
-                    self._last_bad = str(exc)
-                continue
-            if frame.ipoc is None:
-                continue  # KR C2 first frame: nothing in it
-            assert frame.aipos is not None
-            joints = tuple(round(v, 4) for v in frame.aipos)
+
+    def _read(self, arrived: float, item) -> bool:
+        """One item of the answering thread's: a frame parsed and kept, a new session, or the stream's end;
+        False when the stream ended."""
+        if isinstance(item, DeviceError):
+            self._set_error(item)
+            return False
+        if item is _NEW_SESSION:  # what the stream said before the controller's session is not the robot's
             with self._cond:
-                self._seq += 1
-                self._frames.append((self._seq, joints))
-                self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
-                self._heard_at = arrived
-                self._cond.notify_all()
+                self._frames.clear()
+                self._latest = self._latest_at = self._latest_ipoc = None
+            return True
+        try:
+            frame = parse_rob(item)
+        except ProtocolError as exc:
+            if self.protocol == "tcp":  # a byte stream cannot be resynchronised
+                self._set_error(ProtocolError(f"RSI: {exc}", device=self.device))
+                return False
+            with self._cond:  # one bad datagram is not the end of the stream: the stale check decides
+                self.frames_unreadable += 1
+                self._last_bad = str(exc)
+            return True
+        if frame.ipoc is None:
+            return True  # KR C2 first frame: nothing in it
+        assert frame.aipos is not None
+        joints = tuple(round(v, 4) for v in frame.aipos)
+        with self._cond:
+            self._seq += 1
+            self._frames.append((self._seq, joints))
+            self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
+            self._heard_at = arrived
+            self._cond.notify_all()
+        return True
+
+    def _pump(self) -> None:
+        """Lockstep with a passive controller (`pumped`, simulation only): read every frame the socket holds now,
+        in the caller's thread, through the same steps the two threads take one frame at a time (issue 41: three
+        threads handing each of a move's frames on cost ~150 us of CPU a frame; the frames are read before anyone
+        looks at the stream, and the controller waits for their delivery). A no-op otherwise."""
+        if not self.pumped:
+            return
+        with self._pump_lock:
+            sock = self._sock
+            while sock is not None and self._error is None and not self._stop.is_set():
+                try:
+                    self._receive(sock, socket.MSG_DONTWAIT)
+                except (BlockingIOError, TimeoutError):
+                    break
+                except (DeviceError, OSError) as exc:
+                    self._receive_failed(exc)
+                    break
+            while True:
+                try:
+                    arrived, item = self._inbox.get_nowait()
+                except queue.Empty:
+                    return
+                if not self._read(arrived, item):
+                    return
 
     def _set_error(self, exc: DeviceError) -> None:
         with self._cond:
@@ -317,6 +372,19 @@ class RsiLink:
         """Simulation hook (the lockstep mock controller waits on it): True once a frame with this IPOC or a later
         one was received, False after timeout_s or an RSI error."""
         deadline = time.monotonic() + timeout_s
+        if self.pumped:  # read here, in the controller's thread
+            while True:
+                self._pump()
+                with self._cond:
+                    if self._latest_ipoc is not None and self._latest_ipoc >= ipoc:
+                        return True
+                    if self._error is not None or self._stop.is_set() or self._sock is None:
+                        return False
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                with contextlib.suppress(OSError, ValueError):  # closed meanwhile: the next round says so
+                    select.select([self._sock], [], [], min(remaining, POLL_S))
         with self._cond:
             while self._latest_ipoc is None or self._latest_ipoc < ipoc:
                 remaining = deadline - time.monotonic()
@@ -330,6 +398,7 @@ class RsiLink:
         received is behind the controller's last one (None: no frame received, or no answer from it)."""
         assert self.sync is not None
         current = self.sync(0)
+        self._pump()
         with self._cond:
             if current is None or self._latest_ipoc is None:
                 return None
@@ -416,11 +485,13 @@ class RsiLink:
     @property
     def last_seq(self) -> int:
         """The number of the latest frame received (frames are numbered from 1)."""
+        self._pump()
         with self._cond:
             return self._seq
 
     def frames_from(self, seq: int) -> tuple[int, list[tuple[int, tuple[float, ...]]]]:
         """(the oldest frame number still kept, the frames numbered `seq` or later); raises the stream's error."""
+        self._pump()
         with self._cond:
             self._raise_error()
             first = self._frames[0][0] if self._frames else seq
@@ -428,6 +499,7 @@ class RsiLink:
 
     def wait_for_frame(self, seq: int, timeout_s: float) -> None:
         """Until frame number `seq` arrived, the stream failed or timeout_s passed."""
+        self._pump()
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while self._seq < seq and self._error is None and not self._stop.is_set():

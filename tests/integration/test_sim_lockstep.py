@@ -4,7 +4,9 @@ byte for byte with every idle cycle exchanged (skip_idle=False). The faults and 
 sockets (E-stop, door open at a resume and during a move, kill -9 and resume) are tests/test_sim_sockets.py's and
 tests/test_campaign_cli.py's, which run on this controller."""
 
+import hashlib
 import math
+import threading
 import time
 
 import pytest
@@ -133,3 +135,42 @@ def test_the_readme_campaign_is_byte_identical_with_and_without_skipping(tmp_pat
     skipped, _ = exported(tmp_path / "skip", kr270, plan, 1)
     every, _ = exported(tmp_path / "every", kr270, plan, 1, skip_idle=False)
     assert skipped == every
+
+
+# sha256 of the exported tables, recorded on main at 3bf1050 before issue 41 changed how the simulation's frames are
+# read (the brief of issue 41: the same session bytes for the same seed; record them from main first). Not physics:
+# a record of what the tree before the change wrote, which the change must not alter.
+SMALL_TABLE_SHA256 = "e835fa557d9826463a7cda7b2c9decf294447050fffca733b9ae0a813b56ec0b"
+README_TABLE_SHA256 = "5382c1d2bab339328ff4cd954232156c9b2ea3c7c8cbd48ed3b85a8af73f7411"
+
+
+def test_the_session_is_the_one_main_wrote_before_issue_41(tmp_path, kr270):
+    plan = feasible_plan(kr270, 4, seed=5, repeat=1)
+    table, _ = exported(tmp_path, kr270, plan, SEED, effects={"thermal_drift": 0.05})
+    assert hashlib.sha256(table).hexdigest() == SMALL_TABLE_SHA256
+
+
+@pytest.mark.slow  # the README's campaign over sockets, about half a minute
+def test_the_readme_campaign_is_the_one_main_wrote_before_issue_41(tmp_path, kr270):
+    options = PlanOptions(configs=6, repeat=3, seed=0)
+    table, _ = exported(tmp_path, kr270, search_doc(build_design(kr270, options), options), 1)
+    assert hashlib.sha256(table).hexdigest() == README_TABLE_SHA256
+
+
+def test_in_lockstep_the_client_reads_the_passive_stream_in_the_asking_thread(kr270):
+    """Issue 41: no answering or monitor thread hands each frame on (a passive controller needs no answer); the
+    controller's wait for delivery and the client's own reads take the frames from the socket."""
+    target = tuple(feasible_plan(kr270, 1, seed=5, repeat=1)["poses_deg"][0])
+    before = {t.name for t in threading.enumerate()}
+    sim = SimCell(kr270, SEED)
+    try:
+        rsi = sim.live.robot.rsi
+        assert rsi.pumped and rsi.passive
+        started = {t.name for t in threading.enumerate()} - before
+        assert not {"krc2-rsi-answer", "krc2-rsi-monitor"} & started
+        sim.plc.close_door()
+        sim.live.robot.move(target, SPEED_PCT)
+        assert sim.live.robot.joints() == tuple(round(v, 4) for v in target)
+        assert rsi.last_seq == sim.controller.frames_sent  # every frame sent was read, the opener aside
+    finally:
+        sim.close()

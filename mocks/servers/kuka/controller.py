@@ -103,7 +103,8 @@ IDLE_WAKE_S = 0.05
 # Lockstep: how long (wall time) a sync request or a frame's delivery may take before it counts as lost.
 LOCKSTEP_TIMEOUT_S = 2.0
 # Lockstep: frames the controller may be ahead of the client (~30 KB of the receiver's UDP buffer, >= 200 KB on
-# Linux); waiting for each one would cost a thread switch per cycle on a loaded machine.
+# Linux); waiting for each one would cost a thread switch per cycle on a loaded machine. Past it the controller
+# waits until the client has every frame sent, then sends up to this many more.
 LOCKSTEP_AHEAD = 64
 
 
@@ -548,7 +549,9 @@ class MockKrc2:
         self.frames_sent += 1
         self._ipoc_sent = ipoc
         if self._delivered is not None and ipoc - (self._ipoc_received or 0) > LOCKSTEP_AHEAD * self._ipoc_step:
-            self._await_delivery(ipoc - LOCKSTEP_AHEAD * self._ipoc_step)
+            # the frame just sent: the next LOCKSTEP_AHEAD go without waiting (issue 41: waiting for the one
+            # LOCKSTEP_AHEAD back made every frame after the 64th wait, a delivery check per frame)
+            self._await_delivery(ipoc)
         if self.rsi_passive:
             return
         if self._rsi.await_answer(ipoc, self.wall.now() + self.answer_budget_s, self.wall.now):

@@ -1,0 +1,93 @@
+"""The <Rob> parser's fast path (issue 41): a frame in encode_rob's own layout is read by one regular expression
+instead of ElementTree, with the values the XML path reads from the same bytes; anything else takes the XML path,
+its checks and its messages. The encoder's one %-template writes the bytes the per-attribute formatting (fmt4:
+4 decimals, never "-0.0000") wrote."""
+
+import xml.etree.ElementTree as ET
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trackcal.drivers.errors import ProtocolError
+from trackcal.drivers.kuka import rsi_codec
+from trackcal.drivers.kuka.eki_codec import AXES, fmt4
+from trackcal.drivers.kuka.rsi_codec import CART, RobFrame, encode_rob, parse_rob
+
+angles = st.floats(-1.0e4, 1.0e4, allow_nan=False)  # AXIS_LIMIT
+carts = st.floats(-1.0e6, 1.0e6, allow_nan=False)  # CART_LIMIT
+six_angles = st.tuples(*[angles] * 6)
+six_carts = st.tuples(*[carts] * 6)
+frames = st.builds(RobFrame, ipoc=st.integers(0, 2**63 - 1), aipos=six_angles, aspos=st.none() | six_angles,
+                   rist=st.none() | six_carts, rsol=st.none() | six_carts,
+                   delay=st.none() | st.integers(0, 2**31 - 1))  # fmt: skip
+
+
+def attribute_by_attribute(frame: RobFrame) -> bytes:
+    """encode_rob as written before the template: each element's attributes formatted by fmt4 one by one."""
+    zero = (0.0,) * 6
+
+    def attrs(tag, names, values):
+        return f"<{tag} " + " ".join(f'{n}="{fmt4(float(v))}"' for n, v in zip(names, values, strict=True)) + "/>"
+
+    return (f'<Rob TYPE="KUKA">{attrs("RIst", CART, frame.rist or zero)}{attrs("RSol", CART, frame.rsol or zero)}'
+            f'{attrs("AIPos", AXES, frame.aipos or zero)}{attrs("ASPos", AXES, frame.aspos or frame.aipos or zero)}'
+            f'<Delay D="{int(frame.delay or 0)}"/><IPOC>{frame.ipoc}</IPOC></Rob>').encode()  # fmt: skip
+
+
+def through_xml(data: bytes) -> RobFrame:
+    """parse_rob with the fast path switched off: the XML path alone."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(rsi_codec, "_parse_rob_fast", lambda data: None)
+        return parse_rob(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(frame=frames)
+def test_the_template_writes_the_bytes_of_the_attribute_by_attribute_encoder(frame):
+    assert encode_rob(frame, tcp=False) == attribute_by_attribute(frame)
+
+
+@settings(max_examples=300, deadline=None)
+@given(frame=frames, tcp=st.booleans())
+def test_a_frame_of_the_encoder_is_read_fast_with_the_values_of_the_xml_path(frame, tcp):
+    data = encode_rob(frame, tcp=tcp)
+    fast = rsi_codec._parse_rob_fast(data.strip())
+    assert fast is not None
+    assert fast == through_xml(data) == parse_rob(data)
+
+
+def test_the_encoder_s_frame_is_read_without_an_xml_parse(monkeypatch):
+    """Fails before issue 41: every frame went through ElementTree."""
+    frame = RobFrame(ipoc=1000, aipos=(0.0, -90.0, 90.0, 0.0, 90.0, 0.0), delay=0)
+    data = encode_rob(frame, tcp=False)
+
+    def no_xml(*args, **kwargs):
+        raise AssertionError("an XML parse")
+
+    monkeypatch.setattr(ET, "fromstring", no_xml)
+    assert parse_rob(data).aipos == (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)
+
+
+@settings(max_examples=500, deadline=None)
+@given(frame=frames, at=st.integers(0, 10**6), byte=st.integers(0, 255))
+def test_a_frame_changed_anywhere_is_read_as_the_xml_path_reads_it_or_refused_as_it_refuses_it(
+    frame, at, byte
+):
+    data = bytearray(encode_rob(frame, tcp=False))
+    data[at % len(data)] = byte
+    try:
+        slow = through_xml(bytes(data))
+    except ProtocolError:
+        with pytest.raises(ProtocolError):
+            parse_rob(bytes(data))
+        return
+    assert parse_rob(bytes(data)) == slow
+
+
+@pytest.mark.parametrize("value, element", [(10000.0001, "AIPos"), (1000000.0001, "RIst")])
+def test_a_value_past_the_limits_takes_the_xml_path_and_its_message(value, element):
+    frame = RobFrame(ipoc=5, aipos=(value if element == "AIPos" else 0.0,) + (0.0,) * 5,
+                     rist=(value if element == "RIst" else 0.0,) + (0.0,) * 5)  # fmt: skip
+    with pytest.raises(ProtocolError, match=f"Rob/{element}/@"):
+        parse_rob(encode_rob(frame, tcp=False))
