@@ -33,7 +33,6 @@ polling every GUARD_S, the settle judged on the wall clock.
 
 from __future__ import annotations
 
-import math
 import socket
 import threading
 import time
@@ -43,8 +42,9 @@ from dataclasses import dataclass
 from trackcal.drivers.abb.egm_link import EGM_STALE, EgmLink
 from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value, symbol_path
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
-from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
+from trackcal.drivers.motion_request import checked_speed, checked_target
 from trackcal.drivers.transport import require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
@@ -226,27 +226,11 @@ class AbbRws:
 
     def check_target(self, target_deg: Sequence[float]) -> tuple[float, ...]:
         """The target as a tuple, or MotionRefused (joint limits first, then the cell box)."""
-        target = tuple(float(v) for v in target_deg)
-        if len(target) != len(AXES):
-            raise MotionRefused(f"target needs {len(AXES)} joint values, got {len(target)}", code="arity",
-                                device=self.device)  # fmt: skip
-        for name, v, (lo, hi) in zip(AXES, target, self.joint_limits_deg, strict=True):
-            if not math.isfinite(v) or not lo <= v <= hi:
-                raise MotionRefused(f"{name}={v} deg outside the joint limits [{lo}, {hi}] deg", code="joint_limits",
-                                    device=self.device)  # fmt: skip
-        if self.cell_box_check is not None:
-            reason = self.cell_box_check(target)
-            if reason:
-                raise MotionRefused(f"target {target} leaves the cell box: {reason}", code="cell_box",
-                                    device=self.device)  # fmt: skip
-        return target
+        return checked_target(target_deg, AXES, self.joint_limits_deg, self.cell_box_check, self.device)
 
     def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         target = self.check_target(target_deg)
-        speed = float(speed_override_pct)
-        if not (math.isfinite(speed) and 1 <= round(speed) <= 100):
-            raise MotionRefused(f"speed override {speed_override_pct} % outside 1..100 %", code="speed",
-                                device=self.device)  # fmt: skip
+        speed = checked_speed(speed_override_pct, self.device)
         with self._motion:
             if self._fault:
                 raise DeviceFault(f"move refused: {self._fault} latched (acknowledge to reset)", code="latched",

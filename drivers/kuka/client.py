@@ -48,7 +48,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
-from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused, ProtocolError
+from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
 from trackcal.drivers.kuka.eki_codec import (
     AXES,
@@ -68,6 +68,7 @@ from trackcal.drivers.kuka.eki_link import EkiLink
 from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
 from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
+from trackcal.drivers.motion_request import checked_speed, checked_target
 from trackcal.drivers.transport import require_positive, require_settle_limits
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
@@ -180,33 +181,11 @@ class KukaKrc2:
 
     def check_target(self, target_deg: Sequence[float]) -> tuple[float, ...]:
         """The target as a tuple, or MotionRefused (joint limits first, then the cell box)."""
-        target = tuple(float(v) for v in target_deg)
-        if len(target) != len(AXES):
-            raise MotionRefused(
-                f"target needs {len(AXES)} joint values, got {len(target)}", code="arity", device=self.device
-            )
-        for name, v, (lo, hi) in zip(AXES, target, self.joint_limits_deg, strict=True):
-            if not math.isfinite(v) or not lo <= v <= hi:
-                raise MotionRefused(
-                    f"{name}={v} deg outside the joint limits [{lo}, {hi}] deg",
-                    code="joint_limits",
-                    device=self.device,
-                )
-        if self.cell_box_check is not None:
-            reason = self.cell_box_check(target)
-            if reason:
-                raise MotionRefused(
-                    f"target {target} leaves the cell box: {reason}", code="cell_box", device=self.device
-                )
-        return target
+        return checked_target(target_deg, AXES, self.joint_limits_deg, self.cell_box_check, self.device)
 
     def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         target = self.check_target(target_deg)
-        speed = float(speed_override_pct)
-        if not (math.isfinite(speed) and 1 <= round(speed) <= 100):
-            raise MotionRefused(
-                f"speed override {speed_override_pct} % outside 1..100 %", code="speed", device=self.device
-            )
+        speed = checked_speed(speed_override_pct, self.device)
         self._require_connected()
         self.rsi.require_fresh()  # never move without the monitor
         command_id = self._next_id()

@@ -48,8 +48,9 @@ import dashboard_client
 import rtde_control
 import rtde_receive
 
-from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout, MotionRefused
+from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout
 from trackcal.drivers.interfaces import RobotState
+from trackcal.drivers.motion_request import checked_speed, checked_target
 from trackcal.drivers.transport import require_settle_limits
 
 AXES = ("base", "shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3")
@@ -377,27 +378,11 @@ class UrRtde:
 
     def check_target(self, target_deg: Sequence[float]) -> tuple[float, ...]:
         """The target as a tuple, or MotionRefused (joint limits first, then the cell box)."""
-        target = tuple(float(v) for v in target_deg)
-        if len(target) != len(AXES):
-            raise MotionRefused(f"target needs {len(AXES)} joint values, got {len(target)}", code="arity",
-                                device=self.device)  # fmt: skip
-        for name, v, (lo, hi) in zip(AXES, target, self.joint_limits_deg, strict=True):
-            if not math.isfinite(v) or not lo <= v <= hi:
-                raise MotionRefused(f"{name}={v} deg outside the joint limits [{lo}, {hi}] deg", code="joint_limits",
-                                    device=self.device)  # fmt: skip
-        if self.cell_box_check is not None:
-            reason = self.cell_box_check(target)
-            if reason:
-                raise MotionRefused(f"target {target} leaves the cell box: {reason}", code="cell_box",
-                                    device=self.device)  # fmt: skip
-        return target
+        return checked_target(target_deg, AXES, self.joint_limits_deg, self.cell_box_check, self.device)
 
     def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         target = self.check_target(target_deg)
-        speed = float(speed_override_pct)
-        if not (math.isfinite(speed) and 1 <= round(speed) <= 100):
-            raise MotionRefused(f"speed override {speed_override_pct} % outside 1..100 %", code="speed",
-                                device=self.device)  # fmt: skip
+        speed = checked_speed(speed_override_pct, self.device)
         self._require_running(f"move to {target} refused")
         reason = None if self.motion_guard is None else self.motion_guard()
         if reason:
