@@ -116,8 +116,15 @@ class Selection:
         # the search's linearised problem (its Jacobian, 16 KB per row of Series B, and the held-out harmonics) served
         # the held-out test and `Rejudge`, both done: not held while the map is judged again (issue 41)
         mf.linearised = None
-        again = judge_map(ctx, self.val, fitted, whole_fit(ctx, fitted), self.n_obs, self.n_geo, alpha, self.steps,
-                          self.folds, self.seed, (max(mf.orders.values()),)) if removed else None  # fmt: skip
+        again = None
+        if removed:
+            start = whole_fit(ctx, fitted)
+            # the other whole-table fits (each with its Jacobian) are cleared after the join whatever it decides, and
+            # judging the map again needs none of them: not held meanwhile (issue 41)
+            for key in [k for k, fit in ctx.fits.items() if fit is not start]:
+                del ctx.fits[key]
+            again = judge_map(ctx, self.val, fitted, start, self.n_obs, self.n_geo, alpha, self.steps, self.folds,
+                              self.seed, (max(mf.orders.values()),))  # fmt: skip
         if removed and (again is None or not again.candidate.significant):
             fitted, removed, judged = kept, [], {}
         if removed:
