@@ -316,7 +316,7 @@ class HeldOutMap:
         self.lever = (rs if problem.w is None else problem.w @ rs) @ d_q
         self.q, self.names = problem.q, list(names)
         self.joints = sorted({parse_name(nm)[2] for nm in names})
-        self._columns: dict[tuple, np.ndarray] = {}  # the same folds are asked again (orders, models of Rejudge)
+        self._columns: dict[tuple, tuple] = {}  # the same folds are asked again (orders, models of Rejudge)
 
     def columns(self, test: np.ndarray, names: list[str] | None = None) -> np.ndarray:
         """(3 len(test), len(names)) map columns of the `test` rows (indices), clamped to the arcs of the other rows
@@ -326,11 +326,15 @@ class HeldOutMap:
             train = np.setdiff1d(np.arange(len(self.q)), test)
             arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
             names = self.names if names is None else names
-            lever, out = self.lever[test], np.empty((len(test), 3, len(names)))
-            for j, cols, values in _harmonics(self.q[test], names, arcs):  # a coefficient moves its own joint only
-                out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
-            self._columns[key] = out.reshape(3 * len(test), -1)
-        return self._columns[key]
+            self._columns[key] = (len(names), list(_harmonics(self.q[test], names, arcs)))
+        n_cols, harmonics = self._columns[key]
+        # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
+        # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
+        # levers, formed on each call, the same products as before and so the same values
+        lever, out = self.lever[test], np.empty((len(test), 3, n_cols))
+        for j, cols, values in harmonics:  # a coefficient moves its own joint only
+            out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
+        return out.reshape(3 * len(test), -1)
 
 
 class FoldGrams:
@@ -687,6 +691,7 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
             # columns and its Gram matrix (a third of the fit's time) are not formed again
             converged = True
             break
+        jm = gram = None  # the last Jacobian let go before the next is formed: one held, not two (issue 41)
         r, jm = problem.residual_and_jacobian(state)
         gram = jm.T @ jm
         prev = step

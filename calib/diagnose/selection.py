@@ -113,8 +113,18 @@ class Selection:
         self.chosen = tuple(c for c in self.chosen if c != MAP)
         kept = tuple(c for c in self.fitted if c != MAP)
         fitted, removed, judged = redundant_causes(ctx, self.val, kept, mf, self.n_obs)
-        again = judge_map(ctx, self.val, fitted, whole_fit(ctx, fitted), self.n_obs, self.n_geo, alpha, self.steps,
-                          self.folds, self.seed, (max(mf.orders.values()),)) if removed else None  # fmt: skip
+        # the search's linearised problem (its Jacobian, 16 KB per row of Series B, and the held-out harmonics) served
+        # the held-out test and `Rejudge`, both done: not held while the map is judged again (issue 41)
+        mf.linearised = None
+        again = None
+        if removed:
+            start = whole_fit(ctx, fitted)
+            # the other whole-table fits (each with its Jacobian) are cleared after the join whatever it decides, and
+            # judging the map again needs none of them: not held meanwhile (issue 41)
+            for key in [k for k, fit in ctx.fits.items() if fit is not start]:
+                del ctx.fits[key]
+            again = judge_map(ctx, self.val, fitted, start, self.n_obs, self.n_geo, alpha, self.steps, self.folds,
+                              self.seed, (max(mf.orders.values()),))  # fmt: skip
         if removed and (again is None or not again.candidate.significant):
             fitted, removed, judged = kept, [], {}
         if removed:
@@ -133,6 +143,7 @@ class Selection:
         self.selected.append(best)
         self.chosen = (*self.chosen, MAP)
         self.fitted = fitted
+        mf.linearised = None  # the map is held at this fit from here on
         self.map_fit, self.map_edf, self.map_base = mf, mf.effective_params, fitted
         ctx.table = corrected_by_map(ctx.table, mf)
         ctx.fits.clear()
