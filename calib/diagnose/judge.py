@@ -31,6 +31,7 @@ from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map
 from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.identify.solver import IdentificationError
+from trackcal.calib.model.extension import ExtensionError
 
 
 @dataclass
@@ -78,6 +79,8 @@ def judge_cause(ctx: Context, val: Validator, fitted: tuple[str, ...], current: 
         fit = whole_fit(ctx, model)
     except IdentificationError:
         return None
+    except ExtensionError:  # rival forms of one cause (thermal_warmup about one pivot, thermal_drift about another:
+        return None  # the arm grows about one point) cannot both be in a model: the one chosen first stays
     added = n_extra(ctx, model) - n_extra(ctx, fitted)
     dof = free - n_extra(ctx, model)
     if dof <= 0:
