@@ -23,6 +23,7 @@ from trackcal.calib.model.extension import ExtensionError
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model_file import model_from_doc, predict_table
+from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.identify import model_doc
 from trackcal.mocks.twin import Twin, simulate_campaign
 
@@ -163,3 +164,15 @@ def test_compensate_aims_the_warm_robot_and_the_loaded_robot(kr270):
             assert np.max(pose_error(model, targets, targets, tcp)[0]) > 1e-3  # uncompensated: the growth shows
         else:
             assert np.max(np.abs(q - targets)) > 0  # the compliance is corrected
+
+
+@pytest.mark.slow
+def test_the_docs_warmup_case_names_the_warmup_and_does_not_stop_at_its_rival(tmp_path, monkeypatch):
+    """docs/candidates-time.md's example: once thermal_warmup (a growth about its own pivot form) is chosen, the
+    linear drift about another pivot is a rival form of the same growth; judging it tried to combine both and ended
+    diagnose in exit 2 ("two growth extensions with different pivots cannot be combined")."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", "3", "--effect", "thermal_warmup:0.06",
+                 "--out", "warmup.csv"]) == 0  # fmt: skip
+    assert main(["diagnose", "warmup.csv", "--cell", "kr270", "--json", "verdict.json"]) == 0
+    assert json.loads((tmp_path / "verdict.json").read_text())["cause"] == "thermal_warmup"
