@@ -403,7 +403,8 @@ COMMANDS = [
                          "acceptance (ISO 14253-1:2017, the tolerance less U)"),
                 arg("--customer", help="the customer, printed on the report (default: not stated)"),
                 arg("--report-id", help="the report's id (default: a digest of the figures it states)"),
-                arg("--authorised-by", help="the person authorising the report, printed in its signature field"),
+                arg("--authorised-by", help="the person authorising the report, printed in its signature field "
+                    "(default: the field left blank, to be signed by hand)"),
                 arg("--accept-expired-certificate", action="store_true",
                     help="state a test measured after its tracker certificate's due date (the hardware config's "
                          "tracker.certificate_due); the report says so (default: refused for --report and --pdf)"),

@@ -10,6 +10,7 @@ step of `run --hardware` is replaced by a refusal: the hardware file is what is 
 
 import contextlib
 import io
+import copy
 import json
 import re
 import shutil
@@ -51,7 +52,7 @@ def key_paths(doc, prefix=()):
 
 
 def broken_doc(data, doc):
-    doc = json.loads(json.dumps(doc))  # a deep copy
+    doc = copy.deepcopy(doc)  # YAML's dates (a tracker certificate's) are no JSON
     path = data.draw(st.sampled_from(list(key_paths(doc))))
     parent = doc
     for k in path[:-1]:
