@@ -9,8 +9,8 @@ step of `run --hardware` is replaced by a refusal: the hardware file is what is 
 """
 
 import contextlib
-import io
 import copy
+import io
 import json
 import re
 import shutil
