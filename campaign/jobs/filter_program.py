@@ -24,11 +24,11 @@ from trackcal.calib.io.files import atomic_open, write_json
 from trackcal.calib.model_file import Model
 from trackcal.calib.program_filter import FilterResult, filter_targets
 from trackcal.campaign.errors import InputError, OptionError
-from trackcal.campaign.jobs.compensate import correction_bound
+from trackcal.campaign.jobs.compensate import correction_bound, model_cell
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.filter_page import write_filter_page
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import program_readers
+from trackcal.drivers.families import families, program_readers
 from trackcal.drivers.program_text import ProgramRead
 
 FORMAT = "trackcal-filter/1"
@@ -99,6 +99,17 @@ def read_program(opts: FilterOptions) -> ProgramRead:
         raise InputError(str(exc)) from None
 
 
+def check_language(program: str, read: ProgramRead, model: Model) -> None:
+    """InputError when the model's robot config names its controller and that controller runs programs of another
+    language (a robot config naming none, or a cell that cannot be loaded, is not checked)."""
+    cell = model_cell(model)
+    name = None if cell is None else cell.robot_doc.get("controller")
+    family = families().get(str(name)) if name else None
+    if family is not None and family.program is not None and family.program.language != read.language:
+        raise InputError(f"{program}: a {read.language} program, but the model's robot runs a {family.title} "
+                         f"controller ({family.program.language} programs): give the model of this program's robot")
+
+
 def reference_joints(model: Model) -> np.ndarray:
     """(n,) deg: where the robot is taken to be before the program's first target: the cell's test pose recorded in
     the model, else the middle of each joint's range (within a half turn of zero)."""
@@ -151,6 +162,7 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
     model, warnings = trusted_model(opts.model, opts.accept_edited)
     warnings += usable_model(model, opts.model, opts.accept_poor)
     read = read_program(opts)
+    check_language(opts.program, read, model)
     if not read.targets:
         raise InputError(f"{opts.program}: no {read.language} target to filter (no literal pose or joint values "
                          "used by a move)")  # fmt: skip

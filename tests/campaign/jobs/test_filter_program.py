@@ -82,12 +82,15 @@ def test_an_unreachable_target_is_kept_and_marked(ur10_model, tmp_path, capsys):
     (["broken.script"], "broken.script: line 2: a pose p[x, y, z, rx, ry, rz] needs 6 numbers, got 3"),
     (["ok.script", "--tolerance-mm", "-1"], "--tolerance-mm -1"),
     (["ok.script", "--out", "."], "would overwrite the input"),
+    # a KRL program for the UR10's model (its robot config names its controller: configs/robots/ur10.yaml)
+    (["PALLET.src"], "PALLET.src: a KRL program, but the model's robot runs a"),
 ])  # fmt: skip
 def test_mistakes_are_one_line(ur10_model, tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
     Path("nope.txt").write_text("x")
     Path("broken.script").write_text("def a():\n  movel(p[0.1, 0.2, 0.3])\nend\n")
     Path("ok.script").write_text("def a():\n  movel(p[0.5, 0.2, 0.3, 3.14, 0, 0])\nend\n")
+    Path("PALLET.src").write_text("DEF PALLET()\n  PTP {A1 0,A2 -90,A3 90,A4 0,A5 30,A6 0}\nEND\n")
     out = [] if "--out" in argv else ["--out", "o"]
     assert main(["filter", *argv, "--model", str(ur10_model), *out]) == 2
     err = capsys.readouterr().err.strip().splitlines()
