@@ -24,6 +24,7 @@ refusal: its HTTP status and return code).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import http.client
 import json
@@ -200,10 +201,8 @@ class RwsSession:
     def _refusal(self, method: str, path: str, status: int, payload: bytes) -> RwsRefused:
         code: int | str | None = status
         msg = http.client.responses.get(status, "HTTP error")
-        try:
+        with contextlib.suppress(ValueError, KeyError, TypeError):  # no RWS error document: the HTTP status stands
             err = json.loads(payload)["_embedded"]["status"]
             code, msg = int(err["code"]), str(err.get("msg") or msg)
-        except (ValueError, KeyError, TypeError):
-            pass
         why = {401: " (user or password refused)", 503: " (controller busy, or too many RWS sessions)"}.get(status, "")
         return RwsRefused(f"{method} {path}: HTTP {status} {msg}{why}", status=status, code=code, device=self.device)

@@ -109,8 +109,7 @@ class AbbServer:
         self.rws.stop()
 
     def wait(self) -> None:
-        while not self.stopped.wait(0.2):
-            pass
+        self.stopped.wait()  # a signal (Ctrl-C, SIGTERM's handler) still interrupts it: a lock wait on POSIX
 
 
 class _ControlServer(socketserver.ThreadingTCPServer):
@@ -147,7 +146,7 @@ class _ControlHandler(socketserver.StreamRequestHandler):
 
         push(owner.controller.snapshot()["q_deg"])
         owner.controller.followers.append(push)
-        try:
+        try:  # the reader going away (a broken pipe) ends the stream
             while not owner.stopped.is_set():
                 with ready:
                     ready.wait_for(lambda: lines, timeout=0.2)
@@ -155,7 +154,7 @@ class _ControlHandler(socketserver.StreamRequestHandler):
                 if out:
                     self.wfile.write(out)
         except OSError:
-            pass
+            return
         finally:
             with contextlib.suppress(ValueError):
                 owner.controller.followers.remove(push)
