@@ -75,6 +75,12 @@ class StopCause(str):
         return cause
 
 
+def stop_code(reason) -> str:
+    """The DeviceFault code of a guard stop: its StopCause's code (door_open, plc_silent, estop_pressed ...),
+    "stopped" for a plain reason (a guard's text, stop())."""
+    return getattr(reason, "code", "stopped")
+
+
 @dataclass(frozen=True)
 class RobotState:
     """What the controller says of the arm now: moving or standing, and the fault it holds ("" when none)."""

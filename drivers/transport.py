@@ -58,3 +58,17 @@ def receive(sock: socket.socket, nbytes: int, timeout_s: float, *, device: str, 
         drop()
         raise ConnectionLost(closed, device=device)
     return data
+
+
+def claim_socket(address: str, device: str) -> socket.socket:
+    """This PC's claim on a controller: an abstract Unix socket bound to `address` (a leading NUL, unix(7): no file,
+    released by the kernel when the process ends, kill -9 included), held until closed. A second claim raises
+    ConnectionLost (its cause the OSError, EADDRINUSE) before anything touches the robot."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
+                             device=device) from exc  # fmt: skip
+    return sock

@@ -43,9 +43,9 @@ from trackcal.drivers.abb.egm_link import EGM_STALE, EgmLink
 from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value, symbol_path
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout
-from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
+from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause, stop_code
 from trackcal.drivers.motion_request import checked_speed, checked_target
-from trackcal.drivers.transport import require_positive, require_settle_limits
+from trackcal.drivers.transport import claim_socket, require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
 GUARD_S = 0.04  # the guard, the answer and the controller's state are polled at least this often (25 Hz)
@@ -55,7 +55,6 @@ MAX_MOVE_ID = 1_000_000  # move numbers stay exact in a RAPID num (a 32-bit floa
 CTRL_FAULTS = {"motoroff": "motors_off", "guardstop": "guard_stop", "emergencystop": "emergency_stop",
                "emergencystopreset": "emergency_stop", "sysfail": "system_failure", "init": "motors_off"}  # fmt: skip
 RAPID_STOPPED = "rapid_stopped"  # RAPID stopped by itself (an error in the task, the FlexPendant's stop)
-STOPPED = "stopped"  # stopped on trackcal's request (a plain guard reason, stop())
 CHANNELS_DISAGREE = "monitor_disagrees"  # EGM's settled joints are not those RWS reports
 
 CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
@@ -75,10 +74,6 @@ def claim_address(host: str, port: int) -> str:
     """The abstract Unix socket address (unix(7)) of this PC's claim on the controller at host:port (a controller is
     its RWS address: two mock controllers on one loopback address are two arms)."""
     return f"\0trackcal/abb/{host.strip().lower()}:{port}"
-
-
-def stop_code(reason) -> str:
-    return getattr(reason, "code", STOPPED)
 
 
 class AbbRws:
@@ -123,14 +118,7 @@ class AbbRws:
         the arm. Idempotent."""
         if self._claim is not None:
             return
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            sock.bind(claim_address(self.host, self.port))
-        except OSError as exc:
-            sock.close()
-            raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
-                                 device=self.device) from exc  # fmt: skip
-        self._claim = sock
+        self._claim = claim_socket(claim_address(self.host, self.port), self.device)
 
     def connect(self) -> None:
         """Reach the controller (retried until connect_timeout_s while it is not reachable), check AUTO mode and

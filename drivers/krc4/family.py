@@ -11,19 +11,11 @@ from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.krc4.client import DEFAULT_EKI_PORT, KRC4_CYCLE_S, TITLE, KukaKrc4
 from trackcal.drivers.krc4.configs import RSI
 from trackcal.drivers.kuka.eki_codec import AXES
+from trackcal.drivers.kuka.family import SCHEMAS as KRC2_SCHEMAS
 from trackcal.drivers.kuka.program import PROGRAM
 
 SCHEMAS = {
-    "": {
-        "protocol": ("protocol", REQUIRED),
-        "controller_host": ("host", REQUIRED),  # the EKI server trackcal connects to, the only RSI peer served
-        "eki": ("section", REQUIRED),
-        "rsi": ("section", REQUIRED),
-        "connect_timeout_s": ("timeout", 60.0),
-        "move_timeout_s": ("timeout", 300.0),
-        "io_timeout_s": ("timeout", 5.0),
-        "rsi_stale_s": ("timeout", 1.0),
-    },
+    "": KRC2_SCHEMAS[""],  # the KR C2's keys; controller_host: the EKI server trackcal connects to, the RSI peer
     "eki": {
         "port": ("port", DEFAULT_EKI_PORT),  # INTERNAL/PORT of configs/krc4/TrackcalEki.xml
     },

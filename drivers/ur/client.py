@@ -49,9 +49,9 @@ import rtde_control
 import rtde_receive
 
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout
-from trackcal.drivers.interfaces import RobotState
+from trackcal.drivers.interfaces import RobotState, stop_code
 from trackcal.drivers.motion_request import checked_speed, checked_target
-from trackcal.drivers.transport import require_settle_limits
+from trackcal.drivers.transport import claim_socket, require_settle_limits
 
 AXES = ("base", "shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3")
 POLL_S = 0.002  # one RTDE cycle at 500 Hz (e-Series); the guard and the stream are read this often during moves
@@ -124,11 +124,6 @@ def claim_address(host: str) -> str:
     """The abstract Unix socket address (a leading NUL, unix(7)) of this PC's claim on the controller at host."""
     return f"\0trackcal/ur/{host.strip().lower()}"
 
-
-def stop_code(reason) -> str:
-    """The DeviceFault code of a guard stop: its StopCause's code (drivers.interfaces: door_open, plc_silent,
-    estop_pressed), "stopped" for a plain reason."""
-    return getattr(reason, "code", "stopped")
 
 class UrRtde:
     """A Universal Robots arm (CB3 or e-Series) driven through ur_rtde; `host` is the controller's address, the
@@ -203,14 +198,7 @@ class UrRtde:
         whose cause is OSError EADDRINUSE, before anything touches the robot. Idempotent."""
         if self._claim is not None:
             return
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            sock.bind(claim_address(self.host))
-        except OSError as exc:
-            sock.close()
-            raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
-                                 device=self.device) from exc  # fmt: skip
-        self._claim = sock
+        self._claim = claim_socket(claim_address(self.host), self.device)
 
     def connect(self) -> None:
         """Dashboard first (version, remote control), then the RTDE stream, then the control script; retried until
