@@ -20,8 +20,9 @@ def cmd_filter(args) -> int:
     for warning in [*done.model_warnings, *done.result.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     table = Table(title=f"{done.read.language} program filtered")
-    for i, h in enumerate(HEADER):
+    for i, h in enumerate(HEADER[:-1]):
         table.add_column(h, justify="left" if i < 6 else "right")
+    table.add_column(HEADER[-1], max_width=40)  # the reason wraps (it is also a warning line below the table)
     doc_rows = {"targets": done.rows}
     for row in filter_rows(doc_rows):
         table.add_row(*row)
