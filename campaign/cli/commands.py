@@ -98,7 +98,7 @@ COMMANDS = [
                                     "(default: not written)"),
             ]),
     Command("diagnose", "what the geometric model gets wrong: the physical cause and the gain",
-            "trackcal.campaign.cli.analysis:cmd_diagnose", [
+            "trackcal.campaign.cli.diagnose:cmd_diagnose", [
                 arg("data", help=TABLE_HELP),
                 arg("--cell", required=True, help=TABLE_CELL_HELP),
                 arg("--params", help="geometric parameters (default: the irreducible set)"),

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import CAUSES
 from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.diagnose.noise_floor import Floor, noise_floor
@@ -127,6 +126,8 @@ def fit_model(cell: Cell, table: MeasurementTable, params: list[Param], weightin
     noise = noise_for(weighting, cell.tracker)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
+        from trackcal.calib.diagnose.diagnosis import diagnose  # lazy: the search is only for --extend auto (start-up)
+
         extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise,
                                                         tracker=TrackerNoise.of(cell.tracker)).causes)
         extend = extend or "none"

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 from tests.helpers import ROOT
+from trackcal.campaign.cli import main
 
 
 def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
@@ -48,3 +49,20 @@ def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):
     for argv in (["--help"], ["export", str(tmp_path / "no-session"), "--csv", str(tmp_path / "t.csv")]):
         out = subprocess.run([sys.executable, "-c", code, *argv], cwd=ROOT, capture_output=True, text=True)
         assert out.stdout.strip().splitlines()[-1] == "[]", (argv, out.stdout, out.stderr)
+
+
+def test_identify_imports_neither_the_search_nor_scipy_optimize(tmp_path):
+    """Start-up (issue 41): a plain identify needs the solver, the noise floor and the model file, not diagnose's
+    search (calib.diagnose.diagnosis and its selection), scipy.optimize (a warm-up fit's), pinocchio (gravity
+    torques) or matplotlib (plots): before, the identify process imported all four (about 0.4 s of CPU)."""
+    table = tmp_path / "t.csv"
+    assert main(["simulate", "--cell", "kr270", "--poses", "20", "--out", str(table)]) == 0
+    heavy = ("trackcal.calib.diagnose.diagnosis", "trackcal.calib.diagnose.selection", "scipy.optimize", "pinocchio",
+             "matplotlib")
+    argv = ["identify", str(table), "--cell", "kr270", "--out", str(tmp_path / "m.json")]
+    code = ("import sys; from trackcal.campaign.cli import main\n"
+            f"assert main({argv!r}) == 0\n"
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]
