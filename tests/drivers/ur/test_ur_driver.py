@@ -61,6 +61,19 @@ def test_identity_is_the_dashboard_servers_answers(ur):
     assert ident.serial.isdigit() and version.startswith("5.11.")
 
 
+def test_before_polyscope_5_6_the_serial_is_not_asked():
+    """`get serial number` came with PolyScope 5.6 (ur_rtde's getSerialNumber refuses to send it before): a 5.4
+    controller's identity has no serial, and its version."""
+    with MockUrProcess("127.0.0.27", seed=5, args=["--version", "5.4.0.0"]):
+        robot = UrRtde("127.0.0.27", connect_timeout_s=10.0)
+        try:
+            robot.connect()
+            ident = robot.identity()
+            assert ident.serial == "" and ident.software == "PolyScope 5.4.0.0"
+        finally:
+            robot.close()
+
+
 def test_move_ends_at_the_target_exactly(ur):
     _, robot = ur
     target = (12.3456, -80.5, 75.25, -95.0, -88.8888, 7.0)
