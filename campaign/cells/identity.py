@@ -1,7 +1,8 @@
 """The devices' identities at the start of a run (#39): read from the tracker and the robot controller (each driver's
 `identity()`, drivers.interfaces.DeviceIdentity), recorded in the session as an `identity` document, and compared
 with the hardware file. A tracker whose serial number is not the one the file states (the instrument its calibration
-certificate names) warns in one line, which the session keeps (a `warning` document) and the ISO 9283 report prints
+certificate names) warns in one line, and so does a certificate already past its due date; the session keeps each
+(a `warning` document) and the ISO 9283 report prints the identities and the serial check
 (campaign.jobs.iso9283_trace).
 
 The identities are read outside the recorded device calls: a replay plays back the campaign's calls, not who the
@@ -13,6 +14,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import asdict
+from datetime import UTC, datetime
 from pathlib import Path
 
 from trackcal.campaign.cells.hardware import load_hardware
@@ -65,9 +67,21 @@ def serial_mismatch(identity: IdentityDoc, stated: dict | None) -> str | None:
             f"{'its certificate ' + str(cert) if cert else 'the certificate'} may name another instrument")  # fmt: skip
 
 
+def certificate_expired(stated: dict | None, today: str) -> str | None:
+    """One line when the hardware file's tracker certificate is past its due date on `today` (YYYY-MM-DD), else None:
+    a test measured now is refused for an ISO 9283 report unless asked (campaign.jobs.iso9283_trace)."""
+    due = (stated or {}).get("certificate_due")
+    if due is None or today <= due:
+        return None
+    return (f"the tracker's calibration certificate {(stated or {}).get('certificate') or '(id not stated)'} was due "
+            f"on {due}: what this run measures is refused for an ISO 9283 report unless "
+            f"--accept-expired-certificate")  # fmt: skip
+
+
 class IdentityCheck:
     """A subscriber of a run's documents (placed last): on the run's `start` it reads the live devices' identities
-    and emits the `identity` document, then a `warning` for a tracker serial the hardware file does not state."""
+    and emits the `identity` document, then a `warning` for a tracker serial the hardware file does not state and one
+    for a tracker certificate past its due date."""
 
     def __init__(self, live: Live, emit: Callable[[str, dict], None], stated: dict | None) -> None:
         self.live, self.emit, self.stated = live, emit, stated
@@ -77,9 +91,10 @@ class IdentityCheck:
             return
         identity = read_identities(self.live)
         self.emit("identity", dict(identity))
-        mismatch = serial_mismatch(identity, self.stated)
-        if mismatch is not None:
-            self.emit("warning", dict(WarningDoc(message=mismatch)))
+        today = datetime.now(UTC).date().isoformat()  # the day of the run, as the report dates the test
+        for message in (serial_mismatch(identity, self.stated), certificate_expired(self.stated, today)):
+            if message is not None:
+                self.emit("warning", dict(WarningDoc(message=message)))
 
 
 def describe(device: dict[str, str]) -> str:

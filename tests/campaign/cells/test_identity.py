@@ -72,6 +72,15 @@ def test_a_tracker_that_cannot_say_who_it_is_is_recorded_so_and_the_run_goes_on(
     assert "not implemented" in docs[1].data["tracker"]["error"]
 
 
+def test_a_certificate_past_its_due_date_warns_at_the_start():
+    """Due dates far from any day the suite runs on: 2019-12-31 has passed, 2999-12-31 has not."""
+    docs = run_start(TRACKER, {"serial": "390123", "certificate": "CAL-2019-1", "certificate_due": "2019-12-31"})
+    assert [d.name for d in docs] == ["start", "identity", "warning"]
+    message = docs[2].data["message"]
+    assert "CAL-2019-1 was due on 2019-12-31" in message and "--accept-expired-certificate" in message
+    assert len(run_start(TRACKER, {"serial": "390123", "certificate_due": "2999-12-31"})) == 2
+
+
 def test_only_the_start_reads_the_identities():
     seen: list[Document] = []
     context = RunContext([seen.append])
