@@ -4,7 +4,8 @@ trackcal writes no RTDE client of its own: the three ur_rtde interfaces do the w
 sdurobotics.gitlab.io/ur_rtde/api/api.html; the Python names are those of src/rtde_python_bindings.cpp):
 
 - DashboardClient (port 29999): `polyscopeVersion`, `isInRemoteControl` (PolyScope 5.6 and later: a robot in local
-  control accepts no remote program), `unlockProtectiveStop`, `closeSafetyPopup`, `closePopup` (Universal Robots,
+  control accepts no remote program), `unlockProtectiveStop`, `closeSafetyPopup`, `closePopup`, and for the
+  controller's identity `getSerialNumber` (PolyScope 5.6 and later) and `getRobotModel` (Universal Robots,
   "Dashboard Server e-Series": the commands and their replies).
 - RTDEReceiveInterface (port 30004): the stream trackcal reads, at the controller's rate (500 Hz e-Series, 125 Hz
   CB3): `getActualQ` (rad), `getActualTCPPose` (m, rotation vector rad), `getRobotMode`, `getSafetyMode`,
