@@ -38,6 +38,23 @@ class TrackerStatus:
     detail: str = ""
 
 
+READ_FROM_DEVICE = "read from the device"
+FROM_HARDWARE_FILE = "from the hardware file"
+
+
+@dataclass(frozen=True)
+class DeviceIdentity:
+    """Who a device is, for a certificate's item and instrument: its serial number, its model (type, name), its
+    software (firmware and software versions, one phrase), each "" where nothing says it; `source` where they come
+    from: READ_FROM_DEVICE (the device's own answer) or FROM_HARDWARE_FILE (a controller whose protocol offers no
+    identity query: what the cell's hardware file states)."""
+
+    serial: str = ""
+    model: str = ""
+    software: str = ""
+    source: str = READ_FROM_DEVICE
+
+
 @runtime_checkable
 class Tracker(Protocol):
     def connect(self) -> None: ...
@@ -54,6 +71,10 @@ class Tracker(Protocol):
     def measure(self) -> TrackerMeasurement: ...
     def status(self) -> TrackerStatus: ...
     def go_birdbath(self) -> None: ...
+    def identity(self) -> DeviceIdentity:
+        """The tracker's serial number, type and firmware, as it reports them."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -114,6 +135,10 @@ class Robot(Protocol):
     def reset_faults(self) -> None:
         """Clear the controller's latched faults (E-stop seen, drives off) once the operator acknowledged;
         DeviceFault if one is still active."""
+        ...
+    def identity(self) -> DeviceIdentity:
+        """The controller's serial number and software version: read from it where its protocol offers a query,
+        else what the hardware file states (source FROM_HARDWARE_FILE)."""
         ...
     def close(self) -> None: ...
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackcal.drivers.errors import DeviceFault, MotionRefused, TargetNotVisible
-from trackcal.drivers.interfaces import Environment, RobotState, TrackerMeasurement, TrackerStatus
+from trackcal.drivers.interfaces import DeviceIdentity, Environment, RobotState, TrackerMeasurement, TrackerStatus
 from trackcal.mocks.cell import NotVisible, World
 
 ENV = Environment(20.0, 1013.25, 45.0)
@@ -54,6 +54,9 @@ class InprocTracker:
 
     def go_birdbath(self) -> None: ...
 
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity(model="simulated tracker (in-process)", source="simulated")
+
     def close(self) -> None: ...
 
 
@@ -91,6 +94,9 @@ class InprocRobot:
         return RobotState(moving=False, fault=self.faults[0] if self.faults else "")
 
     def reset_faults(self) -> None: ...
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity(model="simulated robot (in-process)", source="simulated")
 
     def close(self) -> None: ...
 

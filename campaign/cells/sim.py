@@ -24,6 +24,7 @@ from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.controllers import twin_controllers
 from trackcal.mocks.operator import SimHuman
 from trackcal.mocks.servers.emscon import MockEmscon
+from trackcal.mocks.servers.emscon_identity import twin_identity
 from trackcal.mocks.servers.kuka.controller import MockKrc2
 from trackcal.mocks.servers.meteo import MockMeteo
 from trackcal.mocks.servers.plc import MockPlc
@@ -63,7 +64,8 @@ class TwinMocks:
         try:
             self.tracker_mock = self._up(
                 MockEmscon(
-                    lambda expected: self.world.measure(), self.clock, reflector_present=self.world.reflector_visible
+                    lambda expected: self.world.measure(), self.clock, reflector_present=self.world.reflector_visible,
+                    identity=twin_identity(cell.tracker.key, seed),
                 ).start()
             )
             self.plc = self._up(MockPlc(clock=self.clock).start())
@@ -260,7 +262,9 @@ def hardware_doc(mocks: TwinMocks, robot: dict) -> dict:
     thost, tport = mocks.tracker_mock.address
     phost, pport = mocks.plc.address
     return {
-        "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0},
+        # the twin's tracker serial (mocks/servers/emscon_identity.py): what it reports, so a run finds it as stated
+        "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0,
+                    "serial": str(mocks.tracker_mock.identity.serial_number)},
         "robot": robot,
         "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
                 "poll_s": POLL_S},

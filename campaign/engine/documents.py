@@ -125,6 +125,14 @@ class StationFitDoc(TypedDict):
     note: NotRequired[str]
 
 
+class IdentityDoc(TypedDict):
+    """Who the devices were at a run's start (campaign/cells/identity.py): each device's serial, model, software and
+    `source` (read from the device, or from the hardware file), or {"error": why} when it could not be read."""
+
+    tracker: dict[str, str]
+    robot: dict[str, str]
+
+
 def measurement(data: dict) -> MeasurementDoc:
     """A stored `measurement` document's data, read as what it is (no copy: the keys are checked by the type
     checker at every reader, and by tests/test_documents.py against the engine's)."""
@@ -135,4 +143,5 @@ SCHEMAS: dict[str, type] = {
     "start": StartDoc, "step_started": StepStartedDoc, "call": CallDoc, "prompt": PromptDoc,
     "operator": OperatorDoc, "measurement": MeasurementDoc, "warning": WarningDoc, "error": ErrorDoc,
     "step_done": StepDoneDoc, "progress": ProgressDoc, "stop": StopDoc, "station_fit": StationFitDoc,
+    "identity": IdentityDoc,
 }  # fmt: skip

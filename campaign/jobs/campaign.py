@@ -25,6 +25,7 @@ from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.checks import names_told_apart
 from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
+from trackcal.campaign.cells.identity import IdentityCheck, stated_tracker
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.documents import measurement
 from trackcal.campaign.engine.engine import Devices, Engine, History, Live, RunContext, RunResult, Subscriber
@@ -148,6 +149,7 @@ def run_session(store: SessionStore, campaign: Campaign, live: Live,
     try:
         hub = [] if page is None or page.hub is None else [page.hub]
         context = run_context(store, campaign, [*subscribers, *hub])
+        context.subscribers.append(IdentityCheck(live, context.emit, stated_tracker(store)))
         return Engine(devices(live, context, campaign.cell), context, history(store)).run(campaign.steps)
     finally:
         live.close()

@@ -78,6 +78,7 @@ KINDS = (  # the engine's documents (their data's schema: campaign/engine/docume
     "error",  # ErrorDoc
     "campaign_done",  # {}: a successful StopDoc
     "station_fit",  # StationFitDoc (engine/station_fit.py)
+    "identity",  # IdentityDoc (cells/identity.py): the devices' identities at a run's start
 )
 
 

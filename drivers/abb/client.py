@@ -43,7 +43,7 @@ from trackcal.drivers.abb.egm_link import EGM_STALE, EgmLink
 from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value, symbol_path
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout
-from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause, stop_code
+from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, DeviceIdentity, RobotState, StopCause, stop_code
 from trackcal.drivers.motion_request import checked_speed, checked_target
 from trackcal.drivers.transport import claim_socket, require_positive, require_settle_limits
 
@@ -100,7 +100,7 @@ class AbbRws:
         self.device = self.rws.device
         # the EGM position stream this PC listens for (host, port), None: joints and settling by RWS polling only
         self.egm = None if egm is None else EgmLink(egm[0], egm[1], host, stale_s=egm_stale_s)
-        self.identity: Identity | None = None
+        self.controller_identity: Identity | None = None  # read by connect(): identity() is its interface's form
         self._next = 1
         self._motion = threading.Condition()  # guards the four below between the moving thread and stop()/state()
         self._moving: int | None = None
@@ -128,7 +128,7 @@ class AbbRws:
             self.egm.listen()
         while True:
             try:
-                self.identity = self._identity()
+                self.controller_identity = self._identity()
                 break
             except (ConnectionLost, DeviceTimeout) as exc:
                 if time.monotonic() >= deadline:
@@ -155,6 +155,12 @@ class AbbRws:
         ident = self.rws.get("ctrl/identity")[0]
         return Identity(serial=str(ident.get("ctrl-id", "")), system=str(system.get("name", "")),
                         robotware=str(system.get("rwversion", "")))  # fmt: skip
+
+    def identity(self) -> DeviceIdentity:
+        """The controller's serial number (ctrl/identity's ctrl-id), its system's name and RobotWare version
+        (rw/system), read from it (at connect(), or now)."""
+        ident = self.controller_identity or self._identity()
+        return DeviceIdentity(ident.serial, f"IRC5 system {ident.system}", f"RobotWare {ident.robotware}")
 
     def close(self) -> None:
         self.rws.close()

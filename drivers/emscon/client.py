@@ -67,8 +67,8 @@ from trackcal.drivers.emscon.framing import (
     decode_packet,
 )
 from trackcal.drivers.emscon.messages import (
+    ANSWER_TYPES,
     Answer,
-    CommandAnswer,
     ErrorResponse,
     FindReflector,
     FromTracker,
@@ -78,7 +78,9 @@ from trackcal.drivers.emscon.messages import (
     GetStationaryModeParams,
     GetStatisticMode,
     GetSystemSettings,
+    GetSystemSoftwareVersion,
     GetSystemStatus,
+    GetTrackerInfo,
     GetTrackerStatus,
     GetUnits,
     GoBirdBath,
@@ -99,14 +101,16 @@ from trackcal.drivers.emscon.messages import (
     SetUnits,
     SingleMeasResult,
     SingleMeasResult2,
+    SoftwareVersionAnswer,
     StartMeasurement,
     StatusChange,
     SystemStatusAnswer,
+    TrackerInfoAnswer,
     TrackerStatusAnswer,
     encode_command,
 )
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError, TargetNotVisible
-from trackcal.drivers.interfaces import Environment, TrackerMeasurement
+from trackcal.drivers.interfaces import DeviceIdentity, Environment, TrackerMeasurement
 from trackcal.drivers.interfaces import TrackerStatus as InterfaceTrackerStatus
 from trackcal.drivers.transport import receive, require_positive
 
@@ -365,6 +369,23 @@ class EmsconTracker:
     def go_birdbath(self) -> None:
         self._command(GoBirdBath(), "driving to the bird bath", self.motion_timeout_s)
 
+    def identity(self) -> DeviceIdentity:
+        """Who the tracker says it is (for the certificate, #39): GetTrackerInfo's type, name, serial number and LCP
+        firmware, and GetSystemSoftwareVersion's server software, which servers before TPI V3.6 do not know (their
+        ES_RS_NotImplemented leaves it out)."""
+        with self._lock:
+            info = self._command(GetTrackerInfo(), "reading the tracker's identity (GetTrackerInfo)")
+            try:
+                sw = self._command(GetSystemSoftwareVersion(), "reading the emScon server's software version")
+            except DeviceFault as exc:
+                if exc.code != ResultStatus.NOT_IMPLEMENTED:
+                    raise
+                sw = None
+        assert isinstance(info, TrackerInfoAnswer) and (sw is None or isinstance(sw, SoftwareVersionAnswer))
+        model = info.tracker_name or info.tracker_type.name
+        software = "LCP firmware {}.{}".format(*info.lcp_firmware) + (f", emScon {sw.version}" if sw else "")
+        return DeviceIdentity(str(info.serial_number), f"{model} (ES_LTSensorType {int(info.tracker_type)})", software)
+
     def close(self) -> None:
         with self._lock:
             sock, self._sock = self._sock, None
@@ -395,7 +416,7 @@ class EmsconTracker:
             raise ConnectionLost(f"send failed while {what}: {exc}", device=self.device) from exc
         answer = self._wait_for(
             request.COMMAND,
-            (CommandAnswer, SystemStatusAnswer, TrackerStatusAnswer, MeasurementStatusInfoAnswer, SettingAnswer),
+            ANSWER_TYPES,
             time.monotonic() + timeout_s,
             what,
             timeout_s,

@@ -6,7 +6,7 @@ value below was written from them:
   [H]  beckjac/emscon_ros  include/emscon_ros/ES_C_API_Def.h   (full-featured V3.6 header, all tracker types
        incl. ES_LTS_AT901_B/MR/LR): ES_DataType, ES_Command, ES_MeasMode, ES_ResultStatus, ES_TrackerStatus,
        ES_TrackerProcessorStatus, ES_LaserProcessorStatus, ES_ADMStatus, ES_WeatherMonitorStatus,
-       ES_SystemStatusChange, ES_MeasurementStatusInfo, ES_StatisticMode.
+       ES_SystemStatusChange, ES_MeasurementStatusInfo, ES_StatisticMode, ES_LTSensorType, ES_TrkAccuracyModel.
   [E]  beckjac/emscon_ros  include/emscon_ros/Enum.h   ES_LengthUnit, ES_AngleUnit, ES_TemperatureUnit,
        ES_PressureUnit, ES_HumidityUnit, ES_CoordinateSystemType.
   [A]  MuffinSpawn/Leica  Include/ES_C_API_Def.h  (AT4xx extract of the same header; same values).
@@ -59,6 +59,34 @@ class Command(enum.IntEnum):  # ES_Command: the subset this driver speaks
     SET_STATISTIC_MODE = 80
     GET_STATISTIC_MODE = 81
     GET_MEASUREMENT_STATUS_INFO = 122
+    GET_TRACKER_INFO = 132  # the tracker's type, name, serial number and LCP firmware (identity, #39)
+    GET_SYSTEM_SOFTWARE_VERSION = 142  # the emScon server's software version (identity, #39)
+
+
+class LTSensorType(enum.IntEnum):  # ES_LTSensorType [H]: GetTrackerInfoRT.trackerType
+    UNDEFINED = 0
+    SMART_OPTODYNE = 1
+    SMART_LEICA = 2
+    LT_D_500 = 3  # LT500 or LTD500
+    LT300 = 4
+    LT301 = 5
+    LT_D_800 = 6  # LT800 or LTD800
+    LT_D_700 = 7  # LT700 or LTD700
+    LT_D_600 = 8  # LT600 or LTD600
+    LT_D_640 = 9
+    LT_D_706 = 10
+    LT_D_709 = 11
+    LT_D_840 = 12
+    AT901_B = 13
+    AT901_MR = 14
+    AT901_LR = 15
+    AT401 = 70
+    NO_SENSOR = 99
+
+
+class TrkAccuracyModel(enum.IntEnum):  # ES_TrkAccuracyModel [H]: GetTrackerInfoRT.accuracyModel
+    UNKNOWN = 0
+    TAM_2005 = 1
 
 
 class MeasMode(enum.IntEnum):  # ES_MeasMode

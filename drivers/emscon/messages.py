@@ -47,6 +47,7 @@ from trackcal.drivers.emscon.enums import (
     HumidityUnit,
     LaserProcessorStatus,
     LengthUnit,
+    LTSensorType,
     MeasMode,
     PressureUnit,
     ResultStatus,
@@ -55,6 +56,7 @@ from trackcal.drivers.emscon.enums import (
     TemperatureUnit,
     TrackerProcessorStatus,
     TrackerStatus,
+    TrkAccuracyModel,
     WeatherMonitorStatus,
     enum_value,
 )
@@ -116,6 +118,16 @@ class Initialize(Request):  # InitializeCT
 @dataclass(frozen=True)
 class GetSystemStatus(Request):  # GetSystemStatusCT
     COMMAND: ClassVar[Command] = Command.GET_SYSTEM_STATUS
+
+
+@dataclass(frozen=True)
+class GetTrackerInfo(Request):  # GetTrackerInfoCT: the tracker's type, name, serial number, LCP firmware
+    COMMAND: ClassVar[Command] = Command.GET_TRACKER_INFO
+
+
+@dataclass(frozen=True)
+class GetSystemSoftwareVersion(Request):  # GetSystemSoftwareVersionCT (TPI V3.6): the server's software version
+    COMMAND: ClassVar[Command] = Command.GET_SYSTEM_SOFTWARE_VERSION
 
 
 @dataclass(frozen=True)
@@ -332,6 +344,8 @@ REQUEST_TYPES: dict[Command, type[Request]] = {
         Initialize,
         GetSystemStatus,
         GetTrackerStatus,
+        GetTrackerInfo,
+        GetSystemSoftwareVersion,
         GetMeasurementStatusInfo,
         StartMeasurement,
         GoBirdBath,
@@ -399,6 +413,40 @@ class TrackerStatusAnswer:
     status: ResultStatus
     tracker_status: TrackerStatus
     command: ClassVar[Command] = Command.GET_TRACKER_STATUS
+
+
+@dataclass(frozen=True)
+class TrackerInfoAnswer:
+    """GetTrackerInfoRT [H]: what the tracker says it is (its identity on a certificate: type, name, serial number,
+    LCP firmware), and its features."""
+
+    status: ResultStatus
+    tracker_type: LTSensorType  # trackerType
+    tracker_name: str  # cTrackerName[32], a UNICODE string (see unicode_field)
+    serial_number: int  # lSerialNumber
+    compensation_id: int  # lCompensationIdNumber: identifies the compensation
+    has_adm: bool  # bHasADM
+    has_overview_camera: bool  # bHasOverviewCamera
+    has_nivel: bool  # bHasNivel
+    nivel_mount_offset: float  # dNivelMountOffset
+    max_distance: float  # dMaxDistance: the laser's maximal distance (length unit set)
+    min_distance: float  # dMinDistance
+    max_data_rate: int  # iMaxDataRate: measurements per second
+    faces: int  # iNumberOfFaces
+    hz_angle_range: float  # dHzAngleRange, e.g. +/- 240
+    vt_angle_range: float  # dVtAngleRange
+    accuracy_model: TrkAccuracyModel  # accuracyModel
+    lcp_firmware: tuple[int, int]  # iMajLCPFirmwareVersion, iMinLCPFirmwareVersion
+    command: ClassVar[Command] = Command.GET_TRACKER_INFO
+
+
+@dataclass(frozen=True)
+class SoftwareVersionAnswer:
+    """GetSystemSoftwareVersionRT [H] (TPI V3.6): the emScon server's software version, a UNICODE string."""
+
+    status: ResultStatus
+    version: str  # cSoftwareVersion[32]
+    command: ClassVar[Command] = Command.GET_SYSTEM_SOFTWARE_VERSION
 
 
 @dataclass(frozen=True)
@@ -508,7 +556,10 @@ class ReflectorPosResult:
     val3: float
 
 
-Answer = CommandAnswer | SystemStatusAnswer | TrackerStatusAnswer | MeasurementStatusInfoAnswer | SettingAnswer
+Answer = (CommandAnswer | SystemStatusAnswer | TrackerStatusAnswer | MeasurementStatusInfoAnswer | SettingAnswer
+          | TrackerInfoAnswer | SoftwareVersionAnswer)
+ANSWER_TYPES = (CommandAnswer, SystemStatusAnswer, TrackerStatusAnswer, MeasurementStatusInfoAnswer, SettingAnswer,
+                TrackerInfoAnswer, SoftwareVersionAnswer)  # fmt: skip
 MeasResult = SingleMeasResult | SingleMeasResult2
 FromTracker = Answer | ErrorResponse | StatusChange | MeasResult | ReflectorPosResult
 Message = Request | FromTracker
@@ -517,6 +568,10 @@ _BASIC_RT = struct.Struct(_RT_PREFIX)  # 16
 _SYSTEM_STATUS_RT = struct.Struct(_RT_PREFIX + "iiii" + "iii" + "iii")  # 56
 _TRACKER_STATUS_RT = struct.Struct(_RT_PREFIX + "i")  # 20
 _MEAS_STATUS_INFO_RT = struct.Struct(_RT_PREFIX + "ii")  # 24
+# GetTrackerInfoRT: trackerType; cTrackerName[32]; 2 long; 3 ES_BOOL; 3 double; 2 int; 2 double; enum; 2 int = 164
+_TRACKER_INFO_RT = struct.Struct(_RT_PREFIX + "i32H" + "iiiii" + "ddd" + "ii" + "dd" + "iii")
+_SOFTWARE_VERSION_RT = struct.Struct(_RT_PREFIX + "32H")  # GetSystemSoftwareVersionRT: cSoftwareVersion[32] = 80
+UNICODE_UNITS = 32  # unsigned short c...[32]: 32 UTF-16 code units, the last one the terminating 0 when full
 _ERROR = struct.Struct("<iiii")  # ErrorResponseT, 16
 _STATUS_CHANGE = struct.Struct("<iii")  # SystemStatusChangeT, 12
 _SINGLE_MEAS = struct.Struct("<iii" + "ii" + "d" * 17)  # SingleMeasResultT, 156
@@ -526,6 +581,8 @@ _ANSWER_STRUCTS: dict[Command, struct.Struct] = {
     Command.GET_SYSTEM_STATUS: _SYSTEM_STATUS_RT,
     Command.GET_TRACKER_STATUS: _TRACKER_STATUS_RT,
     Command.GET_MEASUREMENT_STATUS_INFO: _MEAS_STATUS_INFO_RT,
+    Command.GET_TRACKER_INFO: _TRACKER_INFO_RT,
+    Command.GET_SYSTEM_SOFTWARE_VERSION: _SOFTWARE_VERSION_RT,
     **{cmd: struct.Struct(_RT_PREFIX + cls.PAYLOAD) for cmd, cls in READBACK.items()},
 }
 _MEAS_TYPES: dict[type, tuple[DataType, struct.Struct]] = {
@@ -533,6 +590,28 @@ _MEAS_TYPES: dict[type, tuple[DataType, struct.Struct]] = {
     SingleMeasResult2: (DataType.SINGLE_MEAS_RESULT2, _SINGLE_MEAS2),
 }
 _MEAS_FLOATS = {cls: tuple(f.name for f in fields(cls))[3:] for cls in _MEAS_TYPES}
+
+
+# -------------------- UNICODE strings
+def unicode_units(text: str, what: str) -> tuple[int, ...]:
+    """`text` as an `unsigned short c...[32]` UNICODE string: UTF-16 code units (the header is written for MSVC, where
+    a UNICODE string is UTF-16 and the wire little-endian like every other field [H]), 0-terminated and 0-padded to
+    32 units; at most 31 units of text, so a C reader always finds the terminator."""
+    data = text.encode("utf-16-le")
+    units = struct.unpack(f"<{len(data) // 2}H", data)
+    if len(units) >= UNICODE_UNITS or 0 in units:
+        raise ValueError(f"{what}: {text!r} does not fit a {UNICODE_UNITS}-unit UNICODE string (31 units, no NUL)")
+    return units + (0,) * (UNICODE_UNITS - len(units))
+
+
+def unicode_field(units: tuple[int, ...], what: str) -> str:
+    """The text of a UNICODE string field: its units up to the first 0 (all 32 if none), read as UTF-16; a lone
+    surrogate is a ProtocolError."""
+    end = units.index(0) if 0 in units else len(units)
+    try:
+        return struct.pack(f"<{end}H", *units[:end]).decode("utf-16-le")
+    except UnicodeDecodeError as exc:
+        raise ProtocolError(f"{what}: not a UTF-16 string ({exc.reason})") from None
 
 
 # -------------------- encode
@@ -592,6 +671,12 @@ def encode_from_tracker(message: FromTracker) -> bytes:
             m.flags,
             m.tracker_serial_number,
         )
+    if isinstance(message, TrackerInfoAnswer):
+        return _encode_tracker_info(message)
+    if isinstance(message, SoftwareVersionAnswer):
+        m, st = message, _SOFTWARE_VERSION_RT
+        units = unicode_units(m.version, "GetSystemSoftwareVersion.cSoftwareVersion")
+        return _pack(st, st.size, DataType.COMMAND, m.command, m.status, *units)
     if isinstance(message, TrackerStatusAnswer):
         st = _TRACKER_STATUS_RT
         return _pack(st, st.size, DataType.COMMAND, message.command, message.status, message.tracker_status)
@@ -619,6 +704,28 @@ def encode_from_tracker(message: FromTracker) -> bytes:
             m.val3,
         )
     raise TypeError(f"not an emScon message: {message!r}")
+
+
+def _encode_tracker_info(m: TrackerInfoAnswer) -> bytes:
+    st = _TRACKER_INFO_RT
+    name = unicode_units(m.tracker_name, "GetTrackerInfo.cTrackerName")
+    return _pack(st, st.size, DataType.COMMAND, m.command, m.status, m.tracker_type, *name, m.serial_number,
+                 m.compensation_id, int(m.has_adm), int(m.has_overview_camera), int(m.has_nivel),
+                 m.nivel_mount_offset, m.max_distance, m.min_distance, m.max_data_rate, m.faces, m.hz_angle_range,
+                 m.vt_angle_range, m.accuracy_model, *m.lcp_firmware)  # fmt: skip
+
+
+def _decode_tracker_info(status: ResultStatus, v: tuple) -> TrackerInfoAnswer:
+    """GetTrackerInfoRT from the values after BasicCommandRT."""
+    w = "GetTrackerInfo"
+    doubles = [_finite(x, f"{w}.{n}") for x, n in zip(v[38:41], ("dNivelMountOffset", "dMaxDistance", "dMinDistance"),
+                                                       strict=True)]  # fmt: skip
+    ranges = [_finite(x, f"{w}.{n}") for x, n in zip(v[43:45], ("dHzAngleRange", "dVtAngleRange"), strict=True)]
+    return TrackerInfoAnswer(
+        status, enum_value(LTSensorType, v[0], f"{w}.trackerType"), unicode_field(v[1:33], f"{w}.cTrackerName"),
+        v[33], v[34], _bool(v[35], f"{w}.bHasADM"), _bool(v[36], f"{w}.bHasOverviewCamera"),
+        _bool(v[37], f"{w}.bHasNivel"), *doubles, v[41], v[42], *ranges,
+        enum_value(TrkAccuracyModel, v[45], f"{w}.accuracyModel"), (v[46], v[47]))  # fmt: skip
 
 
 # -------------------- decode
@@ -671,6 +778,10 @@ def _decode_answer(buf: bytes) -> Answer:
             v[8],
             v[9],
         )
+    if command == Command.GET_TRACKER_INFO:
+        return _decode_tracker_info(status, v)
+    if command == Command.GET_SYSTEM_SOFTWARE_VERSION:
+        return SoftwareVersionAnswer(status, unicode_field(v, "GetSystemSoftwareVersion.cSoftwareVersion"))
     if command == Command.GET_TRACKER_STATUS:
         return TrackerStatusAnswer(status, enum_value(TrackerStatus, v[0], "GetTrackerStatus.trackerStatus"))
     return MeasurementStatusInfoAnswer(

@@ -12,6 +12,7 @@ from trackcal.drivers.krc4.client import DEFAULT_EKI_PORT, KRC4_CYCLE_S, TITLE, 
 from trackcal.drivers.krc4.configs import RSI
 from trackcal.drivers.kuka.eki_codec import AXES
 from trackcal.drivers.kuka.family import SCHEMAS as KRC2_SCHEMAS
+from trackcal.drivers.kuka.family import stated_identity
 from trackcal.drivers.kuka.program import PROGRAM
 
 SCHEMAS = {
@@ -34,7 +35,8 @@ def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> KukaKrc
                     rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"], joint_limits_deg=joint_limits_deg,
                     cell_box_check=cell_box_check, motion_guard=motion_guard,
                     connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
+                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"],
+                    identity=stated_identity(r, f"KUKA {TITLE}"))  # fmt: skip
 
 
 def where(r: dict) -> str:

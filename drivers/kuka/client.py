@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
-from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, RobotState, StopCause
+from trackcal.drivers.interfaces import FROM_HARDWARE_FILE, JOINT_RESOLUTION_DEG, DeviceIdentity, RobotState, StopCause
 from trackcal.drivers.kuka.eki_codec import (
     AXES,
     ERR_DRIVES_OFF,
@@ -81,6 +81,10 @@ CellBoxCheck = Callable[[tuple[float, ...]], "str | None"]
 MotionGuard = Callable[[], "str | None"]
 
 
+# the controller's identity when the hardware file states none (KukaKrc2.identity)
+UNSTATED = DeviceIdentity(model="KUKA KR C2", source=FROM_HARDWARE_FILE)
+
+
 class KukaKrc2:
     """A KUKA KR C2 with the trackcal KRL program (EKI) and the RSI monitor running."""
 
@@ -103,6 +107,7 @@ class KukaKrc2:
         io_timeout_s: float = 5.0,
         rsi_stale_s: float = 1.0,
         rsi_sync: RsiSync | None = None,
+        identity: DeviceIdentity = UNSTATED,
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
@@ -112,6 +117,7 @@ class KukaKrc2:
         if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
             raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
         self.controller_host = controller_host
+        self.stated_identity = identity
         self.joint_limits_deg = limits
         self.cell_box_check = cell_box_check
         self.motion_guard = motion_guard
@@ -161,6 +167,16 @@ class KukaKrc2:
     def _require_connected(self) -> None:
         if not (self.eki.connected and self.rsi.connected):
             raise ConnectionLost("not connected (call connect() first)", device=self.device)
+
+    def identity(self) -> DeviceIdentity:
+        """The controller's identity as the hardware file states it: neither channel can ask it. EKI exchanges only
+        the XML a KRL program of the cell writes and reads (KUKA, "KUKA.EthernetKRL 2.1/3.0" manuals: a channel is the
+        elements of its own configuration file, configs/krc2/TrackcalEki.xml), and RSI's telegram carries only the
+        objects its configuration sends (configs/krc2/trackcal_rsi.xml: AIPos, Delay ...). The serial number and
+        model are system variables ($KR_SERIALNO, $MODEL_NAME[]) that other channels read (CrossComm's ShowVar behind
+        KukaVarProxy, the KR C4's OPC UA server, as public clients do), which trackcal does not open, and that
+        trackcal_eki.src does not send."""
+        return self.stated_identity
 
     def close(self) -> None:
         self.rsi.close()

@@ -5,6 +5,7 @@ controller connects (configs/hardware/README.md)."""
 from __future__ import annotations
 
 from trackcal.drivers.families import REQUIRED, RobotFamily
+from trackcal.drivers.interfaces import FROM_HARDWARE_FILE, DeviceIdentity
 from trackcal.drivers.kuka.client import KukaKrc2
 from trackcal.drivers.kuka.eki_codec import AXES
 from trackcal.drivers.kuka.krl_reader import read_krl
@@ -22,6 +23,9 @@ SCHEMAS = {
         "move_timeout_s": ("timeout", 300.0),
         "io_timeout_s": ("timeout", 5.0),
         "rsi_stale_s": ("timeout", 1.0),
+        # the controller's identity for the certificate (#39): EKI and RSI offer no query of it (see KukaKrc2.identity)
+        "serial": ("text", None),
+        "software": ("text", None),
     },
     "eki": {
         "host": ("host", REQUIRED),  # this PC's address on the robot network: no listening on every interface
@@ -43,7 +47,13 @@ def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> KukaKrc
                     controller_host=r["controller_host"], rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
                     joint_limits_deg=joint_limits_deg, cell_box_check=cell_box_check, motion_guard=motion_guard,
                     connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"])  # fmt: skip
+                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"],
+                    identity=stated_identity(r, "KUKA KR C2"))  # fmt: skip
+
+
+def stated_identity(r: dict, model: str) -> DeviceIdentity:
+    """The controller's identity as the hardware file states it (robot.serial, robot.software)."""
+    return DeviceIdentity(r.get("serial", ""), model, r.get("software", ""), FROM_HARDWARE_FILE)
 
 
 def where(r: dict) -> str:

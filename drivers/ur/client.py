@@ -4,7 +4,8 @@ trackcal writes no RTDE client of its own: the three ur_rtde interfaces do the w
 sdurobotics.gitlab.io/ur_rtde/api/api.html; the Python names are those of src/rtde_python_bindings.cpp):
 
 - DashboardClient (port 29999): `polyscopeVersion`, `isInRemoteControl` (PolyScope 5.6 and later: a robot in local
-  control accepts no remote program), `unlockProtectiveStop`, `closeSafetyPopup`, `closePopup` (Universal Robots,
+  control accepts no remote program), `unlockProtectiveStop`, `closeSafetyPopup`, `closePopup`, and for the
+  controller's identity `getSerialNumber` (PolyScope 5.6 and later) and `getRobotModel` (Universal Robots,
   "Dashboard Server e-Series": the commands and their replies).
 - RTDEReceiveInterface (port 30004): the stream trackcal reads, at the controller's rate (500 Hz e-Series, 125 Hz
   CB3): `getActualQ` (rad), `getActualTCPPose` (m, rotation vector rad), `getRobotMode`, `getSafetyMode`,
@@ -49,7 +50,7 @@ import rtde_control
 import rtde_receive
 
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout
-from trackcal.drivers.interfaces import RobotState, stop_code
+from trackcal.drivers.interfaces import DeviceIdentity, RobotState, stop_code
 from trackcal.drivers.motion_request import checked_speed, checked_target
 from trackcal.drivers.transport import claim_socket, require_settle_limits
 
@@ -62,6 +63,7 @@ ROBOT_MODES = {-1: "no controller", 0: "disconnected", 1: "confirm safety", 2: "
                4: "power on", 5: "idle (brakes held)", 6: "backdrive", 7: "running",
                8: "updating firmware"}  # fmt: skip
 ROBOT_RUNNING = 7
+SERIAL_SINCE = (5, 6)  # the dashboard's `get serial number` (PolyScope 5.6 and later, see UrRtde.identity)
 SAFETY_BITS = ((2, "protective stop"), (4, "safeguard stop"), (5, "system emergency stop"),
                (6, "robot emergency stop"), (7, "emergency stop"), (8, "safety violation"),
                (9, "safety fault"))  # fmt: skip
@@ -259,6 +261,16 @@ class UrRtde:
             return getattr(self.dashboard, name)(*args)
         except RuntimeError as exc:
             raise ConnectionLost(f"dashboard {name}: {exc}", device=self.device) from None
+
+    def identity(self) -> DeviceIdentity:
+        """The controller's serial number, robot model and PolyScope version, read from its dashboard server: the
+        replies to `get serial number`, `get robot model` and `PolyscopeVersion` (Universal Robots, "Dashboard Server
+        e-Series"; `get serial number` from PolyScope 5.6 on: ur_rtde's DashboardClient.getSerialNumber sends it only
+        then and checks that the reply is a number, src/dashboard_client.cpp; its polyscopeVersion() keeps the
+        version number of the reply "URSoftware 5.11.1.108318 (...)"). An older PolyScope's serial is ""."""
+        serial = self._dash("getSerialNumber") if self.version >= SERIAL_SINCE else ""
+        return DeviceIdentity(str(serial).strip(), f"Universal Robots {str(self._dash('getRobotModel')).strip()}",
+                              f"PolyScope {str(self._dash('polyscopeVersion')).strip()}")  # fmt: skip
 
     def close(self) -> None:
         """Disconnect and give up the claim."""

@@ -28,6 +28,8 @@ Behaviour (what a real server answers is assumed where the public headers do not
 - statistic mode: ES_SM_Standard stationary results are SingleMeasResultT (type 2), ES_SM_Extended ones
   SingleMeasResult2T (type 9, 204 bytes); the system settings are kept, and bTryMeasurementMode marks every
   result as a try-mode result; the Get* commands of these settings read them back;
+- identity (#39): GetTrackerInfo and GetSystemSoftwareVersion answer `identity` (mocks/servers/emscon_identity.py:
+  the twin's tracker), lengths and angles in the units set; GetSystemStatus carries its serial number;
 - only the stationary measurement mode is implemented: SetMeasurementMode of another is ES_RS_NotImplemented;
 - a command the mock does not implement is answered, and the connection kept, with ES_RS_NotImplemented (2) in
   that command's *RT, full size, zeroed payload (drivers/emscon/messages.encode_refusal: the layouts of every
@@ -82,7 +84,9 @@ from trackcal.drivers.emscon.messages import (
     GetStationaryModeParams,
     GetStatisticMode,
     GetSystemSettings,
+    GetSystemSoftwareVersion,
     GetSystemStatus,
+    GetTrackerInfo,
     GetTrackerStatus,
     GetUnits,
     GoBirdBath,
@@ -113,6 +117,7 @@ from trackcal.drivers.errors import ProtocolError
 from trackcal.drivers.interfaces import Environment, RealClock
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.servers import emscon_units as units
+from trackcal.mocks.servers.emscon_identity import DEFAULT_IDENTITY, TrackerIdentity
 
 MeasureFn = Callable[[tuple[float, float, float] | None], tuple[float, float, float, float, float, float]]
 
@@ -144,7 +149,7 @@ class MockEmscon:
         environment: Environment = STANDARD_ENVIRONMENT,
         reflector_present: bool | Callable[[], bool] = True,
         motion_time_s: float = 2.0,
-        serial_number: int = 0,
+        identity: TrackerIdentity = DEFAULT_IDENTITY,
         dribble: bool = False,
         coalesce: bool = False,
     ) -> None:
@@ -153,7 +158,7 @@ class MockEmscon:
         self._bind = (host, port)
         self.reflector_present = reflector_present
         self.motion_time_s = motion_time_s
-        self.serial_number = serial_number
+        self.identity = identity  # GetTrackerInfo, GetSystemSoftwareVersion, GetSystemStatus's serial number
         self.dribble = dribble  # send every byte in its own segment
         self.coalesce = coalesce  # send everything a request causes in a single segment
         self.silent = False  # read requests, never answer
@@ -361,7 +366,13 @@ class MockEmscon:
         processor = TrackerProcessorStatus.INITIALIZED if self.initialized else TrackerProcessorStatus.COMPENSATION_SET
         return [SystemStatusAnswer(ResultStatus.ALL_OK, self.last_result_status, processor,
                                    LaserProcessorStatus.LASER_READY, ADMStatus.ADM_READY, _VERSION,
-                                   self.system_settings.weather_monitor, 0, self.serial_number)]  # fmt: skip
+                                   self.system_settings.weather_monitor, 0, self.identity.serial_number)]  # fmt: skip
+
+    def _tracker_info(self, request: GetTrackerInfo) -> list[Message]:
+        return [self.identity.tracker_info(self.units)]
+
+    def _software_version(self, request: GetSystemSoftwareVersion) -> list[Message]:
+        return [self.identity.software_version()]
 
     def _tracker_status(self, request: GetTrackerStatus) -> list[Message]:
         state = TrackerStatus.READY if self.initialized else TrackerStatus.NOT_READY
@@ -527,6 +538,8 @@ _HANDLERS: dict[type, Callable[[MockEmscon, Request], list[Message]]] = {
     Initialize: MockEmscon._initialize,
     GetSystemStatus: MockEmscon._system_status,
     GetTrackerStatus: MockEmscon._tracker_status,
+    GetTrackerInfo: MockEmscon._tracker_info,
+    GetSystemSoftwareVersion: MockEmscon._software_version,
     GetMeasurementStatusInfo: MockEmscon._measurement_status,
     SetUnits: MockEmscon._set_units,
     SetCoordinateSystemType: MockEmscon._set_coordinate_system,

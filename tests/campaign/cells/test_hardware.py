@@ -201,6 +201,12 @@ def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp
     with sqlite3.connect(d / "session.sqlite") as db:
         prompts = [json.loads(r[0])["kind"] for r in db.execute("SELECT data FROM events WHERE kind='prompt'")]
         skipped = [r for r in db.execute("SELECT data FROM events WHERE kind='warning'") if "skipped here" in r[0]]
+        warned = [r[0] for r in db.execute("SELECT data FROM events WHERE kind='warning'") if "serial" in r[0]]
+        (identity,) = [json.loads(r[0]) for r in db.execute("SELECT data FROM events WHERE kind='identity'")]
+    # who measured (#39): the twin's tracker says its serial over emScon, the one the mock's hardware file states
+    assert identity["tracker"]["serial"] == str(load_hardware(hw).tracker["serial"]) and not warned
+    assert identity["tracker"]["source"] == "read from the device"
+    assert identity["robot"]["source"] == "from the hardware file"  # a KR C2: EKI and RSI cannot ask it
     assert prompts.count("change_station") == 2 and prompts.count("move_reflector") == 6
     assert prompts.count("resume") == 8
     run("export", str(d), "--csv", str(tmp_path / "t.csv"))

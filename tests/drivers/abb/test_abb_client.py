@@ -12,7 +12,7 @@ import pytest
 
 from trackcal.drivers.abb.client import AbbRws
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused
-from trackcal.drivers.interfaces import StopCause
+from trackcal.drivers.interfaces import READ_FROM_DEVICE, DeviceIdentity, StopCause
 from trackcal.mocks.servers.abb.process import MockAbbProcess
 
 LIMITS = ((-165, 165), (-110, 110), (-110, 70), (-160, 160), (-120, 120), (-400, 400))  # configs/robots/irb120.yaml
@@ -35,7 +35,12 @@ def robot(mock):
 
 
 def test_connect_reads_the_identity_and_a_move_ends_standing_at_its_target(robot, mock):
-    assert robot.identity is not None and robot.identity.serial and robot.identity.robotware.startswith("6.")
+    ident = robot.controller_identity
+    assert ident is not None and ident.serial and ident.robotware.startswith("6.")
+    # the interface's form (drivers.interfaces.DeviceIdentity): ctrl/identity's ctrl-id, rw/system's name and
+    # rwversion (Robot Web Services manual, "Get Controller Identity", "Get RobotWare System Information")
+    assert robot.identity() == DeviceIdentity(ident.serial, f"IRC5 system {ident.system}",
+                                              f"RobotWare {ident.robotware}", READ_FROM_DEVICE)  # fmt: skip
     target = (12.3456, -10.0, 20.0, 5.0, 45.0, -30.0)
     robot.move(target, 100)
     assert robot.joints() == target

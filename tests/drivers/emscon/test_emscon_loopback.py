@@ -391,8 +391,9 @@ def test_packets_it_cannot_read_are_answered_and_the_connection_kept(server):
         (struct.pack("<iii", 12, 99, 49), struct.pack("<iiii", 16, 0, 49, 2)),  # unknown ES_DataType 99
         (struct.pack("<iii", 12, 0, 50), struct.pack("<iiii", 16, 0, 50, 2)),  # ES_Command 50 does not exist
         (struct.pack("<ii", 8, 0), struct.pack("<iiii", 16, 0, 64, 2)),  # no command at all: ES_C_Unknown 64
-        # GetTrackerInfo (132) is not implemented: its whole 164-byte GetTrackerInfoRT, zeroed
-        (struct.pack("<iii", 12, 0, 132), struct.pack("<iiii", 164, 0, 132, 2) + bytes(148)),
+        # GetATRInfo (138) is not implemented: its whole GetATRInfoRT, zeroed: BasicCommandRT 16 + atrType 4 +
+        # cATRName[32] 64 + 6 long 24 + 4 double 32 = 140 bytes
+        (struct.pack("<iii", 12, 0, 138), struct.pack("<iiii", 140, 0, 138, 2) + bytes(124)),
         # SetUnits with ES_LengthUnit 9 (no such unit): SetUnitsRT (16 bytes) with ES_RS_WrongParameter
         (struct.pack("<iii5i", 32, 0, 5, 9, 1, 0, 1, 0), struct.pack("<iiii", 16, 0, 5, 3)),
     ]

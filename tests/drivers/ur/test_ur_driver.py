@@ -3,6 +3,7 @@ unmodified ur_rtde: connect, read, move and check, stop on the guard, a protecti
 local control, lost and stale connections. Each mock runs on its own loopback address (the UR ports are fixed)."""
 
 import math
+import socket
 import subprocess
 import sys
 import threading
@@ -11,7 +12,7 @@ import time
 import pytest
 
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, MotionRefused
-from trackcal.drivers.interfaces import Robot
+from trackcal.drivers.interfaces import READ_FROM_DEVICE, DeviceIdentity, Robot
 from trackcal.drivers.ur import client
 from trackcal.drivers.ur.client import UrRtde
 from trackcal.mocks.servers.ur.process import MockUrProcess
@@ -39,6 +40,38 @@ def test_is_a_robot_and_reads_joints_and_tcp(ur):
     assert 0 < math.hypot(x, y) < 1300 and abs(z) < 1300
     assert robot.robot_mode() == 7 and robot.safety_mode() == 1  # RTDE guide: RUNNING, NORMAL
     assert robot.state().fault == "" and not robot.protective_stopped()
+
+
+def test_identity_is_the_dashboard_servers_answers(ur):
+    """`get serial number` (PolyScope 5.6 and later), `get robot model` and `PolyscopeVersion` (Universal Robots,
+    "Dashboard Server e-Series"), compared with the replies read by hand on port 29999: the mock is PolyScope 5.11."""
+    _, robot = ur
+    with socket.create_connection(("127.0.0.21", 29999), timeout=5.0) as raw:
+        lines = raw.makefile("rw", newline="\n")
+        lines.readline()  # the greeting
+        replies = []
+        for command in ("get serial number", "get robot model", "PolyscopeVersion"):
+            lines.write(command + "\n")
+            lines.flush()
+            replies.append(lines.readline().strip())
+    ident = robot.identity()
+    version = replies[2].split()[1]  # "URSoftware 5.11.1.108318 (Jan 16 2024)": the version number
+    assert ident == DeviceIdentity(replies[0], f"Universal Robots {replies[1]}", f"PolyScope {version}",
+                                   READ_FROM_DEVICE)  # fmt: skip
+    assert ident.serial.isdigit() and version.startswith("5.11.")
+
+
+def test_before_polyscope_5_6_the_serial_is_not_asked():
+    """`get serial number` came with PolyScope 5.6 (ur_rtde's getSerialNumber refuses to send it before): a 5.4
+    controller's identity has no serial, and its version."""
+    with MockUrProcess("127.0.0.27", seed=5, args=["--version", "5.4.0.0"]):
+        robot = UrRtde("127.0.0.27", connect_timeout_s=10.0)
+        try:
+            robot.connect()
+            ident = robot.identity()
+            assert ident.serial == "" and ident.software == "PolyScope 5.4.0.0"
+        finally:
+            robot.close()
 
 
 def test_move_ends_at_the_target_exactly(ur):
