@@ -1,10 +1,16 @@
 """Robot Web Services 1.0 (RobotWare 6) over HTTP: digest authentication, the session cookies, JSON answers.
 
-Which RWS: 1.0, the REST interface of RobotWare 6 (ABB, "Application Manual - Robot Web Services", 3HAC050973-001,
-developercenter.robotstudio.com/api/rwsApi/). RWS 2.0 (RobotWare 7, OmniCore) is a different protocol on HTTPS with
-basic authentication, other resource paths and media types (application/hal+json;v=2.0); trackcal's first ABB arms
-(the IRB 120s of its real data sets) run on IRC5 controllers with RobotWare 6, and abb-robot-client, the judge, speaks
-1.0 only. RWS 2.0 is left for a later session: its transport would be a second class beside this one.
+Which RWS: 1.0 only, the REST interface of RobotWare 6 (ABB, "Application Manual - Robot Web Services",
+3HAC050973-001, developercenter.robotstudio.com/api/rwsApi/). RWS 2.0 (RobotWare 7, OmniCore controllers: ABB's
+"Robot Web Services 2.0" reference, developercenter.robotstudio.com/api/RWS) is another protocol: HTTPS only, HTTP
+Basic authentication instead of digest, versioned media types (`Accept: application/hal+json;v=2.0`, form posts as
+`application/x-www-form-urlencoded;v=2.0`) and changed resources and answers ("For the RW 7.0 release, RWS has
+introduced several breaking changes", the RobotWare 7 client rwswrap, pypi.org/project/rwswrap). trackcal speaks 1.0
+because its ABB arms (the IRB 120s of its real data sets, the IRB 6700 twin) are IRC5 controllers with RobotWare 6,
+and because its judge, abb-robot-client, speaks 1.0 only: a 2.0 dialect would have no independent client to be judged
+by. A RobotWare 7 controller is recognised, not misread: its Basic challenge (401 with `WWW-Authenticate: Basic`) or
+its redirect of plain HTTP to HTTPS ends the session in one ProtocolError saying so (`RWS2_REFUSED`), where it would
+otherwise read as a wrong password.
 
 What this module relies on (the manual's pages named; each is `curl --digest -u "Default User":robotics URL`):
 - every request is HTTP digest authenticated (RFC 7616, MD5, qop=auth) until the controller hands out its session
@@ -39,6 +45,9 @@ from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, 
 DEFAULT_USER = "Default User"  # the user every RobotWare 6 system has (the manual's sample calls)
 DEFAULT_PASSWORD = "robotics"
 SESSION_COOKIES = ("-http-session-", "ABBCX")
+RWS2_REFUSED = ("answers as a RobotWare 7 controller (Robot Web Services 2.0: HTTPS, Basic authentication), which "
+                "trackcal does not speak: it drives RobotWare 6 controllers over RWS 1.0 (docs/abb.md)")
+_REDIRECTS = (301, 302, 303, 307, 308)
 _PARAM = re.compile(r'(\w+)=(?:"((?:[^"\\]|\\.)*)"|([^,\s]*))')
 
 
@@ -129,10 +138,20 @@ class RwsSession:
                 self.cookies.clear()
                 self._challenge = parse_challenge(headers.get("www-authenticate", ""))
                 self._nc = 0
+                if not self._challenge:
+                    self._rws2(method, path, headers, f"HTTP 401 asking for {headers.get('www-authenticate')!r}")
                 status, headers, payload = self._exchange(method, uri, body)
+        if status in _REDIRECTS and headers.get("location", "").lower().startswith("https:"):
+            self._rws2(method, path, headers, f"HTTP {status} to {headers['location']}")
         if 200 <= status < 300:
             return payload
         raise self._refusal(method, path, status, payload)
+
+    def _rws2(self, method: str, path: str, headers: dict[str, str], seen: str) -> None:
+        """A Basic challenge or a redirect to HTTPS: RobotWare 7, not RWS 1.0 (the module docstring)."""
+        if "digest" in headers.get("www-authenticate", "").lower():
+            return  # a digest challenge beside it: RWS 1.0 after all
+        raise ProtocolError(f"{method} {path}: the controller {RWS2_REFUSED} ({seen})", device=self.device)
 
     def close(self) -> None:
         with self._lock:

@@ -12,7 +12,8 @@ module refuses to import otherwise, and the files stay the one source of truth f
 - configs/krc4/trackcal_rsi_ethernet.xml, the RSI ETHERNET object's file (<ROOT><CONFIG><IP_NUMBER>..<PORT>..
   <SENTYPE>..<ONLYSEND>..</CONFIG><SEND><ELEMENTS><ELEMENT TAG="DEF_RIst" .../>...<RECEIVE>... AK.A1..AK.A6), the
   layout of kuka_rsi_hw_interface/krl/KR_C4_RSI_4+/ros_rsi_ethernet.xml (commit 249eb36): no PROTOCOL element,
-  RSI Ethernet on a KR C4 is UDP.
+  RSI Ethernet on a KR C4 is UDP. Beside the AK corrections it receives one BOOL, Stop (the motion guard's stop,
+  answered within the RSI cycle: drivers.krc4.client; the KR C2 file has none).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 from importlib import resources
 
 from trackcal.drivers.kuka.eki_codec import COMMAND, CONFIG_PACKAGE, STATE
-from trackcal.drivers.kuka.rsi_codec import ROB_ELEMENTS, SEN_TYPE
+from trackcal.drivers.kuka.rsi_codec import ROB_ELEMENTS, SEN_TYPE, STOP_ELEMENT
 from trackcal.drivers.kuka.rsi_codec import SHIPPED as KRC2_RSI
 
 EKI_FILE = "TrackcalEki.xml"
@@ -79,7 +80,8 @@ def read_eki(xml: bytes, what: str = EKI_FILE) -> EkiConfig:
 @dataclass(frozen=True)
 class RsiConfig:
     """An RSI ETHERNET object's file: SENTYPE, whether the controller expects answers, the <Rob> elements sent
-    (DEF_<name>, then IPOC) and the correction received (AK.A1..)."""
+    (DEF_<name>, then IPOC), the correction received (AK.A1..) and the plain elements received (TAG without a
+    dot: Stop, the motion guard's stop, drivers.krc4.client)."""
 
     sen_type: str
     passive: bool
@@ -87,6 +89,7 @@ class RsiConfig:
     rob_elements: tuple[str, ...]
     correction: str
     correction_axes: tuple[str, ...]
+    flags: tuple[str, ...] = ()
 
 
 def read_rsi(xml: bytes, what: str = RSI_FILE) -> RsiConfig:
@@ -97,7 +100,9 @@ def read_rsi(xml: bytes, what: str = RSI_FILE) -> RsiConfig:
     onlysend = (root.findtext("CONFIG/ONLYSEND") or "").strip().upper()
     port = (root.findtext("CONFIG/PORT") or "").strip()
     send = [e.get("TAG", "") for e in root.iterfind("SEND/ELEMENTS/ELEMENT")]
-    receive = [e.get("TAG", "").split(".") for e in root.iterfind("RECEIVE/ELEMENTS/ELEMENT")]
+    tags = [e.get("TAG", "") for e in root.iterfind("RECEIVE/ELEMENTS/ELEMENT")]
+    receive = [t.split(".") for t in tags if "." in t]
+    flags = tuple(t for t in tags if "." not in t)
     if not sen_type.isidentifier() or onlysend not in ("TRUE", "FALSE") or not port.isdigit():
         raise ValueError(f"{what}: SENTYPE {sen_type!r}, ONLYSEND {onlysend!r}, PORT {port!r}")
     if not send or any(not t.startswith("DEF_") for t in send):
@@ -105,7 +110,7 @@ def read_rsi(xml: bytes, what: str = RSI_FILE) -> RsiConfig:
     if not receive or any(len(r) != 2 or r[0] != receive[0][0] for r in receive):
         raise ValueError(f"{what}: RECEIVE tags must be one <element>.<attribute> family")
     return RsiConfig(sen_type, onlysend == "TRUE", int(port), tuple(t[4:] for t in send) + ("IPOC",),
-                     receive[0][0], tuple(r[1] for r in receive))  # fmt: skip
+                     receive[0][0], tuple(r[1] for r in receive), flags)  # fmt: skip
 
 
 def _bind(eki: EkiConfig, rsi: RsiConfig) -> None:
@@ -117,9 +122,10 @@ def _bind(eki: EkiConfig, rsi: RsiConfig) -> None:
     if set(eki.sent) != set(STATE.tags) or len(eki.sent) != len(STATE.tags):
         raise ValueError(f"{EKI_FILE}: SEND declares {eki.sent}, the codec answers {STATE.tags}")
     if (set(rsi.rob_elements) != set(ROB_ELEMENTS) or rsi.sen_type != SEN_TYPE
-            or (rsi.correction, rsi.correction_axes) != (KRC2_RSI.correction, KRC2_RSI.correction_axes)):  # fmt: skip
+            or (rsi.correction, rsi.correction_axes) != (KRC2_RSI.correction, KRC2_RSI.correction_axes)
+            or rsi.flags != (STOP_ELEMENT,)):  # fmt: skip
         raise ValueError(f"{RSI_FILE}: declares {rsi}, the codec reads {ROB_ELEMENTS} and answers "
-                         f"<Sen Type={SEN_TYPE!r}> {KRC2_RSI.correction}")  # fmt: skip
+                         f"<Sen Type={SEN_TYPE!r}> {KRC2_RSI.correction} and <{STOP_ELEMENT}>")  # fmt: skip
 
 
 EKI = read_eki(config_text(EKI_FILE).encode())

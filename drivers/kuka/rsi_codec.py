@@ -119,6 +119,7 @@ class SenFrame:
     ipoc: int
     corrections: tuple[float, ...] = (0.0,) * 6
     sen_type: str = SEN_TYPE
+    stop: bool = False  # KR C4 only: <Stop>1</Stop>, the RECEIVE element Stop of configs/krc4 (drivers.krc4.configs)
 
 
 def _xml_attrs(tag: str, names: tuple[str, ...], values: tuple[float, ...]) -> str:
@@ -232,6 +233,12 @@ def ipoc_of(data: bytes) -> int | None:
     return value if value <= MAX_IPOC else None
 
 
+# A plain RECEIVE element (TAG without a dot) is the element's text, as <IPOC> is; a BOOL is 0 or 1. Only a KR C4
+# answer carries it (the motion guard's stop, drivers.krc4.client), and only when set: the KR C2's bytes are unchanged.
+STOP_ELEMENT = "Stop"
+_STOP_ON = f"<{STOP_ELEMENT}>1</{STOP_ELEMENT}>"
+
+
 def encode_sen(frame: SenFrame) -> bytes:
     """The external side's answer: same IPOC, axis corrections (zero for a passive monitor)."""
     if not 0 <= frame.ipoc <= MAX_IPOC:
@@ -240,7 +247,7 @@ def encode_sen(frame: SenFrame) -> bytes:
         raise ValueError(f"Sen Type {frame.sen_type!r} is not a plain name")
     text = (
         f'<{SEN_ROOT} Type="{frame.sen_type}">{_xml_attrs(CORRECTION_ELEMENT, AXES, frame.corrections)}'
-        f"<IPOC>{int(frame.ipoc)}</IPOC></{SEN_ROOT}>"
+        f"{_STOP_ON if frame.stop else ''}<IPOC>{int(frame.ipoc)}</IPOC></{SEN_ROOT}>"
     )
     return text.encode("ascii")
 
@@ -254,10 +261,15 @@ def parse_sen(data: bytes) -> SenFrame:
     ipoc = _ipoc(None if ipoc_el is None else ipoc_el.text, SEN_ROOT)
     if ipoc is None:
         raise ProtocolError("<Sen> without an IPOC value")
+    stop_el = root.find(STOP_ELEMENT)
+    stop = "0" if stop_el is None else (stop_el.text or "").strip()
+    if stop not in ("0", "1"):
+        raise ProtocolError(f"<Sen><{STOP_ELEMENT}> is {stop!r}, expected 0 or 1")
     return SenFrame(
         ipoc=ipoc,
         corrections=parse_attrs(root.find(CORRECTION_ELEMENT), AXES, "Sen/AK", AXIS_LIMIT),
         sen_type=sen_type,
+        stop=stop == "1",
     )
 
 

@@ -120,6 +120,7 @@ class RsiLink:
         self._opened = False  # UDP: the session began with the controller's first frame (else: a running stream)
         self._framer = rob_framer()  # TCP: the stream cut into frames
         self.pumped = False  # no threads: the frames are read by whoever asks (start, _pump)
+        self.stop_requested = False  # KR C4 only: every answer carries <Stop>1</Stop> while set (drivers.krc4.client)
         self._pump_lock = threading.Lock()
 
     # --- address and connection -----------------------------------------------------------------------------
@@ -281,7 +282,7 @@ class RsiLink:
                 return
             self._last_ipoc = ipoc
         if not self.passive and ipoc is not None:
-            answer = encode_sen(SenFrame(ipoc=ipoc))
+            answer = encode_sen(SenFrame(ipoc=ipoc, stop=self.stop_requested))
             if self.protocol == "tcp":
                 sock.sendall(answer)
             else:

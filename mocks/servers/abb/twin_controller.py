@@ -80,7 +80,8 @@ class TwinAbb:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # the port trackcal will listen on for EGM
             s.bind(("127.0.0.1", 0))
             self.egm_port = s.getsockname()[1]
-        self.process = MockAbbProcess(seed=seed, args=["--q0-deg", q0, "--speed", rate, "--egm",
+        robot = world.twin.cell.chain.name  # the cell's arm (irb120, irb6700): its flange for the robtarget
+        self.process = MockAbbProcess(seed=seed, args=["--q0-deg", q0, "--speed", rate, "--robot", robot, "--egm",
                                                        f"127.0.0.1:{self.egm_port}"]).start()  # fmt: skip
         try:
             self.follower = JointFollower(("127.0.0.1", self.process.control_port), world.robot_at).start()

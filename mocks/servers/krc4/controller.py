@@ -14,6 +14,10 @@ lateness) with what KSS 8 changes:
   the joints reported (AIPos, EKI's $AXIS_ACT_MEAS, the twin's robot) are the PTP's plus the correction. This is
   how kuka_rsi_hw_interface moves a robot (src/kuka_hardware_interface.cpp: correction = command - the ASPos
   of the first frame).
+- Stop (the BOOL Stop of trackcal_rsi_ethernet.xml, trackcal's motion guard): an answer whose <Stop> rises from 0
+  to 1 during a move brakes it from the next cycle on, as interrupt 18 of trackcal_eki.src does (BRAKE, the move
+  answered with Error 6 at standstill); `rsi_stops` records the number of the frame (1 = the first sent) whose
+  answer raised it, for every rising edge.
 - Lateness: more than max_late_packages late answers in a row stop the robot, as the ETHERNET object's Timeout
   parameter does (100 by default: kuka_rsi_hw_interface/krl/KR_C4_RSI_4+/README.md). Late answers are counted
   only while an EKI client is connected (the mock does not stop the robot because nobody has started trackcal
@@ -44,6 +48,8 @@ class MockKrc4(MockKrc2):
         self.eki_addr = self._eki.addr
         self._rsi = RsiUdpEnd(rsi_addr, "udp", self.sen_type, self.errors, self._rsi_lost)
         self.correction_deg: tuple[float, ...] = (0.0,) * 6
+        self.rsi_stops: list[int] = []  # the frame whose answer raised Stop, per rising edge
+        self._stop_high = False
 
     @property
     def joints_deg(self) -> tuple[float, ...]:
@@ -74,5 +80,10 @@ class MockKrc4(MockKrc2):
         answer = self._rsi.answer
         if answer is not before and answer is not None:
             self.correction_deg = tuple(float(v) for v in answer.corrections)
+            if answer.stop and not self._stop_high:  # a rising edge: the STOP wired to interrupt 18 brakes
+                self.rsi_stops.append(self.frames_sent)
+                if self.motion.mode == "moving":
+                    self.motion.brake()
+            self._stop_high = answer.stop
         elif not self._eki.connected:  # nobody to be late for: not counted
             self.late_packets, self.consecutive_late = late, consecutive

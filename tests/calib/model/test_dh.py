@@ -109,6 +109,17 @@ def test_irb120_literature_dh_is_the_ros_industrial_chain_and_the_datasheet():
     np.testing.assert_allclose(end_frames(dh, np.zeros((1, 6)))[0, :3, 3], [374, 0, 630], atol=1e-9)
 
 
+def test_irb6700_dh_is_the_ros_industrial_chain_and_the_datasheet():
+    irb, _ = load_robot("irb6700")
+    dh, _ = load_robot("irb6700-dh")
+    got, want = end_frames(dh, Q), end_frames(irb, Q)
+    np.testing.assert_allclose(got[:, :3, 3], want[:, :3, 3], atol=1e-9)
+    np.testing.assert_allclose(got[:, :3, :3], want[:, :3, :3], atol=1e-12)
+    # ABB's dimension drawing of the IRB 6700-200/2.60 (as abb_irb6700_support carries it): at the calibration
+    # position (all zeros) the flange is 320 + 1142.5 + 200 = 1662.5 mm out and 780 + 1125 + 200 = 2105 mm up
+    np.testing.assert_allclose(end_frames(dh, np.zeros((1, 6)))[0, :3, 3], [1662.5, 0, 2105], atol=1e-9)
+
+
 def test_signs_and_offsets_are_the_datasheet_theta():
     """theta_i = sign_i q_i + offset_i, against the textbook product with that theta."""
     sign = [1, -1, 1, -1, -1, 1]
@@ -120,7 +131,7 @@ def test_signs_and_offsets_are_the_datasheet_theta():
         np.testing.assert_allclose(g, textbook_standard(UR10_A, UR10_ALPHA, UR10_D, theta), atol=1e-9)
 
 
-@pytest.mark.parametrize("robot", ["ur10-dh", "kr270-dh", "irb120-dh", "irb120"])
+@pytest.mark.parametrize("robot", ["ur10-dh", "kr270-dh", "irb120-dh", "irb120", "irb6700-dh", "irb6700"])
 def test_dh_robots_get_a_complete_irreducible_set(robot):
     chain, _ = load_robot(robot)
     kept, eliminated = irreducible_params(chain)

@@ -1,6 +1,7 @@
-"""The IRB 120 cell on the hardware path (issue 40): `trackcal mock --cell irb120` (the twin behind the mock ABB
-controller in a process of its own, Robot Web Services on loopback) and `trackcal run --hardware` against it, as on the
-shop floor: the same seed measures the same rows as `run --sim`. And the hardware file's ABB section."""
+"""The ABB cells on the hardware path (issue 40): `trackcal mock --cell irb120` (and irb6700: the larger arm) (the
+twin behind the mock ABB controller in a process of its own, Robot Web Services on loopback) and `trackcal run
+--hardware` against it, as on the shop floor: the same seed measures the same rows as `run --sim`. And the hardware
+file's ABB section."""
 
 import json
 import re
@@ -15,7 +16,8 @@ from trackcal.calib.io.table import read_table
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
-Q0 = (0.0, 10.0, 10.0, 0.0, 40.0, 0.0)  # configs/cells/irb120.yaml's test pose: every nest faces a station
+# the test pose of configs/cells/irb120.yaml and irb6700.yaml: every nest faces a station
+Q0 = (0.0, 10.0, 10.0, 0.0, 40.0, 0.0)
 SEED = 4
 
 
@@ -31,19 +33,20 @@ def table(session, out):
 
 
 @pytest.mark.slow  # minutes on a shared 2-core machine: settle windows and operator prompts run on the wall clock
-def test_one_pose_over_the_mock_abb_controller_measures_the_sim_rows(tmp_path):
+@pytest.mark.parametrize("cell", ["irb120", "irb6700"])
+def test_one_pose_over_the_mock_abb_controller_measures_the_sim_rows(tmp_path, cell):
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({"poses_deg": [list(Q0)], "repeat": 1}))
     hw = tmp_path / "H.yaml"
-    with mock_process("irb120", SEED, hw, timeout_s=90.0, sim_speed=10.0) as proc:
+    with mock_process(cell, SEED, hw, timeout_s=90.0, sim_speed=10.0) as proc:
         hardware = load_hardware(hw)
         assert hardware.robot["protocol"] == "abb" and hardware.family.title == "ABB"
-        run("run", "--cell", "irb120", "--plan", str(plan), "--hardware", str(hw), "--session", str(tmp_path / "h"),
+        run("run", "--cell", cell, "--plan", str(plan), "--hardware", str(hw), "--session", str(tmp_path / "h"),
             "--no-analysis")  # fmt: skip
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=30)
         assert proc.returncode == 0 and "Traceback" not in stderr, stderr
-    run("run", "--cell", "irb120", "--plan", str(plan), "--sim", "--seed", str(SEED), "--session",
+    run("run", "--cell", cell, "--plan", str(plan), "--sim", "--seed", str(SEED), "--session",
         str(tmp_path / "s"), "--no-analysis")  # fmt: skip
     got, want = table(tmp_path / "h", tmp_path / "h.csv"), table(tmp_path / "s", tmp_path / "s.csv")
     assert len(got.pose) >= 6  # both stations see the three nests at the test pose

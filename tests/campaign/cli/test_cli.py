@@ -88,7 +88,7 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
     [
         (["identify", "missing.csv", "--cell", "kr270", "--out", "m.json"], "missing.csv: cannot read"),
         (["identify", "DATA", "--cell", "nocell", "--out", "m.json"],
-         "no such cell; the cells are irb120, kr210-krc4, kr270, planar2r, ur10"),
+         "no such cell; the cells are irb120, irb6700, kr210-krc4, kr270, planar2r, ur10"),
         (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
         (["identify", "DATA", "--cell", "kr270", "--extend", "gravity", "--out", "m.json"], "--extend gravity"),
         (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "line 1: not JSON"),
