@@ -16,6 +16,8 @@
  ranges of the rows it was fitted on (outside them it is held; predict warns, compensate refuses unless asked),
  "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
  nominal because of them (only then),
+ "measured": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "volume": {"radius_mm", "height_mm"}}: where the table
+ measured (calib.measured_space; a model written before it was recorded has none: "unknown" to the filter),
  "test_pose": {"joints_deg", "station", "tcp_mm", "sigma_mm", "sigma_xyz_mm", "correction_mm", "note"}: the TCP at
  the cell's test pose and its 1-sigma 3-D uncertainty from the full covariance (calib.tcp_figure; with a test pose
  only), ...}
@@ -39,6 +41,7 @@ from trackcal.calib.identify.solver import Identification, Station, predict_poin
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_json
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.measured_space import MeasuredSpace, space_of
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from trackcal.calib.model.extension import FORMS, UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.model.params import Param, param_by_name
@@ -224,6 +227,11 @@ class Model:
         _, theta = self.extension_values()
         return build_parts(parts, self.chain, rows, self.arcs(), self.cause, self.ranges(), self.forms()), theta
 
+    def measured(self) -> MeasuredSpace | None:
+        """Where the model was measured (its table's joint ranges and reflector volume), None for a model written
+        before it was recorded."""
+        return space_of(self.doc, self.chain.dof)
+
     def outside(self, q: np.ndarray) -> np.ndarray:
         """(N,) bool: rows whose joint angles q (N, n) rad leave the ranges the extension was fitted on."""
         ranges = self.ranges()
@@ -332,6 +340,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
             raise ModelError(f"{path}: extension.causes: expected a list of causes from {', '.join(CAUSES)} "
                              f"beginning with extension.cause, got {causes!r}")  # fmt: skip
     model = Model(chain, params, dev, stations, points, doc)
+    try:
+        model.measured()
+    except CalibError as exc:
+        raise ModelError(f"{path}: {exc}") from None
     try:
         model.parts(), model.arcs(), model.extension_values(), model.ranges(), model.forms()  # readable
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:
