@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import functools
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -98,10 +98,25 @@ class FilterResult:
     bound95_mm: np.ndarray  # (N,) predicted_mm + the 95 % radius of the model's uncertainty; NaN unknown
     outside: np.ndarray  # (N,) bool: outside the joint ranges the model's extension was fitted on
     warnings: list[str]  # the compensation's (e.g. fitted ranges) and the model's ignored effects
+    # how far outside the space the model was measured in (calib.measured_space), NaN unknown (a model that does not
+    # record it; the joints of a target the nominal IK found none for): per joint (N, n) deg, and the TCP (N,) mm
+    outside_joints_deg: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    outside_volume_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def ok(self) -> np.ndarray:
         return np.array([not w for w in self.why], dtype=bool)
+
+    @property
+    def extrapolated(self) -> np.ndarray:
+        """(N,) bool: known to lie outside the measured joint ranges or volume: its bound is not covered."""
+        joints = np.nan_to_num(self.outside_joints_deg, nan=0.0).max(axis=1, initial=0.0)
+        return (joints > 0.0) | (np.nan_to_num(self.outside_volume_mm, nan=0.0) > 0.0)
+
+    @property
+    def space_known(self) -> np.ndarray:
+        """(N,) bool: whether the target's place against the measured space is known (see `extrapolated`)."""
+        return ~np.isnan(self.outside_volume_mm) & ~np.isnan(self.outside_joints_deg).any(axis=1)
 
 
 def homogeneous(r: np.ndarray, o: np.ndarray) -> np.ndarray:
@@ -318,5 +333,46 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
     if model.doc.get("covariance") is None:
         warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error alone, not its "
                         "uncertainty")  # fmt: skip
-    return FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
-                        outside, warnings)  # fmt: skip
+    res = FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
+                       outside, warnings)  # fmt: skip
+    res.outside_joints_deg, res.outside_volume_mm = outside_measured(model, targets, q_eval)
+    warnings += space_warnings(model, res)
+    return res
+
+
+def intended_tcp(chain: Chain, targets: list[Target]) -> np.ndarray:
+    """(N, 3) mm: where each target means the TCP to be, in the robot's base frame (a joint target: the nominal
+    robot's TCP at its joints)."""
+    kin = Kinematics(chain, [])
+    out = np.zeros((len(targets), 3))
+    for i, t in enumerate(targets):
+        pose = (flange_poses(kin, np.radians(np.asarray(t.value, dtype=float)))[0] @ t.tool if t.joint
+                else t.base @ t.value)  # fmt: skip
+        out[i] = pose[:3, 3]
+    return out
+
+
+def outside_measured(model: Model, targets: list[Target], q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((N, n) deg, (N,) mm): how far each target's joints q (N, n) rad (NaN: none found) lie outside the model's
+    measured joint ranges, and its intended TCP outside the measured volume; NaN where unknown."""
+    space = model.measured()
+    joints, volume = np.full(q.shape, np.nan), np.full(len(targets), np.nan)
+    if space is None or not targets:
+        return joints, volume
+    found = ~np.isnan(q).any(axis=1)
+    joints[found] = space.joint_excess_deg(q[found])
+    return joints, space.volume_excess_mm(intended_tcp(model.chain, targets))
+
+
+def space_warnings(model: Model, res: FilterResult) -> list[str]:
+    """The lines saying where the bounds are not covered: targets outside the measured space, or a model that does
+    not record it."""
+    if model.measured() is None:
+        return ["the model does not record where it was measured (written before trackcal recorded its joint ranges "
+                "and volume): whether a target lies outside them, where its bound is an extrapolation, is unknown"]
+    n = int(res.extrapolated.sum())
+    if n == 0:
+        return []
+    return [f"{n} of {len(res.why)} target(s) lie outside the joint ranges or the volume the model was measured in: "
+            "their 95 % bounds are extrapolations (not covered: the model's uncertainty there says nothing of what "
+            "it does not model), their pass/fail unknown"]
