@@ -10,6 +10,8 @@
                    "ci95_rotation_deg": [..]}},
  "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
+ "extension_covariance": {"order": [the extension's names], "matrix", "with_parameters": (covariance_order x order)}
+ in the extension's boundary units (with an extension only; a model written before has none),
  "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
  "converged": the solver's stopping test was met, "message": why it stopped,
  "extension" also holds "valid": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "time_s": {"from", "to"}}, the
@@ -143,10 +145,24 @@ def identification_to_doc(res: Identification, extra: dict | None = None, shift:
         }
     for pid, x in res.points.items():
         doc["tool_points"][pid] = {"xyz_mm": x.tolist(), "ci95_mm": res.point_ci95(pid).tolist()}
+    if res.extension is not None and len(res.ext):
+        doc["extension_covariance"] = extension_covariance(res, unit)
     if test_pose is not None:
         doc["test_pose"] = figure_at_test_pose(res, test_pose).to_doc()
     doc.update(extra or {})
     return doc
+
+
+def extension_covariance(res: Identification, unit: np.ndarray) -> dict:
+    """model.json's "extension_covariance": the covariance of the extension's parameters (the fit's, as for the
+    geometric ones: its J^T W J inverse scaled by the residual variance) in their boundary units, "order" their
+    names, and "with_parameters" their covariance with the geometric parameters (covariance_order's rows; `unit`
+    their factors to boundary units)."""
+    k, e = len(res.params), len(res.ext)
+    f = np.asarray(res.extension.to_boundary, dtype=float)  # type: ignore[union-attr]
+    return {"order": list(res.extension.names),  # type: ignore[union-attr]
+            "matrix": (res.cov[k : k + e, k : k + e] * np.outer(f, f)).tolist(),
+            "with_parameters": (res.cov[:k, k : k + e] * np.outer(unit, f)).tolist()}  # fmt: skip
 
 
 @dataclass
