@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import functools
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -109,8 +109,8 @@ class FilterResult:
     warnings: list[str]  # the compensation's (e.g. fitted ranges) and the model's ignored effects
     # how far outside the space the model was measured in (calib.measured_space), NaN unknown (a model that does not
     # record it; the joints of a target the nominal IK found none for): per joint (N, n) deg, and the TCP (N,) mm
-    outside_joints_deg: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    outside_volume_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    outside_joints_deg: np.ndarray
+    outside_volume_mm: np.ndarray
 
     @property
     def ok(self) -> np.ndarray:
@@ -361,8 +361,7 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
         warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error alone, not its "
                         "uncertainty")  # fmt: skip
     res = FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
-                       outside, warnings)  # fmt: skip
-    res.outside_joints_deg, res.outside_volume_mm = outside_measured(model, targets, q_eval)
+                       outside, warnings, *outside_measured(model, targets, q_eval))  # fmt: skip
     warnings += space_warnings(model, res)
     return res
 
