@@ -32,6 +32,7 @@ from trackcal.calib.model.kinematics import Kinematics
 KEY = "measured"  # model.json's entry
 ROUNDING_RAD = 1e-9  # a joint angle within this of its range is inside (the file's degrees to 17 digits)
 ROUNDING_MM = 1e-6
+CHUNK = 4096  # rows whose forward kinematics is computed at once
 
 
 class MeasuredSpaceError(CalibError):
@@ -114,4 +115,7 @@ def fitted_space(kin: Kinematics, dev: np.ndarray, points: dict[str, np.ndarray]
     """The space of a fit: its table's joints q_rad (N, n) and the reflector centres `point_ids` (N,) of `points`
     (last joint frame, mm) where the fitted chain `kin` with deviations `dev` puts them."""
     tool = np.array([points[p] for p in point_ids]).reshape(-1, 3)
-    return MeasuredSpace.of(q_rad, kin.points(q_rad, tool, dev))
+    out = np.zeros((len(q_rad), 3))
+    for lo in range(0, len(q_rad), CHUNK):  # the chain's frames of a chunk at a time (issue 41: diagnose's memory)
+        out[lo : lo + CHUNK] = kin.points(q_rad[lo : lo + CHUNK], tool[lo : lo + CHUNK], dev)
+    return MeasuredSpace.of(q_rad, out)

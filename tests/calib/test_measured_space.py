@@ -6,7 +6,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from trackcal.calib.measured_space import MeasuredSpace, MeasuredSpaceError, space_of
+from trackcal.calib.measured_space import CHUNK, MeasuredSpace, MeasuredSpaceError, fitted_space, space_of
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
 
 # reflectors on a ring: radius 1000 to 2000 mm about the base's z axis, height 0 to 500 mm
 POINTS = np.array([[1000.0, 0.0, 0.0], [0.0, 2000.0, 500.0], [-1500.0, 0.0, 250.0]])
@@ -55,3 +57,17 @@ def test_every_measured_point_is_inside(pts):
     pts = np.array(pts)
     space = MeasuredSpace.of(np.zeros((len(pts), 1)), pts)
     assert np.all(space.volume_excess_mm(pts) == 0.0)
+
+
+def test_the_space_of_a_fit_is_its_reflectors_in_the_base_frame():
+    """More rows than one chunk of forward kinematics: the same ring as the points computed at once."""
+    chain = load_cell("ur10").chain
+    kin = Kinematics(chain, [])
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-np.pi, np.pi, (CHUNK + 10, chain.dof))
+    points = {"a": np.array([0.0, 0.0, 100.0]), "b": np.array([50.0, 0.0, 0.0])}
+    ids = list(rng.choice(["a", "b"], len(q)))
+    space = fitted_space(kin, np.zeros(0), points, q, ids)
+    whole = kin.points(q, np.array([points[i] for i in ids]))
+    r, z = np.hypot(whole[:, 0], whole[:, 1]), whole[:, 2]
+    assert space.radius_mm == (r.min(), r.max()) and space.height_mm == (z.min(), z.max())
