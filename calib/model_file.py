@@ -10,12 +10,16 @@
                    "ci95_rotation_deg": [..]}},
  "tool_points": {id: {"xyz_mm": [..], "ci95_mm": [..]}},
  "covariance_order": [names], "covariance": matrix of the parameters (mm, deg),
+ "extension_covariance": {"order": [the extension's names], "matrix", "with_parameters": (covariance_order x order)}
+ in the extension's boundary units (with an extension only; a model written before has none),
  "residuals": {"before": {...}, "after": {...}}, "sigma_mm", "dof", "iterations", "weighting",
  "converged": the solver's stopping test was met, "message": why it stopped,
  "extension" also holds "valid": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "time_s": {"from", "to"}}, the
  ranges of the rows it was fitted on (outside them it is held; predict warns, compensate refuses unless asked),
  "not_identifiable": the warning line naming the joints that never moved in the table and the parameters left at
  nominal because of them (only then),
+ "measured": {"joints": {"joint_<j>": {"from_deg", "to_deg"}}, "volume": {"radius_mm", "height_mm"}}: where the table
+ measured (calib.measured_space; a model written before it was recorded has none: "unknown" to the filter),
  "test_pose": {"joints_deg", "station", "tcp_mm", "sigma_mm", "sigma_xyz_mm", "correction_mm", "note"}: the TCP at
  the cell's test pose and its 1-sigma 3-D uncertainty from the full covariance (calib.tcp_figure; with a test pose
  only), ...}
@@ -39,6 +43,7 @@ from trackcal.calib.identify.solver import Identification, Station, predict_poin
 from trackcal.calib.io import fields
 from trackcal.calib.io.files import read_json
 from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.measured_space import MeasuredSpace, space_of
 from trackcal.calib.model.chain import Chain, ChainError, chain_from_dict, chain_to_dict
 from trackcal.calib.model.extension import FORMS, UNIT_FACTORS, Extension, Ranges
 from trackcal.calib.model.params import Param, param_by_name
@@ -140,10 +145,24 @@ def identification_to_doc(res: Identification, extra: dict | None = None, shift:
         }
     for pid, x in res.points.items():
         doc["tool_points"][pid] = {"xyz_mm": x.tolist(), "ci95_mm": res.point_ci95(pid).tolist()}
+    if res.extension is not None and len(res.ext):
+        doc["extension_covariance"] = extension_covariance(res, unit)
     if test_pose is not None:
         doc["test_pose"] = figure_at_test_pose(res, test_pose).to_doc()
     doc.update(extra or {})
     return doc
+
+
+def extension_covariance(res: Identification, unit: np.ndarray) -> dict:
+    """model.json's "extension_covariance": the covariance of the extension's parameters (the fit's, as for the
+    geometric ones: its J^T W J inverse scaled by the residual variance) in their boundary units, "order" their
+    names, and "with_parameters" their covariance with the geometric parameters (covariance_order's rows; `unit`
+    their factors to boundary units)."""
+    k, e = len(res.params), len(res.ext)
+    f = np.asarray(res.extension.to_boundary, dtype=float)  # type: ignore[union-attr]
+    return {"order": list(res.extension.names),  # type: ignore[union-attr]
+            "matrix": (res.cov[k : k + e, k : k + e] * np.outer(f, f)).tolist(),
+            "with_parameters": (res.cov[:k, k : k + e] * np.outer(unit, f)).tolist()}  # fmt: skip
 
 
 @dataclass
@@ -223,6 +242,11 @@ class Model:
             return None, None
         _, theta = self.extension_values()
         return build_parts(parts, self.chain, rows, self.arcs(), self.cause, self.ranges(), self.forms()), theta
+
+    def measured(self) -> MeasuredSpace | None:
+        """Where the model was measured (its table's joint ranges and reflector volume), None for a model written
+        before it was recorded."""
+        return space_of(self.doc, self.chain.dof)
 
     def outside(self, q: np.ndarray) -> np.ndarray:
         """(N,) bool: rows whose joint angles q (N, n) rad leave the ranges the extension was fitted on."""
@@ -332,6 +356,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
             raise ModelError(f"{path}: extension.causes: expected a list of causes from {', '.join(CAUSES)} "
                              f"beginning with extension.cause, got {causes!r}")  # fmt: skip
     model = Model(chain, params, dev, stations, points, doc)
+    try:
+        model.measured()
+    except CalibError as exc:
+        raise ModelError(f"{path}: {exc}") from None
     try:
         model.parts(), model.arcs(), model.extension_values(), model.ranges(), model.forms()  # readable
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, CalibError) as exc:

@@ -25,8 +25,16 @@ calib.tcp_figure does at the test pose), its 95 % radius the 0.95 quantile of th
 (from a table over the covariance's eigenvalue ratios, made once on a fixed scrambled Sobol sample of the normal:
 deterministic). A target kept as it was carries the
 model's predicted error there (the error the calibration found and could not correct) plus that radius. The
-extension's parameters carry no covariance in model.json: their uncertainty is not in the figure. A target outside
-the joint ranges the model's extension was fitted on (`Model.outside`) is flagged.
+extension's statically compensated parameters enter with their covariance and their covariance with the geometric
+ones (model.json's `extension_covariance`, calib.extension_uncertainty; a model written before it was recorded: the
+geometric parameters' alone). A target outside the joint ranges the model's extension was fitted on
+(`Model.outside`) is flagged.
+
+The bound holds where the model was measured. Outside the space model.json records (calib.measured_space: the table's
+joint ranges, the reflectors' radius and height about the base's axis) the parameters are extrapolated and what the
+model does not model is not in its covariance: each target's distance outside is stated (`outside_joints_deg`,
+`outside_volume_mm`, NaN when the model does not record its space) and such a target is `extrapolated`: its bound is
+not covered, and the filter's report calls its pass/fail unknown, never a pass.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from scipy.stats import qmc
 
 from trackcal.calib.compensate import NEAR_SINGULAR, compensate, rotation_angle
 from trackcal.calib.errors import CalibError
+from trackcal.calib.extension_uncertainty import ExtensionCovarianceError, extension_covariance, joint_features
 from trackcal.calib.model.cell import MAX_CORRECTION_DEG, MAX_CORRECTION_MM
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.inverse import reach_points
@@ -98,10 +107,25 @@ class FilterResult:
     bound95_mm: np.ndarray  # (N,) predicted_mm + the 95 % radius of the model's uncertainty; NaN unknown
     outside: np.ndarray  # (N,) bool: outside the joint ranges the model's extension was fitted on
     warnings: list[str]  # the compensation's (e.g. fitted ranges) and the model's ignored effects
+    # how far outside the space the model was measured in (calib.measured_space), NaN unknown (a model that does not
+    # record it; the joints of a target the nominal IK found none for): per joint (N, n) deg, and the TCP (N,) mm
+    outside_joints_deg: np.ndarray
+    outside_volume_mm: np.ndarray
 
     @property
     def ok(self) -> np.ndarray:
         return np.array([not w for w in self.why], dtype=bool)
+
+    @property
+    def extrapolated(self) -> np.ndarray:
+        """(N,) bool: known to lie outside the measured joint ranges or volume: its bound is not covered."""
+        joints = np.nan_to_num(self.outside_joints_deg, nan=0.0).max(axis=1, initial=0.0)
+        return (joints > 0.0) | (np.nan_to_num(self.outside_volume_mm, nan=0.0) > 0.0)
+
+    @property
+    def space_known(self) -> np.ndarray:
+        """(N,) bool: whether the target's place against the measured space is known (see `extrapolated`)."""
+        return ~np.isnan(self.outside_volume_mm) & ~np.isnan(self.outside_joints_deg).any(axis=1)
 
 
 def homogeneous(r: np.ndarray, o: np.ndarray) -> np.ndarray:
@@ -191,29 +215,47 @@ def radius95(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(top * _quantile_table()(np.clip(ratios, 0.0, 1.0))) if len(lam) else np.zeros(0)
 
 
+def _param_rows(model: Model) -> tuple[list[int | None], np.ndarray]:
+    """(each of model.params' row in covariance_order, None when absent; its boundary -> internal factor)."""
+    idx = {name: i for i, name in enumerate(model.doc.get("covariance_order") or [])}
+    return ([idx.get(p.name) for p in model.params],
+            np.array([1.0 if p.is_length else np.pi / 180.0 for p in model.params]))  # fmt: skip
+
+
 def model_covariance(model: Model) -> np.ndarray:
-    """(k, k) the covariance of model.params (mm, rad) from model.json's (mm, deg; zeros without one)."""
+    """(k + e, k + e) the covariance of model.params (mm, rad) from model.json's (mm, deg; zeros without one), then of
+    its extension's statically compensated parameters with them (calib.extension_uncertainty; e = 0 without)."""
     k = len(model.params)
-    order, cov = model.doc.get("covariance_order"), model.doc.get("covariance")
-    if cov is None or order is None:
-        return np.zeros((k, k))
-    idx = {name: i for i, name in enumerate(order)}
-    sel = [idx.get(p.name) for p in model.params]
-    scale = np.array([1.0 if p.is_length else np.pi / 180.0 for p in model.params])
+    sel, scale = _param_rows(model)
+    cov = model.doc.get("covariance")
     out = np.zeros((k, k))
-    have = [i for i, s in enumerate(sel) if s is not None]
-    src = np.asarray(cov, dtype=float)[np.ix_([sel[i] for i in have], [sel[i] for i in have])]
-    out[np.ix_(have, have)] = src
-    return out * np.outer(scale, scale)
+    if cov is not None and model.doc.get("covariance_order") is not None:
+        have = [i for i, s in enumerate(sel) if s is not None]
+        src = np.asarray(cov, dtype=float)[np.ix_([sel[i] for i in have], [sel[i] for i in have])]
+        out[np.ix_(have, have)] = src
+        out *= np.outer(scale, scale)
+    try:
+        ext = extension_covariance(model, scale, sel)
+    except ExtensionCovarianceError as exc:
+        raise FilterError(f"the model's {exc}") from None
+    if ext is None:
+        return out
+    c_ee, c_pe = ext
+    return np.block([[out, c_pe], [c_pe.T, c_ee]])
 
 
 def tcp_covariance(model: Model, q: np.ndarray, tcp: np.ndarray) -> np.ndarray:
     """(N, 3, 3) mm^2: the covariance of the model's TCP `tcp` (N, 3; last joint frame) at joints q (N, n) rad,
-    propagated from the parameters' covariance through the TCP's parameter Jacobian."""
+    propagated from the parameters' covariance through the TCP's parameter Jacobian, and from the extension's through
+    its joint Jacobian times the extension's joint features (calib.extension_uncertainty)."""
     if len(q) == 0:
         return np.zeros((0, 3, 3))
-    jac = Kinematics(model.chain, model.params).jacobian(q, tcp, model.dev).d_params
-    return np.einsum("nik,kl,njl->nij", jac, model_covariance(model), jac)
+    cov = model_covariance(model)
+    jac = Kinematics(model.chain, model.params).jacobian(q, tcp, model.dev)
+    full = jac.d_params
+    if len(cov) > full.shape[2]:
+        full = np.concatenate([full, np.einsum("nij,nje->nie", jac.d_q, joint_features(model, q))], axis=2)
+    return np.einsum("nik,kl,njl->nij", full, cov, full)
 
 
 def _checked(targets: list[Target], n: int) -> None:
@@ -318,5 +360,45 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
     if model.doc.get("covariance") is None:
         warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error alone, not its "
                         "uncertainty")  # fmt: skip
-    return FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
-                        outside, warnings)  # fmt: skip
+    res = FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
+                       outside, warnings, *outside_measured(model, targets, q_eval))  # fmt: skip
+    warnings += space_warnings(model, res)
+    return res
+
+
+def intended_tcp(chain: Chain, targets: list[Target]) -> np.ndarray:
+    """(N, 3) mm: where each target means the TCP to be, in the robot's base frame (a joint target: the nominal
+    robot's TCP at its joints)."""
+    kin = Kinematics(chain, [])
+    out = np.zeros((len(targets), 3))
+    for i, t in enumerate(targets):
+        pose = (flange_poses(kin, np.radians(np.asarray(t.value, dtype=float)))[0] @ t.tool if t.joint
+                else t.base @ t.value)  # fmt: skip
+        out[i] = pose[:3, 3]
+    return out
+
+
+def outside_measured(model: Model, targets: list[Target], q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((N, n) deg, (N,) mm): how far each target's joints q (N, n) rad (NaN: none found) lie outside the model's
+    measured joint ranges, and its intended TCP outside the measured volume; NaN where unknown."""
+    space = model.measured()
+    joints, volume = np.full(q.shape, np.nan), np.full(len(targets), np.nan)
+    if space is None or not targets:
+        return joints, volume
+    found = ~np.isnan(q).any(axis=1)
+    joints[found] = space.joint_excess_deg(q[found])
+    return joints, space.volume_excess_mm(intended_tcp(model.chain, targets))
+
+
+def space_warnings(model: Model, res: FilterResult) -> list[str]:
+    """The lines saying where the bounds are not covered: targets outside the measured space, or a model that does
+    not record it."""
+    if model.measured() is None:
+        return ["the model does not record where it was measured (written before trackcal recorded its joint ranges "
+                "and volume): whether a target lies outside them, where its bound is an extrapolation, is unknown"]
+    n = int(res.extrapolated.sum())
+    if n == 0:
+        return []
+    return [f"{n} of {len(res.why)} target(s) lie outside the joint ranges or the volume the model was measured in: "
+            "their 95 % bounds are extrapolations (not covered: the model's uncertainty there says nothing of what "
+            "it does not model), their pass/fail unknown"]

@@ -264,8 +264,8 @@ COMMANDS = [
                     "input's own) and of filter.json / filter.html"),
                 arg("--tolerance-mm", type=float, help="each target passes when its 95 %% bound is within this "
                     "(default: no pass/fail)"),
-                arg("--strict", action="store_true", help="exit 1 when a target fails the tolerance (the files are "
-                    "written all the same)"),
+                arg("--strict", action="store_true", help="exit 1 when a target fails the tolerance or its pass is "
+                    "unknown (outside the space the model was measured in; the files are written all the same)"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),
                 arg("--allow-outside", action="store_true", help="also filter targets outside the joint ranges the "

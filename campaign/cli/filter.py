@@ -34,7 +34,10 @@ def cmd_filter(args) -> int:
               file=sys.stderr)  # fmt: skip
     n = len(done.rows)
     tol = "" if args.tolerance_mm is None else f"; {done.failed} fail the tolerance of {args.tolerance_mm:g} mm"
+    if done.extrapolated:
+        tol += (f"; {done.extrapolated} outside the space the model was measured in (their bounds are "
+                f"extrapolations: {done.unknown} pass/fail unknown)")  # fmt: skip
     print(f"{n - len(kept)} of {n} targets filtered{tol}")
     print(f"filtered program written to {', '.join(str(p) for p in done.written)}")
     print(f"report written to {done.report_json} and {done.report_html}")
-    return 1 if args.strict and done.failed else 0
+    return 1 if args.strict and (done.failed or done.unknown) else 0

@@ -40,7 +40,9 @@ NOTE = ("correction: how far the filter moves the TCP and turns the tool (the no
         "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
         "there when kept); sigma_mm: the 1-sigma 3-D uncertainty of the model's TCP there (its parameters' "
         "covariance through the TCP Jacobian); bound95_mm: predicted_mm plus the radius holding the TCP with 95 % "
-        "probability; pass: bound95_mm <= tolerance_mm")  # fmt: skip
+        "probability; pass: bound95_mm <= tolerance_mm, unknown (null) for a target outside the space the model was "
+        "measured in (measured_space, outside_joints_deg, outside_volume_mm: its bound is an extrapolation, "
+        "bound_covered false)")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -52,7 +54,7 @@ class FilterOptions:
     out: str  # directory of the filtered files and the report
     more: tuple[str, ...] = ()  # the program's other files (a KRL .dat, $config.dat)
     tolerance_mm: float | None = None  # pass/fail of each target's 95 % bound
-    strict: bool = False  # the job says whether any target fails the tolerance (the CLI exits 1)
+    strict: bool = False  # the job says whether any target fails the tolerance or is unknown (the CLI exits 1)
     accept_edited: bool = False
     accept_poor: bool = False
     allow_outside: bool = False  # also filter targets outside the joint ranges the model's extension was fitted on
@@ -72,6 +74,16 @@ class FilterOutcome:
     def failed(self) -> int:
         """Targets that fail the tolerance (kept ones included)."""
         return sum(1 for r in self.rows if r["pass"] is False)
+
+    @property
+    def extrapolated(self) -> int:
+        """Targets outside the space the model was measured in (their bounds are extrapolations)."""
+        return sum(1 for r in self.rows if r["measured_space"] == "outside")
+
+    @property
+    def unknown(self) -> int:
+        """Targets whose pass/fail against the tolerance is unknown: outside the measured space, within it."""
+        return sum(1 for r in self.rows if r["pass"] is None and r["bound_covered"] is False)
 
 
 def read_program(opts: FilterOptions) -> ProgramRead:
@@ -137,10 +149,45 @@ def target_rows(read: ProgramRead, res: FilterResult, tolerance_mm: float | None
             "correction_mm": float(res.correction_mm[i]), "correction_deg": float(res.correction_deg[i]),
             "joint_correction_deg": _number(np.max(np.abs(dq))) if not res.why[i] else None,
             "predicted_mm": _number(res.predicted_mm[i]), "sigma_mm": _number(res.sigma_mm[i]), "bound95_mm": bound,
-            "outside_fitted_ranges": bool(res.outside[i]),
-            "pass": None if tolerance_mm is None else bool(bound is not None and bound <= tolerance_mm),
+            "outside_fitted_ranges": bool(res.outside[i]), **measured_fields(res, i),
+            "pass": verdict(bound, tolerance_mm, bool(res.extrapolated[i])),
         })  # fmt: skip
     return rows
+
+
+def verdict(bound: float | None, tolerance_mm: float | None, extrapolated: bool) -> bool | None:
+    """A target's pass/fail against the tolerance: None without one; a target without a bound (kept, not reached)
+    fails; one outside the measured space whose bound is within the tolerance is unknown (None), never a pass: its
+    bound is an extrapolation (one beyond the tolerance fails: the model itself says it misses)."""
+    if tolerance_mm is None:
+        return None
+    if bound is None or bound > tolerance_mm:
+        return False
+    return None if extrapolated else True
+
+
+def measured_fields(res: FilterResult, i: int) -> dict:
+    """filter.json's place of target i against the space the model was measured in: "measured_space" ("inside",
+    "outside", "unknown"), "outside_joints_deg" ({joint_<j>: deg} of the joints outside their measured range),
+    "outside_volume_mm" (its TCP's distance outside the measured volume), "bound_covered" (false: an extrapolation,
+    its pass/fail unknown; null: unknown)."""
+    known = bool(res.space_known[i]) or bool(res.extrapolated[i])
+    joints = {f"joint_{j + 1}": float(d) for j, d in enumerate(res.outside_joints_deg[i]) if d > 0}
+    where = "unknown" if not known else ("outside" if res.extrapolated[i] else "inside")
+    return {"measured_space": where, "outside_joints_deg": joints,
+            "outside_volume_mm": _number(res.outside_volume_mm[i]),
+            "bound_covered": None if where == "unknown" else where == "inside"}  # fmt: skip
+
+
+def outside_note(row: dict) -> str:
+    """The program comment of a target outside the measured space: how far, and that its bound is an extrapolation
+    ("" inside, unknown, or without a bound: not reached)."""
+    if row["measured_space"] != "outside" or row["bound95_mm"] is None:
+        return ""
+    far = [f"A{j.split('_')[1]} by {d:.1f} deg" for j, d in row["outside_joints_deg"].items()]
+    if row["outside_volume_mm"]:
+        far.append(f"TCP {row['outside_volume_mm']:.0f} mm outside the measured volume")
+    return f"outside the calibration's measured space ({', '.join(far)}): its accuracy is an extrapolation"
 
 
 def _out_paths(opts: FilterOptions, read: ProgramRead) -> dict[str, Path]:
@@ -172,9 +219,10 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
         if RELATIVE.search(t.motion) and res.why[i]:
             res.why[i] = f"a relative or computed move ({t.motion}): where it goes depends on where the robot is"
     values = {i: v for i, v in enumerate(res.values) if v is not None}
-    notes = {i: f"trackcal filter: kept as it was: {w}" for i, w in enumerate(res.why) if w}
-    texts = read.write(values, notes)
     rows = target_rows(read, res, opts.tolerance_mm)
+    notes = {i: "; ".join(n for n in (f"kept as it was: {w}" if w else "", outside_note(r)) if n)
+             for i, (w, r) in enumerate(zip(res.why, rows, strict=True))}  # fmt: skip
+    texts = read.write(values, {i: f"trackcal filter: {n}" for i, n in notes.items() if n})
     out = Path(opts.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -186,6 +234,8 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
     doc = {"format": FORMAT, "program": str(opts.program), "language": read.language, "model": str(opts.model),
            "tolerance_mm": opts.tolerance_mm, "targets": rows, "filtered": int(res.ok.sum()),
            "kept": int((~res.ok).sum()), "failed": sum(1 for r in rows if r["pass"] is False),
+           "outside_measured": sum(1 for r in rows if r["measured_space"] == "outside"),
+           "unknown": sum(1 for r in rows if r["pass"] is None and r["bound_covered"] is False),
            "warnings": [*warnings, *res.warnings], "note": NOTE}  # fmt: skip
     write_json(out / "filter.json", doc, InputError)
     page = write_filter_page(out / "filter.html", doc)

@@ -28,11 +28,14 @@ from trackcal.calib.identify.units import read_measured
 from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.files import write_json, writing
 from trackcal.calib.io.table import MeasurementTable, write_table
+from trackcal.calib.measured_space import KEY as MEASURED
+from trackcal.calib.measured_space import fitted_space
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.chain import ChainError
 from trackcal.calib.model.extension import Ranges
 from trackcal.calib.model.identifiability import still_joints, unidentifiable_params
 from trackcal.calib.model.instruments import Instrument
+from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param, param_by_name
 from trackcal.calib.model_file import identification_to_doc, predict_table
 from trackcal.calib.model_trust import sealed
@@ -305,7 +308,10 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         extra["test_pose_deg"] = np.degrees(cell.test_pose).tolist()
         extra["tcp_mm"] = cell.tcp.tolist()
         extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
-    ranges = None if res.extension is None else Ranges.of(np.radians(table.q_deg), table.t_s)
+    q_rad = np.radians(table.q_deg)
+    extra[MEASURED] = fitted_space(Kinematics(res.chain, res.params), res.dev, res.points, q_rad,
+                                   table.point).to_doc()  # where it was measured (calib.measured_space)
+    ranges = None if res.extension is None else Ranges.of(q_rad, table.t_s)
     return identification_to_doc(res, extra, shift, cell.test_pose, ranges)
 
 

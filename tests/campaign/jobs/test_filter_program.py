@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.calib.test_program_filter import independent_fk
 from trackcal.calib.model_file import load_model
+from trackcal.calib.model_trust import sealed
 from trackcal.campaign.cli import main
 from trackcal.drivers.ur.urscript_reader import read_urscript
 
@@ -124,3 +126,49 @@ def test_an_edited_model_is_refused_as_compensate_refuses_it(ur10_model, tmp_pat
     assert len(err) == 1 and "--accept-edited" in err[0]
     assert not (tmp_path / "o").exists()
     assert main([*argv, "--accept-edited"]) == 0
+
+
+def resealed(ur10_model: Path, path: Path, edit) -> Path:
+    """The model with `edit(doc)` applied, sealed again as trackcal writes it (calib.model_trust.sealed)."""
+    doc = json.loads(ur10_model.read_text())
+    edit(doc)
+    path.write_text(json.dumps(sealed(doc)))
+    return path
+
+
+def test_targets_outside_the_measured_volume_are_flagged_and_never_pass(ur10_model, tmp_path, capsys):
+    """A model measured on a ring of radius 0 to 1 mm about the base's axis: every target of the sample lies outside
+    it by its TCP's distance from the axis less 1 mm (the height range holds them all), its bound not covered."""
+    def narrow(doc):
+        doc["measured"]["volume"].update(radius_mm=[0.0, 1.0], height_mm=[-1e4, 1e4])
+
+    model = resealed(ur10_model, tmp_path / "narrow.json", narrow)
+    out = tmp_path / "out"
+    args = ["filter", str(SAMPLE), "--model", str(model), "--out", str(out), "--tolerance-mm", "0.5"]
+    assert main(args) == 0
+    printed = capsys.readouterr()
+    assert "0 fail the tolerance of 0.5 mm; 8 outside the space the model was measured in" in printed.out
+    assert "8 pass/fail unknown" in printed.out and "8 of 8 target(s) lie outside" in printed.err
+    doc = strict_json(out / "filter.json")
+    assert doc["outside_measured"] == 8 and doc["unknown"] == 8 and doc["failed"] == 0
+    targets = read_urscript({"s": SAMPLE.read_text()}).targets
+    for row, t in zip(doc["targets"], targets, strict=True):
+        # the intended TCP in the base frame (a joint target: the nominal robot's, an FK written from the YAML)
+        tcp = ((independent_fk("ur10", np.radians(t.value)) @ t.tool) if t.joint else t.base @ t.value)[:3, 3]
+        assert row["measured_space"] == "outside" and row["bound_covered"] is False and row["pass"] is None
+        assert row["outside_volume_mm"] == pytest.approx(np.hypot(tcp[0], tcp[1]) - 1.0, abs=1e-6)
+    written = (out / SAMPLE.name).read_text()
+    assert written.count("# trackcal filter: outside the calibration's measured space (TCP ") == 8
+    page = (out / "filter.html").read_text()
+    assert page.count("bound not covered") == 8 and ">unknown<" in page
+    assert main([*args, "--strict"]) == 1  # unknown is not a pass: --strict says so
+
+
+def test_a_model_that_does_not_record_where_it_was_measured_says_unknown(ur10_model, tmp_path, capsys):
+    model = resealed(ur10_model, tmp_path / "old.json", lambda doc: doc.pop("measured"))
+    out = tmp_path / "out"
+    assert main(["filter", str(SAMPLE), "--model", str(model), "--out", str(out), "--tolerance-mm", "0.5"]) == 0
+    assert "does not record where it was measured" in capsys.readouterr().err
+    rows = strict_json(out / "filter.json")["targets"]
+    assert {r["measured_space"] for r in rows} == {"unknown"} and all(r["pass"] is True for r in rows)
+    assert all(r["bound_covered"] is None and r["outside_volume_mm"] is None for r in rows)
