@@ -416,6 +416,12 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
         return ss, ss_mm, first
 
     parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
+    return _summed(parts, groups, n_rows, per_row)
+
+
+def _summed(parts: list[tuple], groups: list[np.ndarray], n_rows: int, per_row: bool) -> tuple:
+    """_cv_scores' folds (`parts`: each fold's sums and first squared errors of its rows `groups[k]`) summed in
+    fold order; with `per_row`, also every row's squared error and how many folds held it out."""
     out = sum(p[0] for p in parts), sum(p[1] for p in parts)
     if not per_row:
         return out
