@@ -85,19 +85,61 @@ def _conformity(found: list[Verdict], rule: str) -> None:
     console.print("decision rule: " + RULES[rule], soft_wrap=True)
 
 
+def _compare_options(args, tolerances: dict[str, float]) -> CompareOptions:
+    """compare's options from the command line (the tolerances already parsed)."""
+    return CompareOptions(sessions=args.sessions, model=args.model, json=args.json, accept_edited=args.accept_edited,
+                          tolerances=tolerances, decision_rule=args.decision_rule,
+                          certificate=bool(args.report or args.pdf),
+                          accept_expired=args.accept_expired_certificate)  # fmt: skip
+
+
 def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
-                                               accept_edited=args.accept_edited, tolerances=tolerances,
-                                               decision_rule=args.decision_rule,
-                                               certificate=bool(args.report or args.pdf),
-                                               accept_expired=args.accept_expired_certificate), warnings)  # fmt: skip
+    tests, drift_list = compare(_compare_options(args, tolerances), warnings)
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    _print_poses(tests)
-    _print_vap(tests)
-    _print_orientation(tests)
+    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
+    table.add_column("pose")
+    for t in tests:
+        label = "compensated" if t.compensated else "nominal"
+        table.add_column(f"AP_P {label}", justify="right", overflow="fold")
+        table.add_column(f"RP_l {label}", justify="right", overflow="fold")
+    for i, name in enumerate(p.name for p in tests[0].poses):
+        row = [name]
+        for t in tests:
+            row += [_um(t.poses[i].ap), _um(t.poses[i].rp)]
+        table.add_row(*row)
+    row = ["AD_P / RD (P2-P4)"]
+    for t in tests:
+        row += [_um(t.ad), _um(t.rd)]
+    table.add_row(*row)
+    console.print(table)
+    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
+    if vap_poses:
+        vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
+        vt.add_column("pose")
+        for t in tests:
+            vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
+        for name in vap_poses:
+            vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
+        console.print(vt)
+    if any(p.orientation for t in tests for p in t.poses):
+        ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
+                         "axes (millidegrees; ± U, k = 2)")  # fmt: skip
+        ot.add_column("pose, axis")
+        for t in tests:
+            label = "compensated" if t.compensated else "nominal"
+            ot.add_column(f"AP {label}", justify="right", overflow="fold")
+            ot.add_column(f"RP {label}", justify="right", overflow="fold")
+        for i, name in enumerate(p.name for p in tests[0].poses):
+            for axis in "abc":
+                row = [f"{name} {axis}"]
+                for t in tests:
+                    o = t.poses[i].orientation
+                    row += [_mdeg(o.get(f"AP_{axis}")), _mdeg(o.get(f"RP_{axis}"))]
+                ot.add_row(*row, end_section=axis == "c")
+        console.print(ot)
     for d in drift_list:
         console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
@@ -119,58 +161,3 @@ def cmd_compare(args) -> int:
         path = write_iso_pdf(tests, drift_list, args.model, Path(args.pdf), conformity, item)
         console.print(f"PDF written to {path}")
     return 0
-
-
-def _print_poses(tests: list) -> None:
-    """compare's table of AP_P and RP_l per pose and test, with AD_P and RD."""
-    table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
-    table.add_column("pose")
-    for t in tests:
-        label = "compensated" if t.compensated else "nominal"
-        table.add_column(f"AP_P {label}", justify="right", overflow="fold")
-        table.add_column(f"RP_l {label}", justify="right", overflow="fold")
-    for i, name in enumerate(p.name for p in tests[0].poses):
-        row = [name]
-        for t in tests:
-            row += [_um(t.poses[i].ap), _um(t.poses[i].rp)]
-        table.add_row(*row)
-    row = ["AD_P / RD (P2-P4)"]
-    for t in tests:
-        row += [_um(t.ad), _um(t.rd)]
-    table.add_row(*row)
-    console.print(table)
-
-
-def _print_vap(tests: list) -> None:
-    """compare's table of the multi-directional pose accuracy variation, when a test measured it."""
-    vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
-    if not vap_poses:
-        return
-    vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
-    vt.add_column("pose")
-    for t in tests:
-        vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
-    for name in vap_poses:
-        vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
-    console.print(vt)
-
-
-def _print_orientation(tests: list) -> None:
-    """compare's table of orientation AP and RP per pose and axis, when a test measured orientation."""
-    if not any(p.orientation for t in tests for p in t.poses):
-        return
-    ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
-                     "axes (millidegrees; ± U, k = 2)")  # fmt: skip
-    ot.add_column("pose, axis")
-    for t in tests:
-        label = "compensated" if t.compensated else "nominal"
-        ot.add_column(f"AP {label}", justify="right", overflow="fold")
-        ot.add_column(f"RP {label}", justify="right", overflow="fold")
-    for i, name in enumerate(p.name for p in tests[0].poses):
-        for axis in "abc":
-            row = [f"{name} {axis}"]
-            for t in tests:
-                o = t.poses[i].orientation
-                row += [_mdeg(o.get(f"AP_{axis}")), _mdeg(o.get(f"RP_{axis}"))]
-            ot.add_row(*row, end_section=axis == "c")
-    console.print(ot)
