@@ -40,13 +40,16 @@ XDIST ?= -n auto --dist loadgroup
 
 test: setup
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST)
 
 test-slow: setup
 	TMPDIR=$(TEST_TMP) $(BIN)/python -m pytest $(XDIST) -m slow --timeout 1800
 
+# ruff's formatter is the one layout (issue 37: no `# fmt: skip`); `ruff format .` rewrites what --check names
 lint: setup
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 
 demo: setup
 	$(BIN)/trackcal demo

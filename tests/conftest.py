@@ -52,16 +52,31 @@ def starts_a_ur_controller(path: Path) -> bool:
     return path.name in ("test_readme.py", "test_docs.py") or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
 
 
+# A module whose tests share a module- or class-scoped fixture (a simulated campaign, a plan, a fitted model) runs on
+# one worker, so that the fixture is made once: dealt out test by test, each worker made it again (issue 37: the ISO
+# 9283 acceptance campaign's fixture, 3 minutes on a loaded machine, was made on both workers).
+SHARED_FIXTURE = re.compile(r"""scope=["'](module|class)["']""")
+
+
+@functools.cache
+def shares_a_fixture(path: Path) -> bool:
+    return bool(SHARED_FIXTURE.search(path.read_text(encoding="utf-8")))
+
+
 class UrGroupScheduling(LoadGroupScheduling):
     """xdist's loadgroup, with UR_GROUP found by the controller from each test's file. xdist 3.8's worker marks a
     grouped test by appending `@group` to `item._nodeid`, and its scheduler reads the group back from that suffix;
     pytest 9.2 builds `item.nodeid` from a structured id (`item._id`), so the suffix never reaches the scheduler and
     the group's tests were dealt out one by one to any worker (pytest-xdist issue #1386, fix open in PR #1388):
-    whatever marker a hook added, and however early. The controller knows each test's file from its node id."""
+    whatever marker a hook added, and however early. The controller knows each test's file from its node id. A
+    module that shares a fixture between its tests is one unit of work too (SHARED_FIXTURE)."""
 
     def _split_scope(self, nodeid: str) -> str:
-        if starts_a_ur_controller(self.config.rootpath / nodeid.split("::", 1)[0]):
+        module = nodeid.split("::", 1)[0]
+        if starts_a_ur_controller(self.config.rootpath / module):
             return UR_GROUP
+        if shares_a_fixture(self.config.rootpath / module):
+            return module
         return super()._split_scope(nodeid)
 
 

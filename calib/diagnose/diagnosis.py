@@ -110,8 +110,8 @@ def _verdict(sel: Selection, table: MeasurementTable, floor: Floor, p_floor: flo
     scheme, hold_g, hold_e = _held_out(sel)
     cv_note = None if hold_g is not None else (
         "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves a "
-        "training set that cannot be identified, and the F test and BIC alone admit no cause (the geometric model is "
-        f"kept); {_measurement_needed(table)}")  # fmt: skip
+        "training set that cannot be identified, and the F test and BIC alone admit no cause (the geometric model "
+        f"is kept); {_measurement_needed(table)}")  # fmt: skip
     doc = dict(geometric=geo, candidates=sel.candidates, holdout_geometric_mm=hold_g, holdout_extended_mm=hold_e,
                noise_floor_mm=floor.sigma_mm, floor_source=floor.source, variance_factor_pvalue=p_floor,
                structure=structure, cv_note=cv_note, cv_scheme=scheme, not_identifiable=dict(ctx.dropped),
@@ -122,6 +122,13 @@ def _verdict(sel: Selection, table: MeasurementTable, floor: Floor, p_floor: flo
         found = structure["structure"] or sel.untested or bool(refused)
         return Diagnosis("unexplained" if found else "none", extended=None, extension=None,
                          table=table, noise_scale=_scale(geo.residuals, geo, floor), **doc)  # fmt: skip
+    return _chosen_verdict(sel, table, floor, doc)
+
+
+def _chosen_verdict(sel: Selection, table: MeasurementTable, floor: Floor, doc: dict) -> Diagnosis:
+    """_verdict once selection chose causes: the chosen model identified (with the map, jointly), its causes by
+    gain; `doc`: the figures every diagnosis carries."""
+    ctx = sel.ctx
     by_gain = sorted(sel.selected, key=lambda c: c.gain_mm if c.gain_mm is not None else -c.delta_bic, reverse=True)
     # model.json names its extension after the main cause that carries parameters
     if sel.map_fit is None:

@@ -416,6 +416,12 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
         return ss, ss_mm, first
 
     parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
+    return _summed(parts, groups, n_rows, per_row)
+
+
+def _summed(parts: list[tuple], groups: list[np.ndarray], n_rows: int, per_row: bool) -> tuple:
+    """_cv_scores' folds (`parts`: each fold's sums and first squared errors of its rows `groups[k]`) summed in
+    fold order; with `per_row`, also every row's squared error and how many folds held it out."""
     out = sum(p[0] for p in parts), sum(p[1] for p in parts)
     if not per_row:
         return out
@@ -424,6 +430,39 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
         np.add.at(sq, rows, p[2])
         np.add.at(count, rows, 1)
     return (*out, sq, count)
+
+
+def _unidentifiable(probe: Problem, geo, arcs_all: dict[int, Arc]) -> dict[int, str]:
+    """fit_error_map's joints whose map cannot be fitted, each with why: it does not move over the table, or its
+    rotation barely moves the measured points (`probe`: the problem without the map, at the fit `geo`)."""
+    levers = _levers(probe, _state_from(probe, geo, geo.ext))
+    not_identifiable = {}
+    for j in range(probe.chain.dof):
+        if arcs_all[j].length <= 0.0:
+            not_identifiable[j] = "it does not move over the table"
+        elif levers[j] < LEVER_RATIO * levers.max():
+            not_identifiable[j] = (f"its rotation moves the measured points by {levers[j]:.3g} mm/rad, below "
+                                   f"{LEVER_RATIO:g} of the largest joint's {levers.max():.3g} (the reference points "
+                                   "lie on its axis)")  # fmt: skip
+    return not_identifiable
+
+
+def _searched(lin: Linearised, pen_all: np.ndarray, fold: np.ndarray, orders: tuple[int, ...],
+              taus_rad: tuple[float, ...], s2: float, executor: Executor | None) -> tuple:  # fmt: skip
+    """fit_error_map's search: (order, tau, CV RMS with the map, without it, every (order, tau) with its CV RMS) by
+    cross-validation over `fold` on the linearised problem `lin`; `pen_all` the map's columns at the largest order,
+    `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
+    orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
+    downdate, n_coord = FoldGrams(lin.jm), 3 * len(lin.table)
+    ss, ss_mm = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, orders_cols,
+                           [s2 / t**2 for t in taus_rad], lin.held, downdate, executor)  # fmt: skip
+    _, without_mm = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0],
+                               None, downdate, executor)  # fmt: skip
+    i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
+    cv_table = [{"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
+                for a, h in enumerate(orders) for b, t in enumerate(taus_rad)]  # fmt: skip
+    return (int(orders[i]), float(taus_rad[li]), float(np.sqrt(ss_mm[i, li] / n_coord)),
+            float(np.sqrt(without_mm[0, 0] / n_coord)), cv_table)  # fmt: skip
 
 
 def fit_error_map(
@@ -452,16 +491,8 @@ def fit_error_map(
     geo = start if start is not None else identify(chain, table, tool_points, params, noise, extension=base)
     n_base = 0 if base is None else base.size
     arcs_all = {j: Arc.covering(q[:, j]) for j in range(chain.dof)}
-    probe = Problem(chain, table, geo.points, params, noise, extension=base, ext0=geo.ext)
-    levers = _levers(probe, _state_from(probe, geo, geo.ext))
-    not_identifiable = {}
-    for j in range(chain.dof):
-        if arcs_all[j].length <= 0.0:
-            not_identifiable[j] = "it does not move over the table"
-        elif levers[j] < LEVER_RATIO * levers.max():
-            not_identifiable[j] = (f"its rotation moves the measured points by {levers[j]:.3g} mm/rad, below "
-                                   f"{LEVER_RATIO:g} of the largest joint's {levers.max():.3g} (the reference points "
-                                   "lie on its axis)")  # fmt: skip
+    not_identifiable = _unidentifiable(Problem(chain, table, geo.points, params, noise, extension=base,
+                                               ext0=geo.ext), geo, arcs_all)  # fmt: skip
     arcs = {j: arcs_all[j] for j in range(chain.dof) if j not in not_identifiable}
     if not arcs:
         raise IdentificationError(f"{table.source}: no joint error map can be fitted: no joint moves the points")
@@ -473,25 +504,15 @@ def fit_error_map(
     r, jm = problem.residual_and_jacobian(state)
     pen_all = len(params) + n_base + np.arange(len(names_max))
     s2 = float(r @ r) / max(len(r) - problem.n_cols + len(names_max), 1)  # residual variance without the map
-    n_coord = 3 * len(table)
     cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
     if search:
-        fold = _fold_ids(table, folds, seed)
         unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
-        orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in names_max]] for h in orders]
         gram, rhs = jm.T @ jm, jm.T @ r
-        downdate, held = FoldGrams(jm), HeldOutMap(problem, state, names_max)
+        held = HeldOutMap(problem, state, names_max)
         linearised = Linearised(geo, base, table, names_max, r, jm, gram, rhs, held, unwhiten)
-        ss, ss_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, orders_cols, [s2 / t**2 for t in taus_rad],
-                               held, downdate, executor)  # fmt: skip
-        _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate,
-                                   executor)  # fmt: skip
-        i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
-        order, tau = int(orders[i]), float(taus_rad[li])
-        cv_rms, cv_without = float(np.sqrt(ss_mm[i, li] / n_coord)), float(np.sqrt(without_mm[0, 0] / n_coord))
-        cv_table = [{"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
-                    for a, h in enumerate(orders) for b, t in enumerate(taus_rad)]  # fmt: skip
+        order, tau, cv_rms, cv_without, cv_table = _searched(linearised, pen_all, _fold_ids(table, folds, seed),
+                                                             orders, taus_rad, s2, executor)  # fmt: skip
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
         res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise,

@@ -31,6 +31,7 @@ from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map
 from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
 from trackcal.calib.identify.solver import IdentificationError
+from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.extension import ExtensionError
 
 
@@ -152,6 +153,15 @@ def judge_map(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fi
     f = ((current.rss - rss) / added) / (rss / dof)
     p = float(fdtrc(added, dof, f)) if f > 0 else 1.0
     d_bic = float(n_obs * np.log(rss / current.rss) + added * np.log(n_obs))
+    return _map_trial(ctx, val, table, current, mf, (added, rss, dof, p, d_bic), alpha, step)
+
+
+def _map_trial(ctx: Context, val: Validator, table: MeasurementTable, current: Fit, mf: ErrorMapFit,
+               figures: tuple[float, float, float, float, float], alpha: float, step: int) -> Trial:  # fmt: skip
+    """judge_map's candidate once the map `mf` is fitted; `figures`: its (added parameters, RSS, degrees of
+    freedom, F-test p-value, BIC change)."""
+    added, rss, dof, p, d_bic = figures
+    res = mf.identification
     # the held-out gain judged on the search's folds and the edge folds (extrapolation), by the paired test
     held = held_out_errors(mf, list(val.fold_sets["pose"] or []) + val.edges, len(ctx.params), ctx.executor) if (
         p < alpha and d_bic < 0 and val.fold_sets["pose"]) else None  # fmt: skip

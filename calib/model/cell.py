@@ -242,6 +242,13 @@ def load_cell(ref: str, files: Files = DISK) -> Cell:
         robot_ref, robot_doc, path.parent)  # fmt: skip
     cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where,
                 nominal=nominal)  # fmt: skip
+    _read_placement(cell, doc, where)
+    _read_limits(cell, doc, where)
+    return cell
+
+
+def _read_placement(cell: Cell, doc: dict, where: str) -> None:
+    """load_cell's box, test pose, TCP and tracker stations, into `cell`."""
     if "box_mm" in doc:
         box = fields.mapping(doc["box_mm"], f"{where}: box_mm", CellError)
         cell.box_min = fields.vector(box.get("min"), f"{where}: box_mm.min", CellError)
@@ -249,11 +256,11 @@ def load_cell(ref: str, files: Files = DISK) -> Cell:
         if np.any(cell.box_min >= cell.box_max):
             raise CellError(f"{where}: box_mm: min must be below max on every axis")
     if "test_pose_deg" in doc:
-        q0 = fields.vector(doc["test_pose_deg"], f"{where}: test_pose_deg", CellError, chain.dof)
+        q0 = fields.vector(doc["test_pose_deg"], f"{where}: test_pose_deg", CellError, cell.chain.dof)
         cell.test_pose = np.radians(q0)
     tcp = doc.get("tcp", "centroid")
     if tcp == "centroid":
-        cell.tcp = np.mean(list(pts.values()), axis=0)
+        cell.tcp = np.mean(list(cell.tool_points.values()), axis=0)
     else:
         cell.tcp = fields.vector(tcp, f"{where}: tcp (centroid or [x, y, z] mm)", CellError)
     stations = fields.mapping(doc.get("stations") or {}, f"{where}: stations (id -> position_mm, yaw_deg)", CellError)
@@ -263,11 +270,16 @@ def load_cell(ref: str, files: Files = DISK) -> Cell:
         yaw = fields.number(sd.get("yaw_deg", 0.0), f"{sw}.yaw_deg", CellError)
         position = fields.vector(sd.get("position_mm"), f"{sw}.position_mm", CellError)
         cell.stations[str(sid)] = StationPlacement(rotation=rot_axis(2, np.radians(yaw)), position=position)
+
+
+def _read_limits(cell: Cell, doc: dict, where: str) -> None:
+    """load_cell's acceptance angle, margins, tolerances, correction bounds, tracker and planned parameters, into
+    `cell`."""
     cell.acceptance_deg = fields.number(doc.get("acceptance_deg", 90.0), f"{where}: acceptance_deg", CellError)
     if not 0 < cell.acceptance_deg <= 180:
         raise CellError(f"{where}: acceptance_deg: {cell.acceptance_deg:g} is not an angle in (0, 180] deg")
     cell.joint_margin_deg = _non_negative(doc, "joint_margin_deg", where, 1.0)
-    narrow = [j.name for j, (lo, hi) in zip(chain.joints, plan_joint_bounds(cell), strict=True) if not lo < hi]
+    narrow = [j.name for j, (lo, hi) in zip(cell.chain.joints, plan_joint_bounds(cell), strict=True) if not lo < hi]
     if narrow:
         raise CellError(f"{where}: joint_margin_deg {cell.joint_margin_deg:g} leaves no range for {', '.join(narrow)}")
     if doc.get("measurement_tolerance_mm") is not None:
@@ -284,9 +296,8 @@ def load_cell(ref: str, files: Files = DISK) -> Cell:
     if doc.get("plan_params") is not None:
         names = fields.sequence(doc["plan_params"], f"{where}: plan_params", CellError)
         cell.plan_params = [fields.text(n, f"{where}: plan_params[{k}]", CellError) for k, n in enumerate(names)]
-        known = {p.name for p in complete_params(chain)}
+        known = {p.name for p in complete_params(cell.chain)}
         for k, name in enumerate(cell.plan_params):
             if name not in known:
-                raise CellError(f"{where}: plan_params[{k}]: {name!r} is no parameter of robot {chain.name} "
+                raise CellError(f"{where}: plan_params[{k}]: {name!r} is no parameter of robot {cell.chain.name} "
                                 f"(e.g. {', '.join(sorted(known)[:4])})")
-    return cell

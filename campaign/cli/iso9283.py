@@ -85,14 +85,18 @@ def _conformity(found: list[Verdict], rule: str) -> None:
     console.print("decision rule: " + RULES[rule], soft_wrap=True)
 
 
+def _compare_options(args, tolerances: dict[str, float]) -> CompareOptions:
+    """compare's options from the command line (the tolerances already parsed)."""
+    return CompareOptions(sessions=args.sessions, model=args.model, json=args.json, accept_edited=args.accept_edited,
+                          tolerances=tolerances, decision_rule=args.decision_rule,
+                          certificate=bool(args.report or args.pdf),
+                          accept_expired=args.accept_expired_certificate)  # fmt: skip
+
+
 def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
-    tests, drift_list = compare(CompareOptions(sessions=args.sessions, model=args.model, json=args.json,
-                                               accept_edited=args.accept_edited, tolerances=tolerances,
-                                               decision_rule=args.decision_rule,
-                                               certificate=bool(args.report or args.pdf),
-                                               accept_expired=args.accept_expired_certificate), warnings)  # fmt: skip
+    tests, drift_list = compare(_compare_options(args, tolerances), warnings)
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")

@@ -119,6 +119,17 @@ def load_map(path: str | Path) -> TableMap:
     if unknown:
         raise ImportMapError(f"{path}: {unknown[0]}: unknown key; the keys are {', '.join(KEYS)}")
     m = TableMap(source=path)
+    _read_text_format(m, doc, path)
+    _read_units(m, doc, path)
+    _read_columns(m, doc, path)
+    m.station = fields.text(doc.get("station", "T1"), f"{path}: station", ImportMapError)
+    m.point = fields.text(doc.get("point", "P1"), f"{path}: point", ImportMapError)
+    _read_positions(m, doc, path)
+    return m
+
+
+def _read_text_format(m: TableMap, doc: dict, path: str) -> None:
+    """load_map's separator, decimal mark, rows skipped, header and layout, into `m`."""
     m.separator = fields.text(doc.get("separator", ","), f"{path}: separator", ImportMapError)
     if m.separator in ("\\t", "tab"):
         m.separator = "\t"
@@ -138,6 +149,10 @@ def load_map(path: str | Path) -> TableMap:
     m.layout = fields.text(doc.get("layout", "point_rows"), f"{path}: layout", ImportMapError)
     if m.layout not in LAYOUTS:
         raise ImportMapError(f"{path}: layout: expected {' or '.join(LAYOUTS)}, got {m.layout!r}")
+
+
+def _read_units(m: TableMap, doc: dict, path: str) -> None:
+    """load_map's units (joints, length), into `m` as factors to degrees and millimetres."""
     units = fields.mapping(doc.get("units") or {}, f"{path}: units", ImportMapError)
     for key in units:
         if key not in ("joints", "length"):
@@ -148,6 +163,10 @@ def load_map(path: str | Path) -> TableMap:
     if lu not in LENGTH_UNITS:
         raise ImportMapError(f"{path}: units.length: expected {', '.join(LENGTH_UNITS)}, got {lu!r}")
     m.joint_factor, m.length_factor = JOINT_UNITS[ju], LENGTH_UNITS[lu]
+
+
+def _read_columns(m: TableMap, doc: dict, path: str) -> None:
+    """load_map's columns (and for layout pose_rows, the points' columns), into `m`."""
     cols = fields.mapping(doc.get("columns"), f"{path}: columns", ImportMapError)
     for key in cols:
         if key not in COLUMN_KEYS:
@@ -172,8 +191,11 @@ def load_map(path: str | Path) -> TableMap:
         if not pts:
             raise ImportMapError(f"{path}: points: expected at least one point id -> [x, y, z]")
         m.points = {str(k): _refs(v, f"points.{k}", path, 3) for k, v in pts.items()}
-    m.station = fields.text(doc.get("station", "T1"), f"{path}: station", ImportMapError)
-    m.point = fields.text(doc.get("point", "P1"), f"{path}: point", ImportMapError)
+
+
+def _read_positions(m: TableMap, doc: dict, path: str) -> None:
+    """load_map's `positions` (how column positions count), required once a column is given by position; without a
+    header every column must be."""
     all_refs = [*m.columns["joints"], *m.columns.get("xyz", []),
                 *(m.columns[k] for k in ("point", "pose", "time", "station", "load") if k in m.columns),
                 *(r for v in (m.points or {}).values() for r in v)]  # fmt: skip
@@ -187,7 +209,6 @@ def load_map(path: str | Path) -> TableMap:
         m.base = POSITIONS[pos]
     if not m.header and any(isinstance(r, str) for r in all_refs):
         raise ImportMapError(f"{path}: header: false, so columns can only be given by position")
-    return m
 
 
 def _looks_separated(line: str, separator: str) -> str | None:
@@ -346,6 +367,38 @@ def _open(path: Path, m: TableMap, keys: tuple[str, ...], with_points: bool) -> 
     return _Source(path, rows, raw, col, pts)
 
 
+def _number(m: TableMap, src: _Source, row: int, cells: list[str], c: Column, factor: float = 1.0) -> float:
+    """The number in column `c` of a row, read with the map's decimal mark, times `factor`; one line naming the row
+    and column when it is no finite number."""
+    text = cells[c.index]
+    t = text.replace(",", ".") if m.decimal == "," else text
+    try:
+        v = float(t)
+    except ValueError:
+        hint = " (a decimal comma? set decimal: ',')" if m.decimal == "." and "," in text else ""
+        raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a number: {text!r}{hint}") from None
+    if not math.isfinite(v) or t.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a finite number: {text!r}")
+    return v * factor
+
+
+def _reading(m: TableMap, meas: _Source, row: int, cells: list[str], cs: list[Column]) -> list[float] | None:
+    """The position in mm, or None when the tracker had no reading there (a NaN or all three empty)."""
+    texts = [cells[c.index].strip().lower().lstrip("+-") for c in cs]
+    if "nan" in texts or not any(texts):
+        return None
+    return [_number(m, meas, row, cells, c, m.length_factor) for c in cs]
+
+
+def _ident(src: _Source, row: int, cells: list[str], c: Column) -> str:
+    """The id in column `c` of a row (a pose, station or point: printable, no comma, not empty)."""
+    text = cells[c.index]
+    if not text or not text.isprintable() or "," in text:
+        raise ImportMapError(f"{src.path}: row {row}: {c.label}: not an id (printable, no comma, not empty): "
+                             f"{text!r}")  # fmt: skip
+    return text
+
+
 def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, str],
                counts: dict[str, list[int]]) -> MeasurementTable | None:  # fmt: skip
     """The rows of one file (`robot` is `meas`), or of a positions file `meas` joined by row to the joints file
@@ -353,32 +406,6 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
     without a reading]) is added to. None when no row has a reading."""
     need_r = 1 + max(c.index for c in _flat(robot.col, robot.pts))  # a joints file has no points
     need_m = 1 + max(c.index for c in _flat(meas.col, meas.pts)) if meas is not robot else need_r
-
-    def number(src: _Source, row: int, cells: list[str], c: Column, factor: float = 1.0) -> float:
-        text = cells[c.index]
-        t = text.replace(",", ".") if m.decimal == "," else text
-        try:
-            v = float(t)
-        except ValueError:
-            hint = " (a decimal comma? set decimal: ',')" if m.decimal == "." and "," in text else ""
-            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a number: {text!r}{hint}") from None
-        if not math.isfinite(v) or t.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
-            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not a finite number: {text!r}")
-        return v * factor
-
-    def reading(row: int, cells: list[str], cs: list[Column]) -> list[float] | None:
-        """The position in mm, or None when the tracker had no reading there (a NaN or all three empty)."""
-        texts = [cells[c.index].strip().lower().lstrip("+-") for c in cs]
-        if "nan" in texts or not any(texts):
-            return None
-        return [number(meas, row, cells, c, m.length_factor) for c in cs]
-
-    def ident(src: _Source, row: int, cells: list[str], c: Column) -> str:
-        text = cells[c.index]
-        if not text or not text.isprintable() or "," in text:
-            raise ImportMapError(f"{src.path}: row {row}: {c.label}: not an id (printable, no comma, not empty): "
-                                 f"{text!r}")  # fmt: skip
-        return text
 
     fixed_point = meas.path.stem if m.point == FILE_POINT else m.point
     if not fixed_point or not fixed_point.isprintable() or "," in fixed_point:
@@ -389,21 +416,21 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
         for src, r, c, need in ((robot, row, cells, need_r), (meas, mrow, mcells, need_m)):
             if len(c) < need:
                 raise ImportMapError(_width_note(src.path, r, c, need, m, src.raw[r - 1]))
-        q = [number(robot, row, cells, c, m.joint_factor) for c in col["joints"]]
-        t = number(robot, row, cells, col["time"]) if "time" in col else float(row)  # no time: the row, an order
-        load = number(robot, row, cells, col["load"]) if "load" in col else 0.0
+        q = [_number(m, robot, row, cells, c, m.joint_factor) for c in col["joints"]]
+        t = _number(m, robot, row, cells, col["time"]) if "time" in col else float(row)  # no time: the row, an order
+        load = _number(m, robot, row, cells, col["load"]) if "load" in col else 0.0
         if not load >= 0:
             raise ImportMapError(f"{robot.path}: row {row}: {col['load'].label}: a payload of {load:g} kg (a load is "
                                  ">= 0 kg)")  # fmt: skip
-        station = ident(robot, row, cells, col["station"]) if "station" in col else m.station
-        pose = (ident(robot, row, cells, col["pose"]) if "pose" in col else
+        station = _ident(robot, row, cells, col["station"]) if "station" in col else m.station
+        pose = (_ident(robot, row, cells, col["pose"]) if "pose" in col else
                 poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}"))  # fmt: skip
         if m.layout == "point_rows":
-            measured = [(ident(meas, mrow, mcells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
+            measured = [(_ident(meas, mrow, mcells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
         else:  # a point whose three cells are empty was not measured at this pose: no row, nothing missing
             measured = [(p, cs) for p, cs in meas.pts.items() if any(mcells[c.index] for c in cs)]
         for point, cs in measured:
-            xyz = reading(mrow, mcells, cs)
+            xyz = _reading(m, meas, mrow, mcells, cs)
             count = counts.setdefault(point, [0, 0])
             count[0] += 1
             if xyz is None:

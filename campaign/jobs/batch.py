@@ -269,6 +269,32 @@ def _after_a_broken_pool(pending: dict[Future, int], todo: dict[int, list], mark
     return len(culprits)
 
 
+def _take_finished(finished: set[Future], pending: dict[Future, int], todo: dict[int, list],
+                   lost: Callable[[list, str], list] | None,
+                   count: Callable[[list], list]) -> Generator[list, None, bool]:  # fmt: skip
+    """map_chunks' round of finished futures: yields each one's chunk of results (through `count`), taking it out
+    of `pending` and `todo`; a chunk whose Dask workers all died is lost (KILLED_WORKERS); a cancelled future (the
+    client gave up on the scheduler) ends the round. Returns whether the process pool broke."""
+    broken = False
+    for fut in finished:
+        try:
+            rows = fut.result()
+        except BrokenProcessPool:
+            broken = True
+            continue
+        except CancelledError:  # the client gave up on the scheduler
+            break
+        except Exception as exc:
+            if type(exc).__name__ != "KilledWorker":  # distributed's, without importing it
+                raise
+            # Dask ran the chunk again on a restarted worker (its allowed failures) and each died
+            yield count(_lost(lost, todo.pop(pending.pop(fut)), KILLED_WORKERS))
+            continue
+        del todo[pending.pop(fut)]
+        yield count(rows)
+    return broken
+
+
 def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
                failed: Callable[[object], bool] = lambda r: False, progress: Progress | None = None,
                lost: Callable[[list, str], list] | None = None) -> Iterator[list]:  # fmt: skip
@@ -316,22 +342,7 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
                 report(pending, slots)
                 while pending and not broken:
                     finished, _ = wait(list(pending), timeout=PROGRESS_EVERY_S, return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        try:
-                            rows = fut.result()
-                        except BrokenProcessPool:
-                            broken = True
-                            continue
-                        except CancelledError:  # the client gave up on the scheduler
-                            break
-                        except Exception as exc:
-                            if type(exc).__name__ != "KilledWorker":  # distributed's, without importing it
-                                raise
-                            # Dask ran the chunk again on a restarted worker (its allowed failures) and each died
-                            yield count(_lost(lost, todo.pop(pending.pop(fut)), KILLED_WORKERS))
-                            continue
-                        del todo[pending.pop(fut)]
-                        yield count(rows)
+                    broken = yield from _take_finished(finished, pending, todo, lost, count)
                     why = watch.lost() if watch else None
                     if why or (watch and any(f.cancelled() for f in pending)):
                         raise SchedulerLost(f"the Dask scheduler {scheduler} was lost mid-run: "

@@ -535,7 +535,8 @@ def section_residuals(res: Residuals, out_dir: Path) -> str:
         table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
         "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
         "After: this table minus the model's prediction. Coordinate-based: every x, y, z; distance-based: the "
-        "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone gives.</p>",
+        "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone "
+        "gives.</p>",
         img_html(out_dir / "residuals_xyz.png", "residual histograms per axis"),
         img_html(out_dir / "residuals_per_pose.png", "residual distance per configuration"),
     ])  # fmt: skip

@@ -181,42 +181,7 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         return _refuse(why) if why else JSONResponse({"csrf": hub.csrf})
 
     async def events(request: Request) -> Response:
-        why = _other_origin(request)
-        if not why and not hmac.compare_digest(request.query_params.get("csrf", ""), hub.csrf):
-            why = "forbidden: no valid page token (the page reads it from /session)"
-        if why:
-            return _refuse(why)
-        client = request.query_params.get("client", "")
-        if not CLIENT_ID.match(client):
-            return Response("client: 8 to 64 letters, digits, - or _\n", status_code=400, media_type="text/plain")
-        if streams["open"] >= MAX_STREAMS:
-            if not streams["said"]:
-                streams["said"] = True
-                say(f"warning: the operator's page has {MAX_STREAMS} event streams open, the most it serves: "
-                    "another page is refused until one closes")  # fmt: skip
-            return Response("too many pages open\n", status_code=503, media_type="text/plain",
-                            headers={"Retry-After": "2"})  # fmt: skip
-        queue: asyncio.Queue = asyncio.Queue()
-        loop = asyncio.get_running_loop()
-
-        def push(kind, item):  # from the engine's thread: never blocks
-            with contextlib.suppress(RuntimeError):  # the loop has ended
-                loop.call_soon_threadsafe(queue.put_nowait, (kind, item))
-
-        past, live = hub.subscribe(push)
-        hub.claim_control(client)
-        state = PageState(steps, hub.plan).fold(past)
-
-        def release() -> None:  # however the response ends, even before the stream started
-            hub.unsubscribe(push)
-            streams["open"] -= 1
-            if streams["open"] < MAX_STREAMS:
-                streams["said"] = False
-
-        streams["open"] += 1  # no await since the count was read: no other request came in between
-        return _Released(StreamingResponse(_event_stream(hub, state, past, live, queue, closing, push),
-                                           media_type="text/event-stream",
-                                           headers={"X-Accel-Buffering": "no"}), release)  # fmt: skip
+        return _open_stream(request, hub, steps, streams, closing, say)
 
     async def answer(request: Request) -> Response:
         return await _post(request, hub, _do_answer)
@@ -234,6 +199,48 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         Route("/favicon.ico", lambda request: Response(status_code=204)),
     ]  # fmt: skip
     return Guard(Starlette(routes=routes), token, loopback_hosts)
+
+
+def _open_stream(request: Request, hub: Hub, steps: list[Step], streams: dict, closing, say) -> Response:
+    """/events: one page's event stream, once the request passes the origin and page-token checks and the client id
+    is well formed; refused (503) while MAX_STREAMS are open, said once on the console (`say`) until one closes.
+    `streams` counts the open ones (touched in the server's event loop only)."""
+    why = _other_origin(request)
+    if not why and not hmac.compare_digest(request.query_params.get("csrf", ""), hub.csrf):
+        why = "forbidden: no valid page token (the page reads it from /session)"
+    if why:
+        return _refuse(why)
+    client = request.query_params.get("client", "")
+    if not CLIENT_ID.match(client):
+        return Response("client: 8 to 64 letters, digits, - or _\n", status_code=400, media_type="text/plain")
+    if streams["open"] >= MAX_STREAMS:
+        if not streams["said"]:
+            streams["said"] = True
+            say(f"warning: the operator's page has {MAX_STREAMS} event streams open, the most it serves: "
+                "another page is refused until one closes")  # fmt: skip
+        return Response("too many pages open\n", status_code=503, media_type="text/plain",
+                        headers={"Retry-After": "2"})  # fmt: skip
+    queue: asyncio.Queue = asyncio.Queue()
+    loop = asyncio.get_running_loop()
+
+    def push(kind, item):  # from the engine's thread: never blocks
+        with contextlib.suppress(RuntimeError):  # the loop has ended
+            loop.call_soon_threadsafe(queue.put_nowait, (kind, item))
+
+    past, live = hub.subscribe(push)
+    hub.claim_control(client)
+    state = PageState(steps, hub.plan).fold(past)
+
+    def release() -> None:  # however the response ends, even before the stream started
+        hub.unsubscribe(push)
+        streams["open"] -= 1
+        if streams["open"] < MAX_STREAMS:
+            streams["said"] = False
+
+    streams["open"] += 1  # no await since the count was read: no other request came in between
+    return _Released(StreamingResponse(_event_stream(hub, state, past, live, queue, closing, push),
+                                       media_type="text/event-stream",
+                                       headers={"X-Accel-Buffering": "no"}), release)  # fmt: skip
 
 
 async def _event_stream(hub: Hub, state: PageState, past: list, live: dict, queue: asyncio.Queue, closing,

@@ -112,8 +112,8 @@ def divert_native_output(log_path: str | os.PathLike) -> bool:
     streams = []
     for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
         stream.flush()
-        streams.append(open(os.dup(fd), "w", encoding=stream.encoding, errors=stream.errors,  # noqa: SIM115
-                            buffering=1 if stream.line_buffering else -1))  # fmt: skip
+        kept = {"encoding": stream.encoding, "errors": stream.errors, "buffering": 1 if stream.line_buffering else -1}
+        streams.append(open(os.dup(fd), "w", **kept))  # noqa: SIM115
     os.dup2(log, 1)
     os.dup2(log, 2)
     os.close(log)
