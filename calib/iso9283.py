@@ -294,6 +294,13 @@ class IsoFigures:
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     ad_budget: Budget | None = None  # AD_P's (calib.uncertainty_budget)
     other_budgets: dict[str, Budget] = field(default_factory=dict)  # "RD", "vAP_P P1", ...: the tracker's line alone
+    velocity_pct: float = 0.0  # the test velocity (6.7), % of the rated; 0: none planned (the session's setting)
+
+    @property
+    def label(self) -> str:
+        """The test's targets and, where planned, its velocity: "nominal", "compensated, 50 %"."""
+        kind = "compensated" if self.compensated else "nominal"
+        return f"{kind}, {self.velocity_pct:g} %" if self.velocity_pct else kind
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -313,4 +320,4 @@ class IsoFigures:
             "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
             "other_budgets": {k: b.to_doc() for k, b in self.other_budgets.items()},
             "conditions": self.conditions, "notes": self.notes,
-        }  # fmt: skip
+        } | ({"velocity_pct": self.velocity_pct} if self.velocity_pct else {})  # fmt: skip

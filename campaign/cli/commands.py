@@ -383,7 +383,11 @@ COMMANDS = [
                     help="also measure every tool point the station sees (at least 3), point after point, for the "
                          "orientation figures AP_a..RP_c (ISO 9283:1998, 7.2; default: the one point)"),
                 arg("--load", help="what the robot carries during the test, for the report (ISO 9283:1998, 6.6: "
-                                   "100 %% of the rated load), e.g. '270 kg, 100 %% rated' (default: not stated)"),
+                                   "100 %% of the rated load), e.g. '270 kg, 100 %% rated', or 'unloaded' "
+                                   "(required: a plan without it is refused)"),
+                arg("--velocities", metavar="PCT,...", help="test velocities in %% of the rated velocity, each a test "
+                    "of its own, the moves' speed override (ISO 9283:1998, 6.7; default: 100,50,10); the "
+                    "multi-directional test runs at the first"),
                 arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),

@@ -11,7 +11,7 @@ from rich.table import Table
 from trackcal.calib.decision_rule import RULES
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
-from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
+from trackcal.campaign.jobs.iso9283 import STANDARD_VELOCITIES, CompareOptions, PlanOptions, compare, make_plan
 from trackcal.campaign.report.iso9283 import Item, write_iso_pdf, write_iso_report
 from trackcal.campaign.report.iso9283_conformity import Verdict, parse_tolerances, verdicts
 
@@ -28,11 +28,23 @@ def _centre(text: str | None) -> tuple[float, float, float] | None:
     return values
 
 
+def _velocities(text: str | None) -> tuple[float, ...]:
+    if text is None:
+        return STANDARD_VELOCITIES
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise OptionError("{0}: expected percentages of the rated velocity, e.g. 100,50,10, got {text!r}",
+                          "velocities", text=text) from None  # fmt: skip
+    return values
+
+
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
                        vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
-                       accept_edited=args.accept_edited, accept_poor=args.accept_poor)  # fmt: skip
+                       accept_edited=args.accept_edited, accept_poor=args.accept_poor,
+                       velocities=_velocities(args.velocities))  # fmt: skip
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
@@ -40,7 +52,8 @@ def cmd_plan(args) -> int:
     iso = doc["iso9283"]
     console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
                   f"({', '.join(f'{v:.1f}' for v in iso['cube_centre_mm'])}) mm; point {iso['point']} measured from "
-                  f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])}",
+                  f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])} at each of "
+                  f"{', '.join(f'{v:g}' for v in iso['velocities'])} % of the rated velocity",
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
@@ -98,7 +111,7 @@ def cmd_compare(args) -> int:
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
     table.add_column("pose")
     for t in tests:
-        label = "compensated" if t.compensated else "nominal"
+        label = t.label
         table.add_column(f"AP_P {label}", justify="right", overflow="fold")
         table.add_column(f"RP_l {label}", justify="right", overflow="fold")
     for i, name in enumerate(p.name for p in tests[0].poses):
@@ -116,7 +129,7 @@ def cmd_compare(args) -> int:
         vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
         vt.add_column("pose")
         for t in tests:
-            vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
+            vt.add_column(f"vAP_P {t.label}", justify="right", overflow="fold")
         for name in vap_poses:
             vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
         console.print(vt)
@@ -125,7 +138,7 @@ def cmd_compare(args) -> int:
                          "axes (millidegrees; ± U, k = 2)")  # fmt: skip
         ot.add_column("pose, axis")
         for t in tests:
-            label = "compensated" if t.compensated else "nominal"
+            label = t.label
             ot.add_column(f"AP {label}", justify="right", overflow="fold")
             ot.add_column(f"RP {label}", justify="right", overflow="fold")
         for i, name in enumerate(p.name for p in tests[0].poses):

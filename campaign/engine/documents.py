@@ -71,6 +71,7 @@ class MeasurementDoc(TypedDict):
     std_mm: list[float]
     env: list[float]
     approach: NotRequired[str]  # ISO 9283 multi-directional test (7.3): the side the pose was approached from
+    velocity_pct: NotRequired[float]  # ISO 9283 test velocity (6.7): the move's speed, % of the rated velocity
 
 
 class WarningDoc(TypedDict):

@@ -416,7 +416,8 @@ class Engine:
             self._warn("the cell door opened: motion blocked until resumed")
             self.interlock.close()
             self._resume_motion()
-        self.dev.robot.move(tuple(step.q_deg), self.settings.speed_pct)
+        # an ISO 9283 test velocity (6.7) is the step's own; every other move the session's setting
+        self.dev.robot.move(tuple(step.q_deg), step.speed_pct or self.settings.speed_pct)
 
     def _settle(self, step: Step) -> None:
         """Wait until the robot stands; it must stand at the step's target, to one count of the controller."""
@@ -467,6 +468,8 @@ class Engine:
         )  # fmt: skip
         if step.approach:
             data["approach"] = step.approach
+        if step.speed_pct:
+            data["velocity_pct"] = step.speed_pct
         self._emit("measurement", data)
         self.measurements.append(data)
         if step.drift:

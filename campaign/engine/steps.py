@@ -51,12 +51,15 @@ class Step:
     # settle at) the approach point before the pose, a move with no measurement
     approach: str = ""
     via: bool = False
+    # ISO 9283 test velocity (6.7): the move's speed override in % of the rated velocity; 0: the session's setting
+    speed_pct: float = 0.0
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
-        for key in ("approach", "via"):  # only where set: the steps of every other plan are recorded as before
+        # only where set: the steps of every other plan are recorded as before
+        for key in ("approach", "via", "speed_pct"):
             if not d[key]:
                 del d[key]
         return d
@@ -75,7 +78,8 @@ class Step:
         if self.via:
             return f"{self.kind} {self.pose} (an approach: nothing is measured)"
         side = f" from its {self.approach} side" if self.approach else ""
-        return f"{self.kind} {self.pose}{side}{measure}"
+        speed = f" at {self.speed_pct:g} %" if self.speed_pct and self.kind == StepKind.MOVE else ""
+        return f"{self.kind} {self.pose}{side}{speed}{measure}"
 
 
 class PlanError(CampaignError):
@@ -152,7 +156,9 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
     if iso is None:
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat, approached)
     else:
-        visits = [v for pid in iso_points(iso) for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]
+        # each test velocity (6.7) a test of its own, all its cycles in a row, every point in turn
+        visits = [(v, speed) for pid in iso_points(iso) for speed in iso_velocities(iso)
+                  for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]  # fmt: skip
     vap = vap_block(iso, cell) if iso is not None else None
     if vap is not None:
         problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
@@ -162,7 +168,7 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         if problems:
             raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
     where = None
-    for v in visits:
+    for v, speed in visits if iso is not None else ((v, 0.0) for v in visits):
         if where is None or v.station != where[0]:
             yield Step(StepKind.CHANGE_STATION, station=v.station)
             yield Step(StepKind.RESUME, station=v.station)
@@ -173,21 +179,24 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
                 last = CYCLE_ORDER[-1]
                 q = tuple(float(x) for x in poses[last])
                 for kind in (StepKind.MOVE, StepKind.SETTLE):
-                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True)
+                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True,
+                               speed_pct=speed)  # fmt: skip
         where = (v.station, v.point)
         q = tuple(float(x) for x in poses[v.pose])
-        yield Step(StepKind.MOVE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
-        yield Step(StepKind.SETTLE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
-        yield Step(StepKind.MEASURE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q, drift=v.drift)
+        at = {"station": v.station, "point": v.point, "pose": ids[v.pose], "q_deg": q, "speed_pct": speed}
+        yield Step(StepKind.MOVE, **at)
+        yield Step(StepKind.SETTLE, **at)
+        yield Step(StepKind.MEASURE, drift=v.drift, **at)
     if vap is None:
         return
     station, point = iso["station"], iso["point"]
+    speed = iso_velocities(iso)[0]  # the multi-directional test at the first test velocity (the standard's 100 %)
     for _ in range(vap["cycles"]):
         for i, pose in enumerate(vap["poses"]):
             q = tuple(float(x) for x in poses[pose])
             for k, side in enumerate(vap["approaches"][i]):
                 a = tuple(float(x) for x in vap["approach_deg"][i, k])
-                common = {"station": station, "point": point, "pose": ids[pose], "approach": side}
+                common = {"station": station, "point": point, "pose": ids[pose], "approach": side, "speed_pct": speed}
                 yield Step(StepKind.MOVE, q_deg=a, via=True, **common)
                 yield Step(StepKind.SETTLE, q_deg=a, via=True, **common)
                 yield Step(StepKind.MOVE, q_deg=q, **common)
@@ -224,7 +233,23 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
                         f"point {iso['point']!r} last")  # fmt: skip
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
+    iso_velocities(iso)  # checked before anything moves
     return iso
+
+
+def iso_velocities(iso: dict) -> list[float]:
+    """The test velocities of an ISO plan (`iso9283.velocities`, ISO 9283:1998, 6.7: % of the rated velocity, each
+    a test of its own), checked: numbers in (0, 100], none twice; [0.0] (the session's speed setting) for a plan
+    written before they were planned."""
+    given = iso.get("velocities")
+    if given is None:
+        return [0.0]
+    values = fields.sequence(given, "plan: iso9283.velocities", PlanError)
+    if (not values or any(isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 100 for v in values)
+            or len(set(values)) != len(values)):  # fmt: skip
+        raise PlanError(f"plan: iso9283.velocities: expected distinct percentages of the rated velocity in (0, 100], "
+                        f"got {given!r}")  # fmt: skip
+    return [float(v) for v in values]
 
 
 def iso_points(iso: dict) -> list[str]:

@@ -56,7 +56,15 @@ from trackcal.calib.iso9283 import (
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
-from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
+from trackcal.campaign.engine.steps import (
+    PlanError,
+    iso_block,
+    iso_points,
+    iso_velocities,
+    plan_arrays,
+    vap_block,
+    visibility,
+)
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.iso9283_budget import (
     BudgetContext,
@@ -71,6 +79,9 @@ from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
 from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
 from trackcal.campaign.session.store import SessionStore
+
+# ISO 9283:1998, 6.7 (test velocities): the pose characteristics at 100 %, 50 % and 10 % of the rated velocity
+STANDARD_VELOCITIES = (100.0, 50.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -87,6 +98,7 @@ class PlanOptions:
     load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.6), free text for the report
     accept_edited: bool = False  # --model: use it though its digest does not match its content (calib.model_trust)
     accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
+    velocities: tuple[float, ...] = STANDARD_VELOCITIES  # % of the rated velocity, each a test of its own (6.7)
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -116,6 +128,13 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
 def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     """The ISO 9283 plan of a cell, written to opts.json; with a model (checked: campaign.jobs.trusted, its warning
     lines added to `warnings`), its compensated targets."""
+    if not (opts.load or "").strip():
+        raise OptionError("{0} is required: what the robot carries during the test (ISO 9283:1998, 6.6), e.g. "
+                          "'270 kg, 100 % rated', or 'unloaded' to state that it carries nothing", "load")
+    if (not opts.velocities or any(not 0 < v <= 100 for v in opts.velocities)
+            or len(set(opts.velocities)) != len(opts.velocities)):  # fmt: skip
+        raise OptionError("{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10",
+                          "velocities")  # fmt: skip
     if opts.cycles < 2:
         raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
                           "cycles")  # fmt: skip
@@ -160,15 +179,17 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
                "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
                "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
-    if opts.load:
-        doc["iso9283"]["load"] = opts.load
+    doc["iso9283"]["load"] = opts.load.strip()
+    doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities]
     write_json(opts.json, doc)
     return doc
 
 
 # ISO 9283:1998, 6.6 (load to the mechanical interface): tests run with 100 % of the rated load
-# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`): trackcal cannot weigh it
+# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`, required; "unloaded" said
+# explicitly): trackcal cannot weigh it. A plan written before --load was required may still lack it
 NO_LOAD = "not stated (give it with iso9283 plan --load)"
+UNLOADED = "unloaded"  # the one word that states the robot carries nothing
 
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
@@ -203,20 +224,22 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        sides = [m.get("approach", "") for m in stored_measurements(store)]  # vAP visits (7.2) name theirs
+        docs = stored_measurements(store)
+        sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
+        speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
-        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
-                               "9283:1998, 6.7: 100 %, 50 % and 10 % of the rated velocity)"
-                               ) if overrides else "no move recorded"  # fmt: skip
+        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves: the "
+                               "session's setting, no test velocity planned (ISO 9283:1998, 6.7: 100 %, 50 % and "
+                               "10 % of the rated velocity)") if overrides else "no move recorded"  # fmt: skip
         tool_text = store.documents().get("config/tool.yaml")
         tool_doc = yaml.safe_load(tool_text) if tool_text else None
         conditions["tool"] = str((tool_doc or {}).get("name") or "-")
         conditions.update(traceability(store, directory))
         conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
                                             if centring_mm(tool_doc) is not None else "not stated by the tool file")
-        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides,
-                centring_mm(tool_doc))  # fmt: skip
+        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions,
+                Visits(np.zeros(0), np.asarray(sides), speeds), centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
 
@@ -241,22 +264,48 @@ class InBase:
         return (xyz - self.station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, self.noise.covariance(xyz), rot)
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
-    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
-    is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
-    cell, plan, table, conditions, sides, centring = _session_inputs(directory)
+def session_tests(directory: Path, model: Model, noise: TrackerNoise | None = None) -> list[IsoFigures]:
+    """The ISO 9283 tests of one session, one per test velocity of its plan (6.7), in the plan's order."""
+    cell, plan, _, _, _, _ = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
         raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
+    return [session_figures(directory, model, noise, v) for v in iso_velocities(iso)]
+
+
+def _velocity_condition(speed: float, conditions: dict) -> str:
+    """The test's velocity as the report states it: the plan's (6.7), or the session's override (an old plan)."""
+    if not speed:
+        return conditions["speed"]
+    return f"{speed:g} % of the rated velocity (ISO 9283:1998, 6.7; the PTP moves' joint speed override)"
+
+
+def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None,
+                    velocity: float | None = None) -> IsoFigures:  # fmt: skip
+    """The ISO 9283 figures of one session of an ISO plan at one of its test velocities (None: the first, 6.7), in
+    the base frame of `model`'s station estimate; `noise` is the tracker's instrument model every figure's
+    uncertainty comes from (None: the session's tracker's)."""
+    cell, plan, table, conditions, visit, centring = _session_inputs(directory)
+    poses, _ = plan_arrays(plan)
+    iso = iso_block(plan, cell, len(poses))
+    if iso is None:
+        raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
+    planned = iso_velocities(iso)
+    speed = planned[0] if velocity is None else velocity
+    if speed not in planned:
+        raise InputError(f"{directory}: its plan has no test velocity {speed:g} %")
+    label = f"{directory} at {speed:g} %" if speed else str(directory)
+    conditions["speed"] = _velocity_condition(speed, conditions)
     station = model.stations.get(iso["station"])
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
     tracker = noise.name if noise else cell.tracker.describe()  # whose noise U is
     in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
-    keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-    visit = Visits(np.asarray(table.pose), np.asarray(sides))
+    visit = Visits(np.asarray(table.pose), visit.side, visit.speed, speed)
+    keep = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
+            & (visit.speed == speed))  # fmt: skip
     temps = table.extra.get("temp_c") if table.extra else None
     context = BudgetContext(model, iso["station"], iso["point"], _commanded_rotations(iso, model), tracker, centring,
                             temperature_halfrange(None if temps is None else [temps[k] for k in np.flatnonzero(keep)]))
@@ -273,10 +322,12 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     pts = iso_points(iso)
     if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2)
         notes += _orientations(iso, pts, model, in_base, visit, figures)
-    vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
+    vap, vap_attained = ({}, {}) if speed != planned[0] else _multidirectional(iso, cell, in_base, keep, visit,
+                                                                                  notes)  # at the first velocity only
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
-    return IsoFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
-                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker))  # fmt: skip
+    return IsoFigures(label, bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
+                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker),
+                      speed)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -285,9 +336,12 @@ class Visits:
 
     pose: np.ndarray
     side: np.ndarray
+    speed: np.ndarray  # the test velocity (6.7) of each, % of the rated; 0 where the plan had none
+    at: float | None = None  # the test velocity whose visits `of` selects (None: every one)
 
     def of(self, i: int, side: str = "") -> np.ndarray:
-        return (self.pose == f"Q{i + 1}") & (self.side == side)
+        at = np.ones(len(self.speed), bool) if self.at is None else self.speed == self.at
+        return (self.pose == f"Q{i + 1}") & (self.side == side) & at
 
 
 def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray,
@@ -411,8 +465,8 @@ def drifts(tests: list[IsoFigures]) -> list[dict]:
     """dAP and dRP per pose (ISO 9283:1998, 7.6) between the first and the last of the tests run with the same
     targets, in the order given (the standard repeats the test over hours: give the sessions in time order)."""
     out = []
-    for targets in dict.fromkeys(t.conditions["targets"] for t in tests):
-        same = [t for t in tests if t.conditions["targets"] == targets]
+    for targets, speed in dict.fromkeys((t.conditions["targets"], t.conditions.get("speed")) for t in tests):
+        same = [t for t in tests if (t.conditions["targets"], t.conditions.get("speed")) == (targets, speed)]
         if len(same) < 2:
             continue
         first, last = same[0], same[-1]
@@ -432,9 +486,11 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     if expired and opts.certificate and not opts.accept_expired:
         raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
                          "test anyway (the report then says so)")  # fmt: skip
-    tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
-    for t in tests:
-        t.notes += [m.removeprefix(f"{t.session}: ") for m in expired if m.startswith(f"{t.session}: ")]
+    tests = []
+    for s in opts.sessions:
+        for t in session_tests(Path(s), model, opts.noise):  # one per test velocity (6.7)
+            t.notes += [m.removeprefix(f"{s}: ") for m in expired if m.startswith(f"{s}: ")]
+            tests.append(t)
     if warnings is not None:
         warnings += expired
     drift_list = drifts(tests)

@@ -141,7 +141,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
            conformity: tuple[str, dict[str, float], list[Verdict]] | None = None, item: Item | None = None) -> str:
     """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement, `item` the
     customer, the report's id and the person authorising it."""
-    label = ["compensated" if t.compensated else "nominal" for t in tests]
+    label = [t.label for t in tests]
     item = item or Item()
     rid = html.escape(item.report_id or report_id(tests))
     out = [f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
@@ -149,7 +149,8 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
            f"<p>Report {rid}</p><p>Customer: {html.escape(item.customer or 'not stated')}</p>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
-    out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
+    out += [f"<th class=l>{html.escape(t.session)} ({'compensated' if t.compensated else 'nominal'} targets)</th>"
+            for t in tests]  # fmt: skip
     out.append("</tr>")
     for k in keys:
         out.append(f"<tr><td class=l>{html.escape(k)}</td>")

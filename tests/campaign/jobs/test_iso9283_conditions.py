@@ -1,0 +1,118 @@
+"""The test conditions ISO 9283:1998 asks for (clause 6, numbers as calib/iso9283_clauses.py checked them): the load
+of every test stated (6.6), the test velocities (6.7), the warm-up (6.2), and the report's box of departures."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from tests.helpers import TRACKCAL, inproc_live
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.campaign.cli import main
+from trackcal.campaign.engine.steps import StepKind, plan_steps
+from trackcal.campaign.jobs.campaign import new_session, run_session
+from trackcal.campaign.jobs.iso9283 import PlanOptions, make_plan
+from trackcal.campaign.session.session import stored_measurements
+from trackcal.campaign.session.store import SessionStore
+
+SEED = 4
+
+
+def cli(*argv, cwd):
+    return subprocess.run([*TRACKCAL, *argv], cwd=cwd, capture_output=True, text=True)
+
+
+def test_a_plan_without_its_load_is_refused_in_one_line(tmp_path):
+    """6.6 asks the test to run at the rated load: a plan that does not say what the robot carries is refused, in one
+    line naming --load, and writes nothing."""
+    done = cli("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--json", "iso.json",
+               cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "--load" in done.stderr and "unloaded" in done.stderr
+    assert not (tmp_path / "iso.json").exists()
+    blank = cli("iso9283", "plan", "--cell", "kr270", "--load", " ", "--json", "iso.json", cwd=tmp_path)
+    assert blank.returncode == 2 and blank.stderr.count("\n") == 1, blank.stderr
+
+
+def test_unloaded_said_explicitly_is_recorded(tmp_path):
+    done = cli("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--load", "unloaded",
+               "--json", "iso.json", cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "iso.json").read_text())["iso9283"]["load"] == "unloaded"
+
+
+@pytest.fixture(scope="module")
+def two_velocities(tmp_path_factory, kr270):
+    """A calibration and one ISO session planned at 100 % and 10 % of the rated velocity, 2 cycles each, run on the
+    twin in process."""
+    d = tmp_path_factory.mktemp("velocities")
+    assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", str(SEED), "--out", str(d / "t.csv")]) == 0
+    assert main(["identify", str(d / "t.csv"), "--cell", "kr270", "--out", str(d / "model.json")]) == 0
+    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded",
+                                 velocities=(100.0, 10.0)))  # fmt: skip
+    store, campaign = new_session(d / "s", "kr270", plan, "sim", SEED)
+    assert run_session(store, campaign, inproc_live(kr270, SEED)[1]).exit_status == "success"
+    store.close()
+    return d, plan
+
+
+def test_each_velocity_is_a_test_its_moves_at_that_speed(two_velocities, kr270):
+    """6.7: every cycle of the 100 % test moves at a 100 % override, then every one of the 10 % test at 10 % (the
+    session's own setting, 30 %, is no test velocity); each measurement records its test velocity."""
+    d, plan = two_velocities
+    steps = plan_steps(kr270, plan)
+    measured = [s.speed_pct for s in steps if s.kind == StepKind.MEASURE]
+    assert measured == [100.0] * 10 + [10.0] * 10  # 2 cycles of the 5 poses at each
+    store = SessionStore.open(d / "s", readonly=True)
+    try:
+        moves = [float(e.data["args"][1]) for e in store.events("call")
+                 if e.data.get("device") == "robot" and e.data.get("op") == "move"]  # fmt: skip
+        docs = stored_measurements(store)
+    finally:
+        store.close()
+    assert set(moves) == {100.0, 10.0} and moves == sorted(moves, reverse=True)
+    assert [m["velocity_pct"] for m in docs] == measured
+
+
+def test_figures_per_velocity_recomputed_from_the_rows(two_velocities):
+    """`compare` states one test per velocity; AP_P and RP_l of each recomputed here from that velocity's stored rows
+    alone (plain numpy, the station from model.json, the standard's formulas of 7.2 written out again)."""
+    d, plan = two_velocities
+    assert main(["iso9283", "compare", str(d / "s"), "--model", str(d / "model.json"), "--json",
+                 str(d / "cmp.json")]) == 0  # fmt: skip
+    cmp = json.loads((d / "cmp.json").read_text())
+    assert [t["velocity_pct"] for t in cmp["tests"]] == [100.0, 10.0]
+    assert [t["session"] for t in cmp["tests"]] == [f"{d / 's'} at 100 %", f"{d / 's'} at 10 %"]
+    assert cmp["tests"][1]["conditions"]["speed"].startswith("10 % of the rated velocity (ISO 9283:1998, 6.7")
+    model = json.loads((d / "model.json").read_text())
+    iso = plan["iso9283"]
+    st = model["stations"][iso["station"]]
+    rot, t = np.array(st["rotation"]), np.array(st["translation_mm"])
+    tool = np.array(model["tool_points"][iso["point"]]["xyz_mm"])
+    commanded = Kinematics(load_cell("kr270").chain, []).points(np.radians(iso["nominal_poses_deg"]), tool)
+    store = SessionStore.open(d / "s", readonly=True)
+    try:
+        docs = stored_measurements(store)
+    finally:
+        store.close()
+    for test in cmp["tests"]:
+        for i in range(5):
+            xyz = np.array([m["xyz_mm"] for m in docs
+                            if m["pose"] == f"Q{i + 1}" and m["velocity_pct"] == test["velocity_pct"]])  # fmt: skip
+            assert len(xyz) == 2
+            base = (xyz - t) @ rot
+            bar = base.mean(axis=0)
+            ell = np.linalg.norm(base - bar, axis=1)
+            rp = ell.mean() + 3 * ell.std(ddof=1)
+            assert test["poses"][i]["AP_P"]["value_mm"] == pytest.approx(np.linalg.norm(bar - commanded[i]), abs=1e-9)
+            assert test["poses"][i]["RP_l"]["value_mm"] == pytest.approx(rp, abs=1e-9)
+
+
+@pytest.mark.parametrize("given", ["0", "120", "100,100", "fast", "nan"])
+def test_a_velocity_outside_the_rated_is_refused_in_one_line(tmp_path, given):
+    done = cli("iso9283", "plan", "--cell", "kr270", "--load", "unloaded", "--velocities", given, "--json", "iso.json",
+               cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "--velocities" in done.stderr, done.stderr
+    assert not (tmp_path / "iso.json").exists()
