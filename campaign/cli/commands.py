@@ -388,6 +388,9 @@ COMMANDS = [
                 arg("--velocities", metavar="PCT,...", help="test velocities in %% of the rated velocity, each a test "
                     "of its own, the moves' speed override (ISO 9283:1998, 6.7; default: 100,50,10); the "
                     "multi-directional test runs at the first"),
+                arg("--warm-up-cycles", type=int, default=0, metavar="N", help="cycles of the test's poses at the "
+                    "first velocity before the test, nothing measured, recorded on the report (ISO 9283:1998, 6.2: "
+                    "the robot warmed up as its maker specifies; default: 0, none)"),
                 arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),

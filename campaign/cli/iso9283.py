@@ -44,7 +44,7 @@ def cmd_plan(args) -> int:
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
                        vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
                        accept_edited=args.accept_edited, accept_poor=args.accept_poor,
-                       velocities=_velocities(args.velocities))  # fmt: skip
+                       velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles)  # fmt: skip
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
@@ -57,6 +57,9 @@ def cmd_plan(args) -> int:
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
+    if iso["warm_up_cycles"]:
+        console.print(f"warm-up (ISO 9283:1998, 6.2): {iso['warm_up_cycles']} cycles of the poses at "
+                      f"{iso['velocities'][0]:g} %, nothing measured, before the test")
     if iso.get("points"):
         console.print(f"orientation: points {', '.join(iso['points'])} measured in turn, each over all the cycles")
     if iso.get("vap"):

@@ -53,13 +53,14 @@ class Step:
     via: bool = False
     # ISO 9283 test velocity (6.7): the move's speed override in % of the rated velocity; 0: the session's setting
     speed_pct: float = 0.0
+    warm_up: bool = False  # ISO 9283 warm-up (6.2): a move of the cycles before the test, nothing measured
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
         # only where set: the steps of every other plan are recorded as before
-        for key in ("approach", "via", "speed_pct"):
+        for key in ("approach", "via", "speed_pct", "warm_up"):
             if not d[key]:
                 del d[key]
         return d
@@ -73,6 +74,8 @@ class Step:
         if self.kind == StepKind.RESUME:
             return "leave the cell, close the door, acknowledge"
         measure = f" ({self.point} from {self.station})" if self.kind == StepKind.MEASURE else ""
+        if self.warm_up:
+            return f"{self.kind} {self.pose} (warm-up: nothing is measured)"
         if self.via and self.approach:
             return f"{self.kind} to the approach point of {self.pose} on its {self.approach} side"
         if self.via:
@@ -175,6 +178,8 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         if (v.station, v.point) != where:
             yield Step(StepKind.MOVE_REFLECTOR, station=v.station, point=v.point)
             yield Step(StepKind.RESUME, station=v.station, point=v.point)
+            if iso is not None and where is None:  # the warm-up (6.2): the test's cycles, nothing measured
+                yield from warm_up_steps(iso, poses, ids, v.station, v.point)
             if iso is not None:  # the first cycle's P1 approached from the cycle's last pose, as every later one
                 last = CYCLE_ORDER[-1]
                 q = tuple(float(x) for x in poses[last])
@@ -202,6 +207,26 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
                 yield Step(StepKind.MOVE, q_deg=q, **common)
                 yield Step(StepKind.SETTLE, q_deg=q, **common)
                 yield Step(StepKind.MEASURE, q_deg=q, **common)
+
+
+def warm_up_cycles(iso: dict) -> int:
+    """The warm-up cycles of an ISO plan (`iso9283.warm_up_cycles`, ISO 9283:1998, 6.2), checked: an integer >= 0."""
+    n = fields.integer(iso.get("warm_up_cycles", 0), "plan: iso9283.warm_up_cycles", PlanError)
+    if n < 0:
+        raise PlanError(f"plan: iso9283.warm_up_cycles: expected an integer >= 0, got {n}")
+    return n
+
+
+def warm_up_steps(iso: dict, poses: np.ndarray, ids: list[str], station: str, point: str) -> Iterator[Step]:
+    """The warm-up before the test (6.2): its cycles of the test's poses in the test's order at the first test
+    velocity, each pose moved to and settled at, nothing measured."""
+    speed = iso_velocities(iso)[0]
+    for _ in range(warm_up_cycles(iso)):
+        for i in CYCLE_ORDER:
+            q = tuple(float(x) for x in poses[i])
+            for kind in (StepKind.MOVE, StepKind.SETTLE):
+                yield Step(kind, station=station, point=point, pose=ids[i], q_deg=q, via=True, speed_pct=speed,
+                           warm_up=True)  # fmt: skip
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
@@ -234,6 +259,7 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     iso_velocities(iso)  # checked before anything moves
+    warm_up_cycles(iso)
     return iso
 
 

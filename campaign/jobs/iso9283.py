@@ -99,6 +99,7 @@ class PlanOptions:
     accept_edited: bool = False  # --model: use it though its digest does not match its content (calib.model_trust)
     accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
     velocities: tuple[float, ...] = STANDARD_VELOCITIES  # % of the rated velocity, each a test of its own (6.7)
+    warm_up_cycles: int = 0  # cycles of the test's poses before the test, nothing measured (6.2)
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -135,6 +136,8 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
             or len(set(opts.velocities)) != len(opts.velocities)):  # fmt: skip
         raise OptionError("{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10",
                           "velocities")  # fmt: skip
+    if opts.warm_up_cycles < 0:
+        raise OptionError("{0} must be 0 (no warm-up) or more", "warm_up_cycles")
     if opts.cycles < 2:
         raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
                           "cycles")  # fmt: skip
@@ -181,6 +184,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
     doc["iso9283"]["load"] = opts.load.strip()
     doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities]
+    doc["iso9283"]["warm_up_cycles"] = opts.warm_up_cycles
     write_json(opts.json, doc)
     return doc
 
@@ -194,7 +198,7 @@ UNLOADED = "unloaded"  # the one word that states the robot carries nothing
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
 CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
-                   "tracker certificate", "reflector centring", "load", "speed",
+                   "tracker certificate", "reflector centring", "load", "speed", "warm-up",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
 
@@ -210,8 +214,8 @@ def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
     return [*seen, plan.point]
 
 
-def _utc(t_wall: float) -> str:
-    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M UTC")
+def _utc(t_wall: float, seconds: bool = False) -> str:
+    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M" + (":%S" if seconds else "") + " UTC")
 
 
 def _session_inputs(directory: Path):
@@ -224,6 +228,7 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
+        conditions["warm-up"] = warm_up_record(events)
         docs = stored_measurements(store)
         sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
         speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
@@ -242,6 +247,21 @@ def _session_inputs(directory: Path):
                 Visits(np.zeros(0), np.asarray(sides), speeds), centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
+
+
+def warm_up_record(events) -> str:
+    """The warm-up the session ran before the test (ISO 9283:1998, 6.2), from its recorded steps: the cycles done,
+    the velocity, when it started and ended; "none" when the plan had none."""
+    started = [(k, e) for k, e in enumerate(events) if e.kind == "step_started" and e.data["step"].get("warm_up")]
+    if not started:
+        return "none recorded (ISO 9283:1998, 6.2, conditions prior to testing: the warm-up its maker specifies)"
+    done = [e for k, e in enumerate(events) if e.kind == "step_done" and k > started[-1][0]][:1]
+    moves = [e.data["step"] for _, e in started if e.data["step"]["kind"] == "move"]
+    cycles = len(moves) / len(POSE_NAMES)
+    end = _utc(done[0].t_wall, True) if done else "not finished"
+    order = " ".join(POSE_NAMES[i] for i in CYCLE_ORDER)
+    return (f"{cycles:g} cycle{'' if cycles == 1 else 's'} of {order} at {moves[0].get('speed_pct', 0):g} "
+            f"%, nothing measured, {_utc(started[0][1].t_wall, True)} to {end} (ISO 9283:1998, 6.2)")  # fmt: skip
 
 
 def _meteo(table, key: str, unit: str, digits: int) -> str:

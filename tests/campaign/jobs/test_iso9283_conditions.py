@@ -2,6 +2,7 @@
 of every test stated (6.6), the test velocities (6.7), the warm-up (6.2), and the report's box of departures."""
 
 import json
+import re
 import subprocess
 
 import numpy as np
@@ -13,7 +14,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.cli import main
 from trackcal.campaign.engine.steps import StepKind, plan_steps
 from trackcal.campaign.jobs.campaign import new_session, run_session
-from trackcal.campaign.jobs.iso9283 import PlanOptions, make_plan
+from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
 from trackcal.campaign.session.session import stored_measurements
 from trackcal.campaign.session.store import SessionStore
 
@@ -45,13 +46,13 @@ def test_unloaded_said_explicitly_is_recorded(tmp_path):
 
 @pytest.fixture(scope="module")
 def two_velocities(tmp_path_factory, kr270):
-    """A calibration and one ISO session planned at 100 % and 10 % of the rated velocity, 2 cycles each, run on the
-    twin in process."""
+    """A calibration and one ISO session planned at 100 % and 10 % of the rated velocity, 2 cycles each after one
+    warm-up cycle, run on the twin in process."""
     d = tmp_path_factory.mktemp("velocities")
     assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", str(SEED), "--out", str(d / "t.csv")]) == 0
     assert main(["identify", str(d / "t.csv"), "--cell", "kr270", "--out", str(d / "model.json")]) == 0
     plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded",
-                                 velocities=(100.0, 10.0)))  # fmt: skip
+                                 velocities=(100.0, 10.0), warm_up_cycles=1))  # fmt: skip
     store, campaign = new_session(d / "s", "kr270", plan, "sim", SEED)
     assert run_session(store, campaign, inproc_live(kr270, SEED)[1]).exit_status == "success"
     store.close()
@@ -74,6 +75,22 @@ def test_each_velocity_is_a_test_its_moves_at_that_speed(two_velocities, kr270):
         store.close()
     assert set(moves) == {100.0, 10.0} and moves == sorted(moves, reverse=True)
     assert [m["velocity_pct"] for m in docs] == measured
+
+
+def test_the_warm_up_runs_before_the_test_and_is_recorded(two_velocities, kr270):
+    """6.2: the warm-up cycle moves through the test's poses in the test's order at the first velocity before the
+    first measurement, measures nothing, and the comparison states it: its cycles, velocity, start and end."""
+    d, plan = two_velocities
+    steps = plan_steps(kr270, plan)
+    first = next(i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE)
+    warm = [s for s in steps if s.warm_up]
+    assert [s.pose for s in warm if s.kind == StepKind.MOVE] == ["Q1", "Q5", "Q4", "Q3", "Q2"]  # 7.2's order
+    assert all(steps.index(s) < first and s.speed_pct == 100.0 and s.kind != StepKind.MEASURE for s in warm)
+    tests, _ = compare(CompareOptions(sessions=[str(d / "s")], model=str(d / "model.json")))
+    record = tests[0].conditions["warm-up"]
+    assert re.fullmatch(r"1 cycle of P1 P5 P4 P3 P2 at 100 %, nothing measured, \S+ \S+ UTC to \S+ \S+ UTC "
+                        r"\(ISO 9283:1998, 6\.2\)", record), record  # fmt: skip
+    assert all(t.conditions["warm-up"] == record for t in tests)
 
 
 def test_figures_per_velocity_recomputed_from_the_rows(two_velocities):
