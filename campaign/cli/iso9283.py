@@ -14,6 +14,7 @@ from trackcal.campaign.errors import OptionError
 from trackcal.campaign.jobs.iso9283 import STANDARD_VELOCITIES, CompareOptions, PlanOptions, compare, make_plan
 from trackcal.campaign.report.iso9283 import Item, write_iso_pdf, write_iso_report
 from trackcal.campaign.report.iso9283_conformity import Verdict, parse_tolerances, verdicts
+from trackcal.campaign.report.iso9283_departures import grouped
 
 
 def _centre(text: str | None) -> tuple[float, float, float] | None:
@@ -159,6 +160,8 @@ def cmd_compare(args) -> int:
     for t in tests:
         for note in t.notes:
             console.print(f"note: {t.session}: {note}")
+    for departure, who in grouped(tests).items():
+        console.print(f"departure from ISO 9283:1998: {departure} ({', '.join(who)})", soft_wrap=True)
     if args.json:
         console.print(f"figures written to {args.json}")
     conformity = None

@@ -29,6 +29,7 @@ from trackcal.calib.doe.iso_cube import (
     CYCLE_ORDER,
     POSE_NAMES,
     VAP_POSES,
+    CubeError,
     IsoPlan,
     approach_joints,
     approach_sides,
@@ -74,14 +75,12 @@ from trackcal.campaign.jobs.iso9283_budget import (
     pose_budgets,
     temperature_halfrange,
 )
+from trackcal.campaign.jobs.iso9283_departures import STANDARD_VELOCITIES, departures
 from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
 from trackcal.campaign.session.session import export_table, session_cell, session_plan, stored_measurements
 from trackcal.campaign.session.store import SessionStore
-
-# ISO 9283:1998, 6.7 (test velocities): the pose characteristics at 100 %, 50 % and 10 % of the rated velocity
-STANDARD_VELOCITIES = (100.0, 50.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -154,6 +153,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
         if warnings is not None:
             warnings += checked
     plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
+    largest = plan.cube.side_mm if opts.side_mm is None else _largest_side(cell, plan, opts.seed)
     q_deg = np.degrees(plan.q_rad)
     q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
     compensated_with = None
@@ -185,6 +185,8 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     doc["iso9283"]["load"] = opts.load.strip()
     doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities]
     doc["iso9283"]["warm_up_cycles"] = opts.warm_up_cycles
+    if largest is not None:  # the report names a smaller cube as a departure (6.8)
+        doc["iso9283"]["largest_side_mm"] = round(largest, 4)
     write_json(opts.json, doc)
     return doc
 
@@ -201,6 +203,14 @@ CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "t
                    "tracker certificate", "reflector centring", "load", "speed", "warm-up",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
+
+
+def _largest_side(cell: Cell, plan: IsoPlan, seed: int) -> float | None:
+    """The largest cube side the robot reaches about the given cube's centre (None: none found there)."""
+    try:
+        return iso_plan(cell, None, tuple(plan.cube.centre_mm), CORNER_FRACTION, seed).cube.side_mm
+    except CubeError:
+        return None
 
 
 def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
@@ -345,9 +355,10 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     vap, vap_attained = ({}, {}) if speed != planned[0] else _multidirectional(iso, cell, in_base, keep, visit,
                                                                                   notes)  # at the first velocity only
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
+    departed = departures(iso, speed, len(attained[0]), conditions, NO_LOAD, UNLOADED)
     return IsoFigures(label, bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
                       conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker),
-                      speed)  # fmt: skip
+                      speed, departed)  # fmt: skip
 
 
 @dataclass(frozen=True)

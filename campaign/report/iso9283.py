@@ -22,6 +22,7 @@ from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
 from trackcal.campaign.report.iso9283_budget import budget_section
 from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
+from trackcal.campaign.report.iso9283_departures import departures_box
 from trackcal.campaign.report.pdf import html_to_pdf
 
 DEFINITIONS = [
@@ -158,6 +159,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         out.append("</tr>")
     out.append(f"<tr><td class=l>base frame</td><td class=l colspan={len(tests)}>the station estimate of "
                f"{html.escape(model_path)}</td></tr></table>")  # fmt: skip
+    out += departures_box(tests)
     out.append("<h2>Pose characteristics (µm)</h2><table><tr><th class=l>pose</th>")
     for lab in label:
         out += [f"<th>AP_P {lab}</th><th>AP_x, AP_y, AP_z {lab}</th><th>RP_l {lab}</th>"]

@@ -14,7 +14,8 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.cli import main
 from trackcal.campaign.engine.steps import StepKind, plan_steps
 from trackcal.campaign.jobs.campaign import new_session, run_session
-from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
+from trackcal.campaign.jobs.iso9283 import NO_LOAD, UNLOADED, CompareOptions, PlanOptions, compare, make_plan
+from trackcal.campaign.jobs.iso9283_departures import departures
 from trackcal.campaign.session.session import stored_measurements
 from trackcal.campaign.session.store import SessionStore
 
@@ -37,11 +38,14 @@ def test_a_plan_without_its_load_is_refused_in_one_line(tmp_path):
     assert blank.returncode == 2 and blank.stderr.count("\n") == 1, blank.stderr
 
 
-def test_unloaded_said_explicitly_is_recorded(tmp_path):
+def test_unloaded_said_explicitly_is_recorded_and_a_smaller_cube_beside_the_largest(tmp_path):
+    """`--load unloaded` is the plan's load; a cube given smaller (--side) keeps the largest the robot reaches about
+    the same centre beside it, for the departures box (6.8)."""
     done = cli("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--load", "unloaded",
-               "--json", "iso.json", cwd=tmp_path)  # fmt: skip
+               "--side", "300", "--json", "iso.json", cwd=tmp_path)  # fmt: skip
     assert done.returncode == 0, done.stderr
-    assert json.loads((tmp_path / "iso.json").read_text())["iso9283"]["load"] == "unloaded"
+    iso = json.loads((tmp_path / "iso.json").read_text())["iso9283"]
+    assert iso["load"] == "unloaded" and iso["cube_side_mm"] == 300.0 and iso["largest_side_mm"] > 301.0
 
 
 @pytest.fixture(scope="module")
@@ -133,3 +137,43 @@ def test_a_velocity_outside_the_rated_is_refused_in_one_line(tmp_path, given):
                cwd=tmp_path)  # fmt: skip
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "--velocities" in done.stderr, done.stderr
     assert not (tmp_path / "iso.json").exists()
+
+
+def test_departures_of_a_test_each_in_one_line():
+    """Every condition of clause 6 a test can miss, alone (the clause numbers: calib/iso9283_clauses.py); a test
+    under the standard's conditions has none."""
+    clean = {"velocities": [100.0, 50.0, 10.0], "warm_up_cycles": 1, "cube_side_mm": 800.0, "largest_side_mm": 800.4}
+    loaded = {"load": "270 kg, 100 % rated", "speed": "-"}
+    assert departures(clean, 50.0, 30, loaded, NO_LOAD, UNLOADED) == []
+    assert departures({**clean, "velocities": None}, 0.0, 30, {**loaded, "speed": "30 % joint speed override"},
+                      NO_LOAD, UNLOADED) == ["no test velocity planned: 30 % joint speed override (ISO 9283:1998, "
+                                             "6.7 asks 100 %, 50 % and 10 % of the rated velocity)"]  # fmt: skip
+    assert departures({**clean, "velocities": [100.0]}, 100.0, 30, loaded, NO_LOAD, UNLOADED) == [
+        "test velocities 100 % of the rated, not the standard's 100, 50 and 10 % (ISO 9283:1998, 6.7)"]
+    assert departures(clean, 50.0, 30, {"load": NO_LOAD}, NO_LOAD, UNLOADED) == [
+        "load not stated (ISO 9283:1998, 6.6: the test at 100 % of the rated load)"]
+    assert departures(clean, 50.0, 30, {"load": "unloaded"}, NO_LOAD, UNLOADED) == [
+        "tested unloaded (ISO 9283:1998, 6.6: the test at 100 % of the rated load)"]
+    assert departures({**clean, "warm_up_cycles": 0}, 50.0, 30, loaded, NO_LOAD, UNLOADED) == [
+        "no warm-up before the test (ISO 9283:1998, 6.2)"]
+    assert departures(clean, 50.0, 29, loaded, NO_LOAD, UNLOADED) == [
+        "29 cycles, fewer than the 30 of ISO 9283:1998, 6.9"]
+    assert departures({**clean, "cube_side_mm": 500.0}, 50.0, 30, loaded, NO_LOAD, UNLOADED) == [
+        "cube side 500.0 mm, smaller than the largest the robot reaches about its centre (800.4 mm; ISO 9283:1998, "
+        "6.8)"]
+
+
+def test_the_report_lists_every_departure_once_in_one_box(two_velocities):
+    """The session of 2 cycles, unloaded, at 100 % and 10 %: its two tests share three departures, listed once each
+    in the box; the warm-up ran and the cube is the largest, so neither is one."""
+    d, _ = two_velocities
+    assert main(["iso9283", "compare", str(d / "s"), "--model", str(d / "model.json"), "--report",
+                 str(d / "r.html")]) == 0  # fmt: skip
+    page = (d / "r.html").read_text(encoding="utf-8")
+    box = re.search(r"<div class=departures><h2>Departures from ISO 9283:1998</h2><ul>(.*?)</ul></div>", page)
+    assert box is not None
+    assert re.findall(r"<li>(.*?)</li>", box[1]) == [
+        "test velocities 100, 10 % of the rated, not the standard&#x27;s 100, 50 and 10 % (ISO 9283:1998, 6.7)",
+        "tested unloaded (ISO 9283:1998, 6.6: the test at 100 % of the rated load)",
+        "2 cycles, fewer than the 30 of ISO 9283:1998, 6.9"]  # fmt: skip
+    assert page.count("<div class=departures>") == 1
