@@ -388,6 +388,11 @@ COMMANDS = [
                 arg("--velocities", metavar="PCT,...", help="test velocities in %% of the rated velocity, each a test "
                     "of its own, the moves' speed override (ISO 9283:1998, 6.7; default: 100,50,10); the "
                     "multi-directional test runs at the first"),
+                arg("--drift", type=float, metavar="HOURS", help="plan the drift test instead (ISO 9283:1998, 7.6): "
+                    "P1 measured in groups of --cycles cycles spread over HOURS, the first group at once; compare "
+                    "states dAP and dRP between the first group and the last (default: the pose test)"),
+                arg("--drift-groups", type=int, metavar="N", help="--drift: the number of groups (default: one an "
+                    "hour and one at the start, at least 2)"),
                 arg("--warm-up-cycles", type=int, default=0, metavar="N", help="cycles of the test's poses at the "
                     "first velocity before the test, nothing measured, recorded on the report (ISO 9283:1998, 6.2: "
                     "the robot warmed up as its maker specifies; default: 0, none)"),

@@ -45,7 +45,8 @@ def cmd_plan(args) -> int:
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
                        vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
                        accept_edited=args.accept_edited, accept_poor=args.accept_poor,
-                       velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles)  # fmt: skip
+                       velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles,
+                       drift_hours=args.drift, drift_groups=args.drift_groups)  # fmt: skip
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
@@ -58,6 +59,10 @@ def cmd_plan(args) -> int:
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
+    if iso.get("drift"):
+        drift = iso["drift"]
+        console.print(f"drift test (ISO 9283:1998, 7.6): {drift['groups']} groups of {drift['cycles']} cycles over "
+                      f"{drift['hours']:g} h, P1 measured, at {iso['velocities'][0]:g} % of the rated velocity")
     if iso["warm_up_cycles"]:
         console.print(f"warm-up (ISO 9283:1998, 6.2): {iso['warm_up_cycles']} cycles of the poses at "
                       f"{iso['velocities'][0]:g} %, nothing measured, before the test")
@@ -118,7 +123,7 @@ def cmd_compare(args) -> int:
         label = t.label
         table.add_column(f"AP_P {label}", justify="right", overflow="fold")
         table.add_column(f"RP_l {label}", justify="right", overflow="fold")
-    for i, name in enumerate(p.name for p in tests[0].poses):
+    for i, name in enumerate(p.name for p in (tests[0].poses if tests else [])):
         row = [name]
         for t in tests:
             row += [_um(t.poses[i].ap), _um(t.poses[i].rp)]
@@ -127,7 +132,8 @@ def cmd_compare(args) -> int:
     for t in tests:
         row += [_um(t.ad), _um(t.rd)]
     table.add_row(*row)
-    console.print(table)
+    if tests:  # a drift test alone (7.6) has its own lines below
+        console.print(table)
     vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
     if vap_poses:
         vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
@@ -157,6 +163,9 @@ def cmd_compare(args) -> int:
         console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
                       soft_wrap=True)  # fmt: skip
+        for g in d.get("groups", []):  # a drift test's groups (7.6)
+            console.print(f"  group {g['group']} at {g['t_h']:.2f} h: P1 AP_P {g['AP_P_mm'] * 1000:.1f} µm, "
+                          f"RP_l {g['RP_l_mm'] * 1000:.1f} µm over {g['cycles']} cycles")
     for t in tests:
         for note in t.notes:
             console.print(f"note: {t.session}: {note}")

@@ -54,13 +54,17 @@ class Step:
     # ISO 9283 test velocity (6.7): the move's speed override in % of the rated velocity; 0: the session's setting
     speed_pct: float = 0.0
     warm_up: bool = False  # ISO 9283 warm-up (6.2): a move of the cycles before the test, nothing measured
+    # ISO 9283 drift test (7.6): the group (1, 2, ...) of the P1 measurements, and for a group's first move the
+    # campaign time (s) it waits for: the groups spread over the test's hours
+    group: int = 0
+    not_before_s: float = 0.0
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
         # only where set: the steps of every other plan are recorded as before
-        for key in ("approach", "via", "speed_pct", "warm_up"):
+        for key in ("approach", "via", "speed_pct", "warm_up", "group", "not_before_s"):
             if not d[key]:
                 del d[key]
         return d
@@ -156,6 +160,9 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
+    if iso is not None and iso.get("drift"):
+        yield from _drift_steps(iso, poses, ids)
+        return
     if iso is None:
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat, approached)
     else:
@@ -209,6 +216,46 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
                 yield Step(StepKind.MEASURE, q_deg=q, **common)
 
 
+def drift_block(iso: dict) -> dict | None:
+    """The drift test of an ISO plan (`iso9283.drift`, ISO 9283:1998, 7.6), checked: `hours` > 0, `groups` >= 2
+    and `cycles` >= 2 (each group's P1 measurements); None when the plan has none."""
+    block = iso.get("drift")
+    if block is None:
+        return None
+    block = fields.mapping(block, "plan: iso9283.drift", PlanError)
+    hours = fields.number(block.get("hours"), "plan: iso9283.drift.hours", PlanError)
+    groups = fields.integer(block.get("groups"), "plan: iso9283.drift.groups", PlanError)
+    cycles = fields.integer(block.get("cycles"), "plan: iso9283.drift.cycles", PlanError)
+    if not (0 < hours < float("inf")) or groups < 2 or cycles < 2:
+        raise PlanError(f"plan: iso9283.drift: expected hours > 0, groups >= 2 and cycles >= 2, got {block}")
+    return {"hours": hours, "groups": groups, "cycles": cycles}
+
+
+def _drift_steps(iso: dict, poses: np.ndarray, ids: list[str]) -> Iterator[Step]:
+    """The drift test (7.6): `groups` groups spread evenly over `hours` (the first at once, the last at the end),
+    each `cycles` cycles of the test's poses at the first test velocity, P1 measured in each cycle, the other poses
+    moved through unmeasured; between groups the robot stands until the next group's time."""
+    block = drift_block(iso) or {}
+    station, point, speed = iso["station"], iso["point"], iso_velocities(iso)[0]
+    yield Step(StepKind.CHANGE_STATION, station=station)
+    yield Step(StepKind.RESUME, station=station)
+    yield Step(StepKind.MOVE_REFLECTOR, station=station, point=point)
+    yield Step(StepKind.RESUME, station=station, point=point)
+    interval_s = block["hours"] * 3600.0 / (block["groups"] - 1)
+    for g in range(block["groups"]):
+        for c in range(block["cycles"]):
+            for k, i in enumerate(CYCLE_ORDER):
+                q = tuple(float(x) for x in poses[i])
+                at = {"station": station, "point": point, "pose": ids[i], "q_deg": q, "speed_pct": speed,
+                      "group": g + 1}  # fmt: skip
+                wait = round(g * interval_s, 3) if c == 0 and k == 0 else 0.0
+                measured = i == CYCLE_ORDER[0]
+                yield Step(StepKind.MOVE, via=not measured, not_before_s=wait, **at)
+                yield Step(StepKind.SETTLE, via=not measured, **at)
+                if measured:
+                    yield Step(StepKind.MEASURE, **at)
+
+
 def warm_up_cycles(iso: dict) -> int:
     """The warm-up cycles of an ISO plan (`iso9283.warm_up_cycles`, ISO 9283:1998, 6.2), checked: an integer >= 0."""
     n = fields.integer(iso.get("warm_up_cycles", 0), "plan: iso9283.warm_up_cycles", PlanError)
@@ -260,6 +307,7 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     iso_velocities(iso)  # checked before anything moves
     warm_up_cycles(iso)
+    drift_block(iso)
     return iso
 
 

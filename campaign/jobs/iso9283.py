@@ -14,6 +14,7 @@ stays where the calibration left it), and puts the sessions side by side.
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import version
@@ -59,6 +60,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
 from trackcal.campaign.engine.steps import (
     PlanError,
+    drift_block,
     iso_block,
     iso_points,
     iso_velocities,
@@ -99,6 +101,8 @@ class PlanOptions:
     accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
     velocities: tuple[float, ...] = STANDARD_VELOCITIES  # % of the rated velocity, each a test of its own (6.7)
     warm_up_cycles: int = 0  # cycles of the test's poses before the test, nothing measured (6.2)
+    drift_hours: float | None = None  # the drift test instead (7.6): P1 in groups of `cycles` over these hours
+    drift_groups: int | None = None  # ... this many groups (None: one an hour and one at the start, at least 2)
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -135,6 +139,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
             or len(set(opts.velocities)) != len(opts.velocities)):  # fmt: skip
         raise OptionError("{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10",
                           "velocities")  # fmt: skip
+    drift = _drift_options(opts)
     if opts.warm_up_cycles < 0:
         raise OptionError("{0} must be 0 (no warm-up) or more", "warm_up_cycles")
     if opts.cycles < 2:
@@ -142,7 +147,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
                           "cycles")  # fmt: skip
     if opts.side_mm is not None and not opts.side_mm > 0:
         raise OptionError("{0} must be a positive length in mm", "side_mm")
-    vap_cycles = opts.cycles if opts.vap_cycles is None else opts.vap_cycles
+    vap_cycles = 0 if drift else opts.cycles if opts.vap_cycles is None else opts.vap_cycles
     if vap_cycles == 1 or vap_cycles < 0:
         raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
@@ -183,7 +188,9 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
                "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
     doc["iso9283"]["load"] = opts.load.strip()
-    doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities]
+    doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities][: 1 if drift else None]
+    if drift:
+        doc["iso9283"]["drift"] = drift
     doc["iso9283"]["warm_up_cycles"] = opts.warm_up_cycles
     if largest is not None:  # the report names a smaller cube as a departure (6.8)
         doc["iso9283"]["largest_side_mm"] = round(largest, 4)
@@ -203,6 +210,23 @@ CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "t
                    "tracker certificate", "reflector centring", "load", "speed", "warm-up",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
+
+
+def _drift_options(opts: PlanOptions) -> dict | None:
+    """The plan's drift block (7.6) from the options, checked; None without --drift."""
+    if opts.drift_hours is None:
+        if opts.drift_groups is not None:
+            raise OptionError("{0} needs {1}", "drift_groups", "drift_hours")
+        return None
+    if not 0 < opts.drift_hours < math.inf:
+        raise OptionError("{0} must be a positive number of hours", "drift_hours")
+    groups = opts.drift_groups if opts.drift_groups is not None else max(2, math.floor(opts.drift_hours) + 1)
+    if groups < 2:
+        raise OptionError("{0} must be at least 2 (the drift compares the first group with the last)", "drift_groups")
+    if opts.warm_up_cycles:
+        raise OptionError("{0} and {1}: the drift test measures the change from the robot as it starts, no warm-up "
+                          "before it", "warm_up_cycles", "drift_hours")  # fmt: skip
+    return {"hours": float(opts.drift_hours), "groups": groups, "cycles": opts.cycles}
 
 
 def _largest_side(cell: Cell, plan: IsoPlan, seed: int) -> float | None:
@@ -242,6 +266,7 @@ def _session_inputs(directory: Path):
         docs = stored_measurements(store)
         sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
         speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
+        groups = np.array([int(m.get("drift_group", 0)) for m in docs])  # the drift test's group (7.6) of each
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
         conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves: the "
@@ -254,7 +279,7 @@ def _session_inputs(directory: Path):
         conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
                                             if centring_mm(tool_doc) is not None else "not stated by the tool file")
         return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions,
-                Visits(np.zeros(0), np.asarray(sides), speeds), centring_mm(tool_doc))  # fmt: skip
+                Visits(np.zeros(0), np.asarray(sides), speeds, group=groups), centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
 
@@ -302,6 +327,40 @@ def session_tests(directory: Path, model: Model, noise: TrackerNoise | None = No
     if iso is None:
         raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
     return [session_figures(directory, model, noise, v) for v in iso_velocities(iso)]
+
+
+def drift_test(directory: Path, model: Model, noise: TrackerNoise | None = None) -> dict | None:
+    """The drift test of a session of a drift plan (ISO 9283:1998, 7.6), None for any other ISO session: AP_P and
+    RP_l of P1 in each group (7.2's formulas on the group's attained positions, base frame as session_figures),
+    dAP = |AP(first group) - AP(last group)| and dRP alike (calib.iso9283.drift)."""
+    cell, plan, table, conditions, visit, _ = _session_inputs(directory)
+    poses, _ = plan_arrays(plan)
+    iso = iso_block(plan, cell, len(poses))
+    block = drift_block(iso or {})
+    if iso is None or block is None:
+        return None
+    station = model.stations.get(iso["station"])
+    if station is None:
+        raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
+    in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
+    p1 = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
+          & (np.asarray(table.pose) == "Q1"))  # fmt: skip
+    commanded = commanded_positions(iso, model)[0]
+    groups, figures = [], []
+    for g in range(1, block["groups"] + 1):
+        rows = p1 & (visit.group == g)
+        base, cov = in_base(rows)
+        if len(base) < 2:
+            raise InputError(f"{directory}: drift group {g} has {len(base)} measurements of P1; it needs two")
+        ap, rp = pose_accuracy(base, commanded, cov)[0], pose_repeatability(base, cov)[0]
+        figures.append((ap, rp))
+        groups.append({"group": g, "t_h": round(float(table.t_s[rows][0]) / 3600.0, 4), "cycles": len(base),
+                       "AP_P_mm": ap.value, "RP_l_mm": rp.value})  # fmt: skip
+    (ap1, rp1), (ap2, rp2) = figures[0], figures[-1]
+    targets = f"compensated with {iso['compensated_with']['model']}" if iso.get("compensated_with") else "nominal"
+    return {"targets": targets, "first": f"{directory} group 1", "last": f"{directory} group {block['groups']}",
+            "poses": [{"pose": "P1", "dAP": drift(ap1, ap2), "dRP": drift(rp1, rp2)}], "groups": groups,
+            "hours": block["hours"], "speed": conditions["speed"]}  # fmt: skip
 
 
 def _velocity_condition(speed: float, conditions: dict) -> str:
@@ -369,6 +428,7 @@ class Visits:
     side: np.ndarray
     speed: np.ndarray  # the test velocity (6.7) of each, % of the rated; 0 where the plan had none
     at: float | None = None  # the test velocity whose visits `of` selects (None: every one)
+    group: np.ndarray | None = None  # the drift test's group (7.6) of each, 0 outside one
 
     def of(self, i: int, side: str = "") -> np.ndarray:
         at = np.ones(len(self.speed), bool) if self.at is None else self.speed == self.at
@@ -517,14 +577,20 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     if expired and opts.certificate and not opts.accept_expired:
         raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
                          "test anyway (the report then says so)")  # fmt: skip
-    tests = []
+    tests, drift_tests = [], []
     for s in opts.sessions:
+        found = drift_test(Path(s), model, opts.noise)  # the drift test (7.6): a session of its own
+        if found is not None:
+            drift_tests.append(found)
+            continue
         for t in session_tests(Path(s), model, opts.noise):  # one per test velocity (6.7)
             t.notes += [m.removeprefix(f"{s}: ") for m in expired if m.startswith(f"{s}: ")]
             tests.append(t)
     if warnings is not None:
         warnings += expired
-    drift_list = drifts(tests)
+    if not tests and opts.certificate:
+        raise InputError("a drift test alone makes no report: give it with the pose test's sessions")
+    drift_list = drift_tests + drifts(tests)
     if opts.json:
         conformity = None
         if opts.tolerances:

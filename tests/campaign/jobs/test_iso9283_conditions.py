@@ -177,3 +177,42 @@ def test_the_report_lists_every_departure_once_in_one_box(two_velocities):
         "tested unloaded (ISO 9283:1998, 6.6: the test at 100 % of the rated load)",
         "2 cycles, fewer than the 30 of ISO 9283:1998, 6.9"]  # fmt: skip
     assert page.count("<div class=departures>") == 1
+
+
+def test_the_drift_test_and_its_figures_by_a_second_route(two_velocities, kr270, tmp_path):
+    """7.6: `--drift 2` with 3 groups of 2 cycles plans P1 measured in each cycle, the groups at 0, 1 and 2 h of
+    campaign time (the twin's virtual clock); dAP and dRP recomputed here from the stored rows of the first and the
+    last group with 7.2's formulas written out again, and |AP_1 - AP_3| taken here too."""
+    d, _ = two_velocities
+    plan = make_plan(PlanOptions(cell="kr270", json=str(tmp_path / "drift.json"), cycles=2, load="unloaded",
+                                 drift_hours=2.0, drift_groups=3))  # fmt: skip
+    assert plan["iso9283"]["drift"] == {"hours": 2.0, "groups": 3, "cycles": 2}
+    steps = plan_steps(kr270, plan)
+    assert [s.pose for s in steps if s.kind == StepKind.MEASURE] == ["Q1"] * 6
+    assert [s.not_before_s for s in steps if s.not_before_s] == [3600.0, 7200.0]
+    store, campaign = new_session(tmp_path / "drift", "kr270", plan, "sim", SEED)
+    assert run_session(store, campaign, inproc_live(kr270, SEED)[1]).exit_status == "success"
+    docs = stored_measurements(store)
+    times = [e.t_campaign for e in store.events("measurement")]
+    store.close()
+    assert [m["drift_group"] for m in docs] == [1, 1, 2, 2, 3, 3]
+    assert times[2] >= 3600.0 and times[4] >= 7200.0  # each group at its time
+    _, found = compare(CompareOptions(sessions=[str(tmp_path / "drift")], model=str(d / "model.json")))
+    (drift,) = found
+    model = json.loads((d / "model.json").read_text())
+    iso = plan["iso9283"]
+    st = model["stations"][iso["station"]]
+    rot, t = np.array(st["rotation"]), np.array(st["translation_mm"])
+    tool = np.array(model["tool_points"][iso["point"]]["xyz_mm"])
+    c = Kinematics(load_cell("kr270").chain, []).points(np.radians(iso["nominal_poses_deg"]), tool)[0]
+    by_group = {}
+    for g in (1, 2, 3):
+        base = (np.array([m["xyz_mm"] for m in docs if m["drift_group"] == g]) - t) @ rot
+        bar = base.mean(axis=0)
+        ell = np.linalg.norm(base - bar, axis=1)
+        by_group[g] = (np.linalg.norm(bar - c), ell.mean() + 3 * ell.std(ddof=1))
+    assert [g["AP_P_mm"] for g in drift["groups"]] == pytest.approx([by_group[g][0] for g in (1, 2, 3)], abs=1e-9)
+    assert [g["RP_l_mm"] for g in drift["groups"]] == pytest.approx([by_group[g][1] for g in (1, 2, 3)], abs=1e-9)
+    (p1,) = drift["poses"]
+    assert p1["dAP"].value == pytest.approx(abs(by_group[1][0] - by_group[3][0]), abs=1e-9)
+    assert p1["dRP"].value == pytest.approx(abs(by_group[1][1] - by_group[3][1]), abs=1e-9)
