@@ -53,6 +53,10 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "certificate": ("text", None),
         "certificate_date": ("date", None),
         "certificate_due": ("date", None),
+        # the tracker's MPE as its certificate or datasheet states it, A um + B um/m of range (ASME B89.4.19), for the
+        # ISO 9283 plan's field check (default: the cell's tracker model's datasheet MPE)
+        "mpe_um": ("positive", None),
+        "mpe_um_per_m": ("positive", None),
     },
     "plc": {
         "protocol": ("protocol", _REQUIRED),

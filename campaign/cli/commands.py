@@ -393,6 +393,10 @@ COMMANDS = [
                     "states dAP and dRP between the first group and the last (default: the pose test)"),
                 arg("--drift-groups", type=int, metavar="N", help="--drift: the number of groups (default: one an "
                     "hour and one at the start, at least 2)"),
+                arg("--field-check", metavar="P,P,MM", help="measure the certified distance MM between two tool "
+                    "points with the robot at P1 before the test, the tracker's field check (ASME B89.4.19 / ISO "
+                    "10360-10), pass or fail against the hardware file's tracker.mpe_um (else the datasheet's) on the "
+                    "report (default: none)"),
                 arg("--warm-up-cycles", type=int, default=0, metavar="N", help="cycles of the test's poses at the "
                     "first velocity before the test, nothing measured, recorded on the report (ISO 9283:1998, 6.2: "
                     "the robot warmed up as its maker specifies; default: 0, none)"),

@@ -40,13 +40,25 @@ def _velocities(text: str | None) -> tuple[float, ...]:
     return values
 
 
+def _field_check(text: str | None) -> tuple[str, str, float] | None:
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        return parts[0].strip(), parts[1].strip(), float(parts[2]) if len(parts) == 3 else math.nan
+    except (ValueError, IndexError):
+        raise OptionError("{0}: expected POINT,POINT,LENGTH_MM, e.g. P1,P3,188.012, got {text!r}", "field_check",
+                          text=text) from None  # fmt: skip
+
+
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
                        vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
                        accept_edited=args.accept_edited, accept_poor=args.accept_poor,
                        velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles,
-                       drift_hours=args.drift, drift_groups=args.drift_groups)  # fmt: skip
+                       drift_hours=args.drift, drift_groups=args.drift_groups,
+                       field_check=_field_check(args.field_check))  # fmt: skip
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
@@ -59,6 +71,10 @@ def cmd_plan(args) -> int:
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
+    if iso.get("field_check"):
+        fc = iso["field_check"]
+        console.print(f"field check: the length {'-'.join(fc['points'])} ({fc['length_mm']:g} mm certified) measured "
+                      "with the robot at P1, before the test")
     if iso.get("drift"):
         drift = iso["drift"]
         console.print(f"drift test (ISO 9283:1998, 7.6): {drift['groups']} groups of {drift['cycles']} cycles over "
@@ -169,6 +185,8 @@ def cmd_compare(args) -> int:
     for t in tests:
         for note in t.notes:
             console.print(f"note: {t.session}: {note}")
+    for check in dict.fromkeys(t.conditions["field check"] for t in tests if "field check" in t.conditions):
+        console.print(f"field check: {check}", soft_wrap=True)
     for departure, who in grouped(tests).items():
         console.print(f"departure from ISO 9283:1998: {departure} ({', '.join(who)})", soft_wrap=True)
     if args.json:

@@ -475,6 +475,8 @@ class Engine:
             data["velocity_pct"] = step.speed_pct
         if step.group:
             data["drift_group"] = step.group
+        if step.check:
+            data["field_check"] = True
         self._emit("measurement", data)
         self.measurements.append(data)
         if step.drift:

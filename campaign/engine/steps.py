@@ -58,13 +58,14 @@ class Step:
     # campaign time (s) it waits for: the groups spread over the test's hours
     group: int = 0
     not_before_s: float = 0.0
+    check: bool = False  # the field check's measurement of a known length (ISO 10360-10), not the robot's test
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
         # only where set: the steps of every other plan are recorded as before
-        for key in ("approach", "via", "speed_pct", "warm_up", "group", "not_before_s"):
+        for key in ("approach", "via", "speed_pct", "warm_up", "group", "not_before_s", "check"):
             if not d[key]:
                 del d[key]
         return d
@@ -157,6 +158,9 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         for pid in iso_points(iso):
             if vis is not None and not vis[(station, pid)].all():
                 problems.append(f"station {station} does not see point {pid} at every pose of the ISO test")
+        for pid in (iso.get("field_check") or {}).get("points", []):
+            if vis is not None and (pid not in cell.tool_points or not vis[(station, pid)][CYCLE_ORDER[0]]):
+                problems.append(f"station {station} does not see point {pid} at P1 for the field check")
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
@@ -182,6 +186,8 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         if where is None or v.station != where[0]:
             yield Step(StepKind.CHANGE_STATION, station=v.station)
             yield Step(StepKind.RESUME, station=v.station)
+            if iso is not None and where is None:  # the tracker's field check, the robot standing at P1
+                yield from field_check_steps(iso, poses, ids, v.station)
         if (v.station, v.point) != where:
             yield Step(StepKind.MOVE_REFLECTOR, station=v.station, point=v.point)
             yield Step(StepKind.RESUME, station=v.station, point=v.point)
@@ -254,6 +260,25 @@ def _drift_steps(iso: dict, poses: np.ndarray, ids: list[str]) -> Iterator[Step]
                 yield Step(StepKind.SETTLE, via=not measured, **at)
                 if measured:
                     yield Step(StepKind.MEASURE, **at)
+
+
+def field_check_steps(iso: dict, poses: np.ndarray, ids: list[str], station: str) -> Iterator[Step]:
+    """The field check of an ISO plan (`iso9283.field_check`: two tool points whose distance is certified): the
+    reflector on each point in turn, measured with the robot at P1, before the test."""
+    block = iso.get("field_check")
+    if not block:
+        return
+    points = fields.sequence(block.get("points"), "plan: iso9283.field_check.points", PlanError)
+    if len(points) != 2 or points[0] == points[1] or any(not isinstance(p, str) for p in points):
+        raise PlanError(f"plan: iso9283.field_check.points: expected two reference points, got {points!r}")
+    q = tuple(float(x) for x in poses[CYCLE_ORDER[0]])
+    for point in points:
+        yield Step(StepKind.MOVE_REFLECTOR, station=station, point=point)
+        yield Step(StepKind.RESUME, station=station, point=point)
+        at = {"station": station, "point": point, "pose": ids[CYCLE_ORDER[0]], "q_deg": q, "check": True}
+        yield Step(StepKind.MOVE, **at)
+        yield Step(StepKind.SETTLE, **at)
+        yield Step(StepKind.MEASURE, **at)
 
 
 def warm_up_cycles(iso: dict) -> int:

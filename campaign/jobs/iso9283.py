@@ -78,6 +78,8 @@ from trackcal.campaign.jobs.iso9283_budget import (
     temperature_halfrange,
 )
 from trackcal.campaign.jobs.iso9283_departures import STANDARD_VELOCITIES, departures
+from trackcal.campaign.jobs.iso9283_field import field_check
+from trackcal.campaign.jobs.iso9283_trace import _tracker as tracker_section
 from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
@@ -103,6 +105,7 @@ class PlanOptions:
     warm_up_cycles: int = 0  # cycles of the test's poses before the test, nothing measured (6.2)
     drift_hours: float | None = None  # the drift test instead (7.6): P1 in groups of `cycles` over these hours
     drift_groups: int | None = None  # ... this many groups (None: one an hour and one at the start, at least 2)
+    field_check: tuple[str, str, float] | None = None  # two tool points and their certified distance, mm
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -192,6 +195,8 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     if drift:
         doc["iso9283"]["drift"] = drift
     doc["iso9283"]["warm_up_cycles"] = opts.warm_up_cycles
+    if opts.field_check is not None:
+        doc["iso9283"]["field_check"] = _field_check_block(cell, opts.field_check)
     if largest is not None:  # the report names a smaller cube as a departure (6.8)
         doc["iso9283"]["largest_side_mm"] = round(largest, 4)
     write_json(opts.json, doc)
@@ -207,7 +212,7 @@ UNLOADED = "unloaded"  # the one word that states the robot carries nothing
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
 CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
-                   "tracker certificate", "reflector centring", "load", "speed", "warm-up",
+                   "tracker certificate", "field check", "reflector centring", "load", "speed", "warm-up",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
 
@@ -227,6 +232,16 @@ def _drift_options(opts: PlanOptions) -> dict | None:
         raise OptionError("{0} and {1}: the drift test measures the change from the robot as it starts, no warm-up "
                           "before it", "warm_up_cycles", "drift_hours")  # fmt: skip
     return {"hours": float(opts.drift_hours), "groups": groups, "cycles": opts.cycles}
+
+
+def _field_check_block(cell: Cell, given: tuple[str, str, float]) -> dict:
+    """The plan's field check (campaign.jobs.iso9283_field), checked: two distinct tool points, a length > 0."""
+    a, b, length = given
+    if a == b or a not in cell.tool_points or b not in cell.tool_points or not 0 < length < math.inf:
+        raise OptionError("{0}: expected two distinct reference points of the tool ({points}) and their certified "
+                          "distance in mm > 0, e.g. P1,P3,188.012", "field_check",
+                          points=", ".join(sorted(cell.tool_points)))  # fmt: skip
+    return {"points": [a, b], "length_mm": float(length)}
 
 
 def _largest_side(cell: Cell, plan: IsoPlan, seed: int) -> float | None:
@@ -264,6 +279,7 @@ def _session_inputs(directory: Path):
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
         conditions["warm-up"] = warm_up_record(events)
         docs = stored_measurements(store)
+        conditions.update(_field_check_record(store, directory, docs))
         sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
         speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
         groups = np.array([int(m.get("drift_group", 0)) for m in docs])  # the drift test's group (7.6) of each
@@ -282,6 +298,17 @@ def _session_inputs(directory: Path):
                 Visits(np.zeros(0), np.asarray(sides), speeds, group=groups), centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
+
+
+def _field_check_record(store: SessionStore, directory: Path, docs: list) -> dict[str, str]:
+    """The session's field check as the report states it ({} when its plan has none)."""
+    block = (session_plan(store).get("iso9283") or {}).get("field_check")
+    if not block:
+        return {}
+    rows = {p: np.array([m["xyz_mm"] for m in docs if m.get("field_check") and m["point"] == p]) for p in
+            block["points"]}  # fmt: skip
+    found = field_check(block, rows, tracker_section(store, directory), session_cell(store).tracker)
+    return {"field check": found.describe() if found else "planned, not measured: a point was not seen"}
 
 
 def warm_up_record(events) -> str:

@@ -16,8 +16,10 @@ from trackcal.campaign.engine.steps import StepKind, plan_steps
 from trackcal.campaign.jobs.campaign import new_session, run_session
 from trackcal.campaign.jobs.iso9283 import NO_LOAD, UNLOADED, CompareOptions, PlanOptions, compare, make_plan
 from trackcal.campaign.jobs.iso9283_departures import departures
+from trackcal.campaign.jobs.iso9283_field import field_check, mpe_mm
 from trackcal.campaign.session.session import stored_measurements
 from trackcal.campaign.session.store import SessionStore
+from trackcal.mocks.twin import Twin
 
 SEED = 4
 
@@ -216,3 +218,52 @@ def test_the_drift_test_and_its_figures_by_a_second_route(two_velocities, kr270,
     (p1,) = drift["poses"]
     assert p1["dAP"].value == pytest.approx(abs(by_group[1][0] - by_group[3][0]), abs=1e-9)
     assert p1["dRP"].value == pytest.approx(abs(by_group[1][1] - by_group[3][1]), abs=1e-9)
+
+
+def test_the_tracker_mpe_of_the_field_check():
+    """The MPE of a point as Leica states it, A um + B um/m of range (ASME B89.4.19): the hardware file's when it
+    states one (20 + 5 um/m at 3 m = 35 um), else the AT901 datasheet's 15 um + 6 um/m (at 3 m: 33 um)."""
+    at901 = load_cell("kr270").tracker
+    assert mpe_mm(3.0, {"mpe_um": 20.0, "mpe_um_per_m": 5.0}, at901) == (pytest.approx(0.035),
+                                                                          "20 µm + 5 µm/m, the hardware file")
+    limit, source = mpe_mm(3.0, None, at901)
+    assert limit == pytest.approx(0.033) and "datasheet" in source
+
+
+def test_the_field_check_measures_the_certified_length_before_the_test(two_velocities, kr270, tmp_path):
+    """`--field-check A,B,L`: before the test the reflector is put on A, then on B, the robot standing at P1; the
+    measured length (recomputed here from the stored rows) against the twin's true distance between the two points
+    passes within the AT901's MPE; 1 mm off the same measurement fails; neither row enters the pose test."""
+    d, _ = two_velocities
+    twin = Twin(load_cell("kr270"), seed=SEED)
+    probe = make_plan(PlanOptions(cell="kr270", json=str(tmp_path / "p.json"), cycles=2, vap_cycles=0,
+                                  load="unloaded", velocities=(100.0,)))  # fmt: skip
+    test_point = probe["iso9283"]["point"]
+    other = next(p for p in sorted(kr270.tool_points) if p != test_point)
+    true = float(np.linalg.norm(twin.true_points[test_point] - twin.true_points[other]))
+    plan = make_plan(PlanOptions(cell="kr270", json=str(tmp_path / "f.json"), cycles=2, vap_cycles=0,
+                                 load="unloaded", velocities=(100.0,), field_check=(test_point, other, true)))
+    steps = plan_steps(kr270, plan)
+    first_test = next(i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE and not s.check)
+    checks = [(s.point, s.pose) for s in steps[:first_test] if s.kind == StepKind.MEASURE]
+    assert checks == [(test_point, "Q1"), (other, "Q1")]
+    store, campaign = new_session(tmp_path / "f", "kr270", plan, "sim", SEED)
+    assert run_session(store, campaign, inproc_live(kr270, SEED)[1]).exit_status == "success"
+    docs = stored_measurements(store)
+    store.close()
+    ends = [np.array(m["xyz_mm"]) for m in docs if m.get("field_check")]
+    measured = float(np.linalg.norm(ends[0] - ends[1]))
+    (test,) = compare(CompareOptions(sessions=[str(tmp_path / "f")], model=str(d / "model.json")))[0]
+    text = test.conditions["field check"]
+    assert text.startswith(f"length {test_point}-{other}: measured {measured:.4f} mm, certified {true:.4f} mm")
+    assert text.endswith(": pass (ASME B89.4.19 / ISO 10360-10 length check)")
+    assert all(p.n == 2 for p in test.poses)  # the check's two rows are no cycle of P1
+    failed = field_check({"points": [test_point, other], "length_mm": true + 1.0},
+                         {test_point: ends[0][None], other: ends[1][None]}, None, kr270.tracker)  # fmt: skip
+    assert failed.verdict == "fail" and failed.error_mm == pytest.approx(measured - true - 1.0)
+
+
+def test_a_field_check_of_unknown_points_is_refused_in_one_line(tmp_path):
+    done = cli("iso9283", "plan", "--cell", "kr270", "--load", "unloaded", "--field-check", "P1,P9,100",
+               "--json", "iso.json", cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "--field-check" in done.stderr, done.stderr
