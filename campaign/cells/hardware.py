@@ -169,7 +169,7 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
         if key not in doc or doc[key] is None:
             if default is _REQUIRED:
                 raise InputError(f"{path}: {where}: missing (required)")
-            if kind == "section" or (default is None and kind in ("text", "date")):  # left out: no key
+            if kind == "section" or (default is None and kind in ("text", "date", "positive")):  # left out: no key
                 continue
             out[key] = default
             continue

@@ -182,7 +182,9 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
-    out += _vap_section(tests, label) + _drift_sections(drift_list) + budget_section(tests)
+    vap = [(t, lab) for t, lab in zip(tests, label, strict=True) if t.vap]  # at the first velocity only
+    out += _vap_section([t for t, _ in vap], [lab for _, lab in vap]) + _drift_sections(drift_list)
+    out += budget_section(tests)
     if conformity is not None:
         out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
