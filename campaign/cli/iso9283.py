@@ -123,6 +123,17 @@ def _conformity(found: list[Verdict], rule: str) -> None:
     console.print("decision rule: " + RULES[rule], soft_wrap=True)
 
 
+def _notes(tests) -> None:
+    """Each test's notes, the sessions' field checks and every departure from the standard's conditions."""
+    for t in tests:
+        for note in t.notes:
+            console.print(f"note: {t.session}: {note}")
+    for check in dict.fromkeys(t.conditions["field check"] for t in tests if "field check" in t.conditions):
+        console.print(f"field check: {check}", soft_wrap=True)
+    for departure, who in grouped(tests).items():
+        console.print(f"departure from ISO 9283:1998: {departure} ({', '.join(who)})", soft_wrap=True)
+
+
 def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
@@ -183,13 +194,7 @@ def cmd_compare(args) -> int:
         for g in d.get("groups", []):  # a drift test's groups (7.6)
             console.print(f"  group {g['group']} at {g['t_h']:.2f} h: P1 AP_P {g['AP_P_mm'] * 1000:.1f} µm, "
                           f"RP_l {g['RP_l_mm'] * 1000:.1f} µm over {g['cycles']} cycles")
-    for t in tests:
-        for note in t.notes:
-            console.print(f"note: {t.session}: {note}")
-    for check in dict.fromkeys(t.conditions["field check"] for t in tests if "field check" in t.conditions):
-        console.print(f"field check: {check}", soft_wrap=True)
-    for departure, who in grouped(tests).items():
-        console.print(f"departure from ISO 9283:1998: {departure} ({', '.join(who)})", soft_wrap=True)
+    _notes(tests)
     if args.json:
         console.print(f"figures written to {args.json}")
     conformity = None
