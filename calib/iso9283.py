@@ -294,6 +294,14 @@ class IsoFigures:
     vap_attained_mm: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     ad_budget: Budget | None = None  # AD_P's (calib.uncertainty_budget)
     other_budgets: dict[str, Budget] = field(default_factory=dict)  # "RD", "vAP_P P1", ...: the tracker's line alone
+    velocity_pct: float = 0.0  # the test velocity (6.7), % of the rated; 0: none planned (the session's setting)
+    departures: list[str] = field(default_factory=list)  # from the standard's test conditions, one line each
+
+    @property
+    def label(self) -> str:
+        """The test's targets and, where planned, its velocity: "nominal", "compensated, 50 %"."""
+        kind = "compensated" if self.compensated else "nominal"
+        return f"{kind}, {self.velocity_pct:g} %" if self.velocity_pct else kind
 
     def to_doc(self) -> dict:
         def fig(f: Figure | None):
@@ -312,5 +320,5 @@ class IsoFigures:
                       for name, f in self.vap.items()],
             "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
             "other_budgets": {k: b.to_doc() for k, b in self.other_budgets.items()},
-            "conditions": self.conditions, "notes": self.notes,
-        }  # fmt: skip
+            "conditions": self.conditions, "notes": self.notes, "departures": self.departures,
+        } | ({"velocity_pct": self.velocity_pct} if self.velocity_pct else {})  # fmt: skip

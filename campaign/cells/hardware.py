@@ -53,6 +53,10 @@ SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "certificate": ("text", None),
         "certificate_date": ("date", None),
         "certificate_due": ("date", None),
+        # the tracker's MPE as its certificate or datasheet states it, A um + B um/m of range (ASME B89.4.19), for the
+        # ISO 9283 plan's field check (default: the cell's tracker model's datasheet MPE)
+        "mpe_um": ("positive", None),
+        "mpe_um_per_m": ("positive", None),
     },
     "plc": {
         "protocol": ("protocol", _REQUIRED),
@@ -165,7 +169,7 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
         if key not in doc or doc[key] is None:
             if default is _REQUIRED:
                 raise InputError(f"{path}: {where}: missing (required)")
-            if kind == "section" or (default is None and kind in ("text", "date")):  # left out: no key
+            if kind == "section" or (default is None and kind in ("text", "date", "positive")):  # left out: no key
                 continue
             out[key] = default
             continue

@@ -383,7 +383,23 @@ COMMANDS = [
                     help="also measure every tool point the station sees (at least 3), point after point, for the "
                          "orientation figures AP_a..RP_c (ISO 9283:1998, 7.2; default: the one point)"),
                 arg("--load", help="what the robot carries during the test, for the report (ISO 9283:1998, 6.6: "
-                                   "100 %% of the rated load), e.g. '270 kg, 100 %% rated' (default: not stated)"),
+                                   "100 %% of the rated load), e.g. '270 kg, 100 %% rated', or 'unloaded' "
+                                   "(required: a plan without it is refused)"),
+                arg("--velocities", metavar="PCT,...", help="test velocities in %% of the rated velocity, each a test "
+                    "of its own, the moves' speed override (ISO 9283:1998, 6.7; default: 100,50,10); the "
+                    "multi-directional test runs at the first"),
+                arg("--drift", type=float, metavar="HOURS", help="plan the drift test instead (ISO 9283:1998, 7.6): "
+                    "P1 measured in groups of --cycles cycles spread over HOURS, the first group at once; compare "
+                    "states dAP and dRP between the first group and the last (default: the pose test)"),
+                arg("--drift-groups", type=int, metavar="N", help="--drift: the number of groups (default: one an "
+                    "hour and one at the start, at least 2)"),
+                arg("--field-check", metavar="P,P,MM", help="measure the certified distance MM between two tool "
+                    "points with the robot at P1 before the test, the tracker's field check (ASME B89.4.19 / ISO "
+                    "10360-10), pass or fail against the hardware file's tracker.mpe_um (else the datasheet's) on the "
+                    "report (default: none)"),
+                arg("--warm-up-cycles", type=int, default=0, metavar="N", help="cycles of the test's poses at the "
+                    "first velocity before the test, nothing measured, recorded on the report (ISO 9283:1998, 6.2: "
+                    "the robot warmed up as its maker specifies; default: 0, none)"),
                 arg("--seed", type=seed, default=0, help="seed of the orientations tried when the test pose's fails"),
                 arg(ACCEPT_EDITED[0], **ACCEPT_EDITED[1]),
                 arg(ACCEPT_POOR[0], **ACCEPT_POOR[1]),

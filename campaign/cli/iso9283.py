@@ -11,9 +11,10 @@ from rich.table import Table
 from trackcal.calib.decision_rule import RULES
 from trackcal.campaign.cli.console import console
 from trackcal.campaign.errors import OptionError
-from trackcal.campaign.jobs.iso9283 import CompareOptions, PlanOptions, compare, make_plan
+from trackcal.campaign.jobs.iso9283 import STANDARD_VELOCITIES, CompareOptions, PlanOptions, compare, make_plan
 from trackcal.campaign.report.iso9283 import Item, write_iso_pdf, write_iso_report
 from trackcal.campaign.report.iso9283_conformity import Verdict, parse_tolerances, verdicts
+from trackcal.campaign.report.iso9283_departures import grouped
 
 
 def _centre(text: str | None) -> tuple[float, float, float] | None:
@@ -28,11 +29,36 @@ def _centre(text: str | None) -> tuple[float, float, float] | None:
     return values
 
 
+def _velocities(text: str | None) -> tuple[float, ...]:
+    if text is None:
+        return STANDARD_VELOCITIES
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise OptionError("{0}: expected percentages of the rated velocity, e.g. 100,50,10, got {text!r}",
+                          "velocities", text=text) from None  # fmt: skip
+    return values
+
+
+def _field_check(text: str | None) -> tuple[str, str, float] | None:
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        return parts[0].strip(), parts[1].strip(), float(parts[2]) if len(parts) == 3 else math.nan
+    except (ValueError, IndexError):
+        raise OptionError("{0}: expected POINT,POINT,LENGTH_MM, e.g. P1,P3,188.012, got {text!r}", "field_check",
+                          text=text) from None  # fmt: skip
+
+
 def cmd_plan(args) -> int:
     opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
                        centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
                        vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
-                       accept_edited=args.accept_edited, accept_poor=args.accept_poor)  # fmt: skip
+                       accept_edited=args.accept_edited, accept_poor=args.accept_poor,
+                       velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles,
+                       drift_hours=args.drift, drift_groups=args.drift_groups,
+                       field_check=_field_check(args.field_check))  # fmt: skip
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
@@ -40,10 +66,22 @@ def cmd_plan(args) -> int:
     iso = doc["iso9283"]
     console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
                   f"({', '.join(f'{v:.1f}' for v in iso['cube_centre_mm'])}) mm; point {iso['point']} measured from "
-                  f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])}",
+                  f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])} at each of "
+                  f"{', '.join(f'{v:g}' for v in iso['velocities'])} % of the rated velocity",
                   soft_wrap=True)  # fmt: skip
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
+    if iso.get("field_check"):
+        fc = iso["field_check"]
+        console.print(f"field check: the length {'-'.join(fc['points'])} ({fc['length_mm']:g} mm certified) measured "
+                      "with the robot at P1, before the test")
+    if iso.get("drift"):
+        drift = iso["drift"]
+        console.print(f"drift test (ISO 9283:1998, 7.6): {drift['groups']} groups of {drift['cycles']} cycles over "
+                      f"{drift['hours']:g} h, P1 measured, at {iso['velocities'][0]:g} % of the rated velocity")
+    if iso["warm_up_cycles"]:
+        console.print(f"warm-up (ISO 9283:1998, 6.2): {iso['warm_up_cycles']} cycles of the poses at "
+                      f"{iso['velocities'][0]:g} %, nothing measured, before the test")
     if iso.get("points"):
         console.print(f"orientation: points {', '.join(iso['points'])} measured in turn, each over all the cycles")
     if iso.get("vap"):
@@ -93,6 +131,17 @@ def _compare_options(args, tolerances: dict[str, float]) -> CompareOptions:
                           accept_expired=args.accept_expired_certificate)  # fmt: skip
 
 
+def _notes(tests) -> None:
+    """Each test's notes, the sessions' field checks and every departure from the standard's conditions."""
+    for t in tests:
+        for note in t.notes:
+            console.print(f"note: {t.session}: {note}")
+    for check in dict.fromkeys(t.conditions["field check"] for t in tests if "field check" in t.conditions):
+        console.print(f"field check: {check}", soft_wrap=True)
+    for departure, who in grouped(tests).items():
+        console.print(f"departure from ISO 9283:1998: {departure} ({', '.join(who)})", soft_wrap=True)
+
+
 def cmd_compare(args) -> int:
     tolerances = parse_tolerances(args.tolerance)  # a mistake ends here, before any session is read
     warnings: list[str] = []
@@ -102,10 +151,10 @@ def cmd_compare(args) -> int:
     table = Table(title="ISO 9283:1998 pose characteristics (µm; ± U of each figure's uncertainty budget, about 95 %)")
     table.add_column("pose")
     for t in tests:
-        label = "compensated" if t.compensated else "nominal"
+        label = t.label
         table.add_column(f"AP_P {label}", justify="right", overflow="fold")
         table.add_column(f"RP_l {label}", justify="right", overflow="fold")
-    for i, name in enumerate(p.name for p in tests[0].poses):
+    for i, name in enumerate(p.name for p in (tests[0].poses if tests else [])):
         row = [name]
         for t in tests:
             row += [_um(t.poses[i].ap), _um(t.poses[i].rp)]
@@ -114,22 +163,24 @@ def cmd_compare(args) -> int:
     for t in tests:
         row += [_um(t.ad), _um(t.rd)]
     table.add_row(*row)
-    console.print(table)
+    if tests:  # a drift test alone (7.6) has its own lines below
+        console.print(table)
     vap_poses = list(dict.fromkeys(name for t in tests for name in t.vap))
     if vap_poses:
         vt = Table(title="ISO 9283:1998, 7.2 multi-directional pose accuracy variation vAP_P (µm; ± U, k = 2)")
         vt.add_column("pose")
-        for t in tests:
-            vt.add_column(f"vAP_P {'compensated' if t.compensated else 'nominal'}", justify="right", overflow="fold")
+        measured = [t for t in tests if t.vap]  # the multi-directional test runs at the first velocity only
+        for t in measured:
+            vt.add_column(f"vAP_P {t.label}", justify="right", overflow="fold")
         for name in vap_poses:
-            vt.add_row(name, *[_um(t.vap.get(name)) for t in tests])
+            vt.add_row(name, *[_um(t.vap.get(name)) for t in measured])
         console.print(vt)
     if any(p.orientation for t in tests for p in t.poses):
         ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
                          "axes (millidegrees; ± U, k = 2)")  # fmt: skip
         ot.add_column("pose, axis")
         for t in tests:
-            label = "compensated" if t.compensated else "nominal"
+            label = t.label
             ot.add_column(f"AP {label}", justify="right", overflow="fold")
             ot.add_column(f"RP {label}", justify="right", overflow="fold")
         for i, name in enumerate(p.name for p in tests[0].poses):
@@ -144,9 +195,10 @@ def cmd_compare(args) -> int:
         console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
                       + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
                       soft_wrap=True)  # fmt: skip
-    for t in tests:
-        for note in t.notes:
-            console.print(f"note: {t.session}: {note}")
+        for g in d.get("groups", []):  # a drift test's groups (7.6)
+            console.print(f"  group {g['group']} at {g['t_h']:.2f} h: P1 AP_P {g['AP_P_mm'] * 1000:.1f} µm, "
+                          f"RP_l {g['RP_l_mm'] * 1000:.1f} µm over {g['cycles']} cycles")
+    _notes(tests)
     if args.json:
         console.print(f"figures written to {args.json}")
     conformity = None

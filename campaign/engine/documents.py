@@ -71,6 +71,9 @@ class MeasurementDoc(TypedDict):
     std_mm: list[float]
     env: list[float]
     approach: NotRequired[str]  # ISO 9283 multi-directional test (7.3): the side the pose was approached from
+    velocity_pct: NotRequired[float]  # ISO 9283 test velocity (6.7): the move's speed, % of the rated velocity
+    drift_group: NotRequired[int]  # ISO 9283 drift test (7.6): the group of P1 measurements (1, 2, ...)
+    field_check: NotRequired[bool]  # the tracker's field check: a known length's end, not a test measurement
 
 
 class WarningDoc(TypedDict):

@@ -416,7 +416,11 @@ class Engine:
             self._warn("the cell door opened: motion blocked until resumed")
             self.interlock.close()
             self._resume_motion()
-        self.dev.robot.move(tuple(step.q_deg), self.settings.speed_pct)
+        wait = step.not_before_s - self.tick()  # an ISO 9283 drift group (7.6) starts at its time
+        if wait > 0:
+            self.dev.clock.sleep(wait)
+        # an ISO 9283 test velocity (6.7) is the step's own; every other move the session's setting
+        self.dev.robot.move(tuple(step.q_deg), step.speed_pct or self.settings.speed_pct)
 
     def _settle(self, step: Step) -> None:
         """Wait until the robot stands; it must stand at the step's target, to one count of the controller."""
@@ -467,6 +471,12 @@ class Engine:
         )  # fmt: skip
         if step.approach:
             data["approach"] = step.approach
+        if step.speed_pct:
+            data["velocity_pct"] = step.speed_pct
+        if step.group:
+            data["drift_group"] = step.group
+        if step.check:
+            data["field_check"] = True
         self._emit("measurement", data)
         self.measurements.append(data)
         if step.drift:

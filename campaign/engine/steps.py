@@ -51,12 +51,21 @@ class Step:
     # settle at) the approach point before the pose, a move with no measurement
     approach: str = ""
     via: bool = False
+    # ISO 9283 test velocity (6.7): the move's speed override in % of the rated velocity; 0: the session's setting
+    speed_pct: float = 0.0
+    warm_up: bool = False  # ISO 9283 warm-up (6.2): a move of the cycles before the test, nothing measured
+    # ISO 9283 drift test (7.6): the group (1, 2, ...) of the P1 measurements, and for a group's first move the
+    # campaign time (s) it waits for: the groups spread over the test's hours
+    group: int = 0
+    not_before_s: float = 0.0
+    check: bool = False  # the field check's measurement of a known length (ISO 10360-10), not the robot's test
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["kind"] = str(self.kind)
         d["q_deg"] = list(self.q_deg)
-        for key in ("approach", "via"):  # only where set: the steps of every other plan are recorded as before
+        # only where set: the steps of every other plan are recorded as before
+        for key in ("approach", "via", "speed_pct", "warm_up", "group", "not_before_s", "check"):
             if not d[key]:
                 del d[key]
         return d
@@ -70,12 +79,15 @@ class Step:
         if self.kind == StepKind.RESUME:
             return "leave the cell, close the door, acknowledge"
         measure = f" ({self.point} from {self.station})" if self.kind == StepKind.MEASURE else ""
+        if self.warm_up:
+            return f"{self.kind} {self.pose} (warm-up: nothing is measured)"
         if self.via and self.approach:
             return f"{self.kind} to the approach point of {self.pose} on its {self.approach} side"
         if self.via:
             return f"{self.kind} {self.pose} (an approach: nothing is measured)"
         side = f" from its {self.approach} side" if self.approach else ""
-        return f"{self.kind} {self.pose}{side}{measure}"
+        speed = f" at {self.speed_pct:g} %" if self.speed_pct and self.kind == StepKind.MOVE else ""
+        return f"{self.kind} {self.pose}{side}{speed}{measure}"
 
 
 class PlanError(CampaignError):
@@ -146,13 +158,21 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         for pid in iso_points(iso):
             if vis is not None and not vis[(station, pid)].all():
                 problems.append(f"station {station} does not see point {pid} at every pose of the ISO test")
+        for pid in (iso.get("field_check") or {}).get("points", []):
+            if vis is not None and (pid not in cell.tool_points or not vis[(station, pid)][CYCLE_ORDER[0]]):
+                problems.append(f"station {station} does not see point {pid} at P1 for the field check")
     if problems:
         raise PlanError("plan refused before anything moves: " + "; ".join(problems))
     ids = [f"Q{i + 1}" for i in range(len(poses))]
+    if iso is not None and iso.get("drift"):
+        yield from _drift_steps(iso, poses, ids)
+        return
     if iso is None:
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat, approached)
     else:
-        visits = [v for pid in iso_points(iso) for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]
+        # each test velocity (6.7) a test of its own, all its cycles in a row, every point in turn
+        visits = [(v, speed) for pid in iso_points(iso) for speed in iso_velocities(iso)
+                  for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]  # fmt: skip
     vap = vap_block(iso, cell) if iso is not None else None
     if vap is not None:
         problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
@@ -162,37 +182,123 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         if problems:
             raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
     where = None
-    for v in visits:
+    for v, speed in visits if iso is not None else ((v, 0.0) for v in visits):
         if where is None or v.station != where[0]:
             yield Step(StepKind.CHANGE_STATION, station=v.station)
             yield Step(StepKind.RESUME, station=v.station)
+            if iso is not None and where is None:  # the tracker's field check, the robot standing at P1
+                yield from field_check_steps(iso, poses, ids, v.station)
         if (v.station, v.point) != where:
             yield Step(StepKind.MOVE_REFLECTOR, station=v.station, point=v.point)
             yield Step(StepKind.RESUME, station=v.station, point=v.point)
+            if iso is not None and where is None:  # the warm-up (6.2): the test's cycles, nothing measured
+                yield from warm_up_steps(iso, poses, ids, v.station, v.point)
             if iso is not None:  # the first cycle's P1 approached from the cycle's last pose, as every later one
                 last = CYCLE_ORDER[-1]
                 q = tuple(float(x) for x in poses[last])
                 for kind in (StepKind.MOVE, StepKind.SETTLE):
-                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True)
+                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True,
+                               speed_pct=speed)  # fmt: skip
         where = (v.station, v.point)
         q = tuple(float(x) for x in poses[v.pose])
-        yield Step(StepKind.MOVE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
-        yield Step(StepKind.SETTLE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q)
-        yield Step(StepKind.MEASURE, station=v.station, point=v.point, pose=ids[v.pose], q_deg=q, drift=v.drift)
+        at = {"station": v.station, "point": v.point, "pose": ids[v.pose], "q_deg": q, "speed_pct": speed}
+        yield Step(StepKind.MOVE, **at)
+        yield Step(StepKind.SETTLE, **at)
+        yield Step(StepKind.MEASURE, drift=v.drift, **at)
     if vap is None:
         return
     station, point = iso["station"], iso["point"]
+    speed = iso_velocities(iso)[0]  # the multi-directional test at the first test velocity (the standard's 100 %)
     for _ in range(vap["cycles"]):
         for i, pose in enumerate(vap["poses"]):
             q = tuple(float(x) for x in poses[pose])
             for k, side in enumerate(vap["approaches"][i]):
                 a = tuple(float(x) for x in vap["approach_deg"][i, k])
-                common = {"station": station, "point": point, "pose": ids[pose], "approach": side}
+                common = {"station": station, "point": point, "pose": ids[pose], "approach": side, "speed_pct": speed}
                 yield Step(StepKind.MOVE, q_deg=a, via=True, **common)
                 yield Step(StepKind.SETTLE, q_deg=a, via=True, **common)
                 yield Step(StepKind.MOVE, q_deg=q, **common)
                 yield Step(StepKind.SETTLE, q_deg=q, **common)
                 yield Step(StepKind.MEASURE, q_deg=q, **common)
+
+
+def drift_block(iso: dict) -> dict | None:
+    """The drift test of an ISO plan (`iso9283.drift`, ISO 9283:1998, 7.6), checked: `hours` > 0, `groups` >= 2
+    and `cycles` >= 2 (each group's P1 measurements); None when the plan has none."""
+    block = iso.get("drift")
+    if block is None:
+        return None
+    block = fields.mapping(block, "plan: iso9283.drift", PlanError)
+    hours = fields.number(block.get("hours"), "plan: iso9283.drift.hours", PlanError)
+    groups = fields.integer(block.get("groups"), "plan: iso9283.drift.groups", PlanError)
+    cycles = fields.integer(block.get("cycles"), "plan: iso9283.drift.cycles", PlanError)
+    if not (0 < hours < float("inf")) or groups < 2 or cycles < 2:
+        raise PlanError(f"plan: iso9283.drift: expected hours > 0, groups >= 2 and cycles >= 2, got {block}")
+    return {"hours": hours, "groups": groups, "cycles": cycles}
+
+
+def _drift_steps(iso: dict, poses: np.ndarray, ids: list[str]) -> Iterator[Step]:
+    """The drift test (7.6): `groups` groups spread evenly over `hours` (the first at once, the last at the end),
+    each `cycles` cycles of the test's poses at the first test velocity, P1 measured in each cycle, the other poses
+    moved through unmeasured; between groups the robot stands until the next group's time."""
+    block = drift_block(iso) or {}
+    station, point, speed = iso["station"], iso["point"], iso_velocities(iso)[0]
+    yield Step(StepKind.CHANGE_STATION, station=station)
+    yield Step(StepKind.RESUME, station=station)
+    yield Step(StepKind.MOVE_REFLECTOR, station=station, point=point)
+    yield Step(StepKind.RESUME, station=station, point=point)
+    interval_s = block["hours"] * 3600.0 / (block["groups"] - 1)
+    for g in range(block["groups"]):
+        for c in range(block["cycles"]):
+            for k, i in enumerate(CYCLE_ORDER):
+                q = tuple(float(x) for x in poses[i])
+                at = {"station": station, "point": point, "pose": ids[i], "q_deg": q, "speed_pct": speed,
+                      "group": g + 1}  # fmt: skip
+                wait = round(g * interval_s, 3) if c == 0 and k == 0 else 0.0
+                measured = i == CYCLE_ORDER[0]
+                yield Step(StepKind.MOVE, via=not measured, not_before_s=wait, **at)
+                yield Step(StepKind.SETTLE, via=not measured, **at)
+                if measured:
+                    yield Step(StepKind.MEASURE, **at)
+
+
+def field_check_steps(iso: dict, poses: np.ndarray, ids: list[str], station: str) -> Iterator[Step]:
+    """The field check of an ISO plan (`iso9283.field_check`: two tool points whose distance is certified): the
+    reflector on each point in turn, measured with the robot at P1, before the test."""
+    block = iso.get("field_check")
+    if not block:
+        return
+    points = fields.sequence(block.get("points"), "plan: iso9283.field_check.points", PlanError)
+    if len(points) != 2 or points[0] == points[1] or any(not isinstance(p, str) for p in points):
+        raise PlanError(f"plan: iso9283.field_check.points: expected two reference points, got {points!r}")
+    q = tuple(float(x) for x in poses[CYCLE_ORDER[0]])
+    for point in points:
+        yield Step(StepKind.MOVE_REFLECTOR, station=station, point=point)
+        yield Step(StepKind.RESUME, station=station, point=point)
+        at = {"station": station, "point": point, "pose": ids[CYCLE_ORDER[0]], "q_deg": q, "check": True}
+        yield Step(StepKind.MOVE, **at)
+        yield Step(StepKind.SETTLE, **at)
+        yield Step(StepKind.MEASURE, **at)
+
+
+def warm_up_cycles(iso: dict) -> int:
+    """The warm-up cycles of an ISO plan (`iso9283.warm_up_cycles`, ISO 9283:1998, 6.2), checked: an integer >= 0."""
+    n = fields.integer(iso.get("warm_up_cycles", 0), "plan: iso9283.warm_up_cycles", PlanError)
+    if n < 0:
+        raise PlanError(f"plan: iso9283.warm_up_cycles: expected an integer >= 0, got {n}")
+    return n
+
+
+def warm_up_steps(iso: dict, poses: np.ndarray, ids: list[str], station: str, point: str) -> Iterator[Step]:
+    """The warm-up before the test (6.2): its cycles of the test's poses in the test's order at the first test
+    velocity, each pose moved to and settled at, nothing measured."""
+    speed = iso_velocities(iso)[0]
+    for _ in range(warm_up_cycles(iso)):
+        for i in CYCLE_ORDER:
+            q = tuple(float(x) for x in poses[i])
+            for kind in (StepKind.MOVE, StepKind.SETTLE):
+                yield Step(kind, station=station, point=point, pose=ids[i], q_deg=q, via=True, speed_pct=speed,
+                           warm_up=True)  # fmt: skip
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
@@ -224,7 +330,25 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
                         f"point {iso['point']!r} last")  # fmt: skip
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
+    iso_velocities(iso)  # checked before anything moves
+    warm_up_cycles(iso)
+    drift_block(iso)
     return iso
+
+
+def iso_velocities(iso: dict) -> list[float]:
+    """The test velocities of an ISO plan (`iso9283.velocities`, ISO 9283:1998, 6.7: % of the rated velocity, each
+    a test of its own), checked: numbers in (0, 100], none twice; [0.0] (the session's speed setting) for a plan
+    written before they were planned."""
+    given = iso.get("velocities")
+    if given is None:
+        return [0.0]
+    values = fields.sequence(given, "plan: iso9283.velocities", PlanError)
+    if (not values or any(isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 100 for v in values)
+            or len(set(values)) != len(values)):  # fmt: skip
+        raise PlanError(f"plan: iso9283.velocities: expected distinct percentages of the rated velocity in (0, 100], "
+                        f"got {given!r}")  # fmt: skip
+    return [float(v) for v in values]
 
 
 def iso_points(iso: dict) -> list[str]:

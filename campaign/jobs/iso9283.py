@@ -14,6 +14,7 @@ stays where the calibration left it), and puts the sessions side by side.
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import version
@@ -29,6 +30,7 @@ from trackcal.calib.doe.iso_cube import (
     CYCLE_ORDER,
     POSE_NAMES,
     VAP_POSES,
+    CubeError,
     IsoPlan,
     approach_joints,
     approach_sides,
@@ -56,7 +58,16 @@ from trackcal.calib.iso9283 import (
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
-from trackcal.campaign.engine.steps import PlanError, iso_block, iso_points, plan_arrays, vap_block, visibility
+from trackcal.campaign.engine.steps import (
+    PlanError,
+    drift_block,
+    iso_block,
+    iso_points,
+    iso_velocities,
+    plan_arrays,
+    vap_block,
+    visibility,
+)
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.campaign.jobs.iso9283_budget import (
     BudgetContext,
@@ -66,6 +77,9 @@ from trackcal.campaign.jobs.iso9283_budget import (
     pose_budgets,
     temperature_halfrange,
 )
+from trackcal.campaign.jobs.iso9283_departures import STANDARD_VELOCITIES, departures
+from trackcal.campaign.jobs.iso9283_field import field_check
+from trackcal.campaign.jobs.iso9283_trace import _tracker as tracker_section
 from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
@@ -87,6 +101,11 @@ class PlanOptions:
     load: str | None = None  # what the robot carries during the test (ISO 9283:1998, 6.6), free text for the report
     accept_edited: bool = False  # --model: use it though its digest does not match its content (calib.model_trust)
     accept_poor: bool = False  # --model: use it though it is marked unusable (calib.model_trust)
+    velocities: tuple[float, ...] = STANDARD_VELOCITIES  # % of the rated velocity, each a test of its own (6.7)
+    warm_up_cycles: int = 0  # cycles of the test's poses before the test, nothing measured (6.2)
+    drift_hours: float | None = None  # the drift test instead (7.6): P1 in groups of `cycles` over these hours
+    drift_groups: int | None = None  # ... this many groups (None: one an hour and one at the start, at least 2)
+    field_check: tuple[str, str, float] | None = None  # two tool points and their certified distance, mm
 
 
 def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
@@ -116,12 +135,22 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
 def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     """The ISO 9283 plan of a cell, written to opts.json; with a model (checked: campaign.jobs.trusted, its warning
     lines added to `warnings`), its compensated targets."""
+    if not (opts.load or "").strip():
+        raise OptionError("{0} is required: what the robot carries during the test (ISO 9283:1998, 6.6), e.g. "
+                          "'270 kg, 100 % rated', or 'unloaded' to state that it carries nothing", "load")
+    if (not opts.velocities or any(not 0 < v <= 100 for v in opts.velocities)
+            or len(set(opts.velocities)) != len(opts.velocities)):  # fmt: skip
+        raise OptionError("{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10",
+                          "velocities")  # fmt: skip
+    drift = _drift_options(opts)
+    if opts.warm_up_cycles < 0:
+        raise OptionError("{0} must be 0 (no warm-up) or more", "warm_up_cycles")
     if opts.cycles < 2:
         raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
                           "cycles")  # fmt: skip
     if opts.side_mm is not None and not opts.side_mm > 0:
         raise OptionError("{0} must be a positive length in mm", "side_mm")
-    vap_cycles = opts.cycles if opts.vap_cycles is None else opts.vap_cycles
+    vap_cycles = 0 if drift else opts.cycles if opts.vap_cycles is None else opts.vap_cycles
     if vap_cycles == 1 or vap_cycles < 0:
         raise OptionError("{0} must be 0 (no multi-directional test) or at least 2", "vap_cycles")
     cell = load_cell(opts.cell)
@@ -132,6 +161,7 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
         if warnings is not None:
             warnings += checked
     plan = iso_plan(cell, opts.side_mm, opts.centre_mm, CORNER_FRACTION, opts.seed)
+    largest = plan.cube.side_mm if opts.side_mm is None else _largest_side(cell, plan, opts.seed)
     q_deg = np.degrees(plan.q_rad)
     q_app = approach_joints(cell, plan) if vap_cycles else None  # (3 poses, 3 sides, n) rad
     compensated_with = None
@@ -160,22 +190,66 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
                "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
                "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
-    if opts.load:
-        doc["iso9283"]["load"] = opts.load
+    doc["iso9283"]["load"] = opts.load.strip()
+    doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities][: 1 if drift else None]
+    if drift:
+        doc["iso9283"]["drift"] = drift
+    doc["iso9283"]["warm_up_cycles"] = opts.warm_up_cycles
+    if opts.field_check is not None:
+        doc["iso9283"]["field_check"] = _field_check_block(cell, opts.field_check)
+    if largest is not None:  # the report names a smaller cube as a departure (6.8)
+        doc["iso9283"]["largest_side_mm"] = round(largest, 4)
     write_json(opts.json, doc)
     return doc
 
 
 # ISO 9283:1998, 6.6 (load to the mechanical interface): tests run with 100 % of the rated load
-# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`): trackcal cannot weigh it
+# (10 % optionally); what the robot carried is the tester's to state (`iso9283 plan --load`, required; "unloaded" said
+# explicitly): trackcal cannot weigh it. A plan written before --load was required may still lack it
 NO_LOAD = "not stated (give it with iso9283 plan --load)"
+UNLOADED = "unloaded"  # the one word that states the robot carries nothing
 
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
 CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
-                   "tracker certificate", "reflector centring", "load", "speed",
+                   "tracker certificate", "field check", "reflector centring", "load", "speed", "warm-up",
                    "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
                    "complete", "mode", "trackcal version")  # fmt: skip
+
+
+def _drift_options(opts: PlanOptions) -> dict | None:
+    """The plan's drift block (7.6) from the options, checked; None without --drift."""
+    if opts.drift_hours is None:
+        if opts.drift_groups is not None:
+            raise OptionError("{0} needs {1}", "drift_groups", "drift_hours")
+        return None
+    if not 0 < opts.drift_hours < math.inf:
+        raise OptionError("{0} must be a positive number of hours", "drift_hours")
+    groups = opts.drift_groups if opts.drift_groups is not None else max(2, math.floor(opts.drift_hours) + 1)
+    if groups < 2:
+        raise OptionError("{0} must be at least 2 (the drift compares the first group with the last)", "drift_groups")
+    if opts.warm_up_cycles:
+        raise OptionError("{0} and {1}: the drift test measures the change from the robot as it starts, no warm-up "
+                          "before it", "warm_up_cycles", "drift_hours")  # fmt: skip
+    return {"hours": float(opts.drift_hours), "groups": groups, "cycles": opts.cycles}
+
+
+def _field_check_block(cell: Cell, given: tuple[str, str, float]) -> dict:
+    """The plan's field check (campaign.jobs.iso9283_field), checked: two distinct tool points, a length > 0."""
+    a, b, length = given
+    if a == b or a not in cell.tool_points or b not in cell.tool_points or not 0 < length < math.inf:
+        raise OptionError("{0}: expected two distinct reference points of the tool ({points}) and their certified "
+                          "distance in mm > 0, e.g. P1,P3,188.012", "field_check",
+                          points=", ".join(sorted(cell.tool_points)))  # fmt: skip
+    return {"points": [a, b], "length_mm": float(length)}
+
+
+def _largest_side(cell: Cell, plan: IsoPlan, seed: int) -> float | None:
+    """The largest cube side the robot reaches about the given cube's centre (None: none found there)."""
+    try:
+        return iso_plan(cell, None, tuple(plan.cube.centre_mm), CORNER_FRACTION, seed).cube.side_mm
+    except CubeError:
+        return None
 
 
 def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
@@ -189,8 +263,8 @@ def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
     return [*seen, plan.point]
 
 
-def _utc(t_wall: float) -> str:
-    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M UTC")
+def _utc(t_wall: float, seconds: bool = False) -> str:
+    return datetime.fromtimestamp(t_wall, UTC).strftime("%Y-%m-%d %H:%M" + (":%S" if seconds else "") + " UTC")
 
 
 def _session_inputs(directory: Path):
@@ -203,22 +277,53 @@ def _session_inputs(directory: Path):
                       "ended": _utc(events[-1].t_wall) if events else "-",
                       "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
                       "mode": meta.get("mode", "-") + seed}  # fmt: skip
-        sides = [m.get("approach", "") for m in stored_measurements(store)]  # vAP visits (7.2) name theirs
+        conditions["warm-up"] = warm_up_record(events)
+        docs = stored_measurements(store)
+        conditions.update(_field_check_record(store, directory, docs))
+        sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
+        speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
+        groups = np.array([int(m.get("drift_group", 0)) for m in docs])  # the drift test's group (7.6) of each
         overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
                             and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
-        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves (ISO "
-                               "9283:1998, 6.7: 100 %, 50 % and 10 % of the rated velocity)"
-                               ) if overrides else "no move recorded"  # fmt: skip
+        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves: the "
+                               "session's setting, no test velocity planned (ISO 9283:1998, 6.7: 100 %, 50 % and "
+                               "10 % of the rated velocity)") if overrides else "no move recorded"  # fmt: skip
         tool_text = store.documents().get("config/tool.yaml")
         tool_doc = yaml.safe_load(tool_text) if tool_text else None
         conditions["tool"] = str((tool_doc or {}).get("name") or "-")
         conditions.update(traceability(store, directory))
         conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
                                             if centring_mm(tool_doc) is not None else "not stated by the tool file")
-        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions, sides,
-                centring_mm(tool_doc))  # fmt: skip
+        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions,
+                Visits(np.zeros(0), np.asarray(sides), speeds, group=groups), centring_mm(tool_doc))  # fmt: skip
     finally:
         store.close()
+
+
+def _field_check_record(store: SessionStore, directory: Path, docs: list) -> dict[str, str]:
+    """The session's field check as the report states it ({} when its plan has none)."""
+    block = (session_plan(store).get("iso9283") or {}).get("field_check")
+    if not block:
+        return {}
+    rows = {p: np.array([m["xyz_mm"] for m in docs if m.get("field_check") and m["point"] == p]) for p in
+            block["points"]}  # fmt: skip
+    found = field_check(block, rows, tracker_section(store, directory), session_cell(store).tracker)
+    return {"field check": found.describe() if found else "planned, not measured: a point was not seen"}
+
+
+def warm_up_record(events) -> str:
+    """The warm-up the session ran before the test (ISO 9283:1998, 6.2), from its recorded steps: the cycles done,
+    the velocity, when it started and ended; "none" when the plan had none."""
+    started = [(k, e) for k, e in enumerate(events) if e.kind == "step_started" and e.data["step"].get("warm_up")]
+    if not started:
+        return "none recorded (ISO 9283:1998, 6.2, conditions prior to testing: the warm-up its maker specifies)"
+    done = [e for k, e in enumerate(events) if e.kind == "step_done" and k > started[-1][0]][:1]
+    moves = [e.data["step"] for _, e in started if e.data["step"]["kind"] == "move"]
+    cycles = len(moves) / len(POSE_NAMES)
+    end = _utc(done[0].t_wall, True) if done else "not finished"
+    order = " ".join(POSE_NAMES[i] for i in CYCLE_ORDER)
+    return (f"{cycles:g} cycle{'' if cycles == 1 else 's'} of {order} at {moves[0].get('speed_pct', 0):g} "
+            f"%, nothing measured, {_utc(started[0][1].t_wall, True)} to {end} (ISO 9283:1998, 6.2)")  # fmt: skip
 
 
 def _meteo(table, key: str, unit: str, digits: int) -> str:
@@ -241,22 +346,82 @@ class InBase:
         return (xyz - self.station.translation) @ rot, np.einsum("ji,njk,kl->nil", rot, self.noise.covariance(xyz), rot)
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None) -> IsoFigures:
-    """The ISO 9283 figures of one session of an ISO plan, in the base frame of `model`'s station estimate; `noise`
-    is the tracker's instrument model every figure's uncertainty comes from (None: the session's tracker's)."""
-    cell, plan, table, conditions, sides, centring = _session_inputs(directory)
+def session_tests(directory: Path, model: Model, noise: TrackerNoise | None = None) -> list[IsoFigures]:
+    """The ISO 9283 tests of one session, one per test velocity of its plan (6.7), in the plan's order."""
+    cell, plan, _, _, _, _ = _session_inputs(directory)
     poses, _ = plan_arrays(plan)
     iso = iso_block(plan, cell, len(poses))
     if iso is None:
         raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
+    return [session_figures(directory, model, noise, v) for v in iso_velocities(iso)]
+
+
+def drift_test(directory: Path, model: Model, noise: TrackerNoise | None = None) -> dict | None:
+    """The drift test of a session of a drift plan (ISO 9283:1998, 7.6), None for any other ISO session: AP_P and
+    RP_l of P1 in each group (7.2's formulas on the group's attained positions, base frame as session_figures),
+    dAP = |AP(first group) - AP(last group)| and dRP alike (calib.iso9283.drift)."""
+    cell, plan, table, conditions, visit, _ = _session_inputs(directory)
+    poses, _ = plan_arrays(plan)
+    iso = iso_block(plan, cell, len(poses))
+    block = drift_block(iso or {})
+    if iso is None or block is None:
+        return None
+    station = model.stations.get(iso["station"])
+    if station is None:
+        raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
+    in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
+    p1 = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
+          & (np.asarray(table.pose) == "Q1"))  # fmt: skip
+    commanded = commanded_positions(iso, model)[0]
+    groups, figures = [], []
+    for g in range(1, block["groups"] + 1):
+        rows = p1 & (visit.group == g)
+        base, cov = in_base(rows)
+        if len(base) < 2:
+            raise InputError(f"{directory}: drift group {g} has {len(base)} measurements of P1; it needs two")
+        ap, rp = pose_accuracy(base, commanded, cov)[0], pose_repeatability(base, cov)[0]
+        figures.append((ap, rp))
+        groups.append({"group": g, "t_h": round(float(table.t_s[rows][0]) / 3600.0, 4), "cycles": len(base),
+                       "AP_P_mm": ap.value, "RP_l_mm": rp.value})  # fmt: skip
+    (ap1, rp1), (ap2, rp2) = figures[0], figures[-1]
+    targets = f"compensated with {iso['compensated_with']['model']}" if iso.get("compensated_with") else "nominal"
+    return {"targets": targets, "first": f"{directory} group 1", "last": f"{directory} group {block['groups']}",
+            "poses": [{"pose": "P1", "dAP": drift(ap1, ap2), "dRP": drift(rp1, rp2)}], "groups": groups,
+            "hours": block["hours"], "speed": conditions["speed"]}  # fmt: skip
+
+
+def _velocity_condition(speed: float, conditions: dict) -> str:
+    """The test's velocity as the report states it: the plan's (6.7), or the session's override (an old plan)."""
+    if not speed:
+        return conditions["speed"]
+    return f"{speed:g} % of the rated velocity (ISO 9283:1998, 6.7; the PTP moves' joint speed override)"
+
+
+def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None,
+                    velocity: float | None = None) -> IsoFigures:  # fmt: skip
+    """The ISO 9283 figures of one session of an ISO plan at one of its test velocities (None: the first, 6.7), in
+    the base frame of `model`'s station estimate; `noise` is the tracker's instrument model every figure's
+    uncertainty comes from (None: the session's tracker's)."""
+    cell, plan, table, conditions, visit, centring = _session_inputs(directory)
+    poses, _ = plan_arrays(plan)
+    iso = iso_block(plan, cell, len(poses))
+    if iso is None:
+        raise PlanError(f"{directory}: its plan is no ISO 9283 plan (order {plan.get('order', 'campaign')!r})")
+    planned = iso_velocities(iso)
+    speed = planned[0] if velocity is None else velocity
+    if speed not in planned:
+        raise InputError(f"{directory}: its plan has no test velocity {speed:g} %")
+    label = f"{directory} at {speed:g} %" if speed else str(directory)
+    conditions["speed"] = _velocity_condition(speed, conditions)
     station = model.stations.get(iso["station"])
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     commanded = commanded_positions(iso, model)
     tracker = noise.name if noise else cell.tracker.describe()  # whose noise U is
     in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
-    keep = (np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-    visit = Visits(np.asarray(table.pose), np.asarray(sides))
+    visit = Visits(np.asarray(table.pose), visit.side, visit.speed, speed)
+    keep = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
+            & (visit.speed == speed))  # fmt: skip
     temps = table.extra.get("temp_c") if table.extra else None
     context = BudgetContext(model, iso["station"], iso["point"], _commanded_rotations(iso, model), tracker, centring,
                             temperature_halfrange(None if temps is None else [temps[k] for k in np.flatnonzero(keep)]))
@@ -273,10 +438,13 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     pts = iso_points(iso)
     if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2)
         notes += _orientations(iso, pts, model, in_base, visit, figures)
-    vap, vap_attained = _multidirectional(iso, cell, in_base, keep, visit, notes)
+    vap, vap_attained = ({}, {}) if speed != planned[0] else _multidirectional(iso, cell, in_base, keep, visit,
+                                                                                  notes)  # at the first velocity only
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
-    return IsoFigures(str(directory), bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
-                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker))  # fmt: skip
+    departed = departures(iso, speed, len(attained[0]), conditions, NO_LOAD, UNLOADED)
+    return IsoFigures(label, bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
+                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker),
+                      speed, departed)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -285,9 +453,13 @@ class Visits:
 
     pose: np.ndarray
     side: np.ndarray
+    speed: np.ndarray  # the test velocity (6.7) of each, % of the rated; 0 where the plan had none
+    at: float | None = None  # the test velocity whose visits `of` selects (None: every one)
+    group: np.ndarray | None = None  # the drift test's group (7.6) of each, 0 outside one
 
     def of(self, i: int, side: str = "") -> np.ndarray:
-        return (self.pose == f"Q{i + 1}") & (self.side == side)
+        at = np.ones(len(self.speed), bool) if self.at is None else self.speed == self.at
+        return (self.pose == f"Q{i + 1}") & (self.side == side) & at
 
 
 def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray,
@@ -411,8 +583,8 @@ def drifts(tests: list[IsoFigures]) -> list[dict]:
     """dAP and dRP per pose (ISO 9283:1998, 7.6) between the first and the last of the tests run with the same
     targets, in the order given (the standard repeats the test over hours: give the sessions in time order)."""
     out = []
-    for targets in dict.fromkeys(t.conditions["targets"] for t in tests):
-        same = [t for t in tests if t.conditions["targets"] == targets]
+    for targets, speed in dict.fromkeys((t.conditions["targets"], t.conditions.get("speed")) for t in tests):
+        same = [t for t in tests if (t.conditions["targets"], t.conditions.get("speed")) == (targets, speed)]
         if len(same) < 2:
             continue
         first, last = same[0], same[-1]
@@ -432,12 +604,20 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
     if expired and opts.certificate and not opts.accept_expired:
         raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
                          "test anyway (the report then says so)")  # fmt: skip
-    tests = [session_figures(Path(s), model, opts.noise) for s in opts.sessions]
-    for t in tests:
-        t.notes += [m.removeprefix(f"{t.session}: ") for m in expired if m.startswith(f"{t.session}: ")]
+    tests, drift_tests = [], []
+    for s in opts.sessions:
+        found = drift_test(Path(s), model, opts.noise)  # the drift test (7.6): a session of its own
+        if found is not None:
+            drift_tests.append(found)
+            continue
+        for t in session_tests(Path(s), model, opts.noise):  # one per test velocity (6.7)
+            t.notes += [m.removeprefix(f"{s}: ") for m in expired if m.startswith(f"{s}: ")]
+            tests.append(t)
     if warnings is not None:
         warnings += expired
-    drift_list = drifts(tests)
+    if not tests and opts.certificate:
+        raise InputError("a drift test alone makes no report: give it with the pose test's sessions")
+    drift_list = drift_tests + drifts(tests)
     if opts.json:
         conformity = None
         if opts.tolerances:

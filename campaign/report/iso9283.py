@@ -22,6 +22,7 @@ from trackcal.campaign.errors import InputError
 from trackcal.campaign.report.figures import pyplot
 from trackcal.campaign.report.iso9283_budget import budget_section
 from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
+from trackcal.campaign.report.iso9283_departures import departures_box
 from trackcal.campaign.report.pdf import html_to_pdf
 
 DEFINITIONS = [
@@ -141,7 +142,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
            conformity: tuple[str, dict[str, float], list[Verdict]] | None = None, item: Item | None = None) -> str:
     """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement, `item` the
     customer, the report's id and the person authorising it."""
-    label = ["compensated" if t.compensated else "nominal" for t in tests]
+    label = [t.label for t in tests]
     item = item or Item()
     rid = html.escape(item.report_id or report_id(tests))
     out = [f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
@@ -149,7 +150,8 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
            f"<p>Report {rid}</p><p>Customer: {html.escape(item.customer or 'not stated')}</p>"]  # fmt: skip
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
-    out += [f"<th class=l>{html.escape(t.session)} ({lab} targets)</th>" for t, lab in zip(tests, label, strict=True)]
+    out += [f"<th class=l>{html.escape(t.session)} ({'compensated' if t.compensated else 'nominal'} targets)</th>"
+            for t in tests]  # fmt: skip
     out.append("</tr>")
     for k in keys:
         out.append(f"<tr><td class=l>{html.escape(k)}</td>")
@@ -157,6 +159,7 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         out.append("</tr>")
     out.append(f"<tr><td class=l>base frame</td><td class=l colspan={len(tests)}>the station estimate of "
                f"{html.escape(model_path)}</td></tr></table>")  # fmt: skip
+    out += departures_box(tests)
     out.append("<h2>Pose characteristics (µm)</h2><table><tr><th class=l>pose</th>")
     for lab in label:
         out += [f"<th>AP_P {lab}</th><th>AP_x, AP_y, AP_z {lab}</th><th>RP_l {lab}</th>"]
@@ -179,7 +182,9 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
         rd = _um(t.rd.value, t.rd.u95) if t.rd else "-"
         out.append(f"<td>{ad}</td><td>{rd}</td>")
     out.append("</tr></table>")
-    out += _vap_section(tests, label) + _drift_sections(drift_list) + budget_section(tests)
+    vap = [(t, lab) for t, lab in zip(tests, label, strict=True) if t.vap]  # at the first velocity only
+    out += _vap_section([t for t, _ in vap], [lab for _, lab in vap]) + _drift_sections(drift_list)
+    out += budget_section(tests)
     if conformity is not None:
         out += _conformity(*conformity)
     out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"

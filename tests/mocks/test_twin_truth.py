@@ -154,8 +154,8 @@ def test_one_figure_at_the_test_pose_in_model_summary_report_and_history(tmp_pat
     assert h.calibrations[0].tcp_sigma_mm == tp["sigma_mm"]
     assert h.calibrations[0].tcp_correction_mm == tp["correction_mm"]
     capsys.readouterr()
-    assert main(["iso9283", "plan", "--cell", "ur10", "--model", str(tmp_path / "m.json"), "--json",
-                 str(tmp_path / "iso.json")]) == 0  # fmt: skip
+    assert main(["iso9283", "plan", "--cell", "ur10", "--load", "unloaded", "--model", str(tmp_path / "m.json"),
+                 "--json", str(tmp_path / "iso.json")]) == 0  # fmt: skip
     assert f"±{tp['sigma_mm'] * 1000:.1f} µm 1-sigma" in capsys.readouterr().out
     iso = json.loads((tmp_path / "iso.json").read_text())["iso9283"]
     assert iso["compensated_with"]["test_pose"] == tp

@@ -190,7 +190,8 @@ def iso_sessions(tmp_path_factory):
 
     run("simulate", "--cell", "kr270", "--poses", "20", "--seed", "1", "--out", "t.csv")
     run("identify", "t.csv", "--cell", "kr270", "--out", "model.json")
-    run("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--json", "iso.json")
+    run("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--load", "unloaded",
+        "--velocities", "100", "--json", "iso.json")
     run("run", "--sim", "--cell", "kr270", "--plan", "iso.json", "--seed", "1", "--session", "tests/s1",
         "--no-analysis")  # fmt: skip
     return d

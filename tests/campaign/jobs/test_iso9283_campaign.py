@@ -35,7 +35,7 @@ def acceptance(tmp_path_factory):
     run("simulate", "--cell", "kr270", "--poses", "40", "--seed", str(SEED), "--out", "t.csv", cwd=d)
     run("identify", "t.csv", "--cell", "kr270", "--out", "model.json", cwd=d)
     # the unidirectional test only: vAP's approach moves are tests/test_iso9283_vap.py's (they double the run)
-    one_way = ("--cycles", str(CYCLES), "--vap-cycles", "0")
+    one_way = ("--cycles", str(CYCLES), "--vap-cycles", "0", "--load", "unloaded", "--velocities", "100")
     run("iso9283", "plan", "--cell", "kr270", *one_way, "--json", "iso.json", cwd=d)
     run("iso9283", "plan", "--cell", "kr270", *one_way, "--model", "model.json", "--json", "iso-comp.json", cwd=d)
     for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
@@ -101,7 +101,7 @@ def test_compare_states_conformity_and_prints_the_pdf(acceptance):
     assert "guarded acceptance" in out and "PDF written to iso.pdf" in out
     page = (d / "iso-tol.html").read_text(encoding="utf-8")
     assert "Conformity statement" in page and "guarded acceptance (ISO 14253-1:2017" in page
-    assert re.search(r"before \(nominal\)</td><td class=l>AP_P P1</td><td>[^<]+</td><td>500</td>"
+    assert re.search(r"before at 100 % \(nominal\)</td><td class=l>AP_P P1</td><td>[^<]+</td><td>500</td>"
                      r"<td class='l fail'>fail</td>", page)  # fmt: skip
     assert (d / "iso.pdf").read_bytes().startswith(b"%PDF-")
 

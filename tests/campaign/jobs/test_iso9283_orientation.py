@@ -95,7 +95,7 @@ def test_on_the_twin_ap_is_the_orientation_error_the_twin_knows(kr270, tmp_path)
     does against the nominal one: AP_a..c are that rotation within 2.5 U (the twin's robot returns to the same joints,
     so only the tracker's noise separates them), in the base frame of the twin's own station and points."""
     plan = make_plan(PlanOptions(cell="kr270", json=str(tmp_path / "iso.json"), cycles=3, vap_cycles=0,
-                                 orientation=True))  # fmt: skip
+                                 orientation=True, load="unloaded", velocities=(100.0,)))  # fmt: skip
     assert len(plan["iso9283"]["points"]) == 3
     store, campaign = new_session(tmp_path / "s", "kr270", plan, "sim", 1)
     assert run_session(store, campaign, inproc_live(kr270, 1)[1]).exit_status == "success"

@@ -31,7 +31,8 @@ def tested(tmp_path_factory, kr270):
     d = tmp_path_factory.mktemp("trace")
     assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", str(SEED), "--out", str(d / "t.csv")]) == 0
     assert main(["identify", str(d / "t.csv"), "--cell", "kr270", "--out", str(d / "model.json")]) == 0
-    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0))
+    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded",
+                                 velocities=(100.0,)))
     for name, due in (("expired", "2019-12-31"), ("valid", "2999-12-31")):
         store, campaign = new_session(d / name, "kr270", plan, "sim", SEED,
                                       hardware=(hardware_text("2018-12-31", due), "hw.yaml"))  # fmt: skip

@@ -33,7 +33,7 @@ def test_ur10_sim_gives_every_figure_and_the_conditions(tmp_path):
     frame: all five poses' AP/RP, vAP at P1, P2, P4, orientation from the three nests, and a report naming the
     conditions of the test."""
     plan = make_plan(PlanOptions(cell="ur10", json=str(tmp_path / "iso.json"), cycles=2, vap_cycles=2,
-                                 orientation=True))  # fmt: skip
+                                 orientation=True, load="unloaded", velocities=(100.0,)))  # fmt: skip
     assert len(plan["iso9283"]["points"]) == 3
     run("run", "--sim", "--cell", "ur10", "--plan", "iso.json", "--seed", str(SEED), "--session", "s",
         "--no-analysis", cwd=tmp_path)  # fmt: skip
@@ -66,7 +66,8 @@ def test_ur10_mock_controller_before_and_after(tmp_path):
     run both against `trackcal mock --cell ur10` over its protocols, compare with the report."""
     run("simulate", "--cell", "ur10", "--poses", "20", "--seed", "1", "--out", "t.csv", cwd=tmp_path)
     run("identify", "t.csv", "--cell", "ur10", "--out", "model.json", cwd=tmp_path)
-    common = ("--cell", "ur10", "--cycles", "3", "--vap-cycles", "2", "--orientation")
+    common = ("--cell", "ur10", "--cycles", "3", "--vap-cycles", "2", "--orientation", "--load", "unloaded",
+              "--velocities", "100")
     run("iso9283", "plan", *common, "--json", "iso.json", cwd=tmp_path)
     run("iso9283", "plan", *common, "--model", "model.json", "--json", "iso-comp.json", cwd=tmp_path)
     hw = tmp_path / "H.yaml"

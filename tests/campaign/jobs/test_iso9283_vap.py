@@ -35,7 +35,8 @@ def sessions(tmp_path_factory, kr270):
     """The plan, run in-process on the twin with backlash and without (the engine and doubles of `trackcal run
     --sim`, without its servers)."""
     d = tmp_path_factory.mktemp("vap")
-    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=CYCLES, vap_cycles=VAP_CYCLES))
+    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=CYCLES, vap_cycles=VAP_CYCLES,
+                                 load="unloaded", velocities=(100.0,)))
     for name, effects in (("backlash", BACKLASH), ("clean", {})):
         store, campaign = new_session(d / name, "kr270", plan, "sim", SEED, effects=effects)
         result = run_session(store, campaign, inproc_live(kr270, SEED, effects=effects)[1])
