@@ -12,6 +12,10 @@ from trackcal.drivers.plc.codec import hmi_text
 from trackcal.mocks.cell import World
 from trackcal.mocks.servers.plc import MockPlc
 
+# He looks at the HMI when trackcal writes its request lamp or registers (MockPlc.wait_request_written), and at least
+# this often (wall seconds) besides; he looked every 2 ms before issue 41, a few hundred looks per second of a run.
+LOOK_S = 0.05
+
 
 class SimHuman:
     """He holds the acknowledge button until the request lamp goes out (at least `hold_s`, at most `max_hold_s`
@@ -39,6 +43,7 @@ class SimHuman:
         self._thread.join(timeout=2.0)
 
     def _run(self) -> None:
+        written = -1  # the PLC's count of trackcal's writes to the request lamp and registers, as last looked at
         while not self._stop.is_set():
             try:
                 request = self.plc.operator_request
@@ -49,7 +54,7 @@ class SimHuman:
             if request is not None and request.kind is not None and request.seq != self._seen and self.plc.lamp:
                 self._seen = request.seq
                 self._do(request.kind, request.target)
-            time.sleep(0.002)
+            written = self.plc.wait_request_written(written, LOOK_S)
 
     def _do(self, kind: str, target: str) -> None:
         self.log.append((kind, target, f"{kind.replace('_', ' ')} {target}".strip()))
@@ -67,8 +72,9 @@ class SimHuman:
         self.plc.press_acknowledge()
         time.sleep(self.hold_s)
         deadline = time.monotonic() + self.max_hold_s
+        written = -1  # not looked yet: the first wait returns at once
         while self.plc.lamp and time.monotonic() < deadline and not self._stop.is_set():
-            time.sleep(0.002)
+            written = self.plc.wait_request_written(written, LOOK_S)
         self.plc.release_acknowledge()
         self.acted += 1
 

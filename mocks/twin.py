@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from operator import sub
 
 import numpy as np
 
@@ -102,19 +103,25 @@ class Twin:
             pos = pl.position + rng.normal(0.0, self.station_error_mm, 3)
             self.true_stations[sid] = Station(rotation=r.T, translation=-r.T @ pos)
         self.hidden = Effects()
-        self._last_q: np.ndarray | None = None
+        self._last_q: list[float] | None = None
         self.approach = np.zeros(chain.dof)
         for name, magnitude in sorted(self.effects.items()):
             self._add_effect(name, magnitude)
 
     # ------------------------------------------------------------------ robot state
-    def move_to(self, q_deg: np.ndarray) -> None:
-        """The robot was commanded to q_deg (reported angles); joints that moved set their approach sign."""
-        q = np.asarray(q_deg, dtype=float)
-        if self._last_q is not None:
-            d = q - self._last_q
-            self.approach = np.where(np.abs(d) > 1e-7, np.sign(d), self.approach)
-        self._last_q = q.copy()
+    def move_to(self, q_deg) -> None:
+        """The robot was commanded to q_deg (reported angles); joints that moved more than 1e-7 deg set their
+        approach sign. A controller calls it every cycle of a move (issue 41): the six differences are plain
+        floats, and the approach array is made anew only when a sign changes."""
+        q = list(map(float, q_deg))
+        last, self._last_q = self._last_q, q
+        if last is None:
+            return
+        approach = self.approach.tolist()
+        steps = map(sub, q, last)
+        moved = [1.0 if d > 1e-7 else -1.0 if d < -1e-7 else a for d, a in zip(steps, approach, strict=True)]
+        if moved != approach:
+            self.approach = np.array(moved)
 
     # ------------------------------------------------------------------ measurements
     def point_in_base(self, q_deg: np.ndarray, point: str, t_s: float = 0.0) -> np.ndarray:

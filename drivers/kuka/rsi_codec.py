@@ -128,19 +128,21 @@ def _xml_attrs(tag: str, names: tuple[str, ...], values: tuple[float, ...]) -> s
     return f"<{tag} " + " ".join(f'{n}="{fmt4(float(v))}"' for n, v in zip(names, values, strict=True)) + "/>"
 
 
-def _rob_layout(number: str, integer: str) -> str:
-    """The <Rob> document as encode_rob writes it, every value replaced by `number` (the 24 reals) or `integer`
-    (Delay D, IPOC): the one layout both the encoder's template and the parser's fast path are made from."""
-    def attrs(tag: str, names: tuple[str, ...]) -> str:
+def _rob_layout(cart: str, axis: str, delay: str, ipoc: str) -> str:
+    """The <Rob> document as encode_rob writes it, every value replaced by `cart` (RIst, RSol), `axis` (AIPos,
+    ASPos), `delay` (Delay D) or `ipoc`: the one layout both the encoder's template and the parser's fast path are
+    made from."""
+    def attrs(tag: str, names: tuple[str, ...], number: str) -> str:
         return f"<{tag} " + " ".join(f'{n}="{number}"' for n in names) + "/>"
 
-    return (f'<{ROB_ROOT} TYPE="KUKA">' + attrs("RIst", CART) + attrs("RSol", CART) + attrs("AIPos", AXES)
-            + attrs("ASPos", AXES) + f'<Delay D="{integer}"/><IPOC>{integer}</IPOC></{ROB_ROOT}>')  # fmt: skip
+    return (f'<{ROB_ROOT} TYPE="KUKA">' + attrs("RIst", CART, cart) + attrs("RSol", CART, cart)
+            + attrs("AIPos", AXES, axis) + attrs("ASPos", AXES, axis)
+            + f'<Delay D="{delay}"/><IPOC>{ipoc}</IPOC></{ROB_ROOT}>')  # fmt: skip
 
 
 # One %-template for the whole frame (issue 41: the mock sends one per 12 ms cycle of every move; 24 f-strings of
 # fmt4 cost 21 us a frame, the template 5 us). "%.4f" is the format of fmt4; its "-0.0000" becomes "0.0000" after.
-_ROB_TEMPLATE = _rob_layout("%.4f", "%d")
+_ROB_TEMPLATE = _rob_layout("%.4f", "%.4f", "%d", "%d")
 _NEGATIVE_ZERO, _ZERO = '"-0.0000"', '"0.0000"'
 
 
@@ -152,15 +154,14 @@ def encode_rob(frame: RobFrame, tcp: bool = True) -> bytes:
         if not 0 <= frame.ipoc <= MAX_IPOC:
             raise ValueError(f"IPOC {frame.ipoc} out of range")
         zero = (0.0,) * 6
-        aspos = frame.aspos or frame.aipos or zero
-        blocks = ((frame.rist or zero, CART, "RIst"), (frame.rsol or zero, CART, "RSol"),
-                  (frame.aipos or zero, AXES, "AIPos"), (aspos, AXES, "ASPos"))  # fmt: skip
-        values: list = []
-        for block, names, tag in blocks:
-            if len(block) != len(names):
-                raise ValueError(f"<{tag}> needs {len(names)} values, got {len(block)}")
-            values.extend(float(v) for v in block)
-        text = _ROB_TEMPLATE % (*values, int(frame.delay or 0), int(frame.ipoc))
+        rist, rsol, aipos = frame.rist or zero, frame.rsol or zero, frame.aipos or zero
+        aspos = frame.aspos or aipos
+        if not len(rist) == len(rsol) == len(CART) or not len(aipos) == len(aspos) == len(AXES):
+            tag, block = next((t, b) for t, b in (("RIst", rist), ("RSol", rsol), ("AIPos", aipos), ("ASPos", aspos))
+                              if len(b) != 6)  # fmt: skip
+            raise ValueError(f"<{tag}> needs 6 values, got {len(block)}")
+        text = _ROB_TEMPLATE % (*map(float, rist), *map(float, rsol), *map(float, aipos), *map(float, aspos),
+                                int(frame.delay or 0), int(frame.ipoc))  # fmt: skip
         text = text.replace(_NEGATIVE_ZERO, _ZERO)
     return text.encode("ascii") + (TCP_TERMINATOR if tcp else b"")
 
@@ -177,7 +178,8 @@ def _ipoc(text: str | None, where: str) -> int | None:
 # limits are theirs, and a match yields the values the XML path reads from the same bytes
 # (tests/drivers/kuka/test_rsi_codec_fast.py); anything else, a real controller's own layout included, takes the XML
 # path with its checks and its messages.
-_FAST_ROB = re.compile(_rob_layout("(-?[0-9]{1,12}\\.[0-9]{4})", "([0-9]{1,19})"))
+_REAL, _INTEGER = "(-?[0-9]{1,12}\\.[0-9]{4})", "([0-9]{1,19})"
+_FAST_ROB = re.compile(_rob_layout(_REAL, _REAL, _INTEGER, _INTEGER))
 
 
 def _parse_rob_fast(data: bytes) -> RobFrame | None:
@@ -185,13 +187,12 @@ def _parse_rob_fast(data: bytes) -> RobFrame | None:
     m = _FAST_ROB.fullmatch(data.decode("latin-1"))  # str: float() of a str is 3x faster than of bytes
     if m is None:
         return None
-    v = list(map(float, m.groups()[:24]))
+    v = tuple(map(float, m.groups()[:24]))
     delay, ipoc = int(m[25]), int(m[26])
     if ipoc > MAX_IPOC or delay > 2**31 - 1 or max(map(abs, v[:12])) > CART_LIMIT or max(
             map(abs, v[12:])) > AXIS_LIMIT:  # fmt: skip
         return None
-    return RobFrame(ipoc=ipoc, aipos=tuple(v[12:18]), aspos=tuple(v[18:]), rist=tuple(v[:6]), rsol=tuple(v[6:12]),
-                    delay=delay)  # fmt: skip
+    return RobFrame(ipoc=ipoc, aipos=v[12:18], aspos=v[18:], rist=v[:6], rsol=v[6:12], delay=delay)
 
 
 def parse_rob(data: bytes) -> RobFrame:

@@ -60,6 +60,7 @@ STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more t
 RSI_STALE = "rsi_stale"  # the code of a refused move, and of a move or settle stopped by a silent stream
 FRAME_HISTORY = 8192  # RSI frames kept for settling windows (~98 s of 12 ms cycles)
 _RECV_BYTES = 4096
+_DECIMALS = itertools.repeat(4)  # the joints are kept to 4 decimals: map(round, values, _DECIMALS)
 _NEW_SESSION = b""  # from the answering to the monitor thread: the controller's session began, forget the stream
 
 log = logging.getLogger(__name__)
@@ -246,7 +247,7 @@ class RsiLink:
         elif self.peers.accepts(peer):
             if not self._opened and _is_opener(data):  # the controller's session starts now
                 self._peer, self._opened, self._last_ipoc = peer, True, None
-                self._inbox.put((time.monotonic(), _NEW_SESSION))
+                self._hand_on(time.monotonic(), _NEW_SESSION)
                 self._take(sock, data)
             else:
                 self._foreign(peer, f"not the peer of the controller's RSI session {self._peer}")
@@ -256,9 +257,9 @@ class RsiLink:
         if isinstance(exc, DeviceError):
             if not exc.device:  # e.g. the framer's ProtocolError: name the device and the interface
                 exc = type(exc)(f"RSI: {exc}", device=self.device)
-            self._inbox.put((time.monotonic(), exc))
+            self._hand_on(time.monotonic(), exc)
         elif not self._stop.is_set():
-            self._inbox.put((time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device)))
+            self._hand_on(time.monotonic(), ConnectionLost(f"RSI connection failed: {exc}", device=self.device))
 
     def _foreign(self, peer: tuple, why: str) -> None:
         """A datagram from the controller's address that is not its RSI session's: counted, logged once."""
@@ -288,7 +289,15 @@ class RsiLink:
             else:
                 sock.sendto(answer, self._peer)
             self.frames_answered += 1
-        self._inbox.put((arrived, doc))
+        self._hand_on(arrived, doc)
+
+    def _hand_on(self, arrived: float, item) -> None:
+        """To the monitor thread; when `pumped` there is none and the asking thread reads the item at once, in
+        the order received (issue 41: a queue between two steps of one thread cost a put and a get per frame)."""
+        if self.pumped:
+            self._read(arrived, item)
+        else:
+            self._inbox.put((arrived, item))
 
     def _monitor_loop(self) -> None:
         while not self._stop.is_set():
@@ -323,7 +332,7 @@ class RsiLink:
         if frame.ipoc is None:
             return True  # KR C2 first frame: nothing in it
         assert frame.aipos is not None
-        joints = tuple(round(v, 4) for v in frame.aipos)
+        joints = tuple(map(round, frame.aipos, _DECIMALS))
         with self._cond:
             self._seq += 1
             self._frames.append((self._seq, joints))
@@ -496,7 +505,9 @@ class RsiLink:
         with self._cond:
             self._raise_error()
             first = self._frames[0][0] if self._frames else seq
-            return first, list(itertools.islice(self._frames, max(0, seq - first), None))
+            # from the newest end: a settling window asks for the last few of FRAME_HISTORY frames every few cycles
+            newer = max(0, len(self._frames) - max(0, seq - first))
+            return first, list(itertools.islice(reversed(self._frames), newer))[::-1]
 
     def wait_for_frame(self, seq: int, timeout_s: float) -> None:
         """Until frame number `seq` arrived, the stream failed or timeout_s passed."""

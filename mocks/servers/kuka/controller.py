@@ -109,6 +109,7 @@ LOCKSTEP_AHEAD = 64
 # Free-running: how many cycles late the controller still catches up by running them at once (25 cycles: 100 ms at
 # 4 ms, 0.3 s at 12 ms); later than that it starts a new schedule (_pace).
 CATCH_UP_CYCLES = 25
+_NO_POSE = (0.0,) * len(CART)  # RIst and RSol: the mock computes no Cartesian pose
 
 
 
@@ -460,6 +461,8 @@ class MockKrc2:
             self.cycles += 1
 
     def _answer_syncs(self, ran_cycle: bool) -> None:
+        if not self._syncs:  # read without the lock, as _apply_injections: one added now is answered next time
+            return
         with self._lock:
             for request in self._syncs:
                 if ran_cycle and request[0] > 0:
@@ -480,6 +483,8 @@ class MockKrc2:
             self._ipoc_received = ipoc
 
     def _apply_injections(self) -> None:
+        if not self._pending:  # read without the lock (issue 41: once a cycle); one appended now is seen next cycle
+            return
         with self._lock:
             pending, self._pending = self._pending, []
         for what, arg in pending:
@@ -565,14 +570,8 @@ class MockKrc2:
 
     def _rsi_exchange(self) -> None:
         ipoc = self._ipoc0 + self._ipoc_step * self._tick
-        frame = RobFrame(
-            ipoc=ipoc,
-            aipos=self._reported("rsi"),
-            aspos=tuple(round(v, 4) for v in self.motion.q_set),
-            rist=(0.0,) * len(CART),
-            rsol=(0.0,) * len(CART),
-            delay=self.late_packets,
-        )
+        frame = RobFrame(ipoc=ipoc, aipos=self._reported("rsi"), aspos=self.motion.set_deg, rist=_NO_POSE,
+                         rsol=_NO_POSE, delay=self.late_packets)  # fmt: skip
         if self._wire_loses_rsi or not self._rsi.send(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
             return
         self.frames_sent += 1

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Sequence
+from itertools import repeat
 
 from trackcal.drivers.kuka.eki_codec import ERR_STOPPED, Command
 
@@ -34,6 +35,7 @@ RAISE_TIME_S = 0.5
 QUINTIC_PEAK_ACCELERATION = 10.0 / math.sqrt(3.0)  # max of s''(u) = 60u - 180u^2 + 120u^3, at u = (3 - sqrt 3) / 6
 
 Stop = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]  # joints, axis speeds, joints at standstill
+_DECIMALS = repeat(4)  # what the controller reports: 4 decimals (map(round, values, _DECIMALS))
 
 
 def quintic(u: float) -> float:
@@ -71,8 +73,10 @@ class Motion:
         self.overshoot_deg = float(overshoot_deg)
         self.brake_deg_s2 = float(brake_deg_s2)
         self._rng = rng
-        self.q = list(q0)  # actual joints
-        self.q_set = list(q0)  # set point
+        self.q = list(q0)  # actual joints (replaced, never changed in place: the rounded reports are kept per list)
+        self.q_set = list(q0)  # set point (the same list as q while they are equal)
+        self._reported: tuple[list[float], tuple[float, ...]] = (self.q, self._round(self.q))
+        self._reported_set: tuple[list[float], tuple[float, ...]] = (self.q_set, self._round(self.q_set))
         self.mode = "idle"
         self.command: Command | None = None
         self._start: tuple[float, ...] = q0
@@ -88,10 +92,30 @@ class Motion:
         self._since_arrival: int | None = None
         self.stops: list[Stop] = []
 
+    @staticmethod
+    def _round(values: list[float]) -> tuple[float, ...]:
+        return tuple(map(round, values, _DECIMALS))
+
     @property
     def joints_deg(self) -> tuple[float, ...]:
-        """$AXIS_ACT as the controller reports it: 4 decimals."""
-        return tuple(round(v, 4) for v in self.q)
+        """$AXIS_ACT as the controller reports it: 4 decimals (rounded once per step: issue 41, the controller
+        reads it several times a cycle)."""
+        q, rounded = self._reported
+        if q is not self.q:
+            rounded = self._round(self.q)
+            self._reported = (self.q, rounded)
+        return rounded
+
+    @property
+    def set_deg(self) -> tuple[float, ...]:
+        """The set point (ASPos) as the controller reports it: 4 decimals."""
+        if self.q_set is self.q:
+            return self.joints_deg
+        q_set, rounded = self._reported_set
+        if q_set is not self.q_set:
+            rounded = self._round(self.q_set)
+            self._reported_set = (self.q_set, rounded)
+        return rounded
 
     @property
     def moving(self) -> bool:
@@ -155,7 +179,7 @@ class Motion:
             u = min(1.0, self._k / self._n_move)
             p = quintic(u)
             self.q = [a + (b - a) * p for a, b in zip(self._start, self._target, strict=True)]
-            self.q_set = list(self.q)
+            self.q_set = self.q
             if self._k >= self._n_move:
                 self.mode, self._k, self._since_arrival = "dwell", 0, 0
             return None
@@ -165,7 +189,7 @@ class Motion:
             t = min(t, t_stop)
             travel = t - 0.5 * t * t / t_stop  # v(t) = v0 (1 - t / t_stop): constant deceleration
             self.q = [q0 + v * travel for q0, v in zip(self._brake_from, self._brake_v, strict=True)]
-            self.q_set = list(self.q)
+            self.q_set = self.q
             if self._k >= self._n_brake:
                 self.stops.append((self._brake_from, self._brake_v, self.joints_deg))
                 cmd = self.halt()
