@@ -52,6 +52,7 @@ from scipy.stats import qmc
 from trackcal.calib.compensate import NEAR_SINGULAR, compensate, rotation_angle
 from trackcal.calib.errors import CalibError
 from trackcal.calib.extension_uncertainty import ExtensionCovarianceError, extension_covariance, joint_features
+from trackcal.calib.lack_of_fit import lack_of_fit_radius95, lack_of_fit_variance
 from trackcal.calib.model.cell import MAX_CORRECTION_DEG, MAX_CORRECTION_MM
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.inverse import reach_points
@@ -111,6 +112,9 @@ class FilterResult:
     # record it; the joints of a target the nominal IK found none for): per joint (N, n) deg, and the TCP (N,) mm
     outside_joints_deg: np.ndarray
     outside_volume_mm: np.ndarray
+    # the model's lack of fit (calib.lack_of_fit): the RMS per coordinate of its error beyond the noise floor, in every
+    # target's sigma and bound; NaN: the model does not record its residual and noise floor (not in the bound)
+    lack_of_fit_mm: float = float("nan")
 
     @property
     def ok(self) -> np.ndarray:
@@ -352,16 +356,22 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
             values[i] = np.degrees(q_cal[i]) if t.joint else np.linalg.inv(t.base) @ f_cal[j] @ t.tool
     q_eval = np.where(ok[:, None], q_cal, q_nom)
     sigma, bound, outside = np.full(len(targets), np.nan), np.full(len(targets), np.nan), np.zeros(len(targets), bool)
+    misfit = lack_of_fit_variance(model.doc)  # what the model's form misses (calib.lack_of_fit); None: not recorded
+    lof = misfit or 0.0
     if found.any():
         cov = tcp_covariance(model, q_eval[found], tcps[found])
-        sigma[found] = np.sqrt(np.clip(np.trace(cov, axis1=1, axis2=2), 0.0, None))
-        bound[found] = predicted[found] + radius95(cov)
+        sigma[found] = np.sqrt(np.clip(np.trace(cov, axis1=1, axis2=2), 0.0, None) + 3.0 * lof)
+        bound[found] = predicted[found] + np.sqrt(radius95(cov) ** 2 + lack_of_fit_radius95(lof) ** 2)
         outside[found] = model.outside(q_eval[found])
     if model.doc.get("covariance") is None:
-        warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error alone, not its "
-                        "uncertainty")  # fmt: skip
+        warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error (and its lack "
+                        "of fit) alone, not its parameters' uncertainty")  # fmt: skip
+    if misfit is None:
+        warnings.append("the model does not record its residual RMS and noise floor: the 95 % bounds do not hold what "
+                        "its form misses of the robot (its lack of fit)")  # fmt: skip
     res = FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
-                       outside, warnings, *outside_measured(model, targets, q_eval))  # fmt: skip
+                       outside, warnings, *outside_measured(model, targets, q_eval),
+                       lack_of_fit_mm=float("nan") if misfit is None else float(np.sqrt(misfit)))  # fmt: skip
     warnings += space_warnings(model, res)
     return res
 

@@ -39,10 +39,11 @@ ENCODING = "latin-1"  # byte-transparent (module docstring)
 NOTE = ("correction: how far the filter moves the TCP and turns the tool (the nominal robot's, mm and deg); "
         "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
         "there when kept); sigma_mm: the 1-sigma 3-D uncertainty of the model's TCP there (its parameters' "
-        "covariance through the TCP Jacobian); bound95_mm: predicted_mm plus the radius holding the TCP with 95 % "
-        "probability; pass: bound95_mm <= tolerance_mm, unknown (null) for a target outside the space the model was "
-        "measured in (measured_space, outside_joints_deg, outside_volume_mm: its bound is an extrapolation, "
-        "bound_covered false)")  # fmt: skip
+        "covariance through the TCP Jacobian, and its lack of fit); bound95_mm: predicted_mm plus the radius holding "
+        "the TCP with 95 % probability; lack_of_fit_mm: the model's misfit per coordinate beyond the noise floor, in "
+        "every bound (null: not recorded); pass: bound95_mm <= tolerance_mm, unknown (null) for a target outside the "
+        "space the model was measured in (measured_space, outside_joints_deg, outside_volume_mm: its bound is an "
+        "extrapolation, bound_covered false)")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -232,7 +233,8 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
     except OSError as exc:
         raise InputError(f"{out}: cannot write the filtered program ({exc.strerror or exc})") from None
     doc = {"format": FORMAT, "program": str(opts.program), "language": read.language, "model": str(opts.model),
-           "tolerance_mm": opts.tolerance_mm, "targets": rows, "filtered": int(res.ok.sum()),
+           "tolerance_mm": opts.tolerance_mm, "lack_of_fit_mm": _number(res.lack_of_fit_mm), "targets": rows,
+           "filtered": int(res.ok.sum()),
            "kept": int((~res.ok).sum()), "failed": sum(1 for r in rows if r["pass"] is False),
            "outside_measured": sum(1 for r in rows if r["measured_space"] == "outside"),
            "unknown": sum(1 for r in rows if r["pass"] is None and r["bound_covered"] is False),
