@@ -53,7 +53,14 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
+from trackcal.calib.model.extension import (
+    UNIT_FACTORS,
+    Extension,
+    ExtensionError,
+    JointFeatures,
+    combine,
+    select_columns,
+)
 from trackcal.calib.model.params import Param
 
 CAUSE = "cyclic_error"
@@ -143,6 +150,15 @@ def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.nd
     return feats
 
 
+def map_blocks(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> JointFeatures:
+    """The features of `map_features` in per-joint block form (a coefficient moves its own joint only): the same
+    values, N e of them where the dense array holds N n e."""
+    values, joint = np.empty((q.shape[0], len(names))), np.empty(len(names), dtype=int)
+    for j, cols, vals in _harmonics(q, names, arcs):
+        values[:, cols], joint[cols] = vals, j
+    return JointFeatures(values, joint, q.shape[1])
+
+
 def outside_arcs(q: np.ndarray, arcs: dict[int, Arc]) -> np.ndarray:
     """(N, n) bool: the rows' angles outside the arc their joint's map was fitted over."""
     out = np.zeros(q.shape, dtype=bool)
@@ -175,7 +191,7 @@ def map_extension(q: np.ndarray, harmonics: int = 2, names: list[str] | None = N
         feats, kept = select_columns(map_features(q, candidates, arcs), candidates, None)
     else:
         kept = _map_names(names, arcs)
-        feats = map_features(q, kept, arcs)
+        feats = map_blocks(q, kept, arcs)
     return Extension(CAUSE, kept, ["deg"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg"]), feats,
                      meta={"arcs": {j: arcs[j] for j in sorted({parse_name(nm)[2] for nm in kept})}})  # fmt: skip
 
