@@ -333,6 +333,7 @@ class HeldOutMap:
         self.q, self.names = problem.q, list(names)
         self.joints = sorted({parse_name(nm)[2] for nm in names})
         self._columns: dict[tuple, tuple] = {}  # the same folds are asked again (orders, models of Rejudge)
+        self._cached = 0  # harmonics values in the cache
 
     def columns(self, test: np.ndarray, names: list[str] | None = None) -> np.ndarray:
         """(3 len(test), len(names)) map columns of the `test` rows (indices), clamped to the arcs of the other rows
@@ -342,7 +343,13 @@ class HeldOutMap:
             train = np.setdiff1d(np.arange(len(self.q)), test)
             arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
             names = self.names if names is None else names
+            # one fold set's harmonics at most (the rows once): an older fold set's leave first (issue 41: the
+            # search's folds, the edge folds of the held-out test and Rejudge's were three sets, 11 KB per row)
+            while self._columns and self._cached + len(test) * len(names) > len(self.q) * len(self.names):
+                _, old = self._columns.pop(next(iter(self._columns)))
+                self._cached -= sum(v.size for _, _, v in old)
             self._columns[key] = (len(names), list(_harmonics(self.q[test], names, arcs)))
+            self._cached += len(test) * len(names)
         n_cols, harmonics = self._columns[key]
         # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
         # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
@@ -624,8 +631,8 @@ class MapEvidence:
         return rss, self.jm.shape[1] - len(drop) - self.n_pen + edf
 
     def _folds(self, fold: np.ndarray) -> list | None:
-        """Each fold's (factor, d0, H^-1 E, held-out row indices, held-out Jacobian rows with the map's columns as
-        predict sees them); None when a training set cannot identify the whole model."""
+        """Each fold's (d0, H^-1 E, held-out row indices, their Jacobian rows' mask); None when a training set cannot
+        identify the whole model."""
         key = fold.tobytes()
         if key not in self.fold_sets:
             out, row_fold = [], np.repeat(fold, 3)
@@ -637,10 +644,16 @@ class MapEvidence:
                 except np.linalg.LinAlgError:  # not positive definite: this training set cannot identify it
                     out = None
                     break
-                jk[:, self.pen] = self.held.columns(np.flatnonzero(fold == k))
-                out.append((d0, w, np.flatnonzero(fold == k), hold, jk))
+                out.append((d0, w, np.flatnonzero(fold == k), hold))
             self.fold_sets[key] = out
         return self.fold_sets[key]
+
+    def _held_rows(self, rows: np.ndarray, hold: np.ndarray) -> np.ndarray:
+        """The held-out rows' Jacobian with the map's columns as predict sees them: formed on each call, the same
+        values each time (issue 41: kept per fold they were a second whole Jacobian, 16 KB per row of Series B)."""
+        jk = self.jm[hold]
+        jk[:, self.pen] = self.held.columns(rows)
+        return jk
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
         """Held-out RMS of one coordinate (mm) over `fold` (the fold of every row), base parameters `drop` at 0."""
@@ -648,8 +661,8 @@ class MapEvidence:
         if folds is None:
             return self._cv_rms_one_by_one(fold, drop)
         ss = 0.0
-        for d0, w, rows, hold, jk in folds:
-            e = self.r[hold] - jk @ self._step(d0, w, drop)[0]
+        for d0, w, rows, hold in folds:
+            e = self.r[hold] - self._held_rows(rows, hold) @ self._step(d0, w, drop)[0]
             if self.unwhiten is not None:
                 e = np.einsum("nij,nj->ni", self.unwhiten[rows], e.reshape(-1, 3)).ravel()
             ss += float(e @ e)

@@ -12,7 +12,15 @@ import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
 from trackcal.calib.diagnose import diagnose
-from trackcal.calib.diagnose.joint_map import Arc, HeldOutMap, _fold_ids, harmonic_names, map_extension
+from trackcal.calib.diagnose.joint_map import (
+    Arc,
+    HeldOutMap,
+    MapEvidence,
+    _fold_ids,
+    fit_error_map,
+    harmonic_names,
+    map_extension,
+)
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, State, identify
@@ -65,6 +73,23 @@ def test_held_out_map_keeps_the_harmonics_not_the_columns():
     _, kept, _ = traced(ask_every_fold)
     harmonics = len(table) * len(names) * F64
     assert kept <= 1.25 * harmonics  # the harmonics once, and the small change of bookkeeping (keys, lists)
+
+
+def test_map_evidence_keeps_no_held_out_jacobian_rows():
+    """`MapEvidence` (the models of Rejudge) keeps per fold its factor's solution and the held-out rows, and forms
+    their Jacobian rows on each call. Before issue 41 it kept them: every row once over the folds, a second whole
+    Jacobian (3 N x m float64) beside the search's, 16 KB per row of Series B."""
+    twin = Twin(CELL, seed=5, effects={"cyclic_error": 0.05})
+    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
+    params = irreducible_params(CELL.chain)[0]
+    geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
+    mf = fit_error_map(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), orders=(1, 2, 4), start=geo)
+    ev = MapEvidence(CELL.chain, table, params, TrackerNoise(), None, geo, mf)
+    jacobian, harmonics = ev.jm.nbytes, len(table) * ev.n_pen * F64
+    _, kept, _ = traced(lambda: ev.cv_rms_mm(_fold_ids(table, 5, 0)))
+    # the held-out rows' harmonics (cached by `HeldOutMap` unless the map's search cached them at this order), and a
+    # solution (m values) and the rows' indices per fold: well under a Jacobian
+    assert kept <= harmonics + 0.25 * jacobian
 
 
 def series_b():
