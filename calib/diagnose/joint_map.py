@@ -510,6 +510,7 @@ def fit_error_map(
                                held, downdate, executor)  # fmt: skip
         _, without_mm = _cv_scores(jm, r, gram, rhs, unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate,
                                    executor)  # fmt: skip
+        downdate = None  # the folds' Gram matrices (12 KB per row of Series B) are not held during the fit (issue 41)
         i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
         order, tau = int(orders[i]), float(taus_rad[li])
         cv_rms, cv_without = float(np.sqrt(ss_mm[i, li] / n_coord)), float(np.sqrt(without_mm[0, 0] / n_coord))
@@ -724,6 +725,7 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
         r, jm = problem.residual_and_jacobian(state)
         gram = jm.T @ jm
         prev = step
+    jm = None  # the covariance needs the Gram matrix alone: the Jacobian is not held meanwhile (issue 41)
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)
