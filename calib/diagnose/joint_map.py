@@ -468,9 +468,8 @@ def fit_error_map(
     every joint) and the ridge by `folds`-fold cross-validation by pose over `orders` x `taus_rad`.
 
     `start` is the fit without the map (geometry + base) if already computed (an Identification, or anything with
-    its dev, stations, points and ext). A single order and a single
-    tau skip the cross-validation (a fit inside another cross-validation reuses the outer choice). The folds of the
-    search run in `executor` when given (`_cv_scores`)."""
+    its dev, stations, points and ext). A single order and a single tau skip the cross-validation (a fit inside
+    another cross-validation reuses the outer choice). The folds of the search run in `executor` when given."""
     q = np.radians(table.q_deg)
     geo = start if start is not None else identify(chain, table, tool_points, params, noise, extension=base)
     n_base = 0 if base is None else base.size
