@@ -209,7 +209,7 @@ def visible_extension(chain, table, geo: Identification, noise, params, cause: s
         tool = np.array([geo.points[p] for p in table.point])
         d_q = Kinematics(chain, params).jacobian(np.radians(table.q_deg), tool, geo.dev).d_q
         lever = np.sqrt(np.mean(np.sum(d_q**2, axis=1), axis=0))  # (n,) mm per rad
-        acts = np.abs(ext.joint_features).max(axis=0) > 0  # (n, e): which joints each parameter moves
+        acts = ext.joint_features.moves()  # (n, e): which joints each parameter moves
         seen = acts[lever >= LEVER_RATIO * lever.max()].any(axis=0)
     problem = Problem(chain, table, geo.points, params, noise, geo.dev, ext)
     state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],

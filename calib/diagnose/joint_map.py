@@ -53,7 +53,14 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import UNIT_FACTORS, Extension, ExtensionError, combine, select_columns
+from trackcal.calib.model.extension import (
+    UNIT_FACTORS,
+    Extension,
+    ExtensionError,
+    JointFeatures,
+    combine,
+    select_columns,
+)
 from trackcal.calib.model.params import Param
 
 CAUSE = "cyclic_error"
@@ -143,6 +150,15 @@ def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.nd
     return feats
 
 
+def map_blocks(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> JointFeatures:
+    """The features of `map_features` in per-joint block form (a coefficient moves its own joint only): the same
+    values, N e of them where the dense array holds N n e."""
+    values, joint = np.empty((q.shape[0], len(names))), np.empty(len(names), dtype=int)
+    for j, cols, vals in _harmonics(q, names, arcs):
+        values[:, cols], joint[cols] = vals, j
+    return JointFeatures(values, joint, q.shape[1])
+
+
 def outside_arcs(q: np.ndarray, arcs: dict[int, Arc]) -> np.ndarray:
     """(N, n) bool: the rows' angles outside the arc their joint's map was fitted over."""
     out = np.zeros(q.shape, dtype=bool)
@@ -175,7 +191,7 @@ def map_extension(q: np.ndarray, harmonics: int = 2, names: list[str] | None = N
         feats, kept = select_columns(map_features(q, candidates, arcs), candidates, None)
     else:
         kept = _map_names(names, arcs)
-        feats = map_features(q, kept, arcs)
+        feats = map_blocks(q, kept, arcs)
     return Extension(CAUSE, kept, ["deg"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg"]), feats,
                      meta={"arcs": {j: arcs[j] for j in sorted({parse_name(nm)[2] for nm in kept})}})  # fmt: skip
 
@@ -317,6 +333,7 @@ class HeldOutMap:
         self.q, self.names = problem.q, list(names)
         self.joints = sorted({parse_name(nm)[2] for nm in names})
         self._columns: dict[tuple, tuple] = {}  # the same folds are asked again (orders, models of Rejudge)
+        self._cached = 0  # harmonics values in the cache
 
     def columns(self, test: np.ndarray, names: list[str] | None = None) -> np.ndarray:
         """(3 len(test), len(names)) map columns of the `test` rows (indices), clamped to the arcs of the other rows
@@ -326,7 +343,13 @@ class HeldOutMap:
             train = np.setdiff1d(np.arange(len(self.q)), test)
             arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
             names = self.names if names is None else names
+            # one fold set's harmonics at most (the rows once): an older fold set's leave first (issue 41: the
+            # search's folds, the edge folds of the held-out test and Rejudge's were three sets, 11 KB per row)
+            while self._columns and self._cached + len(test) * len(names) > len(self.q) * len(self.names):
+                _, old = self._columns.pop(next(iter(self._columns)))
+                self._cached -= sum(v.size for _, _, v in old)
             self._columns[key] = (len(names), list(_harmonics(self.q[test], names, arcs)))
+            self._cached += len(test) * len(names)
         n_cols, harmonics = self._columns[key]
         # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
         # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
@@ -484,9 +507,8 @@ def fit_error_map(
     every joint) and the ridge by `folds`-fold cross-validation by pose over `orders` x `taus_rad`.
 
     `start` is the fit without the map (geometry + base) if already computed (an Identification, or anything with
-    its dev, stations, points and ext). A single order and a single
-    tau skip the cross-validation (a fit inside another cross-validation reuses the outer choice). The folds of the
-    search run in `executor` when given (`_cv_scores`)."""
+    its dev, stations, points and ext). A single order and a single tau skip the cross-validation (a fit inside
+    another cross-validation reuses the outer choice). The folds of the search run in `executor` when given."""
     q = np.radians(table.q_deg)
     geo = start if start is not None else identify(chain, table, tool_points, params, noise, extension=base)
     n_base = 0 if base is None else base.size
@@ -629,8 +651,8 @@ class MapEvidence:
         return rss, self.jm.shape[1] - len(drop) - self.n_pen + edf
 
     def _folds(self, fold: np.ndarray) -> list | None:
-        """Each fold's (factor, d0, H^-1 E, held-out row indices, held-out Jacobian rows with the map's columns as
-        predict sees them); None when a training set cannot identify the whole model."""
+        """Each fold's (d0, H^-1 E, held-out row indices, their Jacobian rows' mask); None when a training set cannot
+        identify the whole model."""
         key = fold.tobytes()
         if key not in self.fold_sets:
             out, row_fold = [], np.repeat(fold, 3)
@@ -642,10 +664,16 @@ class MapEvidence:
                 except np.linalg.LinAlgError:  # not positive definite: this training set cannot identify it
                     out = None
                     break
-                jk[:, self.pen] = self.held.columns(np.flatnonzero(fold == k))
-                out.append((d0, w, np.flatnonzero(fold == k), hold, jk))
+                out.append((d0, w, np.flatnonzero(fold == k), hold))
             self.fold_sets[key] = out
         return self.fold_sets[key]
+
+    def _held_rows(self, rows: np.ndarray, hold: np.ndarray) -> np.ndarray:
+        """The held-out rows' Jacobian with the map's columns as predict sees them: formed on each call, the same
+        values each time (issue 41: kept per fold they were a second whole Jacobian, 16 KB per row of Series B)."""
+        jk = self.jm[hold]
+        jk[:, self.pen] = self.held.columns(rows)
+        return jk
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
         """Held-out RMS of one coordinate (mm) over `fold` (the fold of every row), base parameters `drop` at 0."""
@@ -653,8 +681,8 @@ class MapEvidence:
         if folds is None:
             return self._cv_rms_one_by_one(fold, drop)
         ss = 0.0
-        for d0, w, rows, hold, jk in folds:
-            e = self.r[hold] - jk @ self._step(d0, w, drop)[0]
+        for d0, w, rows, hold in folds:
+            e = self.r[hold] - self._held_rows(rows, hold) @ self._step(d0, w, drop)[0]
             if self.unwhiten is not None:
                 e = np.einsum("nij,nj->ni", self.unwhiten[rows], e.reshape(-1, 3)).ravel()
             ss += float(e @ e)
@@ -716,6 +744,7 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
         r, jm = problem.residual_and_jacobian(state)
         gram = jm.T @ jm
         prev = step
+    jm = None  # the covariance needs the Gram matrix alone: the Jacobian is not held meanwhile (issue 41)
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)

@@ -85,7 +85,7 @@ def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
                     for nm, v in zip(names, values, strict=True) if abs(v) > BACKLASH_MAX_RAD]  # fmt: skip
         elif cause in ("joint_compliance", "cyclic_error", "payload_compliance"):
             limit = CYCLIC_MAX_RAD if cause == "cyclic_error" else DEFLECTION_MAX_RAD
-            peak = np.max(np.abs(np.einsum("rje,e->rj", ext.joint_features[:, :, cols], values)), axis=0)
+            peak = np.max(np.abs(ext.joint_features.columns(cols).offsets(values)), axis=0)
             what = "joint error" if cause == "cyclic_error" else "deflection"
             out += [f"{cause} {what} of joint {j + 1} up to {np.degrees(p):.3g} deg (physical: <= "
                     f"{np.degrees(limit):g} deg)" for j, p in enumerate(peak) if p > limit]  # fmt: skip

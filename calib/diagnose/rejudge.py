@@ -97,7 +97,7 @@ class Rejudge:
 def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTable:
     """The table with every joint angle moved by the fitted map (q_true = q_read + e_j(q_read))."""
     ext, theta = mf.extension, mf.identification.ext
-    offsets = np.einsum("rje,e->rj", ext.joint_features[:, :, mf.n_base :], theta[mf.n_base :])
+    offsets = ext.joint_features.columns(slice(mf.n_base, None)).offsets(theta[mf.n_base :])
     out = table.subset(np.arange(len(table)))
     out.q_deg = table.q_deg + np.degrees(offsets)
     return out

@@ -27,7 +27,7 @@ from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import Extension
+from trackcal.calib.model.extension import Extension, JointFeatures
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import Param
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
@@ -152,7 +152,7 @@ def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> 
     return np.matmul(m, np.ascontiguousarray(cols.transpose(2, 0, 1)), out=out)  # BLAS takes contiguous rows
 
 
-def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
     features (N, n, e), equal features, in np.unique's order of the key [q, features].
 
@@ -163,9 +163,9 @@ def _distinct_poses(q: np.ndarray, feats: np.ndarray | None) -> tuple[np.ndarray
     _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
     of_row = of_row.ravel()
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
-        flat = feats.reshape(len(q), -1)
+        flat = feats.values  # equal rows of the block form are equal rows of the dense features
         if not np.array_equal(flat, flat[first][of_row]):
-            key = np.hstack([q, flat])
+            key = np.hstack([q, feats.dense().reshape(len(q), -1)])  # the dense key's order, as before
             _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
             of_row = of_row.ravel()
     return first, of_row
@@ -352,10 +352,11 @@ class Problem:
             jc[:, :, k:c] = 0.0
         if joint:
             m_dq = _rotated(m, jac.d_q_t if g is None else grow * jac.d_q_t)
-            if g is None:
-                np.matmul(m_dq, self.ext.joint_features[take], out=jc[:, :, k:c])
-            else:
-                jc[:, :, k:c] += m_dq @ self.ext.joint_features[take]
+            for sl, feats in self.ext.joint_features.take(take).pieces():  # the dense features a piece at a time
+                if g is None:
+                    np.matmul(m_dq[sl], feats, out=jc[sl, :, k:c])
+                else:
+                    jc[sl, :, k:c] += m_dq[sl] @ feats
         if self.ext is not None and self.ext.displacement is not None:  # p + D theta (base frame): D's columns
             dp = self.ext.displacement[take]
             p = p + np.einsum("rke,e->rk", dp, s.ext)

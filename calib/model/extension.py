@@ -4,7 +4,8 @@ stores it (calib.model_file).
 
 Two kinds of features (`calib.diagnose.extensions` lists the causes, `calib.diagnose.joint_map` the joint error map):
 
-- joint features Phi (N, n, e): the joint angle the controller reports is off, q_true = q_read + Phi theta;
+- joint features Phi (N, n, e): the joint angle the controller reports is off, q_true = q_read + Phi theta (held in
+  per-joint block form, `JointFeatures`: each parameter moves one joint);
 - growth features G (N, e): the arm grows by the fraction g = G theta about a pivot (robot base frame),
   p_true = pivot + (1 + g) (p - pivot), p the reflector position of the rigid model;
 - point features, on the measured point rather than the arm: a displacement D (N, 3, e) of the reflector in the robot
@@ -87,13 +88,76 @@ class ExtensionError(CalibError):
     fit together."""
 
 
+PIECE_ROWS = 256  # rows of joint features made dense at once (256 x 6 x 650 float64: 8 MB for the UR10's map)
+
+
+@dataclass(frozen=True, eq=False)
+class JointFeatures:
+    """Joint features Phi (N, n, e) in per-joint block form: every parameter moves one joint (a map harmonic, a
+    compliance, a backlash, a wrist coupling), so Phi[r, joint[c], c] = values[r, c] and every other entry is zero.
+    The block form holds N e values where the dense array holds N n e, most of them zeros (issue 41: a diagnosis of
+    the UR10's Series B held two dense maps of 650 columns, 62 KB per row). What needs the dense array (the solver's
+    Jacobian, the offsets) forms it `PIECE_ROWS` rows at a time and runs on it the products it ran on the whole
+    array, which are computed row by row: the same operations, the same values, bit for bit."""
+
+    values: np.ndarray  # (N, e): each row's feature of each parameter on the joint it moves
+    joint: np.ndarray  # (e,) int: the joint (0-based) each parameter moves
+    n: int  # joints of the arm
+
+    @staticmethod
+    def of(feats: np.ndarray) -> JointFeatures:
+        """From dense features (N, n, e) (ExtensionError when a parameter moves two joints)."""
+        moves = np.abs(feats).max(axis=0, initial=0.0) > 0  # (n, e)
+        if np.any(moves.sum(axis=0) > 1):
+            raise ExtensionError("a joint feature parameter moves more than one joint")
+        joint = np.argmax(moves, axis=0)
+        return JointFeatures(np.take_along_axis(feats, joint[None, None, :], axis=1)[:, 0, :], joint, feats.shape[1])
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.values.shape[0], self.n, self.values.shape[1]
+
+    def take(self, rows) -> JointFeatures:
+        return JointFeatures(self.values[rows], self.joint, self.n)
+
+    def columns(self, cols) -> JointFeatures:
+        return JointFeatures(self.values[:, cols], self.joint[cols], self.n)
+
+    def dense(self, rows=slice(None)) -> np.ndarray:
+        """The dense features (len(rows), n, e) of `rows` (a slice or indices)."""
+        vals = self.values[rows]
+        out = np.zeros((len(vals), self.n, vals.shape[1]))
+        out[:, self.joint, np.arange(vals.shape[1])] = vals
+        return out
+
+    def pieces(self, n_rows: int | None = None):
+        """(slice, dense features of its rows) over the rows, `PIECE_ROWS` at a time."""
+        total = len(self.values) if n_rows is None else n_rows
+        for a in range(0, total, PIECE_ROWS):
+            sl = slice(a, min(a + PIECE_ROWS, total))
+            yield sl, self.dense(sl)
+
+    def offsets(self, theta: np.ndarray) -> np.ndarray:
+        """(N, n) joint offsets Phi theta (rad)."""
+        out = np.empty((len(self.values), self.n))
+        for sl, d in self.pieces():
+            out[sl] = np.einsum("rje,e->rj", d, theta)
+        return out
+
+    def moves(self) -> np.ndarray:
+        """(n, e) bool: the joint each parameter moves where its features are not all zero."""
+        out = np.zeros((self.n, len(self.joint)), dtype=bool)
+        out[self.joint, np.arange(len(self.joint))] = np.abs(self.values).max(axis=0, initial=0.0) > 0
+        return out
+
+
 @dataclass
 class Extension:
     cause: str
     names: list[str]
     units: list[str]  # boundary units
     to_boundary: np.ndarray  # internal value * to_boundary = boundary value
-    joint_features: np.ndarray | None = None  # (N, n, e): dq = joint_features @ theta (rad)
+    joint_features: JointFeatures | None = None  # Phi (N, n, e): dq = Phi theta (rad); dense (N, n, e) taken too
     growth: np.ndarray | None = None  # (N, e): the arm grows by the fraction growth @ theta about `pivot`
     pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm, robot base frame
     displacement: np.ndarray | None = None  # (N, 3, e): the reflector moves by displacement @ theta (mm, base frame)
@@ -101,26 +165,31 @@ class Extension:
     meta: dict = field(default_factory=dict)  # cyclic_error: "arcs" {joint: Arc}; combined: "parts"; "ranges": Ranges;
     # FORMS: {cause: form} (thermal_warmup's time constant, payload_compliance's payload)
 
+    def __post_init__(self):
+        if isinstance(self.joint_features, np.ndarray):  # the causes with a few parameters build them dense
+            self.joint_features = JointFeatures.of(self.joint_features)
+
     @property
     def size(self) -> int:
         return len(self.names)
 
     @property
     def n_rows(self) -> int:
-        return next(len(f) for f in self._features() if f is not None)
+        return next(f.shape[0] for f in self._features() if f is not None)
 
     def _features(self) -> tuple:
         return self.joint_features, self.growth, self.displacement, self.range_scale
 
     def subset(self, rows: np.ndarray) -> Extension:
-        jf, gr, dp, rs = (None if f is None else f[rows] for f in self._features())
+        gr, dp, rs = (None if f is None else f[rows] for f in self._features()[1:])
+        jf = None if self.joint_features is None else self.joint_features.take(rows)
         return Extension(self.cause, self.names, self.units, self.to_boundary, jf, gr, self.pivot, dp, rs,
                          dict(self.meta))  # fmt: skip
 
     def joint_offsets(self, theta: np.ndarray) -> np.ndarray | None:
         if self.joint_features is None:
             return None
-        return np.einsum("rje,e->rj", self.joint_features, theta)
+        return self.joint_features.offsets(theta)
 
     def growth_of(self, theta: np.ndarray) -> np.ndarray | None:
         """(N,) fractional growth of the arm, or None without growth features."""
@@ -153,7 +222,7 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     (n_rows,) = rows
     n = next((x.joint_features.shape[1] for x in extensions if x.joint_features is not None), 0)
     e = sum(x.size for x in extensions)
-    jf = np.zeros((n_rows, n, e)) if n else None
+    jv, jj = (np.zeros((n_rows, e)), np.zeros(e, dtype=int)) if n else (None, None)
     gr = np.zeros((n_rows, e)) if pivots else None
     dp = np.zeros((n_rows, 3, e)) if any(x.displacement is not None for x in extensions) else None
     rs = np.zeros((n_rows, e)) if any(x.range_scale is not None for x in extensions) else None
@@ -161,7 +230,7 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     for x in extensions:
         cols = slice(at, at + x.size)
         if x.joint_features is not None:
-            jf[:, :, cols] = x.joint_features
+            jv[:, cols], jj[cols] = x.joint_features.values, x.joint_features.joint
         if x.growth is not None:
             gr[:, cols] = x.growth
         if x.displacement is not None:
@@ -176,7 +245,8 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
     meta["parts"] = [part for x in extensions for part in x.parts()]
     return Extension(
         cause or extensions[0].cause, [nm for x in extensions for nm in x.names],
-        [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]), jf, gr,
+        [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]),
+        None if jv is None else JointFeatures(jv, jj, n), gr,
         np.array(pivots.pop()) if pivots else np.zeros(3), dp, rs, meta,
     )  # fmt: skip
 

@@ -35,7 +35,7 @@ def signature(cell: Cell, d: Diagnosis) -> tuple[str, np.ndarray, int | None]:
     if ext is None or ext.joint_features is None:
         return "time since campaign start (s)", d.table.t_s, None
     # the joint whose extension moves the reflectors most
-    offsets = np.einsum("rje,e->rj", ext.joint_features, main_cause_theta(d))
+    offsets = ext.joint_offsets(main_cause_theta(d))
     j = int(np.argmax(offsets.std(axis=0)))
     if d.cause == "joint_compliance":
         return f"gravity torque on joint {j + 1} (N m)", gravity_torques(cell.chain, q)[:, j], j
@@ -65,7 +65,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
     if j is not None:
         # component + residual: the extension's fitted error of joint j plus what is left, against the signature
         ext = d.extended.extension
-        fitted = np.degrees(np.einsum("re,e->r", ext.joint_features[:, j, :], main_cause_theta(d))) * 1000.0
+        fitted = np.degrees(ext.joint_offsets(main_cause_theta(d))[:, j]) * 1000.0
         left = implied_joint_error(cell, after, d.table, after.residuals, j) * 1000.0
         panels = ((axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
                   (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} µm"))  # fmt: skip

@@ -1,0 +1,67 @@
+"""issue 41: joint features in per-joint block form (`JointFeatures`). Every parameter of a joint feature moves one
+joint, so the block form holds N e values where the dense (N, n, e) array held N n e, and what is computed from it
+is what the dense array gave, bit for bit (model.json and verdicts of diagnose unchanged)."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trackcal.calib.diagnose.joint_map import harmonic_names, map_extension, map_features
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.extension import PIECE_ROWS, JointFeatures, combine
+
+F64 = 8  # bytes of a float64
+
+
+def held_bytes(feats) -> int:
+    """Bytes of the arrays an extension's joint features hold (an array, or the block form's arrays)."""
+    if isinstance(feats, np.ndarray):
+        return feats.nbytes
+    return sum(v.nbytes for v in vars(feats).values() if isinstance(v, np.ndarray))
+
+
+def test_a_joint_error_map_holds_one_value_per_row_and_coefficient():
+    """The KR-270's six joints, harmonics 1..16: 192 coefficients, each moving its own joint. Before issue 41 the
+    features were (N, 6, 192) float64, six times the values; the block form holds the values and each coefficient's
+    joint (e integers)."""
+    cell = load_cell("kr270")
+    q = random_poses(cell, 300, np.random.default_rng(1))
+    names = [nm for j in range(cell.chain.dof) for nm in harmonic_names(j, 16)]
+    ext = map_extension(q, names=names)
+    values = len(q) * len(names) * F64
+    assert held_bytes(ext.joint_features) <= values + len(names) * F64
+    assert held_bytes(combine([ext, ext], cause="cyclic_error").joint_features) <= 2 * (values + len(names) * F64)
+
+
+def test_the_block_form_gives_back_the_dense_features():
+    cell = load_cell("kr270")
+    q = random_poses(cell, 50, np.random.default_rng(2))
+    names = [nm for j in range(cell.chain.dof) for nm in harmonic_names(j, 4)]
+    ext = map_extension(q, names=names)
+    assert np.array_equal(ext.joint_features.dense(), map_features(q, names, ext.meta["arcs"]))
+
+
+@st.composite
+def single_joint_features(draw):
+    """Dense features (N, n, e) where every parameter moves one joint, rows over several pieces, and theta."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    n_rows = draw(st.integers(1, 3 * PIECE_ROWS))
+    n, e = draw(st.integers(1, 7)), draw(st.integers(0, 40))
+    joint = rng.integers(0, n, e)
+    dense = np.zeros((n_rows, n, e))
+    dense[:, joint, np.arange(e)] = rng.standard_normal((n_rows, e)) * 10.0 ** rng.integers(-6, 3, e)
+    return dense, rng.standard_normal(e) * 1e-4
+
+
+@settings(max_examples=40, deadline=None)
+@given(single_joint_features())
+def test_offsets_of_the_block_form_are_the_dense_einsum_bit_for_bit(case):
+    """Phi theta a piece of rows at a time is the einsum of the whole dense array (the same sum per row)."""
+    dense, theta = case
+    jf = JointFeatures.of(dense)
+    assert np.array_equal(jf.dense(), dense)
+    assert np.array_equal(jf.offsets(theta), np.einsum("rje,e->rj", dense, theta))
+    rows = np.arange(0, len(dense), 3)
+    assert np.array_equal(jf.take(rows).dense(), dense[rows])
+    assert np.array_equal(jf.moves(), np.abs(dense).max(axis=0, initial=0.0) > 0)
