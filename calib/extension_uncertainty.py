@@ -47,7 +47,7 @@ def joint_features(model: Model, q: np.ndarray) -> np.ndarray:
                             point=["-"] * len(q), q_deg=np.degrees(q), xyz=None,
                             source="filter targets")  # fmt: skip
     ext = build_parts(static, model.chain, rows, model.arcs(), forms=model.forms())
-    return np.asarray(ext.joint_features, dtype=float)
+    return ext.joint_features.dense()
 
 
 def _matrix(v, shape: tuple[int, int], where: str) -> np.ndarray:
