@@ -56,6 +56,24 @@ def program_notes(notes: list[str | None] | None, n: int, error: type[ProgramErr
     return [None if t is None else comment_text(t) for t in notes]
 
 
+def program_names(names: list[str] | None, n: int, prefix: str, unnamed: str, max_len: int) -> list[str]:
+    """Identifiers of a program's n targets: `prefix` and the target's name made an identifier (other characters
+    -> _, at most max_len characters, unique without regard to case: `_2`, `_3`... added), or `unnamed`1..n for
+    targets without a name."""
+    out: list[str] = []
+    seen: set[str] = set()
+    for k in range(n):
+        raw = (names[k] if names else "").strip()
+        base = (prefix + re.sub(r"[^A-Za-z0-9_]", "_", raw))[:max_len] if raw else f"{unnamed}{k + 1}"
+        name, i = base, 2
+        while name.upper() in seen:
+            suffix = f"_{i}"
+            name, i = base[: max_len - len(suffix)] + suffix, i + 1
+        seen.add(name.upper())
+        out.append(name)
+    return out
+
+
 def program_targets(q_deg, speed_pct, controller: str, axes: int, angles: str, speed: str,
                     error: type[ProgramError]) -> tuple[np.ndarray, int]:  # fmt: skip
     """(targets (N, axes) degrees, speed override %) of a `controller`'s program, or `error` saying what is wrong:

@@ -9,6 +9,15 @@ from collections.abc import Callable, Sequence
 from trackcal.drivers.errors import MotionRefused
 
 
+def checked_limits(joint_limits_deg: Sequence[tuple[float, float]],
+                   axes: Sequence[str]) -> tuple[tuple[float, float], ...]:  # fmt: skip
+    """A client's joint limits as float (low, high) pairs, one per axis, or ValueError (a constructor's argument)."""
+    limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
+    if len(limits) != len(axes) or any(not lo < hi for lo, hi in limits):
+        raise ValueError(f"joint_limits_deg needs {len(axes)} (low, high) pairs with low < high")
+    return limits
+
+
 def checked_target(target_deg: Sequence[float], axes: Sequence[str], limits_deg: Sequence[tuple[float, float]],
                    cell_box_check: Callable[[tuple[float, ...]], str | None] | None,
                    device: str) -> tuple[float, ...]:  # fmt: skip

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.io.table import read_table
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.session.session import measured_keys
@@ -25,6 +26,20 @@ from trackcal.mocks.twin import Twin, simulate_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKCAL = [sys.executable, "-m", "trackcal.campaign.cli"]  # the command line, in a process of its own
+
+
+def run_trackcal(*args, timeout=300, check=True) -> subprocess.CompletedProcess:
+    """`trackcal ARGS` in a process of its own (text output captured); with check, asserts it exited 0."""
+    out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    if check:
+        assert out.returncode == 0, out.stderr
+    return out
+
+
+def exported_table(session, out):
+    """The session's table, through `trackcal export SESSION --csv OUT`."""
+    run_trackcal("export", str(session), "--csv", str(out))
+    return read_table(out)
 
 
 def kr270_campaign(cell, seed: int, n_poses: int = 30, noise_free: bool = False, **twin_kw):

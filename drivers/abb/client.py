@@ -44,7 +44,7 @@ from trackcal.drivers.abb.program import DONE, MOVE, SPEED, TARGET, joint_value,
 from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, DeviceIdentity, RobotState, StopCause, stop_code
-from trackcal.drivers.motion_request import checked_speed, checked_target
+from trackcal.drivers.motion_request import checked_limits, checked_speed, checked_target
 from trackcal.drivers.transport import claim_socket, require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
@@ -86,9 +86,7 @@ class AbbRws:
                  egm: tuple[str, int] | None = None, egm_stale_s: float = 1.0) -> None:  # fmt: skip
         require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
                          egm_stale_s=egm_stale_s)  # fmt: skip
-        limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
-        if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
-            raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
+        limits = checked_limits(joint_limits_deg, AXES)
         self.host, self.port = host, int(port)
         self.joint_limits_deg = limits
         self.cell_box_check = cell_box_check

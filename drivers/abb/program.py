@@ -26,7 +26,7 @@ from __future__ import annotations
 import re
 
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import ProgramWriter, program_notes, program_targets
+from trackcal.drivers.families import ProgramWriter, program_names, program_notes, program_targets
 
 MODULE = "TrackcalRws"
 TASK = "T_ROB1"
@@ -87,18 +87,7 @@ def check_name(name: str) -> str:
 def target_names(names: list[str] | None, n: int) -> list[str]:
     """RAPID names of the targets' jointtargets: J and the target's name made an identifier (unique without regard to
     case, at most 32 characters), or J1..Jn for targets without a name."""
-    out: list[str] = []
-    seen: set[str] = set()
-    for k in range(n):
-        raw = (names[k] if names else "").strip()
-        base = ("J" + re.sub(r"[^A-Za-z0-9_]", "_", raw))[:32] if raw else f"J{k + 1}"
-        name, i = base, 2
-        while name.upper() in seen:
-            suffix = f"_{i}"
-            name, i = base[: 32 - len(suffix)] + suffix, i + 1
-        seen.add(name.upper())
-        out.append(name)
-    return out
+    return program_names(names, n, "J", "J", 32)
 
 
 def texts(name: str, q_deg, speed_pct: int = 10, labels: list[str] | None = None,

@@ -68,7 +68,7 @@ from trackcal.drivers.kuka.eki_link import EkiLink
 from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
 from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
-from trackcal.drivers.motion_request import checked_speed, checked_target
+from trackcal.drivers.motion_request import checked_limits, checked_speed, checked_target
 from trackcal.drivers.transport import require_positive, require_settle_limits
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
@@ -113,9 +113,7 @@ class KukaKrc2:
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
         require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
                          rsi_stale_s=rsi_stale_s, rsi_cycle_s=rsi_cycle_s)  # fmt: skip
-        limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
-        if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
-            raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
+        limits = checked_limits(joint_limits_deg, AXES)
         self.controller_host = controller_host
         self.stated_identity = identity
         self.joint_limits_deg = limits

@@ -21,7 +21,7 @@ from __future__ import annotations
 import re
 
 from trackcal.drivers.errors import ProgramError
-from trackcal.drivers.families import ProgramWriter, program_notes, program_targets
+from trackcal.drivers.families import ProgramWriter, program_names, program_notes, program_targets
 
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
 AXES = 6
@@ -44,18 +44,7 @@ def point_names(names: list[str] | None, n: int) -> list[str]:
     """KRL names of the targets' E6AXIS data: X (the prefix KSS inline forms give point data) and the target's
     name made a KRL name (other characters -> _, at most 24 characters, unique without regard to case), or
     XP1..XPn for targets without a name."""
-    out: list[str] = []
-    seen: set[str] = set()
-    for k in range(n):
-        raw = (names[k] if names else "").strip()
-        base = ("X" + re.sub(r"[^A-Za-z0-9_]", "_", raw))[:24] if raw else f"XP{k + 1}"
-        name, i = base, 2
-        while name.upper() in seen:
-            suffix = f"_{i}"
-            name, i = base[: 24 - len(suffix)] + suffix, i + 1
-        seen.add(name.upper())
-        out.append(name)
-    return out
+    return program_names(names, n, "X", "XP", 24)
 
 
 def _angle(v: float) -> str:

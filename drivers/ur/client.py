@@ -51,7 +51,7 @@ import rtde_receive
 
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault, DeviceTimeout
 from trackcal.drivers.interfaces import DeviceIdentity, RobotState, stop_code
-from trackcal.drivers.motion_request import checked_speed, checked_target
+from trackcal.drivers.motion_request import checked_limits, checked_speed, checked_target
 from trackcal.drivers.transport import claim_socket, require_settle_limits
 
 AXES = ("base", "shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3")
@@ -157,9 +157,7 @@ class UrRtde:
                         ("unlock_timeout_s", unlock_timeout_s)):  # fmt: skip
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
-        limits = tuple((float(lo), float(hi)) for lo, hi in joint_limits_deg)
-        if len(limits) != len(AXES) or any(not lo < hi for lo, hi in limits):
-            raise ValueError(f"joint_limits_deg needs {len(AXES)} (low, high) pairs with low < high")
+        limits = checked_limits(joint_limits_deg, AXES)
         self.host = host
         self.device = f"UR {host}"
         self.joint_limits_deg = limits

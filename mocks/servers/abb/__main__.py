@@ -7,26 +7,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 
-from trackcal.calib.model.cell import CellError, load_robot
-from trackcal.calib.model.chain import ChainError
 from trackcal.mocks.servers.abb.controller import AbbController
 from trackcal.mocks.servers.abb.rws_server import flange_of
 from trackcal.mocks.servers.abb.server import AbbServer
+from trackcal.mocks.servers.main import OneLineParser, joints_deg, serve, six_axis_chain
 
 HOME_DEG = (0.0, 0.0, 0.0, 0.0, 30.0, 0.0)  # a standing IRB 120 clear of the axis-5 singularity
-
-
-def _joints(text: str) -> tuple[float, ...]:
-    try:
-        q = tuple(float(v) for v in text.split(","))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected 6 comma-separated numbers (deg), got {text!r}") from exc
-    if len(q) != 6 or not all(math.isfinite(v) for v in q):
-        raise argparse.ArgumentTypeError(f"expected 6 comma-separated finite numbers (deg), got {text!r}")
-    return q
 
 
 def _address(text: str) -> tuple[str, int]:
@@ -36,20 +24,15 @@ def _address(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit 2 (the house rule; argparse prints its usage too)
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m trackcal.mocks.servers.abb",
+    p = OneLineParser(prog="python -m trackcal.mocks.servers.abb",
                 description="Mock ABB IRC5 controller (RobotWare 6 Robot Web Services) on one address.")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="RWS HTTP port (default 0: a free one)")
     p.add_argument("--control-port", type=int, default=0, help="the mock's control port (default 0: a free one)")
     p.add_argument("--robot", default="irb120", help="robot model of configs/robots (default irb120)")
     p.add_argument("--seed", type=int, default=0, help="serial number and session tokens (default 0)")
-    p.add_argument("--q0-deg", type=_joints, default=HOME_DEG, help="initial joints, 6 comma-separated deg")
+    p.add_argument("--q0-deg", type=joints_deg, default=HOME_DEG, help="initial joints, 6 comma-separated deg")
     p.add_argument("--speed", type=float, default=1.0, help="controller seconds per wall second (default 1)")
     p.add_argument("--egm", type=_address, default=None, metavar="HOST:PORT",
                    help="stream EGM (UDP, one EgmRobot per 4 ms tick) to the sensor at HOST:PORT (default: none)")
@@ -63,13 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     if not (math.isfinite(args.speed) and 0 < args.speed <= 100):
         print(f"{prog}: error: --speed out of range 0..100: {args.speed}", file=sys.stderr)
         return 2
-    try:
-        chain, _ = load_robot(args.robot)
-    except (CellError, ChainError, OSError) as exc:
-        print(f"{prog}: error: --robot {args.robot}: {exc}", file=sys.stderr)
-        return 2
-    if chain.dof != 6:
-        print(f"{prog}: error: --robot {args.robot} has {chain.dof} joints, the mock drives 6", file=sys.stderr)
+    chain = six_axis_chain(prog, args.robot, "the mock drives 6")
+    if chain is None:
         return 2
     controller = AbbController(args.q0_deg, seed=args.seed)
     if not args.motors_off:
@@ -81,13 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"{prog}: error: cannot serve on {args.host}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, lambda *_: server.stop())
-    print(f"ready {server.address[1]} {server.control_address[1]}", flush=True)
-    try:
-        server.wait()
-    except KeyboardInterrupt:
-        server.stop()
-    return 0
+    return serve(server, ready=f"ready {server.address[1]} {server.control_address[1]}")
 
 
 if __name__ == "__main__":

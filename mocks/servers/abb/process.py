@@ -4,28 +4,23 @@ on stdout (never a fixed sleep)."""
 
 from __future__ import annotations
 
-import contextlib
-import json
-import os
 import select
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 
+from trackcal.mocks.servers.process import MockProcess
 
-class MockAbbProcess:
+
+class MockAbbProcess(MockProcess):
     """`with MockAbbProcess(seed=1) as abb:` ... `abb.address`, `abb.fault("guardstop")`, `abb.state()`, `abb.kill()`"""
 
     def __init__(self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None,
                  ready_timeout_s: float = 60.0) -> None:  # fmt: skip
-        self.host, self.seed = host, seed
+        super().__init__(host, seed, ready_timeout_s, control_port=0)
         self.args = list(args or [])
-        self.ready_timeout_s = ready_timeout_s
-        self.proc: subprocess.Popen | None = None
-        self.port = self.control_port = 0
-        self._stderr = None
+        self.port = 0
 
     @property
     def address(self) -> tuple[str, int]:
@@ -46,23 +41,6 @@ class MockAbbProcess:
         self.port, self.control_port = int(line[1]), int(line[2])
         return self
 
-    def stderr(self) -> str:
-        if self._stderr is None:
-            return ""
-        fd = self._stderr.fileno()
-        return os.pread(fd, os.fstat(fd).st_size, 0).decode(errors="replace")
-
-    def control(self, line: str, timeout_s: float = 10.0) -> str:
-        with socket.create_connection((self.host, self.control_port), timeout=timeout_s) as s:
-            s.sendall(line.encode() + b"\n")
-            buf = b""
-            while not buf.endswith(b"\n"):
-                data = s.recv(65536)
-                if not data:
-                    break
-                buf += data
-        return buf.decode().strip()
-
     def fault(self, kind: str) -> None:
         reply = self.control(f"fault {kind}")
         if reply != "ok":
@@ -71,9 +49,6 @@ class MockAbbProcess:
     def busy(self, n: int) -> None:
         if self.control(f"busy {n}") != "ok":
             raise ValueError("busy refused")
-
-    def state(self) -> dict:
-        return json.loads(self.control("state"))
 
     def kill(self) -> None:
         """The controller disappears (power cut, cable pulled): SIGKILL, no goodbye on any connection."""
@@ -91,27 +66,3 @@ class MockAbbProcess:
             if time.monotonic() > deadline:
                 raise TimeoutError(f"mock ABB state never satisfied the condition: {state}")
             time.sleep(0.02)
-
-    def stop(self) -> None:
-        if self.proc is None:
-            return
-        if self.proc.poll() is None:
-            with contextlib.suppress(OSError):
-                self.control("quit", timeout_s=2.0)
-            try:
-                self.proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self.proc = None
-        if self._stderr is not None:
-            self._stderr.close()
-            self._stderr = None
-
-    def __enter__(self) -> MockAbbProcess:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()

@@ -7,23 +7,15 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 
-from trackcal.calib.model.cell import CellError, load_robot
-from trackcal.calib.model.chain import ChainError
+from trackcal.mocks.servers.main import OneLineParser, joints_deg, serve, six_axis_chain
 from trackcal.mocks.servers.ur.controller import HOME_RAD, UrController
 from trackcal.mocks.servers.ur.server import CONTROL_PORT, UrServer
 
 
 def _joints(text: str) -> tuple[float, ...]:
-    try:
-        q = tuple(math.radians(float(v)) for v in text.split(","))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected 6 comma-separated numbers (deg), got {text!r}") from exc
-    if len(q) != 6 or not all(math.isfinite(v) for v in q):
-        raise argparse.ArgumentTypeError(f"expected 6 comma-separated finite numbers (deg), got {text!r}")
-    return q
+    return tuple(math.radians(v) for v in joints_deg(text))
 
 
 def _version(text: str) -> tuple[int, int, int, int]:
@@ -33,13 +25,8 @@ def _version(text: str) -> tuple[int, int, int, int]:
     return tuple(int(p) for p in parts)  # type: ignore[return-value]
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit 2 (the house rule; argparse prints its usage too)
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m trackcal.mocks.servers.ur",
+    p = OneLineParser(prog="python -m trackcal.mocks.servers.ur",
                                 description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
                                             "script ports 30001-30003) on one address.")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
@@ -108,13 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         if not ok or not math.isfinite(value):
             print(f"{parser().prog}: error: {name} out of range: {value}", file=sys.stderr)
             return 2
-    try:
-        chain, _ = load_robot(args.robot)
-    except (CellError, ChainError, OSError) as exc:
-        print(f"{parser().prog}: error: --robot {args.robot}: {exc}", file=sys.stderr)
-        return 2
-    if chain.dof != 6:
-        print(f"{parser().prog}: error: --robot {args.robot} has {chain.dof} joints, a UR has 6", file=sys.stderr)
+    chain = six_axis_chain(parser().prog, args.robot, "a UR has 6")
+    if chain is None:
         return 2
     limits = [(float(lo), float(hi)) for lo, hi in chain.limits_array()]
     ctl = UrController(
@@ -139,12 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"{parser().prog}: error: cannot serve on {args.host}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, lambda *_: server.stop())
-    try:
-        server.wait()
-    except KeyboardInterrupt:
-        server.stop()
-    return 0
+    return serve(server)
 
 
 if __name__ == "__main__":

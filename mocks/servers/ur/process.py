@@ -3,30 +3,23 @@ mock in the client's process hangs), ready when its ports accept connections (ne
 
 from __future__ import annotations
 
-import contextlib
-import json
-import os
 import socket
 import subprocess
 import sys
 import tempfile
 import time
 
+from trackcal.mocks.servers.process import MockProcess
 from trackcal.mocks.servers.ur.server import CONTROL_PORT, DASHBOARD_PORT, RTDE_PORT
 
 
-class MockUrProcess:
+class MockUrProcess(MockProcess):
     """`with MockUrProcess("127.0.0.5", seed=1) as ur:` ... `ur.inject("protective_stop")`, `ur.state()`."""
 
     def __init__(self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None,
                  ready_timeout_s: float = 20.0, control_port: int = CONTROL_PORT) -> None:  # fmt: skip
-        self.host, self.seed = host, seed
-        self.control_port = control_port
+        super().__init__(host, seed, ready_timeout_s, control_port)
         self.args = [*(args or []), "--control-port", str(control_port)]
-        self.ready_timeout_s = ready_timeout_s
-        self.proc: subprocess.Popen | None = None
-        self.proc_returncode: int | None = None
-        self._stderr = None
 
     def start(self) -> MockUrProcess:
         cmd = [sys.executable, "-m", "trackcal.mocks.servers.ur", "--host", self.host, "--seed", str(self.seed),
@@ -47,13 +40,6 @@ class MockUrProcess:
                 raise TimeoutError(f"mock UR controller on {self.host} not ready within {self.ready_timeout_s} s")
             time.sleep(0.05)
 
-    def stderr(self) -> str:
-        """What the mock wrote on stderr so far."""
-        if self._stderr is None:
-            return ""
-        fd = self._stderr.fileno()  # pread: the mock's write offset (shared with this file object) stays where it is
-        return os.pread(fd, os.fstat(fd).st_size, 0).decode(errors="replace")
-
     def _accepts(self, port: int) -> bool:
         try:
             with socket.create_connection((self.host, port), timeout=1.0):
@@ -61,44 +47,7 @@ class MockUrProcess:
         except OSError:
             return False
 
-    def control(self, line: str, timeout_s: float = 10.0) -> str:
-        with socket.create_connection((self.host, self.control_port), timeout=timeout_s) as s:
-            s.sendall(line.encode() + b"\n")
-            buf = b""
-            while not buf.endswith(b"\n"):
-                data = s.recv(65536)
-                if not data:
-                    break
-                buf += data
-        return buf.decode().strip()
-
     def inject(self, fault: str) -> None:
         reply = self.control(fault)
         if reply != "ok":
             raise ValueError(reply)
-
-    def state(self) -> dict:
-        return json.loads(self.control("state"))
-
-    def stop(self) -> None:
-        if self.proc is None:
-            return
-        if self.proc.poll() is None:
-            with contextlib.suppress(OSError):
-                self.control("quit", timeout_s=2.0)
-            try:
-                self.proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.proc_returncode = self.proc.returncode
-        self.proc = None
-        if self._stderr is not None:
-            self._stderr.close()
-            self._stderr = None
-
-    def __enter__(self) -> MockUrProcess:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()

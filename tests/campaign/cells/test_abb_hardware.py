@@ -6,30 +6,19 @@ file's ABB section."""
 import json
 import re
 import signal
-import subprocess
 
 import pytest
 import yaml
 
-from tests.helpers import ROOT, TRACKCAL, mock_process
-from trackcal.calib.io.table import read_table
+from tests.helpers import ROOT, mock_process
+from tests.helpers import exported_table as table
+from tests.helpers import run_trackcal as run
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
 # the test pose of configs/cells/irb120.yaml and irb6700.yaml: every nest faces a station
 Q0 = (0.0, 10.0, 10.0, 0.0, 40.0, 0.0)
 SEED = 4
-
-
-def run(*args, timeout=300):
-    out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
-    return out
-
-
-def table(session, out):
-    run("export", str(session), "--csv", str(out))
-    return read_table(out)
 
 
 @pytest.mark.slow  # minutes on a shared 2-core machine: settle windows and operator prompts run on the wall clock

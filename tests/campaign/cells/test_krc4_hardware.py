@@ -4,30 +4,19 @@ of its own) and `trackcal run --hardware` against it, as on the shop floor: the 
 
 import json
 import re
-import subprocess
 
 import pytest
 import yaml
 
-from tests.helpers import ROOT, TRACKCAL, mock_process
-from trackcal.calib.io.table import read_table
+from tests.helpers import ROOT, mock_process
+from tests.helpers import exported_table as table
+from tests.helpers import run_trackcal as run
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
 # a pose of `trackcal plan --cell kr210-krc4 --configs 3 --seed 1` where both stations see the three nests
 POSE = (-91.3111, -58.4328, 106.4285, 12.1082, 85.7149, -79.1803)
 SEED = 3
-
-
-def run(*args, timeout=300):
-    out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
-    return out
-
-
-def table(session, out):
-    run("export", str(session), "--csv", str(out))
-    return read_table(out)
 
 
 # slow: ~45 s on a loaded 2-core machine (a 4 ms RSI cycle answered over loopback, 16 operator prompts); the client and

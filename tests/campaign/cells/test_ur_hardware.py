@@ -16,7 +16,8 @@ import pytest
 import yaml
 
 from tests.helpers import ROOT, TRACKCAL, count_measurements, mock_process
-from trackcal.calib.io.table import read_table
+from tests.helpers import exported_table as table
+from tests.helpers import run_trackcal as run
 from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 from trackcal.mocks.servers.ur.server import CONTROL_PORT
@@ -49,18 +50,6 @@ def ur_mock(tmp_path):
     hw = tmp_path / "H.yaml"
     with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=10.0) as proc:
         yield proc, hw
-
-
-def run(*args, timeout=300, check=True):
-    out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
-    if check:
-        assert out.returncode == 0, out.stderr
-    return out
-
-
-def table(session, out):
-    run("export", str(session), "--csv", str(out))
-    return read_table(out)
 
 
 @pytest.fixture(scope="module")
