@@ -4,7 +4,9 @@ The geometric model is fitted first. Then causes are added by forward selection:
 candidate (`calib.diagnose.extensions`, plus `station_shift`, a change point in one station's series) is fitted
 jointly with the geometric parameters and the causes already chosen, and judged against the current model
 (`calib.diagnose.judge`: F test, BIC, a significant held-out gain, physical plausibility). The significant
-candidate with the largest held-out gain joins the model, until none is left.
+candidate with the largest held-out gain joins the model, until none is left. A significant candidate must also pass
+its F test beside each candidate of its step refused as unphysical that fits better, fitted as a nuisance
+(`Selection._beyond_refused`): else it only absorbs part of an effect beyond the candidates' physics.
 
 thermal_warmup's time constant is profiled against the model's other causes (`calib.diagnose.warmup`): again at a
 step whose model changed since, for the candidate while it is open (its curvature must still be significant) and for
@@ -19,12 +21,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
+
 from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.crossval import Validator
-from trackcal.calib.diagnose.fits import Context, Fit, whole_fit
+from trackcal.calib.diagnose.fits import Context, Fit, n_extra, whole_fit
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ErrorMapFit
-from trackcal.calib.diagnose.judge import Candidate, judge_cause, judge_map
+from trackcal.calib.diagnose.judge import Candidate, Trial, judge_cause, judge_map
+from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.rejudge import corrected_by_map, redundant_causes
 from trackcal.calib.diagnose.warmup import warmup_candidate
 from trackcal.calib.identify.solver import IdentificationError
@@ -96,6 +101,14 @@ class Selection:
                               self.folds, self.seed)  # fmt: skip
             trial += [] if found is None else [found]
         self.candidates.extend(t.candidate for t in trial)
+        # refused for their physical range (not for a confound of the campaign order: `calib.diagnose.confounds`)
+        refused = [t for t in trial if "implausible" in t.candidate.detail and not isinstance(t.fit, ErrorMapFit)
+                   and implausible(t.fit.extension, t.fit.ext)]  # fmt: skip
+        for t in trial:
+            why = self._beyond_refused(t, refused, free, alpha) if t.candidate.significant else None
+            if why is not None:
+                t.candidate.significant = False
+                t.candidate.detail["implausible"] = [why]
         winners = [t for t in trial if t.candidate.significant]
         if not winners:
             return False
@@ -111,6 +124,33 @@ class Selection:
             self.fitted = (*self.fitted, best.candidate.cause)
             self.current = best.fit
         return True
+
+    def _beyond_refused(self, win: Trial, refused: list[Trial], free: float, alpha: float) -> str | None:
+        """None, or why the winner `win` is refused: a candidate refused as unphysical (outside its physical range,
+        `calib.diagnose.plausibility`) that fits the table better is put in the model as a nuisance (its parameters
+        free), and the winner must still pass the F test on top of it.
+        An effect beyond every candidate's physical range (a warm-up of 3000 ppm on a narrow UR10 campaign of 15 poses)
+        leaves a residual that a cause of other physics absorbs in part, with a held-out gain of its own (a nest's sag:
+        the reflectors are measured one block of time after the other) and a model worse on poses measured later."""
+        if isinstance(win.fit, ErrorMapFit):
+            return None
+        ctx, cause = self.ctx, win.candidate.cause
+        for r in (r for r in refused if r.fit.rss < win.fit.rss and r.candidate.cause != cause):
+            base = (*self.fitted, r.candidate.cause)
+            try:
+                nuisance, both = whole_fit(ctx, base), whole_fit(ctx, (*base, cause))
+            except (IdentificationError, ExtensionError):
+                continue
+            added, dof = n_extra(ctx, (cause,)), free - n_extra(ctx, (*base, cause))
+            if dof <= 0 or both.rss <= 0:
+                continue
+            f = ((nuisance.rss - both.rss) / added) / (both.rss / dof)
+            p = float(fdtrc(added, dof, f)) if f > 0 else 1.0
+            if p >= alpha:
+                return (f"{cause}: beside {r.candidate.cause} fitted as a nuisance (refused as unphysical, it fits "
+                        f"better) its F test gives p = {p:.2g}: it absorbs part of an effect beyond the candidates' "
+                        "physical ranges")  # fmt: skip
+        return None
 
     def profile_warmup(self) -> None:
         """thermal_warmup's tau and pivot form profiled again at the fit of the model's other causes when they changed
