@@ -4,7 +4,13 @@ The geometric model is fitted first. Then causes are added by forward selection:
 candidate (`calib.diagnose.extensions`, plus `station_shift`, a change point in one station's series) is fitted
 jointly with the geometric parameters and the causes already chosen, and judged against the current model
 (`calib.diagnose.judge`: F test, BIC, a significant held-out gain, physical plausibility). The significant
-candidate with the largest held-out gain joins the model, until none is left.
+candidate with the largest held-out gain joins the model, until none is left. A significant candidate must also pass
+its F test beside each candidate of its step refused as unphysical that fits better, fitted as a nuisance
+(`Selection._beyond_refused`): else it only absorbs part of an effect beyond the candidates' physics.
+
+thermal_warmup's time constant is profiled against the model's other causes (`calib.diagnose.warmup`): again at a
+step whose model changed since, for the candidate while it is open (its curvature must still be significant) and for
+the warm-up once chosen (`Selection.profile_warmup`).
 
 The joint error map (cyclic_error of any order, `calib.diagnose.joint_map`) is tried once the causes of few
 parameters are exhausted. When it joins, every cause chosen before it is judged again with the map in the model
@@ -15,15 +21,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from trackcal.calib.diagnose.changepoint import SHIFT
+from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to import)
+
+from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.crossval import Validator
-from trackcal.calib.diagnose.fits import Context, Fit, whole_fit
+from trackcal.calib.diagnose.fits import Context, Fit, n_extra, whole_fit
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ErrorMapFit
-from trackcal.calib.diagnose.judge import Candidate, judge_cause, judge_map
+from trackcal.calib.diagnose.judge import Candidate, Trial, judge_cause, judge_map
+from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.rejudge import corrected_by_map, redundant_causes
+from trackcal.calib.diagnose.warmup import warmup_candidate
+from trackcal.calib.identify.solver import IdentificationError
+from trackcal.calib.model.extension import ExtensionError
 
 ALPHA = 1e-3  # the F test's level, divided among the causes left at each step
+WARMUP = "thermal_warmup"
 
 
 @dataclass
@@ -48,6 +61,7 @@ class Selection:
     selected: list[Candidate] = field(default_factory=list)  # the chosen ones, in order
     steps: int = 0
     untested: bool = False  # a candidate passed the F test and BIC where no held-out check was possible
+    warm_rest: tuple[str, ...] = ()  # the causes thermal_warmup's tau was last profiled against (`profile_warmup`)
 
     @classmethod
     def start(cls, ctx: Context, folds: int, seed: int, causes: tuple[str, ...]) -> Selection:
@@ -68,6 +82,7 @@ class Selection:
         """One forward-selection step: every open candidate judged against the current model (the joint error map
         when none of the others is significant), the best significant one accepted. False when none is (or none
         is left): the selection stops."""
+        self.profile_warmup()
         if not (self.open_causes or self.map_open):
             return False
         self.steps += 1
@@ -86,6 +101,14 @@ class Selection:
                               self.folds, self.seed)  # fmt: skip
             trial += [] if found is None else [found]
         self.candidates.extend(t.candidate for t in trial)
+        # refused for their physical range (not for a confound of the campaign order: `calib.diagnose.confounds`)
+        refused = [t for t in trial if "implausible" in t.candidate.detail and not isinstance(t.fit, ErrorMapFit)
+                   and implausible(t.fit.extension, t.fit.ext)]  # fmt: skip
+        for t in trial:
+            why = self._beyond_refused(t, refused, free, alpha) if t.candidate.significant else None
+            if why is not None:
+                t.candidate.significant = False
+                t.candidate.detail["implausible"] = [why]
         winners = [t for t in trial if t.candidate.significant]
         if not winners:
             return False
@@ -101,6 +124,70 @@ class Selection:
             self.fitted = (*self.fitted, best.candidate.cause)
             self.current = best.fit
         return True
+
+    def _beyond_refused(self, win: Trial, refused: list[Trial], free: float, alpha: float) -> str | None:
+        """None, or why the winner `win` is refused: a candidate refused as unphysical (outside its physical range,
+        `calib.diagnose.plausibility`) that fits the table better is put in the model as a nuisance (its parameters
+        free), and the winner must still pass the F test on top of it.
+        An effect beyond every candidate's physical range (a warm-up of 3000 ppm on a narrow UR10 campaign of 15 poses)
+        leaves a residual that a cause of other physics absorbs in part, with a held-out gain of its own (a nest's sag:
+        the reflectors are measured one block of time after the other) and a model worse on poses measured later."""
+        if isinstance(win.fit, ErrorMapFit):
+            return None
+        ctx, cause = self.ctx, win.candidate.cause
+        for r in (r for r in refused if r.fit.rss < win.fit.rss and r.candidate.cause != cause):
+            base = (*self.fitted, r.candidate.cause)
+            try:
+                nuisance, both = whole_fit(ctx, base), whole_fit(ctx, (*base, cause))
+            except (IdentificationError, ExtensionError):
+                continue
+            added, dof = n_extra(ctx, (cause,)), free - n_extra(ctx, (*base, cause))
+            if dof <= 0 or both.rss <= 0:
+                continue
+            f = ((nuisance.rss - both.rss) / added) / (both.rss / dof)
+            p = float(fdtrc(added, dof, f)) if f > 0 else 1.0
+            if p >= alpha:
+                return (f"{cause}: beside {r.candidate.cause} fitted as a nuisance (refused as unphysical, it fits "
+                        f"better) its F test gives p = {p:.2g}: it absorbs part of an effect beyond the candidates' "
+                        "physical ranges")  # fmt: skip
+        return None
+
+    def profile_warmup(self) -> None:
+        """thermal_warmup's tau and pivot form profiled again at the fit of the model's other causes when they changed
+        since it was last (the module's docstring). An open candidate whose curvature is no longer significant there
+        is not judged again (thermal_drift describes the growth); a chosen one takes its new tau, and the fits of its
+        old one are let go. Once the joint error map joined, the map holds the warm-up it was fitted with."""
+        ctx = self.ctx
+        rest = tuple(c for c in self.fitted if c != WARMUP)
+        chosen = WARMUP in self.fitted
+        if (WARMUP not in ctx.features or rest == self.warm_rest or self.map_fit is not None or "thermal_drift" in rest
+                or not (chosen or WARMUP in self.open_causes)):  # fmt: skip
+            return
+        self.warm_rest = rest
+        old = ctx.features[WARMUP]
+        try:
+            at = whole_fit(ctx, rest)
+            table = ctx.table if at.shift is None else relabel_shift(ctx.table, at.shift["station"],
+                                                                     at.shift["after_t_s"])  # fmt: skip
+            ext, _ = warmup_candidate(ctx.chain, table, at, ctx.noise, ctx.params, curvature=not chosen)
+        except (IdentificationError, ExtensionError):
+            return
+        if ext is None:
+            self.open_causes.remove(WARMUP)
+            return
+        ctx.features[WARMUP] = ext
+        for key in [k for k in ctx.fits if WARMUP in k]:
+            del ctx.fits[key]
+        for key in [k for k in self.val.cache if WARMUP in k[0]]:
+            del self.val.cache[key]
+        for key in [k for k, (parts, _) in ctx.combined.items() if any(x is old for x in parts)]:
+            del ctx.combined[key]
+        if chosen:
+            try:
+                self.current = whole_fit(ctx, self.fitted)
+            except IdentificationError:  # the model at its new tau cannot be fitted: it stays at the old one
+                ctx.features[WARMUP] = old
+                ctx.fits[tuple(sorted(self.fitted))] = self.current
 
     def _join_map(self, best: Candidate, mf: ErrorMapFit, alpha: float) -> None:
         """The map joins: it replaces a low-order cyclic_error; causes chosen before it that it makes redundant

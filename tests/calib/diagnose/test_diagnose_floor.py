@@ -100,6 +100,16 @@ def test_warm_up_on_a_narrow_ur10_never_worse():
     assert_floor("ur10", "warm_up", 40002, 30, narrow_deg=40.0, outside=0.1)
 
 
+@pytest.mark.slow
+def test_warm_up_beyond_physics_on_a_narrow_ur10_never_worse():
+    # one of the property's examples (CI's derandomised draw): 15 poses in a 40 deg window take a warm-up of ~3000 ppm
+    # to leave 3-6x the noise unabsorbed, 6x the 500 ppm a warming steel or aluminium arm reaches
+    # (calib/diagnose/plausibility.py), so every growth candidate is refused. Before, a nest's sag took part of that
+    # growth (the reflectors are measured one block of time after the other) with a held-out gain of p = 0.004, and
+    # made the fresh poses 6.8 % worse; beside the refused warm-up as a nuisance its F test fails: unexplained
+    assert_floor("ur10", "warm_up", 40000, 15, narrow_deg=40.0, outside=0.1)
+
+
 def rows_by_blocks(points_per_station: int, poses: int) -> MeasurementTable:
     """Station by station, reflector by reflector, 20 s a row (tests/independent_twin.py's order); no measurement."""
     pose, station, point = [], [], []

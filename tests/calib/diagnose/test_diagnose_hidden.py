@@ -10,7 +10,8 @@ random multiple of the tracker noise, 3x to 6x (NOISE_RMS_MM ~15 um: AT901 at th
 An out-of-form effect must be named by its nearest physical candidate:
   harmonic 3-4 / high-order joint error -> cyclic_error; smooth (tanh) backlash -> backlash;
   compliance with the payload 30 % off the mass model -> joint_compliance;
-  saturating (exponential warm-up) growth of the whole arm and tool -> thermal_drift;
+  saturating (exponential warm-up) growth of the whole arm and tool -> thermal_warmup (its own form since that
+  candidate landed), or thermal_drift when the campaign cannot see the curvature (calib/diagnose/warmup.py);
   a station drifting gradually -> station_shift (the nearest: the station is not where it started).
 Seeds: the decision rules in calib/diagnose/selection.py were designed on seeds 0-99; these tests use seeds from
 5000 up (fast set) and 7000 up (slow set), never looked at while designing. Magnitudes and effect
@@ -180,9 +181,14 @@ def campaign(seed: int, names: tuple[str, ...], n_poses: int = 30, noise_factor:
     return table_of(rows, t, xyz)
 
 
-NEAREST = {"harmonic34": "cyclic_error", "high_order": "cyclic_error", "tanh_backlash": "backlash",
-           "payload_off": "joint_compliance", "encoder": "encoder_scale", "warm_up": "thermal_drift",
-           "drifting_station": "station_shift"}  # fmt: skip
+# the candidates nearest each effect. A first-order warm-up g0 (1 - exp(-t / tau)) about the base origin is
+# thermal_warmup's own form (calib/diagnose/extensions.py, pivot e_inf_base); thermal_drift, the linear drift, is the
+# same growth's limit of a tau long against the campaign, and the one diagnose offers when the warm-up's curvature is
+# not significant (calib/diagnose/warmup.py). This table named thermal_drift alone, written before thermal_warmup was a
+# candidate: naming the exact form failed the check (seed 5001: thermal_warmup, held-out 65 -> 15 um, the noise).
+NEAREST = {"harmonic34": {"cyclic_error"}, "high_order": {"cyclic_error"}, "tanh_backlash": {"backlash"},
+           "payload_off": {"joint_compliance"}, "encoder": {"encoder_scale"},
+           "warm_up": {"thermal_warmup", "thermal_drift"}, "drifting_station": {"station_shift"}}  # fmt: skip
 
 
 def verdict(seed: int, names: tuple[str, ...], **kw):
@@ -197,11 +203,11 @@ def check(seed: int, names: tuple[str, ...], **kw) -> str | None:
         # issue 36: 30 poses sample a harmonic of 12-30 cycles per revolution less than twice per cycle over a joint's
         # range: aliased, as a motor-side gear error is; unexplained with the geometric model is a right verdict
         return None
-    want = {NEAREST[n] for n in names if n != "none"}
+    want = [NEAREST[n] for n in names if n != "none"]
     if not want:
         return None if d.cause == "none" else f"seed {seed} {names}: {d.cause} {named}"
     gained = all(c["gain_mm"] is None or c["gain_mm"] > 0 for c in d.causes)
-    if not want <= set(named) or d.cause not in want or not gained:
+    if not all(w & set(named) for w in want) or d.cause not in set().union(*want) or not gained:
         return f"seed {seed} {names}: {d.cause} {named}"
     return None
 
@@ -232,6 +238,16 @@ def test_harmonic_3_4_joint_error_is_cyclic_error():
 @pytest.mark.parametrize("names", [("payload_off", "tanh_backlash"), ("encoder", "warm_up")])
 def test_two_effects_are_both_named(names):
     assert check(5002, names) is None
+
+
+@pytest.mark.slow  # one diagnosis of 60 rows with two causes, ~1 min on a loaded machine
+def test_warm_up_with_an_encoder_scale_names_no_third_cause():
+    # the generator's warm-up is thermal_warmup's exact form and its encoder error encoder_scale's: the two explain the
+    # data to the noise, a third cause is a false one. Before tau was profiled again against the causes chosen after
+    # it (calib/diagnose/warmup.py), tau stayed where the geometric residual, the encoder error in it, put it, and a
+    # range scale of station S2 joined on a 0.3 um held-out gain
+    d, named = verdict(5002, ("encoder", "warm_up"))
+    assert sorted(named) == ["encoder_scale", "thermal_warmup"], named
 
 
 def test_high_order_joint_error_is_never_noise():
