@@ -109,19 +109,28 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv or [])
     n, wall, due = egm_rate(args.seconds)
     rate = n / wall
-    verdict = check("ABB mock EGM 250 Hz: >= 90 % of the rate, no frame lost",
-                    f"{rate:.1f} frames/s, {n} received of {due} due", rate >= 0.9 * RATE_HZ and n == due)  # fmt: skip
-    print(f"EGM: {n} frames in {wall:.2f} s = {rate:.1f} frames/s; {due} due by their sequence numbers; {verdict}",
-          flush=True)  # fmt: skip
+    verdict = check(
+        "ABB mock EGM 250 Hz: >= 90 % of the rate, no frame lost",
+        f"{rate:.1f} frames/s, {n} received of {due} due",
+        rate >= 0.9 * RATE_HZ and n == due,
+    )
+    print(
+        f"EGM: {n} frames in {wall:.2f} s = {rate:.1f} frames/s; {due} due by their sequence numbers; {verdict}",
+        flush=True,
+    )
     lat = door_latency(args.trials)
     (tm, tp), (bm, bp) = _ms(lat["trackcal"]), _ms(lat["bare"])
-    verdict = check("ABB door open -> RAPID stop sent: trackcal's median <= 1.5x a bare RWS loop's",
-                    f"trackcal {tm:.1f} ms (p99 {tp:.1f}), bare {bm:.1f} ms (p99 {bp:.1f}), ratio {tm / bm:.2f}",
-                    tm <= 1.5 * bm)  # fmt: skip
-    print(f"door open -> RAPID stop sent, {len(lat['trackcal'])} and {args.trials} of {args.trials} interleaved "
-          f"trials (a door opened before trackcal sent its move needs no stop): trackcal median {tm:.2f} ms, p99 "
-          f"{tp:.2f} ms; bare RWS loop median {bm:.2f} ms, p99 {bp:.2f} ms; ratio {tm / bm:.2f}; {verdict}",
-          flush=True)  # fmt: skip
+    verdict = check(
+        "ABB door open -> RAPID stop sent: trackcal's median <= 1.5x a bare RWS loop's",
+        f"trackcal {tm:.1f} ms (p99 {tp:.1f}), bare {bm:.1f} ms (p99 {bp:.1f}), ratio {tm / bm:.2f}",
+        tm <= 1.5 * bm,
+    )
+    print(
+        f"door open -> RAPID stop sent, {len(lat['trackcal'])} and {args.trials} of {args.trials} interleaved "
+        f"trials (a door opened before trackcal sent its move needs no stop): trackcal median {tm:.2f} ms, p99 "
+        f"{tp:.2f} ms; bare RWS loop median {bm:.2f} ms, p99 {bp:.2f} ms; ratio {tm / bm:.2f}; {verdict}",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

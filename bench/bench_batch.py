@@ -42,16 +42,28 @@ def make_tables(folder: Path, n: int, poses: int, rounds: int, reuse: Path | Non
         if reuse is not None:
             shutil.copy(reuse / f"c{i:03d}.csv", dirs[i % rounds] / f"c{i:03d}.csv")
             continue
-        simulate(SimulateOptions(cell="kr270", out=str(dirs[i % rounds] / f"c{i:03d}.csv"), poses=poses,
-                                 seed=1000 + i, effects=parse_effects([effect] if effect else None)))  # fmt: skip
+        simulate(
+            SimulateOptions(
+                cell="kr270",
+                out=str(dirs[i % rounds] / f"c{i:03d}.csv"),
+                poses=poses,
+                seed=1000 + i,
+                effects=parse_effects([effect] if effect else None),
+            )
+        )
     return dirs
 
 
 def verdict(row: dict) -> tuple:
     if "error" in row:
         return (row["campaign"], "error", row["error"])
-    return (row["campaign"], row["cause"], tuple(row["causes"]), row["holdout_geometric_mm"],
-            row["holdout_extended_mm"])  # fmt: skip
+    return (
+        row["campaign"],
+        row["cause"],
+        tuple(row["causes"]),
+        row["holdout_geometric_mm"],
+        row["holdout_extended_mm"],
+    )
 
 
 def loop(opts: BatchOptions) -> list[tuple]:
@@ -71,22 +83,33 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=200, help="campaigns (default 200, as the issue asks)")
     ap.add_argument("--poses", type=int, default=30, help="poses per campaign")
     ap.add_argument("--rounds", type=int, default=10, help="interleaved rounds")
-    ap.add_argument("--tables", type=Path, help="take the tables c000.csv ... of this folder (simulated by an earlier "
-                                                "run with the same --poses) instead of simulating them")
+    ap.add_argument(
+        "--tables",
+        type=Path,
+        help="take the tables c000.csv ... of this folder (simulated by an earlier "
+        "run with the same --poses) instead of simulating them",
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.monotonic()
         dirs = make_tables(Path(tmp) / "campaigns", args.n, args.poses, args.rounds, args.tables)
-        print(f"{args.n} campaigns of {args.poses} poses {'copied' if args.tables else 'simulated'} in "
-              f"{time.monotonic() - t0:.0f} s")  # fmt: skip
+        print(
+            f"{args.n} campaigns of {args.poses} poses {'copied' if args.tables else 'simulated'} in "
+            f"{time.monotonic() - t0:.0f} s"
+        )
         verdicts: dict[str, list] = {k: [] for k in KINDS}
         walls = dict.fromkeys(KINDS, 0.0)
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
             for r, d in enumerate(dirs):
                 order = KINDS[r % 3 :] + KINDS[: r % 3]
                 for kind in order:
-                    opts = BatchOptions(task="diagnose", inputs=[str(d)], out=str(Path(tmp) / kind / d.name),
-                                        cell="kr270", scheduler=cluster.scheduler_address if kind == "dask" else None)
+                    opts = BatchOptions(
+                        task="diagnose",
+                        inputs=[str(d)],
+                        out=str(Path(tmp) / kind / d.name),
+                        cell="kr270",
+                        scheduler=cluster.scheduler_address if kind == "dask" else None,
+                    )
                     t0 = time.monotonic()
                     rows = loop(opts) if kind == "loop" else [verdict(x) for x in batch(opts).rows]
                     walls[kind] += time.monotonic() - t0
@@ -99,17 +122,26 @@ def main() -> None:
         causes = sorted({v[1] for v in verdicts["loop"]})
         print(f"{args.n} diagnoses each ({args.poses} poses; causes found: {', '.join(causes)}; {errors} errors)")
         for k in KINDS:
-            print(f"  {k}: {walls[k]:.1f} s wall, {walls[k] / args.n:.2f} s per campaign, "
-                  f"{walls['loop'] / walls[k]:.2f}x the loop")  # fmt: skip
+            print(
+                f"  {k}: {walls[k]:.1f} s wall, {walls[k] / args.n:.2f} s per campaign, "
+                f"{walls['loop'] / walls[k]:.2f}x the loop"
+            )
         print(f"verdicts identical across loop, pool and Dask: {same}")
         kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         workers = ", ".join(f"{v:.0f}" for v in dask_rss.values())
-        print(f"peak resident memory: this process (loop, all results) {_maxrss_mb():.0f} MB, largest child process "
-              f"(pool or Dask worker) {kids:.0f} MB, Dask workers {workers} MB")  # fmt: skip
+        print(
+            f"peak resident memory: this process (loop, all results) {_maxrss_mb():.0f} MB, largest child process "
+            f"(pool or Dask worker) {kids:.0f} MB, Dask workers {workers} MB"
+        )
         ok = same and walls["pool"] < walls["loop"]
-        print(check("batch diagnose: pool faster than a loop, loop, pool and Dask verdicts identical",
-                    f"loop {walls['loop']:.0f} s, pool {walls['pool']:.0f} s, Dask {walls['dask']:.0f} s "
-                    f"({args.n} campaigns), verdicts identical: {same}", ok))  # fmt: skip
+        print(
+            check(
+                "batch diagnose: pool faster than a loop, loop, pool and Dask verdicts identical",
+                f"loop {walls['loop']:.0f} s, pool {walls['pool']:.0f} s, Dask {walls['dask']:.0f} s "
+                f"({args.n} campaigns), verdicts identical: {same}",
+                ok,
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -51,16 +51,25 @@ print(d.cause, time.process_time() - t)
 
 
 # where the modules the baseline imports (relatively, from the flat calib/ of its time) live today
-BASELINE_IMPORTS = {".chain": "trackcal.calib.model.chain", ".extensions": "trackcal.calib.diagnose.extensions",
-                    ".identify": "trackcal.calib.identify.solver", ".noise": "trackcal.calib.identify.noise",
-                    ".params": "trackcal.calib.model.params", ".table": "trackcal.calib.io.table"}  # fmt: skip
+BASELINE_IMPORTS = {
+    ".chain": "trackcal.calib.model.chain",
+    ".extensions": "trackcal.calib.diagnose.extensions",
+    ".identify": "trackcal.calib.identify.solver",
+    ".noise": "trackcal.calib.identify.noise",
+    ".params": "trackcal.calib.model.params",
+    ".table": "trackcal.calib.io.table",
+}
 
 
 def baseline_module():
     """The baseline diagnose module, or None when the git history is not at hand."""
     try:
-        src = subprocess.run(["git", "-C", str(ROOT), "show", f"{BASELINE_COMMIT}:calib/diagnose.py"],
-                             capture_output=True, text=True, check=True).stdout  # fmt: skip
+        src = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"{BASELINE_COMMIT}:calib/diagnose.py"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
     except (OSError, subprocess.CalledProcessError):
         return None
     for relative, module in BASELINE_IMPORTS.items():
@@ -120,8 +129,10 @@ def main(repeat: int = 3) -> None:
     ok = check(f"diagnose KR-270 {len(table)} rows < 3 s CPU", f"{t_med:.2f} s", t_med < 3)
     line = f"KR-270 {len(table)} rows: diagnose {t_med:.2f} s CPU (goal < 3 s: {ok}) -> {d.cause}"
     if old:
-        line += (f"; before issue 16 {statistics.median(old):.2f} s -> {d_old.cause}; "
-                 f"{statistics.median(old) / statistics.median(ours):.1f}x faster")  # fmt: skip
+        line += (
+            f"; before issue 16 {statistics.median(old):.2f} s -> {d_old.cause}; "
+            f"{statistics.median(old) / statistics.median(ours):.1f}x faster"
+        )
     print(line)
     if not series_b_available():
         print("UR10 Series B: data not found (TRACKCAL_IPA_DATA), skipped")
@@ -136,8 +147,10 @@ def main(repeat: int = 3) -> None:
     wall, child, cause = whole_process_ur10()
     ok16 = check("diagnose UR10 Series B whole process < 15 s wall (issue 16)", f"{wall:.1f} s", wall < 15)
     ok13 = check("diagnose UR10 Series B whole process < 30 s wall (issue 13)", f"{wall:.1f} s", wall < 30)
-    print(f"UR10 Series B whole process (fresh interpreter, 1 BLAS thread): {child:.1f} s CPU, {wall:.1f} s wall "
-          f"(goal < 15 s: {ok16}; < 30 s: {ok13}) -> {cause}")  # fmt: skip
+    print(
+        f"UR10 Series B whole process (fresh interpreter, 1 BLAS thread): {child:.1f} s CPU, {wall:.1f} s wall "
+        f"(goal < 15 s: {ok16}; < 30 s: {ok13}) -> {cause}"
+    )
 
 
 def series_b_available() -> bool:

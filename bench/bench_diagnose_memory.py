@@ -61,11 +61,18 @@ def main(repeat: int = 2) -> None:
             continue
         per_row = statistics.median((r["peak_mb"] - r["start_mb"]) * 1024 / r["rows"] for r in rs)
         r, peak = rs[0], statistics.median(x["peak_mb"] for x in rs)
-        print(f"{name:7s} rows {r['rows']} start {r['start_mb']:.0f} MB peak {peak:.0f} MB: {per_row:.0f} KB per row; "
-              f"verdict {r['cause']} ({', '.join(r['causes'])})")  # fmt: skip
+        print(
+            f"{name:7s} rows {r['rows']} start {r['start_mb']:.0f} MB peak {peak:.0f} MB: {per_row:.0f} KB per row; "
+            f"verdict {r['cause']} ({', '.join(r['causes'])})"
+        )
         if name == "today":
-            print(check("diagnose peak memory <= 20 KB per row (Series B)", f"{per_row:.0f} KB per row",
-                        per_row <= GOAL_KB_PER_ROW))  # fmt: skip
+            print(
+                check(
+                    "diagnose peak memory <= 20 KB per row (Series B)",
+                    f"{per_row:.0f} KB per row",
+                    per_row <= GOAL_KB_PER_ROW,
+                )
+            )
     if runs["before"]:
         same = all(a["causes"] == b["causes"] for a, b in zip(runs["today"], runs["before"], strict=True))
         print(check("diagnose: the same verdict as before (Series B)", "same" if same else "DIFFERENT", same))

@@ -49,8 +49,7 @@ def baseline_tree(into: Path, commit: str) -> Path | None:
     pkg = into / "trackcal"
     pkg.mkdir(parents=True)
     try:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True,
-                                 check=True).stdout  # fmt: skip
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", str(pkg)], input=archive, check=True)
     except (OSError, subprocess.CalledProcessError):
         return None
@@ -74,16 +73,22 @@ def main(repeat: int = 5) -> None:
         for i, (label, commit) in enumerate(BASELINES.items()):
             root = baseline_tree(tmp / f"tree{i}", commit)
             if root is not None:
-                cases[f"diagnose {label}"] = ([*CLI, "diagnose", *common, "--json", str(tmp / f"tree{i}.json")],
-                                              dict(os.environ, PYTHONPATH=str(root)))  # fmt: skip
+                cases[f"diagnose {label}"] = (
+                    [*CLI, "diagnose", *common, "--json", str(tmp / f"tree{i}.json")],
+                    dict(os.environ, PYTHONPATH=str(root)),
+                )
         times: dict[str, list[tuple[float, float]]] = {name: [] for name in cases}
         for i in range(repeat):  # interleaved
             for name, (args, env) in cases.items():
                 times[name].append(run(args, env))
-                print(f"  run {i + 1}/{repeat} {name}: {times[name][-1][0]:.2f} s wall, {times[name][-1][1]:.2f} s CPU",
-                      flush=True)  # fmt: skip
-        med = {name: (statistics.median(w for w, _ in ts), statistics.median(c for _, c in ts))
-               for name, ts in times.items()}  # fmt: skip
+                print(
+                    f"  run {i + 1}/{repeat} {name}: {times[name][-1][0]:.2f} s wall, {times[name][-1][1]:.2f} s CPU",
+                    flush=True,
+                )
+        med = {
+            name: (statistics.median(w for w, _ in ts), statistics.median(c for _, c in ts))
+            for name, ts in times.items()
+        }
         for name, (wall, cpu) in med.items():
             print(f"UR10 Series B {name}: {wall:.2f} s wall, {cpu:.2f} s CPU (median of {repeat}, whole process)")
         (dw, dc), (iw, ic) = med["diagnose"], med["identify"]
@@ -97,13 +102,17 @@ def main(repeat: int = 5) -> None:
             bw, bc = med[f"diagnose {label}"]
             before = json.loads((tmp / f"tree{i}.json").read_text())
             same = after["cause"] == before["cause"] and all(
-                abs(after["holdout"][k] - before["holdout"][k]) <= 1e-6
-                for k in ("rms_geometric_mm", "rms_extended_mm"))  # fmt: skip
-            print(f"{label} ({commit}) / now: {bw / dw:.1f}x wall, {bc / dc:.1f}x CPU; verdict {before['cause']}, "
-                  f"held-out RMS {before['holdout']['rms_geometric_mm']:.6f} -> "
-                  f"{before['holdout']['rms_extended_mm']:.6f} mm; the same as now within 1e-6 mm: {same}")  # fmt: skip
-        print(f"now: verdict {after['cause']}, held-out RMS {after['holdout']['rms_geometric_mm']:.6f} -> "
-              f"{after['holdout']['rms_extended_mm']:.6f} mm")
+                abs(after["holdout"][k] - before["holdout"][k]) <= 1e-6 for k in ("rms_geometric_mm", "rms_extended_mm")
+            )
+            print(
+                f"{label} ({commit}) / now: {bw / dw:.1f}x wall, {bc / dc:.1f}x CPU; verdict {before['cause']}, "
+                f"held-out RMS {before['holdout']['rms_geometric_mm']:.6f} -> "
+                f"{before['holdout']['rms_extended_mm']:.6f} mm; the same as now within 1e-6 mm: {same}"
+            )
+        print(
+            f"now: verdict {after['cause']}, held-out RMS {after['holdout']['rms_geometric_mm']:.6f} -> "
+            f"{after['holdout']['rms_extended_mm']:.6f} mm"
+        )
 
 
 if __name__ == "__main__":

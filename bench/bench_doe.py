@@ -65,15 +65,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cells", default="kr270,ur10")
     ap.add_argument("--configs", default=",".join(str(m) for m in CONFIGS))
     args = ap.parse_args(argv)
-    print(f"{'cell':6s} {'M':>3s} {'rho0 plan µm':>12s} {'random µm':>10s} {'D-opt µm':>9s} {'meas.':>13s} "
-          f"{'random/rho0':>11s} {'D/rho0':>7s} {'rho0 of each µm':>19s} {'search s':>8s}")  # fmt: skip
+    print(
+        f"{'cell':6s} {'M':>3s} {'rho0 plan µm':>12s} {'random µm':>10s} {'D-opt µm':>9s} {'meas.':>13s} "
+        f"{'random/rho0':>11s} {'D/rho0':>7s} {'rho0 of each µm':>19s} {'search s':>8s}"
+    )
     for name in args.cells.split(","):
         cell = load_cell(name)
         design = build_design(cell, PlanOptions())
         for m in (int(v) for v in args.configs.split(",")):
             t0 = time.perf_counter()
-            plans = {c: optimize_plan(design, m, 1, c, starts=args.starts, refined=args.refined, seed=0,
-                                      pool_size=args.pool) for c in ("rho0", "D")}  # fmt: skip
+            plans = {
+                c: optimize_plan(design, m, 1, c, starts=args.starts, refined=args.refined, seed=0, pool_size=args.pool)
+                for c in ("rho0", "D")
+            }
             search = time.perf_counter() - t0
             errors: dict[str, list[float]] = {"rho0": [], "random": [], "D": []}
             rho0_random = []
@@ -88,14 +92,21 @@ def main(argv: list[str] | None = None) -> None:
             med = {k: float(np.median(v)) for k, v in errors.items()}
             meas = "/".join(f"{np.mean(counts[k]):.0f}" for k in ("rho0", "random", "D"))
             ratio_r, ratio_d = med["random"] / med["rho0"], med["D"] / med["rho0"]
-            reached = "/".join(f"{v * 1000:.2f}" for v in (design.rho0(plans["rho0"].poses), np.median(rho0_random),
-                                                             design.rho0(plans["D"].poses)))  # fmt: skip
-            verdict = check(f"DOE pays off: {name} M={m}, rho0 plan closer to the truth than random and D-optimal",
-                            f"median {med['rho0'] * 1000:.1f} vs {med['random'] * 1000:.1f} and "
-                            f"{med['D'] * 1000:.1f} µm", min(ratio_r, ratio_d) > 1)  # fmt: skip
-            print(f"{name:6s} {m:3d} {med['rho0'] * 1000:12.1f} {med['random'] * 1000:10.1f} {med['D'] * 1000:9.1f} "
-                  f"{meas:>13s} {ratio_r:11.2f} {ratio_d:7.2f} {reached:>19s} "
-                  f"{search:8.0f}  {verdict}", flush=True)  # fmt: skip
+            reached = "/".join(
+                f"{v * 1000:.2f}"
+                for v in (design.rho0(plans["rho0"].poses), np.median(rho0_random), design.rho0(plans["D"].poses))
+            )
+            verdict = check(
+                f"DOE pays off: {name} M={m}, rho0 plan closer to the truth than random and D-optimal",
+                f"median {med['rho0'] * 1000:.1f} vs {med['random'] * 1000:.1f} and {med['D'] * 1000:.1f} µm",
+                min(ratio_r, ratio_d) > 1,
+            )
+            print(
+                f"{name:6s} {m:3d} {med['rho0'] * 1000:12.1f} {med['random'] * 1000:10.1f} {med['D'] * 1000:9.1f} "
+                f"{meas:>13s} {ratio_r:11.2f} {ratio_d:7.2f} {reached:>19s} "
+                f"{search:8.0f}  {verdict}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -56,10 +56,15 @@ def campaign(n_rows: int, seed: int = 5) -> tuple:
     trans = np.array([twin.true_stations[s].translation for s in sids])[st]
     x = np.einsum("nij,nj->ni", rot, pb) + trans
     table = MeasurementTable(
-        seq=np.arange(1, n_rows + 1), t_s=20.0 * np.arange(n_rows), pose=[f"Q{i // per + 1}" for i in range(n_rows)],
-        station=[sids[i] for i in st], point=[pids[i] for i in pt], q_deg=q_rows, xyz=x + twin.noise.sample(x, rng),
+        seq=np.arange(1, n_rows + 1),
+        t_s=20.0 * np.arange(n_rows),
+        pose=[f"Q{i // per + 1}" for i in range(n_rows)],
+        station=[sids[i] for i in st],
+        point=[pids[i] for i in pt],
+        q_deg=q_rows,
+        xyz=x + twin.noise.sample(x, rng),
         source=f"synthetic {n_rows} rows",
-    )  # fmt: skip
+    )
     return cell, table
 
 
@@ -157,17 +162,28 @@ def case(n_rows: int, repeats: int) -> None:
     print(f"{n_rows} rows, {problem.n_cols} unknowns, CPU medians of {repeats} interleaved repeats:")
     for name, (t, (cost, note)) in res.items():
         ratio = "" if name == "ours" else f"  -> ours is {t / t_ours:.1f}x faster"
-        goal = "" if not name.startswith("scipy") else f" (goal >= {GOAL_SPEEDUP:.0f}x: " + check(
-            f"identify {n_rows} rows >= {GOAL_SPEEDUP:.0f}x faster than {name}", f"{t / t_ours:.1f}x",
-            t / t_ours >= GOAL_SPEEDUP) + ")"  # fmt: skip
+        goal = (
+            ""
+            if not name.startswith("scipy")
+            else f" (goal >= {GOAL_SPEEDUP:.0f}x: "
+            + check(
+                f"identify {n_rows} rows >= {GOAL_SPEEDUP:.0f}x faster than {name}",
+                f"{t / t_ours:.1f}x",
+                t / t_ours >= GOAL_SPEEDUP,
+            )
+            + ")"
+        )
         print(f"  {name:15s} {t * 1e3:9.1f} ms  cost {cost:.9e}  {note}{ratio}{goal}")
         assert abs(cost - cost_ours) <= 1e-6 * cost_ours, f"{name} reached another cost"
     per_row = bytes_per_row(cell, table, params)
     if n_rows < 100_000:  # the goal is the growth per row; a small table shows the fixed part
         print(f"  memory of identify: {per_row * n_rows / 1e6:.1f} MB peak")
     else:
-        ok = check(f"identify memory < {GOAL_BYTES_PER_ROW} bytes per row", f"{per_row:.0f} bytes per row",
-                   per_row < GOAL_BYTES_PER_ROW)
+        ok = check(
+            f"identify memory < {GOAL_BYTES_PER_ROW} bytes per row",
+            f"{per_row:.0f} bytes per row",
+            per_row < GOAL_BYTES_PER_ROW,
+        )
         print(f"  memory of identify: {per_row:.0f} bytes per row (goal < {GOAL_BYTES_PER_ROW}: {ok})")
 
 
@@ -175,8 +191,17 @@ def whole_process(n_rows: int = 100, repeats: int = 5) -> None:
     """`trackcal identify` on a small table as a user runs it: fresh processes, median wall time."""
     with tempfile.TemporaryDirectory() as tmp:
         write_table(campaign(n_rows)[1], f"{tmp}/t.csv")
-        argv = [sys.executable, "-m", "trackcal.campaign.cli", "identify", f"{tmp}/t.csv", "--cell", "kr270", "--out",
-                f"{tmp}/m.json"]  # fmt: skip
+        argv = [
+            sys.executable,
+            "-m",
+            "trackcal.campaign.cli",
+            "identify",
+            f"{tmp}/t.csv",
+            "--cell",
+            "kr270",
+            "--out",
+            f"{tmp}/m.json",
+        ]
         walls, cpus = [], []
         for _ in range(repeats):
             t0, before = time.perf_counter(), os.times()
@@ -185,10 +210,15 @@ def whole_process(n_rows: int = 100, repeats: int = 5) -> None:
             walls.append(time.perf_counter() - t0)
             cpus.append(after.children_user - before.children_user + after.children_system - before.children_system)
     wall, cpu = float(np.median(walls)), float(np.median(cpus))
-    ok = check(f"trackcal identify {n_rows} rows < {GOAL_PROCESS_S:.0f} s whole process (wall)", f"{wall:.2f} s wall",
-               wall < GOAL_PROCESS_S)  # fmt: skip
-    print(f"trackcal identify, {n_rows}-row table, whole process: {wall:.2f} s wall ({cpu:.2f} s CPU), median of "
-          f"{repeats} fresh processes (goal < {GOAL_PROCESS_S:.0f} s wall: {ok})")
+    ok = check(
+        f"trackcal identify {n_rows} rows < {GOAL_PROCESS_S:.0f} s whole process (wall)",
+        f"{wall:.2f} s wall",
+        wall < GOAL_PROCESS_S,
+    )
+    print(
+        f"trackcal identify, {n_rows}-row table, whole process: {wall:.2f} s wall ({cpu:.2f} s CPU), median of "
+        f"{repeats} fresh processes (goal < {GOAL_PROCESS_S:.0f} s wall: {ok})"
+    )
 
 
 def main() -> None:

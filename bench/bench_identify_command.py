@@ -61,21 +61,34 @@ def main(repeats: int = 3, startup_repeats: int = 7) -> None:
             for name, argv in runs.items():
                 times[name].append(cpu_of(argv)[0])
         t_id, t_np = float(np.median(times["identify"])), float(np.median(times["loadtxt"]))
-        ok = check(f"identify 100k rows <= {GOAL_RATIO:.0f}x numpy.loadtxt (whole processes, CPU)",
-                   f"{t_id / t_np:.1f}x", t_id / t_np <= GOAL_RATIO)  # fmt: skip
-        print(f"100k rows, CPU medians of {repeats} interleaved fresh processes: identify {t_id:.2f} s, numpy.loadtxt "
-              f"{t_np:.2f} s: {t_id / t_np:.1f}x (goal <= {GOAL_RATIO:.0f}x: {ok})")  # fmt: skip
+        ok = check(
+            f"identify 100k rows <= {GOAL_RATIO:.0f}x numpy.loadtxt (whole processes, CPU)",
+            f"{t_id / t_np:.1f}x",
+            t_id / t_np <= GOAL_RATIO,
+        )
+        print(
+            f"100k rows, CPU medians of {repeats} interleaved fresh processes: identify {t_id:.2f} s, numpy.loadtxt "
+            f"{t_np:.2f} s: {t_id / t_np:.1f}x (goal <= {GOAL_RATIO:.0f}x: {ok})"
+        )
         peaks = [float(cpu_of([sys.executable, "-c", PEAK, t, f"{tmp}/m.json"])[1].split()[-1]) for t in (small, big)]
         per_row = (peaks[1] - peaks[0]) * 2**20 / (100_000 - 100)
-        ok = check(f"identify peak memory <= {GOAL_BYTES_PER_ROW} bytes per row above the start-up",
-                   f"{per_row:.0f} bytes per row", per_row <= GOAL_BYTES_PER_ROW)  # fmt: skip
-        print(f"peak memory: {peaks[0]:.0f} MB at 100 rows, {peaks[1]:.0f} MB at 100k rows: {per_row:.0f} bytes per "
-              f"row (goal <= {GOAL_BYTES_PER_ROW}: {ok})")  # fmt: skip
+        ok = check(
+            f"identify peak memory <= {GOAL_BYTES_PER_ROW} bytes per row above the start-up",
+            f"{per_row:.0f} bytes per row",
+            per_row <= GOAL_BYTES_PER_ROW,
+        )
+        print(
+            f"peak memory: {peaks[0]:.0f} MB at 100 rows, {peaks[1]:.0f} MB at 100k rows: {per_row:.0f} bytes per "
+            f"row (goal <= {GOAL_BYTES_PER_ROW}: {ok})"
+        )
         start = float(np.median([cpu_of(identify_argv(small, f"{tmp}/m.json"))[0] for _ in range(startup_repeats)]))
-        ok = check(f"identify 100 rows <= {GOAL_STARTUP_S} s CPU whole process", f"{start:.2f} s",
-                   start <= GOAL_STARTUP_S)  # fmt: skip
-        print(f"identify on 100 rows, whole process: {start:.2f} s CPU, median of {startup_repeats} (goal <= "
-              f"{GOAL_STARTUP_S} s: {ok})")  # fmt: skip
+        ok = check(
+            f"identify 100 rows <= {GOAL_STARTUP_S} s CPU whole process", f"{start:.2f} s", start <= GOAL_STARTUP_S
+        )
+        print(
+            f"identify on 100 rows, whole process: {start:.2f} s CPU, median of {startup_repeats} (goal <= "
+            f"{GOAL_STARTUP_S} s: {ok})"
+        )
 
 
 if __name__ == "__main__":

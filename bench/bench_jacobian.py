@@ -52,8 +52,9 @@ def baseline_modules() -> types.SimpleNamespace | None:
     """The baseline's kinematics and solver modules (its solver on its kinematics), or None without git history."""
 
     def load(name: str, path: str) -> types.ModuleType:
-        source = subprocess.run(["git", "-C", str(ROOT), "show", f"{BASELINE_COMMIT}:{path}"], capture_output=True,
-                                check=True, text=True).stdout  # fmt: skip
+        source = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"{BASELINE_COMMIT}:{path}"], capture_output=True, check=True, text=True
+        ).stdout
         module = types.ModuleType(name)
         module.__file__ = f"{BASELINE_COMMIT}:{path}"
         sys.modules[name] = module  # dataclasses look their module up
@@ -92,8 +93,15 @@ def cases() -> list[tuple[str, tuple, tuple[str, ...]]]:
     source = DATA / SERIES["B"]
     if source.exists():
         ur = load_cell("ur10-ipa")
-        tables.append(("Series B", ur, read_ipa_series(source), [param_by_name(ur.chain, p) for p in PARAMS.split(",")],
-                       "joint_compliance"))  # fmt: skip
+        tables.append(
+            (
+                "Series B",
+                ur,
+                read_ipa_series(source),
+                [param_by_name(ur.chain, p) for p in PARAMS.split(",")],
+                "joint_compliance",
+            )
+        )
     else:
         print("UR10 Series B: data not found (TRACKCAL_IPA_DATA), the twin only")
     tables.append(("twin 3x3", *twin_table(), "backlash"))
@@ -104,22 +112,38 @@ def cases() -> list[tuple[str, tuple, tuple[str, ...]]]:
         for ext_name, ext in exts.items():
             for weighting, noise in (("iid", None), ("whitened", TrackerNoise())):
                 measured = parts if (ext_name, weighting) in (("none", "iid"), ("joint", "whitened")) else every
-                out.append((f"{label} {ext_name} {weighting}", (cell.chain, table, cell.tool_points, params, noise,
-                                                                 None, ext), measured))  # fmt: skip
+                out.append(
+                    (
+                        f"{label} {ext_name} {weighting}",
+                        (cell.chain, table, cell.tool_points, params, noise, None, ext),
+                        measured,
+                    )
+                )
         if label == "Series B":
             wide = map_extension(np.radians(table.q_deg), MAP_HARMONICS)
-            out.append((f"{label} map({wide.size}) iid", (cell.chain, table, cell.tool_points, params, None, None,
-                                                          wide), ("residual_and_jacobian",)))  # fmt: skip
+            out.append(
+                (
+                    f"{label} map({wide.size}) iid",
+                    (cell.chain, table, cell.tool_points, params, None, None, wide),
+                    ("residual_and_jacobian",),
+                )
+            )
     return out
 
 
 def moved(problem, rng: np.random.Generator):
     """The problem's initial state moved off its start (every kind of unknown), in the problem's own State."""
     s = problem.initial
-    stations = [type(st)(exp_so3(rng.normal(0, 1e-3, 3)) @ st.rotation, st.translation + rng.normal(0, 1.0, 3))
-                for st in s.stations]  # fmt: skip
-    return type(s)(s.dev + rng.normal(0, 1e-4, len(s.dev)), stations, s.points + rng.normal(0, 0.5, s.points.shape),
-                   s.ext + rng.normal(0, 1e-6, len(s.ext)))  # fmt: skip
+    stations = [
+        type(st)(exp_so3(rng.normal(0, 1e-3, 3)) @ st.rotation, st.translation + rng.normal(0, 1.0, 3))
+        for st in s.stations
+    ]
+    return type(s)(
+        s.dev + rng.normal(0, 1e-4, len(s.dev)),
+        stations,
+        s.points + rng.normal(0, 0.5, s.points.shape),
+        s.ext + rng.normal(0, 1e-6, len(s.ext)),
+    )
 
 
 def _jacobian(problem, s) -> tuple:

@@ -37,10 +37,26 @@ def _cell(guard=None, cycle_s: float = KRC4_CYCLE_S):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    mock = MockKrc4(("127.0.0.1", 0), ("127.0.0.1", port), VirtualClock(real_fraction=1.0), HOME, seed=1,
-                    cycle_s=cycle_s, answer_budget_s=cycle_s, max_late_packages=10**9).start()  # fmt: skip
-    client = KukaKrc4(mock.eki_addr[1], "127.0.0.1", port, controller_host="127.0.0.1", motion_guard=guard,
-                      rsi_cycle_s=cycle_s, connect_timeout_s=10.0, move_timeout_s=60.0)  # fmt: skip
+    mock = MockKrc4(
+        ("127.0.0.1", 0),
+        ("127.0.0.1", port),
+        VirtualClock(real_fraction=1.0),
+        HOME,
+        seed=1,
+        cycle_s=cycle_s,
+        answer_budget_s=cycle_s,
+        max_late_packages=10**9,
+    ).start()
+    client = KukaKrc4(
+        mock.eki_addr[1],
+        "127.0.0.1",
+        port,
+        controller_host="127.0.0.1",
+        motion_guard=guard,
+        rsi_cycle_s=cycle_s,
+        connect_timeout_s=10.0,
+        move_timeout_s=60.0,
+    )
     client.connect()
     return mock, client
 
@@ -159,19 +175,29 @@ def main(argv=None) -> None:
     for cycle_s in (KRC4_CYCLE_S, 0.012):
         rate, late, overruns = frame_rate(a.seconds, cycle_s)
         nominal = 1 / cycle_s
-        print(f"RSI frames/s at {cycle_s * 1e3:g} ms: {rate:.0f} of {nominal:.0f} nominal ({rate / nominal:.2f}x), "
-              f"late answers {late:.2%}, overruns {overruns}")  # fmt: skip
-        check(f"KR C4 mock sustains >= 95 % of {nominal:.0f} frames/s ({cycle_s * 1e3:g} ms) with KukaKrc4 answering",
-              f"{rate:.0f}/s", rate >= 0.95 * nominal)  # fmt: skip
+        print(
+            f"RSI frames/s at {cycle_s * 1e3:g} ms: {rate:.0f} of {nominal:.0f} nominal ({rate / nominal:.2f}x), "
+            f"late answers {late:.2%}, overruns {overruns}"
+        )
+        check(
+            f"KR C4 mock sustains >= 95 % of {nominal:.0f} frames/s ({cycle_s * 1e3:g} ms) with KukaKrc4 answering",
+            f"{rate:.0f}/s",
+            rate >= 0.95 * nominal,
+        )
     client, bare = door_to_brake(a.stops)
     for name, v in (("KukaKrc4 guard", client), ("bare loop", bare)):
-        print(f"door -> brake, {name}: p50 {statistics.median(v) * 1e3:.1f} ms, max {max(v) * 1e3:.1f} ms "
-              f"(p50 {statistics.median(v) / KRC4_CYCLE_S:.1f}, max {max(v) / KRC4_CYCLE_S:.1f} cycles)")  # fmt: skip
+        print(
+            f"door -> brake, {name}: p50 {statistics.median(v) * 1e3:.1f} ms, max {max(v) * 1e3:.1f} ms "
+            f"(p50 {statistics.median(v) / KRC4_CYCLE_S:.1f}, max {max(v) / KRC4_CYCLE_S:.1f} cycles)"
+        )
     print(f"ratio client / bare (p50): {statistics.median(client) / statistics.median(bare):.1f}x")
     # issue 40: the guard stops the robot within a cycle or two (drivers.krc4.cycle_guard: read once per RSI frame,
     # the stop on the next answer, braked in the next cycle)
-    check("KR C4 door -> brake within 2 RSI cycles (8 ms) at the median, KukaKrc4 guard",
-          f"p50 {statistics.median(client) * 1e3:.1f} ms", statistics.median(client) <= 2 * KRC4_CYCLE_S)  # fmt: skip
+    check(
+        "KR C4 door -> brake within 2 RSI cycles (8 ms) at the median, KukaKrc4 guard",
+        f"p50 {statistics.median(client) * 1e3:.1f} ms",
+        statistics.median(client) <= 2 * KRC4_CYCLE_S,
+    )
 
 
 if __name__ == "__main__":

@@ -47,8 +47,7 @@ def ours(m: int, k: int, visibility: bool) -> dict:
     t0 = time.process_time()
     plan = optimize_plan(d, m, k, seed=0)
     cpu = time.process_time() - t0
-    return {"rho0_mm": plan.criteria["rho0_mm"], "cpu_s": cpu,
-            "maxrss_mb": peak_rss_mb()}  # fmt: skip
+    return {"rho0_mm": plan.criteria["rho0_mm"], "cpu_s": cpu, "maxrss_mb": peak_rss_mb()}
 
 
 def plain_exchange(d, m: int, k: int, budget_cpu_s: float, seed: int) -> tuple[float, int]:
@@ -73,8 +72,9 @@ def lower_bound(visibility: bool) -> dict:
 
 
 def run(*args: str) -> dict:
-    out = subprocess.run([sys.executable, "-m", "bench.bench_plan", *args], check=True, capture_output=True,
-                         text=True).stdout  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-m", "bench.bench_plan", *args], check=True, capture_output=True, text=True
+    ).stdout
     return json.loads(out.splitlines()[-1])
 
 
@@ -95,13 +95,17 @@ def main() -> None:
         ratio = r["rho0_mm"] / base
         tag = "with" if vis else "no"
         goal = f"plan M={m} x {k} {tag} visibility rho0 <= 0.90 x exchange"
-        print(f"M={m:2d} x {k} {tag:4s} visibility: ours rho0 {1e3 * r['rho0_mm']:.3f} um in "
-              f"{r['cpu_s']:.1f} s CPU ({r['maxrss_mb']:.0f} MB); plain exchange, same CPU ({runs} runs): "
-              f"{1e3 * base:.3f} um -> ours/exchange {ratio:.3f} (goal <= 0.90: "
-              f"{check(goal, f'{ratio:.3f}; any plan >= {bound / base:.3f}', ratio <= 0.9)})")
-        print(f"  every plan of {m * k} measurements: rho0 >= {1e3 * bound:.3f} um (approximate design "
-              f"{1e3 * approx:.3f} um): ours is "
-              f"{100 * (r['rho0_mm'] / bound - 1):.1f} % above it, no plan can be below {bound / base:.3f} x exchange")
+        print(
+            f"M={m:2d} x {k} {tag:4s} visibility: ours rho0 {1e3 * r['rho0_mm']:.3f} um in "
+            f"{r['cpu_s']:.1f} s CPU ({r['maxrss_mb']:.0f} MB); plain exchange, same CPU ({runs} runs): "
+            f"{1e3 * base:.3f} um -> ours/exchange {ratio:.3f} (goal <= 0.90: "
+            f"{check(goal, f'{ratio:.3f}; any plan >= {bound / base:.3f}', ratio <= 0.9)})"
+        )
+        print(
+            f"  every plan of {m * k} measurements: rho0 >= {1e3 * bound:.3f} um (approximate design "
+            f"{1e3 * approx:.3f} um): ours is "
+            f"{100 * (r['rho0_mm'] / bound - 1):.1f} % above it, no plan can be below {bound / base:.3f} x exchange"
+        )
         if m == 48:
             ok = check("plan memory at M=48 < 300 MB", f"{r['maxrss_mb']:.0f} MB", r["maxrss_mb"] < 300)
             print(f"  memory at M=48: {r['maxrss_mb']:.0f} MB (goal < 300 MB: {ok})")
@@ -112,10 +116,15 @@ def main() -> None:
         wall = time.perf_counter() - t0
         with open(f"{tmp}/p") as fh:
             rho = json.load(fh)["rho0_mm"]
-    ok = check("plan 6 x 3 no visibility rho0 <= 2.40 um, < 10 s", f"{1e3 * rho:.3f} um, {wall:.1f} s",
-               rho <= 2.4e-3 and wall < 10)
-    print(f"whole process `trackcal plan --cell kr270 --configs 6 --repeat 3 --no-visibility`: {wall:.1f} s, rho0 "
-          f"{1e3 * rho:.3f} um (goal <= 2.40 um in < 10 s: {ok})")
+    ok = check(
+        "plan 6 x 3 no visibility rho0 <= 2.40 um, < 10 s",
+        f"{1e3 * rho:.3f} um, {wall:.1f} s",
+        rho <= 2.4e-3 and wall < 10,
+    )
+    print(
+        f"whole process `trackcal plan --cell kr270 --configs 6 --repeat 3 --no-visibility`: {wall:.1f} s, rho0 "
+        f"{1e3 * rho:.3f} um (goal <= 2.40 um in < 10 s: {ok})"
+    )
 
 
 if __name__ == "__main__":

@@ -85,8 +85,15 @@ def _load(kind: str) -> list:
             p.start()
         return procs
     if kind == "tests":
-        cmd = [sys.executable, "-m", "pytest", "-q", "-x", "tests/drivers/kuka/test_kuka_codecs.py",
-               "tests/calib/identify/test_identify.py"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-x",
+            "tests/drivers/kuka/test_kuka_codecs.py",
+            "tests/calib/identify/test_identify.py",
+        ]
         return [subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     return []
 
@@ -121,8 +128,16 @@ def measure_baseline(frames: int, cycle_s: float, load: str) -> np.ndarray:
 
 
 def measure(frames: int, cycle_s: float, load: str) -> np.ndarray:
-    robot = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=False, rsi_cycle_s=cycle_s,
-                     controller_host="127.0.0.1")  # the emulated KR C2 sends from loopback
+    robot = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol="udp",
+        rsi_passive=False,
+        rsi_cycle_s=cycle_s,
+        controller_host="127.0.0.1",
+    )  # the emulated KR C2 sends from loopback
     robot.listen()
     eki = socket.create_connection(robot.eki.address)  # the EKI side only has to be connected
     try:
@@ -151,9 +166,11 @@ def report(latencies: np.ndarray, cycle_s: float, load: str) -> dict:
 
 
 def _print(name: str, f: dict) -> None:
-    print(f"  {name}: p50 {f['p50_ms']:.3f} ms  p99 {f['p99_ms']:.3f} ms  p99.9 {f['p99.9_ms']:.3f} ms  "
-          f"max {f['max_ms']:.3f} ms  unanswered {f['unanswered']}  over {LATE_S * 1000:g} ms: "
-          f"{f['late_share']:.2e}")  # fmt: skip
+    print(
+        f"  {name}: p50 {f['p50_ms']:.3f} ms  p99 {f['p99_ms']:.3f} ms  p99.9 {f['p99.9_ms']:.3f} ms  "
+        f"max {f['max_ms']:.3f} ms  unanswered {f['unanswered']}  over {LATE_S * 1000:g} ms: "
+        f"{f['late_share']:.2e}"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -163,8 +180,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--load", choices=("busy", "tests", "none"), default="busy")
     args = ap.parse_args(argv if argv is not None else [])
     cycle_s = args.cycle_ms / 1000
-    print(f"RSI answers over UDP, {args.frames} frames every {args.cycle_ms:g} ms, load: {args.load} "
-          "(unanswered: no answer before the next frame; percentiles count them as infinite)")  # fmt: skip
+    print(
+        f"RSI answers over UDP, {args.frames} frames every {args.cycle_ms:g} ms, load: {args.load} "
+        "(unanswered: no answer before the next frame; percentiles count them as infinite)"
+    )
     base = report(measure_baseline(args.frames, cycle_s, args.load), cycle_s, args.load)
     _print("baseline (bare Python UDP echo process)", base)
     f = report(measure(args.frames, cycle_s, args.load), cycle_s, args.load)

@@ -60,13 +60,35 @@ def main(argv: list[str] | None = None) -> None:
     cpu: dict[str, list[float]] = {name: [] for name in trees}
     tables: dict[str, set[bytes]] = {name: set() for name in trees}
     try:
-        subprocess.run([*trackcal, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--json",
-                        "plan.json"], env=trees["this"], cwd=root, check=True, stdout=subprocess.DEVNULL)  # fmt: skip
+        subprocess.run(
+            [*trackcal, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--json", "plan.json"],
+            env=trees["this"],
+            cwd=root,
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         for rep in range(args.repeats):
             for name, env in trees.items():
                 session = root / f"{name}-{rep}"
-                cpu[name].append(cpu_of([*trackcal, "run", "--cell", "kr270", "--plan", "plan.json", "--sim", "--seed",
-                                         "1", "--session", str(session)], env, root))  # fmt: skip
+                cpu[name].append(
+                    cpu_of(
+                        [
+                            *trackcal,
+                            "run",
+                            "--cell",
+                            "kr270",
+                            "--plan",
+                            "plan.json",
+                            "--sim",
+                            "--seed",
+                            "1",
+                            "--session",
+                            str(session),
+                        ],
+                        env,
+                        root,
+                    )
+                )
                 tables[name].add((session / "table.csv").read_bytes())
                 print(f"  {name}: {cpu[name][-1]:.1f} s CPU", flush=True)
     finally:
@@ -75,12 +97,17 @@ def main(argv: list[str] | None = None) -> None:
     same = len(tables["this"]) == 1 and tables["this"] == tables["base"]
     med = {name: statistics.median(times) for name, times in cpu.items()}
     ratio = med["this"] / med["base"]
-    print(f"{rows} measurements; median CPU of {args.repeats}: base {med['base']:.1f} s "
-          f"({med['base'] / rows * 1000:.0f} ms a measurement), this tree {med['this']:.1f} s "
-          f"({med['this'] / rows * 1000:.0f} ms), {ratio:.2f}x; "
-          f"tables {'identical' if same else 'DIFFERENT'}")  # fmt: skip
-    verdict = check("run --sim CPU per measurement at most a third of main's, the same session bytes",
-                    f"{ratio:.2f}x, tables {'identical' if same else 'DIFFERENT'}", ratio <= 1 / 3 and same)
+    print(
+        f"{rows} measurements; median CPU of {args.repeats}: base {med['base']:.1f} s "
+        f"({med['base'] / rows * 1000:.0f} ms a measurement), this tree {med['this']:.1f} s "
+        f"({med['this'] / rows * 1000:.0f} ms), {ratio:.2f}x; "
+        f"tables {'identical' if same else 'DIFFERENT'}"
+    )
+    verdict = check(
+        "run --sim CPU per measurement at most a third of main's, the same session bytes",
+        f"{ratio:.2f}x, tables {'identical' if same else 'DIFFERENT'}",
+        ratio <= 1 / 3 and same,
+    )
     print(f"goal: a third of the CPU per measurement: {ratio:.2f}x, {verdict}")
 
 

@@ -34,8 +34,11 @@ from trackcal.campaign.jobs.plan import PlanOptions, build_design, search_doc
 from trackcal.campaign.session.session import write_export
 
 SEED = 1
-MODES = {"free (before)": {"lockstep": False}, "lockstep, every cycle": {"skip_idle": False},
-         "lockstep, idle skipped": {}}  # fmt: skip
+MODES = {
+    "free (before)": {"lockstep": False},
+    "lockstep, every cycle": {"skip_idle": False},
+    "lockstep, idle skipped": {},
+}
 
 
 def readme_plan(cell) -> dict:
@@ -101,14 +104,18 @@ def main(argv: list[str] | None = None) -> None:
     skip, free = med["lockstep, idle skipped"], med["free (before)"]
     same_bytes = tables["lockstep, idle skipped"] == tables["lockstep, every cycle"]
     same_values = without_time(tables["lockstep, idle skipped"]) == without_time(tables["free (before)"])
-    print(f"exported table, idle skipped vs every cycle exchanged: {'byte-identical' if same_bytes else 'DIFFERENT'}; "
-          f"vs free-running, every column but t_s: {'identical' if same_values else 'DIFFERENT'}; repeated "
-          f"lockstep runs byte-identical, free-running runs' t_s {'differ' if free_t_s_differ else 'agree'}")
+    print(
+        f"exported table, idle skipped vs every cycle exchanged: {'byte-identical' if same_bytes else 'DIFFERENT'}; "
+        f"vs free-running, every column but t_s: {'identical' if same_values else 'DIFFERENT'}; repeated "
+        f"lockstep runs byte-identical, free-running runs' t_s {'differ' if free_t_s_differ else 'agree'}"
+    )
     ratio = skip[0] / free[0]
-    verdict = check(f"run --sim {n} measurements in half the time, table unchanged",
-                    f"wall {skip[0]:.1f} vs {free[0]:.1f} s ({ratio:.2f}x), CPU {skip[1]:.1f} vs {free[1]:.1f} s, "
-                    f"table {'byte-identical' if same_bytes and same_values else 'CHANGED'}",
-                    ratio <= 0.5 and same_bytes and same_values)  # fmt: skip
+    verdict = check(
+        f"run --sim {n} measurements in half the time, table unchanged",
+        f"wall {skip[0]:.1f} vs {free[0]:.1f} s ({ratio:.2f}x), CPU {skip[1]:.1f} vs {free[1]:.1f} s, "
+        f"table {'byte-identical' if same_bytes and same_values else 'CHANGED'}",
+        ratio <= 0.5 and same_bytes and same_values,
+    )
     print(f"goal: {n} measurements in half the time, table unchanged: {ratio:.2f}x, {verdict}")
 
 

@@ -21,9 +21,20 @@ from pathlib import Path
 from trackcal.campaign.session.store import SessionStore
 
 N = 300
-EVENT = {"device": "tracker", "op": "measure", "args": [],
-         "result": {"__type__": "TrackerMeasurement", "x_mm": 3136.7512, "y_mm": -1184.0931, "z_mm": 1620.4407,
-                    "std_x_mm": 0.0142, "std_y_mm": 0.0139, "std_z_mm": 0.0151}}  # fmt: skip
+EVENT = {
+    "device": "tracker",
+    "op": "measure",
+    "args": [],
+    "result": {
+        "__type__": "TrackerMeasurement",
+        "x_mm": 3136.7512,
+        "y_mm": -1184.0931,
+        "z_mm": 1620.4407,
+        "std_x_mm": 0.0142,
+        "std_y_mm": 0.0139,
+        "std_z_mm": 0.0151,
+    },
+}
 
 
 def _ours(directory: Path) -> list[float]:
@@ -41,13 +52,17 @@ def _wal(directory: Path, checkpoint: bool) -> list[float]:
     conn = sqlite3.connect(str(directory / "wal.sqlite"), isolation_level=None)
     conn.execute("PRAGMA journal_mode=WAL")
     conn.execute("PRAGMA synchronous=FULL")
-    conn.execute("CREATE TABLE events(id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL, t_campaign REAL, "
-                 "step INTEGER, kind TEXT, data TEXT)")  # fmt: skip
+    conn.execute(
+        "CREATE TABLE events(id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL, t_campaign REAL, "
+        "step INTEGER, kind TEXT, data TEXT)"
+    )
     times = []
     for i in range(N):
         t0 = time.perf_counter()
-        conn.execute("INSERT INTO events(t_wall, t_campaign, step, kind, data) VALUES (?, ?, ?, ?, ?)",
-                     (time.time(), float(i), i, "call", json.dumps(EVENT, sort_keys=True)))  # fmt: skip
+        conn.execute(
+            "INSERT INTO events(t_wall, t_campaign, step, kind, data) VALUES (?, ?, ?, ?, ?)",
+            (time.time(), float(i), i, "call", json.dumps(EVENT, sort_keys=True)),
+        )
         if checkpoint:
             conn.execute("PRAGMA wal_checkpoint(PASSIVE)")
         times.append(time.perf_counter() - t0)
@@ -71,8 +86,9 @@ def main() -> None:
         m = statistics.median(ours)
         print(f"  ours (journal DELETE, FULL, chained): {_ms(ours)}  = {m * 100:.2f} % of a 1 s event budget")
         print(f"  before (WAL, FULL, no checkpoint):    {_ms(wal)}  ours / before = {m / statistics.median(wal):.1f}x")
-        print(f"  WAL + checkpoint per commit:          {_ms(walck)}  ours / this = "
-              f"{m / statistics.median(walck):.1f}x")  # fmt: skip
+        print(
+            f"  WAL + checkpoint per commit:          {_ms(walck)}  ours / this = {m / statistics.median(walck):.1f}x"
+        )
         t0 = time.perf_counter()
         SessionStore.open(root / "ours", readonly=True).verify()
         print(f"  verify (integrity check + chain):     {(time.perf_counter() - t0) / N * 1e6:6.1f} us per event")

@@ -39,9 +39,14 @@ def write_rows(path: Path, n: int, seed: int = 0) -> None:
         for start in range(0, n, 100_000):
             i = np.arange(start, min(start + 100_000, n))
             num = np.column_stack([rng.uniform(-100, 0, (len(i), 6)), rng.uniform(-3000, 3000, (len(i), 3))])
-            fh.write("".join(
-                f"{a + 1},{0.1 * a:.3f},Q{a // 9},S{a % 3 + 1},P{a // 3 % 3 + 1}," + ",".join(f"{v:.4f}" for v in r)
-                + "\n" for a, r in zip(i.tolist(), num.tolist(), strict=True)))  # fmt: skip
+            fh.write(
+                "".join(
+                    f"{a + 1},{0.1 * a:.3f},Q{a // 9},S{a % 3 + 1},P{a // 3 % 3 + 1},"
+                    + ",".join(f"{v:.4f}" for v in r)
+                    + "\n"
+                    for a, r in zip(i.tolist(), num.tolist(), strict=True)
+                )
+            )
 
 
 def per_cell_reader(path: Path) -> int:
@@ -71,16 +76,20 @@ def main() -> None:
                 times.append(time.process_time() - t0)
         t_new, t_general, t_cell = (float(np.median(times)) for times in readers.values())
         ok = check("read 100k table rows < 0.3 s CPU", f"{t_new:.3f} s", t_new < 0.3)
-        print(f"read 100k rows ({small.stat().st_size / 1e6:.0f} MB): {t_new:.3f} s CPU; general parser alone "
-              f"{t_general:.3f} s ({t_general / t_new:.1f}x), per-cell baseline {t_cell:.3f} s ({t_cell / t_new:.1f}x) "
-              f"(goal under 0.3 s: {ok})")  # fmt: skip
+        print(
+            f"read 100k rows ({small.stat().st_size / 1e6:.0f} MB): {t_new:.3f} s CPU; general parser alone "
+            f"{t_general:.3f} s ({t_general / t_new:.1f}x), per-cell baseline {t_cell:.3f} s ({t_cell / t_new:.1f}x) "
+            f"(goal under 0.3 s: {ok})"
+        )
         write_rows(large, 1_000_000)
         out = subprocess.run([sys.executable, "-c", CHILD, str(large)], capture_output=True, text=True, check=True)
         n, base, peak = out.stdout.split()
         base, peak = float(base), float(peak)  # MB
-        print(f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak:.0f} MB, "
-              f"{peak - base:.0f} MB above the imports (goal under 1 GB: "
-              f"{check('read 1M table rows < 1 GB', f'{peak:.0f} MB', peak < 1024)})")
+        print(
+            f"read {n} rows ({large.stat().st_size / 1e6:.0f} MB): peak RSS {peak:.0f} MB, "
+            f"{peak - base:.0f} MB above the imports (goal under 1 GB: "
+            f"{check('read 1M table rows < 1 GB', f'{peak:.0f} MB', peak < 1024)})"
+        )
 
 
 if __name__ == "__main__":

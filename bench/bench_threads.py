@@ -37,18 +37,30 @@ def main() -> None:
         cell, table = campaign(1000)
         write_table(table, f"{tmp}/t.csv")
         commands = {
-            "plan 6 x 3": ["plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--no-visibility", "--json",
-                           f"{tmp}/p.json"],
+            "plan 6 x 3": [
+                "plan",
+                "--cell",
+                "kr270",
+                "--configs",
+                "6",
+                "--repeat",
+                "3",
+                "--no-visibility",
+                "--json",
+                f"{tmp}/p.json",
+            ],
             "identify 1000 rows": ["identify", f"{tmp}/t.csv", "--cell", "kr270", "--out", f"{tmp}/m.json"],
-        }  # fmt: skip
+        }
         for name, argv in commands.items():
             times: dict[int, list[tuple[float, float]]] = {1: [], 2: []}
             for _ in range(REPEATS):
                 for threads in (2, 1):
                     times[threads].append(run(argv, threads))
             (w1, c1), (w2, c2) = (np.median(np.array(times[t]), axis=0) for t in (1, 2))
-            print(f"{name:20s} one BLAS thread {w1:5.1f} s wall {c1:5.1f} s CPU; two {w2:5.1f} s wall {c2:5.1f} s CPU "
-                  f"-> one thread is {w2 / w1:.1f}x faster (wall)")
+            print(
+                f"{name:20s} one BLAS thread {w1:5.1f} s wall {c1:5.1f} s CPU; two {w2:5.1f} s wall {c2:5.1f} s CPU "
+                f"-> one thread is {w2 / w1:.1f}x faster (wall)"
+            )
 
 
 if __name__ == "__main__":

@@ -88,15 +88,27 @@ def _stop_taken_at(ur: MockUrProcess, after: float) -> float | None:
     """The mock's CLOCK_MONOTONIC stamp of the first STOPJ it took after `after` (None: no stop was needed, the door
     opened before the move began and the move was refused)."""
     state = ur.state()
-    return min((t for c, t in zip(state["commands"][-len(state["command_monotonic"]):], state["command_monotonic"],
-                                  strict=True) if c == STOPJ and t >= after), default=None)  # fmt: skip
+    return min(
+        (
+            t
+            for c, t in zip(
+                state["commands"][-len(state["command_monotonic"]) :], state["command_monotonic"], strict=True
+            )
+            if c == STOPJ and t >= after
+        ),
+        default=None,
+    )
 
 
 def _bare_move(robot: UrRtde, modbus: ModbusTcpClient, target, door_di: int, unit: int) -> None:
     """The bare loop: ur_rtde's own interfaces and pymodbus, no trackcal code between the door and stopJ."""
     rcv, ctl = robot.receive, robot.control
-    ctl.moveJ([math.radians(v) for v in target], math.radians(robot.joint_speed_deg_s),
-              math.radians(robot.joint_acceleration_deg_s2), True)  # fmt: skip
+    ctl.moveJ(
+        [math.radians(v) for v in target],
+        math.radians(robot.joint_speed_deg_s),
+        math.radians(robot.joint_acceleration_deg_s2),
+        True,
+    )
     while True:
         closed = modbus.read_discrete_inputs(door_di, count=1, device_id=unit).bits[0]
         rcv.getActualQ()
@@ -171,22 +183,33 @@ def main(argv: list[str] | None = None) -> None:
             n, wall, due = measure(args.host, frequency, args.seconds)
             rate = n / wall
             ok = rate >= 0.9 * frequency and n == due
-            verdict = check(f"UR mock RTDE {frequency:.0f} Hz: >= 90 % of the rate, no frame lost",
-                            f"{rate:.1f} frames/s, {n} received of {due} due", ok)  # fmt: skip
-            print(f"RTDE {frequency:5.0f} Hz: {n} frames in {wall:.2f} s = {rate:.1f} frames/s; "
-                  f"{due} due by the controller's timestamps; {verdict}", flush=True)  # fmt: skip
+            verdict = check(
+                f"UR mock RTDE {frequency:.0f} Hz: >= 90 % of the rate, no frame lost",
+                f"{rate:.1f} frames/s, {n} received of {due} due",
+                ok,
+            )
+            print(
+                f"RTDE {frequency:5.0f} Hz: {n} frames in {wall:.2f} s = {rate:.1f} frames/s; "
+                f"{due} due by the controller's timestamps; {verdict}",
+                flush=True,
+            )
 
     lat = door_latency(args.host, args.trials)
     (tm, tp), (bm, bp) = _ms(lat["trackcal"]), _ms(lat["bare"])
     # the goal is a ratio of interleaved runs (absolute milliseconds follow the machine's load): trackcal's guard (the
     # door and the PLC status word, two Modbus reads) and its sample add at most half again the bare loop's median
-    verdict = check("UR door open -> stopJ at the controller: trackcal's median <= 1.5x a bare ur_rtde loop's",
-                    f"trackcal {tm:.1f} ms (p99 {tp:.1f}), bare {bm:.1f} ms (p99 {bp:.1f}), ratio {tm / bm:.2f}",
-                    tm <= 1.5 * bm)  # fmt: skip
-    print(f"door open -> stopJ taken by the mock UR, {len(lat['trackcal'])} and {len(lat['bare'])} of {args.trials} "
-          "interleaved trials (a door opened before its move began needs no stop): trackcal median "
-          f"{tm:.2f} ms, p99 {tp:.2f} ms; bare ur_rtde + pymodbus loop median {bm:.2f} ms, p99 {bp:.2f} ms; "
-          f"ratio of medians {tm / bm:.2f}; {verdict}", flush=True)  # fmt: skip
+    verdict = check(
+        "UR door open -> stopJ at the controller: trackcal's median <= 1.5x a bare ur_rtde loop's",
+        f"trackcal {tm:.1f} ms (p99 {tp:.1f}), bare {bm:.1f} ms (p99 {bp:.1f}), ratio {tm / bm:.2f}",
+        tm <= 1.5 * bm,
+    )
+    print(
+        f"door open -> stopJ taken by the mock UR, {len(lat['trackcal'])} and {len(lat['bare'])} of {args.trials} "
+        "interleaved trials (a door opened before its move began needs no stop): trackcal median "
+        f"{tm:.2f} ms, p99 {tp:.2f} ms; bare ur_rtde + pymodbus loop median {bm:.2f} ms, p99 {bp:.2f} ms; "
+        f"ratio of medians {tm / bm:.2f}; {verdict}",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

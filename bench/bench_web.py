@@ -38,8 +38,14 @@ from trackcal.campaign.jobs.campaign import new_session, run_session, stored_cam
 from trackcal.campaign.web.server import WebPage
 
 CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-        "--disable-sync", "--no-first-run"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 
 
 class Watcher(threading.Thread):
@@ -78,8 +84,9 @@ class Watcher(threading.Thread):
             self.ready.set()
 
 
-def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[float, float, list[float], list[float],
-                                                                              list[float]]:  # fmt: skip
+def one_run(
+    cell, plan: dict, root: Path, name: str, with_page: bool
+) -> tuple[float, float, list[float], list[float], list[float]]:
     """(campaign wall s, CPU s of this process, per-measurement latencies s, per-station-fit latencies s, the
     station fits' compute times s) of one simulated campaign."""
     directory = root / name
@@ -121,8 +128,9 @@ def one_run(cell, plan: dict, root: Path, name: str, with_page: bool) -> tuple[f
             fits = [e.id for e in page.hub.events if e.kind == "station_fit"]
             fit_latencies = [watcher.fits_seen[i] - page.hub.doc_wall[i] for i in fits if i in watcher.fits_seen]
             if len(fit_latencies) != len(fits) or not fits:
-                raise RuntimeError(f"{len(fits) - len(fit_latencies)} of {len(fits)} station fits never reached the "
-                                   "page")  # fmt: skip
+                raise RuntimeError(
+                    f"{len(fits) - len(fit_latencies)} of {len(fits)} station fits never reached the page"
+                )
     finally:
         if page is not None:
             page.close()
@@ -161,20 +169,28 @@ def main(argv: list[str] | None = None) -> None:
     median = statistics.median(latencies)
     p99 = latencies[min(len(latencies) - 1, int(0.99 * len(latencies)))]
     without, with_ = statistics.median(walls[False]), statistics.median(walls[True])
-    print(f"document -> page, {len(latencies)} measurements: median {median * 1000:.1f} ms, p99 {p99 * 1000:.1f} ms, "
-          f"max {latencies[-1] * 1000:.1f} ms")  # fmt: skip
-    print(f"campaign wall time, medians of {args.repeats}: without the page {without:.2f} s, with it {with_:.2f} s "
-          f"({(with_ / without - 1) * 100:+.0f} %); runs {', '.join(f'{w:.2f}' for w in walls[False])} / "
-          f"{', '.join(f'{w:.2f}' for w in walls[True])}")  # fmt: skip
+    print(
+        f"document -> page, {len(latencies)} measurements: median {median * 1000:.1f} ms, p99 {p99 * 1000:.1f} ms, "
+        f"max {latencies[-1] * 1000:.1f} ms"
+    )
+    print(
+        f"campaign wall time, medians of {args.repeats}: without the page {without:.2f} s, with it {with_:.2f} s "
+        f"({(with_ / without - 1) * 100:+.0f} %); runs {', '.join(f'{w:.2f}' for w in walls[False])} / "
+        f"{', '.join(f'{w:.2f}' for w in walls[True])}"
+    )
     fit_latencies.sort()
-    print(f"station fit -> residual plot on the page, {len(fit_latencies)} blocks: median "
-          f"{statistics.median(fit_latencies) * 1000:.1f} ms, max {fit_latencies[-1] * 1000:.1f} ms; the fit in the "
-          f"engine's thread: median {statistics.median(fit_times) * 1000:.2f} ms, max {max(fit_times) * 1000:.2f} ms "
-          f"over {len(fit_times)}")  # fmt: skip
+    print(
+        f"station fit -> residual plot on the page, {len(fit_latencies)} blocks: median "
+        f"{statistics.median(fit_latencies) * 1000:.1f} ms, max {fit_latencies[-1] * 1000:.1f} ms; the fit in the "
+        f"engine's thread: median {statistics.median(fit_times) * 1000:.2f} ms, max {max(fit_times) * 1000:.2f} ms "
+        f"over {len(fit_times)}"
+    )
     # a person at the cell reads a second's delay as "the page is behind": p99 under one second
     cw, cp = statistics.median(cpus[False]), statistics.median(cpus[True])
-    print(f"campaign CPU time of the process (every thread: trackcal, the twin's mocks, the page's server), medians: "
-          f"without the page {cw:.2f} s, with it {cp:.2f} s ({(cp / cw - 1) * 100:+.0f} %)")  # fmt: skip
+    print(
+        f"campaign CPU time of the process (every thread: trackcal, the twin's mocks, the page's server), medians: "
+        f"without the page {cw:.2f} s, with it {cp:.2f} s ({(cp / cw - 1) * 100:+.0f} %)"
+    )
     ok = check("page: a measurement on the page within 1 s (p99)", f"p99 {p99 * 1000:.0f} ms", p99 < 1.0)
     print(f"goal p99 < 1 s: {ok}")
 

@@ -122,8 +122,9 @@ class CompensationReport:
 def rotation_angle(ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
     """(N,) angle (rad) of ra^T rb, accurate near zero (atan2 of the skew and symmetric parts)."""
     r = np.einsum("nji,njk->nik", ra, rb)
-    s = 0.5 * np.linalg.norm(np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]],
-                                      axis=1), axis=1)  # fmt: skip
+    s = 0.5 * np.linalg.norm(
+        np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1), axis=1
+    )
     c = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
     return np.arctan2(s, c)
 
@@ -139,15 +140,22 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     if cause in GEOMETRIC_ONLY and not model.parts():
         return None, [], [GEOMETRIC_ONLY[cause]]
     parts = model.parts()
-    unknown = [c for c, _ in parts if c not in (*STATIC_JOINT_CAUSES, WARM_GROWTH, *NO_STATIC_COMPENSATION,
-                                               *GEOMETRIC_ONLY)]  # fmt: skip
+    unknown = [
+        c for c, _ in parts if c not in (*STATIC_JOINT_CAUSES, WARM_GROWTH, *NO_STATIC_COMPENSATION, *GEOMETRIC_ONLY)
+    ]
     if unknown:
         raise CompensationError(f"model extension {unknown[0]!r} is unknown; cannot compensate it")
     ignored = [NO_STATIC_COMPENSATION[c] for c, _ in parts if c in NO_STATIC_COMPENSATION]
     g, _ = warm_growth(model)
-    notes = [f"thermal_warmup: compensated for the warm robot (its growth saturated at {1e6 * g:+.3g} ppm, reached "
-             f"within a few of its time constant of {model.forms()[WARM_GROWTH]['tau_s'] / 60:.3g} min after "
-             "power-on); a cold robot is off by up to that growth"] if g else []  # fmt: skip
+    notes = (
+        [
+            f"thermal_warmup: compensated for the warm robot (its growth saturated at {1e6 * g:+.3g} ppm, reached "
+            f"within a few of its time constant of {model.forms()[WARM_GROWTH]['tau_s'] / 60:.3g} min after "
+            "power-on); a cold robot is off by up to that growth"
+        ]
+        if g
+        else []
+    )
     notes += [GEOMETRIC_ONLY[c] for c, _ in parts if c in GEOMETRIC_ONLY]
     names, theta = model.extension_values()
     static = [(c, n) for c, n in parts if c in STATIC_JOINT_CAUSES]
@@ -159,9 +167,15 @@ def joint_error_function(model: Model) -> tuple[Callable[[np.ndarray], np.ndarra
     def offsets(q: np.ndarray) -> np.ndarray:
         n_rows = len(q)
         rows = MeasurementTable(
-            seq=np.arange(n_rows), t_s=np.zeros(n_rows), pose=["c"] * n_rows, station=["-"] * n_rows,
-            point=["-"] * n_rows, q_deg=np.degrees(q), xyz=None, source="compensation targets",
-        )  # fmt: skip
+            seq=np.arange(n_rows),
+            t_s=np.zeros(n_rows),
+            pose=["c"] * n_rows,
+            station=["-"] * n_rows,
+            point=["-"] * n_rows,
+            q_deg=np.degrees(q),
+            xyz=None,
+            source="compensation targets",
+        )
         return build_parts(static, chain, rows, arcs, forms=forms).joint_offsets(theta[keep])
 
     return offsets, ignored, notes
@@ -200,8 +214,9 @@ def _limit_violations(q: np.ndarray, limits: np.ndarray, joint_names: list[str])
     return out
 
 
-def _bound_corrections(failures: list[str], dq: np.ndarray, tcp_mm: np.ndarray, bound: tuple[float, float],
-                       joint_names: list[str]) -> None:  # fmt: skip
+def _bound_corrections(
+    failures: list[str], dq: np.ndarray, tcp_mm: np.ndarray, bound: tuple[float, float], joint_names: list[str]
+) -> None:
     """Mark (in `failures`) every target not yet failed whose joint correction dq (N, n) rad or TCP correction
     tcp_mm (N,) exceeds `bound` (mm, deg)."""
     mm, deg = bound
@@ -211,12 +226,16 @@ def _bound_corrections(failures: list[str], dq: np.ndarray, tcp_mm: np.ndarray, 
         d = np.degrees(np.abs(dq[i]))
         j = int(np.argmax(d))
         if d[j] > deg:
-            failures[i] = (f"its correction of {joint_names[j]}, {np.degrees(dq[i, j]):+.4f} deg, exceeds the cell's "
-                           f"max_correction of {deg:g} deg: not written (a singular pose or a model far from the "
-                           "robot: check it)")  # fmt: skip
+            failures[i] = (
+                f"its correction of {joint_names[j]}, {np.degrees(dq[i, j]):+.4f} deg, exceeds the cell's "
+                f"max_correction of {deg:g} deg: not written (a singular pose or a model far from the "
+                "robot: check it)"
+            )
         elif tcp_mm[i] > mm:
-            failures[i] = (f"the model moves its TCP by {tcp_mm[i]:.3f} mm, more than the cell's max_correction of "
-                           f"{mm:g} mm: not written (a model far from the robot: check it)")  # fmt: skip
+            failures[i] = (
+                f"the model moves its TCP by {tcp_mm[i]:.3f} mm, more than the cell's max_correction of "
+                f"{mm:g} mm: not written (a model far from the robot: check it)"
+            )
 
 
 def pose_error(
@@ -259,10 +278,15 @@ def _refuse_outside(model: Model, q0: np.ndarray, joint_names: list[str], failur
         return
     out = ranges.outside(q0)
     for i in np.flatnonzero(out.any(axis=1)):
-        joints = "; ".join(f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, "
-                           f"{np.degrees(hi):.4f}]" for j, (lo, hi) in enumerate(ranges.joints_rad) if out[i, j])
-        failures[i] = failures[i] or (f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
-                                      "extension is then held at the nearest fitted angle)")  # fmt: skip
+        joints = "; ".join(
+            f"{joint_names[j]} = {np.degrees(q0[i, j]):.4f} deg not in [{np.degrees(lo):.4f}, {np.degrees(hi):.4f}]"
+            for j, (lo, hi) in enumerate(ranges.joints_rad)
+            if out[i, j]
+        )
+        failures[i] = failures[i] or (
+            f"{OUTSIDE_RANGES}: {joints} (compensating it must be asked for: the "
+            "extension is then held at the nearest fitted angle)"
+        )
 
 
 def compensate(
@@ -292,8 +316,9 @@ def compensate(
     n_rows = len(q0)
     limits = chain.limits_array()
     joint_names = [j.name for j in chain.joints]
-    failures = [f"nominal target outside the joint limits: {v}" if v else "" for v in
-                _limit_violations(q0, limits, joint_names)]  # fmt: skip
+    failures = [
+        f"nominal target outside the joint limits: {v}" if v else "" for v in _limit_violations(q0, limits, joint_names)
+    ]
     offsets, ignored, notes = joint_error_function(model)
     if offsets is not None and not allow_outside:  # the extension is known only where it was fitted
         _refuse_outside(model, q0, joint_names, failures)
@@ -309,8 +334,10 @@ def compensate(
     true_joints = None if offsets is None else partial(_true_joints, offsets)
     q, iterations, converged = reach_points(kin, tools, target, q0, model.dev, true_joints, tol_mm, max_iter, outside)
     for i in np.flatnonzero(~converged & ~outside):
-        failures[i] = (f"did not converge in {max_iter} iterations: a singular pose or a chain that cannot reach the "
-                       "intended pose (move the target away from the singularity)")  # fmt: skip
+        failures[i] = (
+            f"did not converge in {max_iter} iterations: a singular pose or a chain that cannot reach the "
+            "intended pose (move the target away from the singularity)"
+        )
     for i, v in enumerate(_limit_violations(q, limits, joint_names)):
         if v and not failures[i]:
             failures[i] = f"the compensated target leaves the joint limits: {v}"

@@ -21,11 +21,11 @@ PASS, FAIL, NOT_PROVEN = "pass", "fail", "not proven"
 
 RULES = {
     "simple": "simple acceptance (ILAC-G8:09/2019, guard band w = 0): a figure passes when its measured value is at "
-              "or below the tolerance, and fails above it, whatever its uncertainty",
+    "or below the tolerance, and fails above it, whatever its uncertainty",
     "guarded": "guarded acceptance (ISO 14253-1:2017, guard band w = U): a figure passes when its value plus its "
-               "expanded uncertainty U is at or below the tolerance, fails when its value minus U is above it, and "
-               "is not proven either way when the interval value ± U straddles the tolerance",
-}  # fmt: skip
+    "expanded uncertainty U is at or below the tolerance, fails when its value minus U is above it, and "
+    "is not proven either way when the interval value ± U straddles the tolerance",
+}
 
 
 class DecisionError(CalibError):

@@ -43,9 +43,16 @@ def joint_features(model: Model, q: np.ndarray) -> np.ndarray:
     static = [(c, names) for c, names in model.parts() if c in STATIC_JOINT_CAUSES]
     if not static or len(q) == 0:
         return np.zeros((len(q), model.chain.dof, 0))
-    rows = MeasurementTable(seq=np.arange(len(q)), t_s=np.zeros(len(q)), pose=["c"] * len(q), station=["-"] * len(q),
-                            point=["-"] * len(q), q_deg=np.degrees(q), xyz=None,
-                            source="filter targets")  # fmt: skip
+    rows = MeasurementTable(
+        seq=np.arange(len(q)),
+        t_s=np.zeros(len(q)),
+        pose=["c"] * len(q),
+        station=["-"] * len(q),
+        point=["-"] * len(q),
+        q_deg=np.degrees(q),
+        xyz=None,
+        source="filter targets",
+    )
     ext = build_parts(static, model.chain, rows, model.arcs(), forms=model.forms())
     return ext.joint_features.dense()
 
@@ -56,13 +63,15 @@ def _matrix(v, shape: tuple[int, int], where: str) -> np.ndarray:
     except (TypeError, ValueError):
         raise ExtensionCovarianceError(f"{KEY}.{where}: expected a matrix of numbers") from None
     if m.shape != shape or not np.all(np.isfinite(m)):
-        raise ExtensionCovarianceError(f"{KEY}.{where}: expected {shape[0]} x {shape[1]} finite numbers, got shape "
-                                       f"{m.shape}")  # fmt: skip
+        raise ExtensionCovarianceError(
+            f"{KEY}.{where}: expected {shape[0]} x {shape[1]} finite numbers, got shape {m.shape}"
+        )
     return m
 
 
-def extension_covariance(model: Model, param_scale: np.ndarray, param_rows: list[int | None]
-                         ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+def extension_covariance(
+    model: Model, param_scale: np.ndarray, param_rows: list[int | None]
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(C_ee (e, e), C_pe (k, e)) in internal units of the static causes' parameters (`static_names`), with the
     model's k parameters (`param_rows`: each one's row of covariance_order, None when absent; `param_scale`: its
     boundary -> internal factor); None without a recorded extension covariance or static cause."""

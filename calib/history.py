@@ -42,8 +42,9 @@ class Change:
         return self.p_value < self.alpha
 
 
-def compare_estimates(names_a: list[str], value_a, cov_a, dof_a: int, names_b: list[str], value_b, cov_b,
-                      dof_b: int, alpha: float = ALPHA) -> Change:  # fmt: skip
+def compare_estimates(
+    names_a: list[str], value_a, cov_a, dof_a: int, names_b: list[str], value_b, cov_b, dof_b: int, alpha: float = ALPHA
+) -> Change:
     """The change from estimate a to estimate b over the parameters both hold (in a's order)."""
     common = [n for n in names_a if n in names_b]
     if not common:

@@ -59,6 +59,7 @@ class Figure:
 
     def to_doc_deg(self) -> dict:
         """An orientation figure's document (degrees); a number that does not exist is null (strict JSON)."""
+
         def num(v):
             return float(v) if np.isfinite(v) else None
 
@@ -171,8 +172,9 @@ def attained_orientations(tool_points, attained, commanded_rot, covs=None) -> tu
     src = np.asarray(tool_points, dtype=float)
     x = np.asarray(attained, dtype=float)
     if src.ndim != 2 or src.shape[0] < 3 or x.shape[1:] != src.shape or x.ndim != 3 or not np.isfinite(x).all():
-        raise IsoError(f"orientation: expected n x {len(src)} x 3 attained positions of >= 3 tool points, "
-                       f"got {x.shape}")  # fmt: skip
+        raise IsoError(
+            f"orientation: expected n x {len(src)} x 3 attained positions of >= 3 tool points, got {x.shape}"
+        )
     rc = np.asarray(commanded_rot, dtype=float)
     w, cov_w = np.zeros((len(x), 3)), np.zeros((len(x), 3, 3))
     try:
@@ -310,15 +312,34 @@ class IsoFigures:
         return {
             "session": self.session,
             "compensated": self.compensated,
-            "poses": [{"pose": p.name, "cycles": p.n, "AP_P": fig(p.ap), "AP_xyz_mm": p.offset_mm.tolist(),
-                       "RP_l": fig(p.rp), "l_bar_mm": p.l_bar_mm, "S_l_mm": p.s_l_mm,
-                       **{k: f.to_doc_deg() for k, f in p.orientation.items()},
-                       "budget": {k: b.to_doc() for k, b in p.budgets.items()}} for p in self.poses],
-            "AD_P": fig(self.ad), "RD": fig(self.rd), "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
-            "vAP_P": [{"pose": name, **f.to_doc(),
-                       "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()}}
-                      for name, f in self.vap.items()],
+            "poses": [
+                {
+                    "pose": p.name,
+                    "cycles": p.n,
+                    "AP_P": fig(p.ap),
+                    "AP_xyz_mm": p.offset_mm.tolist(),
+                    "RP_l": fig(p.rp),
+                    "l_bar_mm": p.l_bar_mm,
+                    "S_l_mm": p.s_l_mm,
+                    **{k: f.to_doc_deg() for k, f in p.orientation.items()},
+                    "budget": {k: b.to_doc() for k, b in p.budgets.items()},
+                }
+                for p in self.poses
+            ],
+            "AD_P": fig(self.ad),
+            "RD": fig(self.rd),
+            "distance_poses": [f"P{i + 1}" for i in DISTANCE_POSES],
+            "vAP_P": [
+                {
+                    "pose": name,
+                    **f.to_doc(),
+                    "cycles": {side: len(x) for side, x in self.vap_attained_mm.get(name, {}).items()},
+                }
+                for name, f in self.vap.items()
+            ],
             "AD_P_budget": None if self.ad_budget is None else self.ad_budget.to_doc(),
             "other_budgets": {k: b.to_doc() for k, b in self.other_budgets.items()},
-            "conditions": self.conditions, "notes": self.notes, "departures": self.departures,
-        } | ({"velocity_pct": self.velocity_pct} if self.velocity_pct else {})  # fmt: skip
+            "conditions": self.conditions,
+            "notes": self.notes,
+            "departures": self.departures,
+        } | ({"velocity_pct": self.velocity_pct} if self.velocity_pct else {})

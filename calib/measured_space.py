@@ -68,10 +68,17 @@ class MeasuredSpace:
         return np.where(d > ROUNDING_MM, d, 0.0)
 
     def to_doc(self) -> dict:
-        return {"joints": {f"joint_{j + 1}": {"from_deg": float(np.degrees(lo)), "to_deg": float(np.degrees(hi))}
-                           for j, (lo, hi) in enumerate(self.joints_rad)},
-                "volume": {"frame": "base cylinder (z: the base's z axis)", "radius_mm": list(self.radius_mm),
-                           "height_mm": list(self.height_mm)}}  # fmt: skip
+        return {
+            "joints": {
+                f"joint_{j + 1}": {"from_deg": float(np.degrees(lo)), "to_deg": float(np.degrees(hi))}
+                for j, (lo, hi) in enumerate(self.joints_rad)
+            },
+            "volume": {
+                "frame": "base cylinder (z: the base's z axis)",
+                "radius_mm": list(self.radius_mm),
+                "height_mm": list(self.height_mm),
+            },
+        }
 
 
 def cylinder(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,12 +113,14 @@ def space_of(doc: dict, n: int) -> MeasuredSpace | None:
     except (KeyError, TypeError) as exc:
         raise MeasuredSpaceError(f"{where}: incomplete (missing {exc})") from None
     joints_rad = tuple((float(np.radians(lo)), float(np.radians(hi))) for lo, hi in lims)
-    return MeasuredSpace(joints_rad, _pair(radius, f"{where}.volume.radius_mm"),
-                         _pair(height, f"{where}.volume.height_mm"))  # fmt: skip
+    return MeasuredSpace(
+        joints_rad, _pair(radius, f"{where}.volume.radius_mm"), _pair(height, f"{where}.volume.height_mm")
+    )
 
 
-def fitted_space(kin: Kinematics, dev: np.ndarray, points: dict[str, np.ndarray], q_rad: np.ndarray,
-                 point_ids: list[str]) -> MeasuredSpace:  # fmt: skip
+def fitted_space(
+    kin: Kinematics, dev: np.ndarray, points: dict[str, np.ndarray], q_rad: np.ndarray, point_ids: list[str]
+) -> MeasuredSpace:
     """The space of a fit: its table's joints q_rad (N, n) and the reflector centres `point_ids` (N,) of `points`
     (last joint frame, mm) where the fitted chain `kin` with deviations `dev` puts them."""
     tool = np.array([points[p] for p in point_ids]).reshape(-1, 3)

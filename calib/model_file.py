@@ -72,8 +72,11 @@ def extension_doc(res: Identification, shift: dict | None = None, ranges: Ranges
     them the extension is held at its value at the nearest fitted point (`Ranges`)."""
     ext = res.extension
     if ext is None:
-        return {"cause": "none"} if shift is None else {"cause": "station_shift", "causes": ["station_shift"],
-                                                         **shift, "parameters": {}}  # fmt: skip
+        return (
+            {"cause": "none"}
+            if shift is None
+            else {"cause": "station_shift", "causes": ["station_shift"], **shift, "parameters": {}}
+        )
     ci = res.ext_ci95()
     doc = {
         "cause": ext.cause,
@@ -103,8 +106,13 @@ def fitted_causes(ext: Extension, shift: dict | None = None) -> list[str]:
     return out + (["station_shift"] if shift is not None and "station_shift" not in out else [])
 
 
-def identification_to_doc(res: Identification, extra: dict | None = None, shift: dict | None = None,
-                          test_pose: np.ndarray | None = None, ranges: Ranges | None = None) -> dict:  # fmt: skip
+def identification_to_doc(
+    res: Identification,
+    extra: dict | None = None,
+    shift: dict | None = None,
+    test_pose: np.ndarray | None = None,
+    ranges: Ranges | None = None,
+) -> dict:
     """model.json of an identification; `test_pose` (rad): the cell's, for the `test_pose` entry (calib.tcp_figure);
     `ranges`: those of the rows it was fitted on (`extension_doc`)."""
     ci = res.param_ci95()
@@ -160,9 +168,11 @@ def extension_covariance(res: Identification, unit: np.ndarray) -> dict:
     their factors to boundary units)."""
     k, e = len(res.params), len(res.ext)
     f = np.asarray(res.extension.to_boundary, dtype=float)  # type: ignore[union-attr]
-    return {"order": list(res.extension.names),  # type: ignore[union-attr]
-            "matrix": (res.cov[k : k + e, k : k + e] * np.outer(f, f)).tolist(),
-            "with_parameters": (res.cov[:k, k : k + e] * np.outer(unit, f)).tolist()}  # fmt: skip
+    return {
+        "order": list(res.extension.names),  # type: ignore[union-attr]
+        "matrix": (res.cov[k : k + e, k : k + e] * np.outer(f, f)).tolist(),
+        "with_parameters": (res.cov[:k, k : k + e] * np.outer(unit, f)).tolist(),
+    }
 
 
 @dataclass
@@ -198,8 +208,9 @@ class Model:
         if self.cause in ("none", "unexplained"):
             return []
         names = [self.cause] + [c for c, _ in self.parts() if c != self.cause]
-        return list(dict.fromkeys(names)) + (["station_shift"] if "after_t_s" in info and
-                                             "station_shift" not in names else [])  # fmt: skip
+        return list(dict.fromkeys(names)) + (
+            ["station_shift"] if "after_t_s" in info and "station_shift" not in names else []
+        )
 
     def extension_values(self) -> tuple[list[str], np.ndarray]:
         """Extension parameter names and values in internal units (rad, N m, s)."""
@@ -257,8 +268,14 @@ class Model:
         """One line when joint angles q (N, n) rad leave the ranges the extension was fitted on (naming the rows and
         joints) or the joint error map's fitted arcs, else None."""
         arcs, ranges = self.arcs(), self.ranges()
-        lines = [w for w in [outside_warning(q, ranges) if ranges is not None else None,
-                             range_warning(q, arcs) if arcs else None] if w]  # fmt: skip
+        lines = [
+            w
+            for w in [
+                outside_warning(q, ranges) if ranges is not None else None,
+                range_warning(q, arcs) if arcs else None,
+            ]
+            if w
+        ]
         return "; ".join(lines) if lines else None
 
 
@@ -270,11 +287,15 @@ def outside_warning(q: np.ndarray, ranges: Ranges) -> str | None:
     if len(rows) == 0:
         return None
     named = ", ".join(str(r + 1) for r in rows[:10]) + (f" and {len(rows) - 10} more" if len(rows) > 10 else "")
-    per_joint = ", ".join(f"joint {j + 1}: {int(out[:, j].sum())} (fitted {np.degrees(lo):.1f} .. "
-                          f"{np.degrees(hi):.1f} deg)" for j, (lo, hi) in enumerate(ranges.joints_rad)
-                          if out[:, j].any())  # fmt: skip
-    return (f"rows {named} of {len(q)} leave the joint ranges the model's extension was fitted on ({per_joint}); "
-            "the extension is held there at its value at the nearest fitted angle")  # fmt: skip
+    per_joint = ", ".join(
+        f"joint {j + 1}: {int(out[:, j].sum())} (fitted {np.degrees(lo):.1f} .. {np.degrees(hi):.1f} deg)"
+        for j, (lo, hi) in enumerate(ranges.joints_rad)
+        if out[:, j].any()
+    )
+    return (
+        f"rows {named} of {len(q)} leave the joint ranges the model's extension was fitted on ({per_joint}); "
+        "the extension is held there at its value at the nearest fitted angle"
+    )
 
 
 def _extension_values(ext: dict, where: str) -> None:
@@ -285,8 +306,9 @@ def _extension_values(ext: dict, where: str) -> None:
         par = fields.mapping(par, f"{where}.parameters.{name}", ModelError)
         fields.json_number(par.get("value"), f"{where}.parameters.{name}.value", ModelError)
         if par.get("unit") not in UNIT_FACTORS:
-            raise ModelError(f"{where}.parameters.{name}.unit: expected one of {', '.join(UNIT_FACTORS)}, "
-                             f"got {par.get('unit')!r}")  # fmt: skip
+            raise ModelError(
+                f"{where}.parameters.{name}.unit: expected one of {', '.join(UNIT_FACTORS)}, got {par.get('unit')!r}"
+            )
     for key, arc in fields.mapping(ext.get("arcs", {}), f"{where}.arcs", ModelError).items():
         if not re.fullmatch(r"joint_[1-9][0-9]?", str(key)):
             raise ModelError(f"{where}.arcs: {key!r} is not joint_N (N the joint, from 1)")
@@ -339,8 +361,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     for sid, st in fields.mapping(doc["stations"], f"{path}: stations", ModelError).items():
         where = f"{path}: stations.{sid}"
         st = fields.mapping(st, where, ModelError)
-        stations[sid] = Station(fields.matrix(st.get("rotation"), f"{where}.rotation", ModelError, (3, 3)),
-                                fields.vector(st.get("translation_mm"), f"{where}.translation_mm", ModelError))
+        stations[sid] = Station(
+            fields.matrix(st.get("rotation"), f"{where}.rotation", ModelError, (3, 3)),
+            fields.vector(st.get("translation_mm"), f"{where}.translation_mm", ModelError),
+        )
     points = {}
     for pid, pt in fields.mapping(doc["tool_points"], f"{path}: tool_points", ModelError).items():
         where = f"{path}: tool_points.{pid}"
@@ -351,10 +375,15 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
     _extension_values(ext, f"{path}: extension")
     if "causes" in ext:
         causes = ext["causes"]
-        if not isinstance(causes, list) or not all(c in CAUSES for c in causes) or (
-                causes and causes[0] != ext.get("cause")):  # fmt: skip
-            raise ModelError(f"{path}: extension.causes: expected a list of causes from {', '.join(CAUSES)} "
-                             f"beginning with extension.cause, got {causes!r}")  # fmt: skip
+        if (
+            not isinstance(causes, list)
+            or not all(c in CAUSES for c in causes)
+            or (causes and causes[0] != ext.get("cause"))
+        ):
+            raise ModelError(
+                f"{path}: extension.causes: expected a list of causes from {', '.join(CAUSES)} "
+                f"beginning with extension.cause, got {causes!r}"
+            )
     model = Model(chain, params, dev, stations, points, doc)
     try:
         model.measured()

@@ -82,12 +82,16 @@ def usability(doc: dict) -> str | None:
     reasons = []
     bad = doc.get("poorly_determined") or {}
     if bad:
-        reasons.append(f"{len(bad)} parameter(s) poorly determined by its table ({', '.join(bad)}): their values are "
-                       "whatever the noise makes them")  # fmt: skip
+        reasons.append(
+            f"{len(bad)} parameter(s) poorly determined by its table ({', '.join(bad)}): their values are "
+            "whatever the noise makes them"
+        )
     sigma, before = test_pose_sigma_mm(doc), uncalibrated_error_mm(doc)
     if sigma is not None and before is not None and sigma > before:
-        reasons.append(f"its predicted TCP uncertainty at the test pose, {sigma:.3f} mm, exceeds the uncalibrated "
-                       f"robot's error, {before:.3f} mm")  # fmt: skip
+        reasons.append(
+            f"its predicted TCP uncertainty at the test pose, {sigma:.3f} mm, exceeds the uncalibrated "
+            f"robot's error, {before:.3f} mm"
+        )
     try:
         model = model_from_doc(doc)
     except ModelError:
@@ -124,8 +128,10 @@ def check_digest(doc: dict, source: str, accept_edited: bool = False) -> str | N
     EditedModelError for an edited one otherwise."""
     stated = doc.get(DIGEST_KEY)
     if stated is None:
-        return (f"{source}: no digest (written before trackcal sealed its models): its content cannot be checked "
-                "against what was identified")  # fmt: skip
+        return (
+            f"{source}: no digest (written before trackcal sealed its models): its content cannot be checked "
+            "against what was identified"
+        )
     if stated == content_digest(doc):
         return None
     if accept_edited:
@@ -154,25 +160,31 @@ def _check_covariance(model: Model, source: str) -> None:
     except (TypeError, ValueError):
         raise ModelError(f"{source}: covariance: expected a square matrix of numbers") from None
     if cov.shape != (len(order), len(order)) or not np.all(np.isfinite(cov)):
-        raise ModelError(f"{source}: covariance: expected a {len(order)} x {len(order)} matrix of finite numbers "
-                         f"(covariance_order), got shape {cov.shape}")  # fmt: skip
+        raise ModelError(
+            f"{source}: covariance: expected a {len(order)} x {len(order)} matrix of finite numbers "
+            f"(covariance_order), got shape {cov.shape}"
+        )
     var = np.diag(cov)
     if np.any(var < 0):
         i = int(np.argmin(var))
-        raise ModelError(f"{source}: covariance: the variance of {order[i]} is negative ({var[i]:.4g}): not positive "
-                         "semi-definite")  # fmt: skip
+        raise ModelError(
+            f"{source}: covariance: the variance of {order[i]} is negative ({var[i]:.4g}): not positive semi-definite"
+        )
     sd = np.sqrt(var)
     scale = np.where(sd > 0, sd, 1.0)
     corr = cov / np.outer(scale, scale)
     asym = np.abs(corr - corr.T)
     if asym.max(initial=0.0) > COVARIANCE_RTOL:
         i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
-        raise ModelError(f"{source}: covariance: not symmetric ({order[i]}, {order[j]}: {cov[i, j]:.6g} against "
-                         f"{cov[j, i]:.6g})")  # fmt: skip
+        raise ModelError(
+            f"{source}: covariance: not symmetric ({order[i]}, {order[j]}: {cov[i, j]:.6g} against {cov[j, i]:.6g})"
+        )
     low = float(np.linalg.eigvalsh(0.5 * (corr + corr.T)).min(initial=0.0)) if len(corr) else 0.0
     if low < -COVARIANCE_RTOL * max(1.0, float(np.abs(corr).max(initial=0.0))):
-        raise ModelError(f"{source}: covariance: not positive semi-definite (its correlation matrix has the "
-                         f"eigenvalue {low:.3g}): no covariance of a fit")  # fmt: skip
+        raise ModelError(
+            f"{source}: covariance: not positive semi-definite (its correlation matrix has the "
+            f"eigenvalue {low:.3g}): no covariance of a fit"
+        )
 
 
 def check_physics(model: Model, source: str) -> None:
@@ -182,6 +194,8 @@ def check_physics(model: Model, source: str) -> None:
     wild = implausible(model.chain, model.params, _values(model))
     if wild:
         name = wild[0].split(" ", 1)[0]
-        raise ModelError(f"{source}: parameters.{name}: {wild[0]} (the chain's physical bound: "
-                         "calib/model/plausible.py); not a calibration of this robot")  # fmt: skip
+        raise ModelError(
+            f"{source}: parameters.{name}: {wild[0]} (the chain's physical bound: "
+            "calib/model/plausible.py); not a calibration of this robot"
+        )
     _check_covariance(model, source)

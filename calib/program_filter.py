@@ -73,8 +73,10 @@ CHUNK = 500  # targets per batch of the nominal IK (memory: CHUNK x (IK_STARTS +
 
 # a declared target no move of the given files uses: the tool and base it is used with are not known (a reader gives
 # it the language's default frames), so correcting it could move it the wrong way
-UNUSED = ("no move in the given files uses it: the tool and base frame it runs with are not known (give the files "
-          "that use it)")
+UNUSED = (
+    "no move in the given files uses it: the tool and base frame it runs with are not known (give the files "
+    "that use it)"
+)
 
 
 class FilterError(CalibError):
@@ -184,8 +186,10 @@ def nearest_solution(candidates: np.ndarray, limits: np.ndarray, reference: np.n
     whole turn that stays in its limits, that `accepts(q_deg)`; None when none does."""
     options = []
     for c in candidates:
-        turns = [[v + 2.0 * np.pi * t for t in (-2, -1, 0, 1, 2) if lo <= v + 2.0 * np.pi * t <= hi]
-                 for v, (lo, hi) in zip(c, limits, strict=True)]  # fmt: skip
+        turns = [
+            [v + 2.0 * np.pi * t for t in (-2, -1, 0, 1, 2) if lo <= v + 2.0 * np.pi * t <= hi]
+            for v, (lo, hi) in zip(c, limits, strict=True)
+        ]
         options.append(np.array(list(itertools.product(*turns))).reshape(-1, len(c)))
     every = np.concatenate(options) if options else np.zeros((0, len(reference)))
     for i in np.argsort(np.sum((every - reference) ** 2, axis=1), kind="stable"):
@@ -206,8 +210,7 @@ def _quantile_table() -> RegularGridInterpolator:
     RATIO_GRID steps: |x|^2 of x ~ N(0, cov) is lam1 (that) with a, b the eigenvalues' ratios to the largest."""
     z2 = sobol_normal() ** 2
     grid = np.linspace(0.0, 1.0, RATIO_GRID + 1)
-    table = np.array([np.quantile(z2[:, 0] + a * z2[:, 1] + grid[:, None] * z2[:, 2], COVERAGE, axis=1)
-                      for a in grid])  # fmt: skip
+    table = np.array([np.quantile(z2[:, 0] + a * z2[:, 1] + grid[:, None] * z2[:, 2], COVERAGE, axis=1) for a in grid])
     return RegularGridInterpolator((grid, grid), table)
 
 
@@ -222,8 +225,10 @@ def radius95(cov: np.ndarray) -> np.ndarray:
 def _param_rows(model: Model) -> tuple[list[int | None], np.ndarray]:
     """(each of model.params' row in covariance_order, None when absent; its boundary -> internal factor)."""
     idx = {name: i for i, name in enumerate(model.doc.get("covariance_order") or [])}
-    return ([idx.get(p.name) for p in model.params],
-            np.array([1.0 if p.is_length else np.pi / 180.0 for p in model.params]))  # fmt: skip
+    return (
+        [idx.get(p.name) for p in model.params],
+        np.array([1.0 if p.is_length else np.pi / 180.0 for p in model.params]),
+    )
 
 
 def model_covariance(model: Model) -> np.ndarray:
@@ -274,8 +279,9 @@ def _checked(targets: list[Target], n: int) -> None:
                 raise FilterError(f"target {i + 1}: its {what} frame is not a finite 4 x 4 transform")
 
 
-def nominal_joints(chain: Chain, targets: list[Target], reference_deg, starts: int = IK_STARTS,
-                   seed: int = 0) -> tuple[np.ndarray, list[str]]:  # fmt: skip
+def nominal_joints(
+    chain: Chain, targets: list[Target], reference_deg, starts: int = IK_STARTS, seed: int = 0
+) -> tuple[np.ndarray, list[str]]:
     """((N, n) rad, why): each target's joints on the nominal chain, NaN with the reason where there are none. A joint
     target is its own; a Cartesian one is the nominal IK's solution in its configuration nearest the previous
     target's joints (the first: `reference_deg`), the controller's rule."""
@@ -301,15 +307,18 @@ def nominal_joints(chain: Chain, targets: list[Target], reference_deg, starts: i
             cands[i] = ik_candidates(chain, flanges[cart.index(i)][None], RETRY_STARTS, seed + 1 + i)[0]
             q = nearest_solution(cands[i], limits, ref, t.accepts)
         if q is None:
-            why[i] = (f"none of the nominal kinematics' {len(cands[i])} solutions is in the target's configuration "
-                      "within the joint limits")  # fmt: skip
+            why[i] = (
+                f"none of the nominal kinematics' {len(cands[i])} solutions is in the target's configuration "
+                "within the joint limits"
+            )
             continue
         q_nom[i] = ref = q
     return q_nom, why
 
 
-def _compensated(model: Model, q_nom: np.ndarray, tcps: np.ndarray, why: list[str], max_correction,
-                 allow_outside: bool) -> tuple[np.ndarray, np.ndarray, list[str]]:  # fmt: skip
+def _compensated(
+    model: Model, q_nom: np.ndarray, tcps: np.ndarray, why: list[str], max_correction, allow_outside: bool
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(q_cal (N, n) rad, NaN where kept; the model's TCP error of each target as it will be written (mm, NaN where
     unknown); warnings), compensating by groups of the same TCP; `why` gets the refusals."""
     q_cal, predicted, warnings = np.full_like(q_nom, np.nan), np.full(len(q_nom), np.nan), []
@@ -317,13 +326,16 @@ def _compensated(model: Model, q_nom: np.ndarray, tcps: np.ndarray, why: list[st
     keys = [tuple(np.round(tcp, 9)) for tcp in tcps]
     for key in dict.fromkeys(keys[i] for i in np.flatnonzero(found)):
         idx = np.array([i for i in np.flatnonzero(found) if keys[i] == key])
-        qc, rep = compensate(model, q_nom[idx], np.array(key), max_correction=max_correction,
-                             allow_outside=allow_outside)  # fmt: skip
+        qc, rep = compensate(
+            model, q_nom[idx], np.array(key), max_correction=max_correction, allow_outside=allow_outside
+        )
         for j, i in enumerate(idx):
             failure = rep.failures[j]
             if not failure and rep.conditioning[j] < NEAR_SINGULAR:
-                failure = (f"near a singularity (conditioning {rep.conditioning[j]:.1e} < {NEAR_SINGULAR:g}): small "
-                           "errors need large joint corrections")  # fmt: skip
+                failure = (
+                    f"near a singularity (conditioning {rep.conditioning[j]:.1e} < {NEAR_SINGULAR:g}): small "
+                    "errors need large joint corrections"
+                )
             why[i] = failure
             q_cal[i] = np.nan if failure else qc[j]
             predicted[i] = rep.uncompensated_position_mm[j] if failure else rep.position_error_mm[j]
@@ -331,9 +343,14 @@ def _compensated(model: Model, q_nom: np.ndarray, tcps: np.ndarray, why: list[st
     return q_cal, predicted, warnings
 
 
-def filter_targets(model: Model, targets: list[Target], reference_deg,
-                   max_correction: tuple[float, float] = (MAX_CORRECTION_MM, MAX_CORRECTION_DEG),
-                   allow_outside: bool = False, starts: int = IK_STARTS) -> FilterResult:  # fmt: skip
+def filter_targets(
+    model: Model,
+    targets: list[Target],
+    reference_deg,
+    max_correction: tuple[float, float] = (MAX_CORRECTION_MM, MAX_CORRECTION_DEG),
+    allow_outside: bool = False,
+    starts: int = IK_STARTS,
+) -> FilterResult:
     """Every target corrected for the calibrated `model` (module docstring), or kept with the reason; each with its
     predicted accuracy. `reference_deg`: the joints the robot is at before the first target."""
     chain = model.chain
@@ -364,14 +381,30 @@ def filter_targets(model: Model, targets: list[Target], reference_deg,
         bound[found] = predicted[found] + np.sqrt(radius95(cov) ** 2 + lack_of_fit_radius95(lof) ** 2)
         outside[found] = model.outside(q_eval[found])
     if model.doc.get("covariance") is None:
-        warnings.append("the model carries no covariance: the 95 % bounds hold its predicted error (and its lack "
-                        "of fit) alone, not its parameters' uncertainty")  # fmt: skip
+        warnings.append(
+            "the model carries no covariance: the 95 % bounds hold its predicted error (and its lack "
+            "of fit) alone, not its parameters' uncertainty"
+        )
     if misfit is None:
-        warnings.append("the model does not record its residual RMS and noise floor: the 95 % bounds do not hold what "
-                        "its form misses of the robot (its lack of fit)")  # fmt: skip
-    res = FilterResult(values, why, np.degrees(q_nom), np.degrees(q_cal), corr_mm, corr_deg, predicted, sigma, bound,
-                       outside, warnings, *outside_measured(model, targets, q_eval),
-                       lack_of_fit_mm=float("nan") if misfit is None else float(np.sqrt(misfit)))  # fmt: skip
+        warnings.append(
+            "the model does not record its residual RMS and noise floor: the 95 % bounds do not hold what "
+            "its form misses of the robot (its lack of fit)"
+        )
+    res = FilterResult(
+        values,
+        why,
+        np.degrees(q_nom),
+        np.degrees(q_cal),
+        corr_mm,
+        corr_deg,
+        predicted,
+        sigma,
+        bound,
+        outside,
+        warnings,
+        *outside_measured(model, targets, q_eval),
+        lack_of_fit_mm=float("nan") if misfit is None else float(np.sqrt(misfit)),
+    )
     warnings += space_warnings(model, res)
     return res
 
@@ -382,8 +415,9 @@ def intended_tcp(chain: Chain, targets: list[Target]) -> np.ndarray:
     kin = Kinematics(chain, [])
     out = np.zeros((len(targets), 3))
     for i, t in enumerate(targets):
-        pose = (flange_poses(kin, np.radians(np.asarray(t.value, dtype=float)))[0] @ t.tool if t.joint
-                else t.base @ t.value)  # fmt: skip
+        pose = (
+            flange_poses(kin, np.radians(np.asarray(t.value, dtype=float)))[0] @ t.tool if t.joint else t.base @ t.value
+        )
         out[i] = pose[:3, 3]
     return out
 
@@ -404,11 +438,15 @@ def space_warnings(model: Model, res: FilterResult) -> list[str]:
     """The lines saying where the bounds are not covered: targets outside the measured space, or a model that does
     not record it."""
     if model.measured() is None:
-        return ["the model does not record where it was measured (written before trackcal recorded its joint ranges "
-                "and volume): whether a target lies outside them, where its bound is an extrapolation, is unknown"]
+        return [
+            "the model does not record where it was measured (written before trackcal recorded its joint ranges "
+            "and volume): whether a target lies outside them, where its bound is an extrapolation, is unknown"
+        ]
     n = int(res.extrapolated.sum())
     if n == 0:
         return []
-    return [f"{n} of {len(res.why)} target(s) lie outside the joint ranges or the volume the model was measured in: "
-            "their 95 % bounds are extrapolations (not covered: the model's uncertainty there says nothing of what "
-            "it does not model), their pass/fail unknown"]
+    return [
+        f"{n} of {len(res.why)} target(s) lie outside the joint ranges or the volume the model was measured in: "
+        "their 95 % bounds are extrapolations (not covered: the model's uncertainty there says nothing of what "
+        "it does not model), their pass/fail unknown"
+    ]

@@ -25,10 +25,12 @@ from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import skew
 
-NOTE = ("the TCP (centroid of the model's reference points) at the cell's test pose, in station {station}'s frame, "
-        "and its standard uncertainty sigma_mm (1-sigma 3-D: sqrt of the trace of its covariance) from the model's "
-        "full covariance (robot parameters, the station, the points); correction_mm: how far the calibration moves "
-        "it from where the nominal robot puts it")  # fmt: skip
+NOTE = (
+    "the TCP (centroid of the model's reference points) at the cell's test pose, in station {station}'s frame, "
+    "and its standard uncertainty sigma_mm (1-sigma 3-D: sqrt of the trace of its covariance) from the model's "
+    "full covariance (robot parameters, the station, the points); correction_mm: how far the calibration moves "
+    "it from where the nominal robot puts it"
+)
 
 
 @dataclass(frozen=True)
@@ -47,19 +49,23 @@ class TcpFigure:
     def to_doc(self) -> dict:
         """model.json's and identify's summary's `test_pose`."""
         return {
-            "joints_deg": self.joints_deg.tolist(), "station": self.station, "tcp_mm": self.tcp_mm.tolist(),
+            "joints_deg": self.joints_deg.tolist(),
+            "station": self.station,
+            "tcp_mm": self.tcp_mm.tolist(),
             "sigma_mm": self.sigma_mm,
             "sigma_xyz_mm": np.sqrt(np.maximum(np.diag(self.cov_mm2), 0.0)).tolist(),
-            "correction_mm": self.correction_mm, "note": NOTE.format(station=self.station),
-        }  # fmt: skip
+            "correction_mm": self.correction_mm,
+            "note": NOTE.format(station=self.station),
+        }
 
 
 def tcp_rows(q0: np.ndarray, points: list[str], station: str) -> MeasurementTable:
     """One row per reference point at the test pose q0 (rad), seen from `station`, at the campaign's start."""
     n = len(points)
     q = np.repeat(np.degrees(np.asarray(q0, dtype=float))[None], n, axis=0)
-    return MeasurementTable(np.arange(1, n + 1), np.zeros(n), ["test"] * n, [station] * n, list(points), q, None,
-                            source="test pose")  # fmt: skip
+    return MeasurementTable(
+        np.arange(1, n + 1), np.zeros(n), ["test"] * n, [station] * n, list(points), q, None, source="test pose"
+    )
 
 
 def _centroid_base(res: Identification, q0: np.ndarray) -> Callable[[np.ndarray, dict[str, np.ndarray]], np.ndarray]:
@@ -83,8 +89,9 @@ def identified_tcp(res: Identification, q0: np.ndarray, station: str) -> np.ndar
     return res.stations[station].apply(_centroid_base(res, q0)(res.dev, res.points))
 
 
-def tcp_covariance(res: Identification, q0: np.ndarray, station: str, variance_factor: float | None = None,
-                   step: float = 1e-6) -> np.ndarray:  # fmt: skip
+def tcp_covariance(
+    res: Identification, q0: np.ndarray, station: str, variance_factor: float | None = None, step: float = 1e-6
+) -> np.ndarray:
     """(3, 3) covariance of the identification's TCP at the test pose q0 (rad) in `station`'s frame, from its
     covariance of the robot parameters, the station and the points. Numerical first-order propagation: forward
     differences of `step` (mm, rad) on the centroid, the station's perturbation as the solver defines it
@@ -127,5 +134,10 @@ def figure_at_test_pose(res: Identification, q0: np.ndarray) -> TcpFigure:
     station = res.station_ids[0]
     centroid = _centroid_base(res, q0)
     model, nominal = centroid(res.dev, res.points), centroid(np.zeros_like(res.dev), res.points)
-    return TcpFigure(station, np.degrees(np.asarray(q0, dtype=float)), res.stations[station].apply(model),
-                     tcp_covariance(res, q0, station), float(np.linalg.norm(model - nominal)))  # fmt: skip
+    return TcpFigure(
+        station,
+        np.degrees(np.asarray(q0, dtype=float)),
+        res.stations[station].apply(model),
+        tcp_covariance(res, q0, station),
+        float(np.linalg.norm(model - nominal)),
+    )

@@ -99,8 +99,11 @@ class Input:
     def draw(self, rng: np.random.Generator, m: int) -> np.ndarray:
         """m draws of the offset's error, (m, 3)."""
         k = self.a.shape[1]
-        z = rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), (m, k)) if self.distribution == "rectangular" else \
-            rng.standard_normal((m, k))  # fmt: skip
+        z = (
+            rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), (m, k))
+            if self.distribution == "rectangular"
+            else rng.standard_normal((m, k))
+        )
         return z @ self.a.T
 
 
@@ -116,8 +119,13 @@ class Line:
     contribution_mm: float
 
     def to_doc(self) -> dict:
-        return {"input": self.name, "source": self.source, "distribution": self.distribution,
-                "standard_uncertainty": self.u_text, "contribution_mm": self.contribution_mm}  # fmt: skip
+        return {
+            "input": self.name,
+            "source": self.source,
+            "distribution": self.distribution,
+            "standard_uncertainty": self.u_text,
+            "contribution_mm": self.contribution_mm,
+        }
 
 
 @dataclass(frozen=True)
@@ -145,10 +153,17 @@ class Budget:
         return float(max(self.value - lo, hi - self.value))
 
     def to_doc(self) -> dict:
-        return {"figure": self.figure, "value_mm": self.value, "lines": [line.to_doc() for line in self.lines],
-                "u_c_mm": self.u_c, "k": self.k, "U_mm": self.k * self.u_c, "method": self.method,
-                "interval95_mm": None if self.interval is None else list(self.interval),
-                "U_decision_mm": self.expanded}  # fmt: skip
+        return {
+            "figure": self.figure,
+            "value_mm": self.value,
+            "lines": [line.to_doc() for line in self.lines],
+            "u_c_mm": self.u_c,
+            "k": self.k,
+            "U_mm": self.k * self.u_c,
+            "method": self.method,
+            "interval95_mm": None if self.interval is None else list(self.interval),
+            "U_decision_mm": self.expanded,
+        }
 
 
 def shortest_interval(samples: np.ndarray, p: float = PROBABILITY) -> tuple[float, float]:
@@ -196,34 +211,77 @@ def pose_inputs(x: np.ndarray, covs: np.ndarray, s: PoseSetting) -> list[Input]:
     ybar = s.y_station.mean(axis=0)
     rt = s.rotation.T
     out = [
-        Input("tracker", f"{s.tracker}: datasheet MPE read as 2 sigma, mean of {n} measurements", "normal",
-              f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement",
-              _sqrt_psd(covs.sum(axis=0) / n**2)),
-        Input("station estimate, translation", "model.json: the calibration's 95 % interval / 1.96", "normal",
-              ", ".join(_um(v) for v in s.station_u[:3]), -rt * s.station_u[:3]),
-        Input("station estimate, rotation", "model.json: the calibration's 95 % interval / 1.96", "normal",
-              ", ".join(f"{np.degrees(v) * 3600:.2f}\"" for v in s.station_u[3:]),
-              rt @ skew(ybar) * s.station_u[3:]),
-        Input("tool point estimate", "model.json: the calibration's 95 % interval / 1.96", "normal",
-              ", ".join(_um(v) for v in s.point_u), s.tool_rotation * s.point_u),
-    ]  # fmt: skip
+        Input(
+            "tracker",
+            f"{s.tracker}: datasheet MPE read as 2 sigma, mean of {n} measurements",
+            "normal",
+            f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement",
+            _sqrt_psd(covs.sum(axis=0) / n**2),
+        ),
+        Input(
+            "station estimate, translation",
+            "model.json: the calibration's 95 % interval / 1.96",
+            "normal",
+            ", ".join(_um(v) for v in s.station_u[:3]),
+            -rt * s.station_u[:3],
+        ),
+        Input(
+            "station estimate, rotation",
+            "model.json: the calibration's 95 % interval / 1.96",
+            "normal",
+            ", ".join(f'{np.degrees(v) * 3600:.2f}"' for v in s.station_u[3:]),
+            rt @ skew(ybar) * s.station_u[3:],
+        ),
+        Input(
+            "tool point estimate",
+            "model.json: the calibration's 95 % interval / 1.96",
+            "normal",
+            ", ".join(_um(v) for v in s.point_u),
+            s.tool_rotation * s.point_u,
+        ),
+    ]
     c = s.centring_mm
-    out.append(Input("reflector centring in its nest", "the tool file's reflector.centring_um (a maximum)" if c
-                     is not None else "not stated by the tool file (reflector.centring_um): left out", "rectangular",
-                     "-" if c is None else f"±{_um(c)} per axis", np.eye(3) * ((c or 0.0) / np.sqrt(3.0))))
+    out.append(
+        Input(
+            "reflector centring in its nest",
+            "the tool file's reflector.centring_um (a maximum)"
+            if c is not None
+            else "not stated by the tool file (reflector.centring_um): left out",
+            "rectangular",
+            "-" if c is None else f"±{_um(c)} per axis",
+            np.eye(3) * ((c or 0.0) / np.sqrt(3.0)),
+        )
+    )
     h = s.temp_halfrange_k
     hu = 0.0 if h is None else h / np.sqrt(3.0)  # a rectangular half-width h: u = h / sqrt 3 (JCGM 100:2008, 4.3.7)
     source = "not recorded: left out" if h is None else f"meteo record of the test: ±{h:.2f} K (half its range)"
     grow = ALPHA_STEEL * x.mean(axis=0) + ALPHA_ALUMINIUM * (s.tool_rotation @ s.tool_point)
-    out.append(Input("temperature: arm (steel) and tool (aluminium) expansion", source, "rectangular",
-                     f"{hu:.3f} K", (grow * hu)[:, None]))  # fmt: skip
+    out.append(
+        Input(
+            "temperature: arm (steel) and tool (aluminium) expansion",
+            source,
+            "rectangular",
+            f"{hu:.3f} K",
+            (grow * hu)[:, None],
+        )
+    )
     beam = rt @ ybar * REFRACTION_PER_K  # the range scales by -0.93 ppm/K along the beam (its sign is immaterial)
-    out.append(Input("temperature: air along the beam (refraction)", source, "rectangular", f"{hu:.3f} K",
-                     (beam * hu)[:, None]))
+    out.append(
+        Input(
+            "temperature: air along the beam (refraction)", source, "rectangular", f"{hu:.3f} K", (beam * hu)[:, None]
+        )
+    )
     scatter = np.cov(x.T, ddof=1) - covs.mean(axis=0) if n >= 2 else np.zeros((3, 3))
     robot = _sqrt_psd(scatter) / np.sqrt(n)
-    out.append(Input("robot repeatability (as measured)", f"Type A: scatter of the {n} cycles less the tracker's, / n",
-                     "normal", f"{_um(float(np.sqrt(max(np.trace(robot @ robot.T), 0.0) / 3)))} per axis", robot))
+    out.append(
+        Input(
+            "robot repeatability (as measured)",
+            f"Type A: scatter of the {n} cycles less the tracker's, / n",
+            "normal",
+            f"{_um(float(np.sqrt(max(np.trace(robot @ robot.T), 0.0) / 3)))} per axis",
+            robot,
+        )
+    )
     return out
 
 
@@ -270,8 +328,9 @@ def _log_ratio(t: np.ndarray, lam: float) -> np.ndarray:
     return _log_sinhc(t, np.full_like(t, lam)) - lam * lam / 2 - (_log_sinhc(t, hat) - hat * hat / 2)
 
 
-def norm_interval(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED,
-                  p: float = PROBABILITY) -> tuple[float, float]:  # fmt: skip
+def norm_interval(
+    offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED, p: float = PROBABILITY
+) -> tuple[float, float]:
     """The confidence interval (probability p) of |o_true| from the measured offset o and the inputs' errors E:
     Neyman's construction with Feldman and Cousins' ordering (module docstring)."""
     o = np.asarray(offset, dtype=float).reshape(3)
@@ -301,12 +360,18 @@ def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> B
     o = np.asarray(offset, dtype=float).reshape(3)
     value = float(np.linalg.norm(o))
     e = o / value if value > 0 else np.zeros(3)
-    lines = [Line(i.name, i.source, i.distribution, i.u_text, float(np.sqrt(max(e @ i.cov() @ e, 0.0))))
-             for i in inputs]  # fmt: skip
-    return Budget("AP_P", value, lines, interval=norm_interval(o, inputs, seed),
-                  method=f"Monte-Carlo (JCGM 101:2008), M = {FC_TRIALS} per trial value; 95 % confidence interval of "
-                         "the true AP by Neyman's construction, Feldman-Cousins ordering; lines by the GUM law of "
-                         "propagation (JCGM 100:2008, 5.1.2)")  # fmt: skip
+    lines = [
+        Line(i.name, i.source, i.distribution, i.u_text, float(np.sqrt(max(e @ i.cov() @ e, 0.0)))) for i in inputs
+    ]
+    return Budget(
+        "AP_P",
+        value,
+        lines,
+        interval=norm_interval(o, inputs, seed),
+        method=f"Monte-Carlo (JCGM 101:2008), M = {FC_TRIALS} per trial value; 95 % confidence interval of "
+        "the true AP by Neyman's construction, Feldman-Cousins ordering; lines by the GUM law of "
+        "propagation (JCGM 100:2008, 5.1.2)",
+    )
 
 
 def repeatability(x: np.ndarray) -> np.ndarray:
@@ -334,13 +399,25 @@ def rp_budget(x: np.ndarray, covs: np.ndarray, u_gum: float, tracker: str, seed:
         m = min(MC_CHUNK, MC_TRIALS - start)
         z = rng.standard_normal((m, n, 3))
         draws.append(repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
-    lines = [Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma, each of {n} measurements", "normal",
-                  f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement", u_gum)]
+    lines = [
+        Line(
+            "tracker",
+            f"{tracker}: datasheet MPE read as 2 sigma, each of {n} measurements",
+            "normal",
+            f"{_um(float(np.sqrt(np.trace(covs.mean(axis=0)) / 3)))} per axis and measurement",
+            u_gum,
+        )
+    ]
     lines += [Line(name, "common to every cycle: cancels in x_j - x_bar", "-", "-", 0.0) for name in COMMON]
     lines.append(Line("robot repeatability", "the measurand itself (not an input)", "-", "-", 0.0))
-    return Budget("RP_l", float(repeatability(x)), lines, interval=shortest_interval(np.concatenate(draws)),
-                  method=f"Monte-Carlo (JCGM 101:2008), M = {MC_TRIALS}, shortest 95 % interval; the tracker's "
-                         "line by the GUM law of propagation (JCGM 100:2008, 5.1.2)")  # fmt: skip
+    return Budget(
+        "RP_l",
+        float(repeatability(x)),
+        lines,
+        interval=shortest_interval(np.concatenate(draws)),
+        method=f"Monte-Carlo (JCGM 101:2008), M = {MC_TRIALS}, shortest 95 % interval; the tracker's "
+        "line by the GUM law of propagation (JCGM 100:2008, 5.1.2)",
+    )
 
 
 def tracker_budget(figure: str, value: float, u95: float, tracker: str, common: str) -> Budget:
@@ -351,8 +428,9 @@ def tracker_budget(figure: str, value: float, u95: float, tracker: str, common: 
     return Budget(figure, value, lines)
 
 
-def ad_budget(value: float, u95_tracker: float, distance_mm: float, temp_halfrange_k: float | None,
-              tracker: str) -> Budget:  # fmt: skip
+def ad_budget(
+    value: float, u95_tracker: float, distance_mm: float, temp_halfrange_k: float | None, tracker: str
+) -> Budget:
     """AD_P = D_bar - D_c (ISO 9283:1998, 7.3), linear: the tracker (its exact gradient), the temperature (the arm's
     steel and the air's refraction scale a distance D by alpha dT and 0.93e-6 dT), the common inputs cancel (a rigid
     move of both poses, the same nest; the tool point's estimate moves both commanded positions alike at one tool
@@ -360,10 +438,18 @@ def ad_budget(value: float, u95_tracker: float, distance_mm: float, temp_halfran
     h = temp_halfrange_k
     hu = 0.0 if h is None else h / np.sqrt(3.0)
     source = "not recorded: left out" if h is None else f"meteo record of the test: ±{h:.2f} K (half its range)"
-    lines = [Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma", "normal", "-", u95_tracker / COVERAGE),
-             Line("temperature: arm (steel) expansion", source, "rectangular", f"{hu:.3f} K",
-                  ALPHA_STEEL * distance_mm * hu),
-             Line("temperature: air along the beam (refraction)", source, "rectangular", f"{hu:.3f} K",
-                  REFRACTION_PER_K * distance_mm * hu)]  # fmt: skip
+    lines = [
+        Line("tracker", f"{tracker}: datasheet MPE read as 2 sigma", "normal", "-", u95_tracker / COVERAGE),
+        Line(
+            "temperature: arm (steel) expansion", source, "rectangular", f"{hu:.3f} K", ALPHA_STEEL * distance_mm * hu
+        ),
+        Line(
+            "temperature: air along the beam (refraction)",
+            source,
+            "rectangular",
+            f"{hu:.3f} K",
+            REFRACTION_PER_K * distance_mm * hu,
+        ),
+    ]
     lines += [Line(name, "common to both poses: cancels in their distance", "-", "-", 0.0) for name in COMMON]
     return Budget("AD_P", value, lines)

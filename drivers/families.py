@@ -74,8 +74,9 @@ def program_names(names: list[str] | None, n: int, prefix: str, unnamed: str, ma
     return out
 
 
-def program_targets(q_deg, speed_pct, controller: str, axes: int, angles: str, speed: str,
-                    error: type[ProgramError]) -> tuple[np.ndarray, int]:  # fmt: skip
+def program_targets(
+    q_deg, speed_pct, controller: str, axes: int, angles: str, speed: str, error: type[ProgramError]
+) -> tuple[np.ndarray, int]:
     """(targets (N, axes) degrees, speed override %) of a `controller`'s program, or `error` saying what is wrong:
     rows of `axes` finite `angles` (as the controller names them), an integer `speed` override of 1..100 %."""
     q = np.atleast_2d(np.asarray(q_deg, dtype=float))

@@ -119,27 +119,33 @@ class Robot(Protocol):
     def joints(self) -> tuple[float, ...]:
         """Actual joint angles in degrees, at the controller's precision (0.0001 deg)."""
         ...
+
     def move(self, target_deg: tuple[float, ...], speed_override_pct: float) -> None:
         """Check the target (joint limits, cell box) and move there (joint interpolated); returns once the move is
         done."""
         ...
+
     def wait_settled(self, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple[float, ...]:
         """Wait until the actual joints stay within `tolerance_deg` for `window_s`; returns them (the engine compares
         them with the move's target: they must equal it within JOINT_RESOLUTION_DEG). A controller reporting its
         joints on more than one channel checks that they agree (DeviceFault otherwise)."""
         ...
+
     def stop(self) -> None:
         """Brake the running move on its path (a controlled stop, drives stay on); returns once the arm stands."""
         ...
+
     def state(self) -> RobotState: ...
     def reset_faults(self) -> None:
         """Clear the controller's latched faults (E-stop seen, drives off) once the operator acknowledged;
         DeviceFault if one is still active."""
         ...
+
     def identity(self) -> DeviceIdentity:
         """The controller's serial number and software version: read from it where its protocol offers a query,
         else what the hardware file states (source FROM_HARDWARE_FILE)."""
         ...
+
     def close(self) -> None: ...
 
 

@@ -38,8 +38,16 @@ def time_left(deadline: float, expired: Callable[[], DeviceError]) -> float:
     return left
 
 
-def receive(sock: socket.socket, nbytes: int, timeout_s: float, *, device: str, failed: str, closed: str,
-            drop: Callable[[], None]) -> bytes | None:  # fmt: skip
+def receive(
+    sock: socket.socket,
+    nbytes: int,
+    timeout_s: float,
+    *,
+    device: str,
+    failed: str,
+    closed: str,
+    drop: Callable[[], None],
+) -> bytes | None:
     """One read of at most `nbytes` from a stream socket within `timeout_s`: the bytes, or None when none came in
     time (also when no time is left). A read that fails, or the peer closing the stream, is the end of the
     connection: `drop()` (the client lets go of its socket), then ConnectionLost "`failed`: <the error>" or
@@ -69,6 +77,7 @@ def claim_socket(address: str, device: str) -> socket.socket:
         sock.bind(address)
     except OSError as exc:
         sock.close()
-        raise ConnectionLost(f"another trackcal process on this PC drives this controller ({exc.strerror})",
-                             device=device) from exc  # fmt: skip
+        raise ConnectionLost(
+            f"another trackcal process on this PC drives this controller ({exc.strerror})", device=device
+        ) from exc
     return sock

@@ -111,12 +111,19 @@ class Effects:
             sid, t, rvec, tvec = self.shift
             shift = (sid, t, rvec * factor, tvec * factor)
         return replace(
-            self, compliance=mul(self.compliance), backlash=mul(self.backlash), encoder_scale=mul(self.encoder_scale),
-            cyclic=[(j, h, a * factor, p) for j, h, a, p in self.cyclic], thermal_per_s=self.thermal_per_s * factor,
-            shift=shift, warmup_inf=self.warmup_inf * factor, payload_compliance=mul(self.payload_compliance),
-            coupling=mul(self.coupling), range_scale={k: v * factor for k, v in self.range_scale.items()},
+            self,
+            compliance=mul(self.compliance),
+            backlash=mul(self.backlash),
+            encoder_scale=mul(self.encoder_scale),
+            cyclic=[(j, h, a * factor, p) for j, h, a, p in self.cyclic],
+            thermal_per_s=self.thermal_per_s * factor,
+            shift=shift,
+            warmup_inf=self.warmup_inf * factor,
+            payload_compliance=mul(self.payload_compliance),
+            coupling=mul(self.coupling),
+            range_scale={k: v * factor for k, v in self.range_scale.items()},
             nest_sag={k: v * factor for k, v in self.nest_sag.items()},
-        )  # fmt: skip
+        )
 
     def to_doc(self) -> dict:
         """The hidden effects' true parameters in boundary units (deg, mm, s), for the twin's truth file; {} when
@@ -125,34 +132,53 @@ class Effects:
         if self.compliance is not None:
             doc["joint_compliance"] = {"deg_per_n_m": np.degrees(self.compliance).tolist()}
             if self.mass_chain is not None:
-                doc["joint_compliance"]["masses"] = [{"joint": j.name, "mass_kg": float(j.mass_kg),
-                                                      "com_mm": np.asarray(j.com, dtype=float).tolist()}
-                                                     for j in self.mass_chain.joints]  # fmt: skip
+                doc["joint_compliance"]["masses"] = [
+                    {"joint": j.name, "mass_kg": float(j.mass_kg), "com_mm": np.asarray(j.com, dtype=float).tolist()}
+                    for j in self.mass_chain.joints
+                ]
         if self.backlash is not None:
             doc["backlash"] = {"full_width_deg": np.degrees(self.backlash).tolist()}
         if self.encoder_scale is not None:
             doc["encoder_scale"] = {"scale": np.asarray(self.encoder_scale, dtype=float).tolist()}
         if self.cyclic:
-            doc["cyclic_error"] = [{"joint": int(j) + 1, "harmonic": int(h), "amplitude_deg": float(np.degrees(a)),
-                                    "phase_rad": float(ph)} for j, h, a, ph in self.cyclic]  # fmt: skip
+            doc["cyclic_error"] = [
+                {"joint": int(j) + 1, "harmonic": int(h), "amplitude_deg": float(np.degrees(a)), "phase_rad": float(ph)}
+                for j, h, a, ph in self.cyclic
+            ]
         if self.thermal_per_s:
-            doc["thermal_drift"] = {"growth_per_s": float(self.thermal_per_s),
-                                    "pivot_mm": np.asarray(self.thermal_pivot, dtype=float).tolist()}  # fmt: skip
+            doc["thermal_drift"] = {
+                "growth_per_s": float(self.thermal_per_s),
+                "pivot_mm": np.asarray(self.thermal_pivot, dtype=float).tolist(),
+            }
         if self.warmup_inf:
-            doc["thermal_warmup"] = {"e_inf": float(self.warmup_inf), "tau_s": float(self.warmup_tau_s),
-                                     "pivot_mm": np.asarray(self.warmup_pivot, dtype=float).tolist()}  # fmt: skip
+            doc["thermal_warmup"] = {
+                "e_inf": float(self.warmup_inf),
+                "tau_s": float(self.warmup_tau_s),
+                "pivot_mm": np.asarray(self.warmup_pivot, dtype=float).tolist(),
+            }
         if self.payload_compliance is not None and self.payload is not None:
-            doc["payload_compliance"] = {"deg_per_n_m": np.degrees(self.payload_compliance).tolist(),
-                                         "load_kg": float(self.payload[0]), "mounted_after_t_s": float(self.payload[1]),
-                                         "com_mm": np.asarray(self.payload_chain.joints[-1].com, float).tolist()}
+            doc["payload_compliance"] = {
+                "deg_per_n_m": np.degrees(self.payload_compliance).tolist(),
+                "load_kg": float(self.payload[0]),
+                "mounted_after_t_s": float(self.payload[1]),
+                "com_mm": np.asarray(self.payload_chain.joints[-1].com, float).tolist(),
+            }
         if self.shift is not None:
             sid, t, rvec, tvec = self.shift
-            doc["station_shift"] = {"station": sid, "after_t_s": float(t), "rotation_vector_deg":
-                                    np.degrees(rvec).tolist(), "translation_mm": np.asarray(tvec).tolist()}  # fmt: skip
+            doc["station_shift"] = {
+                "station": sid,
+                "after_t_s": float(t),
+                "rotation_vector_deg": np.degrees(rvec).tolist(),
+                "translation_mm": np.asarray(tvec).tolist(),
+            }
         if self.coupling is not None:
             n = len(self.coupling)
-            doc["wrist_coupling"] = {f"c{i + 1}{j + 1}": float(self.coupling[i, j]) for i in range(n) for j in range(n)
-                                     if self.coupling[i, j]}  # fmt: skip
+            doc["wrist_coupling"] = {
+                f"c{i + 1}{j + 1}": float(self.coupling[i, j])
+                for i in range(n)
+                for j in range(n)
+                if self.coupling[i, j]
+            }
         if self.range_scale:
             doc["range_scale"] = {"scale": dict(sorted(self.range_scale.items()))}
         if self.nest_sag:
@@ -166,8 +192,15 @@ class Effects:
         return exp_so3(self.shift[2]), self.shift[3]
 
 
-def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: list[str], t_mid: float,
-                thermal_pivot: str = "base", points: tuple[str, ...] = ()) -> Effects:  # fmt: skip
+def unit_effect(
+    name: str,
+    chain: Chain,
+    rng: np.random.Generator,
+    stations: list[str],
+    t_mid: float,
+    thermal_pivot: str = "base",
+    points: tuple[str, ...] = (),
+) -> Effects:
     """The shape of each effect at an arbitrary scale (then scaled to the requested magnitude); `thermal_pivot`
     (THERMAL_PIVOTS) is the point thermal growth keeps fixed; `points` the reference points (nest_sag)."""
     n = chain.dof
@@ -194,8 +227,9 @@ def unit_effect(name: str, chain: Chain, rng: np.random.Generator, stations: lis
         if thermal_pivot not in THERMAL_PIVOTS:
             raise ValueError(f"unknown thermal pivot {thermal_pivot!r}; choose from {', '.join(THERMAL_PIVOTS)}")
         pivot = np.zeros(3) if thermal_pivot == "base" else np.array(chain.base[:3, 3], dtype=float)
-        return Effects(warmup_inf=STEEL_PER_K * WARMUP_K, warmup_tau_s=t_mid * rng.uniform(0.5, 1.5),
-                       warmup_pivot=pivot)  # fmt: skip
+        return Effects(
+            warmup_inf=STEEL_PER_K * WARMUP_K, warmup_tau_s=t_mid * rng.uniform(0.5, 1.5), warmup_pivot=pivot
+        )
     if name == "payload_compliance":  # bolted on halfway through the first station's block
         shape = np.array([1.0, 1.0, 1.0] + [2.0] * (n - 3))[:n]
         return Effects(payload_compliance=1e-7 * shape, payload_chain=chain, payload=(PAYLOAD_KG, t_mid))

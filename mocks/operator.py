@@ -23,8 +23,15 @@ class SimHuman:
     (world time). `acknowledges=False`: he does the work and closes the door but leaves the acknowledgement to
     someone else (the operator's page in `run --sim --operator web`); `acted` counts the requests he has done."""
 
-    def __init__(self, world: World, plc: MockPlc, hold_s: float = 0.05, action_s: float = 60.0,
-                 max_hold_s: float = 30.0, acknowledges: bool = True):  # fmt: skip
+    def __init__(
+        self,
+        world: World,
+        plc: MockPlc,
+        hold_s: float = 0.05,
+        action_s: float = 60.0,
+        max_hold_s: float = 30.0,
+        acknowledges: bool = True,
+    ):
         self.world, self.plc, self.hold_s, self.action_s = world, plc, hold_s, action_s
         self.acknowledges, self.acted = acknowledges, 0
         self.max_hold_s = max_hold_s

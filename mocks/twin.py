@@ -37,10 +37,25 @@ from trackcal.mocks.effects import Effects, unit_effect
 
 # Paper Table 8: the KR-270's identified deviations (mm, deg), the default hidden truth of the twin.
 PAPER_TABLE8 = {
-    "px1": -0.353, "py1": 0.426, "phix1": 0.015, "dq2": -0.007, "px2": 0.458, "phix2": 0.022,
-    "phiz2": -0.023, "dq3": -0.023, "px3": -0.214, "pz3": -0.508, "phiz3": -0.011, "dq4": 0.001,
-    "py4": -0.167, "pz4": -0.018, "phiz4": 0.025, "dq5": -0.011, "pz5": 0.016, "phiz5": -0.008,
-}  # fmt: skip
+    "px1": -0.353,
+    "py1": 0.426,
+    "phix1": 0.015,
+    "dq2": -0.007,
+    "px2": 0.458,
+    "phix2": 0.022,
+    "phiz2": -0.023,
+    "dq3": -0.023,
+    "px3": -0.214,
+    "pz3": -0.508,
+    "phiz3": -0.011,
+    "dq4": 0.001,
+    "py4": -0.167,
+    "pz4": -0.018,
+    "phiz4": 0.025,
+    "dq5": -0.011,
+    "pz5": 0.016,
+    "phiz5": -0.008,
+}
 
 REFERENCE_POSES = 40
 
@@ -64,8 +79,10 @@ def drawn_deviations(chain: Chain, seed: int) -> dict[str, float]:
     """The deviations (mm, deg) of every irreducible parameter of `chain`, drawn from N(0, DEVIATION_SIGMA_MM) for
     lengths and N(0, DEVIATION_SIGMA_DEG) for angles; a pure function of (seed, chain name)."""
     rng = stable_seed(seed, f"twin/deviations/{chain.name}")
-    return {p.name: float(rng.normal(0.0, DEVIATION_SIGMA_MM if p.is_length else DEVIATION_SIGMA_DEG))
-            for p in irreducible_params(chain)[0]}  # fmt: skip
+    return {
+        p.name: float(rng.normal(0.0, DEVIATION_SIGMA_MM if p.is_length else DEVIATION_SIGMA_DEG))
+        for p in irreducible_params(chain)[0]
+    }
 
 
 @dataclass
@@ -173,8 +190,10 @@ class Twin:
         self.approach = np.zeros(self.cell.chain.dof)
         q = np.degrees(self.cell.test_pose)
         try:
-            return {sid: {pid: self.exact(q, pid, sid) for pid in sorted(self.true_points)}
-                    for sid in sorted(self.true_stations)}  # fmt: skip
+            return {
+                sid: {pid: self.exact(q, pid, sid) for pid in sorted(self.true_points)}
+                for sid in sorted(self.true_stations)
+            }
         finally:
             self.approach = saved
 
@@ -187,32 +206,45 @@ class Twin:
         pars = {}
         for p, v in zip(self.params, self.true_dev, strict=True):
             if p in kept or v != 0.0:
-                pars[p.name] = {"value": float(v) if p.is_length else float(np.degrees(v)),
-                                "unit": "mm" if p.is_length else "deg",
-                                "nominal": float(self.cell.chain.joints[p.joint].translation[p.axis])
-                                if p.kind == "p" else 0.0}  # fmt: skip
+                pars[p.name] = {
+                    "value": float(v) if p.is_length else float(np.degrees(v)),
+                    "unit": "mm" if p.is_length else "deg",
+                    "nominal": float(self.cell.chain.joints[p.joint].translation[p.axis]) if p.kind == "p" else 0.0,
+                }
         if self.deviations is not None:
             source = "given"
         elif self.cell.chain.name == "kr270":
             source = "paper Table 8"
         else:
-            source = (f"drawn: N(0, {DEVIATION_SIGMA_MM} mm) per length, N(0, {DEVIATION_SIGMA_DEG} deg) per angle, "
-                      f"seed {self.seed}")  # fmt: skip
+            source = (
+                f"drawn: N(0, {DEVIATION_SIGMA_MM} mm) per length, N(0, {DEVIATION_SIGMA_DEG} deg) per angle, "
+                f"seed {self.seed}"
+            )
         at_test = self.test_pose_points()
-        test = None if at_test is None else {
-            "joints_deg": np.degrees(self.cell.test_pose).tolist(),
-            "points_mm": {sid: {pid: x.tolist() for pid, x in pts.items()} for sid, pts in at_test.items()},
-            "centroid_mm": {sid: np.mean(list(pts.values()), axis=0).tolist() for sid, pts in at_test.items()},
-        }  # fmt: skip
+        test = (
+            None
+            if at_test is None
+            else {
+                "joints_deg": np.degrees(self.cell.test_pose).tolist(),
+                "points_mm": {sid: {pid: x.tolist() for pid, x in pts.items()} for sid, pts in at_test.items()},
+                "centroid_mm": {sid: np.mean(list(pts.values()), axis=0).tolist() for sid, pts in at_test.items()},
+            }
+        )
         return {
-            "format": "trackcal-twin-truth/1", "cell": self.cell.name, "robot": self.cell.chain.name,
-            "seed": int(self.seed), "deviations": source, "parameters": pars,
-            "stations": {sid: {"rotation": st.rotation.tolist(), "translation_mm": st.translation.tolist()}
-                         for sid, st in sorted(self.true_stations.items())},
+            "format": "trackcal-twin-truth/1",
+            "cell": self.cell.name,
+            "robot": self.cell.chain.name,
+            "seed": int(self.seed),
+            "deviations": source,
+            "parameters": pars,
+            "stations": {
+                sid: {"rotation": st.rotation.tolist(), "translation_mm": st.translation.tolist()}
+                for sid, st in sorted(self.true_stations.items())
+            },
             "tool_points": {pid: {"xyz_mm": x.tolist()} for pid, x in sorted(self.true_points.items())},
             "effects": {"magnitudes_mm": dict(sorted(self.effects.items())), "parameters": self.hidden.to_doc()},
             "test_pose": test,
-        }  # fmt: skip
+        }
 
     # ------------------------------------------------------------------ hidden effects
     def _add_effect(self, name: str, magnitude_mm: float) -> None:
@@ -223,8 +255,15 @@ class Twin:
         base = simulate_campaign(self, poses, noise_free=True)
         first = sorted(self.true_stations)[0]  # a station shift happens halfway through this station's block
         t_mid = float(np.median(base.t_s[np.array(base.station) == first]))
-        unit = unit_effect(name, self.cell.chain, rng, sorted(self.true_stations), t_mid, self.thermal_pivot,
-                           tuple(sorted(self.true_points)))  # fmt: skip
+        unit = unit_effect(
+            name,
+            self.cell.chain,
+            rng,
+            sorted(self.true_stations),
+            t_mid,
+            self.thermal_pivot,
+            tuple(sorted(self.true_points)),
+        )
         self.hidden = unit
         shifted = self._exact_rows(base)
         self.hidden = saved

@@ -43,8 +43,10 @@ sys.meta_path.insert(0, RoomsOnlyInsideTrackcal())
 # test modules that start one, and the README's examples (a `trackcal mock --cell ur10`, and examples that build on
 # each other in one module-scoped folder), share a worker: the group UR_GROUP.
 UR_GROUP = "ur-ports"
-UR_PORTS = re.compile(r"127\.0\.0\.([3-9]|[1-9][0-9]+)\b|MockUr|TwinUr|free_loopback|UrServer|JointFollower"
-                      r"|UrController|mocks\.servers\.ur|mock --cell ur")  # fmt: skip
+UR_PORTS = re.compile(
+    r"127\.0\.0\.([3-9]|[1-9][0-9]+)\b|MockUr|TwinUr|free_loopback|UrServer|JointFollower"
+    r"|UrController|mocks\.servers\.ur|mock --cell ur"
+)
 
 
 @functools.cache

@@ -79,8 +79,9 @@ def inproc_live(cell, seed: int = 3, store=None, operator=None, effects=None):
     world = World(Twin(cell, seed=seed, effects=effects or {}))
     if store is not None:
         world.restore_counts(measured_keys(store))
-    return world, Live(InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock,
-                       InprocCellIO(world))  # fmt: skip
+    return world, Live(
+        InprocTracker(world), InprocRobot(world), operator or SimOperator(world), world.clock, InprocCellIO(world)
+    )
 
 
 def assert_stopped(result, pattern: str) -> None:
@@ -124,13 +125,19 @@ def stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
 
 
 @contextlib.contextmanager
-def mock_process(cell: str, seed: int, hw: Path, timeout_s: float = 30.0, stdout=subprocess.PIPE,
-                 sim_speed: float | None = None) -> Iterator[subprocess.Popen]:  # fmt: skip
+def mock_process(
+    cell: str, seed: int, hw: Path, timeout_s: float = 30.0, stdout=subprocess.PIPE, sim_speed: float | None = None
+) -> Iterator[subprocess.Popen]:
     """`trackcal mock --cell CELL [--sim-speed X]` in its own process, yielded once it has written its hardware file
     `hw`; stopped (`stop`) at the end if still running. Without sim_speed the mock runs in real time (its default)."""
     speed = [] if sim_speed is None else ["--sim-speed", repr(sim_speed)]
-    proc = subprocess.Popen([*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw),
-                             *speed], stdout=stdout, stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    proc = subprocess.Popen(
+        [*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw), *speed],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         wait_for(hw, proc, timeout_s)
         yield proc

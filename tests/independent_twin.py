@@ -55,8 +55,9 @@ class TrueCell:
     def __init__(self, cell: Cell, rng: np.random.Generator):
         self.cell, chain = cell, cell.chain
         self.params = complete_params(chain)
-        self.dev = np.array([rng.normal(0, 0.3) if p.is_length else np.radians(rng.normal(0, 0.02))
-                             for p in self.params])  # fmt: skip
+        self.dev = np.array(
+            [rng.normal(0, 0.3) if p.is_length else np.radians(rng.normal(0, 0.02)) for p in self.params]
+        )
         self.kin = Kinematics(chain, self.params)
         self.points = {k: v + rng.normal(0, 0.5, 3) for k, v in sorted(cell.tool_points.items())}
         self.stations = {}
@@ -148,8 +149,15 @@ def _table(rows, xyz: np.ndarray, source: str) -> MeasurementTable:
     return MeasurementTable(np.arange(1, len(pose) + 1), t, pose, station, point, np.degrees(q), xyz, source=source)
 
 
-def campaign(cell: Cell, name: str, seed: int, n_poses: int, n_fresh: int = 40, narrow_deg: float | None = None,
-             outside: float = 0.0) -> Campaign:  # fmt: skip
+def campaign(
+    cell: Cell,
+    name: str,
+    seed: int,
+    n_poses: int,
+    n_fresh: int = 40,
+    narrow_deg: float | None = None,
+    outside: float = 0.0,
+) -> Campaign:
     """A campaign of `n_poses` with the effect `name`, and `n_fresh` fresh poses measured after it. `narrow_deg`:
     every joint's calibration poses within a window of that width about a random centre (clipped to the limits);
     the fresh poses then reach up to `outside` (a fraction of the window) beyond it on each joint."""
@@ -190,5 +198,9 @@ def campaign(cell: Cell, name: str, seed: int, n_poses: int, n_fresh: int = 40, 
     for sid in true.stations:
         m = np.array([s == sid for s in rows[1]])
         xyz[m] += noise.sample(xyz[m], rng)
-    return Campaign(_table(rows, xyz, f"independent twin {name} seed {seed}"),
-                    _table(later, _measure(true, effect, scale, later), "fresh poses"), params, scale)  # fmt: skip
+    return Campaign(
+        _table(rows, xyz, f"independent twin {name} seed {seed}"),
+        _table(later, _measure(true, effect, scale, later), "fresh poses"),
+        params,
+        scale,
+    )

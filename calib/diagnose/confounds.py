@@ -42,13 +42,16 @@ def shift_between_blocks(table: MeasurementTable, shift: dict | None) -> list[st
     before, after = set(points[at & (table.t_s <= cut)]), set(points[at & (table.t_s > cut)])
     if before & after:
         return []
-    return [f"station_shift: no reflector is measured at station {sid} both before and after t = {cut:g} s: a move "
-            "of the station cannot be told from a displacement of the reflectors measured after it (revisit a pose "
-            "with the same reflector across the change)"]
+    return [
+        f"station_shift: no reflector is measured at station {sid} both before and after t = {cut:g} s: a move "
+        "of the station cannot be told from a displacement of the reflectors measured after it (revisit a pose "
+        "with the same reflector across the change)"
+    ]
 
 
-def growth_between_blocks(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: float, alpha: float,
-                          cause: str = "thermal_drift") -> list[str]:  # fmt: skip
+def growth_between_blocks(
+    ctx: Context, fitted: tuple[str, ...], current: Fit, dof: float, alpha: float, cause: str = "thermal_drift"
+) -> list[str]:
     """[] when the arm's growth is significant within each station's time and not carried by one reflector alone,
     else one phrase (module docstring). Each station's mean growth removed, what is left must pass the F test the
     whole growth passed; and, for each reflector in turn, with the mean growth of its rows and of the other
@@ -66,21 +69,30 @@ def growth_between_blocks(ctx: Context, fitted: tuple[str, ...], current: Fit, d
                 g[at] -= g[at].mean(axis=0) if at.any() else 0.0
         tests.append((pid, g))
     for pid, g in tests:
-        p = _within_pvalue(ctx, fitted, current, dof, f"{cause}{WITHIN} {pid}", Extension(
-            ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot))  # fmt: skip
+        p = _within_pvalue(
+            ctx,
+            fitted,
+            current,
+            dof,
+            f"{cause}{WITHIN} {pid}",
+            Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=g, pivot=ext.pivot),
+        )
         if p >= alpha and not pid:
-            return [f"{cause}: within each station's own time the growth is not significant (F test p = "
-                    f"{p:.2g}); between stations measured one after the other it is one station's range scale (its "
-                    "air data) as well"]  # fmt: skip
+            return [
+                f"{cause}: within each station's own time the growth is not significant (F test p = "
+                f"{p:.2g}); between stations measured one after the other it is one station's range scale (its "
+                "air data) as well"
+            ]
         if p >= alpha:
-            return [f"{cause}: beyond a step between reflector {pid} and the others at each station the growth "
-                    f"is not significant (F test p = {p:.2g}): measured one reflector after the other, it is a "
-                    f"displacement of reflector {pid} as well"]  # fmt: skip
+            return [
+                f"{cause}: beyond a step between reflector {pid} and the others at each station the growth "
+                f"is not significant (F test p = {p:.2g}): measured one reflector after the other, it is a "
+                f"displacement of reflector {pid} as well"
+            ]
     return []
 
 
-def _within_pvalue(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: float, key: str,
-                   part: Extension) -> float:  # fmt: skip
+def _within_pvalue(ctx: Context, fitted: tuple[str, ...], current: Fit, dof: float, key: str, part: Extension) -> float:
     """The F test's p-value of the growth's part `part` (1.0 when it cannot be identified)."""
     ctx.features[key] = part
     try:

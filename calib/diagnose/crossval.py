@@ -30,8 +30,9 @@ FOLD_ITERATIONS = 30
 EDGE_SHARE = 0.1  # the share of each joint's poses, at either end of its range, an edge fold holds out
 
 
-def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int,
-              cut: tuple[str, float] | None = None) -> list[np.ndarray] | None:  # fmt: skip
+def fold_rows(
+    table: MeasurementTable, scheme: str, folds: int, seed: int, cut: tuple[str, float] | None = None
+) -> list[np.ndarray] | None:
     """Held-out rows of each fold: whole poses ("pose"), passes of the plan ("pass": the k-th measurement
     of each pose, station and point) or blocks of time within each station ("time"); None when the
     table has fewer than two groups.
@@ -65,8 +66,11 @@ def fold_rows(table: MeasurementTable, scheme: str, folds: int, seed: int,
     for sid in set(table.station):
         rows = np.flatnonzero(stations == sid)
         rows = rows[np.argsort(table.t_s[rows], kind="stable")]
-        sides = [rows] if cut is None or cut[0] != sid else [rows[table.t_s[rows] <= cut[1]],
-                                                             rows[table.t_s[rows] > cut[1]]]  # fmt: skip
+        sides = (
+            [rows]
+            if cut is None or cut[0] != sid
+            else [rows[table.t_s[rows] <= cut[1]], rows[table.t_s[rows] > cut[1]]]
+        )
         for side in sides:
             for k, part in enumerate(np.array_split(side, folds)):
                 block[part] = k
@@ -94,8 +98,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
     sq, count = np.zeros(n), np.zeros(n, dtype=int)
     for test in folds:
         train = np.setdiff1d(np.arange(n), test)
-        if full.shift is not None and scan(ctx, train) != (
-                full.shift["station"], full.shift["after_t_s"]):  # fmt: skip
+        if full.shift is not None and scan(ctx, train) != (full.shift["station"], full.shift["after_t_s"]):
             try:
                 fit = fit_model(ctx, causes, train, FOLD_ITERATIONS)
             except IdentificationError:
@@ -168,8 +171,9 @@ class Validator:
     def cv(self, causes: tuple[str, ...], scheme: str, cut: tuple[str, float] | None = None) -> HeldOut | None:
         key = (tuple(sorted(causes)), scheme, cut)
         if key not in self.cache:
-            folds = self.fold_sets[scheme] if cut is None else fold_rows(self.ctx.table, scheme, self.folds,
-                                                                         self.seed, cut)  # fmt: skip
+            folds = (
+                self.fold_sets[scheme] if cut is None else fold_rows(self.ctx.table, scheme, self.folds, self.seed, cut)
+            )
             if folds is not None and scheme == "pose":
                 folds = folds + self.edges
             self.cache[key] = None if folds is None else cross_validate(self.ctx, causes, folds)
@@ -185,8 +189,9 @@ class Validator:
             return None
         return None if shift is None else (shift["station"], float(shift["after_t_s"]))
 
-    def compare(self, base: tuple[str, ...], model: tuple[str, ...]) -> tuple[str | None, HeldOut | None,
-                                                                          HeldOut | None]:
+    def compare(
+        self, base: tuple[str, ...], model: tuple[str, ...]
+    ) -> tuple[str | None, HeldOut | None, HeldOut | None]:
         """(scheme, held-out errors of base, of model) on the same folds: time blocks first for a time-dependent
         cause, cut on both sides of the model's change point when it has one (`fold_rows`).
 

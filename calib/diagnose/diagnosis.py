@@ -75,8 +75,14 @@ def diagnose(
     noise: TrackerNoise | None = None,
     folds: int = 5,
     seed: int = 0,
-    causes: tuple[str, ...] = (*JOINT_CAUSES, *POINT_CAUSES, "thermal_drift", SHIFT, "thermal_warmup",
-                               "payload_compliance"),
+    causes: tuple[str, ...] = (
+        *JOINT_CAUSES,
+        *POINT_CAUSES,
+        "thermal_drift",
+        SHIFT,
+        "thermal_warmup",
+        "payload_compliance",
+    ),
     geometric: Identification | None = None,
     tracker: TrackerNoise | None = None,
     executor: Executor | None = None,
@@ -102,26 +108,57 @@ def _verdict(sel: Selection, table: MeasurementTable, floor: Floor, p_floor: flo
     """The diagnosis once selection stopped: the chosen model identified with its covariance, its held-out figures
     against the geometric model's, the structure left in its residuals."""
     ctx, geo = sel.ctx, sel.ctx.geo
-    refused = [{"cause": c.cause, "step": c.step, "why": "; ".join(c.detail["implausible"])} for c in sel.candidates
-               if "implausible" in c.detail]  # fmt: skip
-    structure = structure_test(ctx, sel.current, ctx.table if sel.current.shift is None else relabel_shift(
-        ctx.table, sel.current.shift["station"], sel.current.shift["after_t_s"]), sel.val.fold_sets["pose"],
-        sel.seed, ALPHA)  # fmt: skip
+    refused = [
+        {"cause": c.cause, "step": c.step, "why": "; ".join(c.detail["implausible"])}
+        for c in sel.candidates
+        if "implausible" in c.detail
+    ]
+    structure = structure_test(
+        ctx,
+        sel.current,
+        ctx.table
+        if sel.current.shift is None
+        else relabel_shift(ctx.table, sel.current.shift["station"], sel.current.shift["after_t_s"]),
+        sel.val.fold_sets["pose"],
+        sel.seed,
+        ALPHA,
+    )
     scheme, hold_g, hold_e = _held_out(sel)
-    cv_note = None if hold_g is not None else (
-        "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves a "
-        "training set that cannot be identified, and the F test and BIC alone admit no cause (the geometric model "
-        f"is kept); {_measurement_needed(table)}")  # fmt: skip
-    doc = dict(geometric=geo, candidates=sel.candidates, holdout_geometric_mm=hold_g, holdout_extended_mm=hold_e,
-               noise_floor_mm=floor.sigma_mm, floor_source=floor.source, variance_factor_pvalue=p_floor,
-               structure=structure, cv_note=cv_note, cv_scheme=scheme, not_identifiable=dict(ctx.dropped),
-               refused=refused)  # fmt: skip
+    cv_note = (
+        None
+        if hold_g is not None
+        else (
+            "cross-validation is not possible on this design: every fold scheme (pose, pass, time block) leaves a "
+            "training set that cannot be identified, and the F test and BIC alone admit no cause (the geometric model "
+            f"is kept); {_measurement_needed(table)}"
+        )
+    )
+    doc = dict(
+        geometric=geo,
+        candidates=sel.candidates,
+        holdout_geometric_mm=hold_g,
+        holdout_extended_mm=hold_e,
+        noise_floor_mm=floor.sigma_mm,
+        floor_source=floor.source,
+        variance_factor_pvalue=p_floor,
+        structure=structure,
+        cv_note=cv_note,
+        cv_scheme=scheme,
+        not_identifiable=dict(ctx.dropped),
+        refused=refused,
+    )
     if not sel.selected:
         # residuals with structure, a cause the data could not check (no held-out poses), or one refused as
         # unphysical: what the geometric model misses is not explained
         found = structure["structure"] or sel.untested or bool(refused)
-        return Diagnosis("unexplained" if found else "none", extended=None, extension=None,
-                         table=table, noise_scale=_scale(geo.residuals, geo, floor), **doc)  # fmt: skip
+        return Diagnosis(
+            "unexplained" if found else "none",
+            extended=None,
+            extension=None,
+            table=table,
+            noise_scale=_scale(geo.residuals, geo, floor),
+            **doc,
+        )
     return _chosen_verdict(sel, table, floor, doc)
 
 
@@ -132,16 +169,34 @@ def _chosen_verdict(sel: Selection, table: MeasurementTable, floor: Floor, doc: 
     by_gain = sorted(sel.selected, key=lambda c: c.gain_mm if c.gain_mm is not None else -c.delta_bic, reverse=True)
     # model.json names its extension after the main cause that carries parameters
     if sel.map_fit is None:
-        res, ext, tab, shift, _ = final_fit(ctx, sel.chosen, next((c.cause for c in by_gain if c.cause != SHIFT),
-                                                                   None))  # fmt: skip
+        res, ext, tab, shift, _ = final_fit(ctx, sel.chosen, next((c.cause for c in by_gain if c.cause != SHIFT), None))
     else:
-        res, ext, tab, shift = _final_map_fit(ctx, table, sel.fitted, sel.map_fit, sel.folds, sel.seed,
-                                              refit=sel.fitted != sel.map_base)  # fmt: skip
-    causes = [{"cause": c.cause, "gain_mm": c.gain_mm, "holdout_rms_mm": c.holdout_rms_mm, "f_pvalue": c.f_pvalue,
-               "delta_bic": c.delta_bic, "n_params": c.n_params, "cv_scheme": c.cv_scheme, **c.detail}
-              for c in sel.selected]  # fmt: skip
-    return Diagnosis(by_gain[0].cause, extended=res, extension=ext, table=tab, shift=shift, causes=causes,
-                     noise_scale=_scale(res.residuals, res, floor), **doc)  # fmt: skip
+        res, ext, tab, shift = _final_map_fit(
+            ctx, table, sel.fitted, sel.map_fit, sel.folds, sel.seed, refit=sel.fitted != sel.map_base
+        )
+    causes = [
+        {
+            "cause": c.cause,
+            "gain_mm": c.gain_mm,
+            "holdout_rms_mm": c.holdout_rms_mm,
+            "f_pvalue": c.f_pvalue,
+            "delta_bic": c.delta_bic,
+            "n_params": c.n_params,
+            "cv_scheme": c.cv_scheme,
+            **c.detail,
+        }
+        for c in sel.selected
+    ]
+    return Diagnosis(
+        by_gain[0].cause,
+        extended=res,
+        extension=ext,
+        table=tab,
+        shift=shift,
+        causes=causes,
+        noise_scale=_scale(res.residuals, res, floor),
+        **doc,
+    )
 
 
 def _held_out(sel: Selection) -> tuple[str | None, float | None, float | None]:
@@ -150,14 +205,20 @@ def _held_out(sel: Selection) -> tuple[str | None, float | None, float | None]:
     if sel.map_fit is not None:
         return "per step", sel.hold_first, sel.selected[-1].holdout_rms_mm
     val = sel.val
-    scheme, hold_g, hold_e = val.compare((), sel.chosen) if sel.selected else next(
-        ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
-        (None, None, None))  # fmt: skip
+    scheme, hold_g, hold_e = (
+        val.compare((), sel.chosen)
+        if sel.selected
+        else next(
+            ((s, val.cv((), s), val.cv((), s)) for s in ("pose", "pass", "time") if val.cv((), s) is not None),
+            (None, None, None),
+        )
+    )
     return scheme, *(None if h is None else h.rms_mm for h in (hold_g, hold_e))
 
 
-def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...], mf: ErrorMapFit, folds: int,
-                   seed: int, refit: bool):  # fmt: skip
+def _final_map_fit(
+    ctx: Context, table: MeasurementTable, fitted: tuple[str, ...], mf: ErrorMapFit, folds: int, seed: int, refit: bool
+):
     """The chosen model with the map, identified jointly (the map's order and ridge as chosen); `mf` itself
     unless `refit` (causes joined after the map)."""
     ctx.table = table  # the rows as measured
@@ -169,8 +230,18 @@ def _final_map_fit(ctx: Context, table: MeasurementTable, fitted: tuple[str, ...
     if not refit:
         return mf.identification, mf.extension, table, shift
     order = max(mf.orders.values())
-    final = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
-                          folds=folds, seed=seed, orders=(order,), taus_rad=(mf.tau_rad,))  # fmt: skip
+    final = fit_error_map(
+        ctx.chain,
+        table,
+        ctx.geo.points,
+        ctx.params,
+        ctx.noise,
+        base=extension_of(ctx, fitted),
+        folds=folds,
+        seed=seed,
+        orders=(order,),
+        taus_rad=(mf.tau_rad,),
+    )
     return final.identification, final.extension, table, shift
 
 
@@ -182,10 +253,14 @@ def _measurement_needed(table: MeasurementTable) -> str:
     alone = sorted(p for p, poses in poses_of.items() if len(poses) < 2)
     if alone:
         named = ", ".join(alone[:3]) + (f" and {len(alone) - 3} more" if len(alone) > 3 else "")
-        return (f"reference point(s) {named} are measured at one pose only: measure every reference point at two "
-                "or more poses (better: every point at every pose) so that a pose can be held out")
-    return ("measure more poses (the poses left when one is held out must identify the geometric model), or repeat "
-            "the poses in a second pass, so that a pose or a pass can be held out")
+        return (
+            f"reference point(s) {named} are measured at one pose only: measure every reference point at two "
+            "or more poses (better: every point at every pose) so that a pose can be held out"
+        )
+    return (
+        "measure more poses (the poses left when one is held out must identify the geometric model), or repeat "
+        "the poses in a second pass, so that a pose or a pass can be held out"
+    )
 
 
 def _scale(residuals: np.ndarray, res: Identification, floor: Floor) -> float:

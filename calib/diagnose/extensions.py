@@ -80,8 +80,18 @@ from trackcal.calib.model.extension import (
 )
 from trackcal.calib.model.pinmodel import gravity_torques
 
-CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", "thermal_drift", "station_shift",
-          "thermal_warmup", "payload_compliance", WRIST_COUPLING, *POINT_CAUSES)  # fmt: skip
+CAUSES = (
+    "joint_compliance",
+    "backlash",
+    "encoder_scale",
+    "cyclic_error",
+    "thermal_drift",
+    "station_shift",
+    "thermal_warmup",
+    "payload_compliance",
+    WRIST_COUPLING,
+    *POINT_CAUSES,
+)
 JOINT_CAUSES = ("joint_compliance", "backlash", "encoder_scale", "cyclic_error", WRIST_COUPLING)
 THERMAL_FORMS = ("e", "e_base")  # arm + tool about the first joint's frame; base column too, about the base origin
 WARMUP_FORMS = ("e_inf", "e_inf_base")  # the same pivots, the saturated growth
@@ -140,8 +150,14 @@ def approach_signs(q: np.ndarray, tol: float = 1e-7) -> np.ndarray:
 
 
 def build_extension(
-    cause: str, chain: Chain, table: MeasurementTable, harmonics: int = 2, names: list[str] | None = None,
-    arcs: dict[int, Arc] | None = None, ranges: Ranges | None = None, form: dict | None = None,
+    cause: str,
+    chain: Chain,
+    table: MeasurementTable,
+    harmonics: int = 2,
+    names: list[str] | None = None,
+    arcs: dict[int, Arc] | None = None,
+    ranges: Ranges | None = None,
+    form: dict | None = None,
 ) -> Extension:
     """The extension `cause` for the rows of `table` (time order), in internal units (rad, N m, s).
     `names` selects the parameters (as a fitted model lists them) instead of keeping every varying one;
@@ -188,11 +204,20 @@ def build_extension(
     if cause == "thermal_drift":
         forms = names or [THERMAL_FORMS[0]]
         if len(forms) != 1 or forms[0] not in THERMAL_FORMS:
-            raise ExtensionError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
-                             f"{', '.join(THERMAL_FORMS)}")  # fmt: skip
+            raise ExtensionError(
+                f"unknown extension parameter(s) {', '.join(forms)}; thermal_drift has one of "
+                f"{', '.join(THERMAL_FORMS)}"
+            )
         pivot = np.zeros(3) if forms[0] == "e_base" else np.array(chain.base[:3, 3], dtype=float)
-        return Extension(cause, list(forms), ["ppm/h"], np.array([UNIT_FACTORS["ppm/h"]]),
-                         growth=ranges.clamp_t(table.t_s)[:, None], pivot=pivot, meta={"ranges": ranges})  # fmt: skip
+        return Extension(
+            cause,
+            list(forms),
+            ["ppm/h"],
+            np.array([UNIT_FACTORS["ppm/h"]]),
+            growth=ranges.clamp_t(table.t_s)[:, None],
+            pivot=pivot,
+            meta={"ranges": ranges},
+        )
     if cause == "thermal_warmup":
         return _warmup(chain, table, names, ranges, form)
     if cause == "payload_compliance":
@@ -200,25 +225,39 @@ def build_extension(
     raise ExtensionError(f"unknown model extension {cause!r}; choose from {', '.join(CAUSES)} or none")
 
 
-def _warmup(chain: Chain, table: MeasurementTable, names: list[str] | None, ranges: Ranges,
-            form: dict | None) -> Extension:  # fmt: skip
+def _warmup(
+    chain: Chain, table: MeasurementTable, names: list[str] | None, ranges: Ranges, form: dict | None
+) -> Extension:
     forms = names or [WARMUP_FORMS[0]]
     if len(forms) != 1 or forms[0] not in WARMUP_FORMS:
-        raise ExtensionError(f"unknown extension parameter(s) {', '.join(forms)}; thermal_warmup has one of "
-                             f"{', '.join(WARMUP_FORMS)}")  # fmt: skip
+        raise ExtensionError(
+            f"unknown extension parameter(s) {', '.join(forms)}; thermal_warmup has one of {', '.join(WARMUP_FORMS)}"
+        )
     t0, t1 = ranges.time_s
     tau = float((form or {}).get("tau_s", max(t1 - t0, 1.0) / 3.0))
     if not (np.isfinite(tau) and tau > 0):
         raise ExtensionError(f"thermal_warmup: the time constant tau_s must be a positive number, got {tau!r}")
     pivot = warmup_pivot(chain, forms[0])
     doc = {"tau_s": tau, **{k: v for k, v in (form or {}).items() if k != "tau_s"}}
-    return Extension("thermal_warmup", list(forms), ["ppm"], np.array([UNIT_FACTORS["ppm"]]),
-                     growth=warmup_growth(table.t_s, tau, t0)[:, None], pivot=pivot,
-                     meta={"ranges": ranges, FORMS: {"thermal_warmup": doc}})  # fmt: skip
+    return Extension(
+        "thermal_warmup",
+        list(forms),
+        ["ppm"],
+        np.array([UNIT_FACTORS["ppm"]]),
+        growth=warmup_growth(table.t_s, tau, t0)[:, None],
+        pivot=pivot,
+        meta={"ranges": ranges, FORMS: {"thermal_warmup": doc}},
+    )
 
 
-def _payload(chain: Chain, table: MeasurementTable, q_read: np.ndarray, names: list[str] | None, ranges: Ranges,
-             form: dict | None) -> Extension:  # fmt: skip
+def _payload(
+    chain: Chain,
+    table: MeasurementTable,
+    q_read: np.ndarray,
+    names: list[str] | None,
+    ranges: Ranges,
+    form: dict | None,
+) -> Extension:
     form = form or {}
     loads = row_loads(table, form.get("final_load_kg"))
     n_rows, n = q_read.shape
@@ -231,24 +270,49 @@ def _payload(chain: Chain, table: MeasurementTable, q_read: np.ndarray, names: l
         feats[:, j, j] = tau[:, j]
     feats, kept = select_columns(feats, [f"c{j + 1}" for j in range(n)], names)
     doc = {"com_mm": com.tolist(), "final_load_kg": float(form.get("final_load_kg", loads[-1] if n_rows else 0.0))}
-    return Extension("payload_compliance", kept, ["deg/kNm"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg/kNm"]),
-                     feats, meta={"ranges": ranges, FORMS: {"payload_compliance": doc}})  # fmt: skip
+    return Extension(
+        "payload_compliance",
+        kept,
+        ["deg/kNm"] * len(kept),
+        np.full(len(kept), UNIT_FACTORS["deg/kNm"]),
+        feats,
+        meta={"ranges": ranges, FORMS: {"payload_compliance": doc}},
+    )
 
 
 def build_parts(
-    parts: list[tuple[str, list[str]]], chain: Chain, table: MeasurementTable, arcs: dict[int, Arc] | None = None,
-    cause: str | None = None, ranges: Ranges | None = None, forms: dict | None = None,
+    parts: list[tuple[str, list[str]]],
+    chain: Chain,
+    table: MeasurementTable,
+    arcs: dict[int, Arc] | None = None,
+    cause: str | None = None,
+    ranges: Ranges | None = None,
+    forms: dict | None = None,
 ) -> Extension:
     """The extension made of `parts` ((cause, parameter names), as `Extension.parts` lists them) for the rows of
     `table`; `arcs` are the joint error map's fitted arcs, `cause` the main cause (default: the first part's),
     `ranges` those it was fitted on (default: the table's own), `forms` {cause: form} (`build_extension`'s)."""
     forms = forms or {}
-    return combine([build_extension(c, chain, table, names=list(n), arcs=arcs if c == "cyclic_error" else None,
-                                    ranges=ranges, form=forms.get(c)) for c, n in parts], cause)  # fmt: skip
+    return combine(
+        [
+            build_extension(
+                c,
+                chain,
+                table,
+                names=list(n),
+                arcs=arcs if c == "cyclic_error" else None,
+                ranges=ranges,
+                form=forms.get(c),
+            )
+            for c, n in parts
+        ],
+        cause,
+    )
 
 
 def rebuild(ext: Extension, chain: Chain, table: MeasurementTable) -> Extension:
     """A fitted extension's features for the rows of another table (same parameters, same fitted arcs, ranges and
     forms)."""
-    return build_parts(ext.parts(), chain, table, ext.meta.get("arcs"), ext.cause, ext.meta.get("ranges"),
-                       ext.meta.get(FORMS))  # fmt: skip
+    return build_parts(
+        ext.parts(), chain, table, ext.meta.get("arcs"), ext.cause, ext.meta.get("ranges"), ext.meta.get(FORMS)
+    )

@@ -80,24 +80,37 @@ class Context:
     combined: dict[tuple, tuple] = field(default_factory=dict)  # extensions combined (`extension_of`)
 
 
-def _whole_fit(ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int,
-               start: Fit | None = None) -> Fit:  # fmt: skip
+def _whole_fit(
+    ctx: Context, table: MeasurementTable, ext: Extension | None, max_iter: int, start: Fit | None = None
+) -> Fit:
     """Levenberg-Marquardt from `start` (a fit of fewer causes, or of the same causes on more rows; its parameters
     where the model shares them, the others at zero) or from the geometric solution; a moved station starts where
     it was."""
     problem = Problem(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, ctx.geo.dev, ext)
     at = ctx.geo if start is None else start
     st, values = at.stations, _ext_values(at.extension, at.ext)
-    problem.initial = State(at.dev.copy(), [st.get(s, st[s.removesuffix(SHIFT_SUFFIX)]) for s in problem.station_ids],
-                            np.array([at.points[p] for p in problem.point_ids]),
-                            np.array([values.get(key, 0.0) for key in _ext_keys(ext)]))  # fmt: skip
+    problem.initial = State(
+        at.dev.copy(),
+        [st.get(s, st[s.removesuffix(SHIFT_SUFFIX)]) for s in problem.station_ids],
+        np.array([at.points[p] for p in problem.point_ids]),
+        np.array([values.get(key, 0.0) for key in _ext_keys(ext)]),
+    )
     state = solve(problem, problem.initial, max_iter).state
     r, jm = problem.residual_and_jacobian(state)  # one pass for both (the solution's r and jm would be two)
     if not identifiable(jm.T @ jm):
         raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
-    return Fit(state.dev, dict(zip(problem.station_ids, state.stations, strict=True)),
-               {p: state.points[i] for i, p in enumerate(problem.point_ids)}, state.ext, ext, float(r @ r),
-               problem.n_cols, problem.xyz - problem.predicted(state), r=r, jm=jm)  # fmt: skip
+    return Fit(
+        state.dev,
+        dict(zip(problem.station_ids, state.stations, strict=True)),
+        {p: state.points[i] for i, p in enumerate(problem.point_ids)},
+        state.ext,
+        ext,
+        float(r @ r),
+        problem.n_cols,
+        problem.xyz - problem.predicted(state),
+        r=r,
+        jm=jm,
+    )
 
 
 def _ext_keys(ext: Extension | None) -> list[tuple[str, str]]:
@@ -170,8 +183,9 @@ def whole_fit(ctx: Context, causes: tuple[str, ...]) -> Fit:
     return ctx.fits[key]
 
 
-def extension_of(ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None,
-                 main: str | None = None) -> Extension | None:  # fmt: skip
+def extension_of(
+    ctx: Context, causes: tuple[str, ...], rows: np.ndarray | None = None, main: str | None = None
+) -> Extension | None:
     """The causes' extensions combined (station_shift has none), `main` naming it (default: the first); combined once
     per set of extensions (thermal_form tries several under one name: they are told apart by identity, and the
     cache holds them so that identity is not reused)."""
@@ -212,8 +226,12 @@ def visible_extension(chain, table, geo: Identification, noise, params, cause: s
         acts = ext.joint_features.moves()  # (n, e): which joints each parameter moves
         seen = acts[lever >= LEVER_RATIO * lever.max()].any(axis=0)
     problem = Problem(chain, table, geo.points, params, noise, geo.dev, ext)
-    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
-                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(ext.size))  # fmt: skip
+    state = State(
+        geo.dev,
+        [geo.stations[s] for s in problem.station_ids],
+        np.array([geo.points[p] for p in problem.point_ids]),
+        np.zeros(ext.size),
+    )
     _, jm = problem.residual_and_jacobian(state)
     k, e = len(params), ext.size
     cols = np.r_[np.arange(k), np.arange(k + e, jm.shape[1])]
@@ -254,8 +272,9 @@ class CauseFit(NamedTuple):
     n_extra: int  # parameters the causes add
 
 
-def fit_cause(chain, table, tool, params, noise, cause: str,
-              geometric: Identification | None = None) -> CauseFit | None:  # fmt: skip
+def fit_cause(
+    chain, table, tool, params, noise, cause: str, geometric: Identification | None = None
+) -> CauseFit | None:
     """Fit the geometric model extended by `cause` (several joined by "+") with its covariance; None when
     the table cannot reveal the cause (too few rows for a change point, no parameter the data can see).
     `geometric` is the geometric fit of the same table, tool, params and noise if already computed (a
@@ -293,8 +312,11 @@ def context(chain, table, params, noise, geo, causes) -> Context:
         if c == SHIFT:
             continue
         try:
-            ext, dropped = (warmup_candidate(chain, table, geo, noise, params) if c == "thermal_warmup" else
-                            visible_extension(chain, table, geo, noise, params, c))  # tau profiled (`warmup`)
+            ext, dropped = (
+                warmup_candidate(chain, table, geo, noise, params)
+                if c == "thermal_warmup"
+                else visible_extension(chain, table, geo, noise, params, c)
+            )  # tau profiled (`warmup`)
         except IdentificationError:  # more unknowns with this cause than the table has equations: not revealable
             continue
         if c == "thermal_drift" and ext is not None:
@@ -309,8 +331,9 @@ def context(chain, table, params, noise, geo, causes) -> Context:
 def thermal_form(ctx: Context, arm: Extension) -> Extension:
     """thermal_drift's form chosen by the data (calib.extensions.THERMAL_FORMS): the arm and tool growing
     about the first joint, or the base column too; one parameter each, the lower residual wins."""
-    forms = [arm] + [build_extension("thermal_drift", ctx.chain, ctx.table, names=[f]) for f in THERMAL_FORMS
-                     if f not in arm.names]  # fmt: skip
+    forms = [arm] + [
+        build_extension("thermal_drift", ctx.chain, ctx.table, names=[f]) for f in THERMAL_FORMS if f not in arm.names
+    ]
     rss = []
     for ext in forms:
         ctx.features["thermal_drift"] = ext

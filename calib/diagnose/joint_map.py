@@ -176,13 +176,18 @@ def range_warning(q: np.ndarray, arcs: dict[int, Arc]) -> str | None:
     per_joint = ", ".join(
         f"joint {j + 1}: {int(out[:, j].sum())} (fitted {arcs[j].to_doc()['from_deg']:.1f} .. "
         f"{arcs[j].to_doc()['to_deg']:.1f} deg)"
-        for j in sorted(arcs) if out[:, j].any()
-    )  # fmt: skip
-    return (f"{rows} of {len(q)} rows leave the joint error map's fitted range ({per_joint}); the map's value at "
-            "the nearest covered angle is used there")  # fmt: skip
+        for j in sorted(arcs)
+        if out[:, j].any()
+    )
+    return (
+        f"{rows} of {len(q)} rows leave the joint error map's fitted range ({per_joint}); the map's value at "
+        "the nearest covered angle is used there"
+    )
 
-def map_extension(q: np.ndarray, harmonics: int = 2, names: list[str] | None = None,
-                  arcs: dict[int, Arc] | None = None) -> Extension:  # fmt: skip
+
+def map_extension(
+    q: np.ndarray, harmonics: int = 2, names: list[str] | None = None, arcs: dict[int, Arc] | None = None
+) -> Extension:
     """The cyclic_error extension for joint angles q (N, n) rad: the coefficients `names` over the fitted `arcs`,
     or (names None) every varying coefficient of harmonics 1..`harmonics` over the arcs (default: q's own)."""
     arcs = {j: Arc.covering(q[:, j]) for j in range(q.shape[1])} if arcs is None else arcs
@@ -192,8 +197,14 @@ def map_extension(q: np.ndarray, harmonics: int = 2, names: list[str] | None = N
     else:
         kept = _map_names(names, arcs)
         feats = map_blocks(q, kept, arcs)
-    return Extension(CAUSE, kept, ["deg"] * len(kept), np.full(len(kept), UNIT_FACTORS["deg"]), feats,
-                     meta={"arcs": {j: arcs[j] for j in sorted({parse_name(nm)[2] for nm in kept})}})  # fmt: skip
+    return Extension(
+        CAUSE,
+        kept,
+        ["deg"] * len(kept),
+        np.full(len(kept), UNIT_FACTORS["deg"]),
+        feats,
+        meta={"arcs": {j: arcs[j] for j in sorted({parse_name(nm)[2] for nm in kept})}},
+    )
 
 
 def _map_names(wanted: list[str], arcs: dict[int, Arc]) -> list[str]:
@@ -230,8 +241,14 @@ class Linearised(NamedTuple):
     def serves(self, start, base: Extension | None, table: MeasurementTable, names: list[str]) -> bool:
         """Whether it is the problem of that start, base, table (its rows as labelled) and map coefficients."""
         t = self.table
-        return (self.start is start and self.base is base and self.names == names and t.station == table.station
-                and np.array_equal(t.q_deg, table.q_deg) and np.array_equal(t.xyz, table.xyz))  # fmt: skip
+        return (
+            self.start is start
+            and self.base is base
+            and self.names == names
+            and t.station == table.station
+            and np.array_equal(t.q_deg, table.q_deg)
+            and np.array_equal(t.xyz, table.xyz)
+        )
 
 
 @dataclass
@@ -300,8 +317,12 @@ def _levers(problem: Problem, state: State) -> np.ndarray:
 
 
 def _state_from(problem: Problem, res: Identification, ext: np.ndarray) -> State:
-    return State(res.dev.copy(), [res.stations[s] for s in problem.station_ids],
-                 np.array([res.points[p] for p in problem.point_ids]), ext)  # fmt: skip
+    return State(
+        res.dev.copy(),
+        [res.stations[s] for s in problem.station_ids],
+        np.array([res.points[p] for p in problem.point_ids]),
+        ext,
+    )
 
 
 def _fold_ids(table: MeasurementTable, folds: int, seed: int) -> np.ndarray:
@@ -380,8 +401,21 @@ class FoldGrams:
         return lambda k, hold: self(k, hold)[np.ix_(keep, keep)]
 
 
-def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas, held: HeldOutMap | None = None,
-               downdate=None, executor: Executor | None = None, per_row: bool = False):  # fmt: skip
+def _cv_scores(
+    jm,
+    r,
+    gram,
+    rhs,
+    unwhiten,
+    pen_cols,
+    fold,
+    orders_cols,
+    lambdas,
+    held: HeldOutMap | None = None,
+    downdate=None,
+    executor: Executor | None = None,
+    per_row: bool = False,
+):
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
     order and ridge on the problem linearised at (jm, r); with `per_row`, also the first order's and ridge's
     squared held-out error of every row (mm^2, summed over its coordinates and the folds that held it out) and how
@@ -394,8 +428,11 @@ def _cv_scores(jm, r, gram, rhs, unwhiten, pen_cols, fold, orders_cols, lambdas,
     solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
-    groups = [np.flatnonzero(fold == k) for k in np.unique(fold)] if isinstance(fold, np.ndarray) else [
-        np.sort(g) for g in fold]  # fmt: skip
+    groups = (
+        [np.flatnonzero(fold == k) for k in np.unique(fold)]
+        if isinstance(fold, np.ndarray)
+        else [np.sort(g) for g in fold]
+    )
     n_rows = len(r) // 3
 
     def scores(k):
@@ -464,28 +501,58 @@ def _unidentifiable(probe: Problem, geo, arcs_all: dict[int, Arc]) -> dict[int, 
         if arcs_all[j].length <= 0.0:
             not_identifiable[j] = "it does not move over the table"
         elif levers[j] < LEVER_RATIO * levers.max():
-            not_identifiable[j] = (f"its rotation moves the measured points by {levers[j]:.3g} mm/rad, below "
-                                   f"{LEVER_RATIO:g} of the largest joint's {levers.max():.3g} (the reference points "
-                                   "lie on its axis)")  # fmt: skip
+            not_identifiable[j] = (
+                f"its rotation moves the measured points by {levers[j]:.3g} mm/rad, below "
+                f"{LEVER_RATIO:g} of the largest joint's {levers.max():.3g} (the reference points "
+                "lie on its axis)"
+            )
     return not_identifiable
 
 
-def _searched(lin: Linearised, pen_all: np.ndarray, fold: np.ndarray, orders: tuple[int, ...],
-              taus_rad: tuple[float, ...], s2: float, executor: Executor | None) -> tuple:  # fmt: skip
+def _searched(
+    lin: Linearised,
+    pen_all: np.ndarray,
+    fold: np.ndarray,
+    orders: tuple[int, ...],
+    taus_rad: tuple[float, ...],
+    s2: float,
+    executor: Executor | None,
+) -> tuple:
     """fit_error_map's search: (order, tau, CV RMS with the map, without it, every (order, tau) with its CV RMS) by
     cross-validation over `fold` on the linearised problem `lin`; `pen_all` the map's columns at the largest order,
     `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
     orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
     downdate, n_coord = FoldGrams(lin.jm), 3 * len(lin.table)
-    ss, ss_mm = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, orders_cols,
-                           [s2 / t**2 for t in taus_rad], lin.held, downdate, executor)  # fmt: skip
-    _, without_mm = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0],
-                               None, downdate, executor)  # fmt: skip
+    ss, ss_mm = _cv_scores(
+        lin.jm,
+        lin.r,
+        lin.gram,
+        lin.rhs,
+        lin.unwhiten,
+        pen_all,
+        fold,
+        orders_cols,
+        [s2 / t**2 for t in taus_rad],
+        lin.held,
+        downdate,
+        executor,
+    )
+    _, without_mm = _cv_scores(
+        lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate, executor
+    )
     i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
-    cv_table = [{"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
-                for a, h in enumerate(orders) for b, t in enumerate(taus_rad)]  # fmt: skip
-    return (int(orders[i]), float(taus_rad[li]), float(np.sqrt(ss_mm[i, li] / n_coord)),
-            float(np.sqrt(without_mm[0, 0] / n_coord)), cv_table)  # fmt: skip
+    cv_table = [
+        {"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
+        for a, h in enumerate(orders)
+        for b, t in enumerate(taus_rad)
+    ]
+    return (
+        int(orders[i]),
+        float(taus_rad[li]),
+        float(np.sqrt(ss_mm[i, li] / n_coord)),
+        float(np.sqrt(without_mm[0, 0] / n_coord)),
+        cv_table,
+    )
 
 
 def fit_error_map(
@@ -513,8 +580,9 @@ def fit_error_map(
     geo = start if start is not None else identify(chain, table, tool_points, params, noise, extension=base)
     n_base = 0 if base is None else base.size
     arcs_all = {j: Arc.covering(q[:, j]) for j in range(chain.dof)}
-    not_identifiable = _unidentifiable(Problem(chain, table, geo.points, params, noise, extension=base,
-                                               ext0=geo.ext), geo, arcs_all)  # fmt: skip
+    not_identifiable = _unidentifiable(
+        Problem(chain, table, geo.points, params, noise, extension=base, ext0=geo.ext), geo, arcs_all
+    )
     arcs = {j: arcs_all[j] for j in range(chain.dof) if j not in not_identifiable}
     if not arcs:
         raise IdentificationError(f"{table.source}: no joint error map can be fitted: no joint moves the points")
@@ -533,26 +601,39 @@ def fit_error_map(
         gram, rhs = jm.T @ jm, jm.T @ r
         held = HeldOutMap(problem, state, names_max)
         linearised = Linearised(geo, base, table, names_max, r, jm, gram, rhs, held, unwhiten)
-        order, tau, cv_rms, cv_without, cv_table = _searched(linearised, pen_all, _fold_ids(table, folds, seed),
-                                                             orders, taus_rad, s2, executor)  # fmt: skip
+        order, tau, cv_rms, cv_without, cv_table = _searched(
+            linearised, pen_all, _fold_ids(table, folds, seed), orders, taus_rad, s2, executor
+        )
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
-        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise,
-                                  (r, jm, gram if search else jm.T @ jm))  # fmt: skip
+        res, edf = _penalised_fit(
+            problem, state, pen_all[0], len(names), s2 / tau**2, noise, (r, jm, gram if search else jm.T @ jm)
+        )
     else:
         ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
         problem = Problem(chain, table, geo.points, params, noise, extension=ext)
         state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
         res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise)
     return ErrorMapFit(
-        identification=res, names=names, arcs=arcs, orders={j: order for j in arcs}, tau_rad=tau, ridge=s2 / tau**2,
-        effective_params=edf, cv_rms_mm=cv_rms, cv_rms_without_mm=cv_without, not_identifiable=not_identifiable,
-        cv_table=cv_table, n_base=n_base, linearised=linearised,
-    )  # fmt: skip
+        identification=res,
+        names=names,
+        arcs=arcs,
+        orders={j: order for j in arcs},
+        tau_rad=tau,
+        ridge=s2 / tau**2,
+        effective_params=edf,
+        cv_rms_mm=cv_rms,
+        cv_rms_without_mm=cv_without,
+        not_identifiable=not_identifiable,
+        cv_table=cv_table,
+        n_base=n_base,
+        linearised=linearised,
+    )
 
 
-def held_out_errors(mf: ErrorMapFit, groups: list[np.ndarray], n_params: int,
-                    executor: Executor | None = None) -> tuple[tuple, tuple] | None:  # fmt: skip
+def held_out_errors(
+    mf: ErrorMapFit, groups: list[np.ndarray], n_params: int, executor: Executor | None = None
+) -> tuple[tuple, tuple] | None:
     """((squared error, times held out) of every row with the map at its order and ridge, the same without the map),
     over the folds `groups` (held-out row indices; need not partition the rows), on the map search's linearised
     problem: what the paired test of its held-out gain needs (`calib.diagnose.significance`). None when the map was
@@ -563,10 +644,36 @@ def held_out_errors(mf: ErrorMapFit, groups: list[np.ndarray], n_params: int,
     pen = n_params + mf.n_base + np.arange(len(lin.names))
     order = max(mf.orders.values())
     cols = pen[[parse_name(nm)[1] <= order for nm in lin.names]]
-    with_map = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen, groups, [cols], [mf.ridge], lin.held,
-                          None, executor, per_row=True)  # fmt: skip
-    without = _cv_scores(lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen, groups, [pen[:0]], [1.0], None, None,
-                         executor, per_row=True)  # fmt: skip
+    with_map = _cv_scores(
+        lin.jm,
+        lin.r,
+        lin.gram,
+        lin.rhs,
+        lin.unwhiten,
+        pen,
+        groups,
+        [cols],
+        [mf.ridge],
+        lin.held,
+        None,
+        executor,
+        per_row=True,
+    )
+    without = _cv_scores(
+        lin.jm,
+        lin.r,
+        lin.gram,
+        lin.rhs,
+        lin.unwhiten,
+        pen,
+        groups,
+        [pen[:0]],
+        [1.0],
+        None,
+        None,
+        executor,
+        per_row=True,
+    )
     return with_map[2:], without[2:]
 
 
@@ -586,8 +693,16 @@ class MapEvidence:
     fold's training rows cannot identify the whole model (H not positive definite), that fold set's models are
     solved one by one (`_cv_scores`, the unpenalised block by pseudo-inverse)."""
 
-    def __init__(self, chain: Chain, table: MeasurementTable, params: list[Param], noise: TrackerNoise | None,
-                 base: Extension | None, start, fit: ErrorMapFit):  # fmt: skip
+    def __init__(
+        self,
+        chain: Chain,
+        table: MeasurementTable,
+        params: list[Param],
+        noise: TrackerNoise | None,
+        base: Extension | None,
+        start,
+        fit: ErrorMapFit,
+    ):
         names = [nm for j in fit.arcs for nm in harmonic_names(j, max(fit.orders.values()))]
         lin = fit.linearised
         if lin is None or not lin.serves(start, base, table, names):  # else the map's search formed it already
@@ -595,10 +710,26 @@ class MapEvidence:
             problem = Problem(chain, table, start.points, params, noise, extension=ext)
             state = _state_from(problem, start, np.concatenate([start.ext, np.zeros(len(names))]))
             r, jm = problem.residual_and_jacobian(state)
-            lin = Linearised(start, base, table, names, r, jm, jm.T @ jm, jm.T @ r, HeldOutMap(problem, state, names),
-                             None if problem.w is None else np.linalg.inv(problem.w))  # fmt: skip
-        self.r, self.jm, self.gram, self.rhs, self.held, self.unwhiten = lin.r, lin.jm, lin.gram, lin.rhs, lin.held, \
-            lin.unwhiten
+            lin = Linearised(
+                start,
+                base,
+                table,
+                names,
+                r,
+                jm,
+                jm.T @ jm,
+                jm.T @ r,
+                HeldOutMap(problem, state, names),
+                None if problem.w is None else np.linalg.inv(problem.w),
+            )
+        self.r, self.jm, self.gram, self.rhs, self.held, self.unwhiten = (
+            lin.r,
+            lin.jm,
+            lin.gram,
+            lin.rhs,
+            lin.held,
+            lin.unwhiten,
+        )
         self.k, self.x_base = len(params), np.asarray(start.ext, dtype=float)
         self.n_pen = len(names)
         self.ridge = fit.ridge
@@ -696,8 +827,19 @@ class MapEvidence:
         r = self.r + self.jm[:, gone] @ x
         rhs = self.rhs[keep] + self.gram[np.ix_(keep, gone)] @ x
         whole = self.downdates.setdefault(fold.tobytes(), FoldGrams(self.jm))
-        _, ss_mm = _cv_scores(self.jm[:, keep], r, self.gram[np.ix_(keep, keep)], rhs, self.unwhiten, pen, fold,
-                              [pen], [self.ridge], self.held, whole.columns(keep))  # fmt: skip
+        _, ss_mm = _cv_scores(
+            self.jm[:, keep],
+            r,
+            self.gram[np.ix_(keep, keep)],
+            rhs,
+            self.unwhiten,
+            pen,
+            fold,
+            [pen],
+            [self.ridge],
+            self.held,
+            whole.columns(keep),
+        )
         return float(np.sqrt(ss_mm[0, 0] / len(r)))
 
 
@@ -705,8 +847,15 @@ def _with_base(base: Extension | None, ext: Extension) -> Extension:
     return ext if base is None else combine([base, ext], cause=CAUSE)
 
 
-def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: float, noise: TrackerNoise | None,
-                   at_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[Identification, float]:
+def _penalised_fit(
+    problem: Problem,
+    state: State,
+    k0: int,
+    n_map: int,
+    lam: float,
+    noise: TrackerNoise | None,
+    at_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[Identification, float]:
     """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
     `state`, the fit without the map (`at_start`: its residual, Jacobian and Gram matrix if already formed):
     (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
@@ -757,11 +906,24 @@ def _penalised_fit(problem: Problem, state: State, k0: int, n_map: int, lam: flo
     s2 = float(r @ r) / dof
     cov = s2 * h_inv / np.outer(scale, scale)
     res = Identification(
-        chain=problem.chain, params=list(problem.params), dev=state.dev, stations=dict(zip(problem.station_ids,
-        state.stations, strict=True)), points={p: state.points[i] for i, p in enumerate(problem.point_ids)}, cov=cov,
-        station_ids=problem.station_ids, point_ids=problem.point_ids, residuals=residuals,
-        variance_factor=s2, dof=dof, iterations=iterations, noise=noise, extension=problem.ext, ext=state.ext,
-        converged=converged, message="the Gauss-Newton steps to come are below 1e-9 of the residual" if converged else
-        f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",
-    )  # fmt: skip
+        chain=problem.chain,
+        params=list(problem.params),
+        dev=state.dev,
+        stations=dict(zip(problem.station_ids, state.stations, strict=True)),
+        points={p: state.points[i] for i, p in enumerate(problem.point_ids)},
+        cov=cov,
+        station_ids=problem.station_ids,
+        point_ids=problem.point_ids,
+        residuals=residuals,
+        variance_factor=s2,
+        dof=dof,
+        iterations=iterations,
+        noise=noise,
+        extension=problem.ext,
+        ext=state.ext,
+        converged=converged,
+        message="the Gauss-Newton steps to come are below 1e-9 of the residual"
+        if converged
+        else f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",
+    )
     return res, float(hat[k0 : k0 + n_map].sum())

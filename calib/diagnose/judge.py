@@ -71,8 +71,17 @@ class Trial(NamedTuple):
     untested: bool = False  # it passed the F test and BIC where no held-out check was possible
 
 
-def judge_cause(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fit, cause: str, n_obs: int,
-                free: float, alpha: float, step: int) -> Trial | None:  # fmt: skip
+def judge_cause(
+    ctx: Context,
+    val: Validator,
+    fitted: tuple[str, ...],
+    current: Fit,
+    cause: str,
+    n_obs: int,
+    free: float,
+    alpha: float,
+    step: int,
+) -> Trial | None:
     """The model `fitted` + `cause` judged against `current` (the fit of `fitted`), `free` the degrees of freedom
     left beside the geometric model and the joint map (if chosen); None when it cannot be fitted."""
     model = (*fitted, cause)
@@ -95,9 +104,20 @@ def judge_cause(ctx: Context, val: Validator, fitted: tuple[str, ...], current: 
     # no held-out figure (no scheme: the F test and BIC alone; or the folds the campaign supports cannot
     # identify the model: it cannot be told from over-fitting) no cause enters (issue 36)
     gain_ok, p_held = significant(hold_b, hold_m, ctx.table.pose)
-    cand = Candidate(cause, added, fit.rss, dof, p, d_bic, None if hold_m is None else hold_m.rms_mm,
-                     rms(fit.residuals), {**(fit.shift or {}), "heldout_pvalue": p_held}, step=step,
-                     holdout_base_mm=None if hold_b is None else hold_b.rms_mm, cv_scheme=scheme)  # fmt: skip
+    cand = Candidate(
+        cause,
+        added,
+        fit.rss,
+        dof,
+        p,
+        d_bic,
+        None if hold_m is None else hold_m.rms_mm,
+        rms(fit.residuals),
+        {**(fit.shift or {}), "heldout_pvalue": p_held},
+        step=step,
+        holdout_base_mm=None if hold_b is None else hold_b.rms_mm,
+        cv_scheme=scheme,
+    )
     if cause in ctx.dropped:
         cand.detail["not_identifiable"] = list(ctx.dropped[cause])
     refused = implausible(fit.extension, fit.ext) if passes else []
@@ -109,24 +129,40 @@ def judge_cause(ctx: Context, val: Validator, fitted: tuple[str, ...], current: 
         cand.detail["implausible"] = refused
     cand.significant = bool(passes and gain_ok and not refused)
     if hold_m is None:
-        cand.cv_note = ("not cross-validated: the F test or the BIC already rejects it" if not passes else
-                        f"a training set of the {scheme} folds cannot identify it: this campaign cannot tell "
-                        "it from over-fitting" if scheme is not None else
-                        "cross-validation not possible on this design: the F test and BIC alone admit no "
-                        "cause")  # fmt: skip
+        cand.cv_note = (
+            "not cross-validated: the F test or the BIC already rejects it"
+            if not passes
+            else f"a training set of the {scheme} folds cannot identify it: this campaign cannot tell "
+            "it from over-fitting"
+            if scheme is not None
+            else "cross-validation not possible on this design: the F test and BIC alone admit no cause"
+        )
     return Trial(cand, fit, bool(passes and scheme is None and not refused))
 
 
-def judge_map(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fit, n_obs: int, n_base: float,
-              alpha: float, step: int, folds: int, seed: int,
-              orders: tuple[int, ...] = ORDERS) -> Trial | None:  # fmt: skip
+def judge_map(
+    ctx: Context,
+    val: Validator,
+    fitted: tuple[str, ...],
+    current: Fit,
+    n_obs: int,
+    n_base: float,
+    alpha: float,
+    step: int,
+    folds: int,
+    seed: int,
+    orders: tuple[int, ...] = ORDERS,
+) -> Trial | None:
     """The joint error map on top of the model `fitted` (`calib.diagnose.joint_map`: order (of `orders`) and ridge by
     its own cross-validation by pose; the F test and BIC count its effective number of parameters). Its held-out
     gain is judged by the paired test (`calib.diagnose.significance`) on the search's folds and the edge folds
     of `val` (the map clamped to each fold's training arcs, as predict clamps it), and a map beyond the physical
     range of a transmission error is refused (`calib.diagnose.plausibility`)."""
-    table = ctx.table if current.shift is None else relabel_shift(ctx.table, current.shift["station"],
-                                                                   current.shift["after_t_s"])  # fmt: skip
+    table = (
+        ctx.table
+        if current.shift is None
+        else relabel_shift(ctx.table, current.shift["station"], current.shift["after_t_s"])
+    )
     # orders whose coefficients (2 per harmonic and joint) leave the problem over-determined even unpenalised
     top = (3 * len(table) - current.n_cols - 1) // (2 * ctx.chain.dof)
     # and orders a joint's angles can resolve: a series of order H has 2 H + 1 coefficients, which the n distinct
@@ -138,9 +174,19 @@ def judge_map(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fi
     if not orders:
         return None
     try:  # from the whole-table fit of `fitted`, which `Rejudge` linearises at too (`Linearised`)
-        mf = fit_error_map(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, base=extension_of(ctx, fitted),
-                           folds=folds, seed=seed, orders=orders, start=whole_fit(ctx, fitted),
-                           executor=ctx.executor)  # fmt: skip
+        mf = fit_error_map(
+            ctx.chain,
+            table,
+            ctx.geo.points,
+            ctx.params,
+            ctx.noise,
+            base=extension_of(ctx, fitted),
+            folds=folds,
+            seed=seed,
+            orders=orders,
+            start=whole_fit(ctx, fitted),
+            executor=ctx.executor,
+        )
     except IdentificationError:
         return None
     res = mf.identification
@@ -156,22 +202,42 @@ def judge_map(ctx: Context, val: Validator, fitted: tuple[str, ...], current: Fi
     return _map_trial(ctx, val, table, current, mf, (added, rss, dof, p, d_bic), alpha, step)
 
 
-def _map_trial(ctx: Context, val: Validator, table: MeasurementTable, current: Fit, mf: ErrorMapFit,
-               figures: tuple[float, float, float, float, float], alpha: float, step: int) -> Trial:  # fmt: skip
+def _map_trial(
+    ctx: Context,
+    val: Validator,
+    table: MeasurementTable,
+    current: Fit,
+    mf: ErrorMapFit,
+    figures: tuple[float, float, float, float, float],
+    alpha: float,
+    step: int,
+) -> Trial:
     """judge_map's candidate once the map `mf` is fitted; `figures`: its (added parameters, RSS, degrees of
     freedom, F-test p-value, BIC change)."""
     added, rss, dof, p, d_bic = figures
     res = mf.identification
     # the held-out gain judged on the search's folds and the edge folds (extrapolation), by the paired test
-    held = held_out_errors(mf, list(val.fold_sets["pose"] or []) + val.edges, len(ctx.params), ctx.executor) if (
-        p < alpha and d_bic < 0 and val.fold_sets["pose"]) else None  # fmt: skip
+    held = (
+        held_out_errors(mf, list(val.fold_sets["pose"] or []) + val.edges, len(ctx.params), ctx.executor)
+        if (p < alpha and d_bic < 0 and val.fold_sets["pose"])
+        else None
+    )
     with_map, without = (HeldOut(*held[0]), HeldOut(*held[1])) if held is not None else (None, None)
     gain_ok, p_held = significant(without, with_map, table.pose, MAP_LEVEL)
-    cand = Candidate(MAP, int(round(added)), rss, int(dof), p, d_bic,
-                     mf.cv_rms_mm if with_map is None else with_map.rms_mm, rms(res.residuals),
-                     {"error_map": mf.to_doc(), "heldout_pvalue": p_held, **(current.shift or {})}, step=step,
-                     holdout_base_mm=mf.cv_rms_without_mm if without is None else without.rms_mm,
-                     cv_scheme="pose")  # fmt: skip
+    cand = Candidate(
+        MAP,
+        int(round(added)),
+        rss,
+        int(dof),
+        p,
+        d_bic,
+        mf.cv_rms_mm if with_map is None else with_map.rms_mm,
+        rms(res.residuals),
+        {"error_map": mf.to_doc(), "heldout_pvalue": p_held, **(current.shift or {})},
+        step=step,
+        holdout_base_mm=mf.cv_rms_without_mm if without is None else without.rms_mm,
+        cv_scheme="pose",
+    )
     refused = implausible(res.extension, res.ext)
     if refused:
         cand.detail["implausible"] = refused

@@ -86,8 +86,9 @@ def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: Tr
         xyz = table.xyz[rows]
         means = np.add.reduceat(xyz, np.r_[0, np.cumsum(sizes)[:-1]], axis=0) / sizes[:, None]
         ss = float(np.sum((xyz - np.repeat(means, sizes, axis=0)) ** 2))
-        return Floor(float(np.sqrt(ss / (3 * n_dof))), f"comparable repeats ({3 * n_dof} degrees of freedom)",
-                     3 * n_dof)  # fmt: skip
+        return Floor(
+            float(np.sqrt(ss / (3 * n_dof))), f"comparable repeats ({3 * n_dof} degrees of freedom)", 3 * n_dof
+        )
     model = noise or tracker or TrackerNoise()
     sigma = float(np.sqrt(np.mean(np.trace(model.covariance(table.xyz), axis1=1, axis2=2) / 3)))
     why = "no repeats" if not reps else f"only {3 * n_dof} degrees of freedom of comparable repeats"

@@ -71,39 +71,62 @@ def implausible(ext: Extension | None, theta: np.ndarray) -> list[str]:
         at += len(names)
         values = theta[cols]
         if cause == "encoder_scale":
-            out += [f"encoder_scale {nm} = {100 * v:+.3g} % (physical: |k| <= {100 * ENCODER_SCALE_MAX:g} %)"
-                    for nm, v in zip(names, values, strict=True) if abs(v) > ENCODER_SCALE_MAX]  # fmt: skip
+            out += [
+                f"encoder_scale {nm} = {100 * v:+.3g} % (physical: |k| <= {100 * ENCODER_SCALE_MAX:g} %)"
+                for nm, v in zip(names, values, strict=True)
+                if abs(v) > ENCODER_SCALE_MAX
+            ]
         elif cause in ("range_scale", "wrist_coupling"):
             limit = RANGE_SCALE_MAX if cause == "range_scale" else COUPLING_MAX
-            out += [f"{cause} {nm} = {1e6 * v:+.3g} ppm (physical: |{nm[0]}| <= {1e6 * limit:g} ppm)"
-                    for nm, v in zip(names, values, strict=True) if abs(v) > limit]  # fmt: skip
+            out += [
+                f"{cause} {nm} = {1e6 * v:+.3g} ppm (physical: |{nm[0]}| <= {1e6 * limit:g} ppm)"
+                for nm, v in zip(names, values, strict=True)
+                if abs(v) > limit
+            ]
         elif cause == "nest_sag":
-            out += [f"nest_sag {nm} = {1e3 * v:+.3g} um (physical: |c| <= {1e3 * NEST_SAG_MAX_MM:g} um)"
-                    for nm, v in zip(names, values, strict=True) if abs(v) > NEST_SAG_MAX_MM]  # fmt: skip
+            out += [
+                f"nest_sag {nm} = {1e3 * v:+.3g} um (physical: |c| <= {1e3 * NEST_SAG_MAX_MM:g} um)"
+                for nm, v in zip(names, values, strict=True)
+                if abs(v) > NEST_SAG_MAX_MM
+            ]
         elif cause == "backlash":
-            out += [f"backlash {nm} = {np.degrees(v):.3g} deg (physical: 0 .. {np.degrees(BACKLASH_MAX_RAD):g} deg)"
-                    for nm, v in zip(names, values, strict=True) if abs(v) > BACKLASH_MAX_RAD]  # fmt: skip
+            out += [
+                f"backlash {nm} = {np.degrees(v):.3g} deg (physical: 0 .. {np.degrees(BACKLASH_MAX_RAD):g} deg)"
+                for nm, v in zip(names, values, strict=True)
+                if abs(v) > BACKLASH_MAX_RAD
+            ]
         elif cause in ("joint_compliance", "cyclic_error", "payload_compliance"):
             limit = CYCLIC_MAX_RAD if cause == "cyclic_error" else DEFLECTION_MAX_RAD
             peak = np.max(np.abs(ext.joint_features.columns(cols).offsets(values)), axis=0)
             what = "joint error" if cause == "cyclic_error" else "deflection"
-            out += [f"{cause} {what} of joint {j + 1} up to {np.degrees(p):.3g} deg (physical: <= "
-                    f"{np.degrees(limit):g} deg)" for j, p in enumerate(peak) if p > limit]  # fmt: skip
+            out += [
+                f"{cause} {what} of joint {j + 1} up to {np.degrees(p):.3g} deg (physical: <= "
+                f"{np.degrees(limit):g} deg)"
+                for j, p in enumerate(peak)
+                if p > limit
+            ]
             if cause == "payload_compliance":
-                out += [f"payload_compliance {nm} = {1e6 * v:.3g} urad/(N m) (physical: <= {1e6 * COMPLIANCE_MAX:g})"
-                        for nm, v in zip(names, values, strict=True) if abs(v) > COMPLIANCE_MAX]  # fmt: skip
+                out += [
+                    f"payload_compliance {nm} = {1e6 * v:.3g} urad/(N m) (physical: <= {1e6 * COMPLIANCE_MAX:g})"
+                    for nm, v in zip(names, values, strict=True)
+                    if abs(v) > COMPLIANCE_MAX
+                ]
         elif cause == "thermal_warmup":
             tau = ext.meta.get(FORMS, {}).get(cause, {}).get("tau_s", WARMUP_TAU_MIN_S)
             if abs(values[0]) > GROWTH_MAX:
-                out.append(f"thermal_warmup e_inf = {1e6 * values[0]:.3g} ppm (physical: |e_inf| <= "
-                           f"{1e6 * GROWTH_MAX:g} ppm)")  # fmt: skip
+                out.append(
+                    f"thermal_warmup e_inf = {1e6 * values[0]:.3g} ppm (physical: |e_inf| <= {1e6 * GROWTH_MAX:g} ppm)"
+                )
             if not WARMUP_TAU_MIN_S <= tau <= WARMUP_TAU_MAX_S:
-                out.append(f"thermal_warmup tau = {tau / 60:.3g} min (physical: {WARMUP_TAU_MIN_S / 60:g} to "
-                           f"{WARMUP_TAU_MAX_S / 3600:g} h)")  # fmt: skip
+                out.append(
+                    f"thermal_warmup tau = {tau / 60:.3g} min (physical: {WARMUP_TAU_MIN_S / 60:g} to "
+                    f"{WARMUP_TAU_MAX_S / 3600:g} h)"
+                )
         elif cause == "thermal_drift":
             growth = np.max(np.abs(ext.growth[:, cols] @ values))
             if growth > GROWTH_MAX:
-                out.append(f"thermal_drift growth up to {1e6 * growth:.3g} ppm over the campaign (physical: <= "
-                           f"{1e6 * GROWTH_MAX:g} ppm)")  # fmt: skip
+                out.append(
+                    f"thermal_drift growth up to {1e6 * growth:.3g} ppm over the campaign (physical: <= "
+                    f"{1e6 * GROWTH_MAX:g} ppm)"
+                )
     return out
-

@@ -54,8 +54,9 @@ def _of_labels(cause: str, labels: list[str], prefix: str, names: list[str] | No
     return list(names)
 
 
-def range_scale_extension(table: MeasurementTable, names: list[str] | None = None,
-                          ranges: Ranges | None = None) -> Extension:  # fmt: skip
+def range_scale_extension(
+    table: MeasurementTable, names: list[str] | None = None, ranges: Ranges | None = None
+) -> Extension:
     """range_scale for the rows of `table`: one parameter k_<station> per station but the reference (the first in
     the table), or those `names` list; rows of a station without a parameter (the reference, a station unknown to
     the model) have no range scale."""
@@ -64,12 +65,19 @@ def range_scale_extension(table: MeasurementTable, names: list[str] | None = Non
     feats = np.zeros((len(table), len(kept)))
     for e, nm in enumerate(kept):
         feats[stations == nm.removeprefix("k_"), e] = 1.0
-    return Extension(RANGE_SCALE, kept, ["ppm"] * len(kept), np.full(len(kept), UNIT_FACTORS["ppm"]),
-                     range_scale=feats, meta={"ranges": ranges})  # fmt: skip
+    return Extension(
+        RANGE_SCALE,
+        kept,
+        ["ppm"] * len(kept),
+        np.full(len(kept), UNIT_FACTORS["ppm"]),
+        range_scale=feats,
+        meta={"ranges": ranges},
+    )
 
 
-def nest_sag_extension(table: MeasurementTable, names: list[str] | None = None,
-                       ranges: Ranges | None = None) -> Extension:  # fmt: skip
+def nest_sag_extension(
+    table: MeasurementTable, names: list[str] | None = None, ranges: Ranges | None = None
+) -> Extension:
     """nest_sag for the rows of `table`: one parameter c_<point> (mm along gravity) per reference point but the
     reference (the first in the table), or those `names` list."""
     kept = _of_labels(NEST_SAG, table.point, "c_", names)
@@ -77,12 +85,12 @@ def nest_sag_extension(table: MeasurementTable, names: list[str] | None = None,
     feats = np.zeros((len(table), 3, len(kept)))
     for e, nm in enumerate(kept):
         feats[points == nm.removeprefix("c_"), :, e] = GRAVITY
-    return Extension(NEST_SAG, kept, ["mm"] * len(kept), np.ones(len(kept)), displacement=feats,
-                     meta={"ranges": ranges})  # fmt: skip
+    return Extension(
+        NEST_SAG, kept, ["mm"] * len(kept), np.ones(len(kept)), displacement=feats, meta={"ranges": ranges}
+    )
 
 
-def wrist_coupling_extension(q: np.ndarray, names: list[str] | None = None,
-                             ranges: Ranges | None = None) -> Extension:  # fmt: skip
+def wrist_coupling_extension(q: np.ndarray, names: list[str] | None = None, ranges: Ranges | None = None) -> Extension:
     """wrist_coupling for joint angles q (N, n) rad, clamped into `ranges` (held outside them, as every unbounded
     term): dq_driven = c q_driving for the couplings of the last three joints (COUPLINGS), c<driven><driving> named
     by the joints' numbers from 1 (c54, c64, c65 on a six-axis arm)."""
@@ -97,5 +105,11 @@ def wrist_coupling_extension(q: np.ndarray, names: list[str] | None = None,
         feats[:, wrist + driven, e] = q[:, wrist + driving]
         all_names.append(f"c{wrist + driven + 1}{wrist + driving + 1}")
     feats, kept = select_columns(feats, all_names, names)
-    return Extension(WRIST_COUPLING, kept, ["ppm"] * len(kept), np.full(len(kept), UNIT_FACTORS["ppm"]), feats,
-                     meta={"ranges": ranges})  # fmt: skip
+    return Extension(
+        WRIST_COUPLING,
+        kept,
+        ["ppm"] * len(kept),
+        np.full(len(kept), UNIT_FACTORS["ppm"]),
+        feats,
+        meta={"ranges": ranges},
+    )

@@ -52,8 +52,11 @@ class Rejudge:
         if shifted not in self.roots:
             ctx = self.ctx
             start = whole_fit(ctx, (*self.causes, SHIFT) if shifted else self.causes)
-            table = ctx.table if start.shift is None else relabel_shift(ctx.table, start.shift["station"],
-                                                                         start.shift["after_t_s"])  # fmt: skip
+            table = (
+                ctx.table
+                if start.shift is None
+                else relabel_shift(ctx.table, start.shift["station"], start.shift["after_t_s"])
+            )
             self.roots[shifted] = MapEvidence(ctx.chain, table, ctx.params, ctx.noise, self.base, start, self.mf)
         return self.roots[shifted]
 
@@ -87,10 +90,18 @@ class Rejudge:
             p = float(fdtrc(k, dof, f)) if f > 0 else 1.0
             d_bic = float(n_obs * np.log(rss_full / rss_rest) + max(k, 0.0) * np.log(n_obs))
             passes = d_bic < 0
-            hold, without = (self.figure(fitted, scheme), self.figure(rest, scheme)) if passes and scheme else (
-                None, None)  # fmt: skip
-            out[c] = {"f_pvalue": p, "delta_bic": d_bic, "n_params": k, "cv_scheme": scheme, "holdout_rms_mm": hold,
-                      "holdout_without_mm": without, "significant": bool(passes and (hold is None or hold < without))}
+            hold, without = (
+                (self.figure(fitted, scheme), self.figure(rest, scheme)) if passes and scheme else (None, None)
+            )
+            out[c] = {
+                "f_pvalue": p,
+                "delta_bic": d_bic,
+                "n_params": k,
+                "cv_scheme": scheme,
+                "holdout_rms_mm": hold,
+                "holdout_without_mm": without,
+                "significant": bool(passes and (hold is None or hold < without)),
+            }
         return out
 
 
@@ -103,8 +114,9 @@ def corrected_by_map(table: MeasurementTable, mf: ErrorMapFit) -> MeasurementTab
     return out
 
 
-def redundant_causes(ctx: Context, val: Validator, fitted: tuple[str, ...], mf: ErrorMapFit,
-                     n_obs: int) -> tuple[tuple[str, ...], list[dict], dict[str, dict]]:  # fmt: skip
+def redundant_causes(
+    ctx: Context, val: Validator, fitted: tuple[str, ...], mf: ErrorMapFit, n_obs: int
+) -> tuple[tuple[str, ...], list[dict], dict[str, dict]]:
     """(the causes of `fitted` that stay beside the map `mf`, those that left with their figures, the figures of
     those that stay): the causes the map makes redundant leave one at a time (of those that no longer pass, the one
     whose BIC gains most by leaving)."""

@@ -88,8 +88,10 @@ class Selection:
         self.steps += 1
         alpha = ALPHA / max(len(self.open_causes), 1)
         free = self.n_obs - self.n_geo - self.map_edf
-        judged = (judge_cause(self.ctx, self.val, self.fitted, self.current, cause, self.n_obs, free, alpha,
-                              self.steps) for cause in self.open_causes)  # fmt: skip
+        judged = (
+            judge_cause(self.ctx, self.val, self.fitted, self.current, cause, self.n_obs, free, alpha, self.steps)
+            for cause in self.open_causes
+        )
         trial = [t for t in judged if t is not None]
         self.untested |= any(t.untested for t in trial)
         if self.map_open and not any(t.candidate.significant for t in trial):
@@ -97,13 +99,19 @@ class Selection:
             # generic map would absorb a compliance or an encoder scale of few parameters
             self.map_open = False
             base = tuple(c for c in self.fitted if c != MAP)
-            found = judge_map(self.ctx, self.val, base, self.current, self.n_obs, self.n_geo, alpha, self.steps,
-                              self.folds, self.seed)  # fmt: skip
+            found = judge_map(
+                self.ctx, self.val, base, self.current, self.n_obs, self.n_geo, alpha, self.steps, self.folds, self.seed
+            )
             trial += [] if found is None else [found]
         self.candidates.extend(t.candidate for t in trial)
         # refused for their physical range (not for a confound of the campaign order: `calib.diagnose.confounds`)
-        refused = [t for t in trial if "implausible" in t.candidate.detail and not isinstance(t.fit, ErrorMapFit)
-                   and implausible(t.fit.extension, t.fit.ext)]  # fmt: skip
+        refused = [
+            t
+            for t in trial
+            if "implausible" in t.candidate.detail
+            and not isinstance(t.fit, ErrorMapFit)
+            and implausible(t.fit.extension, t.fit.ext)
+        ]
         for t in trial:
             why = self._beyond_refused(t, refused, free, alpha) if t.candidate.significant else None
             if why is not None:
@@ -112,8 +120,9 @@ class Selection:
         winners = [t for t in trial if t.candidate.significant]
         if not winners:
             return False
-        best = max(winners, key=lambda t: (t.candidate.gain_mm if t.candidate.gain_mm is not None
-                                           else -t.candidate.delta_bic))  # fmt: skip
+        best = max(
+            winners, key=lambda t: t.candidate.gain_mm if t.candidate.gain_mm is not None else -t.candidate.delta_bic
+        )
         self.hold_first = best.candidate.holdout_base_mm if self.steps == 1 else self.hold_first
         if isinstance(best.fit, ErrorMapFit):
             self._join_map(best.candidate, best.fit, alpha)
@@ -147,9 +156,11 @@ class Selection:
             f = ((nuisance.rss - both.rss) / added) / (both.rss / dof)
             p = float(fdtrc(added, dof, f)) if f > 0 else 1.0
             if p >= alpha:
-                return (f"{cause}: beside {r.candidate.cause} fitted as a nuisance (refused as unphysical, it fits "
-                        f"better) its F test gives p = {p:.2g}: it absorbs part of an effect beyond the candidates' "
-                        "physical ranges")  # fmt: skip
+                return (
+                    f"{cause}: beside {r.candidate.cause} fitted as a nuisance (refused as unphysical, it fits "
+                    f"better) its F test gives p = {p:.2g}: it absorbs part of an effect beyond the candidates' "
+                    "physical ranges"
+                )
         return None
 
     def profile_warmup(self) -> None:
@@ -160,15 +171,21 @@ class Selection:
         ctx = self.ctx
         rest = tuple(c for c in self.fitted if c != WARMUP)
         chosen = WARMUP in self.fitted
-        if (WARMUP not in ctx.features or rest == self.warm_rest or self.map_fit is not None or "thermal_drift" in rest
-                or not (chosen or WARMUP in self.open_causes)):  # fmt: skip
+        if (
+            WARMUP not in ctx.features
+            or rest == self.warm_rest
+            or self.map_fit is not None
+            or "thermal_drift" in rest
+            or not (chosen or WARMUP in self.open_causes)
+        ):
             return
         self.warm_rest = rest
         old = ctx.features[WARMUP]
         try:
             at = whole_fit(ctx, rest)
-            table = ctx.table if at.shift is None else relabel_shift(ctx.table, at.shift["station"],
-                                                                     at.shift["after_t_s"])  # fmt: skip
+            table = (
+                ctx.table if at.shift is None else relabel_shift(ctx.table, at.shift["station"], at.shift["after_t_s"])
+            )
             ext, _ = warmup_candidate(ctx.chain, table, at, ctx.noise, ctx.params, curvature=not chosen)
         except (IdentificationError, ExtensionError):
             return
@@ -210,8 +227,19 @@ class Selection:
             # judging the map again needs none of them: not held meanwhile (issue 41)
             for key in [k for k, fit in ctx.fits.items() if fit is not start]:
                 del ctx.fits[key]
-            again = judge_map(ctx, self.val, fitted, start, self.n_obs, self.n_geo, alpha, self.steps, self.folds,
-                              self.seed, (max(mf.orders.values()),))  # fmt: skip
+            again = judge_map(
+                ctx,
+                self.val,
+                fitted,
+                start,
+                self.n_obs,
+                self.n_geo,
+                alpha,
+                self.steps,
+                self.folds,
+                self.seed,
+                (max(mf.orders.values()),),
+            )
         if removed and (again is None or not again.candidate.significant):
             fitted, removed, judged = kept, [], {}
         if removed:

@@ -55,8 +55,10 @@ def paired_pvalue(base: HeldOut, model: HeldOut, pose: list[str]) -> float:
     1.0 when fewer than MIN_POSES poses differ."""
     labels, inv = np.unique(np.asarray(pose), return_inverse=True)
     held = np.bincount(inv, weights=base.count, minlength=len(labels)) > 0
-    d = (np.bincount(inv, weights=base.sq, minlength=len(labels))
-         - np.bincount(inv, weights=model.sq, minlength=len(labels)))[held]  # fmt: skip
+    d = (
+        np.bincount(inv, weights=base.sq, minlength=len(labels))
+        - np.bincount(inv, weights=model.sq, minlength=len(labels))
+    )[held]
     d = d[d != 0]  # Wilcoxon's rule: zero differences are dropped
     n = len(d)
     if n < MIN_POSES:
@@ -93,8 +95,9 @@ def _signed_rank_counts(n: int) -> np.ndarray:
     return counts
 
 
-def significant(base: HeldOut | None, model: HeldOut | None, pose: list[str],
-                level: float = LEVEL) -> tuple[bool, float | None]:  # fmt: skip
+def significant(
+    base: HeldOut | None, model: HeldOut | None, pose: list[str], level: float = LEVEL
+) -> tuple[bool, float | None]:
     """(the model's held-out gain is significant at `level`, its p-value); (False, None) without both figures."""
     if base is None or model is None:
         return False, None

@@ -83,8 +83,9 @@ def _ridge_predict(x_tr: np.ndarray, y_tr: np.ndarray, x_te: np.ndarray, pose_tr
     return x_te @ _ridge_fit(x_tr, y_tr, lams[[int(np.argmin(sse))]])[0]
 
 
-def smoother_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None,
-                  seed: int) -> dict | None:  # fmt: skip
+def smoother_test(
+    ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None, seed: int
+) -> dict | None:
     """Can the residuals be predicted from joint angles, approach directions, time or station? A ridge
     regression on generic features, cross-validated against predicting zero, paired over poses, one-sided
     t test. None with fewer than 10 poses."""
@@ -109,8 +110,11 @@ def smoother_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[n
     per_pose = np.array([gain[pose_arr == p].sum() for p in sorted(set(table.pose))])
     sd = float(per_pose.std(ddof=1))
     tval = float(per_pose.mean()) / (sd / np.sqrt(len(per_pose))) if sd > 0 else 0.0
-    return {"test": "cross-validated smoother", "pvalue": float(stdtr(len(per_pose) - 1, -tval)),
-            "predictable_fraction": float(gain.sum() / float(y @ y))}  # fmt: skip
+    return {
+        "test": "cross-validated smoother",
+        "pvalue": float(stdtr(len(per_pose) - 1, -tval)),
+        "predictable_fraction": float(gain.sum() / float(y @ y)),
+    }
 
 
 def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | None:
@@ -168,9 +172,14 @@ def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | N
     if df1 <= 0 or df2 <= 0 or rss1 <= 0:
         return None
     f = ((rss0 - rss1) / df1) / (rss1 / df2)
-    return {"test": "end-frame error per pose", "pvalue": float(fdtrc(df1, df2, f)),
-            "predictable_fraction": float((rss0 - rss1) / rss0), "dof": [int(df1), int(df2)],
-            "scale_along_line_of_sight": float(k_along), "scale_across": float(k_across)}  # fmt: skip
+    return {
+        "test": "end-frame error per pose",
+        "pvalue": float(fdtrc(df1, df2, f)),
+        "predictable_fraction": float((rss0 - rss1) / rss0),
+        "dof": [int(df1), int(df2)],
+        "scale_along_line_of_sight": float(k_along),
+        "scale_across": float(k_across),
+    }
 
 
 def _basis(m: np.ndarray) -> np.ndarray:
@@ -185,12 +194,17 @@ def _orthogonal_rss(r: np.ndarray, basis: np.ndarray) -> float:
     return float(r @ r - np.sum((basis.T @ r) ** 2))
 
 
-def structure_test(ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None,
-                   seed: int, alpha: float) -> dict:  # fmt: skip
+def structure_test(
+    ctx: Context, fit: Fit, table: MeasurementTable, folds: list[np.ndarray] | None, seed: int, alpha: float
+) -> dict:
     """Residual structure of `fit`: the tests that apply to this table, each at alpha / (number of tests)."""
     tests = [t for t in (pose_frame_test(ctx, fit, table), smoother_test(ctx, fit, table, folds, seed)) if t]
     if not tests:
-        return {"structure": False, "pvalue": None, "tests": [],
-                "note": "too few poses to test the residuals for structure"}  # fmt: skip
+        return {
+            "structure": False,
+            "pvalue": None,
+            "tests": [],
+            "note": "too few poses to test the residuals for structure",
+        }
     p = min(1.0, len(tests) * min(t["pvalue"] for t in tests))
     return {"structure": p < alpha, "pvalue": p, "tests": tests}

@@ -61,9 +61,12 @@ def _orthogonal(chain: Chain, table: MeasurementTable, at: Solution, noise, para
     ext = Extension(ext.cause, ext.names, ext.units, ext.to_boundary, growth=np.ones((len(table), 1)), pivot=ext.pivot)
     others = at.extension
     problem = Problem(chain, table, at.points, params, noise, at.dev, ext if others is None else combine([others, ext]))
-    state = State(at.dev, [at.stations[s] for s in problem.station_ids],
-                  np.array([at.points[p] for p in problem.point_ids]),
-                  np.zeros(1) if others is None else np.r_[np.asarray(at.ext, dtype=float), 0.0])  # fmt: skip
+    state = State(
+        at.dev,
+        [at.stations[s] for s in problem.station_ids],
+        np.array([at.points[p] for p in problem.point_ids]),
+        np.zeros(1) if others is None else np.r_[np.asarray(at.ext, dtype=float), 0.0],
+    )
     r, jm = problem.residual_and_jacobian(state)
     k = len(params) + (0 if others is None else others.size)
     base = np.delete(jm, k, axis=1)
@@ -108,13 +111,21 @@ def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params)
             inside = fine[np.array([rss(x) for x in fine]) <= least + CHI2_1_95 * s2]
             ci = [float(np.exp(min(inside.min(), log_tau))), float(np.exp(max(inside.max(), log_tau)))]
             f = (linear - least) / s2 if s2 > 0 else 0.0
-            best = {"form": form, "tau_s": float(np.exp(log_tau)), "tau_ci95_s": ci, "rss": least,
-                    "rss_linear": linear, "dof": int(dof), "pvalue": float(fdtrc(1, dof, f)) if f > 0 else 1.0}
+            best = {
+                "form": form,
+                "tau_s": float(np.exp(log_tau)),
+                "tau_ci95_s": ci,
+                "rss": least,
+                "rss_linear": linear,
+                "dof": int(dof),
+                "pvalue": float(fdtrc(1, dof, f)) if f > 0 else 1.0,
+            }
     return best
 
 
-def warmup_candidate(chain: Chain, table: MeasurementTable, geo: Solution, noise, params,
-                     curvature: bool = True) -> tuple[Extension | None, list[str]]:  # fmt: skip
+def warmup_candidate(
+    chain: Chain, table: MeasurementTable, geo: Solution, noise, params, curvature: bool = True
+) -> tuple[Extension | None, list[str]]:
     """thermal_warmup at its tau and pivot form profiled at the fit `geo` (the model without it), with its profile in
     `meta[FORMS]`; (None, [why]) when its curvature is not significant against the linear drift (the module's
     docstring), unless `curvature` is False (a warm-up already chosen, profiled again)."""
@@ -122,8 +133,10 @@ def warmup_candidate(chain: Chain, table: MeasurementTable, geo: Solution, noise
         return None, ["tau: the rows span no time"]
     prof = profile(chain, table, geo, noise, params)
     if curvature and prof["pvalue"] >= ALPHA:
-        return None, [f"tau: the growth's curvature is not significant against a linear drift (F test p = "
-                      f"{prof['pvalue']:.2g}): thermal_drift describes it"]  # fmt: skip
+        return None, [
+            f"tau: the growth's curvature is not significant against a linear drift (F test p = "
+            f"{prof['pvalue']:.2g}): thermal_drift describes it"
+        ]
     form = {"tau_s": prof["tau_s"], "tau_ci95_s": prof["tau_ci95_s"], "profile_pvalue": prof["pvalue"]}
     ext = build_extension("thermal_warmup", chain, table, names=[prof["form"]], form=form)
     return ext, []

@@ -75,10 +75,14 @@ def _local_max(design: Design, x0: np.ndarray, a: np.ndarray) -> tuple[float, np
         return design.constraints(x, 1, seen)
 
     res = minimize(
-        lambda x: tuple(-v for v in derivative(design, x, a, w_rows)), x0, jac=True, method="SLSQP",
-        bounds=design.limits, options={"maxiter": 300, "ftol": 1e-14},
+        lambda x: tuple(-v for v in derivative(design, x, a, w_rows)),
+        x0,
+        jac=True,
+        method="SLSQP",
+        bounds=design.limits,
+        options={"maxiter": 300, "ftol": 1e-14},
         constraints={"type": "ineq", "fun": lambda x: cons(x)[0], "jac": lambda x: cons(x)[1]},
-    )  # fmt: skip
+    )
     x = np.clip(res.x, design.limits[:, 0], design.limits[:, 1])
     if not design.feasible(x)[0]:
         return None
@@ -118,6 +122,8 @@ def rho0_lower_bound(
     keep = order[w[order] > 1e-4]
     return Bound(
         rho0_mm=float(np.sqrt(bound / n_measurements)),
-        design_rho0_mm=float(np.sqrt(phi / n_measurements)), n_measurements=n_measurements,
-        support=pool[keep], weights=w[keep],
-    )  # fmt: skip
+        design_rho0_mm=float(np.sqrt(phi / n_measurements)),
+        n_measurements=n_measurements,
+        support=pool[keep],
+        weights=w[keep],
+    )

@@ -468,8 +468,14 @@ def _best_rho0_swap(design: Design, rest: np.ndarray, bs: np.ndarray, allowed: n
     return best
 
 
-def exchange(design: Design, infos: np.ndarray, plan: np.ndarray, criterion: str, max_passes: int = 100,
-             factors: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+def exchange(
+    design: Design,
+    infos: np.ndarray,
+    plan: np.ndarray,
+    criterion: str,
+    max_passes: int = 100,
+    factors: np.ndarray | None = None,
+) -> np.ndarray:
     """Modified Fedorov exchange (Cook and Nachtsheim, Technometrics 22, 1980) over a candidate pool: `infos`
     (N, k, k) the pool's pose information matrices, `plan` (m,) distinct pool indices. Each plan pose in turn
     is swapped for the pool pose that lowers the criterion most, if any does; passes repeat until one changes
@@ -531,10 +537,14 @@ def refine(design: Design, q: np.ndarray, criterion: str, maxiter: int = 200) ->
         return last[key]
 
     res = minimize(
-        lambda x: evaluated(x)[0], x0, jac=True, method="SLSQP", bounds=np.tile(design.limits, (m, 1)),
+        lambda x: evaluated(x)[0],
+        x0,
+        jac=True,
+        method="SLSQP",
+        bounds=np.tile(design.limits, (m, 1)),
         constraints={"type": "ineq", "fun": lambda x: evaluated(x)[1][0], "jac": lambda x: evaluated(x)[1][1]},
         options={"maxiter": maxiter, "ftol": 1e-10},
-    )  # fmt: skip
+    )
     out = np.clip(res.x, np.tile(design.limits[:, 0], m), np.tile(design.limits[:, 1], m)).reshape(m, n)
     # a pose the solver left infeasible (a pair it did not constrain entered a station's cone edge, or its last step
     # crossed a constraint) goes back to its start: each pose's feasibility is its own, so the plan stays feasible
@@ -587,8 +597,12 @@ def optimize_plan(
     infos = design.pose_information(pool)
     screened = np.array([rng.choice(len(pool), m, replace=False) for _ in range(starts)])
     # the screened plans' sums, SCREEN_CHUNK plans at a time (each sum is K x K: 39 unknowns on the KR-270)
-    scores = np.concatenate([design.criterion_values(infos[screened[i : i + SCREEN_CHUNK]].sum(axis=1), criterion)
-                             for i in range(0, starts, SCREEN_CHUNK)])  # fmt: skip
+    scores = np.concatenate(
+        [
+            design.criterion_values(infos[screened[i : i + SCREEN_CHUNK]].sum(axis=1), criterion)
+            for i in range(0, starts, SCREEN_CHUNK)
+        ]
+    )
     best = screened[np.argsort(scores)[:refined]]
     total = len(best) + len(initial or [])
 
@@ -604,8 +618,7 @@ def optimize_plan(
     pairs = run(_exchanged_refined, [(design, pool, infos, factors, plan, criterion) for plan in best], 0)
     starts_q = [np.asarray(q, dtype=float) for q in initial or []]
     refined_q = run(_refined, [(design, q, criterion) for q in starts_q], len(best))
-    candidates = [q for q in [*(q for pair in pairs for q in pair), *starts_q, *refined_q]
-                  if design.feasible(q).all()]
+    candidates = [q for q in [*(q for pair in pairs for q in pair), *starts_q, *refined_q] if design.feasible(q).all()]
     key = CRITERION_KEY[criterion]
     crit = [design.criteria(q, repeat).get(key, np.inf) for q in candidates]
     q_best = candidates[int(np.argmin(crit))]
@@ -639,13 +652,22 @@ def design_for_cell(
     pids = sorted(cell.tool_points)
     trackers = [Tracker(s.rotation, s.position) for s in cell.stations.values()] if visibility else []
     return Design(
-        chain=cell.chain, params=params, tool=np.array([cell.tool_points[p] for p in pids]), q0=np.asarray(q0),
-        tcp=cell.tcp, sigma_mm=sigma_mm, noise=noise, trackers=trackers,
-        normals=np.array([cell.tool_normals[p] for p in pids]), acceptance_deg=cell.acceptance_deg,
+        chain=cell.chain,
+        params=params,
+        tool=np.array([cell.tool_points[p] for p in pids]),
+        q0=np.asarray(q0),
+        tcp=cell.tcp,
+        sigma_mm=sigma_mm,
+        noise=noise,
+        trackers=trackers,
+        normals=np.array([cell.tool_normals[p] for p in pids]),
+        acceptance_deg=cell.acceptance_deg,
         box_min=None if cell.box_min is None else cell.box_min + PLAN_BOX_MARGIN_MM,
         box_max=None if cell.box_max is None else cell.box_max - PLAN_BOX_MARGIN_MM,
-        joint_bounds=plan_joint_bounds(cell), known=tuple(known), visibility_margin_deg=visibility_margin_deg,
-    )  # fmt: skip
+        joint_bounds=plan_joint_bounds(cell),
+        known=tuple(known),
+        visibility_margin_deg=visibility_margin_deg,
+    )
 
 
 def plan_rows(design: Design, q: np.ndarray, repeat: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -658,8 +680,9 @@ def plan_rows(design: Design, q: np.ndarray, repeat: int = 1) -> tuple[np.ndarra
     return (row // n_pt) % len(q), row % n_pt, station
 
 
-def monte_carlo_rho0(design: Design, q: np.ndarray, repeat: int, runs: int,
-                     rng: np.random.Generator | list[np.random.Generator]) -> np.ndarray:  # fmt: skip
+def monte_carlo_rho0(
+    design: Design, q: np.ndarray, repeat: int, runs: int, rng: np.random.Generator | list[np.random.Generator]
+) -> np.ndarray:
     """Simulate `runs` campaigns of the plan (truth at nominal: robot, stations and points; the design's noise),
     identify each as a campaign does (calib.identify.solver: the robot parameters, every station and every point,
     jointly), and return the error (mm) of the test-pose quantity of each run: the reference points' centroid at
@@ -682,9 +705,16 @@ def monte_carlo_rho0(design: Design, q: np.ndarray, repeat: int, runs: int,
     truth = design.r_st[0] @ design.kin.points(q0, design.tool).mean(axis=0) + design.t_st[0]
     errors = np.empty(runs)
     for k in range(runs):
-        table = MeasurementTable(np.arange(1, n + 1), np.zeros(n), [f"Q{i + 1}" for i in pose],
-                                 [sids[s] for s in station], [pids[j] for j in point], np.degrees(q[pose]),
-                                 exact + noise.sample(exact, rngs[k]), source="monte carlo")  # fmt: skip
+        table = MeasurementTable(
+            np.arange(1, n + 1),
+            np.zeros(n),
+            [f"Q{i + 1}" for i in pose],
+            [sids[s] for s in station],
+            [pids[j] for j in point],
+            np.degrees(q[pose]),
+            exact + noise.sample(exact, rngs[k]),
+            source="monte carlo",
+        )
         res = identify(design.chain, table, dict(zip(pids, design.tool, strict=True)), design.params, design.noise)
         tool = np.array([res.points[p] for p in pids])
         est = res.stations[sids[0]].apply(design.kin.points(q0, tool, res.dev).mean(axis=0))

@@ -180,8 +180,10 @@ def approach_joints(cell: Cell, plan: IsoPlan, poses=VAP_POSES, fraction: float 
     bad = np.argwhere(~(ok & inside))
     if len(bad):
         i, k = bad[0]
-        raise CubeError(f"the approach point of {POSE_NAMES[poses[i]]} along {AXES[k]} (vAP, ISO 9283:1998, 7.2) "
-                        "is out of reach, outside the joint limits or puts a reference point outside the cell box")
+        raise CubeError(
+            f"the approach point of {POSE_NAMES[poses[i]]} along {AXES[k]} (vAP, ISO 9283:1998, 7.2) "
+            "is out of reach, outside the joint limits or puts a reference point outside the cell box"
+        )
     return q
 
 
@@ -195,8 +197,9 @@ def _measured_pair(cell: Cell, q: np.ndarray) -> tuple[str, str] | None:
     return (sids[s], pids[k]) if worst[k, s] >= 0.0 else None
 
 
-def _plan_at(cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm, fraction: float,
-             at_least: float = MIN_SIDE_MM):
+def _plan_at(
+    cell: Cell, kin: Kinematics, q_ref: np.ndarray, side_mm, centre_mm, fraction: float, at_least: float = MIN_SIDE_MM
+):
     """The largest cube about `centre_mm` (default: the TCP at q_ref) reached with q_ref's tool orientation, or
     the given side; (IsoPlan, "") or (None, why). A cube smaller than `at_least` is not looked for."""
     if centre_mm is None:

@@ -64,8 +64,12 @@ def campaign_order(
             # robot was would differ from the closing one by the backlash, not by a drift)
             before = next((i for i in reversed(passes) if i != ref), None) if approached else None
             opening = [Visit(sid, pid, before)] if before is not None else []
-            visits += [*opening, Visit(sid, pid, ref, True), *(Visit(sid, pid, i) for i in passes),
-                       Visit(sid, pid, ref, True)]  # fmt: skip
+            visits += [
+                *opening,
+                Visit(sid, pid, ref, True),
+                *(Visit(sid, pid, i) for i in passes),
+                Visit(sid, pid, ref, True),
+            ]
     return visits
 
 

@@ -30,14 +30,20 @@ class TrackerNoise:
 
     @staticmethod
     def isotropic(sigma_mm: float) -> TrackerNoise:
-        return TrackerNoise(radial_mm=sigma_mm, transverse_mm=sigma_mm, transverse_mm_per_m=0.0,
-                            name=f"isotropic {sigma_mm:g} mm")  # fmt: skip
+        return TrackerNoise(
+            radial_mm=sigma_mm, transverse_mm=sigma_mm, transverse_mm_per_m=0.0, name=f"isotropic {sigma_mm:g} mm"
+        )
 
     @staticmethod
     def of(instrument: Instrument) -> TrackerNoise:
         """The noise model of an instrument (calib.model.instruments)."""
-        return TrackerNoise(instrument.radial_mm, instrument.transverse_mm, instrument.transverse_mm_per_m,
-                            instrument.radial_mm_per_m, instrument.name)  # fmt: skip
+        return TrackerNoise(
+            instrument.radial_mm,
+            instrument.transverse_mm,
+            instrument.transverse_mm_per_m,
+            instrument.radial_mm_per_m,
+            instrument.name,
+        )
 
     def _parts(self, xyz: np.ndarray):
         xyz = np.atleast_2d(np.asarray(xyz, dtype=float))
@@ -50,8 +56,10 @@ class TrackerNoise:
     def sigmas(self, range_mm) -> tuple[np.ndarray, np.ndarray]:
         """(radial, transverse) one-sigma noise, mm, of points at these ranges (mm)."""
         rng = np.asarray(range_mm, dtype=float)
-        return (self.radial_mm + self.radial_mm_per_m * rng / 1000.0,
-                self.transverse_mm + self.transverse_mm_per_m * rng / 1000.0)
+        return (
+            self.radial_mm + self.radial_mm_per_m * rng / 1000.0,
+            self.transverse_mm + self.transverse_mm_per_m * rng / 1000.0,
+        )
 
     def covariance(self, xyz: np.ndarray) -> np.ndarray:
         uu, perp, st, sr = self._parts(xyz)
@@ -108,8 +116,17 @@ def model_instrument(doc: dict) -> Instrument:
         return _AT901
     um = [t.get(k) for k in ("radial_um", "transverse_um", "transverse_um_per_m", "radial_um_per_m")]
     if not all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in um) or not um[0] or not um[1]:
-        raise NoiseError(f"model tracker: expected one-sigma radial_um, transverse_um, transverse_um_per_m, "
-                         f"radial_um_per_m (micrometres), got {t!r}")  # fmt: skip
+        raise NoiseError(
+            f"model tracker: expected one-sigma radial_um, transverse_um, transverse_um_per_m, "
+            f"radial_um_per_m (micrometres), got {t!r}"
+        )
     key = str(t.get("model", "custom"))
-    return Instrument(key, str(t.get("name", key)), um[0] / 1000, um[1] / 1000, um[2] / 1000, um[3] / 1000,
-                      assumed=bool(t.get("assumed", False)))  # fmt: skip
+    return Instrument(
+        key,
+        str(t.get("name", key)),
+        um[0] / 1000,
+        um[1] / 1000,
+        um[2] / 1000,
+        um[3] / 1000,
+        assumed=bool(t.get("assumed", False)),
+    )

@@ -29,8 +29,9 @@ class PointsError(CalibError):
     """Reference points that the table cannot place."""
 
 
-def _station_fits(x_model: np.ndarray, xyz: np.ndarray, st_idx: np.ndarray, station_ids: list[str],
-                  source: str) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+def _station_fits(
+    x_model: np.ndarray, xyz: np.ndarray, st_idx: np.ndarray, station_ids: list[str], source: str
+) -> list[tuple[np.ndarray, np.ndarray]]:
     out = []
     for s, sid in enumerate(station_ids):
         rows = np.flatnonzero(st_idx == s)
@@ -69,10 +70,12 @@ def points_from_table(chain: Chain, table: MeasurementTable) -> dict[str, np.nda
         b = (table.xyz - np.einsum("nij,nj->ni", rot[st_idx], o_f)).ravel()
         sol, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
         if rank < a.shape[1]:
-            raise PointsError(f"{table.source}: the poses do not turn the flange enough to place the reference "
-                              "points: give a tool file with their nominal positions")  # fmt: skip
-        step = float(np.max(np.abs(sol[:3 * n_pts].reshape(n_pts, 3) - p)))
-        p = sol[:3 * n_pts].reshape(n_pts, 3)
+            raise PointsError(
+                f"{table.source}: the poses do not turn the flange enough to place the reference "
+                "points: give a tool file with their nominal positions"
+            )
+        step = float(np.max(np.abs(sol[: 3 * n_pts].reshape(n_pts, 3) - p)))
+        p = sol[: 3 * n_pts].reshape(n_pts, 3)
         if step < SETTLED_MM:
             break
     return {pid: p[i] for i, pid in enumerate(point_ids)}

@@ -126,7 +126,6 @@ def _init_stations(kin, poses, tool_rows, xyz, st_idx, station_ids, source) -> l
     return out
 
 
-
 def _selector(rows: np.ndarray) -> np.ndarray | slice:
     """What selects `rows` from per-row arrays: the slice they make when they follow each other (a view, where an
     index copies: the joint error map's features are tens of MB; issue 26), else the rows themselves."""
@@ -170,6 +169,7 @@ def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndar
             of_row = of_row.ravel()
     return first, of_row
 
+
 @dataclass
 class State:
     dev: np.ndarray  # robot parameter deviations (mm, rad)
@@ -203,8 +203,18 @@ class Problem:
     Jacobian and steps have only their columns.
     """
 
-    def __init__(self, chain, table, tool_points, params, noise=None, dev0=None, extension: Extension | None = None,
-                 ext0=None, fixed: tuple[str, ...] = ()):  # fmt: skip
+    def __init__(
+        self,
+        chain,
+        table,
+        tool_points,
+        params,
+        noise=None,
+        dev0=None,
+        extension: Extension | None = None,
+        ext0=None,
+        fixed: tuple[str, ...] = (),
+    ):
         source = table.source
         if table.xyz is None:
             raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
@@ -252,7 +262,8 @@ class Problem:
         # rows share poses (several points, several stations): the chain is walked once per distinct pose
         # (and joint-offset features, which make the extended joint angles of a row)
         self.pose_first, self.row_pose = _distinct_poses(
-            self.q, None if extension is None else extension.joint_features)
+            self.q, None if extension is None else extension.joint_features
+        )
         # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
         self.w = None if noise is None else noise.whitening(self.xyz)
         order = np.argsort(self.row_pose, kind="stable")
@@ -260,8 +271,15 @@ class Problem:
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
         pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
-        stations = _init_stations(self.kin, (self.q[self.pose_first], self.row_pose), pts[self.pt_idx], self.xyz,
-                                  self.st_idx, self.station_ids, source)  # fmt: skip
+        stations = _init_stations(
+            self.kin,
+            (self.q[self.pose_first], self.row_pose),
+            pts[self.pt_idx],
+            self.xyz,
+            self.st_idx,
+            self.station_ids,
+            source,
+        )
         self.initial = State(dev, stations, pts, ext)
 
     def set_chunks(self, chunks: list[np.ndarray]) -> None:
@@ -289,9 +307,17 @@ class Problem:
             else:
                 stations.append((slice(a, b), s))
         take = _selector(rows)
-        return _Chunk(rows, None if np.array_equal(order, np.arange(len(order))) else order, poses,
-                      None if np.array_equal(of_row, np.arange(len(of_row))) else of_row, groups, take, stations,
-                      self.xyz[take], None if self.w is None else self.w[take])  # fmt: skip
+        return _Chunk(
+            rows,
+            None if np.array_equal(order, np.arange(len(order))) else order,
+            poses,
+            None if np.array_equal(of_row, np.arange(len(of_row))) else of_row,
+            groups,
+            take,
+            stations,
+            self.xyz[take],
+            None if self.w is None else self.w[take],
+        )
 
     @cached_property
     def _every_row(self) -> _Chunk:
@@ -309,8 +335,15 @@ class Problem:
 
     def predicted(self, s: State) -> np.ndarray:
         shared = len(self.pose_first) < self.n_rows  # else the chain is walked for the rows in order (no gathers)
-        pb = model_points(self.kin, self.q, s.points[self.pt_idx], s.dev, self.ext, s.ext,
-                          (self.pose_first, self.row_pose) if shared else None)  # fmt: skip
+        pb = model_points(
+            self.kin,
+            self.q,
+            s.points[self.pt_idx],
+            s.dev,
+            self.ext,
+            s.ext,
+            (self.pose_first, self.row_pose) if shared else None,
+        )
         for st, rows in zip(s.stations, self.station_rows, strict=True):  # station by station: no per-row rotations
             pb[rows] = st.apply(pb[rows])
         scale = None if self.ext is None else self.ext.range_of(s.ext)
@@ -324,8 +357,9 @@ class Problem:
         """Whitened residuals (n, 3) of the chunk's rows and the non-zero blocks of their Jacobian (n, 3, m):
         the columns of the robot and extension, of the row's station (v, w) and of its point, in that order."""
         rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
-        jac = self.kin.jacobian(self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev,
-                                rows=ch.of_row)  # fmt: skip
+        jac = self.kin.jacobian(
+            self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev, rows=ch.of_row
+        )
         p, d_params, d_point = jac.p, jac.d_params_t, jac.d_point_t  # derivatives coordinate first (3, ., n)
         # the station frame, then the whitening: one matrix m per row for both (a chunk of one station: unwhitened,
         # the station's rotation for every row; whitened, w times it in one (3n, 3) by (3, 3) product, where a
@@ -590,7 +624,12 @@ def identify(
 
 
 def model_points(
-    kin: Kinematics, q: np.ndarray, tool: np.ndarray, dev: np.ndarray, ext: Extension | None, theta: np.ndarray,
+    kin: Kinematics,
+    q: np.ndarray,
+    tool: np.ndarray,
+    dev: np.ndarray,
+    ext: Extension | None,
+    theta: np.ndarray,
     poses: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Reflector positions (N, 3) in the robot base frame, geometric model plus extension. `poses` (first
@@ -620,8 +659,10 @@ def predict_points(
     """Predicted reflector positions (N, 3) in each row's station frame."""
     for i, (sid, pid) in enumerate(zip(table.station, table.point, strict=True)):
         if sid not in stations:
-            raise IdentificationError(f"{table.source}: row {i + 2}: column station: unknown station {sid!r} (the "
-                                      f"model has {', '.join(stations)}; a tracker set up elsewhere: trackcal locate)")
+            raise IdentificationError(
+                f"{table.source}: row {i + 2}: column station: unknown station {sid!r} (the "
+                f"model has {', '.join(stations)}; a tracker set up elsewhere: trackcal locate)"
+            )
         if pid not in points:
             raise IdentificationError(f"{table.source}: row {i + 2}: column point: unknown point {pid!r}")
     tool = np.array([points[p] for p in table.point])

@@ -83,19 +83,23 @@ def check_units(table: MeasurementTable, chain: Chain) -> None:
     metres or inches (the module says from what)."""
     if joints_in_radians(table.q_deg, chain):
         spread = float(np.max(np.ptp(table.q_deg, axis=0)))
-        raise UnitsError(f"{table.source}: the joints look like radians, not degrees: every value is within the "
-                         f"joint's limits read in radians and a joint moves by {spread:.3g}, which in degrees would be "
-                         "a campaign that hardly moves; write q*_deg in degrees (trackcal import table: units: "
-                         "{joints: rad})")  # fmt: skip
+        raise UnitsError(
+            f"{table.source}: the joints look like radians, not degrees: every value is within the "
+            f"joint's limits read in radians and a joint moves by {spread:.3g}, which in degrees would be "
+            "a campaign that hardly moves; write q*_deg in degrees (trackcal import table: units: "
+            "{joints: rad})"
+        )
     scale = length_scale(table, chain)
     if scale is None or scale >= NOT_MM_BELOW:
         return
     unit, factor, key = ("metres", 1000.0, "m") if scale < METRES_BELOW else ("inches", INCH_MM, "in")
     median = float(np.median(np.linalg.norm(table.xyz, axis=1)))
-    raise UnitsError(f"{table.source}: the positions look like {unit}, not millimetres: the reflectors move "
-                     f"{scale:.3g} times as far as the robot's flange between poses (1/{factor:g} in {unit}), and "
-                     f"their median distance from the tracker is {median:.4g}; write x_mm, y_mm, z_mm in millimetres "
-                     f"(trackcal import table: units: {{length: {key}}})")  # fmt: skip
+    raise UnitsError(
+        f"{table.source}: the positions look like {unit}, not millimetres: the reflectors move "
+        f"{scale:.3g} times as far as the robot's flange between poses (1/{factor:g} in {unit}), and "
+        f"their median distance from the tracker is {median:.4g}; write x_mm, y_mm, z_mm in millimetres "
+        f"(trackcal import table: units: {{length: {key}}})"
+    )
 
 
 def read_measured(path, chain: Chain, require_xyz: bool = True) -> MeasurementTable:

@@ -59,8 +59,11 @@ class Unknowns:
         """(size,) mm per unit of each unknown: 1 for lengths, the lever arm for angles (so that angles count as
         the millimetres they move a point at that distance)."""
         robot = [1.0 if p.is_length else length_scale_mm for p in self.params]
-        return np.array(robot + [1.0, 1.0, 1.0, length_scale_mm, length_scale_mm, length_scale_mm] * self.n_stations
-                        + [1.0] * (3 * self.n_points))  # fmt: skip
+        return np.array(
+            robot
+            + [1.0, 1.0, 1.0, length_scale_mm, length_scale_mm, length_scale_mm] * self.n_stations
+            + [1.0] * (3 * self.n_points)
+        )
 
     def names(self, station_ids: list[str], point_ids: list[str]) -> list[str]:
         """Names of the unknowns in order (as calib.identify.solver.Problem.unknown_names spells them)."""

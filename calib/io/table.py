@@ -164,8 +164,10 @@ def separator_note(line: str, delimiter: str, sample: str | None = None) -> str 
     for sep, name in OTHER_SEPARATORS.items():
         if sep in line:
             commas = " with decimal commas" if sample and DECIMAL_COMMA.search(sample) else ""
-            return (f"this table is separated by {name}{commas}, not by {delimiter!r}: save it as comma-separated "
-                    f"values with decimal points (a spreadsheet's CSV export in an English locale)")  # fmt: skip
+            return (
+                f"this table is separated by {name}{commas}, not by {delimiter!r}: save it as comma-separated "
+                f"values with decimal points (a spreadsheet's CSV export in an English locale)"
+            )
     return None
 
 
@@ -462,11 +464,16 @@ def table_csv(table: MeasurementTable) -> str:
 
 def as_written(table: MeasurementTable) -> MeasurementTable:
     """The table as its file (`table_csv`) holds it: the numbers rounded as written, what read_table would give."""
+
     def rounded(values: np.ndarray, digits: int) -> np.ndarray:
         return np.vectorize(lambda v: float(_fmt(v, digits)), otypes=[float])(values)
 
-    return dataclasses.replace(table, t_s=rounded(table.t_s, 3), q_deg=rounded(table.q_deg, 4),
-                               xyz=None if table.xyz is None else rounded(table.xyz, 4))  # fmt: skip
+    return dataclasses.replace(
+        table,
+        t_s=rounded(table.t_s, 3),
+        q_deg=rounded(table.q_deg, 4),
+        xyz=None if table.xyz is None else rounded(table.xyz, 4),
+    )
 
 
 def write_table(table: MeasurementTable, path: str | Path) -> None:

@@ -189,8 +189,9 @@ def max_correction(doc: dict, where: str) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def load_tool(ref: str, base_dir: Path | None = None,
-              files: Files = DISK) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:  # fmt: skip
+def load_tool(
+    ref: str, base_dir: Path | None = None, files: Files = DISK
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     path = resolve("tools", ref, base_dir, files)
     doc = load_yaml(path, files)
     pts, normals = {}, {}
@@ -212,8 +213,15 @@ def robot_cell(path: Path) -> Cell:
     """A robot file standing for a cell: the robot alone, no tool, box, stations or test pose. Enough to identify
     from a table, whose reference points then start where the measurements put them (calib.identify.points)."""
     chain, robot_doc = load_robot(str(path))
-    return Cell(name=chain.name, chain=chain, robot_doc=robot_doc, tool_points={}, tool_normals={}, source=str(path),
-                nominal=nominal_of(str(path), robot_doc))  # fmt: skip
+    return Cell(
+        name=chain.name,
+        chain=chain,
+        robot_doc=robot_doc,
+        tool_points={},
+        tool_normals={},
+        source=str(path),
+        nominal=nominal_of(str(path), robot_doc),
+    )
 
 
 def load_cell(ref: str, files: Files = DISK) -> Cell:
@@ -238,10 +246,20 @@ def load_cell(ref: str, files: Files = DISK) -> Cell:
     name = fields.text(doc.get("name", path.stem), f"{where}: name", CellError)
     # `nominal:` in the cell says it in words (a session's copy of its cell records it: its robot file is a
     # temporary copy whose path would say nothing)
-    nominal = fields.text(doc["nominal"], f"{where}: nominal", CellError) if "nominal" in doc else nominal_of(
-        robot_ref, robot_doc, path.parent)  # fmt: skip
-    cell = Cell(name=name, chain=chain, robot_doc=robot_doc, tool_points=pts, tool_normals=normals, source=where,
-                nominal=nominal)  # fmt: skip
+    nominal = (
+        fields.text(doc["nominal"], f"{where}: nominal", CellError)
+        if "nominal" in doc
+        else nominal_of(robot_ref, robot_doc, path.parent)
+    )
+    cell = Cell(
+        name=name,
+        chain=chain,
+        robot_doc=robot_doc,
+        tool_points=pts,
+        tool_normals=normals,
+        source=where,
+        nominal=nominal,
+    )
     _read_placement(cell, doc, where)
     _read_limits(cell, doc, where)
     return cell
@@ -291,13 +309,16 @@ def _read_limits(cell: Cell, doc: dict, where: str) -> None:
     cell.max_correction_mm, cell.max_correction_deg = max_correction(doc, where)
     cell.tracker = instrument_from_doc(doc.get("tracker"), f"{where}: tracker")
     if cell.max_skipped_share > 1:
-        raise CellError(f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got "
-                        f"{cell.max_skipped_share:g}")  # fmt: skip
+        raise CellError(
+            f"{where}: max_skipped_share: a share of the planned measurements, 0..1, got {cell.max_skipped_share:g}"
+        )
     if doc.get("plan_params") is not None:
         names = fields.sequence(doc["plan_params"], f"{where}: plan_params", CellError)
         cell.plan_params = [fields.text(n, f"{where}: plan_params[{k}]", CellError) for k, n in enumerate(names)]
         known = {p.name for p in complete_params(cell.chain)}
         for k, name in enumerate(cell.plan_params):
             if name not in known:
-                raise CellError(f"{where}: plan_params[{k}]: {name!r} is no parameter of robot {cell.chain.name} "
-                                f"(e.g. {', '.join(sorted(known)[:4])})")
+                raise CellError(
+                    f"{where}: plan_params[{k}]: {name!r} is no parameter of robot {cell.chain.name} "
+                    f"(e.g. {', '.join(sorted(known)[:4])})"
+                )

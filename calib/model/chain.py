@@ -150,8 +150,10 @@ def _urdf_model(path: str, xml: str | None = None):
     except OSError as exc:
         raise ChainError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if n > MAX_URDF_JOINTS:
-        raise ChainError(f"{path}: {n} joints, more than the {MAX_URDF_JOINTS} a robot's URDF has (a serial arm: 6 or "
-                         "7, with its tool and sensor frames a few dozen)")  # fmt: skip
+        raise ChainError(
+            f"{path}: {n} joints, more than the {MAX_URDF_JOINTS} a robot's URDF has (a serial arm: 6 or "
+            "7, with its tool and sensor frames a few dozen)"
+        )
     with tempfile.TemporaryFile() as sink:
         sys.stdout.flush()
         sys.stderr.flush()
@@ -206,8 +208,10 @@ def chain_from_urdf(path: str, tip_joint: str | None = None, xml: str | None = N
         if model.parents[i] != i - 1:
             raise ChainError(f"{path}: joint {names[i - 1]} is not in a serial chain")
     # (rotation, translation mm) from each joint's frame to the next: the URDF's placements, then the flange
-    steps = [(np.asarray(model.jointPlacements[i].rotation), 1000.0 * np.asarray(model.jointPlacements[i].translation))
-             for i in range(1, last + 1)]  # fmt: skip
+    steps = [
+        (np.asarray(model.jointPlacements[i].rotation), 1000.0 * np.asarray(model.jointPlacements[i].translation))
+        for i in range(1, last + 1)
+    ]
     if model.existFrame(FLANGE_JOINT) and model.frames[model.getFrameId(FLANGE_JOINT)].parentJoint == last:
         flange = model.frames[model.getFrameId(FLANGE_JOINT)].placement
         steps.append((np.asarray(flange.rotation), 1000.0 * np.asarray(flange.translation)))

@@ -95,21 +95,30 @@ def dh_joints(doc: dict, where: str, error: type[Exception]) -> tuple[np.ndarray
         sign = fields.yaml_number(row.get("sign", 1), f"{rw}.sign", error)
         if sign not in (1.0, -1.0):
             raise error(f"{rw}.sign: expected 1 or -1, got {row['sign']!r}")
-        parsed.append({
-            "a": _length(row, "a_mm", f"{rw}.a_mm", error),
-            "alpha": _angle(row, "alpha_deg", f"{rw}.alpha_deg", error),
-            "d": _length(row, "d_mm", f"{rw}.d_mm", error),
-            "offset": _angle(row, "theta_offset_deg", f"{rw}.theta_offset_deg", error),
-            "sign": sign,
-            "extra": {key: row[key] for key in ("name", "limits_deg", "mass_kg", "com_mm") if key in row},
-        })  # fmt: skip
+        parsed.append(
+            {
+                "a": _length(row, "a_mm", f"{rw}.a_mm", error),
+                "alpha": _angle(row, "alpha_deg", f"{rw}.alpha_deg", error),
+                "d": _length(row, "d_mm", f"{rw}.d_mm", error),
+                "offset": _angle(row, "theta_offset_deg", f"{rw}.theta_offset_deg", error),
+                "sign": sign,
+                "extra": {key: row[key] for key in ("name", "limits_deg", "mass_kg", "com_mm") if key in row},
+            }
+        )
     flange_doc = fields.mapping(doc.get("flange") or {}, f"{where}.flange", error)
     flange = homogeneous(
         rpy_matrix(*np.radians(fields.vector(flange_doc.get("rpy_deg", [0, 0, 0]), f"{where}.flange.rpy_deg", error))),
-        np.array([fields.bounded(v, MAX_LENGTH_MM, "mm", f"{where}.flange.translation_mm[{k}]", error,
-                                 "no tool is that long") for k, v in enumerate(fields.vector(
-            flange_doc.get("translation_mm", [0, 0, 0]), f"{where}.flange.translation_mm", error))]),
-    )  # fmt: skip
+        np.array(
+            [
+                fields.bounded(
+                    v, MAX_LENGTH_MM, "mm", f"{where}.flange.translation_mm[{k}]", error, "no tool is that long"
+                )
+                for k, v in enumerate(
+                    fields.vector(flange_doc.get("translation_mm", [0, 0, 0]), f"{where}.flange.translation_mm", error)
+                )
+            ]
+        ),
+    )
     base = np.eye(4)
     links = []  # the fixed transform that follows each joint's rotation
     if convention == "standard":
@@ -119,8 +128,10 @@ def dh_joints(doc: dict, where: str, error: type[Exception]) -> tuple[np.ndarray
         base = homogeneous(rot_axis(0, parsed[0]["alpha"]), np.array([parsed[0]["a"], 0.0, 0.0]))
         for i, r in enumerate(parsed):
             nxt = parsed[i + 1] if i + 1 < len(parsed) else {"a": 0.0, "alpha": 0.0}
-            links.append(homogeneous(rot_axis(2, r["offset"]), np.array([0.0, 0.0, r["d"]]))
-                         @ homogeneous(rot_axis(0, nxt["alpha"]), np.array([nxt["a"], 0.0, 0.0])))  # fmt: skip
+            links.append(
+                homogeneous(rot_axis(2, r["offset"]), np.array([0.0, 0.0, r["d"]]))
+                @ homogeneous(rot_axis(0, nxt["alpha"]), np.array([nxt["a"], 0.0, 0.0]))
+            )
     links[-1] = links[-1] @ flange
     joints = [
         {"sign": r["sign"], "translation": link[:3, 3].copy(), "rotation": link[:3, :3].copy(), **r["extra"]}

@@ -23,8 +23,14 @@ from trackcal.calib.model.chain import Chain, ChainError, Joint
 from trackcal.calib.model.rigid import rot_axis
 
 
-def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[float], alpha_rad: Sequence[float],
-             name: str = "dh", template: Chain | None = None) -> Chain:  # fmt: skip
+def dh_chain(
+    theta_rad: Sequence[float],
+    a_mm: Sequence[float],
+    d_mm: Sequence[float],
+    alpha_rad: Sequence[float],
+    name: str = "dh",
+    template: Chain | None = None,
+) -> Chain:
     """The chain of a standard DH table (mm, rad). `template`: a chain of the same number of joints whose joint
     names, limits and masses are kept (its centres of mass are taken as given in the frames after the rotations)."""
     rows = [np.asarray(v, dtype=float) for v in (theta_rad, a_mm, d_mm, alpha_rad)]
@@ -37,11 +43,18 @@ def dh_chain(theta_rad: Sequence[float], a_mm: Sequence[float], d_mm: Sequence[f
     for i, (th, a, d, al) in enumerate(zip(*rows, strict=True)):
         rz = rot_axis(2, th)
         base = template.joints[i] if template is not None else None
-        joints.append(Joint(name=base.name if base else f"J{i + 1}", axis=2, sign=1.0,
-                            translation=rz @ np.array([a, 0.0, d]),
-                            rotation=rz @ rot_axis(0, al),
-                            limits=base.limits if base else None, mass_kg=base.mass_kg if base else 0.0,
-                            com=base.com if base else np.zeros(3)))  # fmt: skip
+        joints.append(
+            Joint(
+                name=base.name if base else f"J{i + 1}",
+                axis=2,
+                sign=1.0,
+                translation=rz @ np.array([a, 0.0, d]),
+                rotation=rz @ rot_axis(0, al),
+                limits=base.limits if base else None,
+                mass_kg=base.mass_kg if base else 0.0,
+                com=base.com if base else np.zeros(3),
+            )
+        )
     base_tf = template.base if template is not None else np.eye(4)
     return Chain(name=name, base=base_tf, joints=tuple(joints))
 
@@ -55,8 +68,10 @@ def dh_of_chain(chain: Chain) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
         t, r = j.translation, j.rotation
         al = float(np.arctan2(r[2, 1], r[1, 1]))
         if j.axis != 2 or j.sign < 0 or abs(t[1]) > 1e-9 or np.abs(r - rot_axis(0, al)).max() > 1e-12:
-            raise ChainError(f"{chain.name}: joint {j.name} is not a standard DH link (z axis, translation (a, 0, d), "
-                             "rotation about x)")  # fmt: skip
+            raise ChainError(
+                f"{chain.name}: joint {j.name} is not a standard DH link (z axis, translation (a, 0, d), "
+                "rotation about x)"
+            )
         a.append(float(t[0]))
         d.append(float(t[2]))
         alpha.append(al)

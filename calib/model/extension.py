@@ -27,8 +27,13 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 
 # boundary unit -> factor from internal units (rad, N m, s)
-UNIT_FACTORS = {"deg": float(np.degrees(1.0)), "deg/kNm": float(np.degrees(1.0)) * 1000.0, "ppm": 1e6,
-                "ppm/h": 1e6 * 3600.0, "mm": 1.0}  # fmt: skip
+UNIT_FACTORS = {
+    "deg": float(np.degrees(1.0)),
+    "deg/kNm": float(np.degrees(1.0)) * 1000.0,
+    "ppm": 1e6,
+    "ppm/h": 1e6 * 3600.0,
+    "mm": 1.0,
+}
 FORMS = "forms"  # Extension.meta key: {cause: what its features need beyond the table} (model.json: extension.forms)
 
 
@@ -48,8 +53,10 @@ class Ranges:
     def of(q: np.ndarray, t_s: np.ndarray) -> Ranges:
         """The ranges of joint angles q (N, n) rad and times t_s (N,)."""
         t = np.asarray(t_s, dtype=float)
-        return Ranges(tuple((float(lo), float(hi)) for lo, hi in zip(q.min(axis=0), q.max(axis=0), strict=True)),
-                      (float(t.min()), float(t.max())) if len(t) else (0.0, 0.0))  # fmt: skip
+        return Ranges(
+            tuple((float(lo), float(hi)) for lo, hi in zip(q.min(axis=0), q.max(axis=0), strict=True)),
+            (float(t.min()), float(t.max())) if len(t) else (0.0, 0.0),
+        )
 
     def clamp_q(self, q: np.ndarray) -> np.ndarray:
         lim = np.array(self.joints_rad)
@@ -64,9 +71,13 @@ class Ranges:
         return (q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9)
 
     def to_doc(self) -> dict:
-        return {"joints": {f"joint_{j + 1}": {"from_deg": float(np.degrees(lo)), "to_deg": float(np.degrees(hi))}
-                           for j, (lo, hi) in enumerate(self.joints_rad)},
-                "time_s": {"from": self.time_s[0], "to": self.time_s[1]}}  # fmt: skip
+        return {
+            "joints": {
+                f"joint_{j + 1}": {"from_deg": float(np.degrees(lo)), "to_deg": float(np.degrees(hi))}
+                for j, (lo, hi) in enumerate(self.joints_rad)
+            },
+            "time_s": {"from": self.time_s[0], "to": self.time_s[1]},
+        }
 
     @staticmethod
     def from_doc(doc: dict, n: int) -> Ranges:
@@ -183,8 +194,9 @@ class Extension:
     def subset(self, rows: np.ndarray) -> Extension:
         gr, dp, rs = (None if f is None else f[rows] for f in self._features()[1:])
         jf = None if self.joint_features is None else self.joint_features.take(rows)
-        return Extension(self.cause, self.names, self.units, self.to_boundary, jf, gr, self.pivot, dp, rs,
-                         dict(self.meta))  # fmt: skip
+        return Extension(
+            self.cause, self.names, self.units, self.to_boundary, jf, gr, self.pivot, dp, rs, dict(self.meta)
+        )
 
     def joint_offsets(self, theta: np.ndarray) -> np.ndarray | None:
         if self.joint_features is None:
@@ -244,11 +256,17 @@ def combine(extensions: list[Extension], cause: str | None = None) -> Extension:
         meta[FORMS] = forms
     meta["parts"] = [part for x in extensions for part in x.parts()]
     return Extension(
-        cause or extensions[0].cause, [nm for x in extensions for nm in x.names],
-        [u for x in extensions for u in x.units], np.concatenate([x.to_boundary for x in extensions]),
-        None if jv is None else JointFeatures(jv, jj, n), gr,
-        np.array(pivots.pop()) if pivots else np.zeros(3), dp, rs, meta,
-    )  # fmt: skip
+        cause or extensions[0].cause,
+        [nm for x in extensions for nm in x.names],
+        [u for x in extensions for u in x.units],
+        np.concatenate([x.to_boundary for x in extensions]),
+        None if jv is None else JointFeatures(jv, jj, n),
+        gr,
+        np.array(pivots.pop()) if pivots else np.zeros(3),
+        dp,
+        rs,
+        meta,
+    )
 
 
 def select_columns(features: np.ndarray, names: list[str], wanted: list[str] | None, rel_tol: float = 1e-6):

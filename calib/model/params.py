@@ -206,11 +206,15 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
             removed[p] = "last-link parameter merges into the tool points"
 
     lever = reach_mm(chain)
-    rows = [(_pair_row(chain, k, lever),
-             f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant", lever)
-            for k in range(n - 1)]  # fmt: skip
-    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated",
-                 1.0))  # fmt: skip
+    rows = [
+        (
+            _pair_row(chain, k, lever),
+            f"joints {k + 1} and {k + 2} are parallel and coincide nominally; such a chain is redundant",
+            lever,
+        )
+        for k in range(n - 1)
+    ]
+    rows.append((_tool_row(chain), f"chain {chain.name}: the translation along the last axis cannot be separated", 1.0))
     free = [p for p in complete_params(chain) if p not in removed]
     for p, r in _eliminate(rows, {p for p in free if p.kind != "dq"}, {p for p in free if p.kind == "dq"}).items():
         if r == n - 1:
@@ -220,12 +224,16 @@ def irreducible_params(chain: Chain) -> tuple[list[Param], list[Eliminated]]:
         if p.kind == "phi" and cos <= TOL:
             removed[p] = f"rotation about the axis of joint {r + 2} merges with dq{r + 2}"
         elif p.kind == "phi":
-            removed[p] = (f"joints {r + 1} and {r + 2} are tilted: the rotation about joint {r + 2}'s axis is "
-                          f"dq{r + 1} plus this rotation, so it merges with dq{r + 1} and dq{r + 2}")  # fmt: skip
+            removed[p] = (
+                f"joints {r + 1} and {r + 2} are tilted: the rotation about joint {r + 2}'s axis is "
+                f"dq{r + 1} plus this rotation, so it merges with dq{r + 1} and dq{r + 2}"
+            )
         else:
             nearly = "" if abs(cos - 1) <= TOL else " or nearly"
-            removed[p] = (f"joints {r + 1} and {r + 2} are parallel{nearly}: this translation is a rotation of the "
-                          f"common normal, already described by dq{r + 1} and dq{r + 2}")  # fmt: skip
+            removed[p] = (
+                f"joints {r + 1} and {r + 2} are parallel{nearly}: this translation is a rotation of the "
+                f"common normal, already described by dq{r + 1} and dq{r + 2}"
+            )
 
     kept = [p for p in complete_params(chain) if p not in removed]
     eliminated = [Eliminated(p, removed[p]) for p in complete_params(chain) if p in removed]

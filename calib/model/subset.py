@@ -79,6 +79,12 @@ def identifiable_subset(
         names = nuis_names + [params[c].name for c in kept]
         weights = np.abs(null[:-1])
         partners = [names[c] for c in np.argsort(weights)[::-1] if weights[c] > 0.1 * np.abs(null[-1])][:4]
-        dropped.append((p, "not separable from " + (", ".join(partners) if partners else "the other unknowns")
-                        + f" with {len(tool)} reference point(s) per pose"))  # fmt: skip
+        dropped.append(
+            (
+                p,
+                "not separable from "
+                + (", ".join(partners) if partners else "the other unknowns")
+                + f" with {len(tool)} reference point(s) per pose",
+            )
+        )
     return [params[i] for i in kept], dropped

@@ -32,8 +32,10 @@ def names_told_apart(cell: Cell) -> None:
         for name in names:
             shown = hmi_text(name)
             if shown in seen:
-                raise CellError(f"{cell.source}: {what} {seen[shown]!r} and {name!r} both show as {shown!r} on "
-                                f"the cell display (first {REQUEST_TARGET_CHARS} characters, ASCII): rename one")
+                raise CellError(
+                    f"{cell.source}: {what} {seen[shown]!r} and {name!r} both show as {shown!r} on "
+                    f"the cell display (first {REQUEST_TARGET_CHARS} characters, ASCII): rename one"
+                )
             seen[shown] = name
 
 

@@ -94,10 +94,15 @@ class Hardware:
         return families()[self.robot["protocol"]]
 
     def describe(self) -> dict[str, str]:
-        out = {"tracker": f"emScon {self.tracker['host']}:{self.tracker['port']}",
-               "robot": self.family.describe(self.robot),
-               "operator": (f"cell PLC {self.plc['host']}:{self.plc['port']} unit {self.plc['unit_id']}"
-                            if self.plc else "console (no PLC configured)")}  # fmt: skip
+        out = {
+            "tracker": f"emScon {self.tracker['host']}:{self.tracker['port']}",
+            "robot": self.family.describe(self.robot),
+            "operator": (
+                f"cell PLC {self.plc['host']}:{self.plc['port']} unit {self.plc['unit_id']}"
+                if self.plc
+                else "console (no PLC configured)"
+            ),
+        }
         if self.meteo:
             out["meteo"] = f"serial {self.meteo['port']} at {self.meteo['baudrate']} baud"
         return out
@@ -118,10 +123,15 @@ def load_hardware(path: str | Path, text: str | None = None) -> Hardware:
             continue
         out[name] = _robot(path, doc[name]) if name == "robot" else _section(path, name, doc[name], SCHEMA, PROTOCOLS)
     tracker = out["tracker"] or {}
-    if tracker.get("certificate_date") and tracker.get("certificate_due") and \
-            tracker["certificate_due"] < tracker["certificate_date"]:  # fmt: skip
-        raise InputError(f"{path}: tracker.certificate_due: {tracker['certificate_due']} is before its "
-                         f"certificate_date {tracker['certificate_date']}")  # fmt: skip
+    if (
+        tracker.get("certificate_date")
+        and tracker.get("certificate_due")
+        and tracker["certificate_due"] < tracker["certificate_date"]
+    ):
+        raise InputError(
+            f"{path}: tracker.certificate_due: {tracker['certificate_due']} is before its "
+            f"certificate_date {tracker['certificate_date']}"
+        )
     return Hardware(path, out["tracker"], out["robot"], out["plc"], out["meteo"])  # type: ignore[arg-type]
 
 
@@ -232,19 +242,32 @@ def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
     the running one)."""
     family = hw.family
     if cell.chain.dof != family.dof:
-        raise InputError(f"{hw.path}: the {family.title} drives {family.dof} axes, robot {cell.chain.name} of cell "
-                         f"{cell.name} has {cell.chain.dof}")  # fmt: skip
+        raise InputError(
+            f"{hw.path}: the {family.title} drives {family.dof} axes, robot {cell.chain.name} of cell "
+            f"{cell.name} has {cell.chain.dof}"
+        )
     t, r, p, m = hw.tracker, hw.robot, hw.plc, hw.meteo
     # with trackcal's own meteo sensor the tracker takes the environment trackcal sets; without one, its own
     # weather monitor reads it and computes the refraction (drivers.emscon.client: weather_monitor)
     weather_monitor = "not_connected" if m is not None else "read_and_calculate_refractions"
-    tracker = EmsconTracker(t["host"], t["port"], timeout_s=t["timeout_s"], measure_timeout_s=t["measure_timeout_s"],
-                            motion_timeout_s=t["motion_timeout_s"], search_timeout_s=t["search_timeout_s"],
-                            samples_per_second=t["samples_per_second"], weather_monitor=weather_monitor)  # fmt: skip
+    tracker = EmsconTracker(
+        t["host"],
+        t["port"],
+        timeout_s=t["timeout_s"],
+        measure_timeout_s=t["measure_timeout_s"],
+        motion_timeout_s=t["motion_timeout_s"],
+        search_timeout_s=t["search_timeout_s"],
+        samples_per_second=t["samples_per_second"],
+        weather_monitor=weather_monitor,
+    )
     cellio = None if p is None else ModbusCellIO(p["host"], p["port"], unit_id=p["unit_id"], timeout_s=p["timeout_s"])
     meteo = None if m is None else SerialMeteo(m["port"], baudrate=m["baudrate"], timeout_s=m["timeout_s"])
-    robot = family.build(r, joint_limits_deg=joint_limits_deg(cell), cell_box_check=cell_box_check(cell),
-                         motion_guard=None if cellio is None else motion_guard(cellio))  # fmt: skip
+    robot = family.build(
+        r,
+        joint_limits_deg=joint_limits_deg(cell),
+        cell_box_check=cell_box_check(cell),
+        motion_guard=None if cellio is None else motion_guard(cellio),
+    )
     try:
         if family.claim is not None:
             family.claim(robot)
@@ -252,8 +275,9 @@ def claim_cell(hw: Hardware, cell: Cell) -> CellClients:
         robot.close()
         cause = exc.__cause__
         if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
-            raise InputError(f"{hw.path}: the cell is busy: another trackcal campaign holds its robot ports "
-                             f"({exc})") from None  # fmt: skip
+            raise InputError(
+                f"{hw.path}: the cell is busy: another trackcal campaign holds its robot ports ({exc})"
+            ) from None
         # any other failure (an address not on this PC) is the robot's connection error in connect_hardware,
         # in the order of the devices, once the session exists for `trackcal resume`
     return CellClients(hw, tracker, robot, cellio, meteo)

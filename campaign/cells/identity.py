@@ -63,8 +63,10 @@ def serial_mismatch(identity: IdentityDoc, stated: dict | None) -> str | None:
     if not read or not serial or serial_matches(str(serial), read):
         return None
     cert = (stated or {}).get("certificate")
-    return (f"the tracker reports serial number {read}, the hardware file's tracker.serial is {serial}: "
-            f"{'its certificate ' + str(cert) if cert else 'the certificate'} may name another instrument")  # fmt: skip
+    return (
+        f"the tracker reports serial number {read}, the hardware file's tracker.serial is {serial}: "
+        f"{'its certificate ' + str(cert) if cert else 'the certificate'} may name another instrument"
+    )
 
 
 def certificate_expired(stated: dict | None, today: str) -> str | None:
@@ -73,9 +75,11 @@ def certificate_expired(stated: dict | None, today: str) -> str | None:
     due = (stated or {}).get("certificate_due")
     if due is None or today <= due:
         return None
-    return (f"the tracker's calibration certificate {(stated or {}).get('certificate') or '(id not stated)'} was due "
-            f"on {due}: what this run measures is refused for an ISO 9283 report unless "
-            f"--accept-expired-certificate")  # fmt: skip
+    return (
+        f"the tracker's calibration certificate {(stated or {}).get('certificate') or '(id not stated)'} was due "
+        f"on {due}: what this run measures is refused for an ISO 9283 report unless "
+        f"--accept-expired-certificate"
+    )
 
 
 class IdentityCheck:
@@ -101,8 +105,11 @@ def describe(device: dict[str, str]) -> str:
     """One device's identity for a report: model, serial, software and where they come from."""
     if "error" in device:
         return f"not read ({device['error']})"
-    parts = [device.get("model") or "model not stated", f"serial {device.get('serial') or 'not stated'}",
-             device.get("software") or "software version not stated"]  # fmt: skip
+    parts = [
+        device.get("model") or "model not stated",
+        f"serial {device.get('serial') or 'not stated'}",
+        device.get("software") or "software version not stated",
+    ]
     return f"{', '.join(parts)} ({device.get('source', '')})"
 
 
@@ -120,7 +127,13 @@ def identity_conditions(store: SessionStore, stated: dict | None) -> dict[str, s
         rows[label] = "; then, after a resume: ".join(seen)
     mismatches = list(dict.fromkeys(m for d in docs if (m := serial_mismatch(IdentityDoc(**d), stated))))
     if stated is not None:
-        rows["tracker serial check"] = ("MISMATCH: " + "; ".join(mismatches)) if mismatches else (
-            "the serial read from the tracker is the hardware file's" if stated.get("serial") and all(
-                d["tracker"].get("serial") for d in docs) else "not checked (a serial is missing on one side)")
+        rows["tracker serial check"] = (
+            ("MISMATCH: " + "; ".join(mismatches))
+            if mismatches
+            else (
+                "the serial read from the tracker is the hardware file's"
+                if stated.get("serial") and all(d["tracker"].get("serial") for d in docs)
+                else "not checked (a serial is missing on one side)"
+            )
+        )
     return rows

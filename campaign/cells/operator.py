@@ -24,8 +24,9 @@ class PlcOperator:
     display is dropped with one warning. `say` shows a line on the console of whoever runs the campaign, as it is
     (a rich Text carries the colour: the target's name is data, never markup)."""
 
-    def __init__(self, cellio, say: Callable[[str | Text], None], poll_s: float = 0.1, remind_s: float = 60.0,
-                 sleep=time.sleep):  # fmt: skip
+    def __init__(
+        self, cellio, say: Callable[[str | Text], None], poll_s: float = 0.1, remind_s: float = 60.0, sleep=time.sleep
+    ):
         self.cellio, self.say, self.poll_s, self.remind_s, self.sleep = cellio, say, poll_s, remind_s, sleep
         self.hmi = hasattr(cellio, "show_request")
 
@@ -77,8 +78,11 @@ class PlcOperator:
             fn(*args)
         except ProtocolError as exc:
             self.hmi = False
-            self.say(Text.assemble(("warning", "yellow"), f": the cell HMI shows no requests ({exc}); lamp and "
-                                   "acknowledge button only"))  # fmt: skip
+            self.say(
+                Text.assemble(
+                    ("warning", "yellow"), f": the cell HMI shows no requests ({exc}); lamp and acknowledge button only"
+                )
+            )
 
 
 class FirstAnswer:
@@ -92,8 +96,15 @@ class FirstAnswer:
     `watch_s` while a prompt waits (the page shows the door and the E-stop from it: reading them here keeps
     each device client in one thread)."""
 
-    def __init__(self, operators: Sequence[SharedOperator], say: Callable[[str | Text], None], poll_s: float = 0.02,
-                 watch: Callable[[], None] | None = None, watch_s: float = 0.25, sleep=time.sleep):  # fmt: skip
+    def __init__(
+        self,
+        operators: Sequence[SharedOperator],
+        say: Callable[[str | Text], None],
+        poll_s: float = 0.02,
+        watch: Callable[[], None] | None = None,
+        watch_s: float = 0.25,
+        sleep=time.sleep,
+    ):
         self.operators, self.say, self.poll_s = list(operators), say, poll_s
         self.watch, self.watch_s, self.sleep = watch, watch_s, sleep
 
@@ -107,8 +118,9 @@ class FirstAnswer:
             last_watch = None
             while True:
                 if not self.operators:
-                    raise ConnectionLost("no operator can answer (console, button and page all gone)",
-                                         device="operator")  # fmt: skip
+                    raise ConnectionLost(
+                        "no operator can answer (console, button and page all gone)", device="operator"
+                    )
                 for op in list(self.operators):
                     answer = self._guard(op, op.poll)
                     if answer is not None:

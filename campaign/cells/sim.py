@@ -48,11 +48,20 @@ class TwinMocks:
     seconds per real second (None: as fast as the machine goes). `hold_s`: the least time the simulated operator
     holds the acknowledge button (he holds it until the request lamp goes out)."""
 
-    def __init__(self, cell: Cell, seed: int, effects: dict[str, float] | None = None, speed: float | None = None,
-                 measured=None, hold_s: float = 0.05, human_acknowledges: bool = True) -> None:  # fmt: skip
+    def __init__(
+        self,
+        cell: Cell,
+        seed: int,
+        effects: dict[str, float] | None = None,
+        speed: float | None = None,
+        measured=None,
+        hold_s: float = 0.05,
+        human_acknowledges: bool = True,
+    ) -> None:
         if cell.chain.dof != len(HOME_DEG):
-            raise InputError(f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has "
-                             f"{cell.chain.dof}")  # fmt: skip
+            raise InputError(
+                f"cell {cell.name}: the simulated KR C2 drives 6 axes, robot {cell.chain.name} has {cell.chain.dof}"
+            )
         self.cell, self.seed, self.speed = cell, seed, speed
         self.clock = VirtualClock(real_fraction=0.0 if not speed else 1.0 / speed)
         self.world = World(Twin(cell, seed=seed, effects=effects or {}), self.clock)
@@ -64,14 +73,17 @@ class TwinMocks:
         try:
             self.tracker_mock = self._up(
                 MockEmscon(
-                    lambda expected: self.world.measure(), self.clock, reflector_present=self.world.reflector_visible,
+                    lambda expected: self.world.measure(),
+                    self.clock,
+                    reflector_present=self.world.reflector_visible,
                     identity=twin_identity(cell.tracker.key, seed),
                 ).start()
             )
             self.plc = self._up(MockPlc(clock=self.clock).start())
             self.meteo_mock = self._up(MockMeteo(seed, self.clock).start())
-            self.human = self._up(SimHuman(self.world, self.plc, hold_s=hold_s,
-                                           acknowledges=human_acknowledges).start())  # fmt: skip
+            self.human = self._up(
+                SimHuman(self.world, self.plc, hold_s=hold_s, acknowledges=human_acknowledges).start()
+            )
         except BaseException:
             self.close()
             raise
@@ -80,19 +92,34 @@ class TwinMocks:
         self._started.append(device)
         return device
 
-    def serve_controller(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int],
-                         connect_timeout_s: float = 20.0, delivered=None, skip_idle: bool = True) -> None:  # fmt: skip
+    def serve_controller(
+        self,
+        eki_addr: tuple[str, int],
+        rsi_addr: tuple[str, int],
+        connect_timeout_s: float = 20.0,
+        delivered=None,
+        skip_idle: bool = True,
+    ) -> None:
         """Start the mock KR C2, connecting (and retrying for connect_timeout_s) to trackcal's EKI and RSI ports.
         Whenever trackcal goes away (exited, killed) the controller keeps the robot where it stands and connects
         again, as trackcal_eki.src closes and reopens its channel: the next trackcal finds it. The RSI stream is
         the shipped configuration's (configs/krc2/trackcal_rsi.xml). `delivered` (the client's frame_received,
         when it runs in this process on this clock) puts the controller in lockstep with it, skipping the idle
         cycles nobody reads unless not skip_idle (mocks.servers.kuka.controller)."""
-        self.controller = MockKrc2(eki_addr, rsi_addr, self.clock, HOME_DEG, on_joints=self.world.robot_at,
-                                   joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S, seed=self.seed, overshoot_deg=0.0,
-                                   soft_limits_deg=robot_limits_deg(self.cell),
-                                   connect_timeout_s=connect_timeout_s, delivered=delivered,
-                                   skip_idle=skip_idle).start()  # fmt: skip
+        self.controller = MockKrc2(
+            eki_addr,
+            rsi_addr,
+            self.clock,
+            HOME_DEG,
+            on_joints=self.world.robot_at,
+            joint_speed_deg_s=SIM_JOINT_SPEED_DEG_S,
+            seed=self.seed,
+            overshoot_deg=0.0,
+            soft_limits_deg=robot_limits_deg(self.cell),
+            connect_timeout_s=connect_timeout_s,
+            delivered=delivered,
+            skip_idle=skip_idle,
+        ).start()
 
     def serve_family(self, family: str) -> dict:
         """Start the twin's controller of robot family `family` (mocks/controllers.py: the controller's own
@@ -100,8 +127,10 @@ class TwinMocks:
         for it. InputError when no mock serves that family."""
         served = twin_controllers()
         if family not in served:
-            raise InputError(f"cell {self.cell.name}: no mock controller for the robot's controller {family!r} "
-                             f"(mocks serve: {', '.join(served) or 'none'})")  # fmt: skip
+            raise InputError(
+                f"cell {self.cell.name}: no mock controller for the robot's controller {family!r} "
+                f"(mocks serve: {', '.join(served) or 'none'})"
+            )
         self.world.robot_at(self.world.q_deg if self.world.q_deg.any() else HOME_DEG)
         self.family_controller = served[family].serve(self.world, self.seed, self.speed)
         return self.family_controller.hardware()
@@ -114,9 +143,11 @@ class TwinMocks:
         """Where each mock serves (for people)."""
         host, port = self.tracker_mock.address
         phost, pport = self.plc.address
-        out = {"tracker (emScon)": f"{host}:{port}",
-               "cell PLC (Modbus TCP)": f"{phost}:{pport} unit {self.plc.unit_id}",
-               "meteo (serial)": self.meteo_mock.port_path}  # fmt: skip
+        out = {
+            "tracker (emScon)": f"{host}:{port}",
+            "cell PLC (Modbus TCP)": f"{phost}:{pport} unit {self.plc.unit_id}",
+            "meteo (serial)": self.meteo_mock.port_path,
+        }
         if self.family_controller is not None:
             out.update(self.family_controller.addresses())
         if self.controller is not None:
@@ -159,12 +190,26 @@ class SimCell:
     so the timestamps depend on the machine's pace (the measurements do not). `say`: where the operator's requests
     are shown (the console of `trackcal run --sim`; nowhere by default: the simulated operator reads the HMI)."""
 
-    def __init__(self, cell: Cell, seed: int, store: SessionStore | None = None,
-                 effects: dict[str, float] | None = None, speed: float | None = None,
-                 skip_idle: bool = True, lockstep: bool = True,
-                 say: Callable[[str], None] = lambda text: None, human_acknowledges: bool = True) -> None:  # fmt: skip
-        self.mocks = TwinMocks(cell, seed, effects, speed, None if store is None else measured_keys(store),
-                               human_acknowledges=human_acknowledges)  # fmt: skip
+    def __init__(
+        self,
+        cell: Cell,
+        seed: int,
+        store: SessionStore | None = None,
+        effects: dict[str, float] | None = None,
+        speed: float | None = None,
+        skip_idle: bool = True,
+        lockstep: bool = True,
+        say: Callable[[str], None] = lambda text: None,
+        human_acknowledges: bool = True,
+    ) -> None:
+        self.mocks = TwinMocks(
+            cell,
+            seed,
+            effects,
+            speed,
+            None if store is None else measured_keys(store),
+            human_acknowledges=human_acknowledges,
+        )
         m = self.mocks
         self.clock, self.world, self.tracker_mock, self.plc = m.clock, m.world, m.tracker_mock, m.plc
         self.meteo_mock, self.human = m.meteo_mock, m.human
@@ -172,13 +217,26 @@ class SimCell:
         try:
             tracker = self._client(EmsconTracker(*self.tracker_mock.address, timeout_s=10.0))
             cellio = self._client(ModbusCellIO(*self.plc.address, timeout_s=5.0))
-            robot = self._client(KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, controller_host="127.0.0.1",
-                                          joint_limits_deg=joint_limits_deg(cell),
-                                          cell_box_check=cell_box_check(cell), motion_guard=motion_guard(cellio),
-                                          connect_timeout_s=20.0))  # fmt: skip
+            robot = self._client(
+                KukaKrc2(
+                    "127.0.0.1",
+                    0,
+                    "127.0.0.1",
+                    0,
+                    controller_host="127.0.0.1",
+                    joint_limits_deg=joint_limits_deg(cell),
+                    cell_box_check=cell_box_check(cell),
+                    motion_guard=motion_guard(cellio),
+                    connect_timeout_s=20.0,
+                )
+            )
             robot.listen()
-            m.serve_controller(robot.eki.address, robot.rsi.address, skip_idle=skip_idle,
-                               delivered=robot.rsi.frame_received if lockstep else None)  # fmt: skip
+            m.serve_controller(
+                robot.eki.address,
+                robot.rsi.address,
+                skip_idle=skip_idle,
+                delivered=robot.rsi.frame_received if lockstep else None,
+            )
             self.controller = m.controller
             if lockstep:
                 robot.rsi.sync = self.controller.sync
@@ -251,9 +309,18 @@ def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
 
 def krc2_robot_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int]) -> dict:
     """The hardware file's robot section for the twin's KR C2 (serve_controller), which connects to eki and rsi."""
-    return {"protocol": "krc2", "controller_host": "127.0.0.1", "eki": {"host": eki[0], "port": eki[1]},
-            "rsi": {"protocol": mocks.controller.rsi_protocol, "passive": mocks.controller.rsi_passive,
-                    "host": rsi[0], "port": rsi[1]}, "connect_timeout_s": 30.0}  # fmt: skip
+    return {
+        "protocol": "krc2",
+        "controller_host": "127.0.0.1",
+        "eki": {"host": eki[0], "port": eki[1]},
+        "rsi": {
+            "protocol": mocks.controller.rsi_protocol,
+            "passive": mocks.controller.rsi_passive,
+            "host": rsi[0],
+            "port": rsi[1],
+        },
+        "connect_timeout_s": 30.0,
+    }
 
 
 def hardware_doc(mocks: TwinMocks, robot: dict) -> dict:
@@ -263,10 +330,21 @@ def hardware_doc(mocks: TwinMocks, robot: dict) -> dict:
     phost, pport = mocks.plc.address
     return {
         # the twin's tracker serial (mocks/servers/emscon_identity.py): what it reports, so a run finds it as stated
-        "tracker": {"protocol": "emscon", "host": thost, "port": tport, "timeout_s": 10.0,
-                    "serial": str(mocks.tracker_mock.identity.serial_number)},
+        "tracker": {
+            "protocol": "emscon",
+            "host": thost,
+            "port": tport,
+            "timeout_s": 10.0,
+            "serial": str(mocks.tracker_mock.identity.serial_number),
+        },
         "robot": robot,
-        "plc": {"protocol": "modbus", "host": phost, "port": pport, "unit_id": mocks.plc.unit_id, "timeout_s": 2.0,
-                "poll_s": POLL_S},
+        "plc": {
+            "protocol": "modbus",
+            "host": phost,
+            "port": pport,
+            "unit_id": mocks.plc.unit_id,
+            "timeout_s": 2.0,
+            "poll_s": POLL_S,
+        },
         "meteo": {"protocol": "serial", "port": mocks.meteo_mock.port_path, "baudrate": 9600, "timeout_s": 2.0},
-    }  # fmt: skip
+    }

@@ -20,8 +20,10 @@ from trackcal.campaign.jobs.identify import (
 
 def print_identification(doc: dict, truth: dict[str, float] | None = None) -> None:
     """A model document's parameters, residuals, significance, stations and fit (`truth`: the twin's)."""
-    t = Table(title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations, "
-                    f"{doc['weighting']} weighting)")  # fmt: skip
+    t = Table(
+        title=f"Identified parameters ({doc['n_measurements']} measurements, {doc['iterations']} iterations, "
+        f"{doc['weighting']} weighting)"
+    )
     for col in ("parameter", "unit", "nominal", "deviation", "95 % CI"):
         t.add_column(col, justify="right")
     if truth is not None:
@@ -40,8 +42,12 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
     rt = Table(title="Residuals (paper Table 9 style), mm")
     for col in ("", "before", "after", "factor"):
         rt.add_column(col, justify="right")
-    for key, label in (("coord_max_mm", "coordinate max"), ("coord_rms_mm", "coordinate RMS"),
-                       ("dist_max_mm", "distance max"), ("dist_rms_mm", "distance RMS")):
+    for key, label in (
+        ("coord_max_mm", "coordinate max"),
+        ("coord_rms_mm", "coordinate RMS"),
+        ("dist_max_mm", "distance max"),
+        ("dist_rms_mm", "distance RMS"),
+    ):
         b, a = r["before"][key], r["after"][key]
         rt.add_row(label, f"{b:.4f}", f"{a:.4f}", f"{b / a:.1f}" if a > 0 else "-")
     print_table(rt)
@@ -58,17 +64,21 @@ def print_identification(doc: dict, truth: dict[str, float] | None = None) -> No
         console.print(f"station {sid}: translation ±({ci[0]:.3f}, {ci[1]:.3f}, {ci[2]:.3f}) mm (95 %)")
     print_extension(doc["extension"])
     console.print(f"tracker {model_instrument(doc).describe()}")
-    console.print(f"weighting {doc['weighting']}; residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm per coordinate, "
-                  f"{doc['fit_ratio']:.1f}x the noise floor {doc['noise_floor_mm'] * 1000:.1f} µm "
-                  f"({doc['noise_floor_source']}): fit {doc['fit']}")  # fmt: skip
+    console.print(
+        f"weighting {doc['weighting']}; residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm per coordinate, "
+        f"{doc['fit_ratio']:.1f}x the noise floor {doc['noise_floor_mm'] * 1000:.1f} µm "
+        f"({doc['noise_floor_source']}): fit {doc['fit']}"
+    )
 
 
 def tcp_at_test_pose_line(tp: dict) -> str:
     """model.json's `test_pose` in one line: the TCP there and its 1-sigma uncertainty (calib.tcp_figure)."""
     x, y, z = tp["tcp_mm"]
-    return (f"TCP at the test pose: ({x:.3f}, {y:.3f}, {z:.3f}) mm in station {tp['station']}'s frame, "
-            f"±{tp['sigma_mm'] * 1000:.1f} µm (1σ 3-D, full covariance: robot, stations, points); the calibration "
-            f"moves it {tp['correction_mm'] * 1000:.0f} µm from the nominal robot's")
+    return (
+        f"TCP at the test pose: ({x:.3f}, {y:.3f}, {z:.3f}) mm in station {tp['station']}'s frame, "
+        f"±{tp['sigma_mm'] * 1000:.1f} µm (1σ 3-D, full covariance: robot, stations, points); the calibration "
+        f"moves it {tp['correction_mm'] * 1000:.0f} µm from the nominal robot's"
+    )
 
 
 def print_extension(ext: dict) -> None:
@@ -78,8 +88,10 @@ def print_extension(ext: dict) -> None:
         console.print("model extension: none (purely geometric)")
         return
     if cause == "station_shift":
-        console.print(f"model extension: station_shift: station {ext['station']} moved after t = "
-                      f"{ext['after_t_s']:.1f} s; its later transform is identified as a separate station")  # fmt: skip
+        console.print(
+            f"model extension: station_shift: station {ext['station']} moved after t = "
+            f"{ext['after_t_s']:.1f} s; its later transform is identified as a separate station"
+        )
         return
     t = Table(title=f"Model extension: {' + '.join(ext.get('causes') or [cause])}")
     for col in ("parameter", "unit", "value", "95 % CI"):
@@ -90,16 +102,33 @@ def print_extension(ext: dict) -> None:
 
 
 def cmd_identify(args) -> int:
-    outcome = identify_table(IdentifyOptions(data=args.data, cell=args.cell, out=args.out, params=args.params,
-                                             weighting=args.weighting, extend=args.extend, json=args.json))  # fmt: skip
+    outcome = identify_table(
+        IdentifyOptions(
+            data=args.data,
+            cell=args.cell,
+            out=args.out,
+            params=args.params,
+            weighting=args.weighting,
+            extend=args.extend,
+            json=args.json,
+        )
+    )
     print_identification(outcome.doc)
     if outcome.chosen is not None:
-        console.print(f"--extend auto: diagnose chose {outcome.chosen}"
-                      + (" (the model stays geometric)" if outcome.chosen == "none" else ""))  # fmt: skip
-    unusable = None if outcome.doc.get("usable", True) else (
-        f"the model is UNUSABLE: {outcome.doc['unusable_why']} (compensate refuses it without --accept-poor)")
-    warnings = [w for w in (unusable, outcome.still, outcome.warning, outcome.determination,
-                            convergence_warning(outcome.doc)) if w]  # fmt: skip
+        console.print(
+            f"--extend auto: diagnose chose {outcome.chosen}"
+            + (" (the model stays geometric)" if outcome.chosen == "none" else "")
+        )
+    unusable = (
+        None
+        if outcome.doc.get("usable", True)
+        else (f"the model is UNUSABLE: {outcome.doc['unusable_why']} (compensate refuses it without --accept-poor)")
+    )
+    warnings = [
+        w
+        for w in (unusable, outcome.still, outcome.warning, outcome.determination, convergence_warning(outcome.doc))
+        if w
+    ]
     if warnings:  # one line on stderr, whatever the fit's troubles (scripts read the first line)
         print(f"warning: {'; and '.join(warnings)}", file=sys.stderr)
     console.print(f"model written to {args.out}" + (" (marked unusable)" if unusable else ""))
@@ -120,45 +149,73 @@ MAX_POINT_ROWS = 20  # locate prints the largest residuals of a long table, all 
 def cmd_locate(args) -> int:
     from trackcal.campaign.jobs.locate import LocateOptions, locate  # lazy: identify's start-up skips it (issue 41)
 
-    done = locate(LocateOptions(model=args.model, table=args.table, out=args.out, station=args.station,
-                                name=getattr(args, "as"), poses=args.poses, predict_out=args.predict_out,
-                                accept_edited=args.accept_edited))  # fmt: skip
+    done = locate(
+        LocateOptions(
+            model=args.model,
+            table=args.table,
+            out=args.out,
+            station=args.station,
+            name=getattr(args, "as"),
+            poses=args.poses,
+            predict_out=args.predict_out,
+            accept_edited=args.accept_edited,
+        )
+    )
     q, fit = done.quality, done.fit
-    t = Table(title=f"Station {done.name} located on {len(done.points)} points of {len(done.located_poses)} pose(s) "
-                    f"(robot, extension and tool points held from {args.model})")  # fmt: skip
+    t = Table(
+        title=f"Station {done.name} located on {len(done.points)} points of {len(done.located_poses)} pose(s) "
+        f"(robot, extension and tool points held from {args.model})"
+    )
     for col in ("row", "pose", "point", "dx µm", "dy µm", "dz µm", "|r| µm", "x floor"):
         t.add_column(col, justify="right")
     floor3 = q["noise_floor_mm"] * 3**0.5  # the noise floor of a 3-D distance
     shown = sorted(done.points, key=lambda p: -float(np.linalg.norm(p.residual)))[:MAX_POINT_ROWS]
     for p in sorted(shown, key=lambda p: p.row):
         d = float(np.linalg.norm(p.residual))
-        t.add_row(str(p.row), p.pose, p.point, *(f"{v * 1000:+.1f}" for v in p.residual), f"{d * 1000:.1f}",
-                  f"{d / floor3:.1f}")  # fmt: skip
+        t.add_row(
+            str(p.row),
+            p.pose,
+            p.point,
+            *(f"{v * 1000:+.1f}" for v in p.residual),
+            f"{d * 1000:.1f}",
+            f"{d / floor3:.1f}",
+        )
     print_table(t)
     if len(done.points) > len(shown):
-        console.print(f"(the {len(shown)} largest residuals of {len(done.points)}; every point's is in {args.out}, "
-                      f"located.{done.name}.points)")  # fmt: skip
+        console.print(
+            f"(the {len(shown)} largest residuals of {len(done.points)}; every point's is in {args.out}, "
+            f"located.{done.name}.points)"
+        )
     res = done.doc["located"][done.name]["residuals"]
-    console.print(f"residual RMS {res['rms_mm'] * 1000:.1f} µm, max {res['max_mm'] * 1000:.1f} µm (3-D); per "
-                  f"coordinate over the {fit.dof} degrees of freedom (3 per point less the station's 6) "
-                  f"{q['residual_rms_mm'] * 1000:.1f} µm, {q['fit_ratio']:.1f}x the noise floor "
-                  f"{q['noise_floor_mm'] * 1000:.1f} µm ({q['noise_floor_source']}): fit {q['fit']}")  # fmt: skip
+    console.print(
+        f"residual RMS {res['rms_mm'] * 1000:.1f} µm, max {res['max_mm'] * 1000:.1f} µm (3-D); per "
+        f"coordinate over the {fit.dof} degrees of freedom (3 per point less the station's 6) "
+        f"{q['residual_rms_mm'] * 1000:.1f} µm, {q['fit_ratio']:.1f}x the noise floor "
+        f"{q['noise_floor_mm'] * 1000:.1f} µm ({q['noise_floor_source']}): fit {q['fit']}"
+    )
     c = done.doc["stations"][done.name]
     ct, cr = c["ci95_translation_mm"], c["ci95_rotation_deg"]
-    console.print(f"station {done.name}: translation ±({ct[0]:.3f}, {ct[1]:.3f}, {ct[2]:.3f}) mm, rotation "
-                  f"±({cr[0]:.4f}, {cr[1]:.4f}, {cr[2]:.4f}) deg (95 %)")  # fmt: skip
+    console.print(
+        f"station {done.name}: translation ±({ct[0]:.3f}, {ct[1]:.3f}, {ct[2]:.3f}) mm, rotation "
+        f"±({cr[0]:.4f}, {cr[1]:.4f}, {cr[2]:.4f}) deg (95 %)"
+    )
     if done.held_out is not None:
         h = done.held_out
-        console.print(f"held out: {h['rows']} rows of {h['poses']} poses not used to locate: RMS "
-                      f"{h['dist_rms_mm']:.4f} mm (3-D), max {h['dist_max_mm']:.4f} mm")  # fmt: skip
+        console.print(
+            f"held out: {h['rows']} rows of {h['poses']} poses not used to locate: RMS "
+            f"{h['dist_rms_mm']:.4f} mm (3-D), max {h['dist_max_mm']:.4f} mm"
+        )
     if args.predict_out:
         console.print(f"predictions of the held-out rows written to {args.predict_out}")
     if q["fit"] == "poor":
         own = done.doc.get("fit_ratio")
-        print(f"warning: the points fit the station at {q['fit_ratio']:.1f}x the noise floor "
-              + (f"(the model fits its own table at {own:.1f}x)" if own is not None else "")
-              + ": the model does not describe this session to the noise (a robot that changed, points swapped, "
-              "or what the model already missed)", file=sys.stderr)  # fmt: skip
+        print(
+            f"warning: the points fit the station at {q['fit_ratio']:.1f}x the noise floor "
+            + (f"(the model fits its own table at {own:.1f}x)" if own is not None else "")
+            + ": the model does not describe this session to the noise (a robot that changed, points swapped, "
+            "or what the model already missed)",
+            file=sys.stderr,
+        )
     console.print(("station replaced" if done.replaced else "model with the station written") + f" in {args.out}")
     return 0
 
@@ -170,11 +227,22 @@ def cmd_simulate(args) -> int:
         simulate,
     )
 
-    _, _, table = simulate(SimulateOptions(cell=args.cell, out=args.out, poses=args.poses, seed=args.seed,
-                                           repeat=args.repeat, noise_free=args.noise_free,
-                                           effects=parse_effects(args.effect), truth=args.truth))  # fmt: skip
-    console.print(f"{len(table)} simulated measurements written to {args.out}"
-                  + (f"; the twin's truth to {args.truth}" if args.truth else ""))  # fmt: skip
+    _, _, table = simulate(
+        SimulateOptions(
+            cell=args.cell,
+            out=args.out,
+            poses=args.poses,
+            seed=args.seed,
+            repeat=args.repeat,
+            noise_free=args.noise_free,
+            effects=parse_effects(args.effect),
+            truth=args.truth,
+        )
+    )
+    console.print(
+        f"{len(table)} simulated measurements written to {args.out}"
+        + (f"; the twin's truth to {args.truth}" if args.truth else "")
+    )
     return 0
 
 

@@ -42,10 +42,16 @@ class ConsoleProgress:
     the bar). Used as a context manager, so that a run ended by an error takes the bar down too."""
 
     def __init__(self) -> None:
-        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("({task.fields[skipped]} skipped)"), TimeRemainingColumn(),
-                            TextColumn("next: {task.fields[next]}", markup=False), console=console,
-                            transient=False)  # fmt: skip
+        self.bar = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("({task.fields[skipped]} skipped)"),
+            TimeRemainingColumn(),
+            TextColumn("next: {task.fields[next]}", markup=False),
+            console=console,
+            transient=False,
+        )
         self.task = self.bar.add_task("measurements", total=None, next="", skipped=0)
         self.shown = False
 
@@ -55,8 +61,13 @@ class ConsoleProgress:
             self.shown = True
         elif doc.name == "progress":
             p = doc.data
-            self.bar.update(self.task, completed=p["measured"] + p["skipped"], total=p["planned"],
-                            skipped=p["skipped"], next=p["next_action"] or "-")  # fmt: skip
+            self.bar.update(
+                self.task,
+                completed=p["measured"] + p["skipped"],
+                total=p["planned"],
+                skipped=p["skipped"],
+                next=p["next_action"] or "-",
+            )
         elif doc.name == "warning":
             console.print(labelled("warning", "yellow", doc.data["message"]))
         elif doc.name == "stop":
@@ -80,8 +91,12 @@ def operator_page(args) -> Iterator[WebPage | None]:
     if getattr(args, "operator", "console") != "web":
         yield None
         return
-    page = WebPage(args.web_host or LOOPBACK, DEFAULT_PORT if args.web_port is None else args.web_port,
-                   say=console.print, out=console.file.write)  # fmt: skip
+    page = WebPage(
+        args.web_host or LOOPBACK,
+        DEFAULT_PORT if args.web_port is None else args.web_port,
+        say=console.print,
+        out=console.file.write,
+    )
     try:
         yield page
     finally:
@@ -120,9 +135,9 @@ ADVICE = {
     ESTOP_PRESSED: "Release the emergency stop once the cell is safe, then",
     RSI_STALE: "Check that the controller's RSI program runs and its network to this PC, then",
     CHANNELS_DISAGREE: "Make sure nothing but the controller sends RSI frames to this PC (the log names every sender "
-                       "ignored), then",
+    "ignored), then",
     TARGET_MISMATCH: "Check the robot program and the controller's messages (it stood elsewhere than its target), then",
-}  # fmt: skip
+}
 
 
 def stopped_safely(store: SessionStore, result: RunResult) -> None:
@@ -138,10 +153,15 @@ def campaign_exit(store: SessionStore, done: Completeness) -> int:
     `done`: after a run, its result's (run_completeness); else the session's (completeness)."""
     if not done.failed:
         return 0
-    why = "it measured nothing" if done.measured == 0 else (
-        f"more than the cell's max_skipped_share {done.max_skipped_share:.0%} skipped")  # fmt: skip
-    print(f"error: {store.directory}: {done.sentence()}: {why}, so the plan's accuracy is not reached "
-          "(exit code 3)", file=sys.stderr)  # fmt: skip
+    why = (
+        "it measured nothing"
+        if done.measured == 0
+        else (f"more than the cell's max_skipped_share {done.max_skipped_share:.0%} skipped")
+    )
+    print(
+        f"error: {store.directory}: {done.sentence()}: {why}, so the plan's accuracy is not reached (exit code 3)",
+        file=sys.stderr,
+    )
     return 3
 
 
@@ -166,12 +186,16 @@ def cmd_run(args) -> int:
         raise UsageError("--web-host, --web-port and --web-linger are for --operator web")
     if args.sim_speed is not None and not args.sim_speed > 0:
         raise UsageError("--sim-speed must be positive (simulated seconds per real second)")
-    cell = HardwareOptions(Path(args.hardware)) if args.hardware else SimOptions(args.seed, effects, args.sim_speed,
-                                                                                   args.truth)
+    cell = (
+        HardwareOptions(Path(args.hardware))
+        if args.hardware
+        else SimOptions(args.seed, effects, args.sim_speed, args.truth)
+    )
     with operator_page(args) as page:
         with ConsoleProgress() as progress:
-            store, campaign, result = run_new(Path(args.session), args.cell, plan_doc, cell, at_console(), [progress],
-                                              page)  # fmt: skip
+            store, campaign, result = run_new(
+                Path(args.session), args.cell, plan_doc, cell, at_console(), [progress], page
+            )
         stopped_safely(store, result)
         if not args.no_analysis:
             analyse_for(store, campaign, page, args.web_linger)
@@ -192,12 +216,20 @@ def cmd_resume(args) -> int:
 def resume_and_analyse(store: SessionStore, args, page: WebPage | None = None) -> int:
     changed = changed_copies(store)
     if changed:
-        console.print(labelled("note", "yellow", f"{', '.join(changed)} in {store.directory} differ from the "
-                               "copies stored at the session's creation: resume uses the stored copies"),
-                      soft_wrap=True)  # fmt: skip
+        console.print(
+            labelled(
+                "note",
+                "yellow",
+                f"{', '.join(changed)} in {store.directory} differ from the "
+                "copies stored at the session's creation: resume uses the stored copies",
+            ),
+            soft_wrap=True,
+        )
     if store.events("campaign_done"):
-        console.print(f"{store.directory}: the campaign is already complete"
-                      + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)"))  # fmt: skip
+        console.print(
+            f"{store.directory}: the campaign is already complete"
+            + ("" if args.analyse else " (`trackcal resume --analyse` analyses it again)")
+        )
         campaign, done = None, completeness(store)
         if not args.analyse:
             return campaign_exit(store, done)

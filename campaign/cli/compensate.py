@@ -10,11 +10,22 @@ from trackcal.campaign.jobs.compensate import CompensateOptions, run_compensate
 
 
 def cmd_compensate(args) -> int:
-    done = run_compensate(CompensateOptions(targets=args.targets, model=args.model, out=args.out, tcp=args.tcp,
-                                            krl=args.krl, krl_dir=args.krl_dir, speed=args.speed,
-                                            program=args.program, strict=args.strict, accept_edited=args.accept_edited,
-                                            accept_poor=args.accept_poor,
-                                            allow_outside=args.allow_outside))  # fmt: skip
+    done = run_compensate(
+        CompensateOptions(
+            targets=args.targets,
+            model=args.model,
+            out=args.out,
+            tcp=args.tcp,
+            krl=args.krl,
+            krl_dir=args.krl_dir,
+            speed=args.speed,
+            program=args.program,
+            strict=args.strict,
+            accept_edited=args.accept_edited,
+            accept_poor=args.accept_poor,
+            allow_outside=args.allow_outside,
+        )
+    )
     report, ok = done.report, done.report.ok
     for warning in done.model_warnings:
         print(f"warning: {warning}", file=sys.stderr)
@@ -23,8 +34,10 @@ def cmd_compensate(args) -> int:
             kept = " (its nominal target in the program, commented)" if done.krl_files or done.program_files else ""
             print(f"warning: {label}: not compensated{kept}: {failure}", file=sys.stderr)
     if any(f.startswith(OUTSIDE_RANGES) for f in report.failures):
-        print("note: --allow-outside compensates the targets outside the fitted joint ranges (the model's extension "
-              "held at the nearest fitted angle)")  # fmt: skip
+        print(
+            "note: --allow-outside compensates the targets outside the fitted joint ranges (the model's extension "
+            "held at the nearest fitted angle)"
+        )
     for warning in [*report.ignored, *report.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     for note in report.notes:
@@ -32,8 +45,11 @@ def cmd_compensate(args) -> int:
     near = done.near_singular
     if len(near):
         rows = ", ".join(str(i + 2) for i in near[:10]) + (" ..." if len(near) > 10 else "")
-        print(f"warning: {len(near)} target(s) near a singularity (rows {rows}): large joint corrections, "
-              "check them before running", file=sys.stderr)  # fmt: skip
+        print(
+            f"warning: {len(near)} target(s) near a singularity (rows {rows}): large joint corrections, "
+            "check them before running",
+            file=sys.stderr,
+        )
     doc = done.doc
     failed = doc["targets"] - doc["compensated"]
     print(

@@ -35,6 +35,7 @@ def print_table(table: Table) -> None:
     needed = sum(column.min_width + 2 for column in table.columns) + len(table.columns) + 1
     console.print(table, width=max(console.width, needed), crop=False)
 
+
 # The word each prompt asks for: one that no stray key, paste or cat on the keyboard types by accident. The
 # resume prompt, after which the robot moves, has its own word; a prompt kind not listed asks for "done".
 ANSWERS = {"change_station": "done", "move_reflector": "done", "resume": "resume"}
@@ -67,8 +68,9 @@ class ConsoleOperator:
             if line.strip().lower() == word:
                 return "console"
             self.console.print(labelled("not an acknowledgement", "yellow", f"{line[:40]!r}; expected {word!r}"))
-        raise ConnectionLost(f"{self.max_wrong} answers in a row were not {word!r}, nobody acknowledges",
-                             device="operator console")  # fmt: skip
+        raise ConnectionLost(
+            f"{self.max_wrong} answers in a row were not {word!r}, nobody acknowledges", device="operator console"
+        )
 
     # Shared with other operators (campaign.cells.operator.FirstAnswer, e.g. the operator's page): the console
     # cannot stop waiting for a line, so a thread reads lines into a queue and the prompt polls it; a line typed
@@ -94,8 +96,10 @@ class ConsoleOperator:
                 return "console"
             self._wrong += 1
             if self._wrong >= self.max_wrong:
-                raise ConnectionLost(f"{self.max_wrong} answers in a row were not {self._word!r} on the console",
-                                     device="operator console")  # fmt: skip
+                raise ConnectionLost(
+                    f"{self.max_wrong} answers in a row were not {self._word!r} on the console",
+                    device="operator console",
+                )
             self.console.print(labelled("not an acknowledgement", "yellow", f"{line[:40]!r}; expected {self._word!r}"))
         return None
 

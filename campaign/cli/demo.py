@@ -26,8 +26,10 @@ def cmd_demo(args) -> int:
     with console.status("planning: test-pose optimal poses (paper section 6)"):
         # the default plan (`trackcal plan --cell C`): its size from the cell's unknowns
         plan_doc = plan(args.cell, PlanOptions(seed=args.seed), str(out / "plan.json")).doc
-    console.print(f"plan: {len(plan_doc['poses_deg'])} configurations x {plan_doc['repeat']}, rho0 at the test pose "
-                  f"{um(plan_doc['rho0_mm'], 2)} µm ({out / 'plan.json'})")  # fmt: skip
+    console.print(
+        f"plan: {len(plan_doc['poses_deg'])} configurations x {plan_doc['repeat']}, rho0 at the test pose "
+        f"{um(plan_doc['rho0_mm'], 2)} µm ({out / 'plan.json'})"
+    )
     console.print(f"plan size: {plan_doc['why']}")
     store, campaign = new_session(out / "session", args.cell, plan_doc, "sim", args.seed, cell=cell)
     drive(store, campaign)
@@ -37,7 +39,9 @@ def cmd_demo(args) -> int:
         figure = analysis.geometric.get("test_pose")
         miss = test_pose_miss_mm(cell, args.seed, figure)
         if miss is not None:  # stated against delivered: the twin's truth, which no fit computed
-            console.print(f"against the twin's truth: the model puts the TCP at the test pose {um(miss, 1)} µm from "
-                          f"where the twin has it; stated ±{um(figure['sigma_mm'], 1)} µm (1σ 3-D), planned "
-                          f"{um(plan_doc['rho0_mm'], 1)} µm")  # fmt: skip
+            console.print(
+                f"against the twin's truth: the model puts the TCP at the test pose {um(miss, 1)} µm from "
+                f"where the twin has it; stated ±{um(figure['sigma_mm'], 1)} µm (1σ 3-D), planned "
+                f"{um(plan_doc['rho0_mm'], 1)} µm"
+            )
     return 0

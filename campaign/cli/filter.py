@@ -13,10 +13,19 @@ from trackcal.campaign.report.filter_page import HEADER, filter_rows
 
 
 def cmd_filter(args) -> int:
-    done = run_filter(FilterOptions(program=args.program, more=tuple(args.more), model=args.model, out=args.out,
-                                    tolerance_mm=args.tolerance_mm, strict=args.strict,
-                                    accept_edited=args.accept_edited, accept_poor=args.accept_poor,
-                                    allow_outside=args.allow_outside))  # fmt: skip
+    done = run_filter(
+        FilterOptions(
+            program=args.program,
+            more=tuple(args.more),
+            model=args.model,
+            out=args.out,
+            tolerance_mm=args.tolerance_mm,
+            strict=args.strict,
+            accept_edited=args.accept_edited,
+            accept_poor=args.accept_poor,
+            allow_outside=args.allow_outside,
+        )
+    )
     for warning in [*done.model_warnings, *done.result.warnings]:
         print(f"warning: {warning}", file=sys.stderr)
     table = Table(title=f"{done.read.language} program filtered")
@@ -30,13 +39,14 @@ def cmd_filter(args) -> int:
     kept = [r for r in done.rows if r["status"] == "kept"]
     for r in kept:
         named = "" if r["name"] == f"line {r['line']}" else f" ({r['name']})"
-        print(f"warning: {r['file']}: line {r['line']}{named}: kept as it was (commented): {r['why']}",
-              file=sys.stderr)  # fmt: skip
+        print(f"warning: {r['file']}: line {r['line']}{named}: kept as it was (commented): {r['why']}", file=sys.stderr)
     n = len(done.rows)
     tol = "" if args.tolerance_mm is None else f"; {done.failed} fail the tolerance of {args.tolerance_mm:g} mm"
     if done.extrapolated:
-        tol += (f"; {done.extrapolated} outside the space the model was measured in (their bounds are "
-                f"extrapolations: {done.unknown} pass/fail unknown)")  # fmt: skip
+        tol += (
+            f"; {done.extrapolated} outside the space the model was measured in (their bounds are "
+            f"extrapolations: {done.unknown} pass/fail unknown)"
+        )
     print(f"{n - len(kept)} of {n} targets filtered{tol}")
     print(f"filtered program written to {', '.join(str(p) for p in done.written)}")
     print(f"report written to {done.report_json} and {done.report_html}")

@@ -10,8 +10,9 @@ from trackcal.campaign.jobs.history import HistoryOptions, history
 
 def cmd_history(args) -> int:
     dates = args.dates.split(",") if args.dates else None
-    h = history(HistoryOptions(calibrations=args.calibrations, dates=dates, json=args.json,
-                               accept_edited=args.accept_edited))
+    h = history(
+        HistoryOptions(calibrations=args.calibrations, dates=dates, json=args.json, accept_edited=args.accept_edited)
+    )
     table = Table(title="identified parameters (± 95 %); * moved since the previous calibration")
     table.add_column("parameter", overflow="fold")
     for c in h.calibrations:
@@ -29,8 +30,9 @@ def cmd_history(args) -> int:
             row.append(f"{p['value']:.4f} ± {p['ci95']:.4f}{' *' if moved else ''}")
         table.add_row(*row)
     tcp = ["TCP at the test pose: correction (mm) ± 1σ 3-D"]
-    tcp += ["-" if c.tcp_sigma_mm is None else f"{c.tcp_correction_mm:.3f} ± {c.tcp_sigma_mm:.3f}"
-            for c in h.calibrations]  # fmt: skip
+    tcp += [
+        "-" if c.tcp_sigma_mm is None else f"{c.tcp_correction_mm:.3f} ± {c.tcp_sigma_mm:.3f}" for c in h.calibrations
+    ]
     table.add_row(*tcp)
     console.print(table)
     for note in h.notes:

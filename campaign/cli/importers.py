@@ -18,23 +18,32 @@ def cmd_import_ipa(args) -> int:
         raise IpaFormatError(f"--period-s: must be positive and at most {MAX_PERIOD_S:g} s, got {args.period_s}")
     if not 0 < args.lever_mm <= MAX_LEVER_MM:
         raise IpaFormatError(f"--lever-mm: must be positive and at most {MAX_LEVER_MM:g} mm, got {args.lever_mm}")
-    table = read_ipa_series(args.file, station=args.station, period_s=args.period_s,
-                            virtual_points=args.virtual_points, lever_mm=args.lever_mm)  # fmt: skip
+    table = read_ipa_series(
+        args.file,
+        station=args.station,
+        period_s=args.period_s,
+        virtual_points=args.virtual_points,
+        lever_mm=args.lever_mm,
+    )
     try:
         write_table(table, args.out)
     except OSError as exc:
         raise IpaFormatError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
     print(f"{args.file}: {len(set(table.pose))} poses, {len(table)} rows -> {args.out}")
     # the files name no instrument (ABOUT.md of the data set: "a Leica laser tracker"): say which model is assumed
-    print("tracker: the files do not say which one measured them; identify and diagnose weigh and judge by the "
-          "cell's tracker: key, and ur10-ipa names none, so they assume the Leica AT901 and say so")
+    print(
+        "tracker: the files do not say which one measured them; identify and diagnose weigh and judge by the "
+        "cell's tracker: key, and ur10-ipa names none, so they assume the Leica AT901 and say so"
+    )
     return 0
 
 
 def cmd_import_table(args) -> int:
     if (args.holdout is None) != (args.test_out is None):
-        raise ImportMapError("--holdout FRACTION and --test-out FILE go together: the share of poses held out and "
-                             "the table they are written to")  # fmt: skip
+        raise ImportMapError(
+            "--holdout FRACTION and --test-out FILE go together: the share of poses held out and "
+            "the table they are written to"
+        )
     imported = import_table(args.files, load_map(args.map), args.joints)
     table = imported.table
     tables = [(table, args.out)]
@@ -49,8 +58,10 @@ def cmd_import_table(args) -> int:
     stations = ", ".join(dict.fromkeys(table.station))
     points = ", ".join(dict.fromkeys(table.point))
     files = ([args.joints] if args.joints else []) + args.files
-    print(f"{', '.join(files)}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points "
-          f"{points}; {table.n_joints} joints) -> {args.out if args.holdout is None else 'split below'}")
+    print(
+        f"{', '.join(files)}: {len(set(table.pose))} poses, {len(table)} rows (stations {stations}; points "
+        f"{points}; {table.n_joints} joints) -> {args.out if args.holdout is None else 'split below'}"
+    )
     skipped = sum(imported.missing.values())
     if skipped:
         each = ", ".join(f"{p} {k} of {imported.rows[p]}" for p, k in imported.missing.items() if k)
@@ -60,6 +71,8 @@ def cmd_import_table(args) -> int:
             print(f"{side}: {len(set(t.pose))} poses, {len(t)} rows -> {out}")
         print(f"held out {args.holdout:g} of the poses, drawn with seed {args.seed}; no pose is in both")
     # a map describes columns, not the instrument: say which noise model the table will be weighed by
-    print("tracker: an export does not say which instrument measured it; identify and diagnose weigh and judge by "
-          "the cell's tracker: key (the Leica AT901 when the cell names none, and they say so)")
+    print(
+        "tracker: an export does not say which instrument measured it; identify and diagnose weigh and judge by "
+        "the cell's tracker: key (the Leica AT901 when the cell names none, and they say so)"
+    )
     return 0

@@ -35,8 +35,9 @@ def _velocities(text: str | None) -> tuple[float, ...]:
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise OptionError("{0}: expected percentages of the rated velocity, e.g. 100,50,10, got {text!r}",
-                          "velocities", text=text) from None  # fmt: skip
+        raise OptionError(
+            "{0}: expected percentages of the rated velocity, e.g. 100,50,10, got {text!r}", "velocities", text=text
+        ) from None
     return values
 
 
@@ -47,57 +48,82 @@ def _field_check(text: str | None) -> tuple[str, str, float] | None:
     try:
         return parts[0].strip(), parts[1].strip(), float(parts[2]) if len(parts) == 3 else math.nan
     except (ValueError, IndexError):
-        raise OptionError("{0}: expected POINT,POINT,LENGTH_MM, e.g. P1,P3,188.012, got {text!r}", "field_check",
-                          text=text) from None  # fmt: skip
+        raise OptionError(
+            "{0}: expected POINT,POINT,LENGTH_MM, e.g. P1,P3,188.012, got {text!r}", "field_check", text=text
+        ) from None
 
 
 def cmd_plan(args) -> int:
-    opts = PlanOptions(cell=args.cell, json=args.json, model=args.model, side_mm=args.side,
-                       centre_mm=_centre(args.centre), cycles=args.cycles, seed=args.seed,
-                       vap_cycles=args.vap_cycles, orientation=args.orientation, load=args.load,
-                       accept_edited=args.accept_edited, accept_poor=args.accept_poor,
-                       velocities=_velocities(args.velocities), warm_up_cycles=args.warm_up_cycles,
-                       drift_hours=args.drift, drift_groups=args.drift_groups,
-                       field_check=_field_check(args.field_check))  # fmt: skip
+    opts = PlanOptions(
+        cell=args.cell,
+        json=args.json,
+        model=args.model,
+        side_mm=args.side,
+        centre_mm=_centre(args.centre),
+        cycles=args.cycles,
+        seed=args.seed,
+        vap_cycles=args.vap_cycles,
+        orientation=args.orientation,
+        load=args.load,
+        accept_edited=args.accept_edited,
+        accept_poor=args.accept_poor,
+        velocities=_velocities(args.velocities),
+        warm_up_cycles=args.warm_up_cycles,
+        drift_hours=args.drift,
+        drift_groups=args.drift_groups,
+        field_check=_field_check(args.field_check),
+    )
     warnings: list[str] = []
     doc = make_plan(opts, warnings)
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
     iso = doc["iso9283"]
-    console.print(f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
-                  f"({', '.join(f'{v:.1f}' for v in iso['cube_centre_mm'])}) mm; point {iso['point']} measured from "
-                  f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])} at each of "
-                  f"{', '.join(f'{v:g}' for v in iso['velocities'])} % of the rated velocity",
-                  soft_wrap=True)  # fmt: skip
+    console.print(
+        f"ISO 9283 cube: side {iso['cube_side_mm']:.1f} mm about "
+        f"({', '.join(f'{v:.1f}' for v in iso['cube_centre_mm'])}) mm; point {iso['point']} measured from "
+        f"station {iso['station']}; {doc['repeat']} cycles of {' '.join(iso['cycle_order'])} at each of "
+        f"{', '.join(f'{v:g}' for v in iso['velocities'])} % of the rated velocity",
+        soft_wrap=True,
+    )
     for name, q in zip(iso["pose_names"], doc["poses_deg"], strict=True):
         console.print(f"  {name}  " + "  ".join(f"{v:9.4f}" for v in q))
     if iso.get("field_check"):
         fc = iso["field_check"]
-        console.print(f"field check: the length {'-'.join(fc['points'])} ({fc['length_mm']:g} mm certified) measured "
-                      "with the robot at P1, before the test")
+        console.print(
+            f"field check: the length {'-'.join(fc['points'])} ({fc['length_mm']:g} mm certified) measured "
+            "with the robot at P1, before the test"
+        )
     if iso.get("drift"):
         drift = iso["drift"]
-        console.print(f"drift test (ISO 9283:1998, 7.6): {drift['groups']} groups of {drift['cycles']} cycles over "
-                      f"{drift['hours']:g} h, P1 measured, at {iso['velocities'][0]:g} % of the rated velocity")
+        console.print(
+            f"drift test (ISO 9283:1998, 7.6): {drift['groups']} groups of {drift['cycles']} cycles over "
+            f"{drift['hours']:g} h, P1 measured, at {iso['velocities'][0]:g} % of the rated velocity"
+        )
     if iso["warm_up_cycles"]:
-        console.print(f"warm-up (ISO 9283:1998, 6.2): {iso['warm_up_cycles']} cycles of the poses at "
-                      f"{iso['velocities'][0]:g} %, nothing measured, before the test")
+        console.print(
+            f"warm-up (ISO 9283:1998, 6.2): {iso['warm_up_cycles']} cycles of the poses at "
+            f"{iso['velocities'][0]:g} %, nothing measured, before the test"
+        )
     if iso.get("points"):
         console.print(f"orientation: points {', '.join(iso['points'])} measured in turn, each over all the cycles")
     if iso.get("vap"):
         vap = iso["vap"]
-        console.print(f"multi-directional test (vAP): {vap['cycles']} cycles of {', '.join(vap['poses'])}, each "
-                      f"approached from {vap['approach_mm']:.1f} mm away along x, y and z ("
-                      + "; ".join(f"{p} from {' '.join(a)}" for p, a in zip(vap["poses"], vap["approaches"],
-                                                                             strict=True))
-                      + ")",
-                      soft_wrap=True)  # fmt: skip
+        console.print(
+            f"multi-directional test (vAP): {vap['cycles']} cycles of {', '.join(vap['poses'])}, each "
+            f"approached from {vap['approach_mm']:.1f} mm away along x, y and z ("
+            + "; ".join(f"{p} from {' '.join(a)}" for p, a in zip(vap["poses"], vap["approaches"], strict=True))
+            + ")",
+            soft_wrap=True,
+        )
     if iso["compensated_with"]:
         comp = iso["compensated_with"]
         figure = comp.get("test_pose") or {}
-        stated = ("" if figure.get("sigma_mm") is None else
-                  f"; its stated TCP uncertainty at the cell's test pose: ±{figure['sigma_mm'] * 1000:.1f} µm 1-sigma "
-                  "(predicted from its covariance; the test measures what the robot attains)")  # fmt: skip
+        stated = (
+            ""
+            if figure.get("sigma_mm") is None
+            else f"; its stated TCP uncertainty at the cell's test pose: ±{figure['sigma_mm'] * 1000:.1f} µm 1-sigma "
+            "(predicted from its covariance; the test measures what the robot attains)"
+        )
         console.print(f"joint targets compensated with {comp['model']}{stated}", soft_wrap=True)
     console.print(f"plan written to {args.json}")
     return 0
@@ -117,18 +143,29 @@ def _conformity(found: list[Verdict], rule: str) -> None:
         table.add_column(col, justify="right" if col in ("value ± U", "tolerance") else "left", overflow="fold")
     for v in found:
         u = f"{v.u95_mm * 1000:.1f}" if math.isfinite(v.u95_mm) else "not stated"
-        table.add_row(f"{v.session} ({'compensated' if v.compensated else 'nominal'})", v.figure,
-                      f"{v.value_mm * 1000:.1f} ± {u}", f"{v.limit_mm * 1000:g}", v.verdict)  # fmt: skip
+        table.add_row(
+            f"{v.session} ({'compensated' if v.compensated else 'nominal'})",
+            v.figure,
+            f"{v.value_mm * 1000:.1f} ± {u}",
+            f"{v.limit_mm * 1000:g}",
+            v.verdict,
+        )
     console.print(table)
     console.print("decision rule: " + RULES[rule], soft_wrap=True)
 
 
 def _compare_options(args, tolerances: dict[str, float]) -> CompareOptions:
     """compare's options from the command line (the tolerances already parsed)."""
-    return CompareOptions(sessions=args.sessions, model=args.model, json=args.json, accept_edited=args.accept_edited,
-                          tolerances=tolerances, decision_rule=args.decision_rule,
-                          certificate=bool(args.report or args.pdf),
-                          accept_expired=args.accept_expired_certificate)  # fmt: skip
+    return CompareOptions(
+        sessions=args.sessions,
+        model=args.model,
+        json=args.json,
+        accept_edited=args.accept_edited,
+        tolerances=tolerances,
+        decision_rule=args.decision_rule,
+        certificate=bool(args.report or args.pdf),
+        accept_expired=args.accept_expired_certificate,
+    )
 
 
 def _notes(tests) -> None:
@@ -176,8 +213,10 @@ def cmd_compare(args) -> int:
             vt.add_row(name, *[_um(t.vap.get(name)) for t in measured])
         console.print(vt)
     if any(p.orientation for t in tests for p in t.poses):
-        ot = Table(title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
-                         "axes (millidegrees; ± U, k = 2)")  # fmt: skip
+        ot = Table(
+            title="ISO 9283:1998, 7.2 orientation AP and RP about the base x (a), y (b), z (c) "
+            "axes (millidegrees; ± U, k = 2)"
+        )
         ot.add_column("pose, axis")
         for t in tests:
             label = t.label
@@ -192,12 +231,16 @@ def cmd_compare(args) -> int:
                 ot.add_row(*row, end_section=axis == "c")
         console.print(ot)
     for d in drift_list:
-        console.print(f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
-                      + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
-                      soft_wrap=True)  # fmt: skip
+        console.print(
+            f"drift ({d['targets']} targets, {d['first']} -> {d['last']}; ISO 9283:1998, 7.6), µm: "
+            + "; ".join(f"{p['pose']} dAP {_um(p['dAP'])}, dRP {_um(p['dRP'])}" for p in d["poses"]),
+            soft_wrap=True,
+        )
         for g in d.get("groups", []):  # a drift test's groups (7.6)
-            console.print(f"  group {g['group']} at {g['t_h']:.2f} h: P1 AP_P {g['AP_P_mm'] * 1000:.1f} µm, "
-                          f"RP_l {g['RP_l_mm'] * 1000:.1f} µm over {g['cycles']} cycles")
+            console.print(
+                f"  group {g['group']} at {g['t_h']:.2f} h: P1 AP_P {g['AP_P_mm'] * 1000:.1f} µm, "
+                f"RP_l {g['RP_l_mm'] * 1000:.1f} µm over {g['cycles']} cycles"
+            )
     _notes(tests)
     if args.json:
         console.print(f"figures written to {args.json}")

@@ -82,12 +82,15 @@ def cmd_mock(args) -> int:
             mocks.serve_controller(eki, rsi, connect_timeout_s=CONTROLLER_CONNECT_S)
             robot = krc2_robot_doc(mocks, eki, rsi)
         doc = hardware_doc(mocks, robot)
-        text = (f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
-                f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
+        text = (
+            f"# trackcal mock --cell {args.cell} --seed {args.seed}: the digital twin's cell on loopback "
+            f"(pid {os.getpid()}); valid while it runs\n" + yaml.safe_dump(doc, sort_keys=False)
+        )
         if out is not None:
             write_text(out, text, InputError)
-        table = Table(title=f"trackcal mock: cell {cell.name}, seed {args.seed}"
-                            + (f", effects {effects}" if effects else ""))  # fmt: skip
+        table = Table(
+            title=f"trackcal mock: cell {cell.name}, seed {args.seed}" + (f", effects {effects}" if effects else "")
+        )
         table.add_column("device")
         table.add_column("address")
         for name, where in mocks.addresses().items():
@@ -113,8 +116,18 @@ def detach(args, out: Path) -> int:
     """The mock in a process of its own (its own session: the terminal's Ctrl-C and hang-up do not reach it),
     its output in FILE.log; returns once the child has written the hardware file, or says why it did not."""
     log_path = out.with_name(out.name + ".log")
-    argv = [sys.executable, "-m", "trackcal.campaign.cli", "mock", "--cell", args.cell, "--seed", str(args.seed),
-            "--write-hardware", str(out)]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "trackcal.campaign.cli",
+        "mock",
+        "--cell",
+        args.cell,
+        "--seed",
+        str(args.seed),
+        "--write-hardware",
+        str(out),
+    ]
     for effect in args.effect or []:
         argv += ["--effect", effect]
     if args.sim_speed is not None:
@@ -122,9 +135,14 @@ def detach(args, out: Path) -> int:
     read_end, write_end = os.pipe()
     try:
         with open(log_path, "wb") as log:
-            child = subprocess.Popen([*argv, "--ready-fd", str(write_end)], pass_fds=(write_end,),
-                                     stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)  # fmt: skip
+            child = subprocess.Popen(
+                [*argv, "--ready-fd", str(write_end)],
+                pass_fds=(write_end,),
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
     except OSError as exc:
         os.close(read_end)
         raise InputError(f"{log_path}: cannot start the mock ({exc.strerror or exc})") from None
@@ -134,8 +152,11 @@ def detach(args, out: Path) -> int:
         answered, _, _ = select.select([ready], [], [], READY_TIMEOUT_S)
         line = ready.readline().decode("ascii", "replace") if answered else ""
     if line.startswith("ready"):
-        console.print(f"trackcal mock serving in the background (pid {child.pid}), hardware config {out}, its output "
-                      f"in {log_path}; stop it with: trackcal mock --stop {out}", markup=False)  # fmt: skip
+        console.print(
+            f"trackcal mock serving in the background (pid {child.pid}), hardware config {out}, its output "
+            f"in {log_path}; stop it with: trackcal mock --stop {out}",
+            markup=False,
+        )
         return 0
     if not answered:  # no word within the time: it will not come
         child.terminate()

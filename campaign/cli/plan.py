@@ -10,10 +10,20 @@ from trackcal.campaign.jobs.plan import PlanOptions, plan
 
 
 def options_of(args) -> PlanOptions:
-    return PlanOptions(params=args.params, test_pose=args.test_pose, sigma_mm=args.sigma_mm, noise=args.noise,
-                       visibility=not args.no_visibility, configs=args.configs, repeat=args.repeat,
-                       criterion=args.criterion, starts=args.starts, refined=args.refined, seed=args.seed,
-                       scheduler=args.scheduler)  # fmt: skip
+    return PlanOptions(
+        params=args.params,
+        test_pose=args.test_pose,
+        sigma_mm=args.sigma_mm,
+        noise=args.noise,
+        visibility=not args.no_visibility,
+        configs=args.configs,
+        repeat=args.repeat,
+        criterion=args.criterion,
+        starts=args.starts,
+        refined=args.refined,
+        seed=args.seed,
+        scheduler=args.scheduler,
+    )
 
 
 def cmd_plan(args) -> int:
@@ -25,8 +35,13 @@ def cmd_plan(args) -> int:
     else:
         with Progress(console=console, transient=True) as bar:
             task = bar.add_task(f"searching a plan ({opts.criterion})", total=opts.refined)
-            doc = plan(args.cell, opts, args.json, csv_out=args.csv,
-                       progress=lambda done, total: bar.update(task, completed=done, total=total)).doc  # fmt: skip
+            doc = plan(
+                args.cell,
+                opts,
+                args.json,
+                csv_out=args.csv,
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+            ).doc
         for q in doc["poses_deg"]:
             console.print("  " + "  ".join(f"{v:8.2f}" for v in q))
         if doc["why"] != "as asked":
@@ -34,8 +49,10 @@ def cmd_plan(args) -> int:
     rho0 = f"{doc['rho0_mm'] * 1000:.2f} µm" if doc["rho0_mm"] is not None else doc["rho0_why"]
     noise = f"tracker model of the {model_instrument(doc).describe()}" if "tracker" in doc else "i.i.d."
     u = doc["unknowns"]
-    console.print(f"rho0 at the test pose: {rho0}  (the predicted 1-sigma uncertainty of the reference points' "
-                  f"centroid there; unknowns: {u['robot_params']} robot parameters, {u['stations']} stations, "
-                  f"{u['points']} points; noise: {noise})")  # fmt: skip
+    console.print(
+        f"rho0 at the test pose: {rho0}  (the predicted 1-sigma uncertainty of the reference points' "
+        f"centroid there; unknowns: {u['robot_params']} robot parameters, {u['stations']} stations, "
+        f"{u['points']} points; noise: {noise})"
+    )
     console.print(f"plan written to {args.json}")
     return 0

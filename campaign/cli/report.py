@@ -35,8 +35,10 @@ def cmd_report(args) -> int:
         try:
             path = report_session(Path(args.session), Path(args.out) if args.out else None, images)
         except NotAnalysedError as exc:
-            raise InputError(f"{exc.directory}: no {exc.missing} yet (the campaign has not been analysed: "
-                             f"trackcal resume {exc.directory} --analyse)") from None  # fmt: skip
+            raise InputError(
+                f"{exc.directory}: no {exc.missing} yet (the campaign has not been analysed: "
+                f"trackcal resume {exc.directory} --analyse)"
+            ) from None
     else:
         if not (args.table and args.model and args.out):
             raise UsageError("give a SESSION directory, or --table, --model and --out")
@@ -53,18 +55,26 @@ def print_analysis(analysis: CampaignAnalysis) -> None:
         what = f"model {files.model} extended by {cause} (the geometric one: {files.geometric_model})"
     else:
         what = f"model {files.model} (geometric)"
-    console.print(f"{len(analysis.table)} measurements -> {files.table}; {what}: coordinate RMS "
-                  f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
-                  f"{cause} ({files.verdict}); report {analysis.report}")  # fmt: skip
+    console.print(
+        f"{len(analysis.table)} measurements -> {files.table}; {what}: coordinate RMS "
+        f"{model['residuals']['after']['coord_rms_mm'] * 1000:.1f} µm, fit {model['fit']}; diagnosis: "
+        f"{cause} ({files.verdict}); report {analysis.report}"
+    )
     for path, doc in ((files.model, model), (files.geometric_model, analysis.geometric_model)):
         why = None if doc is None else unusable_why(doc)
         if why:
-            console.print(f"warning: {path} is UNUSABLE: {why} (compensate refuses it without --accept-poor)",
-                          markup=False, highlight=False)  # fmt: skip
+            console.print(
+                f"warning: {path} is UNUSABLE: {why} (compensate refuses it without --accept-poor)",
+                markup=False,
+                highlight=False,
+            )
     warnings = analysis.warnings
     if warnings:
-        console.print(Text.assemble((f"{len(warnings)} campaign warning(s)", "yellow"),
-                                    ", in short (each as raised: in the report):"))  # fmt: skip
+        console.print(
+            Text.assemble(
+                (f"{len(warnings)} campaign warning(s)", "yellow"), ", in short (each as raised: in the report):"
+            )
+        )
         for line in summarise_warnings(warnings, len(analysis.table)):
             console.print(f"  {line}")
 

@@ -34,12 +34,24 @@ def cmd_check(args) -> int:
     store = SessionStore.open(args.session, readonly=True)  # refuses a damaged session or a broken chain
     events = store.events()
     n = sum(e.kind == "measurement" for e in events)
-    console.print(f"{store.directory}: sound (SQLite integrity check ok; {len(events)} events, {n} measurements, "
-                  f"in an unbroken hash chain; head {store.head})", soft_wrap=True)  # fmt: skip
-    console.print(f"{completeness(store).sentence()} (pin the head above: the chain finds edits, not a forger who "
-                  "recomputes it)", soft_wrap=True)  # fmt: skip
+    console.print(
+        f"{store.directory}: sound (SQLite integrity check ok; {len(events)} events, {n} measurements, "
+        f"in an unbroken hash chain; head {store.head})",
+        soft_wrap=True,
+    )
+    console.print(
+        f"{completeness(store).sentence()} (pin the head above: the chain finds edits, not a forger who recomputes it)",
+        soft_wrap=True,
+    )
     changed = changed_copies(store)
     if changed:
-        console.print(labelled("note", "yellow", f"{', '.join(changed)} beside the database differ from the stored "
-                               "copies (the stored copies are the record)"), soft_wrap=True)  # fmt: skip
+        console.print(
+            labelled(
+                "note",
+                "yellow",
+                f"{', '.join(changed)} beside the database differ from the stored "
+                "copies (the stored copies are the record)",
+            ),
+            soft_wrap=True,
+        )
     return 0

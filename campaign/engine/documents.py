@@ -143,8 +143,17 @@ def measurement(data: dict) -> MeasurementDoc:
 
 
 SCHEMAS: dict[str, type] = {
-    "start": StartDoc, "step_started": StepStartedDoc, "call": CallDoc, "prompt": PromptDoc,
-    "operator": OperatorDoc, "measurement": MeasurementDoc, "warning": WarningDoc, "error": ErrorDoc,
-    "step_done": StepDoneDoc, "progress": ProgressDoc, "stop": StopDoc, "station_fit": StationFitDoc,
+    "start": StartDoc,
+    "step_started": StepStartedDoc,
+    "call": CallDoc,
+    "prompt": PromptDoc,
+    "operator": OperatorDoc,
+    "measurement": MeasurementDoc,
+    "warning": WarningDoc,
+    "error": ErrorDoc,
+    "step_done": StepDoneDoc,
+    "progress": ProgressDoc,
+    "stop": StopDoc,
+    "station_fit": StationFitDoc,
     "identity": IdentityDoc,
-}  # fmt: skip
+}

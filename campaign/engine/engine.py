@@ -232,9 +232,11 @@ def undrifted_blocks(steps: list[Step]) -> dict[int, str]:
         if s.kind != StepKind.MEASURE or s.station not in refs or key in checked or key in seen:
             continue
         seen.add(key)
-        out[i] = (f"no drift check for {s.point} from {s.station}: the block's reference pose {refs[s.station]} "
-                  f"does not see {s.point} from {s.station}, so a move of station {s.station} during this block goes "
-                  "unnoticed")  # fmt: skip
+        out[i] = (
+            f"no drift check for {s.point} from {s.station}: the block's reference pose {refs[s.station]} "
+            f"does not see {s.point} from {s.station}, so a move of station {s.station} during this block goes "
+            "unnoticed"
+        )
     return out
 
 
@@ -249,8 +251,9 @@ def drift_checks(steps: list[Step]) -> int:
 
 
 class Engine:
-    def __init__(self, devices: Devices, context: RunContext, history: History | None = None,
-                 settings: Settings | None = None):  # fmt: skip
+    def __init__(
+        self, devices: Devices, context: RunContext, history: History | None = None, settings: Settings | None = None
+    ):
         self.dev = devices
         self.context = context
         self.history = history or History()
@@ -309,8 +312,7 @@ class Engine:
                 self._execute(i, steps[i])
                 n_done = bisect_right(measures, i)  # measured or skipped
                 nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
-                progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures),
-                                    nxt)  # fmt: skip
+                progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures), nxt)
                 self._emit("progress", ProgressDoc(**asdict(progress)))
         except _Stop as stop:
             return self._end("stopped", stop.reason, stop.step, n_done, len(measures), stop.code)
@@ -319,11 +321,13 @@ class Engine:
         self.context.step = -1
         return self._end("success", "", None, len(measures), len(measures))
 
-    def _end(self, status: str, reason: str, step: int | None, n_done: int, planned: int,
-             code: int | str | None = None) -> RunResult:  # fmt: skip
+    def _end(
+        self, status: str, reason: str, step: int | None, n_done: int, planned: int, code: int | str | None = None
+    ) -> RunResult:
         measured = len(self.measurements)
-        result = RunResult(status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings),
-                           code)  # fmt: skip
+        result = RunResult(
+            status, reason, step, measured, max(0, n_done - measured), planned, tuple(self.warnings), code
+        )
         self._emit("stop", StopDoc(exit_status=status, reason=reason))
         return result
 
@@ -331,7 +335,8 @@ class Engine:
         """Re-confirm the physical state a crash may have changed, then continue at `first`."""
         before = steps[:first]
         ctx = [s for s in before if s.kind == StepKind.CHANGE_STATION][-1:] + [
-            s for s in before if s.kind == StepKind.MOVE_REFLECTOR and s.station == steps[first].station][-1:]
+            s for s in before if s.kind == StepKind.MOVE_REFLECTOR and s.station == steps[first].station
+        ][-1:]
         self.context.step = first
         self._warn(f"resuming at step {first}: re-confirming the operator context")
         for s in ctx:
@@ -428,14 +433,20 @@ class Engine:
         q = self.dev.robot.wait_settled(s.settle_tolerance_deg, s.settle_window_s, s.settle_timeout_s)
         target = tuple(step.q_deg)
         if len(q) != len(target):
-            raise DeviceFault(f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
-                              code=TARGET_MISMATCH, device="robot")  # fmt: skip
+            raise DeviceFault(
+                f"{step.pose}: the robot settled with {len(q)} joints, the target has {len(target)}",
+                code=TARGET_MISMATCH,
+                device="robot",
+            )
         for j, (a, t) in enumerate(zip(q, target, strict=True), 1):
             if abs(round(float(a) / JOINT_RESOLUTION_DEG) - round(float(t) / JOINT_RESOLUTION_DEG)) > 1:
-                raise DeviceFault(f"{step.pose}: the robot settled with joint {j} at {float(a):.4f} deg, not at the "
-                                  f"target {float(t):.4f} deg (more than one count of {JOINT_RESOLUTION_DEG:g} deg "
-                                  "apart): nothing is measured at this pose", code=TARGET_MISMATCH,
-                                  device="robot")  # fmt: skip
+                raise DeviceFault(
+                    f"{step.pose}: the robot settled with joint {j} at {float(a):.4f} deg, not at the "
+                    f"target {float(t):.4f} deg (more than one count of {JOINT_RESOLUTION_DEG:g} deg "
+                    "apart): nothing is measured at this pose",
+                    code=TARGET_MISMATCH,
+                    device="robot",
+                )
 
     def _measure(self, step: Step) -> None:
         if self.context.step in self.undrifted:  # the block's first measurement: said once, as the block starts
@@ -455,9 +466,11 @@ class Engine:
                 where = f"{step.point} not measurable from {step.station} at {step.pose}"
                 self._warn(f"{where}: {exc}; {then}")
                 if last and step.drift:  # a reference revisit lost: the block's drift check with it
-                    self._warn(f"no drift check for {step.point} from {step.station} in this block: its reference "
-                               f"pose {step.pose} could not be measured, so a move of station {step.station} during "
-                               "the block goes unnoticed")  # fmt: skip
+                    self._warn(
+                        f"no drift check for {step.point} from {step.station} in this block: its reference "
+                        f"pose {step.pose} could not be measured, so a move of station {step.station} during "
+                        "the block goes unnoticed"
+                    )
                 if last:
                     return
         if expected is not None and self.dev.tolerance is not None:
@@ -465,10 +478,15 @@ class Engine:
         env = env or m.environment
         self.tick()
         data = MeasurementDoc(
-            pose=step.pose, station=step.station, point=step.point, drift=step.drift,
-            q_deg=[round(float(v), 4) for v in q], xyz_mm=[m.x_mm, m.y_mm, m.z_mm],
-            std_mm=[m.std_x_mm, m.std_y_mm, m.std_z_mm], env=[env.temperature_c, env.pressure_hpa, env.humidity_pct],
-        )  # fmt: skip
+            pose=step.pose,
+            station=step.station,
+            point=step.point,
+            drift=step.drift,
+            q_deg=[round(float(v), 4) for v in q],
+            xyz_mm=[m.x_mm, m.y_mm, m.z_mm],
+            std_mm=[m.std_x_mm, m.std_y_mm, m.std_z_mm],
+            env=[env.temperature_c, env.pressure_hpa, env.humidity_pct],
+        )
         if step.approach:
             data["approach"] = step.approach
         if step.speed_pct:
@@ -488,26 +506,35 @@ class Engine:
         tolerance = self.dev.tolerance(reach)
         if off <= tolerance:
             return
-        message = (f"{step.point} from {step.station} at {step.pose} was measured {off:.1f} mm from where the nominal "
-                   f"model expects it (tolerance {tolerance:.0f} mm; {float(np.linalg.norm(x)) / reach:.4g} times "
-                   "the expected distance from the tracker), so it is not stored as a measurement. Likely causes: the "
-                   "tracker's units or coordinate system were changed (by another program?), the wrong reflector, "
-                   f"or station {step.station} moved")  # fmt: skip
-        self._emit("error", ErrorDoc(type="ImplausibleMeasurement", message=message, xyz_mm=x.tolist(),
-                                     expected_mm=e.tolist()))  # fmt: skip
+        message = (
+            f"{step.point} from {step.station} at {step.pose} was measured {off:.1f} mm from where the nominal "
+            f"model expects it (tolerance {tolerance:.0f} mm; {float(np.linalg.norm(x)) / reach:.4g} times "
+            "the expected distance from the tracker), so it is not stored as a measurement. Likely causes: the "
+            "tracker's units or coordinate system were changed (by another program?), the wrong reflector, "
+            f"or station {step.station} moved"
+        )
+        self._emit(
+            "error", ErrorDoc(type="ImplausibleMeasurement", message=message, xyz_mm=x.tolist(), expected_mm=e.tolist())
+        )
         raise _Stop(self.context.step, message)
 
     def _check_drift(self, data: MeasurementDoc) -> None:
         first = next(
-            (m for m in self.measurements
-             if m["drift"] and (m["station"], m["point"], m["pose"]) ==
-             (data["station"], data["point"], data["pose"])), None,
-        )  # fmt: skip
+            (
+                m
+                for m in self.measurements
+                if m["drift"]
+                and (m["station"], m["point"], m["pose"]) == (data["station"], data["point"], data["pose"])
+            ),
+            None,
+        )
         if first is None:
             return
         a, b = np.asarray(first["xyz_mm"], dtype=float), np.asarray(data["xyz_mm"], dtype=float)
         if self.drift.alarms(a, b):
-            self._warn(f"drift check: {data['point']} at {data['pose']} moved {float(np.linalg.norm(b - a)):.3f} mm "
-                       f"since the start of the block, {self.drift.distance(a, b):.1f} standard deviations of the "
-                       f"tracker's noise and the robot's repeatability there (alarm above {self.drift.level:.1f}): "
-                       f"has station {data['station']} moved?")
+            self._warn(
+                f"drift check: {data['point']} at {data['pose']} moved {float(np.linalg.norm(b - a)):.3f} mm "
+                f"since the start of the block, {self.drift.distance(a, b):.1f} standard deviations of the "
+                f"tracker's noise and the robot's repeatability there (alarm above {self.drift.level:.1f}): "
+                f"has station {data['station']} moved?"
+            )

@@ -24,8 +24,15 @@ if TYPE_CHECKING:  # the engine builds recorders with its run context; engine.py
 TYPES = {cls.__name__: cls for cls in (Environment, TrackerMeasurement, TrackerStatus)}
 ERRORS = {
     cls.__name__: cls
-    for cls in (derr.DeviceError, derr.DeviceTimeout, derr.ConnectionLost, derr.ProtocolError, derr.DeviceFault,
-                derr.MotionRefused, derr.TargetNotVisible)  # fmt: skip
+    for cls in (
+        derr.DeviceError,
+        derr.DeviceTimeout,
+        derr.ConnectionLost,
+        derr.ProtocolError,
+        derr.DeviceFault,
+        derr.MotionRefused,
+        derr.TargetNotVisible,
+    )
 }
 
 
@@ -39,8 +46,10 @@ class EndOfSegment(Exception):
 
 def encode(value: Any) -> Any:
     if dataclasses.is_dataclass(value) and type(value).__name__ in TYPES:
-        return {"__type__": type(value).__name__, **{f.name: encode(getattr(value, f.name))
-                                                     for f in dataclasses.fields(value)}}  # fmt: skip
+        return {
+            "__type__": type(value).__name__,
+            **{f.name: encode(getattr(value, f.name)) for f in dataclasses.fields(value)},
+        }
     if isinstance(value, (tuple, list)):
         return [encode(v) for v in value]
     if isinstance(value, float | int | str | bool) or value is None:
@@ -60,8 +69,9 @@ def decode(value: Any) -> Any:
 
 
 def encode_error(exc: BaseException) -> CallError:
-    return CallError(type=type(exc).__name__, message=str(exc), code=getattr(exc, "code", None),
-                     device=getattr(exc, "device", ""))  # fmt: skip
+    return CallError(
+        type=type(exc).__name__, message=str(exc), code=getattr(exc, "code", None), device=getattr(exc, "device", "")
+    )
 
 
 def decode_error(err: dict) -> BaseException:
@@ -107,8 +117,12 @@ class Playback:
     """The recorded calls of a session (its `call` events: kind, step, data), handed out device by device in
     order; `context` says the step the engine is at."""
 
-    def __init__(self, events: Iterable, context: Callable[[], tuple[int, float]] = lambda: (-1, 0.0),
-                 ends_abruptly: bool = False):  # fmt: skip
+    def __init__(
+        self,
+        events: Iterable,
+        context: Callable[[], tuple[int, float]] = lambda: (-1, 0.0),
+        ends_abruptly: bool = False,
+    ):
         self.context = context
         self.ends_abruptly = ends_abruptly
         self.calls: dict[str, list] = {}
@@ -132,8 +146,9 @@ class Playback:
         rec = calls[i]
         expected = f"{device}.{rec.data['op']}{tuple(rec.data['args'])}"
         if rec.data["op"] != op or rec.data["args"] != args:
-            raise ReplayDivergence(f"step {step}: this run asks {asked}, the recording has {expected} "
-                                   f"(recorded at step {rec.step})")  # fmt: skip
+            raise ReplayDivergence(
+                f"step {step}: this run asks {asked}, the recording has {expected} (recorded at step {rec.step})"
+            )
         self.cursor[device] = i + 1
         if "error" in rec.data:
             raise decode_error(rec.data["error"])

@@ -58,8 +58,9 @@ def fit_block(cell: Cell, block: Block, measured: dict[int, MeasurementDoc]) -> 
     rows = [i for i in block.steps if i in measured and measured[i]["point"] in cell.tool_points]
     head = {"block": block.index, "station": block.station, "planned": len(block.steps), "measured": len(rows)}
     if len(rows) < 3:
-        return StationFitDoc(**head, residuals=[],
-                             note=f"{len(rows)} measurement(s): at least 3 are needed to place the station")
+        return StationFitDoc(
+            **head, residuals=[], note=f"{len(rows)} measurement(s): at least 3 are needed to place the station"
+        )
     data = [measured[i] for i in rows]
     q = np.radians(np.array([d["q_deg"] for d in data], dtype=float))
     tool = np.array([cell.tool_points[d["point"]] for d in data], dtype=float)
@@ -72,11 +73,15 @@ def fit_block(cell: Cell, block: Block, measured: dict[int, MeasurementDoc]) -> 
     res = xyz - (nominal @ r.T + t)
     stats = residual_stats(res)
     return StationFitDoc(
-        **head, rms_mm=round(stats["dist_rms_mm"], 4), max_mm=round(stats["dist_max_mm"], 4),
+        **head,
+        rms_mm=round(stats["dist_rms_mm"], 4),
+        max_mm=round(stats["dist_max_mm"], 4),
         position_mm=[round(float(v), 3) for v in -r.T @ t],  # the station's origin in the robot's base frame
-        residuals=[StationResidual(step=i, pose=d["pose"], point=d["point"], d_mm=[round(float(v), 4) for v in e])
-                   for i, d, e in zip(rows, data, res, strict=True)],
-    )  # fmt: skip
+        residuals=[
+            StationResidual(step=i, pose=d["pose"], point=d["point"], d_mm=[round(float(v), 4) for v in e])
+            for i, d, e in zip(rows, data, res, strict=True)
+        ],
+    )
 
 
 class StationFits:
@@ -85,9 +90,15 @@ class StationFits:
     first. `measured` (step, data) and `fitted` (block indices) are what the session already holds; `done`, its
     steps done (a block finished before a kill, its document not made yet, gets it at the next `start`)."""
 
-    def __init__(self, cell: Cell, steps: list[Step], emit: Callable[..., None],
-                 measured: Iterable[tuple[int, MeasurementDoc]] = (), fitted: Iterable[int] = (),
-                 done: Iterable[int] = ()) -> None:  # fmt: skip
+    def __init__(
+        self,
+        cell: Cell,
+        steps: list[Step],
+        emit: Callable[..., None],
+        measured: Iterable[tuple[int, MeasurementDoc]] = (),
+        fitted: Iterable[int] = (),
+        done: Iterable[int] = (),
+    ) -> None:
         self.cell, self.emit = cell, emit
         self.blocks = station_blocks(steps)
         self.ending = {b.steps[-1]: b for b in self.blocks}

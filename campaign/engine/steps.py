@@ -134,8 +134,10 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> tuple[list[str], dict[tuple
         i = rows[0]
         j = int(np.flatnonzero(outside[i])[0])
         name = cell.chain.joints[j].name
-        problems.append(f"{_poses(rows)} outside the joint limits less the {cell.joint_margin_deg:g} deg margin "
-                        f"(Q{i + 1}: {name} = {poses[i, j]:g} deg, usable {lim[j, 0]:g}..{lim[j, 1]:g})")  # fmt: skip
+        problems.append(
+            f"{_poses(rows)} outside the joint limits less the {cell.joint_margin_deg:g} deg margin "
+            f"(Q{i + 1}: {name} = {poses[i, j]:g} deg, usable {lim[j, 0]:g}..{lim[j, 1]:g})"
+        )
     rows = np.flatnonzero(~points_in_box(cell, np.radians(poses)))
     if rows.size:
         problems.append(f"{_poses(rows)} put a reference point outside the cell box")
@@ -146,14 +148,49 @@ def check_plan(cell: Cell, poses_deg: np.ndarray) -> tuple[list[str], dict[tuple
     return problems, vis
 
 
-def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict | None = None,
-                   approached: bool = True) -> Iterator[Step]:  # fmt: skip
+def _checked_vap(iso: dict, cell: Cell) -> dict | None:
+    """The plan's multi-directional (vAP) block, its approach poses checked as the campaign's are."""
+    vap = vap_block(iso, cell)
+    if vap is None:
+        return None
+    problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
+    names = [f"{POSE_NAMES[i]}'s approach along {axis}" for i in vap["poses"] for axis in AXES]
+    problems = [
+        re.sub(r"Q(\d+)", lambda m: names[int(m.group(1)) - 1], re.sub(r"\bposes? (?=Q)", "", p))
+        for p in problems
+        if not p.startswith("point ")
+    ]
+    if problems:
+        raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
+    return vap
+
+
+def _vap_steps(iso: dict, vap: dict, poses: np.ndarray, ids: list[str]) -> Iterator[Step]:
+    """The multi-directional test's cycles (ISO 9283:1998, 7.2): each pose approached from each side."""
+    station, point = iso["station"], iso["point"]
+    speed = iso_velocities(iso)[0]  # the multi-directional test at the first test velocity (the standard's 100 %)
+    for _ in range(vap["cycles"]):
+        for i, pose in enumerate(vap["poses"]):
+            q = tuple(float(x) for x in poses[pose])
+            for k, side in enumerate(vap["approaches"][i]):
+                a = tuple(float(x) for x in vap["approach_deg"][i, k])
+                common = {"station": station, "point": point, "pose": ids[pose], "approach": side, "speed_pct": speed}
+                yield Step(StepKind.MOVE, q_deg=a, via=True, **common)
+                yield Step(StepKind.SETTLE, q_deg=a, via=True, **common)
+                yield Step(StepKind.MOVE, q_deg=q, **common)
+                yield Step(StepKind.SETTLE, q_deg=q, **common)
+                yield Step(StepKind.MEASURE, q_deg=q, **common)
+
+
+def campaign_steps(
+    cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict | None = None, approached: bool = True
+) -> Iterator[Step]:
     """The steps of a plan: the one campaign order (calib.doe.order; `approached` as there), or with `iso` (the
     plan's `iso9283` block) the ISO 9283 pose test: its one point from its one station, cycle after cycle."""
     poses = np.round(np.atleast_2d(np.asarray(poses_deg, dtype=float)), 4)  # as the controller gets them
     problems, vis = check_plan(cell, poses)  # the visibility of the check: computed once
     if iso is not None:
-        station, point = iso["station"], iso["point"]
+        station = iso["station"]
         problems = [p for p in problems if not p.startswith("point ")]  # only the test's point must be seen
         for pid in iso_points(iso):
             if vis is not None and not vis[(station, pid)].all():
@@ -171,16 +208,13 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
         visits = campaign_order(len(poses), list(cell.stations), sorted(cell.tool_points), vis, repeat, approached)
     else:
         # each test velocity (6.7) a test of its own, all its cycles in a row, every point in turn
-        visits = [(v, speed) for pid in iso_points(iso) for speed in iso_velocities(iso)
-                  for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)]  # fmt: skip
-    vap = vap_block(iso, cell) if iso is not None else None
-    if vap is not None:
-        problems, _ = check_plan(cell, vap["approach_deg"].reshape(-1, cell.chain.dof))
-        names = [f"{POSE_NAMES[i]}'s approach along {axis}" for i in vap["poses"] for axis in AXES]
-        problems = [re.sub(r"Q(\d+)", lambda m: names[int(m.group(1)) - 1], re.sub(r"\bposes? (?=Q)", "", p))
-                    for p in problems if not p.startswith("point ")]  # fmt: skip
-        if problems:
-            raise PlanError("plan refused before anything moves: vAP " + "; ".join(problems))
+        visits = [
+            (v, speed)
+            for pid in iso_points(iso)
+            for speed in iso_velocities(iso)
+            for v in iso9283_order(iso["station"], pid, repeat, CYCLE_ORDER)
+        ]
+    vap = _checked_vap(iso, cell) if iso is not None else None
     where = None
     for v, speed in visits if iso is not None else ((v, 0.0) for v in visits):
         if where is None or v.station != where[0]:
@@ -197,29 +231,17 @@ def campaign_steps(cell: Cell, poses_deg: np.ndarray, repeat: int = 1, iso: dict
                 last = CYCLE_ORDER[-1]
                 q = tuple(float(x) for x in poses[last])
                 for kind in (StepKind.MOVE, StepKind.SETTLE):
-                    yield Step(kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True,
-                               speed_pct=speed)  # fmt: skip
+                    yield Step(
+                        kind, station=v.station, point=v.point, pose=ids[last], q_deg=q, via=True, speed_pct=speed
+                    )
         where = (v.station, v.point)
         q = tuple(float(x) for x in poses[v.pose])
         at = {"station": v.station, "point": v.point, "pose": ids[v.pose], "q_deg": q, "speed_pct": speed}
         yield Step(StepKind.MOVE, **at)
         yield Step(StepKind.SETTLE, **at)
         yield Step(StepKind.MEASURE, drift=v.drift, **at)
-    if vap is None:
-        return
-    station, point = iso["station"], iso["point"]
-    speed = iso_velocities(iso)[0]  # the multi-directional test at the first test velocity (the standard's 100 %)
-    for _ in range(vap["cycles"]):
-        for i, pose in enumerate(vap["poses"]):
-            q = tuple(float(x) for x in poses[pose])
-            for k, side in enumerate(vap["approaches"][i]):
-                a = tuple(float(x) for x in vap["approach_deg"][i, k])
-                common = {"station": station, "point": point, "pose": ids[pose], "approach": side, "speed_pct": speed}
-                yield Step(StepKind.MOVE, q_deg=a, via=True, **common)
-                yield Step(StepKind.SETTLE, q_deg=a, via=True, **common)
-                yield Step(StepKind.MOVE, q_deg=q, **common)
-                yield Step(StepKind.SETTLE, q_deg=q, **common)
-                yield Step(StepKind.MEASURE, q_deg=q, **common)
+    if vap is not None:
+        yield from _vap_steps(iso, vap, poses, ids)
 
 
 def drift_block(iso: dict) -> dict | None:
@@ -252,8 +274,14 @@ def _drift_steps(iso: dict, poses: np.ndarray, ids: list[str]) -> Iterator[Step]
         for c in range(block["cycles"]):
             for k, i in enumerate(CYCLE_ORDER):
                 q = tuple(float(x) for x in poses[i])
-                at = {"station": station, "point": point, "pose": ids[i], "q_deg": q, "speed_pct": speed,
-                      "group": g + 1}  # fmt: skip
+                at = {
+                    "station": station,
+                    "point": point,
+                    "pose": ids[i],
+                    "q_deg": q,
+                    "speed_pct": speed,
+                    "group": g + 1,
+                }
                 wait = round(g * interval_s, 3) if c == 0 and k == 0 else 0.0
                 measured = i == CYCLE_ORDER[0]
                 yield Step(StepKind.MOVE, via=not measured, not_before_s=wait, **at)
@@ -297,8 +325,9 @@ def warm_up_steps(iso: dict, poses: np.ndarray, ids: list[str], station: str, po
         for i in CYCLE_ORDER:
             q = tuple(float(x) for x in poses[i])
             for kind in (StepKind.MOVE, StepKind.SETTLE):
-                yield Step(kind, station=station, point=point, pose=ids[i], q_deg=q, via=True, speed_pct=speed,
-                           warm_up=True)  # fmt: skip
+                yield Step(
+                    kind, station=station, point=point, pose=ids[i], q_deg=q, via=True, speed_pct=speed, warm_up=True
+                )
 
 
 def plan_arrays(plan_doc: dict) -> tuple[np.ndarray, int]:
@@ -324,10 +353,17 @@ def iso_block(plan_doc: dict, cell: Cell, n_poses: int) -> dict | None:
     if iso.get("point") not in cell.tool_points:
         raise PlanError(f"plan: iso9283.point: {iso.get('point')!r} is no reference point of cell {cell.name}")
     points = iso.get("points")
-    if points is not None and (not isinstance(points, list) or not points or points[-1] != iso["point"]
-                               or any(p not in cell.tool_points for p in points) or len(set(points)) != len(points)):
-        raise PlanError(f"plan: iso9283.points: expected distinct reference points of cell {cell.name}, the test's "
-                        f"point {iso['point']!r} last")  # fmt: skip
+    if points is not None and (
+        not isinstance(points, list)
+        or not points
+        or points[-1] != iso["point"]
+        or any(p not in cell.tool_points for p in points)
+        or len(set(points)) != len(points)
+    ):
+        raise PlanError(
+            f"plan: iso9283.points: expected distinct reference points of cell {cell.name}, the test's "
+            f"point {iso['point']!r} last"
+        )
     if n_poses != len(CYCLE_ORDER):
         raise PlanError(f"plan: an ISO 9283 plan has {len(CYCLE_ORDER)} poses (P1..P5), this one has {n_poses}")
     iso_velocities(iso)  # checked before anything moves
@@ -344,10 +380,14 @@ def iso_velocities(iso: dict) -> list[float]:
     if given is None:
         return [0.0]
     values = fields.sequence(given, "plan: iso9283.velocities", PlanError)
-    if (not values or any(isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 100 for v in values)
-            or len(set(values)) != len(values)):  # fmt: skip
-        raise PlanError(f"plan: iso9283.velocities: expected distinct percentages of the rated velocity in (0, 100], "
-                        f"got {given!r}")  # fmt: skip
+    if (
+        not values
+        or any(isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 100 for v in values)
+        or len(set(values)) != len(values)
+    ):
+        raise PlanError(
+            f"plan: iso9283.velocities: expected distinct percentages of the rated velocity in (0, 100], got {given!r}"
+        )
     return [float(v) for v in values]
 
 
@@ -375,21 +415,33 @@ def vap_block(iso: dict, cell: Cell) -> dict | None:
     if not isinstance(names, list) or not names or any(n not in POSE_NAMES for n in names):
         raise PlanError(f"plan: iso9283.vap.poses: expected a list of names among {', '.join(POSE_NAMES)}")
     sides = block.get("approaches")
-    if not isinstance(sides, list) or len(sides) != len(names) or not all(
+    if (
+        not isinstance(sides, list)
+        or len(sides) != len(names)
+        or not all(
             isinstance(per, list) and [str(a)[1:] for a in per] == list(AXES) and all(str(a)[:1] in "+-" for a in per)
-            for per in sides):  # fmt: skip
-        raise PlanError("plan: iso9283.vap.approaches: expected per pose the sides along x, y, z, e.g. [\"-x\", "
-                        "\"+y\", \"-z\"]")  # fmt: skip
+            for per in sides
+        )
+    ):
+        raise PlanError(
+            'plan: iso9283.vap.approaches: expected per pose the sides along x, y, z, e.g. ["-x", "+y", "-z"]'
+        )
     where = "plan: iso9283.vap.approach_deg"
     per_pose = fields.sequence(block.get("approach_deg"), where, PlanError)
     flat = [q for i, sides in enumerate(per_pose) for q in fields.sequence(sides, f"{where}[{i}]", PlanError)]
     rows = fields.rows(flat, where, PlanError)
     if rows.shape != (len(names) * len(AXES), cell.chain.dof):
-        raise PlanError(f"plan: iso9283.vap.approach_deg: expected {len(AXES)} joint vectors of "
-                        f"{cell.chain.dof} joints for each of {len(names)} poses")  # fmt: skip
+        raise PlanError(
+            f"plan: iso9283.vap.approach_deg: expected {len(AXES)} joint vectors of "
+            f"{cell.chain.dof} joints for each of {len(names)} poses"
+        )
     approach = np.round(rows, 4).reshape(len(names), len(AXES), cell.chain.dof)
-    return {"cycles": cycles, "poses": [POSE_NAMES.index(n) for n in names], "approaches": sides,
-            "approach_deg": approach}
+    return {
+        "cycles": cycles,
+        "poses": [POSE_NAMES.index(n) for n in names],
+        "approaches": sides,
+        "approach_deg": approach,
+    }
 
 
 def plan_steps(cell: Cell, plan_doc: dict, approached: bool = True) -> list[Step]:

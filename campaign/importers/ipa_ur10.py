@@ -34,8 +34,7 @@ import numpy as np
 from trackcal.calib.io.table import MeasurementTable, TableError, read_csv
 from trackcal.calib.model.rigid import rot_axis, skew
 
-JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
-          "wrist_3_joint")  # fmt: skip
+JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
 POSITION = ("measurement_x", "measurement_y", "measurement_z")
 ANGLES = ("measurement_rx", "measurement_ry", "measurement_rz")
 STD_POSITION = ("measurement_std_x", "measurement_std_y", "measurement_std_z")
@@ -49,8 +48,14 @@ EXTRAS = {
     **dict(zip(STD_ANGLES, ("std_rx_deg", "std_ry_deg", "std_rz_deg"), strict=True)),
 }
 # directions of the virtual points in the T-Mac frame, in the order they are taken
-VIRTUAL_DIRECTIONS = (("X+", (1, 0, 0)), ("Y+", (0, 1, 0)), ("Z+", (0, 0, 1)),
-                      ("X-", (-1, 0, 0)), ("Y-", (0, -1, 0)), ("Z-", (0, 0, -1)))  # fmt: skip
+VIRTUAL_DIRECTIONS = (
+    ("X+", (1, 0, 0)),
+    ("Y+", (0, 1, 0)),
+    ("Z+", (0, 0, 1)),
+    ("X-", (-1, 0, 0)),
+    ("Y-", (0, -1, 0)),
+    ("Z-", (0, 0, -1)),
+)
 POINT = "TMAC"
 DEFAULT_PERIOD_S = 10.0
 
@@ -179,8 +184,7 @@ def read_ipa_series(
 def table_covariances(table: MeasurementTable) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per pose of an imported table: (row indices, joint covariance of those rows) from its extra columns.
     The virtual points' offsets are read back from the table (R^T (P_k - p)), whatever lever it was made with."""
-    need = ["rx_deg", "ry_deg", "rz_deg", "std_x_mm", "std_y_mm", "std_z_mm", "std_rx_deg", "std_ry_deg",
-            "std_rz_deg"]  # fmt: skip
+    need = ["rx_deg", "ry_deg", "rz_deg", "std_x_mm", "std_y_mm", "std_z_mm", "std_rx_deg", "std_ry_deg", "std_rz_deg"]
     missing = [c for c in need if c not in table.extra]
     if missing:
         raise IpaFormatError(f"{table.source}: missing column(s) {', '.join(missing)} for the noise model")

@@ -56,12 +56,24 @@ def read_mat(path: Path, error: type[Exception]) -> MatColumns:
     try:
         doc = scipy.io.loadmat(str(path), chars_as_strings=True)
     except NotImplementedError:  # scipy: "Please use HDF reader for matlab v7.3 files"
-        raise error(f"{path}: a MATLAB v7.3 (HDF5) file, which this reader cannot open: save it in MATLAB with "
-                    "save(FILE, ..., '-v7')") from None  # fmt: skip
+        raise error(
+            f"{path}: a MATLAB v7.3 (HDF5) file, which this reader cannot open: save it in MATLAB with "
+            "save(FILE, ..., '-v7')"
+        ) from None
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except (MatReadError, ValueError, TypeError, KeyError, IndexError, EOFError, AttributeError,
-            UnicodeDecodeError, MemoryError, OverflowError) as exc:  # fmt: skip
+    except (
+        MatReadError,
+        ValueError,
+        TypeError,
+        KeyError,
+        IndexError,
+        EOFError,
+        AttributeError,
+        UnicodeDecodeError,
+        MemoryError,
+        OverflowError,
+    ) as exc:
         text = " ".join(str(exc).split())[:120] or type(exc).__name__
         raise error(f"{path}: not a MATLAB .mat file that can be read ({text})") from None
     header: list[str] = []

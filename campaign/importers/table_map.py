@@ -52,8 +52,19 @@ JOINT_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0, "in": 25.4}  # the inch is 25.4 mm exactly (NIST SP 811, B.6)
 POSITIONS = {"1-based": 1, "0-based": 0}
 SEPARATORS = {",": "','", ";": "';'", "\t": "tabs", "|": "'|'"}
-KEYS = ("separator", "decimal", "skip_rows", "header", "positions", "layout", "units", "columns", "points",
-        "station", "point")  # fmt: skip
+KEYS = (
+    "separator",
+    "decimal",
+    "skip_rows",
+    "header",
+    "positions",
+    "layout",
+    "units",
+    "columns",
+    "points",
+    "station",
+    "point",
+)
 COLUMN_KEYS = ("joints", "xyz", "point", "pose", "time", "station", "load")
 ROBOT_KEYS = ("joints", "pose", "time", "station", "load")  # joined by row: the joints file's columns
 POSITION_KEYS = ("xyz", "point")  # joined by row: each positions file's columns
@@ -185,8 +196,10 @@ def _read_columns(m: TableMap, doc: dict, path: str) -> None:
             raise ImportMapError(f"{path}: points: only for layout pose_rows (point_rows: columns.point)")
     else:
         if "xyz" in cols or "point" in cols:
-            raise ImportMapError(f"{path}: columns.{'xyz' if 'xyz' in cols else 'point'}: layout pose_rows takes "
-                                 "the points' columns from `points` (point id -> [x, y, z])")  # fmt: skip
+            raise ImportMapError(
+                f"{path}: columns.{'xyz' if 'xyz' in cols else 'point'}: layout pose_rows takes "
+                "the points' columns from `points` (point id -> [x, y, z])"
+            )
         pts = fields.mapping(doc.get("points"), f"{path}: points (layout pose_rows)", ImportMapError)
         if not pts:
             raise ImportMapError(f"{path}: points: expected at least one point id -> [x, y, z]")
@@ -196,13 +209,18 @@ def _read_columns(m: TableMap, doc: dict, path: str) -> None:
 def _read_positions(m: TableMap, doc: dict, path: str) -> None:
     """load_map's `positions` (how column positions count), required once a column is given by position; without a
     header every column must be."""
-    all_refs = [*m.columns["joints"], *m.columns.get("xyz", []),
-                *(m.columns[k] for k in ("point", "pose", "time", "station", "load") if k in m.columns),
-                *(r for v in (m.points or {}).values() for r in v)]  # fmt: skip
+    all_refs = [
+        *m.columns["joints"],
+        *m.columns.get("xyz", []),
+        *(m.columns[k] for k in ("point", "pose", "time", "station", "load") if k in m.columns),
+        *(r for v in (m.points or {}).values() for r in v),
+    ]
     if any(isinstance(r, int) for r in all_refs):
         if "positions" not in doc:
-            raise ImportMapError(f"{path}: positions: missing; a column is given by position: say how positions "
-                                 "count, `positions: 1-based` (the first column is 1) or `positions: 0-based`")
+            raise ImportMapError(
+                f"{path}: positions: missing; a column is given by position: say how positions "
+                "count, `positions: 1-based` (the first column is 1) or `positions: 0-based`"
+            )
         pos = str(doc["positions"])
         if pos not in POSITIONS:
             raise ImportMapError(f"{path}: positions: expected 1-based or 0-based, got {pos!r}")
@@ -218,13 +236,15 @@ def _looks_separated(line: str, separator: str) -> str | None:
     return best if counts[best] > line.count(separator) else None
 
 
-def _resolve(m: TableMap, ref: str | int, header: list[str] | None, path: Path, row: int,
-             mat: MatColumns | None = None) -> Column:  # fmt: skip
+def _resolve(
+    m: TableMap, ref: str | int, header: list[str] | None, path: Path, row: int, mat: MatColumns | None = None
+) -> Column:
     if isinstance(ref, int):
         index = ref - m.base
         if index < 0:
-            raise ImportMapError(f"{m.source}: column {ref}: positions are {'1' if m.base else '0'}-based, the first "
-                                 f"column is {m.base}")  # fmt: skip
+            raise ImportMapError(
+                f"{m.source}: column {ref}: positions are {'1' if m.base else '0'}-based, the first column is {m.base}"
+            )
         if mat is not None and index >= len(header):
             raise ImportMapError(f"{path}: column {ref}: the file has {len(header)} columns; it holds {mat.holds}")
         name = header[index] if header is not None and index < len(header) else None
@@ -232,12 +252,14 @@ def _resolve(m: TableMap, ref: str | int, header: list[str] | None, path: Path, 
     if ref not in header and mat is not None:
         k = mat.matrices.get(ref)
         hint = f"; {ref!r} is a matrix: name its columns '{ref}(:,1)' ... '{ref}(:,{k})'" if k else ""
-        raise ImportMapError(f"{path}: no variable {ref!r} (the map {m.source} names it); the file holds "
-                             f"{mat.holds}{hint}")  # fmt: skip
+        raise ImportMapError(
+            f"{path}: no variable {ref!r} (the map {m.source} names it); the file holds {mat.holds}{hint}"
+        )
     if ref not in header:
         known = ", ".join(repr(h) for h in header[:12]) + (" ..." if len(header) > 12 else "")
-        raise ImportMapError(f"{path}: row {row}: no column {ref!r} (the map {m.source} names it); the header has "
-                             f"{known}")  # fmt: skip
+        raise ImportMapError(
+            f"{path}: row {row}: no column {ref!r} (the map {m.source} names it); the header has {known}"
+        )
     index = header.index(ref)
     pos = index + (m.base if m.base is not None else 1)
     return Column(index, f"column {ref!r} ({'' if m.base is not None else '1-based '}position {pos})")
@@ -252,8 +274,9 @@ def _rows(path: Path, m: TableMap) -> tuple[list[str], list[tuple[int, list[str]
             if any(c.strip() for c in cells):
                 out.append((m.skip_rows + k + 1, [c.strip() for c in cells]))
     except csv.Error as exc:
-        raise ImportMapError(f"{path}: not a {SEPARATORS.get(m.separator, repr(m.separator))}-separated file "
-                             f"({exc})") from None  # fmt: skip
+        raise ImportMapError(
+            f"{path}: not a {SEPARATORS.get(m.separator, repr(m.separator))}-separated file ({exc})"
+        ) from None
     return lines, out
 
 
@@ -262,8 +285,11 @@ def _width_note(path: Path, row: int, cells: list[str], need: int, m: TableMap, 
     note = f"{path}: row {row} has {len(cells)} column{'s' if len(cells) != 1 else ''}"
     other = _looks_separated(line, m.separator)
     if other is not None:
-        return (f"{note}; the file looks {SEPARATORS[other]}-separated: set separator: "
-                f"{other!r}" if other != "\t" else f"{note}; the file looks tab-separated: set separator: '\\t'")
+        return (
+            f"{note}; the file looks {SEPARATORS[other]}-separated: set separator: {other!r}"
+            if other != "\t"
+            else f"{note}; the file looks tab-separated: set separator: '\\t'"
+        )
     return f"{note}, the map needs {need} ({m.source})"
 
 
@@ -305,23 +331,37 @@ def import_table(paths: str | Path | list, m: TableMap, joints: str | Path | Non
             continue
         src = _open(p, m, POSITION_KEYS, with_points=True)
         if len(src.rows) != len(robot.rows):
-            raise ImportMapError(f"{p}: {len(src.rows)} rows, the joints file {robot.path} {len(robot.rows)}: files "
-                                 "joined by row need as many rows each")  # fmt: skip
+            raise ImportMapError(
+                f"{p}: {len(src.rows)} rows, the joints file {robot.path} {len(robot.rows)}: files "
+                "joined by row need as many rows each"
+            )
         parts.append(_read_rows(robot, src, m, poses, counts))
     sources = ", ".join(map(str, ([robot.path] if robot else []) + paths))
     for point, (n, k) in counts.items():
         if k > MAX_MISSING * n:
-            raise ImportMapError(f"{sources}: point {point}: {k} of {n} rows have no reading (NaN or empty), more "
-                                 f"than {MAX_MISSING:.0%}: does the map name the right columns?")  # fmt: skip
+            raise ImportMapError(
+                f"{sources}: point {point}: {k} of {n} rows have no reading (NaN or empty), more "
+                f"than {MAX_MISSING:.0%}: does the map name the right columns?"
+            )
     parts = [t for t in parts if t is not None]
     if not parts:
         raise ImportMapError(f"{sources}: no measured point in any row")
     n = sum(len(t) for t in parts)
-    table = parts[0] if len(parts) == 1 else MeasurementTable(
-        seq=np.arange(1, n + 1), t_s=np.concatenate([t.t_s for t in parts]), pose=[v for t in parts for v in t.pose],
-        station=[v for t in parts for v in t.station], point=[v for t in parts for v in t.point],
-        q_deg=np.vstack([t.q_deg for t in parts]), xyz=np.vstack([t.xyz for t in parts]), source=sources,
-        extra={k: np.concatenate([t.extra[k] for t in parts]) for k in parts[0].extra})  # fmt: skip
+    table = (
+        parts[0]
+        if len(parts) == 1
+        else MeasurementTable(
+            seq=np.arange(1, n + 1),
+            t_s=np.concatenate([t.t_s for t in parts]),
+            pose=[v for t in parts for v in t.pose],
+            station=[v for t in parts for v in t.station],
+            point=[v for t in parts for v in t.point],
+            q_deg=np.vstack([t.q_deg for t in parts]),
+            xyz=np.vstack([t.xyz for t in parts]),
+            source=sources,
+            extra={k: np.concatenate([t.extra[k] for t in parts]) for k in parts[0].extra},
+        )
+    )
     return Imported(table, {p: c[0] for p, c in counts.items()}, {p: c[1] for p, c in counts.items()})
 
 
@@ -348,8 +388,14 @@ def _open(path: Path, m: TableMap, keys: tuple[str, ...], with_points: bool) -> 
                     raise ImportMapError(_width_note(path, hrow, header, 0, m, raw[hrow - 1]))
                 shown = ", ".join(map(repr, names[:4])) + (" ..." if len(names) > 4 else "")
                 raise ImportMapError(f"{path}: row {hrow}: none of the map's columns ({shown}) is in the header")
-    col = {k: ([_resolve(m, r, header, path, hrow, mat) for r in v] if isinstance(v, list) else
-               _resolve(m, v, header, path, hrow, mat)) for k, v in refs.items()}  # fmt: skip
+    col = {
+        k: (
+            [_resolve(m, r, header, path, hrow, mat) for r in v]
+            if isinstance(v, list)
+            else _resolve(m, v, header, path, hrow, mat)
+        )
+        for k, v in refs.items()
+    }
     pts = {p: [_resolve(m, r, header, path, hrow, mat) for r in v] for p, v in pts_refs.items()}
     _one_role_each(col, pts, m.source)
     if mat is not None:
@@ -357,8 +403,9 @@ def _open(path: Path, m: TableMap, keys: tuple[str, ...], with_points: bool) -> 
         lengths = {header[i]: len(mat.cells[i]) for i in used}
         if len(set(lengths.values())) > 1:
             shown = ", ".join(f"{h} {n}" for h, n in lengths.items())
-            raise ImportMapError(f"{path}: the map's columns have different row counts ({shown}); each needs one "
-                                 "row per measurement")  # fmt: skip
+            raise ImportMapError(
+                f"{path}: the map's columns have different row counts ({shown}); each needs one row per measurement"
+            )
         n = next(iter(lengths.values()), 0)
         keep = set(used)
         rows = [(k + 1, [mat.cells[i][k] if i in keep else "" for i in range(len(header))]) for k in range(n)]
@@ -394,13 +441,13 @@ def _ident(src: _Source, row: int, cells: list[str], c: Column) -> str:
     """The id in column `c` of a row (a pose, station or point: printable, no comma, not empty)."""
     text = cells[c.index]
     if not text or not text.isprintable() or "," in text:
-        raise ImportMapError(f"{src.path}: row {row}: {c.label}: not an id (printable, no comma, not empty): "
-                             f"{text!r}")  # fmt: skip
+        raise ImportMapError(f"{src.path}: row {row}: {c.label}: not an id (printable, no comma, not empty): {text!r}")
     return text
 
 
-def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, str],
-               counts: dict[str, list[int]]) -> MeasurementTable | None:  # fmt: skip
+def _read_rows(
+    robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, str], counts: dict[str, list[int]]
+) -> MeasurementTable | None:
     """The rows of one file (`robot` is `meas`), or of a positions file `meas` joined by row to the joints file
     `robot`; `poses` (joint values -> pose id) is shared by the files of one import, `counts` (point -> [rows,
     without a reading]) is added to. None when no row has a reading."""
@@ -420,11 +467,15 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
         t = _number(m, robot, row, cells, col["time"]) if "time" in col else float(row)  # no time: the row, an order
         load = _number(m, robot, row, cells, col["load"]) if "load" in col else 0.0
         if not load >= 0:
-            raise ImportMapError(f"{robot.path}: row {row}: {col['load'].label}: a payload of {load:g} kg (a load is "
-                                 ">= 0 kg)")  # fmt: skip
+            raise ImportMapError(
+                f"{robot.path}: row {row}: {col['load'].label}: a payload of {load:g} kg (a load is >= 0 kg)"
+            )
         station = _ident(robot, row, cells, col["station"]) if "station" in col else m.station
-        pose = (_ident(robot, row, cells, col["pose"]) if "pose" in col else
-                poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}"))  # fmt: skip
+        pose = (
+            _ident(robot, row, cells, col["pose"])
+            if "pose" in col
+            else poses.setdefault(tuple(q), f"P{len(poses) + 1:04d}")
+        )
         if m.layout == "point_rows":
             measured = [(_ident(meas, mrow, mcells, col["point"]) if "point" in col else fixed_point, col["xyz"])]
         else:  # a point whose three cells are empty was not measured at this pose: no row, nothing missing
@@ -447,9 +498,17 @@ def _read_rows(robot: _Source, meas: _Source, m: TableMap, poses: dict[tuple, st
         return None
     n = len(out_xyz)
     extra = {LOAD_COLUMN: [f"{v:.10g}" for v in out_load]} if "load" in col else {}
-    return MeasurementTable(seq=np.arange(1, n + 1), t_s=np.array(out_t), pose=out_pose, station=out_station,
-                            point=out_point, q_deg=np.array(out_q, dtype=float), xyz=np.array(out_xyz, dtype=float),
-                            extra=extra, source=str(meas.path))  # fmt: skip
+    return MeasurementTable(
+        seq=np.arange(1, n + 1),
+        t_s=np.array(out_t),
+        pose=out_pose,
+        station=out_station,
+        point=out_point,
+        q_deg=np.array(out_q, dtype=float),
+        xyz=np.array(out_xyz, dtype=float),
+        extra=extra,
+        source=str(meas.path),
+    )
 
 
 def _all_refs(m: TableMap) -> list[str | int]:
@@ -474,11 +533,16 @@ def _one_role_each(col: dict, pts: dict, source) -> None:
     """Refuse a map that reads two things from one column (two reflectors' x, all six joints): the table would hold
     the same number twice as if measured twice."""
     roles: dict[int, tuple[str, Column]] = {}
-    named = [(f"joint {k + 1}" if key == "joints" else f"{key} {'xyz'[k]}" if key == "xyz" else key, c)
-             for key, v in col.items() for k, c in enumerate(v if isinstance(v, list) else [v])]
+    named = [
+        (f"joint {k + 1}" if key == "joints" else f"{key} {'xyz'[k]}" if key == "xyz" else key, c)
+        for key, v in col.items()
+        for k, c in enumerate(v if isinstance(v, list) else [v])
+    ]
     named += [(f"point {p} {'xyz'[k]}", c) for p, cs in pts.items() for k, c in enumerate(cs)]
     for role, c in named:
         if c.index in roles:
-            raise ImportMapError(f"{source}: {roles[c.index][0]} and {role} are both read from {c.label}: "
-                                 "each comes from a column of its own")  # fmt: skip
+            raise ImportMapError(
+                f"{source}: {roles[c.index][0]} and {role} are both read from {c.label}: "
+                "each comes from a column of its own"
+            )
         roles[c.index] = (role, c)

@@ -164,9 +164,13 @@ def result_key(c: Campaign, opts: BatchOptions) -> str:
 def _iso_row(c: Campaign, opts: BatchOptions, key: str) -> dict:
     figures = session_figures(Path(c.table), load_model(opts.model))
     write_json(Path(opts.out) / f"{key}.iso9283.json", figures.to_doc(), InputError)
-    return {"targets": figures.conditions["targets"], "cycles": figures.poses[0].n,
-            "ap_max_mm": max(p.ap.value for p in figures.poses), "rp_max_mm": max(p.rp.value for p in figures.poses),
-            "ad_mm": None if figures.ad is None else figures.ad.value}  # fmt: skip
+    return {
+        "targets": figures.conditions["targets"],
+        "cycles": figures.poses[0].n,
+        "ap_max_mm": max(p.ap.value for p in figures.poses),
+        "rp_max_mm": max(p.rp.value for p in figures.poses),
+        "ad_mm": None if figures.ad is None else figures.ad.value,
+    }
 
 
 def _one_line(exc: BaseException) -> str:
@@ -180,22 +184,39 @@ def run_one(c: Campaign, opts: BatchOptions, key: str) -> dict:
     t0 = time.process_time()
     try:
         if opts.task == "identify":
-            doc = identify_table(IdentifyOptions(data=c.table, cell=c.cell, out=str(out / f"{key}.model.json"),
-                                                 params=opts.params, weighting=opts.weighting)).doc  # fmt: skip
+            doc = identify_table(
+                IdentifyOptions(
+                    data=c.table,
+                    cell=c.cell,
+                    out=str(out / f"{key}.model.json"),
+                    params=opts.params,
+                    weighting=opts.weighting,
+                )
+            ).doc
             row = {"fit": doc["fit"], "fit_ratio": doc["fit_ratio"], "residual_rms_mm": doc["residual_rms_mm"]}
         elif opts.task == "diagnose":
-            v = run_diagnose(DiagnoseOptions(data=c.table, cell=c.cell, json=str(out / f"{key}.verdict.json"),
-                                             params=opts.params, weighting=opts.weighting, threads=1,
-                                             out=str(out / f"{key}.model.json"))).verdict  # fmt: skip
-            row = {"cause": v["cause"], "causes": [x["cause"] for x in v["causes"]],
-                   "holdout_geometric_mm": v["holdout"]["rms_geometric_mm"],
-                   "holdout_extended_mm": v["holdout"]["rms_extended_mm"]}  # fmt: skip
+            v = run_diagnose(
+                DiagnoseOptions(
+                    data=c.table,
+                    cell=c.cell,
+                    json=str(out / f"{key}.verdict.json"),
+                    params=opts.params,
+                    weighting=opts.weighting,
+                    threads=1,
+                    out=str(out / f"{key}.model.json"),
+                )
+            ).verdict
+            row = {
+                "cause": v["cause"],
+                "causes": [x["cause"] for x in v["causes"]],
+                "holdout_geometric_mm": v["holdout"]["rms_geometric_mm"],
+                "holdout_extended_mm": v["holdout"]["rms_extended_mm"],
+            }
         else:
             row = _iso_row(c, opts, key)
     except Exception as exc:  # noqa: BLE001 - one campaign's failure, whatever it is, must not stop the others
         return {"campaign": c.label, "key": key, "error": _one_line(exc)}
-    row = {"campaign": c.label, "key": key, "task": opts.task, "cell": c.cell, "cpu_s": time.process_time() - t0,
-           **row}  # fmt: skip
+    row = {"campaign": c.label, "key": key, "task": opts.task, "cell": c.cell, "cpu_s": time.process_time() - t0, **row}
     write_json(out / f"{key}.json", row, InputError)
     return row
 
@@ -237,8 +258,11 @@ BLIND_REBUILDS = 3
 
 def _dead_workers(processes: dict) -> dict[int, str]:
     """pid -> how it died, of the pool's workers that died on their own (the pool ends the others with SIGTERM)."""
-    return {pid: how_it_died(p.exitcode) for pid, p in processes.items()
-            if how_it_died(p.exitcode) and p.exitcode != -signal.SIGTERM}  # fmt: skip
+    return {
+        pid: how_it_died(p.exitcode)
+        for pid, p in processes.items()
+        if how_it_died(p.exitcode) and p.exitcode != -signal.SIGTERM
+    }
 
 
 # how a chunk whose Dask workers died is reported (distributed's KilledWorker: no signal is known)
@@ -252,9 +276,14 @@ def _lost(lost: Callable[[list, str], list] | None, chunk: list, how: str) -> li
     return lost(chunk, how)
 
 
-def _after_a_broken_pool(pending: dict[Future, int], todo: dict[int, list], marks, processes: dict,
-                         lost: Callable[[list, str], list] | None,
-                         count: Callable[[list], list]) -> Generator[list, None, int]:  # fmt: skip
+def _after_a_broken_pool(
+    pending: dict[Future, int],
+    todo: dict[int, list],
+    marks,
+    processes: dict,
+    lost: Callable[[list, str], list] | None,
+    count: Callable[[list], list],
+) -> Generator[list, None, int]:
     """map_chunks once its process pool has shut down (every worker's exit code is known): yields the chunks that
     finished before it broke, then each dead worker's chunk through `lost`, taking them out of `todo`; returns how
     many chunks a dead worker was running."""
@@ -269,9 +298,13 @@ def _after_a_broken_pool(pending: dict[Future, int], todo: dict[int, list], mark
     return len(culprits)
 
 
-def _take_finished(finished: set[Future], pending: dict[Future, int], todo: dict[int, list],
-                   lost: Callable[[list, str], list] | None,
-                   count: Callable[[list], list]) -> Generator[list, None, bool]:  # fmt: skip
+def _take_finished(
+    finished: set[Future],
+    pending: dict[Future, int],
+    todo: dict[int, list],
+    lost: Callable[[list, str], list] | None,
+    count: Callable[[list], list],
+) -> Generator[list, None, bool]:
     """map_chunks' round of finished futures: yields each one's chunk of results (through `count`), taking it out
     of `pending` and `todo`; a chunk whose Dask workers all died is lost (KILLED_WORKERS); a cancelled future (the
     client gave up on the scheduler) ends the round. Returns whether the process pool broke."""
@@ -295,9 +328,15 @@ def _take_finished(finished: set[Future], pending: dict[Future, int], todo: dict
     return broken
 
 
-def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, scheduler: str | None,
-               failed: Callable[[object], bool] = lambda r: False, progress: Progress | None = None,
-               lost: Callable[[list, str], list] | None = None) -> Iterator[list]:  # fmt: skip
+def map_chunks(
+    fn: Callable[..., list],
+    chunks: list[list],
+    args: tuple,
+    scheduler: str | None,
+    failed: Callable[[object], bool] = lambda r: False,
+    progress: Progress | None = None,
+    lost: Callable[[list, str], list] | None = None,
+) -> Iterator[list]:
     """fn(chunk, *args) for every chunk, on executor_for(scheduler); each chunk's list of results as it finishes.
     Progress counts items: done, running (the chunks being computed: those a process pool says run, or on a cluster
     that does not say, the first of those not finished, as many as the cluster runs at once), failed (`failed` of
@@ -345,8 +384,10 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
                     broken = yield from _take_finished(finished, pending, todo, lost, count)
                     why = watch.lost() if watch else None
                     if why or (watch and any(f.cancelled() for f in pending)):
-                        raise SchedulerLost(f"the Dask scheduler {scheduler} was lost mid-run: "
-                                            f"{why or 'the client gave up reconnecting'}")  # fmt: skip
+                        raise SchedulerLost(
+                            f"the Dask scheduler {scheduler} was lost mid-run: "
+                            f"{why or 'the client gave up reconnecting'}"
+                        )
                     report(pending, slots)
             finally:
                 if watch:
@@ -356,8 +397,10 @@ def map_chunks(fn: Callable[..., list], chunks: list[list], args: tuple, schedul
         culprits = yield from _after_a_broken_pool(pending, todo, marks, processes or {}, lost, count)
         blind = 0 if culprits else blind + 1
         if blind > BLIND_REBUILDS:
-            raise CampaignError(f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "
-                                "none of them on its own): something on this machine stops them")  # fmt: skip
+            raise CampaignError(
+                f"the process pool's workers keep being ended ({BLIND_REBUILDS + 1} times in a row, "
+                "none of them on its own): something on this machine stops them"
+            )
 
 
 @dataclass
@@ -396,15 +439,26 @@ def worst_change(this: tuple, previous: tuple | None, previous_label: str | None
         with contextlib.suppress(CalibError):
             c = compare_estimates(previous[0], previous[1], previous[2], previous[3], names, values, cov, dof)
             i = int(np.argmax(np.abs(c.difference) / c.sigma))
-            return {"parameter": c.names[i], "change": float(c.difference[i]), "sigma": float(c.sigma[i]),
-                    "unit": units.get(c.names[i], ""), "against": f"previous ({previous_label})",
-                    "robot_changed": c.changed}  # fmt: skip
+            return {
+                "parameter": c.names[i],
+                "change": float(c.difference[i]),
+                "sigma": float(c.sigma[i]),
+                "unit": units.get(c.names[i], ""),
+                "against": f"previous ({previous_label})",
+                "robot_changed": c.changed,
+            }
     sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     if not len(sigma) or not np.all(sigma > 0):
         return None
     i = int(np.argmax(np.abs(values) / sigma))
-    return {"parameter": names[i], "change": float(values[i]), "sigma": float(sigma[i]),
-            "unit": units.get(names[i], ""), "against": "nominal", "robot_changed": None}  # fmt: skip
+    return {
+        "parameter": names[i],
+        "change": float(values[i]),
+        "sigma": float(sigma[i]),
+        "unit": units.get(names[i], ""),
+        "against": "nominal",
+        "robot_changed": None,
+    }
 
 
 def annotate(campaigns: list[Campaign], rows: list[dict], out: Path) -> None:
@@ -453,8 +507,15 @@ def batch(opts: BatchOptions, progress: Progress | None = None) -> BatchResult:
     results: dict[str, dict] = dict(found)
     failed: dict[str, dict] = {}
     try:
-        for chunk_rows in map_chunks(run_chunk, chunks, (opts,), opts.scheduler, lambda r: "error" in r, progress,
-                                     lambda chunk, how: lost_chunk(chunk, out, how)):  # fmt: skip
+        for chunk_rows in map_chunks(
+            run_chunk,
+            chunks,
+            (opts,),
+            opts.scheduler,
+            lambda r: "error" in r,
+            progress,
+            lambda chunk, how: lost_chunk(chunk, out, how),
+        ):
             for row in chunk_rows:
                 if "error" in row:
                     failed[row["key"]] = row
@@ -462,8 +523,10 @@ def batch(opts: BatchOptions, progress: Progress | None = None) -> BatchResult:
                     results[row["key"]] = row
     except SchedulerLost as exc:
         written = sum(1 for k, _ in todo if (out / f"{k}.json").exists())
-        raise SchedulerLost(f"{exc}; results written are kept ({written} of {len(todo)} in {out}): run the same "
-                            "batch again to do the rest") from None  # fmt: skip
+        raise SchedulerLost(
+            f"{exc}; results written are kept ({written} of {len(todo)} in {out}): run the same "
+            "batch again to do the rest"
+        ) from None
     rows = [dict(results.get(k) or failed[k], campaign=c.label) for c, k in zip(campaigns, keys, strict=True)]
     annotate(campaigns, rows, out)
     return BatchResult(rows, len(todo) - len(failed), len(found), [r for r in rows if "error" in r])

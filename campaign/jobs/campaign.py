@@ -93,27 +93,40 @@ def stored_campaign(store: SessionStore) -> Campaign:
     return Campaign(cell, plan, plan_steps(cell, plan, session_approached(store)))
 
 
-def new_session(directory: Path, cell_ref: str, plan_doc: dict, mode: str, seed: int | None,
-                hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                extra: dict[str, str] | None = None, approached: bool = True, cell: Cell | None = None,
-                config: dict[str, str] | None = None) -> tuple[SessionStore, Campaign]:  # fmt: skip
+def new_session(
+    directory: Path,
+    cell_ref: str,
+    plan_doc: dict,
+    mode: str,
+    seed: int | None,
+    hardware: tuple[str, str] | None = None,
+    effects: dict[str, float] | None = None,
+    extra: dict[str, str] | None = None,
+    approached: bool = True,
+    cell: Cell | None = None,
+    config: dict[str, str] | None = None,
+) -> tuple[SessionStore, Campaign]:
     """A new session (session.create_session) and its campaign: the cell and the plan are checked before the
     session exists (a cell or plan that cannot run makes no session). `cell`: `cell_ref` already loaded; `config`:
     its documents when they come from another session (create_session)."""
     cell = cell or load_cell(cell_ref)
     names_told_apart(cell)
     campaign = Campaign(cell, plan_doc, plan_steps(cell, plan_doc, approached))
-    store = create_session(directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra,
-                           approached, config)  # fmt: skip
+    store = create_session(
+        directory, cell_ref, cell.nominal, plan_doc, mode, seed, hardware, effects, extra, approached, config
+    )
     return store, campaign
 
 
 def history(store: SessionStore) -> History:
     """What the session holds when a run starts: the engine continues from there."""
     events = store.events()
-    return History(done=frozenset(store.done_steps()), resumed=any(e.kind == "campaign_started" for e in events),
-                   t_last=events[-1].t_campaign if events else 0.0,
-                   measurements=tuple(measurement(e.data) for e in events if e.kind == "measurement"))  # fmt: skip
+    return History(
+        done=frozenset(store.done_steps()),
+        resumed=any(e.kind == "campaign_started" for e in events),
+        t_last=events[-1].t_campaign if events else 0.0,
+        measurements=tuple(measurement(e.data) for e in events if e.kind == "measurement"),
+    )
 
 
 def run_context(store: SessionStore, campaign: Campaign, subscribers: Iterable[Subscriber]) -> RunContext:
@@ -123,8 +136,9 @@ def run_context(store: SessionStore, campaign: Campaign, subscribers: Iterable[S
     events = store.events()
     measured = [(e.step, measurement(e.data)) for e in events if e.kind == "measurement"]
     fitted = [e.data["block"] for e in events if e.kind == "station_fit"]
-    context.subscribers.append(StationFits(campaign.cell, campaign.steps, context.emit, measured, fitted,
-                                           store.done_steps()))  # fmt: skip
+    context.subscribers.append(
+        StationFits(campaign.cell, campaign.steps, context.emit, measured, fitted, store.done_steps())
+    )
     return context
 
 
@@ -134,15 +148,26 @@ def devices(live: Live, context: RunContext, cell: Cell) -> Devices:
     def rec(name: str, dev):
         return None if dev is None else Recorder(name, dev, context)
 
-    return Devices(tracker=rec("tracker", live.tracker), robot=rec("robot", live.robot),
-                   operator=rec("operator", live.operator), clock=rec("clock", live.clock),
-                   cellio=rec("cellio", live.cellio), meteo=rec("meteo", live.meteo),
-                   expected=expected_position(cell), tolerance=measurement_tolerance(cell),
-                   drift=DriftTest(TrackerNoise.of(cell.tracker), repeatability_mm=cell.repeatability_mm))  # fmt: skip
+    return Devices(
+        tracker=rec("tracker", live.tracker),
+        robot=rec("robot", live.robot),
+        operator=rec("operator", live.operator),
+        clock=rec("clock", live.clock),
+        cellio=rec("cellio", live.cellio),
+        meteo=rec("meteo", live.meteo),
+        expected=expected_position(cell),
+        tolerance=measurement_tolerance(cell),
+        drift=DriftTest(TrackerNoise.of(cell.tracker), repeatability_mm=cell.repeatability_mm),
+    )
 
 
-def run_session(store: SessionStore, campaign: Campaign, live: Live,
-                subscribers: Iterable[Subscriber] = (), page: WebPage | None = None) -> RunResult:  # fmt: skip
+def run_session(
+    store: SessionStore,
+    campaign: Campaign,
+    live: Live,
+    subscribers: Iterable[Subscriber] = (),
+    page: WebPage | None = None,
+) -> RunResult:
     """Run (or continue) the session's campaign on `live` until it is complete or stops safely; the store hears
     every document first, then `subscribers` in order, then the operator's page (`page`, attached by open_cell).
     The devices are closed at the end."""
@@ -160,8 +185,13 @@ def run_stored(store: SessionStore, live: Live, subscribers: Iterable[Subscriber
     return run_session(store, stored_campaign(store), live, subscribers)
 
 
-def open_cell(store: SessionStore, campaign: Campaign, console: OperatorConsole, claimed: CellClients | None = None,
-              page: WebPage | None = None) -> Live:  # fmt: skip
+def open_cell(
+    store: SessionStore,
+    campaign: Campaign,
+    console: OperatorConsole,
+    claimed: CellClients | None = None,
+    page: WebPage | None = None,
+) -> Live:
     """The devices of the session's cell: the digital twin's (sim) or the real one (hardware, from the hardware
     config stored at the session's creation; `claimed`: its clients when run_new claimed them already). With the
     operator's `page`, it serves the session and each prompt is shared by the cell's operator, the console and the
@@ -173,14 +203,16 @@ def open_cell(store: SessionStore, campaign: Campaign, console: OperatorConsole,
     return live
 
 
-def _open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claimed: CellClients | None,
-               human_acknowledges: bool) -> Live:  # fmt: skip
+def _open_cell(
+    store: SessionStore, cell: Cell, console: OperatorConsole, claimed: CellClients | None, human_acknowledges: bool
+) -> Live:
     meta = store.meta()
     if meta["mode"] == "sim":
         effects = json.loads(meta.get("effects", "{}") or "{}")
         speed = float(meta["sim_speed"]) if meta.get("sim_speed") else None
-        return SimCell(cell, int(meta["seed"] or 0), store, effects, speed, say=console.say,
-                       human_acknowledges=human_acknowledges).live  # fmt: skip
+        return SimCell(
+            cell, int(meta["seed"] or 0), store, effects, speed, say=console.say, human_acknowledges=human_acknowledges
+        ).live
     if meta["mode"] == "hardware":
         copy = SessionFiles(store.directory).hardware
         clients = claimed or claim_cell(load_hardware(copy, session_hardware(store)), cell)
@@ -189,19 +221,29 @@ def _open_cell(store: SessionStore, cell: Cell, console: OperatorConsole, claime
         try:
             return connect_hardware(clients, console.say, console.operator)
         except CampaignError as exc:
-            raise InputError(f"{exc} (the session uses the hardware config stored at its creation, copied in "
-                             f"{copy}: make the devices reachable there, then `trackcal resume "
-                             f"{store.directory}`)") from None  # fmt: skip
+            raise InputError(
+                f"{exc} (the session uses the hardware config stored at its creation, copied in "
+                f"{copy}: make the devices reachable there, then `trackcal resume "
+                f"{store.directory}`)"
+            ) from None
     if meta["mode"] == "replay":
         source = meta.get("replay_of") or "RECORDING"
-        raise InputError(f"{store.directory}: a replay is not resumed but made again: `trackcal replay {source} --into "
-                         f"DIR` (it replaces what a killed replay left)")  # fmt: skip
+        raise InputError(
+            f"{store.directory}: a replay is not resumed but made again: `trackcal replay {source} --into "
+            f"DIR` (it replaces what a killed replay left)"
+        )
     raise InputError(f"{store.directory}: a {meta['mode']} session cannot be run live")
 
 
-def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | HardwareOptions,
-            console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
-            page: WebPage | None = None) -> tuple[SessionStore, Campaign, RunResult]:  # fmt: skip
+def run_new(
+    directory: Path,
+    cell_ref: str,
+    plan_doc: dict,
+    cell: SimOptions | HardwareOptions,
+    console: OperatorConsole,
+    subscribers: Sequence[Subscriber] = (),
+    page: WebPage | None = None,
+) -> tuple[SessionStore, Campaign, RunResult]:
     """`trackcal run`: a new session of the plan in the cell (simulated or real), run to its end or to a safe
     stop; returns the session, its campaign (the cell loaded once, for the analysis after) and the run's result. A
     hardware config is checked before the session exists, then the cell and the plan; then the cell is claimed
@@ -212,24 +254,35 @@ def run_new(directory: Path, cell_ref: str, plan_doc: dict, cell: SimOptions | H
         loaded = load_cell(cell_ref)
         clients = claim_cell(load_hardware(cell.config, text), loaded)
         try:
-            store, campaign = new_session(directory, cell_ref, plan_doc, "hardware", None,
-                                          hardware=(text, str(Path(cell.config).resolve())), cell=loaded)  # fmt: skip
+            store, campaign = new_session(
+                directory,
+                cell_ref,
+                plan_doc,
+                "hardware",
+                None,
+                hardware=(text, str(Path(cell.config).resolve())),
+                cell=loaded,
+            )
         except BaseException:
             clients.robot.close()
             raise
         live = open_cell(store, campaign, console, clients, page)
         return store, campaign, run_session(store, campaign, live, subscribers, page)
     extra = {"sim_speed": str(cell.speed)} if cell.speed else {}
-    store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects,
-                                  extra=extra)  # fmt: skip
+    store, campaign = new_session(directory, cell_ref, plan_doc, "sim", cell.seed, effects=cell.effects, extra=extra)
     if cell.truth:  # the twin SimCell serves is a pure function of the cell, the seed and the effects
         write_truth(cell.truth, campaign.cell, cell.seed, cell.effects)
     live = open_cell(store, campaign, console, page=page)
     return store, campaign, run_session(store, campaign, live, subscribers, page)
 
 
-def resume(store: SessionStore, campaign: Campaign, console: OperatorConsole, subscribers: Sequence[Subscriber] = (),
-           page: WebPage | None = None) -> RunResult:  # fmt: skip
+def resume(
+    store: SessionStore,
+    campaign: Campaign,
+    console: OperatorConsole,
+    subscribers: Sequence[Subscriber] = (),
+    page: WebPage | None = None,
+) -> RunResult:
     """`trackcal resume`: continue the session's campaign (`campaign`: its stored cell and plan, stored_campaign) on
     its cell."""
     return run_session(store, campaign, open_cell(store, campaign, console, page=page), subscribers, page)
@@ -252,8 +305,14 @@ def replay_staging(into: Path) -> Path:
     return into.with_name(into.name + REPLAYING)
 
 
-def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, plan_doc: dict | None = None,
-           subscribers: Sequence[Subscriber] = (), page: WebPage | None = None) -> SessionStore:  # fmt: skip
+def replay(
+    recording: SessionStore,
+    into: Path,
+    cell_ref: str | None = None,
+    plan_doc: dict | None = None,
+    subscribers: Sequence[Subscriber] = (),
+    page: WebPage | None = None,
+) -> SessionStore:
     """`trackcal replay`: re-run the campaign with players of the recording instead of devices, into a new
     session, run by run: a recorded run that stopped (device fault) or was killed stops the replay's run at the
     same call, and the next run resumes exactly as the recorded one did. `cell_ref` / `plan_doc` replace the
@@ -278,16 +337,27 @@ def replay(recording: SessionStore, into: Path, cell_ref: str | None = None, pla
     if cell_ref is not None:
         store, campaign = new_session(staging, cell_ref, plan_doc, "replay", seed, extra=extra, approached=approached)
     else:  # the recording's own cell, from its stored documents
-        store, campaign = new_session(staging, CELL_DOC, plan_doc, "replay", seed, extra=extra, approached=approached,
-                                      cell=session_cell(recording), config=stored_config(recording))  # fmt: skip
+        store, campaign = new_session(
+            staging,
+            CELL_DOC,
+            plan_doc,
+            "replay",
+            seed,
+            extra=extra,
+            approached=approached,
+            cell=session_cell(recording),
+            config=stored_config(recording),
+        )
     try:
         hub = [] if page is None else [page.attach(store, campaign.cell, campaign.steps)]  # watching only
         for run, abrupt in segments(recording.events()):
             context = run_context(store, campaign, [*subscribers, *hub])
             playback = Playback(run, context.where, ends_abruptly=abrupt)
-            players = Live(*(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
-                           cellio=playback.device("cellio") if "cellio" in playback.calls else None,
-                           meteo=playback.device("meteo") if "meteo" in playback.calls else None)  # fmt: skip
+            players = Live(
+                *(playback.device(n) for n in ("tracker", "robot", "operator", "clock")),
+                cellio=playback.device("cellio") if "cellio" in playback.calls else None,
+                meteo=playback.device("meteo") if "meteo" in playback.calls else None,
+            )
             Engine(devices(players, context, campaign.cell), context, history(store)).run(campaign.steps)
     except BaseException:
         store.close()

@@ -73,9 +73,13 @@ def write_output(path: str, names, q_deg: np.ndarray, qc_deg: np.ndarray, report
                 row += [""] * (2 * n + 2) + [f"{report.uncompensated_position_mm[i]:.4f}", "", ""]
             else:
                 row += [f"{v:.{COMP_DECIMALS}f}" for v in qc_deg[i]] + [f"{v:.6f}" for v in qc_deg[i] - q_deg[i]]
-                row += [f"{report.position_error_mm[i]:.3e}", f"{report.orientation_error_deg[i]:.3e}",
-                        f"{report.uncompensated_position_mm[i]:.4f}", str(int(report.iterations[i])),
-                        f"{rounded_mm[i]:.4f}"]  # fmt: skip
+                row += [
+                    f"{report.position_error_mm[i]:.3e}",
+                    f"{report.orientation_error_deg[i]:.3e}",
+                    f"{report.uncompensated_position_mm[i]:.4f}",
+                    str(int(report.iterations[i])),
+                    f"{rounded_mm[i]:.4f}",
+                ]
             w.writerow(row)
 
 
@@ -139,8 +143,9 @@ def model_cell(model: Model):
 def correction_bound(model: Model) -> tuple[float, float]:
     """(mm, deg): the `max_correction` of the model's cell, the defaults (calib.model.cell) without one."""
     cell = model_cell(model)
-    return (MAX_CORRECTION_MM, MAX_CORRECTION_DEG) if cell is None else (cell.max_correction_mm,
-                                                                         cell.max_correction_deg)  # fmt: skip
+    return (
+        (MAX_CORRECTION_MM, MAX_CORRECTION_DEG) if cell is None else (cell.max_correction_mm, cell.max_correction_deg)
+    )
 
 
 def not_compensated_note(failure: str) -> str:
@@ -157,9 +162,15 @@ def program_of(model: Model) -> ProgramWriter:
     return (family.program if family is not None else None) or families()[KRL_FAMILY].program
 
 
-def write_program(writer: ProgramWriter, name: str, q_deg, out_dir: str | Path, speed_pct: int = 10,
-                  labels: list[str] | None = None,
-                  notes: list[str | None] | None = None) -> tuple[Path, ...]:  # fmt: skip
+def write_program(
+    writer: ProgramWriter,
+    name: str,
+    q_deg,
+    out_dir: str | Path,
+    speed_pct: int = 10,
+    labels: list[str] | None = None,
+    notes: list[str | None] | None = None,
+) -> tuple[Path, ...]:
     """The program's files in out_dir (created if needed), each written atomically; their paths. `labels` name the
     rows (default: the writer's labels of unnamed rows); `notes` comment them (drivers.families.ProgramWriter)."""
     texts = writer.texts(name, q_deg, speed_pct, labels or writer.labels(None, len(q_deg)), notes)
@@ -187,20 +198,26 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
     programs = [("program", opts.program, program_of(model))] if opts.program else []
     programs += [("krl", opts.krl, krl)] if opts.krl else []
     if len(programs) == 2 and programs[0][2] is krl:
-        raise OptionError("{0} and {1} name the same {language} program: give one", "program", "krl",
-                          language=krl.language)  # fmt: skip
+        raise OptionError(
+            "{0} and {1} name the same {language} program: give one", "program", "krl", language=krl.language
+        )
     for option, name, writer in programs:  # refuse before anything is written
         try:
             writer.check_name(name)
         except ProgramError as exc:
             raise OptionError("{0}: {exc}", option, exc=exc) from None
         if model.chain.dof != 6:
-            raise OptionError("{0}: a {language} program needs a 6-axis robot, the model's has {dof}", option,
-                              language=writer.language, dof=model.chain.dof)  # fmt: skip
+            raise OptionError(
+                "{0}: a {language} program needs a 6-axis robot, the model's has {dof}",
+                option,
+                language=writer.language,
+                dof=model.chain.dof,
+            )
         if not 1 <= opts.speed <= 100:
             raise OptionError("{0} {speed}: the axis speed override is a percentage 1..100", "speed", speed=opts.speed)
-    qc, report = compensate(model, np.radians(q_deg), tcp, max_correction=correction_bound(model),
-                            allow_outside=opts.allow_outside)
+    qc, report = compensate(
+        model, np.radians(q_deg), tcp, max_correction=correction_bound(model), allow_outside=opts.allow_outside
+    )
     qc_deg = np.degrees(qc)
     # the KRL program carries 1e-4 deg (as the controller reports angles): what rounding costs at the TCP
     krl_deg = np.round(qc_deg, 4)
@@ -209,16 +226,29 @@ def run_compensate(opts: CompensateOptions) -> Compensation:
     ok = report.ok
     if not ok.any():
         first = report.failures[0]
-        raise InputError(f"{opts.targets}: no target could be compensated (row 2: {first}; {opts.out} has each row's "
-                         "reason)")  # fmt: skip
+        raise InputError(
+            f"{opts.targets}: no target could be compensated (row 2: {first}; {opts.out} has each row's reason)"
+        )
     labels = row_labels(opts.targets, names, len(q_deg))
-    out = Compensation(report, labels, rounded_mm, np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)),
-                       doc=report.to_doc(), model_warnings=model_warnings)  # fmt: skip
+    out = Compensation(
+        report,
+        labels,
+        rounded_mm,
+        np.flatnonzero(ok & (report.conditioning < NEAR_SINGULAR)),
+        doc=report.to_doc(),
+        model_warnings=model_warnings,
+    )
     if programs and opts.strict and not ok.all():
         failed = [f"{row_label(i, names)}: {report.failures[i]}" for i in np.flatnonzero(~ok)]
-        raise OptionError("{0}: {n} target(s) could not be compensated ({first}{more}): no program written ({out} has "
-                          "each row's reason)", "strict", n=len(failed), first=failed[0],
-                          more=" ..." if len(failed) > 1 else "", out=opts.out)  # fmt: skip
+        raise OptionError(
+            "{0}: {n} target(s) could not be compensated ({first}{more}): no program written ({out} has "
+            "each row's reason)",
+            "strict",
+            n=len(failed),
+            first=failed[0],
+            more=" ..." if len(failed) > 1 else "",
+            out=opts.out,
+        )
     notes = [not_compensated_note(f) if f else None for f in report.failures]
     directory = opts.krl_dir or str(Path(opts.out).parent)
     for option, name, writer in programs:

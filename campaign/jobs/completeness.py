@@ -53,5 +53,6 @@ def completeness(store: SessionStore) -> Completeness:
 def run_completeness(result: RunResult, cell: Cell) -> Completeness:
     """What a session holds of its plan after a run, as the run's result counts it (the session's measurements,
     skips and planned measurements: nothing to load or build again)."""
-    return Completeness(result.exit_status == "success", result.planned, result.measured, result.skipped,
-                        cell.max_skipped_share)
+    return Completeness(
+        result.exit_status == "success", result.planned, result.measured, result.skipped, cell.max_skipped_share
+    )

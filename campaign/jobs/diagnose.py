@@ -26,9 +26,11 @@ from trackcal.campaign.report.tcp import NOT_DERIVED, NotDerived, TcpDifference,
 # the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
 # run theirs on one
 THREADS = min(os.cpu_count() or 1, 2)
-HELD_OUT_TEST = (f"a cause joins when its gain on held-out poses (partition and edge folds) passes a one-sided "
-                 f"Wilcoxon signed-rank test per pose at {100 * LEVEL:g} % ({100 * MAP_LEVEL:g} % for the joint error "
-                 "map), and its fit is physically plausible")  # fmt: skip
+HELD_OUT_TEST = (
+    f"a cause joins when its gain on held-out poses (partition and edge folds) passes a one-sided "
+    f"Wilcoxon signed-rank test per pose at {100 * LEVEL:g} % ({100 * MAP_LEVEL:g} % for the joint error "
+    "map), and its fit is physically plausible"
+)
 
 
 @dataclass(frozen=True)
@@ -72,20 +74,33 @@ def run_diagnose(opts: DiagnoseOptions) -> DiagnoseOutcome:
         raise OptionError("{0} {folds}: from 2 to the table's {rows} rows", "folds", folds=opts.folds, rows=len(table))
     params, still = still_warning(cell, table, choose_params(cell, opts.params))
     with diagnosis_threads(opts.threads) as ex:
-        d = diagnose(cell.chain, table, cell.tool_points, params, noise_for(opts.weighting, cell.tracker),
-                     folds=opts.folds, seed=opts.seed, tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
+        d = diagnose(
+            cell.chain,
+            table,
+            cell.tool_points,
+            params,
+            noise_for(opts.weighting, cell.tracker),
+            folds=opts.folds,
+            seed=opts.seed,
+            tracker=TrackerNoise.of(cell.tracker),
+            executor=ex,
+        )
     digest = sha256_of(table.source)
     doc = verdict_doc(cell, d, digest)
     written = plots(cell, d, Path(opts.plots)) if opts.plots else []
     write_json(opts.json, doc, InputError)
     if opts.out:
-        write_json(opts.out, sealed(model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest)),
-                   InputError)  # fmt: skip
+        write_json(
+            opts.out,
+            sealed(model_doc(cell, d.table, d.extended or d.geometric, d.geometric, d.shift, digest)),
+            InputError,
+        )
     return DiagnoseOutcome(d, doc, written, still)
 
 
-def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None,
-                tcp: TcpDifference | None | NotDerived = NOT_DERIVED) -> dict:  # fmt: skip
+def verdict_doc(
+    cell: Cell, d: Diagnosis, table_sha256: str | None, tcp: TcpDifference | None | NotDerived = NOT_DERIVED
+) -> dict:
     """verdict.json: the causes, every candidate of every selection step with its evidence, the residuals,
     their structure and the gain; the cell and the sha256 of the table it was made from (a report refuses files of
     different campaigns); `tcp`: the diagnosis' TCP difference at the test pose when the caller has it
@@ -98,15 +113,28 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None,
         "table_sha256": table_sha256,
         "candidates": [
             {
-                "cause": c.cause, "step": c.step, "score": c.holdout_rms_mm, "holdout_rms_mm": c.holdout_rms_mm,
-                "holdout_base_mm": c.holdout_base_mm, "gain_mm": c.gain_mm, "cv_scheme": c.cv_scheme,
-                "cv_note": c.cv_note, "rms_mm": c.rms_mm, "f_pvalue": c.f_pvalue, "delta_bic": c.delta_bic,
-                "n_params": c.n_params, "significant": c.significant, **c.detail,
+                "cause": c.cause,
+                "step": c.step,
+                "score": c.holdout_rms_mm,
+                "holdout_rms_mm": c.holdout_rms_mm,
+                "holdout_base_mm": c.holdout_base_mm,
+                "gain_mm": c.gain_mm,
+                "cv_scheme": c.cv_scheme,
+                "cv_note": c.cv_note,
+                "rms_mm": c.rms_mm,
+                "f_pvalue": c.f_pvalue,
+                "delta_bic": c.delta_bic,
+                "n_params": c.n_params,
+                "significant": c.significant,
+                **c.detail,
             }
             for c in sorted(d.candidates, key=lambda c: (c.step, c.holdout_rms_mm is None, c.score()))
         ],
-        "geometric": {"rms_mm": rms(geo.residuals), "variance_factor": geo.variance_factor,
-                      "p_at_noise_floor": d.variance_factor_pvalue},
+        "geometric": {
+            "rms_mm": rms(geo.residuals),
+            "variance_factor": geo.variance_factor,
+            "p_at_noise_floor": d.variance_factor_pvalue,
+        },
         "noise_floor_mm": d.noise_floor_mm,
         "noise_floor_source": d.floor_source,
         "tracker": cell.tracker.to_doc(),
@@ -114,10 +142,15 @@ def verdict_doc(cell: Cell, d: Diagnosis, table_sha256: str | None,
         "noise_note": noise_note(d),
         "structure": d.structure,
         "not_identifiable": d.not_identifiable,
-        "holdout": {"rms_geometric_mm": d.holdout_geometric_mm, "rms_extended_mm": d.holdout_extended_mm,
-                    "folds": d.cv_scheme, "note": d.cv_note, "test": HELD_OUT_TEST},
+        "holdout": {
+            "rms_geometric_mm": d.holdout_geometric_mm,
+            "rms_extended_mm": d.holdout_extended_mm,
+            "folds": d.cv_scheme,
+            "note": d.cv_note,
+            "test": HELD_OUT_TEST,
+        },
         "refused": d.refused,
-    }  # fmt: skip
+    }
     ext = d.extended or geo
     doc["extended"] = {"rms_mm": rms(ext.residuals)}
     if isinstance(tcp, NotDerived):
@@ -131,5 +164,7 @@ def noise_note(d: Diagnosis) -> str:
     """How far the chosen model's residuals sit from the noise floor: a scale, not a cause."""
     pct = 100.0 * (d.noise_scale - 1.0)
     model = "extended" if d.extended is not None else "geometric"
-    return (f"the {model} model's residuals are {abs(pct):.0f} % {'above' if pct >= 0 else 'below'} the noise "
-            f"floor ({d.floor_source})")  # fmt: skip
+    return (
+        f"the {model} model's residuals are {abs(pct):.0f} % {'above' if pct >= 0 else 'below'} the noise "
+        f"floor ({d.floor_source})"
+    )

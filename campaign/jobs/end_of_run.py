@@ -73,24 +73,46 @@ def analyse_session(store: SessionStore, campaign: Campaign | None = None) -> Ca
     table, digest = as_written(exported), hashlib.sha256(data).hexdigest()
     fitted = fit_model(cell, table, choose_params(cell, None), DEFAULT_WEIGHTING)
     with diagnosis_threads() as ex:
-        dg = diagnose(cell.chain, table, cell.tool_points, fitted.params, fitted.result.noise, geometric=fitted.result,
-                      tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
+        dg = diagnose(
+            cell.chain,
+            table,
+            cell.tool_points,
+            fitted.params,
+            fitted.result.noise,
+            geometric=fitted.result,
+            tracker=TrackerNoise.of(cell.tracker),
+            executor=ex,
+        )
     floor = diagnosis_floor(dg)
     outcome = identify_outcome(cell, table, fitted, digest, floor)
     tcp = tcp_difference(cell, dg.geometric, dg.extended)
     verdict = written(files.verdict, verdict_doc(cell, dg, digest, tcp))
     geometric = None
     if dg.extended is not None:  # fitted on the diagnosis' table (corrected by a joint map): its own floor then
-        model = sealed(model_doc(cell, dg.table, dg.extended, outcome.before, dg.shift, digest,
-                                 floor if dg.table is table else None))  # fmt: skip
+        model = sealed(
+            model_doc(
+                cell, dg.table, dg.extended, outcome.before, dg.shift, digest, floor if dg.table is table else None
+            )
+        )
         geometric = written(files.geometric_model, sealed(outcome.doc))
     else:
         model = sealed(outcome.doc)
         files.geometric_model.unlink(missing_ok=True)
-    analysis = analysed(cell, table, written(files.model, model), table_sha256=digest, plan=plan, verdict=verdict,
-                        diagnosis=dg, before=outcome.before, tcp=tcp, geometric_model=geometric,
-                        warnings=campaign_warnings(store), provenance=session_provenance(store, files, cell.name),
-                        files=files)  # fmt: skip
+    analysis = analysed(
+        cell,
+        table,
+        written(files.model, model),
+        table_sha256=digest,
+        plan=plan,
+        verdict=verdict,
+        diagnosis=dg,
+        before=outcome.before,
+        tcp=tcp,
+        geometric_model=geometric,
+        warnings=campaign_warnings(store),
+        provenance=session_provenance(store, files, cell.name),
+        files=files,
+    )
     analysis.report = write_report(analysis, files.report)
     return analysis
 
@@ -100,10 +122,19 @@ def diagnosis_floor(d: Diagnosis) -> Floor:
     return Floor(d.noise_floor_mm, d.floor_source, None)
 
 
-def analysed(cell: Cell, table: MeasurementTable, model: dict, *, table_sha256: str | None = None,
-             plan: dict | None = None, verdict: dict | None = None, diagnosis: Diagnosis | None = None,
-             before: Identification | None = None, tcp: TcpDifference | None | NotDerived = NOT_DERIVED,
-             **more) -> CampaignAnalysis:  # fmt: skip
+def analysed(
+    cell: Cell,
+    table: MeasurementTable,
+    model: dict,
+    *,
+    table_sha256: str | None = None,
+    plan: dict | None = None,
+    verdict: dict | None = None,
+    diagnosis: Diagnosis | None = None,
+    before: Identification | None = None,
+    tcp: TcpDifference | None | NotDerived = NOT_DERIVED,
+    **more,
+) -> CampaignAnalysis:
     """The CampaignAnalysis of one campaign's documents with every result the report shows, each derived once: what
     the caller holds (the nominal robot's "before" fit, the TCP difference) is used as it is, the noise floor is the
     diagnosis' when there is one, and the rest is derived here. `more`: CampaignAnalysis' other fields."""
@@ -114,9 +145,19 @@ def analysed(cell: Cell, table: MeasurementTable, model: dict, *, table_sha256: 
     sigma = (model.get("test_pose") or {}).get("sigma_mm")  # calib.tcp_figure, as identify wrote it
     if sigma is None and diagnosis is not None and cell.test_pose is not None:  # an older model
         sigma = figure_at_test_pose(diagnosis.extended or diagnosis.geometric, cell.test_pose).sigma_mm
-    return CampaignAnalysis(cell=cell, table=table, table_sha256=table_sha256, model=model, residuals=residuals,
-                            plan=plan, verdict=verdict, diagnosis=diagnosis, tcp=tcp, test_pose_sigma_mm=sigma,
-                            **more)  # fmt: skip
+    return CampaignAnalysis(
+        cell=cell,
+        table=table,
+        table_sha256=table_sha256,
+        model=model,
+        residuals=residuals,
+        plan=plan,
+        verdict=verdict,
+        diagnosis=diagnosis,
+        tcp=tcp,
+        test_pose_sigma_mm=sigma,
+        **more,
+    )
 
 
 def utc_text(t_wall: float) -> str:
@@ -139,11 +180,19 @@ def session_provenance(store: SessionStore, files: SessionFiles, cell_name: str)
     notes = []
     if files.geometric_model.exists():
         why = unusable_why(read_json(files.geometric_model, InputError))
-        notes.append(f"{files.model} is the model extended by the diagnosed cause; the purely geometric "
-                     f"model is {files.geometric_model}" + (f" (UNUSABLE: {why})." if why else "."))  # fmt: skip
-    return Provenance(session=str(files.directory), campaign_started=started, campaign_ended=ended,
-                      duration_s=duration, model_path=str(files.model),
-                      cell_ref=session_cell_ref(store, files, cell_name), notes=notes)  # fmt: skip
+        notes.append(
+            f"{files.model} is the model extended by the diagnosed cause; the purely geometric "
+            f"model is {files.geometric_model}" + (f" (UNUSABLE: {why})." if why else ".")
+        )
+    return Provenance(
+        session=str(files.directory),
+        campaign_started=started,
+        campaign_ended=ended,
+        duration_s=duration,
+        model_path=str(files.model),
+        cell_ref=session_cell_ref(store, files, cell_name),
+        notes=notes,
+    )
 
 
 # ------------------------------------------------------------------------------------ reading a campaign's files
@@ -154,15 +203,23 @@ def report_session(directory: Path, out: Path | None = None, extra_images: list[
     return write_report(analysis, out or analysis.files.report, extra_images)
 
 
-def report_files(table: str, model: str, out: str, plan: str | None = None, verdict: str | None = None,
-                 cell: str | None = None, extra_images: list[Path] | None = None) -> Path:  # fmt: skip
+def report_files(
+    table: str,
+    model: str,
+    out: str,
+    plan: str | None = None,
+    verdict: str | None = None,
+    cell: str | None = None,
+    extra_images: list[Path] | None = None,
+) -> Path:
     """`trackcal report --table ... --model ...`: the report of a campaign's files, into `out`; the cell is the one
     the model names unless `cell` is given."""
     cell_ref = cell or read_json(model, InputError).get("cell")
     if not cell_ref:
         raise OptionError("{model}: the model names no cell: give {0} NAME", "cell", model=model)
-    analysis = read_campaign(load_cell(cell_ref), table, model, plan, verdict,
-                             Provenance(model_path=model, cell_ref=cell_ref))  # fmt: skip
+    analysis = read_campaign(
+        load_cell(cell_ref), table, model, plan, verdict, Provenance(model_path=model, cell_ref=cell_ref)
+    )
     return write_report(analysis, Path(out), extra_images)
 
 
@@ -196,18 +253,34 @@ def read_campaign(cell: Cell, table_path, model_path, plan_path, verdict_path, p
     table = read_measured(table_path, cell.chain)
     plan, verdict = read_plan(plan_path, cell.chain.dof), read_verdict(verdict_path)
     digest = sha256_of(table.source)
-    check_one_campaign(table, digest, cell, [(str(model_path), model), (str(verdict_path), verdict),
-                                             (str(plan_path), plan)])  # fmt: skip
-    return analysed(cell, table, model, table_sha256=digest, plan=plan, verdict=verdict,
-                    diagnosis=diagnosis_of(cell, table, model) if verdict else None, provenance=prov)
+    check_one_campaign(
+        table, digest, cell, [(str(model_path), model), (str(verdict_path), verdict), (str(plan_path), plan)]
+    )
+    return analysed(
+        cell,
+        table,
+        model,
+        table_sha256=digest,
+        plan=plan,
+        verdict=verdict,
+        diagnosis=diagnosis_of(cell, table, model) if verdict else None,
+        provenance=prov,
+    )
 
 
 def diagnosis_of(cell: Cell, table: MeasurementTable, model: dict) -> Diagnosis:
     """The table diagnosed with the model's parameters and weighting."""
     params = [param_by_name(cell.chain, n) for n in model.get("covariance_order", [])]
     with diagnosis_threads() as ex:
-        return diagnose(cell.chain, table, cell.tool_points, params, model_noise(model),
-                        tracker=TrackerNoise.of(cell.tracker), executor=ex)  # fmt: skip
+        return diagnose(
+            cell.chain,
+            table,
+            cell.tool_points,
+            params,
+            model_noise(model),
+            tracker=TrackerNoise.of(cell.tracker),
+            executor=ex,
+        )
 
 
 def _numbers(doc: dict, keys: tuple[str, ...], where: str) -> None:
@@ -256,9 +329,12 @@ def read_verdict(path: str | None) -> dict | None:
     for key in ("noise_note", "noise_floor_source"):
         if doc.get(key) is not None:
             fields.text(doc[key], f"{path}: {key}", InputError)
-    for part, keys in (("geometric", ("rms_mm",)), ("extended", ("rms_mm",)),
-                       ("test_pose", ("tcp_difference_mm", "sigma_mm")),
-                       ("holdout", ("rms_geometric_mm", "rms_extended_mm"))):  # fmt: skip
+    for part, keys in (
+        ("geometric", ("rms_mm",)),
+        ("extended", ("rms_mm",)),
+        ("test_pose", ("tcp_difference_mm", "sigma_mm")),
+        ("holdout", ("rms_geometric_mm", "rms_extended_mm")),
+    ):
         _numbers(fields.mapping(doc.get(part, {}), f"{path}: {part}", InputError), keys, f"{path}: {part}.")
     if doc.get("holdout", {}).get("note") is not None:
         fields.text(doc["holdout"]["note"], f"{path}: holdout.note", InputError)
@@ -296,8 +372,10 @@ def check_one_campaign(table: MeasurementTable, digest: str, cell: Cell, inputs:
             continue
         made_from = doc.get("table_sha256")
         if made_from and made_from != digest:
-            raise InputError(f"{path}: made from another table (sha256 {made_from[:12]}), not from {table.source} "
-                             f"({digest[:12]}): give the files of one campaign")  # fmt: skip
+            raise InputError(
+                f"{path}: made from another table (sha256 {made_from[:12]}), not from {table.source} "
+                f"({digest[:12]}): give the files of one campaign"
+            )
         if doc.get("cell") not in (None, cell.name):
             raise InputError(f"{path}: made for cell {doc['cell']}, not for {cell.name}")
         if "poses_deg" in doc:
@@ -308,5 +386,7 @@ def check_one_campaign(table: MeasurementTable, digest: str, cell: Cell, inputs:
             far = np.flatnonzero(gap > PLAN_MATCH_DEG)
             if len(far):
                 k = far[0]
-                raise InputError(f"{path}: {table.source} seq {table.seq[k]} (pose {table.pose[k]}) is no pose of this "
-                                 "plan: give the files of one campaign")  # fmt: skip
+                raise InputError(
+                    f"{path}: {table.source} seq {table.seq[k]} (pose {table.pose[k]}) is no pose of this "
+                    "plan: give the files of one campaign"
+                )

@@ -62,8 +62,7 @@ def sidecar_path(urdf: str | Path) -> Path:
 def export_urdf(opts: ExportUrdfOptions) -> ExportUrdfOutcome:
     given = [name for name in ("model", "cell", "robot") if getattr(opts, name)]
     if len(given) != 1:
-        raise OptionError("give one of {0}, {1} or {2}" + (" (not several)" if given else ""), "model", "cell",
-                          "robot")  # fmt: skip
+        raise OptionError("give one of {0}, {1} or {2}" + (" (not several)" if given else ""), "model", "cell", "robot")
     if not opts.out.endswith(".urdf"):
         raise OptionError("{0} {out}: a URDF file name ends in .urdf", "out", out=opts.out)
     side = sidecar_path(opts.out)
@@ -96,9 +95,11 @@ def export_urdf(opts: ExportUrdfOptions) -> ExportUrdfOutcome:
         what = f"the nominal robot of {opts.cell or opts.robot}"
     doc["robot"] = chain.name
     doc["joints"] = [jt.name for jt in chain.joints]
-    comment = (f"written by trackcal export-urdf: {what}. What a URDF cannot hold (the model's extension: "
-               f"{doc['extension'].get('cause', 'none')}; tracker stations; parameter intervals) is in {side.name} "
-               "beside this file.")  # fmt: skip
+    comment = (
+        f"written by trackcal export-urdf: {what}. What a URDF cannot hold (the model's extension: "
+        f"{doc['extension'].get('cause', 'none')}; tracker stations; parameter intervals) is in {side.name} "
+        "beside this file."
+    )
     write_text(opts.out, chain_to_urdf(chain, points, comment), InputError)
     write_json(side, doc, InputError)
     return ExportUrdfOutcome(Path(opts.out), side, chain.dof, doc["extension"].get("cause", "none"), warnings)

@@ -38,8 +38,10 @@ def factory_robot(cell_ref: str, out: str, conf: str | None = None, hardware: st
     name = cell.robot_doc.get("controller")
     family = families().get(str(name)) if name else None
     if family is None or family.factory_table is None:
-        raise InputError(f"cell {cell.name}: robot {cell.chain.name} names no controller whose calibration trackcal "
-                         "reads (configs/robots: controller)")  # fmt: skip
+        raise InputError(
+            f"cell {cell.name}: robot {cell.chain.name} names no controller whose calibration trackcal "
+            "reads (configs/robots: controller)"
+        )
     try:
         nominal = dh_of_chain(cell.chain)
     except ChainError as exc:
@@ -56,16 +58,20 @@ def factory_robot(cell_ref: str, out: str, conf: str | None = None, hardware: st
         table = [n + t for n, t in zip(nominal, table, strict=True)]
     chain = dh_chain(*table, name=f"{cell.chain.name}-factory", template=cell.chain)
     published = dh_chain(*nominal, name=cell.chain.name, template=cell.chain)
-    turned = max(float(np.degrees(np.arccos(np.clip((np.trace(j.rotation.T @ e.rotation) - 1) / 2, -1, 1))))
-                 for j, e in zip(chain.joints, published.joints, strict=True))  # fmt: skip
+    turned = max(
+        float(np.degrees(np.arccos(np.clip((np.trace(j.rotation.T @ e.rotation) - 1) / 2, -1, 1))))
+        for j, e in zip(chain.joints, published.joints, strict=True)
+    )
     change = float(max(np.abs(table[1] - nominal[1]).max(), np.abs(table[2] - nominal[2]).max()))
     doc = chain_to_dict(chain)
     doc["controller"] = family.name
     how = f"its deltas added to robot {cell.chain.name}'s table" if is_delta else "the controller's calibrated table"
     doc["nominal"] = f"the factory calibration of {source} ({how}; trackcal factory-robot)"
-    text = (f"# {cell.chain.name} with the factory calibration of {source} as its nominal (trackcal factory-robot):\n"
-            f"# the calibrated DH table exactly: link lengths changed by up to {change:.4f} mm, link rotations by up "
-            f"to {turned:.4f} deg against the published table\n" + yaml.safe_dump(doc, sort_keys=False))  # fmt: skip
+    text = (
+        f"# {cell.chain.name} with the factory calibration of {source} as its nominal (trackcal factory-robot):\n"
+        f"# the calibrated DH table exactly: link lengths changed by up to {change:.4f} mm, link rotations by up "
+        f"to {turned:.4f} deg against the published table\n" + yaml.safe_dump(doc, sort_keys=False)
+    )
     path = Path(out)
     write_text(path, text, InputError)
     return FactoryRobot(path, source, change, turned)

@@ -36,14 +36,16 @@ FORMAT = "trackcal-filter/1"
 # `LIN XP1:{X 10}`; RAPID Offs/RelTool)
 RELATIVE = re.compile(r"_REL\b|\(expression\)|\bOffs\b|\bRelTool\b")
 ENCODING = "latin-1"  # byte-transparent (module docstring)
-NOTE = ("correction: how far the filter moves the TCP and turns the tool (the nominal robot's, mm and deg); "
-        "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
-        "there when kept); sigma_mm: the 1-sigma 3-D uncertainty of the model's TCP there (its parameters' "
-        "covariance through the TCP Jacobian, and its lack of fit); bound95_mm: predicted_mm plus the radius holding "
-        "the TCP with 95 % probability; lack_of_fit_mm: the model's misfit per coordinate beyond the noise floor, in "
-        "every bound (null: not recorded); pass: bound95_mm <= tolerance_mm, unknown (null) for a target outside the "
-        "space the model was measured in (measured_space, outside_joints_deg, outside_volume_mm: its bound is an "
-        "extrapolation, bound_covered false)")  # fmt: skip
+NOTE = (
+    "correction: how far the filter moves the TCP and turns the tool (the nominal robot's, mm and deg); "
+    "predicted_mm: the model's TCP error of the target as written (~0 when filtered, the calibration's error "
+    "there when kept); sigma_mm: the 1-sigma 3-D uncertainty of the model's TCP there (its parameters' "
+    "covariance through the TCP Jacobian, and its lack of fit); bound95_mm: predicted_mm plus the radius holding "
+    "the TCP with 95 % probability; lack_of_fit_mm: the model's misfit per coordinate beyond the noise floor, in "
+    "every bound (null: not recorded); pass: bound95_mm <= tolerance_mm, unknown (null) for a target outside the "
+    "space the model was measured in (measured_space, outside_joints_deg, outside_volume_mm: its bound is an "
+    "extrapolation, bound_covered false)"
+)
 
 
 @dataclass(frozen=True)
@@ -93,8 +95,9 @@ def read_program(opts: FilterOptions) -> ProgramRead:
     suffix = Path(opts.program).suffix.lower()
     if suffix not in readers:
         known = ", ".join(sorted(readers)) or "none"
-        raise InputError(f"{opts.program}: no reader for {suffix or 'a file without a suffix'} programs (known: "
-                         f"{known})")  # fmt: skip
+        raise InputError(
+            f"{opts.program}: no reader for {suffix or 'a file without a suffix'} programs (known: {known})"
+        )
     files: dict[str, str] = {}
     for path in (opts.program, *opts.more):
         name = Path(path).name
@@ -119,8 +122,10 @@ def check_language(program: str, read: ProgramRead, model: Model) -> None:
     name = None if cell is None else cell.robot_doc.get("controller")
     family = families().get(str(name)) if name else None
     if family is not None and family.program is not None and family.program.language != read.language:
-        raise InputError(f"{program}: a {read.language} program, but the model's robot runs a {family.title} "
-                         f"controller ({family.program.language} programs): give the model of this program's robot")
+        raise InputError(
+            f"{program}: a {read.language} program, but the model's robot runs a {family.title} "
+            f"controller ({family.program.language} programs): give the model of this program's robot"
+        )
 
 
 def reference_joints(model: Model) -> np.ndarray:
@@ -144,15 +149,26 @@ def target_rows(read: ProgramRead, res: FilterResult, tolerance_mm: float | None
     for i, t in enumerate(read.targets):
         bound = _number(res.bound95_mm[i])
         dq = res.q_calibrated_deg[i] - res.q_nominal_deg[i]
-        rows.append({
-            "file": t.file, "line": t.line, "name": t.name, "kind": "joint" if t.joint else "cartesian",
-            "motion": t.motion, "status": "filtered" if not res.why[i] else "kept", "why": res.why[i] or None,
-            "correction_mm": float(res.correction_mm[i]), "correction_deg": float(res.correction_deg[i]),
-            "joint_correction_deg": _number(np.max(np.abs(dq))) if not res.why[i] else None,
-            "predicted_mm": _number(res.predicted_mm[i]), "sigma_mm": _number(res.sigma_mm[i]), "bound95_mm": bound,
-            "outside_fitted_ranges": bool(res.outside[i]), **measured_fields(res, i),
-            "pass": verdict(bound, tolerance_mm, bool(res.extrapolated[i])),
-        })  # fmt: skip
+        rows.append(
+            {
+                "file": t.file,
+                "line": t.line,
+                "name": t.name,
+                "kind": "joint" if t.joint else "cartesian",
+                "motion": t.motion,
+                "status": "filtered" if not res.why[i] else "kept",
+                "why": res.why[i] or None,
+                "correction_mm": float(res.correction_mm[i]),
+                "correction_deg": float(res.correction_deg[i]),
+                "joint_correction_deg": _number(np.max(np.abs(dq))) if not res.why[i] else None,
+                "predicted_mm": _number(res.predicted_mm[i]),
+                "sigma_mm": _number(res.sigma_mm[i]),
+                "bound95_mm": bound,
+                "outside_fitted_ranges": bool(res.outside[i]),
+                **measured_fields(res, i),
+                "pass": verdict(bound, tolerance_mm, bool(res.extrapolated[i])),
+            }
+        )
     return rows
 
 
@@ -175,9 +191,12 @@ def measured_fields(res: FilterResult, i: int) -> dict:
     known = bool(res.space_known[i]) or bool(res.extrapolated[i])
     joints = {f"joint_{j + 1}": float(d) for j, d in enumerate(res.outside_joints_deg[i]) if d > 0}
     where = "unknown" if not known else ("outside" if res.extrapolated[i] else "inside")
-    return {"measured_space": where, "outside_joints_deg": joints,
-            "outside_volume_mm": _number(res.outside_volume_mm[i]),
-            "bound_covered": None if where == "unknown" else where == "inside"}  # fmt: skip
+    return {
+        "measured_space": where,
+        "outside_joints_deg": joints,
+        "outside_volume_mm": _number(res.outside_volume_mm[i]),
+        "bound_covered": None if where == "unknown" else where == "inside",
+    }
 
 
 def outside_note(row: dict) -> str:
@@ -198,8 +217,9 @@ def _out_paths(opts: FilterOptions, read: ProgramRead) -> dict[str, Path]:
     paths = {name: out / name for name in read.files}
     for path in paths.values():
         if path.resolve() in inputs:
-            raise OptionError("{0} {out}: would overwrite the input {path}: give another directory", "out",
-                              out=opts.out, path=path)  # fmt: skip
+            raise OptionError(
+                "{0} {out}: would overwrite the input {path}: give another directory", "out", out=opts.out, path=path
+            )
     return paths
 
 
@@ -212,8 +232,9 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
     read = read_program(opts)
     check_language(opts.program, read, model)
     if not read.targets:
-        raise InputError(f"{opts.program}: no {read.language} target to filter (no literal pose or joint values "
-                         "used by a move)")  # fmt: skip
+        raise InputError(
+            f"{opts.program}: no {read.language} target to filter (no literal pose or joint values used by a move)"
+        )
     paths = _out_paths(opts, read)
     res = filter_targets(model, read.targets, reference_joints(model), correction_bound(model), opts.allow_outside)
     for i, t in enumerate(read.targets):  # a reader accepts no joints for a relative or computed move
@@ -221,8 +242,10 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
             res.why[i] = f"a relative or computed move ({t.motion}): where it goes depends on where the robot is"
     values = {i: v for i, v in enumerate(res.values) if v is not None}
     rows = target_rows(read, res, opts.tolerance_mm)
-    notes = {i: "; ".join(n for n in (f"kept as it was: {w}" if w else "", outside_note(r)) if n)
-             for i, (w, r) in enumerate(zip(res.why, rows, strict=True))}  # fmt: skip
+    notes = {
+        i: "; ".join(n for n in (f"kept as it was: {w}" if w else "", outside_note(r)) if n)
+        for i, (w, r) in enumerate(zip(res.why, rows, strict=True))
+    }
     texts = read.write(values, {i: f"trackcal filter: {n}" for i, n in notes.items() if n})
     out = Path(opts.out)
     try:
@@ -232,13 +255,22 @@ def run_filter(opts: FilterOptions) -> FilterOutcome:
                 fh.write(text.encode(ENCODING, errors="replace"))
     except OSError as exc:
         raise InputError(f"{out}: cannot write the filtered program ({exc.strerror or exc})") from None
-    doc = {"format": FORMAT, "program": str(opts.program), "language": read.language, "model": str(opts.model),
-           "tolerance_mm": opts.tolerance_mm, "lack_of_fit_mm": _number(res.lack_of_fit_mm), "targets": rows,
-           "filtered": int(res.ok.sum()),
-           "kept": int((~res.ok).sum()), "failed": sum(1 for r in rows if r["pass"] is False),
-           "outside_measured": sum(1 for r in rows if r["measured_space"] == "outside"),
-           "unknown": sum(1 for r in rows if r["pass"] is None and r["bound_covered"] is False),
-           "warnings": [*warnings, *res.warnings], "note": NOTE}  # fmt: skip
+    doc = {
+        "format": FORMAT,
+        "program": str(opts.program),
+        "language": read.language,
+        "model": str(opts.model),
+        "tolerance_mm": opts.tolerance_mm,
+        "lack_of_fit_mm": _number(res.lack_of_fit_mm),
+        "targets": rows,
+        "filtered": int(res.ok.sum()),
+        "kept": int((~res.ok).sum()),
+        "failed": sum(1 for r in rows if r["pass"] is False),
+        "outside_measured": sum(1 for r in rows if r["measured_space"] == "outside"),
+        "unknown": sum(1 for r in rows if r["pass"] is None and r["bound_covered"] is False),
+        "warnings": [*warnings, *res.warnings],
+        "note": NOTE,
+    }
     write_json(out / "filter.json", doc, InputError)
     page = write_filter_page(out / "filter.html", doc)
     return FilterOutcome(read, res, rows, list(paths.values()), out / "filter.json", page, warnings)

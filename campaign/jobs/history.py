@@ -82,8 +82,10 @@ def _tcp_figure(model: Model, path: str | Path) -> tuple[float | None, float | N
     if tp is None:
         return None, None
     tp = fields.mapping(tp, f"{path}: test_pose", InputError)
-    return (fields.json_number(tp.get("correction_mm"), f"{path}: test_pose.correction_mm", InputError),
-            fields.json_number(tp.get("sigma_mm"), f"{path}: test_pose.sigma_mm", InputError))  # fmt: skip
+    return (
+        fields.json_number(tp.get("correction_mm"), f"{path}: test_pose.correction_mm", InputError),
+        fields.json_number(tp.get("sigma_mm"), f"{path}: test_pose.sigma_mm", InputError),
+    )
 
 
 def model_estimate(doc: dict, path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray, int]:
@@ -129,15 +131,20 @@ def _dates(opts: HistoryOptions) -> list[datetime | None]:
     if opts.dates is None:
         return [None] * len(opts.calibrations)
     if len(opts.dates) != len(opts.calibrations):
-        raise OptionError("{0}: give one date per calibration ({n} calibrations, {m} dates)", "dates",
-                          n=len(opts.calibrations), m=len(opts.dates))  # fmt: skip
+        raise OptionError(
+            "{0}: give one date per calibration ({n} calibrations, {m} dates)",
+            "dates",
+            n=len(opts.calibrations),
+            m=len(opts.dates),
+        )
     out = []
     for text in opts.dates:
         try:
             d = datetime.fromisoformat(text)
         except ValueError:
-            raise OptionError("{0}: {text!r} is no ISO date (e.g. 2026-08-01 or 2026-08-01T14:00)", "dates",
-                              text=text) from None  # fmt: skip
+            raise OptionError(
+                "{0}: {text!r} is no ISO date (e.g. 2026-08-01 or 2026-08-01T14:00)", "dates", text=text
+            ) from None
         out.append(d if d.tzinfo else d.replace(tzinfo=UTC))
     return out
 
@@ -165,17 +172,21 @@ def history(opts: HistoryOptions) -> History:
             moved = overall if overall.changed else steps[last_change]
             names = [n for n, m in zip(moved.names, moved.moved, strict=True) if m]
             which = f": {', '.join(names)} moved beyond their uncertainty" if names else ""
-            sentence = (f"recalibrate: the robot changed since {since.date:%Y-%m-%d} "
-                        f"(p = {moved.p_value:.2g} < {moved.alpha}){which}")  # fmt: skip
+            sentence = (
+                f"recalibrate: the robot changed since {since.date:%Y-%m-%d} "
+                f"(p = {moved.p_value:.2g} < {moved.alpha}){which}"
+            )
         else:
             sentence = f"no significant change since {cals[0].date:%Y-%m-%d} (p = {overall.p_value:.2g})"
     poor = [c for c in cals if c.model.doc.get("fit") == "poor"]
     if overall is not None and poor:
         ratios = ", ".join(f"{c.label} {c.model.doc.get('fit_ratio', float('nan')):.1f}x" for c in poor)
-        sentence = (f"cannot tell: the fit of {', '.join(c.label for c in poor)} is poor (residual RMS / noise floor: "
-                    f"{ratios}), so its intervals understate what the model misses and a change cannot be judged "
-                    f"against them (the test alone says: {sentence}); identify with the cause `trackcal diagnose` "
-                    "names, then compare again")  # fmt: skip
+        sentence = (
+            f"cannot tell: the fit of {', '.join(c.label for c in poor)} is poor (residual RMS / noise floor: "
+            f"{ratios}), so its intervals understate what the model misses and a change cannot be judged "
+            f"against them (the test alone says: {sentence}); identify with the cause `trackcal diagnose` "
+            "names, then compare again"
+        )
     notes = [f"{c.label}: dated by its {c.date_source}" for c in cals if c.date_source == "file modified"]
     notes += [w for c in cals for w in c.checked]
     out = History(cals, steps, overall, sentence, notes)
@@ -185,21 +196,38 @@ def history(opts: HistoryOptions) -> History:
 
 
 def _change_doc(c: Change) -> dict:
-    return {"p_value": c.p_value, "statistic": c.statistic, "dof": list(c.dof), "alpha": c.alpha,
-            "changed": c.changed, "parameters": {n: {"difference": float(d), "sigma": float(s), "moved": bool(m)}
-                                                 for n, d, s, m in zip(c.names, c.difference, c.sigma, c.moved,
-                                                                       strict=True)}}  # fmt: skip
+    return {
+        "p_value": c.p_value,
+        "statistic": c.statistic,
+        "dof": list(c.dof),
+        "alpha": c.alpha,
+        "changed": c.changed,
+        "parameters": {
+            n: {"difference": float(d), "sigma": float(s), "moved": bool(m)}
+            for n, d, s, m in zip(c.names, c.difference, c.sigma, c.moved, strict=True)
+        },
+    }
 
 
 def history_doc(h: History) -> dict:
     return {
-        "calibrations": [{"source": c.label, "date": c.date.isoformat(), "date_source": c.date_source,
-                          "robot": c.model.chain.name, "tcp_correction_mm": c.tcp_correction_mm,
-                          "tcp_sigma_mm": c.tcp_sigma_mm,
-                          "parameters": {n: {"value": float(v), "ci95": c.model.doc["parameters"][n]["ci95"]}
-                                         for n, v in zip(c.names, c.values, strict=True)}}
-                         for c in h.calibrations],
+        "calibrations": [
+            {
+                "source": c.label,
+                "date": c.date.isoformat(),
+                "date_source": c.date_source,
+                "robot": c.model.chain.name,
+                "tcp_correction_mm": c.tcp_correction_mm,
+                "tcp_sigma_mm": c.tcp_sigma_mm,
+                "parameters": {
+                    n: {"value": float(v), "ci95": c.model.doc["parameters"][n]["ci95"]}
+                    for n, v in zip(c.names, c.values, strict=True)
+                },
+            }
+            for c in h.calibrations
+        ],
         "steps": [_change_doc(s) for s in h.steps],
         "overall": None if h.overall is None else _change_doc(h.overall),
-        "sentence": h.sentence, "notes": h.notes,
-    }  # fmt: skip
+        "sentence": h.sentence,
+        "notes": h.notes,
+    }

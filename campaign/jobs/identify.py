@@ -62,8 +62,9 @@ def choose_params(cell: Cell, names: str | None) -> list[Param]:
     try:
         return [param_by_name(cell.chain, n.strip()) for n in names.split(",") if n.strip()]
     except ChainError as exc:
-        raise OptionError("{0}: {exc}; the irreducible set is {kept}", "params", exc=exc,
-                          kept=" ".join(p.name for p in kept)) from None
+        raise OptionError(
+            "{0}: {exc}; the irreducible set is {kept}", "params", exc=exc, kept=" ".join(p.name for p in kept)
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,8 @@ def still_warning(cell: Cell, table: MeasurementTable, params: list[Param]) -> t
     verb = "never moves" if len(still) == 1 else "never move"
     left = " ".join(p.name for p in dropped) or "none of the parameters"
     return [p for p in params if p not in dropped], (
-        f"joint {names} {verb} in {table.source}: {left} not identifiable from it, left at nominal")
+        f"joint {names} {verb} in {table.source}: {left} not identifiable from it, left at nominal"
+    )
 
 
 @dataclass(frozen=True)
@@ -118,31 +120,42 @@ class Fitted:
     table: MeasurementTable
 
 
-def fit_model(cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
-              extend: str = "none") -> Fitted:  # fmt: skip
+def fit_model(
+    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING, extend: str = "none"
+) -> Fitted:
     """Fit the geometric model, or the geometric model extended by a cause (`auto`: diagnose's), and the nominal
     robot's "before" fit."""
     if extend not in ("none", "auto") and not set(extend.split("+")) <= set(CAUSES):
-        raise OptionError("{0} {extend}: choose none, auto or causes joined by + from {causes}", "extend",
-                          extend=extend, causes=", ".join(CAUSES))
+        raise OptionError(
+            "{0} {extend}: choose none, auto or causes joined by + from {causes}",
+            "extend",
+            extend=extend,
+            causes=", ".join(CAUSES),
+        )
     params, still = still_warning(cell, table, params)
     noise = noise_for(weighting, cell.tracker)
     before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
     if extend == "auto":
         from trackcal.calib.diagnose.diagnosis import diagnose  # lazy: the search is only for --extend auto (start-up)
 
-        extend = "+".join(c["cause"] for c in diagnose(cell.chain, table, cell.tool_points, params, noise,
-                                                        tracker=TrackerNoise.of(cell.tracker)).causes)
+        extend = "+".join(
+            c["cause"]
+            for c in diagnose(
+                cell.chain, table, cell.tool_points, params, noise, tracker=TrackerNoise.of(cell.tracker)
+            ).causes
+        )
         extend = extend or "none"
     fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
     if fit is None:
-        raise OptionError("{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend",
-                          extend=extend)
+        raise OptionError(
+            "{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend", extend=extend
+        )
     return Fitted(params, still, before, fit.result, fit.shift, fit.table)
 
 
-def identify_outcome(cell: Cell, table: MeasurementTable, fitted: Fitted, table_sha256: str | None = None,
-                     floor: Floor | None = None) -> IdentifyOutcome:  # fmt: skip
+def identify_outcome(
+    cell: Cell, table: MeasurementTable, fitted: Fitted, table_sha256: str | None = None, floor: Floor | None = None
+) -> IdentifyOutcome:
     """The model document of a fit and its warnings. `table_sha256`: of the table's file (default: the file it was
     read from); `floor`: the table's noise floor when already found (default: calib.diagnose.noise_floor)."""
     doc = model_doc(cell, table, fitted.result, fitted.before, fitted.shift, table_sha256, floor)
@@ -150,17 +163,29 @@ def identify_outcome(cell: Cell, table: MeasurementTable, fitted: Fitted, table_
     if fitted.still:
         doc["not_identifiable"] = fitted.still
     missing = left_out(cell, fitted.params)
-    advice = determinable(fitted.result, fitted.table, [param_by_name(cell.chain, n) for n in missing]) if (
-        doc["fit"] == "poor" and missing) else missing  # fmt: skip
-    return IdentifyOutcome(result=fitted.result, before=fitted.before, doc=doc,
-                           warning=fit_warning(doc, advice, missing), determination=determination_warning(doc),
-                           still=fitted.still)  # fmt: skip
+    advice = (
+        determinable(fitted.result, fitted.table, [param_by_name(cell.chain, n) for n in missing])
+        if (doc["fit"] == "poor" and missing)
+        else missing
+    )
+    return IdentifyOutcome(
+        result=fitted.result,
+        before=fitted.before,
+        doc=doc,
+        warning=fit_warning(doc, advice, missing),
+        determination=determination_warning(doc),
+        still=fitted.still,
+    )
 
 
 def run_identify(
-    cell: Cell, table: MeasurementTable, params: list[Param], weighting: str = DEFAULT_WEIGHTING,
-    extend: str = "none", table_sha256: str | None = None,
-) -> IdentifyOutcome:  # fmt: skip
+    cell: Cell,
+    table: MeasurementTable,
+    params: list[Param],
+    weighting: str = DEFAULT_WEIGHTING,
+    extend: str = "none",
+    table_sha256: str | None = None,
+) -> IdentifyOutcome:
     """Identify the geometric model, or the geometric model extended by a cause (`auto`: diagnose's).
     `table_sha256`: of the table's file (default: the file it was read from)."""
     return identify_outcome(cell, table, fit_model(cell, table, params, weighting, extend), table_sha256)
@@ -193,16 +218,22 @@ def identify_table(opts: IdentifyOptions) -> IdentifyOutcome:
     return outcome
 
 
-def fit_quality(table: MeasurementTable, res: Identification, tracker: Instrument | None = None,
-                floor: Floor | None = None) -> dict:  # fmt: skip
+def fit_quality(
+    table: MeasurementTable, res: Identification, tracker: Instrument | None = None, floor: Floor | None = None
+) -> dict:
     """Does the model reach the noise floor? The residual RMS of one coordinate (over the degrees of freedom)
     against calib.diagnose.noise_floor (repeated measurements, else the tracker noise model: the weighting's, else
     `tracker`'s, the cell's instrument), or `floor` when the caller found it already."""
     found = floor or noise_floor(table, res.noise, None if tracker is None else TrackerNoise.of(tracker))
     rms_dof = float(np.sqrt(np.sum(res.residuals**2) / max(res.dof, 1)))
     ratio = rms_dof / found.sigma_mm
-    return {"fit": "poor" if ratio > POOR_FIT_RATIO else "good", "fit_ratio": ratio, "residual_rms_mm": rms_dof,
-            "noise_floor_mm": found.sigma_mm, "noise_floor_source": found.source}  # fmt: skip
+    return {
+        "fit": "poor" if ratio > POOR_FIT_RATIO else "good",
+        "fit_ratio": ratio,
+        "residual_rms_mm": rms_dof,
+        "noise_floor_mm": found.sigma_mm,
+        "noise_floor_source": found.source,
+    }
 
 
 def left_out(cell: Cell, params: list[Param]) -> list[str]:
@@ -218,10 +249,22 @@ def _fit_r_factor(res: Identification, table: MeasurementTable, params: list[Par
     extra = len(params) - len(res.params)
     if extra == 0 and res.r_factor is not None and len(res.r_factor) == len(res.cov):  # every unknown free
         return res.r_factor
-    problem = Problem(res.chain, table, res.points, params, res.noise, np.r_[res.dev, np.zeros(extra)],
-                      extension=res.extension, ext0=res.ext)  # fmt: skip
-    state = State(problem.initial.dev, [res.stations[s] for s in problem.station_ids],
-                  np.array([res.points[p] for p in problem.point_ids]), np.asarray(res.ext, dtype=float))  # fmt: skip
+    problem = Problem(
+        res.chain,
+        table,
+        res.points,
+        params,
+        res.noise,
+        np.r_[res.dev, np.zeros(extra)],
+        extension=res.extension,
+        ext0=res.ext,
+    )
+    state = State(
+        problem.initial.dev,
+        [res.stations[s] for s in problem.station_ids],
+        np.array([res.points[p] for p in problem.point_ids]),
+        np.asarray(res.ext, dtype=float),
+    )
     return problem.r_factor(state)
 
 
@@ -229,8 +272,11 @@ def poorly_determined(res: Identification, table: MeasurementTable) -> dict[str,
     """{name: ratio} of the fitted parameters the table does not determine (calib.identify.determined: moved alone by
     its 95 % interval, one would displace the reflectors by more than POORLY_DETERMINED noise floors)."""
     ratios = noise_floor_ratios(_fit_r_factor(res, table, res.params), np.arange(len(res.params)), 3 * len(table))
-    return {p.name: float(r) if np.isfinite(r) else None for p, r in zip(res.params, ratios, strict=True)
-            if not r <= POORLY_DETERMINED}  # fmt: skip
+    return {
+        p.name: float(r) if np.isfinite(r) else None
+        for p, r in zip(res.params, ratios, strict=True)
+        if not r <= POORLY_DETERMINED
+    }
 
 
 def determinable(res: Identification, table: MeasurementTable, candidates: list[Param]) -> list[str]:
@@ -258,9 +304,11 @@ def determination_warning(doc: dict) -> str | None:
         return None
     pars = doc["parameters"]
     named = ", ".join(f"{n} ±{pars[n]['ci95']:.3g} {pars[n]['unit']}" for n in bad)
-    return (f"poorly determined by this table: {named} (moved alone across its 95 % interval, each would displace "
-            f"the reflectors by more than {POORLY_DETERMINED:g} times the noise floor; their values are whatever the "
-            "noise makes them: add poses, reference points or stations, or leave them out)")  # fmt: skip
+    return (
+        f"poorly determined by this table: {named} (moved alone across its 95 % interval, each would displace "
+        f"the reflectors by more than {POORLY_DETERMINED:g} times the noise floor; their values are whatever the "
+        "noise makes them: add poses, reference points or stations, or leave them out)"
+    )
 
 
 def fit_warning(doc: dict, advice: list[str], missing: list[str] | None = None) -> str | None:
@@ -271,11 +319,15 @@ def fit_warning(doc: dict, advice: list[str], missing: list[str] | None = None) 
     missing = advice if missing is None else missing
     where = f"add the parameters left out ({' '.join(advice)}: this table determines them) or run" if advice else "run"
     if len(advice) < len(missing):
-        where = (f"{len(missing) - len(advice)} parameter(s) left out cannot be determined by this table "
-                 f"({' '.join(n for n in missing if n not in advice)}); {where}")  # fmt: skip
-    return (f"poor fit: the residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm is {doc['fit_ratio']:.1f}x the "
-            f"noise floor {doc['noise_floor_mm'] * 1000:.1f} µm ({doc['noise_floor_source']}), so the intervals "
-            f"cannot be trusted: {where} `trackcal diagnose` to see what the model misses")  # fmt: skip
+        where = (
+            f"{len(missing) - len(advice)} parameter(s) left out cannot be determined by this table "
+            f"({' '.join(n for n in missing if n not in advice)}); {where}"
+        )
+    return (
+        f"poor fit: the residual RMS {doc['residual_rms_mm'] * 1000:.1f} µm is {doc['fit_ratio']:.1f}x the "
+        f"noise floor {doc['noise_floor_mm'] * 1000:.1f} µm ({doc['noise_floor_source']}), so the intervals "
+        f"cannot be trusted: {where} `trackcal diagnose` to see what the model misses"
+    )
 
 
 def convergence_warning(doc: dict) -> str | None:
@@ -287,8 +339,15 @@ def convergence_warning(doc: dict) -> str | None:
     return "the fit did not converge" + (f": {why}" if why else "") + "; the parameters may not be the best fit"
 
 
-def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: Identification, shift,
-              table_sha256: str | None = None, floor: Floor | None = None) -> dict:  # fmt: skip
+def model_doc(
+    cell: Cell,
+    table: MeasurementTable,
+    res: Identification,
+    before: Identification,
+    shift,
+    table_sha256: str | None = None,
+    floor: Floor | None = None,
+) -> dict:
     """model.json; `table_sha256` of the table's file (default: the file the table was read from, None when it
     was not read from a file); `floor`: the table's noise floor when already found (fit_quality)."""
     if table_sha256 is None and Path(table.source).is_file():
@@ -309,17 +368,36 @@ def model_doc(cell: Cell, table: MeasurementTable, res: Identification, before: 
         extra["tcp_mm"] = cell.tcp.tolist()
         extra["significance_mm"] = dict(significance(cell.chain, params, res.dev, cell.test_pose, cell.tcp))
     q_rad = np.radians(table.q_deg)
-    extra[MEASURED] = fitted_space(Kinematics(res.chain, res.params), res.dev, res.points, q_rad,
-                                   table.point).to_doc()  # where it was measured (calib.measured_space)
+    extra[MEASURED] = fitted_space(
+        Kinematics(res.chain, res.params), res.dev, res.points, q_rad, table.point
+    ).to_doc()  # where it was measured (calib.measured_space)
     ranges = None if res.extension is None else Ranges.of(q_rad, table.t_s)
     return identification_to_doc(res, extra, shift, cell.test_pose, ranges)
 
 
 def summary_of(outcome: IdentifyOutcome) -> dict:
     res = outcome.result
-    keys = ("cell", "nominal", "data", "table_sha256", "n_measurements", "weighting", "tracker", "fit", "fit_ratio",
-            "residual_rms_mm", "noise_floor_mm", "noise_floor_source", "extension", "residuals", "significance_mm",
-            "poorly_determined", "test_pose", "usable", "unusable_why")
+    keys = (
+        "cell",
+        "nominal",
+        "data",
+        "table_sha256",
+        "n_measurements",
+        "weighting",
+        "tracker",
+        "fit",
+        "fit_ratio",
+        "residual_rms_mm",
+        "noise_floor_mm",
+        "noise_floor_source",
+        "extension",
+        "residuals",
+        "significance_mm",
+        "poorly_determined",
+        "test_pose",
+        "usable",
+        "unusable_why",
+    )
     out = {k: outcome.doc[k] for k in keys if k in outcome.doc}
     out.update(
         {

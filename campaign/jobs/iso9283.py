@@ -108,8 +108,15 @@ class PlanOptions:
     field_check: tuple[str, str, float] | None = None  # two tool points and their certified distance, mm
 
 
-def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, compensated_with: dict | None,
-             vap: dict | None = None, points: list[str] | None = None) -> dict:  # fmt: skip
+def plan_doc(
+    cell_name: str,
+    plan: IsoPlan,
+    q_deg: np.ndarray,
+    cycles: int,
+    compensated_with: dict | None,
+    vap: dict | None = None,
+    points: list[str] | None = None,
+) -> dict:
     return {
         "criterion": "iso9283",
         "order": "iso9283",
@@ -128,26 +135,39 @@ def plan_doc(cell_name: str, plan: IsoPlan, q_deg: np.ndarray, cycles: int, comp
             "commanded_mm": np.round(plan.commanded_mm, 4).tolist(),
             "nominal_poses_deg": np.round(np.degrees(plan.q_rad), 4).tolist(),
             "compensated_with": compensated_with,
-        } | ({"vap": vap} if vap else {}) | ({"points": points} if points else {}),
+        }
+        | ({"vap": vap} if vap else {})
+        | ({"points": points} if points else {}),
     }
+
+
+def _check_conditions(opts: PlanOptions) -> None:
+    """The test's load and velocities as the standard asks them (ISO 9283:1998, 6.6 and 6.7), or an OptionError."""
+    if not (opts.load or "").strip():
+        raise OptionError(
+            "{0} is required: what the robot carries during the test (ISO 9283:1998, 6.6), e.g. "
+            "'270 kg, 100 % rated', or 'unloaded' to state that it carries nothing",
+            "load",
+        )
+    if (
+        not opts.velocities
+        or any(not 0 < v <= 100 for v in opts.velocities)
+        or len(set(opts.velocities)) != len(opts.velocities)
+    ):
+        raise OptionError(
+            "{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10", "velocities"
+        )
 
 
 def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
     """The ISO 9283 plan of a cell, written to opts.json; with a model (checked: campaign.jobs.trusted, its warning
     lines added to `warnings`), its compensated targets."""
-    if not (opts.load or "").strip():
-        raise OptionError("{0} is required: what the robot carries during the test (ISO 9283:1998, 6.6), e.g. "
-                          "'270 kg, 100 % rated', or 'unloaded' to state that it carries nothing", "load")
-    if (not opts.velocities or any(not 0 < v <= 100 for v in opts.velocities)
-            or len(set(opts.velocities)) != len(opts.velocities)):  # fmt: skip
-        raise OptionError("{0}: expected distinct percentages of the rated velocity in (0, 100], e.g. 100,50,10",
-                          "velocities")  # fmt: skip
+    _check_conditions(opts)
     drift = _drift_options(opts)
     if opts.warm_up_cycles < 0:
         raise OptionError("{0} must be 0 (no warm-up) or more", "warm_up_cycles")
     if opts.cycles < 2:
-        raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)",
-                          "cycles")  # fmt: skip
+        raise OptionError("{0} must be at least 2 (repeatability needs two cycles; the standard asks for 30)", "cycles")
     if opts.side_mm is not None and not opts.side_mm > 0:
         raise OptionError("{0} must be a positive length in mm", "side_mm")
     vap_cycles = 0 if drift else opts.cycles if opts.vap_cycles is None else opts.vap_cycles
@@ -177,18 +197,26 @@ def make_plan(opts: PlanOptions, warnings: list[str] | None = None) -> dict:
         if q_app is not None:  # the approach points compensated too: the robot still comes in along the base axes
             flat, rep = compensate(model, q_app.reshape(-1, q_app.shape[-1]), cell.tcp, max_correction=bound)
             if any(rep.failures):
-                raise InputError(f"{opts.model}: the vAP approach points cannot be compensated: "
-                                 + "; ".join(f for f in rep.failures if f))  # fmt: skip
+                raise InputError(
+                    f"{opts.model}: the vAP approach points cannot be compensated: "
+                    + "; ".join(f for f in rep.failures if f)
+                )
             q_app = flat.reshape(q_app.shape)
-        compensated_with = {"model": str(opts.model),
-                            "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest(),
-                            "test_pose": model.doc.get("test_pose")}  # the model's stated figure (calib.tcp_figure)
+        compensated_with = {
+            "model": str(opts.model),
+            "sha256": hashlib.sha256(Path(opts.model).read_bytes()).hexdigest(),
+            "test_pose": model.doc.get("test_pose"),
+        }  # the model's stated figure (calib.tcp_figure)
     points = orientation_points(cell, plan, q_deg) if opts.orientation else None
     vap = None
     if q_app is not None:
-        vap = {"cycles": vap_cycles, "poses": [POSE_NAMES[i] for i in VAP_POSES], "approaches": approach_sides(plan),
-               "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
-               "approach_deg": np.round(np.degrees(q_app), 4).tolist()}  # fmt: skip
+        vap = {
+            "cycles": vap_cycles,
+            "poses": [POSE_NAMES[i] for i in VAP_POSES],
+            "approaches": approach_sides(plan),
+            "approach_mm": round(APPROACH_FRACTION * plan.cube.side_mm, 4),
+            "approach_deg": np.round(np.degrees(q_app), 4).tolist(),
+        }
     doc = plan_doc(cell.name, plan, q_deg, opts.cycles, compensated_with, vap, points)
     doc["iso9283"]["load"] = opts.load.strip()
     doc["iso9283"]["velocities"] = [float(v) for v in opts.velocities][: 1 if drift else None]
@@ -211,10 +239,32 @@ UNLOADED = "unloaded"  # the one word that states the robot carries nothing
 
 
 # the conditions of a test in the order a report reads them: what was tested, how, in which environment, when
-CONDITION_ORDER = ("robot", "cell", "tool", "tool point measured", "station", "tracker (its U)", "tracker serial",
-                   "tracker certificate", "field check", "reflector centring", "load", "speed", "warm-up",
-                   "targets", "cube", "cycles", "temperature", "air pressure", "humidity", "started", "ended",
-                   "complete", "mode", "trackcal version")  # fmt: skip
+CONDITION_ORDER = (
+    "robot",
+    "cell",
+    "tool",
+    "tool point measured",
+    "station",
+    "tracker (its U)",
+    "tracker serial",
+    "tracker certificate",
+    "field check",
+    "reflector centring",
+    "load",
+    "speed",
+    "warm-up",
+    "targets",
+    "cube",
+    "cycles",
+    "temperature",
+    "air pressure",
+    "humidity",
+    "started",
+    "ended",
+    "complete",
+    "mode",
+    "trackcal version",
+)
 
 
 def _drift_options(opts: PlanOptions) -> dict | None:
@@ -229,8 +279,11 @@ def _drift_options(opts: PlanOptions) -> dict | None:
     if groups < 2:
         raise OptionError("{0} must be at least 2 (the drift compares the first group with the last)", "drift_groups")
     if opts.warm_up_cycles:
-        raise OptionError("{0} and {1}: the drift test measures the change from the robot as it starts, no warm-up "
-                          "before it", "warm_up_cycles", "drift_hours")  # fmt: skip
+        raise OptionError(
+            "{0} and {1}: the drift test measures the change from the robot as it starts, no warm-up before it",
+            "warm_up_cycles",
+            "drift_hours",
+        )
     return {"hours": float(opts.drift_hours), "groups": groups, "cycles": opts.cycles}
 
 
@@ -238,9 +291,12 @@ def _field_check_block(cell: Cell, given: tuple[str, str, float]) -> dict:
     """The plan's field check (campaign.jobs.iso9283_field), checked: two distinct tool points, a length > 0."""
     a, b, length = given
     if a == b or a not in cell.tool_points or b not in cell.tool_points or not 0 < length < math.inf:
-        raise OptionError("{0}: expected two distinct reference points of the tool ({points}) and their certified "
-                          "distance in mm > 0, e.g. P1,P3,188.012", "field_check",
-                          points=", ".join(sorted(cell.tool_points)))  # fmt: skip
+        raise OptionError(
+            "{0}: expected two distinct reference points of the tool ({points}) and their certified "
+            "distance in mm > 0, e.g. P1,P3,188.012",
+            "field_check",
+            points=", ".join(sorted(cell.tool_points)),
+        )
     return {"points": [a, b], "length_mm": float(length)}
 
 
@@ -258,8 +314,10 @@ def orientation_points(cell, plan: IsoPlan, q_deg: np.ndarray) -> list[str]:
     vis = visibility(cell, np.round(q_deg, 4))
     seen = [p for p in sorted(cell.tool_points) if p != plan.point and vis[(plan.station, p)].all()]
     if len(seen) < 2:
-        raise InputError(f"--orientation needs three tool points that station {plan.station} sees at all five poses; "
-                         f"it sees {', '.join([*seen, plan.point])}")  # fmt: skip
+        raise InputError(
+            f"--orientation needs three tool points that station {plan.station} sees at all five poses; "
+            f"it sees {', '.join([*seen, plan.point])}"
+        )
     return [*seen, plan.point]
 
 
@@ -273,29 +331,51 @@ def _session_inputs(directory: Path):
     try:
         events, meta = store.events(), store.meta()
         seed = f" (seed {meta['seed']})" if meta.get("seed") else ""
-        conditions = {"started": _utc(events[0].t_wall) if events else "-",
-                      "ended": _utc(events[-1].t_wall) if events else "-",
-                      "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
-                      "mode": meta.get("mode", "-") + seed}  # fmt: skip
+        conditions = {
+            "started": _utc(events[0].t_wall) if events else "-",
+            "ended": _utc(events[-1].t_wall) if events else "-",
+            "complete": "yes" if any(e.kind == "campaign_done" for e in events) else "no",
+            "mode": meta.get("mode", "-") + seed,
+        }
         conditions["warm-up"] = warm_up_record(events)
         docs = stored_measurements(store)
         conditions.update(_field_check_record(store, directory, docs))
         sides = [m.get("approach", "") for m in docs]  # vAP visits (7.2) name theirs
         speeds = np.array([float(m.get("velocity_pct", 0.0)) for m in docs])  # the test velocity (6.7) of each
         groups = np.array([int(m.get("drift_group", 0)) for m in docs])  # the drift test's group (7.6) of each
-        overrides = sorted({float(e.data["args"][1]) for e in store.events("call") if e.data.get("device") == "robot"
-                            and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1})  # fmt: skip
-        conditions["speed"] = (", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves: the "
-                               "session's setting, no test velocity planned (ISO 9283:1998, 6.7: 100 %, 50 % and "
-                               "10 % of the rated velocity)") if overrides else "no move recorded"  # fmt: skip
+        overrides = sorted(
+            {
+                float(e.data["args"][1])
+                for e in store.events("call")
+                if e.data.get("device") == "robot" and e.data.get("op") == "move" and len(e.data.get("args", [])) > 1
+            }
+        )
+        conditions["speed"] = (
+            (
+                ", ".join(f"{v:g}" for v in overrides) + " % joint speed override, PTP moves: the "
+                "session's setting, no test velocity planned (ISO 9283:1998, 6.7: 100 %, 50 % and "
+                "10 % of the rated velocity)"
+            )
+            if overrides
+            else "no move recorded"
+        )
         tool_text = store.documents().get("config/tool.yaml")
         tool_doc = yaml.safe_load(tool_text) if tool_text else None
         conditions["tool"] = str((tool_doc or {}).get("name") or "-")
         conditions.update(traceability(store, directory))
-        conditions["reflector centring"] = (f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
-                                            if centring_mm(tool_doc) is not None else "not stated by the tool file")
-        return (session_cell(store), session_plan(store), export_table(store, str(directory)), conditions,
-                Visits(np.zeros(0), np.asarray(sides), speeds, group=groups), centring_mm(tool_doc))  # fmt: skip
+        conditions["reflector centring"] = (
+            f"±{centring_mm(tool_doc) * 1000:g} µm (the tool file)"
+            if centring_mm(tool_doc) is not None
+            else "not stated by the tool file"
+        )
+        return (
+            session_cell(store),
+            session_plan(store),
+            export_table(store, str(directory)),
+            conditions,
+            Visits(np.zeros(0), np.asarray(sides), speeds, group=groups),
+            centring_mm(tool_doc),
+        )
     finally:
         store.close()
 
@@ -305,8 +385,9 @@ def _field_check_record(store: SessionStore, directory: Path, docs: list) -> dic
     block = (session_plan(store).get("iso9283") or {}).get("field_check")
     if not block:
         return {}
-    rows = {p: np.array([m["xyz_mm"] for m in docs if m.get("field_check") and m["point"] == p]) for p in
-            block["points"]}  # fmt: skip
+    rows = {
+        p: np.array([m["xyz_mm"] for m in docs if m.get("field_check") and m["point"] == p]) for p in block["points"]
+    }
     found = field_check(block, rows, tracker_section(store, directory), session_cell(store).tracker)
     return {"field check": found.describe() if found else "planned, not measured: a point was not seen"}
 
@@ -322,8 +403,10 @@ def warm_up_record(events) -> str:
     cycles = len(moves) / len(POSE_NAMES)
     end = _utc(done[0].t_wall, True) if done else "not finished"
     order = " ".join(POSE_NAMES[i] for i in CYCLE_ORDER)
-    return (f"{cycles:g} cycle{'' if cycles == 1 else 's'} of {order} at {moves[0].get('speed_pct', 0):g} "
-            f"%, nothing measured, {_utc(started[0][1].t_wall, True)} to {end} (ISO 9283:1998, 6.2)")  # fmt: skip
+    return (
+        f"{cycles:g} cycle{'' if cycles == 1 else 's'} of {order} at {moves[0].get('speed_pct', 0):g} "
+        f"%, nothing measured, {_utc(started[0][1].t_wall, True)} to {end} (ISO 9283:1998, 6.2)"
+    )
 
 
 def _meteo(table, key: str, unit: str, digits: int) -> str:
@@ -370,8 +453,11 @@ def drift_test(directory: Path, model: Model, noise: TrackerNoise | None = None)
     if station is None:
         raise InputError(f"the model knows no station {iso['station']!r}: identify a campaign measured from it first")
     in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
-    p1 = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-          & (np.asarray(table.pose) == "Q1"))  # fmt: skip
+    p1 = (
+        (np.asarray(table.station) == iso["station"])
+        & (np.asarray(table.point) == iso["point"])
+        & (np.asarray(table.pose) == "Q1")
+    )
     commanded = commanded_positions(iso, model)[0]
     groups, figures = [], []
     for g in range(1, block["groups"] + 1):
@@ -381,13 +467,26 @@ def drift_test(directory: Path, model: Model, noise: TrackerNoise | None = None)
             raise InputError(f"{directory}: drift group {g} has {len(base)} measurements of P1; it needs two")
         ap, rp = pose_accuracy(base, commanded, cov)[0], pose_repeatability(base, cov)[0]
         figures.append((ap, rp))
-        groups.append({"group": g, "t_h": round(float(table.t_s[rows][0]) / 3600.0, 4), "cycles": len(base),
-                       "AP_P_mm": ap.value, "RP_l_mm": rp.value})  # fmt: skip
+        groups.append(
+            {
+                "group": g,
+                "t_h": round(float(table.t_s[rows][0]) / 3600.0, 4),
+                "cycles": len(base),
+                "AP_P_mm": ap.value,
+                "RP_l_mm": rp.value,
+            }
+        )
     (ap1, rp1), (ap2, rp2) = figures[0], figures[-1]
     targets = f"compensated with {iso['compensated_with']['model']}" if iso.get("compensated_with") else "nominal"
-    return {"targets": targets, "first": f"{directory} group 1", "last": f"{directory} group {block['groups']}",
-            "poses": [{"pose": "P1", "dAP": drift(ap1, ap2), "dRP": drift(rp1, rp2)}], "groups": groups,
-            "hours": block["hours"], "speed": conditions["speed"]}  # fmt: skip
+    return {
+        "targets": targets,
+        "first": f"{directory} group 1",
+        "last": f"{directory} group {block['groups']}",
+        "poses": [{"pose": "P1", "dAP": drift(ap1, ap2), "dRP": drift(rp1, rp2)}],
+        "groups": groups,
+        "hours": block["hours"],
+        "speed": conditions["speed"],
+    }
 
 
 def _velocity_condition(speed: float, conditions: dict) -> str:
@@ -397,8 +496,9 @@ def _velocity_condition(speed: float, conditions: dict) -> str:
     return f"{speed:g} % of the rated velocity (ISO 9283:1998, 6.7; the PTP moves' joint speed override)"
 
 
-def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = None,
-                    velocity: float | None = None) -> IsoFigures:  # fmt: skip
+def session_figures(
+    directory: Path, model: Model, noise: TrackerNoise | None = None, velocity: float | None = None
+) -> IsoFigures:
     """The ISO 9283 figures of one session of an ISO plan at one of its test velocities (None: the first, 6.7), in
     the base frame of `model`'s station estimate; `noise` is the tracker's instrument model every figure's
     uncertainty comes from (None: the session's tracker's)."""
@@ -420,11 +520,21 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     tracker = noise.name if noise else cell.tracker.describe()  # whose noise U is
     in_base = InBase(table, station, noise or TrackerNoise.of(cell.tracker))
     visit = Visits(np.asarray(table.pose), visit.side, visit.speed, speed)
-    keep = ((np.asarray(table.station) == iso["station"]) & (np.asarray(table.point) == iso["point"])
-            & (visit.speed == speed))  # fmt: skip
+    keep = (
+        (np.asarray(table.station) == iso["station"])
+        & (np.asarray(table.point) == iso["point"])
+        & (visit.speed == speed)
+    )
     temps = table.extra.get("temp_c") if table.extra else None
-    context = BudgetContext(model, iso["station"], iso["point"], _commanded_rotations(iso, model), tracker, centring,
-                            temperature_halfrange(None if temps is None else [temps[k] for k in np.flatnonzero(keep)]))
+    context = BudgetContext(
+        model,
+        iso["station"],
+        iso["point"],
+        _commanded_rotations(iso, model),
+        tracker,
+        centring,
+        temperature_halfrange(None if temps is None else [temps[k] for k in np.flatnonzero(keep)]),
+    )
     figures, attained, covs = _pose_figures(directory, in_base, keep, visit, commanded, context)
     a, b = DISTANCE_POSES
     ad = rd = ad_budget = None
@@ -438,13 +548,28 @@ def session_figures(directory: Path, model: Model, noise: TrackerNoise | None = 
     pts = iso_points(iso)
     if len(pts) >= 3:  # the attained orientation from the tool's points, cycle by cycle (7.2)
         notes += _orientations(iso, pts, model, in_base, visit, figures)
-    vap, vap_attained = ({}, {}) if speed != planned[0] else _multidirectional(iso, cell, in_base, keep, visit,
-                                                                                  notes)  # at the first velocity only
+    vap, vap_attained = (
+        ({}, {}) if speed != planned[0] else _multidirectional(iso, cell, in_base, keep, visit, notes)
+    )  # at the first velocity only
     conditions = _iso_conditions(conditions, cell, iso, table, pts, len(attained[0]), tracker)
     departed = departures(iso, speed, len(attained[0]), conditions, NO_LOAD, UNLOADED)
-    return IsoFigures(label, bool(iso.get("compensated_with")), figures, ad, rd, attained, commanded,
-                      conditions, notes, vap, vap_attained, ad_budget, other_budgets(rd, vap, tracker),
-                      speed, departed)  # fmt: skip
+    return IsoFigures(
+        label,
+        bool(iso.get("compensated_with")),
+        figures,
+        ad,
+        rd,
+        attained,
+        commanded,
+        conditions,
+        notes,
+        vap,
+        vap_attained,
+        ad_budget,
+        other_budgets(rd, vap, tracker),
+        speed,
+        departed,
+    )
 
 
 @dataclass(frozen=True)
@@ -462,8 +587,9 @@ class Visits:
         return (self.pose == f"Q{i + 1}") & (self.side == side) & at
 
 
-def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray,
-                  context: BudgetContext):  # fmt: skip
+def _pose_figures(
+    directory: Path, in_base: InBase, keep: np.ndarray, visit: Visits, commanded: np.ndarray, context: BudgetContext
+):
     """The pose accuracy and repeatability of each pose (7.2), with its attained positions and covariances; their U
     is their uncertainty budget's (campaign.jobs.iso9283_budget)."""
     attained, covs, figures = [], [], []
@@ -483,8 +609,9 @@ def _pose_figures(directory: Path, in_base: InBase, keep: np.ndarray, visit: Vis
     return figures, attained, covs
 
 
-def _orientations(iso: dict, pts: list[str], model: Model, in_base: InBase, visit: Visits,
-                  figures: list[PoseFigures]) -> list[str]:  # fmt: skip
+def _orientations(
+    iso: dict, pts: list[str], model: Model, in_base: InBase, visit: Visits, figures: list[PoseFigures]
+) -> list[str]:
     """The attained orientation of each pose from the tool's points, cycle by cycle (7.2), into `figures`;
     returns the notes of the poses without them."""
     missing = [p for p in pts if p not in model.points]
@@ -509,8 +636,9 @@ def _orientations(iso: dict, pts: list[str], model: Model, in_base: InBase, visi
     return notes
 
 
-def _multidirectional(iso: dict, cell: Cell, in_base: InBase, keep: np.ndarray, visit: Visits,
-                      notes: list[str]) -> tuple[dict, dict]:  # fmt: skip
+def _multidirectional(
+    iso: dict, cell: Cell, in_base: InBase, keep: np.ndarray, visit: Visits, notes: list[str]
+) -> tuple[dict, dict]:
     """The multi-directional pose accuracy variation (7.2) of each vAP pose, and its attained positions per side;
     a pose not measured from one of its sides gets a note in `notes` instead."""
     vap, vap_attained = {}, {}
@@ -521,28 +649,37 @@ def _multidirectional(iso: dict, cell: Cell, in_base: InBase, keep: np.ndarray, 
         if missing:
             notes.append(f"{POSE_NAMES[i]} was not measured from its {', '.join(missing)} side: no vAP")
             continue
-        vap[POSE_NAMES[i]] = multidirectional_variation([x for x, _ in per_side.values()],
-                                                        [c for _, c in per_side.values()])  # fmt: skip
+        vap[POSE_NAMES[i]] = multidirectional_variation(
+            [x for x, _ in per_side.values()], [c for _, c in per_side.values()]
+        )
         vap_attained[POSE_NAMES[i]] = {side: x for side, (x, _) in per_side.items()}
     return vap, vap_attained
 
 
-def _iso_conditions(conditions: dict, cell: Cell, iso: dict, table: MeasurementTable, pts: list[str], cycles: int,
-                    tracker: str) -> dict:  # fmt: skip
+def _iso_conditions(
+    conditions: dict, cell: Cell, iso: dict, table: MeasurementTable, pts: list[str], cycles: int, tracker: str
+) -> dict:
     """The test conditions the report states (ISO 9283 clause 6), in CONDITION_ORDER first."""
     comp = iso.get("compensated_with")
-    conditions.update({
-        "robot": cell.chain.name, "cell": cell.name, "station": iso["station"],
-        "tool point measured": iso["point"] + (f" (for the orientation also {', '.join(pts[:-1])})"
-                                               if len(pts) >= 3 else ""),
-        "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
-                f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
-        "cycles": str(cycles), "targets": f"compensated with {comp['model']}" if comp else "nominal",
-        "load": iso.get("load") or NO_LOAD,
-        "temperature": _meteo(table, "temp_c", "°C", 1), "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
-        "humidity": _meteo(table, "humidity_pct", "%", 0), "tracker (its U)": tracker,
-        "trackcal version": version("trackcal"),
-    })  # fmt: skip
+    conditions.update(
+        {
+            "robot": cell.chain.name,
+            "cell": cell.name,
+            "station": iso["station"],
+            "tool point measured": iso["point"]
+            + (f" (for the orientation also {', '.join(pts[:-1])})" if len(pts) >= 3 else ""),
+            "cube": f"side {iso.get('cube_side_mm', float('nan')):.1f} mm about "
+            f"({', '.join(f'{v:.1f}' for v in iso.get('cube_centre_mm', []))}) mm",
+            "cycles": str(cycles),
+            "targets": f"compensated with {comp['model']}" if comp else "nominal",
+            "load": iso.get("load") or NO_LOAD,
+            "temperature": _meteo(table, "temp_c", "°C", 1),
+            "air pressure": _meteo(table, "pressure_hpa", "hPa", 1),
+            "humidity": _meteo(table, "humidity_pct", "%", 0),
+            "tracker (its U)": tracker,
+            "trackcal version": version("trackcal"),
+        }
+    )
     first = [k for k in CONDITION_ORDER if k in conditions]
     return {k: conditions[k] for k in [*first, *(k for k in conditions if k not in first)]}
 
@@ -588,9 +725,17 @@ def drifts(tests: list[IsoFigures]) -> list[dict]:
         if len(same) < 2:
             continue
         first, last = same[0], same[-1]
-        out.append({"targets": targets, "first": first.session, "last": last.session, "poses": [
-            {"pose": a.name, "dAP": drift(a.ap, b.ap), "dRP": drift(a.rp, b.rp)}
-            for a, b in zip(first.poses, last.poses, strict=True)]})  # fmt: skip
+        out.append(
+            {
+                "targets": targets,
+                "first": first.session,
+                "last": last.session,
+                "poses": [
+                    {"pose": a.name, "dAP": drift(a.ap, b.ap), "dRP": drift(a.rp, b.rp)}
+                    for a, b in zip(first.poses, last.poses, strict=True)
+                ],
+            }
+        )
     return out
 
 
@@ -602,8 +747,10 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
         warnings += checked
     expired = [m for m in map(expired_certificate, opts.sessions) if m]
     if expired and opts.certificate and not opts.accept_expired:
-        raise InputError(f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
-                         "test anyway (the report then says so)")  # fmt: skip
+        raise InputError(
+            f"{expired[0]}: recalibrate the tracker, or --accept-expired-certificate to state the "
+            "test anyway (the report then says so)"
+        )
     tests, drift_tests = [], []
     for s in opts.sessions:
         found = drift_test(Path(s), model, opts.noise)  # the drift test (7.6): a session of its own
@@ -623,7 +770,21 @@ def compare(opts: CompareOptions, warnings: list[str] | None = None) -> tuple[li
         if opts.tolerances:
             found = verdicts(tests, opts.tolerances, opts.decision_rule)
             conformity = conformity_doc(opts.decision_rule, opts.tolerances, found)
-        write_json(opts.json, {"model": opts.model, "tests": [t.to_doc() for t in tests], "drift": [
-            {**d, "poses": [{"pose": p["pose"], "dAP": p["dAP"].to_doc(), "dRP": p["dRP"].to_doc()}
-                            for p in d["poses"]]} for d in drift_list], "conformity": conformity})  # fmt: skip
+        write_json(
+            opts.json,
+            {
+                "model": opts.model,
+                "tests": [t.to_doc() for t in tests],
+                "drift": [
+                    {
+                        **d,
+                        "poses": [
+                            {"pose": p["pose"], "dAP": p["dAP"].to_doc(), "dRP": p["dRP"].to_doc()} for p in d["poses"]
+                        ],
+                    }
+                    for d in drift_list
+                ],
+                "conformity": conformity,
+            },
+        )
     return tests, drift_list

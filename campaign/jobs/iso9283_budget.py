@@ -69,26 +69,45 @@ class BudgetContext:
     def setting(self, i: int, y: np.ndarray) -> PoseSetting:
         """Pose i's, with its measurements y (n, 3) in the station's frame."""
         doc = self.model.doc or {}
-        su = np.concatenate([_ci(doc, "stations", self.station, "ci95_translation_mm", 3),
-                             np.radians(_ci(doc, "stations", self.station, "ci95_rotation_deg", 3))]) * CI95_TO_SIGMA
+        su = (
+            np.concatenate(
+                [
+                    _ci(doc, "stations", self.station, "ci95_translation_mm", 3),
+                    np.radians(_ci(doc, "stations", self.station, "ci95_rotation_deg", 3)),
+                ]
+            )
+            * CI95_TO_SIGMA
+        )
         pu = _ci(doc, "tool_points", self.point, "ci95_mm", 3) * CI95_TO_SIGMA
-        return PoseSetting(y, self.model.stations[self.station].rotation, su, self.rotations[i],
-                           np.asarray(self.model.points[self.point], float), pu, self.tracker, self.centring,
-                           self.halfrange)  # fmt: skip
+        return PoseSetting(
+            y,
+            self.model.stations[self.station].rotation,
+            su,
+            self.rotations[i],
+            np.asarray(self.model.points[self.point], float),
+            pu,
+            self.tracker,
+            self.centring,
+            self.halfrange,
+        )
 
 
-def pose_budgets(x: np.ndarray, covs: np.ndarray, offset: np.ndarray, rp: Figure,
-                 setting: PoseSetting) -> dict[str, Budget]:  # fmt: skip
+def pose_budgets(
+    x: np.ndarray, covs: np.ndarray, offset: np.ndarray, rp: Figure, setting: PoseSetting
+) -> dict[str, Budget]:
     """AP_P's and RP_l's budgets of one pose (x, covs: its attained positions in the base frame and their tracker
     covariances; rp: RP_l with its tracker-only U from calib.iso9283)."""
-    return {"AP_P": ap_budget(offset, pose_inputs(x, covs, setting)),
-            "RP_l": rp_budget(x, covs, rp.u95 / 2.0, setting.tracker)}  # fmt: skip
+    return {
+        "AP_P": ap_budget(offset, pose_inputs(x, covs, setting)),
+        "RP_l": rp_budget(x, covs, rp.u95 / 2.0, setting.tracker),
+    }
 
 
 def ad_budget_of(ad: Figure, c1: np.ndarray, c2: np.ndarray, context: BudgetContext) -> Budget:
     """AD_P's budget (ad: with its tracker-only U from calib.iso9283), over the commanded distance |c1 - c2|."""
-    return ad_budget(ad.value, ad.u95, float(np.linalg.norm(np.asarray(c1) - np.asarray(c2))), context.halfrange,
-                     context.tracker)
+    return ad_budget(
+        ad.value, ad.u95, float(np.linalg.norm(np.asarray(c1) - np.asarray(c2))), context.halfrange, context.tracker
+    )
 
 
 def other_budgets(rd: Figure | None, vap: dict[str, Figure], tracker: str) -> dict[str, Budget]:
@@ -96,6 +115,7 @@ def other_budgets(rd: Figure | None, vap: dict[str, Figure], tracker: str) -> di
     of a cycle (RD) or every approach of a pose (vAP_P) alike listed with none."""
     common = "moves both poses of a cycle (RD) or every approach of a pose (vAP_P) alike: cancels"
     out = {} if rd is None else {"RD": tracker_budget("RD", rd.value, rd.u95, tracker, common)}
-    out.update({f"vAP_P {name}": tracker_budget(f"vAP_P {name}", f.value, f.u95, tracker, common)
-                for name, f in vap.items()})  # fmt: skip
+    out.update(
+        {f"vAP_P {name}": tracker_budget(f"vAP_P {name}", f.value, f.u95, tracker, common) for name, f in vap.items()}
+    )
     return out

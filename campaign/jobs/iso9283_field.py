@@ -37,9 +37,11 @@ class FieldCheck:
 
     def describe(self) -> str:
         a, b = self.points
-        return (f"length {a}-{b}: measured {self.measured_mm:.4f} mm, certified {self.certified_mm:.4f} mm, error "
-                f"{self.error_mm * 1000:+.1f} µm, MPE ±{self.mpe_mm * 1000:.1f} µm ({self.mpe_source}): "
-                f"{self.verdict} (ASME B89.4.19 / ISO 10360-10 length check)")  # fmt: skip
+        return (
+            f"length {a}-{b}: measured {self.measured_mm:.4f} mm, certified {self.certified_mm:.4f} mm, error "
+            f"{self.error_mm * 1000:+.1f} µm, MPE ±{self.mpe_mm * 1000:.1f} µm ({self.mpe_source}): "
+            f"{self.verdict} (ASME B89.4.19 / ISO 10360-10 length check)"
+        )
 
 
 def mpe_mm(range_m: float, tracker: dict | None, instrument: Instrument) -> tuple[float, str]:
@@ -53,8 +55,9 @@ def mpe_mm(range_m: float, tracker: dict | None, instrument: Instrument) -> tupl
     return (a + b * range_m) / 1000.0, f"{a:g} µm + {b:g} µm/m, the {instrument.name} datasheet"
 
 
-def field_check(block: dict, rows: dict[str, np.ndarray], tracker: dict | None,
-                instrument: Instrument) -> FieldCheck | None:  # fmt: skip
+def field_check(
+    block: dict, rows: dict[str, np.ndarray], tracker: dict | None, instrument: Instrument
+) -> FieldCheck | None:
     """The check from the plan's `field_check` block and the measured positions (station frame, mm) of each of its
     points (the mean of that point's field-check measurements); None when a point was not measured."""
     a, b = block["points"]

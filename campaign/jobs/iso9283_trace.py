@@ -25,12 +25,19 @@ def _stated(store: SessionStore) -> dict[str, str]:
     """The tracker's serial and its certificate, as the session's hardware config states them."""
     t = stated_tracker(store)
     if t is None:
-        return {"tracker serial": "none (no hardware config: a simulated session)",
-                "tracker certificate": "none (no hardware config: a simulated session)"}  # fmt: skip
+        return {
+            "tracker serial": "none (no hardware config: a simulated session)",
+            "tracker certificate": "none (no hardware config: a simulated session)",
+        }
     cert = t.get("certificate")
-    text = NOT_STATED.format("certificate") if cert is None else (
-        f"{cert}, calibrated {t.get('certificate_date') or '(date not stated)'}, due "
-        f"{t.get('certificate_due') or '(not stated)'}")  # fmt: skip
+    text = (
+        NOT_STATED.format("certificate")
+        if cert is None
+        else (
+            f"{cert}, calibrated {t.get('certificate_date') or '(date not stated)'}, due "
+            f"{t.get('certificate_due') or '(not stated)'}"
+        )
+    )
     serial = f"{t['serial']} ({FROM_HARDWARE_FILE})" if t.get("serial") else NOT_STATED.format("serial")
     return {"tracker serial": serial, "tracker certificate": text}
 
@@ -51,5 +58,7 @@ def expired_certificate(directory: str | Path) -> str | None:
     due = (t or {}).get("certificate_due")
     if due is None or day is None or day <= due:
         return None
-    return (f"{directory}: the tracker's calibration certificate {t.get('certificate') or '(id not stated)'} "
-            f"(serial {t.get('serial') or 'not stated'}) was due on {due}, before the test of {day}")
+    return (
+        f"{directory}: the tracker's calibration certificate {t.get('certificate') or '(id not stated)'} "
+        f"(serial {t.get('serial') or 'not stated'}) was due on {due}, before the test of {day}"
+    )

@@ -67,9 +67,17 @@ def check_memory(option: str, count: int, need: Callable[[int], float], what: st
     while high - low > 1:
         mid = (low + high) // 2
         low, high = (mid, high) if need(mid) <= available else (low, mid)
-    raise OptionError("{0} {count}: needs about {need:.1f} GiB of memory ({each} per {what}), {avail:.1f} GiB is "
-                      "available: at most {most}", option, count=count, need=needed / GIB,
-                      each=readable(needed / count), what=what, avail=available / GIB, most=low)  # fmt: skip
+    raise OptionError(
+        "{0} {count}: needs about {need:.1f} GiB of memory ({each} per {what}), {avail:.1f} GiB is "
+        "available: at most {most}",
+        option,
+        count=count,
+        need=needed / GIB,
+        each=readable(needed / count),
+        what=what,
+        avail=available / GIB,
+        most=low,
+    )
 
 
 def table_rows_allowed(dof: int) -> int:
@@ -83,10 +91,17 @@ def check_table_rows(option: str, count: int, rows: int, dof: int, what: str) ->
     trackcal cannot identify is no campaign."""
     allowed = table_rows_allowed(dof)
     if rows > allowed:
-        raise OptionError("{0} {count}: the campaign would measure {rows} rows, more than the {allowed} a "
-                          "measurement table may hold ({cells} cells): at most {most} {what}", option, count=count,
-                          rows=rows, allowed=allowed, cells=MAX_CELLS, most=allowed * count // rows,
-                          what=what)  # fmt: skip
+        raise OptionError(
+            "{0} {count}: the campaign would measure {rows} rows, more than the {allowed} a "
+            "measurement table may hold ({cells} cells): at most {most} {what}",
+            option,
+            count=count,
+            rows=rows,
+            allowed=allowed,
+            cells=MAX_CELLS,
+            most=allowed * count // rows,
+            what=what,
+        )
 
 
 def readable(n: float) -> str:

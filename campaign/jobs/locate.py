@@ -76,12 +76,21 @@ def _station_rows(table: MeasurementTable, station: str | None) -> tuple[str, np
     ids = list(dict.fromkeys(table.station))
     if station is None:
         if len(ids) > 1:
-            raise OptionError("{0}: the table {path} has stations {ids}; say which one to locate", "station",
-                              path=table.source, ids=", ".join(ids))  # fmt: skip
+            raise OptionError(
+                "{0}: the table {path} has stations {ids}; say which one to locate",
+                "station",
+                path=table.source,
+                ids=", ".join(ids),
+            )
         station = ids[0]
     elif station not in ids:
-        raise OptionError("{0} {station}: no such station in {path} (it has {ids})", "station", station=station,
-                          path=table.source, ids=", ".join(ids))  # fmt: skip
+        raise OptionError(
+            "{0} {station}: no such station in {path} (it has {ids})",
+            "station",
+            station=station,
+            path=table.source,
+            ids=", ".join(ids),
+        )
     return station, np.flatnonzero(np.array(table.station) == station)
 
 
@@ -106,30 +115,49 @@ def locate_rows(model: Model, rows: MeasurementTable) -> Identification:
             f"{MIN_POINTS} non-collinear points are needed (reference points x poses)"
         )
     ext, theta = (None, None) if model.cause == "station_shift" else model.extension_for(rows)
-    return identify(model.chain, rows, model.points, model.params, noise=model_noise(model.doc), dev0=model.dev,
-                    extension=ext, ext0=theta, fixed=LOCATE_ONLY)  # fmt: skip
+    return identify(
+        model.chain,
+        rows,
+        model.points,
+        model.params,
+        noise=model_noise(model.doc),
+        dev0=model.dev,
+        extension=ext,
+        ext0=theta,
+        fixed=LOCATE_ONLY,
+    )
 
 
 def station_doc(fit: Identification, sid: str) -> dict:
     """The model.json entry of a located station (calib.model_file's layout)."""
     st, c = fit.stations[sid], fit.station_ci95(sid)
-    return {"rotation": st.rotation.tolist(), "translation_mm": st.translation.tolist(),
-            "ci95_translation_mm": c[:3].tolist(), "ci95_rotation_deg": np.degrees(c[3:]).tolist()}  # fmt: skip
+    return {
+        "rotation": st.rotation.tolist(),
+        "translation_mm": st.translation.tolist(),
+        "ci95_translation_mm": c[:3].tolist(),
+        "ci95_rotation_deg": np.degrees(c[3:]).tolist(),
+    }
 
 
 def locate(opts: LocateOptions) -> Location:
     """`trackcal locate`: the station fitted, the model written with it (and the held-out rows predicted)."""
     if opts.predict_out and opts.poses is None:
-        raise OptionError("{0} needs {1} K: the rows of the poses after the first K are the ones predicted",
-                          "predict_out", "poses")  # fmt: skip
+        raise OptionError(
+            "{0} needs {1} K: the rows of the poses after the first K are the ones predicted", "predict_out", "poses"
+        )
     model, _ = trusted_model(opts.model, opts.accept_edited)  # the model written is sealed anew: check it first
     table = read_measured(opts.table, model.chain)
     station, rows = _station_rows(table, opts.station)
     name = opts.name or station
     used, rest = _split(table, rows, opts.poses)
     if opts.predict_out and not len(rest):
-        raise OptionError("{0} {poses}: the table has no pose after the first {poses} of station {station}; "
-                          "nothing is left to predict", "poses", poses=opts.poses, station=station)  # fmt: skip
+        raise OptionError(
+            "{0} {poses}: the table has no pose after the first {poses} of station {station}; "
+            "nothing is left to predict",
+            "poses",
+            poses=opts.poses,
+            station=station,
+        )
     sub = table.subset(used)
     sub.station = [name] * len(sub)
     fit = locate_rows(model, sub)
@@ -145,8 +173,9 @@ def locate(opts: LocateOptions) -> Location:
     if len(rest):
         held = table.subset(rest)
         held.station = [name] * len(held)
-        new = Model(model.chain, model.params, model.dev, {**model.stations, name: fit.stations[name]},
-                    model.points, doc)  # fmt: skip
+        new = Model(
+            model.chain, model.params, model.dev, {**model.stations, name: fit.stations[name]}, model.points, doc
+        )
         pred = predict_table(new, held)
         if opts.predict_out:
             with writing(opts.predict_out, InputError):
@@ -155,13 +184,18 @@ def locate(opts: LocateOptions) -> Location:
             held_out = {"rows": len(held), "poses": len(set(held.pose)), **residual_stats(held.xyz - pred.xyz)}
     path, stats = Path(opts.table), residual_stats(fit.residuals)
     doc.setdefault("located", {})[name] = {
-        "table": str(path), "table_sha256": sha256_of(path), "station_in_table": station,
-        "poses": located_poses, "n_points": len(sub), **quality,
+        "table": str(path),
+        "table_sha256": sha256_of(path),
+        "station_in_table": station,
+        "poses": located_poses,
+        "n_points": len(sub),
+        **quality,
         "residuals": {"rms_mm": stats["dist_rms_mm"], "max_mm": stats["dist_max_mm"]},  # 3-D
-        "points": [{"row": p.row, "pose": p.pose, "point": p.point, "residual_mm": p.residual.tolist()}
-                   for p in points],
+        "points": [
+            {"row": p.row, "pose": p.pose, "point": p.point, "residual_mm": p.residual.tolist()} for p in points
+        ],
         "held_out": held_out,
-    }  # fmt: skip
+    }
     doc = sealed(doc)
     write_json(opts.out, doc, InputError)
     return Location(name, fit, points, quality, located_poses, held_out, replaced, doc)

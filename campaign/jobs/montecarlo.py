@@ -73,8 +73,12 @@ def coverage_seed(opts: CoverageOptions, seed: int) -> dict:
     truth = np.array([twin.true_dev[twin.params.index(p)] for p in params])
     err = res.dev - truth
     f = float(err @ np.linalg.solve(res.param_cov(), err) / len(err))
-    return {"seed": seed, "names": [p.name for p in params], "inside": (np.abs(err) <= res.param_ci95()).tolist(),
-            "joint": bool(f <= stats.f.ppf(LEVEL, len(err), res.dof))}  # fmt: skip
+    return {
+        "seed": seed,
+        "names": [p.name for p in params],
+        "inside": (np.abs(err) <= res.param_ci95()).tolist(),
+        "joint": bool(f <= stats.f.ppf(LEVEL, len(err), res.dof)),
+    }
 
 
 def coverage_chunk(seeds: list[int], opts: CoverageOptions) -> list[dict]:
@@ -104,12 +108,16 @@ def coverage_counts(rows: list[dict]) -> Coverage:
     outside = [name for name, k in zip([*names, "joint"], counts, strict=True) if not lo <= k <= hi]
     span = f"{min(counts) / n:.1%}-{max(counts) / n:.1%}"
     if outside:
-        sentence = (f"not honest: over {n} simulated campaigns the truth was inside the 95 % intervals {span} of "
-                    f"the time, and {', '.join(outside)} fell outside the {BAND:.1%} binomial band "
-                    f"[{lo}, {hi}]")  # fmt: skip
+        sentence = (
+            f"not honest: over {n} simulated campaigns the truth was inside the 95 % intervals {span} of "
+            f"the time, and {', '.join(outside)} fell outside the {BAND:.1%} binomial band "
+            f"[{lo}, {hi}]"
+        )
     else:
-        sentence = (f"honest: over {n} simulated campaigns the truth was inside the 95 % intervals {span} of the time, "
-                    f"every count within the {BAND:.1%} binomial band [{lo}, {hi}] of {n} draws at 95 %")  # fmt: skip
+        sentence = (
+            f"honest: over {n} simulated campaigns the truth was inside the 95 % intervals {span} of the time, "
+            f"every count within the {BAND:.1%} binomial band [{lo}, {hi}] of {n} draws at 95 %"
+        )
     return Coverage(names, n, inside, joint, (lo, hi), p_values, not outside, sentence)
 
 
@@ -126,17 +134,35 @@ def coverage(opts: CoverageOptions, progress: Progress | None = None) -> Coverag
     check_memory("seeds", opts.seeds, lambda n: n * SEED_BYTES, "seed")
     load_cell(opts.cell)  # a wrong cell is one line here, not one per worker
     rows = []
-    for part in map_chunks(coverage_chunk, _seeds_chunks(opts.first_seed, opts.seeds, opts.chunk), (opts,),
-                           opts.scheduler, progress=progress):  # fmt: skip
+    for part in map_chunks(
+        coverage_chunk,
+        _seeds_chunks(opts.first_seed, opts.seeds, opts.chunk),
+        (opts,),
+        opts.scheduler,
+        progress=progress,
+    ):
         rows.extend(part)
     rows.sort(key=lambda r: r["seed"])
     result = coverage_counts(rows)
     if opts.json:
-        write_json(opts.json, {"cell": opts.cell, "seeds": [opts.first_seed, opts.first_seed + opts.seeds - 1],
-                               "poses": opts.poses, "weighting": opts.weighting, "level": LEVEL, "n": result.n,
-                               "parameters": {n: k for n, k in zip(result.names, result.inside, strict=True)},
-                               "joint": result.joint, "band": list(result.band), "p_values": result.p_values,
-                               "honest": result.honest, "sentence": result.sentence}, InputError)  # fmt: skip
+        write_json(
+            opts.json,
+            {
+                "cell": opts.cell,
+                "seeds": [opts.first_seed, opts.first_seed + opts.seeds - 1],
+                "poses": opts.poses,
+                "weighting": opts.weighting,
+                "level": LEVEL,
+                "n": result.n,
+                "parameters": {n: k for n, k in zip(result.names, result.inside, strict=True)},
+                "joint": result.joint,
+                "band": list(result.band),
+                "p_values": result.p_values,
+                "honest": result.honest,
+                "sentence": result.sentence,
+            },
+            InputError,
+        )
     return result
 
 
@@ -165,9 +191,13 @@ def _design(cell_ref: str, plan_text: str) -> tuple[Design, np.ndarray, int]:
     """The plan's design (its parameters, test pose, noise and visibility), its poses (rad) and repeat: built once
     per worker process."""
     doc = json.loads(plan_text)
-    opts = PlanOptions(params=",".join(doc["params"]), test_pose=",".join(str(v) for v in doc["test_pose_deg"]),
-                       sigma_mm=doc["sigma_mm"] if doc["noise"] == "iid" else None, noise=doc["noise"],
-                       visibility=bool(doc["visibility"]))  # fmt: skip
+    opts = PlanOptions(
+        params=",".join(doc["params"]),
+        test_pose=",".join(str(v) for v in doc["test_pose_deg"]),
+        sigma_mm=doc["sigma_mm"] if doc["noise"] == "iid" else None,
+        noise=doc["noise"],
+        visibility=bool(doc["visibility"]),
+    )
     return build_design(load_cell(cell_ref), opts), np.radians(np.asarray(doc["poses_deg"], float)), int(doc["repeat"])
 
 
@@ -199,8 +229,13 @@ def rho0(opts: Rho0Options, progress: Progress | None = None) -> Rho0:
     plan_text = json.dumps(doc, sort_keys=True)
     design, q, repeat = _design(opts.cell, plan_text)
     errors = []
-    for part in map_chunks(rho0_chunk, _seeds_chunks(0, opts.runs, opts.chunk), (opts.cell, plan_text, opts.seed),
-                           opts.scheduler, progress=progress):  # fmt: skip
+    for part in map_chunks(
+        rho0_chunk,
+        _seeds_chunks(0, opts.runs, opts.chunk),
+        (opts.cell, plan_text, opts.seed),
+        opts.scheduler,
+        progress=progress,
+    ):
         errors.extend(part)
     e2 = np.square([e for _, e in sorted(errors)])  # in run order: the sum does not depend on the chunks' order
     lam = np.linalg.eigvalsh(design.j0 @ np.linalg.inv(design.information(q, repeat)) @ design.j0.T)
@@ -209,13 +244,27 @@ def rho0(opts: Rho0Options, progress: Progress | None = None) -> Rho0:
     z = float((e2.mean() - analytic**2) / se)
     agrees = abs(z) < RHO0_SIGMAS
     verdict = "agrees with" if agrees else "disagrees with"
-    sentence = (f"Monte-Carlo rho0 {np.sqrt(e2.mean()) * 1000:.2f} µm over {len(e2)} simulated campaigns of the plan "
-                f"{verdict} the analytic rho0 {analytic * 1000:.2f} µm (mean squared error {z:+.1f} standard errors "
-                f"from rho0^2; {RHO0_SIGMAS:g} allowed)")  # fmt: skip
+    sentence = (
+        f"Monte-Carlo rho0 {np.sqrt(e2.mean()) * 1000:.2f} µm over {len(e2)} simulated campaigns of the plan "
+        f"{verdict} the analytic rho0 {analytic * 1000:.2f} µm (mean squared error {z:+.1f} standard errors "
+        f"from rho0^2; {RHO0_SIGMAS:g} allowed)"
+    )
     result = Rho0(len(e2), analytic, float(np.sqrt(e2.mean())), se, z, agrees, sentence)
     if opts.json:
-        write_json(opts.json, {"plan": opts.plan, "cell": opts.cell, "runs": result.runs, "seed": opts.seed,
-                               "rho0_mm": analytic, "monte_carlo_rho0_mm": result.monte_carlo_mm,
-                               "standard_error_mm2": se, "z": z, "agrees": agrees, "sentence": sentence},
-                   InputError)  # fmt: skip
+        write_json(
+            opts.json,
+            {
+                "plan": opts.plan,
+                "cell": opts.cell,
+                "runs": result.runs,
+                "seed": opts.seed,
+                "rho0_mm": analytic,
+                "monte_carlo_rho0_mm": result.monte_carlo_mm,
+                "standard_error_mm2": se,
+                "z": z,
+                "agrees": agrees,
+                "sentence": sentence,
+            },
+            InputError,
+        )
     return result

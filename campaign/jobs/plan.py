@@ -70,14 +70,19 @@ def plan_params(cell: Cell, names: str | None) -> list[Param]:
 def parse_test_pose(cell: Cell, text: str | None) -> np.ndarray:
     if text is None:
         if cell.test_pose is None:
-            raise OptionError("cell {cell} has no test_pose_deg: give {0}=Q1,..,Q{dof}", "test_pose", cell=cell.name,
-                              dof=cell.chain.dof)
+            raise OptionError(
+                "cell {cell} has no test_pose_deg: give {0}=Q1,..,Q{dof}",
+                "test_pose",
+                cell=cell.name,
+                dof=cell.chain.dof,
+            )
         return cell.test_pose
     try:
         q = np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise OptionError("{0}: expected {dof} comma-separated angles in degrees", "test_pose",
-                          dof=cell.chain.dof) from None
+        raise OptionError(
+            "{0}: expected {dof} comma-separated angles in degrees", "test_pose", dof=cell.chain.dof
+        ) from None
     if q.shape != (cell.chain.dof,) or not np.all(np.isfinite(q)):
         raise OptionError("{0}: expected {dof} angles, got {text!r}", "test_pose", dof=cell.chain.dof, text=text)
     return np.radians(q)
@@ -102,12 +107,16 @@ def plan_size(design: Design, configs: int | None, repeat: int | None) -> tuple[
     per_config = 3 * len(design.tool)
     chosen = -(-EQUATIONS_PER_UNKNOWN * u.size // per_config)
     repeat = 1 if repeat is None else repeat
-    free = " and ".join(f"{n} {what}" for n, what in ((u.n_stations, "stations"), (u.n_points, "reference points"))
-                        if n) or "no stations or points"  # fmt: skip
-    why = (f"{chosen} configurations x {repeat}: the campaign identifies {u.size} unknowns ({u.k} robot parameters, "
-           f"{free}), each configuration gives {per_config} coordinates, and {EQUATIONS_PER_UNKNOWN} equations per "
-           "unknown let the noise be estimated to 8 % or better; distinct poses before repeats, since a repeat only "
-           "averages noise where a new pose also separates the parameters")  # fmt: skip
+    free = (
+        " and ".join(f"{n} {what}" for n, what in ((u.n_stations, "stations"), (u.n_points, "reference points")) if n)
+        or "no stations or points"
+    )
+    why = (
+        f"{chosen} configurations x {repeat}: the campaign identifies {u.size} unknowns ({u.k} robot parameters, "
+        f"{free}), each configuration gives {per_config} coordinates, and {EQUATIONS_PER_UNKNOWN} equations per "
+        "unknown let the noise be estimated to 8 % or better; distinct poses before repeats, since a repeat only "
+        "averages noise where a new pose also separates the parameters"
+    )
     return chosen, repeat, why
 
 
@@ -124,14 +133,21 @@ def build_design(cell: Cell, opts: PlanOptions) -> Design:
     if opts.sigma_mm is not None and opts.sigma_mm <= 0:
         raise OptionError("{0} must be positive", "sigma_mm")
     if opts.sigma_mm is not None and opts.noise != "iid":
-        raise OptionError("{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the tracker model has its "
-                          "own)", "sigma_mm", "noise")  # fmt: skip
+        raise OptionError(
+            "{0} is the i.i.d. noise of one coordinate: give {1} iid with it (the tracker model has its own)",
+            "sigma_mm",
+            "noise",
+        )
     noise = TrackerNoise.of(cell.tracker) if opts.noise == "tracker" else None
     return design_for_cell(
-        cell, plan_params(cell, opts.params), parse_test_pose(cell, opts.test_pose),
-        sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01, noise=noise, visibility=opts.visibility,
+        cell,
+        plan_params(cell, opts.params),
+        parse_test_pose(cell, opts.test_pose),
+        sigma_mm=opts.sigma_mm if opts.sigma_mm is not None else 0.01,
+        noise=noise,
+        visibility=opts.visibility,
         visibility_margin_deg=PLAN_VISIBILITY_MARGIN_DEG,
-    )  # fmt: skip
+    )
 
 
 # how long `--scheduler` waits for a Dask scheduler to answer (distributed.Client's connect timeout)
@@ -152,13 +168,17 @@ def executor_for(scheduler: str | None, started=None) -> Iterator[Executor]:
         try:
             client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
         except (OSError, TimeoutError) as exc:
-            raise OptionError("{0} {scheduler}: cannot reach the Dask scheduler ({exc})", "scheduler",
-                              scheduler=scheduler, exc=exc) from None
+            raise OptionError(
+                "{0} {scheduler}: cannot reach the Dask scheduler ({exc})", "scheduler", scheduler=scheduler, exc=exc
+            ) from None
         except Exception as exc:  # noqa: BLE001 - whatever a server that is no Dask scheduler makes distributed raise
             # e.g. an HTTP server's "HTTP/1.1 404" read as a frame length: numpy asked for 3.07 EiB (MemoryError)
-            raise OptionError("{0} {scheduler}: no Dask scheduler answers there (the server's reply is not Dask's "
-                              "protocol: {kind})", "scheduler", scheduler=scheduler,
-                              kind=type(exc).__name__) from None  # fmt: skip
+            raise OptionError(
+                "{0} {scheduler}: no Dask scheduler answers there (the server's reply is not Dask's protocol: {kind})",
+                "scheduler",
+                scheduler=scheduler,
+                kind=type(exc).__name__,
+            ) from None
         # a lost scheduler is our one line, not distributed's log of tracebacks (its loggers have levels of their
         # own, dask's logging config: their handlers, on the `distributed` logger, are silenced)
         handlers = logging.getLogger("distributed").handlers
@@ -204,9 +224,14 @@ NOT_IDENTIFIABLE = "not identifiable: the plan's information matrix is singular"
 def unknowns_doc(design: Design) -> dict:
     """What rho0 was computed for: the campaign's unknowns and the quantity it predicts."""
     u = design.unknowns
-    return {"robot_params": u.k, "stations": u.n_stations, "points": u.n_points, "total": u.size,
-            "rho0_is": "the predicted 1-sigma 3-D uncertainty of the reference points' centroid at the test pose, in "
-                       "the first station's frame (what identify and the report state after the campaign)"}  # fmt: skip
+    return {
+        "robot_params": u.k,
+        "stations": u.n_stations,
+        "points": u.n_points,
+        "total": u.size,
+        "rho0_is": "the predicted 1-sigma 3-D uncertainty of the reference points' centroid at the test pose, in "
+        "the first station's frame (what identify and the report state after the campaign)",
+    }
 
 
 def evaluate_doc(design: Design, poses: np.ndarray) -> dict:
@@ -289,9 +314,16 @@ def search_doc(design: Design, opts: PlanOptions, progress: Callable[[int, int],
     try:
         with executor_for(opts.scheduler) as ex:
             plan = optimize_plan(
-                design, opts.configs, opts.repeat, opts.criterion, starts=opts.starts, refined=opts.refined,
-                seed=opts.seed, executor=ex, progress=progress,
-            )  # fmt: skip
+                design,
+                opts.configs,
+                opts.repeat,
+                opts.criterion,
+                starts=opts.starts,
+                refined=opts.refined,
+                seed=opts.seed,
+                executor=ex,
+                progress=progress,
+            )
     except DesignError as exc:
         raise InputError(str(exc)) from None
     criteria = finite_or_null(plan.criteria, NOT_IDENTIFIABLE)
@@ -319,8 +351,14 @@ class PlanOutcome:
     evaluated: bool  # the doc evaluates a given plan
 
 
-def plan(cell_ref: str, opts: PlanOptions, json_out: str, evaluate: str | None = None, csv_out: str | None = None,
-         progress: Callable[[int, int], None] | None = None) -> PlanOutcome:  # fmt: skip
+def plan(
+    cell_ref: str,
+    opts: PlanOptions,
+    json_out: str,
+    evaluate: str | None = None,
+    csv_out: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> PlanOutcome:
     """`trackcal plan`: search a plan (its poses also as rows in `csv_out`), or evaluate the plan of the CSV
     `evaluate`; the document written to `json_out`."""
     cell = load_cell(cell_ref)

@@ -64,8 +64,9 @@ def local_pool(workers: int, started=None) -> ProcessPoolExecutor:
     """A process pool whose workers die with this process; `started` (chunk_marks) records which worker took which
     chunk (run_marked)."""
     forked_here = multiprocessing.get_start_method() in ("fork", "spawn")
-    return ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
-                               initargs=(os.getpid() if forked_here else None, started))  # fmt: skip
+    return ProcessPoolExecutor(
+        max_workers=workers, initializer=_worker_init, initargs=(os.getpid() if forked_here else None, started)
+    )
 
 
 def chunk_marks(n: int):

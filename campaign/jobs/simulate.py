@@ -25,8 +25,9 @@ def parse_effects(items: list[str] | None) -> dict[str, float]:
     for item in items or []:
         name, _, mag = item.partition(":")
         if name not in CAUSES:
-            raise OptionError("{0} {item}: unknown effect; choose from {causes}", "effect", item=item,
-                              causes=", ".join(CAUSES))
+            raise OptionError(
+                "{0} {item}: unknown effect; choose from {causes}", "effect", item=item, causes=", ".join(CAUSES)
+            )
         try:
             out[name] = float(mag) if mag else 0.05
         except ValueError:
@@ -47,8 +48,9 @@ def check_simulate_size(cell: Cell, opts: SimulateOptions) -> None:
     pairs = max(1, len(cell.stations)) * len(cell.tool_points)
     rows = opts.poses * opts.repeat * pairs  # at most: a reflector a station cannot see is not measured
     if opts.repeat > 1 and opts.repeat >= opts.poses:  # the limit is named on the larger of the two counts
-        check_memory("repeat", opts.repeat, lambda k: opts.poses * k * pairs * SIMULATE_BYTES_PER_PAIR,
-                     "pass over the poses")  # fmt: skip
+        check_memory(
+            "repeat", opts.repeat, lambda k: opts.poses * k * pairs * SIMULATE_BYTES_PER_PAIR, "pass over the poses"
+        )
         check_table_rows("repeat", opts.repeat, rows, cell.chain.dof, "passes")
     check_memory("poses", opts.poses, lambda n: n * opts.repeat * pairs * SIMULATE_BYTES_PER_PAIR, "pose")
     check_table_rows("poses", opts.poses, rows, cell.chain.dof, "poses")

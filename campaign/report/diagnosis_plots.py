@@ -67,15 +67,27 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ext = d.extended.extension
         fitted = np.degrees(ext.joint_offsets(main_cause_theta(d))[:, j]) * 1000.0
         left = implied_joint_error(cell, after, d.table, after.residuals, j) * 1000.0
-        panels = ((axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
-                  (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} µm"))  # fmt: skip
+        panels = (
+            (axes[0], fitted + left, f"fitted {d.cause} of joint {j + 1} + residual"),
+            (axes[1], left, f"extended model residual: RMS {rms(after.residuals) * 1000:.1f} µm"),
+        )
         ylabel = f"joint {j + 1} error (mdeg)"
     else:
-        panels = ((axes[0], np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0,
-                   f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} µm"),)  # fmt: skip
+        panels = (
+            (
+                axes[0],
+                np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0,
+                f"geometric model: RMS {rms(d.geometric.residuals) * 1000:.1f} µm",
+            ),
+        )
         if d.extended is not None:
-            panels += ((axes[1], np.linalg.norm(after.residuals, axis=1) * 1000.0,
-                        f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} µm"),)  # fmt: skip
+            panels += (
+                (
+                    axes[1],
+                    np.linalg.norm(after.residuals, axis=1) * 1000.0,
+                    f"{d.cause}: RMS {rms(after.residuals) * 1000:.1f} µm",
+                ),
+            )
         ylabel = "|residual| (µm)"
     for ax, y, title in panels:
         for sid in sorted(set(d.table.station)):
@@ -127,8 +139,14 @@ def error_map_curves(fits: dict[str, Identification], path: Path, joint_names: l
             cut = np.flatnonzero(np.diff(x) < 0) + 1  # where the arc wraps past the window's end: break the line
             x, value, sd = (np.insert(v, cut, np.nan) for v in (x, value, sd))
             (line,) = ax.plot(x, np.degrees(value) * 1000.0, lw=1.0, label=label)
-            ax.fill_between(x, np.degrees(value - 1.96 * sd) * 1000.0, np.degrees(value + 1.96 * sd) * 1000.0,
-                            color=line.get_color(), alpha=0.25, lw=0)  # fmt: skip
+            ax.fill_between(
+                x,
+                np.degrees(value - 1.96 * sd) * 1000.0,
+                np.degrees(value + 1.96 * sd) * 1000.0,
+                color=line.get_color(),
+                alpha=0.25,
+                lw=0,
+            )
         ax.set_ylabel(f"{joint_names[j] if joint_names else f'joint {j + 1}'}\nerror (mdeg)")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="upper right")

@@ -87,8 +87,11 @@ def table_html(header: list[str] | None, rows: list[list], left: int = 1) -> str
     def cls(i: int) -> str:
         return ' class="l"' if i < left else ""
 
-    head = "" if header is None else (
-        "<thead><tr>" + "".join(f"<th{cls(i)}>{esc(h)}</th>" for i, h in enumerate(header)) + "</tr></thead>")
+    head = (
+        ""
+        if header is None
+        else ("<thead><tr>" + "".join(f"<th{cls(i)}>{esc(h)}</th>" for i, h in enumerate(header)) + "</tr></thead>")
+    )
     body = "".join("<tr>" + "".join(f"<td{cls(i)}>{esc(c)}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows)
     return f"<table>{head}<tbody>{body}</tbody></table>"
 
@@ -124,8 +127,10 @@ def duration_text(seconds: float | None) -> str:
 def floor_text(res: Residuals) -> str:
     """The one noise floor, with both of its forms: per coordinate (Table 9, the histograms) and for a 3-D
     distance (the per-configuration plot): sqrt(3) times, the RMS length of three independent coordinates."""
-    return (f"{res.floor_mm * 1000:.1f} per coordinate ({res.floor_source}); {np.sqrt(3.0) * res.floor_mm * 1000:.1f} "
-            "for a 3-D distance (√3 × the per-coordinate floor)")
+    return (
+        f"{res.floor_mm * 1000:.1f} per coordinate ({res.floor_source}); {np.sqrt(3.0) * res.floor_mm * 1000:.1f} "
+        "for a 3-D distance (√3 × the per-coordinate floor)"
+    )
 
 
 def table9_rows(res: Residuals) -> list[list[str]]:
@@ -143,8 +148,9 @@ def parameter_rows(model_doc: dict, planned: list[str] | None) -> list[list[str]
         value, ci = float(p["value"]), float(p.get("ci95", float("nan")))
         significant = "yes" if abs(value) > ci else "no"
         in_plan = "-" if planned is None else "yes" if name in planned else "no"
-        rows.append([name, p.get("unit", ""), fmt(p.get("nominal"), 1), f"{value:+.4f}", f"±{ci:.4f}", significant,
-                     in_plan])  # fmt: skip
+        rows.append(
+            [name, p.get("unit", ""), fmt(p.get("nominal"), 1), f"{value:+.4f}", f"±{ci:.4f}", significant, in_plan]
+        )
     return rows
 
 
@@ -157,19 +163,27 @@ def parameters_note(model_doc: dict, plan_doc: dict | None, sigma_mm: float | No
     if planned:
         extra = [n for n in fitted if n not in planned]
         left = [n for n in planned if n not in fitted]
-        text += (f" The plan was optimised for {len(planned)} parameters ({' '.join(planned)}); the model fits "
-                 f"{len(fitted)}, the irreducible set with the stations and reference points free.")
+        text += (
+            f" The plan was optimised for {len(planned)} parameters ({' '.join(planned)}); the model fits "
+            f"{len(fitted)}, the irreducible set with the stations and reference points free."
+        )
         if left:
-            text += (f" {' '.join(left)} of the plan cannot be told apart from the stations' placement and "
-                     f"{'is' if len(left) == 1 else 'are'} not fitted.")
+            text += (
+                f" {' '.join(left)} of the plan cannot be told apart from the stations' placement and "
+                f"{'is' if len(left) == 1 else 'are'} not fitted."
+            )
         if extra:
-            text += (f" {' '.join(extra)} are not in the plan: these configurations were not chosen to determine "
-                     "them: their intervals say how well they are determined all the same.")
+            text += (
+                f" {' '.join(extra)} are not in the plan: these configurations were not chosen to determine "
+                "them: their intervals say how well they are determined all the same."
+            )
     if sigma_mm is not None:
         rho = (plan_doc or {}).get("rho0_mm")
         promised = f" (the plan's rho0, for its own parameters only: {float(rho) * 1000:.2f} µm)" if rho else ""
-        text += (f" This model's TCP at the test pose is determined to ±{sigma_mm * 1000:.1f} µm by this campaign "
-                 f"(1σ 3-D, from its covariance){promised}.")
+        text += (
+            f" This model's TCP at the test pose is determined to ±{sigma_mm * 1000:.1f} µm by this campaign "
+            f"(1σ 3-D, from its covariance){promised}."
+        )
     return text
 
 
@@ -178,8 +192,10 @@ def plan_unknown_rows(plan_doc: dict, cell: Cell) -> list[tuple[str, str]]:
     6 per station, 3 per point), with their names from the cell; "-" for a plan that does not record them."""
     u = plan_doc.get("unknowns") or {}
     rows = []
-    for key, label, per, names in (("stations", "stations", 6, list(cell.stations)),
-                                   ("points", "reference points", 3, sorted(cell.tool_points))):  # fmt: skip
+    for key, label, per, names in (
+        ("stations", "stations", 6, list(cell.stations)),
+        ("points", "reference points", 3, sorted(cell.tool_points)),
+    ):
         n = u.get(key)
         text = "-" if n is None else "known (held at nominal)" if n == 0 else f"{n}: {' '.join(names[:n])}"
         rows.append((f"{label} ({per} unknowns each)", text))
@@ -191,16 +207,24 @@ def section_plan(plan_doc: dict | None, cell: Cell, out_dir: Path) -> str:
         return "<h2>Measurement plan</h2><p class='note'>No plan given.</p>"
     parts = ["<h2>Measurement plan</h2>"]
     rho = plan_doc.get("rho0_mm")
-    facts = [("criterion", plan_doc.get("criterion", "-")), ("repeat", plan_doc.get("repeat", "-")),
-             ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
-             ("robot parameters", " ".join(plan_doc.get("params", [])) or "-"), *plan_unknown_rows(plan_doc, cell),
-             ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []) or "-")]  # fmt: skip
+    facts = [
+        ("criterion", plan_doc.get("criterion", "-")),
+        ("repeat", plan_doc.get("repeat", "-")),
+        ("rho0 at the test pose (µm)", f"{rho * 1000:.3f}" if rho is not None else "-"),
+        ("robot parameters", " ".join(plan_doc.get("params", [])) or "-"),
+        *plan_unknown_rows(plan_doc, cell),
+        ("test pose (deg)", ", ".join(fmt(v, 2) for v in plan_doc.get("test_pose_deg") or []) or "-"),
+    ]
     parts.append(table_html(None, [list(f) for f in facts], left=2))
     poses = plan_doc.get("poses_deg") or []
     if poses:
         n = len(poses[0])
-        parts.append(table_html(["configuration", *[f"q{j + 1} (deg)" for j in range(n)]],
-                                [[str(k + 1), *[fmt(v, 2) for v in q]] for k, q in enumerate(poses)]))  # fmt: skip
+        parts.append(
+            table_html(
+                ["configuration", *[f"q{j + 1} (deg)" for j in range(n)]],
+                [[str(k + 1), *[fmt(v, 2) for v in q]] for k, q in enumerate(poses)],
+            )
+        )
     if plot_plan(plan_doc, cell, out_dir / "plan.png") is not None:
         parts.append(img_html(out_dir / "plan.png", "measurement plan"))
     return "".join(parts)
@@ -213,10 +237,26 @@ def section_stations_points(model_doc: dict) -> str:
         t, ct = s.get("translation_mm", [np.nan] * 3), s.get("ci95_translation_mm", [np.nan] * 3)
         cr = s.get("ci95_rotation_deg", [np.nan] * 3)
         rows.append([sid, *[fmt(v, 3) for v in t], *[f"±{fmt(v, 4)}" for v in ct], *[f"±{fmt(v, 5)}" for v in cr]])
-    parts.append(table_html(["station", "tx (mm)", "ty (mm)", "tz (mm)", "CI tx", "CI ty", "CI tz",
-                             "CI rx (deg)", "CI ry (deg)", "CI rz (deg)"], rows))  # fmt: skip
-    parts.append("<p class='note'>Station transforms map the robot base frame into each tracker's frame; "
-                 "intervals are 95 %.</p>")  # fmt: skip
+    parts.append(
+        table_html(
+            [
+                "station",
+                "tx (mm)",
+                "ty (mm)",
+                "tz (mm)",
+                "CI tx",
+                "CI ty",
+                "CI tz",
+                "CI rx (deg)",
+                "CI ry (deg)",
+                "CI rz (deg)",
+            ],
+            rows,
+        )
+    )
+    parts.append(
+        "<p class='note'>Station transforms map the robot base frame into each tracker's frame; intervals are 95 %.</p>"
+    )
     rows = []
     for pid, p in model_doc.get("tool_points", {}).items():
         rows.append([pid, *[fmt(v, 4) for v in p["xyz_mm"]], *[f"±{fmt(v, 4)}" for v in p.get("ci95_mm", [])]])
@@ -231,12 +271,16 @@ def section_extension(model_doc: dict) -> str:
         return "<h2>Model extension</h2><p>None: the model is purely geometric.</p>"
     parts = [f"<h2>Model extension</h2><p>Cause: <b>{esc(cause)}</b></p>"]
     if cause == "station_shift":
-        parts.append(f"<p>Station {esc(ext.get('station', '?'))} moved after t = {esc(fmt(ext.get('after_t_s'), 1))} s"
-                     "; its later transform is identified separately.</p>")  # fmt: skip
+        parts.append(
+            f"<p>Station {esc(ext.get('station', '?'))} moved after t = {esc(fmt(ext.get('after_t_s'), 1))} s"
+            "; its later transform is identified separately.</p>"
+        )
     pars = ext.get("parameters") or {}
     if pars:
-        rows = [[n, p.get("unit", ""), f"{float(p['value']):+.4g}", f"±{float(p.get('ci95', np.nan)):.3g}"]
-                for n, p in pars.items()]  # fmt: skip
+        rows = [
+            [n, p.get("unit", ""), f"{float(p['value']):+.4g}", f"±{float(p.get('ci95', np.nan)):.3g}"]
+            for n, p in pars.items()
+        ]
         parts.append(table_html(["parameter", "unit", "value", "95 % CI"], rows, left=2))
     return "".join(parts)
 
@@ -262,16 +306,35 @@ def candidate_row(c: dict) -> list[str]:
     n = c.get("n_params")
     step = str(c.get("step", "-"))
     if n == 0:
-        return [step, c.get("cause", "?"), "0", "-", "-", "-", "-", "no",
-                "not fitted: none of its parameters is identifiable from these poses"]  # fmt: skip
+        return [
+            step,
+            c.get("cause", "?"),
+            "0",
+            "-",
+            "-",
+            "-",
+            "-",
+            "no",
+            "not fitted: none of its parameters is identifiable from these poses",
+        ]
     hold, note = c.get("holdout_rms_mm"), c.get("cv_note") or ""
     if hold is not None and not holdout_trusted(hold, c.get("rms_mm")):
-        note = (f"held out by {c.get('cv_scheme') or '?'}: not shown, over {HOLDOUT_TRUST:.0f}x its fit RMS (the "
-                "held-out rows are needed to determine the model): not a scheme this campaign supports")
+        note = (
+            f"held out by {c.get('cv_scheme') or '?'}: not shown, over {HOLDOUT_TRUST:.0f}x its fit RMS (the "
+            "held-out rows are needed to determine the model): not a scheme this campaign supports"
+        )
         hold = None
-    return [step, c.get("cause", "?"), "-" if n is None else str(n), micro(hold), micro(c.get("rms_mm")),
-            pvalue_text(c.get("f_pvalue")), fmt(c.get("delta_bic"), 0), "yes" if c.get("significant") else "no",
-            note]  # fmt: skip
+    return [
+        step,
+        c.get("cause", "?"),
+        "-" if n is None else str(n),
+        micro(hold),
+        micro(c.get("rms_mm")),
+        pvalue_text(c.get("f_pvalue")),
+        fmt(c.get("delta_bic"), 0),
+        "yes" if c.get("significant") else "no",
+        note,
+    ]
 
 
 def tcp_text(tcp: TcpDifference, plan_doc: dict | None, model_doc: dict) -> str:
@@ -279,20 +342,35 @@ def tcp_text(tcp: TcpDifference, plan_doc: dict | None, model_doc: dict) -> str:
     diff = f"{tcp.difference_mm * 1000:.1f}"
     if tcp.sigma_mm is None:
         return f"{diff} (its uncertainty is not known: no covariance)"
-    unc = (f"geometric ±{tcp.sigma_geometric_mm * 1000:.1f}, extended ±{tcp.sigma_extended_mm * 1000:.1f} µm, "
-           "1σ 3-D at the noise the extended model leaves")
+    unc = (
+        f"geometric ±{tcp.sigma_geometric_mm * 1000:.1f}, extended ±{tcp.sigma_extended_mm * 1000:.1f} µm, "
+        "1σ 3-D at the noise the extended model leaves"
+    )
     if tcp.determined:
-        return (f"{diff} ± {tcp.sigma_mm * 1000:.1f} ({unc}): where the geometric model would put the TCP, "
-                "compared with the model that explains the cause")
+        return (
+            f"{diff} ± {tcp.sigma_mm * 1000:.1f} ({unc}): where the geometric model would put the TCP, "
+            "compared with the model that explains the cause"
+        )
     planned = (plan_doc or {}).get("params") or []
-    why = (f"; the plan was optimised for {len(planned)} parameters ({' '.join(planned)}), the model fits "
-           f"{len(model_doc.get('parameters', {}))}" if planned else "")
-    return (f"not determined by this campaign: the two models' TCPs differ by {diff} µm, within "
-            f"{DETERMINED_SIGMAS:.0f}σ of their own uncertainty at the test pose ({unc}){why}")
+    why = (
+        f"; the plan was optimised for {len(planned)} parameters ({' '.join(planned)}), the model fits "
+        f"{len(model_doc.get('parameters', {}))}"
+        if planned
+        else ""
+    )
+    return (
+        f"not determined by this campaign: the two models' TCPs differ by {diff} µm, within "
+        f"{DETERMINED_SIGMAS:.0f}σ of their own uncertainty at the test pose ({unc}){why}"
+    )
 
 
-def section_diagnosis(verdict_doc: dict | None, images: list[Path], tcp: TcpDifference | None = None,
-                      plan_doc: dict | None = None, model_doc: dict | None = None) -> str:  # fmt: skip
+def section_diagnosis(
+    verdict_doc: dict | None,
+    images: list[Path],
+    tcp: TcpDifference | None = None,
+    plan_doc: dict | None = None,
+    model_doc: dict | None = None,
+) -> str:
     if not verdict_doc and not images:
         return "<h2>Diagnosis</h2><p class='note'>No diagnosis given (run trackcal diagnose).</p>"
     parts = ["<h2>Diagnosis</h2>"]
@@ -308,8 +386,10 @@ def section_diagnosis(verdict_doc: dict | None, images: list[Path], tcp: TcpDiff
             ("noise floor (µm, per coordinate)", micro(verdict_doc.get("noise_floor_mm"))),
             ("noise floor from", verdict_doc.get("noise_floor_source", "-")),
             ("geometric model RMS (µm, per coordinate)", micro(geo_rms)),
-            ("extended model RMS (µm, per coordinate)",
-             micro(ext_rms) if verdict_doc.get("cause") not in ("none", "unexplained") else "- (no cause chosen)"),
+            (
+                "extended model RMS (µm, per coordinate)",
+                micro(ext_rms) if verdict_doc.get("cause") not in ("none", "unexplained") else "- (no cause chosen)",
+            ),
         ]
         untrusted = []
         for label, key, fit in (("geometric", "rms_geometric_mm", geo_rms), ("extended", "rms_extended_mm", ext_rms)):
@@ -322,18 +402,44 @@ def section_diagnosis(verdict_doc: dict | None, images: list[Path], tcp: TcpDiff
         if hold.get("note"):
             facts.append(("held-out figures", hold["note"]))
         if untrusted:
-            facts.append(("held-out figures not shown", f"{' and '.join(untrusted)}: over {HOLDOUT_TRUST:.0f}x the "
-                          "fit RMS, the held-out scheme is not one this campaign supports"))  # fmt: skip
+            facts.append(
+                (
+                    "held-out figures not shown",
+                    f"{' and '.join(untrusted)}: over {HOLDOUT_TRUST:.0f}x the "
+                    "fit RMS, the held-out scheme is not one this campaign supports",
+                )
+            )
         if tcp is not None:
-            facts.append((f"TCP difference at the test pose (µm, station {tcp.station} frame)",
-                          tcp_text(tcp, plan_doc, model_doc or {})))  # fmt: skip
+            facts.append(
+                (
+                    f"TCP difference at the test pose (µm, station {tcp.station} frame)",
+                    tcp_text(tcp, plan_doc, model_doc or {}),
+                )
+            )
         parts.append(table_html(None, [list(f) for f in facts], left=2))
         rows = [candidate_row(c) for c in verdict_doc.get("candidates", [])]
         if rows:
-            parts.append("<p class='note'>Every candidate of every forward-selection step: at each step the "
-                         "candidates are fitted on top of the causes chosen before it.</p>")  # fmt: skip
-            parts.append(table_html(["step", "candidate", "params", "held-out RMS (µm)", "fit RMS (µm)", "F-test p",
-                                     "dBIC", "significant", "note"], rows, left=2))  # fmt: skip
+            parts.append(
+                "<p class='note'>Every candidate of every forward-selection step: at each step the "
+                "candidates are fitted on top of the causes chosen before it.</p>"
+            )
+            parts.append(
+                table_html(
+                    [
+                        "step",
+                        "candidate",
+                        "params",
+                        "held-out RMS (µm)",
+                        "fit RMS (µm)",
+                        "F-test p",
+                        "dBIC",
+                        "significant",
+                        "note",
+                    ],
+                    rows,
+                    left=2,
+                )
+            )
     parts += [img_html(path, "diagnosis plot") for path in images]
     return "".join(parts)
 
@@ -344,48 +450,62 @@ def verdict_sentence(model_doc: dict, verdict_doc: dict | None, res: Residuals) 
     cause = (verdict_doc or {}).get("cause")
     if cause is None:
         quality = model_doc.get("fit", "?")
-        return (f"The model leaves {fit}: fit {quality}" + (" (no diagnosis given: run trackcal diagnose)."
-                                                             if quality == "poor" else "; no diagnosis given."))
+        return f"The model leaves {fit}: fit {quality}" + (
+            " (no diagnosis given: run trackcal diagnose)." if quality == "poor" else "; no diagnosis given."
+        )
     if cause == "none":
         return f"The geometric calibration fits to the noise floor ({fit}); no non-geometric effect was found."
     geo = 1000 * float(verdict_doc.get("geometric", {}).get("rms_mm", np.nan))
     if cause == "unexplained":
-        return (f"The geometric model leaves {geo:.1f} µm against a noise floor of {res.floor_mm * 1000:.1f} µm and no "
-                "candidate cause explains it: the residual structure is unexplained.")  # fmt: skip
+        return (
+            f"The geometric model leaves {geo:.1f} µm against a noise floor of {res.floor_mm * 1000:.1f} µm and no "
+            "candidate cause explains it: the residual structure is unexplained."
+        )
     ext = 1000 * float(verdict_doc.get("extended", {}).get("rms_mm", np.nan))
-    return (f"The robot shows {cause.replace('_', ' ')}: the geometric model leaves {geo:.1f} µm, the model extended "
-            f"by {cause} {ext:.1f} µm, against a noise floor of {res.floor_mm * 1000:.1f} µm.")  # fmt: skip
+    return (
+        f"The robot shows {cause.replace('_', ' ')}: the geometric model leaves {geo:.1f} µm, the model extended "
+        f"by {cause} {ext:.1f} µm, against a noise floor of {res.floor_mm * 1000:.1f} µm."
+    )
 
 
-def what_next(model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, prov: Provenance,
-              cell_name: str = "") -> list[str]:  # fmt: skip
+def what_next(
+    model_doc: dict, plan_doc: dict | None, verdict_doc: dict | None, prov: Provenance, cell_name: str = ""
+) -> list[str]:
     """The next steps, as HTML paragraphs (commands in <code>); `cell_name` names the cell when the provenance
     does not."""
     cause = (verdict_doc or {}).get("cause")
     cell_ref = prov.cell_ref or cell_name
     steps = []
     if model_doc.get("fit") == "poor" and cause in (None, "unexplained"):
-        steps.append("The model does not reach the noise floor, so its intervals cannot be trusted: look at the "
-                     "diagnosis plots, the parameters left out and the set-up before compensating.")  # fmt: skip
+        steps.append(
+            "The model does not reach the noise floor, so its intervals cannot be trusted: look at the "
+            "diagnosis plots, the parameters left out and the set-up before compensating."
+        )
     ignored = f" ({esc(cause)} has no static compensation and is ignored)" if cause in NO_STATIC_COMPENSATION else ""
-    steps.append(f"Correct the robot's joint targets{ignored}: <code>trackcal compensate --model "
-                 f"{esc(prov.model_path)} TARGETS.csv --out corrected.csv --krl CALPOS</code> (TARGETS.csv: "
-                 "columns name, q1_deg..qn_deg).")  # fmt: skip
+    steps.append(
+        f"Correct the robot's joint targets{ignored}: <code>trackcal compensate --model "
+        f"{esc(prov.model_path)} TARGETS.csv --out corrected.csv --krl CALPOS</code> (TARGETS.csv: "
+        "columns name, q1_deg..qn_deg)."
+    )
     if cause in CAUSE_NEEDS:
         configs = len((plan_doc or {}).get("poses_deg") or []) or 6
         repeat = (plan_doc or {}).get("repeat", 3)
         planned = " ".join((plan_doc or {}).get("params", [])) or "the geometric parameters"
-        steps.append(f"The plan was optimised for {esc(planned)} only, not to reveal {esc(cause)}, which needs "
-                     f"{esc(CAUSE_NEEDS[cause])}. To pin it down, re-plan with more configurations and measure "
-                     f"again: <code>trackcal plan --cell {esc(cell_ref)} --configs {2 * configs} --repeat "
-                     f"{repeat} --json plan-2.json</code>, then <code>trackcal run --cell {esc(cell_ref)} "
-                     "--plan plan-2.json ...</code>.")  # fmt: skip
+        steps.append(
+            f"The plan was optimised for {esc(planned)} only, not to reveal {esc(cause)}, which needs "
+            f"{esc(CAUSE_NEEDS[cause])}. To pin it down, re-plan with more configurations and measure "
+            f"again: <code>trackcal plan --cell {esc(cell_ref)} --configs {2 * configs} --repeat "
+            f"{repeat} --json plan-2.json</code>, then <code>trackcal run --cell {esc(cell_ref)} "
+            "--plan plan-2.json ...</code>."
+        )
     return steps
 
 
 # the engine's words for a point it could not measure (campaign.engine.engine.Engine._measure)
-NOT_MEASURABLE = re.compile(r"^(?:t = [-0-9.]+ s: )?(?P<point>.+?) not measurable from (?P<station>.+?) at "
-                            r"(?P<pose>.+?): (?P<why>.*); (?P<then>skipped here|looking again)$")
+NOT_MEASURABLE = re.compile(
+    r"^(?:t = [-0-9.]+ s: )?(?P<point>.+?) not measurable from (?P<station>.+?) at "
+    r"(?P<pose>.+?): (?P<why>.*); (?P<then>skipped here|looking again)$"
+)
 
 
 # what differs from one skip to the next of one cause: where the tracker searched (the expected position)
@@ -418,9 +538,11 @@ def summarise_warnings(warnings: list[str], measured: int) -> list[str]:
     lines = []
     n_skipped = sum(len(v) for v in skipped.values())
     if n_skipped:
-        groups = "; ".join(f"{'all' if len(skips) == n_skipped else len(skips)} at station {station} (point "
-                           f"{counted([p for p, _ in skips])}; pose {counted([q for _, q in skips])}) because: {why}"
-                           for (station, why), skips in skipped.items())  # fmt: skip
+        groups = "; ".join(
+            f"{'all' if len(skips) == n_skipped else len(skips)} at station {station} (point "
+            f"{counted([p for p, _ in skips])}; pose {counted([q for _, q in skips])}) because: {why}"
+            for (station, why), skips in skipped.items()
+        )
         lines.append(f"{n_skipped} of {measured + n_skipped} planned measurements skipped, {groups}.")
     lines += [f"{text} ({n} times)" if n > 1 else text for text, n in others.items()]
     return lines
@@ -428,14 +550,18 @@ def summarise_warnings(warnings: list[str], measured: int) -> list[str]:
 
 def section_warnings(warnings: list[str] | None, measured: int) -> str:
     if warnings is None:
-        return ("<h2>Campaign warnings</h2><p class='note'>Not known: a report from files (the warnings are in the "
-                "session; give the SESSION directory).</p>")  # fmt: skip
+        return (
+            "<h2>Campaign warnings</h2><p class='note'>Not known: a report from files (the warnings are in the "
+            "session; give the SESSION directory).</p>"
+        )
     if not warnings:
         return "<h2>Campaign warnings</h2><p>None: every planned measurement was made, no drift, no blocked motion.</p>"
     summary = "".join(f"<li>{esc(w)}</li>" for w in summarise_warnings(warnings, measured))
     raw = "".join(f"<li>{esc(w)}</li>" for w in warnings)
-    return (f"<h2>Campaign warnings</h2><ul class='warn' id='warnings'>{summary}</ul>"
-            f"<details><summary>every warning as raised ({len(warnings)})</summary><ul>{raw}</ul></details>")
+    return (
+        f"<h2>Campaign warnings</h2><ul class='warn' id='warnings'>{summary}</ul>"
+        f"<details><summary>every warning as raised ({len(warnings)})</summary><ul>{raw}</ul></details>"
+    )
 
 
 def _extra_images(out_dir: Path, extra_images) -> list[Path]:
@@ -464,9 +590,11 @@ def unusable_banner(analysis: CampaignAnalysis) -> str:
     for path, what, doc in models:
         why = unusable_why(doc)
         if why:
-            out.append(f"<p class='unusable'>UNUSABLE: {esc(what)} ({esc(path)}) must not be used to "
-                       f"compensate the robot: {esc(why)}. <code>trackcal compensate</code> refuses it (unless "
-                       "<code>--accept-poor</code>).</p>")  # fmt: skip
+            out.append(
+                f"<p class='unusable'>UNUSABLE: {esc(what)} ({esc(path)}) must not be used to "
+                f"compensate the robot: {esc(why)}. <code>trackcal compensate</code> refuses it (unless "
+                "<code>--accept-poor</code>).</p>"
+            )
     return f"<div id='unusable'>{''.join(out)}</div>" if out else ""
 
 
@@ -501,8 +629,13 @@ def draw(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | N
 
 def header_facts(analysis: CampaignAnalysis) -> list[list[str]]:
     """The facts under the title: the session, the campaign, the cell and the fit."""
-    cell, table, model_doc, prov, res = (analysis.cell, analysis.table, analysis.model, analysis.provenance,
-                                         analysis.residuals)  # fmt: skip
+    cell, table, model_doc, prov, res = (
+        analysis.cell,
+        analysis.table,
+        analysis.model,
+        analysis.provenance,
+        analysis.residuals,
+    )
     digest = f" (sha256 {analysis.table_sha256[:12]})" if analysis.table_sha256 else ""
     sigma = model_doc.get("sigma_mm")
     facts = [
@@ -512,53 +645,71 @@ def header_facts(analysis: CampaignAnalysis) -> list[list[str]]:
         ("duration", duration_text(prov.duration_s)),
         ("report written", datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")),
         ("trackcal version", version("trackcal")),
-        ("cell", cell.name), ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
+        ("cell", cell.name),
+        ("robot", model_doc.get("robot", {}).get("name", cell.chain.name)),
         ("nominal robot", model_doc.get("nominal") or f"{cell.nominal} (the cell's: the model does not say)"),
         ("measurement table", table.source + digest),
-        ("measurements", str(len(table))), ("configurations", str(len(pose_order(table)))),
+        ("measurements", str(len(table))),
+        ("configurations", str(len(pose_order(table)))),
         ("stations", ", ".join(dict.fromkeys(table.station))),
         ("reference points", ", ".join(dict.fromkeys(table.point))),
         ("tracker", (model_instrument(model_doc) if "tracker" in model_doc else cell.tracker).describe()),
-        ("weighting", model_doc.get("weighting", "-")), ("iterations", str(model_doc.get("iterations", "-"))),
-        ("a-posteriori sigma (µm)", fmt(1000 * sigma, 1) if sigma is not None else
-         f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)"),
+        ("weighting", model_doc.get("weighting", "-")),
+        ("iterations", str(model_doc.get("iterations", "-"))),
+        (
+            "a-posteriori sigma (µm)",
+            fmt(1000 * sigma, 1)
+            if sigma is not None
+            else f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)",
+        ),
         ("variance factor", fmt(model_doc.get("variance_factor"), 3)),
         ("noise floor (µm)", floor_text(res)),
         ("model extension", (model_doc.get("extension") or {}).get("cause", "none")),
-    ]  # fmt: skip
+    ]
     return [list(f) for f in facts]
 
 
 def section_residuals(res: Residuals, out_dir: Path) -> str:
-    return "\n".join([
-        "<h2>Residuals before and after calibration (Table 9)</h2>",
-        table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
-        "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
-        "After: this table minus the model's prediction. Coordinate-based: every x, y, z; distance-based: the "
-        "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone "
-        "gives.</p>",
-        img_html(out_dir / "residuals_xyz.png", "residual histograms per axis"),
-        img_html(out_dir / "residuals_per_pose.png", "residual distance per configuration"),
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            "<h2>Residuals before and after calibration (Table 9)</h2>",
+            table_html(["residual (µm)", "before", "after", "improvement factor"], table9_rows(res)),
+            "<p class='note'>Before: the nominal robot, with the stations and reference points fitted to this table. "
+            "After: this table minus the model's prediction. Coordinate-based: every x, y, z; distance-based: the "
+            "3-D distance of each measurement. The dashed lines mark the noise floor: what the tracker alone "
+            "gives.</p>",
+            img_html(out_dir / "residuals_xyz.png", "residual histograms per axis"),
+            img_html(out_dir / "residuals_per_pose.png", "residual distance per configuration"),
+        ]
+    )
 
 
 def section_parameters(analysis: CampaignAnalysis, par_plot: Path | None) -> str:
     model_doc, plan_doc = analysis.model, analysis.plan
     planned = list(plan_doc.get("params") or []) if plan_doc else None
-    return "\n".join([
-        "<h2>Identified parameters (Table 8)</h2>",
-        table_html(["parameter", "unit", "nominal", "deviation", "95 % CI", "significant", "in the plan"],
-                   parameter_rows(model_doc, planned)),
-        f"<p class='note'>{esc(parameters_note(model_doc, plan_doc, analysis.test_pose_sigma_mm))}</p>",
-        img_html(par_plot, "identified parameters") if par_plot is not None else "",
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            "<h2>Identified parameters (Table 8)</h2>",
+            table_html(
+                ["parameter", "unit", "nominal", "deviation", "95 % CI", "significant", "in the plan"],
+                parameter_rows(model_doc, planned),
+            ),
+            f"<p class='note'>{esc(parameters_note(model_doc, plan_doc, analysis.test_pose_sigma_mm))}</p>",
+            img_html(par_plot, "identified parameters") if par_plot is not None else "",
+        ]
+    )
 
 
 def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[Path] | None = None) -> Path:
     """Write out_dir/report.html and its PNG plots for `analysis`; returns the HTML path. `extra_images` are PNGs
     copied next to the report and shown in the diagnosis section."""
-    cell, model_doc, plan_doc, verdict_doc, prov = (analysis.cell, analysis.model, analysis.plan, analysis.verdict,
-                                                    analysis.provenance)  # fmt: skip
+    cell, model_doc, plan_doc, verdict_doc, prov = (
+        analysis.cell,
+        analysis.model,
+        analysis.plan,
+        analysis.verdict,
+        analysis.provenance,
+    )
     out_dir = report_dir(out_dir)
     drawn = draw(analysis, out_dir, extra_images)
     next_steps = what_next(model_doc, plan_doc, verdict_doc, prov, cell.name)
@@ -578,9 +729,10 @@ def write_report(analysis: CampaignAnalysis, out_dir: Path, extra_images: list[P
         section_extension(model_doc),
         section_diagnosis(verdict_doc, drawn.diagnosis, analysis.tcp, plan_doc, model_doc),
     ]
-    page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n"
-            + "\n".join(body) + "\n</body></html>\n")  # fmt: skip
+    page = (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n"
+    )
     path = out_dir / "report.html"
     write_text(path, page, InputError)
     return path

@@ -26,32 +26,58 @@ from trackcal.campaign.report.iso9283_departures import departures_box
 from trackcal.campaign.report.pdf import html_to_pdf
 
 DEFINITIONS = [
-    ("AP_P", "pose accuracy: |x̄ − c|, the distance from the commanded position c to the barycentre x̄ of the n "
-             "attained positions", clause("AP")),
-    ("AP_x, AP_y, AP_z", "the barycentre's offset from the commanded position along each base axis",
-     clause("AP")),
-    ("RP_l", "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
-     clause("RP")),
-    ("vAP_P", "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
-              "positions attained when the pose is approached from three orthogonal directions parallel to the base "
-              "axes", clause("vAP")),
-    ("AP_a, AP_b, AP_c", "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
-                         "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
-                         "the tool's reference points, cycle j taking the j-th visit of each point",
-     clause("AP")),
-    ("RP_a, RP_b, RP_c", "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle "
-                         "about the axis", clause("RP")),
-    ("AD_P", "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
-     clause("AD")),
-    ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances",
-     clause("RD")),
-    ("dAP, dRP", "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
-                 "targets repeated over time, RP alike", clause("drift")),
-    ("± U", "the figure's expanded uncertainty from its budget (section Uncertainty budget): the tracker, the "
-            "calibration's station and tool point, the reflector's centring, the temperature and the robot's "
-            "repeatability for AP_P and AD_P (GUM, JCGM 100:2008; AP_P and RP_l by Monte-Carlo, JCGM 101:2008); the "
-            "tracker's alone (k = 2) for vAP_P, RD and the orientation figures, whose other inputs cancel", ""),
-]  # fmt: skip
+    (
+        "AP_P",
+        "pose accuracy: |x̄ − c|, the distance from the commanded position c to the barycentre x̄ of the n "
+        "attained positions",
+        clause("AP"),
+    ),
+    ("AP_x, AP_y, AP_z", "the barycentre's offset from the commanded position along each base axis", clause("AP")),
+    (
+        "RP_l",
+        "pose repeatability: l̄ + 3 S_l, l_j = |x_j − x̄|, S_l the sample standard deviation of the l_j",
+        clause("RP"),
+    ),
+    (
+        "vAP_P",
+        "multi-directional pose accuracy variation: the largest distance between the barycentres of the "
+        "positions attained when the pose is approached from three orthogonal directions parallel to the base "
+        "axes",
+        clause("vAP"),
+    ),
+    (
+        "AP_a, AP_b, AP_c",
+        "orientation accuracy: the mean attained orientation less the commanded one, as rotations "
+        "about the base x, y, z axes; each cycle's orientation is the least-squares rigid fit of "
+        "the tool's reference points, cycle j taking the j-th visit of each point",
+        clause("AP"),
+    ),
+    (
+        "RP_a, RP_b, RP_c",
+        "orientation repeatability: 3 S_a, S_a the sample standard deviation of the attained angle about the axis",
+        clause("RP"),
+    ),
+    (
+        "AD_P",
+        "distance accuracy: D̄ − D_c, the mean attained distance between two poses less the commanded one",
+        clause("AD"),
+    ),
+    ("RD", "distance repeatability: 3 S_D, S_D the sample standard deviation of the attained distances", clause("RD")),
+    (
+        "dAP, dRP",
+        "drift of pose accuracy and repeatability: |AP(first test) − AP(last test)| of tests with the same "
+        "targets repeated over time, RP alike",
+        clause("drift"),
+    ),
+    (
+        "± U",
+        "the figure's expanded uncertainty from its budget (section Uncertainty budget): the tracker, the "
+        "calibration's station and tool point, the reflector's centring, the temperature and the robot's "
+        "repeatability for AP_P and AD_P (GUM, JCGM 100:2008; AP_P and RP_l by Monte-Carlo, JCGM 101:2008); the "
+        "tracker's alone (k = 2) for vAP_P, RD and the orientation figures, whose other inputs cancel",
+        "",
+    ),
+]
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1.5em;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:right}
@@ -113,18 +139,23 @@ def report_id(tests: list[IsoFigures]) -> str:
 
 
 def _conformity(rule: str, tolerances: dict[str, float], found: list[Verdict]) -> list[str]:
-    out = ["<h2>Conformity statement</h2>",
-           f"<p>Decision rule: {html.escape(RULES[rule])}.</p><p>Tolerances (upper limits): "
-           + ", ".join(f"{TOLERANCED[k]} ≤ {v * 1000:g} µm" for k, v in tolerances.items()) + ".</p>",
-           "<table><tr><th class=l>test</th><th class=l>figure</th><th>value ± U (µm)</th><th>tolerance (µm)</th>"
-           "<th class=l>verdict</th><th class=l>clause</th></tr>"]  # fmt: skip
+    out = [
+        "<h2>Conformity statement</h2>",
+        f"<p>Decision rule: {html.escape(RULES[rule])}.</p><p>Tolerances (upper limits): "
+        + ", ".join(f"{TOLERANCED[k]} ≤ {v * 1000:g} µm" for k, v in tolerances.items())
+        + ".</p>",
+        "<table><tr><th class=l>test</th><th class=l>figure</th><th>value ± U (µm)</th><th>tolerance (µm)</th>"
+        "<th class=l>verdict</th><th class=l>clause</th></tr>",
+    ]
     css = {PASS: "pass", FAIL: "fail", NOT_PROVEN: "open"}
     for v in found:
         u = f"{v.u95_mm * 1000:.1f}" if math.isfinite(v.u95_mm) else "not stated"
-        out.append(f"<tr><td class=l>{html.escape(v.session)} ({'compensated' if v.compensated else 'nominal'})</td>"
-                   f"<td class=l>{html.escape(v.figure)}</td><td>{v.value_mm * 1000:.1f} ± {u}</td>"
-                   f"<td>{v.limit_mm * 1000:g}</td><td class='l {css[v.verdict]}'>{v.verdict}</td>"
-                   f"<td class='l c'>{clause(v.key)}</td></tr>")  # fmt: skip
+        out.append(
+            f"<tr><td class=l>{html.escape(v.session)} ({'compensated' if v.compensated else 'nominal'})</td>"
+            f"<td class=l>{html.escape(v.figure)}</td><td>{v.value_mm * 1000:.1f} ± {u}</td>"
+            f"<td>{v.limit_mm * 1000:g}</td><td class='l {css[v.verdict]}'>{v.verdict}</td>"
+            f"<td class='l c'>{clause(v.key)}</td></tr>"
+        )
     counts = {k: sum(v.verdict == k for v in found) for k in (PASS, FAIL, NOT_PROVEN)}
     out.append("</table><p>" + ", ".join(f"{n} {k}" for k, n in counts.items()) + f" of {len(found)} figures.</p>")
     return out
@@ -132,33 +163,47 @@ def _conformity(rule: str, tolerances: dict[str, float], found: list[Verdict]) -
 
 def _signatures(authorised_by: str | None = None) -> list[str]:
     names = {"Tested by": "", "Authorised by": html.escape(authorised_by or "")}
-    rows = "".join(f"<tr><td class=l>{who}</td><td class=l>{name}</td>" + "<td></td>" * 3 + "</tr>"
-                   for who, name in names.items())  # fmt: skip
-    return ["<h2>Authorisation</h2><table class=sign><tr><th class=l></th><th class=l>Name</th><th class=l>Role</th>"
-            f"<th class=l>Date</th><th class=l>Signature</th></tr>{rows}</table>"]  # fmt: skip
+    rows = "".join(
+        f"<tr><td class=l>{who}</td><td class=l>{name}</td>" + "<td></td>" * 3 + "</tr>" for who, name in names.items()
+    )
+    return [
+        "<h2>Authorisation</h2><table class=sign><tr><th class=l></th><th class=l>Name</th><th class=l>Role</th>"
+        f"<th class=l>Date</th><th class=l>Signature</th></tr>{rows}</table>"
+    ]
 
 
-def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
-           conformity: tuple[str, dict[str, float], list[Verdict]] | None = None, item: Item | None = None) -> str:
+def render(
+    tests: list[IsoFigures],
+    drift_list: list[dict],
+    model_path: str,
+    conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
+    item: Item | None = None,
+) -> str:
     """The report page; `conformity` (rule, tolerances, verdicts) adds the conformity statement, `item` the
     customer, the report's id and the person authorising it."""
     label = [t.label for t in tests]
     item = item or Item()
     rid = html.escape(item.report_id or report_id(tests))
-    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
-           f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>",
-           f"<p>Report {rid}</p><p>Customer: {html.escape(item.customer or 'not stated')}</p>"]  # fmt: skip
+    out = [
+        f"<!doctype html><html><head><meta charset='utf-8'><title>ISO 9283 acceptance test {rid}</title>",
+        f"<style>{STYLE}</style></head><body><h1>ISO 9283:1998 acceptance test</h1>",
+        f"<p>Report {rid}</p><p>Customer: {html.escape(item.customer or 'not stated')}</p>",
+    ]
     keys = list(dict.fromkeys(k for t in tests for k in t.conditions))
     out.append("<h2>Conditions of the test</h2><table><tr><th class=l></th>")
-    out += [f"<th class=l>{html.escape(t.session)} ({'compensated' if t.compensated else 'nominal'} targets)</th>"
-            for t in tests]  # fmt: skip
+    out += [
+        f"<th class=l>{html.escape(t.session)} ({'compensated' if t.compensated else 'nominal'} targets)</th>"
+        for t in tests
+    ]
     out.append("</tr>")
     for k in keys:
         out.append(f"<tr><td class=l>{html.escape(k)}</td>")
         out += [f"<td class=l>{html.escape(t.conditions.get(k, '-'))}</td>" for t in tests]
         out.append("</tr>")
-    out.append(f"<tr><td class=l>base frame</td><td class=l colspan={len(tests)}>the station estimate of "
-               f"{html.escape(model_path)}</td></tr></table>")  # fmt: skip
+    out.append(
+        f"<tr><td class=l>base frame</td><td class=l colspan={len(tests)}>the station estimate of "
+        f"{html.escape(model_path)}</td></tr></table>"
+    )
     out += departures_box(tests)
     out.append("<h2>Pose characteristics (µm)</h2><table><tr><th class=l>pose</th>")
     for lab in label:
@@ -187,10 +232,13 @@ def render(tests: list[IsoFigures], drift_list: list[dict], model_path: str,
     out += budget_section(tests)
     if conformity is not None:
         out += _conformity(*conformity)
-    out.append("<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th>"
-               "<th class=l>clause</th></tr>")  # fmt: skip
-    out += [f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class='l c'>{c}</td></tr>"
-            for n, d, c in DEFINITIONS]  # fmt: skip
+    out.append(
+        "<h2>Definitions</h2><table><tr><th class=l>figure</th><th class=l>definition</th><th class=l>clause</th></tr>"
+    )
+    out += [
+        f"<tr><td class=l>{html.escape(n)}</td><td class=l>{html.escape(d)}</td><td class='l c'>{c}</td></tr>"
+        for n, d, c in DEFINITIONS
+    ]
     out.append("</table><h2>Attained positions</h2>")
     out += [f"<p><img alt='{POSE_NAMES[i]}' src='{cluster_figure(tests, i)}'></p>" for i in range(len(POSE_NAMES))]
     notes = [f"{t.session}: {n}" for t in tests for n in t.notes]
@@ -216,8 +264,13 @@ def _orientation_section(tests: list[IsoFigures], label: list[str]) -> list[str]
             o = t.poses[i].orientation
             for kind in ("AP", "RP"):
                 figs = [o.get(f"{kind}_{a}") for a in "abc"]
-                out.append("<td>" + "<br>".join(f"{a}: " + ("-" if f is None else _um(f.value, f.u95))
-                                                for a, f in zip("abc", figs, strict=True)) + "</td>")
+                out.append(
+                    "<td>"
+                    + "<br>".join(
+                        f"{a}: " + ("-" if f is None else _um(f.value, f.u95)) for a, f in zip("abc", figs, strict=True)
+                    )
+                    + "</td>"
+                )
         out.append("</tr>")
     out.append("</table>")
     return out
@@ -234,8 +287,11 @@ def _vap_section(tests: list[IsoFigures], label: list[str]) -> list[str]:
         for name in vap_poses:
             sides = next((", ".join(t.vap_attained_mm[name]) for t in tests if name in t.vap_attained_mm), "")
             cells = [_um(t.vap[name].value, t.vap[name].u95) if name in t.vap else "-" for t in tests]
-            out.append(f"<tr><td class=l>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells)
-                       + f"<td class=l>{sides} sides</td></tr>")  # fmt: skip
+            out.append(
+                f"<tr><td class=l>{name}</td>"
+                + "".join(f"<td>{c}</td>" for c in cells)
+                + f"<td class=l>{sides} sides</td></tr>"
+            )
         out.append("</table>")
     return out
 
@@ -244,26 +300,41 @@ def _drift_sections(drift_list: list[dict]) -> list[str]:
     """One table per drift comparison."""
     out: list[str] = []
     for d in drift_list:
-        out.append(f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
-                   f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>")
-        out += [f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
-                f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>" for p in d["poses"]]  # fmt: skip
+        out.append(
+            f"<h2>Drift, {html.escape(d['targets'])} targets: {html.escape(d['first'])} to "
+            f"{html.escape(d['last'])} (µm)</h2><table><tr><th class=l>pose</th><th>dAP</th><th>dRP</th></tr>"
+        )
+        out += [
+            f"<tr><td class=l>{p['pose']}</td><td>{_um(p['dAP'].value, p['dAP'].u95)}</td>"
+            f"<td>{_um(p['dRP'].value, p['dRP'].u95)}</td></tr>"
+            for p in d["poses"]
+        ]
         out.append("</table>")
     return out
 
 
-def write_iso_report(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
-                     conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
-                     item: Item | None = None) -> Path:  # fmt: skip
+def write_iso_report(
+    tests: list[IsoFigures],
+    drift_list: list[dict],
+    model_path: str,
+    path: Path,
+    conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
+    item: Item | None = None,
+) -> Path:
     write_text(path, render(tests, drift_list, model_path, conformity, item), InputError)
     return path
 
 
-def write_iso_pdf(tests: list[IsoFigures], drift_list: list[dict], model_path: str, path: Path,
-                  conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
-                  item: Item | None = None) -> Path:  # fmt: skip
+def write_iso_pdf(
+    tests: list[IsoFigures],
+    drift_list: list[dict],
+    model_path: str,
+    path: Path,
+    conformity: tuple[str, dict[str, float], list[Verdict]] | None = None,
+    item: Item | None = None,
+) -> Path:
     """The same page as a PDF (headless chromium), the report id and "page N of M" at the foot of every page."""
     rid = (item.report_id if item else None) or report_id(tests)
-    return html_to_pdf(render(tests, drift_list, model_path, conformity, item), path,
-                       f"ISO 9283:1998 acceptance test, report {rid}")
-
+    return html_to_pdf(
+        render(tests, drift_list, model_path, conformity, item), path, f"ISO 9283:1998 acceptance test, report {rid}"
+    )

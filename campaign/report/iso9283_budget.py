@@ -26,22 +26,35 @@ def _um(v: float) -> str:
 
 def _table(title: str, columns: list[str], budgets: list[Budget]) -> list[str]:
     """One budget table: a row per input (its source and distribution from the first budget), a column per figure."""
-    out = [f"<h3>{html.escape(title)} (µm)</h3><table><tr><th class=l>input</th><th class=l>source</th>"
-           "<th class=l>distribution</th>" + "".join(f"<th>{html.escape(c)}</th>" for c in columns) + "</tr>"]
+    out = [
+        f"<h3>{html.escape(title)} (µm)</h3><table><tr><th class=l>input</th><th class=l>source</th>"
+        "<th class=l>distribution</th>" + "".join(f"<th>{html.escape(c)}</th>" for c in columns) + "</tr>"
+    ]
     for k, line in enumerate(budgets[0].lines):
-        out.append(f"<tr><td class=l>{html.escape(line.name)}</td><td class=l>{html.escape(line.source)}</td>"
-                   f"<td class=l>{html.escape(line.distribution)}</td>"
-                   + "".join(f"<td>{_um(b.lines[k].contribution_mm)}</td>" for b in budgets) + "</tr>")  # fmt: skip
-    rows = [("value", [_um(b.value) for b in budgets]),
-            ("combined standard uncertainty u_c", [_um(b.u_c) for b in budgets]),
-            ("coverage factor k", [f"{b.k:g}" for b in budgets]),
-            ("expanded uncertainty U = k u_c", [_um(b.k * b.u_c) for b in budgets])]  # fmt: skip
+        out.append(
+            f"<tr><td class=l>{html.escape(line.name)}</td><td class=l>{html.escape(line.source)}</td>"
+            f"<td class=l>{html.escape(line.distribution)}</td>"
+            + "".join(f"<td>{_um(b.lines[k].contribution_mm)}</td>" for b in budgets)
+            + "</tr>"
+        )
+    rows = [
+        ("value", [_um(b.value) for b in budgets]),
+        ("combined standard uncertainty u_c", [_um(b.u_c) for b in budgets]),
+        ("coverage factor k", [f"{b.k:g}" for b in budgets]),
+        ("expanded uncertainty U = k u_c", [_um(b.k * b.u_c) for b in budgets]),
+    ]
     if any(b.interval for b in budgets):
-        rows.append(("Monte-Carlo 95 % interval", [f"{_um(b.interval[0])} to {_um(b.interval[1])}" if b.interval
-                                                   else "-" for b in budgets]))  # fmt: skip
+        rows.append(
+            (
+                "Monte-Carlo 95 % interval",
+                [f"{_um(b.interval[0])} to {_um(b.interval[1])}" if b.interval else "-" for b in budgets],
+            )
+        )
     rows.append(("U stated (± beside the figure)", [_um(b.expanded) for b in budgets]))
-    out += [f"<tr><th class=l colspan=3>{name}</th>" + "".join(f"<td>{v}</td>" for v in values) + "</tr>"
-            for name, values in rows]  # fmt: skip
+    out += [
+        f"<tr><th class=l colspan=3>{name}</th>" + "".join(f"<td>{v}</td>" for v in values) + "</tr>"
+        for name, values in rows
+    ]
     out.append("</table>")
     return out
 

@@ -30,14 +30,23 @@ class Verdict:
     def to_doc(self) -> dict:
         """Strict JSON: with the guard band w, the acceptance limit T - w (a value at or below it passes) and the
         rejection limit T + w (a value above it fails); a number that does not exist is null."""
+
         def num(v: float) -> float | None:
             return v if math.isfinite(v) else None
 
-        return {"session": self.session, "compensated": self.compensated, "figure": self.figure,
-                "clause": clause(self.key), "value_mm": self.value_mm, "u95_mm": num(self.u95_mm),
-                "tolerance_mm": self.limit_mm, "guard_band_mm": num(self.guard_mm),
-                "acceptance_limit_mm": num(self.limit_mm - self.guard_mm),
-                "rejection_limit_mm": num(self.limit_mm + self.guard_mm), "verdict": self.verdict}  # fmt: skip
+        return {
+            "session": self.session,
+            "compensated": self.compensated,
+            "figure": self.figure,
+            "clause": clause(self.key),
+            "value_mm": self.value_mm,
+            "u95_mm": num(self.u95_mm),
+            "tolerance_mm": self.limit_mm,
+            "guard_band_mm": num(self.guard_mm),
+            "acceptance_limit_mm": num(self.limit_mm - self.guard_mm),
+            "rejection_limit_mm": num(self.limit_mm + self.guard_mm),
+            "verdict": self.verdict,
+        }
 
 
 def parse_tolerances(text: str | None) -> dict[str, float]:
@@ -52,8 +61,13 @@ def parse_tolerances(text: str | None) -> dict[str, float]:
         except ValueError:
             limit = math.nan
         if key not in TOLERANCED or not (math.isfinite(limit) and limit > 0) or key in out:
-            raise OptionError("{0}: expected FIGURE=MM,... with FIGURE one of {keys} (each once) and MM a positive "
-                              "number, got {text!r}", "tolerance", keys=", ".join(TOLERANCED), text=text)  # fmt: skip
+            raise OptionError(
+                "{0}: expected FIGURE=MM,... with FIGURE one of {keys} (each once) and MM a positive "
+                "number, got {text!r}",
+                "tolerance",
+                keys=", ".join(TOLERANCED),
+                text=text,
+            )
         out[key] = limit
     return out
 
@@ -72,15 +86,33 @@ def _figures(t: IsoFigures, key: str) -> list[tuple[str, Figure]]:
 def verdicts(tests: list[IsoFigures], tolerances: dict[str, float], rule: str) -> list[Verdict]:
     """Every toleranced figure of every test, decided under `rule` ("simple" or "guarded")."""
     if rule not in RULES:
-        raise OptionError("{0}: expected one of {rules}, got {rule!r}", "decision_rule", rules=", ".join(RULES),
-                          rule=rule)  # fmt: skip
-    return [Verdict(t.session, t.compensated, name, key, f.value, f.u95, limit, decide(f.value, f.u95, limit, rule),
-                    f.u95 if rule == "guarded" else 0.0)
-            for t in tests for key, limit in tolerances.items() for name, f in _figures(t, key)]  # fmt: skip
+        raise OptionError(
+            "{0}: expected one of {rules}, got {rule!r}", "decision_rule", rules=", ".join(RULES), rule=rule
+        )
+    return [
+        Verdict(
+            t.session,
+            t.compensated,
+            name,
+            key,
+            f.value,
+            f.u95,
+            limit,
+            decide(f.value, f.u95, limit, rule),
+            f.u95 if rule == "guarded" else 0.0,
+        )
+        for t in tests
+        for key, limit in tolerances.items()
+        for name, f in _figures(t, key)
+    ]
 
 
 def conformity_doc(rule: str, tolerances: dict[str, float], found: list[Verdict]) -> dict:
     """The conformity statement of `compare --json`: the rule, its text, the tolerances and every verdict."""
-    return {"decision_rule": rule, "rule": RULES[rule], "tolerances_mm": dict(tolerances),
-            "verdicts": [v.to_doc() for v in found],
-            "counts": {k: sum(v.verdict == k for v in found) for k in (PASS, FAIL, NOT_PROVEN)}}  # fmt: skip
+    return {
+        "decision_rule": rule,
+        "rule": RULES[rule],
+        "tolerances_mm": dict(tolerances),
+        "verdicts": [v.to_doc() for v in found],
+        "counts": {k: sum(v.verdict == k for v in found) for k in (PASS, FAIL, NOT_PROVEN)},
+    }

@@ -26,7 +26,12 @@ def departures_box(tests: list[IsoFigures]) -> list[str]:
     if not found:
         items = "<p>None: every test ran under the conditions ISO 9283:1998 sets for it.</p>"
     else:
-        items = "<ul>" + "".join(
-            f"<li>{html.escape(d)}" + ("" if who == every else f" (tests: {html.escape(', '.join(who))})") + "</li>"
-            for d, who in found.items()) + "</ul>"  # fmt: skip
+        items = (
+            "<ul>"
+            + "".join(
+                f"<li>{html.escape(d)}" + ("" if who == every else f" (tests: {html.escape(', '.join(who))})") + "</li>"
+                for d, who in found.items()
+            )
+            + "</ul>"
+        )
     return [f"<style>{STYLE}</style><div class=departures><h2>Departures from ISO 9283:1998</h2>{items}</div>"]

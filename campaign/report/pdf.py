@@ -26,9 +26,17 @@ from trackcal.calib.io.files import write_bytes
 from trackcal.campaign.errors import InputError
 
 # off the network and out of any profile (the page is self-contained: its images are data URIs)
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--remote-debugging-pipe")  # fmt: skip
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--remote-debugging-pipe",
+)
 TIMEOUT_S = 180.0  # the whole print, on a loaded 2-core machine; a page of the ISO report takes seconds
 A4_IN = (8.27, 11.69)
 MARGIN_IN = 0.55
@@ -46,9 +54,11 @@ def chromium_path() -> str:
 
 
 def _footer(text: str) -> str:
-    return ("<div style='font-size:8px;font-family:sans-serif;width:100%;margin:0 0.55in;display:flex;"
-            f"justify-content:space-between'><span>{html.escape(text)}</span><span>page <span class='pageNumber'>"
-            "</span> of <span class='totalPages'></span></span></div>")  # fmt: skip
+    return (
+        "<div style='font-size:8px;font-family:sans-serif;width:100%;margin:0 0.55in;display:flex;"
+        f"justify-content:space-between'><span>{html.escape(text)}</span><span>page <span class='pageNumber'>"
+        "</span> of <span class='totalPages'></span></span></div>"
+    )
 
 
 class _Pipe:
@@ -104,9 +114,14 @@ def html_to_pdf(page: str, path: Path, footer: str) -> Path:
             os.set_inheritable(3, True)  # os.dup's copies are not, and dup2 onto itself changes nothing
             os.set_inheritable(4, True)
 
-        proc = subprocess.Popen([chromium, *FLAGS, f"--user-data-dir={Path(tmp) / 'profile'}", "about:blank"],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                close_fds=False, preexec_fn=fds)  # fmt: skip
+        proc = subprocess.Popen(
+            [chromium, *FLAGS, f"--user-data-dir={Path(tmp) / 'profile'}", "about:blank"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            close_fds=False,
+            preexec_fn=fds,
+        )
         os.close(to_chromium)
         os.close(from_chromium)
         try:
@@ -116,11 +131,22 @@ def html_to_pdf(page: str, path: Path, footer: str) -> Path:
             pipe.call("Page.enable", session=session)
             pipe.send("Page.navigate", {"url": source.as_uri()}, session)
             pipe.wait(event="Page.loadEventFired")
-            pdf = pipe.call("Page.printToPDF", {
-                "paperWidth": A4_IN[0], "paperHeight": A4_IN[1], "marginTop": MARGIN_IN, "marginBottom": MARGIN_IN,
-                "marginLeft": MARGIN_IN, "marginRight": MARGIN_IN, "printBackground": True,
-                "displayHeaderFooter": True, "headerTemplate": "<span></span>", "footerTemplate": _footer(footer),
-            }, session)  # fmt: skip
+            pdf = pipe.call(
+                "Page.printToPDF",
+                {
+                    "paperWidth": A4_IN[0],
+                    "paperHeight": A4_IN[1],
+                    "marginTop": MARGIN_IN,
+                    "marginBottom": MARGIN_IN,
+                    "marginLeft": MARGIN_IN,
+                    "marginRight": MARGIN_IN,
+                    "printBackground": True,
+                    "displayHeaderFooter": True,
+                    "headerTemplate": "<span></span>",
+                    "footerTemplate": _footer(footer),
+                },
+                session,
+            )
             with contextlib.suppress(OSError, subprocess.TimeoutExpired):  # printed: the close is a courtesy
                 pipe.send("Browser.close")
                 proc.wait(timeout=30)

@@ -25,11 +25,15 @@ def plot_histograms(res: Residuals, path: Path) -> Path:
         if sd > 0:
             x = np.linspace(edges[0], edges[-1], 200)
             density = np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2.0 * np.pi))  # the normal pdf
-            ax.plot(x, len(r) * (edges[1] - edges[0]) * density, "k-", lw=1.5,
-                    label=f"N({mu:.1f}, {sd:.1f}) µm")  # fmt: skip
+            ax.plot(x, len(r) * (edges[1] - edges[0]) * density, "k-", lw=1.5, label=f"N({mu:.1f}, {sd:.1f}) µm")
         for sign in (-1, 1):
-            ax.axvline(sign * res.floor_mm * 1000.0, color="#c0504d", ls="--", lw=1.2,
-                       label=f"± noise floor {res.floor_mm * 1000:.1f} µm (per coordinate)" if sign > 0 else None)
+            ax.axvline(
+                sign * res.floor_mm * 1000.0,
+                color="#c0504d",
+                ls="--",
+                lw=1.2,
+                label=f"± noise floor {res.floor_mm * 1000:.1f} µm (per coordinate)" if sign > 0 else None,
+            )
         ax.set_ylim(0.0, 1.35 * max(float(counts.max()), 1.0))  # head room: the legend covers no bar
         ax.legend(loc="upper center", fontsize=7, framealpha=0.95)
         ax.set_xlabel(f"residual {'xyz'[a]} (µm)")
@@ -46,8 +50,10 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     poses = pose_order(table)
     x = np.arange(len(poses))
     fig, axes = plt.subplots(2, 1, figsize=(13, 6), sharex=True)
-    for ax, r, label, color in ((axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
-                                (axes[1], res.after, "after calibration", "#4a7ebb")):  # fmt: skip
+    for ax, r, label, color in (
+        (axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
+        (axes[1], res.after, "after calibration", "#4a7ebb"),
+    ):
         ax.bar(x, per_pose_rms(table, r) * 1000.0, color=color, label="RMS distance")
         # the RMS 3-D distance that tracker noise alone gives: sqrt(3) x the floor of one coordinate
         rms_pose = per_pose_rms(table, r) * 1000.0
@@ -101,8 +107,14 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
     lim = np.degrees(cell.chain.limits_array())
     j = np.arange(1, n + 1)
     finite = np.isfinite(lim).all(axis=1)
-    ax.bar(j[finite], (lim[finite, 1] - lim[finite, 0]), bottom=lim[finite, 0], width=0.35, color="#ddd",
-           label="joint range")  # fmt: skip
+    ax.bar(
+        j[finite],
+        (lim[finite, 1] - lim[finite, 0]),
+        bottom=lim[finite, 0],
+        width=0.35,
+        color="#ddd",
+        label="joint range",
+    )
     for k, q in enumerate(poses):
         ax.plot(j, q, "o-", lw=1, ms=4, label=f"configuration {k + 1}")
     if plan_doc.get("test_pose_deg") is not None:

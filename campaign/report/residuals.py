@@ -29,8 +29,13 @@ class Residuals:
     floor_source: str
 
 
-def residuals_of(cell: Cell, table: MeasurementTable, model_doc: dict, before: Identification | None = None,
-                 floor: Floor | None = None) -> Residuals:  # fmt: skip
+def residuals_of(
+    cell: Cell,
+    table: MeasurementTable,
+    model_doc: dict,
+    before: Identification | None = None,
+    floor: Floor | None = None,
+) -> Residuals:
     """The residuals of `model_doc` on `table`; `before`: the nominal robot's fit of this table and `floor` its noise
     floor, when the caller has them (else they are found here, with the model's weighting)."""
     if table.xyz is None:
@@ -41,8 +46,9 @@ def residuals_of(cell: Cell, table: MeasurementTable, model_doc: dict, before: I
     if before is None:
         before = identify(model.chain, table, cell.tool_points, [], noise=noise)
     found = floor or noise_floor(table, noise, TrackerNoise.of(cell.tracker))
-    return Residuals(before.residuals, after, residual_stats(before.residuals), residual_stats(after), found.sigma_mm,
-                     found.source)  # fmt: skip
+    return Residuals(
+        before.residuals, after, residual_stats(before.residuals), residual_stats(after), found.sigma_mm, found.source
+    )
 
 
 def pose_order(table: MeasurementTable) -> list[str]:
@@ -54,5 +60,3 @@ def per_pose_rms(table: MeasurementTable, residuals: np.ndarray) -> np.ndarray:
     dist = np.linalg.norm(residuals, axis=1)
     pose = np.array(table.pose)
     return np.array([np.sqrt(np.mean(dist[pose == p] ** 2)) for p in pose_order(table)])
-
-

@@ -72,19 +72,29 @@ def tcp_difference(cell: Cell, geometric: Identification, extended: Identificati
     q0 = cell.test_pose
     geo, ext = identified_tcp(geometric, q0, station), identified_tcp(extended, q0, station)
     noise = extended.variance_factor
-    return TcpDifference(station, geo, ext, float(np.linalg.norm(ext - geo)),
-                         tcp_sigma(geometric, q0, station, noise), tcp_sigma(extended, q0, station))  # fmt: skip
+    return TcpDifference(
+        station,
+        geo,
+        ext,
+        float(np.linalg.norm(ext - geo)),
+        tcp_sigma(geometric, q0, station, noise),
+        tcp_sigma(extended, q0, station),
+    )
 
 
 def tcp_doc(tcp: TcpDifference) -> dict:
     """verdict.json's test_pose: the difference, its uncertainty and whether this campaign determines it."""
     return {
-        "tcp_difference_mm": tcp.difference_mm, "sigma_mm": tcp.sigma_mm, "determined": tcp.determined,
-        "sigma_geometric_mm": tcp.sigma_geometric_mm, "sigma_extended_mm": tcp.sigma_extended_mm,
-        "station": tcp.station, "geometric_tcp_mm": tcp.geometric_mm.tolist(),
+        "tcp_difference_mm": tcp.difference_mm,
+        "sigma_mm": tcp.sigma_mm,
+        "determined": tcp.determined,
+        "sigma_geometric_mm": tcp.sigma_geometric_mm,
+        "sigma_extended_mm": tcp.sigma_extended_mm,
+        "station": tcp.station,
+        "geometric_tcp_mm": tcp.geometric_mm.tolist(),
         "extended_tcp_mm": tcp.extended_mm.tolist(),
         "note": "how far the geometric model's TCP (the centroid of its reference points) at the test pose is from "
-                f"the extended model's, in station {tcp.station}'s frame; determined when over {DETERMINED_SIGMAS:.0f} "
-                "times its 1-sigma 3-D uncertainty (sigma_mm, from the two models' covariances at the noise the "
-                "extended model leaves)",
-    }  # fmt: skip
+        f"the extended model's, in station {tcp.station}'s frame; determined when over {DETERMINED_SIGMAS:.0f} "
+        "times its 1-sigma 3-D uncertainty (sigma_mm, from the two models' covariances at the noise the "
+        "extended model leaves)",
+    }

@@ -102,8 +102,9 @@ def config_documents(cell_ref: str, nominal: str) -> dict[str, str]:
 
 def stored_config(store: SessionStore) -> dict[str, str]:
     """The session's stored cell, robot and tool documents (config/..., as config_documents made them)."""
-    return {name: text for name, text in store.documents().items()
-            if name.startswith("config/") and name != HARDWARE_COPY}  # fmt: skip
+    return {
+        name: text for name, text in store.documents().items() if name.startswith("config/") and name != HARDWARE_COPY
+    }
 
 
 def changed_copies(store: SessionStore) -> list[str]:
@@ -119,10 +120,19 @@ def changed_copies(store: SessionStore) -> list[str]:
     return changed
 
 
-def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict, mode: str, seed: int | None,
-                   hardware: tuple[str, str] | None = None, effects: dict[str, float] | None = None,
-                   extra: dict[str, str] | None = None, approached: bool = True,
-                   config: dict[str, str] | None = None) -> SessionStore:  # fmt: skip
+def create_session(
+    directory: Path,
+    cell_ref: str,
+    nominal: str,
+    plan_doc: dict,
+    mode: str,
+    seed: int | None,
+    hardware: tuple[str, str] | None = None,
+    effects: dict[str, float] | None = None,
+    extra: dict[str, str] | None = None,
+    approached: bool = True,
+    config: dict[str, str] | None = None,
+) -> SessionStore:
     """A new session holding its lock, with the cell (`nominal`: its loaded Cell's), robot, tool, plan and
     (`hardware`: text, source path) the hardware config stored in it, and which campaign order it walks
     (`approached`: calib.doe.order); `config`: the cell's documents when they come from another session (its
@@ -130,8 +140,13 @@ def create_session(directory: Path, cell_ref: str, nominal: str, plan_doc: dict,
     (campaign/jobs/campaign.py): a cell or plan that cannot run makes no session."""
     config = config if config is not None else config_documents(cell_ref, nominal)
     documents = {**config, PLAN_DOC: json.dumps(plan_doc, indent=2) + "\n"}
-    meta = {"mode": mode, "seed": "" if seed is None else str(seed), "effects": json.dumps(effects or {}),
-            APPROACHED: "1" if approached else "0", **(extra or {})}  # fmt: skip
+    meta = {
+        "mode": mode,
+        "seed": "" if seed is None else str(seed),
+        "effects": json.dumps(effects or {}),
+        APPROACHED: "1" if approached else "0",
+        **(extra or {}),
+    }
     if hardware is not None:
         documents[HARDWARE_COPY], meta["hardware_source"] = hardware
     store = SessionStore.create(directory, meta, documents)
@@ -221,10 +236,16 @@ def export_table(store: SessionStore, source: str = "session") -> MeasurementTab
     if any("approach" in x for x in d):  # ISO 9283 with its multi-directional test (7.2): the side each came from
         extra["approach"] = [x.get("approach", "none") for x in d]
     return MeasurementTable(
-        seq=np.arange(1, n + 1), t_s=np.array([e.t_campaign for e in events]), pose=[x["pose"] for x in d],
-        station=[x["station"] for x in d], point=[x["point"] for x in d], q_deg=np.array([x["q_deg"] for x in d]),
-        xyz=np.array([x["xyz_mm"] for x in d]), extra=extra, source=source,
-    )  # fmt: skip
+        seq=np.arange(1, n + 1),
+        t_s=np.array([e.t_campaign for e in events]),
+        pose=[x["pose"] for x in d],
+        station=[x["station"] for x in d],
+        point=[x["point"] for x in d],
+        q_deg=np.array([x["q_deg"] for x in d]),
+        xyz=np.array([x["xyz_mm"] for x in d]),
+        extra=extra,
+        source=source,
+    )
 
 
 def write_export(store: SessionStore, path: Path) -> int:

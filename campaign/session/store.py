@@ -50,13 +50,16 @@ TABLES = {
     "meta": "CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)",
     "documents": "CREATE TABLE documents(name TEXT PRIMARY KEY, text TEXT NOT NULL, sha256 TEXT NOT NULL)",
     "events": "CREATE TABLE events(id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, "
-              "t_campaign REAL NOT NULL, step INTEGER NOT NULL, kind TEXT NOT NULL, data TEXT NOT NULL, "
-              "hash TEXT NOT NULL)",
-}  # fmt: skip
+    "t_campaign REAL NOT NULL, step INTEGER NOT NULL, kind TEXT NOT NULL, data TEXT NOT NULL, "
+    "hash TEXT NOT NULL)",
+}
 # What SQLite itself adds for these tables (the PRIMARY KEY indexes, AUTOINCREMENT's counter): with TABLES, the whole
 # schema. Anything else in sqlite_master (a trigger that rewrites events, a view, an index) is not trackcal's.
-SQLITE_OWN = {("index", "sqlite_autoindex_meta_1"), ("index", "sqlite_autoindex_documents_1"),
-              ("table", "sqlite_sequence")}  # fmt: skip
+SQLITE_OWN = {
+    ("index", "sqlite_autoindex_meta_1"),
+    ("index", "sqlite_autoindex_documents_1"),
+    ("table", "sqlite_sequence"),
+}
 
 
 def refuse_links(directory: Path, *names: str) -> None:
@@ -64,8 +67,12 @@ def refuse_links(directory: Path, *names: str) -> None:
     write (as root, on many cell PCs) wherever the link points."""
     for path in (directory, *(directory / n for n in names)):
         if path.is_symlink():
-            raise StoreError(f"{path}: a symbolic link: trackcal opens no session folder or file through a link "
-                             f"(copy the session to a real directory)")  # fmt: skip
+            raise StoreError(
+                f"{path}: a symbolic link: trackcal opens no session folder or file through a link "
+                f"(copy the session to a real directory)"
+            )
+
+
 KINDS = (  # the engine's documents (their data's schema: campaign/engine/documents.py, one TypedDict per kind)
     "campaign_started",  # StartDoc
     "step_started",  # StepStartedDoc
@@ -105,8 +112,9 @@ def sha256(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def event_hash(previous: str, event_id: int, t_wall: float, t_campaign: float, step: int, kind: str,
-               data_text: str) -> str:  # fmt: skip
+def event_hash(
+    previous: str, event_id: int, t_wall: float, t_campaign: float, step: int, kind: str, data_text: str
+) -> str:
     """sha256 of the previous event's hash, then this event as canonical JSON (its fields, then its data)."""
     return sha256(previous + canonical([event_id, t_wall, t_campaign, step, kind]) + data_text)
 
@@ -131,16 +139,19 @@ class SessionLock:
             # O_NOFOLLOW: a link put there between the check above and this open is not followed either (ELOOP)
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         except OSError as exc:
-            raise StoreError(f"{directory}: cannot write there ({exc.strerror}): a campaign writes its session; copy "
-                             f"the directory to a writable place and resume the copy (export and check read it "
-                             f"where it is)") from None  # fmt: skip
+            raise StoreError(
+                f"{directory}: cannot write there ({exc.strerror}): a campaign writes its session; copy "
+                f"the directory to a writable place and resume the copy (export and check read it "
+                f"where it is)"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
             os.close(fd)
-            raise StoreError(f"{directory}: in use by {holder} (one process per session: wait for it to end, "
-                             f"or stop it)") from None  # fmt: skip
+            raise StoreError(
+                f"{directory}: in use by {holder} (one process per session: wait for it to end, or stop it)"
+            ) from None
         try:
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"process {os.getpid()} since {_utc(time.time())}\n".encode(), 0)
@@ -162,17 +173,23 @@ def _write_failure(directory: Path, what: str, exc: sqlite3.Error) -> StoreError
         why = "the session directory or database is read-only"
     else:
         why = str(exc)
-    return StoreError(f"{directory}: cannot store {what}: {why}. Everything stored before is in "
-                      f"{directory / DB_NAME}: make room, or copy {directory} to another disk, then "
-                      f"`trackcal resume` it")  # fmt: skip
+    return StoreError(
+        f"{directory}: cannot store {what}: {why}. Everything stored before is in "
+        f"{directory / DB_NAME}: make room, or copy {directory} to another disk, then "
+        f"`trackcal resume` it"
+    )
 
 
 def _damaged(path: Path, exc: sqlite3.Error) -> StoreError:
     if getattr(exc, "sqlite_errorname", "") == "SQLITE_READONLY_ROLLBACK":
-        return StoreError(f"{path}: a write was interrupted and cannot be rolled back in a read-only place (copy "
-                          f"the session directory, {path.name}-journal included, to a writable one)")  # fmt: skip
-    return StoreError(f"{path}: damaged or not a trackcal session database ({exc}); a copy of the session taken "
-                      f"before the damage can be checked and resumed")  # fmt: skip
+        return StoreError(
+            f"{path}: a write was interrupted and cannot be rolled back in a read-only place (copy "
+            f"the session directory, {path.name}-journal included, to a writable one)"
+        )
+    return StoreError(
+        f"{path}: damaged or not a trackcal session database ({exc}); a copy of the session taken "
+        f"before the damage can be checked and resumed"
+    )
 
 
 @dataclass
@@ -223,8 +240,10 @@ class SessionStore:
                 for ddl in TABLES.values():
                     conn.execute(ddl)
                 conn.executemany("INSERT INTO meta VALUES (?, ?)", [("schema", SCHEMA_VERSION), *meta.items()])
-                conn.executemany("INSERT INTO documents VALUES (?, ?, ?)",
-                                 [(name, text, sha256(text)) for name, text in documents.items()])  # fmt: skip
+                conn.executemany(
+                    "INSERT INTO documents VALUES (?, ?, ?)",
+                    [(name, text, sha256(text)) for name, text in documents.items()],
+                )
                 conn.execute("COMMIT")
             except sqlite3.Error as exc:
                 conn.close()
@@ -278,14 +297,21 @@ class SessionStore:
         if row is None:
             raise StoreError(f"{self.path}: not a trackcal session database (no schema version in it)")
         if row[0] != SCHEMA_VERSION:
-            raise StoreError(f"{self.path}: session schema {row[0]}, this trackcal reads schema {SCHEMA_VERSION} "
-                             f"(hash-chained events, stored plan and config): use the trackcal that recorded "
-                             f"it")  # fmt: skip
-        foreign = sorted(f"{kind} {name}" for kind, name, sql in entries
-                         if (kind, name) not in SQLITE_OWN and not (kind == "table" and TABLES.get(name) == sql))
+            raise StoreError(
+                f"{self.path}: session schema {row[0]}, this trackcal reads schema {SCHEMA_VERSION} "
+                f"(hash-chained events, stored plan and config): use the trackcal that recorded "
+                f"it"
+            )
+        foreign = sorted(
+            f"{kind} {name}"
+            for kind, name, sql in entries
+            if (kind, name) not in SQLITE_OWN and not (kind == "table" and TABLES.get(name) == sql)
+        )
         if foreign:
-            raise StoreError(f"{self.path}: its schema is not trackcal's ({', '.join(foreign)} added or changed "
-                             f"after the session was created): the database was edited")  # fmt: skip
+            raise StoreError(
+                f"{self.path}: its schema is not trackcal's ({', '.join(foreign)} added or changed "
+                f"after the session was created): the database was edited"
+            )
 
     def verify(self) -> Verified:
         """SQLite's integrity check, the stored documents against their hashes, then the hash chain from the
@@ -293,21 +319,27 @@ class SessionStore:
         try:
             problems = [r[0] for r in self.conn.execute("PRAGMA integrity_check").fetchall()]
             if problems != ["ok"]:
-                raise StoreError(f"{self.path}: damaged database (SQLite integrity check: {problems[0]}"
-                                 f"{f'; {len(problems) - 1} more' if len(problems) > 1 else ''})")  # fmt: skip
+                raise StoreError(
+                    f"{self.path}: damaged database (SQLite integrity check: {problems[0]}"
+                    f"{f'; {len(problems) - 1} more' if len(problems) > 1 else ''})"
+                )
             for name, text, digest in self.conn.execute("SELECT name, text, sha256 FROM documents ORDER BY name"):
                 if sha256(text) != digest:
-                    raise StoreError(f"{self.path}: the stored copy of {name} does not match its hash: changed after "
-                                     f"the session was created")  # fmt: skip
+                    raise StoreError(
+                        f"{self.path}: the stored copy of {name} does not match its hash: changed after "
+                        f"the session was created"
+                    )
             previous, n = self.root(), 0
             rows = self.conn.execute("SELECT id, t_wall, t_campaign, step, kind, data, hash FROM events ORDER BY id")
             for event_id, t_wall, t_campaign, step, kind, text, digest in rows:
                 n += 1
                 if event_id != n or event_hash(previous, event_id, t_wall, t_campaign, step, kind, text) != digest:
                     before = "the session's header (meta, stored plan and config) or " if n == 1 else ""
-                    raise StoreError(f"{self.path}: event {event_id} ({kind}, step {step}) breaks the hash chain: "
-                                     f"{before}this event was changed, or one before it removed; events 1 to "
-                                     f"{n - 1} are intact")  # fmt: skip
+                    raise StoreError(
+                        f"{self.path}: event {event_id} ({kind}, step {step}) breaks the hash chain: "
+                        f"{before}this event was changed, or one before it removed; events 1 to "
+                        f"{n - 1} are intact"
+                    )
                 previous = digest
         except sqlite3.Error as exc:
             raise _damaged(self.path, exc) from None
@@ -340,8 +372,10 @@ class SessionStore:
         text = canonical(data)
         digest = event_hash(self._head, event_id, t_wall, t_campaign, step, kind, text)
         try:
-            self.conn.execute("INSERT INTO events(id, t_wall, t_campaign, step, kind, data, hash) "
-                              "VALUES (?, ?, ?, ?, ?, ?, ?)", (event_id, t_wall, t_campaign, step, kind, text, digest))
+            self.conn.execute(
+                "INSERT INTO events(id, t_wall, t_campaign, step, kind, data, hash) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (event_id, t_wall, t_campaign, step, kind, text, digest),
+            )
         except sqlite3.Error as exc:
             raise _write_failure(self.directory, f"event {event_id} ({kind})", exc) from None
         self._head, self._next_id = digest, event_id + 1
@@ -349,8 +383,9 @@ class SessionStore:
 
     def events(self, kind: str | None = None) -> list[Event]:
         sql = "SELECT id, t_wall, t_campaign, step, kind, data FROM events"
-        rows = self.conn.execute(sql + (" WHERE kind=? ORDER BY id" if kind else " ORDER BY id"),
-                                 (kind,) if kind else ()).fetchall()  # fmt: skip
+        rows = self.conn.execute(
+            sql + (" WHERE kind=? ORDER BY id" if kind else " ORDER BY id"), (kind,) if kind else ()
+        ).fetchall()
         return [Event(r[0], r[1], r[2], r[3], r[4], json.loads(r[5])) for r in rows]
 
     def done_steps(self) -> set[int]:

@@ -42,13 +42,20 @@ from trackcal.campaign.engine.steps import Step
 from trackcal.campaign.web.hub import Hub
 from trackcal.campaign.web.state import PageState
 
-CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; "
-       "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")  # fmt: skip
+CSP = (
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; "
+    "base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+)
 # the report is trackcal's own HTML with its inline style and embedded figures: shown sandboxed (no script at all)
 REPORT_CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; sandbox; frame-ancestors 'none'"
-HEADERS = {"X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer", "Cache-Control": "no-store",
-           "X-Frame-Options": "DENY", "Cross-Origin-Opener-Policy": "same-origin",
-           "Cross-Origin-Resource-Policy": "same-origin"}  # fmt: skip
+HEADERS = {
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+    "X-Frame-Options": "DENY",
+    "Cross-Origin-Opener-Policy": "same-origin",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
 COOKIE = "trackcal_token"
 CLIENT_ID = re.compile(r"^[A-Za-z0-9_-]{8,64}$")
 STATIC = {"page.js": "text/javascript; charset=utf-8", "page.css": "text/css; charset=utf-8"}
@@ -160,8 +167,15 @@ def _cookie(header: str, name: str) -> str:
     return ""
 
 
-def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: set[str] | None,
-              report_dir: Path | None = None, closing=None, say=lambda line: None) -> Guard:  # fmt: skip
+def build_app(
+    hub: Hub,
+    steps: list[Step],
+    token: str | None,
+    loopback_hosts: set[str] | None,
+    report_dir: Path | None = None,
+    closing=None,
+    say=lambda line: None,
+) -> Guard:
     """The application around a hub; `report_dir`: the session's report folder (served once the outcome is set);
     `closing`: an event (threading.Event) set when the server is about to stop, which ends the event streams;
     `say`: a line on the console (the stream cap reached)."""
@@ -193,11 +207,15 @@ def build_app(hub: Hub, steps: list[Step], token: str | None, loopback_hosts: se
         return _report_file(request, hub, report_dir)
 
     routes = [
-        Route("/", index), Route("/static/{name}", static), Route("/session", session), Route("/events", events),
-        Route("/answer", answer, methods=["POST"]), Route("/control", control, methods=["POST"]),
+        Route("/", index),
+        Route("/static/{name}", static),
+        Route("/session", session),
+        Route("/events", events),
+        Route("/answer", answer, methods=["POST"]),
+        Route("/control", control, methods=["POST"]),
         Route("/report/{path:path}", report),
         Route("/favicon.ico", lambda request: Response(status_code=204)),
-    ]  # fmt: skip
+    ]
     return Guard(Starlette(routes=routes), token, loopback_hosts)
 
 
@@ -216,10 +234,11 @@ def _open_stream(request: Request, hub: Hub, steps: list[Step], streams: dict, c
     if streams["open"] >= MAX_STREAMS:
         if not streams["said"]:
             streams["said"] = True
-            say(f"warning: the operator's page has {MAX_STREAMS} event streams open, the most it serves: "
-                "another page is refused until one closes")  # fmt: skip
-        return Response("too many pages open\n", status_code=503, media_type="text/plain",
-                        headers={"Retry-After": "2"})  # fmt: skip
+            say(
+                f"warning: the operator's page has {MAX_STREAMS} event streams open, the most it serves: "
+                "another page is refused until one closes"
+            )
+        return Response("too many pages open\n", status_code=503, media_type="text/plain", headers={"Retry-After": "2"})
     queue: asyncio.Queue = asyncio.Queue()
     loop = asyncio.get_running_loop()
 
@@ -238,20 +257,33 @@ def _open_stream(request: Request, hub: Hub, steps: list[Step], streams: dict, c
             streams["said"] = False
 
     streams["open"] += 1  # no await since the count was read: no other request came in between
-    return _Released(StreamingResponse(_event_stream(hub, state, past, live, queue, closing, push),
-                                       media_type="text/event-stream",
-                                       headers={"X-Accel-Buffering": "no"}), release)  # fmt: skip
+    return _Released(
+        StreamingResponse(
+            _event_stream(hub, state, past, live, queue, closing, push),
+            media_type="text/event-stream",
+            headers={"X-Accel-Buffering": "no"},
+        ),
+        release,
+    )
 
 
-async def _event_stream(hub: Hub, state: PageState, past: list, live: dict, queue: asyncio.Queue, closing,
-                        push) -> AsyncIterator[str]:  # fmt: skip
+async def _event_stream(
+    hub: Hub, state: PageState, past: list, live: dict, queue: asyncio.Queue, closing, push
+) -> AsyncIterator[str]:
     """One page's server-sent events: the snapshot of what happened so far, then a patch per burst of documents,
     the live values, a ping every HEARTBEAT_S; ends on the hub's close or once `closing` is set."""
     try:
         yield f"retry: {int(HEARTBEAT_S * 1000)}\n\n"
-        yield _sse("snapshot", {"view": state.view, "points": state.points, "plan": hub.plan,
-                                "live": {**live, "controller": hub.live["controller"]},
-                                "events": len(past)})  # fmt: skip
+        yield _sse(
+            "snapshot",
+            {
+                "view": state.view,
+                "points": state.points,
+                "plan": hub.plan,
+                "live": {**live, "controller": hub.live["controller"]},
+                "events": len(past),
+            },
+        )
         while True:
             try:
                 kind, item = await asyncio.wait_for(queue.get(), timeout=HEARTBEAT_S)
@@ -297,6 +329,7 @@ async def _post(request: Request, hub: Hub, action) -> Response:
         return JSONResponse({"ok": False, "why": "no client"}, status_code=400)
     return action(request, hub, body, client)
 
+
 def _do_answer(request: Request, hub: Hub, body: dict, client: str) -> Response:
     prompt = body.get("prompt")
     if not isinstance(prompt, int) or isinstance(prompt, bool):
@@ -306,6 +339,7 @@ def _do_answer(request: Request, hub: Hub, body: dict, client: str) -> Response:
     if why:
         return JSONResponse({"ok": False, "why": why}, status_code=409)
     return JSONResponse({"ok": True})
+
 
 def _do_control(request: Request, hub: Hub, body: dict, client: str) -> Response:
     hub.take_control(client)

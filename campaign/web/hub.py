@@ -30,12 +30,20 @@ class Hub:
     def __init__(self, store: SessionStore, plan: dict) -> None:
         self.store, self.plan = store, plan
         self.lock = threading.Lock()
-        self.events: list[StoredEvent] = [StoredEvent(e.id, e.step, e.t_campaign, e.kind, e.data)
-                                          for e in store.events()]  # fmt: skip
+        self.events: list[StoredEvent] = [
+            StoredEvent(e.id, e.step, e.t_campaign, e.kind, e.data) for e in store.events()
+        ]
         self._head = store.head
         self.csrf = secrets.token_urlsafe(24)
-        self.live: dict = {"open": None, "controller": None, "door_closed": None, "estop_ok": None,
-                           "outcome": None, "stop": None, "clients": 0}  # fmt: skip
+        self.live: dict = {
+            "open": None,
+            "controller": None,
+            "door_closed": None,
+            "estop_ok": None,
+            "outcome": None,
+            "stop": None,
+            "clients": 0,
+        }
         self._answer: str | None = None
         self._listeners: list[Callable[[str, object], None]] = []
         self.doc_wall: dict[int, float] = {}  # event id -> wall time the hub got its document (bench_web)
@@ -53,8 +61,9 @@ class Hub:
         if self.store.head == self._head:
             return  # not stored (progress, a stop other than success)
         self._head = self.store.head
-        row = self.store.conn.execute("SELECT id, step, t_campaign, kind, data FROM events ORDER BY id DESC "
-                                      "LIMIT 1").fetchone()  # fmt: skip
+        row = self.store.conn.execute(
+            "SELECT id, step, t_campaign, kind, data FROM events ORDER BY id DESC LIMIT 1"
+        ).fetchone()
         event = StoredEvent(row[0], row[1], row[2], row[3], doc.data if row[3] != "campaign_done" else {})
         with self.lock:
             self.events.append(event)

@@ -58,8 +58,13 @@ class WebPage:
     makes the prompt shared between the console (and the cell's button) and the page; `finish` shows the report's
     outcome; `close` ends it. `say` prints a line on the console as it is (a rich Text for colour)."""
 
-    def __init__(self, host: str = LOOPBACK, port: int = DEFAULT_PORT, say: Callable[[str | Text], None] = print,
-                 out: Callable[[str], None] = print) -> None:  # fmt: skip
+    def __init__(
+        self,
+        host: str = LOOPBACK,
+        port: int = DEFAULT_PORT,
+        say: Callable[[str | Text], None] = print,
+        out: Callable[[str], None] = print,
+    ) -> None:
         self.host, self.say, self.out = host, say, out
         self.loopback = is_loopback(host)
         self.token = None if self.loopback else secrets.token_urlsafe(18)
@@ -94,11 +99,11 @@ class WebPage:
         self.report_dir = store.directory / "report"
         hosts = {f"{h}:{self.port}" for h in ("127.0.0.1", "localhost", "[::1]")} if self.loopback else None
         app = build_app(self.hub, steps, self.token, hosts, self.report_dir, self.closing, self.say)
-        config = uvicorn.Config(app, log_level="error", access_log=False, lifespan="off",
-                                timeout_graceful_shutdown=2)  # fmt: skip
+        config = uvicorn.Config(app, log_level="error", access_log=False, lifespan="off", timeout_graceful_shutdown=2)
         self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, name="operator-page",
-                                       daemon=True)  # fmt: skip
+        self.thread = threading.Thread(
+            target=self.server.run, kwargs={"sockets": [self.sock]}, name="operator-page", daemon=True
+        )
         self.hub.alive = lambda: self.thread is not None and self.thread.is_alive() and not self.closing.is_set()
         self.thread.start()
         self.announce()

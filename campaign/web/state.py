@@ -35,8 +35,15 @@ def plan_view(cell: Cell, steps: list[Step]) -> dict:
     for i, s in enumerate(steps):
         if s.kind == StepKind.MEASURE:
             e = expected(s)
-            planned.append({"step": i, "station": s.station, "point": s.point, "pose": s.pose,
-                            "xyz": None if e is None else [round(v, 2) for v in e]})  # fmt: skip
+            planned.append(
+                {
+                    "step": i,
+                    "station": s.station,
+                    "point": s.point,
+                    "pose": s.pose,
+                    "xyz": None if e is None else [round(v, 2) for v in e],
+                }
+            )
     return {
         "cell": cell.name,
         "stations": {sid: [round(float(v), 1) for v in st.position] for sid, st in cell.stations.items()},
@@ -63,14 +70,22 @@ class PageState:
         self.view: dict = {
             "run": {"status": "waiting", "reason": ""},
             "step": {"index": None, "of": len(steps), "label": ""},
-            "progress": {"measured": 0, "skipped": 0, "planned": len(self.measures), "station": "", "point": "",
-                         "pose": "", "t": 0.0, "time_left_s": None},
+            "progress": {
+                "measured": 0,
+                "skipped": 0,
+                "planned": len(self.measures),
+                "station": "",
+                "point": "",
+                "pose": "",
+                "t": 0.0,
+                "time_left_s": None,
+            },
             "prompt": None,
             "answer": None,
             "cell": {"door_closed": None, "estop_ok": None, "moving": False, "locked": None, "meteo": None},
             "warnings": [],
             "fits": [],  # the station_fit documents (engine/station_fit.py), one per station block, in block order
-        }  # fmt: skip
+        }
         self.points: list[dict] = []
 
     def fold(self, events) -> PageState:
@@ -96,8 +111,12 @@ class PageState:
         elif e.kind == "step_started" and 0 <= e.step < len(self.steps):
             s = self.steps[e.step]
             v["step"] = {"index": e.step, "of": len(self.steps), "label": s.label}
-            v["progress"] = {**v["progress"], "station": s.station or v["progress"]["station"],
-                             "point": s.point or v["progress"]["point"], "pose": s.pose or v["progress"]["pose"]}
+            v["progress"] = {
+                **v["progress"],
+                "station": s.station or v["progress"]["station"],
+                "point": s.point or v["progress"]["point"],
+                "pose": s.pose or v["progress"]["pose"],
+            }
             changed |= {"step", "progress"}
             if s.kind in (StepKind.MOVE, StepKind.SETTLE):
                 v["cell"] = {**v["cell"], "moving": True}
@@ -107,8 +126,15 @@ class PageState:
                 self.measured_steps.add(e.step)
                 exp, m = self.expected.get(e.step), measurement(e.data)
                 dev = None if exp is None else round(float(np.linalg.norm(np.subtract(m["xyz_mm"], exp))), 3)
-                point = {"id": e.id, "step": e.step, "station": m["station"], "point": m["point"], "pose": m["pose"],
-                         "xyz": [round(x, 3) for x in m["xyz_mm"]], "dev_mm": dev}  # fmt: skip
+                point = {
+                    "id": e.id,
+                    "step": e.step,
+                    "station": m["station"],
+                    "point": m["point"],
+                    "pose": m["pose"],
+                    "xyz": [round(x, 3) for x in m["xyz_mm"]],
+                    "dev_mm": dev,
+                }
                 self.points.append(point)
                 added.append(point)
                 v["cell"] = {**v["cell"], "locked": True, "meteo": e.data.get("env") or v["cell"]["meteo"]}
@@ -120,8 +146,13 @@ class PageState:
             v["progress"] = self._progress(e.t)
             changed.add("progress")
         elif e.kind == "prompt":
-            v["prompt"] = {"id": e.id, "kind": e.data.get("kind", ""), "target": e.data.get("target", ""),
-                           "text": e.data.get("text", ""), "station": v["progress"]["station"]}
+            v["prompt"] = {
+                "id": e.id,
+                "kind": e.data.get("kind", ""),
+                "target": e.data.get("target", ""),
+                "text": e.data.get("text", ""),
+                "station": v["progress"]["station"],
+            }
             changed.add("prompt")
         elif e.kind == "operator":
             v["prompt"] = None
@@ -162,5 +193,10 @@ class PageState:
         left = len(self.steps) - len(self.done)
         this_run = len(self.done) - self.done_at_start
         rate = None if self.t_first is None or this_run <= 0 else (t - self.t_first) / this_run
-        return {**self.view["progress"], "measured": measured, "skipped": max(0, done_measures - measured),
-                "t": round(t, 1), "time_left_s": None if rate is None else round(rate * left, 0)}  # fmt: skip
+        return {
+            **self.view["progress"],
+            "measured": measured,
+            "skipped": max(0, done_measures - measured),
+            "t": round(t, 1),
+            "time_left_s": None if rate is None else round(rate * left, 0),
+        }

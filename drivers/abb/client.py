@@ -52,8 +52,14 @@ GUARD_S = 0.04  # the guard, the answer and the controller's state are polled at
 GUARD_SLICE_S = 0.01  # between two polls of the answer the guard is asked every 10 ms (the PLC's door: 100 Hz)
 MAX_MOVE_ID = 1_000_000  # move numbers stay exact in a RAPID num (a 32-bit float: integers to 2**24)
 # controller states (Robot Web Services manual, "Get Controller State") -> the fault code of a move they end
-CTRL_FAULTS = {"motoroff": "motors_off", "guardstop": "guard_stop", "emergencystop": "emergency_stop",
-               "emergencystopreset": "emergency_stop", "sysfail": "system_failure", "init": "motors_off"}  # fmt: skip
+CTRL_FAULTS = {
+    "motoroff": "motors_off",
+    "guardstop": "guard_stop",
+    "emergencystop": "emergency_stop",
+    "emergencystopreset": "emergency_stop",
+    "sysfail": "system_failure",
+    "init": "motors_off",
+}
 RAPID_STOPPED = "rapid_stopped"  # RAPID stopped by itself (an error in the task, the FlexPendant's stop)
 CHANNELS_DISAGREE = "monitor_disagrees"  # EGM's settled joints are not those RWS reports
 
@@ -79,13 +85,28 @@ def claim_address(host: str, port: int) -> str:
 class AbbRws:
     """An ABB arm on an IRC5 controller with RobotWare 6, TrackcalRws loaded in T_ROB1, in AUTO mode."""
 
-    def __init__(self, host: str, port: int = 80, *, user: str = DEFAULT_USER, password: str = DEFAULT_PASSWORD,
-                 joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
-                 cell_box_check: CellBoxCheck | None = None, motion_guard: MotionGuard | None = None,
-                 connect_timeout_s: float = 30.0, move_timeout_s: float = 300.0, io_timeout_s: float = 5.0,
-                 egm: tuple[str, int] | None = None, egm_stale_s: float = 1.0) -> None:  # fmt: skip
-        require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
-                         egm_stale_s=egm_stale_s)  # fmt: skip
+    def __init__(
+        self,
+        host: str,
+        port: int = 80,
+        *,
+        user: str = DEFAULT_USER,
+        password: str = DEFAULT_PASSWORD,
+        joint_limits_deg: Sequence[tuple[float, float]] = ((-180.0, 180.0),) * 6,
+        cell_box_check: CellBoxCheck | None = None,
+        motion_guard: MotionGuard | None = None,
+        connect_timeout_s: float = 30.0,
+        move_timeout_s: float = 300.0,
+        io_timeout_s: float = 5.0,
+        egm: tuple[str, int] | None = None,
+        egm_stale_s: float = 1.0,
+    ) -> None:
+        require_positive(
+            connect_timeout_s=connect_timeout_s,
+            move_timeout_s=move_timeout_s,
+            io_timeout_s=io_timeout_s,
+            egm_stale_s=egm_stale_s,
+        )
         limits = checked_limits(joint_limits_deg, AXES)
         self.host, self.port = host, int(port)
         self.joint_limits_deg = limits
@@ -130,13 +151,15 @@ class AbbRws:
                 break
             except (ConnectionLost, DeviceTimeout) as exc:
                 if time.monotonic() >= deadline:
-                    raise ConnectionLost(f"not reachable within {self.connect_timeout_s:g} s: {exc}",
-                                         device=self.device) from None  # fmt: skip
+                    raise ConnectionLost(
+                        f"not reachable within {self.connect_timeout_s:g} s: {exc}", device=self.device
+                    ) from None
                 time.sleep(0.2)
         mode = self._value("rw/panel/opmode", "opmode")
         if mode != "AUTO":
-            raise DeviceFault(f"the controller is in {mode} mode: switch it to AUTO", code="not_auto",
-                              device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"the controller is in {mode} mode: switch it to AUTO", code="not_auto", device=self.device
+            )
         if self.egm is not None:
             self.egm.wait_first(max(0.1, deadline - time.monotonic()))
         done, move = self._num(DONE), self._num(MOVE)
@@ -151,8 +174,11 @@ class AbbRws:
     def _identity(self) -> Identity:
         system = self.rws.get("rw/system")[0]
         ident = self.rws.get("ctrl/identity")[0]
-        return Identity(serial=str(ident.get("ctrl-id", "")), system=str(system.get("name", "")),
-                        robotware=str(system.get("rwversion", "")))  # fmt: skip
+        return Identity(
+            serial=str(ident.get("ctrl-id", "")),
+            system=str(system.get("name", "")),
+            robotware=str(system.get("rwversion", "")),
+        )
 
     def identity(self) -> DeviceIdentity:
         """The controller's serial number (ctrl/identity's ctrl-id), its system's name and RobotWare version
@@ -201,9 +227,18 @@ class AbbRws:
             return
         self.rws.post("rw/rapid/execution", {"action": "resetpp"})
         self._set(DONE, f"{self._num(MOVE):.0f}")
-        self.rws.post("rw/rapid/execution", {"action": "start"},
-                      {"regain": "continue", "execmode": "continue", "cycle": "forever", "condition": "none",
-                       "stopatbp": "disabled", "alltaskbytsp": "false"})  # fmt: skip
+        self.rws.post(
+            "rw/rapid/execution",
+            {"action": "start"},
+            {
+                "regain": "continue",
+                "execmode": "continue",
+                "cycle": "forever",
+                "condition": "none",
+                "stopatbp": "disabled",
+                "alltaskbytsp": "false",
+            },
+        )
 
     # --- Robot protocol -------------------------------------------------------------------------------------
 
@@ -213,8 +248,9 @@ class AbbRws:
         try:
             return tuple(round(float(item[f"rax_{i}"]), 4) for i in range(1, 7))
         except (KeyError, ValueError):
-            raise DeviceFault(f"jointtarget without 6 numeric axes: {item}", code="protocol",
-                              device=self.device) from None  # fmt: skip
+            raise DeviceFault(
+                f"jointtarget without 6 numeric axes: {item}", code="protocol", device=self.device
+            ) from None
 
     def check_target(self, target_deg: Sequence[float]) -> tuple[float, ...]:
         """The target as a tuple, or MotionRefused (joint limits first, then the cell box)."""
@@ -225,8 +261,9 @@ class AbbRws:
         speed = checked_speed(speed_override_pct, self.device)
         with self._motion:
             if self._fault:
-                raise DeviceFault(f"move refused: {self._fault} latched (acknowledge to reset)", code="latched",
-                                  device=self.device)  # fmt: skip
+                raise DeviceFault(
+                    f"move refused: {self._fault} latched (acknowledge to reset)", code="latched", device=self.device
+                )
         if self.egm is not None:
             self.egm.require_fresh()  # never move without the monitor
         number, self._next = self._next, self._next % MAX_MOVE_ID + 1
@@ -247,8 +284,9 @@ class AbbRws:
                 self._moving, self._ended = None, (number, stood)
                 self._motion.notify_all()
         if stopped:
-            raise DeviceFault(f"move {number} to {target} stopped: {stopped}", code=stop_code(stopped),
-                              device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"move {number} to {target} stopped: {stopped}", code=stop_code(stopped), device=self.device
+            )
 
     def _await_done(self, number: int) -> str | None:
         """Poll until RAPID answers move `number` (None), or the guard stops it (its reason, once the arm stands);
@@ -256,9 +294,11 @@ class AbbRws:
         before every request (each one an HTTP round trip), so a door opened is acted on within one of them."""
         deadline = time.monotonic() + self.move_timeout_s
         seen: dict[str, str] = {}
-        steps = (lambda: self._num(DONE) == number,
-                 lambda: seen.update(execution=self._value("rw/rapid/execution", "ctrlexecstate")),
-                 lambda: self._check_controller(f"move {number}", seen["execution"]))  # fmt: skip
+        steps = (
+            lambda: self._num(DONE) == number,
+            lambda: seen.update(execution=self._value("rw/rapid/execution", "ctrlexecstate")),
+            lambda: self._check_controller(f"move {number}", seen["execution"]),
+        )
         while True:
             started = time.monotonic()
             for step in steps:
@@ -302,8 +342,9 @@ class AbbRws:
             if self._value("rw/rapid/execution", "ctrlexecstate") == "stopped" and q == last:
                 break
             if time.monotonic() > deadline:
-                raise DeviceTimeout(f"the arm did not stand within {self.io_timeout_s:g} s of the RAPID stop",
-                                    device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"the arm did not stand within {self.io_timeout_s:g} s of the RAPID stop", device=self.device
+                )
             last = q
             time.sleep(GUARD_S)
         with self._motion:
@@ -342,8 +383,10 @@ class AbbRws:
             elif now - since >= window_s - 1e-9:
                 return q
             if now > deadline:
-                raise DeviceTimeout(f"joints not settled within {tolerance_deg} deg over {window_s} s after "
-                                    f"{timeout_s} s", device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"joints not settled within {tolerance_deg} deg over {window_s} s after {timeout_s} s",
+                    device=self.device,
+                )
             time.sleep(max(0.0, min(GUARD_S, window_s) - (time.monotonic() - now)))
 
     def _settle_on_egm(self, egm: EgmLink, tolerance_deg: float, window_s: float, timeout_s: float) -> tuple:
@@ -367,8 +410,11 @@ class AbbRws:
                     self._check_channels(q, tolerance_deg)
                     return q
                 if (seq - start + 1) * cycle > timeout_s:
-                    raise DeviceTimeout(f"joints not settled within {tolerance_deg} deg over {window_s} s after "
-                                        f"{timeout_s} s of controller time", device=self.device)  # fmt: skip
+                    raise DeviceTimeout(
+                        f"joints not settled within {tolerance_deg} deg over {window_s} s after "
+                        f"{timeout_s} s of controller time",
+                        device=self.device,
+                    )
             if time.monotonic() > real_deadline:
                 raise DeviceTimeout("EGM frames stopped coming while waiting to settle", device=self.device)
             egm.wait_for_frame(next_seq, GUARD_S)
@@ -378,9 +424,12 @@ class AbbRws:
         allowed = tolerance_deg + JOINT_RESOLUTION_DEG
         for name, e, r in zip(AXES, settled, rws, strict=True):
             if abs(e - r) > allowed + 1e-9:
-                raise DeviceFault(f"EGM and RWS disagree on {name}: EGM {e:.4f} deg, RWS {r:.4f} deg (more than "
-                                  f"{allowed:g} deg apart): is the EGM stream this arm's?", code=CHANNELS_DISAGREE,
-                                  device=self.device)  # fmt: skip
+                raise DeviceFault(
+                    f"EGM and RWS disagree on {name}: EGM {e:.4f} deg, RWS {r:.4f} deg (more than "
+                    f"{allowed:g} deg apart): is the EGM stream this arm's?",
+                    code=CHANNELS_DISAGREE,
+                    device=self.device,
+                )
 
     def stop(self) -> None:
         """Brake the running move (the moving thread stops RAPID within GUARD_S); returns once the arm stands. A
@@ -405,9 +454,11 @@ class AbbRws:
         else motors on and RAPID started again from main (the stopped move not resumed)."""
         state = self._value("rw/panel/ctrlstate", "ctrlstate")
         if state in ("guardstop", "emergencystop", "emergencystopreset", "sysfail"):
-            raise DeviceFault(f"the controller is still in {state}: reset it on the cell, then acknowledge",
-                              code=CTRL_FAULTS[state], device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"the controller is still in {state}: reset it on the cell, then acknowledge",
+                code=CTRL_FAULTS[state],
+                device=self.device,
+            )
         self._start()
         with self._motion:
             self._fault = ""
-

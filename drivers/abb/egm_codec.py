@@ -61,14 +61,16 @@ def _state(value: int) -> bytes:
 def encode(msg: EgmRobot) -> bytes:
     """The EgmRobot message's bytes."""
     header = _field(1, 0, _varint(msg.seqno)) + _field(2, 0, _varint(msg.tm_ms)) + _field(3, 0, _varint(MSGTYPE_DATA))
-    return b"".join((
-        _field(1, 2, header),
-        _field(2, 2, _field(1, 2, _joints(msg.joints_deg))),
-        _field(3, 2, _field(1, 2, _joints(msg.planned_deg))),
-        _field(4, 2, _state(MOTORS_ON if msg.motors_on else MOTORS_OFF)),
-        _field(5, 2, _state(MCI_RUNNING if msg.rapid_running else MCI_STOPPED)),
-        _field(8, 2, _state(RAPID_RUNNING if msg.rapid_running else RAPID_STOPPED)),
-    ))  # fmt: skip
+    return b"".join(
+        (
+            _field(1, 2, header),
+            _field(2, 2, _field(1, 2, _joints(msg.joints_deg))),
+            _field(3, 2, _field(1, 2, _joints(msg.planned_deg))),
+            _field(4, 2, _state(MOTORS_ON if msg.motors_on else MOTORS_OFF)),
+            _field(5, 2, _state(MCI_RUNNING if msg.rapid_running else MCI_STOPPED)),
+            _field(8, 2, _state(RAPID_RUNNING if msg.rapid_running else RAPID_STOPPED)),
+        )
+    )
 
 
 def _read_varint(data: bytes, i: int) -> tuple[int, int]:
@@ -148,5 +150,11 @@ def decode(data: bytes) -> EgmRobot:
         raise EgmError("header seqno / tm are not varints")
     joints = _doubles(_message(_message(top, 2), 1).get(1, []))
     planned = _doubles(_message(_message(top, 3), 1).get(1, []))
-    return EgmRobot(seqno=seqno, tm_ms=tm, joints_deg=joints, planned_deg=planned,
-                    motors_on=_state_of(top, 4) == MOTORS_ON, rapid_running=_state_of(top, 8) == RAPID_RUNNING)
+    return EgmRobot(
+        seqno=seqno,
+        tm_ms=tm,
+        joints_deg=joints,
+        planned_deg=planned,
+        motors_on=_state_of(top, 4) == MOTORS_ON,
+        rapid_running=_state_of(top, 8) == RAPID_RUNNING,
+    )

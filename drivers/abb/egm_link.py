@@ -23,8 +23,16 @@ HISTORY = 4096  # frames kept (16 s at 4 ms)
 
 
 class EgmLink:
-    def __init__(self, host: str, port: int, controller_host: str, *, cycle_s: float = 0.004, stale_s: float = 1.0,
-                 device: str = "") -> None:  # fmt: skip
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        controller_host: str,
+        *,
+        cycle_s: float = 0.004,
+        stale_s: float = 1.0,
+        device: str = "",
+    ) -> None:
         self.host, self.port = host, int(port)
         self.controller_host = controller_host
         self.cycle_s, self.stale_s = cycle_s, stale_s
@@ -60,8 +68,9 @@ class EgmLink:
             sock.bind((self.host, self.port))
         except OSError as exc:
             sock.close()
-            raise ConnectionLost(f"cannot listen for EGM on {self.host}:{self.port}: {exc.strerror or exc}",
-                                 device=self.device) from exc  # fmt: skip
+            raise ConnectionLost(
+                f"cannot listen for EGM on {self.host}:{self.port}: {exc.strerror or exc}", device=self.device
+            ) from exc
         sock.settimeout(0.1)
         self._sock = sock
         self._thread = threading.Thread(target=self._run, name="abb-egm", daemon=True)
@@ -97,8 +106,9 @@ class EgmLink:
         with self._cond:
             if not self._cond.wait_for(lambda: self._count > 0, timeout=timeout_s):
                 who = f" (refused {len(self.refused)} from other addresses)" if self.refused else ""
-                raise DeviceTimeout(f"no EGM frame within {timeout_s:g} s on {self.host}:{self.port}{who}",
-                                    device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"no EGM frame within {timeout_s:g} s on {self.host}:{self.port}{who}", device=self.device
+                )
 
     def stale(self) -> str | None:
         """Why the stream is stale (no frame for stale_s), None when fresh."""

@@ -34,8 +34,14 @@ SCHEMAS = {
 def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> AbbRws:
     keys = [k for k in SCHEMAS[""] if k not in ("protocol", "host", "egm")]
     egm = (r["egm"]["host"], r["egm"]["port"]) if r.get("egm") else None
-    return AbbRws(r["host"], joint_limits_deg=joint_limits_deg, cell_box_check=cell_box_check,
-                  motion_guard=motion_guard, egm=egm, **{k: r[k] for k in keys})  # fmt: skip
+    return AbbRws(
+        r["host"],
+        joint_limits_deg=joint_limits_deg,
+        cell_box_check=cell_box_check,
+        motion_guard=motion_guard,
+        egm=egm,
+        **{k: r[k] for k in keys},
+    )
 
 
 def where(r: dict) -> str:
@@ -44,8 +50,10 @@ def where(r: dict) -> str:
 
 
 def waiting(r: dict) -> str:
-    return (f"connecting to the ABB controller at {r['host']}:{r['port']} (up to {r['connect_timeout_s']:g} s; AUTO "
-            "mode, TrackcalRws loaded in T_ROB1)")  # fmt: skip
+    return (
+        f"connecting to the ABB controller at {r['host']}:{r['port']} (up to {r['connect_timeout_s']:g} s; AUTO "
+        "mode, TrackcalRws loaded in T_ROB1)"
+    )
 
 
 def claim(robot: AbbRws) -> None:
@@ -53,6 +61,16 @@ def claim(robot: AbbRws) -> None:
     robot.claim()
 
 
-FAMILY = RobotFamily(name="abb", title="ABB", dof=len(AXES), schemas=SCHEMAS, build=build, describe=where,
-                     where=where, waiting=waiting, claim=claim, program=PROGRAM,
-                     readers={".mod": read_rapid, ".modx": read_rapid, ".prg": read_rapid})  # fmt: skip
+FAMILY = RobotFamily(
+    name="abb",
+    title="ABB",
+    dof=len(AXES),
+    schemas=SCHEMAS,
+    build=build,
+    describe=where,
+    where=where,
+    waiting=waiting,
+    claim=claim,
+    program=PROGRAM,
+    readers={".mod": read_rapid, ".modx": read_rapid, ".prg": read_rapid},
+)

@@ -79,8 +79,9 @@ class RapidError(ProgramError):
 
 def check_name(name: str) -> str:
     if not isinstance(name, str) or not NAME_RE.fullmatch(name):
-        raise RapidError(f"RAPID module name {name!r} is not valid: at most 32 characters, a letter first, then "
-                         "letters, digits or _")  # fmt: skip
+        raise RapidError(
+            f"RAPID module name {name!r} is not valid: at most 32 characters, a letter first, then letters, digits or _"
+        )
     return name
 
 
@@ -90,20 +91,27 @@ def target_names(names: list[str] | None, n: int) -> list[str]:
     return program_names(names, n, "J", "J", 32)
 
 
-def texts(name: str, q_deg, speed_pct: int = 10, labels: list[str] | None = None,
-          notes: list[str | None] | None = None) -> dict[str, bytes]:  # fmt: skip
+def texts(
+    name: str, q_deg, speed_pct: int = 10, labels: list[str] | None = None, notes: list[str | None] | None = None
+) -> dict[str, bytes]:
     """{NAME.mod: its bytes}: a module whose `main` moves MoveAbsJ ... fine through the rows of q_deg (N, 6) at
     speed_pct % of v5000 (VelSet), each target a CONST jointtarget; `notes[i]` a comment above row i's move."""
     check_name(name)
     q, pct = program_targets(q_deg, speed_pct, "ABB", 6, "axis angles rax_1..rax_6", "VelSet", RapidError)
     labels = labels or target_names(None, len(q))
-    if len(labels) != len(q) or not all(NAME_RE.fullmatch(t) for t in labels) or \
-            len({t.upper() for t in labels}) != len(labels):  # fmt: skip
+    if (
+        len(labels) != len(q)
+        or not all(NAME_RE.fullmatch(t) for t in labels)
+        or len({t.upper() for t in labels}) != len(labels)
+    ):
         raise RapidError(f"one valid RAPID name per target expected (unique without regard to case), got {labels!r}")
     notes = program_notes(notes, len(q), RapidError)
     nominal = sum(t is not None for t in notes)
-    what = (f"{len(q)} compensated joint targets" if not nominal else
-            f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)")  # fmt: skip
+    what = (
+        f"{len(q)} compensated joint targets"
+        if not nominal
+        else f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)"
+    )
     lines = [f"MODULE {name}", f"  ! trackcal: {what}, MoveAbsJ at {pct} % speed"]
     lines += [f"  CONST jointtarget {t} := {joint_value(row)};" for t, row in zip(labels, q, strict=True)]
     lines += ["  PROC main()", f"    VelSet {pct}, 5000;"]

@@ -184,8 +184,13 @@ def _check(file: str, node: Node, name: str, joint: bool) -> None:
         robtarget(file, node, name)
 
 
-def _add_uses(scope: _Scope, targets: dict[tuple, _Target], move: Move, call: Call | None = None,
-              procedure: Procedure | None = None) -> None:  # fmt: skip
+def _add_uses(
+    scope: _Scope,
+    targets: dict[tuple, _Target],
+    move: Move,
+    call: Call | None = None,
+    procedure: Procedure | None = None,
+) -> None:
     """Records on each target `move` names its motion label and the frames it is used in. With `call`, `move` sits in
     the called `procedure`: its targets, tool and work object that are the procedure's parameters are the call's
     arguments (looked up where the call is); its other targets are read only when its frames depend on the call."""
@@ -203,8 +208,9 @@ def _add_uses(scope: _Scope, targets: dict[tuple, _Target], move: Move, call: Ca
             targets.setdefault(key, target).uses.append(_Use(label, *frames, where.line))
 
 
-def _bound_target(move: Move, arg: TargetArgument, call: Call | None,
-                  procedure: Procedure | None) -> tuple[Move | Call, TargetArgument | None, str]:  # fmt: skip
+def _bound_target(
+    move: Move, arg: TargetArgument, call: Call | None, procedure: Procedure | None
+) -> tuple[Move | Call, TargetArgument | None, str]:
     """(where to look the target up, the target argument there or None to skip it, its offset function)."""
     if call is None or procedure is None:
         return move, arg, arg.via
@@ -223,8 +229,9 @@ def _frames_are_parameters(move: Move) -> bool:
     return move.cartesian and any(t.upper in move.parameters for t in names)
 
 
-def _resolve(scope: _Scope, targets: dict[tuple, _Target], where: Move | Call, arg: TargetArgument,
-             cartesian: bool) -> list:  # fmt: skip
+def _resolve(
+    scope: _Scope, targets: dict[tuple, _Target], where: Move | Call, arg: TargetArgument, cartesian: bool
+) -> list:
     """The (key, target) pairs a target argument names where it is written: an inline literal's new target, or the
     declared target(s) of a name (every element when the array index is not a literal)."""
     if arg.node is not None:
@@ -241,8 +248,9 @@ def _resolve(scope: _Scope, targets: dict[tuple, _Target], where: Move | Call, a
     return [((id(d), arg.index), targets[(id(d), arg.index)])] if (id(d), arg.index) in targets else []
 
 
-def _frames(scope: _Scope, move: Move, call: Call | None,
-            procedure: Procedure | None) -> tuple[tuple, tuple[str, str], np.ndarray, np.ndarray]:  # fmt: skip
+def _frames(
+    scope: _Scope, move: Move, call: Call | None, procedure: Procedure | None
+) -> tuple[tuple, tuple[str, str], np.ndarray, np.ndarray]:
     """(the tool's and work object's declarations, their names, tool frame, base frame) of a Cartesian move; a tool
     or work object that is a parameter of the called `procedure` is the `call`'s argument."""
     named = []
@@ -252,8 +260,12 @@ def _frames(scope: _Scope, move: Move, call: Call | None,
             k = procedure.positional.index(name.upper())
             given = call.names[k] if k < len(call.names) else None
             if given is None:
-                raise fail(call.file, call.line, f"{call.instruction}'s argument for {name} is not a tooldata or "
-                                                 "wobjdata name: its frame is not known from the text")  # fmt: skip
+                raise fail(
+                    call.file,
+                    call.line,
+                    f"{call.instruction}'s argument for {name} is not a tooldata or "
+                    "wobjdata name: its frame is not known from the text",
+                )
             where, name = call, given.text
         named.append((where, name))
     (tool_where, tool_name), (wobj_where, wobj_name) = named
@@ -266,14 +278,22 @@ def _frame_data(scope: _Scope, where: Move | Call, name: str, type_: str) -> tup
     """(identity of the declaration, frame) of the tool or work object `name` a move (or a call) names."""
     what = type_.lower()
     if name.upper() in where.parameters:
-        raise fail(where.file, where.line, f"{where.instruction}'s {what} {name} is a parameter of its routine and no "
-                                           "call in the files gives it: its frame is not known")  # fmt: skip
+        raise fail(
+            where.file,
+            where.line,
+            f"{where.instruction}'s {what} {name} is a parameter of its routine and no "
+            "call in the files gives it: its frame is not known",
+        )
     d = scope.find(name, where.file, where.module, where.routine, where.line)
     if d is None and PREDEFINED.get(name.upper()) == type_:
         return name.upper(), WRIST_IN_FLANGE if type_ == "TOOLDATA" else IDENTITY
     if d is None:
-        raise fail(where.file, where.line, f"{where.instruction} uses {what} {name}, which the files given do not "
-                                           "declare (give the module that declares it too)")  # fmt: skip
+        raise fail(
+            where.file,
+            where.line,
+            f"{where.instruction} uses {what} {name}, which the files given do not "
+            "declare (give the module that declares it too)",
+        )
     if d.type != type_ or d.dims:
         raise fail(where.file, where.line, f"{where.instruction} uses {name} as its {what}, declared as another type")
     if d.value is None:
@@ -299,9 +319,13 @@ def _program_target(files: dict[str, str], t: _Target) -> ProgramTarget:
         first = t.uses[0]
         other = next((u for u in t.uses if u.frames != first.frames), None)
         if other is not None:
-            raise fail(t.file, other.line, f"{t.name} is used with tool {first.names[0]} in work object "
-                                           f"{first.names[1]} (line {first.line}) and with tool {other.names[0]} in "
-                                           f"{other.names[1]}: one corrected value cannot serve both")  # fmt: skip
+            raise fail(
+                t.file,
+                other.line,
+                f"{t.name} is used with tool {first.names[0]} in work object "
+                f"{first.names[1]} (line {first.line}) and with tool {other.names[0]} in "
+                f"{other.names[1]}: one corrected value cannot serve both",
+            )
         tool, base = first.tool, first.base
     motion = ", ".join(dict.fromkeys(u.label for u in t.uses))
     text = files[t.file][t.node.start : t.node.end]
@@ -309,12 +333,38 @@ def _program_target(files: dict[str, str], t: _Target) -> ProgramTarget:
         robax = jointtarget(t.file, t.node, t.name)
         value = np.array([value_of(n) for n in robax], dtype=float)
         render = joint_renderer(text, t.node.start, robax)
-        return ProgramTarget(t.file, t.node.start, t.node.end, t.node.line, t.name, True, value, IDENTITY.copy(),
-                             IDENTITY.copy(), (), _any_joints, render, motion)  # fmt: skip
+        return ProgramTarget(
+            t.file,
+            t.node.start,
+            t.node.end,
+            t.node.line,
+            t.name,
+            True,
+            value,
+            IDENTITY.copy(),
+            IDENTITY.copy(),
+            (),
+            _any_joints,
+            render,
+            motion,
+        )
     rt = robtarget(t.file, t.node, t.name)
     render = robtarget_renderer(text, t.node.start, rt.trans, rt.rot)
-    return ProgramTarget(t.file, t.node.start, t.node.end, t.node.line, t.name, False, rt.pose, base.copy(),
-                         tool.copy(), rt.config, config_accepts(rt.config), render, motion)  # fmt: skip
+    return ProgramTarget(
+        t.file,
+        t.node.start,
+        t.node.end,
+        t.node.line,
+        t.name,
+        False,
+        rt.pose,
+        base.copy(),
+        tool.copy(),
+        rt.config,
+        config_accepts(rt.config),
+        render,
+        motion,
+    )
 
 
 def _any_joints(q_deg: np.ndarray) -> bool:

@@ -28,19 +28,90 @@ from trackcal.drivers.abb.rapid_values import Node, parse_literal
 
 READ_TYPES = ("ROBTARGET", "JOINTTARGET", "TOOLDATA", "WOBJDATA")
 # the move instructions read: upper case -> (name as the manual writes it, Cartesian targets; 0: one jointtarget)
-MOVES = {name.upper(): (name, n) for name, n in (
-    ("MoveJ", 1), ("MoveL", 1), ("MoveC", 2), ("MoveAbsJ", 0),
-    ("MoveJDO", 1), ("MoveLDO", 1), ("MoveCDO", 2), ("MoveJSync", 1), ("MoveLSync", 1), ("MoveCSync", 2),
-    ("MoveJAO", 1), ("MoveLAO", 1), ("MoveCAO", 2), ("MoveJGO", 1), ("MoveLGO", 1), ("MoveCGO", 2))}  # fmt: skip
+MOVES = {
+    name.upper(): (name, n)
+    for name, n in (
+        ("MoveJ", 1),
+        ("MoveL", 1),
+        ("MoveC", 2),
+        ("MoveAbsJ", 0),
+        ("MoveJDO", 1),
+        ("MoveLDO", 1),
+        ("MoveCDO", 2),
+        ("MoveJSync", 1),
+        ("MoveLSync", 1),
+        ("MoveCSync", 2),
+        ("MoveJAO", 1),
+        ("MoveLAO", 1),
+        ("MoveCAO", 2),
+        ("MoveJGO", 1),
+        ("MoveLGO", 1),
+        ("MoveCGO", 2),
+    )
+}
 OFFSET_FUNCTIONS = {"OFFS": "Offs", "RELTOOL": "RelTool"}
 ROUTINES = {"PROC": "ENDPROC", "FUNC": "ENDFUNC", "TRAP": "ENDTRAP"}
 BLOCK_WORDS = {"MODULE", "ENDMODULE", *ROUTINES, *ROUTINES.values(), "RECORD", "ENDRECORD"}
 # RAPID's reserved words (RAPID kernel, "Reserved words"): a statement starting with one is no procedure call
-RESERVED = {"ALIAS", "AND", "BACKWARD", "CASE", "CONNECT", "CONST", "DEFAULT", "DIV", "DO", "ELSE", "ELSEIF", "ENDFOR",
-            "ENDFUNC", "ENDIF", "ENDMODULE", "ENDPROC", "ENDRECORD", "ENDTEST", "ENDTRAP", "ENDWHILE", "ERROR", "EXIT",
-            "FALSE", "FOR", "FROM", "FUNC", "GOTO", "IF", "INOUT", "LOCAL", "MOD", "MODULE", "NOSTEPIN", "NOT",
-            "NOVIEW", "OR", "PERS", "PROC", "RAISE", "READONLY", "RECORD", "RETRY", "RETURN", "STEP", "SYSMODULE",
-            "TEST", "THEN", "TO", "TRAP", "TRUE", "TRYNEXT", "UNDO", "VAR", "VIEWONLY", "WHILE", "WITH", "XOR"}
+RESERVED = {
+    "ALIAS",
+    "AND",
+    "BACKWARD",
+    "CASE",
+    "CONNECT",
+    "CONST",
+    "DEFAULT",
+    "DIV",
+    "DO",
+    "ELSE",
+    "ELSEIF",
+    "ENDFOR",
+    "ENDFUNC",
+    "ENDIF",
+    "ENDMODULE",
+    "ENDPROC",
+    "ENDRECORD",
+    "ENDTEST",
+    "ENDTRAP",
+    "ENDWHILE",
+    "ERROR",
+    "EXIT",
+    "FALSE",
+    "FOR",
+    "FROM",
+    "FUNC",
+    "GOTO",
+    "IF",
+    "INOUT",
+    "LOCAL",
+    "MOD",
+    "MODULE",
+    "NOSTEPIN",
+    "NOT",
+    "NOVIEW",
+    "OR",
+    "PERS",
+    "PROC",
+    "RAISE",
+    "READONLY",
+    "RECORD",
+    "RETRY",
+    "RETURN",
+    "STEP",
+    "SYSMODULE",
+    "TEST",
+    "THEN",
+    "TO",
+    "TRAP",
+    "TRUE",
+    "TRYNEXT",
+    "UNDO",
+    "VAR",
+    "VIEWONLY",
+    "WHILE",
+    "WITH",
+    "XOR",
+}
 # the words after which a new statement starts (besides `;` and a CASE's or a label's `:`)
 OPENERS = {"THEN", "ELSE", "DO", "ENDIF", "ENDWHILE", "ENDFOR", "ENDTEST", "ERROR", "UNDO", "BACKWARD"}
 
@@ -193,8 +264,11 @@ class Walker:
             elif t.upper == "ALIAS":  # ALIAS num level; (RAPID kernel, alias types)
                 i = self.statement_end(i + 1) + 1
             else:
-                raise fail(self.file, t.line, "expected a declaration, PROC, FUNC, TRAP, RECORD or ENDMODULE, "
-                                              f"found {t.text!r}")  # fmt: skip
+                raise fail(
+                    self.file,
+                    t.line,
+                    f"expected a declaration, PROC, FUNC, TRAP, RECORD or ENDMODULE, found {t.text!r}",
+                )
 
     def skip_to(self, i: int, word: str) -> int:
         while self.at(i, word).upper != word:
@@ -220,11 +294,26 @@ class Walker:
             else:
                 i = self.statement_end(i)
         if self.at(i, "';'").text != ";":
-            raise fail(self.file, self.tokens[i].line, f"expected ';' after the declaration of {name.text}, "
-                                                       f"found {self.tokens[i].text!r}")  # fmt: skip
+            raise fail(
+                self.file,
+                self.tokens[i].line,
+                f"expected ';' after the declaration of {name.text}, found {self.tokens[i].text!r}",
+            )
         if type_.upper in READ_TYPES:
-            self.declarations.append(Declaration(self.file, self.module, routine, local, type_.upper, name.text,
-                                                 name.line, dims, value, self.tokens[start].upper))  # fmt: skip
+            self.declarations.append(
+                Declaration(
+                    self.file,
+                    self.module,
+                    routine,
+                    local,
+                    type_.upper,
+                    name.text,
+                    name.line,
+                    dims,
+                    value,
+                    self.tokens[start].upper,
+                )
+            )
         return i + 1
 
     def statement_end(self, i: int) -> int:
@@ -283,8 +372,9 @@ class Walker:
         mains = [m for m in mains if m]
         targets = tuple(self.target(m) for m in mains)
         names = tuple(m[0] if len(m) == 1 and m[0].kind == "name" else None for m in mains)
-        self.calls.append(Call(self.file, self.module, routine, self.tokens[i].line, self.tokens[i], targets, names,
-                               self.parameters))  # fmt: skip
+        self.calls.append(
+            Call(self.file, self.module, routine, self.tokens[i].line, self.tokens[i], targets, names, self.parameters)
+        )
         return end + 1
 
     def statement_part_end(self, i: int) -> int:
@@ -318,8 +408,20 @@ class Walker:
         tool = self.single_name(positional[n + 2], f"a tooldata name as {instruction}'s tool")
         wobj = options.get("WOBJ")
         wobj = None if wobj is None else self.single_name(wobj, f"a wobjdata name after {instruction}'s \\WObj:=")
-        self.moves.append(Move(self.file, self.module, routine, instruction, line, n_targets > 0,
-                               tuple(t for t in targets if t is not None), tool, wobj, self.parameters))  # fmt: skip
+        self.moves.append(
+            Move(
+                self.file,
+                self.module,
+                routine,
+                instruction,
+                line,
+                n_targets > 0,
+                tuple(t for t in targets if t is not None),
+                tool,
+                wobj,
+                self.parameters,
+            )
+        )
         return end + 1
 
     def single_name(self, tokens: list[Token], what: str) -> Token:

@@ -113,17 +113,25 @@ def value_of(node: Node) -> float:
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     """The rotation matrix of the quaternion (q1 scalar, q2..q4 vector), normalised first."""
     w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def matrix_quaternion(r: np.ndarray) -> np.ndarray:
     """A unit quaternion (q1 scalar) of a rotation matrix (Shepperd's method: the largest of the four squares first,
     so no division by a small number)."""
     r = np.asarray(r, dtype=float)
-    squares = [1 + r[0, 0] + r[1, 1] + r[2, 2], 1 + r[0, 0] - r[1, 1] - r[2, 2],
-               1 - r[0, 0] + r[1, 1] - r[2, 2], 1 - r[0, 0] - r[1, 1] + r[2, 2]]  # fmt: skip
+    squares = [
+        1 + r[0, 0] + r[1, 1] + r[2, 2],
+        1 + r[0, 0] - r[1, 1] - r[2, 2],
+        1 - r[0, 0] + r[1, 1] - r[2, 2],
+        1 - r[0, 0] - r[1, 1] + r[2, 2],
+    ]
     k = int(np.argmax(squares))
     s = 2.0 * np.sqrt(max(squares[k], 1e-300))
     if k == 0:
@@ -141,8 +149,9 @@ def matrix_quaternion(r: np.ndarray) -> np.ndarray:
 def pose_matrix(file: str, node: Node, what: str) -> np.ndarray:
     """The 4 x 4 transform of a pose `[[x, y, z], [q1, q2, q3, q4]]` (mm)."""
     trans, rot = _items(file, node, 2, f"{what} as [[x, y, z], [q1, q2, q3, q4]]")
-    return frame_matrix(file, numbers(file, trans, 3, f"{what}'s [x, y, z]"),
-                        numbers(file, rot, 4, f"{what}'s [q1, q2, q3, q4]"), what)  # fmt: skip
+    return frame_matrix(
+        file, numbers(file, trans, 3, f"{what}'s [x, y, z]"), numbers(file, rot, 4, f"{what}'s [q1, q2, q3, q4]"), what
+    )
 
 
 def frame_matrix(file: str, trans: list[Node], rot: list[Node], what: str) -> np.ndarray:
@@ -208,17 +217,25 @@ def work_object_frame(file: str, node: Node, name: str) -> np.ndarray:
     """The object frame (uframe * oframe) in the robot's world frame of a wobjdata
     `[robhold, ufprog, ufmec, uframe, oframe]` fixed in the cell."""
     robhold, ufprog, ufmec, uframe, oframe = _items(
-        file, node, 5, f"wobjdata {name} as [robhold, ufprog, ufmec, uframe, oframe]")  # fmt: skip
+        file, node, 5, f"wobjdata {name} as [robhold, ufprog, ufmec, uframe, oframe]"
+    )
     for flag, what in ((robhold, "robhold"), (ufprog, "ufprog")):
         if flag.kind != "bool":
             raise fail(file, flag.line, f"wobjdata {name}: expected TRUE or FALSE for {what}")
     if ufmec.kind != "str":
         raise fail(file, ufmec.line, f"wobjdata {name}: expected a string for ufmec")
     if robhold.value:
-        raise fail(file, robhold.line, f"wobjdata {name}: a work object held by the robot (robhold TRUE, a "
-                                       "stationary tool) is not supported")  # fmt: skip
+        raise fail(
+            file,
+            robhold.line,
+            f"wobjdata {name}: a work object held by the robot (robhold TRUE, a stationary tool) is not supported",
+        )
     if not ufprog.value or ufmec.value:
-        raise fail(file, ufprog.line, f"wobjdata {name}: a coordinated work object (ufprog FALSE or ufmec "
-                                      f"{ufmec.value!r}, moved by a mechanical unit) is not supported")  # fmt: skip
+        raise fail(
+            file,
+            ufprog.line,
+            f"wobjdata {name}: a coordinated work object (ufprog FALSE or ufmec "
+            f"{ufmec.value!r}, moved by a mechanical unit) is not supported",
+        )
     user = pose_matrix(file, uframe, f"wobjdata {name}'s uframe")
     return user @ pose_matrix(file, oframe, f"wobjdata {name}'s oframe")

@@ -45,8 +45,10 @@ from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, 
 DEFAULT_USER = "Default User"  # the user every RobotWare 6 system has (the manual's sample calls)
 DEFAULT_PASSWORD = "robotics"
 SESSION_COOKIES = ("-http-session-", "ABBCX")
-RWS2_REFUSED = ("answers as a RobotWare 7 controller (Robot Web Services 2.0: HTTPS, Basic authentication), which "
-                "trackcal does not speak: it drives RobotWare 6 controllers over RWS 1.0 (docs/abb.md)")
+RWS2_REFUSED = (
+    "answers as a RobotWare 7 controller (Robot Web Services 2.0: HTTPS, Basic authentication), which "
+    "trackcal does not speak: it drives RobotWare 6 controllers over RWS 1.0 (docs/abb.md)"
+)
 _REDIRECTS = (301, 302, 303, 307, 308)
 _PARAM = re.compile(r'(\w+)=(?:"((?:[^"\\]|\\.)*)"|([^,\s]*))')
 
@@ -68,8 +70,9 @@ def parse_challenge(header: str) -> dict[str, str]:
     return {k.lower(): (q.replace('\\"', '"') if q else b) for k, q, b in _PARAM.findall(rest)}
 
 
-def digest_response(user: str, password: str, method: str, uri: str, challenge: dict[str, str], nc: int,
-                    cnonce: str) -> str:  # fmt: skip
+def digest_response(
+    user: str, password: str, method: str, uri: str, challenge: dict[str, str], nc: int, cnonce: str
+) -> str:
     """The `Authorization: Digest ...` header's value for one request (RFC 7616 section 3.4, MD5, qop=auth or none)."""
 
     def h(text: str) -> str:
@@ -107,8 +110,15 @@ class RwsSession:
     """One RWS 1.0 session with a controller at `host:port` (HTTP; one connection, kept alive, one request at a
     time: a lock serialises the moving thread and a stop from another)."""
 
-    def __init__(self, host: str, port: int = 80, *, user: str = DEFAULT_USER, password: str = DEFAULT_PASSWORD,
-                 io_timeout_s: float = 5.0) -> None:  # fmt: skip
+    def __init__(
+        self,
+        host: str,
+        port: int = 80,
+        *,
+        user: str = DEFAULT_USER,
+        password: str = DEFAULT_PASSWORD,
+        io_timeout_s: float = 5.0,
+    ) -> None:
         self.host, self.port = host, int(port)
         self.user, self.password = user, password
         self.io_timeout_s = io_timeout_s
@@ -168,8 +178,9 @@ class RwsSession:
             headers["Cookie"] = "; ".join(f"{k}={v}" for k, v in self.cookies.items())
         elif self._challenge:
             self._nc += 1
-            headers["Authorization"] = digest_response(self.user, self.password, method, uri, self._challenge,
-                                                       self._nc, os.urandom(8).hex())  # fmt: skip
+            headers["Authorization"] = digest_response(
+                self.user, self.password, method, uri, self._challenge, self._nc, os.urandom(8).hex()
+            )
         for attempt in (1, 2):  # a kept-alive connection the controller closed meanwhile is opened again once
             conn = self._connection()
             try:
@@ -178,8 +189,9 @@ class RwsSession:
                 payload = response.read()
             except TimeoutError as exc:
                 self._drop()
-                raise DeviceTimeout(f"{method} {uri}: no answer within {self.io_timeout_s} s",
-                                    device=self.device) from exc  # fmt: skip
+                raise DeviceTimeout(
+                    f"{method} {uri}: no answer within {self.io_timeout_s} s", device=self.device
+                ) from exc
             except (OSError, http.client.HTTPException) as exc:
                 self._drop()
                 if attempt == 2 or isinstance(exc, ConnectionRefusedError | socket.gaierror):

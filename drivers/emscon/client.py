@@ -186,8 +186,13 @@ class EmsconTracker:
         samples_per_second: float = 1000.0,
         weather_monitor: str = "not_connected",
     ) -> None:
-        require_positive(timeout_s=timeout_s, measure_timeout_s=measure_timeout_s, motion_timeout_s=motion_timeout_s,
-                         search_timeout_s=search_timeout_s, samples_per_second=samples_per_second)  # fmt: skip
+        require_positive(
+            timeout_s=timeout_s,
+            measure_timeout_s=measure_timeout_s,
+            motion_timeout_s=motion_timeout_s,
+            search_timeout_s=search_timeout_s,
+            samples_per_second=samples_per_second,
+        )
         try:
             self.weather_monitor = WeatherMonitorStatus[weather_monitor.upper()]
         except KeyError:
@@ -241,15 +246,28 @@ class EmsconTracker:
                 (SetMeasurementMode(MeasMode.STATIONARY), "the stationary measurement mode"),
                 (SetStatisticMode(StatisticMode.STANDARD, StatisticMode.STANDARD), "the standard statistic mode"),
                 (
-                    SetSystemSettings(self.weather_monitor, False, False, True, True, False, False,
-                                      hardware.has_nivel, hardware.has_video_camera),  # fmt: skip
+                    SetSystemSettings(
+                        self.weather_monitor,
+                        False,
+                        False,
+                        True,
+                        True,
+                        False,
+                        False,
+                        hardware.has_nivel,
+                        hardware.has_video_camera,
+                    ),
                     f"the system settings (weather monitor {self.weather_monitor.name}, no transformation, "
                     "no station orientation, no try mode)",
                 ),
             ]
             if self.meas_time_ms is not None:
-                wanted.append((SetStationaryModeParams(self.meas_time_ms, use_adm=False),
-                               f"the stationary measurement time ({self.meas_time_ms} ms)"))  # fmt: skip
+                wanted.append(
+                    (
+                        SetStationaryModeParams(self.meas_time_ms, use_adm=False),
+                        f"the stationary measurement time ({self.meas_time_ms} ms)",
+                    )
+                )
             for request, what in wanted:
                 self._command(request, f"setting {what}")
             for request, what in wanted:
@@ -299,9 +317,7 @@ class EmsconTracker:
             f"setting the search radius to {search_radius_mm} mm",
         )
         where = f"({x_mm:.3f}, {y_mm:.3f}, {z_mm:.3f}) mm"
-        self._command(
-            GoPosition(x_mm, y_mm, z_mm, use_adm=True), f"pointing at {where}", self.motion_timeout_s
-        )
+        self._command(GoPosition(x_mm, y_mm, z_mm, use_adm=True), f"pointing at {where}", self.motion_timeout_s)
         distance = math.sqrt(x_mm * x_mm + y_mm * y_mm + z_mm * z_mm)
         self._command(
             FindReflector(distance),
@@ -326,9 +342,7 @@ class EmsconTracker:
         if result.status != ResultStatus.ALL_OK:
             self.warnings.append((what, result.status))
         if result.meas_mode != MeasMode.STATIONARY:
-            self._fail(
-                ProtocolError(f"measurement result in mode {result.meas_mode.name}, expected STATIONARY")
-            )
+            self._fail(ProtocolError(f"measurement result in mode {result.meas_mode.name}, expected STATIONARY"))
         if result.is_try_mode:
             raise DeviceFault(
                 "the tracker sent a try-mode result (bTryMeasurementMode set by another client?) while measuring",
@@ -362,9 +376,7 @@ class EmsconTracker:
         )
         if self.last_status_change is not None:
             detail += f" last_status_change={self.last_status_change.name}"
-        return InterfaceTrackerStatus(
-            initialized, locked, tracker.tracker_status == TrackerStatus.BUSY, detail
-        )
+        return InterfaceTrackerStatus(initialized, locked, tracker.tracker_status == TrackerStatus.BUSY, detail)
 
     def go_birdbath(self) -> None:
         self._command(GoBirdBath(), "driving to the bird bath", self.motion_timeout_s)
@@ -422,11 +434,7 @@ class EmsconTracker:
             timeout_s,
         )
         if answer.command != request.COMMAND:
-            self._fail(
-                ProtocolError(
-                    f"answer to {answer.command.name} while {what} (expected {request.COMMAND.name})"
-                )
-            )
+            self._fail(ProtocolError(f"answer to {answer.command.name} while {what} (expected {request.COMMAND.name})"))
         if answer.status not in _ACCEPTED:
             raise fault(answer.status, what, self.device)
         if answer.status != ResultStatus.ALL_OK:
@@ -452,9 +460,15 @@ class EmsconTracker:
 
     def _next_message(self, deadline: float, what: str, timeout_s: float) -> FromTracker:
         while not self._inbox:
-            data = receive(self._require(what), _RECV_BYTES, deadline - time.monotonic(), device=self.device,
-                           failed=f"receive failed while {what}",
-                           closed=f"the tracker closed the connection while {what}", drop=self.close)  # fmt: skip
+            data = receive(
+                self._require(what),
+                _RECV_BYTES,
+                deadline - time.monotonic(),
+                device=self.device,
+                failed=f"receive failed while {what}",
+                closed=f"the tracker closed the connection while {what}",
+                drop=self.close,
+            )
             if data is None:
                 self.close()
                 raise DeviceTimeout(f"no answer within {timeout_s} s while {what}", device=self.device)

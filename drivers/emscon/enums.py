@@ -430,11 +430,9 @@ class SystemStatusChange(enum.IntEnum):  # ES_SystemStatusChange [H]
     SERVER_STARTED = 999
 
 
-
 def enum_value(cls: type[enum.IntEnum], value: int, what: str) -> enum.IntEnum:
     """The member of `cls` a wire value stands for, or ProtocolError naming `what`."""
     try:
         return cls(value)
     except ValueError:
         raise ProtocolError(f"{what}: {value} is not a known {cls.__name__} value") from None
-

@@ -48,7 +48,6 @@ class Direction(enum.Enum):
     FROM_TRACKER = "tracker -> client"  # answers (*RT), errors, results, status changes
 
 
-
 def encode(message: Message) -> bytes:
     """The bytes of any message, in its own direction (requests -> tracker, everything else -> client)."""
     if isinstance(message, Request):
@@ -62,9 +61,7 @@ def decode_packet(buf: bytes, direction: Direction = Direction.FROM_TRACKER) -> 
         raise ProtocolError(f"expected bytes, got {type(buf).__name__}")
     buf = bytes(buf)
     if len(buf) < HEADER_SIZE:
-        raise ProtocolError(
-            f"packet of {len(buf)} bytes is shorter than the {HEADER_SIZE}-byte PacketHeaderT"
-        )
+        raise ProtocolError(f"packet of {len(buf)} bytes is shorter than the {HEADER_SIZE}-byte PacketHeaderT")
     size, type_value = HEADER.unpack_from(buf)
     if size != len(buf):
         raise ProtocolError(f"lPacketSize says {size} bytes but the packet has {len(buf)}")
@@ -74,7 +71,6 @@ def decode_packet(buf: bytes, direction: Direction = Direction.FROM_TRACKER) -> 
             raise ProtocolError(f"a client sends only command packets, not {data_type.name}")
         return decode_request(buf)
     return decode_from_tracker(buf, data_type)
-
 
 
 def packet_ids(packet: bytes) -> tuple[int, int | None]:

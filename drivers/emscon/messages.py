@@ -83,7 +83,6 @@ def _check_finite_out(values: tuple, what: str) -> None:
             raise ValueError(f"{what}: cannot encode the non-finite value {v!r}")
 
 
-
 # -------------------- requests (client -> tracker)
 _CT_PREFIX = "<iii"  # BasicCommandCT {PacketHeaderT; ES_Command command}
 _RT_PREFIX = "<iiii"  # BasicCommandRT {PacketHeaderT; ES_Command command; ES_ResultStatus status}
@@ -101,8 +100,7 @@ class Request:
 
     def payload(self) -> tuple:
         return tuple(
-            int(v) if isinstance(v, bool | enum.IntEnum) else v
-            for v in (getattr(self, f.name) for f in fields(self))
+            int(v) if isinstance(v, bool | enum.IntEnum) else v for v in (getattr(self, f.name) for f in fields(self))
         )
 
     @classmethod
@@ -219,9 +217,7 @@ class SetMeasurementMode(Request):  # SetMeasurementModeCT {BasicCommandCT; enum
 
 
 @dataclass(frozen=True)
-class SetStationaryModeParams(
-    Request
-):  # SetStationaryModeParamsCT {BasicCommandCT; {long lMeasTime; ES_BOOL bUseADM}}
+class SetStationaryModeParams(Request):  # SetStationaryModeParamsCT {BasicCommandCT; {long lMeasTime; ES_BOOL bUseADM}}
     COMMAND: ClassVar[Command] = Command.SET_STATIONARY_MODE_PARAMS
     PAYLOAD: ClassVar[str] = "ii"
     meas_time_ms: int  # lMeasTime; unit not stated in the header, taken as milliseconds (see the driver)
@@ -233,9 +229,7 @@ class SetStationaryModeParams(
 
 
 @dataclass(frozen=True)
-class SetSearchParams(
-    Request
-):  # SetSearchParamsCT {BasicCommandCT; {double dSearchRadius; long lTimeOut /*ms*/}}
+class SetSearchParams(Request):  # SetSearchParamsCT {BasicCommandCT; {double dSearchRadius; long lTimeOut /*ms*/}}
     COMMAND: ClassVar[Command] = Command.SET_SEARCH_PARAMS
     PAYLOAD: ClassVar[str] = "di"
     search_radius: float
@@ -556,10 +550,24 @@ class ReflectorPosResult:
     val3: float
 
 
-Answer = (CommandAnswer | SystemStatusAnswer | TrackerStatusAnswer | MeasurementStatusInfoAnswer | SettingAnswer
-          | TrackerInfoAnswer | SoftwareVersionAnswer)
-ANSWER_TYPES = (CommandAnswer, SystemStatusAnswer, TrackerStatusAnswer, MeasurementStatusInfoAnswer, SettingAnswer,
-                TrackerInfoAnswer, SoftwareVersionAnswer)  # fmt: skip
+Answer = (
+    CommandAnswer
+    | SystemStatusAnswer
+    | TrackerStatusAnswer
+    | MeasurementStatusInfoAnswer
+    | SettingAnswer
+    | TrackerInfoAnswer
+    | SoftwareVersionAnswer
+)
+ANSWER_TYPES = (
+    CommandAnswer,
+    SystemStatusAnswer,
+    TrackerStatusAnswer,
+    MeasurementStatusInfoAnswer,
+    SettingAnswer,
+    TrackerInfoAnswer,
+    SoftwareVersionAnswer,
+)
 MeasResult = SingleMeasResult | SingleMeasResult2
 FromTracker = Answer | ErrorResponse | StatusChange | MeasResult | ReflectorPosResult
 Message = Request | FromTracker
@@ -644,9 +652,7 @@ def encode_from_tracker(message: FromTracker) -> bytes:
     """The bytes of anything the tracker sends (tracker -> client)."""
     if isinstance(message, CommandAnswer):
         if message.command in _ANSWER_STRUCTS and message.status == ResultStatus.ALL_OK:
-            raise ValueError(
-                f"an ALL_OK answer to {message.command.name} carries a payload: use its own type"
-            )
+            raise ValueError(f"an ALL_OK answer to {message.command.name} carries a payload: use its own type")
         return _pack(_BASIC_RT, _BASIC_RT.size, DataType.COMMAND, message.command, message.status)
     if isinstance(message, SettingAnswer):
         m = message
@@ -709,23 +715,55 @@ def encode_from_tracker(message: FromTracker) -> bytes:
 def _encode_tracker_info(m: TrackerInfoAnswer) -> bytes:
     st = _TRACKER_INFO_RT
     name = unicode_units(m.tracker_name, "GetTrackerInfo.cTrackerName")
-    return _pack(st, st.size, DataType.COMMAND, m.command, m.status, m.tracker_type, *name, m.serial_number,
-                 m.compensation_id, int(m.has_adm), int(m.has_overview_camera), int(m.has_nivel),
-                 m.nivel_mount_offset, m.max_distance, m.min_distance, m.max_data_rate, m.faces, m.hz_angle_range,
-                 m.vt_angle_range, m.accuracy_model, *m.lcp_firmware)  # fmt: skip
+    return _pack(
+        st,
+        st.size,
+        DataType.COMMAND,
+        m.command,
+        m.status,
+        m.tracker_type,
+        *name,
+        m.serial_number,
+        m.compensation_id,
+        int(m.has_adm),
+        int(m.has_overview_camera),
+        int(m.has_nivel),
+        m.nivel_mount_offset,
+        m.max_distance,
+        m.min_distance,
+        m.max_data_rate,
+        m.faces,
+        m.hz_angle_range,
+        m.vt_angle_range,
+        m.accuracy_model,
+        *m.lcp_firmware,
+    )
 
 
 def _decode_tracker_info(status: ResultStatus, v: tuple) -> TrackerInfoAnswer:
     """GetTrackerInfoRT from the values after BasicCommandRT."""
     w = "GetTrackerInfo"
-    doubles = [_finite(x, f"{w}.{n}") for x, n in zip(v[38:41], ("dNivelMountOffset", "dMaxDistance", "dMinDistance"),
-                                                       strict=True)]  # fmt: skip
+    doubles = [
+        _finite(x, f"{w}.{n}")
+        for x, n in zip(v[38:41], ("dNivelMountOffset", "dMaxDistance", "dMinDistance"), strict=True)
+    ]
     ranges = [_finite(x, f"{w}.{n}") for x, n in zip(v[43:45], ("dHzAngleRange", "dVtAngleRange"), strict=True)]
     return TrackerInfoAnswer(
-        status, enum_value(LTSensorType, v[0], f"{w}.trackerType"), unicode_field(v[1:33], f"{w}.cTrackerName"),
-        v[33], v[34], _bool(v[35], f"{w}.bHasADM"), _bool(v[36], f"{w}.bHasOverviewCamera"),
-        _bool(v[37], f"{w}.bHasNivel"), *doubles, v[41], v[42], *ranges,
-        enum_value(TrkAccuracyModel, v[45], f"{w}.accuracyModel"), (v[46], v[47]))  # fmt: skip
+        status,
+        enum_value(LTSensorType, v[0], f"{w}.trackerType"),
+        unicode_field(v[1:33], f"{w}.cTrackerName"),
+        v[33],
+        v[34],
+        _bool(v[35], f"{w}.bHasADM"),
+        _bool(v[36], f"{w}.bHasOverviewCamera"),
+        _bool(v[37], f"{w}.bHasNivel"),
+        *doubles,
+        v[41],
+        v[42],
+        *ranges,
+        enum_value(TrkAccuracyModel, v[45], f"{w}.accuracyModel"),
+        (v[46], v[47]),
+    )
 
 
 # -------------------- decode
@@ -758,9 +796,7 @@ def _decode_answer(buf: bytes) -> Answer:
     st = _ANSWER_STRUCTS.get(command)
     if st is None or len(buf) == _BASIC_RT.size:
         if st is not None and status == ResultStatus.ALL_OK:
-            raise ProtocolError(
-                f"answer to {command.name} says ALL_OK but lacks its {st.size - 16}-byte payload"
-            )
+            raise ProtocolError(f"answer to {command.name} says ALL_OK but lacks its {st.size - 16}-byte payload")
         _expect_size(buf, _BASIC_RT, f"answer to {command.name}")
         return CommandAnswer(command, status)
     v = _expect_size(buf, st, f"answer to {command.name}")[4:]
@@ -784,9 +820,7 @@ def _decode_answer(buf: bytes) -> Answer:
         return SoftwareVersionAnswer(status, unicode_field(v, "GetSystemSoftwareVersion.cSoftwareVersion"))
     if command == Command.GET_TRACKER_STATUS:
         return TrackerStatusAnswer(status, enum_value(TrackerStatus, v[0], "GetTrackerStatus.trackerStatus"))
-    return MeasurementStatusInfoAnswer(
-        status, _status(v[0], "GetMeasurementStatusInfo.lastResultStatus"), v[1]
-    )
+    return MeasurementStatusInfoAnswer(status, _status(v[0], "GetMeasurementStatusInfo.lastResultStatus"), v[1])
 
 
 def decode_from_tracker(buf: bytes, data_type: DataType) -> FromTracker:
@@ -816,4 +850,3 @@ def decode_from_tracker(buf: bytes, data_type: DataType) -> FromTracker:
         x, y, z = (_finite(x, f"ReflectorPosResult.dVal{i + 1}") for i, x in enumerate(v[3:]))
         return ReflectorPosResult(_status(v[2], "ReflectorPosResult.status"), x, y, z)
     raise ProtocolError(f"packet type {data_type.name} ({int(data_type)}) is not supported by this driver")
-

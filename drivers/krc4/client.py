@@ -36,10 +36,28 @@ TITLE = "KR C4"
 class KukaKrc4(KukaKrc2):
     """A KR C4 / KR C5 with configs/krc4's trackcal_eki program and its RSI context running."""
 
-    def __init__(self, eki_port: int, rsi_host: str, rsi_port: int, *, controller_host: str,
-                 rsi_passive: bool = RSI.passive, rsi_cycle_s: float = KRC4_CYCLE_S, **options) -> None:  # fmt: skip
-        super().__init__(controller_host, eki_port, rsi_host, rsi_port, "udp", controller_host=controller_host,
-                         rsi_passive=rsi_passive, rsi_cycle_s=rsi_cycle_s, **options)  # fmt: skip
+    def __init__(
+        self,
+        eki_port: int,
+        rsi_host: str,
+        rsi_port: int,
+        *,
+        controller_host: str,
+        rsi_passive: bool = RSI.passive,
+        rsi_cycle_s: float = KRC4_CYCLE_S,
+        **options,
+    ) -> None:
+        super().__init__(
+            controller_host,
+            eki_port,
+            rsi_host,
+            rsi_port,
+            "udp",
+            controller_host=controller_host,
+            rsi_passive=rsi_passive,
+            rsi_cycle_s=rsi_cycle_s,
+            **options,
+        )
         mode = "passive" if rsi_passive else "answered"
         device = f"{TITLE} {controller_host} eki {eki_port} rsi udp {mode} {rsi_host}:{rsi_port}"
         self.device = self._peers.device = self.rsi.device = device

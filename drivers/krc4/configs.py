@@ -109,8 +109,15 @@ def read_rsi(xml: bytes, what: str = RSI_FILE) -> RsiConfig:
         raise ValueError(f"{what}: SEND tags must be DEF_<element>, got {send}")
     if not receive or any(len(r) != 2 or r[0] != receive[0][0] for r in receive):
         raise ValueError(f"{what}: RECEIVE tags must be one <element>.<attribute> family")
-    return RsiConfig(sen_type, onlysend == "TRUE", int(port), tuple(t[4:] for t in send) + ("IPOC",),
-                     receive[0][0], tuple(r[1] for r in receive), flags)  # fmt: skip
+    return RsiConfig(
+        sen_type,
+        onlysend == "TRUE",
+        int(port),
+        tuple(t[4:] for t in send) + ("IPOC",),
+        receive[0][0],
+        tuple(r[1] for r in receive),
+        flags,
+    )
 
 
 def _bind(eki: EkiConfig, rsi: RsiConfig) -> None:
@@ -121,11 +128,16 @@ def _bind(eki: EkiConfig, rsi: RsiConfig) -> None:
         raise ValueError(f"{EKI_FILE}: RECEIVE declares {eki.received}, the codec speaks {COMMAND.types}")
     if set(eki.sent) != set(STATE.tags) or len(eki.sent) != len(STATE.tags):
         raise ValueError(f"{EKI_FILE}: SEND declares {eki.sent}, the codec answers {STATE.tags}")
-    if (set(rsi.rob_elements) != set(ROB_ELEMENTS) or rsi.sen_type != SEN_TYPE
-            or (rsi.correction, rsi.correction_axes) != (KRC2_RSI.correction, KRC2_RSI.correction_axes)
-            or rsi.flags != (STOP_ELEMENT,)):  # fmt: skip
-        raise ValueError(f"{RSI_FILE}: declares {rsi}, the codec reads {ROB_ELEMENTS} and answers "
-                         f"<Sen Type={SEN_TYPE!r}> {KRC2_RSI.correction} and <{STOP_ELEMENT}>")  # fmt: skip
+    if (
+        set(rsi.rob_elements) != set(ROB_ELEMENTS)
+        or rsi.sen_type != SEN_TYPE
+        or (rsi.correction, rsi.correction_axes) != (KRC2_RSI.correction, KRC2_RSI.correction_axes)
+        or rsi.flags != (STOP_ELEMENT,)
+    ):
+        raise ValueError(
+            f"{RSI_FILE}: declares {rsi}, the codec reads {ROB_ELEMENTS} and answers "
+            f"<Sen Type={SEN_TYPE!r}> {KRC2_RSI.correction} and <{STOP_ELEMENT}>"
+        )
 
 
 EKI = read_eki(config_text(EKI_FILE).encode())

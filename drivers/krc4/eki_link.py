@@ -44,9 +44,11 @@ class EkiClientLink(EkiLink):
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise DeviceTimeout(f"no EKI connection within {timeout_s} s to the KR C4 at {self.host}:{self.port} "
-                                    f"(start trackcal_eki on the controller; last error: {last})",
-                                    device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"no EKI connection within {timeout_s} s to the KR C4 at {self.host}:{self.port} "
+                    f"(start trackcal_eki on the controller; last error: {last})",
+                    device=self.device,
+                )
             try:
                 sock = socket.create_connection((self.host, self.port), timeout=min(remaining, 2.0))
             except OSError as exc:

@@ -31,25 +31,39 @@ SCHEMAS = {
 
 def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> KukaKrc4:
     rsi = r["rsi"]
-    return KukaKrc4(r["eki"]["port"], rsi["host"], rsi["port"], controller_host=r["controller_host"],
-                    rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"], joint_limits_deg=joint_limits_deg,
-                    cell_box_check=cell_box_check, motion_guard=motion_guard,
-                    connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"],
-                    identity=stated_identity(r, f"KUKA {TITLE}"))  # fmt: skip
+    return KukaKrc4(
+        r["eki"]["port"],
+        rsi["host"],
+        rsi["port"],
+        controller_host=r["controller_host"],
+        rsi_passive=rsi["passive"],
+        rsi_cycle_s=rsi["cycle_s"],
+        joint_limits_deg=joint_limits_deg,
+        cell_box_check=cell_box_check,
+        motion_guard=motion_guard,
+        connect_timeout_s=r["connect_timeout_s"],
+        move_timeout_s=r["move_timeout_s"],
+        io_timeout_s=r["io_timeout_s"],
+        rsi_stale_s=r["rsi_stale_s"],
+        identity=stated_identity(r, f"KUKA {TITLE}"),
+    )
 
 
 def where(r: dict) -> str:
     rsi = r["rsi"]
-    return (f"EKI at {r['controller_host']}:{r['eki']['port']}, listening for RSI on {rsi['host']}:{rsi['port']} "
-            "for that controller only")  # fmt: skip
+    return (
+        f"EKI at {r['controller_host']}:{r['eki']['port']}, listening for RSI on {rsi['host']}:{rsi['port']} "
+        "for that controller only"
+    )
 
 
 def describe(r: dict) -> str:
     rsi = r["rsi"]
-    return (f"{TITLE}, EKI at {r['controller_host']}:{r['eki']['port']}, RSI udp "
-            f"({'passive' if rsi['passive'] else 'answered'}, {rsi['cycle_s'] * 1000:g} ms) on "
-            f"{rsi['host']}:{rsi['port']}")  # fmt: skip
+    return (
+        f"{TITLE}, EKI at {r['controller_host']}:{r['eki']['port']}, RSI udp "
+        f"({'passive' if rsi['passive'] else 'answered'}, {rsi['cycle_s'] * 1000:g} ms) on "
+        f"{rsi['host']}:{rsi['port']}"
+    )
 
 
 def waiting(r: dict) -> str:
@@ -62,5 +76,15 @@ def claim(robot: KukaKrc4) -> None:
     robot.listen()
 
 
-FAMILY = RobotFamily(name="krc4", title=TITLE, dof=len(AXES), schemas=SCHEMAS, build=build, describe=describe,
-                     where=where, waiting=waiting, claim=claim, program=PROGRAM)  # fmt: skip
+FAMILY = RobotFamily(
+    name="krc4",
+    title=TITLE,
+    dof=len(AXES),
+    schemas=SCHEMAS,
+    build=build,
+    describe=describe,
+    where=where,
+    waiting=waiting,
+    claim=claim,
+    program=PROGRAM,
+)

@@ -111,8 +111,13 @@ class KukaKrc2:
     ) -> None:
         if rsi_protocol not in ("tcp", "udp"):
             raise ValueError(f"rsi_protocol must be 'tcp' or 'udp', got {rsi_protocol!r}")
-        require_positive(connect_timeout_s=connect_timeout_s, move_timeout_s=move_timeout_s, io_timeout_s=io_timeout_s,
-                         rsi_stale_s=rsi_stale_s, rsi_cycle_s=rsi_cycle_s)  # fmt: skip
+        require_positive(
+            connect_timeout_s=connect_timeout_s,
+            move_timeout_s=move_timeout_s,
+            io_timeout_s=io_timeout_s,
+            rsi_stale_s=rsi_stale_s,
+            rsi_cycle_s=rsi_cycle_s,
+        )
         limits = checked_limits(joint_limits_deg, AXES)
         self.controller_host = controller_host
         self.stated_identity = identity
@@ -126,8 +131,16 @@ class KukaKrc2:
         self.device = f"KR C2 eki {eki_host}:{eki_port} rsi {rsi_protocol} {mode} {rsi_host}:{rsi_port}"
         self._peers = ControllerPeers(controller_host, self.device)
         self.eki = EkiLink(eki_host, eki_port, self._peers, io_timeout_s=io_timeout_s)
-        self.rsi = RsiLink(rsi_host, rsi_port, rsi_protocol, self._peers, passive=rsi_passive, cycle_s=rsi_cycle_s,
-                           stale_s=rsi_stale_s, sync=rsi_sync)  # fmt: skip
+        self.rsi = RsiLink(
+            rsi_host,
+            rsi_port,
+            rsi_protocol,
+            self._peers,
+            passive=rsi_passive,
+            cycle_s=rsi_cycle_s,
+            stale_s=rsi_stale_s,
+            sync=rsi_sync,
+        )
         self._ids = itertools.count(1)
         self._motion = threading.Condition()  # guards the three below, between the moving thread and stop()/state()
         self._moving: int | None = None  # the ID of the move sent and not answered yet
@@ -215,8 +228,11 @@ class KukaKrc2:
                 self._moving, self._ended = None, (command_id, stood)
                 self._motion.notify_all()
         if stopped:
-            raise DeviceFault(f"move {command_id} to {target} stopped: {stopped}", code=getattr(stopped, "code",
-                              ERR_STOPPED), device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"move {command_id} to {target} stopped: {stopped}",
+                code=getattr(stopped, "code", ERR_STOPPED),
+                device=self.device,
+            )
         if state.error:
             text = ERROR_TEXT.get(state.error, "controller fault")
             raise DeviceFault(f"move {command_id} to {target} failed: {text}", code=state.error, device=self.device)
@@ -278,9 +294,12 @@ class KukaKrc2:
                 return reason
         silent = self.rsi.stale_for()
         if silent is not None:
-            return StopCause(f"the RSI stream went stale: no frame for {silent:.1f} s (rsi_stale_s "
-                             f"{self.rsi.stale_s:g} s); check the controller's RSI program and its network to this "
-                             "PC", RSI_STALE)  # fmt: skip
+            return StopCause(
+                f"the RSI stream went stale: no frame for {silent:.1f} s (rsi_stale_s "
+                f"{self.rsi.stale_s:g} s); check the controller's RSI program and its network to this "
+                "PC",
+                RSI_STALE,
+            )
         return None
 
     def _await_state(self, command_id: int, guarded: bool) -> tuple[EkiState, str | None]:
@@ -332,8 +351,9 @@ class KukaKrc2:
             if time.monotonic() >= next_guard:
                 reason = self._cause()
                 if reason:
-                    raise DeviceFault(f"settling stopped: {reason}", code=getattr(reason, "code", ERR_STOPPED),
-                                      device=self.device)  # fmt: skip
+                    raise DeviceFault(
+                        f"settling stopped: {reason}", code=getattr(reason, "code", ERR_STOPPED), device=self.device
+                    )
                 next_guard = time.monotonic() + GUARD_S
             first_seq, frames = rsi.frames_from(next_seq)
             if next_seq < first_seq:  # fell behind the history: restart the window

@@ -157,11 +157,15 @@ def _bind(command: Structure, state: Structure) -> tuple[str, ...]:
     want = {f"{command.root}.{f}": "INTEGER" for f in COMMAND_FIELDS}
     want |= {f"{command.root}.{AXES_ELEMENT}.{a}": "REAL" for a in axes}
     if len(axes) != 6 or dict(command.types) != want or len(command.types) != len(want):
-        raise ValueError(f"{ELEMENTS_FILE}: expected INTEGER {COMMAND_FIELDS} and 6 REAL {AXES_ELEMENT} axes, "
-                         f"declared {command.types}")  # fmt: skip
+        raise ValueError(
+            f"{ELEMENTS_FILE}: expected INTEGER {COMMAND_FIELDS} and 6 REAL {AXES_ELEMENT} axes, "
+            f"declared {command.types}"
+        )
     if state.attrs or dict(state.children) != {AXES_ELEMENT: axes, STATE_ANSWER: STATE_FIELDS}:
-        raise ValueError(f"{TEMPLATE_FILE}: expected <{AXES_ELEMENT} {' '.join(axes)}> and "
-                         f"<{STATE_ANSWER} {' '.join(STATE_FIELDS)}>, found {state.children}")  # fmt: skip
+        raise ValueError(
+            f"{TEMPLATE_FILE}: expected <{AXES_ELEMENT} {' '.join(axes)}> and "
+            f"<{STATE_ANSWER} {' '.join(STATE_FIELDS)}>, found {state.children}"
+        )
     return axes
 
 

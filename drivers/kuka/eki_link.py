@@ -88,9 +88,15 @@ class EkiLink:
         timeout_s, else None. Answers to earlier requests that timed out here are stale: skipped."""
         sock = self._sock
         assert sock is not None
-        data = receive(sock, _RECV_BYTES, timeout_s, device=self.device, failed="EKI receive failed",
-                       closed=f"the controller closed the EKI connection during request {command_id}",
-                       drop=self.drop)  # fmt: skip
+        data = receive(
+            sock,
+            _RECV_BYTES,
+            timeout_s,
+            device=self.device,
+            failed="EKI receive failed",
+            closed=f"the controller closed the EKI connection during request {command_id}",
+            drop=self.drop,
+        )
         if data is None:
             return None
         try:

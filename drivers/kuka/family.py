@@ -43,12 +43,24 @@ SCHEMAS = {
 
 def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> KukaKrc2:
     eki, rsi = r["eki"], r["rsi"]
-    return KukaKrc2(eki["host"], eki["port"], rsi["host"], rsi["port"], rsi_protocol=rsi["protocol"],
-                    controller_host=r["controller_host"], rsi_passive=rsi["passive"], rsi_cycle_s=rsi["cycle_s"],
-                    joint_limits_deg=joint_limits_deg, cell_box_check=cell_box_check, motion_guard=motion_guard,
-                    connect_timeout_s=r["connect_timeout_s"], move_timeout_s=r["move_timeout_s"],
-                    io_timeout_s=r["io_timeout_s"], rsi_stale_s=r["rsi_stale_s"],
-                    identity=stated_identity(r, "KUKA KR C2"))  # fmt: skip
+    return KukaKrc2(
+        eki["host"],
+        eki["port"],
+        rsi["host"],
+        rsi["port"],
+        rsi_protocol=rsi["protocol"],
+        controller_host=r["controller_host"],
+        rsi_passive=rsi["passive"],
+        rsi_cycle_s=rsi["cycle_s"],
+        joint_limits_deg=joint_limits_deg,
+        cell_box_check=cell_box_check,
+        motion_guard=motion_guard,
+        connect_timeout_s=r["connect_timeout_s"],
+        move_timeout_s=r["move_timeout_s"],
+        io_timeout_s=r["io_timeout_s"],
+        rsi_stale_s=r["rsi_stale_s"],
+        identity=stated_identity(r, "KUKA KR C2"),
+    )
 
 
 def stated_identity(r: dict, model: str) -> DeviceIdentity:
@@ -58,20 +70,26 @@ def stated_identity(r: dict, model: str) -> DeviceIdentity:
 
 def where(r: dict) -> str:
     eki, rsi = r["eki"], r["rsi"]
-    return (f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
-            f"for the controller at {r['controller_host']} only")  # fmt: skip
+    return (
+        f"listening for EKI on {eki['host']}:{eki['port']}, RSI {rsi['protocol']} on {rsi['host']}:{rsi['port']}, "
+        f"for the controller at {r['controller_host']} only"
+    )
 
 
 def describe(r: dict) -> str:
     rsi = r["rsi"]
-    return (f"KR C2, listening for EKI on {r['eki']['host']}:{r['eki']['port']} and RSI {rsi['protocol']} "
-            f"({'passive' if rsi['passive'] else 'answered'}, {rsi['cycle_s'] * 1000:g} ms) on "
-            f"{rsi['host']}:{rsi['port']}")  # fmt: skip
+    return (
+        f"KR C2, listening for EKI on {r['eki']['host']}:{r['eki']['port']} and RSI {rsi['protocol']} "
+        f"({'passive' if rsi['passive'] else 'answered'}, {rsi['cycle_s'] * 1000:g} ms) on "
+        f"{rsi['host']}:{rsi['port']}"
+    )
 
 
 def waiting(r: dict) -> str:
-    return (f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where(r)}; start trackcal_eki on "
-            "the controller)")  # fmt: skip
+    return (
+        f"waiting up to {r['connect_timeout_s']:g} s for the KR C2 to connect ({where(r)}; start trackcal_eki on "
+        "the controller)"
+    )
 
 
 def claim(robot: KukaKrc2) -> None:
@@ -80,6 +98,17 @@ def claim(robot: KukaKrc2) -> None:
     robot.listen()
 
 
-FAMILY = RobotFamily(name="krc2", title="KR C2", dof=len(AXES), schemas=SCHEMAS, build=build, describe=describe,
-                     where=where, waiting=waiting, claim=claim, protocols={"rsi": ("tcp", "udp")},
-                     program=PROGRAM, readers={".src": read_krl})  # fmt: skip
+FAMILY = RobotFamily(
+    name="krc2",
+    title="KR C2",
+    dof=len(AXES),
+    schemas=SCHEMAS,
+    build=build,
+    describe=describe,
+    where=where,
+    waiting=waiting,
+    claim=claim,
+    protocols={"rsi": ("tcp", "udp")},
+    program=PROGRAM,
+    readers={".src": read_krl},
+)

@@ -105,8 +105,11 @@ def bas_call(args: list[Token], state: FrameState) -> None:
     words = [t.upper for t in args]
     if len(args) >= 3 and words[0] in ("#TOOL", "#BASE") and words[1] == ",":
         table = "TOOL_DATA" if words[0] == "#TOOL" else "BASE_DATA"
-        frame = (_table(state, table, int(args[2].text)) if len(args) == 3 and args[2].text.isdigit() else
-                 Frame(f"BAS({' '.join(t.text for t in args)}), which this reader cannot evaluate", None))  # fmt: skip
+        frame = (
+            _table(state, table, int(args[2].text))
+            if len(args) == 3 and args[2].text.isdigit()
+            else Frame(f"BAS({' '.join(t.text for t in args)}), which this reader cannot evaluate", None)
+        )
         if table == "TOOL_DATA":
             state.tool = frame
         else:
@@ -120,8 +123,9 @@ def _fdat_argument(rhs: list[Token], state: FrameState) -> Aggregate | None:
     return None
 
 
-def with_clause(file: str, pairs: list[tuple[str, list[Token]]], text: str,
-                state: FrameState) -> tuple[Frame, Frame, str]:  # fmt: skip
+def with_clause(
+    file: str, pairs: list[tuple[str, list[Token]]], text: str, state: FrameState
+) -> tuple[Frame, Frame, str]:
     """(base, tool, external-TCP reason) of a KSS 8 spline move whose WITH clause assigns `pairs` (system variable,
     value tokens) for that move: `$TOOL = STOOL2(FP1)`, `$BASE = SBASE(FP1.BASE_NO)`, `$IPO_MODE =
     SIPO_MODE(FP1.IPO_FRAME)` as the inline forms write them, or the forms `assign` knows."""
@@ -130,11 +134,17 @@ def with_clause(file: str, pairs: list[tuple[str, list[Token]]], text: str,
         fdat = _fdat_argument(rhs, state)
         line = rhs[0].line if rhs else 0
         if lhs == "$TOOL":
-            tool = _numbered(fdat, "TOOL_NO", state, "TOOL_DATA") if fdat else _expression(file, rhs, text, state,
-                                                                                           "TOOL_DATA")  # fmt: skip
+            tool = (
+                _numbered(fdat, "TOOL_NO", state, "TOOL_DATA")
+                if fdat
+                else _expression(file, rhs, text, state, "TOOL_DATA")
+            )
         elif lhs == "$BASE":
-            base = _numbered(fdat, "BASE_NO", state, "BASE_DATA") if fdat else _expression(file, rhs, text, state,
-                                                                                           "BASE_DATA")  # fmt: skip
+            base = (
+                _numbered(fdat, "BASE_NO", state, "BASE_DATA")
+                if fdat
+                else _expression(file, rhs, text, state, "BASE_DATA")
+            )
         elif lhs == "$IPO_MODE":
             ipo = fdat.members.get("IPO_FRAME") if fdat else None
             words = [t.upper for t in rhs]

@@ -145,8 +145,10 @@ class _Walk:
             if j == len(toks):
                 return
             if toks[j].text != ",":
-                raise ProgramReadError(f"{where(file, toks[j].line)}: expected , = or the line's end in the {kind} "
-                                       f"declaration, got {toks[j].text!r}")  # fmt: skip
+                raise ProgramReadError(
+                    f"{where(file, toks[j].line)}: expected , = or the line's end in the {kind} "
+                    f"declaration, got {toks[j].text!r}"
+                )
             j += 1
 
     def value(self, file: str, key: str, kind: str, rhs: list[Token], text: str) -> None:
@@ -187,15 +189,18 @@ class _Walk:
         for k in range(2 if word in TWO_POINTS else 1):
             if k:
                 if j >= len(toks) or toks[j].text != ",":
-                    raise ProgramReadError(f"{where(file, toks[0].line)}: expected , and the end point after "
-                                           f"{toks[0].text}'s auxiliary point")  # fmt: skip
+                    raise ProgramReadError(
+                        f"{where(file, toks[0].line)}: expected , and the end point after "
+                        f"{toks[0].text}'s auxiliary point"
+                    )
                 j += 1
             if j >= len(toks) or toks[j].upper in TAIL or toks[j].text == ",":
                 raise ProgramReadError(f"{where(file, toks[0].line)}: expected a point after {toks[0].text}")
             j = self.point(file, toks, j, word, text, frames)
 
-    def point(self, file: str, toks: list[Token], j: int, word: str, text: str,
-              frames: tuple[Frame, Frame, str]) -> int:  # fmt: skip
+    def point(
+        self, file: str, toks: list[Token], j: int, word: str, text: str, frames: tuple[Frame, Frame, str]
+    ) -> int:
         """Record the point starting at toks[j] of a `word` move in `frames` (base, tool, external TCP); the index
         after it."""
         end = _expression_end(file, toks, j, (",", *TAIL), stop_enum=True)
@@ -257,8 +262,13 @@ def _plain_name(part: list[Token]) -> str | None:
     """NAME or NAME[n] as a variable key, None for anything else."""
     if len(part) == 1 and part[0].kind == "name":
         return part[0].upper
-    if len(part) == 4 and part[0].kind == "name" and part[1].text == "[" and part[2].text.isdigit() \
-            and part[3].text == "]":  # fmt: skip
+    if (
+        len(part) == 4
+        and part[0].kind == "name"
+        and part[1].text == "["
+        and part[2].text.isdigit()
+        and part[3].text == "]"
+    ):
         return f"{part[0].upper}[{int(part[2].text)}]"
     return None
 
@@ -271,8 +281,9 @@ def _skip_group(file: str, toks: list[Token], j: int) -> int:
 CLOSE = {"(": ")", "[": "]", "{": "}"}
 
 
-def _expression_end(file: str, toks: list[Token], j: int, stops: tuple[str, ...], stop_enum: bool = False,
-                    one_group: bool = False) -> int:  # fmt: skip
+def _expression_end(
+    file: str, toks: list[Token], j: int, stops: tuple[str, ...], stop_enum: bool = False, one_group: bool = False
+) -> int:
     """Index of the first token from j at bracket depth 0 whose upper text is in `stops` (or an ENUM when
     `stop_enum`), or of the line's end; brackets must match (ProgramReadError otherwise)."""
     depth: list[Token] = []
@@ -290,8 +301,10 @@ def _expression_end(file: str, toks: list[Token], j: int, stops: tuple[str, ...]
             if one_group and not depth:
                 return k + 1
     if depth:
-        raise ProgramReadError(f"{where(file, depth[-1].line)}: expected {CLOSE[depth[-1].text]!r} to close "
-                               f"{depth[-1].text!r} before the line's end")  # fmt: skip
+        raise ProgramReadError(
+            f"{where(file, depth[-1].line)}: expected {CLOSE[depth[-1].text]!r} to close "
+            f"{depth[-1].text!r} before the line's end"
+        )
     return len(toks)
 
 
@@ -323,8 +336,9 @@ def _check_blocks(file: str, stmts: list[list[Token]], last_line: int) -> None:
         head = words[1] if words[0] == "GLOBAL" and len(words) > 1 else words[0]
         if head in BLOCKS:
             if open_:
-                raise ProgramReadError(f"{where(file, toks[0].line)}: expected {open_[0]} (for line {open_[1]}) "
-                                       f"before {toks[0].text}")  # fmt: skip
+                raise ProgramReadError(
+                    f"{where(file, toks[0].line)}: expected {open_[0]} (for line {open_[1]}) before {toks[0].text}"
+                )
             if len(toks) < 2 + (words[0] == "GLOBAL") or toks[1 + (words[0] == "GLOBAL")].kind != "name":
                 raise ProgramReadError(f"{where(file, toks[0].line)}: expected a name after {head}")
             open_ = (BLOCKS[head], toks[0].line)
@@ -334,11 +348,13 @@ def _check_blocks(file: str, stmts: list[list[Token]], last_line: int) -> None:
                 raise ProgramReadError(f"{where(file, toks[0].line)}: expected {want}, got {toks[0].text}")
             open_ = None
         elif not open_:
-            raise ProgramReadError(f"{where(file, toks[0].line)}: expected DEF, DEFFCT or DEFDAT before "
-                                   f"{toks[0].text!r}")  # fmt: skip
+            raise ProgramReadError(
+                f"{where(file, toks[0].line)}: expected DEF, DEFFCT or DEFDAT before {toks[0].text!r}"
+            )
     if open_:
-        raise ProgramReadError(f"{where(file, last_line)}: expected {open_[0]} (for line {open_[1]}) before "
-                               "the file's end")  # fmt: skip
+        raise ProgramReadError(
+            f"{where(file, last_line)}: expected {open_[0]} (for line {open_[1]}) before the file's end"
+        )
 
 
 def _config(site: _Site) -> tuple[int, int]:
@@ -351,8 +367,10 @@ def _config(site: _Site) -> tuple[int, int]:
             continue
         v = m.value if m.kind in ("number", "bits") else None
         if v is None or v != int(v) or not 0 <= v <= top:  # type: ignore[operator, arg-type]
-            raise ProgramReadError(f"{where(site.file, site.agg.line)}: {key} of {site.name} must be a whole "
-                                   f"number 0..{top} or a bit pattern like 'B010', got {m.text!r}")  # fmt: skip
+            raise ProgramReadError(
+                f"{where(site.file, site.agg.line)}: {key} of {site.name} must be a whole "
+                f"number 0..{top} or a bit pattern like 'B010', got {m.text!r}"
+            )
         out.append(int(v))  # type: ignore[call-overload]
     return out[0], out[1]
 
@@ -376,9 +394,11 @@ def _frames(site: _Site) -> tuple[np.ndarray, np.ndarray]:
         if first is None:
             first = u
         elif not (_same(u.base, first.base) and _same(u.tool, first.tool)):
-            raise ProgramReadError(f"{at} is in base {u.base.label}, tool {u.tool.label}, and at line {first.line} "
-                                   f"in base {first.base.label}, tool {first.tool.label}: one taught value cannot "
-                                   "be corrected for both")  # fmt: skip
+            raise ProgramReadError(
+                f"{at} is in base {u.base.label}, tool {u.tool.label}, and at line {first.line} "
+                f"in base {first.base.label}, tool {first.tool.label}: one taught value cannot "
+                "be corrected for both"
+            )
     return (NULL, NULL) if first is None else (first.base.pose, first.tool.pose)  # type: ignore[return-value]
 
 
@@ -393,13 +413,38 @@ def _target(site: _Site, text: str, config_file: bool) -> ProgramTarget | None:
     values = [site.agg.number(k) or 0.0 for k in keys]
     if site.joint or fixed:
         value = np.array(values) if site.joint else _pose(values)
-        return ProgramTarget(site.file, site.agg.start, site.agg.end, site.agg.line, site.name, site.joint, value,
-                             NULL.copy(), NULL.copy(), (), _never if fixed else _always, render, motion)  # fmt: skip
+        return ProgramTarget(
+            site.file,
+            site.agg.start,
+            site.agg.end,
+            site.agg.line,
+            site.name,
+            site.joint,
+            value,
+            NULL.copy(),
+            NULL.copy(),
+            (),
+            _never if fixed else _always,
+            render,
+            motion,
+        )
     base, tool = _frames(site)
     s, t = _config(site)
-    return ProgramTarget(site.file, site.agg.start, site.agg.end, site.agg.line, site.name, False, _pose(values),
-                         base.copy(), tool.copy(), (s, t), status_turn(None if s < 0 else s, None if t < 0 else t),
-                         render, motion)  # fmt: skip
+    return ProgramTarget(
+        site.file,
+        site.agg.start,
+        site.agg.end,
+        site.agg.line,
+        site.name,
+        False,
+        _pose(values),
+        base.copy(),
+        tool.copy(),
+        (s, t),
+        status_turn(None if s < 0 else s, None if t < 0 else t),
+        render,
+        motion,
+    )
 
 
 def _pose(values: list[float]) -> np.ndarray:

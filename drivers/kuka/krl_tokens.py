@@ -85,8 +85,9 @@ def _scan_one(file: str, text: str, i: int, line: int, line_start: bool) -> Toke
     if c in _OPS1:
         return Token("op", c, i, i + 1, line)
     shown = c if " " < c <= "~" else f"U+{ord(c):04X}"
-    raise ProgramReadError(f"{where(file, line)}: unexpected character {shown!r} (KRL names, numbers, operators "
-                           "or a ; comment expected)")  # fmt: skip
+    raise ProgramReadError(
+        f"{where(file, line)}: unexpected character {shown!r} (KRL names, numbers, operators or a ; comment expected)"
+    )
 
 
 # one pattern for the tokens that need no check beyond their form; the others (a header line, an unclosed string or

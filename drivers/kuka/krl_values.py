@@ -105,8 +105,9 @@ def parse_aggregate(file: str, toks: list[Token], i: int, text: str) -> tuple[Ag
             return Aggregate(toks[i].start, toks[j].end, line, members), j + 1
         name = toks[j]
         if name.kind != "name":
-            raise ProgramReadError(f"{where(file, name.line)}: expected a member name in the aggregate, got "
-                                   f"{name.text!r}")  # fmt: skip
+            raise ProgramReadError(
+                f"{where(file, name.line)}: expected a member name in the aggregate, got {name.text!r}"
+            )
         j += 1
         if j + 1 < len(toks) and toks[j].text == "[" and toks[j + 1].text == "]":
             j += 2  # an array member given whole: POINT2[] " "
@@ -181,8 +182,9 @@ def renderer(agg: Aggregate, text: str, keys: tuple[str, ...], joint: bool) -> C
     def render(value: np.ndarray) -> str:
         v = np.asarray(value, dtype=float)
         if v.shape != ((6,) if joint else (4, 4)) or not np.all(np.isfinite(v)):
-            raise ProgramReadError(f"line {agg.line}: a {'6 joint values' if joint else '4 x 4 pose'} value expected, "
-                                   f"got shape {v.shape}")  # fmt: skip
+            raise ProgramReadError(
+                f"line {agg.line}: a {'6 joint values' if joint else '4 x 4 pose'} value expected, got shape {v.shape}"
+            )
         numbers = list(v) if joint else [*v[:3, 3], *abc_of(v[:3, :3], near)]  # type: ignore[arg-type]
         out, last = [], agg.start
         for key, number in sorted(zip(keys, numbers, strict=True), key=lambda kv: agg.members[kv[0]].start):

@@ -83,8 +83,9 @@ def accept_controller(
     """The first connection from the controller before `deadline` (monotonic); any other is closed at once."""
 
     def expired() -> DeviceTimeout:
-        return DeviceTimeout(f"no connection within {timeout_s} s: waited for {what}{peers.note()}",
-                             device=peers.device)  # fmt: skip
+        return DeviceTimeout(
+            f"no connection within {timeout_s} s: waited for {what}{peers.note()}", device=peers.device
+        )
 
     while True:
         listener.settimeout(time_left(deadline, expired))

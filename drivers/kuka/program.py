@@ -52,8 +52,9 @@ def _angle(v: float) -> str:
     return "0.0000" if text == "-0.0000" else text
 
 
-def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
-              notes: list[str | None] | None = None) -> tuple[str, str]:  # fmt: skip
+def krl_texts(
+    name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None, notes: list[str | None] | None = None
+) -> tuple[str, str]:
     """(src, dat) texts of a program moving PTP through the rows of q_deg (N, 6) in degrees; `points` are the
     rows' KRL names (`point_names`; default XP1..XPn); `notes[i]`, when not None, a comment line above row i's PTP
     (a target left at its nominal angles says so and why)."""
@@ -64,8 +65,11 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = 
         raise KrlError(f"one valid KRL name per target expected, got {points!r}")
     notes = program_notes(notes, len(q), KrlError)
     nominal = sum(t is not None for t in notes)
-    what = (f"{len(q)} compensated joint targets" if not nominal else
-            f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)")  # fmt: skip
+    what = (
+        f"{len(q)} compensated joint targets"
+        if not nominal
+        else f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)"
+    )
     src = [f"DEF {name}()", f"; trackcal: {what}, PTP at {pct} % axis speed", "BAS(#INITMOV,0)"]
     src += [f"$VEL_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
     src += [f"$ACC_AXIS[{i}]={pct}" for i in range(1, AXES + 1)]
@@ -81,8 +85,9 @@ def krl_texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = 
     return EOL.join(src) + EOL, EOL.join(dat) + EOL
 
 
-def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
-          notes: list[str | None] | None = None) -> dict[str, bytes]:  # fmt: skip
+def texts(
+    name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None, notes: list[str | None] | None = None
+) -> dict[str, bytes]:
     """{NAME.src, NAME.dat: their bytes}: ASCII, CR LF."""
     src, dat = krl_texts(name, q_deg, speed_pct, points, notes)
     return {f"{name}.src": src.encode("ascii"), f"{name}.dat": dat.encode("ascii")}

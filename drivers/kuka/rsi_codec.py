@@ -89,8 +89,14 @@ def read_config(xml: bytes, what: str = CONFIG_FILE) -> RsiConfig:
         raise ValueError(f"{what}: SEND tags must be DEF_<element>, got {send}")
     if not receive or any(len(r) != 2 or r[0] != receive[0][0] for r in receive):
         raise ValueError(f"{what}: RECEIVE tags must be one <element>.<attribute> family")
-    return RsiConfig(protocol, sen_type, onlysend == "TRUE", tuple(t[4:] for t in send) + ("IPOC",),
-                     receive[0][0], tuple(r[1] for r in receive))  # fmt: skip
+    return RsiConfig(
+        protocol,
+        sen_type,
+        onlysend == "TRUE",
+        tuple(t[4:] for t in send) + ("IPOC",),
+        receive[0][0],
+        tuple(r[1] for r in receive),
+    )
 
 
 SHIPPED = read_config(config_text(CONFIG_FILE).encode())
@@ -98,8 +104,10 @@ SEN_TYPE = SHIPPED.sen_type
 ROB_ELEMENTS = SHIPPED.rob_elements  # in the order the controller writes them
 CORRECTION_ELEMENT = SHIPPED.correction  # axis corrections, received as AK.A1..AK.A6
 if SHIPPED.correction_axes != AXES or set(ROB_ELEMENTS) != {"RIst", "RSol", "AIPos", "ASPos", "Delay", "IPOC"}:
-    raise ValueError(f"{CONFIG_FILE}: the codec reads RIst RSol AIPos ASPos Delay and answers "
-                     f"{CORRECTION_ELEMENT}.{'/'.join(AXES)}; the file declares {SHIPPED}")  # fmt: skip
+    raise ValueError(
+        f"{CONFIG_FILE}: the codec reads RIst RSol AIPos ASPos Delay and answers "
+        f"{CORRECTION_ELEMENT}.{'/'.join(AXES)}; the file declares {SHIPPED}"
+    )
 
 
 @dataclass(frozen=True)
@@ -132,12 +140,18 @@ def _rob_layout(cart: str, axis: str, delay: str, ipoc: str) -> str:
     """The <Rob> document as encode_rob writes it, every value replaced by `cart` (RIst, RSol), `axis` (AIPos,
     ASPos), `delay` (Delay D) or `ipoc`: the one layout both the encoder's template and the parser's fast path are
     made from."""
+
     def attrs(tag: str, names: tuple[str, ...], number: str) -> str:
         return f"<{tag} " + " ".join(f'{n}="{number}"' for n in names) + "/>"
 
-    return (f'<{ROB_ROOT} TYPE="KUKA">' + attrs("RIst", CART, cart) + attrs("RSol", CART, cart)
-            + attrs("AIPos", AXES, axis) + attrs("ASPos", AXES, axis)
-            + f'<Delay D="{delay}"/><IPOC>{ipoc}</IPOC></{ROB_ROOT}>')  # fmt: skip
+    return (
+        f'<{ROB_ROOT} TYPE="KUKA">'
+        + attrs("RIst", CART, cart)
+        + attrs("RSol", CART, cart)
+        + attrs("AIPos", AXES, axis)
+        + attrs("ASPos", AXES, axis)
+        + f'<Delay D="{delay}"/><IPOC>{ipoc}</IPOC></{ROB_ROOT}>'
+    )
 
 
 # One %-template for the whole frame (issue 41: the mock sends one per 12 ms cycle of every move; 24 f-strings of
@@ -157,11 +171,18 @@ def encode_rob(frame: RobFrame, tcp: bool = True) -> bytes:
         rist, rsol, aipos = frame.rist or zero, frame.rsol or zero, frame.aipos or zero
         aspos = frame.aspos or aipos
         if not len(rist) == len(rsol) == len(CART) or not len(aipos) == len(aspos) == len(AXES):
-            tag, block = next((t, b) for t, b in (("RIst", rist), ("RSol", rsol), ("AIPos", aipos), ("ASPos", aspos))
-                              if len(b) != 6)  # fmt: skip
+            tag, block = next(
+                (t, b) for t, b in (("RIst", rist), ("RSol", rsol), ("AIPos", aipos), ("ASPos", aspos)) if len(b) != 6
+            )
             raise ValueError(f"<{tag}> needs 6 values, got {len(block)}")
-        text = _ROB_TEMPLATE % (*map(float, rist), *map(float, rsol), *map(float, aipos), *map(float, aspos),
-                                int(frame.delay or 0), int(frame.ipoc))  # fmt: skip
+        text = _ROB_TEMPLATE % (
+            *map(float, rist),
+            *map(float, rsol),
+            *map(float, aipos),
+            *map(float, aspos),
+            int(frame.delay or 0),
+            int(frame.ipoc),
+        )
         text = text.replace(_NEGATIVE_ZERO, _ZERO)
     return text.encode("ascii") + (TCP_TERMINATOR if tcp else b"")
 
@@ -189,8 +210,7 @@ def _parse_rob_fast(data: bytes) -> RobFrame | None:
         return None
     v = tuple(map(float, m.groups()[:24]))
     delay, ipoc = int(m[25]), int(m[26])
-    if ipoc > MAX_IPOC or delay > 2**31 - 1 or max(map(abs, v[:12])) > CART_LIMIT or max(
-            map(abs, v[12:])) > AXIS_LIMIT:  # fmt: skip
+    if ipoc > MAX_IPOC or delay > 2**31 - 1 or max(map(abs, v[:12])) > CART_LIMIT or max(map(abs, v[12:])) > AXIS_LIMIT:
         return None
     return RobFrame(ipoc=ipoc, aipos=v[12:18], aspos=v[18:], rist=v[:6], rsol=v[6:12], delay=delay)
 

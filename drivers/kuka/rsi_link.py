@@ -164,8 +164,9 @@ class RsiLink:
         assert sock is not None
 
         def expired() -> DeviceTimeout:
-            return DeviceTimeout(f"no datagram within {timeout_s} s: waited for {what}{self.peers.note()}",
-                                 device=self.device)  # fmt: skip
+            return DeviceTimeout(
+                f"no datagram within {timeout_s} s: waited for {what}{self.peers.note()}", device=self.device
+            )
 
         while True:
             sock.settimeout(time_left(deadline, expired))
@@ -474,8 +475,9 @@ class RsiLink:
             with self._cond:
                 self._raise_error()
                 if lag is None or self._latest is None or lag > STALE_CYCLES:
-                    raise DeviceTimeout(f"no current RSI frame (the latest is {lag} cycles behind the "
-                                        "controller's)", device=self.device)  # fmt: skip
+                    raise DeviceTimeout(
+                        f"no current RSI frame (the latest is {lag} cycles behind the controller's)", device=self.device
+                    )
                 return self._latest
         with self._cond:
             deadline = time.monotonic() + self.stale_s

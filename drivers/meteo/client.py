@@ -56,9 +56,7 @@ class SerialMeteo:
                 write_timeout=self.timeout_s,
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise ConnectionLost(
-                f"cannot open serial port while connecting: {exc}", device=self.device
-            ) from exc
+            raise ConnectionLost(f"cannot open serial port while connecting: {exc}", device=self.device) from exc
 
     def read(self) -> Environment:
         port = self._serial
@@ -90,8 +88,9 @@ class SerialMeteo:
                 except ProtocolError as exc:
                     raise ProtocolError(str(exc), device=self.device) from exc
                 if reading.seq is None:
-                    raise ProtocolError(f"answer {line!r} carries no request number N= (sent M{seq})",
-                                        device=self.device)  # fmt: skip
+                    raise ProtocolError(
+                        f"answer {line!r} carries no request number N= (sent M{seq})", device=self.device
+                    )
                 if reading.seq == seq:
                     return reading.to_environment()
                 skipped += 1  # not ours: a late answer, or another reader's on this port

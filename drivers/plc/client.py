@@ -95,8 +95,7 @@ class ModbusCellIO:
         version = self._first(rr.registers, "map version")
         if version != self.map.map_version:
             raise ProtocolError(
-                f"PLC implements register map 0x{version:04X}, "
-                f"this client expects 0x{self.map.map_version:04X}",
+                f"PLC implements register map 0x{version:04X}, this client expects 0x{self.map.map_version:04X}",
                 device=self.device,
             )
 
@@ -270,8 +269,7 @@ class ModbusCellIO:
             name = MODBUS_EXCEPTIONS.get(code, "unknown exception")
             if code in REQUEST_MISMATCH_CODES:
                 raise ProtocolError(
-                    f"PLC answered Modbus exception 0x{code:02X} {name} while {action}"
-                    " (register map mismatch?)",
+                    f"PLC answered Modbus exception 0x{code:02X} {name} while {action} (register map mismatch?)",
                     device=self.device,
                 )
             raise DeviceFault(f"PLC refused ({name}) while {action}", code=code, device=self.device)

@@ -49,8 +49,10 @@ class PlcRegisterMap:
 
     def __post_init__(self) -> None:
         if self.request_hr <= self.heartbeat_hr < self.request_hr + REQUEST_REGISTERS:
-            raise ValueError(f"heartbeat HR {self.heartbeat_hr} inside the operator request block "
-                             f"HR {self.request_hr}..{self.request_hr + REQUEST_REGISTERS - 1}")  # fmt: skip
+            raise ValueError(
+                f"heartbeat HR {self.heartbeat_hr} inside the operator request block "
+                f"HR {self.request_hr}..{self.request_hr + REQUEST_REGISTERS - 1}"
+            )
 
 
 DEFAULT_REGISTER_MAP = PlcRegisterMap()
@@ -78,8 +80,11 @@ def encode_request(kind: str | None, seq: int, target: str = "") -> list[int]:
     The target is sent as `hmi_text` shows it: the HMI shows what fits; the full text is on the trackcal console."""
     if kind is not None and kind not in REQUEST_KINDS:
         raise ValueError(f"unknown operator request kind {kind!r} (known: {', '.join(REQUEST_KINDS)})")
-    raw = hmi_text(target).encode("ascii").ljust(REQUEST_TARGET_CHARS, b"\0") if kind is not None else bytes(
-        REQUEST_TARGET_CHARS)  # fmt: skip
+    raw = (
+        hmi_text(target).encode("ascii").ljust(REQUEST_TARGET_CHARS, b"\0")
+        if kind is not None
+        else bytes(REQUEST_TARGET_CHARS)
+    )
     chars = [(raw[i] << 8) | raw[i + 1] for i in range(0, REQUEST_TARGET_CHARS, 2)]
     return [REQUEST_KINDS[kind] if kind is not None else 0, seq & 0xFFFF, *chars]
 

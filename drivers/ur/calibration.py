@@ -42,9 +42,15 @@ class DhTable:
 
     def plus(self, delta: DhTable, source: str) -> DhTable:
         """This table with `delta` added term by term (the nominal table and a calibration's deltas)."""
-        add = [tuple(x + y for x, y in zip(u, v, strict=True)) for u, v in
-               ((self.theta, delta.theta), (self.a_mm, delta.a_mm), (self.d_mm, delta.d_mm),
-                (self.alpha, delta.alpha))]  # fmt: skip
+        add = [
+            tuple(x + y for x, y in zip(u, v, strict=True))
+            for u, v in (
+                (self.theta, delta.theta),
+                (self.a_mm, delta.a_mm),
+                (self.d_mm, delta.d_mm),
+                (self.alpha, delta.alpha),
+            )
+        ]
         return DhTable(*add, source=source)
 
 
@@ -104,8 +110,13 @@ def read_kinematics_info(host: str, port: int = PRIMARY_PORT, timeout_s: float =
                                 raise ProtocolError(f"sub-package length {sub_len}", device=where)
                             if sub_kind == KINEMATICS_INFO:
                                 table = parse_kinematics_info(msg[pos + 5 : pos + sub_len])
-                                return DhTable(table.theta, table.a_mm, table.d_mm, table.alpha,
-                                               source=f"KINEMATICS_INFO of {host}")  # fmt: skip
+                                return DhTable(
+                                    table.theta,
+                                    table.a_mm,
+                                    table.d_mm,
+                                    table.alpha,
+                                    source=f"KINEMATICS_INFO of {host}",
+                                )
                             pos += sub_len
                 s.settimeout(max(0.01, deadline - time.monotonic()))
                 data = s.recv(65536)

@@ -59,14 +59,29 @@ POLL_S = 0.002  # one RTDE cycle at 500 Hz (e-Series); the guard and the stream 
 RESOLUTION_DEG = 1e-4  # joint angles cross the Robot interface at 4 decimals of a degree (drivers.interfaces)
 
 # RTDE Guide enumerations (see the module docstring)
-ROBOT_MODES = {-1: "no controller", 0: "disconnected", 1: "confirm safety", 2: "booting", 3: "power off",
-               4: "power on", 5: "idle (brakes held)", 6: "backdrive", 7: "running",
-               8: "updating firmware"}  # fmt: skip
+ROBOT_MODES = {
+    -1: "no controller",
+    0: "disconnected",
+    1: "confirm safety",
+    2: "booting",
+    3: "power off",
+    4: "power on",
+    5: "idle (brakes held)",
+    6: "backdrive",
+    7: "running",
+    8: "updating firmware",
+}
 ROBOT_RUNNING = 7
 SERIAL_SINCE = (5, 6)  # the dashboard's `get serial number` (PolyScope 5.6 and later, see UrRtde.identity)
-SAFETY_BITS = ((2, "protective stop"), (4, "safeguard stop"), (5, "system emergency stop"),
-               (6, "robot emergency stop"), (7, "emergency stop"), (8, "safety violation"),
-               (9, "safety fault"))  # fmt: skip
+SAFETY_BITS = (
+    (2, "protective stop"),
+    (4, "safeguard stop"),
+    (5, "system emergency stop"),
+    (6, "robot emergency stop"),
+    (7, "emergency stop"),
+    (8, "safety violation"),
+    (9, "safety fault"),
+)
 PROTECTIVE_STOP_BIT = 2
 # a refused moveJ looks this long for a safety stop that explains it (the receive interface trails the control one by
 # a frame or two: 16 ms at 125 Hz; 0.5 s leaves room for a loaded machine)
@@ -86,7 +101,6 @@ def _version_major_minor(text: str) -> tuple[int, int]:
         if len(parts) >= 2 and parts[0].isdigit() and parts[1].isdigit():
             return int(parts[0]), int(parts[1])
     return (0, 0)
-
 
 
 _DIVERTED: list[str] = []  # the log native output went to (once per process)
@@ -149,12 +163,18 @@ class UrRtde:
         stall_s: float = 1.0,
         unlock_timeout_s: float = 10.0,
     ) -> None:
-        for name, v in (("connect_timeout_s", connect_timeout_s), ("move_timeout_s", move_timeout_s),
-                        ("io_timeout_s", io_timeout_s), ("stale_s", stale_s), ("joint_speed_deg_s", joint_speed_deg_s),
-                        ("joint_acceleration_deg_s2", joint_acceleration_deg_s2),
-                        ("stop_deceleration_deg_s2", stop_deceleration_deg_s2),
-                        ("target_tolerance_deg", target_tolerance_deg), ("stall_s", stall_s),
-                        ("unlock_timeout_s", unlock_timeout_s)):  # fmt: skip
+        for name, v in (
+            ("connect_timeout_s", connect_timeout_s),
+            ("move_timeout_s", move_timeout_s),
+            ("io_timeout_s", io_timeout_s),
+            ("stale_s", stale_s),
+            ("joint_speed_deg_s", joint_speed_deg_s),
+            ("joint_acceleration_deg_s2", joint_acceleration_deg_s2),
+            ("stop_deceleration_deg_s2", stop_deceleration_deg_s2),
+            ("target_tolerance_deg", target_tolerance_deg),
+            ("stall_s", stall_s),
+            ("unlock_timeout_s", unlock_timeout_s),
+        ):
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
         limits = checked_limits(joint_limits_deg, AXES)
@@ -229,8 +249,11 @@ class UrRtde:
             raise ConnectionLost(f"dashboard server (port 29999): {exc}", device=self.device) from None
         self.version = _version_major_minor(self._dash("polyscopeVersion"))
         if self.version >= (5, 6) and not self._dash("isInRemoteControl"):
-            raise DeviceFault("the robot is in local control: switch the teach pendant to Remote Control",
-                              code="local_control", device=self.device)  # fmt: skip
+            raise DeviceFault(
+                "the robot is in local control: switch the teach pendant to Remote Control",
+                code="local_control",
+                device=self.device,
+            )
         try:
             self.receive = rtde_receive.RTDEReceiveInterface(self.host)
         except RuntimeError as exc:
@@ -248,8 +271,9 @@ class UrRtde:
         except RuntimeError as exc:
             text = str(exc)
             if "remote" in text.lower():
-                raise DeviceFault(f"the robot refuses remote control: {text}", code="local_control",
-                                  device=self.device) from None  # fmt: skip
+                raise DeviceFault(
+                    f"the robot refuses remote control: {text}", code="local_control", device=self.device
+                ) from None
             raise ConnectionLost(f"control script (ports 30003 / 30004): {text}", device=self.device) from None
 
     def _dash(self, name: str, *args):
@@ -267,8 +291,11 @@ class UrRtde:
         then and checks that the reply is a number, src/dashboard_client.cpp; its polyscopeVersion() keeps the
         version number of the reply "URSoftware 5.11.1.108318 (...)"). An older PolyScope's serial is ""."""
         serial = self._dash("getSerialNumber") if self.version >= SERIAL_SINCE else ""
-        return DeviceIdentity(str(serial).strip(), f"Universal Robots {str(self._dash('getRobotModel')).strip()}",
-                              f"PolyScope {str(self._dash('polyscopeVersion')).strip()}")  # fmt: skip
+        return DeviceIdentity(
+            str(serial).strip(),
+            f"Universal Robots {str(self._dash('getRobotModel')).strip()}",
+            f"PolyScope {str(self._dash('polyscopeVersion')).strip()}",
+        )
 
     def close(self) -> None:
         """Disconnect and give up the claim."""
@@ -356,8 +383,9 @@ class UrRtde:
                 why = self._safety_text(bits)
                 with self._lock:
                     self._fault = why
-                raise DeviceFault(f"move to {target} refused by the robot: {why}", code="protective_stop",
-                                  device=self.device)  # fmt: skip
+                raise DeviceFault(
+                    f"move to {target} refused by the robot: {why}", code="protective_stop", device=self.device
+                )
             if time.monotonic() >= deadline:
                 return
             time.sleep(0.008)  # an RTDE cycle at 125 Hz
@@ -369,8 +397,12 @@ class UrRtde:
         if why:
             raise DeviceFault(f"{what}: {why}", code="safety", device=self.device)
         if mode != ROBOT_RUNNING:
-            raise DeviceFault(f"{what}: robot mode {ROBOT_MODES.get(mode, mode)} (power on and release the brakes on "
-                              "the teach pendant)", code="robot_mode", device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"{what}: robot mode {ROBOT_MODES.get(mode, mode)} (power on and release the brakes on "
+                "the teach pendant)",
+                code="robot_mode",
+                device=self.device,
+            )
 
     # --- Robot protocol -------------------------------------------------------------------------------------
 
@@ -399,14 +431,16 @@ class UrRtde:
         if self.control is None:
             raise ConnectionLost("not connected (call connect() first)", device=self.device)
         try:
-            accepted = self.control.moveJ(q, math.radians(self.joint_speed_deg_s) * fraction,
-                                          math.radians(self.joint_acceleration_deg_s2), True)  # fmt: skip
+            accepted = self.control.moveJ(
+                q, math.radians(self.joint_speed_deg_s) * fraction, math.radians(self.joint_acceleration_deg_s2), True
+            )
         except RuntimeError as exc:
             raise ConnectionLost(f"moveJ to {target}: {exc}", device=self.device) from None
         if not accepted:
             self._explain_refusal(target)
-            raise DeviceFault(f"moveJ to {target} not accepted by the control script", code="refused",
-                              device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"moveJ to {target} not accepted by the control script", code="refused", device=self.device
+            )
         deadline = time.monotonic() + self.move_timeout_s
         stamp, fresh_at = None, time.monotonic()
         still_since, last_q, last_t = None, None, None
@@ -421,14 +455,16 @@ class UrRtde:
                 why = self._safety_text(bits)
                 with self._lock:
                     self._fault = why
-                raise DeviceFault(f"move to {target} ended by the robot: {why}", code="protective_stop",
-                                  device=self.device)  # fmt: skip
+                raise DeviceFault(
+                    f"move to {target} ended by the robot: {why}", code="protective_stop", device=self.device
+                )
             if t != stamp:
                 stamp, fresh_at = t, now
             elif now - fresh_at > self.stale_s:
                 self._brake_quietly()
-                raise DeviceTimeout(f"no RTDE frame for {self.stale_s:g} s during the move to {target}",
-                                    device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"no RTDE frame for {self.stale_s:g} s during the move to {target}", device=self.device
+                )
             deg = to_deg(q_now)
             still = last_q is not None and t != last_t and _alike(q_now, last_q)  # two frames alike: it stands
             if still and all(abs(a - b) <= self.target_tolerance_deg + 1e-9 for a, b in zip(deg, target, strict=True)):
@@ -437,8 +473,12 @@ class UrRtde:
                 still_since = still_since if still_since is not None else now
                 if now - still_since > self.stall_s and not self._async_running():
                     off = max(abs(a - b) for a, b in zip(deg, target, strict=True))
-                    raise DeviceFault(f"the robot stands at {deg}, not at the target {target} (off by {off:.4f} deg): "
-                                      "nothing measured there", code="target_mismatch", device=self.device)  # fmt: skip
+                    raise DeviceFault(
+                        f"the robot stands at {deg}, not at the target {target} (off by {off:.4f} deg): "
+                        "nothing measured there",
+                        code="target_mismatch",
+                        device=self.device,
+                    )
             elif t != last_t:
                 still_since = None
             if t != last_t:
@@ -515,8 +555,11 @@ class UrRtde:
         (an emergency stop pressed, the robot not running)."""
         bits = self.safety_status_bits()
         if any(bits >> b & 1 for b in EMERGENCY_BITS):
-            raise DeviceFault(f"{self._safety_text(bits)} still active: release it and reset on the teach pendant",
-                              code="emergency_stop", device=self.device)  # fmt: skip
+            raise DeviceFault(
+                f"{self._safety_text(bits)} still active: release it and reset on the teach pendant",
+                code="emergency_stop",
+                device=self.device,
+            )
         if bits >> PROTECTIVE_STOP_BIT & 1:
             deadline = time.monotonic() + self.unlock_timeout_s
             while True:
@@ -530,9 +573,12 @@ class UrRtde:
                 if not refused and not self.protective_stopped():
                     break
                 if time.monotonic() > deadline:
-                    raise DeviceFault(f"the protective stop could not be unlocked within {self.unlock_timeout_s:g} s"
-                                      + (f" ({refused})" if refused else ""), code="protective_stop",
-                                      device=self.device)  # fmt: skip
+                    raise DeviceFault(
+                        f"the protective stop could not be unlocked within {self.unlock_timeout_s:g} s"
+                        + (f" ({refused})" if refused else ""),
+                        code="protective_stop",
+                        device=self.device,
+                    )
                 time.sleep(0.2)
             self._dash("closeSafetyPopup")
             self._dash("closePopup")
@@ -545,13 +591,17 @@ class UrRtde:
         try:
             if not self.control.isProgramRunning():
                 if not self.control.reuploadScript():
-                    raise DeviceFault("the control script could not be uploaded again", code="script",
-                                      device=self.device)  # fmt: skip
+                    raise DeviceFault(
+                        "the control script could not be uploaded again", code="script", device=self.device
+                    )
                 deadline = time.monotonic() + self.io_timeout_s  # the upload returns before the script plays
                 while not self.control.isProgramRunning():
                     if time.monotonic() > deadline:
-                        raise DeviceFault(f"the control script uploaded again is not running after "
-                                          f"{self.io_timeout_s:g} s", code="script", device=self.device)  # fmt: skip
+                        raise DeviceFault(
+                            f"the control script uploaded again is not running after {self.io_timeout_s:g} s",
+                            code="script",
+                            device=self.device,
+                        )
                     time.sleep(POLL_S)
         except RuntimeError as exc:
             raise ConnectionLost(f"control script: {exc}", device=self.device) from None
@@ -576,8 +626,9 @@ class UrRtde:
             if bits >> PROTECTIVE_STOP_BIT & 1:
                 with self._lock:
                     self._fault = self._safety_text(bits)
-                raise DeviceFault(f"settling ended by the robot: {self._fault}", code="protective_stop",
-                                  device=self.device)  # fmt: skip
+                raise DeviceFault(
+                    f"settling ended by the robot: {self._fault}", code="protective_stop", device=self.device
+                )
             if t != stamp:
                 stamp = t
                 deg = to_deg(q)
@@ -586,11 +637,15 @@ class UrRtde:
                 if t - anchor_t >= window_s - 1e-9:
                     return deg
                 if t - start > timeout_s:
-                    raise DeviceTimeout(f"joints not settled within {tolerance_deg} deg over {window_s} s after "
-                                        f"{timeout_s} s of controller time", device=self.device)  # fmt: skip
+                    raise DeviceTimeout(
+                        f"joints not settled within {tolerance_deg} deg over {window_s} s after "
+                        f"{timeout_s} s of controller time",
+                        device=self.device,
+                    )
             if time.monotonic() > real_deadline:
-                raise DeviceTimeout(f"RTDE frames stopped coming while waiting to settle ({timeout_s} s)",
-                                    device=self.device)  # fmt: skip
+                raise DeviceTimeout(
+                    f"RTDE frames stopped coming while waiting to settle ({timeout_s} s)", device=self.device
+                )
             time.sleep(POLL_S)
 
 

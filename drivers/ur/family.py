@@ -29,8 +29,13 @@ SCHEMAS = {
 
 def build(r: dict, *, joint_limits_deg, cell_box_check, motion_guard) -> UrRtde:
     keys = [k for k in SCHEMAS[""] if k not in ("protocol", "host")]
-    return UrRtde(r["host"], joint_limits_deg=joint_limits_deg, cell_box_check=cell_box_check,
-                  motion_guard=motion_guard, **{k: r[k] for k in keys})  # fmt: skip
+    return UrRtde(
+        r["host"],
+        joint_limits_deg=joint_limits_deg,
+        cell_box_check=cell_box_check,
+        motion_guard=motion_guard,
+        **{k: r[k] for k in keys},
+    )
 
 
 def where(r: dict) -> str:
@@ -55,7 +60,18 @@ def factory_table(conf: str | None = None, host: str | None = None) -> tuple:
     return t.theta, t.a_mm, t.d_mm, t.alpha, t.source, False
 
 
-FAMILY = RobotFamily(name="ur", title="Universal Robots", dof=len(AXES), schemas=SCHEMAS, build=build,
-                     describe=where, where=where, waiting=waiting, claim=claim, factory_table=factory_table,
-                     native_output=divert_native_output,
-                     program=PROGRAM, readers={".script": read_urscript, ".urscript": read_urscript})  # fmt: skip
+FAMILY = RobotFamily(
+    name="ur",
+    title="Universal Robots",
+    dof=len(AXES),
+    schemas=SCHEMAS,
+    build=build,
+    describe=where,
+    where=where,
+    waiting=waiting,
+    claim=claim,
+    factory_table=factory_table,
+    native_output=divert_native_output,
+    program=PROGRAM,
+    readers={".script": read_urscript, ".urscript": read_urscript},
+)

@@ -33,13 +33,16 @@ class UrScriptError(ProgramError):
 
 def check_name(name: str) -> str:
     if not isinstance(name, str) or not NAME_RE.fullmatch(name):
-        raise UrScriptError(f"URScript program name {name!r} is not valid: a letter first, then letters, digits or _ "
-                            "(at most 63 characters)")  # fmt: skip
+        raise UrScriptError(
+            f"URScript program name {name!r} is not valid: a letter first, then letters, digits or _ "
+            "(at most 63 characters)"
+        )
     return name
 
 
-def urscript_text(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
-                  notes: list[str | None] | None = None) -> str:  # fmt: skip
+def urscript_text(
+    name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None, notes: list[str | None] | None = None
+) -> str:
     """The program moving with movej through the rows of q_deg (N, 6) in degrees; `points` name the rows in a
     comment each; `notes[i]`, when not None, one more comment line above row i's move (a target left at its nominal
     angles says so and why)."""
@@ -52,10 +55,15 @@ def urscript_text(name: str, q_deg, speed_pct: int = 10, points: list[str] | Non
         raise UrScriptError(f"one name per target expected, got {len(points)} for {len(q)}")
     notes = program_notes(notes, len(q), UrScriptError)
     nominal = sum(t is not None for t in notes)
-    what = (f"{len(q)} compensated joint targets" if not nominal else
-            f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)")  # fmt: skip
-    lines = [f"def {name}():", f"  # trackcal: {what}, movej at {int(speed_pct)} % of "
-             f"{MOVEJ_V_RAD_S} rad/s and {MOVEJ_A_RAD_S2} rad/s2"]  # fmt: skip
+    what = (
+        f"{len(q)} compensated joint targets"
+        if not nominal
+        else f"{len(q)} joint targets, {len(q) - nominal} compensated, {nominal} NOT compensated (nominal)"
+    )
+    lines = [
+        f"def {name}():",
+        f"  # trackcal: {what}, movej at {int(speed_pct)} % of {MOVEJ_V_RAD_S} rad/s and {MOVEJ_A_RAD_S2} rad/s2",
+    ]
     for p, row, note in zip(points, q, notes, strict=True):
         rad = ", ".join(_rad(x) for x in row)
         lines += [f"  # {comment_text(p)}: {note}"] if note is not None else []
@@ -76,8 +84,9 @@ def labels(names: list[str] | None, n: int) -> list[str]:
     return [(names[k] if names else "").strip() or f"P{k + 1}" for k in range(n)]
 
 
-def texts(name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None,
-          notes: list[str | None] | None = None) -> dict[str, bytes]:  # fmt: skip
+def texts(
+    name: str, q_deg, speed_pct: int = 10, points: list[str] | None = None, notes: list[str | None] | None = None
+) -> dict[str, bytes]:
     """{NAME.script: its bytes}: ASCII, LF."""
     return {f"{name}.script": urscript_text(name, q_deg, speed_pct, points, notes).encode("ascii")}
 

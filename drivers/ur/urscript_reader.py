@@ -254,7 +254,7 @@ def pose_values(m: np.ndarray, near=None) -> np.ndarray:
 def _renderer(text: str, lit: Literal):
     """The literal's replacement text for a corrected value: the source's separators, each number with the source's
     decimals (at least MIN_DECIMALS)."""
-    seps = [text[e : s] for (_, e), (s, _) in zip(lit.spans, lit.spans[1:], strict=False)]
+    seps = [text[e:s] for (_, e), (s, _) in zip(lit.spans, lit.spans[1:], strict=False)]
     decimals = [max(_decimals(text[s:e]), MIN_DECIMALS) for s, e in lit.spans]
 
     def render(value: np.ndarray) -> str:
@@ -277,8 +277,21 @@ def read_urscript(files: dict[str, str]) -> ProgramRead:
         for lit, base, tool, motion in sorted(scan.used.values(), key=lambda u: u[0].start):
             line = scan.lines.of(lit.start)
             value = pose_matrix(lit.values) if lit.pose else np.degrees(lit.values)
-            targets.append(ProgramTarget(file=file, start=lit.start, end=lit.end, line=line,
-                                         name=lit.name or f"line {line}", joint=not lit.pose, value=value, base=base,
-                                         tool=tool, config=(), accepts=lambda q: True, render=_renderer(text, lit),
-                                         motion=motion))  # fmt: skip
+            targets.append(
+                ProgramTarget(
+                    file=file,
+                    start=lit.start,
+                    end=lit.end,
+                    line=line,
+                    name=lit.name or f"line {line}",
+                    joint=not lit.pose,
+                    value=value,
+                    base=base,
+                    tool=tool,
+                    config=(),
+                    accepts=lambda q: True,
+                    render=_renderer(text, lit),
+                    motion=motion,
+                )
+            )
     return ProgramRead(language=LANGUAGE, files=dict(files), targets=targets, comment="#")

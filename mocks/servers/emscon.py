@@ -364,9 +364,19 @@ class MockEmscon:
 
     def _system_status(self, request: GetSystemStatus) -> list[Message]:
         processor = TrackerProcessorStatus.INITIALIZED if self.initialized else TrackerProcessorStatus.COMPENSATION_SET
-        return [SystemStatusAnswer(ResultStatus.ALL_OK, self.last_result_status, processor,
-                                   LaserProcessorStatus.LASER_READY, ADMStatus.ADM_READY, _VERSION,
-                                   self.system_settings.weather_monitor, 0, self.identity.serial_number)]  # fmt: skip
+        return [
+            SystemStatusAnswer(
+                ResultStatus.ALL_OK,
+                self.last_result_status,
+                processor,
+                LaserProcessorStatus.LASER_READY,
+                ADMStatus.ADM_READY,
+                _VERSION,
+                self.system_settings.weather_monitor,
+                0,
+                self.identity.serial_number,
+            )
+        ]
 
     def _tracker_info(self, request: GetTrackerInfo) -> list[Message]:
         return [self.identity.tracker_info(self.units)]
@@ -379,8 +389,12 @@ class MockEmscon:
         return [TrackerStatusAnswer(ResultStatus.ALL_OK, state)]
 
     def _measurement_status(self, request: GetMeasurementStatusInfo) -> list[Message]:
-        flags = (MeasurementStatusInfo.TRACKER_FOUND | MeasurementStatusInfo.TRACKER_COMPENSATION_FOUND
-                 | MeasurementStatusInfo.ADM_FOUND | MeasurementStatusInfo.ADM_COMPENSATION_FOUND)  # fmt: skip
+        flags = (
+            MeasurementStatusInfo.TRACKER_FOUND
+            | MeasurementStatusInfo.TRACKER_COMPENSATION_FOUND
+            | MeasurementStatusInfo.ADM_FOUND
+            | MeasurementStatusInfo.ADM_COMPENSATION_FOUND
+        )
         if self.locked:
             flags |= MeasurementStatusInfo.REFLECTOR_FOUND
         if self.initialized:
@@ -509,8 +523,11 @@ class MockEmscon:
         s1, s2, s3 = units.stds_to_units(u, cs, (sx, sy, sz), math.sqrt(x * x + y * y + z * z))
         total = math.sqrt(sx * sx + sy * sy + sz * sz) / units.MM_PER_LENGTH[u.length]
         head = (ResultStatus.ALL_OK, MeasMode.STATIONARY, try_mode, v1, v2, v3, s1, s2, s3, total)
-        meteo = (units.temperature_to_units(u, env.temperature_c), units.pressure_to_units(u, env.pressure_hpa),
-                 env.humidity_pct)  # fmt: skip
+        meteo = (
+            units.temperature_to_units(u, env.temperature_c),
+            units.pressure_to_units(u, env.pressure_hpa),
+            env.humidity_pct,
+        )
         if extended == StatisticMode.EXTENDED:  # uncorrelated coordinates, no pointing error (an ideal tracker)
             return [SingleMeasResult2(*head, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s1, s2, s3, total, 0.0, 0.0, 0.0, *meteo)]
         return [SingleMeasResult(*head, 0.0, 0.0, 0.0, s1, s2, s3, total, *meteo)]
@@ -530,7 +547,6 @@ class MockEmscon:
                     conn.sendall(chunk)
         except OSError:
             pass  # the client went away; the serve loop notices on its next read
-
 
 
 # request type -> MockEmscon's handler (StartMeasurement and the Get* readbacks are answered in _respond itself)

@@ -40,9 +40,25 @@ class TrackerIdentity:
     def tracker_info(self, units: SetUnits) -> TrackerInfoAnswer:
         """GetTrackerInfoRT of this tracker, its lengths and angles in the `units` set (SetUnits)."""
         mm, deg = MM_PER_LENGTH[units.length], math.radians(1.0) / RAD_PER_ANGLE[units.angle]
-        return TrackerInfoAnswer(ResultStatus.ALL_OK, self.tracker_type, self.name, self.serial_number,
-                                 self.compensation_id, True, True, True, 0.0, 80_000.0 / mm, 0.0, 3000, 2, 360.0 * deg,
-                                 145.0 * deg, TrkAccuracyModel.TAM_2005, self.lcp_firmware)  # fmt: skip
+        return TrackerInfoAnswer(
+            ResultStatus.ALL_OK,
+            self.tracker_type,
+            self.name,
+            self.serial_number,
+            self.compensation_id,
+            True,
+            True,
+            True,
+            0.0,
+            80_000.0 / mm,
+            0.0,
+            3000,
+            2,
+            360.0 * deg,
+            145.0 * deg,
+            TrkAccuracyModel.TAM_2005,
+            self.lcp_firmware,
+        )
 
     def software_version(self) -> SoftwareVersionAnswer:
         return SoftwareVersionAnswer(ResultStatus.ALL_OK, self.software)

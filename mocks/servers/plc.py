@@ -187,9 +187,13 @@ class MockPlc:
             simdata=(
                 [SimData(address=m.request_lamp_coil, values=[False], datatype=DataType.BITS)],
                 [SimData(address=di_lo, values=[False] * (di_hi - di_lo + 1), datatype=DataType.BITS)],
-                sorted([SimData(address=m.heartbeat_hr, values=[0], datatype=DataType.REGISTERS),
-                        SimData(address=m.request_hr, values=[0] * REQUEST_REGISTERS, datatype=DataType.REGISTERS)],
-                       key=lambda d: d.address),  # fmt: skip
+                sorted(
+                    [
+                        SimData(address=m.heartbeat_hr, values=[0], datatype=DataType.REGISTERS),
+                        SimData(address=m.request_hr, values=[0] * REQUEST_REGISTERS, datatype=DataType.REGISTERS),
+                    ],
+                    key=lambda d: d.address,
+                ),
                 [SimData(address=ir_lo, values=[0] * (ir_hi - ir_lo + 1), datatype=DataType.REGISTERS)],
             ),
             action=self._action,

@@ -41,12 +41,17 @@ class MapCheck:
 def on_other_series(chain: Chain, fit: Identification, table: MeasurementTable) -> Identification:
     """`fit`'s robot model, tool points and extension on another table: its station alone re-estimated."""
     ext = None if fit.extension is None else rebuild(fit.extension, chain, table)
-    return identify(chain, table, fit.points, fit.params, dev0=fit.dev, extension=ext, ext0=fit.ext,
-                    fixed=STATION_ONLY)  # fmt: skip
+    return identify(chain, table, fit.points, fit.params, dev0=fit.dev, extension=ext, ext0=fit.ext, fixed=STATION_ONLY)
 
 
-def curve_agreement(fit_b: ErrorMapFit, fit_d: ErrorMapFit, b: MeasurementTable, d: MeasurementTable,
-                    step_deg: float = 0.25, near_deg: float = 1.0) -> list[dict]:  # fmt: skip
+def curve_agreement(
+    fit_b: ErrorMapFit,
+    fit_d: ErrorMapFit,
+    b: MeasurementTable,
+    d: MeasurementTable,
+    step_deg: float = 0.25,
+    near_deg: float = 1.0,
+) -> list[dict]:
     """Per joint both maps cover: the angles both series measured (within `near_deg`) and the correlation of
     the two fitted curves there (None below 8 grid angles)."""
     grid = np.radians(np.arange(0.0, 360.0, step_deg))
@@ -71,8 +76,15 @@ def _rms3(res: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
 
 
-def error_map_check(chain: Chain, b: MeasurementTable, d: MeasurementTable, tool: dict[str, np.ndarray],
-                    params_b: list[Param], params_d: list[Param], seed: int = 1) -> MapCheck:  # fmt: skip
+def error_map_check(
+    chain: Chain,
+    b: MeasurementTable,
+    d: MeasurementTable,
+    tool: dict[str, np.ndarray],
+    params_b: list[Param],
+    params_d: list[Param],
+    seed: int = 1,
+) -> MapCheck:
     t0 = time.perf_counter()
     fit_b = fit_error_map(chain, b, tool, params_b, base=build_extension("joint_compliance", chain, b))
     seconds = time.perf_counter() - t0
@@ -88,12 +100,26 @@ def error_map_check(chain: Chain, b: MeasurementTable, d: MeasurementTable, tool
 
     def held_error(res: Identification) -> float:
         ext = None if res.extension is None else rebuild(res.extension, chain, hold)
-        return _rms3(hold.xyz - predict_points(chain, res.params, res.dev, res.stations, res.points, hold, ext,
-                                               res.ext))  # fmt: skip
+        return _rms3(
+            hold.xyz - predict_points(chain, res.params, res.dev, res.stations, res.points, hold, ext, res.ext)
+        )
 
-    holdout = {"poses": len(held), "geometric_mm": held_error(geo), "map_mm": held_error(fit.identification),
-               "outside_rows": int(outside_arcs(np.radians(hold.q_deg), fit.arcs).any(axis=1).sum()),
-               "order": max(fit.orders.values()), "tau_deg": float(np.degrees(fit.tau_rad))}  # fmt: skip
-    return MapCheck(fit_b, fit_d, on_other_series(chain, fit_b.identification, d), on_other_series(chain, comp_b, d),
-                    seconds, holdout, curve_agreement(fit_b, fit_d, b, d), (train, hold),
-                    {"nominal": nominal, "geometric": geo, "map": fit.identification})  # fmt: skip
+    holdout = {
+        "poses": len(held),
+        "geometric_mm": held_error(geo),
+        "map_mm": held_error(fit.identification),
+        "outside_rows": int(outside_arcs(np.radians(hold.q_deg), fit.arcs).any(axis=1).sum()),
+        "order": max(fit.orders.values()),
+        "tau_deg": float(np.degrees(fit.tau_rad)),
+    }
+    return MapCheck(
+        fit_b,
+        fit_d,
+        on_other_series(chain, fit_b.identification, d),
+        on_other_series(chain, comp_b, d),
+        seconds,
+        holdout,
+        curve_agreement(fit_b, fit_d, b, d),
+        (train, hold),
+        {"nominal": nominal, "geometric": geo, "map": fit.identification},
+    )

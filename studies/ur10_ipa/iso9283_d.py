@@ -45,21 +45,28 @@ def held_out_accuracy(chain, fit: Identification, d, locate: np.ndarray, held: n
     """AP_P (one cycle per pose) of `fit`'s model on D's held-out poses, D's station located on `locate`."""
     first, rows = d.subset(locate), d.subset(held)
     ext = None if fit.extension is None else rebuild(fit.extension, chain, first)
-    loc = identify(chain, first, fit.points, fit.params, dev0=fit.dev, extension=ext, ext0=fit.ext,
-                   fixed=STATION_ONLY)  # fmt: skip
+    loc = identify(chain, first, fit.points, fit.params, dev0=fit.dev, extension=ext, ext0=fit.ext, fixed=STATION_ONLY)
     (station,) = loc.stations.values()
     attained = (rows.xyz - station.translation) @ station.rotation  # R^T (x - t)
     cov = np.einsum("ji,njk,kl->nil", station.rotation, TrackerNoise().covariance(rows.xyz), station.rotation)
     ext = None if fit.extension is None else rebuild(fit.extension, chain, rows)
-    commanded = model_points(Kinematics(chain, fit.params), np.radians(rows.q_deg), fit.points[POINT], fit.dev, ext,
-                             fit.ext)  # fmt: skip
+    commanded = model_points(
+        Kinematics(chain, fit.params), np.radians(rows.q_deg), fit.points[POINT], fit.dev, ext, fit.ext
+    )
     figs = [pose_accuracy(attained[i : i + 1], commanded[i], cov[i : i + 1]) for i in range(len(rows))]
     ap = np.array([f.value for f, _ in figs])
     u95 = np.array([f.u95 for f, _ in figs])
     offset = np.array([o for _, o in figs])
-    return {"n": len(ap), "mean": ap.mean(), "median": float(np.median(ap)), "p95": float(np.percentile(ap, 95)),
-            "max": ap.max(), "u95_median": float(np.median(u95)), "mean_offset": offset.mean(axis=0),
-            "rms3": float(np.sqrt(np.mean(ap**2)))}  # fmt: skip
+    return {
+        "n": len(ap),
+        "mean": ap.mean(),
+        "median": float(np.median(ap)),
+        "p95": float(np.percentile(ap, 95)),
+        "max": ap.max(),
+        "u95_median": float(np.median(u95)),
+        "mean_offset": offset.mean(axis=0),
+        "rms3": float(np.sqrt(np.mean(ap**2))),
+    }
 
 
 def run(data: Path = DATA, locate: int = LOCATE, seed: int = SEED) -> dict:
@@ -72,9 +79,11 @@ def run(data: Path = DATA, locate: int = LOCATE, seed: int = SEED) -> dict:
     params, _ = identifiable_subset(chain, irr, np.radians(b.q_deg), tmac)
     chosen = diagnose(chain, b, tmac, params, None)
     causes = " + ".join(c["cause"] for c in chosen.causes) or "geometric"
-    models = {"nominal": identify(chain, b, tmac, [], fixed=STATION_ONLY),
-              "geometric, calibrated on B": chosen.geometric,
-              f"diagnose's model on B ({causes})": chosen.extended or chosen.geometric}
+    models = {
+        "nominal": identify(chain, b, tmac, [], fixed=STATION_ONLY),
+        "geometric, calibrated on B": chosen.geometric,
+        f"diagnose's model on B ({causes})": chosen.extended or chosen.geometric,
+    }
     order = np.random.default_rng(seed).permutation(len(d))
     loc, held = np.sort(order[:locate]), np.sort(order[locate:])
     return {name: held_out_accuracy(chain, fit, d, loc, held) for name, fit in models.items()}
@@ -99,11 +108,13 @@ def report(results: dict, locate: int, seed: int) -> str:
         "| model | poses | AP_P mean (mm) | median | 95th percentile | max | RMS | mean offset x, y, z (mm) "
         "| U median (mm) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]  # fmt: skip
+    ]
     for name, r in results.items():
         off = ", ".join(f"{v:+.3f}" for v in r["mean_offset"])
-        lines.append(f"| {name} | {r['n']} | {r['mean']:.3f} | {r['median']:.3f} | {r['p95']:.3f} | {r['max']:.3f} "
-                     f"| {r['rms3']:.3f} | {off} | {r['u95_median']:.3f} |")  # fmt: skip
+        lines.append(
+            f"| {name} | {r['n']} | {r['mean']:.3f} | {r['median']:.3f} | {r['p95']:.3f} | {r['max']:.3f} "
+            f"| {r['rms3']:.3f} | {off} | {r['u95_median']:.3f} |"
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -51,8 +51,9 @@ def mount_rotation(res: Identification, table: MeasurementTable) -> np.ndarray:
     return Rotation.from_matrix(m).mean().as_matrix()
 
 
-def angular_rms_mrad(fit: Identification, fit_table: MeasurementTable, res: Identification,
-                     table: MeasurementTable) -> float:  # fmt: skip
+def angular_rms_mrad(
+    fit: Identification, fit_table: MeasurementTable, res: Identification, table: MeasurementTable
+) -> float:
     """RMS angle (mrad) between the measured and the predicted T-Mac orientation on `table`: the robot model and
     station of `res` (fitted on `table`'s positions, or on another table with the same station), the mount of
     `fit` on its training rows `fit_table`."""
@@ -61,9 +62,14 @@ def angular_rms_mrad(fit: Identification, fit_table: MeasurementTable, res: Iden
     return float(1000.0 * np.sqrt(np.mean(err**2)))
 
 
-def orientation_check(series: dict[str, tuple[Identification, Identification]], b: MeasurementTable,
-                      d: MeasurementTable, training: dict[str, Identification], train: MeasurementTable,
-                      hold: MeasurementTable) -> dict[str, dict[str, float]]:  # fmt: skip
+def orientation_check(
+    series: dict[str, tuple[Identification, Identification]],
+    b: MeasurementTable,
+    d: MeasurementTable,
+    training: dict[str, Identification],
+    train: MeasurementTable,
+    hold: MeasurementTable,
+) -> dict[str, dict[str, float]]:
     """Per model, the RMS angular residual (mrad): `b_held`, fitted on `train` (B's training poses) and predicting
     `hold` (B's held-out poses, same station); `d`, fitted on all of `b` and predicting D with D's station from
     D's positions (`series`: model -> (fit on B, that fit on D)), the mount from B; `d_own_mount`, the same with
@@ -72,7 +78,10 @@ def orientation_check(series: dict[str, tuple[Identification, Identification]], 
     out = {}
     for name, (fit_b, on_d) in series.items():
         shift = Rotation.from_matrix(mount_rotation(fit_b, b).T @ mount_rotation(on_d, d)).magnitude()
-        out[name] = {"b_held": angular_rms_mrad(training[name], train, training[name], hold),
-                     "d": angular_rms_mrad(fit_b, b, on_d, d), "d_own_mount": angular_rms_mrad(on_d, d, on_d, d),
-                     "mount_shift": float(1000.0 * shift)}  # fmt: skip
+        out[name] = {
+            "b_held": angular_rms_mrad(training[name], train, training[name], hold),
+            "d": angular_rms_mrad(fit_b, b, on_d, d),
+            "d_own_mount": angular_rms_mrad(on_d, d, on_d, d),
+            "mount_shift": float(1000.0 * shift),
+        }
     return out

@@ -49,12 +49,16 @@ from .error_map_check import STATION_ONLY, MapCheck, error_map_check, on_other_s
 from .orientation import orientation_check
 
 # The data set lives next to the repository (../shared/data); TRACKCAL_IPA_DATA points elsewhere.
-DATA = Path(os.environ.get("TRACKCAL_IPA_DATA")
-            or Path(__file__).resolve().parents[3] / "shared" / "data" / "ipa-robot-accuracy")  # fmt: skip
+DATA = Path(
+    os.environ.get("TRACKCAL_IPA_DATA")
+    or Path(__file__).resolve().parents[3] / "shared" / "data" / "ipa-robot-accuracy"
+)
 SERIES = {"B": "Series_B/measurements_joint_configurations.csv", "D": "Series_D/measurements_iso_cubes.csv"}
 TRAFO = "Series_B/Trafo_TM_F_init.txt"
-CITATION = ("Landgraf, Ernst, Schleth, Fabritius, Huber, \"A Hybrid Neural Network Approach for Increasing the "
-            "Absolute Accuracy of Industrial Robots\", IEEE CASE 2021, pp. 468-474")  # fmt: skip
+CITATION = (
+    'Landgraf, Ernst, Schleth, Fabritius, Huber, "A Hybrid Neural Network Approach for Increasing the '
+    'Absolute Accuracy of Industrial Robots", IEEE CASE 2021, pp. 468-474'
+)
 TEMPLATE = Path(__file__).with_name("report.md")
 BASE_LINK = rot_axis(2, np.pi)  # ROS base_link <- DH base: a half turn about z
 
@@ -91,8 +95,11 @@ def conventions(data: Path, chain, point_mm: np.ndarray) -> dict:
         implied = Rotation.from_matrix(r_meas @ trafo[:3, :3].T @ np.transpose(r_fl, (0, 2, 1)))
         dev = (implied * implied.mean().inv()).magnitude()
         spread[conv] = float(np.degrees(np.sqrt(np.mean(dev**2))))
-    return {"goal_rms_mm": rms3(tmac - goal), "goal_max_mm": float(np.linalg.norm(tmac - goal, axis=1).max()),
-            "euler_spread_deg": spread}  # fmt: skip
+    return {
+        "goal_rms_mm": rms3(tmac - goal),
+        "goal_max_mm": float(np.linalg.norm(tmac - goal, axis=1).max()),
+        "euler_spread_deg": spread,
+    }
 
 
 @dataclass
@@ -141,14 +148,22 @@ def temperature_effect(chain, table: MeasurementTable, fit: Identification) -> d
     corr["norm"] = float(np.corrcoef(temp, np.linalg.norm(rb, axis=1))[0, 1])
     fits = {}
     for form, pivot in (("base column fixed", chain.base[:3, 3].copy()), ("whole robot", np.zeros(3))):
-        ext = Extension("thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None],
-                        pivot=pivot)  # fmt: skip
+        ext = Extension(
+            "thermal_drift", ["alpha"], ["ppm/K"], np.array([1e6]), growth=(temp - temp.mean())[:, None], pivot=pivot
+        )
         fits[form] = identify(chain, table, fit.points, fit.params, extension=ext)
     form = min(fits, key=lambda f: rms3(fits[f].residuals))
     res = fits[form]
-    return {"range_c": (float(temp.min()), float(temp.max())), "levels": int(len(np.unique(temp))),
-            "corr": corr, "alpha_ppm_k": float(res.ext[0] * 1e6), "alpha_ci95": float(res.ext_ci95()[0] * 1e6),
-            "form": form, "rms3_with": rms3(res.residuals), "rms3_without": rms3(fit.residuals)}  # fmt: skip
+    return {
+        "range_c": (float(temp.min()), float(temp.max())),
+        "levels": int(len(np.unique(temp))),
+        "corr": corr,
+        "alpha_ppm_k": float(res.ext[0] * 1e6),
+        "alpha_ci95": float(res.ext_ci95()[0] * 1e6),
+        "form": form,
+        "rms3_with": rms3(res.residuals),
+        "rms3_without": rms3(fit.residuals),
+    }
 
 
 def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[float, ...] = (50.0, 200.0)) -> Study:
@@ -168,9 +183,17 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
         scale = lever / 100.0  # the tool file's virtual points sit at 100 mm: start from the scaled offsets
         pts = {p: tmac[POINT] + scale * (cell.tool_points[p] - tmac[POINT]) for p in dict.fromkeys(bv.point)}
         fit = identify(chain, bv, pts, irr)  # the virtual points make the whole irreducible set identifiable
-        virt.append({"k": k, "lever_mm": lever, "n_params": len(irr), "after_d": on_other_series(chain, fit, d),
-                     "fit_b_tmac_rms": rms3(fit.residuals[tmac_rows(bv)]), "fit_b_all_rms": rms3(fit.residuals),
-                     "point": fit.points[POINT]})  # fmt: skip
+        virt.append(
+            {
+                "k": k,
+                "lever_mm": lever,
+                "n_params": len(irr),
+                "after_d": on_other_series(chain, fit, d),
+                "fit_b_tmac_rms": rms3(fit.residuals[tmac_rows(bv)]),
+                "fit_b_all_rms": rms3(fit.residuals),
+                "point": fit.points[POINT],
+            }
+        )
     covs = table_covariances(read_ipa_series(data / SERIES["B"], station="B", virtual_points=1))
     rho = np.array([c[0, 3] / np.sqrt(c[0, 0] * c[3, 3]) for _, c in covs])
     diag = diagnose(chain, b, tmac, params, None)
@@ -190,16 +213,34 @@ def run(data: Path = DATA, virtual: tuple[int, ...] = (2, 3, 6), levers: tuple[f
     nominal_b, after_d = identify(chain, b, tmac, [], fixed=STATION_ONLY), on_other_series(chain, fit_b, d)
     nominal_d = on_other_series(chain, nominal_b, d)
     m = error_map_check(chain, b, d, tmac, params, params_d)
-    series = {"nominal": (nominal_b, nominal_d), "geometric": (fit_b, after_d), "map": (m.fit_b.identification,
-                                                                                       m.after_d)}  # fmt: skip
+    series = {
+        "nominal": (nominal_b, nominal_d),
+        "geometric": (fit_b, after_d),
+        "map": (m.fit_b.identification, m.after_d),
+    }
     return Study(
-        cell=cell, params=params, dropped=dropped, b=b, d=d, conv=conventions(data, chain, tmac[POINT]),
-        fit_b=fit_b, nominal_b=nominal_b, nominal_b_free_point=identify(chain, b, tmac, []), nominal_d=nominal_d,
-        after_d=after_d, fit_d=fit_d, after_b=on_other_series(chain, fit_d, b),
-        virtual=virt, correlation=float(np.median(rho)), diagnosis=diag, candidates=checks,
-        temperature=temperature_effect(chain, b, fit_b), diagnosis_d=diagnosis_d, error_map=m,
+        cell=cell,
+        params=params,
+        dropped=dropped,
+        b=b,
+        d=d,
+        conv=conventions(data, chain, tmac[POINT]),
+        fit_b=fit_b,
+        nominal_b=nominal_b,
+        nominal_b_free_point=identify(chain, b, tmac, []),
+        nominal_d=nominal_d,
+        after_d=after_d,
+        fit_d=fit_d,
+        after_b=on_other_series(chain, fit_d, b),
+        virtual=virt,
+        correlation=float(np.median(rho)),
+        diagnosis=diag,
+        candidates=checks,
+        temperature=temperature_effect(chain, b, fit_b),
+        diagnosis_d=diagnosis_d,
+        error_map=m,
         orientation=orientation_check(series, b, d, m.holdout_fits, *m.holdout_tables),
-    )  # fmt: skip
+    )
 
 
 def _tmac_base(study: Study, table: MeasurementTable) -> np.ndarray:
@@ -278,8 +319,9 @@ def plots(study: Study, img_dir: Path) -> list[Path]:
                 ax.set_xlabel(f"{NAMES[j]} (deg)")
             if j == 0:
                 ax.set_ylabel(f"residual {name}, base (mm)")
-    fig.suptitle(f"Series B, geometric fit ({rms3(study.fit_b.residuals):.3f} mm RMS 3-D): residuals against the "
-                 "joint angles")  # fmt: skip
+    fig.suptitle(
+        f"Series B, geometric fit ({rms3(study.fit_b.residuals):.3f} mm RMS 3-D): residuals against the joint angles"
+    )
     save(fig, "ur10-b-residuals-vs-joints.png")
 
     # ... and against the measurement order (the only time the files keep), with the temperature column
@@ -300,8 +342,13 @@ def plots(study: Study, img_dir: Path) -> list[Path]:
     save(fig, "ur10-residuals-vs-order.png")
     if study.error_map is not None:
         m = study.error_map
-        written.append(error_map_curves({"fitted on B": m.fit_b.identification, "fitted on D": m.fit_d.identification},
-                                        img_dir / "ur10-joint-error-map.png", NAMES))  # fmt: skip
+        written.append(
+            error_map_curves(
+                {"fitted on B": m.fit_b.identification, "fitted on D": m.fit_d.identification},
+                img_dir / "ur10-joint-error-map.png",
+                NAMES,
+            )
+        )
     return written
 
 
@@ -316,8 +363,13 @@ def _deg_or_mm(p: Param, v: float) -> str:
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
-    return "\n".join(["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |",
-                      *["| " + " | ".join(r) + " |" for r in rows]])  # fmt: skip
+    return "\n".join(
+        [
+            "| " + " | ".join(header) + " |",
+            "| " + " | ".join("---" for _ in header) + " |",
+            *["| " + " | ".join(r) + " |" for r in rows],
+        ]
+    )
 
 
 def _range(x: np.ndarray) -> str:
@@ -338,81 +390,157 @@ def values(study: Study, out: Path, images: list[Path]) -> dict[str, str]:
     def mm(x: float | None) -> str:
         return "-" if x is None else f"{x:.3f}"
 
-    candidates = _table(["model", "extra parameters", "B cross-validated", "D held out", "significant on B"],
-                        [["geometric", "-", mm(geo_cv), mm(d_geo), "-"]]
-                        + [[c.cause, str(c.n_params), mm(c.cv_rms3_mm), mm(c.d_rms3_mm),
-                            "yes" if c.significant else "no"] for c in study.candidates])  # fmt: skip
-    virtual = _table(["points per pose", "lever mm", "parameters", "B fit, T-Mac", "B fit, all points", "D held out"],
-                     [["1 (T-Mac)", "-", str(len(study.params)), mm(rms3(fb.residuals)), mm(rms3(fb.residuals)),
-                       mm(d_geo)]]
-                     + [[f"1 + {v['k']} virtual", f"{v['lever_mm']:.0f}", str(v["n_params"]), mm(v["fit_b_tmac_rms"]),
-                         mm(v["fit_b_all_rms"]), mm(rms3(v["after_d"].residuals))] for v in study.virtual])  # fmt: skip
+    candidates = _table(
+        ["model", "extra parameters", "B cross-validated", "D held out", "significant on B"],
+        [["geometric", "-", mm(geo_cv), mm(d_geo), "-"]]
+        + [
+            [c.cause, str(c.n_params), mm(c.cv_rms3_mm), mm(c.d_rms3_mm), "yes" if c.significant else "no"]
+            for c in study.candidates
+        ],
+    )
+    virtual = _table(
+        ["points per pose", "lever mm", "parameters", "B fit, T-Mac", "B fit, all points", "D held out"],
+        [["1 (T-Mac)", "-", str(len(study.params)), mm(rms3(fb.residuals)), mm(rms3(fb.residuals)), mm(d_geo)]]
+        + [
+            [
+                f"1 + {v['k']} virtual",
+                f"{v['lever_mm']:.0f}",
+                str(v["n_params"]),
+                mm(v["fit_b_tmac_rms"]),
+                mm(v["fit_b_all_rms"]),
+                mm(rms3(v["after_d"].residuals)),
+            ]
+            for v in study.virtual
+        ],
+    )
     fit_b, fit_d = m.fit_b, m.fit_d
-    arcs = _table(["joint", "B: fitted arc (deg)", "D: fitted arc (deg)"],
-                  [[NAMES[j]] + [f"{f.arcs[j].to_doc()['from_deg']:.1f} .. {f.arcs[j].to_doc()['to_deg']:.1f}"
-                                 if j in f.arcs else "not mapped" for f in (fit_b, fit_d)]
-                   for j in range(study.cell.chain.dof)])  # fmt: skip
-    agreement = _table(["joint", "angles both measured (deg)", "correlation of the curves"],
-                       [[NAMES[a["joint"] - 1], f"{a['overlap_deg']:.0f}",
-                         "-" if a["correlation"] is None else f"{a['correlation']:.2f}"]
-                        for a in m.agreement])  # fmt: skip
+    arcs = _table(
+        ["joint", "B: fitted arc (deg)", "D: fitted arc (deg)"],
+        [
+            [NAMES[j]]
+            + [
+                f"{f.arcs[j].to_doc()['from_deg']:.1f} .. {f.arcs[j].to_doc()['to_deg']:.1f}"
+                if j in f.arcs
+                else "not mapped"
+                for f in (fit_b, fit_d)
+            ]
+            for j in range(study.cell.chain.dof)
+        ],
+    )
+    agreement = _table(
+        ["joint", "angles both measured (deg)", "correlation of the curves"],
+        [
+            [
+                NAMES[a["joint"] - 1],
+                f"{a['overlap_deg']:.0f}",
+                "-" if a["correlation"] is None else f"{a['correlation']:.2f}",
+            ]
+            for a in m.agreement
+        ],
+    )
     orient = study.orientation
-    orientation = _table(["model", "B held out", "D, mount from B", "D, mount from D"],
-                         [[label, *(f"{orient[k][c]:.2f}" for c in ("b_held", "d", "d_own_mount"))]
-                          for k, label in (("nominal", "nominal robot"), ("geometric", "geometric (DH) calibration"),
-                                           ("map", "geometric + gravity compliance + joint error map"))])  # fmt: skip
+    orientation = _table(
+        ["model", "B held out", "D, mount from B", "D, mount from D"],
+        [
+            [label, *(f"{orient[k][c]:.2f}" for c in ("b_held", "d", "d_own_mount"))]
+            for k, label in (
+                ("nominal", "nominal robot"),
+                ("geometric", "geometric (DH) calibration"),
+                ("map", "geometric + gravity compliance + joint error map"),
+            )
+        ],
+    )
     return {
-        "orientation_table": orientation, "mount_shift": f"{orient['map']['mount_shift']:.2f}",
-        "or_d_geometric": f"{orient['geometric']['d']:.2f}", "or_d_map": f"{orient['map']['d']:.2f}",
+        "orientation_table": orientation,
+        "mount_shift": f"{orient['map']['mount_shift']:.2f}",
+        "or_d_geometric": f"{orient['geometric']['d']:.2f}",
+        "or_d_map": f"{orient['map']['d']:.2f}",
         "or_d_own_geometric": f"{orient['geometric']['d_own_mount']:.2f}",
         "or_d_own_map": f"{orient['map']['d_own_mount']:.2f}",
-        "citation": CITATION, "b_poses": str(len(study.b)), "d_poses": str(len(study.d)),
-        "d_nominal": mm(d_nom), "d_geometric": mm(d_geo), "d_compliance": mm(rms3(m.compliance_d.residuals)),
-        "d_map": mm(rms3(m.after_d.residuals)), "verdict": dg.cause,
+        "citation": CITATION,
+        "b_poses": str(len(study.b)),
+        "d_poses": str(len(study.d)),
+        "d_nominal": mm(d_nom),
+        "d_geometric": mm(d_geo),
+        "d_compliance": mm(rms3(m.compliance_d.residuals)),
+        "d_map": mm(rms3(m.after_d.residuals)),
+        "verdict": dg.cause,
         "diagnose_causes": " + ".join(c["cause"] for c in dg.causes) or "none",
         "d_diagnose": mm(rms3(study.diagnosis_d.residuals)),
-        "holdout_poses": str(m.holdout_b["poses"]), "holdout_geometric": mm(m.holdout_b["geometric_mm"]),
+        "holdout_poses": str(m.holdout_b["poses"]),
+        "holdout_geometric": mm(m.holdout_b["geometric_mm"]),
         "holdout_map": mm(m.holdout_b["map_mm"]),
-        "goal_rms": mm(cv["goal_rms_mm"]), "goal_max": mm(cv["goal_max_mm"]),
-        "point_z": f"{fb.points[POINT][2]:.2f}", "point_z_ci": f"{fb.point_ci95(POINT)[2]:.2f}",
+        "goal_rms": mm(cv["goal_rms_mm"]),
+        "goal_max": mm(cv["goal_max_mm"]),
+        "point_z": f"{fb.points[POINT][2]:.2f}",
+        "point_z_ci": f"{fb.point_ci95(POINT)[2]:.2f}",
         "nominal_b": mm(rms3(study.nominal_b.residuals)),
         "nominal_b_free_point": mm(rms3(study.nominal_b_free_point.residuals)),
         "euler_xyz": f"{cv['euler_spread_deg']['XYZ']:.3f}",
         "euler_others": ", ".join(f"{v:.1f} deg for '{k}'" for k, v in cv["euler_spread_deg"].items() if k != "XYZ"),
-        "temp_b_range": f"{tmp['range_c'][0]:.2f}-{tmp['range_c'][1]:.2f}", "temp_levels": str(tmp["levels"]),
+        "temp_b_range": f"{tmp['range_c'][0]:.2f}-{tmp['range_c'][1]:.2f}",
+        "temp_levels": str(tmp["levels"]),
         "temp_d_range": f"{temp_d.min():.2f}-{temp_d.max():.2f}",
-        "n_irreducible": str(len(study.params) + len(study.dropped)), "n_params": str(len(study.params)),
-        "param_names": " ".join(p.name for p in study.params), "param_list": ",".join(p.name for p in study.params),
+        "n_irreducible": str(len(study.params) + len(study.dropped)),
+        "n_params": str(len(study.params)),
+        "param_names": " ".join(p.name for p in study.params),
+        "param_list": ",".join(p.name for p in study.params),
         "dropped": "\n".join(f"- `{p.name}`: {why}" for p, why in study.dropped),
-        "b_fit": mm(rms3(fb.residuals)), "b_fit_max": mm(residual_stats(fb.residuals)["dist_max_mm"]),
+        "b_fit": mm(rms3(fb.residuals)),
+        "b_fit_max": mm(residual_stats(fb.residuals)["dist_max_mm"]),
         "b_iterations": str(fb.iterations),
-        "parameter_table": _table(["parameter", "deviation", "95 % CI"],
-                                  [[p.name, _deg_or_mm(p, v), "+-" + _deg_or_mm(p, c)[1:]]
-                                   for p, v, c in zip(fb.params, fb.dev, fb.param_ci95(), strict=True)]),
-        "validation_table": "\n".join([
-            "| model | x | y | z | 3-D RMS | 3-D max |", "| --- | --- | --- | --- | --- | --- |",
-            _row("B, nominal (Trafo tool point)", study.nominal_b), _row("B, calibrated on B (fit)", fb),
-            _row("D, nominal (Trafo tool point)", study.nominal_d), _row("D, calibrated on B", study.after_d)]),
-        "d_gain": f"{d_nom / d_geo:.2f}", "yb_range": _range(yb), "yd_range": _range(yd),
-        "d_fit": mm(rms3(study.fit_d.residuals)), "d_n_params": str(len(study.fit_d.params)),
-        "b_after": mm(rms3(study.after_b.residuals)), "d_ry": f"{ry.mean():.1f} +- {ry.std():.1f}",
+        "parameter_table": _table(
+            ["parameter", "deviation", "95 % CI"],
+            [
+                [p.name, _deg_or_mm(p, v), "+-" + _deg_or_mm(p, c)[1:]]
+                for p, v, c in zip(fb.params, fb.dev, fb.param_ci95(), strict=True)
+            ],
+        ),
+        "validation_table": "\n".join(
+            [
+                "| model | x | y | z | 3-D RMS | 3-D max |",
+                "| --- | --- | --- | --- | --- | --- |",
+                _row("B, nominal (Trafo tool point)", study.nominal_b),
+                _row("B, calibrated on B (fit)", fb),
+                _row("D, nominal (Trafo tool point)", study.nominal_d),
+                _row("D, calibrated on B", study.after_d),
+            ]
+        ),
+        "d_gain": f"{d_nom / d_geo:.2f}",
+        "yb_range": _range(yb),
+        "yd_range": _range(yd),
+        "d_fit": mm(rms3(study.fit_d.residuals)),
+        "d_n_params": str(len(study.fit_d.params)),
+        "b_after": mm(rms3(study.after_b.residuals)),
+        "d_ry": f"{ry.mean():.1f} +- {ry.std():.1f}",
         "d_point_z": f"{study.fit_d.points[POINT][2]:.1f} +- {study.fit_d.point_ci95(POINT)[2]:.1f}",
-        "virtual_correlation": f"{study.correlation:.3f}", "virtual_table": virtual,
-        "candidate_table": candidates, "noise_floor": mm(s3 * dg.noise_floor_mm), "floor_source": dg.floor_source,
-        "cv_folds": "5", "b_order": str(max(fit_b.orders.values())),
+        "virtual_correlation": f"{study.correlation:.3f}",
+        "virtual_table": virtual,
+        "candidate_table": candidates,
+        "noise_floor": mm(s3 * dg.noise_floor_mm),
+        "floor_source": dg.floor_source,
+        "cv_folds": "5",
+        "b_order": str(max(fit_b.orders.values())),
         "b_tau_mdeg": f"{1000 * np.degrees(fit_b.tau_rad):.2f}",
-        "b_edf": f"{fit_b.effective_params:.0f}", "b_cv_without": mm(s3 * fit_b.cv_rms_without_mm),
-        "b_cv": mm(s3 * fit_b.cv_rms_mm), "b_map_fit": mm(rms3(fit_b.identification.residuals)),
+        "b_edf": f"{fit_b.effective_params:.0f}",
+        "b_cv_without": mm(s3 * fit_b.cv_rms_without_mm),
+        "b_cv": mm(s3 * fit_b.cv_rms_mm),
+        "b_map_fit": mm(rms3(fit_b.identification.residuals)),
         "b_map_seconds": f"{m.fit_seconds:.1f}",
         "b_not_identifiable": "; ".join(f"{NAMES[j]}: {why}" for j, why in fit_b.not_identifiable.items()) or "none",
-        "d_order": str(max(fit_d.orders.values())), "d_cv_without": mm(s3 * fit_d.cv_rms_without_mm),
-        "d_cv": mm(s3 * fit_d.cv_rms_mm), "arc_table": arcs, "agreement_table": agreement,
+        "d_order": str(max(fit_d.orders.values())),
+        "d_cv_without": mm(s3 * fit_d.cv_rms_without_mm),
+        "d_cv": mm(s3 * fit_d.cv_rms_mm),
+        "arc_table": arcs,
+        "agreement_table": agreement,
         "temp_b_span": f"{tmp['range_c'][1] - tmp['range_c'][0]:.2f}",
         "temp_corr": ", ".join(f"{k} {v:+.2f}" for k, v in tmp["corr"].items()),
-        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}", "temp_form": tmp["form"],
-        "temp_without": f"{tmp['rms3_without']:.4f}", "temp_with": f"{tmp['rms3_with']:.4f}",
+        "temp_alpha": f"{tmp['alpha_ppm_k']:.0f} +- {tmp['alpha_ci95']:.0f}",
+        "temp_form": tmp["form"],
+        "temp_without": f"{tmp['rms3_without']:.4f}",
+        "temp_with": f"{tmp['rms3_with']:.4f}",
         "plots": "\n".join(f"![{p.stem}]({r})" for p, r in zip(images, rel, strict=True)),
-    }  # fmt: skip
+    }
 
 
 def report(study: Study, out: Path, images: list[Path]) -> str:
@@ -428,14 +556,21 @@ def report(study: Study, out: Path, images: list[Path]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="UR10 real-data study (IPA series B and D)")
     ap.add_argument("--data", type=Path, default=DATA, help="ipa-robot-accuracy directory")
-    ap.add_argument("--out", type=Path, default=Path("build/ur10-study/ur10-real-data.md"),
-                    help="report (default under build/, untracked; --out docs/ur10-real-data.md updates the docs)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path("build/ur10-study/ur10-real-data.md"),
+        help="report (default under build/, untracked; --out docs/ur10-real-data.md updates the docs)",
+    )
     ap.add_argument("--img", type=Path, default=None, help="plot directory (default: img next to --out)")
     args = ap.parse_args(argv)
     missing = [name for name in SERIES.values() if not (args.data / name).is_file()]
     if missing:  # one line saying where it looked, not a traceback
-        print(f"error: the IPA data set is not at {args.data.resolve()} (no {missing[0]}): set TRACKCAL_IPA_DATA "
-              "to its directory, or give --data", file=sys.stderr)  # fmt: skip
+        print(
+            f"error: the IPA data set is not at {args.data.resolve()} (no {missing[0]}): set TRACKCAL_IPA_DATA "
+            "to its directory, or give --data",
+            file=sys.stderr,
+        )
         return 2
     study = run(args.data)
     images = plots(study, args.img or args.out.parent / "img")

@@ -38,8 +38,9 @@ def scaled(seed: int):
     cell = load_cell("kr270")
     twin = Twin(cell, seed=seed, effects={"encoder_scale": 0.3})
     q = random_feasible_poses(design_for_cell(cell, []), 40, np.random.default_rng(seed))
-    out = run_identify(cell, simulate_campaign(twin, np.degrees(q)), irreducible_params(cell.chain)[0],
-                       extend="encoder_scale")  # fmt: skip
+    out = run_identify(
+        cell, simulate_campaign(twin, np.degrees(q)), irreducible_params(cell.chain)[0], extend="encoder_scale"
+    )
     return cell, twin, model_from_doc(out.doc), out.result
 
 

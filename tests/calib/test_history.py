@@ -95,9 +95,22 @@ def test_history_command(kr270, kr270_params, tmp_path):
     write_json(tmp_path / "a.json", calibrate(kr270, kr270_params, 501))
     write_json(tmp_path / "b.json", calibrate(kr270, kr270_params, 502, dq2_shift_deg=0.003))
     write_json(tmp_path / "c.json", calibrate(kr270, kr270_params, 503, dq2_shift_deg=0.003))
-    done = subprocess.run([*TRACKCAL, "history", "c.json", "a.json", "b.json", "--dates",
-                           "2026-12-01,2026-04-01,2026-08-01", "--json", "h.json"], cwd=tmp_path, capture_output=True,
-                          text=True)  # fmt: skip
+    done = subprocess.run(
+        [
+            *TRACKCAL,
+            "history",
+            "c.json",
+            "a.json",
+            "b.json",
+            "--dates",
+            "2026-12-01,2026-04-01,2026-08-01",
+            "--json",
+            "h.json",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     doc = json.loads((tmp_path / "h.json").read_text())
     assert [c["source"] for c in doc["calibrations"]] == ["a.json", "b.json", "c.json"]  # in time order
@@ -108,6 +121,7 @@ def test_history_command(kr270, kr270_params, tmp_path):
     # the two calibrations' combined 1-sigma 3-D uncertainty there (calib.tcp_figure; campaign/report/tcp.py)
     a, b = doc["calibrations"][:2]
     assert abs(b["tcp_correction_mm"] - a["tcp_correction_mm"]) > 2.0 * np.hypot(a["tcp_sigma_mm"], b["tcp_sigma_mm"])
-    bad = subprocess.run([*TRACKCAL, "history", "a.json", "--dates", "yesterday"], cwd=tmp_path, capture_output=True,
-                         text=True)  # fmt: skip
+    bad = subprocess.run(
+        [*TRACKCAL, "history", "a.json", "--dates", "yesterday"], cwd=tmp_path, capture_output=True, text=True
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--dates" in bad.stderr

@@ -98,8 +98,9 @@ def test_uncertainties_are_the_propagated_gradients(seed, n):
     x2 = rng.normal(0.0, 0.05, (n, 3)) + [800.0, 400.0, 1200.0]
     c = np.array([800.02, 100.01, 1199.97])
     sig, cov = 0.01, np.eye(3) * 0.01**2
-    assert pose_accuracy(x, c, cov)[0].u95 == pytest.approx(_fd_u95(lambda p: pose_accuracy(p, c)[0].value, x, sig),
-                                                            rel=1e-5)  # fmt: skip
+    assert pose_accuracy(x, c, cov)[0].u95 == pytest.approx(
+        _fd_u95(lambda p: pose_accuracy(p, c)[0].value, x, sig), rel=1e-5
+    )
     assert pose_repeatability(x, cov)[0].u95 == pytest.approx(
         _fd_u95(lambda p: pose_repeatability(p)[0].value, x, sig), rel=1e-5
     )
@@ -165,9 +166,12 @@ def test_bad_input_is_one_error():
 
 
 @given(
-    cx=st.floats(-2000, 2000), cy=st.floats(-2000, 2000), cz=st.floats(0, 2000), side=st.floats(10, 2000),
+    cx=st.floats(-2000, 2000),
+    cy=st.floats(-2000, 2000),
+    cz=st.floats(0, 2000),
+    side=st.floats(10, 2000),
     fraction=st.floats(0.08, 0.12),
-)  # fmt: skip
+)
 def test_cube_geometry(cx, cy, cz, side, fraction):
     """P1 at the centre; P2..P5 on the plane C1-C2-C7-C8, each `fraction` L from its corner on a diagonal toward the
     centre; the plane holds two opposite edges of the cube (C1-C2 and C7-C8, parallel, sqrt(2) side apart)."""

@@ -17,19 +17,42 @@ ROOT = Path(__file__).resolve().parents[2]
 # ISO 9283:1998(E), second edition 1998-04-01, "Contents" (the public sample pages of the standard and of its
 # adoption SIST EN ISO 9283:2003): the clause numbers and titles of clauses 6 and 7, written from that page
 CONTENTS = {
-    "6.1": "robot mounting", "6.2": "conditions prior to testing", "6.3": "operating and environmental conditions",
-    "6.4": "displacement measurement principles", "6.5": "instrumentation", "6.6": "load to the mechanical interface",
-    "6.7": "test velocities", "6.8": "definitions of poses to be tested and paths to be followed",
-    "6.9": "number of cycles", "6.10": "test procedure", "6.11": "characteristics to be tested - applications",
-    "7.1": "general description", "7.2": "pose accuracy and pose repeatability",
-    "7.3": "distance accuracy and repeatability", "7.4": "position stabilization time", "7.5": "position overshoot",
-    "7.6": "drift of pose characteristics", "7.7": "exchangeability",
-}  # fmt: skip
+    "6.1": "robot mounting",
+    "6.2": "conditions prior to testing",
+    "6.3": "operating and environmental conditions",
+    "6.4": "displacement measurement principles",
+    "6.5": "instrumentation",
+    "6.6": "load to the mechanical interface",
+    "6.7": "test velocities",
+    "6.8": "definitions of poses to be tested and paths to be followed",
+    "6.9": "number of cycles",
+    "6.10": "test procedure",
+    "6.11": "characteristics to be tested - applications",
+    "7.1": "general description",
+    "7.2": "pose accuracy and pose repeatability",
+    "7.3": "distance accuracy and repeatability",
+    "7.4": "position stabilization time",
+    "7.5": "position overshoot",
+    "7.6": "drift of pose characteristics",
+    "7.7": "exchangeability",
+}
 
 # what each cited thing is, by the clause titles above (the multi-directional pose accuracy variation has no clause
 # of its own in the contents: it lies within 7.2, pages 17-23, before 7.3 on page 24)
-EXPECTED = {"warm-up": "6.2", "environment": "6.3", "load": "6.6", "velocities": "6.7", "poses": "6.8",
-            "cycles": "6.9", "AP": "7.2", "RP": "7.2", "vAP": "7.2", "AD": "7.3", "RD": "7.3", "drift": "7.6"}
+EXPECTED = {
+    "warm-up": "6.2",
+    "environment": "6.3",
+    "load": "6.6",
+    "velocities": "6.7",
+    "poses": "6.8",
+    "cycles": "6.9",
+    "AP": "7.2",
+    "RP": "7.2",
+    "vAP": "7.2",
+    "AD": "7.3",
+    "RD": "7.3",
+    "drift": "7.6",
+}
 
 
 def test_the_clause_table_is_the_standards_contents():
@@ -45,7 +68,12 @@ def test_the_figures_cite_the_table():
     vap = multidirectional_variation([x, x + 0.1])
     d = drift(ap, Figure(0.1, 0.0, clause("AP")))
     assert (ap.clause, ad.clause, rd.clause, vap.clause, d.clause) == (
-        "ISO 9283:1998, 7.2", "ISO 9283:1998, 7.3", "ISO 9283:1998, 7.3", "ISO 9283:1998, 7.2", "ISO 9283:1998, 7.6")
+        "ISO 9283:1998, 7.2",
+        "ISO 9283:1998, 7.3",
+        "ISO 9283:1998, 7.3",
+        "ISO 9283:1998, 7.2",
+        "ISO 9283:1998, 7.6",
+    )
     cited = {c for _, _, c in DEFINITIONS if c}
     assert cited <= {clause(k) for k in CLAUSES}
 
@@ -64,6 +92,7 @@ def test_no_other_clause_number_is_cited_in_the_code_or_the_pages():
         if path.name == "iso9283_clauses.py":
             continue  # its docstring lists the numbers it replaced
         text = path.read_text(encoding="utf-8")
-        bad += [f"{path.relative_to(ROOT)}: {m.group(0)!r}" for m in CITATION.finditer(text)
-                if m.group(1) not in allowed]  # fmt: skip
+        bad += [
+            f"{path.relative_to(ROOT)}: {m.group(0)!r}" for m in CITATION.finditer(text) if m.group(1) not in allowed
+        ]
     assert not bad, "\n".join(bad)

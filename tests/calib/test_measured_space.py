@@ -24,8 +24,9 @@ def test_the_space_of_a_table_is_its_joint_ranges_and_its_ring():
 def test_how_far_outside():
     space = MeasuredSpace.of(Q, POINTS)
     # joint 1 at 45 deg: 15 deg beyond its 30; joint 2 at 10 deg: 10 below its 20
-    np.testing.assert_allclose(space.joint_excess_deg(np.radians([[45.0, 10.0], [0.0, 30.0]])),
-                               [[15.0, 10.0], [0.0, 0.0]], atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        space.joint_excess_deg(np.radians([[45.0, 10.0], [0.0, 30.0]])), [[15.0, 10.0], [0.0, 0.0]], atol=1e-9
+    )
     # at any azimuth: 3 m out and 900 mm high is (1000, 400) from the ring's corner (2000, 500): 1077.03 mm
     # (sqrt(1000^2 + 400^2)); 500 mm from the axis at mid height: 500 mm in; inside the ring: 0
     pts = np.array([[0.0, -3000.0, 900.0], [300.0, 400.0, 250.0], [1200.0, 900.0, 100.0]])
@@ -40,11 +41,14 @@ def test_model_json_round_trip_and_old_files():
     assert space_of({}, 2) is None  # written before it was recorded: unknown
 
 
-@pytest.mark.parametrize(("edit", "message"), [
-    (lambda d: d["joints"].pop("joint_2"), "incomplete"),
-    (lambda d: d["volume"].update(radius_mm=[2.0, 1.0]), "measured.volume.radius_mm"),
-    (lambda d: d["joints"]["joint_1"].update(to_deg="x"), "measured.joints.joint_1"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d["joints"].pop("joint_2"), "incomplete"),
+        (lambda d: d["volume"].update(radius_mm=[2.0, 1.0]), "measured.volume.radius_mm"),
+        (lambda d: d["joints"]["joint_1"].update(to_deg="x"), "measured.joints.joint_1"),
+    ],
+)
 def test_a_malformed_entry_is_named(edit, message):
     doc = MeasuredSpace.of(Q, POINTS).to_doc()
     edit(doc)

@@ -30,8 +30,10 @@ def two_causes(tmp_path_factory):
 def test_identify_names_every_fitted_cause(two_causes, tmp_path, capsys):
     cell, table, path = two_causes
     out = tmp_path / "m.json"
-    assert main(["identify", str(path), "--cell", "kr270", "--extend", "joint_compliance+backlash", "--out",
-                 str(out)]) == 0  # fmt: skip
+    assert (
+        main(["identify", str(path), "--cell", "kr270", "--extend", "joint_compliance+backlash", "--out", str(out)])
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "joint_compliance + backlash" in printed
     ext = json.loads(out.read_text())["extension"]

@@ -98,17 +98,22 @@ def commands(d, model):
     """Every command that reads a model to move, predict or place something, each with its output."""
     return {
         "predict": (["predict", d / "table.csv", "--model", model, "--out", d / "pred.csv"], [d / "pred.csv"]),
-        "compensate": (["compensate", d / "targets.csv", "--model", model, "--out", d / "c.csv", "--krl", "P"],
-                       [d / "c.csv", d / "P.src", d / "P.dat"]),
+        "compensate": (
+            ["compensate", d / "targets.csv", "--model", model, "--out", d / "c.csv", "--krl", "P"],
+            [d / "c.csv", d / "P.src", d / "P.dat"],
+        ),
         "export-urdf": (["export-urdf", "--model", model, "--out", d / "r.urdf"], [d / "r.urdf"]),
-        "iso9283 plan": (["iso9283", "plan", "--cell", "kr270", "--load", "unloaded", "--model", model,
-                          "--json", d / "iso.json"],
-                         [d / "iso.json"]),
+        "iso9283 plan": (
+            ["iso9283", "plan", "--cell", "kr270", "--load", "unloaded", "--model", model, "--json", d / "iso.json"],
+            [d / "iso.json"],
+        ),
         "locate": (["locate", "--model", model, "--table", d / "table.csv", "--out", d / "m2.json"], [d / "m2.json"]),
-        "iso9283 compare": (["iso9283", "compare", d / "session", "--model", model, "--json", d / "cmp.json"],
-                            [d / "cmp.json"]),
+        "iso9283 compare": (
+            ["iso9283", "compare", d / "session", "--model", model, "--json", d / "cmp.json"],
+            [d / "cmp.json"],
+        ),
         "history": (["history", model, "--json", d / "h.json"], [d / "h.json"]),
-    }  # fmt: skip
+    }
 
 
 COMMANDS = ["predict", "compensate", "export-urdf", "iso9283 plan", "locate", "iso9283 compare", "history"]
@@ -131,8 +136,11 @@ def test_a_tampered_model_is_refused_by_every_command_that_reads_models(identifi
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-@pytest.mark.parametrize("change", [lambda d: d.update(digest="0" * 64), lambda d: d.update(table_sha256="0" * 64)],
-                         ids=["digest", "table sha256"])  # fmt: skip
+@pytest.mark.parametrize(
+    "change",
+    [lambda d: d.update(digest="0" * 64), lambda d: d.update(table_sha256="0" * 64)],
+    ids=["digest", "table sha256"],
+)
 def test_a_changed_digest_or_table_hash_is_refused(identified, capfd, tmp_path, command, change):
     d, doc = identified
     model = edited(tmp_path, doc, change)
@@ -180,8 +188,10 @@ def test_every_correction_is_bounded_by_max_correction():
     model = Model(cell.chain, params, dev, {}, dict(cell.tool_points), {"extension": {"cause": "none"}})
     q0 = np.radians([WELD, [20.0, -70.0, 70.0, -10.0, 50.0, 30.0]])
     qc, rep = compensate(model, q0, cell.tcp)
-    assert all(re.match(r"its correction of A2, -25\.0000 deg, exceeds the cell's max_correction of 2 deg", f)
-               for f in rep.failures), rep.failures  # fmt: skip
+    assert all(
+        re.match(r"its correction of A2, -25\.0000 deg, exceeds the cell's max_correction of 2 deg", f)
+        for f in rep.failures
+    ), rep.failures
     np.testing.assert_array_equal(qc, q0)  # never written: the nominal kept
     # and a TCP correction above the bound (mm): px1 moves the TCP by exactly its value
     dev = np.array([12.0 if p.name == "px1" else 0.0 for p in params])
@@ -199,16 +209,22 @@ def test_the_cells_max_correction_is_what_compensate_applies(identified, capfd, 
     model = tmp_path / "m.json"
     model.write_text(json.dumps(sealed({**doc, "cell": str(cell)})))
     write_targets(tmp_path / "t.csv", [("weld 1", WELD)])
-    err = one_line_error(capfd, ["compensate", tmp_path / "t.csv", "--model", model, "--out", tmp_path / "c.csv",
-                                 "--krl", "P"])  # fmt: skip
+    err = one_line_error(
+        capfd, ["compensate", tmp_path / "t.csv", "--model", model, "--out", tmp_path / "c.csv", "--krl", "P"]
+    )
     assert "no target could be compensated" in err and not (tmp_path / "P.src").exists()
     row = next(csv.DictReader((tmp_path / "c.csv").read_text().splitlines()))
     assert "more than the cell's max_correction of 0.001 mm: not written" in row["status"]
 
 
-@pytest.mark.parametrize("entry, message", [("{mm: -1}", r"max_correction\.mm: must be a positive number"),
-                                            ("{inch: 1}", r"max_correction\.inch: unknown key"),
-                                            ("{deg: wide}", r"max_correction\.deg: expected a number")])  # fmt: skip
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        ("{mm: -1}", r"max_correction\.mm: must be a positive number"),
+        ("{inch: 1}", r"max_correction\.inch: unknown key"),
+        ("{deg: wide}", r"max_correction\.deg: expected a number"),
+    ],
+)
 def test_a_bad_max_correction_is_refused_when_the_cell_loads(tmp_path, entry, message):
     cell = tmp_path / "c.yaml"
     cell.write_text(f"robot: kr270\ntool: kr270-3point\nmax_correction: {entry}\n")
@@ -219,8 +235,10 @@ def test_a_bad_max_correction_is_refused_when_the_cell_loads(tmp_path, entry, me
 def test_a_krl_keeps_an_uncompensated_target_commented(identified, capfd, tmp_path):
     d, _ = identified
     out = tmp_path / "c.csv"
-    assert main(["compensate", str(d / "targets.csv"), "--model", str(d / "model.json"), "--out", str(out),
-                 "--krl", "P"]) == 0  # fmt: skip
+    assert (
+        main(["compensate", str(d / "targets.csv"), "--model", str(d / "model.json"), "--out", str(out), "--krl", "P"])
+        == 0
+    )
     src = (tmp_path / "P.src").read_bytes().decode("ascii").split("\r\n")
     dat = (tmp_path / "P.dat").read_text()
     at = src.index("PTP XHOME")
@@ -234,8 +252,9 @@ def test_a_krl_keeps_an_uncompensated_target_commented(identified, capfd, tmp_pa
 def test_strict_writes_no_program_when_a_target_is_not_compensated(identified, capfd, tmp_path):
     d, _ = identified
     out = tmp_path / "c.csv"
-    err = one_line_error(capfd, ["compensate", d / "targets.csv", "--model", d / "model.json", "--out", out,
-                                 "--krl", "P", "--strict"])  # fmt: skip
+    err = one_line_error(
+        capfd, ["compensate", d / "targets.csv", "--model", d / "model.json", "--out", out, "--krl", "P", "--strict"]
+    )
     assert "--strict: 1 target(s) could not be compensated (row 2 (HOME): did not converge" in err
     assert out.exists() and not (tmp_path / "P.src").exists() and not (tmp_path / "P.dat").exists()
 
@@ -293,8 +312,13 @@ def test_the_plausible_bounds_scale_with_the_reach():
     assert deviation_bounds(ur10)[0] < deviation_bounds(kr270)[0]
     # Table 8 itself is far inside them
     p = [param_by_name(kr270, n) for n in PAPER_TABLE8]
-    assert max(abs(v) / deviation_bounds(kr270)[0 if q.is_length else 1] for q, v in zip(p, PAPER_TABLE8.values(),
-                                                                                          strict=True)) < 0.1
+    assert (
+        max(
+            abs(v) / deviation_bounds(kr270)[0 if q.is_length else 1]
+            for q, v in zip(p, PAPER_TABLE8.values(), strict=True)
+        )
+        < 0.1
+    )
 
 
 @pytest.mark.slow
@@ -303,8 +327,25 @@ def test_the_geometric_model_of_a_backlash_campaign_is_marked_unusable(tmp_path,
     # one is fitted to a table whose backlash it cannot describe, and left with poorly determined parameters
     plan, s = tmp_path / "plan.json", tmp_path / "s"
     assert main(["plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--json", str(plan)]) == 0
-    assert main(["run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "1", "--effect", "backlash:0.05",
-                 "--session", str(s)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "run",
+                "--cell",
+                "kr270",
+                "--plan",
+                str(plan),
+                "--sim",
+                "--seed",
+                "1",
+                "--effect",
+                "backlash:0.05",
+                "--session",
+                str(s),
+            ]
+        )
+        == 0
+    )
     out = " ".join(capfd.readouterr().out.split())
     geo = json.loads((s / "model-geometric.json").read_text())
     assert geo["poorly_determined"] and geo["usable"] is False
@@ -312,6 +353,7 @@ def test_the_geometric_model_of_a_backlash_campaign_is_marked_unusable(tmp_path,
     page = (s / "report" / "report.html").read_text()
     assert "UNUSABLE: The purely geometric model" in page
     write_targets(tmp_path / "t.csv", [("weld 1", WELD)])
-    err = one_line_error(capfd, ["compensate", tmp_path / "t.csv", "--model", s / "model-geometric.json", "--out",
-                                 tmp_path / "c.csv"])  # fmt: skip
+    err = one_line_error(
+        capfd, ["compensate", tmp_path / "t.csv", "--model", s / "model-geometric.json", "--out", tmp_path / "c.csv"]
+    )
     assert ": unusable: " in err or "is beyond" in err, err  # poorly determined, or beyond physics as well

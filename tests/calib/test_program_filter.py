@@ -111,13 +111,17 @@ def misses(robot: str, cell, twin, model, n: int, seed: int, config=None):
     for i in np.flatnonzero(ok):
         q_cal, q_nom = np.radians(res.q_calibrated_deg[i]), np.radians(res.q_nominal_deg[i])
         # q_cal is what the nominal controller turns the filtered target into: its nominal flange is B P' T^-1
-        np.testing.assert_allclose(independent_fk(robot, q_cal), BASE @ res.values[i] @ np.linalg.inv(TOOL),
-                                   atol=1e-6)  # fmt: skip
+        np.testing.assert_allclose(independent_fk(robot, q_cal), BASE @ res.values[i] @ np.linalg.inv(TOOL), atol=1e-6)
         # and q_nom is the nominal IK of the intended target (independent FK)
         np.testing.assert_allclose(independent_fk(robot, q_nom), BASE @ poses[i] @ np.linalg.inv(TOOL), atol=1e-6)
         intended = (BASE @ poses[i])[:3, 3]
-        out.append([np.linalg.norm((true_flange(twin, q_cal) @ TOOL)[:3, 3] - intended),
-                    np.linalg.norm((true_flange(twin, q_nom) @ TOOL)[:3, 3] - intended), res.bound95_mm[i]])
+        out.append(
+            [
+                np.linalg.norm((true_flange(twin, q_cal) @ TOOL)[:3, 3] - intended),
+                np.linalg.norm((true_flange(twin, q_nom) @ TOOL)[:3, 3] - intended),
+                res.bound95_mm[i],
+            ]
+        )
     return np.array(out).T
 
 
@@ -187,8 +191,9 @@ def test_the_configuration_chooses_the_solution():
     for flip in (kuka_config, lambda qd: qd[4] < 0):
         res = filter_targets(model, [Target(False, pose, BASE, TOOL, flip)], np.degrees(q))
         assert flip(res.q_nominal_deg[0]) and not res.why[0]
-        np.testing.assert_allclose(independent_fk("kr270", np.radians(res.q_nominal_deg[0])),
-                                   BASE @ pose @ np.linalg.inv(TOOL), atol=1e-6)  # fmt: skip
+        np.testing.assert_allclose(
+            independent_fk("kr270", np.radians(res.q_nominal_deg[0])), BASE @ pose @ np.linalg.inv(TOOL), atol=1e-6
+        )
 
 
 def test_unreachable_and_singular_targets_are_kept_with_the_reason():
@@ -196,8 +201,9 @@ def test_unreachable_and_singular_targets_are_kept_with_the_reason():
     far = frame([0.0, 0.0, 0.0], [5000.0, 0.0, 0.0])  # 5 m out: the UR10 reaches 1.3 m (its data sheet)
     # the wrist singularity: q5 = 0 puts joints 4 and 6 on one axis
     singular = np.linalg.inv(BASE) @ independent_fk("ur10", np.radians([10, -70, 80, -100, 0, 30])) @ TOOL
-    res = filter_targets(model, [Target(False, far, BASE, TOOL), Target(False, singular, BASE, TOOL)],
-                         [0, -90, 90, -90, -90, 0])  # fmt: skip
+    res = filter_targets(
+        model, [Target(False, far, BASE, TOOL), Target(False, singular, BASE, TOOL)], [0, -90, 90, -90, -90, 0]
+    )
     assert res.values == [None, None]
     assert res.why[0].startswith("unreachable")
     # kept: near the singularity, or its correction diverges (beyond the limits or the cell's max_correction)
@@ -211,8 +217,9 @@ def test_a_target_no_move_uses_is_kept_not_corrected_in_default_frames():
     cell, _, model = identified("ur10", 1)
     q = np.radians([10, -70, 80, -100, 60, 30])
     pose = np.linalg.inv(BASE) @ independent_fk("ur10", q) @ TOOL
-    res = filter_targets(model, [Target(False, pose, BASE, TOOL, motion=""), Target(False, pose, BASE, TOOL)],
-                         np.degrees(q))  # fmt: skip
+    res = filter_targets(
+        model, [Target(False, pose, BASE, TOOL, motion=""), Target(False, pose, BASE, TOOL)], np.degrees(q)
+    )
     assert res.values[0] is None and res.why[0] == UNUSED
     assert res.values[1] is not None and not res.why[1]
 
@@ -230,12 +237,25 @@ def test_a_synthetic_kuka_program_read_is_filtered_and_written():
     def target(i, joint, value):
         start = text.index(":", sum(len(x) + 1 for x in text.splitlines()[:i])) + 2
         end = text.index("\n", start)
-        return ProgramTarget(file="a.src", start=start, end=end, line=i + 1, name=f"P{i}",
-                             joint=joint, value=value, base=np.eye(4) if joint else BASE, tool=TOOL, config=(2,),
-                             accepts=kuka_config, render=lambda v: "NEW", motion="PTP")  # fmt: skip
+        return ProgramTarget(
+            file="a.src",
+            start=start,
+            end=end,
+            line=i + 1,
+            name=f"P{i}",
+            joint=joint,
+            value=value,
+            base=np.eye(4) if joint else BASE,
+            tool=TOOL,
+            config=(2,),
+            accepts=kuka_config,
+            render=lambda v: "NEW",
+            motion="PTP",
+        )
 
-    read = ProgramRead("KRL", {"a.src": text}, [target(0, True, q_axis), target(1, False, pos), target(2, False, far)],
-                       ";")  # fmt: skip
+    read = ProgramRead(
+        "KRL", {"a.src": text}, [target(0, True, q_axis), target(1, False, pos), target(2, False, far)], ";"
+    )
     res = filter_targets(model, read.targets, q_axis)
     assert res.why[0] == res.why[1] == "" and res.why[2].startswith("unreachable")
     out = read.write({i: v for i, v in enumerate(res.values) if v is not None}, {2: res.why[2]})["a.src"]

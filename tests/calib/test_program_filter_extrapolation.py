@@ -74,8 +74,9 @@ def miss_rates(seed: int) -> dict[str, float]:
         res = filter_targets(model, targets, q[0])
         ok = np.flatnonzero(res.ok)
         assert len(ok) >= 0.7 * N_TARGETS, set(res.why)
-        miss = np.array([np.linalg.norm(true_tcp(twin, np.radians(res.q_calibrated_deg[i])) - (BASE @ poses[i])[:3, 3])
-                         for i in ok])  # fmt: skip
+        miss = np.array(
+            [np.linalg.norm(true_tcp(twin, np.radians(res.q_calibrated_deg[i])) - (BASE @ poses[i])[:3, 3]) for i in ok]
+        )
         missed[name] = float(np.mean(miss > res.bound95_mm[ok]))
         q_at = res.q_calibrated_deg  # where the robot will be: the joints the filtered targets command
         expected = np.maximum(np.maximum(lo - q_at, q_at - hi), 0.0)

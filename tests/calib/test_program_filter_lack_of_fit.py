@@ -37,8 +37,9 @@ def compliant(seed: int, magnitude_mm: float = 0.3):
     cell = load_cell("kr270")
     twin = Twin(cell, seed=seed, effects={"joint_compliance": magnitude_mm})
     q = random_feasible_poses(design_for_cell(cell, []), 40, np.random.default_rng(seed))
-    out = run_identify(cell, simulate_campaign(twin, np.degrees(q)), irreducible_params(cell.chain)[0],
-                       extend="joint_compliance")  # fmt: skip
+    out = run_identify(
+        cell, simulate_campaign(twin, np.degrees(q)), irreducible_params(cell.chain)[0], extend="joint_compliance"
+    )
     return twin, model_from_doc(out.doc)
 
 

@@ -69,8 +69,9 @@ def test_station_and_point_lines_by_finite_differences():
 
     def d_point(k):
         d = np.eye(3)[k] * h
-        return (ap_from_scratch(y, R_STATION, T_STATION, POINT + d)
-                - ap_from_scratch(y, R_STATION, T_STATION, POINT - d)) / (2 * h)  # fmt: skip
+        return (
+            ap_from_scratch(y, R_STATION, T_STATION, POINT + d) - ap_from_scratch(y, R_STATION, T_STATION, POINT - d)
+        ) / (2 * h)
 
     translation = np.sqrt(sum((d_station(k) * STATION_U[k]) ** 2 for k in range(3)))
     rotation = np.sqrt(sum((d_station(k) * STATION_U[k]) ** 2 for k in range(3, 6)))
@@ -85,8 +86,9 @@ def test_each_line_by_a_plain_monte_carlo():
     """Each input alone: the standard deviation of AP over 20000 draws of that input (a plain Monte-Carlo of the
     figure, normal or rectangular as the line states) is its GUM contribution within 10 % (the issue's bound)."""
     c, x, y, covs = scene()
-    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker", centring_mm=0.01,
-                    temp_halfrange_k=0.5)  # fmt: skip
+    s = PoseSetting(
+        y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker", centring_mm=0.01, temp_halfrange_k=0.5
+    )
     offset = x.mean(axis=0) - c
     inputs = pose_inputs(x, covs, s)
     b = ap_budget(offset, inputs)

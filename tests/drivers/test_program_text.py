@@ -8,9 +8,21 @@ from trackcal.drivers.program_text import ProgramRead, ProgramTarget
 
 
 def _target(text: str, start: int, end: int) -> ProgramTarget:
-    return ProgramTarget(file="a.src", start=start, end=end, line=text.count("\n", 0, start) + 1, name="P1",
-                         joint=True, value=np.zeros(1), base=np.eye(4), tool=np.eye(4), config=(),
-                         accepts=lambda q: True, render=lambda v: f"{{A1 {v[0]:.1f}}}", motion="PTP")
+    return ProgramTarget(
+        file="a.src",
+        start=start,
+        end=end,
+        line=text.count("\n", 0, start) + 1,
+        name="P1",
+        joint=True,
+        value=np.zeros(1),
+        base=np.eye(4),
+        tool=np.eye(4),
+        config=(),
+        accepts=lambda q: True,
+        render=lambda v: f"{{A1 {v[0]:.1f}}}",
+        motion="PTP",
+    )
 
 
 @given(st.text(alphabet=st.characters(min_codepoint=9, max_codepoint=126), max_size=200))

@@ -32,8 +32,10 @@ def test_the_meteo_and_plc_clients_refuse_a_timeout_that_is_not_positive(value):
         ModbusCellIO("127.0.0.1", timeout_s=value)
 
 
-@pytest.mark.parametrize("tolerance_deg, window_s, timeout_s", [(0.0, 0.5, 10.0), (0.01, -0.1, 10.0),
-                                                                (0.01, 0.5, 0.0), (math.nan, 0.5, 10.0)])  # fmt: skip
+@pytest.mark.parametrize(
+    "tolerance_deg, window_s, timeout_s",
+    [(0.0, 0.5, 10.0), (0.01, -0.1, 10.0), (0.01, 0.5, 0.0), (math.nan, 0.5, 10.0)],
+)
 def test_a_settle_wait_needs_a_tolerance_a_window_and_a_timeout(tolerance_deg, window_s, timeout_s):
     with pytest.raises(ValueError, match="tolerance_deg and timeout_s must be positive, window_s non-negative"):
         require_settle_limits(tolerance_deg, window_s, timeout_s)
@@ -59,8 +61,15 @@ def pair():
 
 
 def _receive(sock, timeout_s, dropped):
-    return receive(sock, 4096, timeout_s, device="dev", failed="receive failed while testing",
-                   closed="the peer closed the connection while testing", drop=lambda: dropped.append(1))  # fmt: skip
+    return receive(
+        sock,
+        4096,
+        timeout_s,
+        device="dev",
+        failed="receive failed while testing",
+        closed="the peer closed the connection while testing",
+        drop=lambda: dropped.append(1),
+    )
 
 
 def test_receive_gives_the_bytes_that_came_or_none_when_none_came_in_time(pair):

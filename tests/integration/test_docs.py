@@ -40,8 +40,13 @@ def test_the_site_builds_strictly(tmp_path):
     """mkdocs --strict: a broken link or anchor, a page outside the nav, a nav entry without its page, or a usage
     marker naming no command fails the build."""
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
-    done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
-                          cwd=ROOT, env=env, capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr[-4000:]
     page = (tmp_path / "site" / "reference" / "plan" / "index.html").read_text(encoding="utf-8")
     assert "--configs" in page and "<!-- cli:" not in page  # the generated usage, not the marker
@@ -50,8 +55,11 @@ def test_the_site_builds_strictly(tmp_path):
 
 
 def test_every_command_has_its_reference_page():
-    marked = {m for p in (ROOT / "docs" / "reference").glob("*.md")
-              for m in re.findall(r"<!-- cli: ([a-z0-9 -]+?) -->", p.read_text(encoding="utf-8"))}  # fmt: skip
+    marked = {
+        m
+        for p in (ROOT / "docs" / "reference").glob("*.md")
+        for m in re.findall(r"<!-- cli: ([a-z0-9 -]+?) -->", p.read_text(encoding="utf-8"))
+    }
     assert command_words() <= marked, f"no reference page shows {sorted(command_words() - marked)}"
 
 

@@ -19,8 +19,12 @@ from trackcal.campaign.jobs.filter_program import RELATIVE, reference_joints
 from trackcal.drivers.families import program_readers
 
 PROGRAMS = Path(__file__).resolve().parents[2] / "configs" / "programs"
-SAMPLES = [("kr270", "krc2", "PALLET.src"), ("kr270", "krc4", "DEBURR.src"), ("irb120", "abb", "CellDemo.mod"),
-           ("ur10", "ur", "cell_demo.script")]  # fmt: skip
+SAMPLES = [
+    ("kr270", "krc2", "PALLET.src"),
+    ("kr270", "krc4", "DEBURR.src"),
+    ("irb120", "abb", "CellDemo.mod"),
+    ("ur10", "ur", "cell_demo.script"),
+]
 
 
 @pytest.mark.parametrize(("cell", "folder", "main"), SAMPLES)

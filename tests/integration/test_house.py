@@ -16,8 +16,12 @@ from tests.helpers import ROOT
 
 ROOMS = ("calib", "drivers", "mocks", "campaign", "configs")
 # DESIGN.md's table, "may import": the rooms of trackcal each room may import besides itself
-MAY_IMPORT = {"calib": set(), "drivers": set(), "mocks": {"calib", "drivers"},
-              "campaign": {"calib", "drivers", "mocks"}}  # fmt: skip
+MAY_IMPORT = {
+    "calib": set(),
+    "drivers": set(),
+    "mocks": {"calib", "drivers"},
+    "campaign": {"calib", "drivers", "mocks"},
+}
 # a lazy import (inside a function) is allowed only with one of these words in a comment on its line, saying why
 LAZY_REASONS = ("lazy", "optional dependency")
 
@@ -81,9 +85,12 @@ def subpackage_of(module: str) -> str:
 
 def test_no_generic_top_level_imports():
     """Everything of ours is imported as trackcal.*: installed, there is no top-level `calib`, `mocks` ..."""
-    bad = [f"{p.relative_to(ROOT)}:{line}: import {name}"
-           for p in python_files(*ROOMS, "tests", "bench", "studies") for line, name, _ in imports(p)
-           if name.split(".")[0] in ROOMS]  # fmt: skip
+    bad = [
+        f"{p.relative_to(ROOT)}:{line}: import {name}"
+        for p in python_files(*ROOMS, "tests", "bench", "studies")
+        for line, name, _ in imports(p)
+        if name.split(".")[0] in ROOMS
+    ]
     assert not bad, "\n".join(bad)
 
 
@@ -144,8 +151,10 @@ def circles_of(graph: dict[str, set[str]], where: dict[tuple[str, str], str]) ->
     for v in list(graph):
         if v not in index:
             visit(v)
-    return [" <-> ".join(c) + ": " + ", ".join(f"{a} -> {b} ({where[(a, b)]})" for a in c for b in c
-                                               if (a, b) in where) for c in circles]  # fmt: skip
+    return [
+        " <-> ".join(c) + ": " + ", ".join(f"{a} -> {b} ({where[(a, b)]})" for a in c for b in c if (a, b) in where)
+        for c in circles
+    ]
 
 
 def test_no_two_subpackages_import_each_other_by_any_path():
@@ -200,8 +209,12 @@ def test_no_ur_word_outside_its_driver_its_mock_and_configs():
                 text = p.read_text()
             except UnicodeDecodeError:  # a binary file (a PNG of the docs) holds no words
                 continue
-            bad += [f"{rel}:{n}: {m.group(0)}" for n, line in enumerate(text.splitlines(), 1)
-                    for m in [UR_WORDS.search(line)] if m]  # fmt: skip
+            bad += [
+                f"{rel}:{n}: {m.group(0)}"
+                for n, line in enumerate(text.splitlines(), 1)
+                for m in [UR_WORDS.search(line)]
+                if m
+            ]
     assert not bad, "\n".join(bad)
 
 
@@ -235,13 +248,18 @@ def test_no_abb_word_outside_its_driver_its_mock_and_configs():
                 text = p.read_text()
             except UnicodeDecodeError:  # a binary file holds no words
                 continue
-            bad += [f"{rel}:{n}: {m.group(0)}" for n, line in enumerate(text.splitlines(), 1)
-                    for m in [ABB_WORDS.search(line)] if m]  # fmt: skip
+            bad += [
+                f"{rel}:{n}: {m.group(0)}"
+                for n, line in enumerate(text.splitlines(), 1)
+                for m in [ABB_WORDS.search(line)]
+                if m
+            ]
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("line", ["# the ABB controller", "over RWS", "the EGM stream", "RobotWare 6",
-                                  "import abb_robot_client"])  # fmt: skip
+@pytest.mark.parametrize(
+    "line", ["# the ABB controller", "over RWS", "the EGM stream", "RobotWare 6", "import abb_robot_client"]
+)
 def test_the_abb_words_are_found(line):
     assert ABB_WORDS.search(line)
 
@@ -256,8 +274,11 @@ MAX_FUNCTION_LINES = 80  # issue 37: a function an editor can follow on one scre
 
 
 def test_no_function_of_the_package_is_over_80_lines():
-    long = [f"{path.relative_to(ROOT).as_posix()}:{node.name} ({node.end_lineno - node.lineno + 1} lines)"
-            for path in python_files(*ROOMS) for node in ast.walk(ast.parse(path.read_text()))
-            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
-            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]  # fmt: skip
+    long = [
+        f"{path.relative_to(ROOT).as_posix()}:{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for path in python_files(*ROOMS)
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+    ]
     assert not long, f"split these: {long}"

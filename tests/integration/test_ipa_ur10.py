@@ -156,8 +156,10 @@ def _write(tmp_path, text):
     return p
 
 
-HEADER = ("Timestamp;shoulder_pan_joint;shoulder_lift_joint;elbow_joint;wrist_1_joint;wrist_2_joint;wrist_3_joint;"
-          "measurement_x;measurement_y;measurement_z")  # fmt: skip
+HEADER = (
+    "Timestamp;shoulder_pan_joint;shoulder_lift_joint;elbow_joint;wrist_1_joint;wrist_2_joint;wrist_3_joint;"
+    "measurement_x;measurement_y;measurement_z"
+)
 
 
 def test_malformed_input_names_file_row_and_column(tmp_path):
@@ -243,8 +245,9 @@ def test_calibrate_on_b_predicts_held_out_d(series_b, series_d, b_setup):
 @needs_data
 def test_joint_error_map_carries_from_b_to_d(series_b, series_d, b_setup):
     cell, tmac, params = b_setup
-    fit = fit_error_map(cell.chain, series_b, tmac, params, base=build_extension("joint_compliance", cell.chain,
-                                                                                  series_b))  # fmt: skip
+    fit = fit_error_map(
+        cell.chain, series_b, tmac, params, base=build_extension("joint_compliance", cell.chain, series_b)
+    )
     # the T-Mac centre lies on the wrist_3 axis: that joint cannot be mapped from positions alone
     assert set(fit.not_identifiable) == {5}
     geometric = identify(cell.chain, series_b, tmac, params)
@@ -280,8 +283,10 @@ def test_orientation_never_fitted_falls_with_the_joint_error_map_on_d(series_b, 
     geometric = identify(cell.chain, series_b, tmac, params)
     compliance = build_extension("joint_compliance", cell.chain, series_b)
     mapped = fit_error_map(cell.chain, series_b, tmac, params, base=compliance).identification
-    rms = {name: angular_rms_mrad(fit, series_b, on_other_series(cell.chain, fit, series_d), series_d)
-           for name, fit in (("geometric", geometric), ("map", mapped))}  # fmt: skip
+    rms = {
+        name: angular_rms_mrad(fit, series_b, on_other_series(cell.chain, fit, series_d), series_d)
+        for name, fit in (("geometric", geometric), ("map", mapped))
+    }
     assert rms["map"] < rms["geometric"]
 
 

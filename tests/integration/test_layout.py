@@ -43,9 +43,12 @@ def pyright(*args: str, cwd: Path) -> list[dict]:
 
 
 def unresolved(diagnostics: list[dict]) -> list[str]:
-    return sorted(f"{Path(d['file']).relative_to(ROOT) if d['file'].startswith(str(ROOT)) else d['file']}:"
-                  f"{d['range']['start']['line'] + 1}: {d['message']}"
-                  for d in diagnostics if d.get("rule") == "reportMissingImports")  # fmt: skip
+    return sorted(
+        f"{Path(d['file']).relative_to(ROOT) if d['file'].startswith(str(ROOT)) else d['file']}:"
+        f"{d['range']['start']['line'] + 1}: {d['message']}"
+        for d in diagnostics
+        if d.get("rule") == "reportMissingImports"
+    )
 
 
 def test_a_room_is_importable_only_inside_trackcal():
@@ -60,8 +63,9 @@ def test_every_folder_is_a_pyright_environment_searching_only_the_link():
     """A folder missing here would fall back to the root as its search path, where `calib.*` resolves."""
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pyright"]
     environments = {e["root"]: e["extraPaths"] for e in config["executionEnvironments"]}
-    code_folders = {d.name for d in ROOT.iterdir()
-                    if d.is_dir() and d.name[0] != "." and d.name != "build" and any(d.rglob("*.py"))}  # fmt: skip
+    code_folders = {
+        d.name for d in ROOT.iterdir() if d.is_dir() and d.name[0] != "." and d.name != "build" and any(d.rglob("*.py"))
+    }
     assert code_folders <= set(environments), code_folders - set(environments)
     assert all(paths == [".venv/links"] for paths in environments.values()), environments
     assert (LINKS / "trackcal").resolve() == ROOT
@@ -73,12 +77,22 @@ def test_pyright_resolves_every_trackcal_module_the_code_imports_and_not_the_bar
     assert len(modules) > 100  # the package's imports are found (about 150 distinct modules)
     probe = tmp_path / "probe.py"
     probe.write_text("".join(f"import {m}\n" for m in modules) + "import calib.model\nimport campaign.cli\n")
-    (tmp_path / "pyrightconfig.json").write_text(json.dumps(
-        {"extraPaths": [str(LINKS)], "venvPath": str(Path(sys.prefix).parent), "venv": Path(sys.prefix).name,
-         "typeCheckingMode": "off", "reportMissingImports": "error"}))  # fmt: skip
+    (tmp_path / "pyrightconfig.json").write_text(
+        json.dumps(
+            {
+                "extraPaths": [str(LINKS)],
+                "venvPath": str(Path(sys.prefix).parent),
+                "venv": Path(sys.prefix).name,
+                "typeCheckingMode": "off",
+                "reportMissingImports": "error",
+            }
+        )
+    )
     missing = unresolved(pyright("probe.py", cwd=tmp_path))
     assert [m.split(": ", 1)[1] for m in missing] == [
-        'Import "calib.model" could not be resolved', 'Import "campaign.cli" could not be resolved'], missing
+        'Import "calib.model" could not be resolved',
+        'Import "campaign.cli" could not be resolved',
+    ], missing
 
 
 @pytest.mark.slow

@@ -16,8 +16,9 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
     wheels, site, work = tmp_path / "wheels", tmp_path / "site", tmp_path / "work"
     work.mkdir()
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
-                   cwd=tmp_path)  # fmt: skip
+    subprocess.run(
+        [*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True, cwd=tmp_path
+    )
     (wheel,) = wheels.glob("trackcal-*.whl")
     subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, cwd=tmp_path)
     assert (site / "trackcal" / "configs" / "cells" / "kr270.yaml").is_file()
@@ -26,12 +27,35 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
     assert [p.name for p in (site / "bin").iterdir()] == ["trackcal"]
     env = {k: v for k, v in os.environ.items() if k not in ("TRACKCAL_CONFIGS", "PYTHONPATH")}
     env["PYTHONPATH"] = str(site)  # the wheel's copy first; numpy, scipy, ... from this interpreter
-    code = ("import sys, trackcal.campaign as campaign, trackcal.calib.model.cell as cell; "
-            "from trackcal.campaign.cli import main; "
-            "print(campaign.__file__, cell.CONFIGS); sys.exit(main(sys.argv[1:]))")  # fmt: skip
-    out = subprocess.run([sys.executable, "-c", code, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "1",
-                          "--starts", "20", "--refined", "1", "--json", "plan.json"],
-                         cwd=work, env=env, capture_output=True, text=True)  # fmt: skip
+    code = (
+        "import sys, trackcal.campaign as campaign, trackcal.calib.model.cell as cell; "
+        "from trackcal.campaign.cli import main; "
+        "print(campaign.__file__, cell.CONFIGS); sys.exit(main(sys.argv[1:]))"
+    )
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code,
+            "plan",
+            "--cell",
+            "kr270",
+            "--configs",
+            "6",
+            "--repeat",
+            "1",
+            "--starts",
+            "20",
+            "--refined",
+            "1",
+            "--json",
+            "plan.json",
+        ],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stderr
     module_file, configs = out.stdout.splitlines()[0].split()
     assert module_file.startswith(str(site)) and configs.startswith(str(site)), out.stdout
@@ -43,9 +67,11 @@ def test_wheel_installed_elsewhere_plans_for_a_shipped_cell(tmp_path):
 
 def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):
     """Start-up time: the command table is light; a command's module is imported only when it runs."""
-    code = ("import sys; from trackcal.campaign.cli import main\n"
-            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
-            "print(sorted(m for m in ('pinocchio', 'matplotlib') if m in sys.modules))")  # fmt: skip
+    code = (
+        "import sys; from trackcal.campaign.cli import main\n"
+        "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in ('pinocchio', 'matplotlib') if m in sys.modules))"
+    )
     for argv in (["--help"], ["export", str(tmp_path / "no-session"), "--csv", str(tmp_path / "t.csv")]):
         out = subprocess.run([sys.executable, "-c", code, *argv], cwd=ROOT, capture_output=True, text=True)
         assert out.stdout.strip().splitlines()[-1] == "[]", (argv, out.stdout, out.stderr)
@@ -57,12 +83,19 @@ def test_identify_imports_neither_the_search_nor_scipy_optimize(tmp_path):
     torques) or matplotlib (plots): before, the identify process imported all four (about 0.4 s of CPU)."""
     table = tmp_path / "t.csv"
     assert main(["simulate", "--cell", "kr270", "--poses", "20", "--out", str(table)]) == 0
-    heavy = ("trackcal.calib.diagnose.diagnosis", "trackcal.calib.diagnose.selection", "scipy.optimize", "pinocchio",
-             "matplotlib")
+    heavy = (
+        "trackcal.calib.diagnose.diagnosis",
+        "trackcal.calib.diagnose.selection",
+        "scipy.optimize",
+        "pinocchio",
+        "matplotlib",
+    )
     argv = ["identify", str(table), "--cell", "kr270", "--out", str(tmp_path / "m.json")]
-    code = ("import sys; from trackcal.campaign.cli import main\n"
-            f"assert main({argv!r}) == 0\n"
-            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    code = (
+        "import sys; from trackcal.campaign.cli import main\n"
+        f"assert main({argv!r}) == 0\n"
+        f"print(sorted(m for m in {heavy!r} if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]

@@ -31,16 +31,40 @@ README = ROOT / "README.md"
 # The order of the examples: the README first (its campaign makes plan.json, plan.csv and sessions/kr270-a), then the
 # pages whose files later pages read, in the order they are made (table.csv, model.json, kr270-a.csv, cal.json,
 # ur10-model.json, iso-before/iso-after ...). Pages not listed run after these, in name order.
-PAGES = ["README.md", "docs/reference/index.md", "docs/reference/identify.md", "docs/reference/predict.md",
-         "docs/reference/locate.md", "docs/reference/export-urdf.md", "docs/reference/plan.md",
-         "docs/reference/diagnose.md", "docs/reference/simulate.md", "docs/reference/run.md",
-         "docs/reference/operator-page.md", "docs/reference/mock.md", "docs/guides/ur-cell.md",
-         "docs/reference/report.md", "docs/reference/compensate.md", "docs/guides/iso9283.md", "docs/guides/fleet.md",
-         "docs/guides/new-robot.md", "docs/design/real-data.md"]  # fmt: skip
+PAGES = [
+    "README.md",
+    "docs/reference/index.md",
+    "docs/reference/identify.md",
+    "docs/reference/predict.md",
+    "docs/reference/locate.md",
+    "docs/reference/export-urdf.md",
+    "docs/reference/plan.md",
+    "docs/reference/diagnose.md",
+    "docs/reference/simulate.md",
+    "docs/reference/run.md",
+    "docs/reference/operator-page.md",
+    "docs/reference/mock.md",
+    "docs/guides/ur-cell.md",
+    "docs/reference/report.md",
+    "docs/reference/compensate.md",
+    "docs/guides/iso9283.md",
+    "docs/guides/fleet.md",
+    "docs/guides/new-robot.md",
+    "docs/design/real-data.md",
+]
 NOT_RUN = "# not run by the README test:"
 # options whose value is a file or directory the command writes (checked to exist after the example)
-OUTPUT_OPTIONS = ("--out", "--json", "--csv", "--session", "--into", "--plots", "--write-hardware", "--krl-dir",
-                  "--truth")
+OUTPUT_OPTIONS = (
+    "--out",
+    "--json",
+    "--csv",
+    "--session",
+    "--into",
+    "--plots",
+    "--write-hardware",
+    "--krl-dir",
+    "--truth",
+)
 IPA_DATA = Path(os.environ.get("TRACKCAL_IPA_DATA") or ROOT.parent / "shared" / "data" / "ipa-robot-accuracy")
 
 
@@ -129,13 +153,20 @@ def test_example_runs_verbatim(example: Example, workdir: Path):
     script = "\n".join(example.commands)
     if "TRACKCAL_IPA_DATA" in script and not IPA_DATA.is_dir():
         pytest.skip(f"the IPA data set is not at {IPA_DATA} (set TRACKCAL_IPA_DATA)")
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-               TRACKCAL_IPA_DATA=str(IPA_DATA), OPENBLAS_NUM_THREADS="1")  # fmt: skip
-    script = (f"set -eo pipefail\ntrap 'echo \"{example.where}: failed: $BASH_COMMAND\" >&2' ERR\n"
-              "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n" + script + "\n")  # fmt: skip
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        TRACKCAL_IPA_DATA=str(IPA_DATA),
+        OPENBLAS_NUM_THREADS="1",
+    )
+    script = (
+        f"set -eo pipefail\ntrap 'echo \"{example.where}: failed: $BASH_COMMAND\" >&2' ERR\n"
+        "trap 'kill $(jobs -p) 2>/dev/null || true' EXIT\n" + script + "\n"
+    )
     try:
-        done = subprocess.run(["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL)  # fmt: skip
+        done = subprocess.run(
+            ["bash", "-c", script], cwd=workdir, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL
+        )
     finally:  # a detached mock outlives the shell: the block must stop it, and a failed block leaves none either
         left = left_running(workdir, example.commands)
     assert done.returncode == 0, f"{example.where}: exit {done.returncode}\n{done.stdout[-3000:]}{done.stderr}"
@@ -172,14 +203,23 @@ def test_a_module_the_readme_names_but_does_not_run_can_be_imported_from_any_dir
     assert modules, "the README names no `python -m` module"
     env = dict(os.environ, PYTHONPATH="")
     for module in modules:  # a spec found from an empty directory: not only from the repository's root
-        done = subprocess.run([sys.executable, "-c", f"import importlib.util as u; assert u.find_spec({module!r})"],
-                              cwd=tmp_path, env=env, capture_output=True, text=True)  # fmt: skip
+        done = subprocess.run(
+            [sys.executable, "-c", f"import importlib.util as u; assert u.find_spec({module!r})"],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         assert done.returncode == 0, f"README: python -m {module} fails outside the repository root: {done.stderr}"
 
 
 def test_the_study_without_data_says_where_it_looked(tmp_path):
     nowhere = tmp_path / "no-data"
-    done = subprocess.run([sys.executable, "-m", "trackcal.studies.ur10_ipa.study", "--data", str(nowhere)],
-                          cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "trackcal.studies.ur10_ipa.study", "--data", str(nowhere)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert str(nowhere) in done.stderr and "TRACKCAL_IPA_DATA" in done.stderr

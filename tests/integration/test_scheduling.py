@@ -14,8 +14,11 @@ from tests.helpers import ROOT
 @pytest.fixture
 def scheduler(pytestconfig, tmp_path):
     """The scheduler of tests/conftest.py (the conftest pytest loaded), reading test files under tmp_path."""
-    conftest = next(p for p in pytestconfig.pluginmanager.get_plugins()
-                    if getattr(p, "__file__", None) == str(ROOT / "tests" / "conftest.py"))  # fmt: skip
+    conftest = next(
+        p
+        for p in pytestconfig.pluginmanager.get_plugins()
+        if getattr(p, "__file__", None) == str(ROOT / "tests" / "conftest.py")
+    )
     sched = object.__new__(conftest.UrGroupScheduling)  # its __init__ needs a worker count, _split_scope does not
     sched.config = SimpleNamespace(rootpath=tmp_path)
     return sched, conftest

@@ -153,9 +153,7 @@ def test_units_changed_by_another_client_mid_block_stop_the_campaign_and_nothing
 
 
 @pytest.mark.slow  # a whole campaign over sockets; the fast check is test_plan_check's in-process one
-def test_units_changed_by_another_client_between_blocks_are_set_again_before_the_next(
-    tmp_path, kr270, plan, reference
-):
+def test_units_changed_by_another_client_between_blocks_are_set_again_before_the_next(tmp_path, kr270, plan, reference):
     store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", SEED)
     sim = SimCell(kr270, SEED, store)
     # after the first point block, while the operator is asked to move the reflector on (his fifth prompt)

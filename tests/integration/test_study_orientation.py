@@ -27,14 +27,26 @@ def tmac_table(q: np.ndarray, point: np.ndarray, turn_rad: float, rng: np.random
     turns = np.array([exp_so3(turn_rad * a / np.linalg.norm(a)) for a in axes])
     r_meas = r_st @ r_fl @ mount @ turns
     # R = Rx(a) Ry(b) Rz(c): b = asin(R02), a = atan2(-R12, R22), c = atan2(-R01, R00)
-    angles = np.degrees(np.column_stack([np.arctan2(-r_meas[:, 1, 2], r_meas[:, 2, 2]), np.arcsin(r_meas[:, 0, 2]),
-                                         np.arctan2(-r_meas[:, 0, 1], r_meas[:, 0, 0])]))  # fmt: skip
+    angles = np.degrees(
+        np.column_stack(
+            [
+                np.arctan2(-r_meas[:, 1, 2], r_meas[:, 2, 2]),
+                np.arcsin(r_meas[:, 0, 2]),
+                np.arctan2(-r_meas[:, 0, 1], r_meas[:, 0, 0]),
+            ]
+        )
+    )
     n = len(q)
     return MeasurementTable(
-        seq=np.arange(n), t_s=10.0 * np.arange(n), pose=[f"P{i}" for i in range(n)], station=["B"] * n,
-        point=[POINT] * n, q_deg=np.degrees(q), xyz=xyz,
+        seq=np.arange(n),
+        t_s=10.0 * np.arange(n),
+        pose=[f"P{i}" for i in range(n)],
+        station=["B"] * n,
+        point=[POINT] * n,
+        q_deg=np.degrees(q),
+        xyz=xyz,
         extra={c: [format(v, ".10g") for v in angles[:, k]] for k, c in enumerate(ANGLE_COLUMNS)},
-    )  # fmt: skip
+    )
 
 
 def test_angular_residual_is_the_turn_of_the_measured_orientation():

@@ -22,8 +22,13 @@ from trackcal.mocks.servers.ur.process import MockUrProcess
 
 # Universal Robots' published UR10 (CB3) table (universal-robots.com, "DH Parameters for calculations of kinematics and
 # dynamics"): a, d in m there, mm here
-UR10 = DhTable((0.0,) * 6, (0.0, -612.0, -572.3, 0.0, 0.0, 0.0), (127.3, 0.0, 0.0, 163.941, 115.7, 92.2),
-               (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0), "UR10 CB3 nominal")  # fmt: skip
+UR10 = DhTable(
+    (0.0,) * 6,
+    (0.0, -612.0, -572.3, 0.0, 0.0, 0.0),
+    (127.3, 0.0, 0.0, 163.941, 115.7, 92.2),
+    (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0),
+    "UR10 CB3 nominal",
+)
 TOOL = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 120.0], [-50.0, 86.6, 120.0]])
 
 
@@ -63,8 +68,9 @@ def test_calibration_conf_deltas_move_the_flange_by_their_size(tmp_path):
     table = UR10.plus(delta, "UR10 + calibration.conf")
     chain = ur10()
     q = random_configuration(chain, 100, np.random.default_rng(4))
-    moved = np.linalg.norm(points(dh_chain(table.theta, table.a_mm, table.d_mm, table.alpha, "cal", chain), q)
-                           - points(chain, q), axis=2)  # fmt: skip
+    moved = np.linalg.norm(
+        points(dh_chain(table.theta, table.a_mm, table.d_mm, table.alpha, "cal", chain), q) - points(chain, q), axis=2
+    )
     # 0.1-0.2 mm of length deltas and 1e-5 rad tilts at ~1.5 m (3e-5 rad x 1.5 m = 0.045 mm): a few tenths of a mm
     assert 0.01 < moved.max() < 1.0
     path.write_text(CONF.replace("delta_d = [ 0.0001, 0.0, 0.0, -0.0002, 0.0001, 0.0 ]", "delta_d = [ 1, 2 ]"))
@@ -94,8 +100,11 @@ def factory_robot(tmp_path):
     conf = tmp_path / "calibration.conf"
     conf.write_text(CONF)
     out = tmp_path / "robot.yaml"
-    r = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "ur10", "--conf", str(conf), "--out", str(out)],
-                       capture_output=True, text=True)  # fmt: skip
+    r = subprocess.run(
+        [*TRACKCAL, "factory-robot", "--cell", "ur10", "--conf", str(conf), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     return out, r.stdout
 
@@ -111,8 +120,11 @@ def test_factory_robot_writes_an_identifiable_robot_with_the_calibrated_lengths(
     assert chain.joints[2].translation[0] == pytest.approx(-572.4, abs=1e-6)
     assert chain.joints[0].translation[2] == pytest.approx(127.4, abs=1e-9)
     conf = tmp_path / "calibration.conf"
-    bad = subprocess.run([*TRACKCAL, "factory-robot", "--cell", "kr270", "--conf", str(conf), "--out", str(out)],
-                         capture_output=True, text=True)  # fmt: skip
+    bad = subprocess.run(
+        [*TRACKCAL, "factory-robot", "--cell", "kr270", "--conf", str(conf), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
 
 
@@ -169,8 +181,9 @@ def test_the_nominal_used_is_recorded_by_identify_and_printed_in_the_report(tmp_
     cell = (ROOT / "configs" / "cells" / "ur10.yaml").read_text()
     assert "\nrobot: ur10\n" in cell and "\ntool: ur10-3point\n" in cell
     tool = ROOT / "configs" / "tools" / "ur10-3point.yaml"
-    (tmp_path / "cell.yaml").write_text(cell.replace("\nrobot: ur10\n", f"\nrobot: {robot}\n")
-                                        .replace("\ntool: ur10-3point\n", f"\ntool: {tool}\n"))  # fmt: skip
+    (tmp_path / "cell.yaml").write_text(
+        cell.replace("\nrobot: ur10\n", f"\nrobot: {robot}\n").replace("\ntool: ur10-3point\n", f"\ntool: {tool}\n")
+    )
 
     def cli(*args):
         r = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, cwd=tmp_path)

@@ -77,8 +77,26 @@ def test_run_sim_writes_the_same_truth(tmp_path, monkeypatch):
     and seed."""
     monkeypatch.chdir(tmp_path)
     write_json(tmp_path / "plan.json", feasible_plan(load_cell("kr270"), 1, seed=3, repeat=1))
-    assert main(["run", "--sim", "--cell", "kr270", "--plan", "plan.json", "--seed", "4", "--truth", "truth.json",
-                 "--session", "s", "--no-analysis"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "run",
+                "--sim",
+                "--cell",
+                "kr270",
+                "--plan",
+                "plan.json",
+                "--seed",
+                "4",
+                "--truth",
+                "truth.json",
+                "--session",
+                "s",
+                "--no-analysis",
+            ]
+        )
+        == 0
+    )
     simulate(SimulateOptions(cell="kr270", poses=1, seed=4, truth=str(tmp_path / "simulated.json")))
     assert json.loads((tmp_path / "truth.json").read_text()) == json.loads((tmp_path / "simulated.json").read_text())
 
@@ -88,10 +106,18 @@ N_POSES = 30  # the README's UR10 campaign size order (20 there), random feasibl
 
 
 def _ur10_campaign(tmp_path, seed: int):
-    cell, twin, _ = simulate(SimulateOptions(cell="ur10", out=str(tmp_path / f"t{seed}.csv"), poses=N_POSES,
-                                             seed=seed, truth=str(tmp_path / f"truth{seed}.json")))  # fmt: skip
-    outcome = identify_table(IdentifyOptions(data=str(tmp_path / f"t{seed}.csv"), cell="ur10",
-                                             out=str(tmp_path / f"m{seed}.json")))  # fmt: skip
+    cell, twin, _ = simulate(
+        SimulateOptions(
+            cell="ur10",
+            out=str(tmp_path / f"t{seed}.csv"),
+            poses=N_POSES,
+            seed=seed,
+            truth=str(tmp_path / f"truth{seed}.json"),
+        )
+    )
+    outcome = identify_table(
+        IdentifyOptions(data=str(tmp_path / f"t{seed}.csv"), cell="ur10", out=str(tmp_path / f"m{seed}.json"))
+    )
     return cell, twin, outcome, json.loads((tmp_path / f"truth{seed}.json").read_text())
 
 
@@ -137,8 +163,21 @@ def test_one_figure_at_the_test_pose_in_model_summary_report_and_history(tmp_pat
     _, _, outcome, _ = _ur10_campaign(tmp_path, 1)
     summary = tmp_path / "summary.json"
     capsys.readouterr()
-    assert main(["identify", str(tmp_path / "t1.csv"), "--cell", "ur10", "--out", str(tmp_path / "m.json"),
-                 "--json", str(summary)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "identify",
+                str(tmp_path / "t1.csv"),
+                "--cell",
+                "ur10",
+                "--out",
+                str(tmp_path / "m.json"),
+                "--json",
+                str(summary),
+            ]
+        )
+        == 0
+    )
     stdout = capsys.readouterr().out
     model = json.loads((tmp_path / "m.json").read_text())
     tp = model["test_pose"]
@@ -146,16 +185,32 @@ def test_one_figure_at_the_test_pose_in_model_summary_report_and_history(tmp_pat
     assert tp["sigma_mm"] > 0 and np.sqrt(np.sum(np.square(tp["sigma_xyz_mm"]))) == pytest.approx(tp["sigma_mm"])
     line = next(x for x in stdout.splitlines() if x.startswith("TCP at the test pose"))
     assert f"±{tp['sigma_mm'] * 1000:.1f} µm (1σ 3-D" in line
-    page = unescape(report_files(str(tmp_path / "t1.csv"), str(tmp_path / "m.json"), str(tmp_path / "report"))
-                    .read_text())  # fmt: skip
+    page = unescape(
+        report_files(str(tmp_path / "t1.csv"), str(tmp_path / "m.json"), str(tmp_path / "report")).read_text()
+    )
     shown = re.search(r"TCP at the test pose is determined to ±([0-9.]+) µm", page)
     assert shown is not None and float(shown[1]) == pytest.approx(tp["sigma_mm"] * 1000, abs=0.05)
     h = history(HistoryOptions(calibrations=[str(tmp_path / "m.json")]))
     assert h.calibrations[0].tcp_sigma_mm == tp["sigma_mm"]
     assert h.calibrations[0].tcp_correction_mm == tp["correction_mm"]
     capsys.readouterr()
-    assert main(["iso9283", "plan", "--cell", "ur10", "--load", "unloaded", "--model", str(tmp_path / "m.json"),
-                 "--json", str(tmp_path / "iso.json")]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "iso9283",
+                "plan",
+                "--cell",
+                "ur10",
+                "--load",
+                "unloaded",
+                "--model",
+                str(tmp_path / "m.json"),
+                "--json",
+                str(tmp_path / "iso.json"),
+            ]
+        )
+        == 0
+    )
     assert f"±{tp['sigma_mm'] * 1000:.1f} µm 1-sigma" in capsys.readouterr().out
     iso = json.loads((tmp_path / "iso.json").read_text())["iso9283"]
     assert iso["compensated_with"]["test_pose"] == tp

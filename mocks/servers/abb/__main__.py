@@ -25,8 +25,10 @@ def _address(text: str) -> tuple[str, int]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = OneLineParser(prog="python -m trackcal.mocks.servers.abb",
-                description="Mock ABB IRC5 controller (RobotWare 6 Robot Web Services) on one address.")  # fmt: skip
+    p = OneLineParser(
+        prog="python -m trackcal.mocks.servers.abb",
+        description="Mock ABB IRC5 controller (RobotWare 6 Robot Web Services) on one address.",
+    )
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="RWS HTTP port (default 0: a free one)")
     p.add_argument("--control-port", type=int, default=0, help="the mock's control port (default 0: a free one)")
@@ -34,8 +36,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="serial number and session tokens (default 0)")
     p.add_argument("--q0-deg", type=joints_deg, default=HOME_DEG, help="initial joints, 6 comma-separated deg")
     p.add_argument("--speed", type=float, default=1.0, help="controller seconds per wall second (default 1)")
-    p.add_argument("--egm", type=_address, default=None, metavar="HOST:PORT",
-                   help="stream EGM (UDP, one EgmRobot per 4 ms tick) to the sensor at HOST:PORT (default: none)")
+    p.add_argument(
+        "--egm",
+        type=_address,
+        default=None,
+        metavar="HOST:PORT",
+        help="stream EGM (UDP, one EgmRobot per 4 ms tick) to the sensor at HOST:PORT (default: none)",
+    )
     p.add_argument("--motors-off", action="store_true", help="start with the motors off and RAPID stopped")
     return p
 
@@ -54,8 +61,16 @@ def main(argv: list[str] | None = None) -> int:
         controller.set_ctrlstate("motoron")
         controller.start()
     try:
-        server = AbbServer(controller, flange_of(chain), args.host, args.port, args.control_port, seed=args.seed,
-                           speed=args.speed, egm=args.egm).start()  # fmt: skip
+        server = AbbServer(
+            controller,
+            flange_of(chain),
+            args.host,
+            args.port,
+            args.control_port,
+            seed=args.seed,
+            speed=args.speed,
+            egm=args.egm,
+        ).start()
     except OSError as exc:
         print(f"{prog}: error: cannot serve on {args.host}: {exc.strerror or exc}", file=sys.stderr)
         return 2

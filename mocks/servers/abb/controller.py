@@ -32,9 +32,12 @@ ACCEL_S = 0.1  # time to reach the path speed (and to brake from it on a RAPID s
 # ABB IRB 120 product specification (3HAC035960-001, "Performance": maximum axis speeds): axes 1-3 250 deg/s,
 # axes 4-5 320 deg/s, axis 6 420 deg/s
 IRB120_VMAX_DEG_S = (250.0, 250.0, 250.0, 320.0, 320.0, 420.0)
-EVENTS = {"motoroff": (10010, "Motors OFF state"), "motoron": (10011, "Motors ON state"),
-          "guardstop": (10012, "Safety guard stop state"),
-          "emergencystop": (10013, "Emergency stop state")}  # fmt: skip
+EVENTS = {
+    "motoroff": (10010, "Motors OFF state"),
+    "motoron": (10011, "Motors ON state"),
+    "guardstop": (10012, "Safety guard stop state"),
+    "emergencystop": (10013, "Emergency stop state"),
+}
 _JOINTTARGET = re.compile(r"^\s*\[\s*\[([^\]]*)\]\s*,\s*\[([^\]]*)\]\s*\]\s*$")
 
 
@@ -137,8 +140,13 @@ class Motion:
 class AbbController:
     """The controller; every method is thread-safe. `tick()` advances TICK_S of controller time."""
 
-    def __init__(self, q0_deg: Sequence[float], seed: int = 0, vmax: Sequence[float] = IRB120_VMAX_DEG_S,
-                 limits_deg: Sequence[tuple[float, float]] | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        q0_deg: Sequence[float],
+        seed: int = 0,
+        vmax: Sequence[float] = IRB120_VMAX_DEG_S,
+        limits_deg: Sequence[tuple[float, float]] | None = None,
+    ) -> None:
         self.lock = threading.RLock()
         self.q = tuple(float(v) for v in q0_deg)
         self.vmax = tuple(vmax)
@@ -261,6 +269,13 @@ class AbbController:
             m = self.motion
             planned = list(m.q1) if m is not None else list(self.q)
             moving = m is not None and (self.execution == "running" or not m.standing)
-            return {"ctrlstate": self.ctrlstate, "opmode": self.opmode, "execution": self.execution,
-                    "q_deg": list(self.q), "pers": dict(self.pers), "ticks": self.ticks, "moving": moving,
-                    "planned_deg": planned}  # fmt: skip
+            return {
+                "ctrlstate": self.ctrlstate,
+                "opmode": self.opmode,
+                "execution": self.execution,
+                "q_deg": list(self.q),
+                "pers": dict(self.pers),
+                "ticks": self.ticks,
+                "moving": moving,
+                "planned_deg": planned,
+            }

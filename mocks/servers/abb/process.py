@@ -16,8 +16,9 @@ from trackcal.mocks.servers.process import MockProcess
 class MockAbbProcess(MockProcess):
     """`with MockAbbProcess(seed=1) as abb:` ... `abb.address`, `abb.fault("guardstop")`, `abb.state()`, `abb.kill()`"""
 
-    def __init__(self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None,
-                 ready_timeout_s: float = 60.0) -> None:  # fmt: skip
+    def __init__(
+        self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None, ready_timeout_s: float = 60.0
+    ) -> None:
         super().__init__(host, seed, ready_timeout_s, control_port=0)
         self.args = list(args or [])
         self.port = 0
@@ -27,8 +28,16 @@ class MockAbbProcess(MockProcess):
         return self.host, self.port
 
     def start(self) -> MockAbbProcess:
-        cmd = [sys.executable, "-m", "trackcal.mocks.servers.abb", "--host", self.host, "--seed", str(self.seed),
-               *self.args]  # fmt: skip
+        cmd = [
+            sys.executable,
+            "-m",
+            "trackcal.mocks.servers.abb",
+            "--host",
+            self.host,
+            "--seed",
+            str(self.seed),
+            *self.args,
+        ]
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 (closed in stop)
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._stderr)
         assert self.proc.stdout is not None

@@ -74,8 +74,18 @@ class RwsResources:
             return [item("rap-execution", "execution", ctrlexecstate=snap["execution"], cycle="forever")]
         if path == "rw/rapid/tasks":
             running = "started" if snap["execution"] == "running" else "stopped"
-            return [item("rap-task-li", f"RAPID/{TASK}", name=TASK, type="normal", taskstate="linked",
-                         excstate=running, active="On", motiontask="TRUE")]  # fmt: skip
+            return [
+                item(
+                    "rap-task-li",
+                    f"RAPID/{TASK}",
+                    name=TASK,
+                    type="normal",
+                    taskstate="linked",
+                    excstate=running,
+                    active="On",
+                    motiontask="TRUE",
+                )
+            ]
         if path == "rw/motionsystem/mechunits/ROB_1/jointtarget":
             axes = {f"rax_{i + 1}": f"{v:.6f}" for i, v in enumerate(snap["q_deg"])}
             return [item("ms-jointtarget", "ROB_1", **axes, **{f"eax_{k}": "9E+09" for k in "abcdef"})]
@@ -84,13 +94,32 @@ class RwsResources:
         if path in ("rw/elog/0", "rw/elog/0/"):
             return self._elog()
         if path == "rw/system":
-            return [item("sys-system-li", "system", major="6", minor="15", build="0", revision="1", sub_revision="0",
-                         title="RobotWare", type="RobotWare", description="Controller Software",
-                         name=self.system, rwversion="6.15.01.00", sysid="{" + self.serial + "}",
-                         rwversionname="6.15.01.00")]  # fmt: skip
+            return [
+                item(
+                    "sys-system-li",
+                    "system",
+                    major="6",
+                    minor="15",
+                    build="0",
+                    revision="1",
+                    sub_revision="0",
+                    title="RobotWare",
+                    type="RobotWare",
+                    description="Controller Software",
+                    name=self.system,
+                    rwversion="6.15.01.00",
+                    sysid="{" + self.serial + "}",
+                    rwversionname="6.15.01.00",
+                )
+            ]
         if path == "ctrl/identity":
-            return [item("ctrl-identity-info", "identity", **{"ctrl-name": self.system, "ctrl-type": "Real Controller",
-                                                             "ctrl-id": self.serial})]  # fmt: skip
+            return [
+                item(
+                    "ctrl-identity-info",
+                    "identity",
+                    **{"ctrl-name": self.system, "ctrl-type": "Real Controller", "ctrl-id": self.serial},
+                )
+            ]
         name = self._symbol(path)
         try:
             return [item("rap-data", name, value=c.read(name))]
@@ -117,9 +146,19 @@ class RwsResources:
         r, o = self.flange(q_deg)
         w, x, y, z = _quaternion(Rotation.from_matrix(r) * TOOL0)
         cf = [math.floor(math.radians(q_deg[i]) / (math.pi / 2)) for i in (0, 3, 5)]
-        fields = {"x": f"{o[0]:.6g}", "y": f"{o[1]:.6g}", "z": f"{o[2]:.6g}", "q1": f"{w:.7g}", "q2": f"{x:.7g}",
-                  "q3": f"{y:.7g}", "q4": f"{z:.7g}", "cf1": str(cf[0]), "cf4": str(cf[1]), "cf6": str(cf[2]),
-                  "cfx": "0"}  # fmt: skip
+        fields = {
+            "x": f"{o[0]:.6g}",
+            "y": f"{o[1]:.6g}",
+            "z": f"{o[2]:.6g}",
+            "q1": f"{w:.7g}",
+            "q2": f"{x:.7g}",
+            "q3": f"{y:.7g}",
+            "q4": f"{z:.7g}",
+            "cf1": str(cf[0]),
+            "cf4": str(cf[1]),
+            "cf6": str(cf[2]),
+            "cfx": "0",
+        }
         return item("ms-robtargets", "ROB_1", **fields, **{f"eax{k}": "9E+09" for k in "abcdef"})
 
     def _elog(self) -> list[dict]:
@@ -128,9 +167,21 @@ class RwsResources:
             entries = list(self.c.elog)
         for seq, msgtype, code, title, t in reversed(entries):  # newest first, as the FlexPendant lists them
             stamp = _stamp(t)
-            out.append(item("elog-message-li", f"/rw/elog/0/{seq}", msgtype=str(msgtype), code=str(code),
-                            tstamp=stamp, title=title, desc=f"The system is in the {title}.", conseqs="",
-                            causes="", actions="", argc="0"))  # fmt: skip
+            out.append(
+                item(
+                    "elog-message-li",
+                    f"/rw/elog/0/{seq}",
+                    msgtype=str(msgtype),
+                    code=str(code),
+                    tstamp=stamp,
+                    title=title,
+                    desc=f"The system is in the {title}.",
+                    conseqs="",
+                    causes="",
+                    actions="",
+                    argc="0",
+                )
+            )
         return out
 
     def post(self, path: str, query: dict[str, str], form: dict[str, str]) -> None:
@@ -238,10 +289,12 @@ class RwsServer:
     """The HTTP server on (host, port) in a thread: `start()`, `stop()`, `address`; `busy(n)`: the next n requests
     get 503."""
 
-    def __init__(self, controller: AbbController, flange: Callable, host: str = "127.0.0.1", port: int = 0,
-                 seed: int = 0) -> None:  # fmt: skip
-        self.resources = RwsResources(controller, flange, serial=f"120-{500000 + seed % 100000:06d}",
-                                      system=f"IRB120_{seed}")  # fmt: skip
+    def __init__(
+        self, controller: AbbController, flange: Callable, host: str = "127.0.0.1", port: int = 0, seed: int = 0
+    ) -> None:
+        self.resources = RwsResources(
+            controller, flange, serial=f"120-{500000 + seed % 100000:06d}", system=f"IRB120_{seed}"
+        )
         self.sessions = Sessions(seed)
         self._busy = 0
         self._busy_lock = threading.Lock()
@@ -267,8 +320,9 @@ class RwsServer:
             return False
 
     def start(self) -> RwsServer:
-        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},
-                                        name="abb-rws", daemon=True)  # fmt: skip
+        self._thread = threading.Thread(
+            target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05}, name="abb-rws", daemon=True
+        )
         self._thread.start()
         return self
 
@@ -369,8 +423,7 @@ class _Handler(BaseHTTPRequestHandler):
         if answer.status == 401:
             payload, ctype = b"", "text/html"
         elif as_json:
-            doc = {"_links": {"base": {"href": "/"}},
-                   "_embedded": {"status": {"code": answer.code, "msg": answer.msg}}}  # fmt: skip
+            doc = {"_links": {"base": {"href": "/"}}, "_embedded": {"status": {"code": answer.code, "msg": answer.msg}}}
             payload, ctype = json.dumps(doc).encode(), "application/json"
         else:
             payload = _xhtml("error", [item("status", "status", code=str(answer.code), msg=answer.msg)])
@@ -414,11 +467,16 @@ def _xhtml(title: str, items: list[dict]) -> bytes:
     """The XHTML page of state items, as RWS 1.0 writes them without json=1."""
     lis = []
     for it in items:
-        spans = "".join(f'<span class="{html.escape(k)}">{html.escape(str(v))}</span>'
-                        for k, v in it.items() if not k.startswith("_"))  # fmt: skip
+        spans = "".join(
+            f'<span class="{html.escape(k)}">{html.escape(str(v))}</span>'
+            for k, v in it.items()
+            if not k.startswith("_")
+        )
         lis.append(f'<li class="{html.escape(it["_type"])}" title="{html.escape(it["_title"])}">{spans}</li>')
-    text = ('<?xml version="1.0" encoding="utf-8"?><html xmlns="http://www.w3.org/1999/xhtml"><head><title>'
-            f'{html.escape(title)}</title></head><body><div class="state"><ul>{"".join(lis)}</ul></div></body></html>')
+    text = (
+        '<?xml version="1.0" encoding="utf-8"?><html xmlns="http://www.w3.org/1999/xhtml"><head><title>'
+        f'{html.escape(title)}</title></head><body><div class="state"><ul>{"".join(lis)}</ul></div></body></html>'
+    )
     return text.encode("utf-8")
 
 

@@ -26,9 +26,17 @@ from trackcal.mocks.servers.abb.rws_server import RwsServer
 
 
 class AbbServer:
-    def __init__(self, controller: AbbController, flange, host: str = "127.0.0.1", port: int = 0,
-                 control_port: int = 0, seed: int = 0, speed: float = 1.0,
-                 egm: tuple[str, int] | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        controller: AbbController,
+        flange,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        control_port: int = 0,
+        seed: int = 0,
+        speed: float = 1.0,
+        egm: tuple[str, int] | None = None,
+    ) -> None:
         self.controller = controller
         self.speed = speed
         self.egm = egm  # where the EGM position stream goes (the sensor's address), None: no stream
@@ -72,9 +80,14 @@ class AbbServer:
     def _send_egm(self) -> None:
         """One EgmRobot datagram of the tick to the sensor (EGM position streaming: one message per 4 ms cycle)."""
         snap = self.controller.snapshot()
-        msg = EgmRobot(seqno=snap["ticks"] & 0xFFFFFFFF, tm_ms=int(snap["ticks"] * TICK_S * 1000) & 0xFFFFFFFF,
-                       joints_deg=tuple(snap["q_deg"]), planned_deg=tuple(snap["planned_deg"]),
-                       motors_on=snap["ctrlstate"] == "motoron", rapid_running=snap["execution"] == "running")
+        msg = EgmRobot(
+            seqno=snap["ticks"] & 0xFFFFFFFF,
+            tm_ms=int(snap["ticks"] * TICK_S * 1000) & 0xFFFFFFFF,
+            joints_deg=tuple(snap["q_deg"]),
+            planned_deg=tuple(snap["planned_deg"]),
+            motors_on=snap["ctrlstate"] == "motoron",
+            rapid_running=snap["execution"] == "running",
+        )
         if self._egm_sock is None:
             self._egm_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         with contextlib.suppress(OSError):  # nobody listening yet: a real controller's datagrams go unread too

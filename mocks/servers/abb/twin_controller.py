@@ -81,8 +81,9 @@ class TwinAbb:
             s.bind(("127.0.0.1", 0))
             self.egm_port = s.getsockname()[1]
         robot = world.twin.cell.chain.name  # the cell's arm (irb120, irb6700): its flange for the robtarget
-        self.process = MockAbbProcess(seed=seed, args=["--q0-deg", q0, "--speed", rate, "--robot", robot, "--egm",
-                                                       f"127.0.0.1:{self.egm_port}"]).start()  # fmt: skip
+        self.process = MockAbbProcess(
+            seed=seed, args=["--q0-deg", q0, "--speed", rate, "--robot", robot, "--egm", f"127.0.0.1:{self.egm_port}"]
+        ).start()
         try:
             self.follower = JointFollower(("127.0.0.1", self.process.control_port), world.robot_at).start()
         except BaseException:
@@ -92,13 +93,20 @@ class TwinAbb:
     def hardware(self) -> dict:
         """The robot section of the hardware file (campaign/cells/hardware.py, drivers/abb/family.py)."""
         host, port = self.process.address
-        return {"protocol": CONTROLLER, "host": host, "port": port, "connect_timeout_s": 30.0,
-                "egm": {"host": "127.0.0.1", "port": self.egm_port}}
+        return {
+            "protocol": CONTROLLER,
+            "host": host,
+            "port": port,
+            "connect_timeout_s": 30.0,
+            "egm": {"host": "127.0.0.1", "port": self.egm_port},
+        }
 
     def addresses(self) -> dict[str, str]:
         host, port = self.process.address
-        return {"ABB controller (Robot Web Services)": f"{host}:{port}",
-                "its control port (the mock's own)": f"{host}:{self.process.control_port}"}  # fmt: skip
+        return {
+            "ABB controller (Robot Web Services)": f"{host}:{port}",
+            "its control port (the mock's own)": f"{host}:{self.process.control_port}",
+        }
 
     def stop(self) -> None:
         self.follower.stop()

@@ -39,11 +39,29 @@ ETHERNET_TIMEOUT = 100  # the ETHERNET object's Timeout: late packets before RSI
 
 
 class MockKrc4(MockKrc2):
-    def __init__(self, eki_addr: tuple[str, int], rsi_addr: tuple[str, int], clock, initial_joints_deg: Sequence[float],
-                 *, cycle_s: float = KRC4_CYCLE_S, rsi_passive: bool = RSI.passive,
-                 max_late_packages: int = ETHERNET_TIMEOUT, **options) -> None:  # fmt: skip
-        super().__init__(eki_addr, rsi_addr, clock, initial_joints_deg, rsi_protocol="udp", rsi_passive=rsi_passive,
-                         cycle_s=cycle_s, max_late_packages=max_late_packages, **options)  # fmt: skip
+    def __init__(
+        self,
+        eki_addr: tuple[str, int],
+        rsi_addr: tuple[str, int],
+        clock,
+        initial_joints_deg: Sequence[float],
+        *,
+        cycle_s: float = KRC4_CYCLE_S,
+        rsi_passive: bool = RSI.passive,
+        max_late_packages: int = ETHERNET_TIMEOUT,
+        **options,
+    ) -> None:
+        super().__init__(
+            eki_addr,
+            rsi_addr,
+            clock,
+            initial_joints_deg,
+            rsi_protocol="udp",
+            rsi_passive=rsi_passive,
+            cycle_s=cycle_s,
+            max_late_packages=max_late_packages,
+            **options,
+        )
         self._eki = EkiServerEnd(eki_addr, self.errors)
         self.eki_addr = self._eki.addr
         self._rsi = RsiUdpEnd(rsi_addr, "udp", self.sen_type, self.errors, self._rsi_lost)

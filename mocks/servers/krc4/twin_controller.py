@@ -32,17 +32,34 @@ class TwinKrc4:
         self.world = world
         limits = np.degrees(world.twin.cell.chain.limits_array())
         self.rsi_addr = ("127.0.0.1", free_udp_port())
-        self.controller = MockKrc4(("127.0.0.1", 0), self.rsi_addr, world.clock, tuple(world.q_deg),
-                                   on_joints=world.robot_at, joint_speed_deg_s=JOINT_SPEED_DEG_S, seed=seed,
-                                   overshoot_deg=0.0, connect_timeout_s=CONNECT_S,
-                                   soft_limits_deg=[(float(lo), float(hi)) for lo, hi in limits]).start()  # fmt: skip
+        self.controller = MockKrc4(
+            ("127.0.0.1", 0),
+            self.rsi_addr,
+            world.clock,
+            tuple(world.q_deg),
+            on_joints=world.robot_at,
+            joint_speed_deg_s=JOINT_SPEED_DEG_S,
+            seed=seed,
+            overshoot_deg=0.0,
+            connect_timeout_s=CONNECT_S,
+            soft_limits_deg=[(float(lo), float(hi)) for lo, hi in limits],
+        ).start()
 
     def hardware(self) -> dict:
         """The robot section of the hardware file (campaign/cells/hardware.py, drivers/krc4/family.py)."""
         host, port = self.controller.eki_addr
-        return {"protocol": CONTROLLER, "controller_host": host, "eki": {"port": port},
-                "rsi": {"host": self.rsi_addr[0], "port": self.rsi_addr[1], "passive": self.controller.rsi_passive,
-                        "cycle_s": KRC4_CYCLE_S}, "connect_timeout_s": 30.0}  # fmt: skip
+        return {
+            "protocol": CONTROLLER,
+            "controller_host": host,
+            "eki": {"port": port},
+            "rsi": {
+                "host": self.rsi_addr[0],
+                "port": self.rsi_addr[1],
+                "passive": self.controller.rsi_passive,
+                "cycle_s": KRC4_CYCLE_S,
+            },
+            "connect_timeout_s": 30.0,
+        }
 
     def addresses(self) -> dict[str, str]:
         host, port = self.controller.eki_addr

@@ -112,6 +112,16 @@ CATCH_UP_CYCLES = 25
 _NO_POSE = (0.0,) * len(CART)  # RIst and RSol: the mock computes no Cartesian pose
 
 
+def _checked_start(rsi_protocol: str, initial_joints_deg: Sequence[float], cycle_s: float, brake_deg_s2: float):
+    """The controller's start joints (deg), its arguments checked (ValueError)."""
+    if rsi_protocol not in ("tcp", "udp"):
+        raise ValueError("rsi_protocol must be 'tcp' or 'udp'")
+    q0 = tuple(float(v) for v in initial_joints_deg)
+    if len(q0) != len(AXES):
+        raise ValueError(f"initial_joints_deg needs {len(AXES)} values")
+    if not (cycle_s > 0 and brake_deg_s2 > 0):
+        raise ValueError("cycle_s and brake_deg_s2 must be positive")
+    return q0
 
 
 class MockKrc2:
@@ -138,13 +148,7 @@ class MockKrc2:
         delivered: Callable[[int, float], bool] | None = None,
         skip_idle: bool = True,
     ) -> None:
-        if rsi_protocol not in ("tcp", "udp"):
-            raise ValueError("rsi_protocol must be 'tcp' or 'udp'")
-        q0 = tuple(float(v) for v in initial_joints_deg)
-        if len(q0) != len(AXES):
-            raise ValueError(f"initial_joints_deg needs {len(AXES)} values")
-        if not (cycle_s > 0 and brake_deg_s2 > 0):
-            raise ValueError("cycle_s and brake_deg_s2 must be positive")
+        q0 = _checked_start(rsi_protocol, initial_joints_deg, cycle_s, brake_deg_s2)
         self.sen_type = SHIPPED.sen_type
         self.eki_addr, self.rsi_addr = eki_addr, rsi_addr
         self.clock = clock
@@ -171,8 +175,15 @@ class MockKrc2:
         self._wake_r.setblocking(False)
 
         self.errors: list[str] = []
-        self.motion = Motion(q0, self._rng, joint_speed_deg_s=joint_speed_deg_s, settle_s=settle_s,
-                             cycle_s=self.cycle_s, overshoot_deg=overshoot_deg, brake_deg_s2=brake_deg_s2)  # fmt: skip
+        self.motion = Motion(
+            q0,
+            self._rng,
+            joint_speed_deg_s=joint_speed_deg_s,
+            settle_s=settle_s,
+            cycle_s=self.cycle_s,
+            overshoot_deg=overshoot_deg,
+            brake_deg_s2=brake_deg_s2,
+        )
         self._queue: deque[Command] = deque()
         self._fault = 0
         self._last_reported: tuple[float, ...] | None = None
@@ -570,8 +581,14 @@ class MockKrc2:
 
     def _rsi_exchange(self) -> None:
         ipoc = self._ipoc0 + self._ipoc_step * self._tick
-        frame = RobFrame(ipoc=ipoc, aipos=self._reported("rsi"), aspos=self.motion.set_deg, rist=_NO_POSE,
-                         rsol=_NO_POSE, delay=self.late_packets)  # fmt: skip
+        frame = RobFrame(
+            ipoc=ipoc,
+            aipos=self._reported("rsi"),
+            aspos=self.motion.set_deg,
+            rist=_NO_POSE,
+            rsol=_NO_POSE,
+            delay=self.late_packets,
+        )
         if self._wire_loses_rsi or not self._rsi.send(encode_rob(frame, tcp=self.rsi_protocol == "tcp")):
             return
         self.frames_sent += 1

@@ -26,7 +26,6 @@ def _shut(sock: socket.socket) -> None:
         sock.close()
 
 
-
 def open_stream(addr: tuple[str, int]) -> socket.socket | OSError:
     """One attempt at the controller's TCP connection to trackcal (no Nagle: one document per segment), or why
     it failed."""
@@ -37,6 +36,7 @@ def open_stream(addr: tuple[str, int]) -> socket.socket | OSError:
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     sock.settimeout(None)
     return sock
+
 
 class EkiEnd:
     """The controller's end of the EKI channel (TCP): documents in, <RobotState> documents out."""

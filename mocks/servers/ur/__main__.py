@@ -26,9 +26,11 @@ def _version(text: str) -> tuple[int, int, int, int]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = OneLineParser(prog="python -m trackcal.mocks.servers.ur",
-                                description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
-                                            "script ports 30001-30003) on one address.")  # fmt: skip
+    p = OneLineParser(
+        prog="python -m trackcal.mocks.servers.ur",
+        description="Mock Universal Robots e-Series controller (RTDE 30004, dashboard 29999, "
+        "script ports 30001-30003) on one address.",
+    )
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--robot", default="ur10", help="robot model of configs/robots (joint limits; default ur10)")
     p.add_argument("--seed", type=int, default=0, help="serial number, factory calibration, timestamps (default 0)")
@@ -89,9 +91,11 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    for name, value, ok in (("--unlock-delay-s", args.unlock_delay_s, args.unlock_delay_s >= 0),
-                             ("--unreachable-s", args.unreachable_s, 0 <= args.unreachable_s <= 3600),
-                             ("--speed", args.speed, 0 < args.speed <= 100)):  # fmt: skip
+    for name, value, ok in (
+        ("--unlock-delay-s", args.unlock_delay_s, args.unlock_delay_s >= 0),
+        ("--unreachable-s", args.unreachable_s, 0 <= args.unreachable_s <= 3600),
+        ("--speed", args.speed, 0 < args.speed <= 100),
+    ):
         if not ok or not math.isfinite(value):
             print(f"{parser().prog}: error: {name} out of range: {value}", file=sys.stderr)
             return 2

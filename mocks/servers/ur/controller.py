@@ -45,13 +45,34 @@ from trackcal.mocks.servers.ur.linear import LinearPath
 from trackcal.mocks.servers.ur.motion import TICK_S, UR10_LIMITS_RAD, UR10_VMAX_RAD_S, Motion, Path, Profile
 
 # RTDE guide enumerations
-ROBOT_MODE = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
-              4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}  # fmt: skip
+ROBOT_MODE = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
 RUNNING, IDLE, POWER_OFF, POWER_ON = 7, 5, 3, 4
-SAFETY_MODE = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
-               6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
-               10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
-               13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}  # fmt: skip
+SAFETY_MODE = {
+    1: "NORMAL",
+    2: "REDUCED",
+    3: "PROTECTIVE_STOP",
+    4: "RECOVERY",
+    5: "SAFEGUARD_STOP",
+    6: "SYSTEM_EMERGENCY_STOP",
+    7: "ROBOT_EMERGENCY_STOP",
+    8: "VIOLATION",
+    9: "FAULT",
+    10: "VALIDATE_JOINT_ID",
+    11: "UNDEFINED_SAFETY_MODE",
+    12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+    13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
+}
 NORMAL, PROTECTIVE_STOP, SAFEGUARD_STOP = 1, 3, 5
 STOPPING, STOPPED, PLAYING, PAUSING, PAUSED, RESUMING = 0, 1, 2, 3, 4, 5
 JOINT_RUNNING_MODE = 253  # RTDE guide joint_mode
@@ -77,10 +98,20 @@ _PROGRAM = re.compile(r"^(?:def|sec)\s+(\w+)\s*\(\s*\)\s*:", re.M)
 
 
 class UrController:
-    def __init__(self, seed: int = 0, q0: Sequence[float] = HOME_RAD, version: tuple[int, int, int, int] =
-                 (5, 11, 1, 108318), model: str = "UR10", unlock_delay_s: float = 5.0, remote_control: bool = True,
-                 vmax: Sequence[float] = UR10_VMAX_RAD_S, limits=UR10_LIMITS_RAD, stop_decel: float = STOP_DECEL,
-                 protective_stop_on_move: int = 0, powered: bool = True) -> None:  # fmt: skip
+    def __init__(
+        self,
+        seed: int = 0,
+        q0: Sequence[float] = HOME_RAD,
+        version: tuple[int, int, int, int] = (5, 11, 1, 108318),
+        model: str = "UR10",
+        unlock_delay_s: float = 5.0,
+        remote_control: bool = True,
+        vmax: Sequence[float] = UR10_VMAX_RAD_S,
+        limits=UR10_LIMITS_RAD,
+        stop_decel: float = STOP_DECEL,
+        protective_stop_on_move: int = 0,
+        powered: bool = True,
+    ) -> None:
         if len(q0) != 6:
             raise ValueError("q0 needs 6 joint values")
         self.lock = threading.RLock()
@@ -174,8 +205,10 @@ class UrController:
                 return
             self._end_program("replaced by a new program")
             if not _SCRIPT_ID.search(text):
-                self._say(f"program {name} received: the mock runs ur_rtde's rtde_control only, ended at once",
-                          rc.WARNING_MESSAGE)  # fmt: skip
+                self._say(
+                    f"program {name} received: the mock runs ur_rtde's rtde_control only, ended at once",
+                    rc.WARNING_MESSAGE,
+                )
                 self.program = name
                 return
             if self.safety_mode != NORMAL or self.robot_mode != RUNNING:
@@ -439,8 +472,7 @@ class UrController:
         self._move_args = path
         self.motion.follow(first or path())
         if self.motion.path is not None and self.moves == self.protective_stop_on_move:
-            self._scheduled.append((self.tick + max(1, round(self.motion.path.total / 2 / TICK_S)),
-                                    "protective_stop"))  # fmt: skip
+            self._scheduled.append((self.tick + max(1, round(self.motion.path.total / 2 / TICK_S)), "protective_stop"))
         if self.moves in self.fault_on_move and self.motion.path is not None:
             half = max(1, round(self.motion.path.total / 2 / TICK_S))
             self._scheduled.append((self.tick + half, self.fault_on_move[self.moves]))
@@ -549,11 +581,24 @@ class UrController:
     def state(self) -> dict:
         """Summary for the control port and tests (JSON-able)."""
         with self.lock:
-            return {"tick": self.tick, "q": list(self.motion.q), "moving": self.motion.moving,
-                    "robot_mode": ROBOT_MODE[self.robot_mode], "safety_mode": SAFETY_MODE[self.safety_mode],
-                    "runtime_state": self.runtime_state, "program": self.program, "moves": self.moves,
-                    "commands": list(self.commands), "command_monotonic": self.command_monotonic[-20:],
-                    "scripts": list(self.scripts), "log": self.log[-20:],
-                    "out_int": self.out_int[:4], "in_int": self.in_int[:2], "busy": self._busy,
-                    "reg_offset": [self.reg_int, self.reg_float], "out_int_upper": self.out_int[24:28],
-                    "executing": self._executing, "async_move": self._async_move}  # fmt: skip
+            return {
+                "tick": self.tick,
+                "q": list(self.motion.q),
+                "moving": self.motion.moving,
+                "robot_mode": ROBOT_MODE[self.robot_mode],
+                "safety_mode": SAFETY_MODE[self.safety_mode],
+                "runtime_state": self.runtime_state,
+                "program": self.program,
+                "moves": self.moves,
+                "commands": list(self.commands),
+                "command_monotonic": self.command_monotonic[-20:],
+                "scripts": list(self.scripts),
+                "log": self.log[-20:],
+                "out_int": self.out_int[:4],
+                "in_int": self.in_int[:2],
+                "busy": self._busy,
+                "reg_offset": [self.reg_int, self.reg_float],
+                "out_int_upper": self.out_int[24:28],
+                "executing": self._executing,
+                "async_move": self._async_move,
+            }

@@ -14,8 +14,9 @@ from __future__ import annotations
 from trackcal.mocks.servers.ur.controller import PAUSED, PLAYING, ROBOT_MODE, SAFETY_MODE, UrController
 
 GREETING = "Connected: Universal Robots Dashboard Server"
-UNLOCK_REFUSED = ("Cannot unlock protective stop until 5s after occurrence. Always inspect cause of protective stop "
-                  "before unlocking")  # fmt: skip
+UNLOCK_REFUSED = (
+    "Cannot unlock protective stop until 5s after occurrence. Always inspect cause of protective stop before unlocking"
+)
 PROGRAM_STATE = {PLAYING: "PLAYING", PAUSED: "PAUSED"}
 
 
@@ -62,8 +63,17 @@ def answer(line: str, ctl: UrController) -> tuple[str, bool]:
     if cmd == "isprogramsaved":
         return f"true {ctl.loaded_program or '<unnamed>'}", False
     # commands reserved to remote control (the manual's remote-only column)
-    remote_only = {"unlock protective stop", "power on", "power off", "brake release", "play", "stop", "pause",
-                   "restart safety", "shutdown"}  # fmt: skip
+    remote_only = {
+        "unlock protective stop",
+        "power on",
+        "power off",
+        "brake release",
+        "play",
+        "stop",
+        "pause",
+        "restart safety",
+        "shutdown",
+    }
     if (cmd in remote_only or cmd.startswith("load ")) and not ctl.remote_control:
         return "Command is not allowed due to safety reasons", False
     if cmd == "unlock protective stop":

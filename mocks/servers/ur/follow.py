@@ -27,8 +27,9 @@ _RETRY_S = 0.05
 
 
 class JointFollower:
-    def __init__(self, host: str, on_joints: Callable[[tuple[float, ...]], None], frequency: float = 500.0,
-                 port: int = RTDE_PORT) -> None:  # fmt: skip
+    def __init__(
+        self, host: str, on_joints: Callable[[tuple[float, ...]], None], frequency: float = 500.0, port: int = RTDE_PORT
+    ) -> None:
         self.addr = (host, port)
         self.on_joints = on_joints
         self.frequency = float(frequency)

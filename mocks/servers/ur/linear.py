@@ -54,8 +54,9 @@ def _tcp(q: Sequence[float], cal: Calibration, tcp: Sequence[float]):
         ct, st = math.cos(th), math.sin(th)
         ca, sa = math.cos(cal.dh_alpha[i]), math.sin(cal.dh_alpha[i])
         a, d = cal.dh_a[i], cal.dh_d[i]
-        t = t @ np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0.0, sa, ca, d],
-                          [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
+        t = t @ np.array(
+            [[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]]
+        )
     p = t[:3, 3] + t[:3, :3] @ np.asarray(tcp, dtype=float)
     z = np.array(axes)
     return p, t[:3, :3], np.vstack([np.cross(z, p - np.array(origins)).T, z.T])
@@ -77,9 +78,17 @@ def solve(q: Sequence[float], p: np.ndarray, r: np.ndarray, cal: Calibration, tc
 
 
 class LinearPath(Profile):
-    def __init__(self, q0: Sequence[float], pose: Sequence[float], speed: float, acc: float, cal: Calibration,
-                 tcp: Sequence[float], vmax: Sequence[float],
-                 limits: Sequence[tuple[float, float]] | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        q0: Sequence[float],
+        pose: Sequence[float],
+        speed: float,
+        acc: float,
+        cal: Calibration,
+        tcp: Sequence[float],
+        vmax: Sequence[float],
+        limits: Sequence[tuple[float, float]] | None = None,
+    ) -> None:
         if not (speed > 0 and acc > 0):
             raise ValueError("movel needs a positive speed and acceleration")
         if len(pose) != 6 or not all(math.isfinite(v) for v in pose):

@@ -63,8 +63,9 @@ class Profile(ABC):
 class Path(Profile):
     """q(s) = q0 + (q1 - q0) s, s in [0, 1]; the scalar s follows a trapezoidal profile or a braking ramp."""
 
-    def __init__(self, q0: Sequence[float], q1: Sequence[float], speed: float, acc: float,
-                 vmax: Sequence[float]) -> None:  # fmt: skip
+    def __init__(
+        self, q0: Sequence[float], q1: Sequence[float], speed: float, acc: float, vmax: Sequence[float]
+    ) -> None:
         if not (speed > 0 and acc > 0):
             raise ValueError("movej needs a positive speed and acceleration")
         self.q0 = tuple(float(v) for v in q0)

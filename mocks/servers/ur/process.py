@@ -16,14 +16,28 @@ from trackcal.mocks.servers.ur.server import CONTROL_PORT, DASHBOARD_PORT, RTDE_
 class MockUrProcess(MockProcess):
     """`with MockUrProcess("127.0.0.5", seed=1) as ur:` ... `ur.inject("protective_stop")`, `ur.state()`."""
 
-    def __init__(self, host: str = "127.0.0.1", seed: int = 0, args: list[str] | None = None,
-                 ready_timeout_s: float = 20.0, control_port: int = CONTROL_PORT) -> None:  # fmt: skip
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        seed: int = 0,
+        args: list[str] | None = None,
+        ready_timeout_s: float = 20.0,
+        control_port: int = CONTROL_PORT,
+    ) -> None:
         super().__init__(host, seed, ready_timeout_s, control_port)
         self.args = [*(args or []), "--control-port", str(control_port)]
 
     def start(self) -> MockUrProcess:
-        cmd = [sys.executable, "-m", "trackcal.mocks.servers.ur", "--host", self.host, "--seed", str(self.seed),
-               *self.args]  # fmt: skip
+        cmd = [
+            sys.executable,
+            "-m",
+            "trackcal.mocks.servers.ur",
+            "--host",
+            self.host,
+            "--seed",
+            str(self.seed),
+            *self.args,
+        ]
         # stderr to a file, not a pipe: nobody reads a pipe while the mock runs, and a full one would block it
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 (closed in stop)
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=self._stderr)

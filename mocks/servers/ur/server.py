@@ -100,8 +100,9 @@ class RtdeSession:
             names = rc.split_names(payload)
             with srv.reserve_lock:
                 taken = srv.reserved_inputs(self)
-                types = tuple(rc.IN_USE if (n in taken and rc.input_type(n) != rc.NOT_FOUND) else rc.input_type(n)
-                              for n in names)  # fmt: skip
+                types = tuple(
+                    rc.IN_USE if (n in taken and rc.input_type(n) != rc.NOT_FOUND) else rc.input_type(n) for n in names
+                )
                 ok = bool(names) and rc.NOT_FOUND not in types and rc.IN_USE not in types and len(self.inputs) < 255
                 rid = 0
                 if ok:
@@ -141,8 +142,14 @@ class RtdeSession:
 
 
 class UrServer:
-    def __init__(self, ctl: UrController, host: str = "127.0.0.1", control_port: int = CONTROL_PORT,
-                 speed: float = 1.0, clock=None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        ctl: UrController,
+        host: str = "127.0.0.1",
+        control_port: int = CONTROL_PORT,
+        speed: float = 1.0,
+        clock=None,
+    ) -> None:
         """`clock` paces the ticks (now() / sleep(), default the wall clock, drivers.interfaces.RealClock); the
         controller itself counts ticks and reads no clock."""
         if not speed > 0:
@@ -150,8 +157,14 @@ class UrServer:
         self.ctl, self.host = ctl, host
         self.clock = clock or RealClock()
         self.speed = float(speed)  # controller seconds per wall second
-        self.ports = {"rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "primary": PRIMARY_PORT,
-                      "secondary": SECONDARY_PORT, "realtime": REALTIME_PORT, "control": control_port}  # fmt: skip
+        self.ports = {
+            "rtde": RTDE_PORT,
+            "dashboard": DASHBOARD_PORT,
+            "primary": PRIMARY_PORT,
+            "secondary": SECONDARY_PORT,
+            "realtime": REALTIME_PORT,
+            "control": control_port,
+        }
         self.rtde: list[RtdeSession] = []
         self.conns: dict[str, list[socket.socket]] = {k: [] for k in self.ports}
         self.reserve_lock = threading.Lock()
@@ -416,8 +429,10 @@ class UrServer:
             for line in self._lines(conn, name):
                 cmd = line.strip()
                 if cmd == "state":
-                    recipes = [{"kind": k, "id": r.id, "names": r.names, "types": r.types, "frequency": r.frequency}
-                               for k, r in self.recipes[-64:]]  # fmt: skip
+                    recipes = [
+                        {"kind": k, "id": r.id, "names": r.names, "types": r.types, "frequency": r.frequency}
+                        for k, r in self.recipes[-64:]
+                    ]
                     reply = json.dumps(
                         self.ctl.state()
                         | {"frames": self.frames, "stale": self.stale, "errors": self.errors[-10:], "recipes": recipes}

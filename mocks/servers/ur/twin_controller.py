@@ -46,8 +46,14 @@ class TwinUr:
         # the mock's joint speeds are the UR10's (120 deg/s base and shoulder, 180 deg/s the others: mocks/servers/ur
         # motion.py, which caps any faster request), so the campaign's 30 % override still moves at 120 deg/s; a loaded
         # test machine may pause the mock a second or two
-        return {"protocol": CONTROLLER, "host": self.host, "connect_timeout_s": 30.0, "joint_speed_deg_s": 400.0,
-                "joint_acceleration_deg_s2": 400.0, "stale_s": 2.5}
+        return {
+            "protocol": CONTROLLER,
+            "host": self.host,
+            "connect_timeout_s": 30.0,
+            "joint_speed_deg_s": 400.0,
+            "joint_acceleration_deg_s2": 400.0,
+            "stale_s": 2.5,
+        }
 
     def addresses(self) -> dict[str, str]:
         return {"UR controller (dashboard 29999, RTDE 30004, script 30003)": self.host}

@@ -75,8 +75,11 @@ def test_point_features_jacobian_matches_finite_differences(kr270):
     cell = kr270
     chain = cell.chain
     twin, table = twin_campaign(cell, "range_scale", 7, n_poses=8)
-    ext = combine([build_extension(c, chain, table) for c in ("range_scale", "nest_sag", "wrist_coupling")]
-                  + [build_extension("thermal_drift", chain, table, names=["e_base"])], cause="nest_sag")  # fmt: skip
+    ext = combine(
+        [build_extension(c, chain, table) for c in ("range_scale", "nest_sag", "wrist_coupling")]
+        + [build_extension("thermal_drift", chain, table, names=["e_base"])],
+        cause="nest_sag",
+    )
     assert ext.displacement is not None and ext.range_scale is not None and ext.growth is not None
     params = irreducible_params(chain)[0]
     rng = np.random.default_rng(3)
@@ -84,8 +87,16 @@ def test_point_features_jacobian_matches_finite_differences(kr270):
     theta = np.concatenate([[5e-5], [0.1, -0.05], [1e-3, -1e-3, 5e-4], [10e-6 / 3600.0]])
     assert len(theta) == ext.size
     for noise in (None, TrackerNoise()):  # unwhitened and whitened rows
-        problem = Problem(chain, table, cell.tool_points, params, noise, extension=ext, ext0=theta,
-                          dev0=rng.normal(0.0, 1e-3, len(params)))  # fmt: skip
+        problem = Problem(
+            chain,
+            table,
+            cell.tool_points,
+            params,
+            noise,
+            extension=ext,
+            ext0=theta,
+            dev0=rng.normal(0.0, 1e-3, len(params)),
+        )
         state = problem.initial
         _, jm = problem.residual_and_jacobian(state)
         k = len(params)
@@ -95,16 +106,23 @@ def test_point_features_jacobian_matches_finite_differences(kr270):
             step[c] = h
             rp = problem.residual(problem.retract(state, step))
             rm = problem.residual(problem.retract(state, -step))
-            np.testing.assert_allclose(-(rp - rm) / (2 * h), jm[:, c], rtol=1e-5,
-                                       atol=1e-6 * np.abs(jm[:, c]).max())  # fmt: skip
+            np.testing.assert_allclose(-(rp - rm) / (2 * h), jm[:, c], rtol=1e-5, atol=1e-6 * np.abs(jm[:, c]).max())
 
 
 def test_fits_beyond_the_physical_ranges_are_refused(kr270):
     cell = kr270
     _, table = twin_campaign(cell, "range_scale", 7, n_poses=8)
     ext = combine([build_extension(c, cell.chain, table) for c in ("range_scale", "nest_sag", "wrist_coupling")])
-    inside = np.array([0.9 * RANGE_SCALE_MAX, 0.9 * NEST_SAG_MAX_MM, -0.9 * NEST_SAG_MAX_MM, 0.9 * COUPLING_MAX,
-                       0.0, -0.9 * COUPLING_MAX])  # fmt: skip
+    inside = np.array(
+        [
+            0.9 * RANGE_SCALE_MAX,
+            0.9 * NEST_SAG_MAX_MM,
+            -0.9 * NEST_SAG_MAX_MM,
+            0.9 * COUPLING_MAX,
+            0.0,
+            -0.9 * COUPLING_MAX,
+        ]
+    )
     assert implausible(ext, inside) == []
     # 300 ppm is 1100 hPa of air pressure wrong; 2 mm of sag a loose nest; 2 % of coupling a wrong gear train
     outside = np.array([300e-6, 2.0, 0.0, 0.02, 0.0, 0.0])
@@ -132,8 +150,9 @@ def test_compensation_corrects_the_coupling_and_leaves_the_measurement_geometric
     q = np.radians(np.array([[10.0, -60.0, 30.0, 40.0, -50.0, 70.0]]))
     dq = offsets(q)[0]
     # dq5 = c54 q4, dq6 = c64 q4 + c65 q5 (the form of the candidate), the other joints untouched
-    np.testing.assert_allclose(dq, [0, 0, 0, 0, c["c54"] * q[0, 3], c["c64"] * q[0, 3] + c["c65"] * q[0, 4]],
-                               atol=1e-15)  # fmt: skip
+    np.testing.assert_allclose(
+        dq, [0, 0, 0, 0, c["c54"] * q[0, 3], c["c64"] * q[0, 3] + c["c65"] * q[0, 4]], atol=1e-15
+    )
     for cause in ("range_scale", "nest_sag"):
         twin, table = twin_campaign(cell, cause, 20001)
         offsets, ignored, notes = joint_error_function(_model(cell, twin, table, cause))

@@ -61,9 +61,11 @@ def check_verdicts(cell, seeds):
             d = diagnose(cell.chain, table, cell.tool_points, params, TrackerNoise(), seed=seed)
             gained = d.holdout_extended_mm < d.holdout_geometric_mm
             if (d.cause != cause or (cause != "none" and not gained)) and not (
-                    d.cause == "unexplained" and beyond_physics(cell, seed, cause, magnitude, table, d)):
-                failures.append((seed, cause, round(magnitude, 4), d.cause, d.holdout_geometric_mm,
-                                 d.holdout_extended_mm))  # fmt: skip
+                d.cause == "unexplained" and beyond_physics(cell, seed, cause, magnitude, table, d)
+            ):
+                failures.append(
+                    (seed, cause, round(magnitude, 4), d.cause, d.holdout_geometric_mm, d.holdout_extended_mm)
+                )
     assert not failures, failures
 
 
@@ -83,8 +85,23 @@ def test_diagnose_cli_model_is_usable_by_predict(kr270, tmp_path):
     data = tmp_path / "t.csv"
     write_table(table, data)
     verdict, model, pred = tmp_path / "v.json", tmp_path / "m.json", tmp_path / "p.csv"
-    assert main(["diagnose", str(data), "--cell", "kr270", "--json", str(verdict), "--out", str(model),
-                 "--plots", str(tmp_path / "plots")]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "diagnose",
+                str(data),
+                "--cell",
+                "kr270",
+                "--json",
+                str(verdict),
+                "--out",
+                str(model),
+                "--plots",
+                str(tmp_path / "plots"),
+            ]
+        )
+        == 0
+    )
     v = json.loads(verdict.read_text())
     assert v["cause"] == "backlash"
     # every cause a candidate but those this campaign cannot pose: no bend in time (thermal_warmup's curvature), no
@@ -126,8 +143,9 @@ def test_several_causes_make_one_predictable_model(kr270, tmp_path, effects):
     write_table(table, data)
     assert main(["identify", str(data), "--cell", "kr270", "--extend", "+".join(effects), "--out", str(model)]) == 0
     ext = json.loads(model.read_text())["extension"]
-    named = {p["cause"] for p in ext.get("parts", [{"cause": ext["cause"]}])} | ({"station_shift"} if "after_t_s" in ext
-                                                                                 else set())  # fmt: skip
+    named = {p["cause"] for p in ext.get("parts", [{"cause": ext["cause"]}])} | (
+        {"station_shift"} if "after_t_s" in ext else set()
+    )
     assert named == set(effects)
     assert main(["predict", "--model", str(model), str(data), "--out", str(pred)]) == 0
     err = read_table(pred).xyz - table.xyz

@@ -53,8 +53,15 @@ def held_out(cell_name: str, effect: str, seed: int, n_poses: int, **kw) -> tupl
 
 def assert_floor(cell_name, effect, seed, n_poses, **kw):
     chosen, geometric, d = held_out(cell_name, effect, seed, n_poses, **kw)
-    assert chosen <= FLOOR * geometric, (effect, seed, n_poses, d.cause, [c["cause"] for c in d.causes], chosen,
-                                         geometric)  # fmt: skip
+    assert chosen <= FLOOR * geometric, (
+        effect,
+        seed,
+        n_poses,
+        d.cause,
+        [c["cause"] for c in d.causes],
+        chosen,
+        geometric,
+    )
 
 
 # the default examples are those the code before issue 36 failed (every effect is in the slow property test below)
@@ -77,8 +84,13 @@ def test_narrow_ranges_never_worse_up_to_10_percent_outside(effect):
 # 40002: its own test below) was taken for a station shift + compliance, 8 % worse; with them the 30 examples hold.
 @pytest.mark.slow
 @settings(max_examples=30, suppress_health_check=list(HealthCheck))
-@given(cell_name=st.sampled_from(sorted(CELLS)), effect=st.sampled_from([e for e in EFFECTS if e != "sagging_nest"]),
-       seed=st.integers(40000, 49999), n_poses=st.integers(15, 60), narrow=st.booleans())  # fmt: skip
+@given(
+    cell_name=st.sampled_from(sorted(CELLS)),
+    effect=st.sampled_from([e for e in EFFECTS if e != "sagging_nest"]),
+    seed=st.integers(40000, 49999),
+    n_poses=st.integers(15, 60),
+    narrow=st.booleans(),
+)
 def test_never_worse_property(cell_name, effect, seed, n_poses, narrow):
     kw = {"narrow_deg": 40.0, "outside": 0.1} if narrow else {}
     assert_floor(cell_name, effect, seed, n_poses, **kw)

@@ -51,15 +51,20 @@ def worse_beyond_tolerance(geo: np.ndarray, chosen: np.ndarray, poses: np.ndarra
     diff = np.array([np.mean(chosen[poses == p] - geo[poses == p]) for p in np.unique(poses)])
     se = diff.std(ddof=1) / np.sqrt(len(diff))
     rms_g, rms_c = np.sqrt(np.mean(geo) / 3) * 1000, np.sqrt(np.mean(chosen) / 3) * 1000
-    why = (f"fresh-pose RMS {rms_c:.1f} um (chosen) against {rms_g:.1f} um (geometric), mean difference "
-           f"{diff.mean():.3g} mm^2, standard error {se:.3g}")
+    why = (
+        f"fresh-pose RMS {rms_c:.1f} um (chosen) against {rms_g:.1f} um (geometric), mean difference "
+        f"{diff.mean():.3g} mm^2, standard error {se:.3g}"
+    )
     return bool(diff.mean() > 2 * se), why
 
 
-@pytest.mark.parametrize(("effect", "magnitude_mm", "n_poses", "seed"), [
-    ("cyclic_error", 0.05, 30, 3),  # was encoder_scale + cyclic_error: 6979 um on these fresh poses against 164 um
-    ("cyclic_error", 0.03, 15, 215),  # was cyclic_error: 170 um against 115 um
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("effect", "magnitude_mm", "n_poses", "seed"),
+    [
+        ("cyclic_error", 0.05, 30, 3),  # was encoder_scale + cyclic_error: 6979 um on these fresh poses against 164 um
+        ("cyclic_error", 0.03, 15, 215),  # was cyclic_error: 170 um against 115 um
+    ],
+)
 def test_cases_that_predicted_unseen_poses_worse(effect, magnitude_mm, n_poses, seed):
     """Before issue 25 these campaigns were given a cause whose model predicted fresh poses worse than geometry:
     the pose folds could not identify the model, and the folds by time block it fell back on hold out rows whose
@@ -70,8 +75,13 @@ def test_cases_that_predicted_unseen_poses_worse(effect, magnitude_mm, n_poses, 
 
 def campaigns():
     # magnitudes 2x to 5x the tracker's ~15 um per coordinate (README: what diagnose is measured on)
-    return st.tuples(st.sampled_from(("none", *CAUSES)), st.floats(0.03, 0.075), st.integers(15, 60),
-                     st.integers(0, 2**16), st.floats(1.0, 1.5))  # fmt: skip
+    return st.tuples(
+        st.sampled_from(("none", *CAUSES)),
+        st.floats(0.03, 0.075),
+        st.integers(15, 60),
+        st.integers(0, 2**16),
+        st.floats(1.0, 1.5),
+    )
 
 
 def check_campaign(case) -> None:

@@ -145,9 +145,16 @@ def measure(world: World, rows, t: np.ndarray, effects: list, scales: list[float
 
 
 def table_of(rows, t, xyz) -> MeasurementTable:
-    return MeasurementTable(np.arange(1, len(rows) + 1), t, [r[0] for r in rows], [r[1] for r in rows],
-                            [r[2] for r in rows], np.degrees(np.array([r[3] for r in rows])), xyz,
-                            source="independent generator")  # fmt: skip
+    return MeasurementTable(
+        np.arange(1, len(rows) + 1),
+        t,
+        [r[0] for r in rows],
+        [r[1] for r in rows],
+        [r[2] for r in rows],
+        np.degrees(np.array([r[3] for r in rows])),
+        xyz,
+        source="independent generator",
+    )
 
 
 def unabsorbed(rows, t, xyz) -> float:
@@ -156,8 +163,15 @@ def unabsorbed(rows, t, xyz) -> float:
     return float(np.sqrt(np.mean(res.residuals**2)))
 
 
-def campaign(seed: int, names: tuple[str, ...], n_poses: int = 30, noise_factor: float = 1.0, passes: int = 1,
-             times_noise: tuple[float, float] = (3.0, 6.0), radial_factor: float = 1.0):
+def campaign(
+    seed: int,
+    names: tuple[str, ...],
+    n_poses: int = 30,
+    noise_factor: float = 1.0,
+    passes: int = 1,
+    times_noise: tuple[float, float] = (3.0, 6.0),
+    radial_factor: float = 1.0,
+):
     rng = np.random.default_rng(seed)
     world = World(rng)
     rows = world.rows(np.round(random_poses(CELL, n_poses, rng), 6), passes)
@@ -186,9 +200,15 @@ def campaign(seed: int, names: tuple[str, ...], n_poses: int = 30, noise_factor:
 # same growth's limit of a tau long against the campaign, and the one diagnose offers when the warm-up's curvature is
 # not significant (calib/diagnose/warmup.py). This table named thermal_drift alone, written before thermal_warmup was a
 # candidate: naming the exact form failed the check (seed 5001: thermal_warmup, held-out 65 -> 15 um, the noise).
-NEAREST = {"harmonic34": {"cyclic_error"}, "high_order": {"cyclic_error"}, "tanh_backlash": {"backlash"},
-           "payload_off": {"joint_compliance"}, "encoder": {"encoder_scale"},
-           "warm_up": {"thermal_warmup", "thermal_drift"}, "drifting_station": {"station_shift"}}  # fmt: skip
+NEAREST = {
+    "harmonic34": {"cyclic_error"},
+    "high_order": {"cyclic_error"},
+    "tanh_backlash": {"backlash"},
+    "payload_off": {"joint_compliance"},
+    "encoder": {"encoder_scale"},
+    "warm_up": {"thermal_warmup", "thermal_drift"},
+    "drifting_station": {"station_shift"},
+}
 
 
 def verdict(seed: int, names: tuple[str, ...], **kw):
@@ -210,7 +230,6 @@ def check(seed: int, names: tuple[str, ...], **kw) -> str | None:
     if not all(w & set(named) for w in want) or d.cause not in set().union(*want) or not gained:
         return f"seed {seed} {names}: {d.cause} {named}"
     return None
-
 
 
 def finite_or_null(obj) -> bool:
@@ -339,8 +358,15 @@ PAIRS = (("payload_off", "tanh_backlash"), ("encoder", "warm_up"))
 
 @pytest.mark.slow
 def test_many_seeds_out_of_form_pairs_and_noisier_trackers():
-    failures = [f for seed in range(7000, 7006) for names in (*[(e,) for e in EFFECTS], *PAIRS)
-                if (f := check(seed, names)) is not None]  # fmt: skip
-    failures += [f"seed {s} none x1.5: {verdict(s, ('none',), noise_factor=1.5)[0].cause}" for s in range(7100, 7106)
-                 if verdict(s, ("none",), noise_factor=1.5)[0].cause != "none"]  # fmt: skip
+    failures = [
+        f
+        for seed in range(7000, 7006)
+        for names in (*[(e,) for e in EFFECTS], *PAIRS)
+        if (f := check(seed, names)) is not None
+    ]
+    failures += [
+        f"seed {s} none x1.5: {verdict(s, ('none',), noise_factor=1.5)[0].cause}"
+        for s in range(7100, 7106)
+        if verdict(s, ("none",), noise_factor=1.5)[0].cause != "none"
+    ]
     assert not failures, failures

@@ -59,10 +59,15 @@ def test_held_out_map_keeps_the_harmonics_not_the_columns():
     q = np.radians(table.q_deg)
     arcs = {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}
     names = [nm for j in arcs for nm in harmonic_names(j, 16)]
-    problem = Problem(CELL.chain, table, geo.points, params, TrackerNoise(),
-                      extension=map_extension(q, names=names, arcs=arcs))  # fmt: skip
-    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
-                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(len(names)))  # fmt: skip
+    problem = Problem(
+        CELL.chain, table, geo.points, params, TrackerNoise(), extension=map_extension(q, names=names, arcs=arcs)
+    )
+    state = State(
+        geo.dev,
+        [geo.stations[s] for s in problem.station_ids],
+        np.array([geo.points[p] for p in problem.point_ids]),
+        np.zeros(len(names)),
+    )
     held = HeldOutMap(problem, state, names)
     fold = _fold_ids(table, 5, 0)
 

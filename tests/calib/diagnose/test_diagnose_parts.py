@@ -42,8 +42,9 @@ def test_prefix_rigid_rss_equals_kabsch(seed, m):
 
 def kr270_context(cell, effects, seed=11, n_poses=25):
     params = irreducible_params(cell.chain)[0]
-    table = simulate_campaign(Twin(cell, seed=seed, effects=effects),
-                              np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed))))  # fmt: skip
+    table = simulate_campaign(
+        Twin(cell, seed=seed, effects=effects), np.degrees(random_poses(cell, n_poses, np.random.default_rng(seed)))
+    )
     geo = identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
     return fits.context(cell.chain, table, params, TrackerNoise(), geo, ("backlash",))
 
@@ -71,8 +72,9 @@ def test_joint_that_does_not_move_the_point_is_dropped():
     rng = np.random.default_rng(3)
     q = random_poses(cell, 60, rng)
     x = Kinematics(cell.chain, []).points(q, point["tmac"]) + rng.normal(0, 0.01, (60, 3))
-    table = MeasurementTable(np.arange(60), np.arange(60) * 10.0, [f"Q{i}" for i in range(60)], ["S"] * 60,
-                             ["tmac"] * 60, np.degrees(q), x)  # fmt: skip
+    table = MeasurementTable(
+        np.arange(60), np.arange(60) * 10.0, [f"Q{i}" for i in range(60)], ["S"] * 60, ["tmac"] * 60, np.degrees(q), x
+    )
     params = identifiable_subset(cell.chain, params, q, point)[0]
     geo = identify(cell.chain, table, point, params)
     ext, dropped = fits.visible_extension(cell.chain, table, geo, None, params, "encoder_scale")
@@ -83,13 +85,13 @@ def test_repeats_from_another_approach_direction_are_not_comparable():
     q = np.array([[0, 0], [10, 10], [0, 0], [-10, -10], [0, 0], [10, 10], [0, 0], [50, 50], [0, 0]], dtype=float)
     t = np.array([0, 1, 2, 3, 4, 5, 6, 50, 100], dtype=float)
     n = len(q)
-    table = MeasurementTable(np.arange(n), t, ["A", "B", "A", "C", "A", "B", "A", "D", "A"], ["S"] * n,
-                             ["p"] * n, q, np.zeros((n, 3)))  # fmt: skip
+    table = MeasurementTable(
+        np.arange(n), t, ["A", "B", "A", "C", "A", "B", "A", "D", "A"], ["S"] * n, ["p"] * n, q, np.zeros((n, 3))
+    )
     groups = [sorted(g.tolist()) for g in comparable_repeats(table)]
     # pose A from above (moving down: rows 2, 6, and 8, which is 94 s later: not close in time, over 10 %
     # of the 100 s campaign), from below (row 4) and with no approach yet (row 0); pose B twice from below
     assert groups == [[1, 5], [2, 6]]
-
 
 
 def test_map_evidence_matches_direct_penalised_fits(kr270):
@@ -157,8 +159,12 @@ def test_penalised_map_fit_stops_where_another_step_would_not_move_it(kr270):
     res = mf.identification
     assert res.converged and res.iterations < 6
     problem = Problem(ctx.chain, ctx.table, ctx.geo.points, ctx.params, TrackerNoise(), extension=res.extension)
-    state = State(res.dev, [res.stations[s] for s in problem.station_ids],
-                  np.array([res.points[p] for p in problem.point_ids]), res.ext)  # fmt: skip
+    state = State(
+        res.dev,
+        [res.stations[s] for s in problem.station_ids],
+        np.array([res.points[p] for p in problem.point_ids]),
+        res.ext,
+    )
     r, jm = problem.residual_and_jacobian(state)
     pen = np.zeros(problem.n_cols)
     pen[len(ctx.params) : len(ctx.params) + len(res.ext)] = mf.ridge
@@ -176,8 +182,15 @@ def test_time_folds_cut_at_a_change_point_train_on_both_sides_of_it(n1, n2, afte
     # twin of test_every_hidden_cause_is_named, seed 20001: S1 moved after 580 s of 760, 10 of its 39 rows)
     n = n1 + n2
     t = np.r_[np.arange(n1, dtype=float), 100.0 + np.arange(n2)]
-    table = MeasurementTable(np.arange(1, n + 1), t, [f"Q{i % 7}" for i in range(n)], ["S1"] * n1 + ["S2"] * n2,
-                             ["P1"] * n, np.zeros((n, 6)), np.zeros((n, 3)))  # fmt: skip
+    table = MeasurementTable(
+        np.arange(1, n + 1),
+        t,
+        [f"Q{i % 7}" for i in range(n)],
+        ["S1"] * n1 + ["S2"] * n2,
+        ["P1"] * n,
+        np.zeros((n, 6)),
+        np.zeros((n, 3)),
+    )
     cut = float(np.floor(after * (n1 - 1)))
     s1_before, s1_after = np.flatnonzero(t <= cut), np.flatnonzero((t > cut) & (t < 100.0))
     groups = crossval.fold_rows(table, "time", folds, 0, cut=("S1", cut))

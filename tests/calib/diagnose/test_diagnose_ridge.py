@@ -19,7 +19,7 @@ def direct(s, b, lams):
 def test_ridge_path_equals_one_solve_per_ridge(p, rank, seed):
     rng = np.random.default_rng(seed)
     x = rng.standard_normal((3 * p, p)) * np.geomspace(1.0, 1e3, p)  # columns of different scales, as Jacobians
-    x[:, max(1, int(rank * p)):] = 0.0  # and possibly rank deficient: the ridge alone holds those directions
+    x[:, max(1, int(rank * p)) :] = 0.0  # and possibly rank deficient: the ridge alone holds those directions
     s, b = x.T @ x, x.T @ rng.standard_normal(3 * p)
     lams = np.geomspace(1e-3, 1e3, 7) * np.trace(s) / p
     ref = direct(s, b, lams)

@@ -57,8 +57,11 @@ def reference_distinct_poses(q, feats):
 def test_distinct_poses_equal_the_whole_key(kind):
     rng = np.random.default_rng(3)
     q = rng.uniform(-3, 3, (12, 6))[rng.integers(0, 12, 60)]  # 60 rows, poses repeated
-    feats = {"none": None, "of_angles": np.sin(q)[:, :, None] * np.arange(1, 4),
-             "not_of_angles": rng.choice([-1.0, 1.0], (60, 6, 2))}[kind]  # fmt: skip
+    feats = {
+        "none": None,
+        "of_angles": np.sin(q)[:, :, None] * np.arange(1, 4),
+        "not_of_angles": rng.choice([-1.0, 1.0], (60, 6, 2)),
+    }[kind]
     first, of_row = _distinct_poses(q, feats)
     ref_first, ref_of_row = reference_distinct_poses(q, feats)
     assert np.array_equal(first, ref_first) and np.array_equal(of_row, ref_of_row)
@@ -94,8 +97,19 @@ def test_fold_downdates_formed_once_give_the_same_scores():
     keep = np.r_[0:5, 10:30]  # a model without some unpenalised columns: blocks of the whole downdates
     pen_k = np.arange(5, 25)
     sub = _cv_scores(jm[:, keep], r, gram[np.ix_(keep, keep)], rhs[keep], None, pen_k, fold, [pen_k], [1.0])
-    fast = _cv_scores(jm[:, keep], r, gram[np.ix_(keep, keep)], rhs[keep], None, pen_k, fold, [pen_k], [1.0], None,
-                      grams.columns(keep))  # fmt: skip
+    fast = _cv_scores(
+        jm[:, keep],
+        r,
+        gram[np.ix_(keep, keep)],
+        rhs[keep],
+        None,
+        pen_k,
+        fold,
+        [pen_k],
+        [1.0],
+        None,
+        grams.columns(keep),
+    )
     assert np.allclose(sub[0], fast[0], rtol=1e-12, atol=0)
 
 
@@ -155,13 +169,19 @@ def test_solver_takes_the_same_steps_with_fewer_normal_equations(twin_case):
     table, params, _ = twin_case
     calls = {"new": 0, "old": 0}
     results = {}
-    for which, run in (("new", lambda p, s: (lambda sol: (sol.state, sol.nit))(solver.solve(p, s))),
-                       ("old", reference_solve)):  # fmt: skip
+    for which, run in (
+        ("new", lambda p, s: (lambda sol: (sol.state, sol.nit))(solver.solve(p, s))),
+        ("old", reference_solve),
+    ):
         problem = Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise())
         s0 = problem.initial
         turn = exp_so3(2.5 * np.array([0.3, -0.2, 1.0]))
-        start = State(s0.dev, [Station(turn @ st.rotation, st.translation + 100.0) for st in s0.stations],
-                      s0.points + 50.0, s0.ext)  # fmt: skip
+        start = State(
+            s0.dev,
+            [Station(turn @ st.rotation, st.translation + 100.0) for st in s0.stations],
+            s0.points + 50.0,
+            s0.ext,
+        )
         counted = problem.normal_equations
 
         def count(s, counted=counted, which=which):
@@ -204,8 +224,12 @@ B_PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,ph
 # Issue 36 added the edge folds (each joint's extreme poses held out) to the held-out figures, on purpose: the
 # verdict is unchanged, its figures are now those of the partition and the edge folds (before: 0.25695947777930694
 # -> 0.07770870938575124 on the partition alone).
-B_BEFORE = {"cause": "cyclic_error", "causes": ["joint_compliance", "cyclic_error"],
-            "rms_geometric_mm": 0.25725176765956365, "rms_extended_mm": 0.10522610739998324}  # fmt: skip
+B_BEFORE = {
+    "cause": "cyclic_error",
+    "causes": ["joint_compliance", "cyclic_error"],
+    "rms_geometric_mm": 0.25725176765956365,
+    "rms_extended_mm": 0.10522610739998324,
+}
 
 
 # slow: 12 s of real data; the fast paths are checked against the code they replaced by default (above)
@@ -215,8 +239,10 @@ def test_series_b_verdict_and_held_out_figures_are_unchanged(tmp_path: Path):
     b = tmp_path / "b.csv"
     assert main(["import", "ipa-ur10", str(DATA / SERIES["B"]), "--out", str(b)]) == 0
     out = tmp_path / "verdict.json"
-    assert main(["diagnose", str(b), "--cell", "ur10-ipa", "--weighting", "iid", "--params", B_PARAMS, "--json",
-                 str(out)]) == 0  # fmt: skip
+    assert (
+        main(["diagnose", str(b), "--cell", "ur10-ipa", "--weighting", "iid", "--params", B_PARAMS, "--json", str(out)])
+        == 0
+    )
     doc = json.loads(out.read_text())
     assert doc["cause"] == B_BEFORE["cause"]
     assert [c["cause"] for c in doc["causes"]] == B_BEFORE["causes"]
@@ -231,13 +257,15 @@ def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
     table, params, geo = twin_case
     plain = diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo)
     with ThreadPoolExecutor(2) as ex:
-        threaded = diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo,
-                                      executor=ex)  # fmt: skip
+        threaded = diagnose(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), geometric=geo, executor=ex)
     assert any(c.cause == "cyclic_error" and c.detail.get("error_map") for c in plain.candidates)  # the search ran
-    figures = [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
-               for c in plain.candidates]  # fmt: skip
-    assert figures == [(c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
-                       for c in threaded.candidates]  # fmt: skip
+    figures = [
+        (c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm) for c in plain.candidates
+    ]
+    assert figures == [
+        (c.cause, c.step, c.rss, c.f_pvalue, c.delta_bic, c.holdout_rms_mm, c.holdout_base_mm)
+        for c in threaded.candidates
+    ]
     assert (plain.cause, plain.holdout_extended_mm) == (threaded.cause, threaded.holdout_extended_mm)
     assert plain.structure == threaded.structure  # the smoother test folds in threads
     assert "cross-validated smoother" in [t["test"] for t in plain.structure["tests"]]
@@ -252,8 +280,12 @@ def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_cas
     names = [nm for j in arcs for nm in harmonic_names(j, 5)]
     ext = map_extension(q, names=names, arcs=arcs)
     problem = Problem(CELL.chain, table, geo.points, params, TrackerNoise(), extension=ext)
-    state = State(geo.dev, [geo.stations[s] for s in problem.station_ids],
-                  np.array([geo.points[p] for p in problem.point_ids]), np.zeros(len(names)))  # fmt: skip
+    state = State(
+        geo.dev,
+        [geo.stations[s] for s in problem.station_ids],
+        np.array([geo.points[p] for p in problem.point_ids]),
+        np.zeros(len(names)),
+    )
     held = HeldOutMap(problem, state, names)
     test = np.arange(0, len(table), 4)
     train = np.setdiff1d(np.arange(len(table)), test)

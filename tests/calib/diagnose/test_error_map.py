@@ -110,8 +110,15 @@ def test_joint_on_the_reference_point_axis_is_not_identifiable(kr270):
     kin = Kinematics(chain, [])
     xyz = kin.points(q, point["P"]) + rng.normal(0.0, NOISE_RMS_MM, (len(q), 3))
     n = len(q)
-    table = MeasurementTable(seq=np.arange(n), t_s=np.arange(n) * 20.0, pose=[f"Q{i}" for i in range(n)],
-                             station=["S"] * n, point=["P"] * n, q_deg=np.degrees(q), xyz=xyz)  # fmt: skip
+    table = MeasurementTable(
+        seq=np.arange(n),
+        t_s=np.arange(n) * 20.0,
+        pose=[f"Q{i}" for i in range(n)],
+        station=["S"] * n,
+        point=["P"] * n,
+        q_deg=np.degrees(q),
+        xyz=xyz,
+    )
     params, _ = identifiable_subset(chain, irreducible_params(chain)[0], q, point)
     fit = fit_error_map(chain, table, point, params, orders=(2, 4))
     assert set(fit.not_identifiable) == {5}
@@ -128,8 +135,15 @@ def test_outside_the_fitted_arc_the_map_keeps_its_end_value(twin_fit):
     ends = arcs[0].to_doc()
     q = np.zeros((4, cell.chain.dof))
     q[:, 0] = np.radians([ends["to_deg"], 90.0, ends["from_deg"], -110.0])
-    probe = MeasurementTable(seq=np.arange(4), t_s=np.zeros(4), pose=list("abcd"), station=["S"] * 4,
-                             point=["P"] * 4, q_deg=np.degrees(q), xyz=None)  # fmt: skip
+    probe = MeasurementTable(
+        seq=np.arange(4),
+        t_s=np.zeros(4),
+        pose=list("abcd"),
+        station=["S"] * 4,
+        point=["P"] * 4,
+        q_deg=np.degrees(q),
+        xyz=None,
+    )
     off = build_extension("cyclic_error", cell.chain, probe, names=names, arcs=arcs).joint_offsets(theta)[:, 0]
     assert outside_arcs(q, arcs)[:, 0].tolist() == [False, True, False, True]
     assert off[1] == pytest.approx(off[0], abs=1e-15)  # 90 deg is nearer the upper end (+60)

@@ -36,8 +36,15 @@ def campaign(cell, n_poses: int, seed: int, pivot: np.ndarray, rate: float) -> M
     rot, trans = exp_so3(np.array([0.1, -0.2, 2.5])), np.array([3000.0, -1000.0, -800.0])
     xyz = pb @ rot.T + trans + rng.normal(0.0, NOISE_MM, pb.shape)
     n = len(t)
-    return MeasurementTable(seq=np.arange(n), t_s=t, pose=[f"Q{i // len(pids)}" for i in range(n)],
-                            station=["S"] * n, point=pids * n_poses, q_deg=np.degrees(rows_q), xyz=xyz)  # fmt: skip
+    return MeasurementTable(
+        seq=np.arange(n),
+        t_s=t,
+        pose=[f"Q{i // len(pids)}" for i in range(n)],
+        station=["S"] * n,
+        point=pids * n_poses,
+        q_deg=np.degrees(rows_q),
+        xyz=xyz,
+    )
 
 
 @pytest.mark.parametrize("form", THERMAL_FORMS)
@@ -78,15 +85,22 @@ def test_combined_extension_jacobian_matches_finite_differences(kr270):
     chain = cell.chain
     table = campaign(cell, 12, 9, np.zeros(3), 0.0)
     arcs_ext = build_extension("cyclic_error", chain, table, harmonics=3)
-    ext = combine([build_extension("joint_compliance", chain, table), arcs_ext,
-                   build_extension("thermal_drift", chain, table, names=["e_base"])], cause="cyclic_error")
+    ext = combine(
+        [
+            build_extension("joint_compliance", chain, table),
+            arcs_ext,
+            build_extension("thermal_drift", chain, table, names=["e_base"]),
+        ],
+        cause="cyclic_error",
+    )
     assert [c for c, _ in ext.parts()] == ["joint_compliance", "cyclic_error", "thermal_drift"]
     params = irreducible_params(chain)[0]
     rng = np.random.default_rng(2)
     theta = rng.normal(0.0, 1e-4, ext.size)
     theta[-1] = GROWTH_PER_S
-    problem = Problem(chain, table, cell.tool_points, params, extension=ext, ext0=theta,
-                      dev0=rng.normal(0.0, 1e-3, len(params)))  # fmt: skip
+    problem = Problem(
+        chain, table, cell.tool_points, params, extension=ext, ext0=theta, dev0=rng.normal(0.0, 1e-3, len(params))
+    )
     state = problem.initial
     r0, jm = problem.residual_and_jacobian(state)
     k = len(params)

@@ -75,8 +75,13 @@ def assert_same(table: MeasurementTable) -> None:
 
 
 # the README's `trackcal simulate` tables (its simulate section): plain, repeated, with a backlash, the UR10's
-README_TABLES = [("kr270", 30, 1, 1, {}), ("kr270", 30, 1, 3, {}), ("kr270", 40, 1, 1, {"backlash": 0.04}),
-                 ("ur10", 30, 2, 1, {}), ("kr270", 20, 3, 1, {"backlash": 0.05})]  # fmt: skip
+README_TABLES = [
+    ("kr270", 30, 1, 1, {}),
+    ("kr270", 30, 1, 3, {}),
+    ("kr270", 40, 1, 1, {"backlash": 0.04}),
+    ("ur10", 30, 2, 1, {}),
+    ("kr270", 20, 3, 1, {"backlash": 0.05}),
+]
 
 
 @pytest.mark.parametrize(("cell", "poses", "seed", "repeat", "effects"), README_TABLES)
@@ -97,8 +102,9 @@ def tables(draw) -> MeasurementTable:
     steps = draw(st.lists(st.sampled_from([0.0, 0.5, 1.0, 3.0, 30.0]), min_size=n, max_size=n))
     pick = st.lists(st.sampled_from(["A", "B"]), min_size=n, max_size=n)
     xyz = draw(st.lists(st.floats(-1e3, 1e3), min_size=3 * n, max_size=3 * n))
-    return MeasurementTable(np.arange(n), np.cumsum(steps), draw(pick), draw(pick), draw(pick),
-                            q.reshape(n, 2), np.array(xyz).reshape(n, 3))  # fmt: skip
+    return MeasurementTable(
+        np.arange(n), np.cumsum(steps), draw(pick), draw(pick), draw(pick), q.reshape(n, 2), np.array(xyz).reshape(n, 3)
+    )
 
 
 @settings(max_examples=300, deadline=None)
@@ -108,9 +114,17 @@ def test_drawn_tables_give_the_same_floor_as_the_row_loop(table):
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.integers(0, 30).flatmap(lambda n: st.lists(
-    st.lists(st.sampled_from([0.0, 5e-8, -5e-8, 1e-7, 2e-7, -3e-7, 0.25, -1.5, np.nan]), min_size=3, max_size=3),
-    min_size=n, max_size=n)))  # fmt: skip
+@given(
+    st.integers(0, 30).flatmap(
+        lambda n: st.lists(
+            st.lists(
+                st.sampled_from([0.0, 5e-8, -5e-8, 1e-7, 2e-7, -3e-7, 0.25, -1.5, np.nan]), min_size=3, max_size=3
+            ),
+            min_size=n,
+            max_size=n,
+        )
+    )
+)
 def test_drawn_joint_paths_give_the_same_approach_directions(steps):
     # moves at and around the 1e-7 rad tolerance, standing joints, a reading lost (NaN): the same array exactly
     q = np.cumsum(np.array(steps, dtype=float).reshape(-1, 3), axis=0)
@@ -124,8 +138,15 @@ def test_no_python_step_per_row():
     n = 20_000
     rng = np.random.default_rng(0)
     q = np.repeat(rng.uniform(-90, 90, (n // 4, 6)), 4, axis=0)
-    table = MeasurementTable(np.arange(n), np.arange(n, dtype=float), [f"Q{i // 4}" for i in range(n)], ["S"] * n,
-                             [f"P{i % 4}" for i in range(n)], q, rng.normal(0, 1, (n, 3)))  # fmt: skip
+    table = MeasurementTable(
+        np.arange(n),
+        np.arange(n, dtype=float),
+        [f"Q{i // 4}" for i in range(n)],
+        ["S"] * n,
+        [f"P{i % 4}" for i in range(n)],
+        q,
+        rng.normal(0, 1, (n, 3)),
+    )
     lines = 0
 
     def tracer(frame, event, arg):

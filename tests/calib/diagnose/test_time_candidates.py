@@ -92,11 +92,13 @@ def test_payload_bolted_on_halfway_is_named_and_predicts_the_loaded_robot(kr270)
     twin, table, params = twin_campaign(kr270, "payload_compliance", 36104)
     d = diagnose(kr270.chain, table, kr270.tool_points, params, TrackerNoise(), seed=36104)
     assert d.cause == "payload_compliance", (d.cause, [c.cause for c in d.candidates if c.significant])
-    fresh = simulate_campaign(twin, np.degrees(random_poses(kr270, 20, np.random.default_rng([36104, 1]))),
-                              noise_free=True)  # fmt: skip
+    fresh = simulate_campaign(
+        twin, np.degrees(random_poses(kr270, 20, np.random.default_rng([36104, 1]))), noise_free=True
+    )
     fresh.t_s = fresh.t_s + table.t_s.max() + 600.0  # after the campaign: loaded
-    fresh.xyz = np.array([twin.exact(q, p, s, t) for q, p, s, t in zip(fresh.q_deg, fresh.point, fresh.station,
-                                                                       fresh.t_s, strict=True)])  # fmt: skip
+    fresh.xyz = np.array(
+        [twin.exact(q, p, s, t) for q, p, s, t in zip(fresh.q_deg, fresh.point, fresh.station, fresh.t_s, strict=True)]
+    )
     fresh.extra = {}
     errors = {}
     for cause in ("none", "joint_compliance", "payload_compliance"):
@@ -172,7 +174,23 @@ def test_the_docs_warmup_case_names_the_warmup_and_does_not_stop_at_its_rival(tm
     linear drift about another pivot is a rival form of the same growth; judging it tried to combine both and ended
     diagnose in exit 2 ("two growth extensions with different pivots cannot be combined")."""
     monkeypatch.chdir(tmp_path)
-    assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", "3", "--effect", "thermal_warmup:0.06",
-                 "--out", "warmup.csv"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                "--cell",
+                "kr270",
+                "--poses",
+                "40",
+                "--seed",
+                "3",
+                "--effect",
+                "thermal_warmup:0.06",
+                "--out",
+                "warmup.csv",
+            ]
+        )
+        == 0
+    )
     assert main(["diagnose", "warmup.csv", "--cell", "kr270", "--json", "verdict.json"]) == 0
     assert json.loads((tmp_path / "verdict.json").read_text())["cause"] == "thermal_warmup"

@@ -108,8 +108,9 @@ def test_fig7_example(planar):
     1.573 mm, D-optimal 1.000 mm, proposed (+-46 deg) 0.819 mm: the paper's "18 % better than D-optimal and
     48 % better than random"."""
     d = planar_design(planar)
-    random_, dopt, prop = (d.rho0(np.radians(p)) for p in ([[0, -10], [0, 10]], [[0, -90], [0, 90]],
-                                                             [[0, -46], [0, 46]]))  # fmt: skip
+    random_, dopt, prop = (
+        d.rho0(np.radians(p)) for p in ([[0, -10], [0, 10]], [[0, -90], [0, 90]], [[0, -46], [0, 46]])
+    )
     assert (random_, dopt, prop) == pytest.approx((1.5727, 1.0, 0.8192), abs=1e-4)
     assert 1 - prop / dopt == pytest.approx(0.18, abs=0.005)
     assert 1 - prop / random_ == pytest.approx(0.48, abs=0.005)
@@ -119,8 +120,9 @@ def test_fig7_example(planar):
 def kr_design(kr270):
     cell = kr270
     # the paper's planning assumption (section 7.2: base and tool known), for reproducing its set-up
-    return design_for_cell(cell, [param_by_name(cell.chain, n) for n in cell.plan_params], sigma_mm=0.01,
-                           known=PAPER_KNOWN)
+    return design_for_cell(
+        cell, [param_by_name(cell.chain, n) for n in cell.plan_params], sigma_mm=0.01, known=PAPER_KNOWN
+    )
 
 
 @pytest.mark.parametrize("criterion", ["rho0", "D", "A", "E"])
@@ -148,8 +150,13 @@ def test_constraint_jacobian_matches_finite_differences(kr_design):
     g, dg = kr_design.constraints(x, 4, seen)
     assert dg.shape == (len(g), len(x)) and len(g) == 4 * 3 * 6 + seen.sum()
     h = 1e-6
-    fd = np.stack([(kr_design.constraints(x + h * e, 4, seen)[0] - kr_design.constraints(x - h * e, 4, seen)[0])
-                   / (2 * h) for e in np.eye(len(x))], axis=1)  # fmt: skip
+    fd = np.stack(
+        [
+            (kr_design.constraints(x + h * e, 4, seen)[0] - kr_design.constraints(x - h * e, 4, seen)[0]) / (2 * h)
+            for e in np.eye(len(x))
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(dg, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
 
 
@@ -162,8 +169,12 @@ def test_batched_criterion_values_agree_with_criteria(kr_design, criterion):
     k = kr_design.unknowns.size
     for v, q in zip(values, plans, strict=True):
         c = kr_design.criteria(q)
-        expected = {"rho0": c["rho0_mm"] ** 2, "A": c["A_trace_cov_mm2"], "D": np.exp(c["D_logdet_cov"] / k),
-                    "E": c["E_max_eig_cov_mm2"]}[criterion]  # fmt: skip
+        expected = {
+            "rho0": c["rho0_mm"] ** 2,
+            "A": c["A_trace_cov_mm2"],
+            "D": np.exp(c["D_logdet_cov"] / k),
+            "E": c["E_max_eig_cov_mm2"],
+        }[criterion]
         assert v == pytest.approx(expected, rel=1e-8)
 
 

@@ -16,8 +16,9 @@ def design(name: str, q0_deg=None, sigma_mm: float = 0.01):
     cell = load_cell(name)
     params = [param_by_name(cell.chain, n) for n in cell.plan_params]
     # the paper's planning assumption (section 7.2: base and tool known), as in its tables
-    return design_for_cell(cell, params, None if q0_deg is None else np.radians(q0_deg), sigma_mm=sigma_mm,
-                           known=PAPER_KNOWN)
+    return design_for_cell(
+        cell, params, None if q0_deg is None else np.radians(q0_deg), sigma_mm=sigma_mm, known=PAPER_KNOWN
+    )
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +28,7 @@ def kr():
 
 @pytest.fixture(scope="module")
 def kr_bound(kr):
-    return rho0_lower_bound(kr, 18, np.random.default_rng(1), pool_size=1000, rounds=2, local_starts=8,
-                            iterations=500)  # fmt: skip
+    return rho0_lower_bound(kr, 18, np.random.default_rng(1), pool_size=1000, rounds=2, local_starts=8, iterations=500)
 
 
 @pytest.mark.parametrize("q20_deg", [20.0, 60.0, 150.0])
@@ -74,8 +74,12 @@ def test_derivative_is_the_direct_trace_and_its_gradient_matches_finite_differen
     value, grad = derivative(kr, x, a, w_rows)
     assert value == pytest.approx(np.trace(kr.pose_information(x)[0] @ a), rel=1e-10)
     h = 1e-6
-    fd = np.array([(derivative(kr, x + h * e, a, w_rows)[0] - derivative(kr, x - h * e, a, w_rows)[0]) / (2 * h)
-                   for e in np.eye(len(x))])  # fmt: skip
+    fd = np.array(
+        [
+            (derivative(kr, x + h * e, a, w_rows)[0] - derivative(kr, x - h * e, a, w_rows)[0]) / (2 * h)
+            for e in np.eye(len(x))
+        ]
+    )
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
 
 

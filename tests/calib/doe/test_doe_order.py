@@ -24,14 +24,19 @@ def test_station_by_station_point_by_point_drift_revisits_and_alternating_passes
     p2 = [("S1", "P2", 2, False), ("S1", "P2", 1, True)] + [("S1", "P2", i, False) for i in (1, 2, 2, 1)]
     assert got == [*p1, ("S1", "P1", 1, True), *p2, ("S1", "P2", 1, True)]
     # the order of sessions made before (calib.doe.order: `approached`): no opening measurement
-    legacy = [(v.station, v.point, v.pose, v.drift) for v in campaign_order(4, ["S1", "S2"], ["P1", "P2"], seen, 2,
-                                                                             approached=False)]  # fmt: skip
+    legacy = [
+        (v.station, v.point, v.pose, v.drift)
+        for v in campaign_order(4, ["S1", "S2"], ["P1", "P2"], seen, 2, approached=False)
+    ]
     assert legacy == [*p1[1:], ("S1", "P1", 1, True), *p2[1:], ("S1", "P2", 1, True)]
 
 
 def test_no_drift_check_when_the_point_does_not_see_the_reference_pose():
-    seen = {("S1", "P1"): np.array([True, True, False]), ("S1", "P2"): np.array([False, True, True]),
-            ("S1", "P3"): np.array([False, False, True])}  # fmt: skip
+    seen = {
+        ("S1", "P1"): np.array([True, True, False]),
+        ("S1", "P2"): np.array([False, True, True]),
+        ("S1", "P3"): np.array([False, False, True]),
+    }
     visits = campaign_order(3, ["S1"], ["P1", "P2", "P3"], seen)  # points seen per pose 1, 2, 2: the reference is 1
     assert [v for v in visits if v.point == "P3"] == [Visit("S1", "P3", 2)]
 
@@ -47,8 +52,11 @@ def test_engine_steps_and_twin_table_walk_the_same_order(kr270):
     ]
     twin = Twin(kr270, seed=3)
     table = simulate_campaign(twin, poses, repeat=2)
-    seen = {(s, p): np.array([twin.visible(q, p, s) for q in poses]) for s in sorted(kr270.stations)
-            for p in sorted(kr270.tool_points)}  # fmt: skip
+    seen = {
+        (s, p): np.array([twin.visible(q, p, s) for q in poses])
+        for s in sorted(kr270.stations)
+        for p in sorted(kr270.tool_points)
+    }
     expected = campaign_order(len(poses), sorted(kr270.stations), sorted(kr270.tool_points), seen, 2)
     assert list(zip(table.station, table.point, table.pose, strict=True)) == [
         (v.station, v.point, f"Q{v.pose + 1}") for v in expected

@@ -17,14 +17,30 @@ from trackcal.campaign.jobs.identify import run_identify
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 # the 16 parameters the UR10 with its one T-Mac point on the wrist_3 axis identifies (README, UR10 section)
-UR10_P = ["px1", "py1", "phix1", "dq2", "px2", "phix2", "phiy2", "dq3", "px3", "phix3", "phiy3", "dq4", "px4", "py4",
-          "phix4", "dq5"]  # fmt: skip
+UR10_P = [
+    "px1",
+    "py1",
+    "phix1",
+    "dq2",
+    "px2",
+    "phix2",
+    "phiy2",
+    "dq3",
+    "px3",
+    "phix3",
+    "phiy3",
+    "dq4",
+    "px4",
+    "py4",
+    "phix4",
+    "dq5",
+]
 
 
 def test_ratio_of_an_uncorrelated_column_and_of_a_near_dependent_one():
     """An orthogonal column reaches 1.96 / sqrt(rows) (its interval's displacement: 1.96 sigma / sqrt(3N) RMS); two
-    columns a and a + 1e-3 b (a, b orthonormal) leave each a part 1e-3 of its norm independent of the other, so
-(J^T J)^-1_pp = 1e6: ratio 1.96 / 1e-3 / sqrt(rows)."""
+        columns a and a + 1e-3 b (a, b orthonormal) leave each a part 1e-3 of its norm independent of the other, so
+    (J^T J)^-1_pp = 1e6: ratio 1.96 / 1e-3 / sqrt(rows)."""
     rng = np.random.default_rng(0)
     q, _ = np.linalg.qr(rng.standard_normal((300, 3)))
     jm = q * np.array([5.0, 0.1, 2.0])
@@ -50,8 +66,21 @@ def test_parameters_one_point_cannot_fix_are_named(one_point_ur10, tmp_path, cap
     path = tmp_path / "u.csv"
     write_table(table, str(path))
     out = tmp_path / "m.json"
-    assert main(["identify", str(path), "--cell", "ur10-ipa", "--params", ",".join([*UR10_P, "px5", "phix5"]),
-                 "--out", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "identify",
+                str(path),
+                "--cell",
+                "ur10-ipa",
+                "--params",
+                ",".join([*UR10_P, "px5", "phix5"]),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "poorly determined" in err[0] and "px5" in err[0] and "phix5" in err[0]
     bad = json.loads(out.read_text())["poorly_determined"]

@@ -26,10 +26,22 @@ from trackcal.mocks.twin import Twin, simulate_campaign
 
 def old_fit_jacobian(res: Identification, table, params) -> np.ndarray:
     extra = len(params) - len(res.params)
-    problem = Problem(res.chain, table, res.points, params, res.noise, np.r_[res.dev, np.zeros(extra)],
-                      extension=res.extension, ext0=res.ext)  # fmt: skip
-    state = State(problem.initial.dev, [res.stations[s] for s in problem.station_ids],
-                  np.array([res.points[p] for p in problem.point_ids]), np.asarray(res.ext, dtype=float))  # fmt: skip
+    problem = Problem(
+        res.chain,
+        table,
+        res.points,
+        params,
+        res.noise,
+        np.r_[res.dev, np.zeros(extra)],
+        extension=res.extension,
+        ext0=res.ext,
+    )
+    state = State(
+        problem.initial.dev,
+        [res.stations[s] for s in problem.station_ids],
+        np.array([res.points[p] for p in problem.point_ids]),
+        np.asarray(res.ext, dtype=float),
+    )
     return problem.residual_and_jacobian(state)[1]
 
 
@@ -75,11 +87,14 @@ def fitted(cell, table, params, cause="none"):
     return fit.result, fit.table
 
 
-@pytest.mark.parametrize(("cell_name", "poses", "seed", "effects", "cause"), [
-    ("kr270", 30, 1, {}, "none"),  # the README's first table
-    ("kr270", 40, 1, {"backlash": 0.04}, "backlash"),  # the README's backlash table, extended by its cause
-    ("ur10", 30, 2, {}, "none"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("cell_name", "poses", "seed", "effects", "cause"),
+    [
+        ("kr270", 30, 1, {}, "none"),  # the README's first table
+        ("kr270", 40, 1, {"backlash": 0.04}, "backlash"),  # the README's backlash table, extended by its cause
+        ("ur10", 30, 2, {}, "none"),
+    ],
+)
 def test_readme_tables_judged_the_same(cell_name, poses, seed, effects, cause):
     cell, _, table = simulate(SimulateOptions(cell_name, poses=poses, seed=seed, effects=effects))
     res, fit_table = fitted(cell, table, campaign_params(cell.chain), cause)

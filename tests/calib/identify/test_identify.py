@@ -98,8 +98,10 @@ def test_row_permutation_leaves_everything_unchanged(kr270, kr270_params, noisy,
 def test_station_only_reestimation_keeps_robot_and_points(kr270, kr270_params, noisy):
     """fixed=("robot", "points"): a calibrated model checked from new tracker set-ups fits only the stations."""
     table, ref = noisy
-    moves = {"S1": (exp_so3(np.array([0.3, -1.2, 2.0])), np.array([1500.0, -800.0, 40.0])),
-             "S2": (exp_so3(np.array([-0.7, 0.1, 0.4])), np.array([-300.0, 2500.0, -90.0]))}  # fmt: skip
+    moves = {
+        "S1": (exp_so3(np.array([0.3, -1.2, 2.0])), np.array([1500.0, -800.0, 40.0])),
+        "S2": (exp_so3(np.array([-0.7, 0.1, 0.4])), np.array([-300.0, 2500.0, -90.0])),
+    }
     moved = table
     for sid, (r, t) in moves.items():
         moved = _station_moved(moved, sid, r, t)
@@ -113,8 +115,9 @@ def test_station_only_reestimation_keeps_robot_and_points(kr270, kr270_params, n
         rows = np.array(table.station) == sid
         np.testing.assert_allclose(res.residuals[rows], ref.residuals[rows] @ r.T, atol=1e-6)
         # i.i.d. weights: each station is the closed-form rigid fit of the model's base-frame points
-        pb = np.linalg.solve(ref.stations[sid].rotation, (table.xyz[rows] - ref.residuals[rows]
-                                                          - ref.stations[sid].translation).T).T  # fmt: skip
+        pb = np.linalg.solve(
+            ref.stations[sid].rotation, (table.xyz[rows] - ref.residuals[rows] - ref.stations[sid].translation).T
+        ).T
         rk, tk = kabsch(pb, moved.xyz[rows])
         np.testing.assert_allclose(res.stations[sid].rotation, rk, atol=1e-9)
     # only 12 unknowns: the fixed ones have no variance, the degrees of freedom count the stations alone
@@ -190,8 +193,7 @@ def test_structured_solver_equals_a_dense_reference(kr270, kr270_params, cause):
         assert cost == pytest.approx(float(r @ r), rel=1e-12)
         rf = problem.r_factor(state)
         np.testing.assert_allclose(rf.T @ rf, jm.T @ jm, rtol=1e-9, atol=1e-12 * np.abs(info).max())
-        np.testing.assert_allclose(np.linalg.svd(rf, compute_uv=False), np.linalg.svd(jm, compute_uv=False),
-                                   rtol=1e-8)  # fmt: skip
+        np.testing.assert_allclose(np.linalg.svd(rf, compute_uv=False), np.linalg.svd(jm, compute_uv=False), rtol=1e-8)
     ours = solve(problem, problem.initial).state
     ref = problem.initial
     for _ in range(20):  # dense Gauss-Newton by least squares on the whole Jacobian
@@ -210,8 +212,12 @@ def extended(kr270, kr270_params):
     """A problem with every kind of unknown: robot, a growth (thermal) and a joint-offset (backlash) extension,
     two stations, three points, the tracker noise model, away from its start."""
     _, table = kr270_campaign(kr270, seed=41, n_poses=8)
-    ext = combine([build_extension("backlash", kr270.chain, table), build_extension("thermal_drift", kr270.chain,
-                                                                                   table, names=["e_base"])])
+    ext = combine(
+        [
+            build_extension("backlash", kr270.chain, table),
+            build_extension("thermal_drift", kr270.chain, table, names=["e_base"]),
+        ]
+    )
     return table, ext
 
 
@@ -222,8 +228,16 @@ def test_jacobian_blocks_match_central_differences(kr270, kr270_params, extended
     of any subset of rows in any order, against central differences of the residuals, every free column."""
     table, ext = extended
     rng = np.random.default_rng(seed)
-    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, TrackerNoise(), extension=ext,
-                      ext0=rng.normal(0.0, 1e-5, ext.size), fixed=fixed)  # fmt: skip
+    problem = Problem(
+        kr270.chain,
+        table,
+        kr270.tool_points,
+        kr270_params,
+        TrackerNoise(),
+        extension=ext,
+        ext0=rng.normal(0.0, 1e-5, ext.size),
+        fixed=fixed,
+    )
     state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))
     rows = rng.permutation(problem.n_rows)[: rng.integers(1, problem.n_rows)]
     r0, jm = problem.residual_and_jacobian(state, rows)
@@ -249,8 +263,12 @@ def test_rows_in_order_give_what_rows_in_any_order_give(kr270, kr270_params, ext
     if stations == ["S1"]:
         poses = np.degrees(random_poses(kr270, 12, np.random.default_rng(41)))
         table = simulate_campaign(Twin(kr270, seed=41), poses, stations=["S1"])  # one station: one rotation for all
-        ext = combine([build_extension("backlash", kr270.chain, table), build_extension("thermal_drift", kr270.chain,
-                                                                                       table, names=["e_base"])])
+        ext = combine(
+            [
+                build_extension("backlash", kr270.chain, table),
+                build_extension("thermal_drift", kr270.chain, table, names=["e_base"]),
+            ]
+        )
     problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, noise, extension=ext)
     rng = np.random.default_rng(44)
     state = problem.retract(problem.initial, 1e-4 * rng.normal(size=problem.n_cols))

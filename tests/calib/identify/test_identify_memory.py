@@ -23,8 +23,9 @@ print(next(int(x.split()[1]) for x in Path("/proc/self/status").read_text().spli
 
 
 def peak_kb(table_path, out_path) -> int:
-    done = subprocess.run([sys.executable, "-c", RUN, str(table_path), str(out_path)], capture_output=True, text=True,
-                          check=True)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", RUN, str(table_path), str(out_path)], capture_output=True, text=True, check=True
+    )
     return int(done.stdout.strip().splitlines()[-1])
 
 

@@ -35,10 +35,15 @@ def two_sessions(d, kr270, seed: int = 5, effects: dict | None = None, extend: s
     poses = np.round(np.degrees(random_poses(kr270, 12, np.random.default_rng(6))), 4)  # poses session 1 never saw
     rows = [(k, pt, np.array(q)) for k, q in enumerate(poses) for pt in POINTS]
     xyz = np.array([twin.measure(q, pt, "G", f"s2/{k}/{pt}") for k, pt, q in rows])
-    s2 = MeasurementTable(seq=np.arange(1, len(rows) + 1), t_s=np.arange(len(rows), dtype=float),
-                          pose=[f"R{k + 1}" for k, _, _ in rows], station=["G"] * len(rows),
-                          point=[pt for _, pt, _ in rows], q_deg=np.array([q for _, _, q in rows]),
-                          xyz=xyz)  # fmt: skip
+    s2 = MeasurementTable(
+        seq=np.arange(1, len(rows) + 1),
+        t_s=np.arange(len(rows), dtype=float),
+        pose=[f"R{k + 1}" for k, _, _ in rows],
+        station=["G"] * len(rows),
+        point=[pt for _, pt, _ in rows],
+        q_deg=np.array([q for _, _, q in rows]),
+        xyz=xyz,
+    )
     write_table(s2, d / "s2.csv")
     exact = np.array([twin.exact(q, pt, "G") for _, pt, q in rows])
     return twin, d, s2, exact
@@ -69,14 +74,17 @@ def _recovered(doc: dict, name: str) -> None:
 def test_three_points_of_one_pose_locate_the_moved_station(session, capsys):
     _, d, s2, _ = session
     out = d / "m3.json"
-    assert main(["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--poses", "1",
-                 "--out", str(out)]) == 0  # fmt: skip
+    assert (
+        main(["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--poses", "1", "--out", str(out)])
+        == 0
+    )
     text = " ".join(capsys.readouterr().out.split())  # the console folds long lines
     assert "Station G located on 3 points of 1 pose(s)" in text and "noise floor" in text
     doc = json.loads(out.read_text())
     m = json.loads((d / "m.json").read_text())
     assert {k: v for k, v in doc.items() if k not in ("stations", "located", "digest")} == {
-        k: v for k, v in m.items() if k not in ("stations", "digest")}  # the input model, every robot figure unchanged
+        k: v for k, v in m.items() if k not in ("stations", "digest")
+    }  # the input model, every robot figure unchanged
     assert set(doc["stations"]) == {"S1", "S2", "G"} and doc["located"]["G"]["n_points"] == 3
     assert doc["located"]["G"]["poses"] == ["R1"]
     _recovered(doc, "G")
@@ -85,8 +93,24 @@ def test_three_points_of_one_pose_locate_the_moved_station(session, capsys):
 def test_k_poses_locate_and_predict_the_rest_at_the_twins_truth(session, capsys):
     twin, d, s2, exact = session
     out, rest = d / "m5.json", d / "rest.csv"
-    assert main(["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--poses", "5",
-                 "--out", str(out), "--predict-out", str(rest)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "locate",
+                "--model",
+                str(d / "m.json"),
+                "--table",
+                str(d / "s2.csv"),
+                "--poses",
+                "5",
+                "--out",
+                str(out),
+                "--predict-out",
+                str(rest),
+            ]
+        )
+        == 0
+    )
     assert "held out" in capsys.readouterr().out
     doc = json.loads(out.read_text())
     assert doc["located"]["G"]["held_out"]["rows"] == 21 and doc["located"]["G"]["held_out"]["poses"] == 7
@@ -117,16 +141,19 @@ def _rows(s2: MeasurementTable, idx: list[int], path) -> str:
     return str(path)
 
 
-@pytest.mark.parametrize("case, message", [
-    ("two", "2 point(s) to locate it on; at least 3 non-collinear points"),
-    ("collinear", "collinear"),
-    ("columns", "expected joint columns q1_deg..q6_deg, found 5"),
-    ("point", "unknown point id 'P9'"),
-    ("predict_all", "nothing is left to predict"),
-    ("predict_no_poses", "--predict-out needs --poses"),
-    ("stations", "has stations G, H; say which one to locate"),
-    ("no_station", "--station K: no such station"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("two", "2 point(s) to locate it on; at least 3 non-collinear points"),
+        ("collinear", "collinear"),
+        ("columns", "expected joint columns q1_deg..q6_deg, found 5"),
+        ("point", "unknown point id 'P9'"),
+        ("predict_all", "nothing is left to predict"),
+        ("predict_no_poses", "--predict-out needs --poses"),
+        ("stations", "has stations G, H; say which one to locate"),
+        ("no_station", "--station K: no such station"),
+    ],
+)
 def test_mistakes_are_one_line(session, tmp_path, capsys, case, message):
     _, d, s2, _ = session
     model, out = str(d / "m.json"), str(tmp_path / "o.json")
@@ -171,8 +198,24 @@ def test_a_model_with_an_extension_is_located_with_it(tmp_path, kr270, capsys):
         d = tmp_path / extend
         d.mkdir()
         _, d, s2, exact = two_sessions(d, kr270, seed=7, effects={"joint_compliance": 0.05}, extend=extend)
-        assert main(["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--poses", "5",
-                     "--out", str(d / "m5.json"), "--predict-out", str(d / "rest.csv")]) == 0  # fmt: skip
+        assert (
+            main(
+                [
+                    "locate",
+                    "--model",
+                    str(d / "m.json"),
+                    "--table",
+                    str(d / "s2.csv"),
+                    "--poses",
+                    "5",
+                    "--out",
+                    str(d / "m5.json"),
+                    "--predict-out",
+                    str(d / "rest.csv"),
+                ]
+            )
+            == 0
+        )
         floor = json.loads((d / "m5.json").read_text())["located"]["G"]["noise_floor_mm"]
         errors[extend] = np.sqrt(np.mean((read_table(d / "rest.csv").xyz - exact[15:]) ** 2)) / floor
     capsys.readouterr()
@@ -183,8 +226,12 @@ def test_a_station_of_the_same_name_is_replaced_and_another_name_added(session, 
     _, d, _, _ = session
     for name in ("S1", "G2"):
         out = d / f"as-{name}.json"
-        assert main(["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--as", name,
-                     "--out", str(out)]) == 0  # fmt: skip
+        assert (
+            main(
+                ["locate", "--model", str(d / "m.json"), "--table", str(d / "s2.csv"), "--as", name, "--out", str(out)]
+            )
+            == 0
+        )
         doc, m = json.loads(out.read_text()), json.loads((d / "m.json").read_text())
         assert set(doc["stations"]) == set(m["stations"]) | {name}
         assert doc["stations"][name] != m["stations"].get(name)  # S1 replaced by the moved station
@@ -206,17 +253,34 @@ def test_the_real_ur10_calibrated_on_b_predicts_d_from_a_station_located_on_10_p
     the same way (the README's table: D held out, 1.118 mm nominal against 0.596 mm calibrated, with D's station
     located on all of D)."""
     b, dd = tmp_path / "b.csv", tmp_path / "d.csv"
-    assert main(["import", "ipa-ur10", str(IPA / "Series_B" / "measurements_joint_configurations.csv"), "--out",
-                 str(b)]) == 0  # fmt: skip
-    assert main(["import", "ipa-ur10", str(IPA / "Series_D" / "measurements_iso_cubes.csv"), "--station", "D",
-                 "--out", str(dd)]) == 0  # fmt: skip
+    assert (
+        main(["import", "ipa-ur10", str(IPA / "Series_B" / "measurements_joint_configurations.csv"), "--out", str(b)])
+        == 0
+    )
+    assert (
+        main(
+            [
+                "import",
+                "ipa-ur10",
+                str(IPA / "Series_D" / "measurements_iso_cubes.csv"),
+                "--station",
+                "D",
+                "--out",
+                str(dd),
+            ]
+        )
+        == 0
+    )
     held = {}
-    params = {"calibrated": "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5",
-              "nominal": ","}  # the README's $P; "," is no parameter: the nominal robot, station and point fitted
+    params = {
+        "calibrated": "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5",
+        "nominal": ",",
+    }  # the README's $P; "," is no parameter: the nominal robot, station and point fitted
     for name, p in params.items():
         m = tmp_path / f"{name}.json"
-        assert main(["identify", str(b), "--cell", "ur10-ipa", "--weighting", "iid", "--params", p, "--out",
-                     str(m)]) == 0  # fmt: skip
+        assert (
+            main(["identify", str(b), "--cell", "ur10-ipa", "--weighting", "iid", "--params", p, "--out", str(m)]) == 0
+        )
         out = tmp_path / f"{name}-on-d.json"
         assert main(["locate", "--model", str(m), "--table", str(dd), "--poses", "10", "--out", str(out)]) == 0
         held[name] = json.loads(out.read_text())["located"]["D"]["held_out"]

@@ -82,10 +82,16 @@ def test_a_killed_writer_s_temporary_is_removed_by_the_next_write_and_nothing_el
     """Issue 27, finding 8: a writer killed with SIGKILL mid-write leaves `.NAME.PID.RANDOM.tmp`; the next write into
     that directory removes it (its PID is dead). A live writer's temporary, a link and other names stay."""
     child = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom trackcal.calib.io.files import atomic_open\n"
-         f"with atomic_open({str(tmp_path / 'report.html')!r}) as fh:\n"
-         "    fh.write('<html>half'); fh.flush(); print('writing', flush=True); time.sleep(60)"],
-        stdout=subprocess.PIPE, text=True)  # fmt: skip
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom trackcal.calib.io.files import atomic_open\n"
+            f"with atomic_open({str(tmp_path / 'report.html')!r}) as fh:\n"
+            "    fh.write('<html>half'); fh.flush(); print('writing', flush=True); time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert child.stdout.readline() == "writing\n"
     finally:
@@ -95,8 +101,13 @@ def test_a_killed_writer_s_temporary_is_removed_by_the_next_write_and_nothing_el
     assert left.startswith(f".report.html.{child.pid}.") and left.endswith(".tmp")  # kill -9 leaves it
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
-        keep = [f".model.json.{live.pid}.abcd_123.tmp", f".model.json.{os.getpid()}.zzzzzzzz.tmp", "notes.tmp",
-                f".model.json.{child.pid}.short.tmp", f"model.json.{child.pid}.abcdefgh.tmp"]  # fmt: skip
+        keep = [
+            f".model.json.{live.pid}.abcd_123.tmp",
+            f".model.json.{os.getpid()}.zzzzzzzz.tmp",
+            "notes.tmp",
+            f".model.json.{child.pid}.short.tmp",
+            f"model.json.{child.pid}.abcdefgh.tmp",
+        ]
         for name in keep:
             (tmp_path / name).write_text("someone else's")
         (tmp_path / f".plan.json.{child.pid}.linklink.tmp").symlink_to(tmp_path / "notes.tmp")

@@ -23,9 +23,11 @@ def plain_number(sign, whole, frac):
 
 # Plain decimals the grid parser always takes (up to 15 bytes after the sign); leading zeros, "-0", "+5" included.
 PLAIN = st.builds(
-    plain_number, st.sampled_from(["", "-", "+"]), st.text("0123456789", min_size=1, max_size=8),
+    plain_number,
+    st.sampled_from(["", "-", "+"]),
+    st.text("0123456789", min_size=1, max_size=8),
     st.text("0123456789", max_size=6),
-)  # fmt: skip
+)
 # Numbers float() reads that are not plain: the general parser's (exponents, spaces, a bare dot side, 17 digits).
 OTHER = st.sampled_from(
     ["1e5", "-2.5E-3", " 7.25", "8 ", "5.", ".5", "-.5", "12345678901234567", "1.234567890123456789"]

@@ -32,8 +32,10 @@ def chains(draw) -> Chain:
     n = draw(st.integers(3, 6))
     joints = []
     for _ in range(n):
-        link = [draw(st.sampled_from([0, 0, 1])) * draw(st.integers(-600, 600).filter(lambda v: abs(v) >= 50))
-                for _ in range(3)]
+        link = [
+            draw(st.sampled_from([0, 0, 1])) * draw(st.integers(-600, 600).filter(lambda v: abs(v) >= 50))
+            for _ in range(3)
+        ]
         kind = draw(st.sampled_from(["aligned", "tilted", "near"]))
         rpy = [90.0 * draw(st.integers(-1, 2)) for _ in range(3)]
         if kind == "tilted":
@@ -64,8 +66,9 @@ def full_deviation_jacobian(chain: Chain, q: np.ndarray, h: float = 1e-6) -> np.
                 e = np.zeros(6)
                 e[i] = s * h
                 jt = chain.joints[j]
-                moved = dataclasses.replace(jt, translation=jt.translation + e[:3],
-                                            rotation=exp_so3(e[3:]) @ jt.rotation)
+                moved = dataclasses.replace(
+                    jt, translation=jt.translation + e[:3], rotation=exp_so3(e[3:]) @ jt.rotation
+                )
                 other = Chain(chain.name, chain.base, chain.joints[:j] + (moved,) + chain.joints[j + 1 :])
                 r, o = Kinematics(other, []).end_frames(q)
                 pts.append((o[None] + np.einsum("mij,pj->pmi", r, TOOL)).ravel())
@@ -116,8 +119,16 @@ def _table(chain, dev, params, q, station_r, station_t, points, noise_mm, rng) -
         pose += [f"P{i}" for i in range(len(q))]
         point += [pid] * len(q)
     n = len(pose)
-    return MeasurementTable(seq=np.arange(n), t_s=np.zeros(n), pose=pose, station=["S1"] * n, point=point,
-                            q_deg=np.degrees(np.vstack(rows_q)), xyz=np.vstack(xyz), source="synthetic")  # fmt: skip
+    return MeasurementTable(
+        seq=np.arange(n),
+        t_s=np.zeros(n),
+        pose=pose,
+        station=["S1"] * n,
+        point=point,
+        q_deg=np.degrees(np.vstack(rows_q)),
+        xyz=np.vstack(xyz),
+        source="synthetic",
+    )
 
 
 def _recover(chain, seed, noise_mm):
@@ -127,8 +138,9 @@ def _recover(chain, seed, noise_mm):
     nominal = {f"T{i}": pt for i, pt in enumerate(TOOL)}
     true_points = {k: v + rng.normal(0, 0.5, 3) for k, v in nominal.items()}
     q = random_configuration(chain, 40, rng)
-    table = _table(chain, truth, kept, q, exp_so3([0.01, -0.02, 0.5]), np.array([2500.0, 300, -400]), true_points,
-                   noise_mm, rng)  # fmt: skip
+    table = _table(
+        chain, truth, kept, q, exp_so3([0.01, -0.02, 0.5]), np.array([2500.0, 300, -400]), true_points, noise_mm, rng
+    )
     return kept, truth, identify(chain, table, nominal, kept)
 
 
@@ -143,15 +155,17 @@ def test_known_deviations_are_recovered_noise_free(chain, seed):
 
 def test_known_deviations_are_recovered_from_a_noisy_table_within_their_intervals():
     # a Yaskawa-like torso (issue 23): shoulder tilted 15 deg, then an offset elbow and a spherical wrist
-    doc = {"joints": [
-        {"axis": "z", "link_mm": [150, 0, 300], "link_rpy_deg": [15, 0, 0]},
-        {"axis": "z", "link_mm": [100, 0, 200], "link_rpy_deg": [90, 0, 0]},
-        {"axis": "z", "link_mm": [600, 0, 0]},
-        {"axis": "z", "link_mm": [100, 0, 0], "link_rpy_deg": [90, 0, 0]},
-        {"axis": "z", "link_mm": [0, 0, 550], "link_rpy_deg": [-90, 0, 0]},
-        {"axis": "z", "link_mm": [0, 0, 0], "link_rpy_deg": [90, 0, 0]},
-        {"axis": "z", "link_mm": [0, 0, 100]},
-    ]}  # fmt: skip
+    doc = {
+        "joints": [
+            {"axis": "z", "link_mm": [150, 0, 300], "link_rpy_deg": [15, 0, 0]},
+            {"axis": "z", "link_mm": [100, 0, 200], "link_rpy_deg": [90, 0, 0]},
+            {"axis": "z", "link_mm": [600, 0, 0]},
+            {"axis": "z", "link_mm": [100, 0, 0], "link_rpy_deg": [90, 0, 0]},
+            {"axis": "z", "link_mm": [0, 0, 550], "link_rpy_deg": [-90, 0, 0]},
+            {"axis": "z", "link_mm": [0, 0, 0], "link_rpy_deg": [90, 0, 0]},
+            {"axis": "z", "link_mm": [0, 0, 100]},
+        ]
+    }
     chain = chain_from_dict(doc)
     kept, truth, res = _recover(chain, 7, 0.01)
     assert len(kept) == 4 * 7 - 6
@@ -163,8 +177,22 @@ def test_a_joint_that_never_moves_is_reported_not_refused(kr270, tmp_path):
     """KR-270 table with A4 held at 30 deg: dq4 and the parameters its two links then share are named in one warning
     line and left at nominal; the rest is identified (no singular fit, no refusal) down to the table's rounding."""
     kept, table = _still_table(kr270, tmp_path / "still.csv")
-    run = subprocess.run([*TRACKCAL, "identify", table.source, "--cell", "kr270", "--weighting", "iid", "--out",
-                          str(tmp_path / "m.json")], capture_output=True, text=True, cwd=tmp_path)  # fmt: skip
+    run = subprocess.run(
+        [
+            *TRACKCAL,
+            "identify",
+            table.source,
+            "--cell",
+            "kr270",
+            "--weighting",
+            "iid",
+            "--out",
+            str(tmp_path / "m.json"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
     assert run.returncode == 0, run.stderr
     doc = json.loads((tmp_path / "m.json").read_text())
     lines = run.stderr.strip().splitlines()
@@ -181,6 +209,7 @@ def test_a_joint_that_never_moves_is_reported_not_refused(kr270, tmp_path):
     # noise-free, but the table keeps the controller's 4 decimals of a degree: 0.5e-4 deg at a 3 m lever is 2.6 µm
     assert doc["residuals"]["after"]["coord_max_mm"] < 0.01 and doc["converged"]
 
+
 def _still_table(kr270, path):
     chain = kr270.chain
     kept, _ = irreducible_params(chain)
@@ -188,8 +217,9 @@ def _still_table(kr270, path):
     q = random_configuration(chain, 40, rng) * 0.5
     q[:, 3] = np.radians(30.0)
     truth = np.array([rng.normal(0, 0.3) if p.is_length else rng.normal(0, 5e-4) for p in kept])
-    table = _table(chain, truth, kept, q, exp_so3([0.0, 0.0, 0.3]), np.array([3000.0, 0, 0]), kr270.tool_points, 0.0,
-                   rng)  # fmt: skip
+    table = _table(
+        chain, truth, kept, q, exp_so3([0.0, 0.0, 0.3]), np.array([3000.0, 0, 0]), kr270.tool_points, 0.0, rng
+    )
     table.source = str(path)
     write_table(table, table.source)
     return kept, table
@@ -199,8 +229,9 @@ def _still_table(kr270, path):
 def test_diagnose_goes_on_past_a_joint_that_never_moves(kr270, tmp_path):
     """Before: "unidentifiable set-up". About 30 s on the loaded machine (every cause is fitted)."""
     _, table = _still_table(kr270, tmp_path / "still.csv")
-    done = run_diagnose(DiagnoseOptions(data=table.source, cell="kr270", json=str(tmp_path / "v.json"), folds=2,
-                                        weighting="iid"))  # fmt: skip
+    done = run_diagnose(
+        DiagnoseOptions(data=table.source, cell="kr270", json=str(tmp_path / "v.json"), folds=2, weighting="iid")
+    )
     assert done.still is not None and done.still.startswith("joint A4 never moves in")
 
 
@@ -210,9 +241,12 @@ def test_intersecting_axes_tilted_below_the_trackers_precision_coincide(tilt_rad
     # (with the rest of its chain, the rotation's pivot came out just above the old absolute 1e-9 mm): the
     # elimination took that tilt for real and kept a set whose Jacobian lacks one rank at RTOL. So it did for any
     # tilt up to 1e-6 rad (1e-7 here). A tilt that moves the far end by less than 1e-6 of the reach is none.
-    joints = [{"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, float(np.degrees(tilt_rad))]},
-              {"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, 1]},
-              {"axis": "x", "link_mm": [0, 0, 224]}, {"axis": "x", "link_mm": [0, 0, 349]}]  # fmt: skip
+    joints = [
+        {"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, float(np.degrees(tilt_rad))]},
+        {"axis": "x", "link_mm": [0, 0, 0], "link_rpy_deg": [0, 0, 1]},
+        {"axis": "x", "link_mm": [0, 0, 224]},
+        {"axis": "x", "link_mm": [0, 0, 349]},
+    ]
     with pytest.raises(ChainError, match="coincide"):
         irreducible_params(chain_from_dict({"name": "random", "joints": joints}))
 
@@ -222,9 +256,18 @@ def test_parallel_axes_keep_one_complete_irreducible_set_whatever_their_tilt(til
     # Hayati's case: offset parallel axes keep both rotations, tilted by nothing, by less than the tracker resolves
     # or by 0.06 deg: the same set, complete and irreducible
     def chain(tilt):
-        return chain_from_dict({"name": "random", "joints": [
-            {"axis": "z", "link_mm": [0, 0, 0]}, {"axis": "y", "link_mm": [400, 0, 0], "link_rpy_deg": [tilt, 0, 0]},
-            {"axis": "y", "link_mm": [300, 0, 0]}, {"axis": "y", "link_mm": [0, 0, 100]}, {"axis": "z"}]})  # fmt: skip
+        return chain_from_dict(
+            {
+                "name": "random",
+                "joints": [
+                    {"axis": "z", "link_mm": [0, 0, 0]},
+                    {"axis": "y", "link_mm": [400, 0, 0], "link_rpy_deg": [tilt, 0, 0]},
+                    {"axis": "y", "link_mm": [300, 0, 0]},
+                    {"axis": "y", "link_mm": [0, 0, 100]},
+                    {"axis": "z"},
+                ],
+            }
+        )
 
     tilted = chain(float(np.degrees(tilt_rad)))
     assert irreducible_params(tilted)[0] == irreducible_params(chain(0.0))[0]

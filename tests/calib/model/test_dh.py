@@ -56,8 +56,10 @@ def end_frames(chain, q):
 
 
 def rows(a, alpha, d, **extra):
-    return [{"a_mm": ai, "alpha_deg": al, "d_mm": di, **{k: v[i] for k, v in extra.items()}}
-            for i, (ai, al, di) in enumerate(zip(a, alpha, d, strict=True))]  # fmt: skip
+    return [
+        {"a_mm": ai, "alpha_deg": al, "d_mm": di, **{k: v[i] for k, v in extra.items()}}
+        for i, (ai, al, di) in enumerate(zip(a, alpha, d, strict=True))
+    ]
 
 
 def modified_rows(a, alpha, d, **extra):
@@ -70,9 +72,11 @@ Q = np.random.default_rng(23).uniform(-np.pi, np.pi, size=(50, 6))
 
 def test_ur10_published_dh_is_the_ur10_chain():
     ur10, _ = load_robot("ur10")
-    for doc in (load_robot("ur10-dh")[1],
-                {"dh": {"convention": "standard", "rows": rows(UR10_A, UR10_ALPHA, UR10_D)}},
-                {"dh": {"convention": "modified", "rows": modified_rows(UR10_A, UR10_ALPHA, UR10_D)}}):  # fmt: skip
+    for doc in (
+        load_robot("ur10-dh")[1],
+        {"dh": {"convention": "standard", "rows": rows(UR10_A, UR10_ALPHA, UR10_D)}},
+        {"dh": {"convention": "modified", "rows": modified_rows(UR10_A, UR10_ALPHA, UR10_D)}},
+    ):
         chain = chain_from_dict(doc)
         got, want = end_frames(chain, Q), end_frames(ur10, Q)
         np.testing.assert_allclose(got[:, :3, 3], want[:, :3, 3], atol=1e-9)
@@ -86,16 +90,20 @@ def test_kr270_standard_and_modified_dh_are_the_kr270_chain():
     std = load_robot("kr270-dh")[1]["dh"]
     a, alpha, d = ([r.get(k, 0.0) for r in std["rows"]] for k in ("a_mm", "alpha_deg", "d_mm"))
     offsets = [r.get("theta_offset_deg", 0.0) for r in std["rows"]]
-    modified = {"convention": "modified", "rows": modified_rows(a, alpha, d, theta_offset_deg=offsets),
-                "flange": std["flange"]}  # fmt: skip
+    modified = {
+        "convention": "modified",
+        "rows": modified_rows(a, alpha, d, theta_offset_deg=offsets),
+        "flange": std["flange"],
+    }
     for doc in ({"dh": std}, {"dh": modified}):
         got, want = end_frames(chain_from_dict(doc), Q), end_frames(kr270, Q)
         np.testing.assert_allclose(got[:, :3, 3], want[:, :3, 3], atol=1e-9)
         np.testing.assert_allclose(got[:, :3, :3], want[:, :3, :3], atol=1e-12)
     # the paper's eq. (5) lengths at the zero pose: 350 + 1150 + 1200 = 2700 mm out, 675 mm up less the 41 mm the A3
     # link goes down
-    np.testing.assert_allclose(end_frames(chain_from_dict({"dh": std}), np.zeros((1, 6)))[0, :3, 3], [2700, 0, 634],
-                               atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        end_frames(chain_from_dict({"dh": std}), np.zeros((1, 6)))[0, :3, 3], [2700, 0, 634], atol=1e-9
+    )
 
 
 def test_irb120_literature_dh_is_the_ros_industrial_chain_and_the_datasheet():
@@ -145,13 +153,16 @@ def test_dh_robots_get_a_complete_irreducible_set(robot):
         assert numerical_rank(j_plus) == j_plus.shape[1] - 1, e.param.name
 
 
-@pytest.mark.parametrize(("dh", "message"), [
-    ({"convention": "craig", "rows": [{}]}, r"dh.convention: expected standard or modified, got 'craig'"),
-    ({"rows": [{"a_mm": 1, "sign": 2}]}, r"dh.rows\[0\].sign: expected 1 or -1"),
-    ({"rows": [{"a": 1}]}, r"dh.rows\[0\]: unknown key 'a'"),
-    ({"rows": [{"d_mm": "x"}]}, r"dh.rows\[0\].d_mm"),
-    ({"rows": []}, r"dh.rows: the table has no rows"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("dh", "message"),
+    [
+        ({"convention": "craig", "rows": [{}]}, r"dh.convention: expected standard or modified, got 'craig'"),
+        ({"rows": [{"a_mm": 1, "sign": 2}]}, r"dh.rows\[0\].sign: expected 1 or -1"),
+        ({"rows": [{"a": 1}]}, r"dh.rows\[0\]: unknown key 'a'"),
+        ({"rows": [{"d_mm": "x"}]}, r"dh.rows\[0\].d_mm"),
+        ({"rows": []}, r"dh.rows: the table has no rows"),
+    ],
+)
 def test_dh_mistakes_name_the_key(dh, message):
     with pytest.raises(ChainError, match=message):
         chain_from_dict({"dh": dh}, "robot.yaml")

@@ -1,6 +1,5 @@
 """Forward kinematics against pinocchio, analytic Jacobians against finite differences."""
 
-
 import numpy as np
 import pinocchio as pin
 from hypothesis import given, settings
@@ -83,7 +82,7 @@ def test_jacobian_derivative_wrt_joints_matches_central_differences(kr270, q, se
     for j in range(6):
         e = np.zeros(6)
         e[j] = h
-        fd = (kin.jacobian((q + e)[None], TOOL, dev).d_params[0] - kin.jacobian((q - e)[None], TOOL, dev).d_params[0])
+        fd = kin.jacobian((q + e)[None], TOOL, dev).d_params[0] - kin.jacobian((q - e)[None], TOOL, dev).d_params[0]
         np.testing.assert_allclose(dd[:, :, j], fd / (2 * h), atol=2e-6)
 
 
@@ -102,8 +101,11 @@ def test_rows_sharing_a_pose_give_the_per_row_result(kr270):
 
 
 @settings(max_examples=30, deadline=None)
-@given(axis=st.integers(0, 2), angles=st.lists(finite, min_size=1, max_size=5),
-       w=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3))  # fmt: skip
+@given(
+    axis=st.integers(0, 2),
+    angles=st.lists(finite, min_size=1, max_size=5),
+    w=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+)
 def test_a_turn_is_the_product_with_the_axis_rotation(axis, angles, w):
     """The forward kinematics turns a frame about one of its axes by mixing two columns: r @ rot_axis."""
     angles = np.array(angles)

@@ -1,6 +1,5 @@
 """The complete and irreducible parameter set (paper section 3) and its numerical verification."""
 
-
 import numpy as np
 import pytest
 
@@ -12,9 +11,25 @@ from trackcal.calib.model.params import complete_params, irreducible_params
 
 # Paper eq. (6), in this order.
 PAPER_EQ6 = [
-    "px1", "py1", "phix1", "dq2", "px2", "phix2", "phiz2", "dq3", "px3",
-    "pz3", "phiz3", "dq4", "py4", "pz4", "phiz4", "dq5", "pz5", "phiz5",
-]  # fmt: skip
+    "px1",
+    "py1",
+    "phix1",
+    "dq2",
+    "px2",
+    "phix2",
+    "phiz2",
+    "dq3",
+    "px3",
+    "pz3",
+    "phiz3",
+    "dq4",
+    "py4",
+    "pz4",
+    "phiz4",
+    "dq5",
+    "pz5",
+    "phiz5",
+]
 
 # Paper section 3: eliminated from the redundant model (4) by the rules for consecutive joints.
 PAPER_ELIMINATED_BY_RULES = {"phiy1", "pz2", "phix3", "phiy4", "px5", "phix5"}

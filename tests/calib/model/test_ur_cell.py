@@ -42,8 +42,24 @@ def test_run_sim_ur10_end_to_end(tmp_path):
     cell = load_cell("ur10")
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps(feasible_plan(cell, 3, seed=2, repeat=1)))
-    r = subprocess.run([*TRACKCAL, "run", "--sim", "--cell", "ur10", "--plan", str(plan), "--session",
-                        str(tmp_path / "s"), "--seed", "4", "--no-analysis"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            *TRACKCAL,
+            "run",
+            "--sim",
+            "--cell",
+            "ur10",
+            "--plan",
+            str(plan),
+            "--session",
+            str(tmp_path / "s"),
+            "--seed",
+            "4",
+            "--no-analysis",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     subprocess.run([*TRACKCAL, "export", str(tmp_path / "s"), "--csv", str(tmp_path / "t.csv")], check=True)
     rows = [line.split(",")[2:5] for line in (tmp_path / "t.csv").read_text().splitlines()[1:]]

@@ -51,8 +51,9 @@ def test_exported_urdf_is_the_model_through_pinocchio(kr270_model, tmp_path):
     model = load_model(kr270_model)
     assert np.max(np.abs(model.dev)) > 0  # a calibrated model, not the nominal robot
     ids = list(model.points)
-    ours = np.stack([Kinematics(model.chain, model.params).points(Q, model.points[pid], model.dev) for pid in ids],
-                    axis=1)  # fmt: skip
+    ours = np.stack(
+        [Kinematics(model.chain, model.params).points(Q, model.points[pid], model.dev) for pid in ids], axis=1
+    )
     np.testing.assert_allclose(pinocchio_points(out, Q, ids), ours, atol=1e-6)
     # the nominal robot differs by far more: the test can fail
     nominal = np.stack([Kinematics(model.chain, []).points(Q, model.points[pid]) for pid in ids], axis=1)
@@ -75,8 +76,10 @@ def test_exported_urdf_is_the_model_through_pinocchio(kr270_model, tmp_path):
 
 def test_an_extension_goes_to_the_sidecar(kr270_model, tmp_path):
     doc = json.loads(kr270_model.read_text())
-    doc["extension"] = {"cause": "backlash", "parameters": {"backlash_a2": {"value": 0.01, "ci95": 0.001,
-                                                                            "unit": "deg"}}}  # fmt: skip
+    doc["extension"] = {
+        "cause": "backlash",
+        "parameters": {"backlash_a2": {"value": 0.01, "ci95": 0.001, "unit": "deg"}},
+    }
     write_json(tmp_path / "ext.json", doc)
     done = export_urdf(ExportUrdfOptions(out=str(tmp_path / "r.urdf"), model=str(tmp_path / "ext.json")))
     assert json.loads(done.sidecar.read_text())["extension"] == doc["extension"]
@@ -102,18 +105,26 @@ def test_robot_descriptions_round_trip_with_deviations(robot, tmp_path):
 
 
 @settings(max_examples=60, deadline=None)
-@given(roll=st.floats(-np.pi, np.pi), yaw=st.floats(-np.pi, np.pi), pitch=st.one_of(
-    st.floats(-np.pi / 2, np.pi / 2), st.sampled_from([np.pi / 2, -np.pi / 2]).map(lambda p: p * (1 - 1e-9))))
+@given(
+    roll=st.floats(-np.pi, np.pi),
+    yaw=st.floats(-np.pi, np.pi),
+    pitch=st.one_of(
+        st.floats(-np.pi / 2, np.pi / 2), st.sampled_from([np.pi / 2, -np.pi / 2]).map(lambda p: p * (1 - 1e-9))
+    ),
+)
 def test_rpy_gives_the_rotation_back_even_near_pitch_90(roll, pitch, yaw):
     r = rpy_matrix(roll, pitch, yaw)
     np.testing.assert_allclose(rpy_matrix(*rpy_of(r)), r, atol=1e-14)
 
 
-@pytest.mark.parametrize(("opts", "message"), [
-    ({}, "give one of model, cell or robot"),
-    ({"cell": "kr270", "robot": "ur10"}, r"give one of model, cell or robot \(not several\)"),
-    ({"robot": "ur10", "out": "x.txt"}, "out x.txt: a URDF file name ends in .urdf"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("opts", "message"),
+    [
+        ({}, "give one of model, cell or robot"),
+        ({"cell": "kr270", "robot": "ur10"}, r"give one of model, cell or robot \(not several\)"),
+        ({"robot": "ur10", "out": "x.txt"}, "out x.txt: a URDF file name ends in .urdf"),
+    ],
+)
 def test_option_mistakes(opts, message):
     with pytest.raises(OptionError, match=message):
         export_urdf(ExportUrdfOptions(**{"out": "x.urdf", **opts}))
@@ -155,8 +166,11 @@ def test_urdf_joints_about_tilted_axes_are_read(tmp_path):
     for qi, ri, oi in zip(q, r, o, strict=True):
         pin.forwardKinematics(model, data, qi)
         np.testing.assert_allclose(oi, 1000.0 * data.oMi[4].translation, atol=1e-9)
-        np.testing.assert_allclose(ri @ np.eye(3)[chain.joints[3].axis] * chain.joints[3].sign,
-                                   data.oMi[4].rotation @ np.array([-1.0, 0, 0]), atol=1e-12)  # fmt: skip
+        np.testing.assert_allclose(
+            ri @ np.eye(3)[chain.joints[3].axis] * chain.joints[3].sign,
+            data.oMi[4].rotation @ np.array([-1.0, 0, 0]),
+            atol=1e-12,
+        )
     assert len(irreducible_params(chain)[0]) == 4 * 4 - 6
     # the mass model follows the turned frame: the centre of mass is where the URDF puts it
     pin.forwardKinematics(model, data, q[0])

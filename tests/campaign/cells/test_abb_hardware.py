@@ -30,13 +30,34 @@ def test_one_pose_over_the_mock_abb_controller_measures_the_sim_rows(tmp_path, c
     with mock_process(cell, SEED, hw, timeout_s=90.0, sim_speed=10.0) as proc:
         hardware = load_hardware(hw)
         assert hardware.robot["protocol"] == "abb" and hardware.family.title == "ABB"
-        run("run", "--cell", cell, "--plan", str(plan), "--hardware", str(hw), "--session", str(tmp_path / "h"),
-            "--no-analysis")  # fmt: skip
+        run(
+            "run",
+            "--cell",
+            cell,
+            "--plan",
+            str(plan),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(tmp_path / "h"),
+            "--no-analysis",
+        )
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=30)
         assert proc.returncode == 0 and "Traceback" not in stderr, stderr
-    run("run", "--cell", cell, "--plan", str(plan), "--sim", "--seed", str(SEED), "--session",
-        str(tmp_path / "s"), "--no-analysis")  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        cell,
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        str(SEED),
+        "--session",
+        str(tmp_path / "s"),
+        "--no-analysis",
+    )
     got, want = table(tmp_path / "h", tmp_path / "h.csv"), table(tmp_path / "s", tmp_path / "s.csv")
     assert len(got.pose) >= 6  # both stations see the three nests at the test pose
     assert got.pose == want.pose and got.point == want.point and got.station == want.station
@@ -46,11 +67,15 @@ def test_one_pose_over_the_mock_abb_controller_measures_the_sim_rows(tmp_path, c
 def test_the_abb_section_needs_the_controllers_address_and_takes_its_credentials(tmp_path):
     doc = yaml.safe_load((ROOT / "configs" / "hardware" / "example-cell.yaml").read_text())
     path = tmp_path / "h.yaml"
-    cases = (({"protocol": "abb"}, "robot.host: missing (required)"),
-             ({"protocol": "abb", "host": "192.168.0.7", "user": 3}, "robot.user: expected a non-empty text"),
-             ({"protocol": "abb", "host": "192.168.0.7", "eki": {}}, "robot.eki: unknown key"),
-             ({"protocol": "abb", "host": "192.168.0.7", "egm": {"host": "192.168.0.2"}},
-              "robot.egm.port: missing (required)"))  # fmt: skip
+    cases = (
+        ({"protocol": "abb"}, "robot.host: missing (required)"),
+        ({"protocol": "abb", "host": "192.168.0.7", "user": 3}, "robot.user: expected a non-empty text"),
+        ({"protocol": "abb", "host": "192.168.0.7", "eki": {}}, "robot.eki: unknown key"),
+        (
+            {"protocol": "abb", "host": "192.168.0.7", "egm": {"host": "192.168.0.2"}},
+            "robot.egm.port: missing (required)",
+        ),
+    )
     for robot, message in cases:
         path.write_text(yaml.safe_dump({**doc, "robot": robot}))
         with pytest.raises(InputError, match=re.escape(message)):
@@ -61,8 +86,11 @@ def test_the_abb_section_needs_the_controllers_address_and_takes_its_credentials
     assert hardware.robot["port"] == 80 and hardware.robot["user"] == "Default User"
     assert hardware.robot["password"] == "robotics"
     assert "192.168.0.7" in hardware.describe()["robot"] and "egm" not in hardware.robot
-    path.write_text(yaml.safe_dump({**doc, "robot": {"protocol": "abb", "host": "192.168.0.7",
-                                                     "egm": {"host": "192.168.0.2", "port": 6510}}}))  # fmt: skip
+    path.write_text(
+        yaml.safe_dump(
+            {**doc, "robot": {"protocol": "abb", "host": "192.168.0.7", "egm": {"host": "192.168.0.2", "port": 6510}}}
+        )
+    )
     hardware = load_hardware(path)
     assert hardware.robot["egm"] == {"host": "192.168.0.2", "port": 6510} and hardware.robot["egm_stale_s"] == 1.0
     assert "192.168.0.2:6510" in hardware.describe()["robot"]

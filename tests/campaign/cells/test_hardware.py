@@ -24,11 +24,15 @@ EXAMPLE = ROOT / "configs" / "hardware" / "example-cell.yaml"
 
 GOOD = {
     "tracker": {"protocol": "emscon", "host": "192.168.0.10", "port": 700, "timeout_s": 10},
-    "robot": {"protocol": "krc2", "controller_host": "192.168.0.5", "eki": {"host": "192.168.0.2", "port": 54600},
-              "rsi": {"protocol": "tcp", "host": "192.168.0.2", "port": 49152}},
+    "robot": {
+        "protocol": "krc2",
+        "controller_host": "192.168.0.5",
+        "eki": {"host": "192.168.0.2", "port": 54600},
+        "rsi": {"protocol": "tcp", "host": "192.168.0.2", "port": 49152},
+    },
     "plc": {"protocol": "modbus", "host": "192.168.0.20", "port": 502, "unit_id": 1, "timeout_s": 1},
     "meteo": {"protocol": "serial", "port": "/dev/ttyUSB0", "baudrate": 9600},
-}  # fmt: skip
+}
 
 
 def variant(path: str, value):
@@ -70,8 +74,10 @@ BAD = [  # (document or raw YAML text, what the message must say after "FILE: ")
     (variant("robot.rsi.protocl", "tcp"), r"robot\.rsi\.protocl: unknown key \(did you mean protocol\?\)"),
     (variant("tracker.protocol", "leica"), r"tracker\.protocol: unknown protocol 'leica' \(supported: emscon\)"),
     (variant("tracker.protocol", DELETE), r"tracker\.protocol: missing"),
-    (variant("robot.protocol", "fanuc"),
-     r"robot\.protocol: unknown protocol 'fanuc' \(supported: abb, krc2, krc4, ur\)"),
+    (
+        variant("robot.protocol", "fanuc"),
+        r"robot\.protocol: unknown protocol 'fanuc' \(supported: abb, krc2, krc4, ur\)",
+    ),
     (variant("robot.rsi.protocol", "serial"), r"robot\.rsi\.protocol: unknown protocol 'serial' \(supported: tcp, udp"),
     (variant("robot.rsi.passive", "yes"), r"robot\.rsi\.passive: expected true or false, got 'yes'"),
     (variant("robot.rsi.cycle_s", 0), r"robot\.rsi\.cycle_s: expected a positive number, got 0"),
@@ -107,15 +113,31 @@ def test_unreadable_file(tmp_path):
 
 def test_defaults_are_the_drivers_and_optional_sections(tmp_path):
     path = tmp_path / "cell.yaml"
-    path.write_text(yaml.safe_dump({"tracker": {"protocol": "emscon", "host": "at901"},
-                                    "robot": {"protocol": "krc2", "controller_host": "krc2",
-                                              "eki": {"host": "pc", "port": 54600},
-                                              "rsi": {"host": "pc", "port": 49152}}}))  # fmt: skip
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "tracker": {"protocol": "emscon", "host": "at901"},
+                "robot": {
+                    "protocol": "krc2",
+                    "controller_host": "krc2",
+                    "eki": {"host": "pc", "port": 54600},
+                    "rsi": {"host": "pc", "port": 49152},
+                },
+            }
+        )
+    )
     hw = load_hardware(path)
     # drivers.emscon.client.EmsconTracker and drivers.kuka.client.KukaKrc2 defaults; emScon TPI port 700
-    assert hw.tracker == {"protocol": "emscon", "host": "at901", "port": 700, "timeout_s": 5.0,
-                          "measure_timeout_s": 60.0, "motion_timeout_s": 120.0, "search_timeout_s": 10.0,
-                          "samples_per_second": 1000.0}  # fmt: skip
+    assert hw.tracker == {
+        "protocol": "emscon",
+        "host": "at901",
+        "port": 700,
+        "timeout_s": 5.0,
+        "measure_timeout_s": 60.0,
+        "motion_timeout_s": 120.0,
+        "search_timeout_s": 10.0,
+        "samples_per_second": 1000.0,
+    }
     assert hw.robot["eki"] == {"host": "pc", "port": 54600}
     # RSI: the shipped configs/krc2/trackcal_rsi.xml (UDP, passive) and the KR C2's 12 ms cycle
     assert hw.robot["rsi"] == {"protocol": "udp", "passive": True, "cycle_s": 0.012, "host": "pc", "port": 49152}
@@ -142,8 +164,23 @@ def plan(tmp_path_factory):
     """A small plan: 3 configurations, 2 stations x 3 reference points. The seed is one whose poses keep every
     reference point strictly inside the cell box after the plan's rounding to 4 decimals."""
     path = tmp_path_factory.mktemp("plan") / "plan.json"
-    run("plan", "--cell", "kr270", "--configs", "3", "--repeat", "1", "--starts", "50", "--refined", "1",
-        "--seed", "1", "--json", str(path))  # fmt: skip
+    run(
+        "plan",
+        "--cell",
+        "kr270",
+        "--configs",
+        "3",
+        "--repeat",
+        "1",
+        "--starts",
+        "50",
+        "--refined",
+        "1",
+        "--seed",
+        "1",
+        "--json",
+        str(path),
+    )
     return path
 
 
@@ -156,13 +193,35 @@ def free_port() -> int:
 def test_run_with_a_broken_hardware_file_makes_no_session(plan, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(variant("tracker.port", 70000)))
-    out = run("run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(bad), "--session",
-              str(tmp_path / "s"), check=False)  # fmt: skip
+    out = run(
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--hardware",
+        str(bad),
+        "--session",
+        str(tmp_path / "s"),
+        check=False,
+    )
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"{bad}: tracker.port: 70000 out of range" in out.stderr
     assert not (tmp_path / "s").exists()
-    out = run("run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(EXAMPLE), "--effect", "backlash",
-              "--session", str(tmp_path / "s"), check=False)  # fmt: skip
+    out = run(
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--hardware",
+        str(EXAMPLE),
+        "--effect",
+        "backlash",
+        "--session",
+        str(tmp_path / "s"),
+        check=False,
+    )
     assert out.returncode == 2 and "--effect and --sim-speed are for --sim only" in out.stderr
 
 
@@ -193,8 +252,19 @@ def test_mock_and_run_hardware_in_separate_processes(kr270, plan, mock_cell, tmp
     proc, hw = mock_cell
     assert load_hardware(hw).plc is not None  # the mock writes the schema it is read with
     d = tmp_path / "session"
-    out = run("run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw), "--session", str(d),
-              "--no-analysis", timeout=150)  # fmt: skip
+    out = run(
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--hardware",
+        str(hw),
+        "--session",
+        str(d),
+        "--no-analysis",
+        timeout=150,
+    )
     assert out.returncode == 0, out.stderr
     assert (d / "config" / "hardware.yaml").read_bytes() == hw.read_bytes()
     # the operator was asked through the PLC alone: 2 stations, 3 reference points each, a resume after each
@@ -228,9 +298,24 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(kr270, pla
     joints and positions of `run --sim` with the same seed (the same twin, the same protocols, in-process)."""
     proc, hw = mock_cell
     d = tmp_path / "session"
-    run_proc = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw),
-                                 "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, cwd=ROOT)  # fmt: skip
+    run_proc = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            "kr270",
+            "--plan",
+            str(plan),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(d),
+            "--no-analysis",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=ROOT,
+    )
     n = measure_steps(kr270, plan)
     deadline = time.monotonic() + 120
     while count_measurements(d / "session.sqlite") < n // 2 and time.monotonic() < deadline:
@@ -243,8 +328,20 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_table(kr270, pla
     out = run("resume", str(d), "--no-analysis", timeout=150)
     assert out.returncode == 0, out.stderr
     run("export", str(d), "--csv", str(tmp_path / "hw.csv"))
-    run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "3", "--session", str(tmp_path / "sim"),
-        "--no-analysis", timeout=150)  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        "3",
+        "--session",
+        str(tmp_path / "sim"),
+        "--no-analysis",
+        timeout=150,
+    )
     run("export", str(tmp_path / "sim"), "--csv", str(tmp_path / "sim.csv"))
     a, b = read_table(tmp_path / "hw.csv"), read_table(tmp_path / "sim.csv")
     assert a.pose == b.pose and a.point == b.point and a.station == b.station
@@ -268,17 +365,34 @@ def test_second_campaign_on_a_busy_mock_is_refused_and_the_first_keeps_its_table
     ends with the table of `run --sim` with the same seed (3, the mock_cell fixture's)."""
     proc, hw = mock_cell
     a, b = tmp_path / "a", tmp_path / "b"
-    first = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw),
-                              "--session", str(a), "--no-analysis"], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    first = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            "kr270",
+            "--plan",
+            str(plan),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(a),
+            "--no-analysis",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         deadline = time.monotonic() + 120  # bounds a hang only
         while count_measurements(a / "session.sqlite") < 1 and time.monotonic() < deadline:
             assert first.poll() is None, first.stderr.read()
             time.sleep(0.01)
         assert count_measurements(a / "session.sqlite") >= 1  # the first campaign is running
-        out = run("run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw), "--session", str(b),
-                  check=False)  # fmt: skip
+        out = run(
+            "run", "--cell", "kr270", "--plan", str(plan), "--hardware", str(hw), "--session", str(b), check=False
+        )
         assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
         assert len(out.stderr.splitlines()) == 1 and "the cell is busy" in out.stderr, out.stderr
         assert not b.exists()
@@ -289,8 +403,20 @@ def test_second_campaign_on_a_busy_mock_is_refused_and_the_first_keeps_its_table
             first.kill()
             first.wait()
     run("export", str(a), "--csv", str(tmp_path / "hw.csv"))
-    run("run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "3", "--session", str(tmp_path / "sim"),
-        "--no-analysis", timeout=150)  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        "3",
+        "--session",
+        str(tmp_path / "sim"),
+        "--no-analysis",
+        timeout=150,
+    )
     run("export", str(tmp_path / "sim"), "--csv", str(tmp_path / "sim.csv"))
     got, want = read_table(tmp_path / "hw.csv"), read_table(tmp_path / "sim.csv")
     assert got.pose == want.pose and got.point == want.point and got.station == want.station

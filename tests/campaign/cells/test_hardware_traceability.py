@@ -17,11 +17,14 @@ def test_example_cell_states_its_tracker_certificate():
     assert t["serial"] and t["certificate"] and t["certificate_date"] < t["certificate_due"]
 
 
-@pytest.mark.parametrize("key, value, message", [
-    ("certificate_date", "31.12.2018", "expected a date YYYY-MM-DD"),
-    ("certificate_due", "2017-01-01", "is before its certificate_date"),
-    ("serial", "", "expected a non-empty text"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("certificate_date", "31.12.2018", "expected a date YYYY-MM-DD"),
+        ("certificate_due", "2017-01-01", "is before its certificate_date"),
+        ("serial", "", "expected a non-empty text"),
+    ],
+)
 def test_hardware_config_checks_the_certificate_keys(tmp_path, key, value, message):
     """A mistake in the traceability keys is one line naming the file and the key (exit 2), before anything runs."""
     doc = yaml.safe_load(EXAMPLE.read_text())

@@ -39,10 +39,17 @@ def run_start(tracker, stated: dict | None) -> list[Document]:
     return seen
 
 
-@pytest.mark.parametrize("stated, read, same", [
-    ("390123", "390123", True), ("AT901-390123", "390123", True), ("at901 390123", "390123", True),
-    ("AT901-000000", "390123", False), ("390124", "390123", False), ("AT901", "390123", False),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "stated, read, same",
+    [
+        ("390123", "390123", True),
+        ("AT901-390123", "390123", True),
+        ("at901 390123", "390123", True),
+        ("AT901-000000", "390123", False),
+        ("390124", "390123", False),
+        ("AT901", "390123", False),
+    ],
+)
 def test_a_stated_serial_names_the_number_the_tracker_reports(stated, read, same):
     assert serial_matches(stated, read) is same
 
@@ -50,10 +57,15 @@ def test_a_stated_serial_names_the_number_the_tracker_reports(stated, read, same
 def test_the_identity_is_recorded_and_a_serial_the_file_does_not_state_warns():
     docs = run_start(TRACKER, {"serial": "AT901-000000", "certificate": "CAL-2026-7"})
     assert [d.name for d in docs] == ["start", "identity", "warning"]
-    assert docs[1].data == {"tracker": {"serial": "390123", "model": TRACKER.model, "software": TRACKER.software,
-                                        "source": "read from the device"},
-                            "robot": {"serial": "", "model": "KUKA KR C2", "software": "",
-                                      "source": "from the hardware file"}}  # fmt: skip
+    assert docs[1].data == {
+        "tracker": {
+            "serial": "390123",
+            "model": TRACKER.model,
+            "software": TRACKER.software,
+            "source": "read from the device",
+        },
+        "robot": {"serial": "", "model": "KUKA KR C2", "software": "", "source": "from the hardware file"},
+    }
     json.dumps(docs[1].data, allow_nan=False)  # strict JSON, as the store writes it
     message = docs[2].data["message"]
     assert "\n" not in message and "390123" in message and "AT901-000000" in message and "CAL-2026-7" in message
@@ -65,8 +77,11 @@ def test_no_warning_when_the_serials_agree_or_one_side_says_nothing(stated):
 
 
 def test_a_tracker_that_cannot_say_who_it_is_is_recorded_so_and_the_run_goes_on():
-    refused = DeviceFault("command not implemented by this tracker/server while reading the tracker's identity",
-                          code=2, device="tracker 127.0.0.1:700")  # fmt: skip
+    refused = DeviceFault(
+        "command not implemented by this tracker/server while reading the tracker's identity",
+        code=2,
+        device="tracker 127.0.0.1:700",
+    )
     docs = run_start(refused, {"serial": "AT901-000000"})
     assert [d.name for d in docs] == ["start", "identity"]
     assert "not implemented" in docs[1].data["tracker"]["error"]
@@ -101,15 +116,18 @@ robot:
 """
 
 
-@pytest.mark.parametrize("protocol, eki, model", [
-    ("krc2", "host: 192.168.0.2, port: 54600", "KUKA KR C2"), ("krc4", "port: 54600", "KUKA KR C4"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "protocol, eki, model",
+    [
+        ("krc2", "host: 192.168.0.2, port: 54600", "KUKA KR C2"),
+        ("krc4", "port: 54600", "KUKA KR C4"),
+    ],
+)
 def test_kuka_controllers_take_their_identity_from_the_hardware_file(tmp_path, protocol, eki, model):
     path = tmp_path / "hw.yaml"
     path.write_text(HARDWARE % (protocol, eki))
     hw = load_hardware(path)
-    robot = hw.family.build(hw.robot, joint_limits_deg=((-180.0, 180.0),) * 6, cell_box_check=None,
-                            motion_guard=None)  # fmt: skip
+    robot = hw.family.build(hw.robot, joint_limits_deg=((-180.0, 180.0),) * 6, cell_box_check=None, motion_guard=None)
     try:
         assert robot.identity() == DeviceIdentity("KR-0123456", model, "KSS 8.6.9", FROM_HARDWARE_FILE)
     finally:

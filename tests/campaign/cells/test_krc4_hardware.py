@@ -30,10 +30,31 @@ def test_one_pose_over_the_mock_kr_c4_measures_the_sim_rows(tmp_path):
         hardware = load_hardware(hw)
         assert hardware.robot["protocol"] == "krc4" and hardware.family.title == "KR C4"
         assert hardware.robot["rsi"]["cycle_s"] == 0.004 and hardware.robot["rsi"]["passive"] is False
-        run("run", "--cell", "kr210-krc4", "--plan", str(plan), "--hardware", str(hw), "--session",
-            str(tmp_path / "h"), "--no-analysis")  # fmt: skip
-    run("run", "--cell", "kr210-krc4", "--plan", str(plan), "--sim", "--seed", str(SEED), "--session",
-        str(tmp_path / "s"), "--no-analysis")  # fmt: skip
+        run(
+            "run",
+            "--cell",
+            "kr210-krc4",
+            "--plan",
+            str(plan),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(tmp_path / "h"),
+            "--no-analysis",
+        )
+    run(
+        "run",
+        "--cell",
+        "kr210-krc4",
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        str(SEED),
+        "--session",
+        str(tmp_path / "s"),
+        "--no-analysis",
+    )
     got, want = table(tmp_path / "h", tmp_path / "h.csv"), table(tmp_path / "s", tmp_path / "s.csv")
     assert len(got.pose) >= 6  # both stations see the three nests at this pose
     assert got.pose == want.pose and got.point == want.point and got.station == want.station
@@ -43,14 +64,30 @@ def test_one_pose_over_the_mock_kr_c4_measures_the_sim_rows(tmp_path):
 @pytest.mark.parametrize(
     "robot, message",
     [
-        ({"protocol": "krc4", "eki": {}, "rsi": {"host": "192.168.1.10", "port": 49152}},
-         "robot.controller_host: missing (required)"),
-        ({"protocol": "krc4", "controller_host": "192.168.1.20", "eki": {"host": "192.168.1.10"},
-          "rsi": {"host": "192.168.1.10", "port": 49152}}, "robot.eki.host: unknown key"),
-        ({"protocol": "krc4", "controller_host": "192.168.1.20", "eki": {},
-          "rsi": {"protocol": "tcp", "host": "192.168.1.10", "port": 49152}}, "robot.rsi.protocol: unknown key"),
+        (
+            {"protocol": "krc4", "eki": {}, "rsi": {"host": "192.168.1.10", "port": 49152}},
+            "robot.controller_host: missing (required)",
+        ),
+        (
+            {
+                "protocol": "krc4",
+                "controller_host": "192.168.1.20",
+                "eki": {"host": "192.168.1.10"},
+                "rsi": {"host": "192.168.1.10", "port": 49152},
+            },
+            "robot.eki.host: unknown key",
+        ),
+        (
+            {
+                "protocol": "krc4",
+                "controller_host": "192.168.1.20",
+                "eki": {},
+                "rsi": {"protocol": "tcp", "host": "192.168.1.10", "port": 49152},
+            },
+            "robot.rsi.protocol: unknown key",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_krc4_section_names_the_controller_and_no_kr_c2_keys(tmp_path, robot, message):
     """The controller serves EKI (its address is required, trackcal has no EKI host of its own) and RSI on KSS 8 is
     UDP (no protocol key)."""
@@ -64,8 +101,12 @@ def test_a_krc4_section_names_the_controller_and_no_kr_c2_keys(tmp_path, robot, 
 def test_the_defaults_are_the_shipped_kss8_files(tmp_path):
     doc = yaml.safe_load((ROOT / "configs" / "hardware" / "example-cell.yaml").read_text())
     path = tmp_path / "h.yaml"
-    robot = {"protocol": "krc4", "controller_host": "192.168.1.20", "eki": {}, "rsi": {"host": "192.168.1.10",
-             "port": 49152}}  # fmt: skip
+    robot = {
+        "protocol": "krc4",
+        "controller_host": "192.168.1.20",
+        "eki": {},
+        "rsi": {"host": "192.168.1.10", "port": 49152},
+    }
     path.write_text(yaml.safe_dump({**doc, "robot": robot}))
     r = load_hardware(path).robot
     # configs/krc4/TrackcalEki.xml INTERNAL/PORT 54600; trackcal_rsi_ethernet.xml ONLYSEND FALSE; IPO_FAST 4 ms

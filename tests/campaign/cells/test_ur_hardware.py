@@ -55,8 +55,19 @@ def ur_mock(tmp_path):
 @pytest.fixture(scope="module")
 def sim_table(plan, tmp_path_factory):
     d = tmp_path_factory.mktemp("sim")
-    run("run", "--cell", "ur10", "--plan", str(plan), "--sim", "--seed", str(SEED), "--session", str(d / "s"),
-        "--no-analysis")  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        "ur10",
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        str(SEED),
+        "--session",
+        str(d / "s"),
+        "--no-analysis",
+    )
     return table(d / "s", d / "sim.csv")
 
 
@@ -86,10 +97,31 @@ def test_mock_writes_a_ur_hardware_file_and_run_hardware_measures_the_sim_rows(p
 def test_one_pose_over_the_mock_ur_measures_the_sim_rows(one_pose, ur_mock, tmp_path):
     """The default (fast) check: one pose, both stations, the three nests, against `run --sim` of the same seed."""
     _, hw = ur_mock
-    run("run", "--cell", "ur10", "--plan", str(one_pose), "--hardware", str(hw), "--session", str(tmp_path / "h"),
-        "--no-analysis")  # fmt: skip
-    run("run", "--cell", "ur10", "--plan", str(one_pose), "--sim", "--seed", str(SEED), "--session",
-        str(tmp_path / "s"), "--no-analysis")  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        "ur10",
+        "--plan",
+        str(one_pose),
+        "--hardware",
+        str(hw),
+        "--session",
+        str(tmp_path / "h"),
+        "--no-analysis",
+    )
+    run(
+        "run",
+        "--cell",
+        "ur10",
+        "--plan",
+        str(one_pose),
+        "--sim",
+        "--seed",
+        str(SEED),
+        "--session",
+        str(tmp_path / "s"),
+        "--no-analysis",
+    )
     got, want = table(tmp_path / "h", tmp_path / "h.csv"), table(tmp_path / "s", tmp_path / "s.csv")
     assert len(got.pose) >= 6  # both stations see the three nests at the test pose
     same_rows(got, want)
@@ -99,9 +131,11 @@ def test_a_hardware_file_names_the_robot_address_and_nothing_else(tmp_path):
     """Trust: the UR section needs the controller's address; it has no default and takes no other peer."""
     doc = yaml.safe_load((ROOT / "configs" / "hardware" / "example-cell.yaml").read_text())
     path = tmp_path / "h.yaml"
-    cases = (({"protocol": "ur"}, "robot.host: missing (required)"),
-             ({"protocol": "ur", "host": "192.168.0.5", "eki": {"port": 1}}, "robot.eki: unknown key"),
-             ({"protocol": "UR", "host": " "}, "robot.host: expected a host name or IP address"))  # fmt: skip
+    cases = (
+        ({"protocol": "ur"}, "robot.host: missing (required)"),
+        ({"protocol": "ur", "host": "192.168.0.5", "eki": {"port": 1}}, "robot.eki: unknown key"),
+        ({"protocol": "UR", "host": " "}, "robot.host: expected a host name or IP address"),
+    )
     for robot, message in cases:
         path.write_text(yaml.safe_dump({**doc, "robot": robot}))
         with pytest.raises(InputError, match=re.escape(message)):
@@ -116,9 +150,24 @@ def test_a_hardware_file_names_the_robot_address_and_nothing_else(tmp_path):
 def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_rows(plan, ur_mock, sim_table, tmp_path):
     proc, hw = ur_mock
     d = tmp_path / "s"
-    first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                              "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, cwd=ROOT)  # fmt: skip
+    first = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            "ur10",
+            "--plan",
+            str(plan),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(d),
+            "--no-analysis",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=ROOT,
+    )
     n = len(sim_table.pose)
     deadline = time.monotonic() + 240
     while count_measurements(d / "session.sqlite") < n // 2 and time.monotonic() < deadline:
@@ -144,9 +193,25 @@ def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_
     _, hw = ur_mock
     host = yaml.safe_load(hw.read_text())["robot"]["host"]
     d = tmp_path / "s"
-    first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(one_pose), "--hardware", str(hw),
-                              "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+    first = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            "ur10",
+            "--plan",
+            str(one_pose),
+            "--hardware",
+            str(hw),
+            "--session",
+            str(d),
+            "--no-analysis",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     deadline = time.monotonic() + 120
     while count_measurements(d / "session.sqlite") < 2 and time.monotonic() < deadline:
         assert first.poll() is None, first.stderr.read()
@@ -165,7 +230,18 @@ def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_
     with sqlite3.connect(d / "session.sqlite") as db:
         resets = [r[0] for r in db.execute("SELECT data FROM events WHERE kind='call'") if '"reset_faults"' in r[0]]
     assert resets  # the acknowledged resume step reset the robot's faults
-    run("run", "--cell", "ur10", "--plan", str(one_pose), "--sim", "--seed", str(SEED), "--session",
-        str(tmp_path / "sim"), "--no-analysis")  # fmt: skip
+    run(
+        "run",
+        "--cell",
+        "ur10",
+        "--plan",
+        str(one_pose),
+        "--sim",
+        "--seed",
+        str(SEED),
+        "--session",
+        str(tmp_path / "sim"),
+        "--no-analysis",
+    )
     got, want = table(d, tmp_path / "h.csv"), table(tmp_path / "sim", tmp_path / "sim.csv")
     same_rows(got, want, upto=stored)

@@ -29,9 +29,28 @@ def plan(tmp_path_factory):
     # planned for i.i.d. noise: this plan's campaign on twin seed 4 skips 2 of 41 measurements; the tracker-noise plan
     # of the same search puts more poses at the edge of station S2's view and skips 12 of 42, beyond the cell's
     # max_skipped_share (exit 3), and this module's campaigns are about kills and resumes, not skips
-    subprocess.run([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "5", "--repeat", "1", "--starts", "200",
-                    "--refined", "2", "--noise", "iid", "--json", str(path)],
-                   check=True, capture_output=True)  # fmt: skip
+    subprocess.run(
+        [
+            *TRACKCAL,
+            "plan",
+            "--cell",
+            "kr270",
+            "--configs",
+            "5",
+            "--repeat",
+            "1",
+            "--starts",
+            "200",
+            "--refined",
+            "2",
+            "--noise",
+            "iid",
+            "--json",
+            str(path),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return path
 
 
@@ -62,16 +81,34 @@ def count_events(db):
 
 
 # the middle of the campaign by default; its start and end (each ~16 s) with -m slow
-@pytest.mark.parametrize("fraction", [pytest.param(0.1, marks=pytest.mark.slow), 0.45,
-                                      pytest.param(0.9, marks=pytest.mark.slow)])  # fmt: skip
+@pytest.mark.parametrize(
+    "fraction", [pytest.param(0.1, marks=pytest.mark.slow), 0.45, pytest.param(0.9, marks=pytest.mark.slow)]
+)
 def test_kill_9_then_resume_loses_and_duplicates_nothing(plan, reference, tmp_path, fraction):
     """kill -9 once a given share of the measurements is stored (polled from outside, so the process dies at
     whatever instruction it is executing then), then `trackcal resume`. The simulated cell runs at 2000x real
     time so that the campaign (about an hour of simulated time) lasts a few seconds and is caught midway."""
     d = tmp_path / "session"
-    proc = subprocess.Popen([*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "4",
-                             "--session", str(d), "--no-analysis", "--sim-speed", "2000"], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            "kr270",
+            "--plan",
+            str(plan),
+            "--sim",
+            "--seed",
+            "4",
+            "--session",
+            str(d),
+            "--no-analysis",
+            "--sim-speed",
+            "2000",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     target = int(fraction * len(reference))
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
@@ -104,8 +141,10 @@ def test_run_analyses_and_replay_is_byte_identical(plan, tmp_path):
     r1 = run("identify", str(d / "table.csv"), "--cell", "kr270", "--out", str(tmp_path / "m1.json"))
     r2 = run("identify", str(tmp_path / "r.csv"), "--cell", "kr270", "--out", str(tmp_path / "m2.json"))
     assert r1.returncode == r2.returncode == 0
-    assert json.loads((tmp_path / "m1.json").read_text())["parameters"] == \
-        json.loads((tmp_path / "m2.json").read_text())["parameters"]
+    assert (
+        json.loads((tmp_path / "m1.json").read_text())["parameters"]
+        == json.loads((tmp_path / "m2.json").read_text())["parameters"]
+    )
     # `trackcal report SESSION` writes the page the run wrote (but the moment it was written)
     first = (d / "report" / "report.html").read_text()
     assert run("report", str(d)).returncode == 0
@@ -149,8 +188,9 @@ def test_a_campaign_whose_diagnosis_names_a_cause_keeps_the_extended_model(kr270
     d = tmp_path / "s"
     store, _ = new_session(d, "kr270", plan, "sim", 3, effects={"backlash": 0.05})
     world = World(Twin(kr270, seed=3, effects={"backlash": 0.05}))
-    run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
-                             InprocCellIO(world)))  # fmt: skip
+    run_stored(
+        store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock, InprocCellIO(world))
+    )
     print_analysis(analyse_session(store))
     out = "".join(capsys.readouterr().out.split())  # rich wraps long paths anywhere
     assert json.loads((d / "verdict.json").read_text())["cause"] == "backlash"

@@ -69,9 +69,18 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
     params = irreducible_params(twin.cell.chain)[0]
     k = len(params)
     res = Identification(
-        chain=twin.cell.chain, params=params, dev=np.array([twin.true_dev[twin.params.index(p)] for p in params]),
-        stations=twin.true_stations, points=twin.true_points, cov=np.eye(k + 6 * 2 + 9), station_ids=["S1", "S2"],
-        point_ids=sorted(twin.true_points), residuals=np.zeros((1, 3)), variance_factor=1.0, dof=10, iterations=0,
+        chain=twin.cell.chain,
+        params=params,
+        dev=np.array([twin.true_dev[twin.params.index(p)] for p in params]),
+        stations=twin.true_stations,
+        points=twin.true_points,
+        cov=np.eye(k + 6 * 2 + 9),
+        station_ids=["S1", "S2"],
+        point_ids=sorted(twin.true_points),
+        residuals=np.zeros((1, 3)),
+        variance_factor=1.0,
+        dof=10,
+        iterations=0,
         noise=None,
     )
     model = tmp_path / "truth.json"
@@ -87,8 +96,10 @@ def test_predict_with_the_true_robot_is_the_truth(tmp_path, campaign_csv):
     "argv, message",
     [
         (["identify", "missing.csv", "--cell", "kr270", "--out", "m.json"], "missing.csv: cannot read"),
-        (["identify", "DATA", "--cell", "nocell", "--out", "m.json"],
-         "no such cell; the cells are irb120, irb6700, kr210-krc4, kr270, planar2r, ur10"),
+        (
+            ["identify", "DATA", "--cell", "nocell", "--out", "m.json"],
+            "no such cell; the cells are irb120, irb6700, kr210-krc4, kr270, planar2r, ur10",
+        ),
         (["identify", "DATA", "--cell", "kr270", "--params", "px1,foo", "--out", "m.json"], "unknown parameter 'foo'"),
         (["identify", "DATA", "--cell", "kr270", "--extend", "gravity", "--out", "m.json"], "--extend gravity"),
         (["predict", "--model", "DATA", "DATA", "--out", "p.csv"], "line 1: not JSON"),
@@ -114,8 +125,26 @@ def test_planned_poses_at_controller_precision_stay_in_the_cell_box(kr270, tmp_p
     # this case (seed 0) once put P2 0.0001 mm outside the box, and the robot client refused the move
 
     out = tmp_path / "plan.json"
-    assert main(["plan", "--cell", "kr270", "--configs", "3", "--repeat", "1", "--starts", "50", "--refined", "1",
-                 "--json", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "plan",
+                "--cell",
+                "kr270",
+                "--configs",
+                "3",
+                "--repeat",
+                "1",
+                "--starts",
+                "50",
+                "--refined",
+                "1",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     q = np.radians(np.array(json.loads(out.read_text())["poses_deg"]))
     assert points_in_box(kr270, q).all()
 
@@ -153,16 +182,32 @@ def test_a_bad_blas_thread_count_is_one_line(monkeypatch, capsys, setting):
 def test_identify_says_which_weighting_and_whether_the_fit_can_be_trusted(tmp_path, campaign_csv, capsys):
     _, data = campaign_csv
     summary = tmp_path / "s.json"
-    assert main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json",
-                 str(summary)]) == 0  # fmt: skip
+    assert (
+        main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json", str(summary)]) == 0
+    )
     out = capsys.readouterr()
     s = json.loads(summary.read_text())
     # the whole model on the twin: what is left is the tracker's noise, at the floor
     assert s["weighting"] == "tracker" and "tracker weighting" in out.out
     assert s["fit"] == "good" and "warning" not in out.err
     # Table 8 deviations of tenths of a mm left at nominal: far above 2x the ~15 µm floor
-    assert main(["identify", str(data), "--cell", "kr270", "--params", "px1,px2,px3,pz3,dq2,dq3", "--out",
-                 str(tmp_path / "m.json"), "--json", str(summary)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "identify",
+                str(data),
+                "--cell",
+                "kr270",
+                "--params",
+                "px1,px2,px3,pz3,dq2,dq3",
+                "--out",
+                str(tmp_path / "m.json"),
+                "--json",
+                str(summary),
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     s = json.loads(summary.read_text())
     assert s["fit"] == "poor" and s["fit_ratio"] > 2
@@ -173,8 +218,9 @@ def test_identify_says_which_weighting_and_whether_the_fit_can_be_trusted(tmp_pa
 def test_identify_summary_says_whether_the_fit_converged(tmp_path, campaign_csv):
     _, data = campaign_csv
     summary = tmp_path / "s.json"
-    assert main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json",
-                 str(summary)]) == 0  # fmt: skip
+    assert (
+        main(["identify", str(data), "--cell", "kr270", "--out", str(tmp_path / "m.json"), "--json", str(summary)]) == 0
+    )
     s = json.loads(summary.read_text())
     assert s["converged"] is True and isinstance(s["message"], str)
     assert convergence_warning({"converged": True, "message": "step below the floor"}) is None
@@ -194,8 +240,10 @@ def test_a_job_names_its_option_and_the_command_line_spells_its_flag(kr270, caps
 
 def test_extend_prints_the_cause_and_its_parameters(tmp_path, campaign_csv, capsys):
     _, data = campaign_csv
-    assert main(["identify", str(data), "--cell", "kr270", "--extend", "encoder_scale", "--out",
-                 str(tmp_path / "m.json")]) == 0  # fmt: skip
+    assert (
+        main(["identify", str(data), "--cell", "kr270", "--extend", "encoder_scale", "--out", str(tmp_path / "m.json")])
+        == 0
+    )
     out = capsys.readouterr().out
     ext = json.loads((tmp_path / "m.json").read_text())["extension"]
     assert ext["cause"] == "encoder_scale" and "Model extension: encoder_scale" in out
@@ -206,8 +254,9 @@ def leaf_parsers(parser: argparse.ArgumentParser):
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in dict.fromkeys(action.choices.values()):
-                yield from leaf_parsers(sub) if any(isinstance(a, argparse._SubParsersAction) for a in sub._actions) \
-                    else [sub]
+                yield from (
+                    leaf_parsers(sub) if any(isinstance(a, argparse._SubParsersAction) for a in sub._actions) else [sub]
+                )
 
 
 def test_every_option_has_help_and_shows_its_default():
@@ -224,12 +273,15 @@ def test_every_option_has_help_and_shows_its_default():
             assert (root / doc).exists(), f"{parser.prog} --help names {doc}, which is not in the repository"
 
 
-@pytest.mark.parametrize("argv, prog", [
-    (["identify", "t.csv", "--cell", "kr270", "--out", "m.json", "--bogus"], "trackcal identify"),
-    (["plan", "--cell"], "trackcal plan"),
-    (["import", "ipa-ur10", "f.csv"], "trackcal import ipa-ur10"),
-    (["nosuchcommand"], "trackcal"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, prog",
+    [
+        (["identify", "t.csv", "--cell", "kr270", "--out", "m.json", "--bogus"], "trackcal identify"),
+        (["plan", "--cell"], "trackcal plan"),
+        (["import", "ipa-ur10", "f.csv"], "trackcal import ipa-ur10"),
+        (["nosuchcommand"], "trackcal"),
+    ],
+)
 def test_option_mistakes_are_one_line_naming_the_command(argv, prog, capsys):
     with pytest.raises(SystemExit) as stop:
         main(argv)
@@ -267,8 +319,12 @@ def test_every_optional_option_says_its_default_or_what_happens_without_it():
     for parser in leaf_parsers(build_parser()):
         text = " ".join(parser.format_help().split())
         for action in parser._actions:
-            if not action.option_strings or action.required or action.help == argparse.SUPPRESS \
-                    or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction)):  # fmt: skip
+            if (
+                not action.option_strings
+                or action.required
+                or action.help == argparse.SUPPRESS
+                or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction))
+            ):
                 continue
             help_text = " ".join(action.help.split())
             assert "default" in help_text or f"(default: {action.default})" in text, (parser.prog, action.dest)
@@ -298,21 +354,27 @@ def small_machine(monkeypatch):
     monkeypatch.setattr(limits, "MEMORY_CEILING_BYTES", 2**30)
 
 
-@pytest.mark.parametrize("argv, message", [
-    # 100,000,000 poses x 6 (station, point) pairs x 433 bytes measured: 242 GiB (was a 17.9 GiB traceback)
-    (["simulate", "--cell", "kr270", "--poses", "100000000", "--out", "x.csv"], r"--poses 100000000: needs about "),
-    (["simulate", "--cell", "kr270", "--poses", "10", "--repeat", "100000000", "--out", "x.csv"], r"--repeat "),
-    # 100,000 configurations: the refinement alone (its constraint Jacobian grows as configs squared): beyond 1 GiB
-    (["plan", "--cell", "kr270", "--configs", "100000"], r"--configs 100000: needs about "),
-    (["plan", "--cell", "kr270", "--starts", "100000000"], r"--starts 100000000: needs about "),
-    (["plan", "--cell", "kr270", "--refined", "100000000", "--starts", "100000000"], r"--starts 100000000: needs "),
-    (["plan", "--cell", "kr270", "--repeat", "1000000000"], r"--repeat 1000000000: the campaign would measure "),
-    (["plan", "--cell", "kr270", "--refined", "0"], r"--starts and --refined must be at least 1"),
-    (["plan", "--cell", "kr270", "--noise", "tracker", "--sigma-mm", "0.02"],
-     r"--sigma-mm is the i.i.d. noise .* --noise iid"),
-])  # fmt: skip
-def test_large_numbers_are_refused_with_the_limit_before_allocating(small_machine, tmp_path, monkeypatch, capsys,
-                                                                     argv, message):  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        # 100,000,000 poses x 6 (station, point) pairs x 433 bytes measured: 242 GiB (was a 17.9 GiB traceback)
+        (["simulate", "--cell", "kr270", "--poses", "100000000", "--out", "x.csv"], r"--poses 100000000: needs about "),
+        (["simulate", "--cell", "kr270", "--poses", "10", "--repeat", "100000000", "--out", "x.csv"], r"--repeat "),
+        # 100,000 configurations: the refinement alone (its constraint Jacobian grows as configs squared): beyond 1 GiB
+        (["plan", "--cell", "kr270", "--configs", "100000"], r"--configs 100000: needs about "),
+        (["plan", "--cell", "kr270", "--starts", "100000000"], r"--starts 100000000: needs about "),
+        (["plan", "--cell", "kr270", "--refined", "100000000", "--starts", "100000000"], r"--starts 100000000: needs "),
+        (["plan", "--cell", "kr270", "--repeat", "1000000000"], r"--repeat 1000000000: the campaign would measure "),
+        (["plan", "--cell", "kr270", "--refined", "0"], r"--starts and --refined must be at least 1"),
+        (
+            ["plan", "--cell", "kr270", "--noise", "tracker", "--sigma-mm", "0.02"],
+            r"--sigma-mm is the i.i.d. noise .* --noise iid",
+        ),
+    ],
+)
+def test_large_numbers_are_refused_with_the_limit_before_allocating(
+    small_machine, tmp_path, monkeypatch, capsys, argv, message
+):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -337,8 +399,17 @@ def test_the_largest_count_said_to_fit_does_fit(small_machine, kr270):
     assert plan_bytes(design, PlanOptions(configs=100_000))["screening"] >= SCREEN_CHUNK * 100_000 * k * k * 8
 
 
-@pytest.mark.parametrize("command", [["simulate", "--out", "x.csv"], ["plan"], ["mock"], ["demo"], ["diagnose", "t.csv",
-                                     "--json", "v.json"], ["run", "--plan", "p.json", "--sim", "--session", "s"]])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["simulate", "--out", "x.csv"],
+        ["plan"],
+        ["mock"],
+        ["demo"],
+        ["diagnose", "t.csv", "--json", "v.json"],
+        ["run", "--plan", "p.json", "--sim", "--session", "s"],
+    ],
+)
 def test_a_negative_seed_is_one_line(command, capsys):
     with pytest.raises(SystemExit) as stop:
         main([*command, "--cell", "kr270", "--seed", "-1"])
@@ -382,13 +453,16 @@ def test_plan_noise_defaults_to_iid_until_plans_keep_a_visibility_margin():
     assert build_parser().parse_args(["identify", "t.csv", "--cell", "kr270", "--out", "m.json"]).weighting == "tracker"
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["mock", "--cell", "kr270", "--detach"], "--detach needs --write-hardware FILE"),
-    (["mock"], "--cell is required (or --stop FILE)"),
-    (["mock", "--stop", "H.yaml", "--cell", "kr270"], "--stop FILE takes no other option"),
-    (["mock", "--stop", "H.yaml"], "H.yaml: not a hardware file written by trackcal mock"),
-    (["mock", "--stop", "missing.yaml"], "missing.yaml: cannot read"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["mock", "--cell", "kr270", "--detach"], "--detach needs --write-hardware FILE"),
+        (["mock"], "--cell is required (or --stop FILE)"),
+        (["mock", "--stop", "H.yaml", "--cell", "kr270"], "--stop FILE takes no other option"),
+        (["mock", "--stop", "H.yaml"], "H.yaml: not a hardware file written by trackcal mock"),
+        (["mock", "--stop", "missing.yaml"], "missing.yaml: cannot read"),
+    ],
+)
 def test_mock_detach_and_stop_mistakes_are_one_line(tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "H.yaml").write_text("tracker: {}\n")
@@ -414,8 +488,9 @@ def test_diagnose_folds_outside_what_the_table_can_hold_out_is_one_line(tmp_path
     assert not (tmp_path / "v.json").exists()
 
 
-@pytest.mark.parametrize("option, value", [("--lever-mm", "nan"), ("--lever-mm", "1e308"), ("--period-s", "inf"),
-                                           ("--period-s", "1e308")])  # fmt: skip
+@pytest.mark.parametrize(
+    "option, value", [("--lever-mm", "nan"), ("--lever-mm", "1e308"), ("--period-s", "inf"), ("--period-s", "1e308")]
+)
 def test_import_numbers_are_bounded(tmp_path, capsys, option, value):
     """--lever-mm nan wrote a table of NaN positions, 1e308 one of infinities: both are one line now."""
     out = tmp_path / "b.csv"
@@ -428,8 +503,13 @@ def test_a_detached_mock_serves_when_it_returns_and_stops_on_request(tmp_path):
     """Issue 25: `trackcal mock ... &` raced the next command. --detach returns once the hardware file is written
     and every server listens: the tracker and PLC ports accept a connection at once; --stop leaves no process."""
     hw = tmp_path / "cell.yaml"
-    started = subprocess.run([*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw),
-                              "--detach"], cwd=tmp_path, capture_output=True, text=True, timeout=300)  # fmt: skip
+    started = subprocess.run(
+        [*TRACKCAL, "mock", "--cell", "kr270", "--seed", "3", "--write-hardware", str(hw), "--detach"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert started.returncode == 0, started.stderr
     pid = mock_pid(hw)
     try:
@@ -438,8 +518,9 @@ def test_a_detached_mock_serves_when_it_returns_and_stops_on_request(tmp_path):
         for device in ("tracker", "plc"):  # listening before --detach returned: no wait, no retry
             socket.create_connection((doc[device]["host"], doc[device]["port"]), timeout=5).close()
         assert (tmp_path / "cell.yaml.log").exists()
-        stopped = subprocess.run([*TRACKCAL, "mock", "--stop", str(hw)], cwd=tmp_path, capture_output=True,
-                                 text=True, timeout=120)  # fmt: skip
+        stopped = subprocess.run(
+            [*TRACKCAL, "mock", "--stop", str(hw)], cwd=tmp_path, capture_output=True, text=True, timeout=120
+        )
         assert stopped.returncode == 0 and not running_mock(pid), stopped.stderr
         assert "stopping" in (tmp_path / "cell.yaml.log").read_text()  # it closed its servers itself (SIGTERM)
     finally:

@@ -135,8 +135,13 @@ def good(tmp_path_factory, kr270):
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["identify", str(d / "table30.csv"), "--cell", "kr270", "--out", str(d / "usable.json")]) == 0
     assert json.loads((d / "usable.json").read_text())["usable"] is True
-    verdict = {"cause": "none", "candidates": [], "geometric": {"rms_mm": 0.01}, "noise_floor_mm": 0.01,
-               "holdout": {"rms_geometric_mm": 0.012, "rms_extended_mm": None, "rms_extended_why": "none"}}  # fmt: skip
+    verdict = {
+        "cause": "none",
+        "candidates": [],
+        "geometric": {"rms_mm": 0.01},
+        "noise_floor_mm": 0.01,
+        "holdout": {"rms_geometric_mm": 0.012, "rms_extended_mm": None, "rms_extended_why": "none"},
+    }
     (d / "verdict.json").write_text(json.dumps(verdict))
     hw = yaml.safe_load((CONFIGS / "hardware" / "example-cell.yaml").read_text())
     (d / "hardware.yaml").write_text(yaml.safe_dump(hw))
@@ -151,24 +156,36 @@ def good(tmp_path_factory, kr270):
 
 # command -> (arguments with {file} placeholders, the files one of which is broken)
 CASES = {
-    "identify": ("identify {table.csv} --cell {cell.yaml} --out {out}/m.json",
-                 "table.csv cell.yaml robot.yaml tool.yaml"),
+    "identify": (
+        "identify {table.csv} --cell {cell.yaml} --out {out}/m.json",
+        "table.csv cell.yaml robot.yaml tool.yaml",
+    ),
     "predict": ("predict {table.csv} --model {model.json} --out {out}/p.csv", "table.csv model.json"),
     "plan": ("plan --cell {cell.yaml} --evaluate {poses.csv} --json {out}/plan.json", "cell.yaml poses.csv tool.yaml"),
     "simulate": ("simulate --cell {cell.yaml} --poses 2 --out {out}/s.csv", "cell.yaml robot.yaml"),
     "run": ("run --cell {cell.yaml} --plan {plan.json} --sim --no-analysis --session {out}/s", "plan.json cell.yaml"),
-    "run-hardware": ("run --cell {cell.yaml} --plan {plan.json} --hardware {hardware.yaml} --session {out}/s",
-                     "hardware.yaml"),
-    "compensate": ("compensate {targets.csv} --model {usable.json} --out {out}/c.csv --krl PROG",
-                   "targets.csv usable.json"),
-    "report": ("report --table {table.csv} --model {model.json} --plan {measured-plan.json} --verdict {verdict.json} "
-               "--cell {cell.yaml} --out {out}/r", "table.csv model.json measured-plan.json verdict.json"),
+    "run-hardware": (
+        "run --cell {cell.yaml} --plan {plan.json} --hardware {hardware.yaml} --session {out}/s",
+        "hardware.yaml",
+    ),
+    "compensate": (
+        "compensate {targets.csv} --model {usable.json} --out {out}/c.csv --krl PROG",
+        "targets.csv usable.json",
+    ),
+    "report": (
+        "report --table {table.csv} --model {model.json} --plan {measured-plan.json} --verdict {verdict.json} "
+        "--cell {cell.yaml} --out {out}/r",
+        "table.csv model.json measured-plan.json verdict.json",
+    ),
     "import": ("import ipa-ur10 {ipa.csv} --out {out}/t.csv", "ipa.csv"),
     "import-table": ("import table {export.csv} --map {map.yaml} --out {out}/t.csv", "export.csv map.yaml"),
-    "locate": ("locate --model {model.json} --table {table.csv} --station S1 --poses 3 --out {out}/l.json "
-               "--predict-out {out}/r.csv", "table.csv model.json"),
+    "locate": (
+        "locate --model {model.json} --table {table.csv} --station S1 --poses 3 --out {out}/l.json "
+        "--predict-out {out}/r.csv",
+        "table.csv model.json",
+    ),
     "diagnose": ("diagnose {table.csv} --cell {cell.yaml} --folds 2 --json {out}/v.json", "table.csv cell.yaml"),
-}  # fmt: skip
+}
 SLOW_ONLY = {"diagnose", "run"}  # a good input runs a whole diagnosis / campaign: seconds per example
 
 
@@ -193,8 +210,9 @@ def run_broken(good, tmp_path_factory, case, data) -> None:
     broken(data, d / target)
     argv = argv_for(template, d, out)
     err = io.StringIO()
-    refuse = mock.patch("trackcal.campaign.jobs.campaign.connect_hardware",
-                        side_effect=DeviceError("no cell in this test"))
+    refuse = mock.patch(
+        "trackcal.campaign.jobs.campaign.connect_hardware", side_effect=DeviceError("no cell in this test")
+    )
     with refuse, contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = main(argv)
     lines = err.getvalue().splitlines()

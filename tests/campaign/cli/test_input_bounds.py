@@ -12,15 +12,18 @@ from trackcal.campaign.cli import main
 ROW = {"a_mm": 0, "alpha_deg": 90, "d_mm": 127.3}
 
 
-@pytest.mark.parametrize(("key", "value", "message"), [
-    ("d_mm", 1e308, r"d_mm: 1e\+308 mm is outside \+-20000 mm"),  # 1e308 mm: a link longer than the universe
-    ("a_mm", -25000.0, r"a_mm: -25000 mm is outside \+-20000 mm"),  # 25 m: no arm (the largest reach under 5 m)
-    ("alpha_deg", 720.0, r"alpha_deg: 720 deg is outside \+-360 deg"),
-    ("theta_offset_deg", -1e9, r"theta_offset_deg: -1e\+09 deg is outside \+-360 deg"),
-    ("d_mm", "12", r"d_mm: expected a number, got the string '12'"),
-    ("alpha_deg", "90", r"alpha_deg: expected a number, got the string '90'"),
-    ("sign", "-1", r"sign: expected a number, got the string '-1'"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("d_mm", 1e308, r"d_mm: 1e\+308 mm is outside \+-20000 mm"),  # 1e308 mm: a link longer than the universe
+        ("a_mm", -25000.0, r"a_mm: -25000 mm is outside \+-20000 mm"),  # 25 m: no arm (the largest reach under 5 m)
+        ("alpha_deg", 720.0, r"alpha_deg: 720 deg is outside \+-360 deg"),
+        ("theta_offset_deg", -1e9, r"theta_offset_deg: -1e\+09 deg is outside \+-360 deg"),
+        ("d_mm", "12", r"d_mm: expected a number, got the string '12'"),
+        ("alpha_deg", "90", r"alpha_deg: expected a number, got the string '90'"),
+        ("sign", "-1", r"sign: expected a number, got the string '-1'"),
+    ],
+)
 def test_a_dh_value_out_of_range_or_in_quotes_is_refused(key, value, message):
     with pytest.raises(ChainError, match=r"robot.yaml: dh.rows\[0\]." + message):
         chain_from_dict({"dh": {"rows": [ROW | {key: value}]}}, "robot.yaml")
@@ -40,9 +43,12 @@ def deep_urdf(n: int) -> str:
     """A serial chain of n revolute joints, 0.1 m apart."""
     out = ['<robot name="deep">', '<link name="l0"/>']
     for i in range(n):
-        out += [f'<link name="l{i + 1}"/>', f'<joint name="j{i + 1}" type="revolute"><parent link="l{i}"/>'
-                f'<child link="l{i + 1}"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/>'
-                '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>']  # fmt: skip
+        out += [
+            f'<link name="l{i + 1}"/>',
+            f'<joint name="j{i + 1}" type="revolute"><parent link="l{i}"/>'
+            f'<child link="l{i + 1}"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/>'
+            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>',
+        ]
     return "\n".join([*out, "</robot>"])
 
 
@@ -59,17 +65,33 @@ def test_a_urdf_deeper_than_a_robot_is_one_line(tmp_path, capsys):
     assert chain_from_urdf(str(path)).dof == 6
 
 
-@pytest.mark.parametrize(("columns", "message"), [
-    ({"joints": ["A1", "A1", "A1", "A1", "A1", "A1"], "xyz": ["X", "Y", "Z"]},
-     "joint 1 and joint 2 are both read from column 'A1'"),
-    ({"joints": ["A1", "A2", "A3", "A4", "A5", "A6"], "xyz": ["X", "Y", "A6"]},
-     "joint 6 and xyz z are both read from column 'A6'"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("columns", "message"),
+    [
+        (
+            {"joints": ["A1", "A1", "A1", "A1", "A1", "A1"], "xyz": ["X", "Y", "Z"]},
+            "joint 1 and joint 2 are both read from column 'A1'",
+        ),
+        (
+            {"joints": ["A1", "A2", "A3", "A4", "A5", "A6"], "xyz": ["X", "Y", "A6"]},
+            "joint 6 and xyz z are both read from column 'A6'",
+        ),
+    ],
+)
 def test_an_import_map_with_two_roles_on_one_column_is_refused(tmp_path, capsys, columns, message):
     (tmp_path / "e.csv").write_text("A1,A2,A3,A4,A5,A6,X,Y,Z\n1,2,3,4,5,6,100,200,300\n")
     (tmp_path / "m.yaml").write_text(yaml.safe_dump({"columns": columns}))
-    code = main(["import", "table", str(tmp_path / "e.csv"), "--map", str(tmp_path / "m.yaml"),
-                 "--out", str(tmp_path / "t.csv")])  # fmt: skip
+    code = main(
+        [
+            "import",
+            "table",
+            str(tmp_path / "e.csv"),
+            "--map",
+            str(tmp_path / "m.yaml"),
+            "--out",
+            str(tmp_path / "t.csv"),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "t.csv").exists()
@@ -78,10 +100,23 @@ def test_an_import_map_with_two_roles_on_one_column_is_refused(tmp_path, capsys,
 def test_two_reflectors_on_one_column_are_refused(tmp_path, capsys):
     """layout pose_rows: reflector P2's x read from P1's x column, by name and by position alike."""
     (tmp_path / "e.csv").write_text("A1,A2,X1,Y1,Z1,X2,Y2,Z2\n1,2,100,200,300,110,210,310\n")
-    doc = {"layout": "pose_rows", "positions": "1-based", "columns": {"joints": ["A1", "A2"]},
-           "points": {"P1": ["X1", "Y1", "Z1"], "P2": [3, "Y2", "Z2"]}}  # fmt: skip
+    doc = {
+        "layout": "pose_rows",
+        "positions": "1-based",
+        "columns": {"joints": ["A1", "A2"]},
+        "points": {"P1": ["X1", "Y1", "Z1"], "P2": [3, "Y2", "Z2"]},
+    }
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
-    code = main(["import", "table", str(tmp_path / "e.csv"), "--map", str(tmp_path / "m.yaml"),
-                 "--out", str(tmp_path / "t.csv")])  # fmt: skip
+    code = main(
+        [
+            "import",
+            "table",
+            str(tmp_path / "e.csv"),
+            "--map",
+            str(tmp_path / "m.yaml"),
+            "--out",
+            str(tmp_path / "t.csv"),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "point P1 x and point P2 x are both read from column 3" in err, err

@@ -118,8 +118,9 @@ def test_non_utf8_plan_and_hardware_files(model_json, cell_dir, tmp_path, capfd)
     hw.write_bytes((CONFIGS / "hardware" / "example-cell.yaml").read_bytes() + b"# \xff\n")
     good_plan = tmp_path / "good.json"
     good_plan.write_text(json.dumps({"poses_deg": [[10, -60, 80, 10, 40, 0]], "repeat": 1}))
-    err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", good_plan, "--hardware", hw,
-                                 "--session", tmp_path / "s2"])  # fmt: skip
+    err = one_line_error(
+        capfd, ["run", "--cell", "kr270", "--plan", good_plan, "--hardware", hw, "--session", tmp_path / "s2"]
+    )
     assert f"{hw}: line " in err and "not UTF-8 text (byte 0xff)" in err
 
 
@@ -140,8 +141,9 @@ GOOD_POSE = [10, -60, 80, 10, 40, 0]  # a kr270 pose inside its limits (the one 
 )
 def test_a_plan_of_the_wrong_types(tmp_path, capfd, plan, message):
     (tmp_path / "plan.json").write_text(json.dumps(plan))
-    err = one_line_error(capfd, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session",
-                                 tmp_path / "s"])  # fmt: skip
+    err = one_line_error(
+        capfd, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session", tmp_path / "s"]
+    )
     assert re.search(message, err), err
     assert not (tmp_path / "s").exists()
 
@@ -151,9 +153,11 @@ def test_an_unknown_plan_param_is_refused_when_the_cell_loads(cell_dir, tmp_path
     spoil(cell_dir / "cell.yaml", lambda d: d.update(plan_params=["dq2", "gremlin"]))
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({"poses_deg": [GOOD_POSE], "repeat": 1}))
-    for argv in (["simulate", "--cell", cell_dir / "cell.yaml", "--poses", 2, "--out", tmp_path / "t.csv"],
-                 ["plan", "--cell", cell_dir / "cell.yaml", "--json", tmp_path / "p.json"],
-                 ["run", "--cell", cell_dir / "cell.yaml", "--plan", plan, "--sim", "--session", tmp_path / "s"]):
+    for argv in (
+        ["simulate", "--cell", cell_dir / "cell.yaml", "--poses", 2, "--out", tmp_path / "t.csv"],
+        ["plan", "--cell", cell_dir / "cell.yaml", "--json", tmp_path / "p.json"],
+        ["run", "--cell", cell_dir / "cell.yaml", "--plan", plan, "--sim", "--session", tmp_path / "s"],
+    ):
         err = one_line_error(capfd, argv)
         assert re.search(r"cell\.yaml: plan_params\[1\]: 'gremlin' is no parameter of robot", err), err
 
@@ -168,38 +172,65 @@ def test_deeply_nested_json_is_one_line(model_json, tmp_path, capfd):
     deep.write_text('{"poses_deg": ' + nested(100_000) + "}")
     message = f"{deep}: not a document of trackcal (arrays or objects nested too deeply)"
     report = ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--out", tmp_path / "r"]
-    for argv in (["run", "--cell", "kr270", "--plan", deep, "--sim", "--session", tmp_path / "s"],
-                 ["predict", model_json / "t.csv", "--model", deep, "--out", tmp_path / "out.csv"],
-                 [*report, "--model", deep], [*report, "--model", model_json / "model.json", "--plan", deep],
-                 [*report, "--model", model_json / "model.json", "--verdict", deep]):
+    for argv in (
+        ["run", "--cell", "kr270", "--plan", deep, "--sim", "--session", tmp_path / "s"],
+        ["predict", model_json / "t.csv", "--model", deep, "--out", tmp_path / "out.csv"],
+        [*report, "--model", deep],
+        [*report, "--model", model_json / "model.json", "--plan", deep],
+        [*report, "--model", model_json / "model.json", "--verdict", deep],
+    ):
         err = one_line_error(capfd, argv)
         assert message in err, err
 
 
-@pytest.mark.parametrize("poses, repeat, message",
-                         [([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got the string '10'"),
-                          ([GOOD_POSE], 2.5, r"repeat: expected an integer, got 2\.5")])  # fmt: skip
+@pytest.mark.parametrize(
+    "poses, repeat, message",
+    [
+        ([["10"] * 6], 1, r"poses_deg\[0\]\[0\]: expected a number, got the string '10'"),
+        ([GOOD_POSE], 2.5, r"repeat: expected an integer, got 2\.5"),
+    ],
+)
 def test_the_plan_of_a_report_is_typed_json(model_json, tmp_path, capfd, poses, repeat, message):
     """Issue 27, finding 8: the report took string joint angles and a fractional repeat (the one it prints in
     the `trackcal plan` command it suggests)."""
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({"poses_deg": poses, "repeat": repeat}))
-    err = one_line_error(capfd, ["report", "--table", model_json / "t.csv", "--cell", "kr270", "--model",
-                                 model_json / "model.json", "--plan", plan, "--out", tmp_path / "r"])  # fmt: skip
+    err = one_line_error(
+        capfd,
+        [
+            "report",
+            "--table",
+            model_json / "t.csv",
+            "--cell",
+            "kr270",
+            "--model",
+            model_json / "model.json",
+            "--plan",
+            plan,
+            "--out",
+            tmp_path / "r",
+        ],
+    )
     assert str(plan) in err and re.search(message, err), err
 
 
 @pytest.mark.parametrize(
     "extension, message",
     [  # issue 27, finding 8: these leaked "invalid literal for int() with base 10" and KeyError's "'unit'"
-        ({"cause": "cyclic_error", "arcs": {"joint_x": {"from_deg": 0, "to_deg": 90}}},
-         r"extension\.arcs: 'joint_x' is not joint_N"),
-        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": 1.0}}},
-         r"extension\.parameters\.s1_2\.unit: expected one of deg"),
-        ({"cause": "cyclic_error", "parameters": {"s1_2": {"value": "1", "unit": "deg"}}},
-         r"extension\.parameters\.s1_2\.value: expected a number, got the string '1'"),
+        (
+            {"cause": "cyclic_error", "arcs": {"joint_x": {"from_deg": 0, "to_deg": 90}}},
+            r"extension\.arcs: 'joint_x' is not joint_N",
+        ),
+        (
+            {"cause": "cyclic_error", "parameters": {"s1_2": {"value": 1.0}}},
+            r"extension\.parameters\.s1_2\.unit: expected one of deg",
+        ),
+        (
+            {"cause": "cyclic_error", "parameters": {"s1_2": {"value": "1", "unit": "deg"}}},
+            r"extension\.parameters\.s1_2\.value: expected a number, got the string '1'",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd, extension, message):
     doc = json.loads((model_json / "model.json").read_text())
     bad = tmp_path / "model.json"
@@ -208,16 +239,28 @@ def test_a_bad_model_extension_in_words_of_the_file(model_json, tmp_path, capfd,
     assert str(bad) in err and re.search(message, err) and "invalid literal" not in err, err
 
 
-@pytest.mark.parametrize("command, text, message", [
-    # a table saved by Excel in a locale with decimal commas: ';' between fields, ',' in numbers (issue 25)
-    (["identify", "T", "--cell", "kr270", "--out", "m.json"],
-     "seq;t_s;pose;station;point;q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg;x_mm;y_mm;z_mm\n"
-     "1;0,0;P1;S1;Q1;1,5;-80;80;0;40;5;1000,1;2;3\n", "this table is separated by ';' with decimal commas"),
-    (["plan", "--cell", "kr270", "--evaluate", "T", "--json", "e.json"],
-     "q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg\n1.5;-80;80;0;40;5\n", "this table is separated by ';', not by ','"),
-    (["compensate", "T", "--model", "M", "--out", "c.csv"],
-     "name\tq1_deg\tq2_deg\tq3_deg\tq4_deg\tq5_deg\tq6_deg\nHOME\t0\t-90\t90\t0\t0\t0\n", "separated by tabs"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "command, text, message",
+    [
+        # a table saved by Excel in a locale with decimal commas: ';' between fields, ',' in numbers (issue 25)
+        (
+            ["identify", "T", "--cell", "kr270", "--out", "m.json"],
+            "seq;t_s;pose;station;point;q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg;x_mm;y_mm;z_mm\n"
+            "1;0,0;P1;S1;Q1;1,5;-80;80;0;40;5;1000,1;2;3\n",
+            "this table is separated by ';' with decimal commas",
+        ),
+        (
+            ["plan", "--cell", "kr270", "--evaluate", "T", "--json", "e.json"],
+            "q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg\n1.5;-80;80;0;40;5\n",
+            "this table is separated by ';', not by ','",
+        ),
+        (
+            ["compensate", "T", "--model", "M", "--out", "c.csv"],
+            "name\tq1_deg\tq2_deg\tq3_deg\tq4_deg\tq5_deg\tq6_deg\nHOME\t0\t-90\t90\t0\t0\t0\n",
+            "separated by tabs",
+        ),
+    ],
+)
 def test_a_table_with_another_separator_is_named_as_such(model_json, tmp_path, capfd, command, text, message):
     table = tmp_path / "t.csv"
     table.write_text(text)

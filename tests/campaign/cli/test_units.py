@@ -58,18 +58,23 @@ def test_the_twins_tables_are_accepted_and_move_as_their_flange(tmp_path, cell):
 
 
 @pytest.mark.parametrize("cell", ["kr270", "ur10", "irb120"])
-@pytest.mark.parametrize("unit, change", [
-    ("metres", lambda t: dataclasses.replace(t, xyz=t.xyz / 1000.0)),
-    ("inches", lambda t: dataclasses.replace(t, xyz=t.xyz / 25.4)),  # the inch is 25.4 mm (NIST SP 811, B.6)
-    ("radians", lambda t: dataclasses.replace(t, q_deg=np.radians(t.q_deg))),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "unit, change",
+    [
+        ("metres", lambda t: dataclasses.replace(t, xyz=t.xyz / 1000.0)),
+        ("inches", lambda t: dataclasses.replace(t, xyz=t.xyz / 25.4)),  # the inch is 25.4 mm (NIST SP 811, B.6)
+        ("radians", lambda t: dataclasses.replace(t, q_deg=np.radians(t.q_deg))),
+    ],
+)
 def test_a_table_in_another_unit_is_refused_in_one_line_naming_it(tmp_path, capsys, cell, unit, change):
     ref, _, table = twin_table(tmp_path, cell)
     bad = tmp_path / f"{unit}.csv"
     write_table(change(table), bad)
     capsys.readouterr()
-    for command in (["identify", str(bad), "--cell", ref, "--out", str(tmp_path / "m.json")],
-                    ["diagnose", str(bad), "--cell", ref, "--json", str(tmp_path / "v.json")]):  # fmt: skip
+    for command in (
+        ["identify", str(bad), "--cell", ref, "--out", str(tmp_path / "m.json")],
+        ["diagnose", str(bad), "--cell", ref, "--json", str(tmp_path / "v.json")],
+    ):
         assert main(command) == 2
         err = capsys.readouterr().err
         assert f"look like {unit}, not" in err and err.count("\n") == 1, err
@@ -93,9 +98,15 @@ def test_a_campaign_that_does_not_move_passes():
     c = load_cell("kr270")
     n = 5
     q = np.tile([1.0, -2.0, 2.0, 0.0, 1.0, 0.0], (n, 1))  # small angles, in degrees, that never change
-    table = MeasurementTable(seq=np.arange(1, n + 1), t_s=np.arange(n, dtype=float), pose=["Q1"] * n,
-                             station=["S1"] * n, point=["P1"] * n, q_deg=q,
-                             xyz=np.tile([3000.0, 100.0, 900.0], (n, 1)))  # fmt: skip
+    table = MeasurementTable(
+        seq=np.arange(1, n + 1),
+        t_s=np.arange(n, dtype=float),
+        pose=["Q1"] * n,
+        station=["S1"] * n,
+        point=["P1"] * n,
+        q_deg=q,
+        xyz=np.tile([3000.0, 100.0, 900.0], (n, 1)),
+    )
     check_units(table, c.chain)
 
 

@@ -62,8 +62,9 @@ def test_every_document_kind_has_one_schema():
 def documents(kr270, tmp_path_factory):
     """Every document of an in-process campaign of 3 configurations (station blocks, prompts, drift checks)."""
     seen = []
-    store, _ = new_session(tmp_path_factory.mktemp("docs") / "s", "kr270", feasible_plan(kr270, 3, seed=5, repeat=1),
-                           "sim", 3)  # fmt: skip
+    store, _ = new_session(
+        tmp_path_factory.mktemp("docs") / "s", "kr270", feasible_plan(kr270, 3, seed=5, repeat=1), "sim", 3
+    )
     assert run_stored(store, inproc_live(kr270)[1], [seen.append]).exit_status == "success"
     store.close()
     return seen
@@ -71,8 +72,18 @@ def documents(kr270, tmp_path_factory):
 
 def test_every_document_of_a_campaign_matches_its_schema(documents):
     names = {d.name for d in documents}
-    assert {"start", "step_started", "call", "prompt", "operator", "measurement", "step_done", "progress", "stop",
-            "station_fit"} <= names  # fmt: skip
+    assert {
+        "start",
+        "step_started",
+        "call",
+        "prompt",
+        "operator",
+        "measurement",
+        "step_done",
+        "progress",
+        "stop",
+        "station_fit",
+    } <= names
     for k, doc in enumerate(documents):
         why = schema_mismatch(doc.data, SCHEMAS[doc.name], f"document {k} ({doc.name})")
         assert why is None, why

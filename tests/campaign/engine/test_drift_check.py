@@ -66,8 +66,9 @@ def test_bonferroni_over_the_checks_of_a_campaign():
     assert DriftTest(checks=20).level > DriftTest(checks=1).level
 
 
-def run_campaign(seed: int, hidden: Effects | None = None, effects: dict[str, float] | None = None,
-                 approached: bool = True):  # fmt: skip
+def run_campaign(
+    seed: int, hidden: Effects | None = None, effects: dict[str, float] | None = None, approached: bool = True
+):
     plan = feasible_plan(CELL, 6, seed=seed, repeat=3)
     with tempfile.TemporaryDirectory(dir="/dev/shm" if Path("/dev/shm").is_dir() else None) as d:
         store, _ = new_session(Path(d) / "s", "kr270", plan, "sim", seed, approached=approached)
@@ -75,8 +76,9 @@ def run_campaign(seed: int, hidden: Effects | None = None, effects: dict[str, fl
         if hidden is not None:
             twin.hidden = hidden
         world = World(twin)
-        result = run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
-                                        InprocCellIO(world)))  # fmt: skip
+        result = run_stored(
+            store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock, InprocCellIO(world))
+        )
         table = export_table(store)
     return [w for w in result.warnings if w.startswith("drift check")], table
 
@@ -151,8 +153,11 @@ def test_a_block_whose_reference_pose_hides_its_point_warns_and_the_report_says_
     compare. Before, that block went without a word."""
     root = ROOT / "configs"
     tool = (root / "tools" / "kr270-3point.yaml").read_text()
-    (tmp_path / "tool.yaml").write_text(tool.replace("P3: {xyz_mm: [278, 104, -2],  normal: [1, 0, 0]}",
-                                                     "P3: {xyz_mm: [278, 104, -2],  normal: [0, 1, 0]}"))  # fmt: skip
+    (tmp_path / "tool.yaml").write_text(
+        tool.replace(
+            "P3: {xyz_mm: [278, 104, -2],  normal: [1, 0, 0]}", "P3: {xyz_mm: [278, 104, -2],  normal: [0, 1, 0]}"
+        )
+    )
     cell_text = (root / "cells" / "kr270.yaml").read_text().replace("tool: kr270-3point", "tool: tool.yaml")
     (tmp_path / "cell.yaml").write_text(cell_text)
     cell = load_cell(str(tmp_path / "cell.yaml"))
@@ -162,12 +167,18 @@ def test_a_block_whose_reference_pose_hides_its_point_warns_and_the_report_says_
     q = q[points_in_box(cell, np.radians(q))]
     vis = visibility(cell, q)
     both = vis[("S1", "P1")] & vis[("S1", "P2")]
-    plan = {"poses_deg": [*q[both & ~vis[("S1", "P3")]][:2].tolist(),
-                          *q[~vis[("S1", "P1")] & ~vis[("S1", "P2")] & vis[("S1", "P3")]][:3].tolist()], "repeat": 1}
+    plan = {
+        "poses_deg": [
+            *q[both & ~vis[("S1", "P3")]][:2].tolist(),
+            *q[~vis[("S1", "P1")] & ~vis[("S1", "P2")] & vis[("S1", "P3")]][:3].tolist(),
+        ],
+        "repeat": 1,
+    }
     store, _ = new_session(tmp_path / "s", str(tmp_path / "cell.yaml"), plan, "sim", 7)
     world = World(Twin(cell, seed=7))
-    result = run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
-                                    InprocCellIO(world)))  # fmt: skip
+    result = run_stored(
+        store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock, InprocCellIO(world))
+    )
     assert result.exit_status == "success"
     warned = [w for w in result.warnings if w.startswith("no drift check")]
     assert len(warned) == 1 and "for P3 from S1: the block's reference pose Q1 does not see P3" in warned[0], warned
@@ -197,9 +208,13 @@ def test_a_lost_reference_revisit_warns_that_its_block_has_no_drift_check(tmp_pa
     first = next(s for s in campaign.steps if s.kind == StepKind.MEASURE and s.drift)
     assert [s for s in campaign.steps if s.kind == StepKind.MEASURE].index(first) == 1
     world = World(Twin(CELL, seed=2))
-    result = run_stored(store, Live(LosesTheFirstRevisit(world), InprocRobot(world), SimOperator(world), world.clock,
-                                    InprocCellIO(world)))  # fmt: skip
+    result = run_stored(
+        store,
+        Live(LosesTheFirstRevisit(world), InprocRobot(world), SimOperator(world), world.clock, InprocCellIO(world)),
+    )
     warned = [w for w in result.warnings if w.startswith("no drift check")]
-    assert warned == [f"no drift check for {first.point} from {first.station} in this block: its reference pose "
-                      f"{first.pose} could not be measured, so a move of station {first.station} during the block "
-                      "goes unnoticed"]  # fmt: skip
+    assert warned == [
+        f"no drift check for {first.point} from {first.station} in this block: its reference pose "
+        f"{first.pose} could not be measured, so a move of station {first.station} during the block "
+        "goes unnoticed"
+    ]

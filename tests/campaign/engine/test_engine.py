@@ -46,7 +46,7 @@ def test_step_order_groups_operator_actions(cell, plan):
     # passes alternate: the second pass visits the poses in reverse order (between the block's drift revisits)
     block = [s for s in steps if s.kind == "measure" and s.station == "S1" and s.point == "P1"]
     revisits = [i for i, s in enumerate(block) if s.drift]
-    block = [s.pose for s in block[revisits[0] + 1:revisits[-1]]]
+    block = [s.pose for s in block[revisits[0] + 1 : revisits[-1]]]
     half = len(block) // 2
     assert block[:half] == block[half:][::-1]
     # drift checks at the start and end of each point block
@@ -55,8 +55,11 @@ def test_step_order_groups_operator_actions(cell, plan):
 
 
 def test_a_point_no_station_sees_is_refused_before_the_start(cell, plan):
-    blind = dataclasses.replace(cell, tool_normals={k: -np.array([0.0, 0.0, 1.0]) * 0 + np.array([-1.0, 0, 0])
-                                                    for k in cell.tool_normals}, acceptance_deg=1.0)  # fmt: skip
+    blind = dataclasses.replace(
+        cell,
+        tool_normals={k: -np.array([0.0, 0.0, 1.0]) * 0 + np.array([-1.0, 0, 0]) for k in cell.tool_normals},
+        acceptance_deg=1.0,
+    )
     with pytest.raises(PlanError, match="not visible from any station"):
         list(campaign_steps(blind, np.array(plan["poses_deg"]), 1))
 
@@ -156,8 +159,9 @@ def test_beam_break_looks_again_then_skips(tmp_path, cell, plan):
     second fails once and the second look succeeds. Exactly one measurement is missing from the table."""
     reference, _ = new_session(tmp_path / "ref", "kr270", plan, "sim", 3)
     seen = []
-    run_stored(reference, live(cell)[1], [lambda doc: seen.append(Progress(**doc.data)) if doc.name == "progress"
-                                           else None])  # fmt: skip
+    run_stored(
+        reference, live(cell)[1], [lambda doc: seen.append(Progress(**doc.data)) if doc.name == "progress" else None]
+    )
     store, _ = new_session(tmp_path / "s", "kr270", plan, "sim", 3)
     world, devices = live(cell)
     devices.tracker.faults = ["beam broken"] * 3
@@ -238,8 +242,11 @@ def test_a_robot_that_settles_off_its_target_stops_before_the_pose_is_measured(t
     if not stops:
         assert result.exit_status == "success"
         return
-    assert_stopped(result, rf"settled with joint 3 at {calls[4][2] + off_deg:.4f} deg, not at the target "
-                           rf"{calls[4][2]:.4f} deg .*nothing is measured at this pose")  # fmt: skip
+    assert_stopped(
+        result,
+        rf"settled with joint 3 at {calls[4][2] + off_deg:.4f} deg, not at the target "
+        rf"{calls[4][2]:.4f} deg .*nothing is measured at this pose",
+    )
     assert result.code == "target_mismatch" and store.events("error")[-1].data["code"] == "target_mismatch"
     assert all(e.step < result.step for e in store.events("measurement"))
     run_stored(store, live(cell, store=store)[1])

@@ -31,9 +31,11 @@ def test_each_block_is_fitted_right_after_its_last_step_and_equals_an_independen
     assert [f.data["block"] for f in fits] == [0, 1]
     for b, f in zip(blocks, fits, strict=True):
         at = events.index(f)  # the block's last measurement, its step done, then the fit: before anything else
-        assert [(e.kind, e.step) for e in events[at - 2 : at + 1]] == [("measurement", b.steps[-1]),
-                                                                      ("step_done", b.steps[-1]),
-                                                                      ("station_fit", b.steps[-1])]  # fmt: skip
+        assert [(e.kind, e.step) for e in events[at - 2 : at + 1]] == [
+            ("measurement", b.steps[-1]),
+            ("step_done", b.steps[-1]),
+            ("station_fit", b.steps[-1]),
+        ]
     table = export_table(store)
     steps = [e.step for e in store.events("measurement")]
     for f in fits:
@@ -57,8 +59,9 @@ def test_a_block_finished_before_a_kill_gets_its_document_when_the_campaign_resu
     blocks = station_blocks(camp.steps)
     measured = [(e.step, e.data) for e in store.events("measurement")]
     emitted = []
-    fits = StationFits(kr270, camp.steps, lambda *a: emitted.append(a), measured, fitted=[0],
-                       done=[b.steps[-1] for b in blocks])  # fmt: skip
+    fits = StationFits(
+        kr270, camp.steps, lambda *a: emitted.append(a), measured, fitted=[0], done=[b.steps[-1] for b in blocks]
+    )
     fits(Document("start", {}, -1, 12.5))
     assert [(name, data["block"], step, t) for name, data, step, t in emitted] == [
         ("station_fit", 1, blocks[1].steps[-1], 12.5)

@@ -61,12 +61,30 @@ def rig():
     plc.close_door()
     cellio = ModbusCellIO(*plc.address, timeout_s=PLC_TIMEOUT_S)
     cellio.connect()
-    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=True,
-                      controller_host="127.0.0.1", motion_guard=motion_guard(cellio), connect_timeout_s=5.0,
-                      move_timeout_s=60.0, rsi_stale_s=STALE_S)  # fmt: skip
+    client = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol="udp",
+        rsi_passive=True,
+        controller_host="127.0.0.1",
+        motion_guard=motion_guard(cellio),
+        connect_timeout_s=5.0,
+        move_timeout_s=60.0,
+        rsi_stale_s=STALE_S,
+    )
     client.listen()
-    mock = MockKrc2(client.eki.address, client.rsi.address, RealClock(), HOME, joint_speed_deg_s=100.0,
-                    settle_s=0.3, rsi_protocol="udp", rsi_passive=True).start()  # fmt: skip
+    mock = MockKrc2(
+        client.eki.address,
+        client.rsi.address,
+        RealClock(),
+        HOME,
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        rsi_protocol="udp",
+        rsi_passive=True,
+    ).start()
     client.connect()
     yield plc, mock, client
     client.close()

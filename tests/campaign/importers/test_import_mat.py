@@ -17,15 +17,18 @@ from trackcal.campaign.cli import main
 
 N = 6
 Q = np.round(np.linspace(-60, 60, N)[:, None] + np.arange(6)[None, :] * 7.5, 4)  # distinct joints per row (deg)
-XYZ = {p: np.round(np.array([3000.0 + 10 * k, 200.0 * k, 900.0])[None, :] + np.arange(N)[:, None] * [1.5, 2.5, 3.5],
-                   4) for k, p in enumerate(("P1", "P2", "P3"))}  # fmt: skip
+XYZ = {
+    p: np.round(np.array([3000.0 + 10 * k, 200.0 * k, 900.0])[None, :] + np.arange(N)[:, None] * [1.5, 2.5, 3.5], 4)
+    for k, p in enumerate(("P1", "P2", "P3"))
+}
 JOINTS = [f"q(:,{j + 1})" for j in range(6)]
 
 
 def run(tmp_path: Path, capsys, files: list[str], doc: dict, *extra: str) -> tuple[int, str, str]:
     (tmp_path / "map.yaml").write_text(yaml.safe_dump(doc))
-    code = main(["import", "table", *files, "--map", str(tmp_path / "map.yaml"), "--out", str(tmp_path / "t.csv"),
-                 *extra])  # fmt: skip
+    code = main(
+        ["import", "table", *files, "--map", str(tmp_path / "map.yaml"), "--out", str(tmp_path / "t.csv"), *extra]
+    )
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -33,8 +36,11 @@ def run(tmp_path: Path, capsys, files: list[str], doc: dict, *extra: str) -> tup
 def test_a_mat_file_with_one_row_per_pose(tmp_path, capsys):
     """Joints N x 6 and one N x 3 matrix per reflector in one .mat: each matrix column is a map column."""
     scipy.io.savemat(tmp_path / "e.mat", {"q": Q, **XYZ})
-    doc = {"layout": "pose_rows", "columns": {"joints": JOINTS},
-           "points": {p: [f"{p}(:,{a})" for a in (1, 2, 3)] for p in XYZ}}  # fmt: skip
+    doc = {
+        "layout": "pose_rows",
+        "columns": {"joints": JOINTS},
+        "points": {p: [f"{p}(:,{a})" for a in (1, 2, 3)] for p in XYZ},
+    }
     code, out, err = run(tmp_path, capsys, [str(tmp_path / "e.mat")], doc)
     assert code == 0, err
     t = read_table(tmp_path / "t.csv")
@@ -50,8 +56,14 @@ def test_a_joints_file_and_one_file_per_reflector_joined_by_row(tmp_path, capsys
     scipy.io.savemat(tmp_path / "P1.mat", {"X": XYZ["P1"][:, 0], "Y": XYZ["P1"][:, 1], "Z": XYZ["P1"][:, 2]})
     (tmp_path / "P2.csv").write_text("X,Y,Z\n" + "".join(",".join(map(repr, r)) + "\n" for r in XYZ["P2"].tolist()))
     doc = {"point": "{file}", "columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}
-    code, out, err = run(tmp_path, capsys, [str(tmp_path / "P1.mat"), str(tmp_path / "P2.csv")], doc,
-                         "--joints", str(tmp_path / "joints.mat"))  # fmt: skip
+    code, out, err = run(
+        tmp_path,
+        capsys,
+        [str(tmp_path / "P1.mat"), str(tmp_path / "P2.csv")],
+        doc,
+        "--joints",
+        str(tmp_path / "joints.mat"),
+    )
     assert code == 0, err
     t = read_table(tmp_path / "t.csv")
     assert t.point == ["P1"] * N + ["P2"] * N
@@ -83,31 +95,74 @@ def _v73(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
-@pytest.mark.parametrize("make, files, doc, joints, message", [
-    (lambda d: scipy.io.savemat(d / "e.mat", {"a": np.ones((3, 2))}), ["e.mat"],
-     {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None,
-     "e.mat: no variable 'q(:,1)' (the map"),
-    (lambda d: scipy.io.savemat(d / "e.mat", {"a": np.ones((3, 2))}), ["e.mat"],
-     {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None, "the file holds a (3x2 double)"),
-    (lambda d: scipy.io.savemat(d / "e.mat", {"q": Q, "X": np.ones(N)}), ["e.mat"],
-     {"columns": {"joints": ["q"], "xyz": ["X", "X", "X"]}}, None,
-     "'q' is a matrix: name its columns 'q(:,1)' ... 'q(:,6)'"),
-    (lambda d: scipy.io.savemat(d / "e.mat", {"q": Q, "X": np.ones(N - 1), "Y": np.ones(N - 1), "Z": np.ones(N - 1)}),
-     ["e.mat"], {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None,
-     "the map's columns have different row counts"),
-    (lambda d: (scipy.io.savemat(d / "j.mat", {"q": Q}),
-                scipy.io.savemat(d / "P1.mat", {"X": np.ones(N - 1), "Y": np.ones(N - 1), "Z": np.ones(N - 1)})),
-     ["P1.mat"], {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, "j.mat",
-     "P1.mat: 5 rows, the joints file"),
-    (lambda d: (d / "e.mat").write_bytes(b"not a mat file at all\n" * 20), ["e.mat"],
-     {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None, "e.mat: not a MATLAB .mat file that can be read"),
-    (lambda d: _v73(d / "e.mat"), ["e.mat"], {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None,
-     "a MATLAB v7.3 (HDF5) file"),
-    (lambda d: scipy.io.savemat(d / "e.mat", {"q": Q, "X": np.r_[np.nan * np.ones(4), np.ones(2)], "Y": np.ones(N),
-                                             "Z": np.ones(N)}),
-     ["e.mat"], {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}}, None,
-     "point P1: 4 of 6 rows have no reading (NaN or empty), more than 50%"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "make, files, doc, joints, message",
+    [
+        (
+            lambda d: scipy.io.savemat(d / "e.mat", {"a": np.ones((3, 2))}),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "e.mat: no variable 'q(:,1)' (the map",
+        ),
+        (
+            lambda d: scipy.io.savemat(d / "e.mat", {"a": np.ones((3, 2))}),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "the file holds a (3x2 double)",
+        ),
+        (
+            lambda d: scipy.io.savemat(d / "e.mat", {"q": Q, "X": np.ones(N)}),
+            ["e.mat"],
+            {"columns": {"joints": ["q"], "xyz": ["X", "X", "X"]}},
+            None,
+            "'q' is a matrix: name its columns 'q(:,1)' ... 'q(:,6)'",
+        ),
+        (
+            lambda d: scipy.io.savemat(
+                d / "e.mat", {"q": Q, "X": np.ones(N - 1), "Y": np.ones(N - 1), "Z": np.ones(N - 1)}
+            ),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "the map's columns have different row counts",
+        ),
+        (
+            lambda d: (
+                scipy.io.savemat(d / "j.mat", {"q": Q}),
+                scipy.io.savemat(d / "P1.mat", {"X": np.ones(N - 1), "Y": np.ones(N - 1), "Z": np.ones(N - 1)}),
+            ),
+            ["P1.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            "j.mat",
+            "P1.mat: 5 rows, the joints file",
+        ),
+        (
+            lambda d: (d / "e.mat").write_bytes(b"not a mat file at all\n" * 20),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "e.mat: not a MATLAB .mat file that can be read",
+        ),
+        (
+            lambda d: _v73(d / "e.mat"),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "a MATLAB v7.3 (HDF5) file",
+        ),
+        (
+            lambda d: scipy.io.savemat(
+                d / "e.mat", {"q": Q, "X": np.r_[np.nan * np.ones(4), np.ones(2)], "Y": np.ones(N), "Z": np.ones(N)}
+            ),
+            ["e.mat"],
+            {"columns": {"joints": JOINTS, "xyz": ["X", "Y", "Z"]}},
+            None,
+            "point P1: 4 of 6 rows have no reading (NaN or empty), more than 50%",
+        ),
+    ],
+)
 def test_what_cannot_be_read_is_one_line(tmp_path, capsys, make, files, doc, joints, message):
     make(tmp_path)
     extra = ["--joints", str(tmp_path / joints)] if joints else []
@@ -120,13 +175,26 @@ def test_holdout_splits_by_pose_seeded(tmp_path, capsys):
     """Every row of a pose goes to one side; the share is round(fraction x poses); the same seed draws the same
     split, the union is the whole table."""
     scipy.io.savemat(tmp_path / "e.mat", {"q": Q, **XYZ})
-    doc = {"layout": "pose_rows", "columns": {"joints": JOINTS},
-           "points": {p: [f"{p}(:,{a})" for a in (1, 2, 3)] for p in XYZ}}  # fmt: skip
+    doc = {
+        "layout": "pose_rows",
+        "columns": {"joints": JOINTS},
+        "points": {p: [f"{p}(:,{a})" for a in (1, 2, 3)] for p in XYZ},
+    }
     splits = []
     for seed in ("4", "4", "5"):
         test = tmp_path / f"test{len(splits)}.csv"
-        code, out, err = run(tmp_path, capsys, [str(tmp_path / "e.mat")], doc, "--holdout", "0.34", "--seed", seed,
-                             "--test-out", str(test))  # fmt: skip
+        code, out, err = run(
+            tmp_path,
+            capsys,
+            [str(tmp_path / "e.mat")],
+            doc,
+            "--holdout",
+            "0.34",
+            "--seed",
+            seed,
+            "--test-out",
+            str(test),
+        )
         assert code == 0, err
         train, held = read_table(tmp_path / "t.csv"), read_table(test)
         assert not set(train.pose) & set(held.pose)
@@ -134,25 +202,31 @@ def test_holdout_splits_by_pose_seeded(tmp_path, capsys):
         assert len(train) + len(held) == 3 * N
         splits.append(sorted(set(held.pose)))
     assert splits[0] == splits[1]
-    code, _, err = run(tmp_path, capsys, [str(tmp_path / "e.mat")], doc, "--holdout", "1.5", "--test-out",
-                       str(tmp_path / "x.csv"))  # fmt: skip
+    code, _, err = run(
+        tmp_path, capsys, [str(tmp_path / "e.mat")], doc, "--holdout", "1.5", "--test-out", str(tmp_path / "x.csv")
+    )
     assert code == 2 and "strictly between 0 and 1" in err and err.count("\n") == 1
     code, _, err = run(tmp_path, capsys, [str(tmp_path / "e.mat")], doc, "--holdout", "0.2")
     assert code == 2 and "--test-out" in err and err.count("\n") == 1
 
 
 names = st.sampled_from(["q", "X", "Y", "Z", "xyz", "P1", "t"])
-matrices = hnp.arrays(np.float64, hnp.array_shapes(min_dims=1, max_dims=3, max_side=7),
-                      elements=st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64),
-                                         st.just(np.nan)))  # fmt: skip
-contents = st.dictionaries(names, st.one_of(matrices, st.text(max_size=5), st.lists(st.text(max_size=3), max_size=4)),
-                           max_size=4)  # fmt: skip
-maps = st.sampled_from([
-    {"columns": {"joints": ["q(:,1)", "q(:,2)"], "xyz": ["X", "Y", "Z"]}},
-    {"positions": "1-based", "columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
-    {"layout": "pose_rows", "columns": {"joints": ["q"]}, "points": {"P1": ["P1(:,1)", "P1(:,2)", "P1(:,3)"]}},
-    {"columns": {"joints": ["t"], "xyz": ["xyz(:,1)", "xyz(:,2)", "xyz(:,3)"]}},
-])  # fmt: skip
+matrices = hnp.arrays(
+    np.float64,
+    hnp.array_shapes(min_dims=1, max_dims=3, max_side=7),
+    elements=st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64), st.just(np.nan)),
+)
+contents = st.dictionaries(
+    names, st.one_of(matrices, st.text(max_size=5), st.lists(st.text(max_size=3), max_size=4)), max_size=4
+)
+maps = st.sampled_from(
+    [
+        {"columns": {"joints": ["q(:,1)", "q(:,2)"], "xyz": ["X", "Y", "Z"]}},
+        {"positions": "1-based", "columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
+        {"layout": "pose_rows", "columns": {"joints": ["q"]}, "points": {"P1": ["P1(:,1)", "P1(:,2)", "P1(:,3)"]}},
+        {"columns": {"joints": ["t"], "xyz": ["xyz(:,1)", "xyz(:,2)", "xyz(:,3)"]}},
+    ]
+)
 
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)

@@ -43,11 +43,22 @@ def exports(draw):
     for k in range(n_poses):
         q = draw(st.lists(angle, min_size=n_joints, max_size=n_joints))
         q[0] = -170.0 + 10.0 * k  # consecutive poses differ (the map's rule for files without pose ids)
-        poses.append((f"Q{k + 1}", float(k * 30), draw(st.sampled_from(["S1", "T2"])) if with_station else "T1", q,
-                      {p: draw(st.lists(length, min_size=3, max_size=3)) for p in points}))  # fmt: skip
+        poses.append(
+            (
+                f"Q{k + 1}",
+                float(k * 30),
+                draw(st.sampled_from(["S1", "T2"])) if with_station else "T1",
+                q,
+                {p: draw(st.lists(length, min_size=3, max_size=3)) for p in points},
+            )
+        )
     # the file's columns: names and their order
-    names = ([("pose", "Pose ID")] if with_pose else []) + ([("time", "Time")] if with_time else []) \
-        + ([("station", "Stn")] if with_station else []) + [(f"q{j}", f"J{j + 1}") for j in range(n_joints)]
+    names = (
+        ([("pose", "Pose ID")] if with_pose else [])
+        + ([("time", "Time")] if with_time else [])
+        + ([("station", "Stn")] if with_station else [])
+        + [(f"q{j}", f"J{j + 1}") for j in range(n_joints)]
+    )
     if layout == "point_rows":
         names += [("point", "Target"), ("x", "X"), ("y", "Y"), ("z", "Z")]
     else:
@@ -77,8 +88,14 @@ def exports(draw):
     csv.writer(out, delimiter=sep, lineterminator="\n").writerows(lines)
     columns = {"joints": [ref(f"q{j}") for j in range(n_joints)]}
     columns.update({k: ref(k) for k in ("pose", "time", "station") if k in pos})
-    doc = {"separator": sep, "decimal": dec, "header": header, "layout": layout,
-           "units": {"joints": ju, "length": lu}, "columns": columns}  # fmt: skip
+    doc = {
+        "separator": sep,
+        "decimal": dec,
+        "header": header,
+        "layout": layout,
+        "units": {"joints": ju, "length": lu},
+        "columns": columns,
+    }
     if not by_name:
         doc["positions"] = f"{base}-based"
     if layout == "point_rows":
@@ -118,24 +135,39 @@ def _write(tmp_path: Path, text: str, doc: dict) -> tuple[str, str]:
 MAP = {"columns": {"joints": ["A1", "A2"], "xyz": ["X", "Y", "Z"]}}
 
 
-@pytest.mark.parametrize("text, doc, message", [
-    ("A1,A2,X,Y,Z\n1,2,3,4,5\n1,2,3,x4,5\n", MAP, "row 3: column 'Y' (1-based position 4): not a number: 'x4'"),
-    ("A1,A2,X,Y,Z\n1,nan,3,4,5\n", MAP, "row 2: column 'A2' (1-based position 2): not a finite number: 'nan'"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,inf\n", MAP, "row 2: column 'Z' (1-based position 5): not a finite number: 'inf'"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,nan\n", MAP, "point P1: 1 of 1 rows have no reading (NaN or empty), more than 50%"),
-    ("A1;A2;X;Y;Z\n1,5;2;3;4;5\n", MAP, "row 1 has 1 column; the file looks ';'-separated: set separator: ';'"),
-    ("A1;A2;X;Y;Z\n1,5;2;3;4;5\n", {**MAP, "separator": ";"},
-     "row 2: column 'A1' (1-based position 1): not a number: '1,5' (a decimal comma? set decimal: ',')"),
-    ("1\t2\t3\t4\t5\n", {"header": False, "positions": "1-based", "columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
-     "row 1 has 1 column; the file looks tab-separated: set separator: '\\t'"),
-    ("1,2,3,4\n", {"header": False, "positions": "0-based", "columns": {"joints": [0, 1], "xyz": [2, 3, 4]}},
-     "row 1 has 4 columns, the map needs 5"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,5\n", {"columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
-     "positions: missing; a column is given by position"),
-    ("A1,A2,X,Y,Q\n1,2,3,4,5\n", MAP, "no column 'Z'"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,5\n", {**MAP, "units": {"length": "ft"}}, "units.length: expected mm, m, in, got 'ft'"),
-    ("A1,A2,X,Y,Z\n1,2,3,4,5\n", {**MAP, "colums": {}}, "colums: unknown key"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text, doc, message",
+    [
+        ("A1,A2,X,Y,Z\n1,2,3,4,5\n1,2,3,x4,5\n", MAP, "row 3: column 'Y' (1-based position 4): not a number: 'x4'"),
+        ("A1,A2,X,Y,Z\n1,nan,3,4,5\n", MAP, "row 2: column 'A2' (1-based position 2): not a finite number: 'nan'"),
+        ("A1,A2,X,Y,Z\n1,2,3,4,inf\n", MAP, "row 2: column 'Z' (1-based position 5): not a finite number: 'inf'"),
+        ("A1,A2,X,Y,Z\n1,2,3,4,nan\n", MAP, "point P1: 1 of 1 rows have no reading (NaN or empty), more than 50%"),
+        ("A1;A2;X;Y;Z\n1,5;2;3;4;5\n", MAP, "row 1 has 1 column; the file looks ';'-separated: set separator: ';'"),
+        (
+            "A1;A2;X;Y;Z\n1,5;2;3;4;5\n",
+            {**MAP, "separator": ";"},
+            "row 2: column 'A1' (1-based position 1): not a number: '1,5' (a decimal comma? set decimal: ',')",
+        ),
+        (
+            "1\t2\t3\t4\t5\n",
+            {"header": False, "positions": "1-based", "columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
+            "row 1 has 1 column; the file looks tab-separated: set separator: '\\t'",
+        ),
+        (
+            "1,2,3,4\n",
+            {"header": False, "positions": "0-based", "columns": {"joints": [0, 1], "xyz": [2, 3, 4]}},
+            "row 1 has 4 columns, the map needs 5",
+        ),
+        (
+            "A1,A2,X,Y,Z\n1,2,3,4,5\n",
+            {"columns": {"joints": [1, 2], "xyz": [3, 4, 5]}},
+            "positions: missing; a column is given by position",
+        ),
+        ("A1,A2,X,Y,Q\n1,2,3,4,5\n", MAP, "no column 'Z'"),
+        ("A1,A2,X,Y,Z\n1,2,3,4,5\n", {**MAP, "units": {"length": "ft"}}, "units.length: expected mm, m, in, got 'ft'"),
+        ("A1,A2,X,Y,Z\n1,2,3,4,5\n", {**MAP, "colums": {}}, "colums: unknown key"),
+    ],
+)
 def test_every_mistake_names_its_row_and_column(tmp_path, capsys, text, doc, message):
     export, mapping = _write(tmp_path, text, doc)
     assert main(["import", "table", export, "--map", mapping, "--out", str(tmp_path / "t.csv")]) == 2
@@ -150,12 +182,25 @@ def test_a_semicolon_file_with_the_default_map_says_so(tmp_path):
         import_table(export, load_map(mapping))
 
 
-@pytest.mark.parametrize("name, poses, rows, points", [("three-smr", 4, 12, ["P1", "P2", "P3"]),
-                                                        ("one-reflector", 5, 11, ["P1"])])  # fmt: skip
+@pytest.mark.parametrize(
+    "name, poses, rows, points", [("three-smr", 4, 12, ["P1", "P2", "P3"]), ("one-reflector", 5, 11, ["P1"])]
+)
 def test_the_documented_examples_import(tmp_path, capsys, name, poses, rows, points):
     out = tmp_path / "t.csv"
-    assert main(["import", "table", str(EXAMPLES / f"{name}-export.csv"), "--map",
-                 str(EXAMPLES / f"{name}.map.yaml"), "--out", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "import",
+                "table",
+                str(EXAMPLES / f"{name}-export.csv"),
+                "--map",
+                str(EXAMPLES / f"{name}.map.yaml"),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     # an export names no instrument: the import says which model identify will assume (issue 23)
     assert "the Leica AT901 when the cell names none" in " ".join(capsys.readouterr().out.split())
     t = read_table(out)
@@ -176,8 +221,12 @@ def test_one_file_per_point_shares_poses_by_their_joints(tmp_path):
         text = "J1;J2;X;Y;Z\n" + "".join(f"{a};{b};{k},5;{a}.0;{b}\n".replace(".0", ",0") for a, b in order)
         (tmp_path / f"{name}.csv").write_text(text)
         files.append(str(tmp_path / f"{name}.csv"))
-    m = {"separator": ";", "decimal": ",", "point": "{file}",
-         "columns": {"joints": ["J1", "J2"], "xyz": ["X", "Y", "Z"]}}
+    m = {
+        "separator": ";",
+        "decimal": ",",
+        "point": "{file}",
+        "columns": {"joints": ["J1", "J2"], "xyz": ["X", "Y", "Z"]},
+    }
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(m))
     out = tmp_path / "t.csv"
     assert main(["import", "table", *files, "--map", str(tmp_path / "m.yaml"), "--out", str(out)]) == 0

@@ -38,8 +38,22 @@ from trackcal.mocks.twin import Twin, simulate_campaign
 def tables(tmp_path_factory):
     d = tmp_path_factory.mktemp("batch")
     for seed in range(1, 6):
-        subprocess.run([*TRACKCAL, "simulate", "--cell", "kr270", "--poses", "20", "--seed", str(seed), "--out",
-                        str(d / f"t{seed}.csv")], check=True, capture_output=True)  # fmt: skip
+        subprocess.run(
+            [
+                *TRACKCAL,
+                "simulate",
+                "--cell",
+                "kr270",
+                "--poses",
+                "20",
+                "--seed",
+                str(seed),
+                "--out",
+                str(d / f"t{seed}.csv"),
+            ],
+            check=True,
+            capture_output=True,
+        )
     return d
 
 
@@ -66,15 +80,31 @@ def cluster():
 
 def test_dask_gives_the_pool_results(tables, tmp_path, cluster):
     """`--scheduler` of a LocalCluster of 2 worker processes: the same models as the process pool, bit for bit."""
-    done = subprocess.run([*TRACKCAL, "batch", "identify", str(tables), "--cell", "kr270", "--out",
-                           str(tmp_path / "dask"), "--scheduler", cluster], capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [
+            *TRACKCAL,
+            "batch",
+            "identify",
+            str(tables),
+            "--cell",
+            "kr270",
+            "--out",
+            str(tmp_path / "dask"),
+            "--scheduler",
+            cluster,
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     pool = batch(BatchOptions(task="identify", inputs=[str(tables)], out=str(tmp_path / "pool"), cell="kr270"))
     assert sorted(p.name for p in (tmp_path / "dask").glob("*.model.json")) == sorted(
-        f"{r['key']}.model.json" for r in pool.rows)
+        f"{r['key']}.model.json" for r in pool.rows
+    )
     for r in pool.rows:
         assert _parameters(tmp_path / "dask" / f"{r['key']}.model.json") == _parameters(
-            tmp_path / "pool" / f"{r['key']}.model.json")
+            tmp_path / "pool" / f"{r['key']}.model.json"
+        )
 
 
 def test_a_failed_campaign_is_reported_and_the_others_done(tables, tmp_path):
@@ -82,8 +112,11 @@ def test_a_failed_campaign_is_reported_and_the_others_done(tables, tmp_path):
     for name in ("t1.csv", "t2.csv"):
         (tmp_path / "in" / name).write_bytes((tables / name).read_bytes())
     (tmp_path / "in" / "broken.csv").write_text("seq,t_s,pose\n1,0,a\n")
-    done = subprocess.run([*TRACKCAL, "batch", "identify", str(tmp_path / "in"), "--cell", "kr270", "--out",
-                           str(tmp_path / "res")], capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [*TRACKCAL, "batch", "identify", str(tmp_path / "in"), "--cell", "kr270", "--out", str(tmp_path / "res")],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2
     failed = [line for line in done.stdout.splitlines() if line.startswith("failed: ")]
     assert len(failed) == 1 and "broken.csv" in failed[0]
@@ -94,8 +127,12 @@ def test_a_killed_batch_resumes_without_redoing(tables, tmp_path):
     """kill -9 of a batch once its first result is written; run again: what was written is reused, the rest is
     computed, every campaign has its result."""
     out = tmp_path / "res"
-    proc = subprocess.Popen([*TRACKCAL, "batch", "diagnose", str(tables), "--cell", "kr270", "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [*TRACKCAL, "batch", "diagnose", str(tables), "--cell", "kr270", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     deadline = time.monotonic() + 300
     while not list(out.glob("*[0-9a-f].json")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -190,10 +227,25 @@ def iso_sessions(tmp_path_factory):
 
     run("simulate", "--cell", "kr270", "--poses", "20", "--seed", "1", "--out", "t.csv")
     run("identify", "t.csv", "--cell", "kr270", "--out", "model.json")
-    run("iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--load", "unloaded",
-        "--velocities", "100", "--json", "iso.json")
-    run("run", "--sim", "--cell", "kr270", "--plan", "iso.json", "--seed", "1", "--session", "tests/s1",
-        "--no-analysis")  # fmt: skip
+    run(
+        "iso9283",
+        "plan",
+        "--cell",
+        "kr270",
+        "--cycles",
+        "2",
+        "--vap-cycles",
+        "0",
+        "--load",
+        "unloaded",
+        "--velocities",
+        "100",
+        "--json",
+        "iso.json",
+    )
+    run(
+        "run", "--sim", "--cell", "kr270", "--plan", "iso.json", "--seed", "1", "--session", "tests/s1", "--no-analysis"
+    )
     return d
 
 
@@ -210,17 +262,22 @@ def test_batch_iso9283_equals_compare(iso_sessions, tmp_path):
         assert row["rp_max_mm"] == max(p.rp.value for p in t.poses)
         assert row["targets"] == "nominal" and row["cycles"] == 2
     assert batch(opts).reused == 1
-    table = subprocess.run([*TRACKCAL, "batch", "iso9283", str(d / "t.csv"), "--model", str(d / "model.json"),
-                            "--out", str(tmp_path)], capture_output=True, text=True)  # fmt: skip
+    table = subprocess.run(
+        [*TRACKCAL, "batch", "iso9283", str(d / "t.csv"), "--model", str(d / "model.json"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     assert table.returncode == 2 and table.stderr.count("\n") == 1 and "session folder" in table.stderr
 
 
 def test_coverage_counts_by_hand():
     """Three seeds, two parameters: the counts, and the band of Binomial(3, 0.95) at 99.9 %: [1, 3]
     (P(X = 0) = 0.05^3 = 1.25e-4 < 0.0005)."""
-    rows = [{"names": ["a", "b"], "inside": [True, True], "joint": True},
-            {"names": ["a", "b"], "inside": [True, False], "joint": True},
-            {"names": ["a", "b"], "inside": [True, False], "joint": False}]  # fmt: skip
+    rows = [
+        {"names": ["a", "b"], "inside": [True, True], "joint": True},
+        {"names": ["a", "b"], "inside": [True, False], "joint": True},
+        {"names": ["a", "b"], "inside": [True, False], "joint": False},
+    ]
     c = coverage_counts(rows)
     assert (c.inside, c.joint, c.n, c.band) == ([3, 1], 2, 3, (1, 3))
     assert c.honest
@@ -256,13 +313,32 @@ def test_monte_carlo_rho0_on_pool_and_dask(tmp_path, cluster):
     run has its own generator), and the mean squared TCP error agrees with rho0^2 within 4 standard errors
     (tests/test_doe.py's check of calib.doe.design.monte_carlo_rho0)."""
     plan = tmp_path / "plan.json"
-    subprocess.run([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "6", "--repeat", "3", "--starts", "10",
-                    "--refined", "1", "--json", str(plan)], check=True, capture_output=True)  # fmt: skip
+    subprocess.run(
+        [
+            *TRACKCAL,
+            "plan",
+            "--cell",
+            "kr270",
+            "--configs",
+            "6",
+            "--repeat",
+            "3",
+            "--starts",
+            "10",
+            "--refined",
+            "1",
+            "--json",
+            str(plan),
+        ],
+        check=True,
+        capture_output=True,
+    )
     pool = rho0(Rho0Options(plan=str(plan), cell="kr270", runs=120, seed=3, chunk=50))
     dask = rho0(Rho0Options(plan=str(plan), cell="kr270", runs=120, seed=3, chunk=70, scheduler=cluster))
     assert pool.monte_carlo_mm == dask.monte_carlo_mm
     assert pool.rho0_mm == pytest.approx(json.loads(plan.read_text())["rho0_mm"], rel=1e-3)  # poses rounded to 1e-4 deg
     assert abs(pool.z) < 4 and pool.agrees
-    done = subprocess.run([*TRACKCAL, "batch", "rho0", str(tmp_path / "nope.json"), "--cell", "kr270"],
-                          capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [*TRACKCAL, "batch", "rho0", str(tmp_path / "nope.json"), "--cell", "kr270"], capture_output=True, text=True
+    )
     assert done.returncode == 2 and done.stderr.count("\n") == 1

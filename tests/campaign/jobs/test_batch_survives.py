@@ -26,7 +26,7 @@ from trackcal.campaign.jobs.batch import BatchOptions, batch
 from trackcal.campaign.jobs.scheduler import SchedulerLost
 
 # run_one of a stand-in campaign (tests only): its row written at once; the table's text says what else it does
-STAND_IN = '''
+STAND_IN = """
 import os, signal, time
 from pathlib import Path
 from trackcal.calib.io.files import write_json
@@ -42,7 +42,7 @@ def stand_in(c, opts, key):
            "residual_rms_mm": 0.01, "cpu_s": 0.0}
     write_json(Path(opts.out) / f"{key}.json", row, InputError)
     return row
-'''
+"""
 _stand_in: dict = {}
 exec(STAND_IN, _stand_in)  # noqa: S102 - the same text the Dask worker's preload runs
 stand_in = _stand_in["stand_in"]
@@ -55,8 +55,9 @@ def _tables(d: Path, what: dict[str, str]) -> Path:
     return d
 
 
-fork_only = pytest.mark.skipif(multiprocessing.get_start_method() != "fork",
-                               reason="the stand-in reaches the pool's workers by fork")  # fmt: skip
+fork_only = pytest.mark.skipif(
+    multiprocessing.get_start_method() != "fork", reason="the stand-in reaches the pool's workers by fork"
+)
 
 
 @fork_only
@@ -65,8 +66,9 @@ def test_a_killed_worker_costs_its_chunk_and_the_others_are_done(tmp_path, monke
     kept, t2 is its one line "worker died: signal 9", the pool is made again and t3..t6 are done."""
     monkeypatch.setattr(batch_job, "run_one", stand_in)
     tables = _tables(tmp_path / "in", {"t1": "ok", "t2": "die", "t3": "ok", "t4": "ok", "t5": "ok", "t6": "ok"})
-    result = batch(BatchOptions(task="identify", inputs=[str(tables)], out=str(tmp_path / "res"), cell="kr270",
-                                chunk=2))  # fmt: skip
+    result = batch(
+        BatchOptions(task="identify", inputs=[str(tables)], out=str(tmp_path / "res"), cell="kr270", chunk=2)
+    )
     rows = {Path(r["campaign"]).stem: r for r in result.rows}
     assert [Path(r["campaign"]).stem for r in result.failed] == ["t2"]
     assert rows["t2"]["error"] == "worker died: signal 9"
@@ -78,7 +80,8 @@ def test_a_killed_worker_costs_its_chunk_and_the_others_are_done(tmp_path, monke
     out, err = capsys.readouterr()
     assert code == 2 and "Traceback" not in out + err
     assert [line for line in out.splitlines() if line.startswith("failed: ")] == [
-        f"failed: {tables / f't{i}.csv'}: worker died: signal 9" for i in range(2, batch_job.CHUNK + 1)]
+        f"failed: {tables / f't{i}.csv'}: worker died: signal 9" for i in range(2, batch_job.CHUNK + 1)
+    ]
 
 
 def _gone(pid: int) -> bool:
@@ -101,9 +104,10 @@ def test_pool_workers_die_with_the_batch(tmp_path):
         from trackcal.campaign.jobs import batch
         batch.run_one = stand_in
         sys.exit(main(["batch", "identify", {str(tables)!r}, "--cell", "kr270", "--out", {str(tmp_path / "res")!r}]))
-    """)  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)  # fmt: skip
+    """)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     try:
         children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
         deadline = time.monotonic() + 120
@@ -136,9 +140,14 @@ def _accepts(port: int) -> bool:
 
 
 def _dask(*args: str, log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]], cwd=ROOT,
-                            stdout=log.open("w"), stderr=subprocess.STDOUT, start_new_session=True,
-                            env={**os.environ, **(env or {})})  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]],
+        cwd=ROOT,
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        env={**os.environ, **(env or {})},
+    )
 
 
 @pytest.fixture
@@ -158,14 +167,31 @@ def _cluster(tmp_path: Path, preloaded: str, nanny: bool = False, env: dict[str,
     port = _free_port()
     preload = tmp_path / "stand_in_preload.py"
     preload.write_text(preloaded)
-    scheduler = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
-                      log=tmp_path / "scheduler.log", env=env)  # fmt: skip
+    scheduler = _dask(
+        "scheduler",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--no-dashboard",
+        log=tmp_path / "scheduler.log",
+        env=env,
+    )
     deadline = time.monotonic() + 60
     while not _accepts(port):
         assert scheduler.poll() is None and time.monotonic() < deadline, (tmp_path / "scheduler.log").read_text()
         time.sleep(0.1)
-    worker = _dask("worker", f"tcp://127.0.0.1:{port}", *([] if nanny else ["--no-nanny"]), "--nthreads", "1",
-                   "--no-dashboard", "--preload", str(preload), log=tmp_path / "worker.log")  # fmt: skip
+    worker = _dask(
+        "worker",
+        f"tcp://127.0.0.1:{port}",
+        *([] if nanny else ["--no-nanny"]),
+        "--nthreads",
+        "1",
+        "--no-dashboard",
+        "--preload",
+        str(preload),
+        log=tmp_path / "worker.log",
+    )
     try:
         yield scheduler, f"tcp://127.0.0.1:{port}"
     finally:
@@ -176,8 +202,9 @@ def _cluster(tmp_path: Path, preloaded: str, nanny: bool = False, env: dict[str,
             p.wait()
 
 
-@pytest.mark.parametrize("how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)],
-                         ids=["killed", "stopped"])  # stopped: 10 s of silence at least
+@pytest.mark.parametrize(
+    "how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)], ids=["killed", "stopped"]
+)  # stopped: 10 s of silence at least
 def test_a_lost_scheduler_is_one_line_and_keeps_the_results(tmp_path, dask_cluster, how):
     """t1 is written, t2 hangs (an hour): then the scheduler is killed, or stopped (it keeps its connections and
     never answers). The batch ends in one line and exit 2 within 60 s (it waits the 10 s `--scheduler` waits to
@@ -185,9 +212,13 @@ def test_a_lost_scheduler_is_one_line_and_keeps_the_results(tmp_path, dask_clust
     scheduler, address = dask_cluster
     tables = _tables(tmp_path / "in", {"t1": "ok", "t2": "hang", "t3": "ok"})
     out = tmp_path / "res"
-    proc = subprocess.Popen([*TRACKCAL, "batch", "identify", str(tables), "--cell", "kr270", "--out", str(out),
-                             "--scheduler", address], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [*TRACKCAL, "batch", "identify", str(tables), "--cell", "kr270", "--out", str(out), "--scheduler", address],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 120
         while not list(out.glob("*.json")) and proc.poll() is None and time.monotonic() < deadline:
@@ -238,16 +269,34 @@ def test_a_dask_worker_that_dies_costs_its_chunk_and_the_others_are_done(tmp_pat
     preload = STAND_IN + "\nfrom trackcal.campaign.jobs import batch\nbatch.run_one = stand_in\n"
     # worker-saturation 1: the scheduler sends the worker one chunk per thread, so the next chunk is not on it when it
     # dies (Dask counts the death against every task the worker held)
-    once = {"DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1",
-            "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
+    once = {
+        "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1",
+        "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0",
+    }
     with _cluster(tmp_path, preload, nanny=True, env=once) as (_, address):
-        out = subprocess.run([*TRACKCAL, "batch", "identify", str(tables), "--cell", "kr270", "--out",
-                              str(tmp_path / "res"), "--scheduler", address], capture_output=True, text=True,
-                             timeout=600)  # fmt: skip
+        out = subprocess.run(
+            [
+                *TRACKCAL,
+                "batch",
+                "identify",
+                str(tables),
+                "--cell",
+                "kr270",
+                "--out",
+                str(tmp_path / "res"),
+                "--scheduler",
+                address,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
     assert out.returncode == 2 and "Traceback" not in out.stdout + out.stderr, out.stderr
     failed = [line for line in out.stdout.splitlines() if line.startswith("failed: ")]
-    assert failed == [f"failed: {tables / f't{i}.csv'}: worker died: {batch_job.KILLED_WORKERS}"
-                      for i in range(2, batch_job.CHUNK + 1)], out.stdout  # fmt: skip
+    assert failed == [
+        f"failed: {tables / f't{i}.csv'}: worker died: {batch_job.KILLED_WORKERS}"
+        for i in range(2, batch_job.CHUNK + 1)
+    ], out.stdout
     written = sorted(json.loads(p.read_text())["campaign"] for p in (tmp_path / "res").glob("*.json"))
     assert [Path(c).stem for c in written] == ["t1", "t5", "t6"]
 
@@ -267,17 +316,35 @@ design._exchanged_refined = hang  # the task each start is (calib.doe.design.opt
 """
 
 
-@pytest.mark.parametrize("how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)],
-                         ids=["killed", "stopped"])  # stopped: 10 s of silence at least
+@pytest.mark.parametrize(
+    "how", [signal.SIGKILL, pytest.param(signal.SIGSTOP, marks=pytest.mark.slow)], ids=["killed", "stopped"]
+)  # stopped: 10 s of silence at least
 def test_a_plan_whose_scheduler_is_lost_is_one_line(tmp_path, how):
     """`plan --scheduler`: once the worker computes, the scheduler is killed or stopped. The plan ends in one line and
     exit 2 within 60 s (the 10 s `--scheduler` waits, campaign.jobs.plan, plus a probe's second), writing nothing;
     it waited for ever on a stopped scheduler, and a killed one ended in CancelledError's traceback."""
     mark, out = tmp_path / "started", tmp_path / "plan.json"
     with _cluster(tmp_path, PLAN_STAND_IN.format(mark=str(mark))) as (scheduler, address):
-        proc = subprocess.Popen([*TRACKCAL, "plan", "--cell", "kr270", "--configs", "4", "--starts", "20",
-                                 "--json", str(out), "--scheduler", address], stdout=subprocess.DEVNULL,
-                                stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+        proc = subprocess.Popen(
+            [
+                *TRACKCAL,
+                "plan",
+                "--cell",
+                "kr270",
+                "--configs",
+                "4",
+                "--starts",
+                "20",
+                "--json",
+                str(out),
+                "--scheduler",
+                address,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         try:
             deadline = time.monotonic() + 120
             while not mark.exists() and proc.poll() is None and time.monotonic() < deadline:

@@ -168,8 +168,10 @@ def test_encoder_scale_extension(kr270):
 def test_joint_compliance_extension(kr270):
     # q_true = q_cmd + c tau(q_cmd), tau the gravity torque at the commanded pose (pinocchio RNEA)
     c = {"c2": 0.02, "c3": 0.03}  # deg/kNm
-    ext = {"cause": "joint_compliance",
-           "parameters": {n: {"value": v, "ci95": 0.001, "unit": "deg/kNm"} for n, v in c.items()}}  # fmt: skip
+    ext = {
+        "cause": "joint_compliance",
+        "parameters": {n: {"value": v, "ci95": 0.001, "unit": "deg/kNm"} for n, v in c.items()},
+    }
     model = table8_model(kr270, ext)
     q0 = inner_targets(kr270, 8, seed=8)
     # the mathematics, unbounded: the cell's max_correction refuses a target near the wrist singularity among these
@@ -195,12 +197,18 @@ def test_backlash_has_no_static_compensation(kr270):
 def test_targets_outside_the_joint_limits_are_reported_in_their_row(kr270):
     model = make_model(kr270, {"dq4": 0.05})
     # A4 at -179.99 deg: the +0.05 deg offset is compensated to -180.04 deg, past the limit
-    q0 = np.radians([[10.0, -90.0, 90.0, 0.0, 45.0, 0.0], [10.0, -150.0, 90.0, 0.0, 45.0, 0.0],
-                     [10.0, -90.0, 90.0, -179.99, 45.0, 0.0]])  # fmt: skip
+    q0 = np.radians(
+        [
+            [10.0, -90.0, 90.0, 0.0, 45.0, 0.0],
+            [10.0, -150.0, 90.0, 0.0, 45.0, 0.0],
+            [10.0, -90.0, 90.0, -179.99, 45.0, 0.0],
+        ]
+    )
     qc, rep = compensate(model, q0, kr270.tcp)
     assert rep.failures[0] == "" and np.degrees(qc[0, 3]) == pytest.approx(-0.05, abs=1e-9)  # A4 offset undone
-    assert re.fullmatch(r"nominal target outside the joint limits: A2 = -150\.0000 deg not in \[-145, 0\]",
-                        rep.failures[1])  # fmt: skip
+    assert re.fullmatch(
+        r"nominal target outside the joint limits: A2 = -150\.0000 deg not in \[-145, 0\]", rep.failures[1]
+    )
     assert re.match(r"the compensated target leaves the joint limits: A4 = -180\.0400", rep.failures[2])
     np.testing.assert_array_equal(qc[1:], q0[1:])  # the failed ones keep their nominal angles
     assert rep.ok.tolist() == [True, False, False] and rep.to_doc()["compensated"] == 1
@@ -218,8 +226,9 @@ def test_the_kuka_home_is_reported_and_the_other_targets_are_compensated(kr270):
     # HOME (0, -90, 90, 0, 0, 0): A5 = 0 aligns the A4 and A6 axes, a wrist singularity where no joint
     # correction reaches an arbitrary small orientation error
     model = table8_model(kr270)
-    q0 = np.vstack([np.radians([[0.0, -90.0, 90.0, 0.0, 0.0, 0.0]]),
-                    inner_targets(kr270, 3, seed=5, min_conditioning=5e-3)])  # fmt: skip
+    q0 = np.vstack(
+        [np.radians([[0.0, -90.0, 90.0, 0.0, 0.0, 0.0]]), inner_targets(kr270, 3, seed=5, min_conditioning=5e-3)]
+    )
     qc, rep = compensate(model, q0, kr270.tcp)
     assert rep.failures[0].startswith("did not converge") and not any(rep.failures[1:])
     assert rep.position_error_mm[1:].max() < 1e-9
@@ -304,8 +313,12 @@ def model_file(kr270, tmp_path):
         "robot": kr270.robot_doc,
         "extension": {"cause": "none"},
         "parameters": {
-            p.name: {"value": float(v if p.is_length else np.degrees(v)), "ci95": 0.01,
-                     "unit": "mm" if p.is_length else "deg", "nominal": 0.0}
+            p.name: {
+                "value": float(v if p.is_length else np.degrees(v)),
+                "ci95": 0.01,
+                "unit": "mm" if p.is_length else "deg",
+                "nominal": 0.0,
+            }
             for p, v in zip(model.params, model.dev, strict=True)
         },
         "stations": {},
@@ -351,8 +364,10 @@ def test_cli_writes_compensated_targets_and_krl(kr270, tmp_path, model_file, cap
 def test_cli_reports_a_singular_target_in_its_row_and_writes_the_others(kr270, tmp_path, model_file, capsys):
     path, _ = model_file
     targets = tmp_path / "targets.csv"
-    targets.write_text("name,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\nHOME,0,-90,90,0,0,0\n"
-                       "weld 1,10,-80,80,10,40,5\nweld-1,20,-80,80,10,40,5\n")  # fmt: skip
+    targets.write_text(
+        "name,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\nHOME,0,-90,90,0,0,0\n"
+        "weld 1,10,-80,80,10,40,5\nweld-1,20,-80,80,10,40,5\n"
+    )
     out = tmp_path / "out.csv"
     assert main(["compensate", "--model", str(path), str(targets), "--out", str(out), "--krl", "P"]) == 0
     rows = list(csv.DictReader(out.read_text().splitlines()))
@@ -365,12 +380,15 @@ def test_cli_reports_a_singular_target_in_its_row_and_writes_the_others(kr270, t
     assert "PTP Xweld_1\r\nPTP Xweld_1_2\r\n" in src
 
 
-@pytest.mark.parametrize("names, expected", [
-    (None, ["XP1", "XP2"]),
-    (["HOME", ""], ["XHOME", "XP2"]),
-    (["a" * 30, "a" * 30], ["X" + "a" * 23, "X" + "a" * 21 + "_2"]),  # KRL names: at most 24 characters
-    (["pt", "PT"], ["Xpt", "XPT_2"]),  # KRL is not case-sensitive
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "names, expected",
+    [
+        (None, ["XP1", "XP2"]),
+        (["HOME", ""], ["XHOME", "XP2"]),
+        (["a" * 30, "a" * 30], ["X" + "a" * 23, "X" + "a" * 21 + "_2"]),  # KRL names: at most 24 characters
+        (["pt", "PT"], ["Xpt", "XPT_2"]),  # KRL is not case-sensitive
+    ],
+)
 def test_krl_point_names(names, expected):
     assert point_names(names, 2) == expected
 

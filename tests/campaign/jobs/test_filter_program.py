@@ -60,9 +60,11 @@ def test_the_sample_program_filtered(ur10_model, tmp_path, capsys):
 
 def test_an_unreachable_target_is_kept_and_marked(ur10_model, tmp_path, capsys):
     script = tmp_path / "far.script"
-    script.write_text("def far():\n  movej([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])\n"
-                      "  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5, v=0.1)  # 3 m\n"
-                      "end\n")  # fmt: skip
+    script.write_text(
+        "def far():\n  movej([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])\n"
+        "  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5, v=0.1)  # 3 m\n"
+        "end\n"
+    )
     out = tmp_path / "out"
     args = ["filter", str(script), "--model", str(ur10_model), "--out", str(out), "--tolerance-mm", "0.5"]
     assert main(args) == 0
@@ -70,23 +72,28 @@ def test_an_unreachable_target_is_kept_and_marked(ur10_model, tmp_path, capsys):
     assert "far.script: line 3: kept as it was (commented): unreachable" in captured.err
     lines = (out / "far.script").read_text().splitlines()
     assert lines[2].startswith("  movel(p[3.000000, 0.000000, 0.500000, 3.141593, 0.000000, 0.000000], a=0.5")
-    assert lines[2].endswith("# 3 m # trackcal filter: kept as it was: unreachable: the nominal kinematics has no "
-                             "solution for it (outside the workspace)")  # fmt: skip
+    assert lines[2].endswith(
+        "# 3 m # trackcal filter: kept as it was: unreachable: the nominal kinematics has no "
+        "solution for it (outside the workspace)"
+    )
     doc = strict_json(out / "filter.json")
     assert [r["status"] for r in doc["targets"]] == ["filtered", "kept"]
     assert doc["targets"][1]["bound95_mm"] is None and doc["targets"][1]["pass"] is False
     assert main([*args, "--strict"]) == 1  # a target fails the tolerance: --strict says so
 
 
-@pytest.mark.parametrize(("argv", "message"), [
-    (["nope.txt"], "no reader for .txt programs"),
-    (["missing.script"], "missing.script: no such file"),
-    (["broken.script"], "broken.script: line 2: a pose p[x, y, z, rx, ry, rz] needs 6 numbers, got 3"),
-    (["ok.script", "--tolerance-mm", "-1"], "--tolerance-mm -1"),
-    (["ok.script", "--out", "."], "would overwrite the input"),
-    # a KRL program for the UR10's model (its robot config names its controller: configs/robots/ur10.yaml)
-    (["PALLET.src"], "PALLET.src: a KRL program, but the model's robot runs a"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["nope.txt"], "no reader for .txt programs"),
+        (["missing.script"], "missing.script: no such file"),
+        (["broken.script"], "broken.script: line 2: a pose p[x, y, z, rx, ry, rz] needs 6 numbers, got 3"),
+        (["ok.script", "--tolerance-mm", "-1"], "--tolerance-mm -1"),
+        (["ok.script", "--out", "."], "would overwrite the input"),
+        # a KRL program for the UR10's model (its robot config names its controller: configs/robots/ur10.yaml)
+        (["PALLET.src"], "PALLET.src: a KRL program, but the model's robot runs a"),
+    ],
+)
 def test_mistakes_are_one_line(ur10_model, tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
     Path("nope.txt").write_text("x")
@@ -105,8 +112,10 @@ def test_a_filtered_program_filtered_again_moves_little(ur10_model, tmp_path):
     is the model's correction at a pose 1-2 mm away: the same to first order, so the two passes differ by far less
     than the first correction."""
     assert main(["filter", str(SAMPLE), "--model", str(ur10_model), "--out", str(tmp_path / "a")]) == 0
-    assert main(["filter", str(tmp_path / "a" / SAMPLE.name), "--model", str(ur10_model), "--out",
-                 str(tmp_path / "b")]) == 0  # fmt: skip
+    assert (
+        main(["filter", str(tmp_path / "a" / SAMPLE.name), "--model", str(ur10_model), "--out", str(tmp_path / "b")])
+        == 0
+    )
     first = strict_json(tmp_path / "a" / "filter.json")["targets"]
     second = strict_json(tmp_path / "b" / "filter.json")["targets"]
     for a, b in zip(first, second, strict=True):
@@ -139,6 +148,7 @@ def resealed(ur10_model: Path, path: Path, edit) -> Path:
 def test_targets_outside_the_measured_volume_are_flagged_and_never_pass(ur10_model, tmp_path, capsys):
     """A model measured on a ring of radius 0 to 1 mm about the base's axis: every target of the sample lies outside
     it by its TCP's distance from the axis less 1 mm (the height range holds them all), its bound not covered."""
+
     def narrow(doc):
         doc["measured"]["volume"].update(radius_mm=[0.0, 1.0], height_mm=[-1e4, 1e4])
 

@@ -29,8 +29,10 @@ def test_temperature_halfrange_of_the_record():
 def test_model_intervals_become_standard_uncertainties():
     """model.json's 95 % half-widths / 1.96 (the station's rotation from degrees to radians); a model without them
     (written by hand) contributes nothing from the calibration."""
-    doc = {"stations": {"S1": {"ci95_translation_mm": [0.0196, 0.0392, 0.0588], "ci95_rotation_deg": [0.001, 0, 0]}},
-           "tool_points": {"P1": {"ci95_mm": [0.00196, 0, 0]}}}  # fmt: skip
+    doc = {
+        "stations": {"S1": {"ci95_translation_mm": [0.0196, 0.0392, 0.0588], "ci95_rotation_deg": [0.001, 0, 0]}},
+        "tool_points": {"P1": {"ci95_mm": [0.00196, 0, 0]}},
+    }
     st = type("S", (), {"rotation": np.eye(3), "translation": np.zeros(3)})()
     model = Model(None, [], np.zeros(0), {"S1": st}, {"P1": np.zeros(3)}, doc)  # type: ignore[arg-type]
     s = BudgetContext(model, "S1", "P1", np.array([np.eye(3)]), "t", None, None).setting(0, np.ones((2, 3)))

@@ -39,10 +39,33 @@ def acceptance(tmp_path_factory):
     run("iso9283", "plan", "--cell", "kr270", *one_way, "--json", "iso.json", cwd=d)
     run("iso9283", "plan", "--cell", "kr270", *one_way, "--model", "model.json", "--json", "iso-comp.json", cwd=d)
     for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
-        run("run", "--sim", "--cell", "kr270", "--plan", plan, "--seed", str(SEED), "--session", session,
-            "--no-analysis", cwd=d)  # fmt: skip
-    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--json", "cmp.json", "--report",
-              "iso.html", cwd=d)  # fmt: skip
+        run(
+            "run",
+            "--sim",
+            "--cell",
+            "kr270",
+            "--plan",
+            plan,
+            "--seed",
+            str(SEED),
+            "--session",
+            session,
+            "--no-analysis",
+            cwd=d,
+        )
+    out = run(
+        "iso9283",
+        "compare",
+        "before",
+        "after",
+        "--model",
+        "model.json",
+        "--json",
+        "cmp.json",
+        "--report",
+        "iso.html",
+        cwd=d,
+    )
     return d, json.loads((d / "iso.json").read_text()), json.loads((d / "cmp.json").read_text()), out
 
 
@@ -96,13 +119,29 @@ def test_compare_states_conformity_and_prints_the_pdf(acceptance):
     if shutil.which("chromium") is None:
         pytest.skip("chromium is not installed (apt-get install chromium; CI installs it)")
     d = acceptance[0]
-    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--tolerance", "AP=0.5,RP=0.1",
-              "--report", "iso-tol.html", "--pdf", "iso.pdf", cwd=d)  # fmt: skip
+    out = run(
+        "iso9283",
+        "compare",
+        "before",
+        "after",
+        "--model",
+        "model.json",
+        "--tolerance",
+        "AP=0.5,RP=0.1",
+        "--report",
+        "iso-tol.html",
+        "--pdf",
+        "iso.pdf",
+        cwd=d,
+    )
     assert "guarded acceptance" in out and "PDF written to iso.pdf" in out
     page = (d / "iso-tol.html").read_text(encoding="utf-8")
     assert "Conformity statement" in page and "guarded acceptance (ISO 14253-1:2017" in page
-    assert re.search(r"before at 100 % \(nominal\)</td><td class=l>AP_P P1</td><td>[^<]+</td><td>500</td>"
-                     r"<td class='l fail'>fail</td>", page)  # fmt: skip
+    assert re.search(
+        r"before at 100 % \(nominal\)</td><td class=l>AP_P P1</td><td>[^<]+</td><td>500</td>"
+        r"<td class='l fail'>fail</td>",
+        page,
+    )
     assert (d / "iso.pdf").read_bytes().startswith(b"%PDF-")
 
 
@@ -113,8 +152,21 @@ def test_compare_json_states_the_verdicts_with_their_guard_bands(acceptance):
     passes; under simple acceptance (ILAC-G8) the guard band is 0."""
     d = acceptance[0]
     for rule in ("guarded", "simple"):
-        run("iso9283", "compare", "before", "after", "--model", "model.json", "--tolerance", "AP=0.5,RP=0.1",
-            "--decision-rule", rule, "--json", f"tol-{rule}.json", cwd=d)  # fmt: skip
+        run(
+            "iso9283",
+            "compare",
+            "before",
+            "after",
+            "--model",
+            "model.json",
+            "--tolerance",
+            "AP=0.5,RP=0.1",
+            "--decision-rule",
+            rule,
+            "--json",
+            f"tol-{rule}.json",
+            cwd=d,
+        )
         doc = json.loads((d / f"tol-{rule}.json").read_text())["conformity"]
         assert doc["decision_rule"] == rule and doc["tolerances_mm"] == {"AP": 0.5, "RP": 0.1}
         found = doc["verdicts"]
@@ -136,13 +188,21 @@ def test_iso_plan_walks_cycles_in_one_direction(acceptance, kr270):
     assert measured == [f"Q{i + 1}" for i in CYCLE_ORDER] * CYCLES
     first = next(i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE)
     # before the first cycle the robot goes to P2 unmeasured, so that P1 is approached from P2 in every cycle
-    assert [(s.kind, s.pose, s.via) for s in steps[first - 4:first]] == [
-        (StepKind.MOVE, "Q2", True), (StepKind.SETTLE, "Q2", True), (StepKind.MOVE, "Q1", False),
-        (StepKind.SETTLE, "Q1", False)]  # fmt: skip
+    assert [(s.kind, s.pose, s.via) for s in steps[first - 4 : first]] == [
+        (StepKind.MOVE, "Q2", True),
+        (StepKind.SETTLE, "Q2", True),
+        (StepKind.MOVE, "Q1", False),
+        (StepKind.SETTLE, "Q1", False),
+    ]
     assert {(s.station, s.point) for s in steps if s.kind == StepKind.MEASURE} == {
-        (plan["iso9283"]["station"], plan["iso9283"]["point"])}
-    assert [s.kind for s in steps[:4]] == [StepKind.CHANGE_STATION, StepKind.RESUME, StepKind.MOVE_REFLECTOR,
-                                           StepKind.RESUME]  # fmt: skip
+        (plan["iso9283"]["station"], plan["iso9283"]["point"])
+    }
+    assert [s.kind for s in steps[:4]] == [
+        StepKind.CHANGE_STATION,
+        StepKind.RESUME,
+        StepKind.MOVE_REFLECTOR,
+        StepKind.RESUME,
+    ]
     with pytest.raises(PlanError, match="no station"):
         plan_steps(kr270, {**plan, "iso9283": {**plan["iso9283"], "station": "S9"}})
     with pytest.raises(PlanError, match="order"):
@@ -170,8 +230,13 @@ def test_report_figures_by_a_second_route(acceptance):
         with open(d / f"{session}.csv") as fh:
             rows = list(csv.DictReader(fh))
         for i in range(5):
-            xyz = np.array([[float(r["x_mm"]), float(r["y_mm"]), float(r["z_mm"])] for r in rows
-                            if r["pose"] == f"Q{i + 1}" and r.get("approach", "none") == "none"])  # fmt: skip
+            xyz = np.array(
+                [
+                    [float(r["x_mm"]), float(r["y_mm"]), float(r["z_mm"])]
+                    for r in rows
+                    if r["pose"] == f"Q{i + 1}" and r.get("approach", "none") == "none"
+                ]
+            )
             base = np.array([rot.T @ (x - t) for x in xyz])
             bar = base.mean(axis=0)
             ap = np.sqrt(((bar - commanded[i]) ** 2).sum())
@@ -202,16 +267,22 @@ def test_every_figure_carries_its_budget_by_a_second_route(acceptance):
         for pose in test["poses"]:
             ap, rp = pose["budget"]["AP_P"], pose["budget"]["RP_l"]
             lines = {ln["input"]: ln["contribution_mm"] for ln in ap["lines"]}
-            assert {"tracker", "station estimate, translation", "station estimate, rotation", "tool point estimate",
-                    "robot repeatability (as measured)"} <= set(lines)  # fmt: skip
+            assert {
+                "tracker",
+                "station estimate, translation",
+                "station estimate, rotation",
+                "tool point estimate",
+                "robot repeatability (as measured)",
+            } <= set(lines)
             e = np.array(pose["AP_xyz_mm"]) / pose["AP_P"]["value_mm"]
             g = rot @ e  # the offset moves by -R^T v: e^T R^T v
             assert lines["station estimate, translation"] == pytest.approx(np.sqrt((g**2 * u_t**2).sum()), rel=1e-6)
             assert ap["u_c_mm"] == pytest.approx(np.sqrt(sum(v**2 for v in lines.values())), rel=1e-9)
             lo, hi = ap["interval95_mm"]
             assert lo < pose["AP_P"]["value_mm"] < hi
-            assert pose["AP_P"]["u95_mm"] == pytest.approx(max(pose["AP_P"]["value_mm"] - lo,
-                                                               hi - pose["AP_P"]["value_mm"]))  # fmt: skip
+            assert pose["AP_P"]["u95_mm"] == pytest.approx(
+                max(pose["AP_P"]["value_mm"] - lo, hi - pose["AP_P"]["value_mm"])
+            )
             assert pose["RP_l"]["u95_mm"] == pytest.approx(rp["U_decision_mm"])
             assert f"<td>{lines['station estimate, translation'] * 1000:.2f}</td>" in page
 
@@ -221,13 +292,18 @@ def test_drift_between_first_and_last_tests_of_the_same_targets():
     no drift. By hand: AP 0.30 then 0.25 then 0.22 mm -> dAP 0.08 mm (first and last, not neighbours)."""
 
     def test(session, targets, ap):
-        poses = [PoseFigures(n, 3, Figure(ap, 0.01, ""), np.zeros(3), Figure(0.05, 0.02, ""), 0.02, 0.01)
-                 for n in ("P1", "P2", "P3", "P4", "P5")]  # fmt: skip
-        return IsoFigures(session, targets != "nominal", poses, None, None, [], np.zeros((5, 3)),
-                           {"targets": targets})  # fmt: skip
+        poses = [
+            PoseFigures(n, 3, Figure(ap, 0.01, ""), np.zeros(3), Figure(0.05, 0.02, ""), 0.02, 0.01)
+            for n in ("P1", "P2", "P3", "P4", "P5")
+        ]
+        return IsoFigures(session, targets != "nominal", poses, None, None, [], np.zeros((5, 3)), {"targets": targets})
 
-    tests = [test("a", "nominal", 0.30), test("b", "nominal", 0.25), test("c", "nominal", 0.22),
-             test("d", "compensated with m.json", 0.01)]  # fmt: skip
+    tests = [
+        test("a", "nominal", 0.30),
+        test("b", "nominal", 0.25),
+        test("c", "nominal", 0.22),
+        test("d", "compensated with m.json", 0.01),
+    ]
     (d,) = drifts(tests)
     assert (d["first"], d["last"], d["targets"]) == ("a", "c", "nominal")
     assert d["poses"][0]["dAP"].value == pytest.approx(0.08)

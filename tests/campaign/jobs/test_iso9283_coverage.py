@@ -44,8 +44,7 @@ def covered(cell, plan, seed: int, compensated: bool = False) -> bool:
     model = model_from_doc(identification_to_doc(res))
     q_nom = plan.q_rad[:1]
     if compensated:  # as campaign.jobs.iso9283.make_plan does with --model
-        q_nom, _ = compensate(model, q_nom, cell.tcp, max_correction=(cell.max_correction_mm,
-                                                                      cell.max_correction_deg))  # fmt: skip
+        q_nom, _ = compensate(model, q_nom, cell.tcp, max_correction=(cell.max_correction_mm, cell.max_correction_deg))
     q_deg = np.round(np.degrees(q_nom), 4)  # P1, as the plan writes its joints
     kin = Kinematics(cell.chain, [])
     rot, _ = kin.end_frames(plan.q_rad[:1])  # the commanded orientation: the nominal chain at the nominal joints
@@ -57,8 +56,9 @@ def covered(cell, plan, seed: int, compensated: bool = False) -> bool:
     _, offset = pose_accuracy(x, commanded, covs)
     context = BudgetContext(model, plan.station, plan.point, rot, noise.name, None, None)
     lo, hi = ap_budget(offset, pose_inputs(x, covs, context.setting(0, y))).interval
-    true_ap = np.linalg.norm(twin.point_in_base(q_deg[0], plan.point)
-                             - kin.points(plan.q_rad[:1], twin.true_points[plan.point])[0])  # fmt: skip
+    true_ap = np.linalg.norm(
+        twin.point_in_base(q_deg[0], plan.point) - kin.points(plan.q_rad[:1], twin.true_points[plan.point])[0]
+    )
     assert pose_repeatability(x)[0].value < 0.1  # the twin's robot does return: RP is tracker noise
     return bool(lo <= true_ap <= hi)
 

@@ -35,8 +35,14 @@ def tested(tmp_path_factory, kr270):
     certificate, measured by a tracker that says it is 390777."""
     d = tmp_path_factory.mktemp("identity")
     doc = yaml.safe_load(EXAMPLE.read_text())
-    doc["tracker"].update({"serial": "AT901-12345", "certificate": "CAL-2026-77", "certificate_date": "2026-06-01",
-                           "certificate_due": "2999-06-01"})  # fmt: skip
+    doc["tracker"].update(
+        {
+            "serial": "AT901-12345",
+            "certificate": "CAL-2026-77",
+            "certificate_date": "2026-06-01",
+            "certificate_due": "2999-06-01",
+        }
+    )
     plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0))
     store, campaign = new_session(d / "s", "kr270", plan, "sim", SEED, hardware=(yaml.safe_dump(doc), "hw.yaml"))
     _, live = inproc_live(kr270, SEED)
@@ -58,8 +64,9 @@ def test_the_conditions_show_each_identity_with_its_source_and_the_mismatch(test
     directory, store = tested
     rows = traceability(store, directory)
     assert rows["tracker serial"] == "AT901-12345 (from the hardware file)"
-    assert rows["tracker identity"] == ("AT901-LR (ES_LTSensorType 15), serial 390777, LCP firmware 3.6, emScon 3.6.0 "
-                                        "(read from the device)")  # fmt: skip
+    assert rows["tracker identity"] == (
+        "AT901-LR (ES_LTSensorType 15), serial 390777, LCP firmware 3.6, emScon 3.6.0 (read from the device)"
+    )
     assert rows["robot controller identity"].endswith("(simulated)")  # the in-process twin's robot
     assert rows["tracker serial check"].startswith("MISMATCH: the tracker reports serial number 390777")
 
@@ -84,11 +91,21 @@ def test_the_report_and_its_pdf_print_the_identities(tested, tmp_path):
     rows = traceability(store, directory)
     page = render([figures(rows)], [], "model.json")
     for key, value in rows.items():  # the row's name, then its value in the test's column
-        assert re.search(rf"<td class=l>{re.escape(html.escape(key))}</td>\s*<td class=l>"
-                         rf"{re.escape(html.escape(value))}</td>", page), key  # fmt: skip
+        assert re.search(
+            rf"<td class=l>{re.escape(html.escape(key))}</td>\s*<td class=l>"
+            rf"{re.escape(html.escape(value))}</td>",
+            page,
+        ), key
     pdf = html_to_pdf(page, tmp_path / "r.pdf", "ISO 9283:1998 acceptance test, report R-1")
-    text = " ".join(subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True,
-                                   check=True).stdout.split())  # fmt: skip
-    for phrase in ("tracker identity", "serial 390777", "read from the device", "MISMATCH",
-                   "AT901-12345 (from the hardware file)", "robot controller identity"):
+    text = " ".join(
+        subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout.split()
+    )
+    for phrase in (
+        "tracker identity",
+        "serial 390777",
+        "read from the device",
+        "MISMATCH",
+        "AT901-12345 (from the hardware file)",
+        "robot controller identity",
+    ):
         assert phrase in text, phrase

@@ -47,8 +47,13 @@ def test_collinear_points_fix_no_orientation():
 
 
 @settings(deadline=None, max_examples=30)  # each example fits up to 30 clusters: 30 examples keep it to seconds
-@given(seed=st.integers(0, 2**32 - 1), offset_mdeg=st.floats(-50.0, 50.0), spread_mdeg=st.floats(0.0, 100.0),
-       n=st.integers(3, 30), rpy=st.tuples(*[st.floats(-3.0, 3.0)] * 3))  # fmt: skip
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    offset_mdeg=st.floats(-50.0, 50.0),
+    spread_mdeg=st.floats(0.0, 100.0),
+    n=st.integers(3, 30),
+    rpy=st.tuples(*[st.floats(-3.0, 3.0)] * 3),
+)
 def test_synthetic_clusters_recover_their_offset_and_spread(seed, offset_mdeg, spread_mdeg, n, rpy):
     """Cycles turned by w_j = w0 + spread * z_j (z_j standard normal per axis) from a commanded orientation, points
     measured with the tracker's noise 3 m away: AP_a..c and RP_a..c from the noisy points equal those of the exact
@@ -94,8 +99,17 @@ def test_on_the_twin_ap_is_the_orientation_error_the_twin_knows(kr270, tmp_path)
     """The twin's robot (paper Table 8 deviations) at the nominal joints of the plan is turned by what its true chain
     does against the nominal one: AP_a..c are that rotation within 2.5 U (the twin's robot returns to the same joints,
     so only the tracker's noise separates them), in the base frame of the twin's own station and points."""
-    plan = make_plan(PlanOptions(cell="kr270", json=str(tmp_path / "iso.json"), cycles=3, vap_cycles=0,
-                                 orientation=True, load="unloaded", velocities=(100.0,)))  # fmt: skip
+    plan = make_plan(
+        PlanOptions(
+            cell="kr270",
+            json=str(tmp_path / "iso.json"),
+            cycles=3,
+            vap_cycles=0,
+            orientation=True,
+            load="unloaded",
+            velocities=(100.0,),
+        )
+    )
     assert len(plan["iso9283"]["points"]) == 3
     store, campaign = new_session(tmp_path / "s", "kr270", plan, "sim", 1)
     assert run_session(store, campaign, inproc_live(kr270, 1)[1]).exit_status == "success"

@@ -19,8 +19,9 @@ EXAMPLE = Path(__file__).parents[3] / "configs" / "hardware" / "example-cell.yam
 
 def hardware_text(date: str, due: str) -> str:
     doc = yaml.safe_load(EXAMPLE.read_text())
-    doc["tracker"].update({"serial": "AT901-12345", "certificate": "CAL-2019-77", "certificate_date": date,
-                           "certificate_due": due})  # fmt: skip
+    doc["tracker"].update(
+        {"serial": "AT901-12345", "certificate": "CAL-2019-77", "certificate_date": date, "certificate_due": due}
+    )
     return yaml.safe_dump(doc)
 
 
@@ -31,11 +32,15 @@ def tested(tmp_path_factory, kr270):
     d = tmp_path_factory.mktemp("trace")
     assert main(["simulate", "--cell", "kr270", "--poses", "40", "--seed", str(SEED), "--out", str(d / "t.csv")]) == 0
     assert main(["identify", str(d / "t.csv"), "--cell", "kr270", "--out", str(d / "model.json")]) == 0
-    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded",
-                                 velocities=(100.0,)))
+    plan = make_plan(
+        PlanOptions(
+            cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded", velocities=(100.0,)
+        )
+    )
     for name, due in (("expired", "2019-12-31"), ("valid", "2999-12-31")):
-        store, campaign = new_session(d / name, "kr270", plan, "sim", SEED,
-                                      hardware=(hardware_text("2018-12-31", due), "hw.yaml"))  # fmt: skip
+        store, campaign = new_session(
+            d / name, "kr270", plan, "sim", SEED, hardware=(hardware_text("2018-12-31", due), "hw.yaml")
+        )
         assert run_session(store, campaign, inproc_live(kr270, SEED)[1]).exit_status == "success"
         store.close()
     return d
@@ -62,8 +67,21 @@ def test_expired_certificate_is_refused_for_a_report_unless_asked(tested, capsys
 
 def test_report_states_the_tracker_and_the_item(tested):
     d = tested
-    assert compare(d, "valid", "--report", str(d / "v.html"), "--customer", "ACME Robotics", "--report-id",
-                   "R-2026-001", "--authorised-by", "J. Smith") == 0  # fmt: skip
+    assert (
+        compare(
+            d,
+            "valid",
+            "--report",
+            str(d / "v.html"),
+            "--customer",
+            "ACME Robotics",
+            "--report-id",
+            "R-2026-001",
+            "--authorised-by",
+            "J. Smith",
+        )
+        == 0
+    )
     page = (d / "v.html").read_text(encoding="utf-8")
     assert "AT901-12345" in page and "CAL-2019-77, calibrated 2018-12-31, due 2999-12-31" in page
     assert "Report R-2026-001" in page and "Customer: ACME Robotics" in page

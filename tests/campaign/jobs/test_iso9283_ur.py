@@ -32,11 +32,32 @@ def test_ur10_sim_gives_every_figure_and_the_conditions(tmp_path):
     """Plan with the multi-directional and orientation parts, run on the simulated UR cell, figures in the twin's own
     frame: all five poses' AP/RP, vAP at P1, P2, P4, orientation from the three nests, and a report naming the
     conditions of the test."""
-    plan = make_plan(PlanOptions(cell="ur10", json=str(tmp_path / "iso.json"), cycles=2, vap_cycles=2,
-                                 orientation=True, load="unloaded", velocities=(100.0,)))  # fmt: skip
+    plan = make_plan(
+        PlanOptions(
+            cell="ur10",
+            json=str(tmp_path / "iso.json"),
+            cycles=2,
+            vap_cycles=2,
+            orientation=True,
+            load="unloaded",
+            velocities=(100.0,),
+        )
+    )
     assert len(plan["iso9283"]["points"]) == 3
-    run("run", "--sim", "--cell", "ur10", "--plan", "iso.json", "--seed", str(SEED), "--session", "s",
-        "--no-analysis", cwd=tmp_path)  # fmt: skip
+    run(
+        "run",
+        "--sim",
+        "--cell",
+        "ur10",
+        "--plan",
+        "iso.json",
+        "--seed",
+        str(SEED),
+        "--session",
+        "s",
+        "--no-analysis",
+        cwd=tmp_path,
+    )
     twin = Twin(load_cell("ur10"), seed=SEED)
     model = Model(twin.cell.chain, [], np.zeros(0), twin.true_stations, twin.true_points, {})
     figs = session_figures(Path(tmp_path / "s"), model, TrackerNoise())
@@ -66,17 +87,38 @@ def test_ur10_mock_controller_before_and_after(tmp_path):
     run both against `trackcal mock --cell ur10` over its protocols, compare with the report."""
     run("simulate", "--cell", "ur10", "--poses", "20", "--seed", "1", "--out", "t.csv", cwd=tmp_path)
     run("identify", "t.csv", "--cell", "ur10", "--out", "model.json", cwd=tmp_path)
-    common = ("--cell", "ur10", "--cycles", "3", "--vap-cycles", "2", "--orientation", "--load", "unloaded",
-              "--velocities", "100")
+    common = (
+        "--cell",
+        "ur10",
+        "--cycles",
+        "3",
+        "--vap-cycles",
+        "2",
+        "--orientation",
+        "--load",
+        "unloaded",
+        "--velocities",
+        "100",
+    )
     run("iso9283", "plan", *common, "--json", "iso.json", cwd=tmp_path)
     run("iso9283", "plan", *common, "--model", "model.json", "--json", "iso-comp.json", cwd=tmp_path)
     hw = tmp_path / "H.yaml"
     with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=10.0):
         for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
-            run("run", "--cell", "ur10", "--plan", plan, "--hardware", str(hw), "--session", session,
-                "--no-analysis", cwd=tmp_path)  # fmt: skip
-    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--report", "iso.html",
-              cwd=tmp_path)  # fmt: skip
+            run(
+                "run",
+                "--cell",
+                "ur10",
+                "--plan",
+                plan,
+                "--hardware",
+                str(hw),
+                "--session",
+                session,
+                "--no-analysis",
+                cwd=tmp_path,
+            )
+    out = run("iso9283", "compare", "before", "after", "--model", "model.json", "--report", "iso.html", cwd=tmp_path)
     assert "vAP_P nominal" in out and "AP_P compensated" in out
     page = (tmp_path / "iso.html").read_text()
     for key in CONDITIONS:

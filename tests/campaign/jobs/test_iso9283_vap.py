@@ -35,8 +35,16 @@ def sessions(tmp_path_factory, kr270):
     """The plan, run in-process on the twin with backlash and without (the engine and doubles of `trackcal run
     --sim`, without its servers)."""
     d = tmp_path_factory.mktemp("vap")
-    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=CYCLES, vap_cycles=VAP_CYCLES,
-                                 load="unloaded", velocities=(100.0,)))
+    plan = make_plan(
+        PlanOptions(
+            cell="kr270",
+            json=str(d / "iso.json"),
+            cycles=CYCLES,
+            vap_cycles=VAP_CYCLES,
+            load="unloaded",
+            velocities=(100.0,),
+        )
+    )
     for name, effects in (("backlash", BACKLASH), ("clean", {})):
         store, campaign = new_session(d / name, "kr270", plan, "sim", SEED, effects=effects)
         result = run_session(store, campaign, inproc_live(kr270, SEED, effects=effects)[1])
@@ -61,7 +69,8 @@ def true_barycentres(twin: Twin, plan: dict) -> dict[str, dict[str, np.ndarray]]
             twin.move_to(np.array(s.q_deg))
         elif s.kind == StepKind.MEASURE and s.approach:
             out.setdefault(f"P{int(s.pose[1:])}", {}).setdefault(s.approach, []).append(
-                twin.point_in_base(np.array(s.q_deg), point))
+                twin.point_in_base(np.array(s.q_deg), point)
+            )
     return {p: {side: np.mean(x, axis=0) for side, x in sides.items()} for p, sides in out.items()}
 
 
@@ -151,9 +160,12 @@ def test_figures_document_vap_apart_from_ap_and_rp(sessions):
 def test_a_broken_vap_block_is_refused(sessions, kr270):
     _, plan = sessions
     iso = plan["iso9283"]
-    for bad, match in (({"cycles": -1}, "cycles"), ({"poses": ["P9"]}, "poses"),
-                       ({"approaches": [["-y", "-x", "-z"]] * 3}, "approaches"),
-                       ({"approach_deg": iso["vap"]["approach_deg"][:2]}, "approach_deg")):  # fmt: skip
+    for bad, match in (
+        ({"cycles": -1}, "cycles"),
+        ({"poses": ["P9"]}, "poses"),
+        ({"approaches": [["-y", "-x", "-z"]] * 3}, "approaches"),
+        ({"approach_deg": iso["vap"]["approach_deg"][:2]}, "approach_deg"),
+    ):
         with pytest.raises(PlanError, match=match):
             plan_steps(kr270, {**plan, "iso9283": {**iso, "vap": {**iso["vap"], **bad}}})
     none = plan_steps(kr270, {**plan, "iso9283": {**iso, "vap": {**iso["vap"], "cycles": 0}}})

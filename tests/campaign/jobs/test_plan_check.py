@@ -59,8 +59,9 @@ def test_the_cell_box_is_checked_after_the_controllers_rounding(kr270, plan):
 def test_plans_keep_the_joint_margin(kr270):
     # a D-optimal plan of the paper's cell: optimal poses sit on the planner's bounds (section 7.2 parameters)
     params = [param_by_name(kr270.chain, n) for n in kr270.plan_params]
-    plan = optimize_plan(design_for_cell(kr270, params, known=PAPER_KNOWN), 6, criterion="D", starts=20, refined=2,
-                         seed=2)
+    plan = optimize_plan(
+        design_for_cell(kr270, params, known=PAPER_KNOWN), 6, criterion="D", starts=20, refined=2, seed=2
+    )
     rounded = np.round(np.degrees(plan.poses), 4)  # as `trackcal plan` writes them
     lim = usable_limits_deg(kr270)
     assert np.all((rounded >= lim[:, 0]) & (rounded <= lim[:, 1]))
@@ -79,11 +80,11 @@ def test_a_measurement_far_from_the_expected_position_stops_the_campaign(tmp_pat
     strict = tmp_path / "strict.yaml"
     strict.write_text(Path(kr270.source).read_text() + "measurement_tolerance_mm: 0.001\n")
     store, _ = new_session(tmp_path / "s", str(strict), plan, "sim", 3)
-    assert_stopped(run_stored(store, inproc_live(kr270, 3)[1]),
-                   "units or coordinate system were changed.*wrong reflector.*moved")
+    assert_stopped(
+        run_stored(store, inproc_live(kr270, 3)[1]), "units or coordinate system were changed.*wrong reflector.*moved"
+    )
     assert not store.events("measurement")  # nothing wrong is stored
     assert store.events("error")[-1].data["type"] == "ImplausibleMeasurement"
-
 
 
 def test_the_tracker_is_configured_at_every_station_and_before_every_point_block(tmp_path, kr270, plan):

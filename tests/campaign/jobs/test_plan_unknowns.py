@@ -45,8 +45,16 @@ def noise_free_table(cell, design, q, repeat, seed):
     twin, qd = Twin(cell, seed=seed), np.degrees(q)
     xyz = np.array([twin.exact(qd[i], pids[j], sids[s]) for i, j, s in zip(pose, point, station, strict=True)])
     n = len(pose)
-    return MeasurementTable(np.arange(1, n + 1), np.zeros(n), [f"Q{i + 1}" for i in pose], [sids[s] for s in station],
-                            [pids[j] for j in point], qd[pose], xyz, source="twin")  # fmt: skip
+    return MeasurementTable(
+        np.arange(1, n + 1),
+        np.zeros(n),
+        [f"Q{i + 1}" for i in pose],
+        [sids[s] for s in station],
+        [pids[j] for j in point],
+        qd[pose],
+        xyz,
+        source="twin",
+    )
 
 
 @pytest.mark.parametrize("tracker", [False, True], ids=["iid", "tracker-model"])
@@ -91,8 +99,9 @@ def test_woodbury_swaps_equal_the_exact_criterion(campaign_design):
     d = campaign_design
     pool = random_feasible_poses(d, 60, np.random.default_rng(3))
     infos, factors = d.pose_information(pool), d.pose_factors(pool)
-    np.testing.assert_allclose(np.einsum("nrk,nrl->nkl", factors, factors), infos, rtol=1e-9,
-                               atol=1e-12 * np.abs(infos).max())  # fmt: skip
+    np.testing.assert_allclose(
+        np.einsum("nrk,nrl->nkl", factors, factors), infos, rtol=1e-9, atol=1e-12 * np.abs(infos).max()
+    )
     rest = infos[:12].sum(axis=0)
     fast = _rho0_swaps(d, rest, factors[12:] / d.scale)
     exact = d.criterion_values(rest + infos[12:], "rho0")
@@ -128,8 +137,11 @@ def truth_and_model(cell, poses_deg, seed, params):
     twin.move_to(q0)
     truth = np.mean([twin.exact(q0, p, station) for p in res.point_ids], axis=0)
     tool = np.array([res.points[p] for p in res.point_ids])
-    model = res.stations[station].apply(Kinematics(cell.chain, params).points(
-        np.repeat(cell.test_pose[None], len(tool), axis=0), tool, res.dev).mean(axis=0))
+    model = res.stations[station].apply(
+        Kinematics(cell.chain, params)
+        .points(np.repeat(cell.test_pose[None], len(tool), axis=0), tool, res.dev)
+        .mean(axis=0)
+    )
     return model - truth, tcp_sigma(res, cell.test_pose, station)
 
 

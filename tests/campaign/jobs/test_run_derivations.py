@@ -35,8 +35,14 @@ def fit_key(args, kw) -> tuple:
     """What an identification fits: the table's rows, the robot parameters, the extension and the weighting."""
     chain, table, _tool, params = args[:4]
     ext = kw.get("extension")
-    return (table.q_deg.tobytes(), table.xyz.tobytes(), tuple(p.name for p in params), chain.name,
-            None if ext is None else repr(ext), repr(kw.get("noise")))  # fmt: skip
+    return (
+        table.q_deg.tobytes(),
+        table.xyz.tobytes(),
+        tuple(p.name for p in params),
+        chain.name,
+        None if ext is None else repr(ext),
+        repr(kw.get("noise")),
+    )
 
 
 @pytest.fixture
@@ -53,8 +59,9 @@ def counts(kr270, monkeypatch):
         built(self, *args, **kw)
 
     monkeypatch.setattr(Cell, "__init__", building)
-    monkeypatch.setattr("trackcal.campaign.jobs.campaign._open_cell",
-                        lambda store, cell, *a, **kw: inproc_live(cell, SEED, store)[1])  # fmt: skip
+    monkeypatch.setattr(
+        "trackcal.campaign.jobs.campaign._open_cell", lambda store, cell, *a, **kw: inproc_live(cell, SEED, store)[1]
+    )
     return calls
 
 

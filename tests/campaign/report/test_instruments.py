@@ -71,8 +71,9 @@ def test_custom_and_short_forms_parse():
     custom = instrument_from_doc({"model": "custom", "radial_um": 10, "transverse_um": 15, "transverse_um_per_m": 6})
     sr, st = TrackerNoise.of(custom).sigmas(np.array([0.0, 2000.0]))
     assert np.allclose(sr, [0.010, 0.010]) and np.allclose(st, [0.015, 0.015 + 2 * 0.006])
-    with_ppm = instrument_from_doc({"model": "custom", "radial_um": 4, "radial_um_per_m": 1, "transverse_um": 6,
-                                    "transverse_um_per_m": 2})  # fmt: skip
+    with_ppm = instrument_from_doc(
+        {"model": "custom", "radial_um": 4, "radial_um_per_m": 1, "transverse_um": 6, "transverse_um_per_m": 2}
+    )
     assert np.isclose(TrackerNoise.of(with_ppm).sigmas(3000.0)[0], 0.004 + 3 * 0.001)
     assert instrument_from_doc("AT960") == instrument_from_doc({"model": "at960"}) == named("AT960")
     assert instrument_from_doc({"model": "at500"}).name == "Leica AT500"
@@ -134,8 +135,15 @@ def test_the_cells_instrument_reaches_identify(kr270):
     a = run_identify(kr270, table, params, "tracker").doc
     b = run_identify(with_tracker(kr270, TWICE_AT901), table, params, "tracker").doc
     assert (a["tracker"]["model"], a["tracker"]["name"], a["tracker"]["assumed"]) == ("AT901", "Leica AT901", True)
-    assert b["tracker"] == {"model": "custom", "name": "custom tracker", "assumed": False, "radial_um": 10.0,
-                            "radial_um_per_m": 0.0, "transverse_um": 15.0, "transverse_um_per_m": 6.0}  # fmt: skip
+    assert b["tracker"] == {
+        "model": "custom",
+        "name": "custom tracker",
+        "assumed": False,
+        "radial_um": 10.0,
+        "radial_um_per_m": 0.0,
+        "transverse_um": 15.0,
+        "transverse_um_per_m": 6.0,
+    }
     assert b["variance_factor"] == pytest.approx(a["variance_factor"] / 4, rel=1e-6)
     assert b["noise_floor_mm"] == pytest.approx(2 * a["noise_floor_mm"], rel=1e-12)
     assert b["fit_ratio"] == pytest.approx(a["fit_ratio"] / 2, rel=1e-6)

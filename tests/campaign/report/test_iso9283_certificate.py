@@ -41,18 +41,26 @@ from trackcal.campaign.report.pdf import html_to_pdf
 # so every sum below is exact in floating point)
 
 
-@pytest.mark.parametrize(("y", "u", "rule", "expected"), [
-    # simple acceptance, w = 0: y <= T passes whatever U (0.5 <= 0.5; 0.25 <= 0.5 even with U = 0.5), y > T fails
-    (0.5, 0.25, "simple", PASS), (0.25, 0.5, "simple", PASS), (0.625, 0.25, "simple", FAIL),
-    # guarded, w = U: y + U <= T passes (0.25 + 0.25 = 0.5), y - U > T fails (0.875 - 0.25 = 0.625 > 0.5)
-    (0.25, 0.25, "guarded", PASS), (0.875, 0.25, "guarded", FAIL),
-    # the interval straddles T: 0.375 + 0.25 = 0.625 > 0.5 but 0.375 - 0.25 = 0.125 <= 0.5, neither proven
-    (0.375, 0.25, "guarded", NOT_PROVEN),
-    # y - U = 0.75 - 0.25 = 0.5 is not above T: non-conformity not proven; simple acceptance fails the same figure
-    (0.75, 0.25, "guarded", NOT_PROVEN), (0.75, 0.25, "simple", FAIL),
-    # no stated U: guarded acceptance proves nothing, simple acceptance goes by the value
-    (0.25, math.nan, "guarded", NOT_PROVEN), (0.25, math.nan, "simple", PASS),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("y", "u", "rule", "expected"),
+    [
+        # simple acceptance, w = 0: y <= T passes whatever U (0.5 <= 0.5; 0.25 <= 0.5 even with U = 0.5), y > T fails
+        (0.5, 0.25, "simple", PASS),
+        (0.25, 0.5, "simple", PASS),
+        (0.625, 0.25, "simple", FAIL),
+        # guarded, w = U: y + U <= T passes (0.25 + 0.25 = 0.5), y - U > T fails (0.875 - 0.25 = 0.625 > 0.5)
+        (0.25, 0.25, "guarded", PASS),
+        (0.875, 0.25, "guarded", FAIL),
+        # the interval straddles T: 0.375 + 0.25 = 0.625 > 0.5 but 0.375 - 0.25 = 0.125 <= 0.5, neither proven
+        (0.375, 0.25, "guarded", NOT_PROVEN),
+        # y - U = 0.75 - 0.25 = 0.5 is not above T: non-conformity not proven; simple acceptance fails the same figure
+        (0.75, 0.25, "guarded", NOT_PROVEN),
+        (0.75, 0.25, "simple", FAIL),
+        # no stated U: guarded acceptance proves nothing, simple acceptance goes by the value
+        (0.25, math.nan, "guarded", NOT_PROVEN),
+        (0.25, math.nan, "simple", PASS),
+    ],
+)
 def test_decision_rule_by_hand(y, u, rule, expected):
     assert decide(y, u, 0.5, rule) == expected
 
@@ -97,8 +105,19 @@ def synthetic(session: str, compensated: bool, offset_mm: float, seed: int) -> I
         poses.append(PoseFigures(name, len(a), ap, off, rp, lbar, s))
     ad, rd = distance_accuracy(att[1], att[3], cmd[1], cmd[3], cov, cov)
     vap = {"P1": multidirectional_variation([att[0], att[0] + 0.01], [cov, cov])}
-    return IsoFigures(session, compensated, poses, ad, rd, att, cmd, {"load": "10 kg, 100 % rated"}, [], vap,
-                      {"P1": {"-x": att[0], "-y": att[0]}})  # fmt: skip
+    return IsoFigures(
+        session,
+        compensated,
+        poses,
+        ad,
+        rd,
+        att,
+        cmd,
+        {"load": "10 kg, 100 % rated"},
+        [],
+        vap,
+        {"P1": {"-x": att[0], "-y": att[0]}},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -117,8 +136,16 @@ def page(tests_pair):
 
 def test_verdicts_of_every_toleranced_figure(tests_pair):
     t = tests_pair[0]
-    t_neg = IsoFigures(t.session, t.compensated, t.poses, Figure(-0.3, 0.01, t.ad.clause), t.rd, t.attained_mm,
-                       t.commanded_mm, t.conditions)  # fmt: skip
+    t_neg = IsoFigures(
+        t.session,
+        t.compensated,
+        t.poses,
+        Figure(-0.3, 0.01, t.ad.clause),
+        t.rd,
+        t.attained_mm,
+        t.commanded_mm,
+        t.conditions,
+    )
     found = verdicts([t_neg], {"AP": 10.0, "AD": 0.25, "vAP": 1.0}, "guarded")
     assert [v.figure for v in found] == [f"AP_P {n}" for n in POSE_NAMES] + ["|AD_P|"]  # no vAP test: no vAP verdict
     ad = found[-1]
@@ -131,8 +158,9 @@ def test_verdicts_of_every_toleranced_figure(tests_pair):
 def test_the_report_states_the_rule_the_verdicts_its_id_and_signature_fields(tests_pair, page, monkeypatch):
     assert "guarded acceptance (ISO 14253-1:2017" in page and "Conformity statement" in page
     # 2 tests x (AP and RP at 5 poses, AD, vAP at P1)
-    assert page.count("<td class='l pass'>pass</td>") + page.count("<td class='l fail'>fail</td>") \
-        + page.count("<td class='l open'>not proven</td>") == 2 * (2 * 5 + 2)
+    assert page.count("<td class='l pass'>pass</td>") + page.count("<td class='l fail'>fail</td>") + page.count(
+        "<td class='l open'>not proven</td>"
+    ) == 2 * (2 * 5 + 2)
     rid = report_id(tests_pair)
     assert re.fullmatch(r"ISO9283-[0-9A-F]{10}", rid) and rid in page
     assert report_id([synthetic("before", False, 0.4, 1), synthetic("after", True, 0.05, 2)]) == rid
@@ -184,8 +212,12 @@ def test_the_pdf_holds_every_figure_of_the_page_with_page_numbers_and_the_id(tes
 
 
 def test_cli_refuses_a_bad_tolerance_in_one_line(tmp_path):
-    done = subprocess.run([*TRACKCAL, "iso9283", "compare", "nosuch", "--model", "m.json", "--tolerance", "AP=x"],
-                          cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        [*TRACKCAL, "iso9283", "compare", "nosuch", "--model", "m.json", "--tolerance", "AP=x"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "--tolerance" in done.stderr, done.stderr
 
 

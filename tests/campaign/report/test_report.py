@@ -37,8 +37,9 @@ def render(out, cell, table, model, plan, verdict, prov, warnings=None, extra_im
     report` does)."""
     if verdict is not None and diagnosis is None:
         diagnosis = diagnosis_of(cell, table, model)
-    analysis = analysed(cell, table, model, plan=plan, verdict=verdict, diagnosis=diagnosis, warnings=warnings,
-                        provenance=prov)  # fmt: skip
+    analysis = analysed(
+        cell, table, model, plan=plan, verdict=verdict, diagnosis=diagnosis, warnings=warnings, provenance=prov
+    )
     return write_report(analysis, out, extra_images)
 
 
@@ -68,14 +69,35 @@ def campaign(kr270, tmp_path_factory):
     outcome = run_identify(kr270, table, choose_params(kr270, None), "tracker")
     (d / "model.json").write_text(json.dumps(outcome.doc))
     configurations = list(dict.fromkeys(tuple(q) for q in table.q_deg.tolist()))  # the table's, in order
-    plan = {"rho0_mm": 0.00231, "repeat": 1, "criterion": "rho0", "params": ["px1", "px2"],
-            "poses_deg": [list(q) for q in configurations], "test_pose_deg": [76.7, -56.9, 89.3, 45.1, 76, 57.2]}
-    verdict = {"cause": "none", "cell": "kr270", "table_sha256": sha256_of(table.source),
-               "candidates": [{"cause": "backlash", "n_params": 5, "holdout_rms_mm": 0.0161,
-               "rms_mm": 0.0149, "f_pvalue": 0.41, "delta_bic": 12.0, "significant": False}],
-               "geometric": {"rms_mm": 0.0150}, "extended": {"rms_mm": 0.0150}, "noise_floor_mm": 0.0151,
-               "noise_floor_source": "tracker noise model",
-               "holdout": {"rms_geometric_mm": 0.0162, "rms_extended_mm": 0.0162}}  # fmt: skip
+    plan = {
+        "rho0_mm": 0.00231,
+        "repeat": 1,
+        "criterion": "rho0",
+        "params": ["px1", "px2"],
+        "poses_deg": [list(q) for q in configurations],
+        "test_pose_deg": [76.7, -56.9, 89.3, 45.1, 76, 57.2],
+    }
+    verdict = {
+        "cause": "none",
+        "cell": "kr270",
+        "table_sha256": sha256_of(table.source),
+        "candidates": [
+            {
+                "cause": "backlash",
+                "n_params": 5,
+                "holdout_rms_mm": 0.0161,
+                "rms_mm": 0.0149,
+                "f_pvalue": 0.41,
+                "delta_bic": 12.0,
+                "significant": False,
+            }
+        ],
+        "geometric": {"rms_mm": 0.0150},
+        "extended": {"rms_mm": 0.0150},
+        "noise_floor_mm": 0.0151,
+        "noise_floor_source": "tracker noise model",
+        "holdout": {"rms_geometric_mm": 0.0162, "rms_extended_mm": 0.0162},
+    }
     (d / "plan.json").write_text(json.dumps(plan))
     (d / "verdict.json").write_text(json.dumps(verdict))
     return d, table, outcome, plan, verdict
@@ -135,8 +157,10 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
     assert "re-plan" not in text  # the verdict names no cause the plan could have missed
     warnings = text.split("Campaign warnings")[1]
     planned = len(table) + 1  # the table's measurements and the one skipped
-    assert f"1 of {planned} planned measurements skipped, all at station S1 (point P2; pose Q5) because: beam broken" \
+    assert (
+        f"1 of {planned} planned measurements skipped, all at station S1 (point P2; pose Q5) because: beam broken"
         in warnings
+    )
     assert "t = 748 s: P2 not measurable from S1 at Q5" in warnings.split("every warning as raised (1)")[1]
     assert "(um)" not in text and " um " not in text
 
@@ -144,19 +168,31 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
 def test_skipped_measurements_are_counted_and_grouped_by_station_and_reason():
     # the engine's words (campaign.engine.engine.Engine._measure) as a `trackcal mock` campaign raised them: two
     # attempts per measurement, the second one skips; only the searched position differs between the points
-    why = ("tracker 127.0.0.1:41455: not ready to measure: no reflector locked (beam broken or reflector not found) "
-           "while searching the reflector near ({}) mm (code 10004)")
+    why = (
+        "tracker 127.0.0.1:41455: not ready to measure: no reflector locked (beam broken or reflector not found) "
+        "while searching the reflector near ({}) mm (code 10004)"
+    )
     near = {"P1": "4361.280, -1007.061, -260.764", "P2": "4486.365, -1123.017, -339.846"}
-    warnings = [f"t = {2 + 10 * k} s: {p} not measurable from S1 at Q1: {why.format(near[p])}; {then}"
-                for k in range(3) for p in ("P1", "P2") for then in ("looking again", "skipped here")]
-    warnings += ["t = 90 s: P3 not measurable from S2 at Q4: beam broken; skipped here",
-                 "t = 88 s: the cell door opened: motion blocked until resumed",
-                 "t = 95 s: the cell door opened: motion blocked until resumed"]  # fmt: skip
+    warnings = [
+        f"t = {2 + 10 * k} s: {p} not measurable from S1 at Q1: {why.format(near[p])}; {then}"
+        for k in range(3)
+        for p in ("P1", "P2")
+        for then in ("looking again", "skipped here")
+    ]
+    warnings += [
+        "t = 90 s: P3 not measurable from S2 at Q4: beam broken; skipped here",
+        "t = 88 s: the cell door opened: motion blocked until resumed",
+        "t = 95 s: the cell door opened: motion blocked until resumed",
+    ]
     lines = summarise_warnings(warnings, measured=113)
-    assert lines[0].startswith("7 of 120 planned measurements skipped, 6 at station S1 (point P1 ×3, P2 ×3; pose "
-                               "Q1 ×6) because: tracker 127.0.0.1:41455: not ready to measure: no reflector locked")
-    assert "near where the model expects it (code 10004); 1 at station S2 (point P3; pose Q4) because: beam broken." \
+    assert lines[0].startswith(
+        "7 of 120 planned measurements skipped, 6 at station S1 (point P1 ×3, P2 ×3; pose "
+        "Q1 ×6) because: tracker 127.0.0.1:41455: not ready to measure: no reflector locked"
+    )
+    assert (
+        "near where the model expects it (code 10004); 1 at station S2 (point P3; pose Q4) because: beam broken."
         in lines[0]
+    )
     assert lines[1:] == ["the cell door opened: motion blocked until resumed (2 times)"]
 
 
@@ -205,8 +241,19 @@ def test_report_without_plan_or_verdict_and_with_extra_images(kr270, campaign, t
 def test_cli_report(campaign, tmp_path, capsys):
     d, *_ = campaign
     out = tmp_path / "cli"
-    argv = ["report", "--table", str(d / "table.csv"), "--model", str(d / "model.json"), "--plan", str(d / "plan.json"),
-            "--verdict", str(d / "verdict.json"), "--out", str(out)]  # fmt: skip
+    argv = [
+        "report",
+        "--table",
+        str(d / "table.csv"),
+        "--model",
+        str(d / "model.json"),
+        "--plan",
+        str(d / "plan.json"),
+        "--verdict",
+        str(d / "verdict.json"),
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 0
     assert "report written to" in capsys.readouterr().out
     text = (out / "report.html").read_text()
@@ -237,20 +284,32 @@ def test_cli_user_mistakes_end_in_one_line_and_exit_2(campaign, tmp_path, capsys
     assert not Path(tmp_path / "o" / "report.html").exists()
 
 
-@pytest.mark.parametrize(("change", "message"), [
-    ({"cause": False}, "cause: expected a name, got False"),  # found by test_cli_fuzz: it crashed the report
-    ({"cause": "bumped"}, "cause: expected one of"),
-    ({"cause": "backlash", "extended": {}}, "cause backlash without extended.rms_mm"),
-    ({"causes": [{"cause": "backlash", "gain_mm": "x"}]}, "causes[0].gain_mm: expected a number"),
-    ({"candidates": [{"cause": "backlash", "n_params": 2.5}]}, "candidates[0].n_params: expected an integer"),
-    ({"noise_note": ["a"]}, "noise_note: expected a name"),
-])
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"cause": False}, "cause: expected a name, got False"),  # found by test_cli_fuzz: it crashed the report
+        ({"cause": "bumped"}, "cause: expected one of"),
+        ({"cause": "backlash", "extended": {}}, "cause backlash without extended.rms_mm"),
+        ({"causes": [{"cause": "backlash", "gain_mm": "x"}]}, "causes[0].gain_mm: expected a number"),
+        ({"candidates": [{"cause": "backlash", "n_params": 2.5}]}, "candidates[0].n_params: expected an integer"),
+        ({"noise_note": ["a"]}, "noise_note: expected a name"),
+    ],
+)
 def test_a_verdict_the_report_cannot_quote_is_refused_in_one_line(campaign, tmp_path, capsys, change, message):
     d, *_, verdict = campaign
     bad = tmp_path / "verdict.json"
     bad.write_text(json.dumps({**verdict, **change}))
-    argv = ["report", "--table", str(d / "table.csv"), "--model", str(d / "model.json"), "--verdict", str(bad),
-            "--out", str(tmp_path / "o")]  # fmt: skip
+    argv = [
+        "report",
+        "--table",
+        str(d / "table.csv"),
+        "--model",
+        str(d / "model.json"),
+        "--verdict",
+        str(bad),
+        "--out",
+        str(tmp_path / "o"),
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
@@ -261,8 +320,16 @@ def test_report_embeds_the_diagnosis_plots(kr270, campaign, tmp_path):
     d, table, outcome, plan, _ = campaign
     diag = diagnose(kr270.chain, table, kr270.tool_points, choose_params(kr270, None), TrackerNoise(), folds=3)
     out = tmp_path / "rep"
-    text = render(out, kr270, table, outcome.doc, plan, verdict_doc(kr270, diag, sha256_of(table.source)), Provenance(),
-                        diagnosis=diag).read_text()  # fmt: skip
+    text = render(
+        out,
+        kr270,
+        table,
+        outcome.doc,
+        plan,
+        verdict_doc(kr270, diag, sha256_of(table.source)),
+        Provenance(),
+        diagnosis=diag,
+    ).read_text()
     for name in ("signature.png", "structure.png"):
         assert f'title="{name}"' in text and (out / "diagnosis" / name).is_file()
     assert f"Cause: <b>{diag.cause}</b>" in text
@@ -282,7 +349,7 @@ def test_files_of_different_campaigns_are_refused(kr270, campaign, tmp_path, cap
         ({"--verdict": str(d / "verdict.json"), "--table": str(tmp_path / "other.csv")}, "made from another table"),
         ({"--plan": str(other_plan)}, "is no pose of this plan"),
         ({"--verdict": str(tmp_path / "v-cell.json")}, "made for cell ur10-ipa, not for kr270"),
-    ]  # fmt: skip
+    ]
     for change, message in cases:
         argv = ["report", *[x for kv in (files | change).items() for x in kv]]
         assert main(argv) == 2, change
@@ -292,13 +359,23 @@ def test_files_of_different_campaigns_are_refused(kr270, campaign, tmp_path, cap
 
 
 # Debian's chromium (.ci/run installs it); the flags keep it off the network and out of any profile
-CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--virtual-time-budget=20000")  # fmt: skip
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--virtual-time-budget=20000",
+)
 # appended to a copy of the page: after the load event each image says whether it decoded (naturalWidth > 0)
-MARK_IMAGES = ("<script>window.addEventListener('load', () => { for (const i of document.images) "
-               "i.setAttribute('data-loaded', String(i.complete && i.naturalWidth > 0)); "
-               "document.body.setAttribute('data-checked', 'yes'); });</script>")  # fmt: skip
+MARK_IMAGES = (
+    "<script>window.addEventListener('load', () => { for (const i of document.images) "
+    "i.setAttribute('data-loaded', String(i.complete && i.naturalWidth > 0)); "
+    "document.body.setAttribute('data-checked', 'yes'); });</script>"
+)
 
 
 def rendered_dom(html_path: Path, tmp_path: Path) -> str:
@@ -311,8 +388,13 @@ def rendered_dom(html_path: Path, tmp_path: Path) -> str:
     page = html_path.read_text(encoding="utf-8")
     probe.write_text(page.replace("</body>", MARK_IMAGES + "</body>"), encoding="utf-8")
     profile = tmp_path / "chromium-profile"
-    done = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--dump-dom", probe.as_uri()],
-                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)  # fmt: skip
+    done = subprocess.run(
+        [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--dump-dom", probe.as_uri()],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     return done.stdout
 

@@ -149,8 +149,12 @@ def predicted(chain, doc: dict, cols: dict, table) -> np.ndarray:
 def stats(r: np.ndarray) -> dict[str, float]:
     """Paper Table 9: coordinate-based (every |x|, |y|, |z|) and distance-based (3-D norms), max and RMS, µm."""
     coord, dist = np.abs(r).ravel(), np.linalg.norm(r, axis=1)
-    return {"coordinate-based, max": coord.max(), "coordinate-based, RMS": np.sqrt(np.mean(coord**2)),
-            "distance-based, max": dist.max(), "distance-based, RMS": np.sqrt(np.mean(dist**2))}  # fmt: skip
+    return {
+        "coordinate-based, max": coord.max(),
+        "coordinate-based, RMS": np.sqrt(np.mean(coord**2)),
+        "distance-based, max": dist.max(),
+        "distance-based, RMS": np.sqrt(np.mean(dist**2)),
+    }
 
 
 def floor_from_repeats(cols: dict, q_deg: np.ndarray) -> float | None:
@@ -197,8 +201,9 @@ def run_campaign(kr270, directory: Path, effect: str, seed: int = 1, plan_doc: d
     effects = {} if effect == "none" else {effect: MAGNITUDE_MM}
     store, _ = new_session(directory, "kr270", doc, "sim", seed, effects=effects)
     world = World(Twin(kr270, seed=seed, effects=effects))
-    run_stored(store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock,
-                           InprocCellIO(world)))  # fmt: skip
+    run_stored(
+        store, Live(InprocTracker(world), InprocRobot(world), SimOperator(world), world.clock, InprocCellIO(world))
+    )
     analysis = analyse_session(store)
     store.close()
     return analysis
@@ -209,11 +214,26 @@ def screenshot(html: Path, out: Path) -> Path | None:
     chromium = shutil.which("chromium")
     if chromium is None:
         return None
-    done = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                           "--disable-component-update", "--disable-sync", "--no-first-run",
-                           f"--user-data-dir={out.parent / 'chromium-profile'}", f"--screenshot={out}",
-                           "--window-size=1280,5600", html.as_uri()],
-                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)  # fmt: skip
+    done = subprocess.run(
+        [
+            chromium,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            f"--user-data-dir={out.parent / 'chromium-profile'}",
+            f"--screenshot={out}",
+            "--window-size=1280,5600",
+            html.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert done.returncode == 0 and out.is_file(), done.stderr[-2000:]
     return out
 
@@ -243,8 +263,10 @@ def check_report(kr270, analysis, tmp_path: Path) -> None:
     assert facts["stations"] == ", ".join(dict.fromkeys(cols["station"]))
     with sqlite3.connect(d / "session.sqlite") as db:
         walls = [r[0] for r in db.execute("SELECT t_wall FROM events ORDER BY id")]
-        skipped = sum("skipped here" in json.loads(r[0])["message"]
-                      for r in db.execute("SELECT data FROM events WHERE kind = 'warning'"))  # fmt: skip
+        skipped = sum(
+            "skipped here" in json.loads(r[0])["message"]
+            for r in db.execute("SELECT data FROM events WHERE kind = 'warning'")
+        )
     assert facts["campaign started"] == datetime.fromtimestamp(walls[0], UTC).strftime("%Y-%m-%d %H:%M UTC")
     assert facts["campaign ended"] == datetime.fromtimestamp(walls[-1], UTC).strftime("%Y-%m-%d %H:%M UTC")
     minutes, seconds = divmod(round(walls[-1] - walls[0]), 60)
@@ -259,10 +281,17 @@ def check_report(kr270, analysis, tmp_path: Path) -> None:
     after = xyz - predicted(chain, model, cols, table)
     rows = {r[0]: r[1:] for r in page.table("Residuals before and after")[1:]}
     for label, value in stats(after).items():
-        before = 1000.0 * model["residuals"]["before"][{"coordinate-based, max": "coord_max_mm",
-                                                        "coordinate-based, RMS": "coord_rms_mm",
-                                                        "distance-based, max": "dist_max_mm",
-                                                        "distance-based, RMS": "dist_rms_mm"}[label]]  # fmt: skip
+        before = (
+            1000.0
+            * model["residuals"]["before"][
+                {
+                    "coordinate-based, max": "coord_max_mm",
+                    "coordinate-based, RMS": "coord_rms_mm",
+                    "distance-based, max": "dist_max_mm",
+                    "distance-based, RMS": "dist_rms_mm",
+                }[label]
+            ]
+        )
         b, a, factor = rows[label]
         assert close(a, 1000.0 * value), (label, a, 1000.0 * value)
         assert close(b, before), (label, b, before)
@@ -381,8 +410,10 @@ def test_the_backlash_campaign_of_the_issue(kr270, readme_plan, tmp_path, seed):
     truth = np.mean([twin.exact(q0, p, tcp["station"]) for p in sorted(kr270.tool_points)], axis=0)
     ext_off = float(np.linalg.norm(np.array(tcp["extended_tcp_mm"]) - truth))
     geo_off = float(np.linalg.norm(np.array(tcp["geometric_tcp_mm"]) - truth))
-    print(f"seed {seed}: TCP difference {tcp['tcp_difference_mm']:.4f} ± {tcp['sigma_mm']:.4f} mm; from the truth: "
-          f"extended {ext_off:.4f} mm, geometric {geo_off:.4f} mm")  # fmt: skip
+    print(
+        f"seed {seed}: TCP difference {tcp['tcp_difference_mm']:.4f} ± {tcp['sigma_mm']:.4f} mm; from the truth: "
+        f"extended {ext_off:.4f} mm, geometric {geo_off:.4f} mm"
+    )
     # the model that explains the cause is where the robot is, within its uncertainty (3 x the 1-sigma 3-D radius);
     # the difference says how far the geometric model is from there: a determined difference is the geometric
     # model's error at the test pose, to within the extended model's own error

@@ -11,8 +11,13 @@ from trackcal.campaign.report.html import section_plan
 
 def plan_table(kr270, tmp_path, known=()) -> dict[str, str]:
     design = design_for_cell(kr270, campaign_params(kr270.chain), known=known)
-    doc = {"rho0_mm": 0.004, "repeat": 1, "criterion": "rho0", "params": [p.name for p in design.params],
-           "unknowns": unknowns_doc(design)}  # as `trackcal plan` writes them (no poses: no plot)
+    doc = {
+        "rho0_mm": 0.004,
+        "repeat": 1,
+        "criterion": "rho0",
+        "params": [p.name for p in design.params],
+        "unknowns": unknowns_doc(design),
+    }  # as `trackcal plan` writes them (no poses: no plot)
     html = section_plan(doc, kr270, tmp_path)
     cells = [re.sub("<[^>]+>", "", c) for c in re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", html)]
     return dict(zip(cells[::2], cells[1::2], strict=True))

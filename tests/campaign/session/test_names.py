@@ -26,11 +26,15 @@ STATIONS = {"S1": ([3200, 1500, 900], 200), "S[/]2": ([2800, -1800, 900], 150)}
 def write_cell(d, nests=NESTS, stations=STATIONS):
     """The KR-270 cell of configs/cells/kr270.yaml with its points and stations named `nests` and `stations`."""
     d.mkdir(exist_ok=True)
-    (d / "tool.yaml").write_text(yaml.safe_dump({"name": "named", "points": {
-        k: {"xyz_mm": v, "normal": [1, 0, 0]} for k, v in nests.items()}}))  # fmt: skip
+    (d / "tool.yaml").write_text(
+        yaml.safe_dump({"name": "named", "points": {k: {"xyz_mm": v, "normal": [1, 0, 0]} for k, v in nests.items()}})
+    )
     cell = yaml.safe_load((ROOT / "configs" / "cells" / "kr270.yaml").read_text())
-    cell |= {"robot": str(ROOT / "configs" / "robots" / "kr270.yaml"), "tool": "tool.yaml",
-             "stations": {k: {"position_mm": p, "yaw_deg": y} for k, (p, y) in stations.items()}}  # fmt: skip
+    cell |= {
+        "robot": str(ROOT / "configs" / "robots" / "kr270.yaml"),
+        "tool": "tool.yaml",
+        "stations": {k: {"position_mm": p, "yaw_deg": y} for k, (p, y) in stations.items()},
+    }
     (d / "cell.yaml").write_text(yaml.safe_dump(cell))
     return d / "cell.yaml"
 
@@ -48,9 +52,25 @@ def test_markup_names_run_are_killed_and_resume(tmp_path):
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps(feasible_plan(load_cell(str(cell)), 2, seed=2, repeat=1)))
     d = tmp_path / "m[red]x"
-    proc = subprocess.Popen([*TRACKCAL, "run", "--cell", str(cell), "--plan", str(plan), "--sim", "--seed", "4",
-                             "--session", str(d), "--no-analysis"], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "run",
+            "--cell",
+            str(cell),
+            "--plan",
+            str(plan),
+            "--sim",
+            "--seed",
+            "4",
+            "--session",
+            str(d),
+            "--no-analysis",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while count_measurements(d / "session.sqlite") < 1 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.002)
@@ -81,11 +101,14 @@ def test_plc_operator_line_is_data():
 
 
 # what the display shows: configs/hardware/cell-plc-registers.md, "HMI request": 16 characters, ASCII ('?' else)
-@pytest.mark.parametrize(("what", "a", "b", "shown"), [
-    ("points", "Reflector-nest-left-1", "Reflector-nest-left-2", "Reflector-nest-l"),
-    ("points", "Pé", "Pè", "P?"),
-    ("stations", "Station-behind-fence-A", "Station-behind-fence-B", "Station-behind-f"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("what", "a", "b", "shown"),
+    [
+        ("points", "Reflector-nest-left-1", "Reflector-nest-left-2", "Reflector-nest-l"),
+        ("points", "Pé", "Pè", "P?"),
+        ("stations", "Station-behind-fence-A", "Station-behind-fence-B", "Station-behind-f"),
+    ],
+)
 def test_names_shown_alike_are_refused(tmp_path, what, a, b, shown):
     nests, stations = dict(NESTS), dict(STATIONS)
     if what == "points":

@@ -77,8 +77,10 @@ def test_a_second_opener_in_the_same_process_is_refused(reference, tmp_path):
     SessionStore.open(d).close()
 
 
-HOLD = ("import sys, time; from trackcal.campaign.session.store import SessionStore; SessionStore.open(sys.argv[1]); "
-        "print(flush=True); time.sleep(600)")
+HOLD = (
+    "import sys, time; from trackcal.campaign.session.store import SessionStore; SessionStore.open(sys.argv[1]); "
+    "print(flush=True); time.sleep(600)"
+)
 
 
 def test_a_second_process_is_refused_naming_the_first_and_kill_9_leaves_no_stale_lock(plan, reference, tmp_path):
@@ -90,8 +92,10 @@ def test_a_second_process_is_refused_naming_the_first_and_kill_9_leaves_no_stale
     holder = subprocess.Popen([sys.executable, "-c", HOLD, str(d)], stdout=subprocess.PIPE, text=True)
     try:
         holder.stdout.readline()  # the lock is taken
-        for argv in (["resume", d, "--no-analysis"], ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json",
-                                                      "--sim", "--session", d]):  # fmt: skip
+        for argv in (
+            ["resume", d, "--no-analysis"],
+            ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session", d],
+        ):
             out = subprocess.run([*TRACKCAL, *map(str, argv)], capture_output=True, text=True, timeout=120)
             assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr, out.stderr
             assert int(re.search(HOLDER, out.stderr).group(1)) == holder.pid
@@ -170,8 +174,9 @@ def test_check_names_the_first_bad_event_and_export_and_resume_refuse(reference,
     with sqlite3.connect(d / "session.sqlite") as db:
         head = db.execute("SELECT hash FROM events ORDER BY id DESC LIMIT 1").fetchone()[0]
         n_events = db.execute("SELECT count(*) FROM events").fetchone()[0]
-        victim, step, data = db.execute("SELECT id, step, data FROM events WHERE kind='measurement' ORDER BY id "
-                                        "LIMIT 1 OFFSET 2").fetchone()  # fmt: skip
+        victim, step, data = db.execute(
+            "SELECT id, step, data FROM events WHERE kind='measurement' ORDER BY id LIMIT 1 OFFSET 2"
+        ).fetchone()
     assert f"{n_events} events" in out and head in out
     doc = json.loads(data)
     doc["xyz_mm"][0] += 800.0  # the issue's 3136.75 -> 3936.75 mm
@@ -243,8 +248,10 @@ def test_a_session_of_the_previous_schema_is_refused_clearly(tmp_path, capsys):
     d.mkdir()
     with sqlite3.connect(d / "session.sqlite") as db:  # schema 1: no documents, no hash column
         db.execute("CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)")
-        db.execute("CREATE TABLE events(id INTEGER PRIMARY KEY, t_wall REAL, t_campaign REAL, step INTEGER, "
-                   "kind TEXT, data TEXT)")  # fmt: skip
+        db.execute(
+            "CREATE TABLE events(id INTEGER PRIMARY KEY, t_wall REAL, t_campaign REAL, step INTEGER, "
+            "kind TEXT, data TEXT)"
+        )
         db.execute("INSERT INTO meta VALUES ('schema', '1')")
     for argv in (["resume", d], ["export", d, "--csv", tmp_path / "t.csv"], ["check", d]):
         assert "session schema 1, this trackcal reads schema 2" in one_line_error(capsys, argv)
@@ -285,8 +292,12 @@ def small_disk(reference, tmp_path):
     mnt = tmp_path / "disk"
     mnt.mkdir()
     size = (reference[0] / "session.sqlite").stat().st_size // 2
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
-                                           capture_output=True).returncode:  # fmt: skip
+    if (
+        os.geteuid() != 0
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True
+        ).returncode
+    ):
         pytest.skip("mounting a small tmpfs needs root")
     yield mnt
     subprocess.run(["umount", "-l", str(mnt)], check=True)
@@ -304,8 +315,9 @@ def test_a_full_disk_stops_the_campaign_and_loses_nothing(kr270, plan, reference
     run_stored(elsewhere, inproc_live(kr270, store=elsewhere)[1])
     same_table(export_table(elsewhere), reference[1])
     (tmp_path / "plan.json").write_text(json.dumps(plan))  # and the command line says it in one line
-    one_line_error(capsys, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session",
-                            small_disk / "t"])  # fmt: skip
+    one_line_error(
+        capsys, ["run", "--cell", "kr270", "--plan", tmp_path / "plan.json", "--sim", "--session", small_disk / "t"]
+    )
 
 
 def test_the_console_at_end_of_input_stops_the_campaign_safely(kr270, plan, tmp_path, monkeypatch):
@@ -336,8 +348,11 @@ def test_a_lock_file_replaced_by_a_link_is_refused_and_its_target_untouched(refe
 def test_a_linked_session_folder_or_database_is_refused(reference, tmp_path, capsys):
     d = copy_of(reference[0], tmp_path)
     (tmp_path / "link").symlink_to(d, target_is_directory=True)
-    for command in (["check", tmp_path / "link"], ["export", tmp_path / "link", "--csv", tmp_path / "t.csv"],
-                    ["resume", tmp_path / "link"]):  # fmt: skip
+    for command in (
+        ["check", tmp_path / "link"],
+        ["export", tmp_path / "link", "--csv", tmp_path / "t.csv"],
+        ["resume", tmp_path / "link"],
+    ):
         assert "link: a symbolic link" in one_line_error(capsys, command)
     (tmp_path / "db").mkdir()
     (tmp_path / "db" / "session.sqlite").symlink_to(d / "session.sqlite")
@@ -357,12 +372,17 @@ def test_session_paths_with_uri_characters_are_read_where_they_are(reference, tm
     assert "already complete" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("ddl, named", [
-    ("CREATE TRIGGER t AFTER INSERT ON events BEGIN UPDATE events SET data = '{}' WHERE id = NEW.id; END",
-     "trigger t"),
-    ("CREATE VIEW v AS SELECT * FROM events", "view v"),
-    ("CREATE INDEX i ON events(kind)", "index i"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "ddl, named",
+    [
+        (
+            "CREATE TRIGGER t AFTER INSERT ON events BEGIN UPDATE events SET data = '{}' WHERE id = NEW.id; END",
+            "trigger t",
+        ),
+        ("CREATE VIEW v AS SELECT * FROM events", "view v"),
+        ("CREATE INDEX i ON events(kind)", "index i"),
+    ],
+)
 def test_a_schema_object_added_to_the_database_is_named(reference, tmp_path, capsys, ddl, named):
     # issue 27: a trigger or view added to session.sqlite was not noticed by `check`
     d = copy_of(reference[0], tmp_path)
@@ -372,15 +392,17 @@ def test_a_schema_object_added_to_the_database_is_named(reference, tmp_path, cap
     assert "its schema is not trackcal's" in err and named in err
 
 
-KILLED_REPLAY = ("import os, signal, sys; from pathlib import Path; import trackcal.campaign.jobs.campaign as job; "
-                 "from trackcal.campaign.session.store import SessionStore\n"
-                 "seen = []\n"
-                 "def kill_at_the_fifth_measurement(doc):  # after the session log: five measurements committed\n"
-                 "    seen.extend([1] if doc.name == 'measurement' else [])\n"
-                 "    if len(seen) == 5:\n"
-                 "        os.kill(os.getpid(), signal.SIGKILL)  # kill -9\n"
-                 "job.replay(SessionStore.open(sys.argv[1], readonly=True), Path(sys.argv[2]), "
-                 "subscribers=[kill_at_the_fifth_measurement])\n")  # fmt: skip
+KILLED_REPLAY = (
+    "import os, signal, sys; from pathlib import Path; import trackcal.campaign.jobs.campaign as job; "
+    "from trackcal.campaign.session.store import SessionStore\n"
+    "seen = []\n"
+    "def kill_at_the_fifth_measurement(doc):  # after the session log: five measurements committed\n"
+    "    seen.extend([1] if doc.name == 'measurement' else [])\n"
+    "    if len(seen) == 5:\n"
+    "        os.kill(os.getpid(), signal.SIGKILL)  # kill -9\n"
+    "job.replay(SessionStore.open(sys.argv[1], readonly=True), Path(sys.argv[2]), "
+    "subscribers=[kill_at_the_fifth_measurement])\n"
+)
 
 
 def test_a_killed_replay_leaves_no_session_and_the_next_replay_makes_it(reference, tmp_path, capsys):
@@ -411,8 +433,10 @@ def test_a_session_whose_tail_was_deleted_checks_sound_but_incomplete(reference,
         db.execute("DELETE FROM events WHERE id >= ?", third_last)
     assert main(["check", str(d)]) == 0  # the prefix of a chain is a chain: the truth is in the counts
     out = " ".join(capsys.readouterr().out.split())
-    assert (f"campaign incomplete (it has not reached its end): {planned - 3} of {planned} planned measurements "
-            f"stored, 0 skipped, 3 not measured yet") in out  # fmt: skip
+    assert (
+        f"campaign incomplete (it has not reached its end): {planned - 3} of {planned} planned measurements "
+        f"stored, 0 skipped, 3 not measured yet"
+    ) in out
     assert main(["export", str(d), "--csv", str(tmp_path / "t.csv")]) == 0
     first = " ".join(capsys.readouterr().out.split())
     assert first.startswith(f"note: {d}: campaign incomplete")  # export says so in its first line

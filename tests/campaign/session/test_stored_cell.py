@@ -51,8 +51,9 @@ def test_a_stored_urdf_robot_is_read_from_its_text(kr270, tmp_path, no_temporary
     cell_doc.update(robot="robot.urdf", tool="tool.yaml", name="kr270")
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell_doc))
     on_disk = load_cell(str(tmp_path / "cell.yaml"))
-    store, _ = new_session(tmp_path / "s", str(tmp_path / "cell.yaml"), feasible_plan(kr270, 3, seed=5, repeat=1),
-                           "sim", 3)  # fmt: skip
+    store, _ = new_session(
+        tmp_path / "s", str(tmp_path / "cell.yaml"), feasible_plan(kr270, 3, seed=5, repeat=1), "sim", 3
+    )
     for name in ("cell.yaml", "robot.urdf", "tool.yaml"):
         (tmp_path / name).unlink()
         (tmp_path / "s" / "config" / name).unlink()

@@ -25,8 +25,14 @@ playwright_api = pytest.importorskip("playwright.sync_api")
 
 CHROMIUM = "/usr/bin/chromium"
 # off the network and out of any profile, as tests/test_report.py runs it
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-        "--disable-sync", "--no-first-run"]  # fmt: skip
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 TABLET, PHONE = {"width": 1024, "height": 768}, {"width": 390, "height": 844}
 
 
@@ -53,12 +59,26 @@ def plan(kr270, tmp_path_factory):
 
 
 def start_run(plan, session, port, *extra, operator="web"):
-    cmd = [*TRACKCAL, "run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "2", "--session", str(session),
-           "--no-analysis", *extra]  # fmt: skip
+    cmd = [
+        *TRACKCAL,
+        "run",
+        "--cell",
+        "kr270",
+        "--plan",
+        str(plan),
+        "--sim",
+        "--seed",
+        "2",
+        "--session",
+        str(session),
+        "--no-analysis",
+        *extra,
+    ]
     if operator == "web":
         cmd += ["--operator", "web", "--web-port", str(port)]
-    return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            cwd=ROOT)  # fmt: skip
+    return subprocess.Popen(
+        cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT
+    )
 
 
 def open_page(context, url, timeout_s=60.0):
@@ -113,9 +133,14 @@ def shoot(pages, folder, moment):
 
 def residual_bars(page) -> list[tuple[str, int, list[float]]]:
     """(station, step, residual mm) of every bar of the residual plot."""
-    return [(b.get_attribute("data-station"), int(b.get_attribute("data-step")),
-             [float(x) for x in b.get_attribute("data-d").split(",")])
-            for b in page.locator("#fits rect").all()]  # fmt: skip
+    return [
+        (
+            b.get_attribute("data-station"),
+            int(b.get_attribute("data-step")),
+            [float(x) for x in b.get_attribute("data-d").split(",")],
+        )
+        for b in page.locator("#fits rect").all()
+    ]
 
 
 def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, kr270, tmp_path):
@@ -172,8 +197,10 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, kr270, tmp
             if p.poll() is None:
                 p.kill()
     assert reference.wait(timeout=120) == 0
-    web, console = SessionStore.open(tmp_path / "web", readonly=True), SessionStore.open(tmp_path / "console",
-                                                                                          readonly=True)  # fmt: skip
+    web, console = (
+        SessionStore.open(tmp_path / "web", readonly=True),
+        SessionStore.open(tmp_path / "console", readonly=True),
+    )
     answers = [e.data["answer"] for e in web.events("operator")]
     assert len(answers) == 16 and all(a.startswith("page ") and a.endswith("from 127.0.0.1") for a in answers)
     a, b = export_table(web), export_table(console)
@@ -188,8 +215,10 @@ def test_a_whole_campaign_answered_from_the_page_alone(browser, plan, kr270, tmp
         assert sorted(drawn) == sorted(steps[i] for i in rows)
         np.testing.assert_allclose([drawn[steps[i]] for i in rows], expected, atol=2e-4)  # rounded to 0.1 um
         norms = np.linalg.norm(expected, axis=1)
-        assert shown[k] == (f"{sid}: rms {np.sqrt(np.mean(norms**2)):.3f} mm, max {norms.max():.3f} mm "
-                            f"({len(rows)} of {len(rows)} measured)")  # fmt: skip
+        assert shown[k] == (
+            f"{sid}: rms {np.sqrt(np.mean(norms**2)):.3f} mm, max {norms.max():.3f} mm "
+            f"({len(rows)} of {len(rows)} measured)"
+        )
 
 
 def test_the_door_opened_while_the_page_shows_a_prompt(browser, kr270, tmp_path):
@@ -229,7 +258,7 @@ def test_the_door_opened_while_the_page_shows_a_prompt(browser, kr270, tmp_path)
         assert text(page, "#sentence").startswith("Leave the cell")
         kinds = [(e.kind, e.data.get("device"), e.data.get("op")) for e in web.hub.events]
         answered = [i for i, k in enumerate(kinds) if k[0] == "operator"]
-        assert ("call", "robot", "move") not in kinds[answered[0]:], "the robot moved after the page's answer"
+        assert ("call", "robot", "move") not in kinds[answered[0] :], "the robot moved after the page's answer"
         while run.is_alive():  # the rest of the campaign, answered from the page
             click_next(page, 300)
         wait_until(page, "#status", lambda t: "complete" in t)
@@ -250,9 +279,26 @@ def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, 
     finally:
         store.close()
     port, into = free_port(), tmp_path / "replay"
-    proc = subprocess.Popen([*TRACKCAL, "replay", str(recording), "--into", str(into), "--operator", "web",
-                             "--web-port", str(port), "--web-linger", "120"], stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            *TRACKCAL,
+            "replay",
+            str(recording),
+            "--into",
+            str(into),
+            "--operator",
+            "web",
+            "--web-port",
+            str(port),
+            "--web-linger",
+            "120",
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=ROOT,
+    )
     context = browser.new_context(viewport=PHONE)
     try:
         page = open_page(context, f"http://127.0.0.1:{port}/")
@@ -278,8 +324,11 @@ def test_a_replay_served_on_the_page_shows_the_recorded_campaign(browser, plan, 
     assert [e.data for e in rep.events("operator")] == [e.data for e in rec.events("operator")]
     fits = [e.data for e in rec.events("station_fit")]
     assert [e.data for e in rep.events("station_fit")] == fits and len(fits) == 2
-    assert shown == [f"{f['station']}: rms {f['rms_mm']:.3f} mm, max {f['max_mm']:.3f} mm ({f['measured']} of "
-                     f"{f['planned']} measured)" for f in fits]  # fmt: skip
+    assert shown == [
+        f"{f['station']}: rms {f['rms_mm']:.3f} mm, max {f['max_mm']:.3f} mm ({f['measured']} of "
+        f"{f['planned']} measured)"
+        for f in fits
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -307,9 +356,14 @@ def test_kill_9_leaves_a_page_that_says_so_and_resume_brings_it_back(browser, id
         wait_until(page, "#status", lambda t: t == "campaign stopped: trackcal is not running", timeout_s=15)
         assert "not running" in text(page, "#sentence") and page.locator("#answer").is_disabled()
         page.screenshot(path=str(tmp_path / "killed-phone.png"), full_page=True)
-        resumed = subprocess.Popen([*TRACKCAL, "resume", str(session), "--operator", "web", "--web-port", str(port),
-                                    "--web-linger", "120"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                   stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
+        resumed = subprocess.Popen(
+            [*TRACKCAL, "resume", str(session), "--operator", "web", "--web-port", str(port), "--web-linger", "120"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=ROOT,
+        )
         wait_until(page, "#status", lambda t: t == "running", timeout_s=60)  # the page reconnects by itself
         assert text(page, "#control") == "you have control"
         while "complete" not in text(page, "#status"):

@@ -61,7 +61,7 @@ def test_off_loopback_every_request_without_the_token_is_refused(served):
     assert status == 403
     # the token's URL opens the page and leaves an HttpOnly, SameSite=Strict cookie that carries it from then on
     status, headers, body = fetch(page, "GET", f"/?token={page.token}")
-    assert status == 200 and "<script src=\"/static/page.js\"" in body
+    assert status == 200 and '<script src="/static/page.js"' in body
     cookie = headers["set-cookie"]
     assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
     status, _, _ = fetch(page, "GET", "/static/page.js", {"Cookie": cookie.split(";")[0]})
@@ -103,8 +103,12 @@ def test_an_answer_from_another_origin_or_without_the_csrf_token_is_refused(serv
     assert hub.live["open"] == 1
     body = json.dumps({"client": client, "prompt": 1})
     own = f"http://127.0.0.1:{page.port}"
-    good = {"Origin": own, "Content-Type": "application/json", "X-Trackcal-CSRF": hub.csrf,
-            "Sec-Fetch-Site": "same-origin"}
+    good = {
+        "Origin": own,
+        "Content-Type": "application/json",
+        "X-Trackcal-CSRF": hub.csrf,
+        "Sec-Fetch-Site": "same-origin",
+    }
     refused = [
         {**good, "Origin": "http://evil.example"},  # a cross-origin fetch
         {**good, "Sec-Fetch-Site": "cross-site"},
@@ -137,8 +141,20 @@ def test_a_port_in_use_is_one_line():
 def test_the_page_options_belong_to_operator_web(tmp_path, capsys):
     plan = tmp_path / "plan.json"
     plan.write_text("{}")
-    code = main(["run", "--cell", "kr270", "--plan", str(plan), "--sim", "--session", str(tmp_path / "s"),
-                 "--web-host", "0.0.0.0"])  # fmt: skip
+    code = main(
+        [
+            "run",
+            "--cell",
+            "kr270",
+            "--plan",
+            str(plan),
+            "--sim",
+            "--session",
+            str(tmp_path / "s"),
+            "--web-host",
+            "0.0.0.0",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.strip() == "error: --web-host, --web-port and --web-linger are for --operator web"
     assert not (tmp_path / "s").exists()
@@ -159,8 +175,10 @@ def raw_request(page, head: str, body: bytes = b"", timeout_s: float = 10.0):
 
 
 def stream_head(page, csrf: str, client: str = "abcdefgh1234") -> str:
-    return (f"GET /events?client={client}&csrf={csrf} HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\n"
-            "Sec-Fetch-Site: same-origin\r\n\r\n")  # fmt: skip
+    return (
+        f"GET /events?client={client}&csrf={csrf} HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\n"
+        "Sec-Fetch-Site: same-origin\r\n\r\n"
+    )
 
 
 @pytest.mark.parametrize("served", ["127.0.0.1"], indirect=True)
@@ -197,14 +215,17 @@ def test_a_large_body_is_refused_unread(served):
     """A 300 MB answer (issue 42: it took the process to 638 MB): 413 on its stated length alone, before one byte of
     it is sent; a chunked body is read up to the cap only."""
     page, hub = served
-    head = (f"POST /answer HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\nOrigin: http://127.0.0.1:{page.port}\r\n"
-            f"Content-Type: application/json\r\nX-Trackcal-CSRF: {hub.csrf}\r\n")  # fmt: skip
+    head = (
+        f"POST /answer HTTP/1.1\r\nHost: 127.0.0.1:{page.port}\r\nOrigin: http://127.0.0.1:{page.port}\r\n"
+        f"Content-Type: application/json\r\nX-Trackcal-CSRF: {hub.csrf}\r\n"
+    )
     s, status = raw_request(page, head + f"Content-Length: {300 * 2**20}\r\n\r\n", timeout_s=5.0)
     with s:
         assert status.startswith("HTTP/1.1 413"), status
     chunk = b"%x\r\n%s\r\n" % (4096, b" " * 4096)
-    s, status = raw_request(page, head + "Transfer-Encoding: chunked\r\n\r\n", chunk * (MAX_BODY_BYTES // 4096 + 1),
-                            timeout_s=5.0)  # fmt: skip
+    s, status = raw_request(
+        page, head + "Transfer-Encoding: chunked\r\n\r\n", chunk * (MAX_BODY_BYTES // 4096 + 1), timeout_s=5.0
+    )
     with s:
         assert status.startswith("HTTP/1.1 413"), status
     assert MAX_BODY_BYTES <= 64 * 1024  # a small stated size: an answer is ~60 bytes of JSON

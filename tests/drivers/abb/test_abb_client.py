@@ -39,8 +39,9 @@ def test_connect_reads_the_identity_and_a_move_ends_standing_at_its_target(robot
     assert ident is not None and ident.serial and ident.robotware.startswith("6.")
     # the interface's form (drivers.interfaces.DeviceIdentity): ctrl/identity's ctrl-id, rw/system's name and
     # rwversion (Robot Web Services manual, "Get Controller Identity", "Get RobotWare System Information")
-    assert robot.identity() == DeviceIdentity(ident.serial, f"IRC5 system {ident.system}",
-                                              f"RobotWare {ident.robotware}", READ_FROM_DEVICE)  # fmt: skip
+    assert robot.identity() == DeviceIdentity(
+        ident.serial, f"IRC5 system {ident.system}", f"RobotWare {ident.robotware}", READ_FROM_DEVICE
+    )
     target = (12.3456, -10.0, 20.0, 5.0, 45.0, -30.0)
     robot.move(target, 100)
     assert robot.joints() == target

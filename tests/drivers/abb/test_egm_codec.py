@@ -17,7 +17,7 @@ def test_the_header_is_the_encoding_guides_varint_example():
     # protobuf "Encoding" guide: field 1 = 150 is 08 96 01; then tm = 0 (10 00) and mtype MSGTYPE_DATA = 2 (18 02),
     # the whole header a length-delimited field 1 of EgmRobot (0a 07)
     data = encode(EgmRobot(150, 0, (0.0,) * 6, (0.0,) * 6, True, True))
-    assert data[:9] == bytes.fromhex("0a07089601100018" "02")
+    assert data[:9] == bytes.fromhex("0a0708960110001802")
     # then feedBack (field 2) holding joints (field 1) holding six unpacked doubles (key 09, eight bytes each)
     assert data[9] == 0x12 and data[11] == 0x0A and data[13:14] == b"\x09"
 
@@ -32,8 +32,14 @@ def test_packed_joints_are_read_too():
 finite = st.floats(allow_nan=False, allow_infinity=False)
 
 
-@given(st.integers(0, 2**32 - 1), st.integers(0, 2**32 - 1), st.lists(finite, min_size=6, max_size=6),
-       st.lists(finite, min_size=6, max_size=6), st.booleans(), st.booleans())
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(0, 2**32 - 1),
+    st.lists(finite, min_size=6, max_size=6),
+    st.lists(finite, min_size=6, max_size=6),
+    st.booleans(),
+    st.booleans(),
+)
 def test_round_trip(seqno, tm, joints, planned, motors, rapid):
     msg = EgmRobot(seqno, tm, tuple(joints), tuple(planned), motors, rapid)
     assert decode(encode(msg)) == msg

@@ -14,8 +14,10 @@ def test_a_module_of_absolute_joint_moves():
     text = files["calib_moves.mod"].decode("ascii")
     lines = text.split("\r\n")
     assert lines[0] == "MODULE calib_moves" and lines[-2] == "ENDMODULE" and lines[-1] == ""
-    assert "  CONST jointtarget JP1 := [[1.0000,2.0000,3.0000,4.0000,5.0000,6.0000],[9E+09,9E+09,9E+09,9E+09,9E+09," \
-           "9E+09]];" in lines  # fmt: skip
+    assert (
+        "  CONST jointtarget JP1 := [[1.0000,2.0000,3.0000,4.0000,5.0000,6.0000],[9E+09,9E+09,9E+09,9E+09,9E+09,"
+        "9E+09]];" in lines
+    )
     assert lines.index("    VelSet 20, 5000;") < lines.index("    MoveAbsJ JP1, v5000, fine, tool0;")
     note = lines.index("    ! JP2: NOT COMPENSATED, its nominal target: out of range")
     assert lines[note + 1] == "    MoveAbsJ JP2, v5000, fine, tool0;"
@@ -35,8 +37,9 @@ def test_a_name_rapid_refuses_is_refused(name):
         check_name(name)
 
 
-@pytest.mark.parametrize(("q", "speed", "labels"), [([[0] * 5], 10, None), ([[0] * 6], 0, None),
-                                                     ([[0] * 6] * 2, 10, ["A", "a"])])  # fmt: skip
+@pytest.mark.parametrize(
+    ("q", "speed", "labels"), [([[0] * 5], 10, None), ([[0] * 6], 0, None), ([[0] * 6] * 2, 10, ["A", "a"])]
+)
 def test_bad_rows_speeds_and_duplicate_names_are_refused(q, speed, labels):
     with pytest.raises(RapidError):
         texts("p", q, speed, labels)

@@ -50,8 +50,9 @@ def test_calibration_position_of_the_irb120_in_tool0_and_wobj0():
     # 70 = 630 mm (product specification 3HAC035960-001), and ABB's tool0 there has z forward (base +x) and x down:
     # 90 deg about y, the quaternion [cos 45, 0, sin 45, 0]
     q = [0.70710678, 0, 0.70710678, 0]
-    files = module("MoveL pCal, v100, fine, tool0;",
-                   f"CONST robtarget pCal:=[[374,0,630],[{q[0]},0,{q[2]},0],[0,0,0,0],{EXTAX}];")  # fmt: skip
+    files = module(
+        "MoveL pCal, v100, fine, tool0;", f"CONST robtarget pCal:=[[374,0,630],[{q[0]},0,{q[2]},0],[0,0,0,0],{EXTAX}];"
+    )
     t = read_rapid(files).targets[0]
     assert (t.name, t.joint, t.line, t.config, t.motion) == ("pCal", False, 2, (0, 0, 0, 0), "MoveL")
     np.testing.assert_allclose(t.value, transform([374, 0, 630], q), atol=1e-9)
@@ -68,12 +69,18 @@ def test_tool_and_work_object_frames_from_another_module():
     # along its x: the object frame's origin is (100 + 10 cos 45, 200 + 10 sin 45, 300); the tool 30 deg about y
     c, s = np.cos(np.pi / 8), np.sin(np.pi / 8)  # the half angles of 45 deg
     c30, s30 = np.cos(np.pi / 12), np.sin(np.pi / 12)
-    user = ("MODULE User(SYSMODULE)\n"
-            f"PERS tooldata tPen:=[TRUE,[[12.5,0,95],[{c30},0,{s30},0]],[0.3,[5,0,45],[1,0,0,0],0,0,0]];\n"
-            f"TASK PERS wobjdata wTable:=[FALSE,TRUE,\"\",[[100,200,300],[{c},0,0,{s}]],[[10,0,0],[1,0,0,0]]];\n"
-            "ENDMODULE\n")  # fmt: skip
-    files = {"User.sys": user, **module("MoveJ p1, v100, z10, tPen \\WObj:=wTable;",
-                                       f"CONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],{EXTAX}];")}  # fmt: skip
+    user = (
+        "MODULE User(SYSMODULE)\n"
+        f"PERS tooldata tPen:=[TRUE,[[12.5,0,95],[{c30},0,{s30},0]],[0.3,[5,0,45],[1,0,0,0],0,0,0]];\n"
+        f'TASK PERS wobjdata wTable:=[FALSE,TRUE,"",[[100,200,300],[{c},0,0,{s}]],[[10,0,0],[1,0,0,0]]];\n'
+        "ENDMODULE\n"
+    )
+    files = {
+        "User.sys": user,
+        **module(
+            "MoveJ p1, v100, z10, tPen \\WObj:=wTable;", f"CONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],{EXTAX}];"
+        ),
+    }
     t = read_rapid(files).targets[0]
     np.testing.assert_allclose(t.base[:3, 3], [100 + 10 * np.sqrt(0.5), 200 + 10 * np.sqrt(0.5), 300], atol=1e-6)
     np.testing.assert_allclose(t.base, transform([100, 200, 300], [c, 0, 0, s]) @ transform([10, 0, 0], [1, 0, 0, 0]))
@@ -83,9 +90,14 @@ def test_tool_and_work_object_frames_from_another_module():
 
 
 # the joints the sample program's targets were taught from (configs/programs/abb/CellDemo.mod was written from them)
-SAMPLE_JOINTS = {"pApproach": [-20, 20, 10, 15, 50, -30], "pPick": [-20, 28, 12, 15, 42, -30],
-                 "pCirc": [-5, 25, 15, 10, 45, 20], "pEnd": [10, 20, 20, 0, 50, 40],
-                 "pPlace": [35, 22, 8, -20, 55, 100], "line 52": [25, 15, 25, 120, -40, 95]}  # fmt: skip
+SAMPLE_JOINTS = {
+    "pApproach": [-20, 20, 10, 15, 50, -30],
+    "pPick": [-20, 28, 12, 15, 42, -30],
+    "pCirc": [-5, 25, 15, 10, 45, 20],
+    "pEnd": [10, 20, 20, 0, 50, 40],
+    "pPlace": [35, 22, 8, -20, 55, 100],
+    "line 52": [25, 15, 25, 120, -40, 95],
+}
 
 
 @pytest.mark.parametrize("robot", ["irb120", "irb120-dh"])
@@ -107,9 +119,15 @@ def test_sample_targets_are_the_irb120_poses_they_were_taught_at(robot):
 def test_sample_program_moves_and_motions():
     program = read_rapid({"CellDemo.mod": SAMPLE.read_text()})
     got = [(t.name, t.joint, t.motion) for t in program.targets]
-    assert got == [("jHome", True, "MoveAbsJ"), ("pApproach", False, "MoveJ"), ("pPick", False, "MoveL, MoveL Offs"),
-                   ("pCirc", False, "MoveC"), ("pEnd", False, "MoveC"),
-                   ("pPlace", False, "MoveJ RelTool, MoveL, MoveJ"), ("line 52", False, "MoveL")]  # fmt: skip
+    assert got == [
+        ("jHome", True, "MoveAbsJ"),
+        ("pApproach", False, "MoveJ"),
+        ("pPick", False, "MoveL, MoveL Offs"),
+        ("pCirc", False, "MoveC"),
+        ("pEnd", False, "MoveC"),
+        ("pPlace", False, "MoveJ RelTool, MoveL, MoveJ"),
+        ("line 52", False, "MoveL"),
+    ]
     np.testing.assert_allclose(program.targets[0].value, [0, 0, 0, 0, 30, 0])
     assert program.language == "RAPID" and program.comment == "!"
 
@@ -117,19 +135,30 @@ def test_sample_program_moves_and_motions():
 # ---- the robot configuration ------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("q, ok, why", [
-    ([-30, 10, 10, 45, -20, 100], True, "axis 1 in [-90, 0): -1; axis 4 in [0, 90): 0; axis 6 in [90, 180): 1; 5 < 0"),
-    ([30, 10, 10, 45, -20, 100], False, "axis 1 in [0, 90) is quadrant 0, not -1"),
-    ([-90, 10, 10, 45, -20, 100], True, "-90 deg opens quadrant -1 ([-90, 0))"),
-    ([-90.001, 10, 10, 45, -20, 100], False, "just below -90 deg is quadrant -2"),
-    ([-30, 10, 10, 90.001, -20, 100], False, "axis 4 past 90 deg is quadrant 1"),
-    ([-30, 10, 10, 90, -20, 100], True, "axis 4 at 90 deg: a boundary, within rounding of quadrant 0's end (an IK "
-                                        "returns a target written at 0 or 90 deg as +-1e-13 deg off)"),
-    ([-30, 10, 10, 45, -20, 89.9], False, "axis 6 below 90 deg is quadrant 0"),
-    ([-30, 10, 10, 45, -20, 460], False, "axis 6 one turn further (460 deg) is quadrant 5, not 1"),
-    ([-30, 10, 10, 45, 20, 100], False, "cfx odd: axis 5 must be negative"),
-    ([-30, 10, 10, 45, 0, 100], True, "axis 5 at 0 (the wrist singularity) is either sign"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "q, ok, why",
+    [
+        (
+            [-30, 10, 10, 45, -20, 100],
+            True,
+            "axis 1 in [-90, 0): -1; axis 4 in [0, 90): 0; axis 6 in [90, 180): 1; 5 < 0",
+        ),
+        ([30, 10, 10, 45, -20, 100], False, "axis 1 in [0, 90) is quadrant 0, not -1"),
+        ([-90, 10, 10, 45, -20, 100], True, "-90 deg opens quadrant -1 ([-90, 0))"),
+        ([-90.001, 10, 10, 45, -20, 100], False, "just below -90 deg is quadrant -2"),
+        ([-30, 10, 10, 90.001, -20, 100], False, "axis 4 past 90 deg is quadrant 1"),
+        (
+            [-30, 10, 10, 90, -20, 100],
+            True,
+            "axis 4 at 90 deg: a boundary, within rounding of quadrant 0's end (an IK "
+            "returns a target written at 0 or 90 deg as +-1e-13 deg off)",
+        ),
+        ([-30, 10, 10, 45, -20, 89.9], False, "axis 6 below 90 deg is quadrant 0"),
+        ([-30, 10, 10, 45, -20, 460], False, "axis 6 one turn further (460 deg) is quadrant 5, not 1"),
+        ([-30, 10, 10, 45, 20, 100], False, "cfx odd: axis 5 must be negative"),
+        ([-30, 10, 10, 45, 0, 100], True, "axis 5 at 0 (the wrist singularity) is either sign"),
+    ],
+)
 def test_robconf_quadrants_and_axis5_sign(q, ok, why):
     # confdata (RAPID Instructions, Functions and Data types): quadrant n of an axis is [90 n, 90 (n + 1)) deg
     files = module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[400,0,500],[0,0,1,0],[-1,0,1,1],{EXTAX}];")
@@ -152,15 +181,18 @@ def test_robconf_wrist_centre_bits_are_not_checked_from_joints():
 
 def test_render_replaces_trans_and_rot_only_and_keeps_the_source_hemisphere():
     # the source writes q1 < 0 (the same rotation as its negative): the corrected quaternion keeps that sign
-    text = ("CONST robtarget p:=[ [374, 0,630] , [-0.70710678,0,-0.70710678,0],[0,-1,2,1],\n"
-            "   [11, 12.3, 9E9, 9E9, 9E9, 9E9] ]; ! taught\n")  # fmt: skip
+    text = (
+        "CONST robtarget p:=[ [374, 0,630] , [-0.70710678,0,-0.70710678,0],[0,-1,2,1],\n"
+        "   [11, 12.3, 9E9, 9E9, 9E9, 9E9] ]; ! taught\n"
+    )
     files = module("MoveL p, v100, fine, tool0;", text)
     t = read_rapid(files).targets[0]
     moved = t.value.copy()
     moved[:3, 3] += [0.0123, -0.5, 1e-5]
     out = t.render(moved)
-    assert out == ("[ [374.0123, -0.5,630] , [-0.70710678,0,-0.70710678,0],[0,-1,2,1],\n"
-                   "   [11, 12.3, 9E9, 9E9, 9E9, 9E9] ]")  # fmt: skip
+    assert out == (
+        "[ [374.0123, -0.5,630] , [-0.70710678,0,-0.70710678,0],[0,-1,2,1],\n   [11, 12.3, 9E9, 9E9, 9E9, 9E9] ]"
+    )
     tilted = moved @ rot_y(1e-4 * 180 / np.pi)  # 1e-4 rad about the tool's y: q1, q3 turn by half of it
     again = read_rapid({"T.mod": files["T.mod"].replace(t.render(t.value), t.render(tilted))}).targets[0]
     np.testing.assert_allclose(again.value, tilted, atol=1e-7)
@@ -172,36 +204,48 @@ def test_jointtarget_render_replaces_robax_only():
     t = read_rapid(files).targets[0]
     assert (t.name, t.joint, t.config, t.motion) == ("line 4", True, (), "MoveAbsJ")
     assert t.render(np.array([1.5, -2.25, 3.000004, 0, 29.99999, -0.000001])) == (
-        "[[1.5,-2.25,3.00000,0,29.99999,0],[9E9,9E9,9E9,9E9,9E9,9E9]]".replace("3.00000", "3"))
+        "[[1.5,-2.25,3.00000,0,29.99999,0],[9E9,9E9,9E9,9E9,9E9,9E9]]".replace("3.00000", "3")
+    )
 
 
 # ---- what is read -----------------------------------------------------------------------------------------------
 
 
 def test_offs_reltool_arrays_and_movec_targets():
-    data = (f"CONST robtarget a:=[[1,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
-            f"CONST robtarget b:=[[2,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
-            f"CONST robtarget path{{2}}:=[[[3,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}],\n"
-            f"                            [[4,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}]];\n"
-            f"VAR robtarget loose:=[[5,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
-            "VAR robtarget now;\n")  # fmt: skip
-    body = ("moveL Offs(a, 0, 0, 50), v100, z10, tool0;\n"
-            "MoveC \\Conc, a, b \\ID:=1, v100, z10 \\Inpos:=inpos20, tool0;\n"
-            "FOR i FROM 1 TO 2 DO MoveL path{i}, v100, fine, tool0; ENDFOR\n"
-            "now := CRobT();  MoveL now, v100, fine, tool0;\n"
-            "MoveJ RelTool(CRobT(), 0, 0, 10), v100, fine, tool0;")  # fmt: skip
+    data = (
+        f"CONST robtarget a:=[[1,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
+        f"CONST robtarget b:=[[2,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
+        f"CONST robtarget path{{2}}:=[[[3,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}],\n"
+        f"                            [[4,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}]];\n"
+        f"VAR robtarget loose:=[[5,0,0],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
+        "VAR robtarget now;\n"
+    )
+    body = (
+        "moveL Offs(a, 0, 0, 50), v100, z10, tool0;\n"
+        "MoveC \\Conc, a, b \\ID:=1, v100, z10 \\Inpos:=inpos20, tool0;\n"
+        "FOR i FROM 1 TO 2 DO MoveL path{i}, v100, fine, tool0; ENDFOR\n"
+        "now := CRobT();  MoveL now, v100, fine, tool0;\n"
+        "MoveJ RelTool(CRobT(), 0, 0, 10), v100, fine, tool0;"
+    )
     program = read_rapid(module(body, data))
     got = [(t.name, t.motion) for t in program.targets]
-    assert got == [("a", "MoveL Offs, MoveC"), ("b", "MoveC"), ("path{1}", "MoveL"), ("path{2}", "MoveL"),
-                   ("loose", "")]  # fmt: skip
+    assert got == [
+        ("a", "MoveL Offs, MoveC"),
+        ("b", "MoveC"),
+        ("path{1}", "MoveL"),
+        ("path{2}", "MoveL"),
+        ("loose", ""),
+    ]
     np.testing.assert_allclose([t.value[0, 3] for t in program.targets], [1, 2, 3, 4, 5])
 
 
 def test_prg_header_local_scope_and_case_insensitive_names():
-    prg = ("%%%\n  VERSION:1\n  LANGUAGE:ENGLISH\n%%%\n\nMODULE Old\n"
-           f"  LOCAL PERS tooldata T1:=[TRUE,[[0,0,50],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];\n"
-           f"  CONST ROBTARGET P1:=[[1,2,3],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
-           "  PROC main()\n    movel p1, v100, fine, t1;\n  ENDPROC\nENDMODULE\n")  # fmt: skip
+    prg = (
+        "%%%\n  VERSION:1\n  LANGUAGE:ENGLISH\n%%%\n\nMODULE Old\n"
+        f"  LOCAL PERS tooldata T1:=[TRUE,[[0,0,50],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];\n"
+        f"  CONST ROBTARGET P1:=[[1,2,3],[1,0,0,0],[0,0,0,0],{EXTAX}];\n"
+        "  PROC main()\n    movel p1, v100, fine, t1;\n  ENDPROC\nENDMODULE\n"
+    )
     t = read_rapid({"OLD.PRG": prg}).targets[0]
     assert (t.name, t.line, t.motion) == ("P1", 8, "MoveL")
     np.testing.assert_allclose(t.tool[:3, 3], [50, 0, 0], atol=1e-12)  # tool z 50 mm = the configs' flange x
@@ -221,10 +265,12 @@ def test_sample_round_trip_is_byte_identical_and_renders_its_own_values():
         assert (a.name, a.config, a.motion) == (b.name, b.config, b.motion)
 
 
-_num = st.one_of(st.integers(-2000, 2000).map(str),
-                 st.floats(-2000, 2000, allow_nan=False).map(lambda v: f"{v:.3f}"),
-                 st.floats(0.001, 99, allow_nan=False).map(lambda v: f"{v:.2E}"))  # fmt: skip
-_space = st.sampled_from(["", " ", "  ", "\n   ", " ! a comment [ ; \"\n", "\r\n"])
+_num = st.one_of(
+    st.integers(-2000, 2000).map(str),
+    st.floats(-2000, 2000, allow_nan=False).map(lambda v: f"{v:.3f}"),
+    st.floats(0.001, 99, allow_nan=False).map(lambda v: f"{v:.2E}"),
+)
+_space = st.sampled_from(["", " ", "  ", "\n   ", ' ! a comment [ ; "\n', "\r\n"])
 
 
 @st.composite
@@ -237,8 +283,10 @@ def _modules(draw):
         trans = f",{sp()}".join(draw(_num) for _ in range(3))
         axis = draw(st.sampled_from(["1,0,0,0", "0,0,1,0", "0.5,0.5,0.5,-0.5", "-0.70710678, 0, 0, 0.70710678"]))
         storage = draw(st.sampled_from(["CONST", "PERS", "VAR", "LOCAL CONST", "TASK PERS"]))
-        lines.append(f"{storage} robtarget{sp()} p{k}{sp()}:={sp()}[[{trans}],{sp()}[{axis}],[0,{sp()}-1,2,0],"
-                     f"[9E9,9E9,9E9,9E9,9E9,9E9]{sp()}]{sp()};")  # fmt: skip
+        lines.append(
+            f"{storage} robtarget{sp()} p{k}{sp()}:={sp()}[[{trans}],{sp()}[{axis}],[0,{sp()}-1,2,0],"
+            f"[9E9,9E9,9E9,9E9,9E9,9E9]{sp()}]{sp()};"
+        )
     lines.append("PROC main()")
     for k in range(n):
         move = draw(st.sampled_from(["MoveL", "movej", "MOVEL"]))
@@ -265,37 +313,70 @@ P = f"CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0,0,0],{EXTAX}];"
 FIXED = "[[0,0,0],[1,0,0,0]]"
 
 
-@pytest.mark.parametrize("files, line, words", [
-    ({"a.mod": "PROC main()\nENDPROC\n"}, 1, "expected MODULE"),
-    ({"a.mod": "MODULE A\nPROC main()\n  MoveL p, v100, fine, tool0;\n"}, 3, "ENDPROC of main"),
-    ({"a.mod": "MODULE A\nPROC main()\nENDPROC\n"}, 3, "ENDMODULE"),
-    ({"a.mod": 'MODULE A\nVAR string s:="open;\nENDMODULE\n'}, 2, "string not closed"),
-    ({"a.mod": "MODULE A\nVAR num x:=1 # 2;\nENDMODULE\n"}, 2, "unexpected character '#'"),
-    (module("MoveL p, v100, tool0;", P), 4, "MoveL needs a target, a speed, a zone and a tool"),
-    (module("MoveC p, v100, z10, tool0;", P), 4, "MoveC needs two targets"),
-    (module("MoveL p, v100, fine, tGun;", P), 4, "tooldata tGun, which the files given do not declare"),
-    (module("MoveL p, v100, fine, tool0 \\WObj:=w;", P), 4, "wobjdata w, which the files given do not declare"),
-    (module("MoveL p, v100, fine, tool0", P), 4, "expected ';' before ENDPROC"),
-    (module("MoveL p, v100, fine, tool0;", "CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0,0,0]];"), 2,
-     "robtarget p as [[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[extax]]"),
-    (module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,2,3],[0,0,0,0],[0,0,0,0],{EXTAX}];"), 2,
-     "quaternion [q1, q2, q3, q4] is not normalised"),
-    (module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0.5,0,0],{EXTAX}];"), 2,
-     "robconf [cf1, cf4, cf6, cfx] must be integers"),
-    (module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,x0,3],[1,0,0,0],[0,0,0,0],{EXTAX}];"), 2,
-     "expected a number in robtarget p's trans"),
-    (module("MoveL p, v100, fine, tFix;", P + f"\nPERS tooldata tFix:=[FALSE,{FIXED},[1,[0,0,1],[1,0,0,0],0,0,0]];"),
-     3, "tooldata tFix: a stationary tool (robhold FALSE) is not supported"),
-    (module("MoveL p, v100, fine, tool0\\WObj:=w;", P + f'\nPERS wobjdata w:=[TRUE,TRUE,"",{FIXED},{FIXED}];'),
-     3, "robhold TRUE, a stationary tool) is not supported"),
-    (module("MoveL p, v100, fine, tool0\\WObj:=w;", P + f'\nPERS wobjdata w:=[FALSE,FALSE,"STN_1",{FIXED},{FIXED}];'),
-     3, "coordinated work object"),
-    (module("MoveL p, v100, fine, tool0;\nMoveL p, v100, fine, tool0\\WObj:=w;",
-            P + '\nPERS wobjdata w:=[FALSE,TRUE,"",[[0,0,9],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];'), 6,
-     "p is used with tool tool0 in work object wobj0 (line 5) and with tool tool0 in w"),
-    (module("MoveL p, v100, fine, tool0;", P + "\nMODULE B\nENDMODULE"), 3, "expected a declaration, PROC"),
-    (module("x := (1 + 2;", P), 4, "'(' not closed"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "files, line, words",
+    [
+        ({"a.mod": "PROC main()\nENDPROC\n"}, 1, "expected MODULE"),
+        ({"a.mod": "MODULE A\nPROC main()\n  MoveL p, v100, fine, tool0;\n"}, 3, "ENDPROC of main"),
+        ({"a.mod": "MODULE A\nPROC main()\nENDPROC\n"}, 3, "ENDMODULE"),
+        ({"a.mod": 'MODULE A\nVAR string s:="open;\nENDMODULE\n'}, 2, "string not closed"),
+        ({"a.mod": "MODULE A\nVAR num x:=1 # 2;\nENDMODULE\n"}, 2, "unexpected character '#'"),
+        (module("MoveL p, v100, tool0;", P), 4, "MoveL needs a target, a speed, a zone and a tool"),
+        (module("MoveC p, v100, z10, tool0;", P), 4, "MoveC needs two targets"),
+        (module("MoveL p, v100, fine, tGun;", P), 4, "tooldata tGun, which the files given do not declare"),
+        (module("MoveL p, v100, fine, tool0 \\WObj:=w;", P), 4, "wobjdata w, which the files given do not declare"),
+        (module("MoveL p, v100, fine, tool0", P), 4, "expected ';' before ENDPROC"),
+        (
+            module("MoveL p, v100, fine, tool0;", "CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0,0,0]];"),
+            2,
+            "robtarget p as [[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[extax]]",
+        ),
+        (
+            module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,2,3],[0,0,0,0],[0,0,0,0],{EXTAX}];"),
+            2,
+            "quaternion [q1, q2, q3, q4] is not normalised",
+        ),
+        (
+            module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0.5,0,0],{EXTAX}];"),
+            2,
+            "robconf [cf1, cf4, cf6, cfx] must be integers",
+        ),
+        (
+            module("MoveL p, v100, fine, tool0;", f"CONST robtarget p:=[[1,x0,3],[1,0,0,0],[0,0,0,0],{EXTAX}];"),
+            2,
+            "expected a number in robtarget p's trans",
+        ),
+        (
+            module(
+                "MoveL p, v100, fine, tFix;", P + f"\nPERS tooldata tFix:=[FALSE,{FIXED},[1,[0,0,1],[1,0,0,0],0,0,0]];"
+            ),
+            3,
+            "tooldata tFix: a stationary tool (robhold FALSE) is not supported",
+        ),
+        (
+            module("MoveL p, v100, fine, tool0\\WObj:=w;", P + f'\nPERS wobjdata w:=[TRUE,TRUE,"",{FIXED},{FIXED}];'),
+            3,
+            "robhold TRUE, a stationary tool) is not supported",
+        ),
+        (
+            module(
+                "MoveL p, v100, fine, tool0\\WObj:=w;", P + f'\nPERS wobjdata w:=[FALSE,FALSE,"STN_1",{FIXED},{FIXED}];'
+            ),
+            3,
+            "coordinated work object",
+        ),
+        (
+            module(
+                "MoveL p, v100, fine, tool0;\nMoveL p, v100, fine, tool0\\WObj:=w;",
+                P + '\nPERS wobjdata w:=[FALSE,TRUE,"",[[0,0,9],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];',
+            ),
+            6,
+            "p is used with tool tool0 in work object wobj0 (line 5) and with tool tool0 in w",
+        ),
+        (module("MoveL p, v100, fine, tool0;", P + "\nMODULE B\nENDMODULE"), 3, "expected a declaration, PROC"),
+        (module("x := (1 + 2;", P), 4, "'(' not closed"),
+    ],
+)
 def test_broken_programs_fail_in_one_line_with_file_and_line(files, line, words):
     with pytest.raises(ProgramReadError) as err:
         read_rapid(files)
@@ -308,8 +389,10 @@ def test_broken_programs_fail_in_one_line_with_file_and_line(files, line, words)
 
 def test_a_target_in_two_frames_names_both():
     # the same robtarget used in two work objects cannot get one correction for both: refused, not half-corrected
-    files = module("MoveL p, v100, fine, tool0;\nMoveL p, v100, fine, tool0\\WObj:=w;",
-                   P + '\nPERS wobjdata w:=[FALSE,TRUE,"",[[0,0,9],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];')  # fmt: skip
+    files = module(
+        "MoveL p, v100, fine, tool0;\nMoveL p, v100, fine, tool0\\WObj:=w;",
+        P + '\nPERS wobjdata w:=[FALSE,TRUE,"",[[0,0,9],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];',
+    )
     with pytest.raises(ProgramReadError, match="one corrected value cannot serve both"):
         read_rapid(files)
 
@@ -317,9 +400,17 @@ def test_a_target_in_two_frames_names_both():
 _SAMPLE_TEXT = SAMPLE.read_text()
 
 
-@given(st.lists(st.tuples(st.integers(0, len(_SAMPLE_TEXT)), st.integers(0, 6),
-                          st.text(alphabet="[](){},;:=!\"\\%-+.0123456789EeMoveLJCTRUE \n\tpx{}", max_size=6)),
-                min_size=1, max_size=4))  # fmt: skip
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, len(_SAMPLE_TEXT)),
+            st.integers(0, 6),
+            st.text(alphabet='[](){},;:=!"\\%-+.0123456789EeMoveLJCTRUE \n\tpx{}', max_size=6),
+        ),
+        min_size=1,
+        max_size=4,
+    )
+)
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_mutated_sample_reads_or_fails_in_one_line(edits):
     text = _SAMPLE_TEXT
@@ -356,12 +447,15 @@ def test_hexadecimal_binary_octal_literals_read():
 def test_routine_parameters_are_the_callers_data():
     # in PROC GoTo(robtarget p), `p` is the caller's argument, not the module's p: the module's p is used by no move
     data = P + "\nPERS tooldata t1:=[TRUE,[[0,0,50],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
-    files = {"T.mod": f"MODULE T\n{data}\nPROC GoTo(robtarget p, \\switch Fast)\n  MoveL p, v100, fine, t1;\n"
-                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    files = {
+        "T.mod": f"MODULE T\n{data}\nPROC GoTo(robtarget p, \\switch Fast)\n  MoveL p, v100, fine, t1;\n"
+        "ENDPROC\nENDMODULE\n"
+    }
     assert [(t.name, t.motion) for t in read_rapid(files).targets] == [("p", "")]
     # a tool given as a parameter has no frame in the text: a target moved with it is refused, not guessed
-    files = {"T.mod": f"MODULE T\n{data}\nPROC Draw(PERS tooldata tUse)\n  MoveL p, v100, fine, tUse;\n"
-                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    files = {
+        "T.mod": f"MODULE T\n{data}\nPROC Draw(PERS tooldata tUse)\n  MoveL p, v100, fine, tUse;\nENDPROC\nENDMODULE\n"
+    }
     with pytest.raises(ProgramReadError, match="T.mod:5: MoveL's tooldata tUse is a parameter of its routine"):
         read_rapid(files)
 
@@ -374,8 +468,11 @@ def test_an_empty_argument_is_an_error():
 def test_a_persistent_declared_alike_in_two_modules_is_one():
     # PERS data may be declared in several modules of a task with the same value (RAPID kernel, persistents)
     tool = "PERS tooldata tG:=[TRUE,[[0,0,80],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
-    files = {"A.mod": f"MODULE A\n{tool}\nENDMODULE\n", "B.mod": f"MODULE B\n  {tool}\nENDMODULE\n",
-             **module("MoveL p, v100, fine, tG;", P)}  # fmt: skip
+    files = {
+        "A.mod": f"MODULE A\n{tool}\nENDMODULE\n",
+        "B.mod": f"MODULE B\n  {tool}\nENDMODULE\n",
+        **module("MoveL p, v100, fine, tG;", P),
+    }
     np.testing.assert_allclose(read_rapid(files).targets[0].tool[:3, 3], [80, 0, 0], atol=1e-12)
     files["B.mod"] = files["B.mod"].replace("80", "81")
     with pytest.raises(ProgramReadError, match="tG is declared globally twice"):
@@ -396,12 +493,16 @@ def test_byte_order_mark_and_crlf_lines(bom):
 def test_targets_tool_and_work_object_passed_to_a_procedure():
     # a common cell pattern: a PROC that moves to the robtarget, with the tool and work object it is given; the
     # call's arguments are what the move uses (uframe (0, 0, 100): the base 100 mm up; tool 80 mm along tool0's z)
-    data = (P + "\nPERS tooldata tG:=[TRUE,[[0,0,80],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
-            '\nPERS wobjdata wT:=[FALSE,TRUE,"",[[0,0,100],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];')  # fmt: skip
-    files = {"T.mod": f"MODULE T\n{data}\nPROC main()\n  MoveTo p, tG, wT;\nENDPROC\n"
-                      "PROC MoveTo(robtarget pTo, PERS tooldata t, PERS wobjdata w)\n"
-                      "  MoveL Offs(pTo, 0, 0, 10), v100, z10, t\\WObj:=w;\n  MoveL pTo, v100, fine, t\\WObj:=w;\n"
-                      "ENDPROC\nENDMODULE\n"}  # fmt: skip
+    data = (
+        P + "\nPERS tooldata tG:=[TRUE,[[0,0,80],[1,0,0,0]],[1,[0,0,1],[1,0,0,0],0,0,0]];"
+        '\nPERS wobjdata wT:=[FALSE,TRUE,"",[[0,0,100],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];'
+    )
+    files = {
+        "T.mod": f"MODULE T\n{data}\nPROC main()\n  MoveTo p, tG, wT;\nENDPROC\n"
+        "PROC MoveTo(robtarget pTo, PERS tooldata t, PERS wobjdata w)\n"
+        "  MoveL Offs(pTo, 0, 0, 10), v100, z10, t\\WObj:=w;\n  MoveL pTo, v100, fine, t\\WObj:=w;\n"
+        "ENDPROC\nENDMODULE\n"
+    }
     t = read_rapid(files).targets[0]
     assert (t.name, t.motion) == ("p", "MoveL Offs via MoveTo, MoveL via MoveTo")
     np.testing.assert_allclose(t.base[:3, 3], [0, 0, 100])

@@ -45,10 +45,13 @@ def _get_system(status: int, headers: dict[str, str]) -> Exception:
     raise AssertionError("the stub controller's refusal was taken for an answer")
 
 
-@pytest.mark.parametrize("status, headers, seen", [
-    (401, {"WWW-Authenticate": 'Basic realm="controller"'}, "HTTP 401 asking for 'Basic"),
-    (308, {"Location": "https://127.0.0.1/rw/system"}, "HTTP 308 to https://"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "status, headers, seen",
+    [
+        (401, {"WWW-Authenticate": 'Basic realm="controller"'}, "HTTP 401 asking for 'Basic"),
+        (308, {"Location": "https://127.0.0.1/rw/system"}, "HTTP 308 to https://"),
+    ],
+)
 def test_a_robotware_7_controller_is_named_as_such_not_as_a_wrong_password(status, headers, seen):
     exc = _get_system(status, headers)
     assert isinstance(exc, ProtocolError) and not isinstance(exc, RwsRefused), exc

@@ -136,8 +136,9 @@ GOLDEN_TO_TRACKER = [
     #   bKeepLastPosition 1; bSendUnsolicitedMessages 1; bSendReflectorPositionData 0; bTryMeasurementMode 0;
     #   bHasNivel 1; bHasVideoCamera 1}}: the settings of MuffinSpawn/Leica bin/command-example.py
     (
-        SetSystemSettings(WeatherMonitorStatus.READ_AND_CALCULATE_REFRACTIONS, False, True, True, True, False,
-                          False, True, True),  # fmt: skip
+        SetSystemSettings(
+            WeatherMonitorStatus.READ_AND_CALCULATE_REFRACTIONS, False, True, True, True, False, False, True, True
+        ),
         h(
             "30000000 00000000 2f000000 02000000 00000000 01000000 01000000 01000000 00000000 00000000"
             " 01000000 01000000"
@@ -214,9 +215,33 @@ GOLDEN_FROM_TRACKER = [
     #   dAprioriStdTotal; dAprioriCovar12, 13, 23; dTemperature; dPressure; dHumidity}   12 + 8 + 23 * 8 = 204
     (
         SingleMeasResult2(
-            ResultStatus.ALL_OK, MeasMode.STATIONARY, False, 1000.0, -500.0, 250.0, 2**-7, 2**-7, 2**-6, 2**-5,
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2**-7, 2**-7, 2**-6, 2**-5, 0.0, 0.0, 0.0, 20.0, 1013.25, 50.0,
-        ),  # fmt: skip
+            ResultStatus.ALL_OK,
+            MeasMode.STATIONARY,
+            False,
+            1000.0,
+            -500.0,
+            250.0,
+            2**-7,
+            2**-7,
+            2**-6,
+            2**-5,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            2**-7,
+            2**-7,
+            2**-6,
+            2**-5,
+            0.0,
+            0.0,
+            0.0,
+            20.0,
+            1013.25,
+            50.0,
+        ),
         h(
             f"cc000000 09000000 00000000 00000000 00000000 {D_1000} {D_M500} {D_250}"
             f" {D_2M7} {D_2M7} {D_2M6} {D_2M5} {D_0} {D_0} {D_0} {D_0} {D_0} {D_0}"
@@ -376,8 +401,7 @@ from_tracker = st.one_of(
         lambda a: not (a.status == ResultStatus.ALL_OK and a.command in _ANSWER_STRUCTS)
     ),
     st.sampled_from(list(READBACK.items())).flatmap(
-        lambda item: st.builds(SettingAnswer, st.just(item[0]), statuses, requests.filter(
-            lambda r: type(r) is item[1]))  # fmt: skip
+        lambda item: st.builds(SettingAnswer, st.just(item[0]), statuses, requests.filter(lambda r: type(r) is item[1]))
     ),
     st.builds(
         SystemStatusAnswer,

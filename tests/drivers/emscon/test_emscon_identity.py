@@ -68,11 +68,50 @@ def test_golden_tracker_info_answer():
     # ES_DT_Command 0, ES_C_GetTrackerInfo 132, ES_RS_AllOK 0; an AT901-LR (15), serial 390123, compensation 7,
     # ADM and overview camera, no nivel, 80 m range, 3000 measurements/s, 2 faces, +-360 / +-145 deg, ES_TAM_2005,
     # LCP firmware 3.6
-    raw = struct.pack(TRACKER_INFO, 164, 0, 132, 0, 15, *units("AT901-LR"), 390123, 7, 1, 1, 0, 0.0, 80000.0, 0.0,
-                      3000, 2, 360.0, 145.0, 1, 3, 6)  # fmt: skip
+    raw = struct.pack(
+        TRACKER_INFO,
+        164,
+        0,
+        132,
+        0,
+        15,
+        *units("AT901-LR"),
+        390123,
+        7,
+        1,
+        1,
+        0,
+        0.0,
+        80000.0,
+        0.0,
+        3000,
+        2,
+        360.0,
+        145.0,
+        1,
+        3,
+        6,
+    )
     assert len(raw) == 164  # sizeof(GetTrackerInfoRT), as tests/drivers/emscon/test_emscon_codec.py works it out
-    answer = TrackerInfoAnswer(ResultStatus.ALL_OK, LTSensorType.AT901_LR, "AT901-LR", 390123, 7, True, True, False,
-                               0.0, 80000.0, 0.0, 3000, 2, 360.0, 145.0, TrkAccuracyModel.TAM_2005, (3, 6))  # fmt: skip
+    answer = TrackerInfoAnswer(
+        ResultStatus.ALL_OK,
+        LTSensorType.AT901_LR,
+        "AT901-LR",
+        390123,
+        7,
+        True,
+        True,
+        False,
+        0.0,
+        80000.0,
+        0.0,
+        3000,
+        2,
+        360.0,
+        145.0,
+        TrkAccuracyModel.TAM_2005,
+        (3, 6),
+    )
     assert decode_packet(raw) == answer
     assert encode(answer) == raw
 
@@ -107,11 +146,29 @@ int32 = st.integers(-(2**31), 2**31 - 1)
 finite = st.floats(allow_nan=False, allow_infinity=False)
 # texts of at most 31 UTF-16 units and no NUL (surrogates are not characters of a str that encodes)
 names = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\0"), max_size=31).filter(
-    lambda t: len(t.encode("utf-16-le")) // 2 <= 31)
+    lambda t: len(t.encode("utf-16-le")) // 2 <= 31
+)
 statuses = st.sampled_from(list(ResultStatus))
-tracker_infos = st.builds(TrackerInfoAnswer, statuses, st.sampled_from(list(LTSensorType)), names, int32, int32,
-                          st.booleans(), st.booleans(), st.booleans(), finite, finite, finite, int32, int32, finite,
-                          finite, st.sampled_from(list(TrkAccuracyModel)), st.tuples(int32, int32))  # fmt: skip
+tracker_infos = st.builds(
+    TrackerInfoAnswer,
+    statuses,
+    st.sampled_from(list(LTSensorType)),
+    names,
+    int32,
+    int32,
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    finite,
+    finite,
+    finite,
+    int32,
+    int32,
+    finite,
+    finite,
+    st.sampled_from(list(TrkAccuracyModel)),
+    st.tuples(int32, int32),
+)
 
 
 @given(st.one_of(tracker_infos, st.builds(SoftwareVersionAnswer, statuses, names)))
@@ -156,8 +213,9 @@ def test_client_reads_the_identity_from_the_mock():
     tracker = EmsconTracker(*server.address, timeout_s=2.0)
     try:
         tracker.connect()
-        assert tracker.identity() == DeviceIdentity("391234", "AT901-LR (ES_LTSensorType 15)",
-                                                    "LCP firmware 3.6, emScon 3.6.0", READ_FROM_DEVICE)  # fmt: skip
+        assert tracker.identity() == DeviceIdentity(
+            "391234", "AT901-LR (ES_LTSensorType 15)", "LCP firmware 3.6, emScon 3.6.0", READ_FROM_DEVICE
+        )
         assert "serial=391234" in tracker.status().detail  # GetSystemStatusRT's lTrackerSerialNumber: the same one
     finally:
         tracker.close()

@@ -326,8 +326,9 @@ def test_extended_statistic_mode_results_are_read(server, tracker):
 
 def test_try_mode_result_is_refused(server, tracker):
     ready(tracker)
-    try_mode = SetSystemSettings(WeatherMonitorStatus.NOT_CONNECTED, False, False, True, True, False, True,
-                                 False, False)  # fmt: skip
+    try_mode = SetSystemSettings(
+        WeatherMonitorStatus.NOT_CONNECTED, False, False, True, True, False, True, False, False
+    )
     send_as_another_client(server, try_mode)
     with pytest.raises(DeviceFault, match="try-mode"):
         tracker.measure()
@@ -336,8 +337,9 @@ def test_try_mode_result_is_refused(server, tracker):
 def test_a_setting_that_does_not_read_back_is_a_fault(server, tracker, monkeypatch):
     tracker.connect()
     readback = server._readback
-    monkeypatch.setattr(server, "_readback", lambda r: SetUnits(LengthUnit.MICRON) if isinstance(r, GetUnits)
-                        else readback(r))  # fmt: skip
+    monkeypatch.setattr(
+        server, "_readback", lambda r: SetUnits(LengthUnit.MICRON) if isinstance(r, GetUnits) else readback(r)
+    )
     with pytest.raises(DeviceFault, match="reports SetUnits") as info:
         tracker.configure()
     assert info.value.code == "readback"
@@ -345,8 +347,13 @@ def test_a_setting_that_does_not_read_back_is_a_fault(server, tracker, monkeypat
 
 @pytest.mark.parametrize(
     ("unit", "mm_per_unit"),  # exact by definition: international yard of 1959 (0.9144 m = 3 ft = 36 in)
-    [(LengthUnit.METER, 1000.0), (LengthUnit.MICRON, 1e-3), (LengthUnit.FOOT, 304.8), (LengthUnit.INCH, 25.4),
-     (LengthUnit.YARD, 914.4)],  # fmt: skip
+    [
+        (LengthUnit.METER, 1000.0),
+        (LengthUnit.MICRON, 1e-3),
+        (LengthUnit.FOOT, 304.8),
+        (LengthUnit.INCH, 25.4),
+        (LengthUnit.YARD, 914.4),
+    ],
 )
 def test_mock_lengths_in_every_unit(server, tracker, unit, mm_per_unit):
     ready(tracker)

@@ -59,8 +59,17 @@ def test_the_krl_reads_and_writes_only_declared_elements_of_its_channel():
     code = _code(SRC)
     received = {path for path, _ in EKI.received}
     calls = re.findall(r'EKI_(\w+)\("([^"]*)"(?:,\s*"([^"]*)")?', code)
-    assert {name for name, _, _ in calls} >= {"Init", "Open", "CheckBuffer", "GetInt", "GetReal", "SetReal",
-                                              "SetInt", "Send", "Clear"}  # fmt: skip
+    assert {name for name, _, _ in calls} >= {
+        "Init",
+        "Open",
+        "CheckBuffer",
+        "GetInt",
+        "GetReal",
+        "SetReal",
+        "SetInt",
+        "Send",
+        "Clear",
+    }
     for name, channel, path in calls:
         assert channel == CHANNEL, (name, channel)
         dotted = path.replace("/@", ".").replace("/", ".")

@@ -11,8 +11,12 @@ def test_the_kr_c4_writes_krl_with_the_kr_c2_writer():
 
 
 def test_the_device_line_says_who_serves_and_who_listens():
-    r = {"controller_host": "192.168.1.20", "eki": {"port": 54600}, "connect_timeout_s": 60.0,
-         "rsi": {"host": "192.168.1.10", "port": 49152, "passive": False, "cycle_s": 0.004}}  # fmt: skip
+    r = {
+        "controller_host": "192.168.1.20",
+        "eki": {"port": 54600},
+        "connect_timeout_s": 60.0,
+        "rsi": {"host": "192.168.1.10", "port": 49152, "passive": False, "cycle_s": 0.004},
+    }
     family = families()["krc4"]
     assert family.describe(r) == ("KR C4, EKI at 192.168.1.20:54600, RSI udp (answered, 4 ms) on 192.168.1.10:49152")
     assert "start trackcal_eki" in family.waiting(r) and family.dof == 6

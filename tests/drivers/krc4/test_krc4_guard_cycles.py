@@ -37,11 +37,30 @@ def _cell(guard):
     port = _free_udp()
     # braking from 5 deg/s at 50 deg/s^2 takes 0.1 s, 8 cycles: the move cannot end (and the stop flag fall) before
     # the answer that carries it, whichever of the RSI stop and the EKI stop request the mock served first
-    mock = MockKrc4(("127.0.0.1", 0), ("127.0.0.1", port), VirtualClock(real_fraction=1.0), HOME, cycle_s=CYCLE_S,
-                    joint_speed_deg_s=100.0, settle_s=0.1, seed=3, answer_budget_s=5.0, brake_deg_s2=50.0).start()
-    client = KukaKrc4(mock.eki_addr[1], "127.0.0.1", port, controller_host="127.0.0.1", motion_guard=guard,
-                      rsi_cycle_s=CYCLE_S, joint_limits_deg=KR210_LIMITS, connect_timeout_s=5.0,
-                      move_timeout_s=20.0, io_timeout_s=2.0)  # fmt: skip
+    mock = MockKrc4(
+        ("127.0.0.1", 0),
+        ("127.0.0.1", port),
+        VirtualClock(real_fraction=1.0),
+        HOME,
+        cycle_s=CYCLE_S,
+        joint_speed_deg_s=100.0,
+        settle_s=0.1,
+        seed=3,
+        answer_budget_s=5.0,
+        brake_deg_s2=50.0,
+    ).start()
+    client = KukaKrc4(
+        mock.eki_addr[1],
+        "127.0.0.1",
+        port,
+        controller_host="127.0.0.1",
+        motion_guard=guard,
+        rsi_cycle_s=CYCLE_S,
+        joint_limits_deg=KR210_LIMITS,
+        connect_timeout_s=5.0,
+        move_timeout_s=20.0,
+        io_timeout_s=2.0,
+    )
     client.connect()
     return client, mock
 

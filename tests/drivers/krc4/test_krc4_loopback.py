@@ -36,11 +36,28 @@ def open_cell(guard=None, **mock_kw):
     port = free_udp()
     seen: list = []
     mock_kw.setdefault("answer_budget_s", 5.0)
-    mock = MockKrc4(("127.0.0.1", 0), ("127.0.0.1", port), VirtualClock(), HOME, joint_speed_deg_s=100.0,
-                    settle_s=0.3, on_joints=seen.append, seed=2, **mock_kw).start()  # fmt: skip
-    client = KukaKrc4(mock.eki_addr[1], "127.0.0.1", port, controller_host="127.0.0.1", motion_guard=guard,
-                      joint_limits_deg=KR210_LIMITS, connect_timeout_s=5.0, move_timeout_s=10.0,
-                      io_timeout_s=2.0)  # fmt: skip
+    mock = MockKrc4(
+        ("127.0.0.1", 0),
+        ("127.0.0.1", port),
+        VirtualClock(),
+        HOME,
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        on_joints=seen.append,
+        seed=2,
+        **mock_kw,
+    ).start()
+    client = KukaKrc4(
+        mock.eki_addr[1],
+        "127.0.0.1",
+        port,
+        controller_host="127.0.0.1",
+        motion_guard=guard,
+        joint_limits_deg=KR210_LIMITS,
+        connect_timeout_s=5.0,
+        move_timeout_s=10.0,
+        io_timeout_s=2.0,
+    )
     client.connect()
     return client, mock, seen
 
@@ -62,8 +79,9 @@ def test_move_settle_and_the_two_channels_agree():
 
 def test_the_guard_brakes_the_move_and_the_arm_stands():
     door = threading.Event()
-    client, mock, _ = open_cell(guard=lambda: StopCause("the cell door opened", "door_open") if door.is_set()
-                                else None, brake_deg_s2=50.0)  # fmt: skip
+    client, mock, _ = open_cell(
+        guard=lambda: StopCause("the cell door opened", "door_open") if door.is_set() else None, brake_deg_s2=50.0
+    )
     try:
 
         def open_door_when_moving():

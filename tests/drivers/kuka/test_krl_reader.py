@@ -52,8 +52,11 @@ def test_the_krc2_family_reads_src_files():
 
 
 def test_e6pos_pose_is_kukas_zyx_euler():
-    files = _program("PTP XP1\nPTP XP2", "DECL E6POS XP1={X 100.0,Y -20.0,Z 300.0,A 90.0,B 0.0,C 180.0,S 2,T 3}\n"
-                     "DECL E6POS XP2={X 1.5,Y 2.5,Z -3.5,A 30.0,B 20.0,C 10.0,S 2,T 3}")  # fmt: skip
+    files = _program(
+        "PTP XP1\nPTP XP2",
+        "DECL E6POS XP1={X 100.0,Y -20.0,Z 300.0,A 90.0,B 0.0,C 180.0,S 2,T 3}\n"
+        "DECL E6POS XP2={X 1.5,Y 2.5,Z -3.5,A 30.0,B 20.0,C 10.0,S 2,T 3}",
+    )
     program = read_krl(files)
     # Rz(90) Rx(180) by hand: x' = y, y' = x, z' = -z
     hand = np.array([[0, 1, 0, 100.0], [1, 0, 0, -20.0], [0, 0, -1, 300.0], [0, 0, 0, 1]])
@@ -102,10 +105,12 @@ def test_krc4_sample_fdat_bas_and_loop_elements():
 
 
 def test_spline_with_clause_and_bas_frames():
-    dat = ("DECL FRAME TOOL_DATA[16]\nTOOL_DATA[2]={X 0.0,Y 0.0,Z 150.0,A 0.0,B 0.0,C 0.0}\n"
-           "DECL FRAME BASE_DATA[32]\nBASE_DATA[5]={X 10.0,Y 20.0,Z 30.0,A 0.0,B 0.0,C 90.0}\n"
-           "DECL FDAT FP1={TOOL_NO 2,BASE_NO 5,IPO_FRAME #BASE}\n"
-           "DECL E6POS XP1={X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,S 2,T 0}")  # fmt: skip
+    dat = (
+        "DECL FRAME TOOL_DATA[16]\nTOOL_DATA[2]={X 0.0,Y 0.0,Z 150.0,A 0.0,B 0.0,C 0.0}\n"
+        "DECL FRAME BASE_DATA[32]\nBASE_DATA[5]={X 10.0,Y 20.0,Z 30.0,A 0.0,B 0.0,C 90.0}\n"
+        "DECL FDAT FP1={TOOL_NO 2,BASE_NO 5,IPO_FRAME #BASE}\n"
+        "DECL E6POS XP1={X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,S 2,T 0}"
+    )
     program = read_krl(_program("SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)", dat))
     np.testing.assert_allclose(program.targets[0].base, _kuka(10.0, 20.0, 30.0, 0.0, 0.0, 90.0), atol=1e-12)
     np.testing.assert_allclose(program.targets[0].tool, _kuka(0.0, 0.0, 150.0, 0.0, 0.0, 0.0), atol=1e-12)
@@ -132,9 +137,11 @@ def test_a_target_in_an_unknown_or_ambiguous_frame_is_refused(src, config, expec
     dat = "DECL E6POS XP1={X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,S 2,T 0}"
     files = _program(src, dat)
     if config:
-        files["$config.dat"] = ("DEFDAT $CONFIG\r\nDECL FRAME BASE_DATA[32]\r\n"
-                                "BASE_DATA[1]={X 1.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\r\n"
-                                "BASE_DATA[2]={X 2.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\r\nENDDAT\r\n")  # fmt: skip
+        files["$config.dat"] = (
+            "DEFDAT $CONFIG\r\nDECL FRAME BASE_DATA[32]\r\n"
+            "BASE_DATA[1]={X 1.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\r\n"
+            "BASE_DATA[2]={X 2.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\r\nENDDAT\r\n"
+        )
     with pytest.raises(ProgramReadError, match=expected) as err:
         read_krl(files)
     assert ERROR_LINE.match(str(err.value))
@@ -193,11 +200,15 @@ def test_status_turn_read_from_the_program():
 def test_render_keeps_every_byte_but_the_position_members():
     program = read_krl(_sample("krc2"))
     p1 = _by_name(program, "XP1")
-    assert p1.render(p1.value) == ("{X 120.5000,Y -35.2500,Z 310.0000,A 30.00000,B 0.00000,C 180.00000,S 2,T 3,"
-                                   "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")  # fmt: skip
+    assert p1.render(p1.value) == (
+        "{X 120.5000,Y -35.2500,Z 310.0000,A 30.00000,B 0.00000,C 180.00000,S 2,T 3,"
+        "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}"
+    )
     xa = _by_name(program, "XPREPLACE")
-    assert xa.render(xa.value + 0.5) == ("{A1 63.00000,A2 -74.50000,A3 98.75000,A4 0.50000,A5 67.25000,A6 -12.00000,"
-                                         "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")  # fmt: skip
+    assert xa.render(xa.value + 0.5) == (
+        "{A1 63.00000,A2 -74.50000,A3 98.75000,A4 0.50000,A5 67.25000,A6 -12.00000,"
+        "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}"
+    )
 
 
 def test_render_keeps_more_decimals_and_the_spacing():
@@ -253,12 +264,16 @@ def programs(draw):
         agg = "{" + f",{sp}".join(f"{key} {v}" for key, v in zip(keys, nums, strict=True)) + extra + "}"
         expect[f"XP{k}"] = [float(v) for v in nums]
         dat.append(f"DECL {'E6AXIS' if joint else 'E6POS'} XP{k}={agg}")
-        src.append(f"{sp}{draw(st.sampled_from(['PTP', 'LIN']))} XP{k}{draw(st.sampled_from(['', ' C_DIS']))}"
-                   f"{draw(st.sampled_from(['', ' ; moved here']))}")  # fmt: skip
+        src.append(
+            f"{sp}{draw(st.sampled_from(['PTP', 'LIN']))} XP{k}{draw(st.sampled_from(['', ' C_DIS']))}"
+            f"{draw(st.sampled_from(['', ' ; moved here']))}"
+        )
         if draw(st.booleans()):
             src.append(f";FOLD a fold;%{{PE}}%R 5.5{eol.strip()}")
-    files = {"G.src": eol.join(["&ACCESS RVP", "DEF G( )", *src, "END"]) + eol,
-             "G.dat": eol.join(["DEFDAT G PUBLIC", *dat, "ENDDAT"]) + eol}  # fmt: skip
+    files = {
+        "G.src": eol.join(["&ACCESS RVP", "DEF G( )", *src, "END"]) + eol,
+        "G.dat": eol.join(["DEFDAT G PUBLIC", *dat, "ENDDAT"]) + eol,
+    }
     return files, expect
 
 
@@ -309,10 +324,19 @@ def test_structure_errors():
         read_krl({"T.dat": "DEFDAT T\nEND\n"})
 
 
-@given(st.sampled_from(["krc2", "krc4"]), st.integers(0, 2),
-       st.lists(st.tuples(st.floats(0, 1), st.integers(0, 6),
-                          st.text(alphabet=st.characters(min_codepoint=0, max_codepoint=300), max_size=4)),
-                min_size=1, max_size=4))  # fmt: skip
+@given(
+    st.sampled_from(["krc2", "krc4"]),
+    st.integers(0, 2),
+    st.lists(
+        st.tuples(
+            st.floats(0, 1),
+            st.integers(0, 6),
+            st.text(alphabet=st.characters(min_codepoint=0, max_codepoint=300), max_size=4),
+        ),
+        min_size=1,
+        max_size=4,
+    ),
+)
 @settings(max_examples=150, deadline=None)
 def test_fuzzed_programs_read_or_fail_in_one_line(folder, which, edits):
     files = _sample(folder)
@@ -330,8 +354,9 @@ def test_fuzzed_programs_read_or_fail_in_one_line(folder, which, edits):
         assert program.write({}, {}) == files
 
 
-@given(st.text(alphabet=st.sampled_from(list("{}()[],:=;&\"' \r\nXYZABCST0123456789.-+#$_EDFLINPTCRUW'B")),
-               max_size=120))  # fmt: skip
+@given(
+    st.text(alphabet=st.sampled_from(list("{}()[],:=;&\"' \r\nXYZABCST0123456789.-+#$_EDFLINPTCRUW'B")), max_size=120)
+)
 @settings(max_examples=300, deadline=None)
 def test_fuzzed_krl_alphabet_reads_or_fails_in_one_line(text):
     for files in ({"F.src": text}, {"F.src": f"DEF F( )\n{text}\nEND\n"}, {"F.dat": f"DEFDAT F\n{text}\nENDDAT\n"}):

@@ -55,8 +55,9 @@ def strip(text: str) -> str:
 
 def routines(src: str) -> list[tuple[str, list[str], str]]:
     """(name, parameter names, body) of every DEF / DEFFCT of a stripped .src."""
-    pattern = re.compile(r"^\s*(?:GLOBAL\s+)?DEF(?:FCT\s+\w+)?\s+(\w+)\s*\(([^)]*)\)(.*?)^\s*END(?:FCT)?\b",
-                         re.M | re.S | re.I)  # fmt: skip
+    pattern = re.compile(
+        r"^\s*(?:GLOBAL\s+)?DEF(?:FCT\s+\w+)?\s+(\w+)\s*\(([^)]*)\)(.*?)^\s*END(?:FCT)?\b", re.M | re.S | re.I
+    )
     found = pattern.finditer(src)
     return [(m[1], [p.split(":")[0].strip() for p in m[2].split(",") if p.strip()], m[3]) for m in found]
 
@@ -161,17 +162,23 @@ def test_the_table_lists_every_ekx_function_the_program_calls(shipped):
 @pytest.mark.parametrize(
     ("old", "new", "why"),
     [
-        ('EKX_WaitForSensorData(1, "TrackcalEki.RobotCommand.ID", nWaitMs)',
-         'EKX_WaitForSensorData("TrackcalEki", nWaitMs)', "called with 2 arguments"),
+        (
+            'EKX_WaitForSensorData(1, "TrackcalEki.RobotCommand.ID", nWaitMs)',
+            'EKX_WaitForSensorData("TrackcalEki", nWaitMs)',
+            "called with 2 arguments",
+        ),
         ("nErr = FaultCode( )", "nErr = FaultCodes( )", "FaultCodes is not declared"),
         ("bBraked = TRUE", "bStopped = TRUE", "bStopped is not declared"),
         ('"TrackcalEki.RobotCommand.Pos.A6"', '"TrackcalEki.RobotCommand.Pos.A7"', "Pos.A7 is not declared"),
-        ('"TrackcalEki.RobotState.RobotCommand.Error"', '"TrackcalEki.RobotState.RobotCommand.Err"',
-         "RobotCommand.Err is not declared"),
+        (
+            '"TrackcalEki.RobotState.RobotCommand.Error"',
+            '"TrackcalEki.RobotState.RobotCommand.Err"',
+            "RobotCommand.Err is not declared",
+        ),
         ('EKX_Send("TrackcalEki.RobotState")', 'EKX_Send("TrackcalEki")', "EKX_Send"),
         ('EKX_Open("TrackcalEki")', 'EKX_WriteXmlString("TrackcalEki")', "not in the README's signature table"),
     ],
-)  # fmt: skip
+)
 def test_the_check_catches_a_broken_program(shipped, old, new, why):
     src, dat, readme = shipped
     assert old in src

@@ -315,8 +315,12 @@ def test_framer_quoted_gt_and_self_closing_root():
 
 def test_the_codec_reads_its_names_from_the_channel_files():
     assert COMMAND.tags == tuple(e.get("Tag") for e in _elements() if e.get("Type") != "STRUCTTAG")
-    assert STATE.tags == (*(f"RobotState.Pos.A{i}" for i in range(1, 7)), "RobotState.RobotCommand.ID",
-                          "RobotState.RobotCommand.Done", "RobotState.RobotCommand.Error")  # fmt: skip
+    assert STATE.tags == (
+        *(f"RobotState.Pos.A{i}" for i in range(1, 7)),
+        "RobotState.RobotCommand.ID",
+        "RobotState.RobotCommand.Done",
+        "RobotState.RobotCommand.Error",
+    )
     # a renamed attribute in the file renames it on the wire: the file, not the code, holds the names
     renamed = config_text("TrackcalEki.xml").replace("RobotCommand.Speed", "RobotCommand.Override")
     assert read_elements(renamed.encode()).attrs == ("ID", "Kind", "Override")

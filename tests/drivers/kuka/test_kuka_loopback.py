@@ -41,8 +41,9 @@ class Cell:
         self.client, self.mock, self.clock, self.seen = client, mock, clock, seen
 
 
-def open_cell(protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, passive=False, guard=None,
-              clock=None, **mock_kw) -> Cell:  # fmt: skip
+def open_cell(
+    protocol="tcp", client_cls=KukaKrc2, cell_box_check=None, seed=0, passive=False, guard=None, clock=None, **mock_kw
+) -> Cell:
     client = client_cls(
         "127.0.0.1",
         0,
@@ -287,8 +288,17 @@ def test_connect_timeout_names_what_it_waited_for():
 def test_only_the_controller_is_served(protocol):
     """A fake controller on another address (127.0.0.2: loopback, but not the controller's) connects first on
     both channels and feeds invented joints: it is refused, the real controller (127.0.0.1) is served."""
-    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol=protocol, controller_host="127.0.0.1",
-                      joint_limits_deg=KR270_LIMITS, connect_timeout_s=5.0, move_timeout_s=10.0)  # fmt: skip
+    client = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol=protocol,
+        controller_host="127.0.0.1",
+        joint_limits_deg=KR270_LIMITS,
+        connect_timeout_s=5.0,
+        move_timeout_s=10.0,
+    )
     client.listen()
     invented = encode_rob(RobFrame(ipoc=1, aipos=(11.0, -22.0, 33.0, 0.0, 0.0, 0.0)), tcp=protocol == "tcp")
     fakes = []
@@ -338,8 +348,15 @@ def test_mock_survives_a_garbage_peer_and_connects_again():
             srv.bind(("127.0.0.1", 0))
             srv.listen(1)
             srv.settimeout(5.0)
-        mock = MockKrc2(eki_srv.getsockname(), rsi_srv.getsockname(), VirtualClock(), HOME, answer_budget_s=0.01,
-                        rsi_protocol="tcp", rsi_passive=False)  # fmt: skip
+        mock = MockKrc2(
+            eki_srv.getsockname(),
+            rsi_srv.getsockname(),
+            VirtualClock(),
+            HOME,
+            answer_budget_s=0.01,
+            rsi_protocol="tcp",
+            rsi_passive=False,
+        )
         mock.start()
         eki, _ = eki_srv.accept()
         rsi, _ = rsi_srv.accept()
@@ -531,8 +548,16 @@ def test_the_guard_is_polled_at_least_at_20_hz():
 def test_a_stale_rsi_stream_refuses_the_move_before_sending(protocol):
     """A controller whose RSI stream is there but never delivers a complete frame: the move is refused with a
     clear error, bounded by rsi_stale_s (1 s), and nothing is sent on EKI."""
-    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol=protocol, rsi_passive=True,
-                      controller_host="127.0.0.1", connect_timeout_s=5.0)  # fmt: skip
+    client = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol=protocol,
+        rsi_passive=True,
+        controller_host="127.0.0.1",
+        connect_timeout_s=5.0,
+    )
     client.listen()
     stop = threading.Event()
     eki = socket.create_connection(client.eki.address)
@@ -584,8 +609,16 @@ def test_a_restarted_trackcal_finds_the_controller_again():
     )
     first.listen()
     eki_addr, rsi_addr = first.eki.address, first.rsi.address
-    mock = MockKrc2(eki_addr, rsi_addr, RealClock(), HOME, joint_speed_deg_s=100.0, settle_s=0.05,
-                    rsi_protocol="udp", rsi_passive=True).start()  # fmt: skip
+    mock = MockKrc2(
+        eki_addr,
+        rsi_addr,
+        RealClock(),
+        HOME,
+        joint_speed_deg_s=100.0,
+        settle_s=0.05,
+        rsi_protocol="udp",
+        rsi_passive=True,
+    ).start()
     second = None
     try:
         first.connect()
@@ -615,8 +648,16 @@ def test_rsi_frames_whose_ipoc_goes_backwards_are_not_read():
     """Issue 27: the IPOC is the controller's interpolation-cycle timestamp and only moves forward
     (kuka_rsi_simulator in ros-industrial/kuka_experimental); a frame with an older one is not the controller's
     stream now: counted, never read."""
-    client = KukaKrc2("127.0.0.1", 0, "127.0.0.1", 0, rsi_protocol="udp", rsi_passive=True,
-                      controller_host="127.0.0.1", rsi_stale_s=60.0)  # fmt: skip  60 s only bounds a hang
+    client = KukaKrc2(
+        "127.0.0.1",
+        0,
+        "127.0.0.1",
+        0,
+        rsi_protocol="udp",
+        rsi_passive=True,
+        controller_host="127.0.0.1",
+        rsi_stale_s=60.0,
+    )  # 60 s only bounds a hang
     rsi = client.rsi
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:

@@ -16,8 +16,15 @@ TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
 
 
 def motion(seed: int = 0, overshoot_deg: float = 0.02, brake_deg_s2: float = 200.0) -> Motion:
-    return Motion(HOME, random.Random(seed), joint_speed_deg_s=100.0, settle_s=0.3, cycle_s=KRC2_CYCLE_S,
-                  overshoot_deg=overshoot_deg, brake_deg_s2=brake_deg_s2)  # fmt: skip
+    return Motion(
+        HOME,
+        random.Random(seed),
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        cycle_s=KRC2_CYCLE_S,
+        overshoot_deg=overshoot_deg,
+        brake_deg_s2=brake_deg_s2,
+    )
 
 
 def run_until_ended(m: Motion, limit: int = 10_000) -> tuple[int, tuple[Command, bool, int]]:
@@ -57,8 +64,15 @@ def test_a_move_accelerates_within_the_axes_limit(span):
     $ACC_AXIS to the request's speed %), so no reported joint speeds up faster than rated speed / RAISE_TIME_S, nor runs
     faster than the rated speed; a short move is the longer for it (a 2 deg move at 100 % took 39 ms, 1.875 * 2 / 96,
     at 12,000 deg/s^2). Speeds and accelerations as differences of the 12 ms cycles' joints (the RSI positions)."""
-    m = Motion(HOME, random.Random(0), joint_speed_deg_s=100.0, settle_s=0.3, cycle_s=KRC2_CYCLE_S,
-               overshoot_deg=0.0, brake_deg_s2=200.0)  # fmt: skip
+    m = Motion(
+        HOME,
+        random.Random(0),
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        cycle_s=KRC2_CYCLE_S,
+        overshoot_deg=0.0,
+        brake_deg_s2=200.0,
+    )
     target = (HOME[0] + span, *HOME[1:])
     m.begin(Command(1, KIND_MOVE, target, 100))
     q = [m.q[0]]

@@ -18,9 +18,15 @@ angles = st.floats(-1.0e4, 1.0e4, allow_nan=False)  # AXIS_LIMIT
 carts = st.floats(-1.0e6, 1.0e6, allow_nan=False)  # CART_LIMIT
 six_angles = st.tuples(*[angles] * 6)
 six_carts = st.tuples(*[carts] * 6)
-frames = st.builds(RobFrame, ipoc=st.integers(0, 2**63 - 1), aipos=six_angles, aspos=st.none() | six_angles,
-                   rist=st.none() | six_carts, rsol=st.none() | six_carts,
-                   delay=st.none() | st.integers(0, 2**31 - 1))  # fmt: skip
+frames = st.builds(
+    RobFrame,
+    ipoc=st.integers(0, 2**63 - 1),
+    aipos=six_angles,
+    aspos=st.none() | six_angles,
+    rist=st.none() | six_carts,
+    rsol=st.none() | six_carts,
+    delay=st.none() | st.integers(0, 2**31 - 1),
+)
 
 
 def attribute_by_attribute(frame: RobFrame) -> bytes:
@@ -30,9 +36,11 @@ def attribute_by_attribute(frame: RobFrame) -> bytes:
     def attrs(tag, names, values):
         return f"<{tag} " + " ".join(f'{n}="{fmt4(float(v))}"' for n, v in zip(names, values, strict=True)) + "/>"
 
-    return (f'<Rob TYPE="KUKA">{attrs("RIst", CART, frame.rist or zero)}{attrs("RSol", CART, frame.rsol or zero)}'
-            f'{attrs("AIPos", AXES, frame.aipos or zero)}{attrs("ASPos", AXES, frame.aspos or frame.aipos or zero)}'
-            f'<Delay D="{int(frame.delay or 0)}"/><IPOC>{frame.ipoc}</IPOC></Rob>').encode()  # fmt: skip
+    return (
+        f'<Rob TYPE="KUKA">{attrs("RIst", CART, frame.rist or zero)}{attrs("RSol", CART, frame.rsol or zero)}'
+        f"{attrs('AIPos', AXES, frame.aipos or zero)}{attrs('ASPos', AXES, frame.aspos or frame.aipos or zero)}"
+        f'<Delay D="{int(frame.delay or 0)}"/><IPOC>{frame.ipoc}</IPOC></Rob>'
+    ).encode()
 
 
 def through_xml(data: bytes) -> RobFrame:
@@ -71,9 +79,7 @@ def test_the_encoder_s_frame_is_read_without_an_xml_parse(monkeypatch):
 
 @settings(max_examples=500, deadline=None)
 @given(frame=frames, at=st.integers(0, 10**6), byte=st.integers(0, 255))
-def test_a_frame_changed_anywhere_is_read_as_the_xml_path_reads_it_or_refused_as_it_refuses_it(
-    frame, at, byte
-):
+def test_a_frame_changed_anywhere_is_read_as_the_xml_path_reads_it_or_refused_as_it_refuses_it(frame, at, byte):
     data = bytearray(encode_rob(frame, tcp=False))
     data[at % len(data)] = byte
     try:
@@ -87,7 +93,10 @@ def test_a_frame_changed_anywhere_is_read_as_the_xml_path_reads_it_or_refused_as
 
 @pytest.mark.parametrize("value, element", [(10000.0001, "AIPos"), (1000000.0001, "RIst")])
 def test_a_value_past_the_limits_takes_the_xml_path_and_its_message(value, element):
-    frame = RobFrame(ipoc=5, aipos=(value if element == "AIPos" else 0.0,) + (0.0,) * 5,
-                     rist=(value if element == "RIst" else 0.0,) + (0.0,) * 5)  # fmt: skip
+    frame = RobFrame(
+        ipoc=5,
+        aipos=(value if element == "AIPos" else 0.0,) + (0.0,) * 5,
+        rist=(value if element == "RIst" else 0.0,) + (0.0,) * 5,
+    )
     with pytest.raises(ProtocolError, match=f"Rob/{element}/@"):
         parse_rob(encode_rob(frame, tcp=False))

@@ -211,8 +211,10 @@ def test_plc_operator_without_request_registers_keeps_lamp_and_button():
     """A PLC program without the request registers (here: the client looks for them where this PLC has none,
     so it answers ILLEGAL DATA ADDRESS): one warning, then lamp and acknowledge button as before."""
 
-    with MockPlc(clock=VirtualClock()) as mock, \
-            ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=PlcRegisterMap(request_hr=40)) as io:
+    with (
+        MockPlc(clock=VirtualClock()) as mock,
+        ModbusCellIO(*mock.address, timeout_s=TIMEOUT_S, register_map=PlcRegisterMap(request_hr=40)) as io,
+    ):
         seen: list = []
         out = StringIO()
         op = PlcOperator(io, Console(file=out, width=200).print, poll_s=0.0, sleep=operator_at(mock, seen))

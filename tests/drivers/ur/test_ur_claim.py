@@ -38,8 +38,10 @@ def test_a_second_claim_on_one_address_is_refused_until_the_first_is_closed():
 
 def test_a_claim_dies_with_its_process():
     """kill -9 of a campaign leaves no stale claim: the kernel drops the abstract socket with the process."""
-    code = "from trackcal.drivers.ur.client import UrRtde; r = UrRtde('127.0.0.95'); r.claim(); " \
-           "print('held', flush=True); import time; time.sleep(60)"  # fmt: skip
+    code = (
+        "from trackcal.drivers.ur.client import UrRtde; r = UrRtde('127.0.0.95'); r.claim(); "
+        "print('held', flush=True); import time; time.sleep(60)"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     robot = UrRtde("127.0.0.95")
     try:
@@ -73,9 +75,25 @@ def test_run_on_a_claimed_arm_is_refused_in_one_line_before_it_makes_a_session(t
     holder = UrRtde("127.0.0.96")
     holder.claim()  # as a running campaign holds it
     try:
-        out = subprocess.run([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                              "--session", str(tmp_path / "b"), "--no-analysis"], capture_output=True, text=True,
-                             timeout=120, cwd=ROOT)  # fmt: skip
+        out = subprocess.run(
+            [
+                *TRACKCAL,
+                "run",
+                "--cell",
+                "ur10",
+                "--plan",
+                str(plan),
+                "--hardware",
+                str(hw),
+                "--session",
+                str(tmp_path / "b"),
+                "--no-analysis",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=ROOT,
+        )
     finally:
         holder.close()
     assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
@@ -94,17 +112,49 @@ def test_second_run_against_the_same_mock_ur_while_the_first_runs_is_refused(tmp
     with mock_process("ur10", 3, hw, timeout_s=60.0, stdout=subprocess.DEVNULL, sim_speed=10.0):
         try:
             a, b = tmp_path / "a", tmp_path / "b"
-            first = subprocess.Popen([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                                      "--session", str(a), "--no-analysis"], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, cwd=ROOT)  # fmt: skip
+            first = subprocess.Popen(
+                [
+                    *TRACKCAL,
+                    "run",
+                    "--cell",
+                    "ur10",
+                    "--plan",
+                    str(plan),
+                    "--hardware",
+                    str(hw),
+                    "--session",
+                    str(a),
+                    "--no-analysis",
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                cwd=ROOT,
+            )
             deadline = time.monotonic() + 120  # bounds a hang only
             while count_measurements(a / "session.sqlite") < 1 and time.monotonic() < deadline:
                 assert first.poll() is None, first.stderr.read()
                 time.sleep(0.01)
             assert count_measurements(a / "session.sqlite") >= 1  # the first campaign is running
-            out = subprocess.run([*TRACKCAL, "run", "--cell", "ur10", "--plan", str(plan), "--hardware", str(hw),
-                                  "--session", str(b), "--no-analysis"], capture_output=True, text=True, timeout=120,
-                                 cwd=ROOT)  # fmt: skip
+            out = subprocess.run(
+                [
+                    *TRACKCAL,
+                    "run",
+                    "--cell",
+                    "ur10",
+                    "--plan",
+                    str(plan),
+                    "--hardware",
+                    str(hw),
+                    "--session",
+                    str(b),
+                    "--no-analysis",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=120,
+                cwd=ROOT,
+            )
             assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
             assert "the cell is busy" in out.stderr and not b.exists(), out.stderr
             _, err = first.communicate(timeout=300)

@@ -56,8 +56,9 @@ def test_identity_is_the_dashboard_servers_answers(ur):
             replies.append(lines.readline().strip())
     ident = robot.identity()
     version = replies[2].split()[1]  # "URSoftware 5.11.1.108318 (Jan 16 2024)": the version number
-    assert ident == DeviceIdentity(replies[0], f"Universal Robots {replies[1]}", f"PolyScope {version}",
-                                   READ_FROM_DEVICE)  # fmt: skip
+    assert ident == DeviceIdentity(
+        replies[0], f"Universal Robots {replies[1]}", f"PolyScope {version}", READ_FROM_DEVICE
+    )
     assert ident.serial.isdigit() and version.startswith("5.11.")
 
 
@@ -182,14 +183,19 @@ with MockUrProcess(sys.argv[1], seed=4, args=[sys.argv[2], "1"]):
 # The dropped connection is told by ur_rtde's receive thread, the stale stream by trackcal's clock: on a loaded machine
 # ur_rtde's thread may see the close later than 0.3 s, and the drop was then reported as a stale stream. The drop case
 # gives the stream 10 s, so that what it checks (a drop is ConnectionLost) does not race the stale limit.
-@pytest.mark.parametrize(("host", "fault", "stale_s", "error"),
-                         [("127.0.0.25", "--drop-on-move", "10.0", "ConnectionLost"),
-                          ("127.0.0.26", "--stale-on-move", "0.3", "DeviceTimeout")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("host", "fault", "stale_s", "error"),
+    [
+        ("127.0.0.25", "--drop-on-move", "10.0", "ConnectionLost"),
+        ("127.0.0.26", "--stale-on-move", "0.3", "DeviceTimeout"),
+    ],
+)
 def test_lost_and_stale_streams_end_the_move_in_one_line(host, fault, stale_s, error):
     """In a process of its own: after a dropped connection ur_rtde 1.6.5 may crash the process when its interfaces
     are released at exit (drivers/ur/client.py close), after trackcal has said why it stopped."""
-    out = subprocess.run([sys.executable, "-c", LOST, host, fault, stale_s], capture_output=True, text=True,
-                         timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-c", LOST, host, fault, stale_s], capture_output=True, text=True, timeout=120
+    )
     lines = [line for line in out.stdout.splitlines() if line.startswith(("ERROR", "NO ERROR"))]
     assert len(lines) == 1 and lines[0].startswith(f"ERROR {error}: UR {host}: "), out.stdout + out.stderr
 

@@ -40,8 +40,7 @@ print("trackcal's one line", file=sys.stderr)
 
 
 def run_python(code: str, tmp_path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path)  # fmt: skip
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
 
 
 def test_native_writes_go_to_the_log_and_python_keeps_the_console(tmp_path):

@@ -84,8 +84,11 @@ def test_door_opened_20_ms_into_a_move_brakes_within_the_braking_distance_then_s
     sent = robot.stop_sent_at
     assert sent is not None and opened_at and sent >= opened_at[0]
     # joint speeds from consecutive frames (every frame of the stream, in order)
-    speeds = [tuple((b - a) / (t1 - t0) for a, b in zip(q0, q1, strict=True))
-              for (t0, q0), (t1, q1) in zip(frames, frames[1:], strict=False) if t1 > t0]  # fmt: skip
+    speeds = [
+        tuple((b - a) / (t1 - t0) for a, b in zip(q0, q1, strict=True))
+        for (t0, q0), (t1, q1) in zip(frames, frames[1:], strict=False)
+        if t1 > t0
+    ]
     # braking starts at the frame of the highest speed (stopJ reached the controller's cycle there): from it the
     # joints decelerate together to rest in the time the leading one needs at stopJ's deceleration, each travelling
     # |v| t / 2; allowed on top: two RTDE cycles at that speed (the frame seen, the command's cycle) and the

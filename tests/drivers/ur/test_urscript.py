@@ -29,9 +29,17 @@ def test_movej_lines_in_radians_with_the_scaled_manual_defaults():
     assert "# A: -16.0000, -49.0000" in text
 
 
-@pytest.mark.parametrize(("name", "q", "speed"), [("9x", [[0] * 6], 10), ("a b", [[0] * 6], 10),
-                                                  ("p", [[0] * 5], 10), ("p", [[math.nan] * 6], 10),
-                                                  ("p", [[0] * 6], 0), ("p", [[0] * 6], 101)])  # fmt: skip
+@pytest.mark.parametrize(
+    ("name", "q", "speed"),
+    [
+        ("9x", [[0] * 6], 10),
+        ("a b", [[0] * 6], 10),
+        ("p", [[0] * 5], 10),
+        ("p", [[math.nan] * 6], 10),
+        ("p", [[0] * 6], 0),
+        ("p", [[0] * 6], 101),
+    ],
+)
 def test_refused(name, q, speed):
     with pytest.raises(UrScriptError):
         urscript_text(name, q, speed)
@@ -53,8 +61,10 @@ def test_compensate_writes_urscript_for_the_ur_cell_and_krl_for_the_kr270(tmp_pa
         return out
 
     targets = tmp_path / "t.csv"
-    for cell, q0, files in (("ur10", "-16,-49,59,-19,-104,-12", ["P.script"]),
-                            ("kr270", "76.7,-56.9,89.3,45.1,76,57.2", ["P.src", "P.dat"])):  # fmt: skip
+    for cell, q0, files in (
+        ("ur10", "-16,-49,59,-19,-104,-12", ["P.script"]),
+        ("kr270", "76.7,-56.9,89.3,45.1,76,57.2", ["P.src", "P.dat"]),
+    ):
         cli("simulate", "--cell", cell, "--poses", "12", "--seed", "2", "--out", f"{cell}.csv")
         cli("identify", f"{cell}.csv", "--cell", cell, "--out", f"{cell}.json")
         targets.write_text(f"name,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\nA,{q0}\n")
@@ -62,12 +72,30 @@ def test_compensate_writes_urscript_for_the_ur_cell_and_krl_for_the_kr270(tmp_pa
         d.mkdir()
         # 12 random poses leave some of the KR-270's 18 parameters poorly determined: the model is marked unusable
         # (calib.model_trust), accepted here for the program it writes
-        cli("compensate", str(targets), "--model", f"{cell}.json", "--out", str(d / "c.csv"), "--program", "P",
-            "--accept-poor")
+        cli(
+            "compensate",
+            str(targets),
+            "--model",
+            f"{cell}.json",
+            "--out",
+            str(d / "c.csv"),
+            "--program",
+            "P",
+            "--accept-poor",
+        )
         assert sorted(p.name for p in d.iterdir()) == sorted(["c.csv", *files])
     rows = (tmp_path / "ur10" / "c.csv").read_text().splitlines()
     assert len(rows) == 2
     assert "\n  # A: " in (tmp_path / "ur10" / "P.script").read_text()  # the target's own name, not a KRL name
-    bad = cli("compensate", str(targets), "--model", "ur10.json", "--out", str(tmp_path / "x.csv"), "--program", "9",
-              check=False)  # fmt: skip
+    bad = cli(
+        "compensate",
+        str(targets),
+        "--model",
+        "ur10.json",
+        "--out",
+        str(tmp_path / "x.csv"),
+        "--program",
+        "9",
+        check=False,
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and not (tmp_path / "x.csv").exists()

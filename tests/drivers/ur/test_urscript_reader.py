@@ -38,9 +38,16 @@ def test_the_sample_program_s_targets_and_frames():
     read = read_urscript({"cell_demo.script": text})
     assert read.language == "URScript" and read.comment == "#"
     names = [(t.name, t.line, t.joint, t.motion) for t in read.targets]
-    assert names == [("home", 8, True, "movej"), ("approach", 9, False, "movej"), ("pick", 10, False, "movel"),
-                     ("place", 11, False, "movel"), ("line 19", 19, False, "movec"), ("line 19", 19, False, "movec"),
-                     ("line 22", 22, False, "movep"), ("line 24", 24, True, "movej")]  # fmt: skip
+    assert names == [
+        ("home", 8, True, "movej"),
+        ("approach", 9, False, "movej"),
+        ("pick", 10, False, "movel"),
+        ("place", 11, False, "movel"),
+        ("line 19", 19, False, "movec"),
+        ("line 19", 19, False, "movec"),
+        ("line 22", 22, False, "movep"),
+        ("line 24", 24, True, "movej"),
+    ]
     fixture = pose(-0.9, -0.1, 0.05, 0.0, 0.0, 0.3)  # line 7 of the sample
     tcp = pose(0.0, 0.05, 0.15, 0.0, 0.0, 0.0)  # its set_tcp
     home, approach, pick = read.targets[:3]
@@ -74,11 +81,13 @@ def test_a_corrected_value_is_written_in_the_source_s_style_and_reads_back():
     assert out[again.targets[2].start :].startswith("0.011706, 0.220238, 0.048809, -2.591996, -1.775151")
     # everything but the targets is the same text
     strip = [(t.start, t.end) for t in read.targets]
-    kept = "".join(text[a:b] for a, b in zip([0] + [e for _, e in strip], [s for s, _ in strip] + [len(text)],
-                                                strict=True))  # fmt: skip
+    kept = "".join(
+        text[a:b] for a, b in zip([0] + [e for _, e in strip], [s for s, _ in strip] + [len(text)], strict=True)
+    )
     strip2 = [(t.start, t.end) for t in again.targets]
-    kept2 = "".join(out[a:b] for a, b in zip([0] + [e for _, e in strip2], [s for s, _ in strip2] + [len(out)],
-                                               strict=True))  # fmt: skip
+    kept2 = "".join(
+        out[a:b] for a, b in zip([0] + [e for _, e in strip2], [s for s, _ in strip2] + [len(out)], strict=True)
+    )
     assert kept == kept2
 
 
@@ -129,13 +138,16 @@ def test_anything_is_read_or_refused_in_one_line(text):
         assert msg.startswith("f.script: line ") and "\n" not in msg
 
 
-@pytest.mark.parametrize(("text", "line", "what"), [
-    ('def a():\n  textmsg("open\nend\n', 2, "closing quote"),
-    ("def a():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0]\nend\n", 2, "never closed"),
-    ("def a():\n  x = 1)\nend\n", 2, "closes nothing"),
-    ("def a():\n\n  movel(p[0.1, 0.2, 0.3, 0, 0])\nend\n", 3, "needs 6 numbers, got 5"),
-    ("def a():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0]) $\nend\n", 2, "unexpected character '$'"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("text", "line", "what"),
+    [
+        ('def a():\n  textmsg("open\nend\n', 2, "closing quote"),
+        ("def a():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0]\nend\n", 2, "never closed"),
+        ("def a():\n  x = 1)\nend\n", 2, "closes nothing"),
+        ("def a():\n\n  movel(p[0.1, 0.2, 0.3, 0, 0])\nend\n", 3, "needs 6 numbers, got 5"),
+        ("def a():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0]) $\nend\n", 2, "unexpected character '$'"),
+    ],
+)
 def test_broken_scripts_are_one_line_naming_the_line(text, line, what):
     with pytest.raises(ProgramReadError) as err:
         read_urscript({"b.script": text})
@@ -143,6 +155,7 @@ def test_broken_scripts_are_one_line_naming_the_line(text, line, what):
 
 
 def test_poses_computed_at_run_time_are_not_targets():
-    text = ("def a():\n  here = get_actual_tcp_pose()\n  movel(pose_add(here, p[0, 0, 0.1, 0, 0, 0]))\n"
-            "  movel(here)\nend\n")
+    text = (
+        "def a():\n  here = get_actual_tcp_pose()\n  movel(pose_add(here, p[0, 0, 0.1, 0, 0, 0]))\n  movel(here)\nend\n"
+    )
     assert read_urscript({"a.script": text}).targets == []

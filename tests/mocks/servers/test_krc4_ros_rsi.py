@@ -55,10 +55,12 @@ def rsi_state(xml: bytes) -> dict:
     rob = doc if doc.tag == "Rob" else None  # bufferdoc.FirstChildElement("Rob"): the document's element
     assert rob is not None, "no <Rob>: rsi_state.h dereferences a null element"
     out = {}
-    for tag, key, names in (("AIPos", "positions", ("A1", "A2", "A3", "A4", "A5", "A6")),
-                            ("ASPos", "initial_positions", ("A1", "A2", "A3", "A4", "A5", "A6")),
-                            ("RIst", "cart_position", ("X", "Y", "Z", "A", "B", "C")),
-                            ("RSol", "initial_cart_position", ("X", "Y", "Z", "A", "B", "C"))):  # fmt: skip
+    for tag, key, names in (
+        ("AIPos", "positions", ("A1", "A2", "A3", "A4", "A5", "A6")),
+        ("ASPos", "initial_positions", ("A1", "A2", "A3", "A4", "A5", "A6")),
+        ("RIst", "cart_position", ("X", "Y", "Z", "A", "B", "C")),
+        ("RSol", "initial_cart_position", ("X", "Y", "Z", "A", "B", "C")),
+    ):
         el = rob.find(tag)  # rob->FirstChildElement(tag)
         assert el is not None, f"no <{tag}>: rsi_state.h dereferences a null element"
         out[key] = [attribute(el, n) for n in names]
@@ -83,8 +85,9 @@ def ros_pc():
     sock.bind(("127.0.0.1", 0))
     sock.settimeout(5.0)
     seen: list = []
-    mock = MockKrc4(("127.0.0.1", 0), sock.getsockname(), VirtualClock(), HOME, on_joints=seen.append, seed=4,
-                    answer_budget_s=5.0).start()  # fmt: skip
+    mock = MockKrc4(
+        ("127.0.0.1", 0), sock.getsockname(), VirtualClock(), HOME, on_joints=seen.append, seed=4, answer_budget_s=5.0
+    ).start()
     yield sock, mock, seen
     mock.stop()
     sock.close()

@@ -17,8 +17,15 @@ angles = st.floats(-170.0, 170.0, allow_nan=False)  # within a KR C2's A1 range 
 
 
 def motion(overshoot_deg: float) -> Motion:
-    return Motion(HOME, random.Random(1), joint_speed_deg_s=100.0, settle_s=0.3, cycle_s=KRC2_CYCLE_S,
-                  overshoot_deg=overshoot_deg, brake_deg_s2=200.0)  # fmt: skip
+    return Motion(
+        HOME,
+        random.Random(1),
+        joint_speed_deg_s=100.0,
+        settle_s=0.3,
+        cycle_s=KRC2_CYCLE_S,
+        overshoot_deg=overshoot_deg,
+        brake_deg_s2=200.0,
+    )
 
 
 def test_a_step_s_report_is_rounded_once_and_read_as_the_same_tuple():

@@ -30,8 +30,9 @@ class FakeWall:
 
 def _mock(real_fraction: float = 1.0):
     wall = FakeWall()
-    mock = MockKrc4(("127.0.0.1", 0), ("127.0.0.1", 9), VirtualClock(real_fraction=real_fraction), HOME,
-                    wall_clock=wall)  # fmt: skip
+    mock = MockKrc4(
+        ("127.0.0.1", 0), ("127.0.0.1", 9), VirtualClock(real_fraction=real_fraction), HOME, wall_clock=wall
+    )
     return mock, wall
 
 

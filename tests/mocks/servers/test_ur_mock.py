@@ -354,8 +354,9 @@ def test_urs_python_client_reads_its_own_recipe():
             assert all(abs(g - s * 0.008) < 1e-6 for g, s in zip(gaps, steps, strict=True))
             assert sum(steps) == len(frames) - 1 + con.skipped_package_count
             assert (len(frames) + con.skipped_package_count) / wall < 125 * 1.5  # not faster than real time
-            assert all(f.actual_q == pytest.approx(HOME) and f.robot_mode == 7 and f.safety_status_bits == 1
-                       for f in frames)  # fmt: skip
+            assert all(
+                f.actual_q == pytest.approx(HOME) and f.robot_mode == 7 and f.safety_status_bits == 1 for f in frames
+            )
 
             assert con.send_pause()  # 'P': answered, and no frame after the answer
             time.sleep(0.2)
@@ -433,8 +434,9 @@ def test_garbage_closes_the_connection_and_the_mock_serves_on():
 
         # the command line: a mistake is one line and exit 2, also an address in use
         for args in (["--q0-deg", "1,2"], ["--host", host]):
-            done = subprocess.run([sys.executable, "-m", "trackcal.mocks.servers.ur", *args], capture_output=True,
-                                  text=True, timeout=60)  # fmt: skip
+            done = subprocess.run(
+                [sys.executable, "-m", "trackcal.mocks.servers.ur", *args], capture_output=True, text=True, timeout=60
+            )
             assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
@@ -467,9 +469,14 @@ def test_data_frames_read_back_by_urs_serializer(names, rnd):
     values = {}
     for n, t in zip(names, types, strict=True):
         k = len(rc.TYPE_FORMAT[t])
-        one = {"DOUBLE": lambda: rnd.uniform(-1e3, 1e3), "BOOL": lambda: rnd.random() < 0.5,
-               "UINT8": lambda: rnd.randrange(256), "INT32": lambda: rnd.randrange(-2**31, 2**31),
-               "UINT32": lambda: rnd.randrange(2**32), "UINT64": lambda: rnd.randrange(2**64)}  # fmt: skip
+        one = {
+            "DOUBLE": lambda: rnd.uniform(-1e3, 1e3),
+            "BOOL": lambda: rnd.random() < 0.5,
+            "UINT8": lambda: rnd.randrange(256),
+            "INT32": lambda: rnd.randrange(-(2**31), 2**31),
+            "UINT32": lambda: rnd.randrange(2**32),
+            "UINT64": lambda: rnd.randrange(2**64),
+        }
         base = t.removeprefix("VECTOR6").removeprefix("VECTOR3")
         kind = {"D": "DOUBLE", "INT32": "INT32", "UINT32": "UINT32"}.get(base, base)
         values[n] = [one[kind]() for _ in range(k)] if k > 1 else one[kind]()
@@ -481,9 +488,17 @@ def test_data_frames_read_back_by_urs_serializer(names, rnd):
         assert getattr(got, n) == values[n]
 
 
-@given(st.lists(st.sampled_from([f"input_int_register_{i}" for i in range(48)]
-                                + [f"input_double_register_{i}" for i in range(48)]), min_size=1, max_size=10,
-                unique=True), st.randoms(use_true_random=False))  # fmt: skip
+@given(
+    st.lists(
+        st.sampled_from(
+            [f"input_int_register_{i}" for i in range(48)] + [f"input_double_register_{i}" for i in range(48)]
+        ),
+        min_size=1,
+        max_size=10,
+        unique=True,
+    ),
+    st.randoms(use_true_random=False),
+)
 def test_input_frames_of_urs_client_are_read(names, rnd):
     recipe = rc.Recipe(7, tuple(names), tuple(rc.input_type(n) for n in names))
     config = ur_serialize.DataConfig.unpack_recipe(recipe.answer())

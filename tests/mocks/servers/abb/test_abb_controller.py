@@ -176,12 +176,33 @@ def test_the_robtarget_at_the_calibration_position_is_the_datasheets_flange(serv
 
 
 @settings(max_examples=60)
-@given(method=st.sampled_from(["GET", "POST", "PUT", "DELETE"]),
-       path=st.lists(st.sampled_from(["rw", "rapid", "symbol", "data", "RAPID", "T_ROB1", "TrackcalRws",
-                                      "trackcal_move", "panel", "ctrlstate", "execution", "x", "%00", "..", ""]),
-                     max_size=8),
-       action=st.sampled_from(["", "set", "start", "stop", "resetpp", "setctrlstate", "junk"]),
-       body=st.binary(max_size=40))  # fmt: skip
+@given(
+    method=st.sampled_from(["GET", "POST", "PUT", "DELETE"]),
+    path=st.lists(
+        st.sampled_from(
+            [
+                "rw",
+                "rapid",
+                "symbol",
+                "data",
+                "RAPID",
+                "T_ROB1",
+                "TrackcalRws",
+                "trackcal_move",
+                "panel",
+                "ctrlstate",
+                "execution",
+                "x",
+                "%00",
+                "..",
+                "",
+            ]
+        ),
+        max_size=8,
+    ),
+    action=st.sampled_from(["", "set", "start", "stop", "resetpp", "setctrlstate", "junk"]),
+    body=st.binary(max_size=40),
+)
 def test_any_request_gets_an_http_answer_never_a_500(method, path, action, body):
     """Whatever a client sends with a session, the mock answers as a controller does: never an internal error, never a
     dropped connection (a RobotWare controller answers 400, 404 or 405)."""

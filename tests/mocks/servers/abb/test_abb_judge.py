@@ -85,8 +85,12 @@ def test_a_busy_controller_answers_503(mock):
 
 def test_a_controller_that_disappears_is_a_connection_error_for_the_judge():
     with MockAbbProcess(seed=12) as gone:
-        proc = subprocess.Popen([str(JUDGE), str(SCRIPT), "http://{}:{}".format(*gone.address), "gone"],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+        proc = subprocess.Popen(
+            [str(JUDGE), str(SCRIPT), "http://{}:{}".format(*gone.address), "gone"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         assert proc.stdout is not None
         try:
             first = json.loads(proc.stdout.readline())
