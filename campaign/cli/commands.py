@@ -653,7 +653,7 @@ COMMANDS = [
                 "--load",
                 help="what the robot carries during the test, for the report (ISO 9283:1998, 6.6: "
                 "100 %% of the rated load), e.g. '270 kg, 100 %% rated', or 'unloaded' "
-                "(required: a plan without it is refused)",
+                "(default: none, and a plan without it is refused)",
             ),
             arg(
                 "--velocities",

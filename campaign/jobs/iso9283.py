@@ -58,6 +58,7 @@ from trackcal.calib.iso9283 import (
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model_file import Model
+from trackcal.campaign.cells.identity import stated_tracker
 from trackcal.campaign.engine.steps import (
     PlanError,
     drift_block,
@@ -79,7 +80,6 @@ from trackcal.campaign.jobs.iso9283_budget import (
 )
 from trackcal.campaign.jobs.iso9283_departures import STANDARD_VELOCITIES, departures
 from trackcal.campaign.jobs.iso9283_field import field_check
-from trackcal.campaign.jobs.iso9283_trace import _tracker as tracker_section
 from trackcal.campaign.jobs.iso9283_trace import expired_certificate, traceability
 from trackcal.campaign.jobs.trusted import trusted_model, usable_model
 from trackcal.campaign.report.iso9283_conformity import conformity_doc, verdicts
@@ -388,7 +388,7 @@ def _field_check_record(store: SessionStore, directory: Path, docs: list) -> dic
     rows = {
         p: np.array([m["xyz_mm"] for m in docs if m.get("field_check") and m["point"] == p]) for p in block["points"]
     }
-    found = field_check(block, rows, tracker_section(store, directory), session_cell(store).tracker)
+    found = field_check(block, rows, stated_tracker(store), session_cell(store).tracker)
     return {"field check": found.describe() if found else "planned, not measured: a point was not seen"}
 
 

@@ -28,6 +28,7 @@ from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, State, Station, _distinct_poses, identify
 from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.extension import JointFeatures
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.rigid import exp_so3
 from trackcal.campaign.cli import main
@@ -57,13 +58,16 @@ def reference_distinct_poses(q, feats):
 def test_distinct_poses_equal_the_whole_key(kind):
     rng = np.random.default_rng(3)
     q = rng.uniform(-3, 3, (12, 6))[rng.integers(0, 12, 60)]  # 60 rows, poses repeated
-    feats = {
+    one_joint = np.zeros((6, 6))  # column e moves joint e alone, as every extension's features do (JointFeatures)
+    one_joint[np.arange(6), np.arange(6)] = 1.0
+    dense = {
         "none": None,
-        "of_angles": np.sin(q)[:, :, None] * np.arange(1, 4),
-        "not_of_angles": rng.choice([-1.0, 1.0], (60, 6, 2)),
+        "of_angles": np.sin(q)[:, :, None] * one_joint,
+        "not_of_angles": rng.choice([-1.0, 1.0], (60, 6, 1)) * one_joint,
     }[kind]
+    feats = None if dense is None else JointFeatures.of(dense)
     first, of_row = _distinct_poses(q, feats)
-    ref_first, ref_of_row = reference_distinct_poses(q, feats)
+    ref_first, ref_of_row = reference_distinct_poses(q, dense)
     assert np.array_equal(first, ref_first) and np.array_equal(of_row, ref_of_row)
     if kind == "not_of_angles":  # the direction of motion splits poses of equal angles
         assert len(first) > len(np.unique(q, axis=0))
