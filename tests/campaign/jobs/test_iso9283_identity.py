@@ -43,7 +43,11 @@ def tested(tmp_path_factory, kr270):
             "certificate_due": "2999-06-01",
         }
     )
-    plan = make_plan(PlanOptions(cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0))
+    plan = make_plan(
+        PlanOptions(
+            cell="kr270", json=str(d / "iso.json"), cycles=2, vap_cycles=0, load="unloaded", velocities=(100.0,)
+        )
+    )
     store, campaign = new_session(d / "s", "kr270", plan, "sim", SEED, hardware=(yaml.safe_dump(doc), "hw.yaml"))
     _, live = inproc_live(kr270, SEED)
     live.tracker.identity = lambda: TRACKER  # type: ignore[method-assign]  (the tracker of this run)
