@@ -9,10 +9,11 @@ import json
 import os
 import socket
 import subprocess
+from abc import ABC, abstractmethod
 from typing import Self
 
 
-class MockProcess:
+class MockProcess(ABC):
     """Base of MockAbbProcess and MockUrProcess: `start()` is theirs; it sets `proc` and `_stderr`."""
 
     def __init__(self, host: str, seed: int, ready_timeout_s: float, control_port: int) -> None:
@@ -23,8 +24,9 @@ class MockProcess:
         self.proc_returncode: int | None = None
         self._stderr = None
 
+    @abstractmethod
     def start(self) -> Self:
-        raise NotImplementedError
+        """Start the mock's process and return once it answers (each subclass knows its module and readiness)."""
 
     def stderr(self) -> str:
         """What the mock wrote on stderr so far."""

@@ -24,8 +24,8 @@ def _serve(status: int, headers: dict[str, str]):
             self.send_header("Content-Length", "0")
             self.end_headers()
 
-        def log_message(self, *args):  # quiet
-            pass
+        def log_message(self, *args):
+            """Quiet: http.server would print every request on stderr."""
 
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
