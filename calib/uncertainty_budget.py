@@ -296,12 +296,16 @@ def joint_draws(inputs: list[Input], rng: np.random.Generator, m: int) -> np.nda
     return total
 
 
-def _log_sinhc(t: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """log(sinh(t lam) / lam), its limit log t at lam = 0 (t > 0)."""
+def _log_sinhc(t: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
+    """log(sinh(t lam) / lam), its limit log t at lam = 0 (t > 0); lam an array like t, or one value for every t.
+    One value's log is taken as an array of one, by the same vectorised loop as an array's (a lone float's log may
+    differ in the last bit). log1p(-exp(-2 z)) is -inf where z underflows to 0: those entries take log t instead."""
     z = np.maximum(t * lam, 1e-300)
-    lam_ = np.maximum(lam, 1e-300)
-    big = z + np.log1p(-np.exp(-2.0 * z)) - np.log(2.0) - np.log(lam_)
-    return np.where(z < 1e-8, np.log(np.maximum(t, 1e-300)), big)
+    log_lam = np.log(np.maximum(np.atleast_1d(lam), 1e-300))
+    with np.errstate(divide="ignore"):
+        big = z + np.log1p(-np.exp(-2.0 * z)) - np.log(2.0) - log_lam
+    small = z < 1e-8
+    return np.where(small, np.log(np.maximum(t, 1e-300)), big) if small.any() else big
 
 
 def _mle_table(t: np.ndarray) -> np.ndarray:
@@ -318,14 +322,27 @@ def _mle_table(t: np.ndarray) -> np.ndarray:
 
 _T_TABLE = np.linspace(0.0, 10.0, 2001)
 _LAM_TABLE = _mle_table(_T_TABLE)
+# np.interp's slopes, as it forms them, and none after the last knot (where lam_hat is the knot's own value)
+_SLOPES = np.append((_LAM_TABLE[1:] - _LAM_TABLE[:-1]) / (_T_TABLE[1:] - _T_TABLE[:-1]), 0.0)
+
+
+def _lam_hat(t: np.ndarray) -> np.ndarray:
+    """np.interp(t, _T_TABLE, _LAM_TABLE) for 0 <= t <= the table's end, bit for bit, without its binary search (the
+    table is uniform: the interval is t's multiple of the step, corrected where the linspace's rounding puts t on the
+    other side of a knot); np.interp's own expressions, slope (t - t_j) + lam_j, and lam_j on a knot."""
+    last = len(_T_TABLE) - 1
+    j = np.minimum((t * (last / _T_TABLE[-1])).astype(np.intp), last)
+    j += ((j < last) & (_T_TABLE[np.minimum(j + 1, last)] <= t)).view(np.int8) - (_T_TABLE[j] > t).view(np.int8)
+    t_j, lam_j = _T_TABLE[j], _LAM_TABLE[j]
+    return np.where(t == t_j, lam_j, _SLOPES[j] * (t - t_j) + lam_j)
 
 
 def _log_ratio(t: np.ndarray, lam: float) -> np.ndarray:
     """log f(t | lam) - log f(t | lam_hat(t)) for the unit non-central chi of 3 degrees of freedom (t, lam in sigma);
     lam_hat beyond the table: the root of lam^2 - t lam + 1 (coth = 1 there)."""
     far = np.sqrt(np.maximum(t * t - 4.0, 0.0))
-    hat = np.where(t <= _T_TABLE[-1], np.interp(t, _T_TABLE, _LAM_TABLE), 0.5 * (t + far))
-    return _log_sinhc(t, np.full_like(t, lam)) - lam * lam / 2 - (_log_sinhc(t, hat) - hat * hat / 2)
+    hat = np.where(t <= _T_TABLE[-1], _lam_hat(np.minimum(t, _T_TABLE[-1])), 0.5 * (t + far))
+    return _log_sinhc(t, lam) - lam * lam / 2 - (_log_sinhc(t, hat) - hat * hat / 2)
 
 
 def norm_interval(

@@ -2,15 +2,23 @@
 second method (finite differences of the figure computed from scratch, or a plain Monte-Carlo of the figure), the
 temperature lines by hand, the coverage interval against distributions whose quantiles are known."""
 
+import warnings
+
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from trackcal.calib.iso9283 import pose_accuracy, pose_repeatability
 from trackcal.calib.uncertainty_budget import (
+    _LAM_TABLE,
+    _T_TABLE,
     ALPHA_STEEL,
     REFRACTION_PER_K,
     PoseSetting,
+    _lam_hat,
+    _log_ratio,
     ap_budget,
     pose_inputs,
     rp_budget,
@@ -153,3 +161,48 @@ def test_rp_budget_matches_its_linear_propagation():
     assert (hi - lo) / 2 == pytest.approx(1.96 * rp.u95 / 2, rel=0.1)
     assert [ln.contribution_mm for ln in b.lines[1:]] == [0.0] * (len(b.lines) - 1)
     assert pose_accuracy(x, np.zeros(3), covs)[0].value >= 0.0
+
+
+def test_lam_hat_is_np_interp_bit_for_bit():
+    """_lam_hat replaces np.interp on the uniform table (issue 41: the search was 40 % of `iso9283 compare`): the same
+    value in every bit on every knot, beside every knot (one ulp either side: where the linspace's rounding decides
+    the interval) and between them."""
+    t = np.concatenate([_T_TABLE, np.nextafter(_T_TABLE, -1.0), np.nextafter(_T_TABLE, 11.0)])
+    t = np.concatenate([t, np.random.default_rng(41).uniform(0.0, 10.0, 200_000)])
+    t = t[(t >= 0.0) & (t <= _T_TABLE[-1])]
+    assert np.array_equal(_lam_hat(t), np.interp(t, _T_TABLE, _LAM_TABLE))
+
+
+def log_ratio_as_first_written(t, lam):
+    """_log_ratio before issue 41: lam as a full array, np.interp, both branches of log sinhc computed everywhere."""
+
+    def log_sinhc(t, lam):
+        z = np.maximum(t * lam, 1e-300)
+        big = z + np.log1p(-np.exp(-2.0 * z)) - np.log(2.0) - np.log(np.maximum(lam, 1e-300))
+        return np.where(z < 1e-8, np.log(np.maximum(t, 1e-300)), big)
+
+    far = np.sqrt(np.maximum(t * t - 4.0, 0.0))
+    hat = np.where(t <= _T_TABLE[-1], np.interp(t, _T_TABLE, _LAM_TABLE), 0.5 * (t + far))
+    with np.errstate(divide="ignore"):
+        return log_sinhc(t, np.full_like(t, lam)) - lam * lam / 2 - (log_sinhc(t, hat) - hat * hat / 2)
+
+
+@given(
+    st.lists(st.floats(0.0, 30.0), min_size=1, max_size=300),
+    st.one_of(st.just(0.0), st.floats(0.0, 20.0)),
+)
+def test_log_ratio_gives_the_first_form_bit_for_bit(ts, lam):
+    """The ranking of the Feldman-Cousins construction is unchanged in every bit, so are the intervals it gives."""
+    t = np.array(ts)
+    assert np.array_equal(_log_ratio(t, lam), log_ratio_as_first_written(t, lam))
+
+
+def test_ap_budget_near_zero_warns_of_nothing():
+    """A compensated pose (AP of the noise's size): draws with t near 0 underflow sinh's argument; the report's console
+    showed numpy's 'divide by zero encountered in log1p' (issue 41's profile of `iso9283 compare`)."""
+    c, x, y, covs = scene()
+    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        budget = ap_budget(np.array([0.001, 0.0, 0.0]), pose_inputs(x - x.mean(axis=0) + c, covs, s))
+    assert budget.interval[0] == 0.0  # an upper limit: the construction's lower end at 0 (module docstring)
