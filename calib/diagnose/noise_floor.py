@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtrc, fdtrc  # F and chi2 tails (scipy.stats: ~1 s to import)
 
 from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.identify.noise import TrackerNoise
@@ -98,6 +97,8 @@ def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: Tr
 def floor_test(geo: Identification, floor: Floor) -> float:
     """p-value that the geometric residuals are at the floor: an F test against a floor from repeats
     (itself estimated with floor.dof degrees of freedom), chi-square against the noise model."""
+    from scipy.special import chdtrc, fdtrc  # lazy: identify finds the floor, not this test (scipy: start-up)
+
     if floor.dof is None and geo.noise is not None:
         return float(chdtrc(geo.dof, geo.variance_factor * geo.dof))
     ratio = float(np.sum(geo.residuals**2)) / geo.dof / floor.sigma_mm**2

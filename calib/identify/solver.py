@@ -21,10 +21,10 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import stdtrit
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.student import t_quantile
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.extension import Extension, JointFeatures
@@ -77,7 +77,7 @@ class Identification:
 
     @property
     def t95(self) -> float:
-        return float(stdtrit(self.dof, 0.975))  # Student t quantile (scipy.stats costs ~1 s to import)
+        return t_quantile(self.dof, 0.975)  # Student t quantile (calib.identify.student: scipy's costs start-up)
 
     def std(self) -> np.ndarray:
         return np.sqrt(np.diag(self.cov))
