@@ -151,6 +151,20 @@ def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> 
     return np.matmul(m, np.ascontiguousarray(cols.transpose(2, 0, 1)), out=out)  # BLAS takes contiguous rows
 
 
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each distinct row, index of each row's among them) of a 2-D array, in the order of
+    np.unique(a, axis=0, return_index=True, return_inverse=True), the same arrays: one lexsort of the columns
+    (stable, like np.unique's mergesort of the rows as records, which took 2-3x as long: issue 41)."""
+    order = np.lexsort(a.T[::-1])  # by the first column, then the next, ...
+    ranked = a[order]
+    new = np.empty(len(a), dtype=bool)
+    new[:1] = True
+    np.any(ranked[1:] != ranked[:-1], axis=1, out=new[1:])
+    inverse = np.empty(len(a), dtype=np.intp)
+    inverse[order] = np.cumsum(new) - 1
+    return order[new], inverse
+
+
 def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
     features (N, n, e), equal features, in np.unique's order of the key [q, features].
@@ -159,14 +173,12 @@ def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndar
     the angles alone are those of the whole key and in the same order (the key sorts by the angles first), and the
     sort of a key thousands of columns wide is skipped (issue 26: 5 s of a diagnosis of the UR10's Series B). When
     they are not (backlash follows the direction of motion), the whole key is sorted as before."""
-    _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
-    of_row = of_row.ravel()
+    first, of_row = unique_rows(q)
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.values  # equal rows of the block form are equal rows of the dense features
         if not np.array_equal(flat, flat[first][of_row]):
             key = np.hstack([q, feats.dense().reshape(len(q), -1)])  # the dense key's order, as before
-            _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
-            of_row = of_row.ravel()
+            first, of_row = unique_rows(key)
     return first, of_row
 
 
@@ -576,31 +588,23 @@ def identify(
     extension: Extension | None = None,
     ext0: np.ndarray | None = None,
     fixed: tuple[str, ...] = (),
+    covariance: bool = True,
 ) -> Identification:
     """Identify `params` (deviations from nominal), the extension's parameters, every station and every
     reference point; `fixed` ("robot", "points") holds those at dev0 / ext0 / tool_points (their rows and
-    columns of the covariance are zero)."""
+    columns of the covariance are zero). Without `covariance` (a fit whose residuals alone are used: the nominal
+    robot's "before" fit) the covariance is NaN, there is no R factor and the set-up's identifiability is not
+    checked: the pass over the rows and the factorisation that give them are saved (issue 41)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     sol = solve(problem, problem.initial, max_iter)
     state = sol.state
     residuals = problem.xyz - problem.predicted(state)
     r = problem._whiten(residuals).ravel()
-    rf = problem.r_factor(state)
-    scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
-    scale[scale == 0] = 1.0
-    _, sv, vt = np.linalg.svd(rf / scale)
-    if sv[-1] < 1e-9 * sv[0]:
-        null = np.abs(vt[-1])
-        names = problem.unknown_names()
-        worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
-        raise IdentificationError(
-            f"{problem.source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
-            "(add poses, reference points or stations, or identify fewer parameters)"
-        )
     dof = 3 * problem.n_rows - problem.n_cols
     s2 = float(r @ r) / dof
-    cov = np.zeros((problem.n_all, problem.n_all))
-    cov[np.ix_(problem.free, problem.free)] = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
+    cov, rf = np.full((problem.n_all, problem.n_all), np.nan), None
+    if covariance:
+        cov, rf = _covariance(problem, state, s2)
     return Identification(
         chain=chain,
         params=list(params),
@@ -621,6 +625,26 @@ def identify(
         message=sol.message,
         r_factor=rf,
     )
+
+
+def _covariance(problem: Problem, state: State, s2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(covariance of every unknown at `state`, eq. 27 with the variance factor s2; R of the whitened Jacobian), or
+    IdentificationError naming the unknowns the measurements cannot separate."""
+    rf = problem.r_factor(state)
+    scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
+    scale[scale == 0] = 1.0
+    _, sv, vt = np.linalg.svd(rf / scale)
+    if sv[-1] < 1e-9 * sv[0]:
+        null = np.abs(vt[-1])
+        names = problem.unknown_names()
+        worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
+        raise IdentificationError(
+            f"{problem.source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
+            "(add poses, reference points or stations, or identify fewer parameters)"
+        )
+    cov = np.zeros((problem.n_all, problem.n_all))
+    cov[np.ix_(problem.free, problem.free)] = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
+    return cov, rf
 
 
 def model_points(
