@@ -33,6 +33,10 @@ from trackcal.calib.model.params import Param
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
+# The covariance's R factor comes from the Cholesky factor of the normal equations at the solution when the
+# column-scaled Jacobian's condition number is at most this (R then carries rounding of about eps * cond^2 = 2e-12
+# relative at most, where the R of a QR of the Jacobian carries eps * cond); above it, from that QR (issue 41)
+CHOLESKY_COND = 100.0
 
 
 class IdentificationError(CalibError):
@@ -627,10 +631,28 @@ def identify(
     )
 
 
+def cholesky_r(normal: np.ndarray) -> np.ndarray | None:
+    """R with R^T R = normal (J^T J), from the Cholesky factor of the column-scaled normal matrix; None when the
+    scaled Jacobian's condition number exceeds CHOLESKY_COND (or the factorisation fails): the normal equations
+    have then lost more to rounding than the 1e-12 this R is held to (a QR of J keeps it)."""
+    scale = np.sqrt(np.diag(normal))
+    scale[scale == 0] = 1.0
+    try:
+        lower = np.linalg.cholesky(normal / np.outer(scale, scale))
+    except np.linalg.LinAlgError:
+        return None
+    sv = np.linalg.svd(lower, compute_uv=False)  # the scaled Jacobian's singular values
+    return lower.T * scale if sv[-1] * CHOLESKY_COND >= sv[0] else None
+
+
 def _covariance(problem: Problem, state: State, s2: float) -> tuple[np.ndarray, np.ndarray]:
     """(covariance of every unknown at `state`, eq. 27 with the variance factor s2; R of the whitened Jacobian), or
-    IdentificationError naming the unknowns the measurements cannot separate."""
-    rf = problem.r_factor(state)
+    IdentificationError naming the unknowns the measurements cannot separate. R is the Cholesky factor's of the
+    normal equations at `state` when they are well conditioned (cholesky_r: half the work of a QR of the Jacobian),
+    else the QR's."""
+    rf = cholesky_r(problem.normal_equations(state)[0])
+    if rf is None:
+        rf = problem.r_factor(state)
     scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
     scale[scale == 0] = 1.0
     _, sv, vt = np.linalg.svd(rf / scale)
