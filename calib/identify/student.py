@@ -17,7 +17,13 @@ from statistics import NormalDist
 
 import numpy as np
 
+from trackcal.calib.errors import CalibError
+
 MAX_NEWTON = 50  # steps: dof 1 to 1e6 at levels up to 0.9995 take at most 8 (tests/calib/identify/test_student.py)
+
+
+class QuantileError(CalibError):
+    """A t quantile asked outside its domain (degrees of freedom a whole number from 1, a level strictly in (0, 1))."""
 
 
 def central_probability(theta: float, dof: int) -> float:
@@ -39,7 +45,7 @@ def t_quantile(dof: int, p: float) -> float:
     """The p quantile of Student's t with `dof` (a whole number from 1) degrees of freedom, 0 < p < 1 (what
     scipy.special.stdtrit(dof, p) gives)."""
     if int(dof) != dof or dof < 1 or not 0.0 < p < 1.0:
-        raise ValueError(f"t quantile: dof a whole number from 1 and 0 < p < 1, got dof={dof}, p={p}")
+        raise QuantileError(f"t quantile: dof a whole number from 1 and 0 < p < 1, got dof={dof}, p={p}")
     dof = int(dof)
     target = abs(2.0 * p - 1.0)  # A(|t|)
     slope = 2.0 * math.exp(math.lgamma((dof + 1) / 2) - math.lgamma(dof / 2)) / math.sqrt(math.pi)

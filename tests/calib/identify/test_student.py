@@ -7,8 +7,9 @@ import math
 import pytest
 from scipy.special import stdtr, stdtrit
 
+from trackcal.calib.errors import CalibError
 from trackcal.calib.identify import student
-from trackcal.calib.identify.student import t_quantile
+from trackcal.calib.identify.student import QuantileError, t_quantile
 
 # dof: 1 to 3 (the series' first terms), odd and even, a 100-row table's 3 x 100 - 18 - 12 - 9 and a 100k-row
 # table's 299,961 (identify's dof: 3 rows per measurement less the unknowns), a million
@@ -67,5 +68,6 @@ def test_newton_steps_within_its_bound(monkeypatch):
 
 @pytest.mark.parametrize("dof, p", [(0, 0.975), (2.5, 0.975), (10, 0.0), (10, 1.0)])
 def test_refuses_outside_its_domain(dof, p):
-    with pytest.raises(ValueError, match="t quantile"):
+    with pytest.raises(QuantileError, match="t quantile"):
         t_quantile(dof, p)
+    assert issubclass(QuantileError, CalibError)
