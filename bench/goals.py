@@ -1,5 +1,6 @@
-"""The goals the benchmarks check (issues 13 and 16), each printed where it is measured and again, all together,
-at the end of `python -m bench` (make bench)."""
+"""The goals the benchmarks check (issues 13, 16 and 41: bench_identify_command's identify against numpy.loadtxt, its
+memory per row and its start-up), each printed where it is measured and again, all together, at the end of
+`python -m bench` (make bench)."""
 
 from __future__ import annotations
 

@@ -45,9 +45,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
-from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
@@ -426,6 +424,8 @@ def _cv_scores(
     (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
     arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known. The folds are
     solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
+    from trackcal.calib.diagnose.ridge import ridge_path  # lazy: identify imports this module, not the search
+
     free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     groups = (
@@ -746,6 +746,8 @@ class MapEvidence:
 
     def _factor(self, gram: np.ndarray, rhs: np.ndarray):
         """(Cholesky factor of the scaled penalised H, scaled solution d0, scaled H^-1 E for every base column)."""
+        from scipy.linalg import cho_factor, cho_solve  # lazy: identify imports this module, not the fit (start-up)
+
         h = gram / np.outer(self.scale, self.scale) + np.diag(self.ridge_s)
         factor = cho_factor(h, lower=True, check_finite=False)
         e = np.zeros((len(h), len(self.base_cols)))
@@ -769,6 +771,8 @@ class MapEvidence:
         """(whitened residual sum of squares of the penalised fit, the penalty not included; unpenalised
         columns + the map's effective number of parameters) with base parameters `drop` at zero."""
         if self._whole is None:
+            from scipy.linalg import solve_triangular  # lazy: identify imports this module, not the fit (start-up)
+
             factor, d0, w = self._factor(self.gram, self.rhs)
             l_inv = solve_triangular(factor[0], np.eye(len(d0)), lower=True, check_finite=False)
             self._whole = factor, d0, w, np.sum(l_inv[:, self.pen] ** 2, axis=0)  # diag of H^-1 = L^-T L^-1

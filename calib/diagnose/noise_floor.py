@@ -12,11 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtrc, fdtrc  # F and chi2 tails (scipy.stats: ~1 s to import)
 
 from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Identification
+from trackcal.calib.identify.solver import Identification, unique_rows
 from trackcal.calib.io.table import MeasurementTable
 
 CLOSE_IN_TIME = 0.1  # repeats closer than this fraction of the campaign's span are comparable
@@ -51,10 +50,10 @@ def comparable_repeats(table: MeasurementTable) -> list[np.ndarray]:
     t = np.asarray(table.t_s, dtype=float)
     signs = approach_signs(np.radians(table.q_deg))
     key = np.column_stack([_codes(table.pose), _codes(table.station), _codes(table.point), signs.astype(np.int8)])
-    _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    first, of_row = unique_rows(key)
     rank = np.empty(len(first), dtype=int)
     rank[np.argsort(first)] = np.arange(len(first))  # keys in the order of their first row
-    g = rank[of_row.ravel()]
+    g = rank[of_row]
     order = np.lexsort((t, g))  # by key, then time; stable: ties in row order
     gs, ts = g[order], t[order]
     limit = CLOSE_IN_TIME * float(np.ptp(t))
@@ -98,6 +97,8 @@ def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: Tr
 def floor_test(geo: Identification, floor: Floor) -> float:
     """p-value that the geometric residuals are at the floor: an F test against a floor from repeats
     (itself estimated with floor.dof degrees of freedom), chi-square against the noise model."""
+    from scipy.special import chdtrc, fdtrc  # lazy: identify finds the floor, not this test (scipy: start-up)
+
     if floor.dof is None and geo.noise is not None:
         return float(chdtrc(geo.dof, geo.variance_factor * geo.dof))
     ratio = float(np.sum(geo.residuals**2)) / geo.dof / floor.sigma_mm**2

@@ -29,7 +29,6 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-from scipy.special import fdtrc
 
 from trackcal.calib.diagnose.extensions import WARMUP_FORMS, build_extension, warmup_growth
 from trackcal.calib.diagnose.plausibility import WARMUP_TAU_MAX_S, WARMUP_TAU_MIN_S
@@ -88,6 +87,7 @@ def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params)
     [lo, hi], "rss", "rss_linear", "dof", "pvalue"} (the curvature's F test against the linear drift of the same
     pivot)."""
     from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is 0.35 s of every command's start-up
+    from scipy.special import fdtrc  # lazy: identify imports this module, not this test (scipy: its start-up)
 
     t = np.asarray(table.t_s, dtype=float)
     t0 = float(t.min()) if len(t) else 0.0

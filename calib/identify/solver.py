@@ -21,10 +21,10 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import stdtrit
 
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.student import t_quantile
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.extension import Extension, JointFeatures
@@ -33,6 +33,10 @@ from trackcal.calib.model.params import Param
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
+# The covariance's R factor comes from the Cholesky factor of the normal equations at the solution when the
+# column-scaled Jacobian's condition number is at most this (R then carries rounding of about eps * cond^2 = 2e-12
+# relative at most, where the R of a QR of the Jacobian carries eps * cond); above it, from that QR (issue 41)
+CHOLESKY_COND = 100.0
 
 
 class IdentificationError(CalibError):
@@ -77,7 +81,7 @@ class Identification:
 
     @property
     def t95(self) -> float:
-        return float(stdtrit(self.dof, 0.975))  # Student t quantile (scipy.stats costs ~1 s to import)
+        return t_quantile(self.dof, 0.975)  # Student t quantile (calib.identify.student: scipy's costs start-up)
 
     def std(self) -> np.ndarray:
         return np.sqrt(np.diag(self.cov))
@@ -151,6 +155,20 @@ def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> 
     return np.matmul(m, np.ascontiguousarray(cols.transpose(2, 0, 1)), out=out)  # BLAS takes contiguous rows
 
 
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each distinct row, index of each row's among them) of a 2-D array, in the order of
+    np.unique(a, axis=0, return_index=True, return_inverse=True), the same arrays: one lexsort of the columns
+    (stable, like np.unique's mergesort of the rows as records, which took 2-3x as long: issue 41)."""
+    order = np.lexsort(a.T[::-1])  # by the first column, then the next, ...
+    ranked = a[order]
+    new = np.empty(len(a), dtype=bool)
+    new[:1] = True
+    np.any(ranked[1:] != ranked[:-1], axis=1, out=new[1:])
+    inverse = np.empty(len(a), dtype=np.intp)
+    inverse[order] = np.cumsum(new) - 1
+    return order[new], inverse
+
+
 def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
     features (N, n, e), equal features, in np.unique's order of the key [q, features].
@@ -159,14 +177,12 @@ def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndar
     the angles alone are those of the whole key and in the same order (the key sorts by the angles first), and the
     sort of a key thousands of columns wide is skipped (issue 26: 5 s of a diagnosis of the UR10's Series B). When
     they are not (backlash follows the direction of motion), the whole key is sorted as before."""
-    _, first, of_row = np.unique(q, axis=0, return_index=True, return_inverse=True)
-    of_row = of_row.ravel()
+    first, of_row = unique_rows(q)
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.values  # equal rows of the block form are equal rows of the dense features
         if not np.array_equal(flat, flat[first][of_row]):
             key = np.hstack([q, feats.dense().reshape(len(q), -1)])  # the dense key's order, as before
-            _, first, of_row = np.unique(key, axis=0, return_index=True, return_inverse=True)
-            of_row = of_row.ravel()
+            first, of_row = unique_rows(key)
     return first, of_row
 
 
@@ -576,31 +592,23 @@ def identify(
     extension: Extension | None = None,
     ext0: np.ndarray | None = None,
     fixed: tuple[str, ...] = (),
+    covariance: bool = True,
 ) -> Identification:
     """Identify `params` (deviations from nominal), the extension's parameters, every station and every
     reference point; `fixed` ("robot", "points") holds those at dev0 / ext0 / tool_points (their rows and
-    columns of the covariance are zero)."""
+    columns of the covariance are zero). Without `covariance` (a fit whose residuals alone are used: the nominal
+    robot's "before" fit) the covariance is NaN, there is no R factor and the set-up's identifiability is not
+    checked: the pass over the rows and the factorisation that give them are saved (issue 41)."""
     problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
     sol = solve(problem, problem.initial, max_iter)
     state = sol.state
     residuals = problem.xyz - problem.predicted(state)
     r = problem._whiten(residuals).ravel()
-    rf = problem.r_factor(state)
-    scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
-    scale[scale == 0] = 1.0
-    _, sv, vt = np.linalg.svd(rf / scale)
-    if sv[-1] < 1e-9 * sv[0]:
-        null = np.abs(vt[-1])
-        names = problem.unknown_names()
-        worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
-        raise IdentificationError(
-            f"{problem.source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
-            "(add poses, reference points or stations, or identify fewer parameters)"
-        )
     dof = 3 * problem.n_rows - problem.n_cols
     s2 = float(r @ r) / dof
-    cov = np.zeros((problem.n_all, problem.n_all))
-    cov[np.ix_(problem.free, problem.free)] = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
+    cov, rf = np.full((problem.n_all, problem.n_all), np.nan), None
+    if covariance:
+        cov, rf = _covariance(problem, state, s2)
     return Identification(
         chain=chain,
         params=list(params),
@@ -621,6 +629,44 @@ def identify(
         message=sol.message,
         r_factor=rf,
     )
+
+
+def cholesky_r(normal: np.ndarray) -> np.ndarray | None:
+    """R with R^T R = normal (J^T J), from the Cholesky factor of the column-scaled normal matrix; None when the
+    scaled Jacobian's condition number exceeds CHOLESKY_COND (or the factorisation fails): the normal equations
+    have then lost more to rounding than the 1e-12 this R is held to (a QR of J keeps it)."""
+    scale = np.sqrt(np.diag(normal))
+    scale[scale == 0] = 1.0
+    try:
+        lower = np.linalg.cholesky(normal / np.outer(scale, scale))
+    except np.linalg.LinAlgError:
+        return None
+    sv = np.linalg.svd(lower, compute_uv=False)  # the scaled Jacobian's singular values
+    return lower.T * scale if sv[-1] * CHOLESKY_COND >= sv[0] else None
+
+
+def _covariance(problem: Problem, state: State, s2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(covariance of every unknown at `state`, eq. 27 with the variance factor s2; R of the whitened Jacobian), or
+    IdentificationError naming the unknowns the measurements cannot separate. R is the Cholesky factor's of the
+    normal equations at `state` when they are well conditioned (cholesky_r: half the work of a QR of the Jacobian),
+    else the QR's."""
+    rf = cholesky_r(problem.normal_equations(state)[0])
+    if rf is None:
+        rf = problem.r_factor(state)
+    scale = np.linalg.norm(rf, axis=0)  # = the column norms of J
+    scale[scale == 0] = 1.0
+    _, sv, vt = np.linalg.svd(rf / scale)
+    if sv[-1] < 1e-9 * sv[0]:
+        null = np.abs(vt[-1])
+        names = problem.unknown_names()
+        worst = [names[i] for i in np.argsort(null)[::-1][:4] if null[i] > 0.1]
+        raise IdentificationError(
+            f"{problem.source}: unidentifiable set-up: the measurements cannot separate {', '.join(worst)} "
+            "(add poses, reference points or stations, or identify fewer parameters)"
+        )
+    cov = np.zeros((problem.n_all, problem.n_all))
+    cov[np.ix_(problem.free, problem.free)] = s2 * ((vt.T / sv**2) @ vt) / np.outer(scale, scale)
+    return cov, rf
 
 
 def model_points(

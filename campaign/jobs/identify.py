@@ -134,7 +134,7 @@ def fit_model(
         )
     params, still = still_warning(cell, table, params)
     noise = noise_for(weighting, cell.tracker)
-    before = identify(cell.chain, table, cell.tool_points, [], noise=noise)
+    before = identify(cell.chain, table, cell.tool_points, [], noise=noise, covariance=False)  # its residuals alone
     if extend == "auto":
         from trackcal.calib.diagnose.diagnosis import diagnose  # lazy: the search is only for --extend auto (start-up)
 

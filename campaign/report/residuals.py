@@ -44,7 +44,7 @@ def residuals_of(
     after = table.xyz - predict_table(model, table).xyz
     noise = model_noise(model_doc)
     if before is None:
-        before = identify(model.chain, table, cell.tool_points, [], noise=noise)
+        before = identify(model.chain, table, cell.tool_points, [], noise=noise, covariance=False)
     found = floor or noise_floor(table, noise, TrackerNoise.of(cell.tracker))
     return Residuals(
         before.residuals, after, residual_stats(before.residuals), residual_stats(after), found.sigma_mm, found.source

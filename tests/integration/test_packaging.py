@@ -77,16 +77,22 @@ def test_help_and_export_load_neither_pinocchio_nor_matplotlib(tmp_path):
         assert out.stdout.strip().splitlines()[-1] == "[]", (argv, out.stdout, out.stderr)
 
 
-def test_identify_imports_neither_the_search_nor_scipy_optimize(tmp_path):
+def test_identify_imports_neither_the_search_nor_scipy(tmp_path):
     """Start-up (issue 41): a plain identify needs the solver, the noise floor and the model file, not diagnose's
-    search (calib.diagnose.diagnosis and its selection), scipy.optimize (a warm-up fit's), pinocchio (gravity
-    torques) or matplotlib (plots): before, the identify process imported all four (about 0.4 s of CPU)."""
+    search (calib.diagnose.diagnosis and its selection), scipy at all (scipy.optimize a warm-up fit's, scipy.special
+    the tests' tails and the t quantile, now calib.identify.student's, scipy.linalg the joint error map's fit),
+    pinocchio (gravity torques) or matplotlib (plots): before, the identify process imported all of them (scipy
+    alone about 0.25 s of CPU)."""
     table = tmp_path / "t.csv"
     assert main(["simulate", "--cell", "kr270", "--poses", "20", "--out", str(table)]) == 0
     heavy = (
         "trackcal.calib.diagnose.diagnosis",
         "trackcal.calib.diagnose.selection",
+        "scipy",
         "scipy.optimize",
+        "scipy.special",
+        "scipy.linalg",
+        "scipy.stats",
         "pinocchio",
         "matplotlib",
     )
