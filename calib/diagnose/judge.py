@@ -8,7 +8,8 @@
   figure (no fold scheme, or folds whose training sets cannot identify the model) no cause enters (issue 36);
 - physical plausibility (`calib.diagnose.plausibility`): a fit outside its physical range is refused and named;
 - for the time causes, what the campaign order confounds (`calib.diagnose.confounds`): a station shift between two
-  reflector blocks, or a growth not seen within a reflector's block, is one reflector's displacement as well.
+  reflector blocks not significant beyond a displacement of the reflectors after it, or a growth not seen within a
+  reflector's block, is a reflector's displacement as well.
 
 `judge_cause` judges a cause of few parameters, `judge_map` the joint error map (its order and ridge chosen by its
 own cross-validation, its held-out gain held to a stricter level).
@@ -124,7 +125,7 @@ def judge_cause(
     if passes and cause in ("thermal_drift", "thermal_warmup") and not refused:
         refused = growth_between_blocks(ctx, fitted, current, dof, alpha, cause)
     if passes and cause == SHIFT and not refused:
-        refused = shift_between_blocks(ctx.table, fit.shift)
+        refused = shift_between_blocks(ctx, fitted, fit, dof, alpha)
     if refused:
         cand.detail["implausible"] = refused
     cand.significant = bool(passes and gain_ok and not refused)
