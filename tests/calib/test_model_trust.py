@@ -19,7 +19,7 @@ from trackcal.calib.model.cell import CellError, load_cell
 from trackcal.calib.model.params import irreducible_params, param_by_name
 from trackcal.calib.model.plausible import deviation_bounds
 from trackcal.calib.model_file import Model
-from trackcal.calib.model_trust import content_digest, sealed, usability
+from trackcal.calib.model_trust import check_physics, content_digest, sealed, usability
 from trackcal.campaign.cli import main
 from trackcal.campaign.jobs.identify import choose_params, run_identify
 from trackcal.drivers.kuka.program import krl_texts
@@ -150,6 +150,14 @@ def test_a_changed_digest_or_table_hash_is_refused(identified, capfd, tmp_path, 
     err = one_line_error(capfd, argv)
     assert str(model) in err and re.search(EDITED, err), err
     assert not any(p.exists() for p in outputs)
+
+
+def test_the_nominal_robots_model_has_an_empty_covariance_that_passes():
+    # `identify --params ,` (the nominal robot, only the stations and points fitted: test_locate's baseline) writes
+    # a covariance of no parameter, [] in JSON: a 0 x 0 matrix, not a wrong shape
+    cell = load_cell("kr270")
+    doc = {"parameters": {}, "covariance": [], "covariance_order": []}
+    check_physics(Model(cell.chain, [], np.zeros(0), {}, dict(cell.tool_points), doc), "nominal.json")
 
 
 def test_the_digest_holds_through_the_file(identified):
