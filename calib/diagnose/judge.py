@@ -30,7 +30,7 @@ from trackcal.calib.diagnose.fits import Context, Fit, extension_of, n_extra, rm
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.plausibility import implausible
-from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
+from trackcal.calib.diagnose.significance import LEVEL, MAP_LEVEL, HeldOut, attainable, significant
 from trackcal.calib.identify.solver import IdentificationError
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.extension import ExtensionError
@@ -69,7 +69,7 @@ class Trial(NamedTuple):
 
     candidate: Candidate
     fit: Fit | ErrorMapFit
-    untested: bool = False  # it passed the F test and BIC where no held-out check was possible
+    untested: bool = False  # it passed the F test and BIC where no held-out check was possible or could pass
 
 
 def judge_cause(
@@ -138,7 +138,14 @@ def judge_cause(
             if scheme is not None
             else "cross-validation not possible on this design: the F test and BIC alone admit no cause"
         )
-    return Trial(cand, fit, bool(passes and scheme is None and not refused))
+    elif passes and not attainable(ctx.table.pose):
+        cand.cv_note = (
+            f"on {len(set(ctx.table.pose))} poses the held-out test cannot reach its level of {LEVEL:g} (its "
+            "smallest p-value is 2^-poses): a campaign of more poses can check it"
+        )
+    # no held-out check, or one that cannot reach its level on so few poses: untested (`significance.attainable`)
+    unchecked = scheme is None or not attainable(ctx.table.pose)
+    return Trial(cand, fit, bool(passes and unchecked and not refused))
 
 
 def judge_map(
@@ -243,4 +250,4 @@ def _map_trial(
     if refused:
         cand.detail["implausible"] = refused
     cand.significant = bool(p < alpha and d_bic < 0 and gain_ok and not refused)
-    return Trial(cand, mf)
+    return Trial(cand, mf, bool(p < alpha and d_bic < 0 and not refused and not attainable(table.pose, MAP_LEVEL)))
