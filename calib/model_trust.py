@@ -159,6 +159,7 @@ def _check_covariance(model: Model, source: str) -> None:
         cov = np.array(doc["covariance"], dtype=float)
     except (TypeError, ValueError):
         raise ModelError(f"{source}: covariance: expected a square matrix of numbers") from None
+    cov = cov.reshape(0, 0) if cov.size == 0 else cov  # JSON's [] is the 0 x 0 matrix of a model of no parameter
     if cov.shape != (len(order), len(order)) or not np.all(np.isfinite(cov)):
         raise ModelError(
             f"{source}: covariance: expected a {len(order)} x {len(order)} matrix of finite numbers "

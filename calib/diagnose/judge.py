@@ -8,7 +8,8 @@
   figure (no fold scheme, or folds whose training sets cannot identify the model) no cause enters (issue 36);
 - physical plausibility (`calib.diagnose.plausibility`): a fit outside its physical range is refused and named;
 - for the time causes, what the campaign order confounds (`calib.diagnose.confounds`): a station shift between two
-  reflector blocks, or a growth not seen within a reflector's block, is one reflector's displacement as well.
+  reflector blocks not significant beyond a displacement of the reflectors after it, or a growth not seen within a
+  reflector's block, is a reflector's displacement as well.
 
 `judge_cause` judges a cause of few parameters, `judge_map` the joint error map (its order and ridge chosen by its
 own cross-validation, its held-out gain held to a stricter level).
@@ -29,7 +30,7 @@ from trackcal.calib.diagnose.fits import Context, Fit, extension_of, n_extra, rm
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
 from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.plausibility import implausible
-from trackcal.calib.diagnose.significance import MAP_LEVEL, HeldOut, significant
+from trackcal.calib.diagnose.significance import LEVEL, MAP_LEVEL, HeldOut, attainable, significant
 from trackcal.calib.identify.solver import IdentificationError
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.extension import ExtensionError
@@ -68,7 +69,7 @@ class Trial(NamedTuple):
 
     candidate: Candidate
     fit: Fit | ErrorMapFit
-    untested: bool = False  # it passed the F test and BIC where no held-out check was possible
+    untested: bool = False  # it passed the F test and BIC where no held-out check was possible or could pass
 
 
 def judge_cause(
@@ -124,7 +125,7 @@ def judge_cause(
     if passes and cause in ("thermal_drift", "thermal_warmup") and not refused:
         refused = growth_between_blocks(ctx, fitted, current, dof, alpha, cause)
     if passes and cause == SHIFT and not refused:
-        refused = shift_between_blocks(ctx.table, fit.shift)
+        refused = shift_between_blocks(ctx, fitted, fit, dof, alpha)
     if refused:
         cand.detail["implausible"] = refused
     cand.significant = bool(passes and gain_ok and not refused)
@@ -137,7 +138,14 @@ def judge_cause(
             if scheme is not None
             else "cross-validation not possible on this design: the F test and BIC alone admit no cause"
         )
-    return Trial(cand, fit, bool(passes and scheme is None and not refused))
+    elif passes and not attainable(ctx.table.pose):
+        cand.cv_note = (
+            f"on {len(set(ctx.table.pose))} poses the held-out test cannot reach its level of {LEVEL:g} (its "
+            "smallest p-value is 2^-poses): a campaign of more poses can check it"
+        )
+    # no held-out check, or one that cannot reach its level on so few poses: untested (`significance.attainable`)
+    unchecked = scheme is None or not attainable(ctx.table.pose)
+    return Trial(cand, fit, bool(passes and unchecked and not refused))
 
 
 def judge_map(
@@ -242,4 +250,4 @@ def _map_trial(
     if refused:
         cand.detail["implausible"] = refused
     cand.significant = bool(p < alpha and d_bic < 0 and gain_ok and not refused)
-    return Trial(cand, mf)
+    return Trial(cand, mf, bool(p < alpha and d_bic < 0 and not refused and not attainable(table.pose, MAP_LEVEL)))

@@ -60,7 +60,7 @@ class Selection:
     candidates: list[Candidate] = field(default_factory=list)  # every candidate of every step
     selected: list[Candidate] = field(default_factory=list)  # the chosen ones, in order
     steps: int = 0
-    untested: bool = False  # a candidate passed the F test and BIC where no held-out check was possible
+    untested: bool = False  # a candidate passed the F test and BIC where no held-out check was possible or could pass
     warm_rest: tuple[str, ...] = ()  # the causes thermal_warmup's tau was last profiled against (`profile_warmup`)
 
     @classmethod

@@ -33,7 +33,7 @@ LEVEL = 0.01  # one-sided
 # bias in performance evaluation", JMLR 11, 2010): it is held to a level ten times stricter (issue 36: motor-side
 # gear harmonics aliased by 20 poses passed at p = 0.002 and 0.003, and the map made fresh poses 11-20 % worse)
 MAP_LEVEL = LEVEL / 10
-MIN_POSES = 6  # fewer poses: no test (with 5, the smallest one-sided signed-rank p-value is 1/32 > LEVEL)
+MIN_POSES = 6  # fewer poses: no test (with 5, the smallest one-sided signed-rank p-value is 1/32; `attainable`)
 EXACT_POSES = 50  # up to this many poses (and no ties) the null distribution is counted exactly
 
 
@@ -93,6 +93,14 @@ def _signed_rank_counts(n: int) -> np.ndarray:
     for k in range(1, n + 1):
         counts[k:] = counts[k:] + counts[:-k].copy()
     return counts
+
+
+def attainable(pose: list[str], level: float = LEVEL) -> bool:
+    """Whether the paired test can reach `level` on the poses `pose` at all: its smallest p-value, every one of the n
+    poses better (one of the 2^n equally likely sign patterns), is 2^-n (6 poses: 1/64 > LEVEL; 7: 1/128 < LEVEL). A
+    cause the F test and BIC admit where it cannot is untested, not absent."""
+    n = len(set(pose))
+    return n >= MIN_POSES and 2.0**-n < level
 
 
 def significant(

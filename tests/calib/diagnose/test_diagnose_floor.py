@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from tests.independent_twin import EFFECTS, campaign
 from trackcal.calib.compensate import compensate
 from trackcal.calib.diagnose import diagnose
-from trackcal.calib.diagnose.confounds import growth_between_blocks, shift_between_blocks
+from trackcal.calib.diagnose.confounds import growth_between_blocks, unrevisited
 from trackcal.calib.diagnose.fits import context, fit_cause, whole_fit
 from trackcal.calib.diagnose.plausibility import ENCODER_SCALE_MAX, implausible
 from trackcal.calib.diagnose.selection import ALPHA
@@ -135,13 +135,12 @@ def rows_by_blocks(points_per_station: int, poses: int) -> MeasurementTable:
     return MeasurementTable(np.arange(n), 20.0 * np.arange(n), pose, station, point, np.zeros((n, 6)), None)
 
 
-def test_a_station_shift_between_reflector_blocks_is_not_a_move():
+def test_a_station_shift_between_reflector_blocks_is_found():
     # 3 reflectors x 4 poses per station: S2's rows are t = 240 .. 460 s, P1 until 300 s, P2 from 320 to 380 s
     table = rows_by_blocks(3, 4)
-    between = shift_between_blocks(table, {"station": "S2", "after_t_s": 300.0})
-    assert len(between) == 1 and "station S2" in between[0] and "revisit" in between[0]
-    assert shift_between_blocks(table, {"station": "S2", "after_t_s": 340.0}) == []  # P2 on both sides
-    assert shift_between_blocks(table, None) == []
+    assert unrevisited(table, {"station": "S2", "after_t_s": 300.0}) == ["P2", "P3"]
+    assert unrevisited(table, {"station": "S2", "after_t_s": 340.0}) == []  # P2 on both sides
+    assert unrevisited(table, None) == []
 
 
 def growth_refusal(effect: str, seed: int) -> list[str]:
