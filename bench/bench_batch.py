@@ -17,7 +17,8 @@ empty tasks through the same map (campaign.jobs.batch.map_chunks) on the pool an
 campaigns estimated linearly from this run: time = fixed cost + time per campaign, memory = the last round's + the
 growth per campaign a process ran (the fitted slope over the rounds after the first) times the campaigns it would
 add. A pool worker's growth is not seen across rounds (each batch has a new pool): the loop's (this process's) is
-taken, the same code in one process.
+taken, the same code in one process. A Dask worker's growth is distributed's profiler's (profile_history_s): it
+stops once the profile history is full, and the estimate is also printed with that cap.
 
 Goal (issue 41): Dask within DASK_OVER_POOL of the pool's time on the same cores once the cluster runs.
 """
@@ -33,7 +34,9 @@ import threading
 import time
 from pathlib import Path
 
+import dask.config
 import numpy as np
+from dask.utils import parse_timedelta
 from distributed import LocalCluster
 
 from bench.goals import check
@@ -190,6 +193,14 @@ def slope(xs: list[float], ys: list[float]) -> float:
     return float(np.polyfit(xs[1:], ys[1:], 1)[0]) if len(xs) > 2 else float("nan")
 
 
+def profile_history_s() -> float:
+    """How long a Dask worker keeps the profile its statistical profiler samples (distributed.worker.profile: every
+    10 ms, a tree of the call stacks per 1 s cycle, the last distributed.admin.low-level-log-length cycles kept):
+    what makes a worker's memory grow by the campaign until that many cycles have passed (issue 41)."""
+    cycles = dask.config.get("distributed.admin.low-level-log-length")
+    return cycles * parse_timedelta(dask.config.get("distributed.worker.profile.cycle"))
+
+
 def estimate(n: int, rounds: int, walls: dict, cost: dict, memory: list) -> None:
     """Print ESTIMATE_N campaigns' time and memory, linear in this run's (see the module's doc)."""
     print(f"estimate for {ESTIMATE_N} campaigns in one batch, linear in this run's {n}:")
@@ -209,12 +220,15 @@ def estimate(n: int, rounds: int, walls: dict, cost: dict, memory: list) -> None
         f"  each pool worker: {pool_rss + mine * (ESTIMATE_N / 2 - per_worker):.0f} MB resident (its peak in a round, "
         "growing as the loop does)"
     )
+    held = profile_history_s() / (2 * walls["dask"] / n)  # campaigns of one of 2 workers in its profile history
     for w in memory[-1][2]:
         ys = [m[2][w][0] for m in memory]
         per = slope([x / 2 for x in done], ys)  # each of the 2 workers ran about half the campaigns
         print(
             f"  Dask worker {w}: {ys[-1] + per * (ESTIMATE_N - n) / 2:.0f} MB resident "
-            f"({per * 1024:.0f} KB per campaign it ran)"
+            f"({per * 1024:.0f} KB per campaign it ran), at most "
+            f"{ys[-1] + per * max(0.0, min(ESTIMATE_N / 2, held) - n / 2):.0f} MB if the growth is Dask's profile "
+            f"history ({profile_history_s():.0f} s, about {held:.0f} campaigns of a worker)"
         )
 
 
