@@ -16,6 +16,7 @@ from scipy import stats
 from tests.helpers import TRACKCAL
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.io.table import write_table
+from trackcal.campaign.cli.blas import limited_blas
 from trackcal.campaign.jobs import batch as batch_job
 from trackcal.campaign.jobs.batch import BatchOptions, batch, find_campaigns, result_key, run_chunk
 from trackcal.campaign.jobs.diagnose import DiagnoseOptions, run_diagnose
@@ -31,6 +32,7 @@ from trackcal.campaign.jobs.montecarlo import (
     coverage_seed,
     rho0,
 )
+from trackcal.campaign.jobs.simulate import SimulateOptions, parse_effects, simulate
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 
@@ -105,6 +107,40 @@ def test_dask_gives_the_pool_results(tables, tmp_path, cluster):
         assert _parameters(tmp_path / "dask" / f"{r['key']}.model.json") == _parameters(
             tmp_path / "pool" / f"{r['key']}.model.json"
         )
+
+
+@pytest.fixture(scope="module")
+def caused(tmp_path_factory):
+    """Three KR-270 twin campaigns of 30 poses: no hidden effect, backlash, encoder scale, 0.05 mm each (the causes
+    and size of bench.bench_batch, whose diagnoses find them)."""
+    d = tmp_path_factory.mktemp("caused")
+    for i, effect in enumerate(["", "backlash:0.05", "encoder_scale:0.05"]):
+        effects = parse_effects([effect] if effect else None)
+        simulate(SimulateOptions(cell="kr270", out=str(d / f"c{i}.csv"), poses=30, seed=1000 + i, effects=effects))
+    return d
+
+
+def test_dask_gives_the_pool_verdicts(caused, tmp_path, cluster):
+    """batch diagnose on a LocalCluster of 2 worker processes, one campaign per task: the same verdict.json as the
+    process pool's for each campaign, bit for bit, and the verdicts differ between the campaigns (a mix-up shows).
+    On one BLAS thread, as `trackcal batch` runs (a Dask nanny starts its workers so: distributed's
+    nanny.pre-spawn-environ); with numpy's default of two, the pool's structure p-values differed in their last
+    bits."""
+
+    def run(where: str):
+        scheduler = cluster if where == "dask" else None
+        opts = BatchOptions("diagnose", [str(caused)], str(tmp_path / where), "kr270", scheduler=scheduler, chunk=1)
+        return batch(opts)
+
+    with limited_blas():
+        runs = {where: run(where) for where in ("pool", "dask")}
+    assert [(r.computed, r.failed) for r in runs.values()] == [(3, []), (3, [])]
+    verdicts = {
+        where: [json.loads((tmp_path / where / f"{r['key']}.verdict.json").read_text()) for r in result.rows]
+        for where, result in runs.items()
+    }
+    assert verdicts["dask"] == verdicts["pool"]
+    assert len({v["cause"] for v in verdicts["pool"]}) > 1
 
 
 def test_a_failed_campaign_is_reported_and_the_others_done(tables, tmp_path):
