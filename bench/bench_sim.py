@@ -1,4 +1,5 @@
-"""`trackcal run --sim` CPU per measurement on the README's plan (issue 41), this tree against another checkout.
+"""`trackcal run --sim` CPU per measurement on the README's plan (issue 41), this tree against another checkout; the
+goal is bench.goals.SIM_CPU_PER_MEASUREMENT_MS, a third of the 337 ms the issue was filed with.
 
 The README's campaign (`trackcal plan --cell kr270 --configs 6 --repeat 3`, then `trackcal run --cell kr270 --plan
 plan.json --sim --seed 1`) as whole processes, CPU time of every process (resource.getrusage of the children: the
@@ -22,7 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench.goals import check
+from bench.goals import SIM_CPU_PER_MEASUREMENT_MS, check
 
 
 def cpu_of(cmd: list[str], env: dict, cwd: Path) -> float:
@@ -103,12 +104,13 @@ def main(argv: list[str] | None = None) -> None:
         f"({med['this'] / rows * 1000:.0f} ms), {ratio:.2f}x; "
         f"tables {'identical' if same else 'DIFFERENT'}"
     )
+    per_measurement = med["this"] / rows * 1000
     verdict = check(
-        "run --sim CPU per measurement at most a third of main's, the same session bytes",
-        f"{ratio:.2f}x, tables {'identical' if same else 'DIFFERENT'}",
-        ratio <= 1 / 3 and same,
+        f"run --sim CPU per measurement <= {SIM_CPU_PER_MEASUREMENT_MS:.0f} ms (a third of 337), the same tables",
+        f"{per_measurement:.0f} ms ({ratio:.2f}x the base's), tables {'identical' if same else 'DIFFERENT'}",
+        per_measurement <= SIM_CPU_PER_MEASUREMENT_MS and same,
     )
-    print(f"goal: a third of the CPU per measurement: {ratio:.2f}x, {verdict}")
+    print(f"goal: at most {SIM_CPU_PER_MEASUREMENT_MS:.0f} ms a measurement: {per_measurement:.0f} ms, {verdict}")
 
 
 if __name__ == "__main__":

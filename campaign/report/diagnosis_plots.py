@@ -15,7 +15,7 @@ from trackcal.calib.identify.solver import Identification
 from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.pinmodel import gravity_torques
-from trackcal.campaign.report.figures import pyplot, save_png
+from trackcal.campaign.report.figures import save_png, subplots, tight
 
 
 def main_cause_theta(d: Diagnosis) -> np.ndarray:
@@ -54,12 +54,11 @@ def implied_joint_error(cell: Cell, res: Identification, table, residuals: np.nd
 
 
 def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
-    plt = pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     label, x, j = signature(cell, d)
     # without an extension the model after is the geometric one: one panel, not two identical ones
-    fig, axes = plt.subplots(1, 2 if d.extended is not None else 1, figsize=(11, 4), sharey=True, squeeze=False)
+    fig, axes = subplots(1, 2 if d.extended is not None else 1, figsize=(11, 4), sharey=True, squeeze=False)
     axes = axes[0]
     after = d.extended or d.geometric
     if j is not None:
@@ -99,11 +98,11 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ax.grid(alpha=0.3)
     axes[0].legend()
     fig.suptitle(f"diagnosis: {d.cause} (noise floor {d.noise_floor_mm * 1000:.1f} µm, {d.floor_source})")
-    fig.tight_layout()
+    tight(fig)
     written.append(save_png(fig, out_dir / "signature.png", dpi=110))
     # residual structure against every joint angle and time, geometric model
     n = cell.chain.dof
-    fig, axes = plt.subplots(2, (n + 2) // 2, figsize=(14, 6))
+    fig, axes = subplots(2, (n + 2) // 2, figsize=(14, 6))
     norm = np.linalg.norm(d.geometric.residuals, axis=1) * 1000.0
     for k, ax in enumerate(axes.ravel()):
         if k < n:
@@ -118,7 +117,7 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
         ax.set_ylabel("|residual| (µm)")
         ax.grid(alpha=0.3)
     fig.suptitle("geometric residuals against joint angles and time")
-    fig.tight_layout()
+    tight(fig)
     written.append(save_png(fig, out_dir / "structure.png", dpi=110))
     return written
 
@@ -126,9 +125,8 @@ def plots(cell: Cell, d: Diagnosis, out_dir: Path) -> list[Path]:
 def error_map_curves(fits: dict[str, Identification], path: Path, joint_names: list[str] | None = None) -> Path:
     """Each mapped joint's fitted error curve (mdeg) with its 95 % band over the arc it was fitted on, one panel
     per joint, one line per fit (e.g. two series, to see where they agree)."""
-    plt = pyplot()
     joints = sorted({j for res in fits.values() for j in res.extension.meta["arcs"]})
-    fig, axes = plt.subplots(len(joints), 1, figsize=(11, 2.4 * len(joints)), squeeze=False)
+    fig, axes = subplots(len(joints), 1, figsize=(11, 2.4 * len(joints)), squeeze=False)
     for ax, j in zip(axes[:, 0], joints, strict=True):
         arcs = {label: res.extension.meta["arcs"][j] for label, res in fits.items() if j in res.extension.meta["arcs"]}
         ref = min(a.to_doc()["from_deg"] for a in arcs.values())  # every fit drawn on the window ref .. ref + 360
@@ -152,8 +150,6 @@ def error_map_curves(fits: dict[str, Identification], path: Path, joint_names: l
     axes[0, 0].legend(fontsize=8, loc="upper right")
     axes[-1, 0].set_xlabel("joint angle (deg)")
     fig.suptitle("joint error map: fitted curve of each joint, 95 % band")
-    fig.tight_layout()
+    tight(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)

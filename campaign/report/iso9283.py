@@ -19,7 +19,7 @@ from trackcal.calib.io.files import write_text
 from trackcal.calib.iso9283 import DISTANCE_POSES, IsoFigures
 from trackcal.calib.iso9283_clauses import clause
 from trackcal.campaign.errors import InputError
-from trackcal.campaign.report.figures import pyplot
+from trackcal.campaign.report.figures import subplots, tight
 from trackcal.campaign.report.iso9283_budget import budget_section
 from trackcal.campaign.report.iso9283_conformity import TOLERANCED, Verdict
 from trackcal.campaign.report.iso9283_departures import departures_box
@@ -94,15 +94,13 @@ def _um(value: float, u: float | None = None) -> str:
 def _png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
-    pyplot().close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def cluster_figure(tests: list[IsoFigures], i: int) -> str:
     """Pose i: one row per test, its attained positions around the commanded one (µm) in the base frame's x-y and
     x-z planes, with the barycentre marked; each row on its own scale, so the spread shows beside the offset."""
-    plt = pyplot()
-    fig, axes = plt.subplots(len(tests), 2, figsize=(8, 3.2 * len(tests)), squeeze=False)
+    fig, axes = subplots(len(tests), 2, figsize=(8, 3.2 * len(tests)), squeeze=False)
     for row, t in zip(axes, tests, strict=True):
         d = (t.attained_mm[i] - t.commanded_mm[i]) * 1000.0
         bar = d.mean(axis=0)
@@ -118,7 +116,7 @@ def cluster_figure(tests: list[IsoFigures], i: int) -> str:
             ax.locator_params(nbins=4)  # tick labels of up to five digits side by side on a 3-inch axis
             ax.grid(alpha=0.3)
         row[1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
-    fig.tight_layout()
+    tight(fig)
     return _png(fig)
 
 

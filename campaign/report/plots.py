@@ -9,15 +9,13 @@ import numpy as np
 
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.cell import Cell
-from trackcal.campaign.report.figures import pyplot, save_png
+from trackcal.campaign.report.figures import save_png, subplots, tight
 from trackcal.campaign.report.residuals import Residuals, per_pose_rms, pose_order
 
 
 def plot_histograms(res: Residuals, path: Path) -> Path:
     """Paper Fig. 10: residuals after calibration per axis, with the fitted normal density."""
-    plt = pyplot()
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    fig, axes = subplots(1, 3, figsize=(13, 3.8), sharey=True)
     for a, ax in enumerate(axes):
         r = res.after[:, a] * 1000.0
         mu, sd = float(r.mean()), float(r.std(ddof=1)) if len(r) > 1 else 0.0
@@ -40,16 +38,15 @@ def plot_histograms(res: Residuals, path: Path) -> Path:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("measurements")
     fig.suptitle("residuals after calibration, per axis (station frames), with the fitted normal")
-    fig.tight_layout()
+    tight(fig)
     return save_png(fig, path, dpi=100)
 
 
 def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     """Paper Fig. 11: residual distance per configuration, before and after calibration."""
-    plt = pyplot()
     poses = pose_order(table)
     x = np.arange(len(poses))
-    fig, axes = plt.subplots(2, 1, figsize=(13, 6), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(13, 6), sharex=True)
     for ax, r, label, color in (
         (axes[0], res.before, "before calibration (nominal robot)", "#c0504d"),
         (axes[1], res.after, "after calibration", "#4a7ebb"),
@@ -69,7 +66,7 @@ def plot_per_pose(table: MeasurementTable, res: Residuals, path: Path) -> Path:
     axes[1].set_xticks(x[::step])
     axes[1].set_xticklabels([poses[i].replace("$", r"\$") for i in x[::step]], rotation=90, fontsize=7)
     axes[1].set_xlabel("configuration (pose id)")
-    fig.tight_layout()
+    tight(fig)
     return save_png(fig, path, dpi=100)
 
 
@@ -78,10 +75,9 @@ def plot_parameters(model_doc: dict, path: Path) -> Path | None:
     pars = model_doc.get("parameters", {})
     if not pars:
         return None
-    plt = pyplot()
     groups = [(u, [(n, p) for n, p in pars.items() if p.get("unit") == u]) for u in ("mm", "deg")]
     groups = [(u, g) for u, g in groups if g]
-    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups) + 1, 3.8), squeeze=False)
+    fig, axes = subplots(1, len(groups), figsize=(6 * len(groups) + 1, 3.8), squeeze=False)
     for ax, (unit, items) in zip(axes[0], groups, strict=True):
         y = np.arange(len(items))
         ax.errorbar([p["value"] for _, p in items], y, xerr=[p["ci95"] for _, p in items], fmt="o", capsize=3)
@@ -92,7 +88,7 @@ def plot_parameters(model_doc: dict, path: Path) -> Path | None:
         ax.set_xlabel(f"deviation from nominal ({unit}), 95 % interval")
         ax.grid(alpha=0.3)
     fig.suptitle("identified parameters")
-    fig.tight_layout()
+    tight(fig)
     return save_png(fig, path, dpi=100)
 
 
@@ -101,9 +97,8 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
     poses = np.asarray(plan_doc.get("poses_deg") or [], dtype=float)
     if poses.ndim != 2 or poses.shape[1] != cell.chain.dof:
         return None
-    plt = pyplot()
     n = cell.chain.dof
-    fig, ax = plt.subplots(figsize=(9, 3.8))
+    fig, ax = subplots(figsize=(9, 3.8))
     lim = np.degrees(cell.chain.limits_array())
     j = np.arange(1, n + 1)
     finite = np.isfinite(lim).all(axis=1)
@@ -126,5 +121,5 @@ def plot_plan(plan_doc: dict, cell: Cell, path: Path) -> Path | None:
     ax.grid(alpha=0.3)
     rho = plan_doc.get("rho0_mm")
     ax.set_title("measurement plan" + (f": rho0 = {rho * 1000:.2f} µm at the test pose" if rho is not None else ""))
-    fig.tight_layout()
+    tight(fig)
     return save_png(fig, path, dpi=100)

@@ -37,6 +37,7 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from itertools import repeat
 
 from trackcal.drivers.errors import ProtocolError
 from trackcal.drivers.kuka.eki_codec import (
@@ -242,6 +243,28 @@ def parse_rob(data: bytes) -> RobFrame:
         rsol=opt("RSol", CART, CART_LIMIT),
         delay=None if delay_el is None else parse_int(delay_el.get("D"), "Rob/Delay/@D", 0, 2**31 - 1),
     )
+
+
+# The client's reading of a frame (issue 41): it keeps the IPOC and the axis positions (AIPos, 4 decimals) of
+# every frame of a move. A frame in encode_rob's layout whose every value is inside the limits by its digits alone
+# (CART_LIMIT 1e6: six digits before the point, AXIS_LIMIT 1e4: four, the Delay nine, the IPOC eighteen) is valid
+# without converting its other values, and its AIPos, written with four decimals, are already rounded to four
+# (float() of such a string is the double round(, 4) gives); any other frame is read by parse_rob, and refused as
+# it refuses it.
+_JOINTS_ROB = re.compile(
+    _rob_layout("-?[0-9]{1,6}\\.[0-9]{4}", "(-?[0-9]{1,4}\\.[0-9]{4})", "[0-9]{1,9}", "([0-9]{1,18})")
+)
+
+
+def rob_joints(data: bytes) -> tuple[int | None, tuple[float, ...] | None]:
+    """(IPOC, AIPos rounded to 4 decimals) of a <Rob> frame, as parse_rob reads it (ProtocolError as it refuses
+    it); (None, None) for the KR C2's first frame."""
+    m = _JOINTS_ROB.fullmatch(bytes(data).strip().decode("latin-1"))
+    if m is not None:
+        values = m.groups()
+        return int(values[12]), tuple(map(float, values[:6]))
+    frame = parse_rob(data)
+    return frame.ipoc, None if frame.aipos is None else tuple(map(round, frame.aipos, repeat(4)))
 
 
 def ipoc_of(data: bytes) -> int | None:

@@ -52,7 +52,15 @@ from collections.abc import Callable
 
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, MotionRefused, ProtocolError
 from trackcal.drivers.kuka.peers import ControllerPeers, accept_controller, bind
-from trackcal.drivers.kuka.rsi_codec import MAX_FRAME_BYTES, SenFrame, encode_sen, ipoc_of, parse_rob, rob_framer
+from trackcal.drivers.kuka.rsi_codec import (
+    MAX_FRAME_BYTES,
+    SenFrame,
+    encode_sen,
+    ipoc_of,
+    parse_rob,
+    rob_framer,
+    rob_joints,
+)
 from trackcal.drivers.transport import time_left
 
 POLL_S = 0.05  # socket timeout slice of the background threads
@@ -60,7 +68,6 @@ STALE_CYCLES = 5  # a move is refused when no complete RSI frame came for more t
 RSI_STALE = "rsi_stale"  # the code of a refused move, and of a move or settle stopped by a silent stream
 FRAME_HISTORY = 8192  # RSI frames kept for settling windows (~98 s of 12 ms cycles)
 _RECV_BYTES = 4096
-_DECIMALS = itertools.repeat(4)  # the joints are kept to 4 decimals: map(round, values, _DECIMALS)
 _NEW_SESSION = b""  # from the answering to the monitor thread: the controller's session began, forget the stream
 
 log = logging.getLogger(__name__)
@@ -321,7 +328,7 @@ class RsiLink:
                 self._latest = self._latest_at = self._latest_ipoc = None
             return True
         try:
-            frame = parse_rob(item)
+            ipoc, joints = rob_joints(item)
         except ProtocolError as exc:
             if self.protocol == "tcp":  # a byte stream cannot be resynchronised
                 self._set_error(ProtocolError(f"RSI: {exc}", device=self.device))
@@ -330,14 +337,12 @@ class RsiLink:
                 self.frames_unreadable += 1
                 self._last_bad = str(exc)
             return True
-        if frame.ipoc is None:
+        if ipoc is None:
             return True  # KR C2 first frame: nothing in it
-        assert frame.aipos is not None
-        joints = tuple(map(round, frame.aipos, _DECIMALS))
         with self._cond:
             self._seq += 1
             self._frames.append((self._seq, joints))
-            self._latest, self._latest_at, self._latest_ipoc = joints, arrived, frame.ipoc
+            self._latest, self._latest_at, self._latest_ipoc = joints, arrived, ipoc
             self._heard_at = arrived
             self._cond.notify_all()
         return True

@@ -100,3 +100,47 @@ def test_a_value_past_the_limits_takes_the_xml_path_and_its_message(value, eleme
     )
     with pytest.raises(ProtocolError, match=f"Rob/{element}/@"):
         parse_rob(encode_rob(frame, tcp=False))
+
+
+def joints_of_parse_rob(data: bytes) -> tuple:
+    """What the client kept of a frame before rob_joints: parse_rob's IPOC and its AIPos rounded to 4 decimals."""
+    frame = parse_rob(data)
+    return frame.ipoc, None if frame.aipos is None else tuple(round(v, 4) for v in frame.aipos)
+
+
+@settings(max_examples=300, deadline=None)
+@given(frame=frames, tcp=st.booleans())
+def test_the_client_s_joints_of_an_encoder_frame_are_parse_rob_s_rounded(frame, tcp):
+    data = encode_rob(frame, tcp=tcp)
+    joints = rsi_codec.rob_joints(data)
+    assert joints == joints_of_parse_rob(data)
+    assert [str(v) for v in joints[1]] == [str(v) for v in joints_of_parse_rob(data)[1]]  # -0.0 stays -0.0
+
+
+@settings(max_examples=500, deadline=None)
+@given(frame=frames, at=st.integers(0, 10**6), byte=st.integers(0, 255))
+def test_the_client_s_joints_of_a_changed_frame_are_parse_rob_s_or_refused_as_it_refuses_it(frame, at, byte):
+    data = bytearray(encode_rob(frame, tcp=False))
+    data[at % len(data)] = byte
+    try:
+        expected = joints_of_parse_rob(bytes(data))
+    except ProtocolError:
+        with pytest.raises(ProtocolError):
+            rsi_codec.rob_joints(bytes(data))
+        return
+    assert rsi_codec.rob_joints(bytes(data)) == expected
+
+
+@pytest.mark.parametrize("value, element", [(1000000.0, "RIst"), (10000.0, "AIPos"), (123.45678, "AIPos")])
+def test_the_client_s_joints_past_the_digit_bounds_are_read_by_parse_rob(value, element):
+    """1e6 and 1e4 are inside the limits but past the digits the joints' reading accepts alone; an AIPos of more
+    than 4 decimals (another layout) is rounded."""
+    aipos = (value if element == "AIPos" else 0.0,) + (1.5,) * 5
+    rist = (value if element == "RIst" else 0.0,) + (0.0,) * 5
+    data = encode_rob(RobFrame(ipoc=7, aipos=aipos, rist=rist), tcp=False).replace(b"123.4568", b"123.45678")
+    assert rsi_codec._JOINTS_ROB.fullmatch(data.decode()) is None
+    assert rsi_codec.rob_joints(data) == (7, (round(aipos[0], 4), 1.5, 1.5, 1.5, 1.5, 1.5))
+
+
+def test_the_first_frame_of_the_kr_c2_has_no_joints():
+    assert rsi_codec.rob_joints(encode_rob(RobFrame(ipoc=None), tcp=True)) == (None, None)
