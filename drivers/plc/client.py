@@ -31,6 +31,7 @@ transaction/transaction.py):
 from __future__ import annotations
 
 import logging
+import threading
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -74,6 +75,11 @@ class ModbusCellIO:
         self._heartbeat = 0
         self._request_seq = 0
         self._client: ModbusTcpClient | None = None
+        # one request on the socket at a time, and no close in the middle of one: the KR C4's motion guard reads the
+        # door from its own thread (drivers.krc4.cycle_guard) while the campaign's thread asks the operator through
+        # the same client and closes it at the end (pymodbus' sync client is not thread-safe: a close during the
+        # guard's read left its socket None under the read, an AttributeError out of the guard's thread)
+        self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ lifecycle
     def connect(self) -> None:
@@ -100,9 +106,10 @@ class ModbusCellIO:
             )
 
     def close(self) -> None:
-        client, self._client = self._client, None
-        if client is not None:
-            client.close()
+        with self._lock:
+            client, self._client = self._client, None
+            if client is not None:
+                client.close()
 
     def __enter__(self) -> ModbusCellIO:
         self.connect()
@@ -241,27 +248,29 @@ class ModbusCellIO:
         return self._client
 
     def _call(self, action: str, fn, *args):
-        """Run one request; translate every pymodbus/socket failure into a drivers.errors exception."""
-        try:
-            rr = fn(*args)
-        except ConnectionLost as exc:
-            raise ConnectionLost(f"{exc} while {action}", device=self.device) from exc
-        except ConnectionException as exc:
-            self._drop_socket()
-            raise ConnectionLost(f"connection lost while {action}: {exc}", device=self.device) from exc
-        except ModbusIOException as exc:
-            self._drop_socket()  # a late answer would desynchronise the stream: start clean next call
-            if "No response" in str(exc):
-                message = f"no answer within {self.timeout_s} s while {action}"
-                raise DeviceTimeout(message, device=self.device) from exc
-            message = f"answer does not match the request while {action}: {exc}"
-            raise ProtocolError(message, device=self.device) from exc
-        except ModbusException as exc:
-            self._drop_socket()
-            raise ProtocolError(f"malformed exchange while {action}: {exc}", device=self.device) from exc
-        except OSError as exc:  # e.g. ConnectionResetError straight from the socket
-            self._drop_socket()
-            raise ConnectionLost(f"socket error while {action}: {exc}", device=self.device) from exc
+        """Run one request (under the lock); translate every pymodbus/socket failure into a drivers.errors
+        exception."""
+        with self._lock:  # the drop of a failed socket too: never under another thread's request
+            try:
+                rr = fn(*args)
+            except ConnectionLost as exc:
+                raise ConnectionLost(f"{exc} while {action}", device=self.device) from exc
+            except ConnectionException as exc:
+                self._drop_socket()
+                raise ConnectionLost(f"connection lost while {action}: {exc}", device=self.device) from exc
+            except ModbusIOException as exc:
+                self._drop_socket()  # a late answer would desynchronise the stream: start clean next call
+                if "No response" in str(exc):
+                    message = f"no answer within {self.timeout_s} s while {action}"
+                    raise DeviceTimeout(message, device=self.device) from exc
+                message = f"answer does not match the request while {action}: {exc}"
+                raise ProtocolError(message, device=self.device) from exc
+            except ModbusException as exc:
+                self._drop_socket()
+                raise ProtocolError(f"malformed exchange while {action}: {exc}", device=self.device) from exc
+            except OSError as exc:  # e.g. ConnectionResetError straight from the socket
+                self._drop_socket()
+                raise ConnectionLost(f"socket error while {action}: {exc}", device=self.device) from exc
         if rr is None:
             raise ProtocolError(f"no answer object while {action}", device=self.device)
         if rr.isError():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import random
 import socket
+import threading
 import time
 from io import StringIO
 
@@ -251,6 +252,37 @@ def test_dropped_connection_is_connection_lost_and_door_reads_open(plc, cell):
         cell.acknowledge_pressed()
     plc.clear_fault()
     assert cell.door_closed() is True
+
+
+def test_a_close_from_another_thread_waits_for_the_request_under_way(plc, cell):
+    """The KR C4's motion guard reads the door from its own thread (drivers.krc4.cycle_guard) while the campaign's
+    thread closes the client at the end: the close waits for the read under way (issue 37's slow KR C4 run: a close
+    under the read left pymodbus' socket None, an AttributeError out of the guard's thread), and a read after the
+    close reads the door as open."""
+    plc.close_door()
+    inside, release = threading.Event(), threading.Event()
+    client = cell._client
+    read = client.read_discrete_inputs
+
+    def held_read(*args, **kw):  # the request is on the wire until the test releases it
+        inside.set()
+        release.wait(timeout=30)
+        return read(*args, **kw)
+
+    client.read_discrete_inputs = held_read
+    said: list[bool] = []
+    reader = threading.Thread(target=lambda: said.append(cell.door_closed()))
+    reader.start()
+    assert inside.wait(timeout=30)
+    closer = threading.Thread(target=cell.close)
+    closer.start()
+    closer.join(timeout=0.5)  # an unguarded close is done by now (a slow machine only hides that, never fails this)
+    closed_under_the_read = not closer.is_alive()
+    release.set()
+    reader.join(timeout=30)
+    closer.join(timeout=30)
+    assert not closed_under_the_read and said == [True]
+    assert cell.door_closed() is False and isinstance(cell.last_door_error, ConnectionLost)
 
 
 @pytest.mark.parametrize("code", [0x04, 0x06, 0x0B])
