@@ -103,7 +103,7 @@ def test_ur10_mock_controller_before_and_after(tmp_path):
     run("iso9283", "plan", *common, "--json", "iso.json", cwd=tmp_path)
     run("iso9283", "plan", *common, "--model", "model.json", "--json", "iso-comp.json", cwd=tmp_path)
     hw = tmp_path / "H.yaml"
-    with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=10.0):
+    with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=50.0):
         for plan, session in (("iso.json", "before"), ("iso-comp.json", "after")):
             run(
                 "run",
