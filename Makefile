@@ -5,6 +5,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # pyright, the analyser of VS Code, pinned: tests/test_layout.py runs it (docs/layout.md)
 PYRIGHT := 1.1.414
+# Python caches each module's bytecode (__pycache__) by default; a machine that sets PYTHONDONTWRITEBYTECODE (this
+# one does) makes every process compile trackcal's modules again: a `trackcal identify` of 30 rows took 0.7 s of CPU
+# instead of 0.25 s, and the tests start trackcal processes by the hundred (the README's examples alone, 88)
+unexport PYTHONDONTWRITEBYTECODE
 # Test sessions live on a tmpfs when the machine has one: the session store fsyncs every event (power-loss safety,
 # which no test simulates), and on a shared disk that alone made the campaign tests 2-3x slower.
 TEST_TMP := $(shell test -d /dev/shm && test -w /dev/shm && echo /dev/shm || echo /tmp)
