@@ -92,8 +92,9 @@ def program_targets(
 @dataclass(frozen=True)
 class RobotFamily:
     """One controller family. `schemas`: section path below `robot` ("" the robot section itself, "eki" its eki
-    sub-section ...) -> key -> (kind, default), kinds as campaign/cells/hardware.py validates them (host, port,
-    timeout, positive, bool, protocol, section); `protocols`: the choices of a `protocol` key of a sub-section.
+    sub-section ...) -> key -> (kind, default[, most]), kinds as campaign/cells/hardware.py validates them (host,
+    port, timeout, positive with its upper bound `most` if any, bool, protocol, section); `protocols`: the choices
+    of a `protocol` key of a sub-section.
     `build(section, joint_limits_deg=, cell_box_check=, motion_guard=)` makes the client without I/O; `claim` takes
     the cell's robot channel before any device is touched (DeviceError when it cannot); `describe` is the robot's
     line of `trackcal run`'s device list, `where` its address in a connection error, `waiting` the line shown while

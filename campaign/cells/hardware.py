@@ -34,8 +34,9 @@ from trackcal.drivers.interfaces import Operator, RealClock, Robot
 from trackcal.drivers.meteo.client import SerialMeteo
 from trackcal.drivers.plc.client import ModbusCellIO
 
-# section -> key -> (kind, default); `...` marks a required key. port: integer 1..65535, unit: 0..255,
-# timeout / positive: a number > 0 (seconds / per second), host: name or address, device: serial path or URL.
+# section -> key -> (kind, default[, most]); `...` marks a required key. port: integer 1..65535, unit: 0..255,
+# timeout / positive: a number > 0 (seconds / per second) and at most `most` if given, host: name or address, device:
+# serial path or URL.
 _REQUIRED = ...
 SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
     "tracker": {
@@ -174,7 +175,7 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
         raise InputError(f"{path}: {name}: expected a mapping of {', '.join(schema)}")
     _unknown(path, doc, schema, f"{name}.")
     out = {}
-    for key, (kind, default) in schema.items():
+    for key, (kind, default, *most) in schema.items():  # most: a number's upper bound, if the driver has one
         where = f"{name}.{key}"
         if key not in doc or doc[key] is None:
             if default is _REQUIRED:
@@ -220,6 +221,8 @@ def _section(path: Path, name: str, doc, schemas: dict, protocols: dict) -> dict
         elif kind in ("timeout", "positive"):
             if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"{path}: {where}: expected a positive number, got {v!r}")
+            if most and v > most[0]:
+                raise InputError(f"{path}: {where}: {v:g} is more than the driver takes ({most[0]:.6g})")
             out[key] = float(v)
     return out
 

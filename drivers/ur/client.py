@@ -57,6 +57,10 @@ from trackcal.drivers.transport import claim_socket, require_settle_limits
 AXES = ("base", "shoulder", "elbow", "wrist 1", "wrist 2", "wrist 3")
 POLL_S = 0.002  # one RTDE cycle at 500 Hz (e-Series); the guard and the stream are read this often during moves
 RESOLUTION_DEG = 1e-4  # joint angles cross the Robot interface at 4 decimals of a degree (drivers.interfaces)
+# the most ur_rtde's moveJ takes (rtde_control_interface.h: UR_JOINT_VELOCITY_MAX 3.14 rad/s, UR_JOINT_ACCELERATION_MAX
+# 40 rad/s^2; a larger value is a ValueError before anything is sent): the hardware file's bounds (drivers/ur/family.py)
+MOVEJ_SPEED_MAX_DEG_S = math.degrees(3.14)
+MOVEJ_ACCELERATION_MAX_DEG_S2 = math.degrees(40.0)
 
 # RTDE Guide enumerations (see the module docstring)
 ROBOT_MODES = {

@@ -6,7 +6,14 @@ from __future__ import annotations
 
 from trackcal.drivers.families import REQUIRED, RobotFamily
 from trackcal.drivers.ur.calibration import read_calibration_conf, read_kinematics_info
-from trackcal.drivers.ur.client import AXES, RESOLUTION_DEG, UrRtde, divert_native_output
+from trackcal.drivers.ur.client import (
+    AXES,
+    MOVEJ_ACCELERATION_MAX_DEG_S2,
+    MOVEJ_SPEED_MAX_DEG_S,
+    RESOLUTION_DEG,
+    UrRtde,
+    divert_native_output,
+)
 from trackcal.drivers.ur.program import PROGRAM
 from trackcal.drivers.ur.urscript_reader import read_urscript
 
@@ -18,8 +25,9 @@ SCHEMAS = {
         "move_timeout_s": ("timeout", 300.0),
         "io_timeout_s": ("timeout", 5.0),
         "stale_s": ("timeout", 1.0),  # no RTDE frame for this long during a move: the stream is stale
-        "joint_speed_deg_s": ("positive", 60.0),  # at 100 % override; ur_rtde's moveJ default 1.05 rad/s
-        "joint_acceleration_deg_s2": ("positive", 80.0),  # ur_rtde's moveJ default 1.4 rad/s2
+        # at 100 % override; ur_rtde's moveJ default 1.05 rad/s, its most 3.14 rad/s
+        "joint_speed_deg_s": ("positive", 60.0, MOVEJ_SPEED_MAX_DEG_S),
+        "joint_acceleration_deg_s2": ("positive", 80.0, MOVEJ_ACCELERATION_MAX_DEG_S2),  # default 1.4 rad/s2, most 40
         "stop_deceleration_deg_s2": ("positive", 229.0),  # stopJ on the door: 4 rad/s2
         "target_tolerance_deg": ("positive", RESOLUTION_DEG),  # joints reported after a move vs its target
         "unlock_timeout_s": ("timeout", 10.0),  # the controller refuses an unlock until 5 s after the stop

@@ -44,13 +44,14 @@ class TwinUr:
     def hardware(self) -> dict:
         """The robot section of the hardware file (campaign/cells/hardware.py, drivers/ur/family.py)."""
         # the mock's joint speeds are the UR10's (120 deg/s base and shoulder, 180 deg/s the others: mocks/servers/ur
-        # motion.py, which caps any faster request), so the campaign's 30 % override still moves at 120 deg/s; a loaded
-        # test machine may pause the mock a second or two
+        # motion.py, which caps any faster request); 179 deg/s at 100 % override is within what ur_rtde's moveJ takes
+        # (MOVEJ_SPEED_MAX_DEG_S: 400 made every move at 100 %, an ISO 9283 test's, a ValueError), and the campaign's
+        # 30 % moves at 54 deg/s; a loaded test machine may pause the mock a second or two
         return {
             "protocol": CONTROLLER,
             "host": self.host,
             "connect_timeout_s": 30.0,
-            "joint_speed_deg_s": 400.0,
+            "joint_speed_deg_s": 179.0,
             "joint_acceleration_deg_s2": 400.0,
             "stale_s": 2.5,
         }

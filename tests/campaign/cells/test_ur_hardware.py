@@ -149,6 +149,23 @@ def test_a_hardware_file_names_the_robot_address_and_nothing_else(tmp_path):
     assert "192.168.0.5" in hardware.describe()["robot"]
 
 
+def test_the_ur_section_holds_the_speed_and_acceleration_to_what_movej_takes(tmp_path):
+    """ur_rtde's moveJ refuses a speed above 3.14 rad/s (179.9 deg/s) and an acceleration above 40 rad/s2 (2291.8
+    deg/s2) with a ValueError (rtde_control_interface.h), a traceback in the middle of a campaign (issue 37: the
+    400 deg/s `trackcal mock` wrote, at an ISO 9283 test's 100 %): the hardware file says so at once."""
+    doc = yaml.safe_load((ROOT / "configs" / "hardware" / "example-cell.yaml").read_text())
+    path = tmp_path / "h.yaml"
+    robot = {"protocol": "ur", "host": "192.168.0.5"}
+    for key, value, most in (("joint_speed_deg_s", 180.0, "179.909"), ("joint_acceleration_deg_s2", 2300, "2291.83")):
+        path.write_text(yaml.safe_dump({**doc, "robot": {**robot, key: value}}))
+        with pytest.raises(
+            InputError, match=re.escape(f"robot.{key}: {value:g} is more than the driver takes ({most})")
+        ):
+            load_hardware(path)
+    path.write_text(yaml.safe_dump({**doc, "robot": {**robot, "joint_speed_deg_s": 179.9}}))
+    assert load_hardware(path).robot["joint_speed_deg_s"] == 179.9
+
+
 @pytest.mark.slow
 def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_rows(plan, ur_mock, sim_table, tmp_path):
     proc, hw = ur_mock

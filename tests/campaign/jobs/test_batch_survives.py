@@ -163,7 +163,7 @@ def _cluster(tmp_path: Path, preloaded: str, nanny: bool = False, env: dict[str,
     """A `dask scheduler` (its environment plus `env`) and a `dask worker` (1 thread, `preloaded` run by the worker
     at its start; under a nanny that starts it again when it dies, if `nanny`); yields the scheduler's process and
     address."""
-    pytest.importorskip("distributed")
+    distributed = pytest.importorskip("distributed")
     port = _free_port()
     preload = tmp_path / "stand_in_preload.py"
     preload.write_text(preloaded)
@@ -193,6 +193,11 @@ def _cluster(tmp_path: Path, preloaded: str, nanny: bool = False, env: dict[str,
         log=tmp_path / "worker.log",
     )
     try:
+        # the tests start once the worker serves: a chunk sent to a worker still starting under its nanny, which the
+        # chunk then killed, failed the nanny's start and ended `dask worker` (no worker again: on a loaded machine the
+        # batch was quicker than the worker, issue 37)
+        with distributed.Client(f"tcp://127.0.0.1:{port}", timeout=60) as client:
+            client.wait_for_workers(1, timeout=120)
         yield scheduler, f"tcp://127.0.0.1:{port}"
     finally:
         for p in (scheduler, worker):
