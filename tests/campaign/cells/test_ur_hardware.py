@@ -45,13 +45,11 @@ def one_pose(tmp_path_factory):
 
 
 @pytest.fixture
-def ur_mock(request, tmp_path):
+def ur_mock(tmp_path):
     """`trackcal mock --cell ur10` in its own process at 50 simulated seconds per real one (the simulated operator's
-    60 s action takes 1.2 s; at 10x, 6 s, most of these tests' time); yields (process, hardware file). A test marked
-    `ur_mock_speed(X)` runs it at X."""
-    marker = request.node.get_closest_marker("ur_mock_speed")
+    60 s action takes 1.2 s; at 10x, 6 s, most of these tests' time); yields (process, hardware file)."""
     hw = tmp_path / "H.yaml"
-    with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=marker.args[0] if marker else 50.0) as proc:
+    with mock_process("ur10", SEED, hw, timeout_s=60.0, sim_speed=50.0) as proc:
         yield proc, hw
 
 
@@ -205,9 +203,8 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_rows(plan, ur_mo
     assert abs(got.xyz - sim_table.xyz).max() < 0.2
 
 
-# the stop is injected once two measurements are stored, and must find the campaign still running: at 10x the third
-# is at least two of the operator's prompts (12 s) away, margin enough for a loaded machine
-@pytest.mark.ur_mock_speed(10.0)
+# the stop is injected once two measurements are stored and must find the campaign still running: the 16 of the pose's
+# 18 (two stations, three reflectors, drift checks) left take the operator's prompts at both stations, 1.2 s each at 50x
 def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_mock, tmp_path):
     """The robot raises a protective stop (injected on the mock's control port, mocks/servers/ur/server.py) during
     the campaign: it stops safely (exit 2, one line naming the protective stop), nothing measured at a wrong pose;
