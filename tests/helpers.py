@@ -4,6 +4,7 @@ injection. Fixtures live in conftest.py; no test module imports another."""
 import contextlib
 import re
 import signal
+import socket
 import sqlite3
 import subprocess
 import sys
@@ -133,6 +134,26 @@ def stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
 # drivers' tests.
 UNHURRIED_STALE_S = 60.0
 STALE_KEY = {"krc2": "rsi_stale_s", "krc4": "rsi_stale_s", "ur": "stale_s", "abb": "egm_stale_s"}  # drivers/*/family.py
+
+
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A port free on host for UDP and for TCP both. A robot's RSI/EGM port is UDP, and the KR C4 client also claims
+    the robot by listening on TCP at the same number (drivers/krc4/client.py): a UDP port the kernel picks lies in the
+    same ephemeral range as other tests' TCP connections, and once was one (make test: "cannot listen for the claim of
+    this robot ... Address already in use"). The kernel picks a TCP port no TCP socket holds; UDP is then tried on
+    it."""
+    while True:
+        with (
+            socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp,
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp,
+        ):
+            tcp.bind((host, 0))
+            port = tcp.getsockname()[1]
+            try:
+                udp.bind((host, port))
+            except OSError:
+                continue
+            return port
 
 
 @contextlib.contextmanager

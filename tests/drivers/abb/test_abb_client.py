@@ -4,12 +4,12 @@ disappears, one campaign per arm."""
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
 import pytest
 
+from tests.helpers import free_udp_port
 from trackcal.drivers.abb.client import AbbRws
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout, MotionRefused
 from trackcal.drivers.interfaces import READ_FROM_DEVICE, DeviceIdentity, StopCause
@@ -156,12 +156,6 @@ def test_a_controller_that_disappears_mid_move_is_connection_lost_or_timeout():
             r.move((100, 0, 0, 0, 30, 0), 5)
         assert time.monotonic() - t0 < 5.0  # within a few io timeouts, not the move timeout
         r.close()
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_with_egm_a_settle_counts_frames_and_a_silent_stream_stops_the_move():

@@ -6,12 +6,12 @@ read is in."""
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
 import pytest
 
+from tests.helpers import free_udp_port
 from trackcal.drivers.errors import DeviceFault, ProtocolError
 from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.krc4.client import KukaKrc4
@@ -27,14 +27,8 @@ CYCLE_S = 0.012  # the RSI context's 12 ms cycle (IPO, kuka_rsi_hw_interface KR_
 DOOR_AT_FRAME = 10  # the door opens once the mock has sent this many frames of the move
 
 
-def _free_udp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _cell(guard):
-    port = _free_udp()
+    port = free_udp_port()
     # braking from 5 deg/s at 50 deg/s^2 takes 0.1 s, 8 cycles: the move cannot end (and the stop flag fall) before
     # the answer that carries it, whichever of the RSI stop and the EKI stop request the mock served first
     mock = MockKrc4(

@@ -11,6 +11,7 @@ import time
 
 import pytest
 
+from tests.helpers import free_udp_port
 from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceFault
 from trackcal.drivers.interfaces import StopCause
 from trackcal.drivers.krc4.client import KRC4_CYCLE_S, KukaKrc4
@@ -26,14 +27,8 @@ TARGET = (10.0, -80.0, 85.0, 5.0, 80.0, -15.0)
 KR210_LIMITS = ((-185, 185), (-140, -5), (-120, 168), (-350, 350), (-125, 125), (-350, 350))
 
 
-def free_udp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def open_cell(guard=None, **mock_kw):
-    port = free_udp()
+    port = free_udp_port()
     seen: list = []
     mock_kw.setdefault("answer_budget_s", 5.0)
     mock = MockKrc4(
@@ -138,7 +133,7 @@ def test_a_controller_that_disappears_ends_the_next_move_with_a_device_error():
 def test_a_second_client_for_the_same_rsi_port_is_refused_until_the_first_closes():
     """One campaign per arm: the claim is the RSI port, which a second client on this PC cannot take (a UDP port
     alone could be bound twice with SO_REUSEADDR)."""
-    port = free_udp()
+    port = free_udp_port()
     first = KukaKrc4(54600, "127.0.0.1", port, controller_host="127.0.0.1")
     second = KukaKrc4(54600, "127.0.0.1", port, controller_host="127.0.0.1")
     try:
