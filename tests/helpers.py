@@ -16,11 +16,15 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from trackcal.calib.diagnose.fits import Fit, fit_cause
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.table import read_table
 from trackcal.calib.model.kinematics import Kinematics
 from trackcal.campaign.engine.engine import Live
+from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 from trackcal.campaign.session.session import measured_keys
 from trackcal.mocks.cell import World
 from trackcal.mocks.inproc import InprocCellIO, InprocRobot, InprocTracker, SimOperator
@@ -28,6 +32,29 @@ from trackcal.mocks.twin import Twin, simulate_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKCAL = [sys.executable, "-m", "trackcal.campaign.cli"]  # the command line, in a process of its own
+
+
+# The README's tables, for checks that a new computation gives the old one's numbers on them (issue 41):
+# (cell, poses, seed, effects, the cause the fit extends the model by)
+README_TABLES = [
+    ("kr270", 30, 1, {}, "none"),  # the README's first table
+    ("kr270", 40, 1, {"backlash": 0.04}, "backlash"),  # the README's backlash table, extended by its cause
+    ("ur10", 30, 2, {}, "none"),
+]
+README_TABLE_ARGS = ("cell_name", "poses", "seed", "effects", "cause")
+
+
+def readme_table_fit(cell_name: str, poses: int, seed: int, effects: dict, cause: str) -> Fit:
+    """One of README_TABLES simulated and fitted (the campaign's parameters, the cause's extension)."""
+    cell, _, table = simulate(SimulateOptions(cell_name, poses=poses, seed=seed, effects=effects))
+    return fit_cause(cell.chain, table, cell.tool_points, campaign_params(cell.chain), TrackerNoise(), cause)
+
+
+def drawn_kr270_campaign(seed: int, poses: int, drop: list[int]):
+    """(cell, table, parameters) of a drawn KR-270 campaign: `simulate`'s table, the campaign's parameters but those
+    at the indices `drop`."""
+    cell, _, table = simulate(SimulateOptions("kr270", poses=poses, seed=seed))
+    return cell, table, [p for i, p in enumerate(campaign_params(cell.chain)) if i not in drop]
 
 
 def run_trackcal(*args, timeout=300, check=True) -> subprocess.CompletedProcess:

@@ -14,7 +14,7 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **
     """(figure, axes) as pyplot.subplots gives them, on an Agg canvas; kwargs are Figure.subplots' (sharex, squeeze,
     ...). Nothing holds the figure but the caller."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib costs ~0.2 s at start-up
-    from matplotlib.figure import Figure  # lazy: the same
+    from matplotlib.figure import Figure  # lazy: matplotlib's import, ~0.2 s, only for a report
 
     fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)
@@ -26,7 +26,7 @@ def tight(fig) -> None:
     every axes' decorations twice (its engine's rect (0, 0, 1, 1) makes a second pass within the margins of the
     first, giving the same subplot parameters: tests/campaign/report/test_report_drawing.py) and leaves a placeholder
     engine, with which savefig draws the whole figure once more before the draw that makes the PNG."""
-    from matplotlib.layout_engine import TightLayoutEngine  # lazy: as in subplots
+    from matplotlib.layout_engine import TightLayoutEngine  # lazy: matplotlib's import, only for a report
 
     TightLayoutEngine(rect=None).execute(fig)
 

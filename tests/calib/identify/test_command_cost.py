@@ -12,8 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from tests.calib.identify.test_determined import UR10_P
-from tests.helpers import kr270_campaign
-from trackcal.calib.diagnose.fits import fit_cause
+from tests.helpers import README_TABLE_ARGS, README_TABLES, drawn_kr270_campaign, kr270_campaign, readme_table_fit
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
@@ -25,10 +24,8 @@ from trackcal.calib.identify.solver import (
     identify,
     unique_rows,
 )
-from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import param_by_name
-from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 # few values, so that rows repeat; signed zeros, which np.unique takes as equal
@@ -90,26 +87,16 @@ def assert_same_covariance(res: Identification, table) -> None:
     np.testing.assert_allclose(res.cov / np.outer(sd, sd), old / np.outer(sd, sd), rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize(
-    ("cell_name", "poses", "seed", "effects", "cause"),
-    [
-        ("kr270", 30, 1, {}, "none"),  # the README's first table
-        ("kr270", 40, 1, {"backlash": 0.04}, "backlash"),  # the README's backlash table, extended by its cause
-        ("ur10", 30, 2, {}, "none"),
-    ],
-)
+@pytest.mark.parametrize(README_TABLE_ARGS, README_TABLES)
 def test_readme_tables_same_covariance(cell_name, poses, seed, effects, cause):
-    cell, _, table = simulate(SimulateOptions(cell_name, poses=poses, seed=seed, effects=effects))
-    fit = fit_cause(cell.chain, table, cell.tool_points, campaign_params(cell.chain), TrackerNoise(), cause)
+    fit = readme_table_fit(cell_name, poses, seed, effects, cause)
     assert_same_covariance(fit.result, fit.table)
 
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), poses=st.integers(12, 40), drop=st.lists(st.integers(0, 17), max_size=4))
 def test_drawn_campaigns_same_covariance(seed, poses, drop):
-    cell = load_cell("kr270")
-    table = simulate(SimulateOptions("kr270", poses=poses, seed=seed))[2]
-    params = [p for i, p in enumerate(campaign_params(cell.chain)) if i not in drop]
+    cell, table, params = drawn_kr270_campaign(seed, poses, drop)
     try:
         res = identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
     except IdentificationError:  # a drawn campaign too small to separate the unknowns

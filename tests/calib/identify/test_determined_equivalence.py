@@ -11,16 +11,15 @@ from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 
 from tests.calib.identify.test_determined import UR10_P
+from tests.helpers import README_TABLE_ARGS, README_TABLES, drawn_kr270_campaign, readme_table_fit
 from trackcal.calib.diagnose.fits import fit_cause
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.determined import noise_floor_ratios
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State
-from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import param_by_name
 from trackcal.campaign.jobs.identify import _fit_r_factor
-from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 from trackcal.mocks.twin import Twin, simulate_campaign
 
 
@@ -87,17 +86,10 @@ def fitted(cell, table, params, cause="none"):
     return fit.result, fit.table
 
 
-@pytest.mark.parametrize(
-    ("cell_name", "poses", "seed", "effects", "cause"),
-    [
-        ("kr270", 30, 1, {}, "none"),  # the README's first table
-        ("kr270", 40, 1, {"backlash": 0.04}, "backlash"),  # the README's backlash table, extended by its cause
-        ("ur10", 30, 2, {}, "none"),
-    ],
-)
+@pytest.mark.parametrize(README_TABLE_ARGS, README_TABLES)
 def test_readme_tables_judged_the_same(cell_name, poses, seed, effects, cause):
-    cell, _, table = simulate(SimulateOptions(cell_name, poses=poses, seed=seed, effects=effects))
-    res, fit_table = fitted(cell, table, campaign_params(cell.chain), cause)
+    fit = readme_table_fit(cell_name, poses, seed, effects, cause)
+    res, fit_table = fit.result, fit.table
     assert res.r_factor is not None  # the solver's own factor is reused, not formed again
     assert_same_ratios(res, fit_table)
 
@@ -120,9 +112,7 @@ def test_poorly_determined_ur10_and_the_advice_judged_the_same():
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), poses=st.integers(12, 40), drop=st.lists(st.integers(0, 17), max_size=4))
 def test_drawn_campaigns_judged_the_same(seed, poses, drop):
-    cell = load_cell("kr270")
-    table = simulate(SimulateOptions("kr270", poses=poses, seed=seed))[2]
-    params = [p for i, p in enumerate(campaign_params(cell.chain)) if i not in drop]
+    cell, table, params = drawn_kr270_campaign(seed, poses, drop)
     try:
         res, fit_table = fitted(cell, table, params)
     except IdentificationError:  # a drawn campaign too small to separate the unknowns: nothing to judge
