@@ -446,7 +446,10 @@ def section_diagnosis(
 
 def verdict_sentence(model_doc: dict, verdict_doc: dict | None, res: Residuals) -> str:
     """The outcome of the campaign in one sentence."""
-    fit = f"{res.stats_after['coord_rms_mm'] * 1000:.1f} µm RMS against a noise floor of {res.floor_mm * 1000:.1f} µm"
+    # the fit verdict's own figure (model.json residual_rms_mm: RSS over the degrees of freedom, what fit_ratio
+    # compares with the floor); Table 9's plain RMS (RSS / n) is smaller and would read as a different fit
+    rms = model_doc.get("residual_rms_mm", res.stats_after["coord_rms_mm"])
+    fit = f"residual RMS {rms * 1000:.1f} µm per coordinate against a noise floor of {res.floor_mm * 1000:.1f} µm"
     cause = (verdict_doc or {}).get("cause")
     if cause is None:
         quality = model_doc.get("fit", "?")

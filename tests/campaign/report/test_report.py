@@ -153,6 +153,12 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
     assert "2026-12-01 10:00 UTC" in cells and "kr270" in cells
     sentence = text.split("id='verdict'>")[1].split("</p>")[0]
     assert "fits to the noise floor" in sentence and "no non-geometric effect" in sentence
+    # the headline's figure is the one the console and model.json give and the fit verdict judges (RSS / dof), not
+    # Table 9's plain RMS (RSS / n) under the same label
+    a = outcome.result.residuals
+    rms_dof = np.sqrt(np.sum(a**2) / outcome.result.dof)
+    assert f"residual RMS {rms_dof * 1000:.1f} µm per coordinate" in sentence
+    assert f"{outcome.doc['residual_rms_mm'] * 1000:.1f}" == f"{rms_dof * 1000:.1f}"
     assert "trackcal compensate --model model.json" in text.split("What next")[1]
     assert "re-plan" not in text  # the verdict names no cause the plan could have missed
     warnings = text.split("Campaign warnings")[1]
