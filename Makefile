@@ -37,9 +37,9 @@ $(STAMP): pyproject.toml constraints.txt tests/thirdparty/abb/constraints.txt Ma
 	npm install --prefix $(VENV)/node --no-save --no-audit --no-fund --loglevel=error pyright@$(PYRIGHT)
 	touch $(STAMP)
 
-# The suite runs on every core: the README's examples (which build on each other) and the fixed-port UR tests stay on
-# one worker (tests/conftest.py's UrGroupScheduling: xdist 3.8's own loadgroup lost its groups under pytest 9.2, and
-# each test of the group fails if a second worker ran one). `make test XDIST=` runs it in one process.
+# The suite runs on every core; a module that shares a fixture or names a loopback address of its own (a mock UR
+# controller's fixed ports) runs whole on one worker (tests/conftest.py's UnitScheduling: xdist 3.8's own loadgroup
+# lost its groups under pytest 9.2). `make test XDIST=` runs it in one process.
 XDIST ?= -n auto --dist loadgroup
 
 test: setup

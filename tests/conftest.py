@@ -38,20 +38,17 @@ class RoomsOnlyInsideTrackcal(importlib.abc.MetaPathFinder):
 
 sys.meta_path.insert(0, RoomsOnlyInsideTrackcal())
 
-# The mock UR controller serves fixed ports (29999, 30001-30004) on a loopback address, picked free from 127.0.0.31
-# up or named by the test: two xdist workers (make test: -n auto, --dist loadgroup) could take the same one, so the
-# test modules that start one, and the README's examples (a `trackcal mock --cell ur10`, and examples that build on
-# each other in one module-scoped folder), share a worker: the group UR_GROUP.
-UR_GROUP = "ur-ports"
-UR_PORTS = re.compile(
-    r"127\.0\.0\.([3-9]|[1-9][0-9]+)\b|MockUr|TwinUr|free_loopback|UrServer|JointFollower"
-    r"|UrController|mocks\.servers\.ur|mock --cell ur"
-)
+# A module that names a loopback address of its own (127.0.0.3 and up: the mock UR controller's ports are fixed,
+# 29999 and 30001-30004, so each controller needs an address) is one unit of work: its tests take turns there. No two
+# modules name the same address (tests/integration/test_scheduling.py), and the twin's UR controllers (`trackcal mock
+# --cell ur10`, TwinUr) claim a free one (mocks/servers/ur/twin_controller.py claim_loopback), so the units run side
+# by side on any worker.
+OWN_ADDRESS = re.compile(r"\b127\.0\.0\.([3-9]|[1-9][0-9]+)\b")
 
 
 @functools.cache
-def starts_a_ur_controller(path: Path) -> bool:
-    return path.name in ("test_readme.py", "test_docs.py") or bool(UR_PORTS.search(path.read_text(encoding="utf-8")))
+def own_addresses(path: Path) -> frozenset[str]:
+    return frozenset(m.group(0) for m in OWN_ADDRESS.finditer(path.read_text(encoding="utf-8")))
 
 
 # A module whose tests share a module- or class-scoped fixture (a simulated campaign, a plan, a fitted model) runs on
@@ -65,41 +62,25 @@ def shares_a_fixture(path: Path) -> bool:
     return bool(SHARED_FIXTURE.search(path.read_text(encoding="utf-8")))
 
 
-class UrGroupScheduling(LoadGroupScheduling):
-    """xdist's loadgroup, with UR_GROUP found by the controller from each test's file. xdist 3.8's worker marks a
-    grouped test by appending `@group` to `item._nodeid`, and its scheduler reads the group back from that suffix;
-    pytest 9.2 builds `item.nodeid` from a structured id (`item._id`), so the suffix never reaches the scheduler and
-    the group's tests were dealt out one by one to any worker (pytest-xdist issue #1386, fix open in PR #1388):
-    whatever marker a hook added, and however early. The controller knows each test's file from its node id. A
-    module that shares a fixture between its tests is one unit of work too (SHARED_FIXTURE)."""
+class UnitScheduling(LoadGroupScheduling):
+    """xdist's loadgroup, with the units found by the controller from each test's file: a module naming an address of
+    its own or sharing a fixture is one unit; any other test is dealt out alone. Not an `xdist_group` marker: xdist
+    3.8's worker marks a grouped test by appending `@group` to `item._nodeid`, and its scheduler reads the group back
+    from that suffix; pytest 9.2 builds `item.nodeid` from a structured id (`item._id`), so the suffix never reaches
+    the scheduler and the group's tests were dealt out one by one to any worker (pytest-xdist issue #1386, fix open in
+    PR #1388). The controller knows each test's file from its node id."""
 
     def _split_scope(self, nodeid: str) -> str:
         module = nodeid.split("::", 1)[0]
-        if starts_a_ur_controller(self.config.rootpath / module):
-            return UR_GROUP
-        if shares_a_fixture(self.config.rootpath / module):
+        path = self.config.rootpath / module
+        if own_addresses(path) or shares_a_fixture(path):
             return module
         return super()._split_scope(nodeid)
 
 
 @pytest.hookimpl(optionalhook=True)  # xdist's hook: absent when xdist is not loaded (-p no:xdist)
 def pytest_xdist_make_scheduler(config, log):
-    return UrGroupScheduling(config, log) if config.getvalue("dist") == "loadgroup" else None
-
-
-@pytest.fixture(autouse=True)
-def one_worker_per_group(request, tmp_path_factory):
-    """Under xdist, each test of UR_GROUP writes its worker's id to a file all workers share (the run's base
-    temporary folder, whose popen-gwN sub-folders are the workers'): a second id fails the test that finds it."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker is None or not starts_a_ur_controller(request.node.path):
-        return
-    ledger = tmp_path_factory.getbasetemp().parent / f"{UR_GROUP}.workers"
-    with ledger.open("a", encoding="utf-8") as f:  # one short line per append: whole, whoever else appends
-        f.write(f"{worker} {request.node.nodeid}\n")
-    others = {line for line in ledger.read_text(encoding="utf-8").splitlines() if line.split(" ", 1)[0] != worker}
-    if others:
-        pytest.fail(f"the {UR_GROUP} group runs on two xdist workers: {worker} here, and {sorted(others)[0]}")
+    return UnitScheduling(config, log) if config.getvalue("dist") == "loadgroup" else None
 
 
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)

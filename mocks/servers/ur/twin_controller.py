@@ -21,24 +21,38 @@ MAX_SPEED = 100.0  # controller seconds per wall second: the most python -m trac
 FIRST_HOST = 31  # 127.0.0.31 ... 127.0.0.254: the first address where nobody serves RTDE
 
 
-def free_loopback() -> str:
-    """A loopback address where no UR controller (nothing on the RTDE port) serves yet."""
+def claim_loopback() -> tuple[str, socket.socket]:
+    """A loopback address where no UR controller serves yet (nothing on the RTDE port), claimed: a UDP socket bound to
+    the RTDE port number there, which the caller holds while its controller runs. A second claimer's bind fails
+    (EADDRINUSE, no SO_REUSEADDR), so two processes that look at once (two xdist workers, two `trackcal mock`) cannot
+    take the same address; TCP ports are a space of their own, so the claim does not stand in the controller's way."""
     for n in range(FIRST_HOST, 255):
         host = f"127.0.0.{n}"
+        claim = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            claim.bind((host, RTDE_PORT))
+        except OSError:  # claimed by another process
+            claim.close()
+            continue
         with socket.socket() as s:
             s.settimeout(0.2)
             if s.connect_ex((host, RTDE_PORT)) != 0:
-                return host
+                return host, claim
+        claim.close()  # a controller nobody claimed (a test's, on an address it names) serves here
     raise OSError("no free loopback address 127.0.0.31-254 for a mock UR controller")
 
 
 class TwinUr:
-    def __init__(self, world, seed: int, speed: float | None = None, host: str | None = None) -> None:
+    def __init__(self, world, seed: int, speed: float | None = None) -> None:
         self.world = world
-        self.host = host or free_loopback()
+        self.host, self.claim = claim_loopback()
         q0 = ",".join(f"{v:.4f}" for v in world.q_deg)
         rate = f"{min(speed or 1.0, MAX_SPEED):g}"
-        self.process = MockUrProcess(self.host, seed=seed, args=["--q0-deg", q0, "--speed", rate]).start()
+        try:
+            self.process = MockUrProcess(self.host, seed=seed, args=["--q0-deg", q0, "--speed", rate]).start()
+        except BaseException:
+            self.claim.close()
+            raise
         self.follower = JointFollower(self.host, world.robot_at).start()
 
     def hardware(self) -> dict:
@@ -62,6 +76,7 @@ class TwinUr:
     def stop(self) -> None:
         self.follower.stop()
         self.process.stop()
+        self.claim.close()
 
 
 def serve(world, seed: int, speed: float | None = None) -> TwinUr:

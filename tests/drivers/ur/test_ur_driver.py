@@ -226,7 +226,7 @@ class _Stream:
 def test_a_move_refused_because_of_a_protective_stop_says_so():
     """A protective stop raised between two moves stops the script; the next moveJ is refused. The cause is the
     protective stop (code protective_stop, latched), not a script that refuses (seen in the whole-suite run)."""
-    robot = UrRtde("127.0.0.99")
+    robot = UrRtde("127.0.0.98")
     robot.control, robot.receive = _Refusing(), _Stream(late=2)
     with pytest.raises(DeviceFault, match="protective stop") as exc:
         robot._move((0.0,) * 6, 1.0)
