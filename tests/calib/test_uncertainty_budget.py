@@ -15,11 +15,17 @@ from trackcal.calib.uncertainty_budget import (
     _LAM_TABLE,
     _T_TABLE,
     ALPHA_STEEL,
+    FC_GRID,
+    FC_TRIALS,
+    MC_SEED,
+    PROBABILITY,
     REFRACTION_PER_K,
     PoseSetting,
     _lam_hat,
     _log_ratio,
     ap_budget,
+    joint_draws,
+    norm_interval,
     pose_inputs,
     rp_budget,
     shortest_interval,
@@ -206,3 +212,34 @@ def test_ap_budget_near_zero_warns_of_nothing():
         warnings.simplefilter("error")
         budget = ap_budget(np.array([0.001, 0.0, 0.0]), pose_inputs(x - x.mean(axis=0) + c, covs, s))
     assert budget.interval[0] == 0.0  # an upper limit: the construction's lower end at 0 (module docstring)
+
+
+def every_trial_ranked(offset, inputs):
+    """norm_interval as first written (issue 39): every trial value of the grid ranked, the interval the accepted
+    ones' min and max (or the best-ranked one when none is accepted)."""
+    t_obs = float(np.linalg.norm(offset))
+    cov = sum((i.cov() for i in inputs), np.zeros((3, 3)))
+    sigma = float(np.sqrt(np.trace(cov) / 3.0))
+    u = offset / t_obs
+    e = joint_draws(inputs, np.random.default_rng(MC_SEED), FC_TRIALS)
+    ue, ee = e @ u, np.einsum("ij,ij->i", e, e)
+    reach = 6.0 * float(np.sqrt(np.linalg.eigvalsh(cov).max()))
+    thetas = np.linspace(max(0.0, t_obs - reach), t_obs + reach, FC_GRID)
+    score = np.empty(FC_GRID)
+    for k, th in enumerate(thetas):
+        t = np.sqrt(np.maximum(th * th + 2.0 * th * ue + ee, 0.0)) / sigma
+        cut = np.quantile(_log_ratio(t, th / sigma), 1.0 - PROBABILITY)
+        score[k] = _log_ratio(np.array([t_obs / sigma]), th / sigma)[0] - cut
+    inside = thetas[score >= 0] if (score >= 0).any() else thetas[[int(np.argmax(score))]]
+    return float(inside.min()), float(inside.max())
+
+
+@pytest.mark.parametrize("scale", [0.0005, 0.004, 0.02, 1.0])  # mm: below, near and far above the noise (5 µm)
+def test_the_interval_walked_in_from_its_ends_is_every_trial_ranked(scale):
+    """norm_interval ranks trial values from each end of the grid inwards and stops at the first accepted one: the
+    same ends, bit for bit, as ranking the whole grid; from an upper limit (AP near 0) to a far-off pose."""
+    c, x, y, covs = scene()
+    s = PoseSetting(y, R_STATION, STATION_U, R_TOOL, POINT, POINT_U, "test tracker")
+    inputs = pose_inputs(x - x.mean(axis=0) + c, covs, s)
+    offset = scale * np.array([0.6, -0.3, 0.74])
+    assert norm_interval(offset, inputs) == every_trial_ranked(offset, inputs)
