@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackcal.calib.errors import CalibError
+from trackcal.calib.io.table import label_codes
 from trackcal.calib.model.kinematics import Kinematics
 
 KEY = "measured"  # model.json's entry
@@ -123,7 +124,8 @@ def fitted_space(
 ) -> MeasuredSpace:
     """The space of a fit: its table's joints q_rad (N, n) and the reflector centres `point_ids` (N,) of `points`
     (last joint frame, mm) where the fitted chain `kin` with deviations `dev` puts them."""
-    tool = np.array([points[p] for p in point_ids]).reshape(-1, 3)
+    rows, ids = label_codes(point_ids)
+    tool = np.array([points[p] for p in ids]).reshape(-1, 3)[rows]
     out = np.zeros((len(q_rad), 3))
     for lo in range(0, len(q_rad), CHUNK):  # the chain's frames of a chunk at a time (issue 41: diagnose's memory)
         out[lo : lo + CHUNK] = kin.points(q_rad[lo : lo + CHUNK], tool[lo : lo + CHUNK], dev)

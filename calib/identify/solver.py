@@ -25,7 +25,7 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.student import t_quantile
-from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable, label_codes
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.extension import Extension, JointFeatures
 from trackcal.calib.model.kinematics import Kinematics
@@ -224,18 +224,15 @@ class Rows:
             raise IdentificationError(
                 f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof}"
             )
-        for i, pid in enumerate(table.point):
+        self.pt_idx, self.point_ids = label_codes(table.point)  # ids in order of first appearance
+        for i, pid in enumerate(self.point_ids):  # so the first unknown is the one of the first row
             if pid not in tool_points:
                 raise IdentificationError(
-                    f"{source}: row {i + 2}: column point: unknown point id {pid!r} "
+                    f"{source}: row {int(np.argmax(self.pt_idx == i)) + 2}: column point: unknown point id {pid!r} "
                     f"(the tool defines {', '.join(sorted(tool_points))})"
                 )
         self.chain, self.table, self.tool_points, self.noise, self.feats = chain, table, tool_points, noise, feats
-        self.station_ids = list(dict.fromkeys(table.station))  # in order of first appearance
-        self.point_ids = list(dict.fromkeys(table.point))
-        st_of, pt_of = {s: i for i, s in enumerate(self.station_ids)}, {p: i for i, p in enumerate(self.point_ids)}
-        self.st_idx = np.array([st_of[s] for s in table.station])
-        self.pt_idx = np.array([pt_of[p] for p in table.point])
+        self.st_idx, self.station_ids = label_codes(table.station)
         # each station's rows: a slice when they follow each other (a view, not a copy)
         self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
         self.q = np.radians(table.q_deg)
