@@ -31,7 +31,7 @@ import numpy as np
 
 from trackcal.calib.io.table import MeasurementTable, TableError, label_codes, read_table
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.kinematics import Kinematics, row_runs
 
 INCH_MM = 25.4  # NIST SP 811, B.6
 NOT_MM_BELOW = 1.0 / math.sqrt(INCH_MM)  # between mm (1) and in (1/25.4)
@@ -50,8 +50,8 @@ def length_scale(table: MeasurementTable, chain: Chain) -> float | None:
     if table.xyz is None or len(table) < 2:
         return None
     q = np.radians(table.q_deg)
-    walk = np.r_[True, (q[1:] != q[:-1]).any(axis=1)]  # the chain walked once for the rows of a pose that follow it
-    flange = Kinematics(chain, []).points(q[walk], np.zeros(3), rows=np.cumsum(walk) - 1)  # the flange's origin
+    runs, of_row = row_runs(q)  # the chain walked once for the rows of a pose that follow each other
+    flange = Kinematics(chain, []).points(q[runs], np.zeros(3), rows=of_row)  # the flange's origin
     (station, _), (point, pids) = label_codes(table.station), label_codes(table.point)
     group = station * len(pids) + point  # one code per (station, point)
     count = np.bincount(group)

@@ -287,6 +287,16 @@ def _tool_point(r: np.ndarray, o: np.ndarray, tool: np.ndarray, rows: np.ndarray
     return o + (r[0] * t[0] + r[1] * t[1] + r[2] * t[2])
 
 
+def row_runs(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each run of equal rows of a 2-D array that follow each other, run of each row). A table measures
+    a pose's points, and its stations, one after the other: the chain is walked once per run, its frames gathered to
+    the rows (`points(..., rows=)`), the same numbers as walked per row (a row's frames never depend on the others)."""
+    new = np.empty(len(a), dtype=bool)
+    new[:1] = True
+    np.any(a[1:] != a[:-1], axis=1, out=new[1:])
+    return np.flatnonzero(new), np.cumsum(new) - 1
+
+
 def _gathered(per_pose: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """per_pose[..., rows]: np.take along the last axis, the same array in half the time of the index (issue 41)."""
     return np.take(per_pose, rows, axis=-1)
