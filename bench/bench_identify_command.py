@@ -3,7 +3,7 @@
 - CPU: `trackcal identify` on a 100k-row KR-270 table (bench_identify's synthetic campaign: random poses, 2 stations x
   3 points) in a fresh process, against a fresh process that imports numpy and reads the same table with
   `numpy.loadtxt` (its numeric columns); medians of repeats interleaved A, B, A, B, ... (children's user + system
-  CPU, `os.times`). Goal: at most 4x.
+  CPU, `os.times`). Goal: at most 4x (bench.goals, as the two below).
 - Memory: the peak resident size (VmHWM, bench/memory.py) of identify on 100 rows and on 100k rows in fresh
   processes; the difference per row is what the rows cost above the start-up. Goal: at most 1 KB per row.
 - Start-up: the whole process of identify on a 100-row table, median CPU of fresh processes. Goal: at most 0.5 s.
@@ -19,12 +19,8 @@ import tempfile
 import numpy as np
 
 from bench.bench_identify import campaign
-from bench.goals import check
+from bench.goals import IDENTIFY_BYTES_PER_ROW, IDENTIFY_LOADTXT_RATIO, IDENTIFY_STARTUP_S, check
 from trackcal.calib.io.table import write_table
-
-GOAL_RATIO = 4.0  # identify's whole-process CPU over numpy.loadtxt's, 100k rows
-GOAL_BYTES_PER_ROW = 1024
-GOAL_STARTUP_S = 0.5
 
 PEAK = """
 import sys
@@ -62,32 +58,34 @@ def main(repeats: int = 3, startup_repeats: int = 7) -> None:
                 times[name].append(cpu_of(argv)[0])
         t_id, t_np = float(np.median(times["identify"])), float(np.median(times["loadtxt"]))
         ok = check(
-            f"identify 100k rows <= {GOAL_RATIO:.0f}x numpy.loadtxt (whole processes, CPU)",
+            f"identify 100k rows <= {IDENTIFY_LOADTXT_RATIO:.0f}x numpy.loadtxt (whole processes, CPU)",
             f"{t_id / t_np:.1f}x",
-            t_id / t_np <= GOAL_RATIO,
+            t_id / t_np <= IDENTIFY_LOADTXT_RATIO,
         )
         print(
             f"100k rows, CPU medians of {repeats} interleaved fresh processes: identify {t_id:.2f} s, numpy.loadtxt "
-            f"{t_np:.2f} s: {t_id / t_np:.1f}x (goal <= {GOAL_RATIO:.0f}x: {ok})"
+            f"{t_np:.2f} s: {t_id / t_np:.1f}x (goal <= {IDENTIFY_LOADTXT_RATIO:.0f}x: {ok})"
         )
         peaks = [float(cpu_of([sys.executable, "-c", PEAK, t, f"{tmp}/m.json"])[1].split()[-1]) for t in (small, big)]
         per_row = (peaks[1] - peaks[0]) * 2**20 / (100_000 - 100)
         ok = check(
-            f"identify peak memory <= {GOAL_BYTES_PER_ROW} bytes per row above the start-up",
+            f"identify peak memory <= {IDENTIFY_BYTES_PER_ROW} bytes per row above the start-up",
             f"{per_row:.0f} bytes per row",
-            per_row <= GOAL_BYTES_PER_ROW,
+            per_row <= IDENTIFY_BYTES_PER_ROW,
         )
         print(
             f"peak memory: {peaks[0]:.0f} MB at 100 rows, {peaks[1]:.0f} MB at 100k rows: {per_row:.0f} bytes per "
-            f"row (goal <= {GOAL_BYTES_PER_ROW}: {ok})"
+            f"row (goal <= {IDENTIFY_BYTES_PER_ROW}: {ok})"
         )
         start = float(np.median([cpu_of(identify_argv(small, f"{tmp}/m.json"))[0] for _ in range(startup_repeats)]))
         ok = check(
-            f"identify 100 rows <= {GOAL_STARTUP_S} s CPU whole process", f"{start:.2f} s", start <= GOAL_STARTUP_S
+            f"identify 100 rows <= {IDENTIFY_STARTUP_S} s CPU whole process",
+            f"{start:.2f} s",
+            start <= IDENTIFY_STARTUP_S,
         )
         print(
             f"identify on 100 rows, whole process: {start:.2f} s CPU, median of {startup_repeats} (goal <= "
-            f"{GOAL_STARTUP_S} s: {ok})"
+            f"{IDENTIFY_STARTUP_S} s: {ok})"
         )
 
 

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackcal.calib.errors import CalibError
-from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.io.table import label_codes
+from trackcal.calib.model.kinematics import Kinematics, row_runs
 
 KEY = "measured"  # model.json's entry
 ROUNDING_RAD = 1e-9  # a joint angle within this of its range is inside (the file's degrees to 17 digits)
@@ -123,8 +124,11 @@ def fitted_space(
 ) -> MeasuredSpace:
     """The space of a fit: its table's joints q_rad (N, n) and the reflector centres `point_ids` (N,) of `points`
     (last joint frame, mm) where the fitted chain `kin` with deviations `dev` puts them."""
-    tool = np.array([points[p] for p in point_ids]).reshape(-1, 3)
+    rows, ids = label_codes(point_ids)
+    tool = np.array([points[p] for p in ids]).reshape(-1, 3)[rows]
     out = np.zeros((len(q_rad), 3))
     for lo in range(0, len(q_rad), CHUNK):  # the chain's frames of a chunk at a time (issue 41: diagnose's memory)
-        out[lo : lo + CHUNK] = kin.points(q_rad[lo : lo + CHUNK], tool[lo : lo + CHUNK], dev)
+        q = q_rad[lo : lo + CHUNK]
+        runs, of_row = row_runs(q)  # the chain walked once for the rows of a pose that follow each other
+        out[lo : lo + CHUNK] = kin.points(q[runs], tool[lo : lo + CHUNK], dev, rows=of_row)
     return MeasuredSpace.of(q_rad, out)

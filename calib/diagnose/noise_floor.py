@@ -16,7 +16,7 @@ import numpy as np
 from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Identification, unique_rows
-from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable, label_codes
 
 CLOSE_IN_TIME = 0.1  # repeats closer than this fraction of the campaign's span are comparable
 MIN_FLOOR_DOF = 10  # repeats needed before they replace the tracker noise model
@@ -27,11 +27,6 @@ class Floor:
     sigma_mm: float  # RMS of one coordinate from the tracker alone
     source: str
     dof: int | None  # degrees of freedom of a floor from repeats; None for the noise model
-
-
-def _codes(labels: list[str]) -> np.ndarray:
-    """An integer per row, equal for equal labels."""
-    return np.unique(np.asarray(labels), return_inverse=True)[1].ravel() if len(labels) else np.zeros(0, int)
 
 
 def comparable_repeats(table: MeasurementTable) -> list[np.ndarray]:
@@ -47,9 +42,14 @@ def comparable_repeats(table: MeasurementTable) -> list[np.ndarray]:
     n = len(table)
     if n < 2:
         return []
+    (pose, _), (station, sids), (point, pids) = (label_codes(c) for c in (table.pose, table.station, table.point))
+    measures = (pose * len(sids) + station) * len(pids) + point  # one code per (pose, station, point)
+    ranked = np.sort(measures)
+    if (ranked[1:] != ranked[:-1]).all():  # nothing measured twice: no repeats, whatever the approach directions
+        return []
     t = np.asarray(table.t_s, dtype=float)
     signs = approach_signs(np.radians(table.q_deg))
-    key = np.column_stack([_codes(table.pose), _codes(table.station), _codes(table.point), signs.astype(np.int8)])
+    key = np.column_stack([measures, signs.astype(np.int8)])
     first, of_row = unique_rows(key)
     rank = np.empty(len(first), dtype=int)
     rank[np.argsort(first)] = np.arange(len(first))  # keys in the order of their first row

@@ -25,10 +25,10 @@ import numpy as np
 from trackcal.calib.errors import CalibError
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.student import t_quantile
-from trackcal.calib.io.table import MeasurementTable
+from trackcal.calib.io.table import MeasurementTable, label_codes
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.extension import Extension, JointFeatures
-from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.kinematics import Kinematics, row_runs
 from trackcal.calib.model.params import Param
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
@@ -158,15 +158,15 @@ def _rotated(m: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct row, index of each row's among them) of a 2-D array, in the order of
     np.unique(a, axis=0, return_index=True, return_inverse=True), the same arrays: one lexsort of the columns
-    (stable, like np.unique's mergesort of the rows as records, which took 2-3x as long: issue 41)."""
-    order = np.lexsort(a.T[::-1])  # by the first column, then the next, ...
-    ranked = a[order]
-    new = np.empty(len(a), dtype=bool)
-    new[:1] = True
-    np.any(ranked[1:] != ranked[:-1], axis=1, out=new[1:])
-    inverse = np.empty(len(a), dtype=np.intp)
-    inverse[order] = np.cumsum(new) - 1
-    return order[new], inverse
+    (stable, like np.unique's mergesort of the rows as records, which took 2-3x as long: issue 41) of the runs of
+    equal rows that follow each other (a pose's rows: a sixth of a campaign's rows to sort)."""
+    runs, of_row = row_runs(a)
+    b = a[runs]
+    order = np.lexsort(b.T[::-1])  # by the first column, then the next, ...; a run before a later equal one
+    starts, rank = row_runs(b[order])
+    inverse = np.empty(len(b), dtype=np.intp)
+    inverse[order] = rank
+    return runs[order[starts]], inverse[of_row]
 
 
 def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndarray, np.ndarray]:
@@ -201,12 +201,116 @@ class _Chunk(NamedTuple):
     order: np.ndarray | None  # position of each among the rows the chunk was made from (None: the same order)
     poses: np.ndarray  # the distinct poses of those rows (in row order when no two rows share one)
     of_row: np.ndarray | None  # index into poses of each row (None: a pose per row, in order)
-    groups: list[tuple[slice, np.ndarray, tuple]]  # rows of one (station, point), their columns among all
-    # unknowns, and the block of the normal matrix those columns make (np.ix_)
+    pairs: list[tuple[slice, int, int]]  # rows of one (station, point), and their indices
     take: np.ndarray | slice  # selects the rows from per-row arrays: `rows`, or the slice they make
     stations: list[tuple[slice, int]]  # rows of one station, and its index
     xyz: np.ndarray  # (n, 3) their measurements
     w: np.ndarray | None  # (n, 3, 3) their whitening
+
+
+class Rows:
+    """A table's rows as a Problem lays them out, whatever its unknowns: the station and point ids and each row's,
+    the joint angles (rad), the distinct poses, the whitening, the chunks of the normal equations and the stations'
+    start (Kabsch fits on the nominal robot). Problems of one table, tool points, noise and joint-offset features
+    share them (`Identification.rows`: the nominal robot's "before" fit and the fit, issue 41: the second set-up
+    cost 0.1 s at 100k rows). The table is checked at once; the rest is computed when first asked for (in the order a
+    Problem asks, so its errors come in the same order)."""
+
+    def __init__(self, chain: Chain, table: MeasurementTable, tool_points, noise, feats: JointFeatures | None):
+        source = table.source
+        if table.xyz is None:
+            raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
+        if table.n_joints != chain.dof:
+            raise IdentificationError(
+                f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof}"
+            )
+        self.pt_idx, self.point_ids = label_codes(table.point)  # ids in order of first appearance
+        for i, pid in enumerate(self.point_ids):  # so the first unknown is the one of the first row
+            if pid not in tool_points:
+                raise IdentificationError(
+                    f"{source}: row {int(np.argmax(self.pt_idx == i)) + 2}: column point: unknown point id {pid!r} "
+                    f"(the tool defines {', '.join(sorted(tool_points))})"
+                )
+        self.chain, self.table, self.tool_points, self.noise, self.feats = chain, table, tool_points, noise, feats
+        self.st_idx, self.station_ids = label_codes(table.station)
+        # each station's rows: a slice when they follow each other (a view, not a copy)
+        self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
+        self.q = np.radians(table.q_deg)
+        self.xyz = table.xyz
+
+    def fits(self, chain: Chain, table: MeasurementTable, tool_points, noise, feats: JointFeatures | None) -> bool:
+        """Were these rows laid out for this set-up (the same objects, an equal noise model)?"""
+        mine, theirs = (self.chain, self.table, self.tool_points, self.feats), (chain, table, tool_points, feats)
+        return all(a is b for a, b in zip(mine, theirs, strict=True)) and self.noise == noise
+
+    @cached_property
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(first row of each distinct pose, pose of every row): rows share poses (several points, several
+        stations), so the chain is walked once per distinct pose (and joint-offset features, which make the
+        extended joint angles of a row)."""
+        return _distinct_poses(self.q, self.feats)
+
+    @cached_property
+    def w(self) -> np.ndarray | None:
+        return None if self.noise is None else self.noise.whitening(self.xyz)
+
+    @cached_property
+    def chunks(self) -> list[_Chunk]:
+        """Chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size."""
+        order = np.argsort(self.poses[1], kind="stable")
+        return [self.chunk(rows) for rows in np.array_split(order, max(1, -(-len(self.q) // CHUNK_ROWS)))]
+
+    def chunk(self, rows: np.ndarray) -> _Chunk:
+        n_pt = len(self.point_ids)
+        group = self.st_idx[rows] * n_pt + self.pt_idx[rows]
+        order = np.argsort(group, kind="stable")
+        rows, group = rows[order], group[order]
+        row_pose = self.poses[1]
+        poses, of_row = np.unique(row_pose[rows], return_inverse=True)
+        of_row = of_row.ravel()
+        if len(poses) == len(rows):  # no two rows share a pose: the chain walked for the rows in their order
+            poses, of_row = row_pose[rows], np.arange(len(rows))
+        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        ends = np.r_[starts[1:], len(rows)]
+        pairs, stations = [], []
+        for a, b in zip(starts, ends, strict=True):
+            s, p = divmod(int(group[a]), n_pt)
+            pairs.append((slice(a, b), s, p))
+            if stations and stations[-1][1] == s:
+                stations[-1] = (slice(stations[-1][0].start, b), s)
+            else:
+                stations.append((slice(a, b), s))
+        take = _selector(rows)
+        return _Chunk(
+            rows,
+            None if np.array_equal(order, np.arange(len(order))) else order,
+            poses,
+            None if np.array_equal(of_row, np.arange(len(of_row))) else of_row,
+            pairs,
+            take,
+            stations,
+            self.xyz[take],
+            None if self.w is None else self.w[take],
+        )
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """(P, 3) the tool points, in the order of point_ids."""
+        return np.array([np.asarray(self.tool_points[p], dtype=float) for p in self.point_ids])
+
+    @cached_property
+    def stations(self) -> list[Station]:
+        """The stations' start: Kabsch fits on the nominal robot's predictions (whatever the unknowns)."""
+        first, row_pose = self.poses
+        return _init_stations(
+            Kinematics(self.chain, []),
+            (self.q[first], row_pose),
+            self.points[self.pt_idx],
+            self.xyz,
+            self.st_idx,
+            self.station_ids,
+            self.table.source,
+        )
 
 
 class Problem:
@@ -216,7 +320,8 @@ class Problem:
     and a rotation perturbation (v, w) in the station frame (x' = Exp(w) x + v), per reference point its
     3 coordinates. `fixed` removes groups from the unknowns: "robot" (deviations and extension parameters,
     held at dev0 / ext0) and "points" (held at tool_points); `n_cols` counts the free unknowns, and the
-    Jacobian and steps have only their columns.
+    Jacobian and steps have only their columns. `rows`: the table's layout from a Problem of the same table,
+    tool points, noise and joint-offset features (Rows.fits; any other is not used).
     """
 
     def __init__(
@@ -230,30 +335,16 @@ class Problem:
         extension: Extension | None = None,
         ext0=None,
         fixed: tuple[str, ...] = (),
+        rows: Rows | None = None,
     ):
-        source = table.source
-        if table.xyz is None:
-            raise IdentificationError(f"{source}: the table has no x_mm, y_mm, z_mm columns to identify from")
-        if table.n_joints != chain.dof:
-            raise IdentificationError(
-                f"{source}: the table has {table.n_joints} joint columns, robot {chain.name} has {chain.dof}"
-            )
-        for i, pid in enumerate(table.point):
-            if pid not in tool_points:
-                raise IdentificationError(
-                    f"{source}: row {i + 2}: column point: unknown point id {pid!r} "
-                    f"(the tool defines {', '.join(sorted(tool_points))})"
-                )
+        feats = None if extension is None else extension.joint_features
+        if rows is None or not rows.fits(chain, table, tool_points, noise, feats):
+            rows = Rows(chain, table, tool_points, noise, feats)
+        self.rows, source = rows, table.source
         self.chain, self.params, self.noise, self.source = chain, list(params), noise, source
-        self.station_ids = list(dict.fromkeys(table.station))  # in order of first appearance
-        self.point_ids = list(dict.fromkeys(table.point))
-        st_of, pt_of = {s: i for i, s in enumerate(self.station_ids)}, {p: i for i, p in enumerate(self.point_ids)}
-        self.st_idx = np.array([st_of[s] for s in table.station])
-        self.pt_idx = np.array([pt_of[p] for p in table.point])
-        # each station's rows: a slice when they follow each other (a view, not a copy)
-        self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
-        self.q = np.radians(table.q_deg)
-        self.xyz = table.xyz
+        self.station_ids, self.point_ids = rows.station_ids, rows.point_ids
+        self.st_idx, self.pt_idx, self.station_rows = rows.st_idx, rows.pt_idx, rows.station_rows
+        self.q, self.xyz = rows.q, rows.xyz
         self.ext = extension
         self.n_rows, self.k = len(table), len(self.params)
         self.e = 0 if extension is None else extension.size
@@ -275,69 +366,28 @@ class Problem:
                 "unknowns; measure more poses"
             )
         self.kin = Kinematics(chain, self.params)
-        # rows share poses (several points, several stations): the chain is walked once per distinct pose
-        # (and joint-offset features, which make the extended joint angles of a row)
-        self.pose_first, self.row_pose = _distinct_poses(
-            self.q, None if extension is None else extension.joint_features
-        )
-        # chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size
-        self.w = None if noise is None else noise.whitening(self.xyz)
-        order = np.argsort(self.row_pose, kind="stable")
-        self.set_chunks(np.array_split(order, max(1, -(-self.n_rows // CHUNK_ROWS))))
+        self.pose_first, self.row_pose = rows.poses
+        self.w = rows.w
+        # the columns of the rows of one (station, point) among all unknowns, and the block of the normal matrix
+        # they make (np.ix_)
+        c_pt = self.c_st + 6 * self.n_st
+        self.columns = {}
+        for s in range(self.n_st):
+            for p in range(self.n_pt):
+                cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
+                self.columns[s, p] = cols, np.ix_(cols, cols)
+        self.chunks = rows.chunks
         dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
-        pts = np.array([np.asarray(tool_points[p], dtype=float) for p in self.point_ids])
-        stations = _init_stations(
-            self.kin,
-            (self.q[self.pose_first], self.row_pose),
-            pts[self.pt_idx],
-            self.xyz,
-            self.st_idx,
-            self.station_ids,
-            source,
-        )
-        self.initial = State(dev, stations, pts, ext)
+        self.initial = State(dev, list(rows.stations), rows.points.copy(), ext)
 
     def set_chunks(self, chunks: list[np.ndarray]) -> None:
         """Split the rows into these chunks for the normal equations (any partition of the rows)."""
-        self.chunks = [self._chunk(rows) for rows in chunks]
-
-    def _chunk(self, rows: np.ndarray) -> _Chunk:
-        group = self.st_idx[rows] * self.n_pt + self.pt_idx[rows]
-        order = np.argsort(group, kind="stable")
-        rows, group = rows[order], group[order]
-        poses, of_row = np.unique(self.row_pose[rows], return_inverse=True)
-        of_row = of_row.ravel()
-        if len(poses) == len(rows):  # no two rows share a pose: the chain walked for the rows in their order
-            poses, of_row = self.row_pose[rows], np.arange(len(rows))
-        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-        ends = np.r_[starts[1:], len(rows)]
-        c_pt = self.c_st + 6 * self.n_st
-        groups, stations = [], []
-        for a, b in zip(starts, ends, strict=True):
-            s, p = divmod(int(group[a]), self.n_pt)
-            cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
-            groups.append((slice(a, b), cols, np.ix_(cols, cols)))
-            if stations and stations[-1][1] == s:
-                stations[-1] = (slice(stations[-1][0].start, b), s)
-            else:
-                stations.append((slice(a, b), s))
-        take = _selector(rows)
-        return _Chunk(
-            rows,
-            None if np.array_equal(order, np.arange(len(order))) else order,
-            poses,
-            None if np.array_equal(of_row, np.arange(len(of_row))) else of_row,
-            groups,
-            take,
-            stations,
-            self.xyz[take],
-            None if self.w is None else self.w[take],
-        )
+        self.chunks = [self.rows.chunk(rows) for rows in chunks]
 
     @cached_property
     def _every_row(self) -> _Chunk:
-        return self._chunk(np.arange(self.n_rows))
+        return self.rows.chunk(np.arange(self.n_rows))
 
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         return r if self.w is None else _whitened(self.w, r)
@@ -432,18 +482,18 @@ class Problem:
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
         """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
-        if len(ch.groups) == 1 and jc.shape[2] == self.n_all:  # one station, one point: the blocks are every column
+        if len(ch.pairs) == 1 and jc.shape[2] == self.n_all:  # one station, one point: the blocks are every column
             jm = jc
             return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
         jm = np.zeros((len(ch.rows), 3, self.n_all))
-        for sl, cols, _ in ch.groups:
-            jm[sl][:, :, cols] = jc[sl]
+        for sl, s, p in ch.pairs:
+            jm[sl][:, :, self.columns[s, p][0]] = jc[sl]
         return (jm if self.n_cols == self.n_all else jm[:, :, self.free]).reshape(-1, self.n_cols)
 
     def residual_and_jacobian(self, s: State, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
         of the given `rows` (their residuals and Jacobian rows, in that order)."""
-        ch = self._every_row if rows is None else self._chunk(np.asarray(rows))
+        ch = self._every_row if rows is None else self.rows.chunk(np.asarray(rows))
         rb, jc = self._blocks(s, ch)
         if ch.order is None:
             return rb.ravel(), self._dense(ch, jc)
@@ -458,7 +508,8 @@ class Problem:
         info, grad, cost = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all), 0.0
         for ch in self.chunks:
             r, jc = self._blocks(s, ch)
-            for sl, cols, block in ch.groups:
+            for sl, st, pt in ch.pairs:
+                cols, block = self.columns[st, pt]
                 jg, rg = jc[sl].reshape(-1, jc.shape[2]), r[sl].ravel()
                 info[block] += jg.T @ jg
                 grad[cols] += jg.T @ rg
@@ -593,13 +644,15 @@ def identify(
     ext0: np.ndarray | None = None,
     fixed: tuple[str, ...] = (),
     covariance: bool = True,
+    rows: Rows | None = None,
 ) -> Identification:
     """Identify `params` (deviations from nominal), the extension's parameters, every station and every
     reference point; `fixed` ("robot", "points") holds those at dev0 / ext0 / tool_points (their rows and
     columns of the covariance are zero). Without `covariance` (a fit whose residuals alone are used: the nominal
     robot's "before" fit) the covariance is NaN, there is no R factor and the set-up's identifiability is not
-    checked: the pass over the rows and the factorisation that give them are saved (issue 41)."""
-    problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed)
+    checked: the pass over the rows and the factorisation that give them are saved (issue 41). `rows`: the table's
+    layout when another fit of it made it (Problem)."""
+    problem = Problem(chain, table, tool_points, params, noise, dev0, extension, ext0, fixed, rows)
     sol = solve(problem, problem.initial, max_iter)
     state = sol.state
     residuals = problem.xyz - problem.predicted(state)

@@ -29,9 +29,9 @@ import math
 
 import numpy as np
 
-from trackcal.calib.io.table import MeasurementTable, TableError, read_table
+from trackcal.calib.io.table import MeasurementTable, TableError, label_codes, read_table
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.kinematics import Kinematics, row_runs
 
 INCH_MM = 25.4  # NIST SP 811, B.6
 NOT_MM_BELOW = 1.0 / math.sqrt(INCH_MM)  # between mm (1) and in (1/25.4)
@@ -49,19 +49,22 @@ def length_scale(table: MeasurementTable, chain: Chain) -> float | None:
     None when no (station, point) is measured at two poses apart, or the table has no positions."""
     if table.xyz is None or len(table) < 2:
         return None
-    _, flange = Kinematics(chain, []).end_frames(np.radians(table.q_deg))
-    keys = [f"{s}\x00{p}" for s, p in zip(table.station, table.point, strict=True)]
-    _, group = np.unique(keys, return_inverse=True)
-    measured = moved = 0.0
-    for g in range(group.max() + 1):
-        rows = group == g
-        if rows.sum() < 2:
-            continue
-        measured += float(np.sum((table.xyz[rows] - table.xyz[rows].mean(axis=0)) ** 2))
-        moved += float(np.sum((flange[rows] - flange[rows].mean(axis=0)) ** 2))
+    q = np.radians(table.q_deg)
+    runs, of_row = row_runs(q)  # the chain walked once for the rows of a pose that follow each other
+    flange = Kinematics(chain, []).points(q[runs], np.zeros(3), rows=of_row)  # the flange's origin
+    (station, _), (point, pids) = label_codes(table.station), label_codes(table.point)
+    group = station * len(pids) + point  # one code per (station, point)
+    count = np.bincount(group)
+    measured, moved = (_spread(v, group, count) for v in (table.xyz, flange))
     if moved <= 1e-12 or not math.isfinite(measured):
         return None
     return math.sqrt(measured / moved)
+
+
+def _spread(v: np.ndarray, group: np.ndarray, count: np.ndarray) -> float:
+    """The sum of squared distances of rows v (N, 3) from their group's mean (a group of one row adds nothing)."""
+    means = np.stack([np.bincount(group, weights=c, minlength=len(count)) for c in v.T], axis=1)
+    return float(np.sum((v - means[group] / np.maximum(count, 1)[group, None]) ** 2))
 
 
 def radian_bounds(chain: Chain) -> np.ndarray:

@@ -100,6 +100,14 @@ class MeasurementTable:
         )
 
 
+def label_codes(labels: list[str]) -> tuple[np.ndarray, list[str]]:
+    """(an integer per label: its rank among the distinct labels in order of first appearance; those labels), by a
+    dict (a third of the time of np.unique of the labels as numpy strings at 100k rows: issue 41)."""
+    distinct = list(dict.fromkeys(labels))
+    index = dict(zip(distinct, range(len(distinct)), strict=True))
+    return np.fromiter(map(index.__getitem__, labels), dtype=np.intp, count=len(labels)), distinct
+
+
 def joint_columns(n: int) -> list[str]:
     return [f"q{j + 1}_deg" for j in range(n)]
 

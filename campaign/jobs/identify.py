@@ -19,6 +19,7 @@ from trackcal.calib.identify.solver import (
     Identification,
     IdentificationError,
     Problem,
+    Rows,
     State,
     identify,
     residual_stats,
@@ -134,7 +135,8 @@ def fit_model(
         )
     params, still = still_warning(cell, table, params)
     noise = noise_for(weighting, cell.tracker)
-    before = identify(cell.chain, table, cell.tool_points, [], noise=noise, covariance=False)  # its residuals alone
+    rows = Rows(cell.chain, table, cell.tool_points, noise, None)  # the layout of the table both fits share
+    before = identify(cell.chain, table, cell.tool_points, [], noise=noise, covariance=False, rows=rows)  # residuals
     if extend == "auto":
         from trackcal.calib.diagnose.diagnosis import diagnose  # lazy: the search is only for --extend auto (start-up)
 
@@ -145,7 +147,8 @@ def fit_model(
             ).causes
         )
         extend = extend or "none"
-    fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend)
+    geometric = identify(cell.chain, table, cell.tool_points, params, noise=noise, rows=rows)
+    fit = fit_cause(cell.chain, table, cell.tool_points, params, noise, extend, geometric)
     if fit is None:
         raise OptionError(
             "{0} {extend}: this table cannot reveal it (too few rows or no variation)", "extend", extend=extend

@@ -19,11 +19,13 @@ from trackcal.calib.identify.solver import (
     Identification,
     IdentificationError,
     Problem,
+    Rows,
     State,
     cholesky_r,
     identify,
     unique_rows,
 )
+from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import param_by_name
 from trackcal.mocks.twin import Twin, simulate_campaign
@@ -65,6 +67,31 @@ def test_before_fit_without_covariance_is_the_same_fit(kr270):
         np.testing.assert_array_equal(quick.points[pid], full.points[pid])
     assert (quick.variance_factor, quick.dof, quick.iterations) == (full.variance_factor, full.dof, full.iterations)
     assert np.isfinite(full.cov).all() and np.isnan(quick.cov).all() and quick.r_factor is None
+
+
+def assert_same_fit(a: Identification, b: Identification) -> None:
+    for name in ("dev", "residuals", "cov"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    for sid in a.stations:
+        np.testing.assert_array_equal(a.stations[sid].rotation, b.stations[sid].rotation)
+        np.testing.assert_array_equal(a.stations[sid].translation, b.stations[sid].translation)
+    for pid in a.points:
+        np.testing.assert_array_equal(a.points[pid], b.points[pid])
+    assert (a.iterations, a.variance_factor) == (b.iterations, b.variance_factor)
+
+
+def test_fits_sharing_the_row_layout_are_the_fits_alone(kr270):
+    """identify's "before" fit and fit share the table's layout (solver.Rows, made once): each is the fit it is alone,
+    bit for bit; a layout made for another noise model is not used (the i.i.d. fit given the whitened rows is the
+    i.i.d. fit)."""
+    _, table = kr270_campaign(kr270, seed=3, n_poses=30)
+    params, noise = campaign_params(kr270.chain), TrackerNoise()
+    rows = Rows(kr270.chain, table, kr270.tool_points, noise, None)
+    for fit_params in ([], params):
+        shared = identify(kr270.chain, table, kr270.tool_points, fit_params, noise=noise, rows=rows)
+        assert_same_fit(shared, identify(kr270.chain, table, kr270.tool_points, fit_params, noise=noise))
+    iid = identify(kr270.chain, table, kr270.tool_points, params, rows=rows)
+    assert_same_fit(iid, identify(kr270.chain, table, kr270.tool_points, params))
 
 
 def qr_covariance(res: Identification, table) -> np.ndarray:
