@@ -28,6 +28,7 @@ from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import param_by_name
 from trackcal.calib.model_file import model_from_doc, predict_table
 from trackcal.calib.tcp_figure import tcp_rows
+from trackcal.campaign.cli.blas import limited_blas
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.jobs.end_of_run import analyse_session
@@ -386,21 +387,32 @@ def test_every_figure_of_the_report_of_every_cause(kr270, tmp_path, effect):
     check_report(kr270, analysis, tmp_path)
 
 
+# The issue's campaign ran the README's plan of 6 configurations, where diagnose can no longer name a cause: its
+# held-out test is a one-sided signed-rank test per pose at 1 %, whose smallest p-value is 2^-n (every pose better),
+# so it needs n >= 7 (calib/diagnose/significance.py's `attainable`: 2^-6 = 1.6 %, 2^-7 = 0.8 %). 7 is not enough
+# here (diagnose said `none` on both seeds): the geometric model's held-out RMS was 23 mm, backlash's p = 0.23 (seed 1).
+# Measured on this test's two seeds: 8, 9 and 10 configurations name backlash, every pose better (p = 2^-n). 10
+# leaves room: at n = 10 the test passes with the worse poses' ranks summing to 5 (at 8: to 1, at 7: to 0).
+ISSUE_CONFIGS = 10
+
+
 @pytest.fixture(scope="module")
-def readme_plan(tmp_path_factory):
-    """The README's plan: `trackcal plan --cell kr270 --configs 6 --repeat 3` (optimised for the campaign's unknowns:
-    18 robot parameters, the stations and the points)."""
+def issue_plan(tmp_path_factory):
+    """The README's plan with ISSUE_CONFIGS configurations: `trackcal plan --cell kr270 --configs 10 --repeat 3`
+    (optimised for the campaign's unknowns: 18 robot parameters, the stations and the points), searched with the
+    command's BLAS threads (one by default: 12 s; with two, `trackcal plan --configs 6` took 66 s instead of 9 s)."""
     out = tmp_path_factory.mktemp("plan") / "plan.json"
-    return plan("kr270", PlanOptions(configs=6, repeat=3), str(out)).doc
+    with limited_blas():
+        return plan("kr270", PlanOptions(configs=ISSUE_CONFIGS, repeat=3), str(out)).doc
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
-def test_the_backlash_campaign_of_the_issue(kr270, readme_plan, tmp_path, seed):
+def test_the_backlash_campaign_of_the_issue(kr270, issue_plan, tmp_path, seed):
     # issue 25: `run --sim --effect backlash:0.05` on the README's plan showed a TCP difference at the test pose of
     # 36 mm (seed 1) and 26.7 mm (seed 2): a TCP fixed in the flange frame while each model moves its reference
     # points along the link lengths the plan does not determine
-    analysis = run_campaign(kr270, tmp_path / f"backlash-{seed}", "backlash", seed=seed, plan_doc=readme_plan)
+    analysis = run_campaign(kr270, tmp_path / f"backlash-{seed}", "backlash", seed=seed, plan_doc=issue_plan)
     check_report(kr270, analysis, tmp_path)
     tcp = json.loads(analysis.files.verdict.read_text())["test_pose"]
     # the second route to the truth: the twin's own reflectors at the test pose (no backlash at a pose approached
