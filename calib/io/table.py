@@ -240,6 +240,12 @@ def _first_bad_cell(lines: list[str], cols: list[int], dtype) -> tuple[int, int]
     return lo, 0  # the line as a whole does not tokenize (a stray quote)
 
 
+# A measured coordinate farther than this from its tracker is no measurement: the AT901-LR reaches 80 m (Leica
+# Absolute Tracker AT901 product brochure: measuring range 160 m diameter), any laser tracker tens of metres. A table
+# in the wrong unit or with a corrupt cell (1e300 mm) is refused here, in one line, not by the fit's numerics.
+MAX_COORDINATE_MM = 1.0e6
+
+
 class _Columns:
     """Where each required column is, and the growing result."""
 
@@ -251,6 +257,7 @@ class _Columns:
         self.extra = [h for h in header if h not in self.numeric and h not in IDS]
         self.text = [*IDS, *self.extra]
         self.text_idx = [col[c] for c in self.text]
+        self.xyz = slice(len(self.numeric) - len(XYZ), None) if has_xyz else slice(0, 0)  # the coordinates' columns
         self.numbers: list[np.ndarray] = []
         self.texts: list[np.ndarray] = []
         self.ids: list[list[str]] = [[] for _ in IDS]
@@ -269,6 +276,8 @@ class _Columns:
             num[:, k] = column
         if (np.abs(num[:, 0]) > 2**53).any() or (num[:, 0] != np.rint(num[:, 0])).any():
             return None  # seq not an integer
+        if (np.abs(num[:, self.xyz]) > MAX_COORDINATE_MM).any():
+            return None  # a coordinate no tracker measures
         ids = [grid.ids(c) for c in self.text_idx[: len(IDS)]]
         texts = [grid.text(c) for c in self.text_idx[len(IDS) :]]
         if any(column is None for column in [*ids, *texts]):
@@ -305,6 +314,15 @@ class _Columns:
             k, c = np.argwhere(~finite)[0]
             text = _fields(lines[k])[self.num_idx[c]].strip()
             raise TableError(f"{path}: row {row + k}: column {self.numeric[c]}: not a finite number: {text!r}")
+        far = np.argwhere(np.abs(num[:, self.xyz]) > MAX_COORDINATE_MM)
+        if far.size:
+            k, c = far[0]
+            text = _fields(lines[k])[self.num_idx[self.xyz][c]].strip()
+            raise TableError(
+                f"{path}: row {row + k}: column {self.numeric[self.xyz][c]}: {text} mm is beyond "
+                f"{MAX_COORDINATE_MM / 1e6:g} km from the tracker: no tracker measures there (a wrong unit or a "
+                "corrupt cell?)"
+            )
         seq = num[:, 0]
         not_int = np.flatnonzero((seq != np.rint(seq)) | (np.abs(seq) > 2**53))
         if not_int.size:

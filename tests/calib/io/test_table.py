@@ -45,6 +45,10 @@ def test_round_trip_keeps_values_and_extra_columns(tmp_path, kr270):
         (HEADER.replace(",z_mm", "") + "\n" + ROW.rsplit(",", 1)[0], r"row 1: missing column\(s\) z_mm"),
         (HEADER + "\n" + ROW.replace("1000.5", "nan"), r"row 2: column x_mm: not a finite number: 'nan'"),
         (HEADER + "\n" + ROW.replace("1000.5", "1e400"), r"row 2: column x_mm: not a finite number: '1e400'"),
+        # 1e300 mm and 2 km: no tracker measures there (calib/io/table.py MAX_COORDINATE_MM, 1 km; the AT901-LR
+        # reaches 80 m); 1e300 made the fit's numerics overflow and ended in "points are collinear"
+        (HEADER + "\n" + ROW.replace("1000.5", "1e300"), r"row 2: column x_mm: 1e300 mm is beyond 1 km from the"),
+        (HEADER + "\n" + ROW.replace("-300.125", "-2000000"), r"row 2: column z_mm: -2000000 mm is beyond 1 km"),
         (HEADER + "\n" + ROW.replace("-60", "abc"), r"row 2: column q2_deg: not a number: 'abc'"),
         (HEADER + "\n" + ROW.replace("-60", ""), r"row 2: column q2_deg: not a number: ''"),
         (HEADER + "\n" + ROW + ",7", r"row 2: 15 fields, the header has 14"),

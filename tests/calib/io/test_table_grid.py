@@ -15,6 +15,7 @@ from trackcal.calib.io.table import TableError, read_table
 
 HEADER = ["seq", "t_s", "pose", "station", "point", "q1_deg", "q2_deg", "q3_deg", "x_mm", "y_mm", "z_mm"]
 NUMERIC = [c for c in HEADER if c not in ("seq", "pose", "station", "point")]
+XYZ = ("x_mm", "y_mm", "z_mm")
 
 
 def plain_number(sign, whole, frac):
@@ -33,6 +34,13 @@ OTHER = st.sampled_from(
     ["1e5", "-2.5E-3", " 7.25", "8 ", "5.", ".5", "-.5", "12345678901234567", "1.234567890123456789"]
 )
 NUMBER = st.one_of(PLAIN, PLAIN, PLAIN, OTHER)
+# Plain coordinates a tracker measures: within 1 km (calib/io/table.py MAX_COORDINATE_MM; 6 whole digits)
+PLAIN_XYZ = st.builds(
+    plain_number,
+    st.sampled_from(["", "-", "+"]),
+    st.text("0123456789", min_size=1, max_size=6),
+    st.text("0123456789", max_size=6),
+)
 PRINTABLE = "".join(chr(c) for c in range(0x21, 0x7F) if chr(c) not in '",')  # ASCII, no space, quote or comma
 PLAIN_ID = st.text(PRINTABLE, min_size=1, max_size=20)
 ANY = st.text(st.characters(blacklist_characters=',"\r\n\x00', blacklist_categories=("Cs",)), max_size=12)
@@ -62,14 +70,14 @@ def outcome(path):
 
 
 @st.composite
-def tables(draw, number=NUMBER, ident=ID, text=TEXT):
+def tables(draw, number=NUMBER, ident=ID, text=TEXT, xyz=None):
     n = draw(st.integers(1, 12))
     extras = draw(st.lists(st.sampled_from(["note", "temp_c"]), max_size=2, unique=True))
     seqs = draw(st.permutations(range(1, n + 1)))
     seq_text = st.sampled_from(["{}", "{}", "+{}", "00{}", "{}.0"]) if number is NUMBER else st.just("{}")
     rows = []
     for i in range(n):
-        row = {c: draw(number) for c in NUMERIC}
+        row = {c: draw(xyz if xyz is not None and c in XYZ else number) for c in NUMERIC}
         row["seq"] = draw(seq_text).format(seqs[i])
         row.update({c: draw(ident) for c in ("pose", "station", "point")})
         row.update({c: draw(text) for c in extras})
@@ -99,7 +107,7 @@ def test_any_table_reads_the_same_with_and_without_the_grid(tmp_path_factory, ta
 
 
 @settings(max_examples=60, deadline=None)
-@given(table=tables(number=PLAIN, ident=PLAIN_ID, text=st.text(PRINTABLE + " ", max_size=12)))
+@given(table=tables(number=PLAIN, ident=PLAIN_ID, text=st.text(PRINTABLE + " ", max_size=12), xyz=PLAIN_XYZ))
 def test_plain_tables_are_read_by_the_grid_alone(tmp_path_factory, table):
     path = tmp_path_factory.mktemp("plain") / "t.csv"
     path.write_bytes(table_bytes(*table))
@@ -114,12 +122,13 @@ BAD = {
     "q2_deg": ["abc", "1.2.3", "nan", "-inf", "inf", "1e400", "", " ", "--1", "+", "-", ".", "1,5", "0x10", "1_0"],
     "seq": ["7.5", "x", "", "1e300", "99999999999999999"],
     "station": ["", " ", "\t"],
+    "x_mm": ["1000000.5", "-2000000", "1e300"],  # beyond 1 km from the tracker (MAX_COORDINATE_MM)
 }
 
 
 @settings(max_examples=100, deadline=None)
 @given(
-    table=tables(number=PLAIN, ident=PLAIN_ID, text=st.just("t")),
+    table=tables(number=PLAIN, ident=PLAIN_ID, text=st.just("t"), xyz=PLAIN_XYZ),
     column=st.sampled_from(sorted(BAD)),
     data=st.data(),
     where=st.floats(0, 1, exclude_max=True),
