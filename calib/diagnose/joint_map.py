@@ -453,13 +453,15 @@ def _cv_scores(
         sa = np.sqrt(np.diag(gaa))
         sa[sa == 0] = 1.0
         gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
-        # the Schur complement of every penalised column; an order's is its block (its columns a subset)
-        gpf = g[np.ix_(free, pen_cols)]
-        schur_all = g[np.ix_(pen_cols, pen_cols)] - gpf.T @ gaa_inv @ gpf
-        bf_all = b[pen_cols] - gpf.T @ (gaa_inv @ b[free])
+        # the Schur complement of every penalised column; an order's is its block (its columns a subset); none when
+        # no order keeps a column (the comparison without the map: its 650 x 650 block was formed and not read)
+        kept = pen_cols if any(len(cols) for cols in orders_cols) else pen_cols[:0]
+        gpf = g[np.ix_(free, kept)]
+        schur_all = g[np.ix_(kept, kept)] - gpf.T @ gaa_inv @ gpf
+        bf_all = b[kept] - gpf.T @ (gaa_inv @ b[free])
         j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
-            at = np.searchsorted(pen_cols, cols)
+            at = np.searchsorted(kept, cols)
             gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
                 c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
@@ -644,6 +646,7 @@ def held_out_errors(
     pen = n_params + mf.n_base + np.arange(len(lin.names))
     order = max(mf.orders.values())
     cols = pen[[parse_name(nm)[1] <= order for nm in lin.names]]
+    grams = FoldGrams(lin.jm)  # both comparisons hold out the same folds: each fold's Gram downdate formed once
     with_map = _cv_scores(
         lin.jm,
         lin.r,
@@ -655,7 +658,7 @@ def held_out_errors(
         [cols],
         [mf.ridge],
         lin.held,
-        None,
+        grams,
         executor,
         per_row=True,
     )
@@ -670,7 +673,7 @@ def held_out_errors(
         [pen[:0]],
         [1.0],
         None,
-        None,
+        grams,
         executor,
         per_row=True,
     )
