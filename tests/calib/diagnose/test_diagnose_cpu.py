@@ -1,12 +1,15 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
 as a reference: the held-out comparison's two cross-validations share their folds' Gram downdates, and the one
-without the map forms no Schur complement of the map's columns (it keeps none of them)."""
+without the map forms no Schur complement of the map's columns (it keeps none of them); the warm-up's tau is refined
+by trackcal's port of scipy's bounded Brent search, not scipy.optimize (its import)."""
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.optimize import minimize_scalar
 
 from trackcal.calib.diagnose.joint_map import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.warmup import bounded_minimum
 
 
 def drawn(seed: int, n_rows: int, n_free: int, n_pen: int):
@@ -61,3 +64,23 @@ def test_shared_downdates_and_no_schur_without_the_map_give_the_same_errors(seed
         total, sq, count = without_map_reference(jm, r, gram, rhs, pen, groups)
         assert np.array_equal(without[2], sq) and np.array_equal(without[3], count)
         assert np.isclose(without[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
+
+
+@settings(deadline=None, max_examples=60)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    lo=st.floats(-10.0, 10.0),
+    width=st.floats(1e-3, 20.0),
+    xatol=st.sampled_from([1e-4, 1e-6, 1e-2]),
+)
+def test_bounded_minimum_is_scipys_bounded_search_bit_for_bit(seed, lo, width, xatol):
+    # profiles like warmup's: smooth, a minimum inside or at an end, wiggles that make parabolic steps fail
+    rng = np.random.default_rng(seed)
+    c, k, amp, tilt = rng.uniform(lo, lo + width), rng.uniform(0.5, 20.0), rng.uniform(0.0, 2.0), rng.normal()
+
+    def f(x):
+        return float((x - c) ** 2 + amp * np.sin(k * x) + tilt * x)
+
+    ref = minimize_scalar(f, bounds=(lo, lo + width), method="bounded", options={"xatol": xatol})
+    x, fx = bounded_minimum(f, lo, lo + width, xatol=xatol)
+    assert x == ref.x and fx == ref.fun
