@@ -1,7 +1,7 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
-as a reference: the held-out comparison's two cross-validations share their folds' Gram downdates, and the one
-without the map forms no Schur complement of the map's columns (it keeps none of them); the warm-up's tau is refined
-by trackcal's port of scipy's bounded Brent search, not scipy.optimize (its import)."""
+as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
+downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
+warm-up's tau is refined by trackcal's port of scipy's bounded Brent search, not scipy.optimize (its import)."""
 
 import numpy as np
 from hypothesis import given, settings
@@ -50,20 +50,20 @@ def without_map_reference(jm, r, gram, rhs, pen, groups):
 
 @settings(deadline=None, max_examples=25)
 @given(seed=st.integers(0, 2**32 - 1), n_rows=st.integers(20, 60), n_free=st.integers(1, 8), n_pen=st.integers(1, 12))
-def test_shared_downdates_and_no_schur_without_the_map_give_the_same_errors(seed, n_rows, n_free, n_pen):
+def test_with_and_without_the_map_in_one_pass_give_the_same_errors(seed, n_rows, n_free, n_pen):
     jm, r, gram, rhs, pen, groups = drawn(seed, n_rows, n_free, n_pen)
     cols = pen[: max(1, n_pen // 2)]
     args = (jm, r, gram, rhs, None, pen, groups)
-    grams = FoldGrams(jm)
-    for downdate in (None, grams, grams):  # each fold's downdate formed here, then formed once and read again
-        with_map = _cv_scores(*args, [cols], [0.5], None, downdate, per_row=True)
-        without = _cv_scores(*args, [pen[:0]], [1.0], None, downdate, per_row=True)
-        if downdate is None:
-            first = with_map
-        assert all(np.array_equal(a, b) for a, b in zip(with_map, first, strict=True))  # bit for bit
-        total, sq, count = without_map_reference(jm, r, gram, rhs, pen, groups)
-        assert np.array_equal(without[2], sq) and np.array_equal(without[3], count)
-        assert np.isclose(without[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
+    *_, sq, count = _cv_scores(*args, [cols, pen[:0]], [0.5], None, None, per_row=True)
+    # with the map: its own pass (each fold's downdate formed there, or by FoldGrams), bit for bit
+    for downdate in (None, FoldGrams(jm)):
+        alone = _cv_scores(*args, [cols], [0.5], None, downdate, per_row=True)
+        assert np.array_equal(alone[2][:, 0], sq[:, 0]) and np.array_equal(alone[3], count)
+    # without it: the reference, the Schur complement of the map's columns formed as before
+    total, ref_sq, ref_count = without_map_reference(jm, r, gram, rhs, pen, groups)
+    assert np.array_equal(sq[:, 1], ref_sq) and np.array_equal(count, ref_count)
+    alone = _cv_scores(*args, [pen[:0]], [1.0], None, None)
+    assert np.isclose(alone[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
 
 
 @settings(deadline=None, max_examples=60)
