@@ -415,9 +415,9 @@ def _cv_scores(
     per_row: bool = False,
 ):
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
-    order and ridge on the problem linearised at (jm, r); with `per_row`, also the first order's and ridge's
-    squared held-out error of every row (mm^2, summed over its coordinates and the folds that held it out) and how
-    many folds held it out. `fold`: the fold of every row (N,), or a list of held-out row indices (folds that need
+    order and ridge on the problem linearised at (jm, r); with `per_row`, also every order's squared held-out error
+    of every row at the first ridge ((N, orders) mm^2, summed over its coordinates and the folds that held it out) and
+    how many folds held it out. `fold`: the fold of every row (N,), or a list of held-out row indices (folds that need
     not partition the rows: edge folds). jm (3N, m) Jacobian, r (3N,) residual, whitened,
     gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
     pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
@@ -444,22 +444,23 @@ def _cv_scores(
         hold = np.repeat(hold, 3)
         jk, rk = jm[hold], r[hold]
         g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
-        if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs
-            jk = jk.copy()
+        if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs (jk is a copy)
             jk[:, pen_cols] = held.columns(rows)
-        first = None
+        first = np.empty((len(rows), len(orders_cols)))
         gaa = g[np.ix_(free, free)]
         # unpenalised block a = gaa^-1 (b_a - g_af c); column scaling keeps the inverse accurate
         sa = np.sqrt(np.diag(gaa))
         sa[sa == 0] = 1.0
         gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
-        # the Schur complement of every penalised column; an order's is its block (its columns a subset)
-        gpf = g[np.ix_(free, pen_cols)]
-        schur_all = g[np.ix_(pen_cols, pen_cols)] - gpf.T @ gaa_inv @ gpf
-        bf_all = b[pen_cols] - gpf.T @ (gaa_inv @ b[free])
+        # the Schur complement of every penalised column; an order's is its block (its columns a subset); none when
+        # no order keeps a column (the comparison without the map: its 650 x 650 block was formed and not read)
+        kept = pen_cols if any(len(cols) for cols in orders_cols) else pen_cols[:0]
+        gpf = g[np.ix_(free, kept)]
+        schur_all = g[np.ix_(kept, kept)] - gpf.T @ gaa_inv @ gpf
+        bf_all = b[kept] - gpf.T @ (gaa_inv @ b[free])
         j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
-            at = np.searchsorted(pen_cols, cols)
+            at = np.searchsorted(kept, cols)
             gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
                 c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
@@ -471,8 +472,7 @@ def _cv_scores(
             if unwhiten is not None:
                 e = np.einsum("nij,njl->nil", unwhiten[rows], e.reshape(-1, 3, len(lam))).reshape(e.shape)
             ss_mm[i] += np.sum(e**2, axis=0)
-            if i == 0:
-                first = np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1)
+            first[:, i] = np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1)
         return ss, ss_mm, first
 
     parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
@@ -480,12 +480,12 @@ def _cv_scores(
 
 
 def _summed(parts: list[tuple], groups: list[np.ndarray], n_rows: int, per_row: bool) -> tuple:
-    """_cv_scores' folds (`parts`: each fold's sums and first squared errors of its rows `groups[k]`) summed in
-    fold order; with `per_row`, also every row's squared error and how many folds held it out."""
+    """_cv_scores' folds (`parts`: each fold's sums and every order's squared errors of its rows `groups[k]`)
+    summed in fold order; with `per_row`, also every row's squared error per order and how many folds held it out."""
     out = sum(p[0] for p in parts), sum(p[1] for p in parts)
     if not per_row:
         return out
-    sq, count = np.zeros(n_rows), np.zeros(n_rows, dtype=int)
+    sq, count = np.zeros((n_rows, parts[0][2].shape[1])), np.zeros(n_rows, dtype=int)
     for rows, p in zip(groups, parts, strict=True):
         np.add.at(sq, rows, p[2])
         np.add.at(count, rows, 1)
@@ -644,7 +644,9 @@ def held_out_errors(
     pen = n_params + mf.n_base + np.arange(len(lin.names))
     order = max(mf.orders.values())
     cols = pen[[parse_name(nm)[1] <= order for nm in lin.names]]
-    with_map = _cv_scores(
+    # with the map and without it (no order's columns) in one pass over the folds: each fold's Gram downdate, held-out
+    # rows and unpenalised block formed once for both
+    *_, sq, count = _cv_scores(
         lin.jm,
         lin.r,
         lin.gram,
@@ -652,29 +654,14 @@ def held_out_errors(
         lin.unwhiten,
         pen,
         groups,
-        [cols],
+        [cols, pen[:0]],
         [mf.ridge],
         lin.held,
         None,
         executor,
         per_row=True,
     )
-    without = _cv_scores(
-        lin.jm,
-        lin.r,
-        lin.gram,
-        lin.rhs,
-        lin.unwhiten,
-        pen,
-        groups,
-        [pen[:0]],
-        [1.0],
-        None,
-        None,
-        executor,
-        per_row=True,
-    )
-    return with_map[2:], without[2:]
+    return (sq[:, 0].copy(), count), (sq[:, 1].copy(), count)
 
 
 class MapEvidence:

@@ -1,0 +1,86 @@
+"""issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
+as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
+downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
+warm-up's tau is refined by trackcal's port of scipy's bounded Brent search, not scipy.optimize (its import)."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import minimize_scalar
+
+from trackcal.calib.diagnose.joint_map import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.warmup import bounded_minimum
+
+
+def drawn(seed: int, n_rows: int, n_free: int, n_pen: int):
+    """A linearised problem (jm, r, Gram matrix, J^T r) of n_rows rows (3 coordinates each) and its folds: a partition
+    of the rows into 4 and two edge folds (overlapping it), as held_out_errors receives them."""
+    rng = np.random.default_rng(seed)
+    jm = rng.standard_normal((3 * n_rows, n_free + n_pen)) * np.geomspace(1.0, 1e2, n_free + n_pen)
+    r = rng.standard_normal(3 * n_rows)
+    part = np.arange(n_rows) % 4
+    groups = [np.flatnonzero(part[rng.permutation(n_rows)] == k) for k in range(4)]
+    groups += [np.arange(n_rows // 5), np.arange(n_rows - n_rows // 5, n_rows)]
+    return jm, r, jm.T @ jm, jm.T @ r, n_free + np.arange(n_pen), groups
+
+
+def without_map_reference(jm, r, gram, rhs, pen, groups):
+    """Before issue 41: every fold's held-out squared error of the model without the map's columns, the Schur
+    complement of all of them formed (and not read) as _cv_scores did."""
+    free = np.setdiff1d(np.arange(jm.shape[1]), pen)
+    sq, count, n_rows = np.zeros(len(r) // 3), np.zeros(len(r) // 3, dtype=int), len(r) // 3
+    total = 0.0
+    for rows in groups:
+        hold = np.zeros(n_rows, dtype=bool)
+        hold[rows] = True
+        hold = np.repeat(hold, 3)
+        jk, rk = jm[hold], r[hold]
+        g, b = gram - jk.T @ jk, rhs - jk.T @ rk
+        gaa = g[np.ix_(free, free)]
+        sa = np.sqrt(np.diag(gaa))
+        sa[sa == 0] = 1.0
+        gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
+        a = gaa_inv @ b[free][:, None]
+        e = rk[:, None] - jk[:, free] @ a
+        total += float(np.sum(e**2))
+        np.add.at(sq, np.sort(rows), np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1))
+        np.add.at(count, rows, 1)
+    return total, sq, count
+
+
+@settings(deadline=None, max_examples=25)
+@given(seed=st.integers(0, 2**32 - 1), n_rows=st.integers(20, 60), n_free=st.integers(1, 8), n_pen=st.integers(1, 12))
+def test_with_and_without_the_map_in_one_pass_give_the_same_errors(seed, n_rows, n_free, n_pen):
+    jm, r, gram, rhs, pen, groups = drawn(seed, n_rows, n_free, n_pen)
+    cols = pen[: max(1, n_pen // 2)]
+    args = (jm, r, gram, rhs, None, pen, groups)
+    *_, sq, count = _cv_scores(*args, [cols, pen[:0]], [0.5], None, None, per_row=True)
+    # with the map: its own pass (each fold's downdate formed there, or by FoldGrams), bit for bit
+    for downdate in (None, FoldGrams(jm)):
+        alone = _cv_scores(*args, [cols], [0.5], None, downdate, per_row=True)
+        assert np.array_equal(alone[2][:, 0], sq[:, 0]) and np.array_equal(alone[3], count)
+    # without it: the reference, the Schur complement of the map's columns formed as before
+    total, ref_sq, ref_count = without_map_reference(jm, r, gram, rhs, pen, groups)
+    assert np.array_equal(sq[:, 1], ref_sq) and np.array_equal(count, ref_count)
+    alone = _cv_scores(*args, [pen[:0]], [1.0], None, None)
+    assert np.isclose(alone[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
+
+
+@settings(deadline=None, max_examples=60)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    lo=st.floats(-10.0, 10.0),
+    width=st.floats(1e-3, 20.0),
+    xatol=st.sampled_from([1e-4, 1e-6, 1e-2]),
+)
+def test_bounded_minimum_is_scipys_bounded_search_bit_for_bit(seed, lo, width, xatol):
+    # profiles like warmup's: smooth, a minimum inside or at an end, wiggles that make parabolic steps fail
+    rng = np.random.default_rng(seed)
+    c, k, amp, tilt = rng.uniform(lo, lo + width), rng.uniform(0.5, 20.0), rng.uniform(0.0, 2.0), rng.normal()
+
+    def f(x):
+        return float((x - c) ** 2 + amp * np.sin(k * x) + tilt * x)
+
+    ref = minimize_scalar(f, bounds=(lo, lo + width), method="bounded", options={"xatol": xatol})
+    x, fx = bounded_minimum(f, lo, lo + width, xatol=xatol)
+    assert x == ref.x and fx == ref.fun
