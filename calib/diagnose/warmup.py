@@ -82,67 +82,11 @@ def _rss(r_perp: np.ndarray, lever: np.ndarray, q: np.ndarray, shape: np.ndarray
     return float(r_perp @ r_perp) - (float(c @ r_perp) ** 2 / cc if cc > 0 else 0.0)
 
 
-def bounded_minimum(func, lo: float, hi: float, xatol: float, maxfun: int = 500) -> tuple[float, float]:
-    """(x, func(x)) of the least of `func` on [lo, hi] by Brent's bounded method (golden sections and parabolic steps,
-    Brent 1973, FMIN): scipy.optimize.minimize_scalar(method="bounded")'s arithmetic step for step, so the same x and
-    value bit for bit (tests/calib/diagnose/test_diagnose_cpu.py), without importing scipy.optimize (0.15 s of
-    diagnose's start-up, for this one search)."""
-    sqrt_eps, golden_mean = np.sqrt(2.2e-16), 0.5 * (3.0 - np.sqrt(5.0))
-    a, b = lo, hi
-    fulc = a + golden_mean * (b - a)
-    nfc = xf = fulc
-    rat = e = 0.0
-    fx = func(xf)
-    num, ffulc, fnfc = 1, fx, fx
-    xm = 0.5 * (a + b)
-    tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
-    tol2 = 2.0 * tol1
-    while np.abs(xf - xm) > (tol2 - 0.5 * (b - a)):
-        golden = True
-        if np.abs(e) > tol1:  # a parabola through the three best points
-            golden = False
-            r = (xf - nfc) * (fx - ffulc)
-            q = (xf - fulc) * (fx - fnfc)
-            p = (xf - fulc) * q - (xf - nfc) * r
-            q = 2.0 * (q - r)
-            if q > 0.0:
-                p = -p
-            q = np.abs(q)
-            r, e = e, rat
-            if (np.abs(p) < np.abs(0.5 * q * r)) and (p > q * (a - xf)) and (p < q * (b - xf)):
-                rat = (p + 0.0) / q
-                x = xf + rat
-                if ((x - a) < tol2) or ((b - x) < tol2):
-                    rat = tol1 * (np.sign(xm - xf) + ((xm - xf) == 0))
-            else:
-                golden = True
-        if golden:  # a golden section of the larger part
-            e = a - xf if xf >= xm else b - xf
-            rat = golden_mean * e
-        x = xf + (np.sign(rat) + (rat == 0)) * np.maximum(np.abs(rat), tol1)
-        fu = func(x)
-        num += 1
-        if fu <= fx:
-            a, b = (xf, b) if x >= xf else (a, xf)
-            fulc, ffulc, nfc, fnfc, xf, fx = nfc, fnfc, xf, fx, x, fu
-        else:
-            a, b = (x, b) if x < xf else (a, x)
-            if (fu <= fnfc) or (nfc == xf):
-                fulc, ffulc, nfc, fnfc = nfc, fnfc, x, fu
-            elif fu <= ffulc or fulc in (xf, nfc):
-                fulc, ffulc = x, fu
-        xm = 0.5 * (a + b)
-        tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
-        tol2 = 2.0 * tol1
-        if num >= maxfun:
-            break
-    return xf, fx
-
-
 def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params) -> dict:
     """The profile of tau over the physical range at the fit `geo` (`_orthogonal`): {"form", "tau_s", "tau_ci95_s":
     [lo, hi], "rss", "rss_linear", "dof", "pvalue"} (the curvature's F test against the linear drift of the same
     pivot)."""
+    from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is 0.35 s of every command's start-up
     from scipy.special import fdtrc  # lazy: identify imports this module, not this test (scipy: its start-up)
 
     t = np.asarray(table.t_s, dtype=float)
@@ -158,8 +102,8 @@ def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params)
         grid = np.array([rss(np.log(tau)) for tau in taus])
         i = int(np.argmin(grid))
         lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, GRID - 1)])
-        x, fx = bounded_minimum(rss, lo, hi, xatol=1e-4)
-        log_tau, least = (x, float(fx)) if fx < grid[i] else (np.log(taus[i]), float(grid[i]))
+        found = minimize_scalar(rss, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+        log_tau, least = (found.x, float(found.fun)) if found.fun < grid[i] else (np.log(taus[i]), float(grid[i]))
         linear = _rss(r_perp, lever, q, t - t0)
         if best is None or least < best["rss"]:
             s2 = least / max(dof, 1)
