@@ -21,4 +21,3 @@ def test_a_held_claim_keeps_the_address_from_this_process_and_from_another():
         assert host != other and host != child.stdout.strip()
     finally:
         claim.close()
-
