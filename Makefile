@@ -39,8 +39,10 @@ $(STAMP): pyproject.toml constraints.txt tests/thirdparty/abb/constraints.txt Ma
 
 # The suite runs on every core; a module that shares a fixture or names a loopback address of its own (a mock UR
 # controller's fixed ports) runs whole on one worker (tests/conftest.py's UnitScheduling: xdist 3.8's own loadgroup
-# lost its groups under pytest 9.2). `make test XDIST=` runs it in one process.
-XDIST ?= -n auto --dist loadgroup
+# lost its groups under pytest 9.2). One worker more than the cores: the tests wait on sockets and on the processes
+# they start for a quarter of their time (2 workers on 2 cores: 686 s of CPU in 446 s of wall time, 1.5 cores busy;
+# 3 workers: 395 s, docs/layout.md). `make test XDIST=` runs it in one process.
+XDIST ?= -n $(shell echo $$(( $$(nproc) + 1 ))) --dist loadgroup
 
 test: setup
 	$(BIN)/ruff check .
