@@ -663,7 +663,8 @@ def header_facts(analysis: CampaignAnalysis) -> list[list[str]]:
             "a-posteriori sigma (µm)",
             fmt(1000 * sigma, 1)
             if sigma is not None
-            else f"{fmt(1000 * res.stats_after['coord_rms_mm'], 1)} (residual RMS; tracker weighting)",
+            else f"{fmt(1000 * model_doc.get('residual_rms_mm', res.stats_after['coord_rms_mm']), 1)} (residual RMS "
+            "over the degrees of freedom; tracker weighting)",
         ),
         ("variance factor", fmt(model_doc.get("variance_factor"), 3)),
         ("noise floor (µm)", floor_text(res)),

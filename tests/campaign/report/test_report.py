@@ -159,6 +159,8 @@ def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path)
     rms_dof = np.sqrt(np.sum(a**2) / outcome.result.dof)
     assert f"residual RMS {rms_dof * 1000:.1f} µm per coordinate" in sentence
     assert f"{outcome.doc['residual_rms_mm'] * 1000:.1f}" == f"{rms_dof * 1000:.1f}"
+    # and the facts table's a-posteriori sigma of a tracker-weighted fit is that same figure
+    assert f"{rms_dof * 1000:.1f} (residual RMS over the degrees of freedom; tracker weighting)" in cells
     assert "trackcal compensate --model model.json" in text.split("What next")[1]
     assert "re-plan" not in text  # the verdict names no cause the plan could have missed
     warnings = text.split("Campaign warnings")[1]
