@@ -26,13 +26,14 @@ from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import chdtrc, fdtrc
 
 from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.extensions import JOINT_CAUSES
 from trackcal.calib.diagnose.fits import Context, context, extension_of, final_fit, scan
-from trackcal.calib.diagnose.joint_map import ErrorMapFit, fit_error_map
+from trackcal.calib.diagnose.joint_map_fit import ErrorMapFit, fit_error_map
 from trackcal.calib.diagnose.judge import Candidate
-from trackcal.calib.diagnose.noise_floor import Floor, floor_test, noise_floor
+from trackcal.calib.diagnose.noise_floor import Floor, noise_floor
 from trackcal.calib.diagnose.point_effects import POINT_CAUSES
 from trackcal.calib.diagnose.selection import ALPHA, Selection
 from trackcal.calib.diagnose.structure import structure_test
@@ -102,6 +103,17 @@ def diagnose(
     while stepping:  # one forward-selection step at a time, until a step admits no cause
         stepping = sel.step()
     return _verdict(sel, table, floor, p_floor)
+
+
+def floor_test(geo: Identification, floor: Floor) -> float:
+    """p-value that the geometric residuals are at the floor: an F test against a floor from repeats
+    (itself estimated with floor.dof degrees of freedom), chi-square against the noise model."""
+    if floor.dof is None and geo.noise is not None:
+        return float(chdtrc(geo.dof, geo.variance_factor * geo.dof))
+    ratio = float(np.sum(geo.residuals**2)) / geo.dof / floor.sigma_mm**2
+    if floor.dof is None:
+        return float(chdtrc(geo.dof, ratio * geo.dof))
+    return float(fdtrc(geo.dof, floor.dof, ratio))
 
 
 def _verdict(sel: Selection, table: MeasurementTable, floor: Floor, p_floor: float) -> Diagnosis:

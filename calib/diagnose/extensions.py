@@ -9,8 +9,9 @@ Joint-type causes:
 - backlash: dq_j = (b_j / 2) s_j, s_j = +1 / -1 the direction joint j last moved in before the row (time
   order; 0 before it first moves): a dead band of width b_j;
 - encoder_scale: dq_j = k_j q_j (gear-ratio / encoder gain error);
-- cyclic_error: the joint error map, a Fourier series per joint in its own angle of any order; its form, its
-  features and its ridge fit are `calib.diagnose.joint_map`, which `build_extension` calls for it.
+- cyclic_error: the joint error map, a Fourier series per joint in its own angle of any order; its form and
+  features are `calib.diagnose.joint_map`, which `build_extension` calls for it (its search and ridge fit:
+  `calib.diagnose.joint_map_fit`).
 
 Growth cause:
 - thermal_drift: uniform thermal growth of every length, g = e t (t the row's time since the campaign

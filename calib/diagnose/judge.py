@@ -28,7 +28,7 @@ from trackcal.calib.diagnose.confounds import growth_between_blocks, shift_betwe
 from trackcal.calib.diagnose.crossval import Validator
 from trackcal.calib.diagnose.fits import Context, Fit, extension_of, n_extra, rms, whole_fit
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
-from trackcal.calib.diagnose.joint_map import ORDERS, ErrorMapFit, fit_error_map, held_out_errors
+from trackcal.calib.diagnose.joint_map_fit import ORDERS, ErrorMapFit, fit_error_map, held_out_errors
 from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.significance import LEVEL, MAP_LEVEL, HeldOut, attainable, significant
 from trackcal.calib.identify.solver import IdentificationError
@@ -161,8 +161,8 @@ def judge_map(
     seed: int,
     orders: tuple[int, ...] = ORDERS,
 ) -> Trial | None:
-    """The joint error map on top of the model `fitted` (`calib.diagnose.joint_map`: order (of `orders`) and ridge by
-    its own cross-validation by pose; the F test and BIC count its effective number of parameters). Its held-out
+    """The joint error map on top of the model `fitted` (`calib.diagnose.joint_map_fit`: order (of `orders`) and ridge
+    by its own cross-validation by pose; the F test and BIC count its effective number of parameters). Its held-out
     gain is judged by the paired test (`calib.diagnose.significance`) on the search's folds and the edge folds
     of `val` (the map clamped to each fold's training arcs, as predict clamps it), and a map beyond the physical
     range of a transmission error is refused (`calib.diagnose.plausibility`)."""

@@ -4,7 +4,8 @@ Repeated measurements set the floor only when they are comparable for every caus
 station and point, the same approach direction of every joint (a backlash is then the same in each),
 within CLOSE_IN_TIME of the campaign's span (a drift has not moved them apart); otherwise the tracker
 noise model. A floor from repeats is itself estimated with finite degrees of freedom, so residuals are
-compared with it by an F test; with the noise model, by chi-square.
+compared with it by an F test; with the noise model, by chi-square (`calib.diagnose.diagnosis.floor_test`:
+diagnose's, which identify does not need).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 
 from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Identification, unique_rows
+from trackcal.calib.identify.solver import unique_rows
 from trackcal.calib.io.table import MeasurementTable, label_codes
 
 CLOSE_IN_TIME = 0.1  # repeats closer than this fraction of the campaign's span are comparable
@@ -92,16 +93,3 @@ def noise_floor(table: MeasurementTable, noise: TrackerNoise | None, tracker: Tr
     sigma = float(np.sqrt(np.mean(np.trace(model.covariance(table.xyz), axis1=1, axis2=2) / 3)))
     why = "no repeats" if not reps else f"only {3 * n_dof} degrees of freedom of comparable repeats"
     return Floor(sigma, f"{model.name} noise model; {why}", None)
-
-
-def floor_test(geo: Identification, floor: Floor) -> float:
-    """p-value that the geometric residuals are at the floor: an F test against a floor from repeats
-    (itself estimated with floor.dof degrees of freedom), chi-square against the noise model."""
-    from scipy.special import chdtrc, fdtrc  # lazy: identify finds the floor, not this test (scipy: start-up)
-
-    if floor.dof is None and geo.noise is not None:
-        return float(chdtrc(geo.dof, geo.variance_factor * geo.dof))
-    ratio = float(np.sum(geo.residuals**2)) / geo.dof / floor.sigma_mm**2
-    if floor.dof is None:
-        return float(chdtrc(geo.dof, ratio * geo.dof))
-    return float(fdtrc(geo.dof, floor.dof, ratio))

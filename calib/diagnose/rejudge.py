@@ -15,7 +15,7 @@ from scipy.special import fdtrc  # the F survival function (scipy.stats: ~1 s to
 from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.crossval import TIME_CAUSES, Validator
 from trackcal.calib.diagnose.fits import Context, extension_of, whole_fit
-from trackcal.calib.diagnose.joint_map import ErrorMapFit, MapEvidence
+from trackcal.calib.diagnose.joint_map_fit import ErrorMapFit, MapEvidence
 from trackcal.calib.io.table import MeasurementTable
 
 
@@ -29,7 +29,7 @@ class Rejudge:
     parameter counts (below one when the map takes its signal over), which no F distribution calibrates;
     the BIC takes effective counts as they are.
 
-    Every model is one linearised problem (`calib.diagnose.joint_map.MapEvidence`) with some causes held at zero: one
+    Every model is one linearised problem (`joint_map_fit.MapEvidence`) with some causes held at zero: one
     problem with the station shift and one without, for the causes `chosen` (before the map) and every
     subset of them; each figure is computed once."""
 

@@ -27,7 +27,7 @@ from trackcal.calib.diagnose.changepoint import SHIFT, relabel_shift
 from trackcal.calib.diagnose.crossval import Validator
 from trackcal.calib.diagnose.fits import Context, Fit, n_extra, whole_fit
 from trackcal.calib.diagnose.joint_map import CAUSE as MAP
-from trackcal.calib.diagnose.joint_map import ErrorMapFit
+from trackcal.calib.diagnose.joint_map_fit import ErrorMapFit
 from trackcal.calib.diagnose.judge import Candidate, Trial, judge_cause, judge_map
 from trackcal.calib.diagnose.plausibility import implausible
 from trackcal.calib.diagnose.rejudge import corrected_by_map, redundant_causes

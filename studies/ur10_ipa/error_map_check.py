@@ -1,7 +1,7 @@
 """The joint error map on the real UR10 data: fitted on B and on D, B's model on D, B's random held-out poses.
 
 The chosen model is the geometric one plus gravity compliance (unpenalised) plus the joint error map
-(`calib.diagnose.joint_map.fit_error_map`: order and ridge by cross-validation by pose on the fitted series only).
+(`calib.diagnose.joint_map_fit.fit_error_map`: order and ridge by cross-validation by pose on the fitted series only).
 B -> D: the model fitted on all of B predicts D with only D's station re-estimated. B held out: a random fifth
 of B's poses, the order and ridge chosen on the other four fifths (the nominal, geometric and map models fitted
 on those four fifths are kept, for the orientation check). Agreement: where both series measured a
@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackcal.calib.diagnose.extensions import build_extension, rebuild
-from trackcal.calib.diagnose.joint_map import ErrorMapFit, fit_error_map, outside_arcs
+from trackcal.calib.diagnose.joint_map import outside_arcs
+from trackcal.calib.diagnose.joint_map_fit import ErrorMapFit, fit_error_map
 from trackcal.calib.identify.solver import Identification, identify, predict_points
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain

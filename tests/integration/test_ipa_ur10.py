@@ -12,7 +12,7 @@ from studies.ur10_ipa.study import DATA, SERIES, conventions, rms3
 from tests.helpers import ROOT
 from trackcal.calib.diagnose import diagnose
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.joint_map import fit_error_map
+from trackcal.calib.diagnose.joint_map_fit import fit_error_map
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.io.table import read_table
 from trackcal.calib.model.cell import load_cell, load_robot

@@ -88,6 +88,7 @@ def test_identify_imports_neither_the_search_nor_scipy(tmp_path):
     heavy = (
         "trackcal.calib.diagnose.diagnosis",
         "trackcal.calib.diagnose.selection",
+        "trackcal.calib.diagnose.joint_map_fit",
         "scipy",
         "scipy.optimize",
         "scipy.special",

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trackcal.calib.diagnose.joint_map import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
 
 
 def drawn(seed: int, n_rows: int, n_free: int, n_pen: int):

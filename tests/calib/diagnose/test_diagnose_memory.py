@@ -12,15 +12,8 @@ import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
 from trackcal.calib.diagnose import diagnose
-from trackcal.calib.diagnose.joint_map import (
-    Arc,
-    HeldOutMap,
-    MapEvidence,
-    _fold_ids,
-    fit_error_map,
-    harmonic_names,
-    map_extension,
-)
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension
+from trackcal.calib.diagnose.joint_map_fit import HeldOutMap, MapEvidence, _fold_ids, fit_error_map
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, State, identify

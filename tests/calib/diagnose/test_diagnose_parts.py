@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.joint_map import MapEvidence, fit_error_map
+from trackcal.calib.diagnose.joint_map_fit import MapEvidence, fit_error_map
 from trackcal.calib.diagnose.noise_floor import comparable_repeats
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise

@@ -12,16 +12,8 @@ import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
 from trackcal.calib.diagnose import crossval, diagnose, fits
-from trackcal.calib.diagnose.joint_map import (
-    Arc,
-    FoldGrams,
-    HeldOutMap,
-    _cv_scores,
-    harmonic_names,
-    map_extension,
-    map_features,
-    parse_name,
-)
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension, map_features, parse_name
+from trackcal.calib.diagnose.joint_map_fit import FoldGrams, HeldOutMap, _cv_scores
 from trackcal.calib.diagnose.structure import RIDGES, _ridge_fit
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify import solver

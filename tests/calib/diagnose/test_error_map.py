@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 
 from trackcal.calib.compensate import compensate
 from trackcal.calib.diagnose.extensions import build_extension
-from trackcal.calib.diagnose.joint_map import Arc, fit_error_map, outside_arcs
+from trackcal.calib.diagnose.joint_map import Arc, outside_arcs
+from trackcal.calib.diagnose.joint_map_fit import fit_error_map
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.solver import identify, predict_points
 from trackcal.calib.io.files import write_json
