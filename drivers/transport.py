@@ -1,6 +1,7 @@
 """What every driver client checks of the limits it is given: nothing waits forever (DESIGN.md's habits), so each
 timeout (and each rate a wait is computed from) must be positive, and a settle wait's tolerance and window sane.
-And the two pieces of every wait on a device: the time left before a deadline (`time_left`: the client's own
+A settle wait on a stream of numbered frames (`SettleWindow`, the KR C2's RSI and ABB's EGM). And the two pieces of
+every wait on a device: the time left before a deadline (`time_left`: the client's own
 DeviceTimeout once there is none) and one read of a stream socket within a timeout (`receive`: bytes, None when none
 came, ConnectionLost when the socket fails or the peer closes it).
 
@@ -9,11 +10,12 @@ words (the PLC's reads are pymodbus's own, bounded by its timeout)."""
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 from collections.abc import Callable
 
-from trackcal.drivers.errors import ConnectionLost, DeviceError
+from trackcal.drivers.errors import ConnectionLost, DeviceError, DeviceTimeout
 
 
 def require_positive(**limits: float) -> None:
@@ -27,6 +29,46 @@ def require_settle_limits(tolerance_deg: float, window_s: float, timeout_s: floa
     """A settle wait (Robot.wait_settled): a positive tolerance and timeout, a window of zero or more seconds."""
     if not (tolerance_deg > 0 and window_s >= 0 and timeout_s > 0):
         raise ValueError("tolerance_deg and timeout_s must be positive, window_s non-negative")
+
+
+class SettleWindow:
+    """A settle wait judged on a stream's frames, numbered one controller cycle (`cycle_s`) apart (KR C2 RSI, ABB
+    EGM): the joints have settled at the first frame that stays within `tolerance_deg` of the window's first frame
+    for `window_s` of controller time; `timeout_s` of controller time past `start_seq` without that is a
+    DeviceTimeout. Counting frames, not the PC's clock, keeps the judgement the controller's, whatever the load."""
+
+    def __init__(
+        self, tolerance_deg: float, window_s: float, timeout_s: float, cycle_s: float, start_seq: int, device: str
+    ):
+        self.tolerance_deg, self.window_s, self.timeout_s = tolerance_deg, window_s, timeout_s
+        self.cycle_s, self.start_seq, self.device = cycle_s, start_seq, device
+        self.anchor: tuple[float, ...] | None = None  # the window's first frame
+        self.anchor_seq = 0
+
+    def settled(self, seq: int, joints: tuple[float, ...]) -> bool:
+        """Whether the frame `seq` with `joints` ends the window (frames fed in order)."""
+        if self.anchor is None or any(
+            abs(a - b) > self.tolerance_deg for a, b in zip(joints, self.anchor, strict=True)
+        ):
+            self.anchor, self.anchor_seq = joints, seq
+        if (seq - self.anchor_seq) * self.cycle_s >= self.window_s - 1e-9:
+            return True
+        if (seq - self.start_seq + 1) * self.cycle_s > self.timeout_s:
+            raise DeviceTimeout(
+                f"joints not settled within {self.tolerance_deg} deg over {self.window_s} s after {self.timeout_s} s "
+                "of controller time",
+                device=self.device,
+            )
+        return False
+
+    def restart(self) -> None:
+        """The stream skipped frames (the reader fell behind its history): the window starts again."""
+        self.anchor = None
+
+    def frames_wanted(self, next_seq: int) -> int:
+        """Frames still needed, from `next_seq` on, to end the window if they all stay within the tolerance."""
+        have = 0 if self.anchor is None else next_seq - 1 - self.anchor_seq
+        return math.ceil(self.window_s / self.cycle_s - 1e-9) - have + (1 if self.anchor is None else 0)
 
 
 def time_left(deadline: float, expired: Callable[[], DeviceError]) -> float:

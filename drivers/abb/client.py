@@ -45,7 +45,7 @@ from trackcal.drivers.abb.rws import DEFAULT_PASSWORD, DEFAULT_USER, RwsSession
 from trackcal.drivers.errors import ConnectionLost, DeviceFault, DeviceTimeout
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, DeviceIdentity, RobotState, StopCause, stop_code
 from trackcal.drivers.motion_request import checked_limits, checked_speed, checked_target
-from trackcal.drivers.transport import claim_socket, require_positive, require_settle_limits
+from trackcal.drivers.transport import SettleWindow, claim_socket, require_positive, require_settle_limits
 
 AXES = ("axis 1", "axis 2", "axis 3", "axis 4", "axis 5", "axis 6")
 GUARD_S = 0.04  # the guard, the answer and the controller's state are polled at least this often (25 Hz)
@@ -394,9 +394,8 @@ class AbbRws:
         RWS reports then must agree with the stream's (CHANNELS_DISAGREE otherwise: the stream is not this arm's)."""
         cycle = egm.cycle_s
         real_deadline = time.monotonic() + timeout_s + egm.stale_s
-        start = next_seq = egm.last_seq + 1
-        anchor: tuple[float, ...] | None = None
-        anchor_seq = 0
+        next_seq = egm.last_seq + 1
+        window = SettleWindow(tolerance_deg, window_s, timeout_s, cycle, next_seq, self.device)
         while True:
             reason = self._guard()
             if reason:
@@ -404,17 +403,9 @@ class AbbRws:
             for seq, frame in egm.frames_from(next_seq):
                 next_seq = seq + 1
                 q = tuple(round(v, 4) for v in frame.joints_deg)
-                if anchor is None or any(abs(a - b) > tolerance_deg for a, b in zip(q, anchor, strict=True)):
-                    anchor, anchor_seq = q, seq
-                if (seq - anchor_seq) * cycle >= window_s - 1e-9:
+                if window.settled(seq, q):
                     self._check_channels(q, tolerance_deg)
                     return q
-                if (seq - start + 1) * cycle > timeout_s:
-                    raise DeviceTimeout(
-                        f"joints not settled within {tolerance_deg} deg over {window_s} s after "
-                        f"{timeout_s} s of controller time",
-                        device=self.device,
-                    )
             if time.monotonic() > real_deadline:
                 raise DeviceTimeout("EGM frames stopped coming while waiting to settle", device=self.device)
             egm.wait_for_frame(next_seq, GUARD_S)

@@ -69,7 +69,7 @@ from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, SHIPPED
 from trackcal.drivers.kuka.rsi_link import POLL_S, RSI_STALE, RsiLink, RsiSync
 from trackcal.drivers.motion_request import checked_limits, checked_speed, checked_target
-from trackcal.drivers.transport import require_positive, require_settle_limits
+from trackcal.drivers.transport import SettleWindow, require_positive, require_settle_limits
 
 GUARD_S = 0.04  # the motion guard is polled at least this often during moves and settling (25 Hz >= 20 Hz)
 # the faults the KRL program latches until a reset finds them gone (trackcal_eki.src); other errors refuse one request
@@ -343,9 +343,8 @@ class KukaKrc2:
         real_deadline = time.monotonic() + timeout_s + rsi.stale_s
         if rsi.sync is not None:  # simulation: every frame due before the call is in
             rsi.sync(0)
-        start_seq = next_seq = rsi.last_seq + 1
-        anchor: tuple[float, ...] | None = None
-        anchor_seq = 0
+        next_seq = rsi.last_seq + 1
+        window = SettleWindow(tolerance_deg, window_s, timeout_s, cycle, next_seq, self.device)
         next_guard = time.monotonic()
         while True:
             if time.monotonic() >= next_guard:
@@ -357,20 +356,13 @@ class KukaKrc2:
                 next_guard = time.monotonic() + GUARD_S
             first_seq, frames = rsi.frames_from(next_seq)
             if next_seq < first_seq:  # fell behind the history: restart the window
-                next_seq, anchor = first_seq, None
+                next_seq = first_seq
+                window.restart()
             for seq, joints in frames:
                 next_seq = seq + 1
-                if anchor is None or any(abs(a - b) > tolerance_deg for a, b in zip(joints, anchor, strict=True)):
-                    anchor, anchor_seq = joints, seq
-                if (seq - anchor_seq) * cycle >= window_s - 1e-9:
+                if window.settled(seq, joints):
                     self._check_channels(joints, tolerance_deg)
                     return joints
-                if (seq - start_seq + 1) * cycle > timeout_s:
-                    raise DeviceTimeout(
-                        f"joints not settled within {tolerance_deg} deg over {window_s} s "
-                        f"after {timeout_s} s of controller time",
-                        device=self.device,
-                    )
             remaining = real_deadline - time.monotonic()
             if remaining <= 0:
                 raise DeviceTimeout(
@@ -381,9 +373,7 @@ class KukaKrc2:
                 rsi.wait_for_frame(next_seq, min(remaining, GUARD_S))
                 continue
             # simulation: the cycles the window still needs, GUARD_S of controller time at most per request
-            have = 0 if anchor is None else next_seq - 1 - anchor_seq
-            wanted = math.ceil(window_s / cycle - 1e-9) - have + (1 if anchor is None else 0)
-            rsi.sync(max(1, min(wanted, math.ceil(GUARD_S / cycle))))
+            rsi.sync(max(1, min(window.frames_wanted(next_seq), math.ceil(GUARD_S / cycle))))
 
     def _check_channels(self, settled: tuple[float, ...], tolerance_deg: float) -> None:
         """RSI's settled joints against EKI's answer to the last move done (none since: nothing to compare)."""

@@ -8,11 +8,13 @@ import socket
 import time
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from trackcal.drivers.errors import ConnectionLost, DeviceTimeout
 from trackcal.drivers.meteo.client import SerialMeteo
 from trackcal.drivers.plc.client import ModbusCellIO
-from trackcal.drivers.transport import receive, require_positive, require_settle_limits, time_left
+from trackcal.drivers.transport import SettleWindow, receive, require_positive, require_settle_limits, time_left
 
 NOT_POSITIVE = [0.0, -1.0, math.nan]
 
@@ -43,6 +45,59 @@ def test_a_settle_wait_needs_a_tolerance_a_window_and_a_timeout(tolerance_deg, w
 
 
 # ------------------------------------------------------------------ the shared waits: time_left and receive
+# the KR C2's RSI cycle (12 ms, KUKA RSI 2.3 manual, IPOC) and ABB's EGM cycle (4 ms, Application manual EGM)
+CYCLES_S = st.sampled_from([0.012, 0.004])
+
+
+def _frames_after_anchor(window_s: float, cycle_s: float) -> int:
+    """Frames after the window's first one until window_s of controller time has passed (counted, not divided)."""
+    m = 0
+    while m * cycle_s < window_s - 1e-9:
+        m += 1
+    return m
+
+
+@given(CYCLES_S, st.floats(1e-3, 2.0), st.integers(0, 60), st.integers(0, 10**6))
+def test_a_settle_window_ends_the_window_after_the_last_move(cycle_s, window_s, moving, start):
+    """Joints that move by twice the tolerance for `moving` frames and then stand settle at the frame window_s of
+    controller time after the first standing frame, and frames_wanted said so beforehand. (A window of 0 s settles
+    on the first frame: test below.)"""
+    tol = 0.01
+    window = SettleWindow(tol, window_s, 1e6, cycle_s, start, "robot")
+    stand = start + moving  # the first frame of the standing joints
+    assert window.frames_wanted(start) == _frames_after_anchor(window_s, cycle_s) + 1  # before any frame
+    seq = start
+    while not window.settled(seq, (2 * tol * min(seq - start, moving), 1.0)):
+        seq += 1
+    assert seq == stand + _frames_after_anchor(window_s, cycle_s)
+
+
+@given(CYCLES_S, st.floats(0.05, 3.0), st.integers(0, 10**6))
+def test_a_settle_window_that_never_settles_times_out_on_controller_time(cycle_s, timeout_s, start):
+    window = SettleWindow(0.01, 10.0, timeout_s, cycle_s, start, "robot")
+    seq = start
+    with pytest.raises(DeviceTimeout, match="of controller time"):
+        while True:
+            window.settled(seq, (0.05 * (seq - start),))
+            seq += 1
+    n = 1  # frames fed when the timeout fell: the first count whose controller time exceeds timeout_s
+    while n * cycle_s <= timeout_s:
+        n += 1
+    assert seq - start + 1 == n
+
+
+def test_a_settle_window_of_no_time_settles_on_the_first_frame():
+    assert SettleWindow(0.01, 0.0, 10.0, 0.012, 7, "robot").settled(7, (1.0, 2.0))
+
+
+def test_a_settle_window_restarts_when_frames_were_skipped():
+    window = SettleWindow(0.01, 0.048, 10.0, 0.012, 0, "robot")  # a window of four RSI cycles
+    assert not any(window.settled(seq, (0.0,)) for seq in range(3))
+    window.restart()
+    assert window.frames_wanted(100) == 5  # the first frame again, then four cycles
+    assert [window.settled(seq, (0.0,)) for seq in range(100, 105)] == [False] * 4 + [True]
+
+
 def test_time_left_is_the_seconds_before_the_deadline_and_the_clients_error_after_it():
     def expired():
         return DeviceTimeout("no answer within 5 s while testing", device="dev")
