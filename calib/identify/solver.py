@@ -377,9 +377,16 @@ class Problem:
                 cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
                 self.columns[s, p] = cols, np.ix_(cols, cols)
         self.chunks = rows.chunks
-        dev = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
-        ext = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
-        self.initial = State(dev, list(rows.stations), rows.points.copy(), ext)
+        self._dev0 = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
+        self._ext0 = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
+
+    @cached_property
+    def initial(self) -> State:
+        """The solver's start: dev0, ext0, the tool points and the stations' Kabsch fits on the nominal robot (their
+        errors: a station of fewer than three rows, collinear points). Formed when first asked for: a caller that
+        starts elsewhere assigns its own (a diagnosis's whole-table fits, warm-started: their Kabsch fits were 1 % of
+        a diagnosis of the UR10's Series B, issue 41)."""
+        return State(self._dev0, list(self.rows.stations), self.rows.points.copy(), self._ext0)
 
     def set_chunks(self, chunks: list[np.ndarray]) -> None:
         """Split the rows into these chunks for the normal equations (any partition of the rows)."""

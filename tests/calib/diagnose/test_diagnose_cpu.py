@@ -1,7 +1,7 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
 as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
 downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
-candidates' fits carry their Gram matrix."""
+candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start."""
 
 import numpy as np
 import pytest
@@ -11,9 +11,11 @@ from hypothesis import strategies as st
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import identify
+from trackcal.calib.identify.solver import IdentificationError, Problem, _init_stations, identify
 from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.params import irreducible_params
 from trackcal.mocks.twin import Twin, simulate_campaign
 
@@ -96,3 +98,40 @@ def test_a_fit_carries_its_gram_matrix_and_cross_validates_as_before(twin_case):
     fit.gram = fit.jm.T @ fit.jm  # a copy formed again, as cross_validate did
     before = crossval.cross_validate(ctx, ("backlash",), folds)
     assert np.array_equal(now.sq, before.sq) and np.array_equal(now.count, before.count)
+
+
+def test_the_kabsch_start_is_formed_only_when_asked_for(twin_case, monkeypatch):
+    """Problem.initial: the same start as before (the stations' Kabsch fits on the nominal robot) when asked for, and
+    a caller that assigns its own start (a diagnosis's warm-started fits) never forms it."""
+    table, params, geo = twin_case
+    problem = Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise())
+    first, row_pose = problem.rows.poses
+    ref = _init_stations(
+        Kinematics(CELL.chain, []),
+        (problem.q[first], row_pose),
+        problem.rows.points[problem.pt_idx],
+        problem.xyz,
+        problem.st_idx,
+        problem.station_ids,
+        table.source,
+    )
+    assert all(
+        np.array_equal(a.rotation, b.rotation) and np.array_equal(a.translation, b.translation)
+        for a, b in zip(problem.initial.stations, ref, strict=True)
+    )
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, ())
+    calls = []
+    monkeypatch.setattr(solver, "_init_stations", lambda *args: calls.append(args) or ref)
+    fits._whole_fit(ctx, table, None, 100)
+    assert calls == []
+    assert Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise()).initial.stations == ref
+    assert len(calls) == 1
+
+
+def test_a_station_too_few_rows_to_place_still_fails_identify(twin_case):
+    # the Kabsch start's errors come from identify as before (a station of 2 rows: at least 3 are needed)
+    table, params, _ = twin_case
+    two = table.subset(np.arange(len(table)))
+    two.station = [s + "-b" if i < 2 else s for i, s in enumerate(table.station)]
+    with pytest.raises(IdentificationError, match="has 2 measurement"):
+        identify(CELL.chain, two, CELL.tool_points, params, noise=TrackerNoise())
