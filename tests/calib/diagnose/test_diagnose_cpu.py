@@ -1,7 +1,7 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
 as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
 downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
-candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start."""
+candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start, and mid-ranks take one pass."""
 
 import numpy as np
 import pytest
@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.significance import _midranks
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
@@ -74,6 +75,29 @@ def test_with_and_without_the_map_in_one_pass_give_the_same_errors(seed, n_rows,
     assert np.array_equal(sq[:, 1], ref_sq) and np.array_equal(count, ref_count)
     alone = _cv_scores(*args, [pen[:0]], [1.0], None, None)
     assert np.isclose(alone[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
+
+
+def midranks_reference(x: np.ndarray) -> np.ndarray:
+    """Before issue 41: the ranks of the values equal to each distinct one averaged, one pass over x per value."""
+    order = np.argsort(x, kind="stable")
+    ranks = np.empty(len(x))
+    ranks[order] = np.arange(1, len(x) + 1)
+    for v in np.unique(x):
+        at = x == v
+        if np.count_nonzero(at) > 1:
+            ranks[at] = ranks[at].mean()
+    return ranks
+
+
+@settings(deadline=None, max_examples=60)
+@given(
+    values=st.lists(st.integers(0, 12), min_size=1, max_size=80),
+    scale=st.floats(1e-9, 1e3),
+)
+def test_midranks_equal_the_pass_per_distinct_value(values, scale):
+    # few distinct values among many: runs of ties of every length, at the start, the end and between
+    x = np.asarray(values, dtype=float) * scale
+    assert np.array_equal(_midranks(x), midranks_reference(x))
 
 
 @pytest.fixture(scope="module")
