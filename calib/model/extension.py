@@ -153,7 +153,7 @@ class JointFeatures:
         angles), Phi never dense: a parameter moves one joint, so its column is that joint's lever times its feature,
         the one non-zero term of the product's sum and so its value (a zero's sign aside), formed for each run of
         parameters on one joint (issue 41: the dense features and their product, a piece of rows at a time, were 3 %
-        of a diagnosis of the UR10's Series B; these products take 60 % of their time)."""
+        of a diagnosis of the UR10's Series B; these products take 60-70 % of their time)."""
         bounds = np.flatnonzero(np.diff(self.joint, prepend=-1, append=-1) != 0)  # where a run of one joint starts
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             np.multiply(lever[:, :, self.joint[a], None], self.values[:, None, a:b], out=out[:, :, a:b])
