@@ -1,7 +1,8 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
 as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
 downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
-candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start, and mid-ranks take one pass."""
+candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start, mid-ranks take one pass and a map's
+coefficient names are parsed once."""
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trackcal.calib.diagnose import crossval, fits
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, harmonics_by_joint, parse_name
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
 from trackcal.calib.diagnose.significance import _midranks
 from trackcal.calib.doe.poses import random_poses
@@ -159,3 +161,33 @@ def test_a_station_too_few_rows_to_place_still_fails_identify(twin_case):
     two.station = [s + "-b" if i < 2 else s for i, s in enumerate(table.station)]
     with pytest.raises(IdentificationError, match="has 2 measurement"):
         identify(CELL.chain, two, CELL.tool_points, params, noise=TrackerNoise())
+
+
+def harmonics_reference(q, names, arcs):
+    """Before issue 41: the names parsed and grouped on every call (joint_map.harmonics_by_joint's loop)."""
+    clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
+    groups = {}
+    for i, name in enumerate(names):
+        kind, h, j = parse_name(name)
+        cols, hs = groups.setdefault((kind, j), ([], []))
+        cols.append(i)
+        hs.append(h)
+    for (kind, j), (cols, hs) in groups.items():
+        yield j, cols, (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
+
+
+@settings(deadline=None, max_examples=30)
+@given(seed=st.integers(0, 2**32 - 1), order=st.integers(1, 12), share=st.floats(0.1, 1.0))
+def test_harmonics_from_names_parsed_once_equal_those_parsed_each_call(seed, order, share):
+    # a subset of a map's coefficients in a drawn order, on angles partly outside the arcs: the same groups, columns
+    # and values, bit for bit, on the first call and on the next (the parse cached)
+    rng = np.random.default_rng(seed)
+    names = [nm for j in range(4) for nm in harmonic_names(j, order)]
+    names = [names[i] for i in rng.permutation(len(names))[: max(1, int(share * len(names)))]]
+    q = rng.uniform(-3.0, 3.0, (40, 4))
+    arcs = {j: Arc.covering(q[:20, j]) for j in range(4)}
+    ref = list(harmonics_reference(q, names, arcs))
+    for _ in range(2):
+        got = list(harmonics_by_joint(q, names, arcs))
+        assert [(j, cols) for j, cols, _ in got] == [(j, cols) for j, cols, _ in ref]
+        assert all(np.array_equal(a, b) for (_, _, a), (_, _, b) in zip(got, ref, strict=True))
