@@ -60,6 +60,7 @@ class Fit:
     residuals: np.ndarray
     r: np.ndarray  # whitened residual vector (3N,) at the solution
     jm: np.ndarray  # whitened Jacobian of the prediction (3N, n_cols) at the solution
+    gram: np.ndarray  # jm^T jm, formed once (the identifiability check, every cross-validation of the fit)
     shift: dict | None = None  # {"station", "after_t_s"}
 
 
@@ -97,7 +98,8 @@ def _whole_fit(
     )
     state = solve(problem, problem.initial, max_iter).state
     r, jm = problem.residual_and_jacobian(state)  # one pass for both (the solution's r and jm would be two)
-    if not identifiable(jm.T @ jm):
+    gram = jm.T @ jm
+    if not identifiable(gram):
         raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
     return Fit(
         state.dev,
@@ -110,6 +112,7 @@ def _whole_fit(
         problem.xyz - problem.predicted(state),
         r=r,
         jm=jm,
+        gram=gram,
     )
 
 

@@ -18,6 +18,7 @@ Value of a fitted map: `map_curve`.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,19 +93,32 @@ def parse_name(name: str) -> tuple[str, int, int]:
         raise JointMapError(f"{name!r} is not a joint error map coefficient (s<h>_<joint> or c<h>_<joint>)") from None
 
 
-def harmonics_by_joint(q: np.ndarray, names: list[str], arcs: dict[int, Arc]):
-    """(joint, columns, values (N, len(columns))) of the coefficients `names` grouped by joint and sine/cosine, each
-    joint's angle clamped to its arc: one sine or cosine call per group (a call per coefficient cost 1.4 s of a
-    diagnosis of Series B, issue 26), the same products h * q and the same values."""
-    clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
+@functools.lru_cache(maxsize=32)
+def _groups(names: tuple[str, ...]) -> tuple[tuple[str, int, list[int], np.ndarray], ...]:
+    """(sine or cosine, joint, columns, harmonics) of the coefficients `names` grouped by joint and sine/cosine, in
+    order of first appearance; parsed once per list of names (the map's search and held-out tests ask for a few lists
+    hundreds of times: their 51,000 parses were 3 % of a diagnosis of Series B under cProfile, issue 41)."""
     groups: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
     for i, name in enumerate(names):
         kind, h, j = parse_name(name)
         cols, hs = groups.setdefault((kind, j), ([], []))
         cols.append(i)
         hs.append(h)
+    out = []
     for (kind, j), (cols, hs) in groups.items():
-        yield j, cols, (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
+        h = np.array(hs, dtype=float)
+        h.flags.writeable = False  # shared by every call with these names
+        out.append((kind, j, cols, h))
+    return tuple(out)
+
+
+def harmonics_by_joint(q: np.ndarray, names: list[str], arcs: dict[int, Arc]):
+    """(joint, columns, values (N, len(columns))) of the coefficients `names` grouped by joint and sine/cosine, each
+    joint's angle clamped to its arc: one sine or cosine call per group (a call per coefficient cost 1.4 s of a
+    diagnosis of Series B, issue 26), the same products h * q and the same values."""
+    clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
+    for kind, j, cols, hs in _groups(tuple(names)):
+        yield j, list(cols), (np.sin if kind == "s" else np.cos)(hs * clamped[j][:, None])
 
 
 def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.ndarray:

@@ -75,14 +75,15 @@ def paired_pvalue(base: HeldOut, model: HeldOut, pose: list[str]) -> float:
 
 
 def _midranks(x: np.ndarray) -> np.ndarray:
-    """Ranks 1..n of x, ties given their mean rank."""
+    """Ranks 1..n of x, ties given their mean rank: a run of equal values in sorted order, ranks a + 1 .. b, takes
+    (a + 1 + b) / 2, the mean of those integers exactly (a pass over the values equal to each distinct one was
+    quadratic: 1 % of a diagnosis of the UR10's Series B, issue 41)."""
     order = np.argsort(x, kind="stable")
+    xs = x[order]
+    starts = np.flatnonzero(np.r_[True, xs[1:] != xs[:-1]])
+    ends = np.r_[starts[1:], len(x)]
     ranks = np.empty(len(x))
-    ranks[order] = np.arange(1, len(x) + 1)
-    for v in np.unique(x):
-        at = x == v
-        if np.count_nonzero(at) > 1:
-            ranks[at] = ranks[at].mean()
+    ranks[order] = np.repeat((starts + 1 + ends) / 2.0, ends - starts)
     return ranks
 
 

@@ -1,12 +1,28 @@
 """issue 41: diagnose's CPU on Series B within 10x one identify. Each change against the code it replaced, kept here
 as a reference: the held-out comparison with the map and without it is one pass over the folds (each fold's Gram
-downdate formed once), and a cross-validation without the map forms no Schur complement of its columns."""
+downdate formed once), and a cross-validation without the map forms no Schur complement of its columns; the
+candidates' fits carry their Gram matrix, warm-started fits form no Kabsch start, mid-ranks take one pass and a map's
+coefficient names are parsed once."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from trackcal.calib.diagnose import crossval, fits
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, harmonics_by_joint, parse_name
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.significance import _midranks
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify import solver
+from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import IdentificationError, Problem, _init_stations, identify
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import irreducible_params
+from trackcal.mocks.twin import Twin, simulate_campaign
+
+CELL = load_cell("kr270")
 
 
 def drawn(seed: int, n_rows: int, n_free: int, n_pen: int):
@@ -61,3 +77,117 @@ def test_with_and_without_the_map_in_one_pass_give_the_same_errors(seed, n_rows,
     assert np.array_equal(sq[:, 1], ref_sq) and np.array_equal(count, ref_count)
     alone = _cv_scores(*args, [pen[:0]], [1.0], None, None)
     assert np.isclose(alone[0][0, 0], total, rtol=1e-12, atol=0)  # the folds summed in another order here
+
+
+def midranks_reference(x: np.ndarray) -> np.ndarray:
+    """Before issue 41: the ranks of the values equal to each distinct one averaged, one pass over x per value."""
+    order = np.argsort(x, kind="stable")
+    ranks = np.empty(len(x))
+    ranks[order] = np.arange(1, len(x) + 1)
+    for v in np.unique(x):
+        at = x == v
+        if np.count_nonzero(at) > 1:
+            ranks[at] = ranks[at].mean()
+    return ranks
+
+
+@settings(deadline=None, max_examples=60)
+@given(
+    values=st.lists(st.integers(0, 12), min_size=1, max_size=80),
+    scale=st.floats(1e-9, 1e3),
+)
+def test_midranks_equal_the_pass_per_distinct_value(values, scale):
+    # few distinct values among many: runs of ties of every length, at the start, the end and between
+    x = np.asarray(values, dtype=float) * scale
+    assert np.array_equal(_midranks(x), midranks_reference(x))
+
+
+@pytest.fixture(scope="module")
+def twin_case():
+    """A KR-270 twin campaign with a hidden backlash (as tests/calib/diagnose/test_diagnose_speed.py)."""
+    twin = Twin(CELL, seed=5, effects={"backlash": 0.05})
+    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
+    params = irreducible_params(CELL.chain)[0]
+    geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
+    return table, params, geo
+
+
+def test_a_fit_carries_its_gram_matrix_and_cross_validates_as_before(twin_case):
+    """The whole-table fit's J^T J is formed once (its identifiability check) and read by every cross-validation of
+    it: the same matrix bit for bit, and the held-out errors those of the Gram matrix formed again (before)."""
+    table, params, geo = twin_case
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, ("backlash",))
+    fit = fits.whole_fit(ctx, ("backlash",))
+    assert np.array_equal(fit.gram, fit.jm.T @ fit.jm)
+    folds = crossval.fold_rows(table, "pose", 5, 0) + crossval.edge_rows(table)
+    now = crossval.cross_validate(ctx, ("backlash",), folds)
+    fit.gram = fit.jm.T @ fit.jm  # a copy formed again, as cross_validate did
+    before = crossval.cross_validate(ctx, ("backlash",), folds)
+    assert np.array_equal(now.sq, before.sq) and np.array_equal(now.count, before.count)
+
+
+def test_the_kabsch_start_is_formed_only_when_asked_for(twin_case, monkeypatch):
+    """Problem.initial: the same start as before (the stations' Kabsch fits on the nominal robot) when asked for, and
+    a caller that assigns its own start (a diagnosis's warm-started fits) never forms it."""
+    table, params, geo = twin_case
+    problem = Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise())
+    first, row_pose = problem.rows.poses
+    ref = _init_stations(
+        Kinematics(CELL.chain, []),
+        (problem.q[first], row_pose),
+        problem.rows.points[problem.pt_idx],
+        problem.xyz,
+        problem.st_idx,
+        problem.station_ids,
+        table.source,
+    )
+    assert all(
+        np.array_equal(a.rotation, b.rotation) and np.array_equal(a.translation, b.translation)
+        for a, b in zip(problem.initial.stations, ref, strict=True)
+    )
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, ())
+    calls = []
+    monkeypatch.setattr(solver, "_init_stations", lambda *args: calls.append(args) or ref)
+    fits._whole_fit(ctx, table, None, 100)
+    assert calls == []
+    assert Problem(CELL.chain, table, CELL.tool_points, params, TrackerNoise()).initial.stations == ref
+    assert len(calls) == 1
+
+
+def test_a_station_too_few_rows_to_place_still_fails_identify(twin_case):
+    # the Kabsch start's errors come from identify as before (a station of 2 rows: at least 3 are needed)
+    table, params, _ = twin_case
+    two = table.subset(np.arange(len(table)))
+    two.station = [s + "-b" if i < 2 else s for i, s in enumerate(table.station)]
+    with pytest.raises(IdentificationError, match="has 2 measurement"):
+        identify(CELL.chain, two, CELL.tool_points, params, noise=TrackerNoise())
+
+
+def harmonics_reference(q, names, arcs):
+    """Before issue 41: the names parsed and grouped on every call (joint_map.harmonics_by_joint's loop)."""
+    clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
+    groups = {}
+    for i, name in enumerate(names):
+        kind, h, j = parse_name(name)
+        cols, hs = groups.setdefault((kind, j), ([], []))
+        cols.append(i)
+        hs.append(h)
+    for (kind, j), (cols, hs) in groups.items():
+        yield j, cols, (np.sin if kind == "s" else np.cos)(np.array(hs, dtype=float) * clamped[j][:, None])
+
+
+@settings(deadline=None, max_examples=30)
+@given(seed=st.integers(0, 2**32 - 1), order=st.integers(1, 12), share=st.floats(0.1, 1.0))
+def test_harmonics_from_names_parsed_once_equal_those_parsed_each_call(seed, order, share):
+    # a subset of a map's coefficients in a drawn order, on angles partly outside the arcs: the same groups, columns
+    # and values, bit for bit, on the first call and on the next (the parse cached)
+    rng = np.random.default_rng(seed)
+    names = [nm for j in range(4) for nm in harmonic_names(j, order)]
+    names = [names[i] for i in rng.permutation(len(names))[: max(1, int(share * len(names)))]]
+    q = rng.uniform(-3.0, 3.0, (40, 4))
+    arcs = {j: Arc.covering(q[:20, j]) for j in range(4)}
+    ref = list(harmonics_reference(q, names, arcs))
+    for _ in range(2):
+        got = list(harmonics_by_joint(q, names, arcs))
+        assert [(j, cols) for j, cols, _ in got] == [(j, cols) for j, cols, _ in ref]
+        assert all(np.array_equal(a, b) for (_, _, a), (_, _, b) in zip(got, ref, strict=True))

@@ -10,6 +10,7 @@ import pytest
 
 from trackcal.calib.diagnose.extensions import THERMAL_FORMS, build_extension
 from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.identify import solver
 from trackcal.calib.identify.solver import Problem, Station, identify, predict_points
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.extension import combine
@@ -112,3 +113,39 @@ def test_combined_extension_jacobian_matches_finite_differences(kr270):
         rm = problem.residual(problem.retract(state, -step))
         # the Jacobian is of the prediction: residual = measured - predicted
         np.testing.assert_allclose(-(rp - rm) / (2 * h), jm[:, c], rtol=1e-5, atol=1e-6 * np.abs(jm[:, c]).max())
+
+
+def test_growth_and_joint_columns_equal_the_dense_form(kr270):
+    """A growing arm with joint features and a joint error map (a diagnosis's map search on top of thermal_drift): the
+    Jacobian's extension columns as before issue 41, every column's growth term (zero off the growth parameter) plus
+    the dense features' product, bit for bit."""
+    cell = kr270
+    chain = cell.chain
+    table = campaign(cell, 12, 9, np.zeros(3), 0.0)
+    ext = combine(
+        [
+            build_extension("joint_compliance", chain, table),
+            build_extension("thermal_drift", chain, table, names=["e_base"]),
+            build_extension("cyclic_error", chain, table, harmonics=3),
+        ],
+        cause="cyclic_error",
+    )
+    params = irreducible_params(chain)[0]
+    rng = np.random.default_rng(3)
+    theta = rng.normal(0.0, 1e-4, ext.size)
+    problem = Problem(chain, table, cell.tool_points, params, extension=ext, ext0=theta)
+    state = problem.initial
+    _, jm = problem.residual_and_jacobian(state)
+    # before: every extension column's growth term, then the dense features' product added a piece of rows at a time
+    ch = problem._every_row
+    assert len(ch.stations) == 1 and problem.noise is None  # one station, unwhitened: its rotation for every row
+    jac = problem.kin.jacobian(
+        problem._q(state)[problem.pose_first[ch.poses]], state.points[problem.pt_idx[ch.take]], state.dev, ch.of_row
+    )
+    m, grow = state.stations[0].rotation, 1.0 + ext.growth_of(theta)[ch.take]
+    before = (m @ (jac.p - ext.pivot)[:, :, None]) * ext.growth[ch.take][:, None, :]
+    m_dq = solver._rotated(m, grow * jac.d_q_t)
+    for sl, feats in ext.joint_features.take(ch.take).pieces():
+        before[sl] += m_dq[sl] @ feats
+    k = len(params)
+    assert np.array_equal(jm.reshape(len(table), 3, -1)[ch.order][:, :, k : k + ext.size], before)  # in chunk order

@@ -65,3 +65,20 @@ def test_offsets_of_the_block_form_are_the_dense_einsum_bit_for_bit(case):
     rows = np.arange(0, len(dense), 3)
     assert np.array_equal(jf.take(rows).dense(), dense[rows])
     assert np.array_equal(jf.moves(), np.abs(dense).max(axis=0, initial=0.0) > 0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(single_joint_features())
+def test_lever_columns_of_the_block_form_are_the_dense_product(case):
+    """The Jacobian's columns through the joint angles, lever (N, 3, n) @ Phi row by row: each parameter's column is
+    its joint's lever times its feature, the product the dense array's matmul formed (a piece of rows at a time, as
+    the solver did before issue 41), to the last bit."""
+    dense, _ = case
+    jf = JointFeatures.of(dense)
+    lever = np.random.default_rng(len(dense)).standard_normal((len(dense), 3, dense.shape[1])) * 1e3
+    out = np.full((len(dense), 3, dense.shape[2]), np.nan)
+    jf.lever_columns(lever, out)
+    before = np.empty_like(out)
+    for sl, feats in jf.pieces():
+        np.matmul(lever[sl], feats, out=before[sl])
+    assert np.array_equal(out, before)
