@@ -1,11 +1,15 @@
-"""diagnose's peak memory per row on the UR10's Series B (issue 41), against the tree before issue 41's diagnose
-memory work, whole processes, interleaved.
+"""diagnose's peak memory per row (issue 41): the slope over table sizes and the UR10's Series B, against the tree
+before this step, whole processes, interleaved.
 
-Each child reads Series B, takes its peak resident memory (VmHWM, `bench.memory`: start-up, imports and the table),
-runs the diagnosis (the identifiable subset, i.i.d., as bench.bench_diagnose runs it) and takes the peak again: the
-difference over the rows is what a row costs. It also prints the verdict, which must be the same in both trees.
+Each child reads a table, takes its peak resident memory (VmHWM, `bench.memory`: start-up, imports and the table),
+runs the diagnosis and takes the peak again; a second child runs it under tracemalloc and takes the traced peak above
+the start. The tables: Series B (1,495 rows; the identifiable subset, i.i.d., as bench.bench_diagnose runs it) and
+KR-270 twin campaigns of one kind at two sizes (`simulate_campaign`, a joint error map hidden, the cell's irreducible
+parameters, i.i.d.). What grows with the rows is the slope between the two sizes (a 100k-row table pays it, not what
+is there whatever the rows: imports, a piece of Jacobian rows, Gram matrices); Series B's figure is its peak over
+its rows, both. It also prints the verdicts, which must be the same in both trees.
 
-Goal (issue 41): at most 20 KB per row. `python -m bench.bench_diagnose_memory [REPEAT]` (default 2).
+Goal (issue 41): at most 20 KB per row. `python -m bench.bench_diagnose_memory [REPEAT]` (default 1).
 """
 
 from __future__ import annotations
@@ -18,65 +22,109 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from bench.bench_diagnose_process import baseline_tree
 from bench.goals import check
 from studies.ur10_ipa.study import DATA, SERIES
+from trackcal.calib.doe.poses import random_poses
+from trackcal.calib.io.table import write_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.mocks.twin import Twin, simulate_campaign
 
-BASELINE = "6401bb5"  # the integration branch before issue 41's diagnose memory work
+BASELINE = "5dee7f4"  # main before the map's Jacobian was formed piece by piece (issue 41, second step)
 GOAL_KB_PER_ROW = 20.0
+KR270_POSES = (680, 2700)  # about 1,500 and 6,000 rows (a pose is measured from 2.2 (station, point) pairs)
 CHILD = """
-import json
-from bench.bench_diagnose import series_b
+import json, sys, tracemalloc
 from bench.memory import peak_rss_mb
 from trackcal.calib.diagnose import diagnose
-chain, b, tmac, params = series_b()
+case, traced = sys.argv[1], sys.argv[2] == "traced"
+if case == "series_b":
+    from bench.bench_diagnose import series_b
+    chain, table, points, params = series_b()
+else:
+    from trackcal.calib.io.table import read_table
+    from trackcal.calib.model.cell import load_cell
+    from trackcal.calib.model.params import irreducible_params
+    cell = load_cell("kr270")
+    chain, table, points, params = cell.chain, read_table(case), cell.tool_points, irreducible_params(cell.chain)[0]
 start = peak_rss_mb()
-d = diagnose(chain, b, tmac, params, None)
-print(json.dumps({"rows": len(b), "start_mb": start, "peak_mb": peak_rss_mb(), "cause": d.cause,
-                  "causes": [c["cause"] for c in d.causes]}))
+if traced:
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+d = diagnose(chain, table, points, params, None)
+peak = (tracemalloc.get_traced_memory()[1] - base) / 2**20 if traced else peak_rss_mb() - start
+print(json.dumps({"rows": len(table), "mb": peak, "causes": [c["cause"] for c in d.causes]}))
 """
 
 
-def child(pythonpath: str | None) -> dict:
-    env = dict(os.environ)
+def child(case: str, mode: str, pythonpath: str | None) -> dict:
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (pythonpath, root) if p)
-    out = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True, env=env, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, case, mode], capture_output=True, text=True, env=env, check=True
+    ).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def main(repeat: int = 2) -> None:
-    if not (DATA / SERIES["B"]).exists():
-        print(f"Series B not at {DATA} (TRACKCAL_IPA_DATA): skipped")
-        return
+def kr270_tables(into: Path) -> list[str]:
+    cell = load_cell("kr270")
+    paths = []
+    for n in KR270_POSES:
+        twin = Twin(cell, seed=7, effects={"cyclic_error": 0.05})
+        path = into / f"kr270-{n}.csv"
+        write_table(simulate_campaign(twin, np.degrees(random_poses(cell, n, np.random.default_rng(7)))), path)
+        paths.append(str(path))
+    return paths
+
+
+def main(repeat: int = 1) -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        base = baseline_tree(Path(tmp), BASELINE)
-        runs: dict[str, list[dict]] = {"today": [], "before": []}
+        cases = kr270_tables(Path(tmp))
+        if (DATA / SERIES["B"]).exists():
+            cases.append("series_b")
+        else:
+            print(f"Series B not at {DATA} (TRACKCAL_IPA_DATA): skipped")
+        trees = {"today": None, "before": baseline_tree(Path(tmp) / "before", BASELINE)}
+        runs: dict[tuple, list[dict]] = {}
         for _ in range(repeat):
-            runs["today"].append(child(None))
-            if base is not None:
-                runs["before"].append(child(str(base)))
-    for name, rs in runs.items():
-        if not rs:
-            continue
-        per_row = statistics.median((r["peak_mb"] - r["start_mb"]) * 1024 / r["rows"] for r in rs)
-        r, peak = rs[0], statistics.median(x["peak_mb"] for x in rs)
-        print(
-            f"{name:7s} rows {r['rows']} start {r['start_mb']:.0f} MB peak {peak:.0f} MB: {per_row:.0f} KB per row; "
-            f"verdict {r['cause']} ({', '.join(r['causes'])})"
-        )
-        if name == "today":
-            print(
-                check(
-                    "diagnose peak memory <= 20 KB per row (Series B)",
-                    f"{per_row:.0f} KB per row",
-                    per_row <= GOAL_KB_PER_ROW,
-                )
+            for case in cases:
+                for mode in ("rss", "traced"):
+                    for name, tree in trees.items():  # interleaved
+                        if name == "today" or tree is not None:
+                            runs.setdefault((name, case, mode), []).append(child(case, mode, tree and str(tree)))
+    for name in trees:
+        for mode in ("rss", "traced"):
+            got = {c: runs.get((name, c, mode)) for c in cases}
+            if not all(got.values()):
+                continue
+            mb = {c: statistics.median(r["mb"] for r in rs) for c, rs in got.items()}
+            rows = {c: rs[0]["rows"] for c, rs in got.items()}
+            (a, b) = cases[:2]
+            slope = (mb[b] - mb[a]) * 1024 / (rows[b] - rows[a])
+            points = "; ".join(
+                f"{Path(c).stem} {rows[c]} rows {mb[c]:.0f} MB ({mb[c] * 1024 / rows[c]:.0f} KB/row)" for c in cases
             )
-    if runs["before"]:
-        same = all(a["causes"] == b["causes"] for a, b in zip(runs["today"], runs["before"], strict=True))
-        print(check("diagnose: the same verdict as before (Series B)", "same" if same else "DIFFERENT", same))
+            print(f"{name:6s} {mode:6s} slope {slope:.1f} KB per row (KR-270); {points}")
+            if name == "today" and mode == "rss":
+                print(
+                    check(
+                        "diagnose peak memory <= 20 KB per row (slope)",
+                        f"{slope:.1f} KB per row",
+                        slope <= GOAL_KB_PER_ROW,
+                    )
+                )
+    for c in cases:
+        verdicts = {name: runs[(name, c, "rss")][0]["causes"] for name in trees if (name, c, "rss") in runs}
+        print(f"{Path(c).stem}: {verdicts}")
+        if len(verdicts) == 2:
+            same = verdicts["today"] == verdicts["before"]
+            print(
+                check(f"diagnose: the same verdict as before ({Path(c).stem})", "same" if same else "DIFFERENT", same)
+            )
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 2)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1)
