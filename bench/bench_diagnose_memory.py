@@ -37,16 +37,16 @@ GOAL_KB_PER_ROW = 20.0
 KR270_POSES = (680, 2700)  # about 1,500 and 6,000 rows (a pose is measured from 2.2 (station, point) pairs)
 CHILD = """
 import json, sys, tracemalloc
+from bench.bench_diagnose import series_b
 from bench.memory import peak_rss_mb
 from trackcal.calib.diagnose import diagnose
+from trackcal.calib.io.table import read_table
+from trackcal.calib.model.cell import load_cell
+from trackcal.calib.model.params import irreducible_params
 case, traced = sys.argv[1], sys.argv[2] == "traced"
 if case == "series_b":
-    from bench.bench_diagnose import series_b
     chain, table, points, params = series_b()
 else:
-    from trackcal.calib.io.table import read_table
-    from trackcal.calib.model.cell import load_cell
-    from trackcal.calib.model.params import irreducible_params
     cell = load_cell("kr270")
     chain, table, points, params = cell.chain, read_table(case), cell.tool_points, irreducible_params(cell.chain)[0]
 start = peak_rss_mb()
