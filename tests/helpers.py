@@ -20,9 +20,12 @@ from trackcal.calib.diagnose.fits import Fit, fit_cause
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
+from trackcal.calib.identify.solver import Identification, identify
 from trackcal.calib.identify.unknowns import campaign_params
-from trackcal.calib.io.table import read_table
+from trackcal.calib.io.table import MeasurementTable, read_table
+from trackcal.calib.model.cell import Cell
 from trackcal.calib.model.kinematics import Kinematics
+from trackcal.calib.model.params import Param, irreducible_params
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.jobs.simulate import SimulateOptions, simulate
 from trackcal.campaign.session.session import measured_keys
@@ -55,6 +58,15 @@ def drawn_kr270_campaign(seed: int, poses: int, drop: list[int]):
     at the indices `drop`."""
     cell, _, table = simulate(SimulateOptions("kr270", poses=poses, seed=seed))
     return cell, table, [p for i, p in enumerate(campaign_params(cell.chain)) if i not in drop]
+
+
+def backlash_twin_case(cell: Cell) -> tuple[MeasurementTable, list[Param], Identification]:
+    """(table, irreducible parameters, geometric fit) of a 40-pose twin campaign of `cell` with a hidden backlash of
+    0.05 deg (the size of bench.bench_diagnose's case): the diagnose CPU and speed tests' case."""
+    twin = Twin(cell, seed=5, effects={"backlash": 0.05})
+    table = simulate_campaign(twin, np.degrees(random_poses(cell, 40, np.random.default_rng(5))))
+    params = irreducible_params(cell.chain)[0]
+    return table, params, identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
 
 
 def run_trackcal(*args, timeout=300, check=True) -> subprocess.CompletedProcess:

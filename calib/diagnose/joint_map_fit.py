@@ -46,7 +46,14 @@ from trackcal.calib.diagnose.joint_map import (
 )
 from trackcal.calib.diagnose.ridge import ridge_path
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Identification, IdentificationError, Problem, State, identify
+from trackcal.calib.identify.solver import (
+    Identification,
+    IdentificationError,
+    Problem,
+    State,
+    identification_of,
+    identify,
+)
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
 from trackcal.calib.model.extension import (
@@ -425,13 +432,13 @@ def fit_error_map(
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
         res, edf = _penalised_fit(
-            problem, state, pen_all[0], len(names), s2 / tau**2, noise, (r, jm, gram if search else jm.T @ jm)
+            problem, state, pen_all[0], len(names), s2 / tau**2, (r, jm, gram if search else jm.T @ jm)
         )
     else:
         ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
         problem = Problem(chain, table, geo.points, params, noise, extension=ext)
         state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
-        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, noise)
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2)
     return ErrorMapFit(
         identification=res,
         names=names,
@@ -658,7 +665,6 @@ def _penalised_fit(
     k0: int,
     n_map: int,
     lam: float,
-    noise: TrackerNoise | None,
     at_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Identification, float]:
     """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
@@ -710,25 +716,10 @@ def _penalised_fit(
     r = problem._whiten(residuals).ravel()
     s2 = float(r @ r) / dof
     cov = s2 * h_inv / np.outer(scale, scale)
-    res = Identification(
-        chain=problem.chain,
-        params=list(problem.params),
-        dev=state.dev,
-        stations=dict(zip(problem.station_ids, state.stations, strict=True)),
-        points={p: state.points[i] for i, p in enumerate(problem.point_ids)},
-        cov=cov,
-        station_ids=problem.station_ids,
-        point_ids=problem.point_ids,
-        residuals=residuals,
-        variance_factor=s2,
-        dof=dof,
-        iterations=iterations,
-        noise=noise,
-        extension=problem.ext,
-        ext=state.ext,
-        converged=converged,
-        message="the Gauss-Newton steps to come are below 1e-9 of the residual"
+    message = (
+        "the Gauss-Newton steps to come are below 1e-9 of the residual"
         if converged
-        else f"stopped after {GN_ITERATIONS} Gauss-Newton iterations",
+        else f"stopped after {GN_ITERATIONS} Gauss-Newton iterations"
     )
+    res = identification_of(problem, state, residuals, cov, s2, dof, iterations, converged, message)
     return res, float(hat[k0 : k0 + n_map].sum())

@@ -671,9 +671,26 @@ def identify(
     cov, rf = np.full((problem.n_all, problem.n_all), np.nan), None
     if covariance:
         cov, rf = _covariance(problem, state, s2)
+    return identification_of(problem, state, residuals, cov, s2, dof, sol.nit, sol.converged, sol.message, rf)
+
+
+def identification_of(
+    problem: Problem,
+    state: State,
+    residuals: np.ndarray,
+    cov: np.ndarray,
+    variance_factor: float,
+    dof: int,
+    iterations: int,
+    converged: bool,
+    message: str,
+    r_factor: np.ndarray | None = None,
+) -> Identification:
+    """The Identification of `problem` at `state`: its chain, parameters, stations, points, noise model and extension
+    with the fit's figures (identify's, and the joint error map's penalised fit)."""
     return Identification(
-        chain=chain,
-        params=list(params),
+        chain=problem.chain,
+        params=list(problem.params),
         dev=state.dev,
         stations=dict(zip(problem.station_ids, state.stations, strict=True)),
         points={p: state.points[i] for i, p in enumerate(problem.point_ids)},
@@ -681,15 +698,15 @@ def identify(
         station_ids=problem.station_ids,
         point_ids=problem.point_ids,
         residuals=residuals,
-        variance_factor=s2,
+        variance_factor=variance_factor,
         dof=dof,
-        iterations=sol.nit,
-        noise=noise,
-        extension=extension,
+        iterations=iterations,
+        noise=problem.noise,
+        extension=problem.ext,
         ext=state.ext,
-        converged=sol.converged,
-        message=sol.message,
-        r_factor=rf,
+        converged=converged,
+        message=message,
+        r_factor=r_factor,
     )
 
 

@@ -9,18 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import backlash_twin_case
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, harmonics_by_joint, parse_name
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
 from trackcal.calib.diagnose.significance import _midranks
-from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import IdentificationError, Problem, _init_stations, identify
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.kinematics import Kinematics
-from trackcal.calib.model.params import irreducible_params
-from trackcal.mocks.twin import Twin, simulate_campaign
 
 CELL = load_cell("kr270")
 
@@ -104,12 +102,7 @@ def test_midranks_equal_the_pass_per_distinct_value(values, scale):
 
 @pytest.fixture(scope="module")
 def twin_case():
-    """A KR-270 twin campaign with a hidden backlash (as tests/calib/diagnose/test_diagnose_speed.py)."""
-    twin = Twin(CELL, seed=5, effects={"backlash": 0.05})
-    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
-    params = irreducible_params(CELL.chain)[0]
-    geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
-    return table, params, geo
+    return backlash_twin_case(CELL)
 
 
 def test_a_fit_carries_its_gram_matrix_and_cross_validates_as_before(twin_case):

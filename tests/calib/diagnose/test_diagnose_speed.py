@@ -11,32 +11,25 @@ import numpy as np
 import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
+from tests.helpers import backlash_twin_case
 from trackcal.calib.diagnose import crossval, diagnose, fits
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension, map_features, parse_name
 from trackcal.calib.diagnose.joint_map_fit import FoldGrams, HeldOutMap, _cv_scores
 from trackcal.calib.diagnose.structure import RIDGES, _ridge_fit
-from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Problem, State, Station, _distinct_poses, identify
+from trackcal.calib.identify.solver import Problem, State, Station, _distinct_poses
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.extension import JointFeatures
-from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.rigid import exp_so3
 from trackcal.campaign.cli import main
-from trackcal.mocks.twin import Twin, simulate_campaign
 
 CELL = load_cell("kr270")
 
 
 @pytest.fixture(scope="module")
 def twin_case():
-    """A KR-270 twin campaign with a hidden backlash (the size of bench.bench_diagnose's case)."""
-    twin = Twin(CELL, seed=5, effects={"backlash": 0.05})
-    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
-    params = irreducible_params(CELL.chain)[0]
-    geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
-    return table, params, geo
+    return backlash_twin_case(CELL)
 
 
 def reference_distinct_poses(q, feats):
