@@ -130,13 +130,19 @@ def test_the_warm_up_runs_before_the_test_and_is_recorded(two_velocities, kr270)
     assert all(t.conditions["warm-up"] == record for t in tests)
 
 
-def test_figures_per_velocity_recomputed_from_the_rows(two_velocities):
+@pytest.fixture(scope="module")
+def compared(two_velocities):
+    """The session compared once (its JSON and its report): the tests below read one output each."""
+    d, _ = two_velocities
+    args = ["--json", str(d / "cmp.json"), "--report", str(d / "r.html")]
+    assert main(["iso9283", "compare", str(d / "s"), "--model", str(d / "model.json"), *args]) == 0
+    return d
+
+
+def test_figures_per_velocity_recomputed_from_the_rows(two_velocities, compared):
     """`compare` states one test per velocity; AP_P and RP_l of each recomputed here from that velocity's stored rows
     alone (plain numpy, the station from model.json, the standard's formulas of 7.2 written out again)."""
     d, plan = two_velocities
-    assert (
-        main(["iso9283", "compare", str(d / "s"), "--model", str(d / "model.json"), "--json", str(d / "cmp.json")]) == 0
-    )
     cmp = json.loads((d / "cmp.json").read_text())
     assert [t["velocity_pct"] for t in cmp["tests"]] == [100.0, 10.0]
     assert [t["session"] for t in cmp["tests"]] == [f"{d / 's'} at 100 %", f"{d / 's'} at 10 %"]
@@ -217,13 +223,10 @@ def test_departures_of_a_test_each_in_one_line():
     ]
 
 
-def test_the_report_lists_every_departure_once_in_one_box(two_velocities):
+def test_the_report_lists_every_departure_once_in_one_box(compared):
     """The session of 2 cycles, unloaded, at 100 % and 10 %: its two tests share three departures, listed once each
     in the box; the warm-up ran and the cube is the largest, so neither is one."""
-    d, _ = two_velocities
-    assert (
-        main(["iso9283", "compare", str(d / "s"), "--model", str(d / "model.json"), "--report", str(d / "r.html")]) == 0
-    )
+    d = compared
     page = (d / "r.html").read_text(encoding="utf-8")
     box = re.search(r"<div class=departures><h2>Departures from ISO 9283:1998</h2><ul>(.*?)</ul></div>", page)
     assert box is not None
