@@ -113,10 +113,19 @@ def table9_expected(before: np.ndarray, after: np.ndarray) -> list[str]:
     return [f"{1000 * v:.1f}" for v in out]  # the report gives them in µm
 
 
-def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
+@pytest.fixture(scope="module")
+def report(kr270, campaign, tmp_path_factory) -> Path:
+    """The campaign's report with its plan, verdict, provenance and warnings, rendered once: the tests below read it
+    (each rendering diagnoses the table again and draws every figure)."""
     d, table, outcome, plan, verdict = campaign
-    path = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS)
-    assert path == tmp_path / "rep" / "report.html"
+    out = tmp_path_factory.mktemp("report") / "rep"
+    return render(out, kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS)
+
+
+def test_report_has_plots_parameters_and_table9(campaign, report):
+    d, table, outcome, plan, verdict = campaign
+    path = report
+    assert path.name == "report.html" and path.parent.name == "rep"
     text = path.read_text()
     page = Page()
     page.feed(text)
@@ -142,9 +151,9 @@ def test_report_has_plots_parameters_and_table9(kr270, campaign, tmp_path):
     assert "backlash" in cells and "16.1" in cells
 
 
-def test_report_header_verdict_what_next_and_warnings(kr270, campaign, tmp_path):
+def test_report_header_verdict_what_next_and_warnings(campaign, report):
     d, table, outcome, plan, verdict = campaign
-    text = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS).read_text()
+    text = report.read_text()
     page = Page()
     page.feed(text)
     cells = [c.strip() for c in page.cells]
@@ -217,9 +226,8 @@ def test_a_named_cause_brings_the_replan_advice(kr270, campaign, tmp_path):
     assert "both directions" in advice
 
 
-def test_text_is_escaped(kr270, campaign, tmp_path):
-    d, table, outcome, plan, verdict = campaign
-    text = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS).read_text()
+def test_text_is_escaped(report):
+    text = report.read_text()
     assert "<script>" not in text and ODD_STATION not in text
     assert "KR-270 &lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; &amp; co" in text
     assert "S&quot;1&lt;&amp;&gt;" in text
@@ -407,10 +415,8 @@ def rendered_dom(html_path: Path, tmp_path: Path) -> str:
     return done.stdout
 
 
-def test_the_report_renders_in_chromium_with_its_header_verdict_and_every_image(kr270, campaign, tmp_path):
-    d, table, outcome, plan, verdict = campaign
-    path = render(tmp_path / "rep", kr270, table, outcome.doc, plan, verdict, PROV, WARNINGS)
-    dom = rendered_dom(path, tmp_path)
+def test_the_report_renders_in_chromium_with_its_header_verdict_and_every_image(report, tmp_path):
+    dom = rendered_dom(report, tmp_path)
     assert 'data-checked="yes"' in dom  # the page loaded and the marking ran
     assert re.search(r"<h1>Calibration report: KR-270 &lt;script&gt;.*cell kr270</h1>", dom)
     assert re.search(r"id=\"verdict\">The geometric calibration fits to the noise floor", dom)
