@@ -199,10 +199,15 @@ class HeldOutMap:
         n_cols, harmonics = self._columns[key]
         # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
         # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
-        # levers, formed on each call, the same products as before and so the same values
+        # levers, formed on each call, the same products as before and so the same values, written in place when a
+        # group's columns are a slice (the whole map's names, s1 c1 s2 c2 ..., and an order's: a product and its
+        # scatter by a list of columns took twice as long, 6 % of a diagnosis of Series B under py-spy)
         lever, out = self.lever[test], np.empty((len(test), 3, n_cols))
         for j, cols, values in harmonics:  # a coefficient moves its own joint only
-            out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
+            if isinstance(cols, slice):
+                np.multiply(lever[:, :, j, None], values[:, None, :], out=out[:, :, cols])
+            else:
+                out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
         return out.reshape(3 * len(test), -1)
 
 
@@ -269,8 +274,9 @@ def _cv_scores(
         hold = np.repeat(hold, 3)
         jk, rk = jm[hold], r[hold]
         g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
-        if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs (jk is a copy)
-            jk[:, pen_cols] = held.columns(rows)
+        # predicted as predict will: the map clamped to the training rows' arcs (each order's columns taken from these,
+        # the same values as when they were written into jk first, in the same layout)
+        jmap = None if held is None else held.columns(rows)
         first = np.empty((len(rows), len(orders_cols)))
         gaa = g[np.ix_(free, free)]
         # unpenalised block a = gaa^-1 (b_a - g_af c); column scaling keeps the inverse accurate
@@ -286,13 +292,15 @@ def _cv_scores(
         j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
             at = np.searchsorted(kept, cols)
-            gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
+            # an order that keeps every column reads the whole Schur complement, not a copy of it
+            gaf, schur, bf = gpf[:, at], schur_all if len(at) == len(kept) else schur_all[np.ix_(at, at)], bf_all[at]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
                 c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
             else:
                 c = ridge_path(schur, bf, lam)  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
-            e = rk[:, None] - j_free @ a - jk[:, cols] @ c  # (3 n_k, L)
+            j_map = jk[:, cols] if jmap is None else jmap[:, np.searchsorted(pen_cols, cols)]
+            e = rk[:, None] - j_free @ a - j_map @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
             if unwhiten is not None:
                 e = np.einsum("nij,njl->nil", unwhiten[rows], e.reshape(-1, 3, len(lam))).reshape(e.shape)
@@ -615,7 +623,7 @@ class MapEvidence:
         """The held-out rows' Jacobian with the map's columns as predict sees them: formed on each call, the same
         values each time (issue 41: kept per fold they were a second whole Jacobian, 16 KB per row of Series B)."""
         jk = self.jm[hold]
-        jk[:, self.pen] = self.held.columns(rows)
+        jk[:, self.pen[0] : self.pen[-1] + 1] = self.held.columns(rows)  # the map's columns are a run: a slice's copy
         return jk
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
