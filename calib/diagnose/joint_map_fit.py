@@ -273,29 +273,29 @@ def _cv_scores(
         hold[rows] = True
         hold = np.repeat(hold, 3)
         jk, rk = jm[hold], r[hold]
-        g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
+        if downdate is None:  # the fold's part formed here, and the training rows' Gram matrix in its place
+            g = jk.T @ jk
+            np.subtract(gram, g, out=g)
+        else:
+            g = gram - downdate(k, hold)
+        b = rhs - jk.T @ rk
         # predicted as predict will: the map clamped to the training rows' arcs (each order's columns taken from these,
         # the same values as when they were written into jk first, in the same layout)
         jmap = None if held is None else held.columns(rows)
         first = np.empty((len(rows), len(orders_cols)))
-        gaa = g[np.ix_(free, free)]
-        # unpenalised block a = gaa^-1 (b_a - g_af c); column scaling keeps the inverse accurate
-        sa = np.sqrt(np.diag(gaa))
-        sa[sa == 0] = 1.0
-        gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
         # the Schur complement of every penalised column; an order's is its block (its columns a subset); none when
         # no order keeps a column (the comparison without the map: its 650 x 650 block was formed and not read)
         kept = pen_cols if any(len(cols) for cols in orders_cols) else pen_cols[:0]
-        gpf = g[np.ix_(free, kept)]
-        schur_all = g[np.ix_(kept, kept)] - gpf.T @ gaa_inv @ gpf
-        bf_all = b[kept] - gpf.T @ (gaa_inv @ b[free])
+        gaa_inv, gpf, schur_all, bf_all = _eliminated(g, b, free, kept)
         j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
             at = np.searchsorted(kept, cols)
             # an order that keeps every column reads the whole Schur complement, not a copy of it
             gaf, schur, bf = gpf[:, at], schur_all if len(at) == len(kept) else schur_all[np.ix_(at, at)], bf_all[at]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
-                c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
+                h = schur.copy()  # schur + lam I: the ridge added to the diagonal alone (no identity formed)
+                h.flat[:: len(h) + 1] += lam[0]
+                c = np.linalg.solve(h, bf)[:, None]
             else:
                 c = ridge_path(schur, bf, lam)  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
@@ -310,6 +310,25 @@ def _cv_scores(
 
     parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
     return _summed(parts, groups, n_rows, per_row)
+
+
+def _eliminated(g: np.ndarray, b: np.ndarray, free: np.ndarray, kept: np.ndarray) -> tuple:
+    """(gaa^-1, g_af, Schur complement, its right-hand side): the normal equations (g, b) with the unpenalised block
+    `free` eliminated from the penalised columns `kept` (a = gaa^-1 (b_a - g_af c)); column scaling keeps the inverse
+    accurate."""
+    gaa = g[np.ix_(free, free)]
+    sa = np.sqrt(np.diag(gaa))
+    sa[sa == 0] = 1.0
+    gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
+    gpf = g[np.ix_(free, kept)]
+    # the penalised columns are a run (the map's coefficients): their block read in place, not copied first
+    g_kept = g[kept[0] : kept[-1] + 1, kept[0] : kept[-1] + 1] if _is_run(kept) else g[np.ix_(kept, kept)]
+    return gaa_inv, gpf, g_kept - gpf.T @ gaa_inv @ gpf, b[kept] - gpf.T @ (gaa_inv @ b[free])
+
+
+def _is_run(cols: np.ndarray) -> bool:
+    """Whether `cols` (increasing) are consecutive and not empty: a slice reads them."""
+    return len(cols) > 0 and cols[-1] - cols[0] == len(cols) - 1
 
 
 def _summed(parts: list[tuple], groups: list[np.ndarray], n_rows: int, per_row: bool) -> tuple:
