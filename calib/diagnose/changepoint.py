@@ -20,7 +20,8 @@ MIN_SEGMENT_ROWS = 6  # rows on each side of a change point: twice the three poi
 def relabel_shift(table: MeasurementTable, station: str, t_star: float) -> MeasurementTable:
     out = table.subset(np.arange(len(table)))
     out.station = [
-        s + SHIFT_SUFFIX if (s == station and t > t_star) else s for s, t in zip(table.station, table.t_s, strict=True)
+        s + SHIFT_SUFFIX if (s == station and t > t_star) else s
+        for s, t in zip(table.station, table.t_s.tolist(), strict=True)  # Python floats: the same values, faster
     ]
     return out
 

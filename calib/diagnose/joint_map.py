@@ -94,10 +94,11 @@ def parse_name(name: str) -> tuple[str, int, int]:
 
 
 @functools.lru_cache(maxsize=32)
-def _groups(names: tuple[str, ...]) -> tuple[tuple[str, int, list[int], np.ndarray], ...]:
+def _groups(names: tuple[str, ...]) -> tuple[tuple[str, int, slice | list[int], np.ndarray], ...]:
     """(sine or cosine, joint, columns, harmonics) of the coefficients `names` grouped by joint and sine/cosine, in
     order of first appearance; parsed once per list of names (the map's search and held-out tests ask for a few lists
-    hundreds of times: their 51,000 parses were 3 % of a diagnosis of Series B under cProfile, issue 41)."""
+    hundreds of times: their 51,000 parses were 3 % of a diagnosis of Series B under cProfile, issue 41). The columns
+    are a slice when evenly spaced (a map's names, s1 c1 s2 c2 ...: what is written to them is written in place)."""
     groups: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
     for i, name in enumerate(names):
         kind, h, j = parse_name(name)
@@ -108,17 +109,25 @@ def _groups(names: tuple[str, ...]) -> tuple[tuple[str, int, list[int], np.ndarr
     for (kind, j), (cols, hs) in groups.items():
         h = np.array(hs, dtype=float)
         h.flags.writeable = False  # shared by every call with these names
-        out.append((kind, j, cols, h))
+        out.append((kind, j, _span(cols), h))
     return tuple(out)
 
 
+def _span(cols: list[int]) -> slice | list[int]:
+    """Increasing columns as a slice when evenly spaced, else themselves."""
+    step = cols[1] - cols[0] if len(cols) > 1 else 1
+    if step > 0 and all(b - a == step for a, b in zip(cols[:-1], cols[1:], strict=True)):
+        return slice(cols[0], cols[-1] + 1, step)
+    return cols
+
+
 def harmonics_by_joint(q: np.ndarray, names: list[str], arcs: dict[int, Arc]):
-    """(joint, columns, values (N, len(columns))) of the coefficients `names` grouped by joint and sine/cosine, each
-    joint's angle clamped to its arc: one sine or cosine call per group (a call per coefficient cost 1.4 s of a
-    diagnosis of Series B, issue 26), the same products h * q and the same values."""
+    """(joint, columns (a slice or a list), values (N, number of columns)) of the coefficients `names` grouped by joint
+    and sine/cosine, each joint's angle clamped to its arc: one sine or cosine call per group (a call per coefficient
+    cost 1.4 s of a diagnosis of Series B, issue 26), the same products h * q and the same values."""
     clamped = {j: arc.clamp(q[:, j])[0] for j, arc in arcs.items()}
     for kind, j, cols, hs in _groups(tuple(names)):
-        yield j, list(cols), (np.sin if kind == "s" else np.cos)(hs * clamped[j][:, None])
+        yield j, cols, (np.sin if kind == "s" else np.cos)(hs * clamped[j][:, None])
 
 
 def map_features(q: np.ndarray, names: list[str], arcs: dict[int, Arc]) -> np.ndarray:

@@ -199,10 +199,15 @@ class HeldOutMap:
         n_cols, harmonics = self._columns[key]
         # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
         # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
-        # levers, formed on each call, the same products as before and so the same values
+        # levers, formed on each call, the same products as before and so the same values, written in place when a
+        # group's columns are a slice (the whole map's names, s1 c1 s2 c2 ..., and an order's: a product and its
+        # scatter by a list of columns took twice as long, 6 % of a diagnosis of Series B under py-spy)
         lever, out = self.lever[test], np.empty((len(test), 3, n_cols))
         for j, cols, values in harmonics:  # a coefficient moves its own joint only
-            out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
+            if isinstance(cols, slice):
+                np.multiply(lever[:, :, j, None], values[:, None, :], out=out[:, :, cols])
+            else:
+                out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
         return out.reshape(3 * len(test), -1)
 
 
@@ -268,31 +273,34 @@ def _cv_scores(
         hold[rows] = True
         hold = np.repeat(hold, 3)
         jk, rk = jm[hold], r[hold]
-        g, b = gram - (jk.T @ jk if downdate is None else downdate(k, hold)), rhs - jk.T @ rk
-        if held is not None:  # predicted as predict will: the map clamped to the training rows' arcs (jk is a copy)
-            jk[:, pen_cols] = held.columns(rows)
+        if downdate is None:  # the fold's part formed here, and the training rows' Gram matrix in its place
+            g = jk.T @ jk
+            np.subtract(gram, g, out=g)
+        else:
+            g = gram - downdate(k, hold)
+        b = rhs - jk.T @ rk
+        # predicted as predict will: the map clamped to the training rows' arcs (each order's columns taken from these,
+        # the same values as when they were written into jk first, in the same layout)
+        jmap = None if held is None else held.columns(rows)
         first = np.empty((len(rows), len(orders_cols)))
-        gaa = g[np.ix_(free, free)]
-        # unpenalised block a = gaa^-1 (b_a - g_af c); column scaling keeps the inverse accurate
-        sa = np.sqrt(np.diag(gaa))
-        sa[sa == 0] = 1.0
-        gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
         # the Schur complement of every penalised column; an order's is its block (its columns a subset); none when
         # no order keeps a column (the comparison without the map: its 650 x 650 block was formed and not read)
         kept = pen_cols if any(len(cols) for cols in orders_cols) else pen_cols[:0]
-        gpf = g[np.ix_(free, kept)]
-        schur_all = g[np.ix_(kept, kept)] - gpf.T @ gaa_inv @ gpf
-        bf_all = b[kept] - gpf.T @ (gaa_inv @ b[free])
+        gaa_inv, gpf, schur_all, bf_all = _eliminated(g, b, free, kept)
         j_free = jk[:, free]
         for i, cols in enumerate(orders_cols):
             at = np.searchsorted(kept, cols)
-            gaf, schur, bf = gpf[:, at], schur_all[np.ix_(at, at)], bf_all[at]
+            # an order that keeps every column reads the whole Schur complement, not a copy of it
+            gaf, schur, bf = gpf[:, at], schur_all if len(at) == len(kept) else schur_all[np.ix_(at, at)], bf_all[at]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
-                c = np.linalg.solve(schur + lam[0] * np.eye(len(cols)), bf)[:, None]
+                h = schur.copy()  # schur + lam I: the ridge added to the diagonal alone (no identity formed)
+                h.flat[:: len(h) + 1] += lam[0]
+                c = np.linalg.solve(h, bf)[:, None]
             else:
                 c = ridge_path(schur, bf, lam)  # (p, L): every ridge
             a = gaa_inv @ (b[free][:, None] - gaf @ c)
-            e = rk[:, None] - j_free @ a - jk[:, cols] @ c  # (3 n_k, L)
+            j_map = jk[:, cols] if jmap is None else jmap[:, np.searchsorted(pen_cols, cols)]
+            e = rk[:, None] - j_free @ a - j_map @ c  # (3 n_k, L)
             ss[i] += np.sum(e**2, axis=0)
             if unwhiten is not None:
                 e = np.einsum("nij,njl->nil", unwhiten[rows], e.reshape(-1, 3, len(lam))).reshape(e.shape)
@@ -302,6 +310,25 @@ def _cv_scores(
 
     parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
     return _summed(parts, groups, n_rows, per_row)
+
+
+def _eliminated(g: np.ndarray, b: np.ndarray, free: np.ndarray, kept: np.ndarray) -> tuple:
+    """(gaa^-1, g_af, Schur complement, its right-hand side): the normal equations (g, b) with the unpenalised block
+    `free` eliminated from the penalised columns `kept` (a = gaa^-1 (b_a - g_af c)); column scaling keeps the inverse
+    accurate."""
+    gaa = g[np.ix_(free, free)]
+    sa = np.sqrt(np.diag(gaa))
+    sa[sa == 0] = 1.0
+    gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
+    gpf = g[np.ix_(free, kept)]
+    # the penalised columns are a run (the map's coefficients): their block read in place, not copied first
+    g_kept = g[kept[0] : kept[-1] + 1, kept[0] : kept[-1] + 1] if _is_run(kept) else g[np.ix_(kept, kept)]
+    return gaa_inv, gpf, g_kept - gpf.T @ gaa_inv @ gpf, b[kept] - gpf.T @ (gaa_inv @ b[free])
+
+
+def _is_run(cols: np.ndarray) -> bool:
+    """Whether `cols` (increasing) are consecutive and not empty: a slice reads them."""
+    return len(cols) > 0 and cols[-1] - cols[0] == len(cols) - 1
 
 
 def _summed(parts: list[tuple], groups: list[np.ndarray], n_rows: int, per_row: bool) -> tuple:
@@ -615,7 +642,7 @@ class MapEvidence:
         """The held-out rows' Jacobian with the map's columns as predict sees them: formed on each call, the same
         values each time (issue 41: kept per fold they were a second whole Jacobian, 16 KB per row of Series B)."""
         jk = self.jm[hold]
-        jk[:, self.pen] = self.held.columns(rows)
+        jk[:, self.pen[0] : self.pen[-1] + 1] = self.held.columns(rows)  # the map's columns are a run: a slice's copy
         return jk
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:

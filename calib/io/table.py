@@ -86,16 +86,24 @@ class MeasurementTable:
         return self.q_deg.shape[1]
 
     def subset(self, rows: np.ndarray) -> MeasurementTable:
+        """The table of `rows` (indices), in that order."""
         rows = np.asarray(rows)
+        at = rows.tolist()  # Python ints index the label lists faster than numpy's
+        # increasing rows (a fold's, a diagnosis's) taken by a mask from the text columns: the same strings, 5x faster
+        # than by indices (numpy's StringDType; 70 ms of a diagnosis of Series B, issue 41)
+        text_rows = rows
+        if len(rows) > 1 and rows.dtype != bool and bool(np.all(rows[1:] > rows[:-1])):
+            text_rows = np.zeros(len(self), dtype=bool)
+            text_rows[rows] = True
         return MeasurementTable(
             seq=self.seq[rows],
             t_s=self.t_s[rows],
-            pose=[self.pose[i] for i in rows],
-            station=[self.station[i] for i in rows],
-            point=[self.point[i] for i in rows],
+            pose=[self.pose[i] for i in at],
+            station=[self.station[i] for i in at],
+            point=[self.point[i] for i in at],
             q_deg=self.q_deg[rows],
             xyz=None if self.xyz is None else self.xyz[rows],
-            extra={k: v[rows] for k, v in self.extra.items()},
+            extra={k: v[text_rows] for k, v in self.extra.items()},
             source=self.source,
         )
 

@@ -39,6 +39,28 @@ def test_round_trip_keeps_values_and_extra_columns(tmp_path, kr270):
     assert back.subset(np.array([2, 0])).extra["temp_c"].tolist() == [table.extra["temp_c"][2], "20.00"]
 
 
+@settings(deadline=None, max_examples=30)
+@given(picks=st.lists(st.integers(0, 11), min_size=0, max_size=15), ordered=st.booleans())
+def test_subset_takes_the_rows_in_order_however_they_are_picked(picks, ordered):
+    # increasing rows take the text columns by a mask (issue 41), others by indices: the same rows either way
+    n = 12
+    table = table_mod.MeasurementTable(
+        np.arange(n),
+        np.arange(n) * 1.5,
+        [f"P{i}" for i in range(n)],
+        ["S"] * n,
+        ["A", "B", "C"] * 4,
+        np.arange(6.0 * n).reshape(n, 6),
+        np.arange(3.0 * n).reshape(n, 3),
+        {"temp_c": [f"{20 + i}.5" for i in range(n)]},
+    )
+    rows = np.array(sorted(set(picks)) if ordered else picks, dtype=int)
+    sub = table.subset(rows)
+    assert sub.pose == [f"P{i}" for i in rows] and sub.point == [table.point[i] for i in rows]
+    assert sub.extra["temp_c"].tolist() == [f"{20 + i}.5" for i in rows]
+    assert np.array_equal(sub.q_deg, table.q_deg[rows]) and np.array_equal(sub.seq, rows)
+
+
 @pytest.mark.parametrize(
     "text, message",
     [
