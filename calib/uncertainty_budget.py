@@ -172,14 +172,17 @@ class Budget:
 
 def shortest_interval(samples: np.ndarray, p: float = PROBABILITY) -> tuple[float, float]:
     """The shortest interval holding a share p of the samples (JCGM 101:2008, 7.7.2: over the sorted values, the
-    least y_(r + q) - y_(r), q = pM rounded to an integer, r = 1..M - q)."""
-    y = np.sort(np.asarray(samples, dtype=float))
+    least y_(r + q) - y_(r), q = pM rounded to an integer, r = 1..M - q). Only the M - q lowest and the M - q highest
+    values enter: those two ends are sorted (after a partition), not the whole sample."""
+    y = np.asarray(samples, dtype=float)
     q = int(round(p * len(y)))
     if not 0 < q < len(y):
         raise BudgetError(f"{len(y)} Monte-Carlo trials cannot give a {p:.0%} coverage interval")
-    widths = y[q:] - y[: len(y) - q]
-    r = int(np.argmin(widths))
-    return float(y[r]), float(y[r + q])
+    r = len(y) - q
+    part = np.partition(y, sorted({r, q}))
+    low, high = np.sort(part[:r]), np.sort(part[q:])  # y_(1..M-q), y_(q+1..M)
+    best = int(np.argmin(high - low))
+    return float(low[best]), float(high[best])
 
 
 def _sqrt_psd(c: np.ndarray) -> np.ndarray:
@@ -354,12 +357,35 @@ def _log_ratio(t: np.ndarray, lam: float) -> np.ndarray:
 RATIO_DIP = 1e-9
 
 
+def _lerp(a: np.float64, b: np.float64, t: np.float64) -> np.float64:
+    """np.quantile's interpolation between two order statistics a <= b at weight t, its expressions (numpy 2,
+    numpy/lib/_function_base_impl.py, _lerp: from b when t >= 0.5), for one value."""
+    diff = b - a
+    return b - diff * (1 - t) if t >= 0.5 else a + diff * t
+
+
+def _quantile_of_lowest(values: np.ndarray, n: int, q: float, floor: float) -> np.float64 | None:
+    """np.quantile (its 'linear' method) of n values of which `values` are some and the others all at least `floor`,
+    in every bit, from `values` alone: their order statistics at np.quantile's virtual index (n - 1) q and the next,
+    interpolated as it does; None when the others may rank among the statistics read (the one above them not below
+    `floor`)."""
+    v = (n - 1) * np.float64(q)
+    i = int(v)
+    k = i + 2  # above both order statistics np.quantile interpolates between
+    if k >= len(values):
+        return None
+    part = np.partition(values, (i, i + 1, k))
+    if floor < part[k]:
+        return None
+    return _lerp(part[i], part[i + 1], v - i)
+
+
 def _ratio_quantile(t: np.ndarray, lam: float, q: float, tail: int = FC_TAIL) -> np.float64:
     """np.quantile(_log_ratio(t, lam), q) in every bit, ranking only the draws at the ends of t (about `tail` at each,
     bounded by order statistics of every FC_STEP-th draw): the ratio rises with t up to its mode and falls after it (to
     RATIO_DIP), so a draw between the ends ranks at least as high as the lower of the two bounds. When that is above
-    every order statistic the quantile reads, the draws between are put at +inf; else every draw is ranked."""
-    n = len(t)
+    every order statistic the quantile reads, the quantile is read from the ends' ranks (_quantile_of_lowest); else
+    every draw is ranked."""
     sample = t[::FC_STEP]
     m = max(tail // FC_STEP, 1)
     edge = np.partition(sample, (m - 1, len(sample) - m))
@@ -367,13 +393,9 @@ def _ratio_quantile(t: np.ndarray, lam: float, q: float, tail: int = FC_TAIL) ->
     ends = (t <= low) | (t >= high)
     t_ends = t[ends]
     ranked = _log_ratio(t_ends, lam)
-    k = int((n - 1) * q) + 2  # above both order statistics np.quantile interpolates between
     bound = ranked[(t_ends == low) | (t_ends == high)].min()
-    if k >= len(ranked) or bound - RATIO_DIP < np.partition(ranked, k)[k]:
-        return np.quantile(_log_ratio(t, lam), q)
-    ratio = np.full(n, np.inf)
-    ratio[ends] = ranked
-    return np.quantile(ratio, q)
+    cut = _quantile_of_lowest(ranked, len(t), q, bound - RATIO_DIP)
+    return np.quantile(_log_ratio(t, lam), q) if cut is None else cut
 
 
 def norm_interval(
@@ -436,10 +458,29 @@ def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> B
     )
 
 
+def _rp_of_lengths(ell: np.ndarray) -> np.ndarray:
+    """RP_l = l_bar + 3 S_l of the distances l_j (..., n) of each cycle from the barycentre."""
+    return ell.mean(axis=-1) + 3.0 * ell.std(axis=-1, ddof=1)
+
+
 def repeatability(x: np.ndarray) -> np.ndarray:
     """RP_l = l_bar + 3 S_l (ISO 9283:1998, 7.2) of each of a stack of cycles' positions (..., n, 3)."""
-    ell = np.linalg.norm(x - x.mean(axis=-2, keepdims=True), axis=-1)
-    return ell.mean(axis=-1) + 3.0 * ell.std(axis=-1, ddof=1)
+    return _rp_of_lengths(np.linalg.norm(x - x.mean(axis=-2, keepdims=True), axis=-1))
+
+
+def _noisy_repeatability(x: np.ndarray, chol: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """repeatability(x + np.einsum("nij,mnj->mni", chol, z)) of m draws z (m, n, 3) of each cycle's noise, in every
+    bit (tests/calib/test_uncertainty_budget.py), with the cycles and the coordinates as the outer axes: numpy's
+    reductions over the short axes of (m, n, 3) cost three times the arithmetic (issue 37). The same expressions in
+    the same order: einsum's sum over j as it forms it, (j0 + j2) + j1; the sums over the cycles (the barycentre) and
+    over the coordinates (the norm) from the first term to the last, as numpy's reductions do over those axes; the
+    distances' mean and deviation by _rp_of_lengths on an (m, n) array, as repeatability."""
+    zt = np.ascontiguousarray(z.transpose(1, 2, 0))[:, None]  # (n, 1, 3, m)
+    c = chol[:, :, :, None]  # (n, 3, 3, 1)
+    d = x[:, :, None] + ((c[:, :, 0] * zt[:, :, 0] + c[:, :, 2] * zt[:, :, 2]) + c[:, :, 1] * zt[:, :, 1])
+    e = d - d.mean(axis=0)  # (n, 3, m)
+    ell = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    return _rp_of_lengths(np.ascontiguousarray(ell.T))
 
 
 # what moves every cycle of a pose alike cancels in x_j - x_bar and so in RP (and in vAP, a difference of barycentres
@@ -460,7 +501,7 @@ def rp_budget(x: np.ndarray, covs: np.ndarray, u_gum: float, tracker: str, seed:
     for start in range(0, MC_TRIALS, MC_CHUNK):
         m = min(MC_CHUNK, MC_TRIALS - start)
         z = rng.standard_normal((m, n, 3))
-        draws.append(repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
+        draws.append(_noisy_repeatability(x, chol, z))
     lines = [
         Line(
             "tracker",
