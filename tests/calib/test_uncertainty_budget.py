@@ -340,3 +340,11 @@ def test_noisy_repeatability_is_the_einsum_form_bit_for_bit(n, m, scatter, seed)
     z = rng.standard_normal((m, n, 3))
     got = _noisy_repeatability(x, chol, z)
     assert np.array_equal(got, repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
+
+
+@given(st.floats(0.0, 30.0), st.lists(st.floats(0.0, 1500.0), min_size=1, max_size=400))
+def test_log_ratio_over_trial_values_is_each_ones_bit_for_bit(t, lams):
+    """norm_interval ranks the measured |o| at every trial value in one call (issue 37): each entry the same bits as
+    that trial value's own call, as before."""
+    one = [_log_ratio(np.array([t]), lam)[0] for lam in lams]
+    assert np.array_equal(_log_ratio(np.full(len(lams), t), np.array(lams)), one)
