@@ -10,14 +10,13 @@ from trackcal.calib.io.files import atomic_open, writing
 from trackcal.campaign.errors import InputError
 
 
-def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], dpi: float | None = None, **kwargs):
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **kwargs):
     """(figure, axes) as pyplot.subplots gives them, on an Agg canvas; kwargs are Figure.subplots' (sharex, squeeze,
-    ...). Nothing holds the figure but the caller. `dpi`: the figure's (matplotlib's default, 100, when None); the dpi
-    it is saved at lets the layout (`tight`) and the draw that saves it share one renderer and its text layouts."""
+    ...). Nothing holds the figure but the caller."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib costs ~0.2 s at start-up
     from matplotlib.figure import Figure  # lazy: matplotlib's import, ~0.2 s, only for a report
 
-    fig = Figure(figsize=figsize, dpi=dpi)
+    fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)
     return fig, fig.subplots(nrows, ncols, **kwargs)
 

@@ -86,9 +86,6 @@ td.pass{background:#dfd}td.fail{background:#fdd}td.open{background:#ffd}table.si
 @media print{body{max-width:none;margin:0;padding:0;font-size:10pt}tr,img{break-inside:avoid}h2{break-after:avoid}}"""
 
 
-PNG_DPI = 90  # the cluster figures' resolution: 720 px wide
-
-
 def _um(value: float, u: float | None = None) -> str:
     text = f"{value * 1000:.1f}"
     return text if u is None else f"{text} ± {u * 1000:.1f}"
@@ -96,14 +93,14 @@ def _um(value: float, u: float | None = None) -> str:
 
 def _png(fig) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=PNG_DPI)
+    fig.savefig(buf, format="png", dpi=90)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def cluster_figure(tests: list[IsoFigures], i: int) -> str:
     """Pose i: one row per test, its attained positions around the commanded one (µm) in the base frame's x-y and
     x-z planes, with the barycentre marked; each row on its own scale, so the spread shows beside the offset."""
-    fig, axes = subplots(len(tests), 2, figsize=(8, 3.2 * len(tests)), dpi=PNG_DPI, squeeze=False)
+    fig, axes = subplots(len(tests), 2, figsize=(8, 3.2 * len(tests)), squeeze=False)
     for row, t in zip(axes, tests, strict=True):
         d = (t.attained_mm[i] - t.commanded_mm[i]) * 1000.0
         bar = d.mean(axis=0)
