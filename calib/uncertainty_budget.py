@@ -486,9 +486,10 @@ def _noisy_repeatability(x: np.ndarray, chol: np.ndarray, z: np.ndarray) -> np.n
     """repeatability(x + np.einsum("nij,mnj->mni", chol, z)) of m draws z (m, n, 3) of each cycle's noise, in every
     bit (tests/calib/test_uncertainty_budget.py), with the cycles and the coordinates as the outer axes: numpy's
     reductions over the short axes of (m, n, 3) cost three times the arithmetic (issue 37). The same expressions in
-    the same order: einsum's sum over j as it forms it, (j0 + j2) + j1; the sums over the cycles (the barycentre) and
-    over the coordinates (the norm) from the first term to the last, as numpy's reductions do over those axes; the
-    distances' mean and deviation by _rp_of_lengths on an (m, n) array, as repeatability."""
+    the same order: einsum's sum over j as it forms it, (j0 + j2) + j1 (numpy 2.4 here: the test fails where a numpy
+    sums otherwise); the sums over the cycles (the barycentre) and over the coordinates (the norm) from the first term
+    to the last, as numpy's reductions do over those axes; the distances' mean and deviation by _rp_of_lengths on an
+    (m, n) array, as repeatability."""
     zt = np.ascontiguousarray(z.transpose(1, 2, 0))[:, None]  # (n, 1, 3, m)
     c = chol[:, :, :, None]  # (n, 3, 3, 1)
     d = x[:, :, None] + ((c[:, :, 0] * zt[:, :, 0] + c[:, :, 2] * zt[:, :, 2]) + c[:, :, 1] * zt[:, :, 1])
