@@ -65,8 +65,10 @@ MC_SEED = 9283
 FC_TRIALS = 20_000  # draws of E per trial value of the true AP (their 5 % quantile of R: within 0.3 % of content)
 FC_GRID = 400  # trial values of the true AP, over value -+ 6 sigma_max
 # draws at each end of T ranked per trial value, about (the 5 % quantile reads the 1,001 lowest: _ratio_quantile),
-# the ends' bounds taken from every FC_STEP-th draw
-FC_TAIL = 1_500
+# the ends' bounds taken from every FC_STEP-th draw; too few and every draw is ranked (the same quantile, 5 times the
+# work): none of the 9,115 trial values of the ISO guide's compare (docs/guides/iso9283.md) with 1,100 or 1,200, 20 %
+# less work than with 1,500 (issue 37)
+FC_TAIL = 1_200
 FC_STEP = 10
 MC_CHUNK = 10_000  # trials per batch of RP's Monte-Carlo (30 cycles x 3 coordinates each: ~7 MB per batch)
 # linear expansion coefficients at 20 degC, 1/K: carbon steel 11.5e-6 ... (structural steel 11-13e-6), aluminium
@@ -172,14 +174,17 @@ class Budget:
 
 def shortest_interval(samples: np.ndarray, p: float = PROBABILITY) -> tuple[float, float]:
     """The shortest interval holding a share p of the samples (JCGM 101:2008, 7.7.2: over the sorted values, the
-    least y_(r + q) - y_(r), q = pM rounded to an integer, r = 1..M - q)."""
-    y = np.sort(np.asarray(samples, dtype=float))
+    least y_(r + q) - y_(r), q = pM rounded to an integer, r = 1..M - q). Only the M - q lowest and the M - q highest
+    values enter: those two ends are sorted (after a partition), not the whole sample."""
+    y = np.asarray(samples, dtype=float)
     q = int(round(p * len(y)))
     if not 0 < q < len(y):
         raise BudgetError(f"{len(y)} Monte-Carlo trials cannot give a {p:.0%} coverage interval")
-    widths = y[q:] - y[: len(y) - q]
-    r = int(np.argmin(widths))
-    return float(y[r]), float(y[r + q])
+    r = len(y) - q
+    part = np.partition(y, sorted({r, q}))
+    low, high = np.sort(part[:r]), np.sort(part[q:])  # y_(1..M-q), y_(q+1..M)
+    best = int(np.argmin(high - low))
+    return float(low[best]), float(high[best])
 
 
 def _sqrt_psd(c: np.ndarray) -> np.ndarray:
@@ -300,6 +305,9 @@ def joint_draws(inputs: list[Input], rng: np.random.Generator, m: int) -> np.nda
     return total
 
 
+_LOG_2 = np.log(2.0)
+
+
 def _log_sinhc(t: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
     """log(sinh(t lam) / lam), its limit log t at lam = 0 (t > 0); lam an array like t, or one value for every t.
     One value's log is taken as an array of one, by the same vectorised loop as an array's (a lone float's log may
@@ -307,7 +315,7 @@ def _log_sinhc(t: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
     z = np.maximum(t * lam, 1e-300)
     log_lam = np.log(np.maximum(np.atleast_1d(lam), 1e-300))
     with np.errstate(divide="ignore"):
-        big = z + np.log1p(-np.exp(-2.0 * z)) - np.log(2.0) - log_lam
+        big = z + np.log1p(-np.exp(-2.0 * z)) - _LOG_2 - log_lam
     small = z < 1e-8
     return np.where(small, np.log(np.maximum(t, 1e-300)), big) if small.any() else big
 
@@ -341,9 +349,10 @@ def _lam_hat(t: np.ndarray) -> np.ndarray:
     return np.where(t == t_j, lam_j, _SLOPES[j] * (t - t_j) + lam_j)
 
 
-def _log_ratio(t: np.ndarray, lam: float) -> np.ndarray:
-    """log f(t | lam) - log f(t | lam_hat(t)) for the unit non-central chi of 3 degrees of freedom (t, lam in sigma);
-    lam_hat beyond the table: the root of lam^2 - t lam + 1 (coth = 1 there)."""
+def _log_ratio(t: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
+    """log f(t | lam) - log f(t | lam_hat(t)) for the unit non-central chi of 3 degrees of freedom (t, lam in sigma;
+    lam one value for every t, or an array like t); lam_hat beyond the table: the root of lam^2 - t lam + 1 (coth = 1
+    there)."""
     far = np.sqrt(np.maximum(t * t - 4.0, 0.0))
     hat = np.where(t <= _T_TABLE[-1], _lam_hat(np.minimum(t, _T_TABLE[-1])), 0.5 * (t + far))
     return _log_sinhc(t, lam) - lam * lam / 2 - (_log_sinhc(t, hat) - hat * hat / 2)
@@ -354,12 +363,35 @@ def _log_ratio(t: np.ndarray, lam: float) -> np.ndarray:
 RATIO_DIP = 1e-9
 
 
+def _lerp(a: np.float64, b: np.float64, t: np.float64) -> np.float64:
+    """np.quantile's interpolation between two order statistics a <= b at weight t, its expressions (numpy 2,
+    numpy/lib/_function_base_impl.py, _lerp: from b when t >= 0.5), for one value."""
+    diff = b - a
+    return b - diff * (1 - t) if t >= 0.5 else a + diff * t
+
+
+def _quantile_of_lowest(values: np.ndarray, n: int, q: float, floor: float) -> np.float64 | None:
+    """np.quantile (its 'linear' method) of n values of which `values` are some and the others all at least `floor`,
+    in every bit, from `values` alone: their order statistics at np.quantile's virtual index (n - 1) q and the next,
+    interpolated as it does; None when the others may rank among the statistics read (the one above them not below
+    `floor`)."""
+    v = (n - 1) * np.float64(q)
+    i = int(v)
+    k = i + 2  # above both order statistics np.quantile interpolates between
+    if k >= len(values):
+        return None
+    part = np.partition(values, (i, i + 1, k))
+    if floor < part[k]:
+        return None
+    return _lerp(part[i], part[i + 1], v - i)
+
+
 def _ratio_quantile(t: np.ndarray, lam: float, q: float, tail: int = FC_TAIL) -> np.float64:
     """np.quantile(_log_ratio(t, lam), q) in every bit, ranking only the draws at the ends of t (about `tail` at each,
     bounded by order statistics of every FC_STEP-th draw): the ratio rises with t up to its mode and falls after it (to
     RATIO_DIP), so a draw between the ends ranks at least as high as the lower of the two bounds. When that is above
-    every order statistic the quantile reads, the draws between are put at +inf; else every draw is ranked."""
-    n = len(t)
+    every order statistic the quantile reads, the quantile is read from the ends' ranks (_quantile_of_lowest); else
+    every draw is ranked."""
     sample = t[::FC_STEP]
     m = max(tail // FC_STEP, 1)
     edge = np.partition(sample, (m - 1, len(sample) - m))
@@ -367,13 +399,9 @@ def _ratio_quantile(t: np.ndarray, lam: float, q: float, tail: int = FC_TAIL) ->
     ends = (t <= low) | (t >= high)
     t_ends = t[ends]
     ranked = _log_ratio(t_ends, lam)
-    k = int((n - 1) * q) + 2  # above both order statistics np.quantile interpolates between
     bound = ranked[(t_ends == low) | (t_ends == high)].min()
-    if k >= len(ranked) or bound - RATIO_DIP < np.partition(ranked, k)[k]:
-        return np.quantile(_log_ratio(t, lam), q)
-    ratio = np.full(n, np.inf)
-    ratio[ends] = ranked
-    return np.quantile(ratio, q)
+    cut = _quantile_of_lowest(ranked, len(t), q, bound - RATIO_DIP)
+    return np.quantile(_log_ratio(t, lam), q) if cut is None else cut
 
 
 def norm_interval(
@@ -393,25 +421,33 @@ def norm_interval(
     reach = 6.0 * float(np.sqrt(np.linalg.eigvalsh(cov).max()))
     thetas = np.linspace(max(0.0, t_obs - reach), t_obs + reach, FC_GRID)
 
-    def score(th: float) -> float:
-        """>= 0: the trial value th is in the acceptance region of its own ranking (Feldman and Cousins)."""
-        t = np.sqrt(np.maximum(th * th + 2.0 * th * ue + ee, 0.0)) / sigma
-        cut = _ratio_quantile(t, th / sigma, 1.0 - p)
-        return _log_ratio(np.array([t_obs / sigma]), th / sigma)[0] - cut
+    lams = thetas / sigma
+    # the measured |o|'s rank at every trial value, in one pass: each the same bits as its own (an array's loop)
+    observed = _log_ratio(np.full(FC_GRID, t_obs / sigma), lams)
+
+    def score(k: int) -> float:
+        """>= 0: the trial value k is in the acceptance region of its own ranking (Feldman and Cousins)."""
+        th = thetas[k]
+        t = np.multiply(ue, 2.0 * th)  # |th u + E|^2 = th^2 + 2 th u.E + E.E, in place
+        t += th * th
+        t += ee
+        np.sqrt(np.maximum(t, 0.0, out=t), out=t)
+        t /= sigma
+        return observed[k] - _ratio_quantile(t, lams[k], 1.0 - p)
 
     # The interval is the lowest and the highest trial value accepted: each found by walking in from its end of the
     # grid, so the trial values between them (a third of the grid or more) are never ranked; the same ends as ranking
     # every value and taking the accepted ones' min and max, whatever the accepted set's shape.
     scores = []
-    for th in thetas:
-        scores.append(score(th))
+    for k in range(FC_GRID):
+        scores.append(score(k))
         if scores[-1] >= 0:
             break
     else:  # none accepted (the Monte-Carlo quantile can leave a measured value outside every region): the best
         best = thetas[int(np.argmax(scores))]
         return float(best), float(best)
     low = len(scores) - 1
-    high = next((k for k in range(FC_GRID - 1, low, -1) if score(thetas[k]) >= 0), low)
+    high = next((k for k in range(FC_GRID - 1, low, -1) if score(k) >= 0), low)
     return float(thetas[low]), float(thetas[high])
 
 
@@ -436,10 +472,30 @@ def ap_budget(offset: np.ndarray, inputs: list[Input], seed: int = MC_SEED) -> B
     )
 
 
+def _rp_of_lengths(ell: np.ndarray) -> np.ndarray:
+    """RP_l = l_bar + 3 S_l of the distances l_j (..., n) of each cycle from the barycentre."""
+    return ell.mean(axis=-1) + 3.0 * ell.std(axis=-1, ddof=1)
+
+
 def repeatability(x: np.ndarray) -> np.ndarray:
     """RP_l = l_bar + 3 S_l (ISO 9283:1998, 7.2) of each of a stack of cycles' positions (..., n, 3)."""
-    ell = np.linalg.norm(x - x.mean(axis=-2, keepdims=True), axis=-1)
-    return ell.mean(axis=-1) + 3.0 * ell.std(axis=-1, ddof=1)
+    return _rp_of_lengths(np.linalg.norm(x - x.mean(axis=-2, keepdims=True), axis=-1))
+
+
+def _noisy_repeatability(x: np.ndarray, chol: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """repeatability(x + np.einsum("nij,mnj->mni", chol, z)) of m draws z (m, n, 3) of each cycle's noise, in every
+    bit (tests/calib/test_uncertainty_budget.py), with the cycles and the coordinates as the outer axes: numpy's
+    reductions over the short axes of (m, n, 3) cost three times the arithmetic (issue 37). The same expressions in
+    the same order: einsum's sum over j as it forms it, (j0 + j2) + j1 (numpy 2.4 here: the test fails where a numpy
+    sums otherwise); the sums over the cycles (the barycentre) and over the coordinates (the norm) from the first term
+    to the last, as numpy's reductions do over those axes; the distances' mean and deviation by _rp_of_lengths on an
+    (m, n) array, as repeatability."""
+    zt = np.ascontiguousarray(z.transpose(1, 2, 0))[:, None]  # (n, 1, 3, m)
+    c = chol[:, :, :, None]  # (n, 3, 3, 1)
+    d = x[:, :, None] + ((c[:, :, 0] * zt[:, :, 0] + c[:, :, 2] * zt[:, :, 2]) + c[:, :, 1] * zt[:, :, 1])
+    e = d - d.mean(axis=0)  # (n, 3, m)
+    ell = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    return _rp_of_lengths(np.ascontiguousarray(ell.T))
 
 
 # what moves every cycle of a pose alike cancels in x_j - x_bar and so in RP (and in vAP, a difference of barycentres
@@ -460,7 +516,7 @@ def rp_budget(x: np.ndarray, covs: np.ndarray, u_gum: float, tracker: str, seed:
     for start in range(0, MC_TRIALS, MC_CHUNK):
         m = min(MC_CHUNK, MC_TRIALS - start)
         z = rng.standard_normal((m, n, 3))
-        draws.append(repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
+        draws.append(_noisy_repeatability(x, chol, z))
     lines = [
         Line(
             "tracker",

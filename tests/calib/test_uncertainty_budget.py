@@ -25,11 +25,15 @@ from trackcal.calib.uncertainty_budget import (
     PoseSetting,
     _lam_hat,
     _log_ratio,
+    _noisy_repeatability,
+    _quantile_of_lowest,
     _ratio_quantile,
+    _sqrt_psd,
     ap_budget,
     joint_draws,
     norm_interval,
     pose_inputs,
+    repeatability,
     rp_budget,
     shortest_interval,
 )
@@ -275,3 +279,72 @@ def test_the_quantile_of_the_ends_is_the_quantile_of_every_draw(tail, scale):
         t = np.sqrt(np.maximum(th * th + 2.0 * th * (e @ u) + np.einsum("ij,ij->i", e, e), 0.0)) / sigma
         q = 1.0 - PROBABILITY
         assert _ratio_quantile(t, th / sigma, q, tail) == np.quantile(_log_ratio(t, th / sigma), q), th
+
+
+@given(
+    st.lists(st.floats(-50.0, 50.0), min_size=1, max_size=200),
+    st.lists(st.floats(0.0, 1e3), max_size=300),
+    st.floats(0.0, 1.0),
+)
+def test_the_quantile_of_the_lowest_is_np_quantile_bit_for_bit(values, above, q):
+    """_quantile_of_lowest reads np.quantile's two order statistics among the ranked values and interpolates as numpy
+    does: the same bits as np.quantile over every value (the others at or above the floor, here the ranked values'
+    largest, ties included) and over the values padded with +inf (the form before issue 37); with a floor below a
+    statistic it reads, no answer."""
+    v = np.array(values)
+    n = len(v) + len(above)
+    others = v.max() + np.array(above)
+    got = _quantile_of_lowest(v, n, q, v.max())
+    if int((n - 1) * q) + 2 >= len(v):
+        assert got is None
+        return
+    assert got == np.quantile(np.concatenate([v, others]), q)
+    assert got == np.quantile(np.concatenate([v, np.full(len(above), np.inf)]), q)
+    assert _quantile_of_lowest(v, n, q, v.min() - 1.0) is None
+
+
+def shortest_interval_by_full_sort(samples, p=PROBABILITY):
+    """shortest_interval before issue 37: every sample sorted."""
+    y = np.sort(np.asarray(samples, dtype=float))
+    q = int(round(p * len(y)))
+    widths = y[q:] - y[: len(y) - q]
+    r = int(np.argmin(widths))
+    return float(y[r]), float(y[r + q])
+
+
+@given(
+    st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=400),
+    st.sampled_from([PROBABILITY, 0.5, 0.3, 0.99]),
+)
+def test_shortest_interval_is_the_full_sorts_bit_for_bit(samples, p):
+    """Sorting only the two ends of the sample gives the same interval as sorting it all (ties included; a share p
+    under one half, where the ends overlap, too)."""
+    q = int(round(p * len(samples)))
+    if 0 < q < len(samples):
+        assert shortest_interval(np.array(samples), p) == shortest_interval_by_full_sort(samples, p)
+
+
+@given(
+    st.integers(2, 40),  # cycles: the fewest that give RP, the 4 of the docs' example, the standard's 30 and more
+    st.sampled_from([1, 7, 1_000]),  # draws: the last, short chunk of RP's Monte-Carlo among them
+    st.sampled_from([1e-3, 0.05, 3.0]),  # mm: the robot's scatter, from below the tracker noise to far above it
+    st.integers(0, 2**32 - 1),
+)
+def test_noisy_repeatability_is_the_einsum_form_bit_for_bit(n, m, scatter, seed):
+    """RP's Monte-Carlo on the draws as rp_budget makes them (issue 37): the same values in every bit as the form
+    before, repeatability of x plus np.einsum of each cycle's tracker noise, for any number of cycles."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, scatter, (n, 3)) + rng.normal(0.0, 1000.0, 3)
+    a = rng.normal(0.0, 0.003, (n, 3, 3))
+    chol = np.array([_sqrt_psd(c) for c in a @ a.transpose(0, 2, 1)])
+    z = rng.standard_normal((m, n, 3))
+    got = _noisy_repeatability(x, chol, z)
+    assert np.array_equal(got, repeatability(x + np.einsum("nij,mnj->mni", chol, z)))
+
+
+@given(st.floats(0.0, 30.0), st.lists(st.floats(0.0, 1500.0), min_size=1, max_size=400))
+def test_log_ratio_over_trial_values_is_each_ones_bit_for_bit(t, lams):
+    """norm_interval ranks the measured |o| at every trial value in one call (issue 37): each entry the same bits as
+    that trial value's own call, as before."""
+    one = [_log_ratio(np.array([t]), lam)[0] for lam in lams]
+    assert np.array_equal(_log_ratio(np.full(len(lams), t), np.array(lams)), one)
