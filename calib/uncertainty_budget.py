@@ -483,16 +483,13 @@ def repeatability(x: np.ndarray) -> np.ndarray:
 
 
 def _noisy_repeatability(x: np.ndarray, chol: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """repeatability(x + np.einsum("nij,mnj->mni", chol, z)) of m draws z (m, n, 3) of each cycle's noise, in every
-    bit (tests/calib/test_uncertainty_budget.py), with the cycles and the coordinates as the outer axes: numpy's
-    reductions over the short axes of (m, n, 3) cost three times the arithmetic (issue 37). The same expressions in
-    the same order: einsum's sum over j as it forms it, (j0 + j2) + j1 (numpy 2.4 here: the test fails where a numpy
-    sums otherwise); the sums over the cycles (the barycentre) and over the coordinates (the norm) from the first term
-    to the last, as numpy's reductions do over those axes; the distances' mean and deviation by _rp_of_lengths on an
-    (m, n) array, as repeatability."""
+    """repeatability(x + chol z) of m draws z (m, n, 3) of each cycle's noise (chol (n, 3, 3)), with the cycles and the
+    coordinates as the outer axes: numpy's reductions over the short axes of (m, n, 3) cost three times the arithmetic
+    (issue 37). The same figures as the (m, n, 3) form to a few ulps of a coordinate (the noise's three products are
+    summed in another order; tests/calib/test_uncertainty_budget.py)."""
     zt = np.ascontiguousarray(z.transpose(1, 2, 0))[:, None]  # (n, 1, 3, m)
     c = chol[:, :, :, None]  # (n, 3, 3, 1)
-    d = x[:, :, None] + ((c[:, :, 0] * zt[:, :, 0] + c[:, :, 2] * zt[:, :, 2]) + c[:, :, 1] * zt[:, :, 1])
+    d = x[:, :, None] + (c[:, :, 0] * zt[:, :, 0] + c[:, :, 1] * zt[:, :, 1] + c[:, :, 2] * zt[:, :, 2])
     e = d - d.mean(axis=0)  # (n, 3, m)
     ell = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
     return _rp_of_lengths(np.ascontiguousarray(ell.T))
