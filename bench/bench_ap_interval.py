@@ -112,7 +112,9 @@ def main() -> None:
         t, got = interleaved(forms, lambda xs=xs, cs=cs: rp_budget(xs, cs, 0.005, "bench").to_doc())
         new, old = t.values()
         # the noise's three products summed in another order: the interval's ends agree to a few ulps of a coordinate
-        ends = [abs(a - b) for a, b in zip(got["outer axes"]["interval95_mm"], got["einsum"]["interval95_mm"])]
+        ends = [
+            abs(a - b) for a, b in zip(got["outer axes"]["interval95_mm"], got["einsum"]["interval95_mm"], strict=True)
+        ]
         print(
             f"RP budget, {n} cycles: {new:.3f} s CPU, einsum form {old:.3f} s ({old / new:.2f}x); the interval's "
             f"ends differ by {max(ends):.1e} mm"
