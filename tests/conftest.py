@@ -23,6 +23,7 @@ from xdist.scheduler import LoadGroupScheduling
 from tests.helpers import mock_process
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
+from trackcal.campaign.cli.blas import limited_blas
 
 ROOMS = ("calib", "campaign", "drivers", "mocks", "configs")
 
@@ -86,6 +87,16 @@ def pytest_xdist_make_scheduler(config, log):
 settings.register_profile("ci", deadline=None, derandomize=True, print_blob=True)
 settings.register_profile("dev", deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_blas_thread():
+    """Each test process runs BLAS on one thread, as every trackcal command does (`campaign.cli.blas`: parallelism
+    comes from processes), and so do the processes it starts: xdist runs a worker per core already, and OpenBLAS's
+    own threads on top of them spin on the cores the other workers need (tests/calib/doe/test_doe.py's two plan tests
+    alone on 2 cores: 36 s CPU and 30 s wall with OpenBLAS's default threads, 9.5 s and 10 s with one)."""
+    with limited_blas():
+        yield
 
 
 @pytest.fixture(scope="session")
