@@ -1,8 +1,8 @@
 """The real cell: the clients its hardware config (campaign/cells/hardware_config.py) describes.
 
-    hw = load_hardware("configs/hardware/example-cell.yaml")   # cells.hardware_config: validated
-    clients = claim_cell(hw, cell)                             # built, the robot's ports bound: the cell is ours
-    live = connect_hardware(clients, say, operator)            # engine.Live with every device connected
+hw = load_hardware("configs/hardware/example-cell.yaml")   # cells.hardware_config: validated
+clients = claim_cell(hw, cell)                             # built, the robot's ports bound: the cell is ours
+live = connect_hardware(clients, say, operator)            # engine.Live with every device connected
 """
 
 from __future__ import annotations
