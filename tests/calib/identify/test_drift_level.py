@@ -31,9 +31,9 @@ def test_survival_function_is_the_chi_square_one():
         assert distance_exceeded(r) == pytest.approx(float(chdtrc(3, r * r)), rel=16 * EPS), r
 
 
-def test_level_matches_scipy():
-    for p in LEVELS:
-        assert distance_level(p) == pytest.approx(math.sqrt(float(chdtri(3, p))), rel=bound(p)), p
+@pytest.mark.parametrize("p", LEVELS)
+def test_level_matches_scipy(p):
+    assert distance_level(p) == pytest.approx(math.sqrt(float(chdtri(3, p))), rel=bound(p)), p
 
 
 def test_campaign_level_is_the_one_the_check_used_with_scipy():
