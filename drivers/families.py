@@ -1,7 +1,7 @@
 """Robot families: which driver a hardware file's `robot.protocol` selects.
 
 Each driver package that drives a robot has a `family` module whose FAMILY is a RobotFamily: the keys of its
-robot section (validated by campaign/cells/hardware_config.py with the kinds it knows), how to build the client from a
+robot section (validated by campaign/cells/hardware.py with the kinds it knows), how to build the client from a
 validated section and the cell's checks, and how to describe it to people. The packages are found by walking
 drivers' sub-packages, so no code outside a family's own package names a controller, and a new family is a new
 package with a `family` module.
@@ -92,7 +92,7 @@ def program_targets(
 @dataclass(frozen=True)
 class RobotFamily:
     """One controller family. `schemas`: section path below `robot` ("" the robot section itself, "eki" its eki
-    sub-section ...) -> key -> (kind, default[, most]), kinds as campaign/cells/hardware_config.py validates them (host,
+    sub-section ...) -> key -> (kind, default[, most]), kinds as campaign/cells/hardware.py validates them (host,
     port, timeout, positive with its upper bound `most` if any, bool, protocol, section); `protocols`: the choices
     of a `protocol` key of a sub-section.
     `build(section, joint_limits_deg=, cell_box_check=, motion_guard=)` makes the client without I/O; `claim` takes

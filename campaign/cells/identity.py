@@ -17,7 +17,7 @@ from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.engine.documents import IdentityDoc, WarningDoc
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.session.session import HARDWARE_COPY

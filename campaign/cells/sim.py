@@ -324,7 +324,7 @@ def krc2_robot_doc(mocks: TwinMocks, eki: tuple[str, int], rsi: tuple[str, int])
 
 
 def hardware_doc(mocks: TwinMocks, robot: dict) -> dict:
-    """The hardware config (campaign/cells/hardware_config.py schema) of the running mocks, with `robot` its robot
+    """The hardware config (campaign/cells/hardware.py schema) of the running mocks, with `robot` its robot
     section."""
     thost, tport = mocks.tracker_mock.address
     phost, pport = mocks.plc.address

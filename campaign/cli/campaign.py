@@ -7,7 +7,6 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -15,6 +14,7 @@ from trackcal.calib.errors import CalibError
 from trackcal.calib.io.files import read_json
 from trackcal.campaign.cells.checks import DOOR_OPEN, ESTOP_PRESSED, PLC_SILENT
 from trackcal.campaign.cli.console import ConsoleOperator, console, labelled
+from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.engine.engine import TARGET_MISMATCH, Document, RunResult
 from trackcal.campaign.engine.recording import ReplayDivergence
 from trackcal.campaign.errors import CampaignError, InputError, UsageError
@@ -32,10 +32,8 @@ from trackcal.campaign.jobs.completeness import Completeness, completeness, run_
 from trackcal.campaign.jobs.simulate import parse_effects
 from trackcal.campaign.session.session import changed_copies, write_export
 from trackcal.campaign.session.store import SessionStore
+from trackcal.campaign.web.server import DEFAULT_PORT, LOOPBACK, WebPage
 from trackcal.drivers.kuka.client import CHANNELS_DISAGREE, RSI_STALE
-
-if TYPE_CHECKING:
-    from trackcal.campaign.web.server import WebPage  # annotations only: TYPE_CHECKING
 
 
 class ConsoleProgress:
@@ -93,8 +91,6 @@ def operator_page(args) -> Iterator[WebPage | None]:
     if getattr(args, "operator", "console") != "web":
         yield None
         return
-    from trackcal.campaign.web.server import DEFAULT_PORT, LOOPBACK, WebPage  # lazy: uvicorn, starlette, segno
-
     page = WebPage(
         args.web_host or LOOPBACK,
         DEFAULT_PORT if args.web_port is None else args.web_port,
@@ -110,8 +106,6 @@ def operator_page(args) -> Iterator[WebPage | None]:
 def analyse_for(store: SessionStore, campaign: Campaign | None, page: WebPage | None, linger_s: float = 0.0) -> None:
     """The end-of-run analysis of the session's `campaign` (None: its stored one) on the console, and its outcome on
     the page (kept up `linger_s` seconds, or until Ctrl-C, so that the operator can open the report on the tablet)."""
-    from trackcal.campaign.cli.end_of_run import analyse_and_print  # lazy: scipy, diagnose (not for --no-analysis)
-
     analysis = analyse_and_print(store, campaign)
     if page is None:
         return

@@ -10,7 +10,7 @@ from trackcal.calib.model.cell import load_cell
 from trackcal.campaign.cli.analysis import print_identification, um
 from trackcal.campaign.cli.campaign import drive
 from trackcal.campaign.cli.console import console
-from trackcal.campaign.cli.end_of_run import analyse_and_print
+from trackcal.campaign.cli.report import analyse_and_print
 from trackcal.campaign.jobs.campaign import new_session
 from trackcal.campaign.jobs.plan import PlanOptions, plan
 from trackcal.campaign.jobs.simulate import test_pose_miss_mm, twin_truth

@@ -16,7 +16,6 @@ import shutil
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from rich.text import Text
 
@@ -25,8 +24,7 @@ from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.io.files import read_text
 from trackcal.calib.model.cell import Cell, load_cell
 from trackcal.campaign.cells.checks import names_told_apart
-from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import CellClients, claim_cell, connect_hardware, load_hardware
 from trackcal.campaign.cells.identity import IdentityCheck, stated_tracker
 from trackcal.campaign.cells.sim import SimCell
 from trackcal.campaign.engine.documents import measurement
@@ -49,10 +47,8 @@ from trackcal.campaign.session.session import (
     stored_config,
 )
 from trackcal.campaign.session.store import Event, SessionLock, SessionStore, StoreError
+from trackcal.campaign.web.server import WebPage
 from trackcal.drivers.interfaces import Operator
-
-if TYPE_CHECKING:  # the page is the CLI's (--operator web): uvicorn, starlette and segno only when asked
-    from trackcal.campaign.web.server import WebPage  # annotations only: TYPE_CHECKING
 
 
 @dataclass(frozen=True)

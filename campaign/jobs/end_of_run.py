@@ -9,7 +9,6 @@ import hashlib
 import json
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +27,7 @@ from trackcal.calib.model_file import load_model
 from trackcal.calib.model_trust import sealed, unusable_why
 from trackcal.calib.tcp_figure import figure_at_test_pose
 from trackcal.campaign.errors import InputError, OptionError
+from trackcal.campaign.jobs.campaign import Campaign
 from trackcal.campaign.jobs.diagnose import diagnosis_threads, verdict_doc
 from trackcal.campaign.jobs.identify import choose_params, fit_model, identify_outcome, model_doc, sha256_of
 from trackcal.campaign.report.analysis import CampaignAnalysis, Provenance
@@ -42,9 +42,6 @@ from trackcal.campaign.session.session import (
     session_plan,
 )
 from trackcal.campaign.session.store import DB_NAME, SessionStore
-
-if TYPE_CHECKING:  # the campaign just run, when there is one: its module (cells, drivers) is not the analysis's
-    from trackcal.campaign.jobs.campaign import Campaign  # annotations only: TYPE_CHECKING
 
 
 class NotAnalysedError(InputError):

@@ -18,7 +18,7 @@ from trackcal.calib.io.files import write_text
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.chain import ChainError, chain_to_dict
 from trackcal.calib.model.dh_chain import dh_chain, dh_of_chain
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError, OptionError
 from trackcal.drivers.families import families
 

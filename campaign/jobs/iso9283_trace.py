@@ -1,7 +1,7 @@
 """Traceability of an ISO 9283 test: the tracker's serial number and calibration certificate as the session's hardware
-config states them (campaign.cells.hardware_config: tracker.serial, certificate, certificate_date,
-certificate_due), for the report's conditions, with the devices' identities read at each run's start (the tracker's
-serial checked against the file's), and the check that the certificate was valid on the day the test was measured."""
+config states them (campaign.cells.hardware: tracker.serial, certificate, certificate_date, certificate_due), for the
+report's conditions, with the devices' identities read at each run's start (the tracker's serial checked against the
+file's), and the check that the certificate was valid on the day the test was measured."""
 
 from __future__ import annotations
 

@@ -8,8 +8,7 @@ import os
 import subprocess
 import sys
 
-from tests.helpers import ROOT, feasible_plan
-from trackcal.calib.model.cell import load_cell
+from tests.helpers import ROOT
 from trackcal.campaign.cli import main
 
 
@@ -107,35 +106,3 @@ def test_identify_imports_neither_the_search_nor_scipy(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]
-
-
-def imported(argv: list[str], modules: tuple[str, ...]) -> list[str]:
-    """Which of `modules` a fresh process running `trackcal ARGV` (exit 0) has imported by its end."""
-    code = (
-        "import sys; from trackcal.campaign.cli import main\n"
-        f"assert main({argv!r}) == 0\n"
-        f"print(sorted(m for m in {modules!r} if m in sys.modules))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr[-2000:]
-    return json.loads(out.stdout.strip().splitlines()[-1].replace("'", '"'))
-
-
-def test_campaign_commands_import_only_what_they_need(tmp_path):
-    """Start-up (issues 37 and 41): a campaign run without its analysis, its replay and its export, and the ISO 9283
-    plan, import neither scipy (the drift check's level is calib.identify.drift's own; scipy.special alone was about
-    0.15 s of CPU per process), the end-of-run analysis (identify, diagnose), nor the operator's page (uvicorn,
-    starlette, segno: only for --operator web); export and the ISO plan neither the cell's drivers (pymodbus)."""
-    cell = load_cell("kr270")
-    plan = tmp_path / "plan.json"
-    plan.write_text(json.dumps(feasible_plan(cell, 6, seed=2, repeat=1)))
-    session = str(tmp_path / "s")
-    analysis = ("trackcal.campaign.jobs.end_of_run", "trackcal.calib.diagnose.diagnosis")
-    light = ("scipy", *analysis, "uvicorn", "starlette", "segno")
-    run = ["run", "--cell", "kr270", "--plan", str(plan), "--sim", "--seed", "2", "--session", session, "--no-analysis"]
-    assert imported(run, light) == []
-    assert imported(["replay", session, "--into", str(tmp_path / "r")], light) == []
-    assert imported(["export", session, "--csv", str(tmp_path / "t.csv")], (*light, "pymodbus")) == []
-    iso = ["iso9283", "plan", "--cell", "kr270", "--cycles", "2", "--vap-cycles", "0", "--load", "unloaded"]
-    iso += ["--json", str(tmp_path / "iso.json")]
-    assert imported(iso, (*light, "pymodbus")) == []

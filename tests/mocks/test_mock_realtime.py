@@ -17,7 +17,7 @@ import pytest
 from tests.drivers.emscon.test_emscon_third_party import CommandSync
 from tests.helpers import mock_process
 from tests.mocks.servers.test_ur_mock import returns_within, wait_until
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.mocks.servers.ur.motion import TICK_S
 
 rtde_receive = pytest.importorskip("rtde_receive")

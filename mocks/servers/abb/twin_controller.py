@@ -91,7 +91,7 @@ class TwinAbb:
             raise
 
     def hardware(self) -> dict:
-        """The robot section of the hardware file (campaign/cells/hardware_config.py, drivers/abb/family.py)."""
+        """The robot section of the hardware file (campaign/cells/hardware.py, drivers/abb/family.py)."""
         host, port = self.process.address
         return {
             "protocol": CONTROLLER,

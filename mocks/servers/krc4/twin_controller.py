@@ -46,7 +46,7 @@ class TwinKrc4:
         ).start()
 
     def hardware(self) -> dict:
-        """The robot section of the hardware file (campaign/cells/hardware_config.py, drivers/krc4/family.py)."""
+        """The robot section of the hardware file (campaign/cells/hardware.py, drivers/krc4/family.py)."""
         host, port = self.controller.eki_addr
         return {
             "protocol": CONTROLLER,

@@ -56,7 +56,7 @@ class TwinUr:
         self.follower = JointFollower(self.host, world.robot_at).start()
 
     def hardware(self) -> dict:
-        """The robot section of the hardware file (campaign/cells/hardware_config.py, drivers/ur/family.py)."""
+        """The robot section of the hardware file (campaign/cells/hardware.py, drivers/ur/family.py)."""
         # the mock's joint speeds are the UR10's (120 deg/s base and shoulder, 180 deg/s the others: mocks/servers/ur
         # motion.py, which caps any faster request); 179 deg/s at 100 % override is within what ur_rtde's moveJ takes
         # (MOVEJ_SPEED_MAX_DEG_S: 400 made every move at 100 %, an ISO 9283 test's, a ValueError), and the campaign's

@@ -13,7 +13,7 @@ import yaml
 from tests.helpers import ROOT, mock_process
 from tests.helpers import exported_table as table
 from tests.helpers import run_trackcal as run
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
 # the test pose of configs/cells/irb120.yaml and irb6700.yaml: every nest faces a station

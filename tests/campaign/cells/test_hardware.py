@@ -1,5 +1,5 @@
-"""The hardware mode: the hardware config (campaign/cells/hardware_config.py, configs/hardware/README.md), `trackcal
-mock` and `trackcal run --hardware` against it in separate processes, as on the shop floor with the real cell."""
+"""The hardware mode: the hardware config (campaign/cells/hardware.py, configs/hardware/README.md), `trackcal mock`
+and `trackcal run --hardware` against it in separate processes, as on the shop floor with the real cell."""
 
 import json
 import os
@@ -16,7 +16,7 @@ import yaml
 
 from tests.helpers import ROOT, TRACKCAL, count_measurements
 from trackcal.calib.io.table import read_table
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.engine.steps import plan_steps
 from trackcal.campaign.errors import InputError
 

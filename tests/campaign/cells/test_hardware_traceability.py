@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
 EXAMPLE = Path(__file__).parents[3] / "configs" / "hardware" / "example-cell.yaml"

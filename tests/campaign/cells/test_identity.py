@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.cells.identity import IdentityCheck, serial_matches
 from trackcal.campaign.engine.engine import Document, Live, RunContext
 from trackcal.drivers.errors import DeviceFault

@@ -11,7 +11,7 @@ import yaml
 from tests.helpers import ROOT, mock_process
 from tests.helpers import exported_table as table
 from tests.helpers import run_trackcal as run
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 
 # a pose of `trackcal plan --cell kr210-krc4 --configs 3 --seed 1` where both stations see the three nests

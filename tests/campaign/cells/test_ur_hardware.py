@@ -18,7 +18,7 @@ import yaml
 from tests.helpers import ROOT, TRACKCAL, count_measurements, mock_process
 from tests.helpers import exported_table as table
 from tests.helpers import run_trackcal as run
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.campaign.errors import InputError
 from trackcal.mocks.servers.ur.server import CONTROL_PORT
 

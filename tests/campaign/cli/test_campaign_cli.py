@@ -14,7 +14,7 @@ import pytest
 
 from tests.helpers import TRACKCAL, feasible_plan
 from trackcal.calib.io.table import read_table
-from trackcal.campaign.cli.end_of_run import print_analysis
+from trackcal.campaign.cli.report import print_analysis
 from trackcal.campaign.engine.engine import Live
 from trackcal.campaign.jobs.campaign import new_session, run_stored
 from trackcal.campaign.jobs.end_of_run import analyse_session, report_session

@@ -27,7 +27,7 @@ import struct
 
 import pytest
 
-from trackcal.campaign.cells.hardware_config import load_hardware
+from trackcal.campaign.cells.hardware import load_hardware
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.servers.emscon import MockEmscon
 
