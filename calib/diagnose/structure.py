@@ -29,7 +29,9 @@ RIDGES = np.geomspace(1e-4, 1e4, 17)  # ridge values (relative to the mean squar
 
 
 def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: int) -> np.ndarray:
-    """(3N, p) whitened regressors a residual with structure would correlate with."""
+    """(3N, p) whitened regressors a residual with structure would correlate with, each column of unit norm. Written
+    into one array group by group, whitened and scaled in place (issue 41: their concatenation, whitening and
+    scaling were four copies, 22 KB per row of a KR-270 campaign)."""
     q = np.radians(table.q_deg)
     n_rows, n = q.shape
     tool = np.array([fit.points[p] for p in table.point])
@@ -40,47 +42,73 @@ def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: i
     t = table.t_s - table.t_s.min()
     t = t / max(float(t.max()), 1e-300)
     signs = approach_signs(q)
-    cols = []
+    stations = sorted(set(table.station))
+    per_joint = 2 * STRUCTURE_HARMONICS + 2
+    feats = np.zeros((n_rows, 3, n * per_joint + 3 * len(stations) + 3 * RANDOM_FEATURES))
+    h = np.arange(1, STRUCTURE_HARMONICS + 1)
     for j in range(n):
-        h = np.arange(1, STRUCTURE_HARMONICS + 1)
         basis = np.column_stack([np.sin(np.outer(q[:, j], h)), np.cos(np.outer(q[:, j], h)), signs[:, j], t])
-        cols.append(dq[:, :, j, None] * basis[:, None, :])
-    for sid in sorted(set(table.station)):
+        np.multiply(dq[:, :, j, None], basis[:, None, :], out=feats[:, :, j * per_joint : (j + 1) * per_joint])
+    at = n * per_joint
+    for i, sid in enumerate(stations):
         m = (np.array(table.station) == sid).astype(float) * t
-        cols.append(m[:, None, None] * np.eye(3)[None])
+        for c in range(3):  # a drift of the station along its axis c
+            feats[:, c, at + 3 * i + c] = m
+    at += 3 * len(stations)
     x = np.column_stack([np.sin(q), np.cos(q), t])
     rng = np.random.default_rng(seed)
     w = rng.standard_normal((x.shape[1], RANDOM_FEATURES))
     phase = rng.uniform(0, 2 * np.pi, RANDOM_FEATURES)
     rff = np.cos(x @ w + phase)
-    cols.append(np.einsum("nm,ab->nabm", rff, np.eye(3)).reshape(n_rows, 3, 3 * RANDOM_FEATURES))
-    feats = np.concatenate(cols, axis=2)
+    for c in range(3):  # random Fourier features of the angles and time, in each coordinate
+        feats[:, c, at + c * RANDOM_FEATURES : at + (c + 1) * RANDOM_FEATURES] = rff
     if ctx.noise is not None:
-        feats = np.einsum("nij,njp->nip", ctx.noise.whitening(table.xyz), feats)
+        wh = ctx.noise.whitening(table.xyz)
+        for a0 in range(0, n_rows, 1024):  # in place, a block of rows at a time
+            sl = slice(a0, a0 + 1024)
+            feats[sl] = wh[sl] @ feats[sl]
     feats = feats.reshape(3 * n_rows, -1)
-    norm = np.linalg.norm(feats, axis=0)
-    return feats[:, norm > 0] / norm[norm > 0]
+    norm = np.sqrt(np.einsum("ij,ij->j", feats, feats))
+    if np.any(norm == 0):
+        feats, norm = feats[:, norm > 0], norm[norm > 0]
+    feats /= norm
+    return feats
 
 
-def _ridge_fit(x: np.ndarray, y: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """(len(lams), p) ridge coefficients (x^T x + lam I)^-1 x^T y for every ridge value, from one tridiagonal
-    reduction of x^T x (`ridge_path`). Before issue 26 an SVD of x gave the same for 5x the cost (x has thousands of
-    rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x (eps times its
+def _ridge_fit(gram: np.ndarray, rhs: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """(len(lams), p) ridge coefficients (x^T x + lam I)^-1 x^T y for every ridge value, from x^T x and x^T y, by one
+    tridiagonal reduction (`ridge_path`). Before issue 26 an SVD of x gave the same for 5x the cost (x has thousands
+    of rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x (eps times its
     largest eigenvalue), so the digits squaring loses do not reach the coefficients."""
-    return ridge_path(x.T @ x, x.T @ y, lams).T
+    return ridge_path(gram, rhs, lams).T
 
 
-def _ridge_predict(x_tr: np.ndarray, y_tr: np.ndarray, x_te: np.ndarray, pose_tr: np.ndarray) -> np.ndarray:
-    """Ridge regression, the ridge chosen by an inner 3-fold cross-validation over the training poses
-    (rows of a pose share their error, so rows are not independent enough for leave-one-out or GCV)."""
-    lams = RIDGES * float(np.mean(x_tr**2)) * x_tr.shape[1]
-    poses = np.unique(pose_tr)
+def _ridge_predict(
+    x: np.ndarray, y: np.ndarray, gram: np.ndarray, rhs: np.ndarray, test: np.ndarray, pose_idx: np.ndarray
+) -> np.ndarray:
+    """Ridge regression on every row (`x`, `y` by coordinate; gram = x^T x, rhs = x^T y) but the `test` rows,
+    predicting the `test` rows' coordinates; the ridge chosen by an inner 3-fold cross-validation over the training
+    poses (rows of a pose share their error, so rows are not independent enough for leave-one-out or GCV). Every fit
+    from Gram matrices, the whole table's less the rows left out, each group of rows taken once (issue 41: the
+    training rows' copies, four per fold, were 15 KB per row of a KR-270 campaign)."""
+    te3 = _coords(test)
+    x_te = x[te3]
+    g_tr, b_tr = gram - x_te.T @ x_te, rhs - x_te.T @ y[te3]
+    lams = RIDGES * float(np.trace(g_tr)) / (len(y) - len(te3))  # the mean squared feature times their count
+    train = np.setdiff1d(np.arange(len(pose_idx)), test)
+    pose_tr = pose_idx[train]
     sse = np.zeros(len(lams))
-    for g in np.array_split(poses, 3):
-        inner = np.isin(pose_tr, g)
-        coef = _ridge_fit(x_tr[~inner], y_tr[~inner], lams)
-        sse += np.sum((y_tr[inner][None] - coef @ x_tr[inner].T) ** 2, axis=1)
-    return x_te @ _ridge_fit(x_tr, y_tr, lams[[int(np.argmin(sse))]])[0]
+    for g in np.array_split(np.unique(pose_tr), 3):
+        c3 = _coords(train[np.isin(pose_tr, g)])
+        x_g, y_g = x[c3], y[c3]
+        coef = _ridge_fit(g_tr - x_g.T @ x_g, b_tr - x_g.T @ y_g, lams)
+        sse += np.sum((y_g[None] - coef @ x_g.T) ** 2, axis=1)
+    return x_te @ _ridge_fit(g_tr, b_tr, lams[[int(np.argmin(sse))]])[0]
+
+
+def _coords(rows: np.ndarray) -> np.ndarray:
+    """The coordinates (3 per row) of `rows`, in order."""
+    return (3 * np.asarray(rows)[:, None] + np.arange(3)).ravel()
 
 
 def smoother_test(
@@ -95,11 +123,11 @@ def smoother_test(
     x = _structure_features(ctx, fit, table, seed)
     pose_idx = np.unique(np.array(table.pose), return_inverse=True)[1]
 
+    gram, rhs = x.T @ x, x.T @ y
+
     def fold_gain(test: np.ndarray) -> np.ndarray:
-        train = np.setdiff1d(np.arange(len(table)), test)
-        tr3 = (3 * train[:, None] + np.arange(3)).ravel()
-        te3 = (3 * test[:, None] + np.arange(3)).ravel()
-        pred = _ridge_predict(x[tr3], y[tr3], x[te3], np.repeat(pose_idx[train], 3))
+        te3 = _coords(test)
+        pred = _ridge_predict(x, y, gram, rhs, test, pose_idx)
         return np.sum((y[te3] ** 2 - (y[te3] - pred) ** 2).reshape(-1, 3), axis=1)
 
     gain = np.zeros(len(table))

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.helpers import backlash_twin_case
+from tests.helpers import DenseRows, backlash_twin_case
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, harmonics_by_joint, parse_name
-from trackcal.calib.diagnose.joint_map_fit import FoldGrams, _cv_scores
+from trackcal.calib.diagnose.joint_map_fit import FoldParts, _cv_scores
 from trackcal.calib.diagnose.significance import _midranks
 from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
@@ -64,11 +64,14 @@ def without_map_reference(jm, r, gram, rhs, pen, groups):
 def test_with_and_without_the_map_in_one_pass_give_the_same_errors(seed, n_rows, n_free, n_pen):
     jm, r, gram, rhs, pen, groups = drawn(seed, n_rows, n_free, n_pen)
     cols = pen[: max(1, n_pen // 2)]
-    args = (jm, r, gram, rhs, None, pen, groups)
-    *_, sq, count = _cv_scores(*args, [cols, pen[:0]], [0.5], None, None, per_row=True)
-    # with the map: its own pass (each fold's downdate formed there, or by FoldGrams), bit for bit
-    for downdate in (None, FoldGrams(jm)):
-        alone = _cv_scores(*args, [cols], [0.5], None, downdate, per_row=True)
+    rows = DenseRows(jm, r, pen)
+    free = np.setdiff1d(np.arange(jm.shape[1]), pen)
+    args = (FoldParts(rows, free), n_rows, gram, rhs, None, pen, groups)
+    *_, sq, count = _cv_scores(*args, [cols, pen[:0]], [0.5], rows, None, per_row=True)
+    # with the map: its own pass (each fold's part formed again, or kept by the FoldParts of the pass above), bit for
+    # bit
+    for parts in (FoldParts(rows, free), args[0]):
+        alone = _cv_scores(parts, *args[1:], [cols], [0.5], rows, None, per_row=True)
         assert np.array_equal(alone[2][:, 0], sq[:, 0]) and np.array_equal(alone[3], count)
     # without it: the reference, the Schur complement of the map's columns formed as before
     total, ref_sq, ref_count = without_map_reference(jm, r, gram, rhs, pen, groups)
