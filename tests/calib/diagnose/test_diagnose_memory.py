@@ -41,12 +41,13 @@ def traced(fn):
     return out, after - before, peak - before
 
 
-def test_held_out_map_keeps_the_harmonics_not_the_columns():
-    """The held-out columns of every fold are asked again (orders, models of Rejudge), so they are cached; the cache
-    holds each held-out row's harmonics (N x e values), a third of the columns (3 N x e) formed from them on every
-    call. Before issue 41 the cache held the columns: 3 N e float64 and more, above this bound."""
+def test_held_out_map_keeps_nothing_per_fold_but_its_arcs():
+    """The held-out columns of every fold are asked again (orders, models of Rejudge); they are formed from the
+    problem's own map features on each call (a row beyond a training arc formed again), and only each fold's training
+    arcs are kept, under its key (the fold's row indices: one int64 per row over a partition). Before issue 41 a
+    cache held the held-out rows' harmonics, N x e float64 (e = 6 joints x 32 here)."""
     twin = Twin(CELL, seed=5, effects={"cyclic_error": 0.05})
-    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
+    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 120, np.random.default_rng(5))))
     params = irreducible_params(CELL.chain)[0]
     geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
     q = np.radians(table.q_deg)
@@ -66,28 +67,33 @@ def test_held_out_map_keeps_the_harmonics_not_the_columns():
 
     def ask_every_fold():
         for k in range(5):
-            held.columns(np.flatnonzero(fold == k))  # the columns returned are dropped: the cache is what stays
+            held.columns(np.flatnonzero(fold == k))  # the columns returned are dropped: what stays is kept
 
     _, kept, _ = traced(ask_every_fold)
     harmonics = len(table) * len(names) * F64
-    assert kept <= 1.25 * harmonics  # the harmonics once, and the small change of bookkeeping (keys, lists)
+    # the keys' row indices, five dicts of six arcs and the harmonics' groups of each joint's names (parsed once,
+    # `joint_map._groups`): Python objects of some 20 KB whatever the rows, not the harmonics (a quarter of them here)
+    assert kept <= len(table) * F64 + 32 * 1024 < harmonics / 4
 
 
-def test_map_evidence_keeps_no_held_out_jacobian_rows():
-    """`MapEvidence` (the models of Rejudge) keeps per fold its factor's solution and the held-out rows, and forms
-    their Jacobian rows on each call. Before issue 41 it kept them: every row once over the folds, a second whole
-    Jacobian (3 N x m float64) beside the search's, 16 KB per row of Series B."""
+def test_map_evidence_holds_no_whole_jacobian():
+    """`MapEvidence` (the models of Rejudge) works from the normal equations and each fold's part of them, formed from
+    the fold's Jacobian rows a piece at a time and kept with the fold's residual and unpenalised columns. Before issue
+    41 it held the search's whole Jacobian (3 N x m float64), and before that each fold's rows too."""
     twin = Twin(CELL, seed=5, effects={"cyclic_error": 0.05})
     table = simulate_campaign(twin, np.degrees(random_poses(CELL, 40, np.random.default_rng(5))))
     params = irreducible_params(CELL.chain)[0]
     geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
-    mf = fit_error_map(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), orders=(1, 2, 4), start=geo)
+    mf = fit_error_map(CELL.chain, table, CELL.tool_points, params, TrackerNoise(), orders=(1, 2, 8), start=geo)
     ev = MapEvidence(CELL.chain, table, params, TrackerNoise(), None, geo, mf)
-    jacobian, harmonics = ev.jm.nbytes, len(table) * ev.n_pen * F64
+    m = len(ev.gram)
+    grams = 5 * (m * m + m) * F64
     _, kept, _ = traced(lambda: ev.cv_rms_mm(_fold_ids(table, 5, 0)))
-    # the held-out rows' harmonics (cached by `HeldOutMap` unless the map's search cached them at this order), and a
-    # solution (m values) and the rows' indices per fold: well under a Jacobian
-    assert kept <= harmonics + 0.25 * jacobian
+    # each fold's part of the normal equations, its solutions, and the held-out rows' residual and unpenalised
+    # columns (3 N (|free| + 1) float64): no Jacobian rows of the map's columns (the whole-diagnosis bound below
+    # checks the peak)
+    rows_kept = 3 * len(table) * (len(ev.free) + 1) * F64
+    assert kept <= 1.1 * (grams + rows_kept) + 64 * 1024
 
 
 def series_b():
