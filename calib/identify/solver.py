@@ -385,6 +385,7 @@ class Problem:
                 cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
                 self.columns[s, p] = cols, np.ix_(cols, cols)
         self.chunks = rows.chunks(max(1, min(CHUNK_ROWS, CHUNK_BYTES // (24 * (self.c_st + 9)))))
+        self._q_at: tuple[bytes, np.ndarray] | None = None  # (extension values, joint angles with their offsets)
         self._dev0 = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         self._ext0 = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
 
@@ -408,8 +409,15 @@ class Problem:
         return r if self.w is None else _whitened(self.w, r)
 
     def _q(self, s: State) -> np.ndarray:
-        off = None if self.ext is None else self.ext.joint_offsets(s.ext)
-        return self.q if off is None else self.q + off
+        """The rows' joint angles with the extension's offsets at s (rad), kept for the last extension values asked:
+        a state's Jacobian rows are formed a chunk or a piece of rows at a time, and each formed every row's offsets
+        (issue 41: N^2 / piece work in the joint map's folds, the same values each time)."""
+        if self.ext is None or self.ext.joint_features is None:
+            return self.q
+        key = s.ext.tobytes()
+        if self._q_at is None or self._q_at[0] != key:
+            self._q_at = (key, self.q + self.ext.joint_offsets(s.ext))
+        return self._q_at[1]
 
     def _growth(self, s: State) -> np.ndarray | None:
         return None if self.ext is None else self.ext.growth_of(s.ext)
