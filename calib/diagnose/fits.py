@@ -58,12 +58,17 @@ class Fit:
     rss: float  # whitened
     n_cols: int
     residuals: np.ndarray
-    r: np.ndarray  # whitened residual vector (3N,) at the solution
     gram: np.ndarray  # J^T J of the whitened Jacobian J at the solution (the identifiability check, cross-validation)
     grad: np.ndarray  # J^T r
     problem: Problem  # forms J's rows on demand (`rows`): the fit holds no (3N, n_cols) array (issue 41)
     state: State  # the solution, as `problem` takes it
     shift: dict | None = None  # {"station", "after_t_s"}
+
+    @property
+    def r(self) -> np.ndarray:
+        """The whitened residual vector (3N,) at the solution, formed when asked for (the structure tests of the chosen
+        model ask; the fits of the other candidates are not held with it)."""
+        return self.problem.residual(self.state)
 
     def rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The whitened residuals (3n,) and Jacobian rows (3n, n_cols) of `rows` at the solution, in that order."""
@@ -117,7 +122,6 @@ def _whole_fit(
         rss,
         problem.n_cols,
         problem.xyz - problem.predicted(state),
-        r=problem.residual(state),
         gram=gram,
         grad=grad,
         problem=problem,

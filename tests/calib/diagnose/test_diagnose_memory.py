@@ -138,7 +138,7 @@ def map_cause():
 
 def test_a_candidate_fit_keeps_no_jacobian(map_cause):
     """A whole-table fit kept in the context (ctx.fits) keeps its Gram matrix and J^T r (n_cols^2 and n_cols
-    float64), and per row its residuals (whitened and not) and its Problem's layout of the rows (angles, measurements,
+    float64), and per row its residuals and its Problem's layout of the rows (angles, measurements,
     whitening, indices): under 64 float64 per row. Before issue 41 it kept its Jacobian, 3 n_cols float64 per row
     (231 columns here: 5.5 KB per row)."""
     ctx = map_cause
