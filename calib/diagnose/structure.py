@@ -188,9 +188,10 @@ def _model_rss(fit: Fit, r: np.ndarray, scales: tuple, poses: list[tuple[np.ndar
     per row of a KR-270 table with the joint error map among the causes), and reduced to R of [J r] = QR (TSQR).
     R holds everything the least squares needs: J and R share their column norms and singular values, and the part
     of r in J's column space is Q^T r (`_orthogonal_rss`). R keeps J's singular values to rounding, as an SVD of J
-    does, so the rank rule is J's (RANK_TOL); J^T J summed instead would square them, and the dependent directions
-    (the tool points' rigid motion once the end frame is free: singular values ~1e-16) would come out at ~1e-8,
-    above the rule's 1e-9."""
+    does, so the rank rule is J's (RANK_TOL); J^T J summed instead would square them, its rounding (1e-16 of the
+    largest eigenvalue) standing for singular values of 1e-8, above the rule's 1e-9: the directions the rule drops
+    (the end-frame projection of a 40-pose twin campaign's backlash fit has some at 3e-10 and 1e-15 of the largest)
+    would be counted."""
     others = np.setdiff1d(np.arange(len(r)), np.concatenate([rows for rows, _ in poses]))
     groups = poses + [(others[i : i + STRUCTURE_CHUNK], None) for i in range(0, len(others), STRUCTURE_CHUNK)]
     acc = [np.zeros((0, fit.n_cols + 1))] * 2
