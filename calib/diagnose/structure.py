@@ -25,6 +25,7 @@ from trackcal.calib.model.rigid import skew
 STRUCTURE_HARMONICS = 6
 RANDOM_FEATURES = 48
 RANK_TOL = 1e-9  # relative singular value below which a column direction counts as dependent
+STRUCTURE_CHUNK = 1024  # rows (of whole poses) whose Jacobian rows are formed at once: 3 x 1024 x n_cols float64
 RIDGES = np.geomspace(1e-4, 1e4, 17)  # ridge values (relative to the mean squared feature times their count)
 
 
@@ -171,30 +172,20 @@ def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | N
     cols = np.einsum("nij,njk->nik", rot, frame)  # (N, 3, 6): end-frame translation and rotation
     if ctx.noise is not None:
         cols = np.einsum("nij,njk->nik", ctx.noise.whitening(table.xyz), cols)
-    r, jm = fit.r.reshape(n_rows, 3), fit.jm.reshape(n_rows, 3, -1)
+    r = fit.r.reshape(n_rows, 3)
     # the line of sight stays an eigen-direction of the tracker-model whitening: rescale along and across it
     los = table.xyz / np.linalg.norm(table.xyz, axis=1)[:, None]
     along = np.einsum("ni,ni->n", los, r)
     k_along = np.sqrt(np.mean(along**2))
     k_across = np.sqrt(np.mean(np.sum(r**2, axis=1) - along**2) / 2.0)
-
-    def rescale(v: np.ndarray) -> np.ndarray:
-        a = np.einsum("ni,ni...->n...", los, v)
-        return (v - np.einsum("ni,n...->ni...", los, a)) / k_across + np.einsum("ni,n...->ni...", los, a) / k_along
-
-    r, jm, cols = rescale(r), rescale(jm), rescale(cols)
-    rss0 = _orthogonal_rss(r.ravel(), _basis(jm.reshape(3 * n_rows, -1)))
-    rank_b = 0
+    scales = (los, k_along, k_across)
+    r, cols = _rescale(r, *scales), _rescale(cols, *scales)
+    bases = []
     for rows in usable:
-        b = cols[rows].reshape(-1, 6)
-        u, sv, _ = np.linalg.svd(b, full_matrices=False)
-        u = u[:, sv > RANK_TOL * sv[0]]
-        rank_b += u.shape[1]
-        rp, jp = r[rows].ravel(), jm[rows].reshape(-1, jm.shape[2])
-        r[rows] = (rp - u @ (u.T @ rp)).reshape(-1, 3)
-        jm[rows] = (jp - u @ (u.T @ jp)).reshape(len(rows), 3, -1)
-    basis = _basis(jm.reshape(3 * n_rows, -1))
-    rss1, rank_mj = _orthogonal_rss(r.ravel(), basis), basis.shape[1]
+        u, sv, _ = np.linalg.svd(cols[rows].reshape(-1, 6), full_matrices=False)
+        bases.append(u[:, sv > RANK_TOL * sv[0]])
+    rank_b = sum(u.shape[1] for u in bases)
+    (rss0, _), (rss1, rank_mj) = _model_rss(fit, r, scales, list(zip(usable, bases, strict=True)))
     df1 = rank_b + rank_mj - fit.n_cols
     df2 = 3 * n_rows - rank_b - rank_mj
     if df1 <= 0 or df2 <= 0 or rss1 <= 0:
@@ -210,16 +201,68 @@ def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | N
     }
 
 
-def _basis(m: np.ndarray) -> np.ndarray:
-    """Orthonormal basis of the column space of m (columns scaled to unit norm first)."""
-    m = m / np.where(np.linalg.norm(m, axis=0) > 0, np.linalg.norm(m, axis=0), 1.0)
-    u, sv, _ = np.linalg.svd(m, full_matrices=False)
-    return u[:, sv > RANK_TOL * sv[0]]
+def _rescale(v: np.ndarray, los: np.ndarray, k_along: float, k_across: float) -> np.ndarray:
+    """v (n, 3, ...) divided by k_along along each row's line of sight `los` (n, 3), by k_across across it."""
+    a = np.einsum("ni,ni...->n...", los, v)
+    return (v - np.einsum("ni,n...->ni...", los, a)) / k_across + np.einsum("ni,n...->ni...", los, a) / k_along
 
 
-def _orthogonal_rss(r: np.ndarray, basis: np.ndarray) -> float:
-    """Residual sum of squares of r after least squares on an orthonormal basis."""
-    return float(r @ r - np.sum((basis.T @ r) ** 2))
+def _model_rss(fit: Fit, r: np.ndarray, scales: tuple, poses: list[tuple[np.ndarray, np.ndarray]]) -> tuple:
+    """((RSS, rank), (RSS, rank)) of the rescaled residuals r (N, 3) after least squares on the fit's rescaled
+    Jacobian (`_rescale` by `scales`), then with each pose's end-frame directions (its rows, an orthonormal basis u
+    of its rows' end-frame columns) projected out of both.
+
+    The Jacobian's rows are formed a chunk of whole poses at a time (`Fit.rows`), never all at once (issue 41: 22 KB
+    per row of a KR-270 table with the joint error map among the causes), and reduced to R of [J r] = QR (TSQR).
+    R holds everything the least squares needs: J and R share their column norms and singular values, and the part
+    of r in J's column space is Q^T r (`_orthogonal_rss`). R keeps J's singular values to rounding, as an SVD of J
+    does, so the rank rule is J's (RANK_TOL); J^T J summed instead would square them, its rounding (1e-16 of the
+    largest eigenvalue) standing for singular values of 1e-8, above the rule's 1e-9: the directions the rule drops
+    (the end-frame projection of a 40-pose twin campaign's backlash fit has some at 3e-10 and 1e-15 of the largest)
+    would be counted."""
+    others = np.setdiff1d(np.arange(len(r)), np.concatenate([rows for rows, _ in poses]))
+    groups = poses + [(others[i : i + STRUCTURE_CHUNK], None) for i in range(0, len(others), STRUCTURE_CHUNK)]
+    acc = [np.zeros((0, fit.n_cols + 1))] * 2
+    for chunk in _chunks(groups):
+        rows = np.concatenate([g for g, _ in chunk])
+        jc = _rescale(fit.rows(rows)[1].reshape(len(rows), 3, -1), scales[0][rows], *scales[1:])
+        a = np.column_stack([jc.reshape(3 * len(rows), -1), r[rows].ravel()])
+        acc[0] = np.linalg.qr(np.vstack([acc[0], a]), mode="r")
+        first = 0
+        for g, u in chunk:
+            if u is not None:
+                a[first : first + 3 * len(g)] -= u @ (u.T @ a[first : first + 3 * len(g)])
+            first += 3 * len(g)
+        acc[1] = np.linalg.qr(np.vstack([acc[1], a]), mode="r")
+    return _orthogonal_rss(acc[0]), _orthogonal_rss(acc[1])
+
+
+def _chunks(groups: list[tuple]):
+    """The groups (rows, ...) in runs of at least STRUCTURE_CHUNK rows (the last: what is left)."""
+    chunk, n = [], 0
+    for g in groups:
+        chunk.append(g)
+        n += len(g[0])
+        if n >= STRUCTURE_CHUNK:
+            yield chunk
+            chunk, n = [], 0
+    if chunk:
+        yield chunk
+
+
+def _orthogonal_rss(r_aug: np.ndarray) -> tuple[float, int]:
+    """(RSS of r orthogonal to J's column space, that space's dimension) from R of [J r] = QR.
+
+    As an SVD of J with its columns scaled to unit norm (norm 0: left as they are), the directions of singular value
+    above RANK_TOL of the largest spanning the space: J D^-1 = Q R_J D^-1 = (Q W) S V^T with R_J D^-1 = W S V^T, and
+    Q^T r = z, R's last column above its corner rho. The RSS is rho^2 plus z's parts along W's dropped directions."""
+    m = r_aug.shape[1] - 1
+    rj, z = r_aug[:m, :m], r_aug[:m, m]
+    norm = np.linalg.norm(rj, axis=0)
+    w, sv, _ = np.linalg.svd(rj / np.where(norm > 0, norm, 1.0))
+    keep = sv > RANK_TOL * sv[0]
+    rho2 = float(r_aug[m, m] ** 2) if r_aug.shape[0] > m else 0.0
+    return rho2 + float(np.sum((w[:, ~keep].T @ z) ** 2)), int(keep.sum())
 
 
 def structure_test(

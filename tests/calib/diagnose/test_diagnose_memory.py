@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
-from trackcal.calib.diagnose import diagnose
+from trackcal.calib.diagnose import crossval, diagnose, fits, structure
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension
 from trackcal.calib.diagnose.joint_map_fit import HeldOutMap, MapEvidence, _fold_ids, fit_error_map
 from trackcal.calib.doe.poses import random_poses
@@ -137,3 +137,98 @@ def test_diagnose_peak_grows_by_at_most_20_kb_per_row():
         peaks.append(peak)
         rows.append(len(table))
     assert (peaks[1] - peaks[0]) / (rows[1] - rows[0]) <= 20 * 1024
+
+
+@pytest.fixture(scope="module")
+def map_cause():
+    """A diagnosis's context of a KR-270 twin campaign (200 poses of 400 drawn feasible, each seen with three points
+    and one or two stations, but the last 10 poses without their first point: ~870 rows) with a joint error map's
+    extension as a cause beside the geometric model: order 32 on the joints that turn over ~6 rad (1, 4 and 6: 192
+    coefficients; over the narrower arcs of the others, harmonics of that order are not told apart), a candidate of
+    231 columns."""
+    twin = Twin(CELL, seed=5, effects={"cyclic_error": 0.05})
+    table = simulate_campaign(twin, np.degrees(random_poses(CELL, 400, np.random.default_rng(5))))
+    last, first = sorted(set(table.pose))[-10:], table.point[0]
+    keep = [i for i in range(len(table)) if table.pose[i] not in last or table.point[i] != first]
+    table = table.subset(np.array(keep))
+    params = irreducible_params(CELL.chain)[0]
+    geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, ())
+    q = np.radians(table.q_deg)
+    arcs = {j: Arc.covering(q[:, j]) for j in (0, 3, 5)}
+    ctx.features["map"] = map_extension(q, names=[nm for j in arcs for nm in harmonic_names(j, 32)], arcs=arcs)
+    fits.extension_of(ctx, ("map",))  # the combined extension, cached in the context before any fit
+    return ctx
+
+
+def test_a_candidate_fit_keeps_no_jacobian(map_cause):
+    """A whole-table fit kept in the context (ctx.fits) keeps its Gram matrix and J^T r (n_cols^2 and n_cols
+    float64), and per row its residuals and its Problem's layout of the rows (angles, measurements,
+    whitening, indices): under 64 float64 per row. Before issue 41 it kept its Jacobian, 3 n_cols float64 per row
+    (231 columns here: 5.5 KB per row)."""
+    ctx = map_cause
+    fit, kept, _ = traced(lambda: fits.whole_fit(ctx, ("map",)))
+    n, m = len(ctx.table), fit.n_cols
+    assert m > 200
+    assert kept <= (m * m + m + 64 * n) * F64 < 3 * n * m * F64 / 4
+
+
+def dense_orthogonal_rss(r: np.ndarray, j: np.ndarray) -> tuple[float, int]:
+    """(RSS, rank) of r after least squares on j's columns as before issue 41: an SVD of the whole j, its columns
+    scaled to unit norm, the directions above RANK_TOL of the largest singular value kept."""
+    norm = np.linalg.norm(j, axis=0)
+    u, sv, _ = np.linalg.svd(j / np.where(norm > 0, norm, 1.0), full_matrices=False)
+    u = u[:, sv > structure.RANK_TOL * sv[0]]
+    return float(r @ r - np.sum((u.T @ r) ** 2)), u.shape[1]
+
+
+def test_the_fits_users_give_the_dense_results(map_cause, monkeypatch):
+    """Cross-validation, the trainable check and the end-frame test's least squares, with the fit's Jacobian rows
+    formed on demand (a fold's; chunks of whole poses), give what the whole Jacobian gave (the formulas before issue
+    41, computed here from the Jacobian formed at the solution)."""
+    ctx = map_cause
+    fit = fits.whole_fit(ctx, ("map",))
+    n = len(ctx.table)
+    r, jm = fit.problem.residual_and_jacobian(fit.state)
+    gram, grad = jm.T @ jm, jm.T @ r
+    folds = crossval.fold_rows(ctx.table, "pose", 5, 0)
+    sq = np.zeros(n)
+    for test in folds:
+        te3 = (3 * test[:, None] + np.arange(3)).ravel()
+        jt, rt = jm[te3], r[te3]
+        g = gram - jt.T @ jt
+        d = np.sqrt(np.diag(g))
+        step = np.linalg.solve(g / np.outer(d, d), (grad - jt.T @ rt) / d) / d
+        e = np.einsum("nij,nj->ni", ctx.unwhiten[test], (rt - jt @ step).reshape(-1, 3))
+        sq[test] += np.sum(e**2, axis=1)
+        assert crossval.trainable(ctx, ("map",), test) == fits.identifiable(g)
+    # the Gram matrix summed in another order (rounding ~1e-13 of its entries) through the folds' solves
+    np.testing.assert_allclose(crossval.cross_validate(ctx, ("map",), folds).sq, sq, rtol=1e-8)
+
+    # the end-frame test's least squares over chunks of 100 rows (several chunks, and rows of poses seen with fewer
+    # than three points apart), each usable pose's end-frame directions a random orthonormal 6-column basis: no
+    # model column lies in them, so the ranks are clear of rounding
+    monkeypatch.setattr(structure, "STRUCTURE_CHUNK", 100)
+    rng = np.random.default_rng(1)
+    pose_arr = np.array(ctx.table.pose)
+    poses = []
+    for p in sorted(set(ctx.table.pose)):
+        rows = np.flatnonzero(pose_arr == p)
+        if len({ctx.table.point[i] for i in rows}) >= 3:
+            poses.append((rows, np.linalg.qr(rng.standard_normal((3 * len(rows), 6)))[0]))
+    assert len(poses) < len(set(ctx.table.pose))
+    los = ctx.table.xyz / np.linalg.norm(ctx.table.xyz, axis=1)[:, None]
+    scales = (los, 0.8, 1.3)  # any scales along and across the line of sight: the rescaling is linear
+    rs = structure._rescale(fit.r.reshape(n, 3), *scales)
+    j = structure._rescale(jm.reshape(n, 3, -1), *scales).reshape(3 * n, -1)
+    before = [dense_orthogonal_rss(rs.ravel(), j)]
+    rp = rs.reshape(-1).copy()
+    for rows, u in poses:
+        rr = (3 * rows[:, None] + np.arange(3)).ravel()
+        rp[rr] -= u @ (u.T @ rp[rr])
+        j[rr] -= u @ (u.T @ j[rr])
+    before.append(dense_orthogonal_rss(rp, j))
+    now = structure._model_rss(fit, rs, scales, poses)
+    for (rss, rank), (rss_dense, rank_dense) in zip(now, before, strict=True):
+        assert rank == rank_dense == fit.n_cols
+        assert rss == pytest.approx(rss_dense, rel=1e-9)  # rounding of r.r through the least squares' cancellation
