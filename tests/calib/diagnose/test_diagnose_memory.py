@@ -125,10 +125,11 @@ def test_diagnose_peak_grows_by_at_most_20_kb_per_row():
     """Issue 41's goal: what a diagnosis's peak grows by per row of its table, at most 20 KB (a 100k-row table under
     2.5 GB), measured as the slope of the traced peak between two KR-270 twin campaigns of one kind (a joint error
     map hidden, the map searched up to order 64 on six joints: a dense Jacobian row alone is 3 x ~800 float64,
-    19 KB). What does not grow with the rows (imports, the Gram matrices, a piece of Jacobian rows) cancels in the
-    slope; before issue 41's third step it was 65 KB per row."""
+    19 KB), ~2,700 and ~6,200 rows. What does not grow with the rows (imports, the Gram matrices, a piece of Jacobian
+    rows: `joint_map_fit.PIECE` rows of a fold, full from folds of 512 rows, tables of 2,560) cancels in the slope;
+    before issue 41's third step it was 65 KB per row."""
     peaks, rows = [], []
-    for n_poses in (300, 1200):
+    for n_poses in (1200, 2700):
         twin = Twin(CELL, seed=7, effects={"cyclic_error": 0.05})
         table = simulate_campaign(twin, np.degrees(random_poses(CELL, n_poses, np.random.default_rng(7))))
         params = irreducible_params(CELL.chain)[0]
