@@ -182,7 +182,9 @@ def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndar
     first, of_row = unique_rows(q)
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.values  # equal rows of the block form are equal rows of the dense features
-        if not np.array_equal(flat, flat[first][of_row]):
+        # compared a piece of rows at a time (issue 41: the whole N x e copy was the peak of a 20k-row diagnosis)
+        pieces = range(0, len(q), CHUNK_ROWS)
+        if not all(np.array_equal(flat[a : a + CHUNK_ROWS], flat[first[of_row[a : a + CHUNK_ROWS]]]) for a in pieces):
             key = np.hstack([q, feats.dense().reshape(len(q), -1)])  # the dense key's order, as before
             first, of_row = unique_rows(key)
     return first, of_row
