@@ -38,6 +38,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from trackcal.calib.diagnose.joint_map import (
     CAUSE,
     Arc,
+    JointMapError,
     harmonic_names,
     harmonics_by_joint,
     map_curve,
@@ -194,7 +195,7 @@ class HeldOutMap:
         self.lever = (rs if problem.w is None else problem.w @ rs) @ d_q
         self.q, self.names = problem.q, list(names)
         if list(problem.ext.names[len(problem.ext.names) - len(names) :]) != self.names:
-            raise ValueError("HeldOutMap: the problem's extension does not end with the map's coefficients")
+            raise JointMapError("the problem's extension does not end with the map's coefficients")
         feats = problem.ext.joint_features.columns(slice(problem.ext.size - len(names), None))
         self.feats = feats  # a view of the problem's: (N, e) values, the joint each moves
         self.of_joint = {}  # joint -> (its coefficients' names, their columns)
