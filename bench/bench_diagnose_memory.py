@@ -32,9 +32,10 @@ from trackcal.calib.io.table import write_table
 from trackcal.calib.model.cell import load_cell
 from trackcal.mocks.twin import Twin, simulate_campaign
 
-BASELINE = "5dee7f4"  # main before the map's Jacobian was formed piece by piece (issue 41, second step)
+BASELINE = "c81a048"  # main before the map's Jacobian was never held whole (issue 41, third step)
 GOAL_KB_PER_ROW = 20.0
-KR270_POSES = (680, 2700)  # about 1,500 and 6,000 rows (a pose is measured from 2.2 (station, point) pairs)
+KR270_POSES = (1200, 2700)  # about 2,700 and 6,200 rows (a pose is measured from 2.2 (station, point) pairs): both past
+# the size where a fold fills a piece of Jacobian rows (joint_map_fit.PIECE), so the slope is what grows with the rows
 CHILD = """
 import json, sys, tracemalloc
 from bench.bench_diagnose import series_b

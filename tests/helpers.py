@@ -69,6 +69,20 @@ def backlash_twin_case(cell: Cell) -> tuple[MeasurementTable, list[Param], Ident
     return table, params, identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())
 
 
+class DenseRows:
+    """A drawn problem's residual and Jacobian rows of given rows (as `ProblemRows` forms them from a Problem), and
+    its map's columns of held-out rows as they are in the Jacobian (as `HeldOutMap` gives them, unclamped)."""
+
+    def __init__(self, jm, r, pen):
+        self.jm, self.r, self.pen = jm.reshape(len(r) // 3, 3, -1), r.reshape(-1, 3), pen
+
+    def __call__(self, rows):
+        return self.r[rows].ravel(), self.jm[rows].reshape(3 * len(rows), -1)
+
+    def columns(self, rows, at=slice(None)):
+        return self(rows[at])[1][:, self.pen]
+
+
 def run_trackcal(*args, timeout=300, check=True) -> subprocess.CompletedProcess:
     """`trackcal ARGS` in a process of its own (text output captured); with check, asserts it exited 0."""
     out = subprocess.run([*TRACKCAL, *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT)

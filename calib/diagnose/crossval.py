@@ -94,7 +94,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
     except IdentificationError:
         return None
     n = len(ctx.table)
-    gram, grad = full.gram, full.jm.T @ full.r
+    gram, grad = full.gram, full.grad
     sq, count = np.zeros(n), np.zeros(n, dtype=int)
     for test in folds:
         # the training rows only for a change point's scan (a set difference per fold was 1 % of a diagnosis of the
@@ -110,8 +110,7 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
                 return None
             e = ctx.table.xyz[test] - pred
         else:
-            te3 = (3 * test[:, None] + np.arange(3)).ravel()
-            jt, rt = full.jm[te3], full.r[te3]
+            rt, jt = full.rows(test)  # the fold's rows only (the fit holds no whole Jacobian, issue 41)
             g = gram - jt.T @ jt
             if not identifiable(g):
                 return None
@@ -131,7 +130,7 @@ def trainable(ctx: Context, causes: tuple[str, ...], test: np.ndarray) -> bool:
         full = whole_fit(ctx, causes)
     except IdentificationError:
         return False
-    jt = full.jm[(3 * np.asarray(test)[:, None] + np.arange(3)).ravel()]
+    jt = full.rows(np.asarray(test))[1]
     return identifiable(full.gram - jt.T @ jt)
 
 

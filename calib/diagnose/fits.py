@@ -58,10 +58,21 @@ class Fit:
     rss: float  # whitened
     n_cols: int
     residuals: np.ndarray
-    r: np.ndarray  # whitened residual vector (3N,) at the solution
-    jm: np.ndarray  # whitened Jacobian of the prediction (3N, n_cols) at the solution
-    gram: np.ndarray  # jm^T jm, formed once (the identifiability check, every cross-validation of the fit)
+    gram: np.ndarray  # J^T J of the whitened Jacobian J at the solution (the identifiability check, cross-validation)
+    grad: np.ndarray  # J^T r
+    problem: Problem  # forms J's rows on demand (`rows`): the fit holds no (3N, n_cols) array (issue 41)
+    state: State  # the solution, as `problem` takes it
     shift: dict | None = None  # {"station", "after_t_s"}
+
+    @property
+    def r(self) -> np.ndarray:
+        """The whitened residual vector (3N,) at the solution, formed when asked for (the structure tests of the chosen
+        model ask; the fits of the other candidates are not held with it)."""
+        return self.problem.residual(self.state)
+
+    def rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The whitened residuals (3n,) and Jacobian rows (3n, n_cols) of `rows` at the solution, in that order."""
+        return self.problem.residual_and_jacobian(self.state, rows)
 
 
 @dataclass
@@ -97,8 +108,9 @@ def _whole_fit(
         np.array([values.get(key, 0.0) for key in _ext_keys(ext)]),
     )
     state = solve(problem, problem.initial, max_iter).state
-    r, jm = problem.residual_and_jacobian(state)  # one pass for both (the solution's r and jm would be two)
-    gram = jm.T @ jm
+    # summed over the row chunks: a whole Jacobian (with the joint error map among the causes, 3 x ~900 float64 per
+    # row: 22 KB per row of a KR-270 table) was held by every fit kept in ctx.fits (issue 41)
+    gram, grad, rss = problem.normal_equations(state)
     if not identifiable(gram):
         raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
     return Fit(
@@ -107,12 +119,13 @@ def _whole_fit(
         {p: state.points[i] for i, p in enumerate(problem.point_ids)},
         state.ext,
         ext,
-        float(r @ r),
+        rss,
         problem.n_cols,
         problem.xyz - problem.predicted(state),
-        r=r,
-        jm=jm,
         gram=gram,
+        grad=grad,
+        problem=problem,
+        state=state,
     )
 
 

@@ -38,6 +38,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from trackcal.calib.diagnose.joint_map import (
     CAUSE,
     Arc,
+    JointMapError,
     harmonic_names,
     harmonics_by_joint,
     map_curve,
@@ -56,28 +57,39 @@ from trackcal.calib.identify.solver import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import (
-    Extension,
-    combine,
-)
+from trackcal.calib.model.extension import Extension, JointFeatures, combine
 from trackcal.calib.model.params import Param
 
 ORDERS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidate harmonic orders H
 TAUS_RAD = tuple(np.geomspace(1e-6, 1e-2, 17))  # candidate prior RMS of one coefficient: 1 urad .. 10 mrad
 LEVER_RATIO = 1e-3  # a joint whose lever is below this fraction of the largest one is not mapped
 GN_ITERATIONS = 6
+PIECE = 512  # rows of Jacobian formed at once where the whole is not held (3 x 512 x ~700 float64: 8.6 MB)
+
+
+class ProblemRows(NamedTuple):
+    """The whitened residual (3 n,) and Jacobian rows (3 n, m) of a problem at a state, of any n rows (in that order),
+    formed when asked: a linearised problem keeps this, not its Jacobian (issue 41)."""
+
+    problem: Problem
+    state: State
+
+    def __call__(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.problem.residual_and_jacobian(self.state, rows)
 
 
 class Linearised(NamedTuple):
     """The map search's problem linearised at `start` (the fit without the map) with the map's coefficients of the
-    largest order searched at zero: what `MapEvidence` forms again for the same start, base and coefficients."""
+    largest order searched at zero: what `MapEvidence` forms again for the same start, base and coefficients. Its
+    Jacobian is not held (3N x ~700 float64, 16 KB per row of the UR10's Series B, issue 41): its Gram matrix and
+    J^T r are, and `rows` forms the Jacobian rows of any rows when asked."""
 
     start: object
     base: Extension | None
     table: MeasurementTable
     names: list[str]
-    r: np.ndarray
-    jm: np.ndarray
+    rr: float  # r.r of the whitened residual r
+    rows: ProblemRows
     gram: np.ndarray
     rhs: np.ndarray
     held: HeldOutMap
@@ -167,7 +179,12 @@ class HeldOutMap:
     neither is clamped; predicted with the clamped map, unseen poses were 17x worse than with the geometric model).
 
     The column of coefficient e of joint j at row r is lever_j(r) * phi_e(q_j(r)), lever_j the whitened derivative
-    of the reflector position in the station frame by joint j (as `Problem` forms it), phi_e the harmonic."""
+    of the reflector position in the station frame by joint j (as `Problem` forms it), phi_e the harmonic. The
+    harmonics are the problem's own map features (the last of its extension's: the whole table's arcs hold every
+    row, and an angle inside an arc is not moved, so they are the same values) except at a held-out row whose angle
+    lies beyond the training rows' arc of its joint: those are formed again, clamped. Nothing is kept per fold but
+    its arcs (issue 41: a cache of the held-out harmonics was 6 KB per row, and their sines and cosines 3 % of a
+    diagnosis of Series B)."""
 
     def __init__(self, problem: Problem, state: State, names: list[str]):
         q = problem.q
@@ -177,63 +194,80 @@ class HeldOutMap:
         rs = np.array([st.rotation for st in state.stations])[problem.st_idx]
         self.lever = (rs if problem.w is None else problem.w @ rs) @ d_q
         self.q, self.names = problem.q, list(names)
-        self.joints = sorted({parse_name(nm)[2] for nm in names})
-        self._columns: dict[tuple, tuple] = {}  # the same folds are asked again (orders, models of Rejudge)
-        self._cached = 0  # harmonics values in the cache
+        if list(problem.ext.names[len(problem.ext.names) - len(names) :]) != self.names:
+            raise JointMapError("the problem's extension does not end with the map's coefficients")
+        feats = problem.ext.joint_features.columns(slice(problem.ext.size - len(names), None))
+        self.feats = feats  # a view of the problem's: (N, e) values, the joint each moves
+        self.of_joint = {}  # joint -> (its coefficients' names, their columns)
+        for i, nm in enumerate(self.names):
+            names_j, cols_j = self.of_joint.setdefault(parse_name(nm)[2], ([], []))
+            names_j.append(nm)
+            cols_j.append(i)
+        self._arcs: dict[bytes, dict[int, Arc]] = {}  # each fold's training arcs (the same folds are asked again)
 
-    def columns(self, test: np.ndarray, names: list[str] | None = None) -> np.ndarray:
-        """(3 len(test), len(names)) map columns of the `test` rows (indices), clamped to the arcs of the other rows
-        (`names`: a subset of the map's coefficients, default all)."""
-        key = (np.asarray(test).tobytes(), None if names is None else tuple(names))
-        if key not in self._columns:
+    def _training_arcs(self, test: np.ndarray) -> dict[int, Arc]:
+        key = test.tobytes()
+        if key not in self._arcs:
             train = np.setdiff1d(np.arange(len(self.q)), test)
-            arcs = {j: Arc.covering(self.q[train, j]) for j in self.joints}
-            names = self.names if names is None else names
-            # one fold set's harmonics at most (the rows once): an older fold set's leave first (issue 41: the
-            # search's folds, the edge folds of the held-out test and Rejudge's were three sets, 11 KB per row)
-            while self._columns and self._cached + len(test) * len(names) > len(self.q) * len(self.names):
-                _, old = self._columns.pop(next(iter(self._columns)))
-                self._cached -= sum(v.size for _, _, v in old)
-            self._columns[key] = (len(names), list(harmonics_by_joint(self.q[test], names, arcs)))
-            self._cached += len(test) * len(names)
-        n_cols, harmonics = self._columns[key]
-        # the cache holds the harmonics (a row's values, a third of its three coordinates' columns: issue 41, the
-        # cached columns were 65 KB per row of a diagnosis of Series B); the columns are their products with the
-        # levers, formed on each call, the same products as before and so the same values, written in place when a
-        # group's columns are a slice (the whole map's names, s1 c1 s2 c2 ..., and an order's: a product and its
-        # scatter by a list of columns took twice as long, 6 % of a diagnosis of Series B under py-spy)
-        lever, out = self.lever[test], np.empty((len(test), 3, n_cols))
-        for j, cols, values in harmonics:  # a coefficient moves its own joint only
-            if isinstance(cols, slice):
-                np.multiply(lever[:, :, j, None], values[:, None, :], out=out[:, :, cols])
-            else:
-                out[:, :, cols] = lever[:, :, j, None] * values[:, None, :]
-        return out.reshape(3 * len(test), -1)
+            self._arcs[key] = {j: Arc.covering(self.q[train, j]) for j in self.of_joint}
+        return self._arcs[key]
+
+    def columns(self, test: np.ndarray, at: slice = slice(None)) -> np.ndarray:
+        """(3 n, e) map columns of the n rows test[at] (`test`: the held-out rows, indices), clamped to the arcs of
+        the rows not in `test`."""
+        test = np.asarray(test)
+        rows = test[at]
+        values, q = self.feats.values[rows], self.q[rows]
+        for j, arc in self._training_arcs(test).items():
+            beyond = np.flatnonzero(arc.clamp(q[:, j])[1])
+            if len(beyond):
+                names, cols = self.of_joint[j]
+                for _, sub, vals in harmonics_by_joint(q[beyond], names, {j: arc}):
+                    values[np.ix_(beyond, np.asarray(cols)[sub])] = vals
+        out = np.empty((len(rows), 3, values.shape[1]))
+        JointFeatures(values, self.feats.joint, self.feats.n).lever_columns(self.lever[rows], out)
+        return out.reshape(3 * len(rows), -1)
 
 
-class FoldGrams:
-    """The held-out rows' part jm[hold]^T jm[hold] of the Gram matrix of the Jacobian jm, per fold of one fold
-    assignment, formed once: the cross-validations of one linearised problem share their folds (issue 26: the
-    map's search and its comparison without the map; the models of `Rejudge`, which differ in their columns)."""
+def _linearised(problem: Problem, state: State, start, base, table, names, normal: tuple) -> Linearised:
+    """The Linearised problem of `problem` at `state` (`normal`: its normal equations, (J^T J, J^T r, r.r))."""
+    gram, rhs, rr = normal
+    unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
+    rows = ProblemRows(problem, state)
+    return Linearised(start, base, table, names, rr, rows, gram, rhs, HeldOutMap(problem, state, names), unwhiten)
 
-    def __init__(self, jm: np.ndarray):
-        self.jm = jm
-        self.grams: dict[int, np.ndarray] = {}
 
-    def __call__(self, k: int, hold: np.ndarray) -> np.ndarray:
-        if k not in self.grams:
-            jk = self.jm[hold]
-            self.grams[k] = jk.T @ jk
-        return self.grams[k]
+class FoldParts:
+    """Each fold's held-out part of the normal equations of one linearised problem, (J_k^T J_k, J_k^T r_k), with the
+    held-out rows' residual r_k and their Jacobian's unpenalised columns `free`, formed from `rows` (`ProblemRows`, or
+    any callable giving the residual and Jacobian rows of given rows) `PIECE` rows at a time: the whole Jacobian is
+    never held (issue 41). Kept per fold with `keep`: the cross-validations of one linearised problem share their
+    folds (issue 26: the map's search and its comparison without the map; the models of `MapEvidence`)."""
 
-    def columns(self, keep: np.ndarray):
-        """The downdates of jm[:, keep]: blocks of the whole ones."""
-        return lambda k, hold: self(k, hold)[np.ix_(keep, keep)]
+    def __init__(self, rows, free: np.ndarray, keep: bool = True):
+        self.rows, self.free, self.keep = rows, free, keep
+        self.parts: dict[int, tuple] = {}
+
+    def __call__(self, k: int, held: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(J_k^T J_k, J_k^T r_k, r_k, J_k[:, free]) of fold k, its held-out rows `held`."""
+        if k in self.parts:
+            return self.parts[k]
+        g = b = None
+        rk, jf = [], []
+        for a in range(0, len(held), PIECE):
+            r, j = self.rows(held[a : a + PIECE])
+            g, b = (j.T @ j, j.T @ r) if g is None else (g + j.T @ j, b + j.T @ r)
+            rk.append(r)
+            jf.append(j[:, self.free])
+        out = (g, b, np.concatenate(rk), np.concatenate(jf))
+        if self.keep:
+            self.parts[k] = out
+        return out
 
 
 def _cv_scores(
-    jm,
-    r,
+    parts,
+    n_rows: int,
     gram,
     rhs,
     unwhiten,
@@ -242,82 +276,78 @@ def _cv_scores(
     orders_cols,
     lambdas,
     held: HeldOutMap | None = None,
-    downdate=None,
     executor: Executor | None = None,
     per_row: bool = False,
 ):
     """(held-out whitened sum of squares, held-out sum of squares in mm^2), each (orders, lambdas), for every
-    order and ridge on the problem linearised at (jm, r); with `per_row`, also every order's squared held-out error
+    order and ridge on a linearised problem of `n_rows` rows; with `per_row`, also every order's squared held-out error
     of every row at the first ridge ((N, orders) mm^2, summed over its coordinates and the folds that held it out) and
     how many folds held it out. `fold`: the fold of every row (N,), or a list of held-out row indices (folds that need
-    not partition the rows: edge folds). jm (3N, m) Jacobian, r (3N,) residual, whitened,
-    gram = jm^T jm and rhs = jm^T r; unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm;
-    pen_cols the penalised columns at the largest order; orders_cols[i] the subset of them kept at order i; `held`
-    (its coefficients those of pen_cols, in order): the held-out rows' map columns clamped to the training rows'
-    arcs; `downdate(k, hold)` the held-out rows' part of gram (jm[hold]^T jm[hold]) if already known. The folds are
-    solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
-    free = np.setdiff1d(np.arange(jm.shape[1]), pen_cols)
+    not partition the rows: edge folds). gram = J^T J and rhs = J^T r of the whitened Jacobian J (m columns) and
+    residual r; `parts(k, rows)` fold k's (J_k^T J_k, J_k^T r_k, r_k, J_k's unpenalised columns) (`FoldParts`);
+    unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm; pen_cols the penalised columns at the largest
+    order; orders_cols[i] the subset of them kept at order i; `held` (its coefficients those of pen_cols, in order;
+    needed when an order keeps a column): the held-out rows' map columns clamped to the training rows' arcs. The folds
+    are solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
+    free = np.setdiff1d(np.arange(len(gram)), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
     groups = (
         [np.flatnonzero(fold == k) for k in np.unique(fold)]
         if isinstance(fold, np.ndarray)
         else [np.sort(g) for g in fold]
     )
-    n_rows = len(r) // 3
 
     def scores(k):
         ss = np.zeros((len(orders_cols), len(lambdas)))
         ss_mm = np.zeros_like(ss)
         rows = groups[k]
-        hold = np.zeros(n_rows, dtype=bool)
-        hold[rows] = True
-        hold = np.repeat(hold, 3)
-        jk, rk = jm[hold], r[hold]
-        if downdate is None:  # the fold's part formed here, and the training rows' Gram matrix in its place
-            g = jk.T @ jk
-            np.subtract(gram, g, out=g)
-        else:
-            g = gram - downdate(k, hold)
-        b = rhs - jk.T @ rk
-        # predicted as predict will: the map clamped to the training rows' arcs (each order's columns taken from these,
-        # the same values as when they were written into jk first, in the same layout)
-        jmap = None if held is None else held.columns(rows)
+        g_k, b_k, rk, j_free = parts(k, rows)
+        g, b = gram - g_k, rhs - b_k  # the training rows' normal equations
         first = np.empty((len(rows), len(orders_cols)))
         # the Schur complement of every penalised column; an order's is its block (its columns a subset); none when
         # no order keeps a column (the comparison without the map: its 650 x 650 block was formed and not read)
         kept = pen_cols if any(len(cols) for cols in orders_cols) else pen_cols[:0]
         gaa_inv, gpf, schur_all, bf_all = _eliminated(g, b, free, kept)
-        j_free = jk[:, free]
-        for i, cols in enumerate(orders_cols):
-            at = np.searchsorted(kept, cols)
+        solved = []  # every order's (unpenalised solution, map coefficients, their columns among pen_cols)
+        for cols in orders_cols:
+            pos = np.searchsorted(kept, cols)
             # an order that keeps every column reads the whole Schur complement, not a copy of it
-            gaf, schur, bf = gpf[:, at], schur_all if len(at) == len(kept) else schur_all[np.ix_(at, at)], bf_all[at]
+            gaf, bf = gpf[:, pos], bf_all[pos]
+            schur = schur_all if len(pos) == len(kept) else schur_all[np.ix_(pos, pos)]
             if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
                 h = schur.copy()  # schur + lam I: the ridge added to the diagonal alone (no identity formed)
                 h.flat[:: len(h) + 1] += lam[0]
                 c = np.linalg.solve(h, bf)[:, None]
             else:
                 c = ridge_path(schur, bf, lam)  # (p, L): every ridge
-            a = gaa_inv @ (b[free][:, None] - gaf @ c)
-            j_map = jk[:, cols] if jmap is None else jmap[:, np.searchsorted(pen_cols, cols)]
-            e = rk[:, None] - j_free @ a - j_map @ c  # (3 n_k, L)
-            ss[i] += np.sum(e**2, axis=0)
-            if unwhiten is not None:
-                e = np.einsum("nij,njl->nil", unwhiten[rows], e.reshape(-1, 3, len(lam))).reshape(e.shape)
-            ss_mm[i] += np.sum(e**2, axis=0)
-            first[:, i] = np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1)
+            solved.append((gaa_inv @ (b[free][:, None] - gaf @ c), c, np.searchsorted(pen_cols, cols)))
+        # the held-out errors `PIECE` rows at a time, the map's columns predicted as predict will (clamped to the
+        # training rows' arcs) formed once per piece for every order: never the fold's whole (issue 41)
+        for a0 in range(0, len(rows), PIECE):
+            at, at3 = slice(a0, a0 + PIECE), slice(3 * a0, 3 * (a0 + PIECE))
+            jmap = held.columns(rows, at) if held is not None and len(kept) else None
+            for i, (a, c, idx) in enumerate(solved):
+                e = rk[at3, None] - j_free[at3] @ a  # (3 n, L)
+                if len(idx):  # the columns of an order that keeps them all read in place
+                    e -= (jmap if len(idx) == jmap.shape[1] else jmap[:, idx]) @ c
+                ss[i] += np.sum(e**2, axis=0)
+                if unwhiten is not None:
+                    e = np.einsum("nij,njl->nil", unwhiten[rows[at]], e.reshape(-1, 3, len(lam))).reshape(e.shape)
+                ss_mm[i] += np.sum(e**2, axis=0)
+                first[at, i] = np.sum(e[:, 0].reshape(-1, 3) ** 2, axis=1)
         return ss, ss_mm, first
 
-    parts = list((map if executor is None else executor.map)(scores, range(len(groups))))
-    return _summed(parts, groups, n_rows, per_row)
+    out = list((map if executor is None else executor.map)(scores, range(len(groups))))
+    return _summed(out, groups, n_rows, per_row)
 
 
 def _eliminated(g: np.ndarray, b: np.ndarray, free: np.ndarray, kept: np.ndarray) -> tuple:
     """(gaa^-1, g_af, Schur complement, its right-hand side): the normal equations (g, b) with the unpenalised block
     `free` eliminated from the penalised columns `kept` (a = gaa^-1 (b_a - g_af c)); column scaling keeps the inverse
-    accurate."""
+    accurate. A training set of a few rows leaves a column's sum of squares at the rounding of the downdate, which
+    can fall below zero: such a column counts as zero."""
     gaa = g[np.ix_(free, free)]
-    sa = np.sqrt(np.diag(gaa))
+    sa = np.sqrt(np.maximum(np.diag(gaa), 0.0))
     sa[sa == 0] = 1.0
     gaa_inv = np.linalg.pinv(gaa / np.outer(sa, sa), rcond=1e-12) / np.outer(sa, sa)
     gpf = g[np.ix_(free, kept)]
@@ -374,10 +404,11 @@ def _searched(
     cross-validation over `fold` on the linearised problem `lin`; `pen_all` the map's columns at the largest order,
     `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
     orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
-    downdate, n_coord = FoldGrams(lin.jm), 3 * len(lin.table)
+    n_rows = len(lin.table)
+    parts, n_coord = FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all)), 3 * n_rows
     ss, ss_mm = _cv_scores(
-        lin.jm,
-        lin.r,
+        parts,
+        n_rows,
         lin.gram,
         lin.rhs,
         lin.unwhiten,
@@ -386,11 +417,10 @@ def _searched(
         orders_cols,
         [s2 / t**2 for t in taus_rad],
         lin.held,
-        downdate,
         executor,
     )
     _, without_mm = _cv_scores(
-        lin.jm, lin.r, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, downdate, executor
+        parts, n_rows, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, executor
     )
     i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
     cv_table = [
@@ -443,24 +473,20 @@ def fit_error_map(
     ext = _with_base(base, map_extension(q, names=names_max, arcs=arcs))
     problem = Problem(chain, table, geo.points, params, noise, extension=ext)
     state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names_max))]))
-    r, jm = problem.residual_and_jacobian(state)
+    # the normal equations summed over row chunks: the Jacobian (3N x ~700) is never held whole (issue 41)
+    normal = problem.normal_equations(state)
     pen_all = len(params) + n_base + np.arange(len(names_max))
-    s2 = float(r @ r) / max(len(r) - problem.n_cols + len(names_max), 1)  # residual variance without the map
+    s2 = normal[2] / max(3 * len(table) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
     if search:
-        unwhiten = None if problem.w is None else np.linalg.inv(problem.w)
-        gram, rhs = jm.T @ jm, jm.T @ r
-        held = HeldOutMap(problem, state, names_max)
-        linearised = Linearised(geo, base, table, names_max, r, jm, gram, rhs, held, unwhiten)
+        linearised = _linearised(problem, state, geo, base, table, names_max, normal)
         order, tau, cv_rms, cv_without, cv_table = _searched(
             linearised, pen_all, _fold_ids(table, folds, seed), orders, taus_rad, s2, executor
         )
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
-    if len(names) == len(names_max):  # the search's problem and its Jacobian at the start
-        res, edf = _penalised_fit(
-            problem, state, pen_all[0], len(names), s2 / tau**2, (r, jm, gram if search else jm.T @ jm)
-        )
+    if len(names) == len(names_max):  # the search's problem and its normal equations at the start
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, normal)
     else:
         ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
         problem = Problem(chain, table, geo.points, params, noise, extension=ext)
@@ -498,9 +524,10 @@ def held_out_errors(
     cols = pen[[parse_name(nm)[1] <= order for nm in lin.names]]
     # with the map and without it (no order's columns) in one pass over the folds: each fold's Gram downdate, held-out
     # rows and unpenalised block formed once for both
+    free = np.setdiff1d(np.arange(len(lin.gram)), pen)
     *_, sq, count = _cv_scores(
-        lin.jm,
-        lin.r,
+        FoldParts(lin.rows, free, keep=False),  # edge folds are asked once
+        len(lin.table),
         lin.gram,
         lin.rhs,
         lin.unwhiten,
@@ -509,7 +536,6 @@ def held_out_errors(
         [cols, pen[:0]],
         [mf.ridge],
         lin.held,
-        None,
         executor,
         per_row=True,
     )
@@ -548,31 +574,21 @@ class MapEvidence:
             ext = _with_base(base, map_extension(np.radians(table.q_deg), names=names, arcs=fit.arcs))
             problem = Problem(chain, table, start.points, params, noise, extension=ext)
             state = _state_from(problem, start, np.concatenate([start.ext, np.zeros(len(names))]))
-            r, jm = problem.residual_and_jacobian(state)
-            lin = Linearised(
-                start,
-                base,
-                table,
-                names,
-                r,
-                jm,
-                jm.T @ jm,
-                jm.T @ r,
-                HeldOutMap(problem, state, names),
-                None if problem.w is None else np.linalg.inv(problem.w),
-            )
-        self.r, self.jm, self.gram, self.rhs, self.held, self.unwhiten = (
-            lin.r,
-            lin.jm,
+            lin = _linearised(problem, state, start, base, table, names, problem.normal_equations(state))
+        self.rr, self.rows, self.gram, self.rhs, self.held, self.unwhiten = (
+            lin.rr,
+            lin.rows,
             lin.gram,
             lin.rhs,
             lin.held,
             lin.unwhiten,
         )
+        self.n_rows = len(table)
         self.k, self.x_base = len(params), np.asarray(start.ext, dtype=float)
         self.n_pen = len(names)
         self.ridge = fit.ridge
         self.pen = self.k + len(self.x_base) + np.arange(self.n_pen)  # the map's columns
+        self.free = np.setdiff1d(np.arange(len(self.gram)), self.pen)
         self.base_cols = self.k + np.arange(len(self.x_base))  # the base extension's columns
         # column scaling (the column norms of the Jacobian) keeps the factorisations accurate
         self.scale = np.sqrt(np.diag(self.gram))
@@ -581,7 +597,7 @@ class MapEvidence:
         self.ridge_s[self.pen] = self.ridge / self.scale[self.pen] ** 2
         self._whole = None  # (Cholesky factor of the whole table's H, its solution, H^-1 E, diag H^-1 on the map)
         self.fold_sets: dict[bytes, list | None] = {}  # per fold assignment: each fold's factor and held-out rows
-        self.downdates: dict[bytes, FoldGrams] = {}  # the one-by-one path's fold Gram matrices
+        self.parts: dict[bytes, FoldParts] = {}  # per fold assignment: each fold's part of the normal equations
 
     def _factor(self, gram: np.ndarray, rhs: np.ndarray):
         """(Cholesky factor of the scaled penalised H, scaled solution d0, scaled H^-1 E for every base column)."""
@@ -615,60 +631,71 @@ class MapEvidence:
         step, low = self._step(d0, w, drop)
         if low is not None:  # a model's H^-1 is the whole one's less W (E^T H^-1 E)^-1 W^T
             h_inv_diag = h_inv_diag - np.einsum("ij,jk,ik->i", low[0][self.pen], low[1], low[0][self.pen])
-        rss = float(np.sum((self.r - self.jm @ step) ** 2))
+        # |r - J d|^2 from the normal equations (the Jacobian is not held)
+        rss = self.rr - 2.0 * float(step @ self.rhs) + float(step @ self.gram @ step)
         # (H^-1 G)_ii = 1 - ridge_i (H^-1)_ii over the map's columns (G = H - ridge)
         edf = float(np.sum(1.0 - self.ridge_s[self.pen] * h_inv_diag))
-        return rss, self.jm.shape[1] - len(drop) - self.n_pen + edf
+        return rss, len(self.gram) - len(drop) - self.n_pen + edf
+
+    def _parts(self, fold: np.ndarray) -> FoldParts:
+        return self.parts.setdefault(fold.tobytes(), FoldParts(self.rows, self.free))
 
     def _folds(self, fold: np.ndarray) -> list | None:
-        """Each fold's (d0, H^-1 E, held-out row indices, their Jacobian rows' mask); None when a training set cannot
-        identify the whole model."""
+        """Each fold's (d0, H^-1 E, held-out row indices, fold); None when a training set cannot identify the whole
+        model."""
         key = fold.tobytes()
         if key not in self.fold_sets:
-            out, row_fold = [], np.repeat(fold, 3)
+            out, parts = [], self._parts(fold)
             for k in np.unique(fold):
-                hold = row_fold == k
-                jk = self.jm[hold]
+                rows = np.flatnonzero(fold == k)
+                g_k, b_k, _, _ = parts(k, rows)
                 try:
-                    _, d0, w = self._factor(self.gram - jk.T @ jk, self.rhs - jk.T @ self.r[hold])
+                    _, d0, w = self._factor(self.gram - g_k, self.rhs - b_k)
                 except np.linalg.LinAlgError:  # not positive definite: this training set cannot identify it
                     out = None
                     break
-                out.append((d0, w, np.flatnonzero(fold == k), hold))
+                out.append((d0, w, rows, k))
             self.fold_sets[key] = out
         return self.fold_sets[key]
-
-    def _held_rows(self, rows: np.ndarray, hold: np.ndarray) -> np.ndarray:
-        """The held-out rows' Jacobian with the map's columns as predict sees them: formed on each call, the same
-        values each time (issue 41: kept per fold they were a second whole Jacobian, 16 KB per row of Series B)."""
-        jk = self.jm[hold]
-        jk[:, self.pen[0] : self.pen[-1] + 1] = self.held.columns(rows)  # the map's columns are a run: a slice's copy
-        return jk
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:
         """Held-out RMS of one coordinate (mm) over `fold` (the fold of every row), base parameters `drop` at 0."""
         folds = self._folds(fold)
         if folds is None:
             return self._cv_rms_one_by_one(fold, drop)
-        ss = 0.0
-        for d0, w, rows, hold in folds:
-            e = self.r[hold] - self._held_rows(rows, hold) @ self._step(d0, w, drop)[0]
+        ss, parts = 0.0, self._parts(fold)
+        for d0, w, rows, k in folds:
+            step = self._step(d0, w, drop)[0]
+            _, _, rk, j_free = parts(k, rows)
+            e = rk - j_free @ step[self.free]
+            # the map's columns as predict sees them (clamped to the training rows' arcs), `PIECE` rows at a time
+            for a0 in range(0, len(rows), PIECE):
+                e[3 * a0 : 3 * (a0 + PIECE)] -= self.held.columns(rows, slice(a0, a0 + PIECE)) @ step[self.pen]
             if self.unwhiten is not None:
                 e = np.einsum("nij,nj->ni", self.unwhiten[rows], e.reshape(-1, 3)).ravel()
             ss += float(e @ e)
-        return float(np.sqrt(ss / len(self.r)))
+        return float(np.sqrt(ss / (3 * self.n_rows)))
 
     def _cv_rms_one_by_one(self, fold: np.ndarray, drop: tuple[int, ...]) -> float:
+        """cv_rms_mm by `_cv_scores` (the unpenalised block by pseudo-inverse) on the model with `drop` removed: its
+        residual r + J_gone x (x the removed parameters' fitted values), its folds' parts those of the whole model
+        less the removed columns."""
         gone = self.k + np.asarray(drop, dtype=int)
-        keep = np.setdiff1d(np.arange(self.jm.shape[1]), gone)
+        keep = np.setdiff1d(np.arange(len(self.gram)), gone)
         pen = np.flatnonzero(np.isin(keep, self.pen))
         x = self.x_base[list(drop)]
-        r = self.r + self.jm[:, gone] @ x
         rhs = self.rhs[keep] + self.gram[np.ix_(keep, gone)] @ x
-        whole = self.downdates.setdefault(fold.tobytes(), FoldGrams(self.jm))
+        whole, at_gone = self._parts(fold), np.searchsorted(self.free, gone)  # the base's columns are unpenalised
+        stay = np.setdiff1d(np.arange(len(self.free)), at_gone)
+
+        def parts(k, rows):
+            g, b, rk, j_free = whole(k, rows)
+            moved = (b[keep] + g[np.ix_(keep, gone)] @ x, rk + j_free[:, at_gone] @ x)
+            return g[np.ix_(keep, keep)], *moved, j_free[:, stay]
+
         _, ss_mm = _cv_scores(
-            self.jm[:, keep],
-            r,
+            parts,
+            self.n_rows,
             self.gram[np.ix_(keep, keep)],
             rhs,
             self.unwhiten,
@@ -677,9 +704,8 @@ class MapEvidence:
             [pen],
             [self.ridge],
             self.held,
-            whole.columns(keep),
         )
-        return float(np.sqrt(ss_mm[0, 0] / len(r)))
+        return float(np.sqrt(ss_mm[0, 0] / (3 * self.n_rows)))
 
 
 def _with_base(base: Extension | None, ext: Extension) -> Extension:
@@ -692,46 +718,41 @@ def _penalised_fit(
     k0: int,
     n_map: int,
     lam: float,
-    at_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    at_start: tuple[np.ndarray, np.ndarray, float] | None = None,
 ) -> tuple[Identification, float]:
     """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
-    `state`, the fit without the map (`at_start`: its residual, Jacobian and Gram matrix if already formed):
+    `state`, the fit without the map (`at_start`: its normal equations (J^T J, J^T r, r.r) if already formed):
     (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
 
     It stops as `calib.identify.solver.solve` does: when a step, or all the steps still to come after it (the rate of
     the last two steps telling their sum), moves the fit by less than 1e-9 of the residual (issue 26: two
     Gauss-Newton steps on Series B where a fixed test on the step alone took five, each a Jacobian of ~700 columns;
     the steps skipped were below 2e-9 of the residual). The covariance is taken with the Jacobian of the state
-    before the last step."""
+    before the last step. Each step's normal equations are summed over row chunks (`Problem.normal_equations`), and
+    |J d| is sqrt(d^T J^T J d): the Jacobian (3N x ~700 float64) is never held whole (issue 41)."""
     pen = np.zeros(problem.n_cols)
     pen[k0 : k0 + n_map] = lam
     converged, prev, iterations = False, 0.0, 0
-    if at_start is None:
-        r, jm = problem.residual_and_jacobian(state)
-        gram = jm.T @ jm
-    else:
-        r, jm, gram = at_start
+    gram, rhs, rr = problem.normal_equations(state) if at_start is None else at_start
     for _ in range(GN_ITERATIONS):
         scale = np.sqrt(np.diag(gram))
         scale[scale == 0] = 1.0
         x = np.zeros(problem.n_cols)
         x[k0 : k0 + n_map] = state.ext[k0 - len(problem.params) :]
-        ds = np.linalg.solve(gram / np.outer(scale, scale) + np.diag(pen / scale**2), (jm.T @ r - pen * x) / scale)
+        ds = np.linalg.solve(gram / np.outer(scale, scale) + np.diag(pen / scale**2), (rhs - pen * x) / scale)
         state = problem.retract(state, ds / scale)
         iterations += 1
-        step, tol = float(np.linalg.norm(jm @ (ds / scale))), 1e-9 * float(np.linalg.norm(r))
+        d = ds / scale
+        step, tol = float(np.sqrt(max(float(d @ gram @ d), 0.0))), 1e-9 * float(np.sqrt(rr))
         rate = step / prev if prev > 0 else 1.0
         if step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol):
             # the last step moved the fit by a small multiple of 1e-9 of the residual: the covariance keeps the
-            # Jacobian of the state before it (its entries differ by ~1e-9 relative), and a Jacobian of ~700
-            # columns and its Gram matrix (a third of the fit's time) are not formed again
+            # Gram matrix of the state before it (its entries differ by ~1e-9 relative), and the normal equations of
+            # ~700 columns (a third of the fit's time) are not formed again
             converged = True
             break
-        jm = gram = None  # the last Jacobian let go before the next is formed: one held, not two (issue 41)
-        r, jm = problem.residual_and_jacobian(state)
-        gram = jm.T @ jm
+        gram, rhs, rr = problem.normal_equations(state)
         prev = step
-    jm = None  # the covariance needs the Gram matrix alone: the Jacobian is not held meanwhile (issue 41)
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)

@@ -25,11 +25,14 @@ from trackcal.calib.model.rigid import skew
 STRUCTURE_HARMONICS = 6
 RANDOM_FEATURES = 48
 RANK_TOL = 1e-9  # relative singular value below which a column direction counts as dependent
+STRUCTURE_CHUNK = 1024  # rows (of whole poses) whose Jacobian rows are formed at once: 3 x 1024 x n_cols float64
 RIDGES = np.geomspace(1e-4, 1e4, 17)  # ridge values (relative to the mean squared feature times their count)
 
 
 def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: int) -> np.ndarray:
-    """(3N, p) whitened regressors a residual with structure would correlate with."""
+    """(3N, p) whitened regressors a residual with structure would correlate with, each column of unit norm. Written
+    into one array group by group, whitened and scaled in place (issue 41: their concatenation, whitening and
+    scaling were four copies, 22 KB per row of a KR-270 campaign)."""
     q = np.radians(table.q_deg)
     n_rows, n = q.shape
     tool = np.array([fit.points[p] for p in table.point])
@@ -40,47 +43,73 @@ def _structure_features(ctx: Context, fit: Fit, table: MeasurementTable, seed: i
     t = table.t_s - table.t_s.min()
     t = t / max(float(t.max()), 1e-300)
     signs = approach_signs(q)
-    cols = []
+    stations = sorted(set(table.station))
+    per_joint = 2 * STRUCTURE_HARMONICS + 2
+    feats = np.zeros((n_rows, 3, n * per_joint + 3 * len(stations) + 3 * RANDOM_FEATURES))
+    h = np.arange(1, STRUCTURE_HARMONICS + 1)
     for j in range(n):
-        h = np.arange(1, STRUCTURE_HARMONICS + 1)
         basis = np.column_stack([np.sin(np.outer(q[:, j], h)), np.cos(np.outer(q[:, j], h)), signs[:, j], t])
-        cols.append(dq[:, :, j, None] * basis[:, None, :])
-    for sid in sorted(set(table.station)):
+        np.multiply(dq[:, :, j, None], basis[:, None, :], out=feats[:, :, j * per_joint : (j + 1) * per_joint])
+    at = n * per_joint
+    for i, sid in enumerate(stations):
         m = (np.array(table.station) == sid).astype(float) * t
-        cols.append(m[:, None, None] * np.eye(3)[None])
+        for c in range(3):  # a drift of the station along its axis c
+            feats[:, c, at + 3 * i + c] = m
+    at += 3 * len(stations)
     x = np.column_stack([np.sin(q), np.cos(q), t])
     rng = np.random.default_rng(seed)
     w = rng.standard_normal((x.shape[1], RANDOM_FEATURES))
     phase = rng.uniform(0, 2 * np.pi, RANDOM_FEATURES)
     rff = np.cos(x @ w + phase)
-    cols.append(np.einsum("nm,ab->nabm", rff, np.eye(3)).reshape(n_rows, 3, 3 * RANDOM_FEATURES))
-    feats = np.concatenate(cols, axis=2)
+    for c in range(3):  # random Fourier features of the angles and time, in each coordinate
+        feats[:, c, at + c * RANDOM_FEATURES : at + (c + 1) * RANDOM_FEATURES] = rff
     if ctx.noise is not None:
-        feats = np.einsum("nij,njp->nip", ctx.noise.whitening(table.xyz), feats)
+        wh = ctx.noise.whitening(table.xyz)
+        for a0 in range(0, n_rows, 1024):  # in place, a block of rows at a time
+            sl = slice(a0, a0 + 1024)
+            feats[sl] = wh[sl] @ feats[sl]
     feats = feats.reshape(3 * n_rows, -1)
-    norm = np.linalg.norm(feats, axis=0)
-    return feats[:, norm > 0] / norm[norm > 0]
+    norm = np.sqrt(np.einsum("ij,ij->j", feats, feats))
+    if np.any(norm == 0):
+        feats, norm = feats[:, norm > 0], norm[norm > 0]
+    feats /= norm
+    return feats
 
 
-def _ridge_fit(x: np.ndarray, y: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """(len(lams), p) ridge coefficients (x^T x + lam I)^-1 x^T y for every ridge value, from one tridiagonal
-    reduction of x^T x (`ridge_path`). Before issue 26 an SVD of x gave the same for 5x the cost (x has thousands of
-    rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x (eps times its
+def _ridge_fit(gram: np.ndarray, rhs: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """(len(lams), p) ridge coefficients (x^T x + lam I)^-1 x^T y for every ridge value, from x^T x and x^T y, by one
+    tridiagonal reduction (`ridge_path`). Before issue 26 an SVD of x gave the same for 5x the cost (x has thousands
+    of rows and ~230 unit columns). The smallest ridge (RIDGES) is far above the rounding of x^T x (eps times its
     largest eigenvalue), so the digits squaring loses do not reach the coefficients."""
-    return ridge_path(x.T @ x, x.T @ y, lams).T
+    return ridge_path(gram, rhs, lams).T
 
 
-def _ridge_predict(x_tr: np.ndarray, y_tr: np.ndarray, x_te: np.ndarray, pose_tr: np.ndarray) -> np.ndarray:
-    """Ridge regression, the ridge chosen by an inner 3-fold cross-validation over the training poses
-    (rows of a pose share their error, so rows are not independent enough for leave-one-out or GCV)."""
-    lams = RIDGES * float(np.mean(x_tr**2)) * x_tr.shape[1]
-    poses = np.unique(pose_tr)
+def _ridge_predict(
+    x: np.ndarray, y: np.ndarray, gram: np.ndarray, rhs: np.ndarray, test: np.ndarray, pose_idx: np.ndarray
+) -> np.ndarray:
+    """Ridge regression on every row (`x`, `y` by coordinate; gram = x^T x, rhs = x^T y) but the `test` rows,
+    predicting the `test` rows' coordinates; the ridge chosen by an inner 3-fold cross-validation over the training
+    poses (rows of a pose share their error, so rows are not independent enough for leave-one-out or GCV). Every fit
+    from Gram matrices, the whole table's less the rows left out, each group of rows taken once (issue 41: the
+    training rows' copies, four per fold, were 15 KB per row of a KR-270 campaign)."""
+    te3 = _coords(test)
+    x_te = x[te3]
+    g_tr, b_tr = gram - x_te.T @ x_te, rhs - x_te.T @ y[te3]
+    lams = RIDGES * float(np.trace(g_tr)) / (len(y) - len(te3))  # the mean squared feature times their count
+    train = np.setdiff1d(np.arange(len(pose_idx)), test)
+    pose_tr = pose_idx[train]
     sse = np.zeros(len(lams))
-    for g in np.array_split(poses, 3):
-        inner = np.isin(pose_tr, g)
-        coef = _ridge_fit(x_tr[~inner], y_tr[~inner], lams)
-        sse += np.sum((y_tr[inner][None] - coef @ x_tr[inner].T) ** 2, axis=1)
-    return x_te @ _ridge_fit(x_tr, y_tr, lams[[int(np.argmin(sse))]])[0]
+    for g in np.array_split(np.unique(pose_tr), 3):
+        c3 = _coords(train[np.isin(pose_tr, g)])
+        x_g, y_g = x[c3], y[c3]
+        coef = _ridge_fit(g_tr - x_g.T @ x_g, b_tr - x_g.T @ y_g, lams)
+        sse += np.sum((y_g[None] - coef @ x_g.T) ** 2, axis=1)
+    return x_te @ _ridge_fit(g_tr, b_tr, lams[[int(np.argmin(sse))]])[0]
+
+
+def _coords(rows: np.ndarray) -> np.ndarray:
+    """The coordinates (3 per row) of `rows`, in order."""
+    return (3 * np.asarray(rows)[:, None] + np.arange(3)).ravel()
 
 
 def smoother_test(
@@ -95,11 +124,11 @@ def smoother_test(
     x = _structure_features(ctx, fit, table, seed)
     pose_idx = np.unique(np.array(table.pose), return_inverse=True)[1]
 
+    gram, rhs = x.T @ x, x.T @ y
+
     def fold_gain(test: np.ndarray) -> np.ndarray:
-        train = np.setdiff1d(np.arange(len(table)), test)
-        tr3 = (3 * train[:, None] + np.arange(3)).ravel()
-        te3 = (3 * test[:, None] + np.arange(3)).ravel()
-        pred = _ridge_predict(x[tr3], y[tr3], x[te3], np.repeat(pose_idx[train], 3))
+        te3 = _coords(test)
+        pred = _ridge_predict(x, y, gram, rhs, test, pose_idx)
         return np.sum((y[te3] ** 2 - (y[te3] - pred) ** 2).reshape(-1, 3), axis=1)
 
     gain = np.zeros(len(table))
@@ -143,30 +172,20 @@ def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | N
     cols = np.einsum("nij,njk->nik", rot, frame)  # (N, 3, 6): end-frame translation and rotation
     if ctx.noise is not None:
         cols = np.einsum("nij,njk->nik", ctx.noise.whitening(table.xyz), cols)
-    r, jm = fit.r.reshape(n_rows, 3), fit.jm.reshape(n_rows, 3, -1)
+    r = fit.r.reshape(n_rows, 3)
     # the line of sight stays an eigen-direction of the tracker-model whitening: rescale along and across it
     los = table.xyz / np.linalg.norm(table.xyz, axis=1)[:, None]
     along = np.einsum("ni,ni->n", los, r)
     k_along = np.sqrt(np.mean(along**2))
     k_across = np.sqrt(np.mean(np.sum(r**2, axis=1) - along**2) / 2.0)
-
-    def rescale(v: np.ndarray) -> np.ndarray:
-        a = np.einsum("ni,ni...->n...", los, v)
-        return (v - np.einsum("ni,n...->ni...", los, a)) / k_across + np.einsum("ni,n...->ni...", los, a) / k_along
-
-    r, jm, cols = rescale(r), rescale(jm), rescale(cols)
-    rss0 = _orthogonal_rss(r.ravel(), _basis(jm.reshape(3 * n_rows, -1)))
-    rank_b = 0
+    scales = (los, k_along, k_across)
+    r, cols = _rescale(r, *scales), _rescale(cols, *scales)
+    bases = []
     for rows in usable:
-        b = cols[rows].reshape(-1, 6)
-        u, sv, _ = np.linalg.svd(b, full_matrices=False)
-        u = u[:, sv > RANK_TOL * sv[0]]
-        rank_b += u.shape[1]
-        rp, jp = r[rows].ravel(), jm[rows].reshape(-1, jm.shape[2])
-        r[rows] = (rp - u @ (u.T @ rp)).reshape(-1, 3)
-        jm[rows] = (jp - u @ (u.T @ jp)).reshape(len(rows), 3, -1)
-    basis = _basis(jm.reshape(3 * n_rows, -1))
-    rss1, rank_mj = _orthogonal_rss(r.ravel(), basis), basis.shape[1]
+        u, sv, _ = np.linalg.svd(cols[rows].reshape(-1, 6), full_matrices=False)
+        bases.append(u[:, sv > RANK_TOL * sv[0]])
+    rank_b = sum(u.shape[1] for u in bases)
+    (rss0, _), (rss1, rank_mj) = _model_rss(fit, r, scales, list(zip(usable, bases, strict=True)))
     df1 = rank_b + rank_mj - fit.n_cols
     df2 = 3 * n_rows - rank_b - rank_mj
     if df1 <= 0 or df2 <= 0 or rss1 <= 0:
@@ -182,16 +201,75 @@ def pose_frame_test(ctx: Context, fit: Fit, table: MeasurementTable) -> dict | N
     }
 
 
-def _basis(m: np.ndarray) -> np.ndarray:
-    """Orthonormal basis of the column space of m (columns scaled to unit norm first)."""
-    m = m / np.where(np.linalg.norm(m, axis=0) > 0, np.linalg.norm(m, axis=0), 1.0)
-    u, sv, _ = np.linalg.svd(m, full_matrices=False)
-    return u[:, sv > RANK_TOL * sv[0]]
+def _rescale(v: np.ndarray, los: np.ndarray, k_along: float, k_across: float) -> np.ndarray:
+    """v (n, 3, ...) divided by k_along along each row's line of sight `los` (n, 3), by k_across across it."""
+    a = np.einsum("ni,ni...->n...", los, v)
+    return (v - np.einsum("ni,n...->ni...", los, a)) / k_across + np.einsum("ni,n...->ni...", los, a) / k_along
 
 
-def _orthogonal_rss(r: np.ndarray, basis: np.ndarray) -> float:
-    """Residual sum of squares of r after least squares on an orthonormal basis."""
-    return float(r @ r - np.sum((basis.T @ r) ** 2))
+def _model_rss(fit: Fit, r: np.ndarray, scales: tuple, poses: list[tuple[np.ndarray, np.ndarray]]) -> tuple:
+    """((RSS, rank), (RSS, rank)) of the rescaled residuals r (N, 3) after least squares on the fit's rescaled
+    Jacobian (`_rescale` by `scales`), then with each pose's end-frame directions (its rows, an orthonormal basis u
+    of its rows' end-frame columns) projected out of both.
+
+    The Jacobian's rows are formed a chunk of whole poses at a time (`Fit.rows`), never all at once (issue 41: 22 KB
+    per row of a KR-270 table with the joint error map among the causes), and reduced to R of [J r] = QR (TSQR).
+    R holds everything the least squares needs: J and R share their column norms and singular values, and the part
+    of r in J's column space is Q^T r (`_orthogonal_rss`). R keeps J's singular values to rounding, as an SVD of J
+    does, so the rank rule is J's (RANK_TOL); J^T J summed instead would square them, its rounding (1e-16 of the
+    largest eigenvalue) standing for singular values of 1e-8, above the rule's 1e-9: the directions the rule drops
+    (the end-frame projection of a 40-pose twin campaign's backlash fit has some at 3e-10 and 1e-15 of the largest)
+    would be counted."""
+    others = np.setdiff1d(np.arange(len(r)), np.concatenate([rows for rows, _ in poses]))
+    groups = poses + [(others[i : i + STRUCTURE_CHUNK], None) for i in range(0, len(others), STRUCTURE_CHUNK)]
+    acc = [np.zeros((0, fit.n_cols + 1))] * 2
+    for chunk in _chunks(groups):
+        rows = np.concatenate([g for g, _ in chunk])
+        jc = _rescale(fit.rows(rows)[1].reshape(len(rows), 3, -1), scales[0][rows], *scales[1:])
+        a = np.column_stack([jc.reshape(3 * len(rows), -1), r[rows].ravel()])
+        acc[0] = np.linalg.qr(np.vstack([acc[0], a]), mode="r")
+        first = 0
+        for g, u in chunk:
+            if u is not None:
+                a[first : first + 3 * len(g)] -= u @ (u.T @ a[first : first + 3 * len(g)])
+            first += 3 * len(g)
+        acc[1] = np.linalg.qr(np.vstack([acc[1], a]), mode="r")
+    norm = np.linalg.norm(acc[0][: fit.n_cols, : fit.n_cols], axis=0)  # J's column norms, before any projection
+    return _orthogonal_rss(acc[0], norm), _orthogonal_rss(acc[1], norm)
+
+
+def _chunks(groups: list[tuple]):
+    """The groups (rows, ...) in runs of at least STRUCTURE_CHUNK rows (the last: what is left)."""
+    chunk, n = [], 0
+    for g in groups:
+        chunk.append(g)
+        n += len(g[0])
+        if n >= STRUCTURE_CHUNK:
+            yield chunk
+            chunk, n = [], 0
+    if chunk:
+        yield chunk
+
+
+def _orthogonal_rss(r_aug: np.ndarray, norm: np.ndarray) -> tuple[float, int]:
+    """(RSS of r orthogonal to J's column space, that space's dimension) from R of [J r] = QR.
+
+    As an SVD of J with its columns divided by `norm` (J's own before the end frames were projected out; 0: left as
+    they are), the directions of singular value above RANK_TOL of the largest spanning the space: J D^-1 = Q R_J D^-1
+    = (Q W) S V^T with R_J D^-1 = W S V^T, and Q^T r = z, R's last column above its corner rho. The RSS is rho^2 plus
+    z's parts along W's dropped directions.
+
+    The norms before the projection: a column the end frames take whole (a joint's angle error, a link's length: an
+    end-frame motion at every pose) is left as rounding, ~1e-16 of its norm, and counts as dependent. Scaled by its
+    own norm after the projection (before issue 41) that rounding became a unit column, counted in the rank, and
+    the residuals' parts along such columns, rounding's own directions, moved the F statistic: a change of 1e-15 of
+    the Jacobian's entries moved the predictable fraction of a joint map's fit from 0.30 to 0.49."""
+    m = r_aug.shape[1] - 1
+    rj, z = r_aug[:m, :m], r_aug[:m, m]
+    w, sv, _ = np.linalg.svd(rj / np.where(norm > 0, norm, 1.0))
+    keep = sv > RANK_TOL * sv[0]
+    rho2 = float(r_aug[m, m] ** 2) if r_aug.shape[0] > m else 0.0
+    return rho2 + float(np.sum((w[:, ~keep].T @ z) ** 2)), int(keep.sum())
 
 
 def structure_test(

@@ -33,6 +33,8 @@ from trackcal.calib.model.params import Param
 from trackcal.calib.model.rigid import RigidError, exp_so3, kabsch, skew
 
 CHUNK_ROWS = 4096  # rows per chunk of the normal equations: ~1 MB of Jacobian, cache-sized
+CHUNK_BYTES = 2**23  # and at most 8 MB of a chunk's Jacobian blocks (rows x 3 x columns float64): a problem of many
+# columns (the joint error map's ~700) takes fewer rows at once (issue 41: 4,096 of its rows were 78 MB)
 # The covariance's R factor comes from the Cholesky factor of the normal equations at the solution when the
 # column-scaled Jacobian's condition number is at most this (R then carries rounding of about eps * cond^2 = 2e-12
 # relative at most, where the R of a QR of the Jacobian carries eps * cond); above it, from that QR (issue 41)
@@ -180,7 +182,9 @@ def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndar
     first, of_row = unique_rows(q)
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.values  # equal rows of the block form are equal rows of the dense features
-        if not np.array_equal(flat, flat[first][of_row]):
+        # compared a piece of rows at a time (issue 41: the whole N x e copy was the peak of a 20k-row diagnosis)
+        pieces = range(0, len(q), CHUNK_ROWS)
+        if not all(np.array_equal(flat[a : a + CHUNK_ROWS], flat[first[of_row[a : a + CHUNK_ROWS]]]) for a in pieces):
             key = np.hstack([q, feats.dense().reshape(len(q), -1)])  # the dense key's order, as before
             first, of_row = unique_rows(key)
     return first, of_row
@@ -237,6 +241,7 @@ class Rows:
         self.station_rows = [_selector(np.flatnonzero(self.st_idx == i)) for i in range(len(self.station_ids))]
         self.q = np.radians(table.q_deg)
         self.xyz = table.xyz
+        self._chunks: dict[int, list[_Chunk]] = {}
 
     def fits(self, chain: Chain, table: MeasurementTable, tool_points, noise, feats: JointFeatures | None) -> bool:
         """Were these rows laid out for this set-up (the same objects, an equal noise model)?"""
@@ -254,11 +259,14 @@ class Rows:
     def w(self) -> np.ndarray | None:
         return None if self.noise is None else self.noise.whitening(self.xyz)
 
-    @cached_property
-    def chunks(self) -> list[_Chunk]:
-        """Chunks of rows, pose by pose, for the normal equations: memory stays bounded whatever the table size."""
-        order = np.argsort(self.poses[1], kind="stable")
-        return [self.chunk(rows) for rows in np.array_split(order, max(1, -(-len(self.q) // CHUNK_ROWS)))]
+    def chunks(self, size: int = CHUNK_ROWS) -> list[_Chunk]:
+        """Chunks of at most `size` rows, pose by pose, for the normal equations: memory stays bounded whatever the
+        table size (made once per size)."""
+        if size not in self._chunks:
+            order = np.argsort(self.poses[1], kind="stable")
+            parts = np.array_split(order, max(1, -(-len(self.q) // size)))
+            self._chunks[size] = [self.chunk(rows) for rows in parts]
+        return self._chunks[size]
 
     def chunk(self, rows: np.ndarray) -> _Chunk:
         n_pt = len(self.point_ids)
@@ -378,7 +386,8 @@ class Problem:
             for p in range(self.n_pt):
                 cols = np.r_[np.arange(self.c_st), self.c_st + 6 * s + np.arange(6), c_pt + 3 * p + np.arange(3)]
                 self.columns[s, p] = cols, np.ix_(cols, cols)
-        self.chunks = rows.chunks
+        self.chunks = rows.chunks(max(1, min(CHUNK_ROWS, CHUNK_BYTES // (24 * (self.c_st + 9)))))
+        self._q_at: tuple[bytes, np.ndarray] | None = None  # (extension values, joint angles with their offsets)
         self._dev0 = np.zeros(self.k) if dev0 is None else np.array(dev0, dtype=float)
         self._ext0 = np.zeros(self.e) if ext0 is None else np.array(ext0, dtype=float)
 
@@ -402,8 +411,15 @@ class Problem:
         return r if self.w is None else _whitened(self.w, r)
 
     def _q(self, s: State) -> np.ndarray:
-        off = None if self.ext is None else self.ext.joint_offsets(s.ext)
-        return self.q if off is None else self.q + off
+        """The rows' joint angles with the extension's offsets at s (rad), kept for the last extension values asked:
+        a state's Jacobian rows are formed a chunk or a piece of rows at a time, and each formed every row's offsets
+        (issue 41: N^2 / piece work in the joint map's folds, the same values each time)."""
+        if self.ext is None or self.ext.joint_features is None:
+            return self.q
+        key = s.ext.tobytes()
+        if self._q_at is None or self._q_at[0] != key:
+            self._q_at = (key, self.q + self.ext.joint_offsets(s.ext))
+        return self._q_at[1]
 
     def _growth(self, s: State) -> np.ndarray | None:
         return None if self.ext is None else self.ext.growth_of(s.ext)
@@ -513,7 +529,18 @@ class Problem:
     def normal_equations(self, s: State) -> tuple[np.ndarray, np.ndarray, float]:
         """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks from the Jacobian's
         non-zero blocks: the rows of one (station, point) pair touch only the robot's, that station's and that
-        point's columns (the whole Jacobian is never held)."""
+        point's columns (the whole Jacobian is never held). A problem whose robot and extension columns outnumber
+        the stations' and points' eight times (the joint error map's ~700) sums each chunk's rows at once: one
+        product, where a product and a scatter of a ~700 x 700 block per pair cost more than the few zeros skipped."""
+        if self.c_st > 8 * (6 * self.n_st + 3 * self.n_pt):
+            info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
+            for ch in self.chunks:
+                r, jc = self._blocks(s, ch)
+                jd = self._dense(ch, jc)
+                info += jd.T @ jd
+                grad += jd.T @ r.ravel()
+                cost += float(np.vdot(r, r))
+            return info, grad, cost
         info, grad, cost = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all), 0.0
         for ch in self.chunks:
             r, jc = self._blocks(s, ch)

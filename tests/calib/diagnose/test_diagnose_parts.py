@@ -103,12 +103,14 @@ def test_map_evidence_matches_direct_penalised_fits(kr270):
     mf = fit_error_map(ctx.chain, ctx.table, ctx.geo.points, ctx.params, base=base, orders=(2, 4))
     ev = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, mf)
     fold = np.arange(len(ctx.table)) % 4
+    # the dense Jacobian, which MapEvidence never holds (it works from the normal equations and each fold's rows)
+    r0, jm = ev.rows(np.arange(len(ctx.table)))
     for drop in ((), tuple(range(base.size))):
         gone = ev.k + np.array(drop, dtype=int)
-        keep = np.setdiff1d(np.arange(ev.jm.shape[1]), gone)
+        keep = np.setdiff1d(np.arange(jm.shape[1]), gone)
         pen = np.isin(keep, ev.k + base.size + np.arange(ev.n_pen))
-        r = ev.r + ev.jm[:, gone] @ ev.x_base[list(drop)]
-        j = ev.jm[:, keep]
+        r = r0 + jm[:, gone] @ ev.x_base[list(drop)]
+        j = jm[:, keep]
 
         def solve(rows3, j=j, r=r, pen=pen):
             aug = np.vstack([j[rows3], np.sqrt(ev.ridge) * np.eye(len(pen))[pen]])
@@ -206,23 +208,23 @@ def test_time_folds_cut_at_a_change_point_train_on_both_sides_of_it(n1, n2, afte
 
 def test_map_evidence_reuses_the_searchs_problem_only_where_it_is_the_same(kr270):
     # issue 26: the re-judging linearises at the fit the map's search started from; from the same start, base and
-    # coefficients it takes the search's Jacobian, Gram matrix and held-out columns, and every figure equals the
-    # one it forms itself
+    # coefficients it takes the search's linearisation (its Jacobian's rows when asked, Gram matrix and held-out
+    # columns), and every figure equals the one it forms itself
     ctx = kr270_context(kr270, {"encoder_scale": 3e-4, "cyclic_error": 2e-4}, n_poses=30)
     base = build_extension("encoder_scale", ctx.chain, ctx.table)
     start = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
     mf = fit_error_map(ctx.chain, ctx.table, ctx.geo.points, ctx.params, base=base, orders=(4,), start=start)
     shared = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, mf)
     own = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, dataclasses.replace(mf, linearised=None))
-    assert shared.jm is mf.linearised.jm and own.jm is not mf.linearised.jm
+    assert shared.rows is mf.linearised.rows and own.rows is not mf.linearised.rows
     fold = np.arange(len(ctx.table)) % 5
     for drop in ((), (0,), tuple(range(base.size))):
         assert shared.whole(drop) == own.whole(drop)
         assert shared.cv_rms_mm(fold, drop) == own.cv_rms_mm(fold, drop)
     # another start (the same fit, another object), another base or a lower order: it forms its own
     other = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
-    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, other, mf).jm is not mf.linearised.jm
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, other, mf).rows is not mf.linearised.rows
     again = build_extension("encoder_scale", ctx.chain, ctx.table)
-    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, again, start, mf).jm is not mf.linearised.jm
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, again, start, mf).rows is not mf.linearised.rows
     lower = dataclasses.replace(mf, orders={j: 2 for j in mf.orders})
-    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, lower).jm is not mf.linearised.jm
+    assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, lower).rows is not mf.linearised.rows

@@ -9,18 +9,30 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from studies.ur10_ipa.study import DATA, SERIES
-from tests.helpers import backlash_twin_case
+from tests.helpers import DenseRows, backlash_twin_case
 from trackcal.calib.diagnose import crossval, diagnose, fits
+from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension, map_features, parse_name
-from trackcal.calib.diagnose.joint_map_fit import FoldGrams, HeldOutMap, _cv_scores
-from trackcal.calib.diagnose.structure import RIDGES, _ridge_fit
+from trackcal.calib.diagnose.joint_map_fit import FoldParts, HeldOutMap, _cv_scores
+from trackcal.calib.diagnose.structure import (
+    RANDOM_FEATURES,
+    RIDGES,
+    STRUCTURE_HARMONICS,
+    _coords,
+    _ridge_fit,
+    _ridge_predict,
+    _structure_features,
+)
 from trackcal.calib.identify import solver
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import Problem, State, Station, _distinct_poses
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.extension import JointFeatures
+from trackcal.calib.model.kinematics import Kinematics
 from trackcal.calib.model.rigid import exp_so3
 from trackcal.campaign.cli import main
 
@@ -72,34 +84,25 @@ def test_map_features_equal_one_call_per_coefficient():
     assert np.array_equal(feats, ref)
 
 
-def test_fold_downdates_formed_once_give_the_same_scores():
+def test_fold_parts_formed_once_give_the_same_scores():
+    # each fold's part of the normal equations is formed once and kept for the next cross-validation of the same
+    # problem (the map's search and its comparison without the map): the same scores bit for bit, and the held-out
+    # rows' residual and unpenalised columns those of the Jacobian
     rng = np.random.default_rng(5)
     jm, r = rng.standard_normal((300, 30)), rng.standard_normal(300)
     fold = np.repeat(np.arange(5), 20)[rng.permutation(100)]
     pen, gram, rhs = np.arange(10, 30), jm.T @ jm, jm.T @ r
-    orders = [pen[:10], pen]
-    plain = _cv_scores(jm, r, gram, rhs, None, pen, fold, orders, [0.1, 1.0, 10.0])
-    grams = FoldGrams(jm)
+    orders, rows, free = [pen[:10], pen], DenseRows(jm, r, pen), np.arange(10)
+    plain = _cv_scores(FoldParts(rows, free, keep=False), 100, gram, rhs, None, pen, fold, orders, [0.1, 1.0], rows)
+    kept = FoldParts(rows, free)
     for _ in range(2):  # formed the first time, reused the second
-        fast = _cv_scores(jm, r, gram, rhs, None, pen, fold, orders, [0.1, 1.0, 10.0], None, grams)
+        fast = _cv_scores(kept, 100, gram, rhs, None, pen, fold, orders, [0.1, 1.0], rows)
         assert all(np.array_equal(a, b) for a, b in zip(plain, fast, strict=True))
-    keep = np.r_[0:5, 10:30]  # a model without some unpenalised columns: blocks of the whole downdates
-    pen_k = np.arange(5, 25)
-    sub = _cv_scores(jm[:, keep], r, gram[np.ix_(keep, keep)], rhs[keep], None, pen_k, fold, [pen_k], [1.0])
-    fast = _cv_scores(
-        jm[:, keep],
-        r,
-        gram[np.ix_(keep, keep)],
-        rhs[keep],
-        None,
-        pen_k,
-        fold,
-        [pen_k],
-        [1.0],
-        None,
-        grams.columns(keep),
-    )
-    assert np.allclose(sub[0], fast[0], rtol=1e-12, atol=0)
+    held = np.flatnonzero(fold == 3)
+    g, b, rk, j_free = kept(3, held)
+    coords = (3 * held[:, None] + np.arange(3)).ravel()
+    assert np.array_equal(rk, r[coords]) and np.array_equal(j_free, jm[coords][:, free])
+    assert np.allclose(g, jm[coords].T @ jm[coords], rtol=1e-12, atol=1e-12 * np.abs(g).max())
 
 
 def test_ridge_path_from_the_gram_matrix_equals_the_svd():
@@ -111,7 +114,7 @@ def test_ridge_path_from_the_gram_matrix_equals_the_svd():
     lams = RIDGES * float(np.mean(x**2)) * x.shape[1]
     u, s, vt = np.linalg.svd(x, full_matrices=False)  # before issue 26
     ref = np.array([vt.T @ (s / (s**2 + lam) * (u.T @ y)) for lam in lams])
-    fast = _ridge_fit(x, y, lams)
+    fast = _ridge_fit(x.T @ x, x.T @ y, lams)
     assert np.allclose(x @ fast.T, x @ ref.T, rtol=1e-9, atol=1e-12 * np.linalg.norm(y))  # the predictions
     assert np.allclose(fast, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
 
@@ -261,8 +264,9 @@ def test_threads_give_the_same_diagnosis_bit_for_bit(twin_case):
 
 
 def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_case):
-    """The held-out rows' map columns formed joint by joint (a coefficient moves its own joint only) equal the
-    columns from the dense (N, n, e) features, as formed before issue 26's last stop, bit for bit."""
+    """The held-out rows' map columns formed joint by joint (a coefficient moves its own joint only), from the
+    problem's features where a row lies inside the training rows' arcs and formed again, clamped, where it does not,
+    equal the columns from the dense (N, n, e) features, as formed before issue 26's last stop, bit for bit."""
     table, params, geo = twin_case
     q = np.radians(table.q_deg)
     arcs = {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}
@@ -279,7 +283,83 @@ def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_cas
     test = np.arange(0, len(table), 4)
     train = np.setdiff1d(np.arange(len(table)), test)
     arcs_train = {j: Arc.covering(q[train, j]) for j in arcs}
-    for subset in (None, names[::3]):
-        feats = map_features(q[test], names if subset is None else subset, arcs_train)
-        ref = np.einsum("rcj,rje->rce", held.lever[test], feats).reshape(3 * len(test), -1)
-        assert np.array_equal(held.columns(test, subset), ref)
+    assert any(arc.clamp(q[test, j])[1].any() for j, arc in arcs_train.items())  # rows beyond a training arc
+    feats = map_features(q[test], names, arcs_train)
+    ref = np.einsum("rcj,rje->rce", held.lever[test], feats).reshape(3 * len(test), -1)
+    assert np.array_equal(held.columns(test), ref)
+    # a piece of the held-out rows: its rows of the same columns
+    assert np.array_equal(held.columns(test, slice(5, 17)), ref[15:51])
+
+
+def ridge_predict_reference(x_tr, y_tr, x_te, pose_tr):
+    """structure._ridge_predict before issue 41: the training rows copied, each inner fit on copies of its rows."""
+    lams = RIDGES * float(np.mean(x_tr**2)) * x_tr.shape[1]
+    sse = np.zeros(len(lams))
+    for g in np.array_split(np.unique(pose_tr), 3):
+        inner = np.isin(pose_tr, g)
+        xi, yi = x_tr[~inner], y_tr[~inner]
+        coef = _ridge_fit(xi.T @ xi, xi.T @ yi, lams)
+        sse += np.sum((y_tr[inner][None] - coef @ x_tr[inner].T) ** 2, axis=1)
+    return x_te @ _ridge_fit(x_tr.T @ x_tr, x_tr.T @ y_tr, lams[[int(np.argmin(sse))]])[0]
+
+
+@settings(deadline=None, max_examples=20)
+@given(seed=st.integers(0, 2**32 - 1), n_poses=st.integers(12, 40), p=st.integers(3, 30))
+def test_smoother_predictions_from_gram_matrices_equal_the_copies(seed, n_poses, p):
+    # issue 41: the smoother's ridge fits from the whole table's Gram matrix less the rows left out give the
+    # predictions of the fits on copies of the training rows, to rounding (the ridge chosen the same)
+    rng = np.random.default_rng(seed)
+    pose_idx = np.repeat(np.arange(n_poses), 2)[rng.permutation(2 * n_poses)]
+    x = rng.standard_normal((3 * len(pose_idx), p))
+    y = x @ rng.standard_normal(p) * 0.3 + rng.standard_normal(len(x))
+    test = np.flatnonzero(pose_idx % 5 == 2)
+    train = np.setdiff1d(np.arange(len(pose_idx)), test)
+    tr3, te3 = _coords(train), _coords(test)
+    ref = ridge_predict_reference(x[tr3], y[tr3], x[te3], np.repeat(pose_idx[train], 3))
+    got = _ridge_predict(x, y, x.T @ x, x.T @ y, test, pose_idx)
+    assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def structure_features_reference(ctx, fit, table, seed):
+    """structure._structure_features before issue 41: the groups concatenated, then whitened, then scaled."""
+    q = np.radians(table.q_deg)
+    n_rows, n = q.shape
+    tool = np.array([fit.points[p] for p in table.point])
+    off = None if fit.extension is None else fit.extension.joint_offsets(fit.ext)
+    jac = Kinematics(ctx.chain, ctx.params).jacobian(q if off is None else q + off, tool, fit.dev)
+    rot = np.array([fit.stations[s].rotation for s in table.station])
+    dq = np.einsum("nij,njk->nik", rot, jac.d_q)
+    t = table.t_s - table.t_s.min()
+    t = t / max(float(t.max()), 1e-300)
+    signs = approach_signs(q)
+    cols = []
+    for j in range(n):
+        h = np.arange(1, STRUCTURE_HARMONICS + 1)
+        basis = np.column_stack([np.sin(np.outer(q[:, j], h)), np.cos(np.outer(q[:, j], h)), signs[:, j], t])
+        cols.append(dq[:, :, j, None] * basis[:, None, :])
+    for sid in sorted(set(table.station)):
+        m = (np.array(table.station) == sid).astype(float) * t
+        cols.append(m[:, None, None] * np.eye(3)[None])
+    x = np.column_stack([np.sin(q), np.cos(q), t])
+    rng = np.random.default_rng(seed)
+    w = rng.standard_normal((x.shape[1], RANDOM_FEATURES))
+    phase = rng.uniform(0, 2 * np.pi, RANDOM_FEATURES)
+    rff = np.cos(x @ w + phase)
+    cols.append(np.einsum("nm,ab->nabm", rff, np.eye(3)).reshape(n_rows, 3, 3 * RANDOM_FEATURES))
+    feats = np.concatenate(cols, axis=2)
+    if ctx.noise is not None:
+        feats = np.einsum("nij,njp->nip", ctx.noise.whitening(table.xyz), feats)
+    feats = feats.reshape(3 * n_rows, -1)
+    norm = np.linalg.norm(feats, axis=0)
+    return feats[:, norm > 0] / norm[norm > 0]
+
+
+def test_structure_features_written_in_place_equal_the_concatenation(twin_case):
+    # issue 41: the smoother's regressors written group by group into one array, whitened and scaled in place, are
+    # the concatenated ones to rounding (the whitening a product per block of rows, the norms summed otherwise)
+    table, params, geo = twin_case
+    ctx = fits.context(CELL.chain, table, params, TrackerNoise(), geo, ("backlash",))
+    fit = fits.whole_fit(ctx, ("backlash",))
+    ref = structure_features_reference(ctx, fit, table, 3)
+    got = _structure_features(ctx, fit, table, 3)
+    assert got.shape == ref.shape and np.allclose(got, ref, rtol=1e-12, atol=1e-14)
