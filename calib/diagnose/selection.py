@@ -217,8 +217,8 @@ class Selection:
         self.chosen = tuple(c for c in self.chosen if c != MAP)
         kept = tuple(c for c in self.fitted if c != MAP)
         fitted, removed, judged = redundant_causes(ctx, self.val, kept, mf, self.n_obs)
-        # the search's linearised problem (its Jacobian, 16 KB per row of Series B, and the held-out harmonics) served
-        # the held-out test and `Rejudge`, both done: not held while the map is judged again (issue 41)
+        # the search's linearised problem (its Problem with the map's features, 6 KB per row of Series B, and its Gram
+        # matrix) served the held-out test and `Rejudge`, both done: not held while the map is judged again (issue 41)
         mf.linearised = None
         again = None
         if removed:
