@@ -187,6 +187,10 @@ def stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
 # drivers' tests.
 UNHURRIED_STALE_S = 60.0
 STALE_KEY = {"krc2": "rsi_stale_s", "krc4": "rsi_stale_s", "ur": "stale_s", "abb": "egm_stale_s"}  # drivers/*/family.py
+# The same for the answer deadlines of the cell PLC (Modbus) and the meteo sensor (serial): the mock writes 2 s, and
+# under that load the ABB test stopped safely with "meteo /dev/pts/0: no answer to request M5 within 2.0 s" (issue 41's
+# CI run). Their timeouts are tested in the drivers' own tests.
+UNHURRIED_ANSWER_S = 30.0
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
@@ -214,8 +218,9 @@ def mock_process(
     cell: str, seed: int, hw: Path, timeout_s: float = 30.0, stdout=subprocess.PIPE, sim_speed: float | None = None
 ) -> Iterator[subprocess.Popen]:
     """`trackcal mock --cell CELL [--sim-speed X]` in its own process, yielded once it has written its hardware file
-    `hw` (its robot stream's stale limit then set to UNHURRIED_STALE_S); stopped (`stop`) at the end if still
-    running. Without sim_speed the mock runs in real time (its default)."""
+    `hw` (its robot stream's stale limit then set to UNHURRIED_STALE_S, the PLC's and the meteo's answer deadlines to
+    UNHURRIED_ANSWER_S); stopped (`stop`) at the end if still running. Without sim_speed the mock runs in real time
+    (its default)."""
     speed = [] if sim_speed is None else ["--sim-speed", repr(sim_speed)]
     proc = subprocess.Popen(
         [*TRACKCAL, "mock", "--cell", cell, "--seed", str(seed), "--write-hardware", str(hw), *speed],
@@ -229,6 +234,9 @@ def mock_process(
         text = hw.read_text()
         doc = yaml.safe_load(text)
         doc["robot"][STALE_KEY[doc["robot"]["protocol"]]] = UNHURRIED_STALE_S
+        for device in ("plc", "meteo"):
+            if device in doc:
+                doc[device]["timeout_s"] = UNHURRIED_ANSWER_S
         header = "".join(line for line in text.splitlines(keepends=True) if line.startswith("#"))  # the mock's pid
         hw.write_text(header + yaml.safe_dump(doc, sort_keys=False))
         yield proc

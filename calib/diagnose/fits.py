@@ -153,9 +153,10 @@ def warm_start(ctx: Context, causes: tuple[str, ...]) -> Fit | None:
 def identifiable(gram: np.ndarray) -> bool:
     """Whether a Gram matrix J^T J is regular (smallest / largest singular value of the column-scaled J
     above SINGULAR)."""
-    d = np.sqrt(np.diag(gram))
-    if np.any(d == 0):
+    diag = np.diag(gram)
+    if np.any(diag <= 0):  # a column without information (a training set's downdate can leave rounding below 0)
         return False
+    d = np.sqrt(diag)
     ev = np.linalg.eigvalsh(gram / np.outer(d, d))
     return bool(ev[0] >= SINGULAR**2 * ev[-1])
 
