@@ -182,7 +182,8 @@ class HeldOutMap:
     of the reflector position in the station frame by joint j (as `Problem` forms it), phi_e the harmonic. The
     harmonics are the problem's own map features (the last of its extension's: the whole table's arcs hold every
     row, and an angle inside an arc is not moved, so they are the same values) except at a held-out row whose angle
-    lies beyond the training rows' arc of its joint: those are formed again, clamped. Nothing is kept per fold but
+    lies beyond the training rows' arc of its joint (or beyond the arc its feature was clamped to): those are formed
+    again, clamped. Nothing is kept per fold but
     its arcs (issue 41: a cache of the held-out harmonics was 6 KB per row, and their sines and cosines 3 % of a
     diagnosis of Series B)."""
 
@@ -198,6 +199,7 @@ class HeldOutMap:
             raise JointMapError("the problem's extension does not end with the map's coefficients")
         feats = problem.ext.joint_features.columns(slice(problem.ext.size - len(names), None))
         self.feats = feats  # a view of the problem's: (N, e) values, the joint each moves
+        self.feature_arcs = problem.ext.meta.get("arcs", {})  # the arcs its features were clamped to
         self.of_joint = {}  # joint -> (its coefficients' names, their columns)
         for i, nm in enumerate(self.names):
             names_j, cols_j = self.of_joint.setdefault(parse_name(nm)[2], ([], []))
@@ -219,7 +221,10 @@ class HeldOutMap:
         rows = test[at]
         values, q = self.feats.values[rows], self.q[rows]
         for j, arc in self._training_arcs(test).items():
-            beyond = np.flatnonzero(arc.clamp(q[:, j])[1])
+            beyond = arc.clamp(q[:, j])[1]
+            if j in self.feature_arcs:  # a row its feature clamped (a table wider than the map's arcs) is formed again
+                beyond |= self.feature_arcs[j].clamp(q[:, j])[1]
+            beyond = np.flatnonzero(beyond)
             if len(beyond):
                 names, cols = self.of_joint[j]
                 for _, sub, vals in harmonics_by_joint(q[beyond], names, {j: arc}):

@@ -363,3 +363,29 @@ def test_structure_features_written_in_place_equal_the_concatenation(twin_case):
     ref = structure_features_reference(ctx, fit, table, 3)
     got = _structure_features(ctx, fit, table, 3)
     assert got.shape == ref.shape and np.allclose(got, ref, rtol=1e-12, atol=1e-14)
+
+
+def test_held_out_map_columns_of_rows_beyond_the_features_arcs(twin_case):
+    """A problem whose map features were clamped to arcs narrower than its rows (a map fitted on part of a table,
+    asked of the whole): a held-out row beyond them is formed again, clamped to the training rows' arcs, as the dense
+    features give it, bit for bit."""
+    table, params, geo = twin_case
+    q = np.radians(table.q_deg)
+    narrow = {j: Arc.covering(q[: len(q) // 2, j]) for j in range(CELL.chain.dof)}
+    names = [nm for j in narrow for nm in harmonic_names(j, 3)]
+    problem = Problem(
+        CELL.chain, table, geo.points, params, TrackerNoise(), extension=map_extension(q, names=names, arcs=narrow)
+    )
+    state = State(
+        geo.dev,
+        [geo.stations[s] for s in problem.station_ids],
+        np.array([geo.points[p] for p in problem.point_ids]),
+        np.zeros(len(names)),
+    )
+    held = HeldOutMap(problem, state, names)
+    test = np.arange(1, len(table), 5)
+    train = np.setdiff1d(np.arange(len(table)), test)
+    arcs_train = {j: Arc.covering(q[train, j]) for j in narrow}
+    assert any(narrow[j].clamp(q[test, j])[1].any() for j in narrow)  # rows beyond the features' arcs
+    ref = np.einsum("rcj,rje->rce", held.lever[test], map_features(q[test], names, arcs_train))
+    assert np.array_equal(held.columns(test), ref.reshape(3 * len(test), -1))
