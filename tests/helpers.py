@@ -17,10 +17,12 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from trackcal.calib.diagnose.fits import Fit, fit_cause
+from trackcal.calib.diagnose.joint_map import harmonic_names, map_extension
+from trackcal.calib.diagnose.joint_map_fit import HeldOutMap
 from trackcal.calib.doe.design import design_for_cell, random_feasible_poses
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Identification, identify
+from trackcal.calib.identify.solver import Identification, Problem, State, identify
 from trackcal.calib.identify.unknowns import campaign_params
 from trackcal.calib.io.table import MeasurementTable, read_table
 from trackcal.calib.model.cell import Cell
@@ -81,6 +83,21 @@ class DenseRows:
 
     def columns(self, rows, at=slice(None)):
         return self(rows[at])[1][:, self.pen]
+
+
+def held_out_map(cell: Cell, table: MeasurementTable, geo: Identification, params, arcs: dict, order: int):
+    """(HeldOutMap, coefficient names) of the joint error map up to `order` on `arcs` (its features clamped to them),
+    linearised at the fit `geo` with the map at zero, the tracker's weighting."""
+    names = [nm for j in arcs for nm in harmonic_names(j, order)]
+    ext = map_extension(np.radians(table.q_deg), names=names, arcs=arcs)
+    problem = Problem(cell.chain, table, geo.points, params, TrackerNoise(), extension=ext)
+    state = State(
+        geo.dev,
+        [geo.stations[s] for s in problem.station_ids],
+        np.array([geo.points[p] for p in problem.point_ids]),
+        np.zeros(len(names)),
+    )
+    return HeldOutMap(problem, state, names), names
 
 
 def run_trackcal(*args, timeout=300, check=True) -> subprocess.CompletedProcess:

@@ -123,8 +123,7 @@ def smoother_test(
     y = fit.r
     x = _structure_features(ctx, fit, table, seed)
     pose_idx = np.unique(np.array(table.pose), return_inverse=True)[1]
-
-    gram, rhs = x.T @ x, x.T @ y
+    gram, rhs = x.T @ x, x.T @ y  # the whole table's: each fold's fits take their rows' parts off
 
     def fold_gain(test: np.ndarray) -> np.ndarray:
         te3 = _coords(test)

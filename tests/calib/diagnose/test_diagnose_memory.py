@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from studies.ur10_ipa.study import DATA, SERIES
+from tests.helpers import held_out_map
 from trackcal.calib.diagnose import crossval, diagnose, fits, structure
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension
-from trackcal.calib.diagnose.joint_map_fit import HeldOutMap, MapEvidence, _fold_ids, fit_error_map
+from trackcal.calib.diagnose.joint_map_fit import MapEvidence, _fold_ids, fit_error_map
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
-from trackcal.calib.identify.solver import Problem, State, identify
+from trackcal.calib.identify.solver import identify
 from trackcal.calib.model.cell import load_cell
 from trackcal.calib.model.params import irreducible_params
 from trackcal.calib.model.subset import identifiable_subset
@@ -51,18 +52,7 @@ def test_held_out_map_keeps_nothing_per_fold_but_its_arcs():
     params = irreducible_params(CELL.chain)[0]
     geo = identify(CELL.chain, table, CELL.tool_points, params, noise=TrackerNoise())
     q = np.radians(table.q_deg)
-    arcs = {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}
-    names = [nm for j in arcs for nm in harmonic_names(j, 16)]
-    problem = Problem(
-        CELL.chain, table, geo.points, params, TrackerNoise(), extension=map_extension(q, names=names, arcs=arcs)
-    )
-    state = State(
-        geo.dev,
-        [geo.stations[s] for s in problem.station_ids],
-        np.array([geo.points[p] for p in problem.point_ids]),
-        np.zeros(len(names)),
-    )
-    held = HeldOutMap(problem, state, names)
+    held, names = held_out_map(CELL, table, geo, params, {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}, 16)
     fold = _fold_ids(table, 5, 0)
 
     def ask_every_fold():
@@ -195,7 +185,7 @@ def test_the_fits_users_give_the_dense_results(map_cause, monkeypatch):
     folds = crossval.fold_rows(ctx.table, "pose", 5, 0)
     sq = np.zeros(n)
     for test in folds:
-        te3 = (3 * test[:, None] + np.arange(3)).ravel()
+        te3 = structure._coords(test)
         jt, rt = jm[te3], r[te3]
         g = gram - jt.T @ jt
         d = np.sqrt(np.diag(g))
@@ -225,7 +215,7 @@ def test_the_fits_users_give_the_dense_results(map_cause, monkeypatch):
     before = [dense_orthogonal_rss(rs.ravel(), j)]
     rp = rs.reshape(-1).copy()
     for rows, u in poses:
-        rr = (3 * rows[:, None] + np.arange(3)).ravel()
+        rr = structure._coords(rows)
         rp[rr] -= u @ (u.T @ rp[rr])
         j[rr] -= u @ (u.T @ j[rr])
     before.append(dense_orthogonal_rss(rp, j))

@@ -13,11 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from studies.ur10_ipa.study import DATA, SERIES
-from tests.helpers import DenseRows, backlash_twin_case
+from tests.helpers import DenseRows, backlash_twin_case, held_out_map
 from trackcal.calib.diagnose import crossval, diagnose, fits
 from trackcal.calib.diagnose.extensions import approach_signs
-from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_extension, map_features, parse_name
-from trackcal.calib.diagnose.joint_map_fit import FoldParts, HeldOutMap, _cv_scores
+from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
+from trackcal.calib.diagnose.joint_map_fit import FoldParts, _cv_scores
 from trackcal.calib.diagnose.structure import (
     RANDOM_FEATURES,
     RIDGES,
@@ -100,7 +100,7 @@ def test_fold_parts_formed_once_give_the_same_scores():
         assert all(np.array_equal(a, b) for a, b in zip(plain, fast, strict=True))
     held = np.flatnonzero(fold == 3)
     g, b, rk, j_free = kept(3, held)
-    coords = (3 * held[:, None] + np.arange(3)).ravel()
+    coords = _coords(held)
     assert np.array_equal(rk, r[coords]) and np.array_equal(j_free, jm[coords][:, free])
     assert np.allclose(g, jm[coords].T @ jm[coords], rtol=1e-12, atol=1e-12 * np.abs(g).max())
 
@@ -270,16 +270,7 @@ def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_cas
     table, params, geo = twin_case
     q = np.radians(table.q_deg)
     arcs = {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}
-    names = [nm for j in arcs for nm in harmonic_names(j, 5)]
-    ext = map_extension(q, names=names, arcs=arcs)
-    problem = Problem(CELL.chain, table, geo.points, params, TrackerNoise(), extension=ext)
-    state = State(
-        geo.dev,
-        [geo.stations[s] for s in problem.station_ids],
-        np.array([geo.points[p] for p in problem.point_ids]),
-        np.zeros(len(names)),
-    )
-    held = HeldOutMap(problem, state, names)
+    held, names = held_out_map(CELL, table, geo, params, arcs, 5)
     test = np.arange(0, len(table), 4)
     train = np.setdiff1d(np.arange(len(table)), test)
     arcs_train = {j: Arc.covering(q[train, j]) for j in arcs}
@@ -372,17 +363,7 @@ def test_held_out_map_columns_of_rows_beyond_the_features_arcs(twin_case):
     table, params, geo = twin_case
     q = np.radians(table.q_deg)
     narrow = {j: Arc.covering(q[: len(q) // 2, j]) for j in range(CELL.chain.dof)}
-    names = [nm for j in narrow for nm in harmonic_names(j, 3)]
-    problem = Problem(
-        CELL.chain, table, geo.points, params, TrackerNoise(), extension=map_extension(q, names=names, arcs=narrow)
-    )
-    state = State(
-        geo.dev,
-        [geo.stations[s] for s in problem.station_ids],
-        np.array([geo.points[p] for p in problem.point_ids]),
-        np.zeros(len(names)),
-    )
-    held = HeldOutMap(problem, state, names)
+    held, names = held_out_map(CELL, table, geo, params, narrow, 3)
     test = np.arange(1, len(table), 5)
     train = np.setdiff1d(np.arange(len(table)), test)
     arcs_train = {j: Arc.covering(q[train, j]) for j in narrow}
