@@ -81,6 +81,10 @@ class DenseRows:
     def __call__(self, rows):
         return self.r[rows].ravel(), self.jm[rows].reshape(3 * len(rows), -1)
 
+    def normal(self, rows, keep):
+        r, j = self(rows)
+        return j.T @ j, j.T @ r, r, j[:, keep]
+
     def columns(self, rows, at=slice(None)):
         return self(rows[at])[1][:, self.pen]
 

@@ -77,6 +77,10 @@ class ProblemRows(NamedTuple):
     def __call__(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.problem.residual_and_jacobian(self.state, rows)
 
+    def normal(self, rows: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(J^T J, J^T r, r, J[:, keep]) of the rows (`Problem.normal_rows`)."""
+        return self.problem.normal_rows(self.state, rows, keep)
+
 
 class Linearised(NamedTuple):
     """The map search's problem linearised at `start` (the fit without the map) with the map's coefficients of the
@@ -244,8 +248,8 @@ def _linearised(problem: Problem, state: State, start, base, table, names, norma
 
 class FoldParts:
     """Each fold's held-out part of the normal equations of one linearised problem, (J_k^T J_k, J_k^T r_k), with the
-    held-out rows' residual r_k and their Jacobian's unpenalised columns `free`, formed from `rows` (`ProblemRows`, or
-    any callable giving the residual and Jacobian rows of given rows) `PIECE` rows at a time: the whole Jacobian is
+    held-out rows' residual r_k and their Jacobian's unpenalised columns `free`, formed by `rows` (`ProblemRows`, or
+    anything whose `normal(rows, keep)` gives them for given rows) `PIECE` rows at a time: the whole Jacobian is
     never held (issue 41). Kept per fold with `keep`: the cross-validations of one linearised problem share their
     folds (issue 26: the map's search and its comparison without the map; the models of `MapEvidence`)."""
 
@@ -260,10 +264,10 @@ class FoldParts:
         g = b = None
         rk, jf = [], []
         for a in range(0, len(held), PIECE):
-            r, j = self.rows(held[a : a + PIECE])
-            g, b = (j.T @ j, j.T @ r) if g is None else (g + j.T @ j, b + j.T @ r)
+            g_a, b_a, r, j = self.rows.normal(held[a : a + PIECE], self.free)
+            g, b = (g_a, b_a) if g is None else (g + g_a, b + b_a)
             rk.append(r)
-            jf.append(j[:, self.free])
+            jf.append(j)
         out = (g, b, np.concatenate(rk), np.concatenate(jf))
         if self.keep:
             self.parts[k] = out

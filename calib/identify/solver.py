@@ -39,6 +39,9 @@ CHUNK_BYTES = 2**23  # and at most 8 MB of a chunk's Jacobian blocks (rows x 3 x
 # column-scaled Jacobian's condition number is at most this (R then carries rounding of about eps * cond^2 = 2e-12
 # relative at most, where the R of a QR of the Jacobian carries eps * cond); above it, from that QR (issue 41)
 CHOLESKY_COND = 100.0
+# joint-feature columns (each a joint's lever times a feature: the joint error map's harmonics) from which the normal
+# equations form their block from the rows' levers (`JointFeatures.gram`), not from their Jacobian columns
+LEVER_GRAM_MIN = 64
 
 
 class IdentificationError(CalibError):
@@ -444,9 +447,11 @@ class Problem:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
         return self._whiten(self.xyz - self.predicted(s)).ravel()
 
-    def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray]:
-        """Whitened residuals (n, 3) of the chunk's rows and the non-zero blocks of their Jacobian (n, 3, m):
-        the columns of the robot and extension, of the row's station (v, w) and of its point, in that order."""
+    def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Whitened residuals (n, 3) of the chunk's rows, the non-zero blocks of their Jacobian (n, 3, m): the columns
+        of the robot and extension, of the row's station (v, w) and of its point, in that order; and the rows'
+        whitened levers (n, 3, joints), the derivatives by the joint angles the joint features' columns multiply
+        (None without joint features)."""
         rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
         jac = self.kin.jacobian(
             self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev, rows=ch.of_row
@@ -467,6 +472,7 @@ class Problem:
         jc = np.empty((len(rows), 3, c + 9))
         g = self._growth(s)
         joint = self.ext is not None and self.ext.joint_features is not None
+        m_dq = None
         if g is not None:  # p = pivot + (1 + g) (p_rigid - pivot), g = growth @ theta: exact derivatives
             grow = 1.0 + g[take]
             rel = p - self.ext.pivot
@@ -503,7 +509,7 @@ class Problem:
         r = ch.xyz - xs
         if w is not None:
             r = _whitened(w, r)
-        return r, jc
+        return r, jc, m_dq
 
     def _dense(self, ch: _Chunk, jc: np.ndarray) -> np.ndarray:
         """The chunk's Jacobian rows (3n, n_cols) in its own row order, from their non-zero blocks."""
@@ -519,7 +525,7 @@ class Problem:
         """Whitened residuals and the Jacobian of the *prediction* (so a GN step is J d = r), of every row or
         of the given `rows` (their residuals and Jacobian rows, in that order)."""
         ch = self._every_row if rows is None else self.rows.chunk(np.asarray(rows))
-        rb, jc = self._blocks(s, ch)
+        rb, jc, _ = self._blocks(s, ch)
         if ch.order is None:
             return rb.ravel(), self._dense(ch, jc)
         r, jm = np.empty_like(rb), np.empty((len(ch.rows), 3, self.n_cols))
@@ -529,13 +535,20 @@ class Problem:
     def normal_equations(self, s: State) -> tuple[np.ndarray, np.ndarray, float]:
         """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks from the Jacobian's
         non-zero blocks: the rows of one (station, point) pair touch only the robot's, that station's and that
-        point's columns (the whole Jacobian is never held). A problem whose robot and extension columns outnumber
-        the stations' and points' eight times (the joint error map's ~700) sums each chunk's rows at once: one
-        product, where a product and a scatter of a ~700 x 700 block per pair cost more than the few zeros skipped."""
+        point's columns (the whole Jacobian is never held). A problem of many joint-feature columns (`_lever_gram`:
+        the joint error map's ~650) forms their block from the rows' levers. Otherwise one whose robot and extension
+        columns outnumber the stations' and points' eight times sums each chunk's rows at once: one product, where a
+        product and a scatter of a ~700 x 700 block per pair cost more than the few zeros skipped."""
+        if self._lever_gram is not None:
+            m, x, lever = 0.0, 0.0, np.empty((self.n_rows, 3, self.chain.dof))  # the levers: 72 B per row
+            for ch in self.chunks:
+                m_ch, x_ch, lever[ch.rows], _, _ = self._lever_parts(s, ch)
+                m, x = m + m_ch, x + x_ch
+            return self._assembled(m, x, self._lever_gram[1].gram(lever))
         if self.c_st > 8 * (6 * self.n_st + 3 * self.n_pt):
             info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
             for ch in self.chunks:
-                r, jc = self._blocks(s, ch)
+                r, jc, _ = self._blocks(s, ch)
                 jd = self._dense(ch, jc)
                 info += jd.T @ jd
                 grad += jd.T @ r.ravel()
@@ -543,7 +556,7 @@ class Problem:
             return info, grad, cost
         info, grad, cost = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all), 0.0
         for ch in self.chunks:
-            r, jc = self._blocks(s, ch)
+            r, jc, _ = self._blocks(s, ch)
             for sl, st, pt in ch.pairs:
                 cols, block = self.columns[st, pt]
                 jg, rg = jc[sl].reshape(-1, jc.shape[2]), r[sl].ravel()
@@ -551,6 +564,73 @@ class Problem:
                 grad[cols] += jg.T @ rg
             cost += float(np.vdot(r, r))
         return info[np.ix_(self.free, self.free)], grad[self.free], cost
+
+    def normal_rows(self, s: State, rows: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(J^T J, J^T r, r, J[:, keep]) of the given rows: their normal equations, with their whitened residual (3 n,)
+        and their Jacobian's columns `keep`, rows in the order given (a fold's part of the normal equations)."""
+        if self._lever_gram is None:
+            r, jd = self.residual_and_jacobian(s, rows)
+            return jd.T @ jd, jd.T @ r, r, jd[:, keep]
+        ch = self.rows.chunk(np.asarray(rows))
+        m, x, lever, rb, jd = self._lever_parts(s, ch)
+        gram, rhs, _ = self._assembled(m, x, self._lever_gram[1].take(ch.take).gram(lever))
+        if ch.order is None:
+            return gram, rhs, rb.ravel(), jd[:, keep]
+        r, jk = np.empty_like(rb), np.empty((len(ch.rows), 3, len(keep)))
+        r[ch.order], jk[ch.order] = rb, jd[:, keep].reshape(len(ch.rows), 3, -1)
+        return gram, rhs, r.ravel(), jk.reshape(-1, len(keep))
+
+    @cached_property
+    def _lever_gram(self) -> tuple[slice | np.ndarray, JointFeatures, np.ndarray] | None:
+        """(the columns that are a joint's lever times a feature alone, their features, the other columns) among the
+        free unknowns when there are at least LEVER_GRAM_MIN of them (the joint error map's harmonics), else None.
+        Their block of the normal equations is then formed from each row's lever (`JointFeatures.gram`: N e^2
+        multiply-adds where their Jacobian columns take 3 N e^2, issue 41: the map's Gram matrices were a fifth of a
+        diagnosis of the UR10's Series B). Not for an extension that scales the range (every column then carries
+        it) nor one whose robot unknowns are fixed."""
+        ext = self.ext
+        if ext is None or ext.joint_features is None or ext.range_scale is not None or not self.free[: self.c_st].all():
+            return None
+        alone = np.ones(self.e, dtype=bool)  # neither growing the arm nor moving the reflector
+        if self._grows is not None:
+            alone[self._grows] = False
+        if ext.displacement is not None:
+            alone &= ~np.any(ext.displacement != 0, axis=(0, 1))
+        idx = np.flatnonzero(alone)
+        if len(idx) < LEVER_GRAM_MIN:
+            return None
+        other = np.setdiff1d(np.arange(self.n_cols), self.k + idx)
+        if (
+            idx[-1] - idx[0] == len(idx) - 1
+        ):  # a run of columns: a view of their features, their blocks written in place
+            return (
+                slice(self.k + idx[0], self.k + idx[-1] + 1),
+                ext.joint_features.columns(slice(idx[0], idx[-1] + 1)),
+                other,
+            )
+        return self.k + idx, ext.joint_features.columns(idx), other
+
+    def _lever_parts(self, s: State, ch: _Chunk) -> tuple[np.ndarray, ...]:
+        """A chunk's sums for `_assembled`, M = [J_o r]^T [J_o r] and X = [J_o r]^T C (J_o the Jacobian's other
+        columns, C the lever-gram columns, r the residual), with the rows' levers, whitened residuals (n, 3) and
+        Jacobian rows (3 n, n_cols)."""
+        _, feats, other = self._lever_gram
+        r, jc, lever = self._blocks(s, ch)
+        jd = self._dense(ch, jc)
+        jor = np.concatenate([jd[:, other], r.reshape(-1, 1)], axis=1)
+        return jor.T @ jor, feats.take(ch.take).cross(lever, jor.reshape(len(ch.rows), 3, -1)), lever, r, jd
+
+    def _assembled(self, m: np.ndarray, x: np.ndarray, gcc: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(J^T J, J^T r, r.r) from `_lever_parts`' sums and the lever-gram columns' own block `gcc`."""
+        cols, _, other = self._lever_gram
+        gram, rhs = np.empty((self.n_cols, self.n_cols)), np.empty(self.n_cols)
+        gram[np.ix_(other, other)] = m[:-1, :-1]
+        if isinstance(cols, slice):  # written through views (np.ix_ scatters of the ~650 x 650 block: 7 % of the pass)
+            gram[other, cols], gram[cols, other], gram[cols, cols] = x[:-1], x[:-1].T, gcc
+        else:
+            gram[np.ix_(other, cols)], gram[np.ix_(cols, other)], gram[np.ix_(cols, cols)] = x[:-1], x[:-1].T, gcc
+        rhs[other], rhs[cols] = m[:-1, -1], x[-1]
+        return gram, rhs, float(m[-1, -1])
 
     def r_factor(self, s: State) -> np.ndarray:
         """R (n_cols, n_cols) of J = QR, accumulated over row chunks (TSQR): J and R share their singular

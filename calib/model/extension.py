@@ -155,9 +155,39 @@ class JointFeatures:
         the one non-zero term of the product's sum and so its value (a zero's sign aside), formed for each run of
         parameters on one joint (issue 41: the dense features and their product, a piece of rows at a time, were 3 %
         of a diagnosis of the UR10's Series B; these products take 60-70 % of their time)."""
-        bounds = np.flatnonzero(np.diff(self.joint, prepend=-1, append=-1) != 0)  # where a run of one joint starts
-        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-            np.multiply(lever[:, :, self.joint[a], None], self.values[:, None, a:b], out=out[:, :, a:b])
+        for sa, j in self._runs():
+            np.multiply(lever[:, :, j, None], self.values[:, None, sa], out=out[:, :, sa])
+
+    def _runs(self) -> list[tuple[slice, int]]:
+        """(columns, joint) of each run of parameters on one joint."""
+        bounds = np.flatnonzero(np.diff(self.joint, prepend=-1, append=-1) != 0)
+        return [(slice(a, b), int(self.joint[a])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+    def gram(self, lever: np.ndarray) -> np.ndarray:
+        """C^T C (e, e) of the columns C (3 N, e) `lever_columns(lever)` gives, never formed: two parameters' columns
+        multiply, summed over a row's coordinates, to their features times the product of their joints' levers
+        (a_r = lever_r^T lever_r, n x n), so C^T C is N e^2 multiply-adds where the dense product is 3 N e^2 (issue
+        41: the joint error map's ~650 columns on Series B, summed again for every fold and fit)."""
+        a = np.einsum("rci,rcj->rij", lever, lever)
+        runs = self._runs()
+        out = np.empty((len(self.joint), len(self.joint)))
+        for i, (sa, ja) in enumerate(runs):
+            va = self.values[:, sa]
+            w = va * np.sqrt(a[:, ja, ja])[:, None]  # a_r[j, j] = |lever_j|^2: a product of a matrix with itself
+            out[sa, sa] = w.T @ w
+            for sb, jb in runs[i + 1 :]:  # a product per pair of runs (one for every later run took 1.3x as long)
+                out[sa, sb] = (va * a[:, ja, jb, None]).T @ self.values[:, sb]
+                out[sb, sa] = out[sa, sb].T
+        return out
+
+    def cross(self, lever: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """O^T C (o, e) of other columns O (N, 3, o) of the same rows with the columns C `lever_columns(lever)`
+        gives, never formed (`gram`)."""
+        b = np.einsum("rco,rcj->jor", other, lever)  # (n, o, N): each joint's lever against every other column
+        out = np.empty((other.shape[2], len(self.joint)))
+        for sa, ja in self._runs():
+            out[:, sa] = b[ja] @ self.values[:, sa]
+        return out
 
     def offsets(self, theta: np.ndarray) -> np.ndarray:
         """(N, n) joint offsets Phi theta (rad)."""

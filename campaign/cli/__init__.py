@@ -14,6 +14,7 @@ import importlib
 import sys
 
 from trackcal.calib.errors import CalibError
+from trackcal.campaign.cli.allocator import keep_freed_blocks
 from trackcal.campaign.cli.blas import limited_blas
 from trackcal.campaign.cli.commands import COMMANDS, GROUPS
 from trackcal.campaign.errors import CampaignError, OptionError
@@ -87,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:  # argparse would report them for `trackcal`, not for the command they were given to
         args.parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     module, _, function = args.handler.partition(":")
+    keep_freed_blocks()
     try:
         # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)
         with limited_blas():

@@ -82,3 +82,22 @@ def test_lever_columns_of_the_block_form_are_the_dense_product(case):
     for sl, feats in jf.pieces():
         np.matmul(lever[sl], feats, out=before[sl])
     assert np.array_equal(out, before)
+
+
+@settings(max_examples=40, deadline=None)
+@given(single_joint_features(), st.integers(0, 5))
+def test_gram_and_cross_from_the_levers_are_the_products_of_the_columns(case, n_other):
+    """C^T C and O^T C of the columns C = lever_columns(lever) formed from each row's lever (`JointFeatures.gram`,
+    `cross`: N e^2 where the columns take 3 N e^2) are the dense products, to rounding: the same sums in another
+    order (relative to the product of the columns' norms, the scale of each entry's rounding)."""
+    dense, _ = case
+    jf = JointFeatures.of(dense)
+    rng = np.random.default_rng(len(dense))
+    lever = rng.standard_normal((len(dense), 3, dense.shape[1])) * 1e3
+    other = rng.standard_normal((len(dense), 3, n_other))
+    cols = np.empty((len(dense), 3, dense.shape[2]))
+    jf.lever_columns(lever, cols)
+    c, o = cols.reshape(3 * len(dense), dense.shape[2]), other.reshape(3 * len(dense), n_other)
+    norm_c, norm_o = np.linalg.norm(c, axis=0), np.linalg.norm(o, axis=0)
+    assert np.all(np.abs(jf.gram(lever) - c.T @ c) <= 1e-13 * np.outer(norm_c, norm_c))
+    assert np.all(np.abs(jf.cross(lever, other) - o.T @ c) <= 1e-13 * np.outer(norm_o, norm_c))
