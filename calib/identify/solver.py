@@ -447,11 +447,14 @@ class Problem:
         """Whitened residuals (measured - predicted), flattened (3N,)."""
         return self._whiten(self.xyz - self.predicted(s)).ravel()
 
-    def _blocks(self, s: State, ch: _Chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def _blocks(
+        self, s: State, ch: _Chunk, skip: slice | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Whitened residuals (n, 3) of the chunk's rows, the non-zero blocks of their Jacobian (n, 3, m): the columns
         of the robot and extension, of the row's station (v, w) and of its point, in that order; and the rows'
         whitened levers (n, 3, joints), the derivatives by the joint angles the joint features' columns multiply
-        (None without joint features)."""
+        (None without joint features). The joint features' columns `skip` (of the extension's) are left zero: their
+        sums come from the levers (`_lever_parts`)."""
         rows, take, k, c = ch.rows, ch.take, self.k, self.c_st
         jac = self.kin.jacobian(
             self._q(s)[self.pose_first[ch.poses]], s.points[self.pt_idx[take]], s.dev, rows=ch.of_row
@@ -483,7 +486,13 @@ class Problem:
             d_params, d_point = grow * d_params, grow * d_point
         if joint:
             m_dq = _rotated(m, jac.d_q_t if g is None else grow * jac.d_q_t)
-            self.ext.joint_features.take(take).lever_columns(m_dq, jc[:, :, k:c])
+            feats = self.ext.joint_features
+            if skip is None:
+                feats.take(take).lever_columns(m_dq, jc[:, :, k:c])
+            else:
+                jc[:, :, k + skip.start : k + skip.stop] = 0.0
+                for part in (slice(0, skip.start), slice(skip.stop, self.e)):
+                    feats.columns(part).take(take).lever_columns(m_dq, jc[:, :, k + part.start : k + part.stop])
         else:
             jc[:, :, k:c] = 0.0
         if g is not None:
@@ -540,11 +549,10 @@ class Problem:
         columns outnumber the stations' and points' eight times sums each chunk's rows at once: one product, where a
         product and a scatter of a ~700 x 700 block per pair cost more than the few zeros skipped."""
         if self._lever_gram is not None:
-            m, x, lever = 0.0, 0.0, np.empty((self.n_rows, 3, self.chain.dof))  # the levers: 72 B per row
+            sums = (0.0, 0.0, 0.0)
             for ch in self.chunks:
-                m_ch, x_ch, lever[ch.rows], _, _ = self._lever_parts(s, ch)
-                m, x = m + m_ch, x + x_ch
-            return self._assembled(m, x, self._lever_gram[1].gram(lever))
+                sums = tuple(a + b for a, b in zip(sums, self._lever_parts(s, ch)[:3], strict=True))
+            return self._assembled(*sums)
         if self.c_st > 8 * (6 * self.n_st + 3 * self.n_pt):
             info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
             for ch in self.chunks:
@@ -567,13 +575,17 @@ class Problem:
 
     def normal_rows(self, s: State, rows: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, ...]:
         """(J^T J, J^T r, r, J[:, keep]) of the given rows: their normal equations, with their whitened residual (3 n,)
-        and their Jacobian's columns `keep`, rows in the order given (a fold's part of the normal equations)."""
+        and their Jacobian's columns `keep` (none of the lever-gram columns: not formed), rows in the order given (a
+        fold's part of the normal equations)."""
         if self._lever_gram is None:
             r, jd = self.residual_and_jacobian(s, rows)
             return jd.T @ jd, jd.T @ r, r, jd[:, keep]
+        cols = self._lever_gram[0]
+        if np.any((keep >= cols.start) & (keep < cols.stop)):
+            raise ValueError("normal_rows: the lever-gram columns' Jacobian is not formed")
         ch = self.rows.chunk(np.asarray(rows))
-        m, x, lever, rb, jd = self._lever_parts(s, ch)
-        gram, rhs, _ = self._assembled(m, x, self._lever_gram[1].take(ch.take).gram(lever))
+        *sums, rb, jd = self._lever_parts(s, ch)
+        gram, rhs, _ = self._assembled(*sums)
         if ch.order is None:
             return gram, rhs, rb.ravel(), jd[:, keep]
         r, jk = np.empty_like(rb), np.empty((len(ch.rows), 3, len(keep)))
@@ -581,13 +593,13 @@ class Problem:
         return gram, rhs, r.ravel(), jk.reshape(-1, len(keep))
 
     @cached_property
-    def _lever_gram(self) -> tuple[slice | np.ndarray, JointFeatures, np.ndarray] | None:
-        """(the columns that are a joint's lever times a feature alone, their features, the other columns) among the
-        free unknowns when there are at least LEVER_GRAM_MIN of them (the joint error map's harmonics), else None.
-        Their block of the normal equations is then formed from each row's lever (`JointFeatures.gram`: N e^2
-        multiply-adds where their Jacobian columns take 3 N e^2, issue 41: the map's Gram matrices were a fifth of a
-        diagnosis of the UR10's Series B). Not for an extension that scales the range (every column then carries
-        it) nor one whose robot unknowns are fixed."""
+    def _lever_gram(self) -> tuple[slice, JointFeatures, np.ndarray] | None:
+        """(the longest run of one cause's extension columns that are each a joint's lever times a feature alone, as
+        columns of the free unknowns; their features; the other columns) when it holds at least LEVER_GRAM_MIN (the
+        joint error map's harmonics), else None. Its block of the normal equations is then formed from each row's lever
+        (`JointFeatures.gram`: N e^2 multiply-adds where its Jacobian columns take 3 N e^2, issue 41: the map's Gram
+        matrices were a fifth of a diagnosis of the UR10's Series B) and its Jacobian columns are not formed. Not for an
+        extension that scales the range (every column then carries it) nor one whose robot unknowns are fixed."""
         ext = self.ext
         if ext is None or ext.joint_features is None or ext.range_scale is not None or not self.free[: self.c_st].all():
             return None
@@ -596,39 +608,34 @@ class Problem:
             alone[self._grows] = False
         if ext.displacement is not None:
             alone &= ~np.any(ext.displacement != 0, axis=(0, 1))
-        idx = np.flatnonzero(alone)
-        if len(idx) < LEVER_GRAM_MIN:
+        run, start = slice(0, 0), 0
+        for _, names in ext.parts():  # runs within one cause's parameters (a base's few are other columns)
+            edges = start + np.flatnonzero(np.diff(np.r_[False, alone[start : start + len(names)], False].astype(int)))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                run = slice(int(a), int(b)) if b - a > run.stop - run.start else run
+            start += len(names)
+        if run.stop - run.start < LEVER_GRAM_MIN:
             return None
-        other = np.setdiff1d(np.arange(self.n_cols), self.k + idx)
-        if (
-            idx[-1] - idx[0] == len(idx) - 1
-        ):  # a run of columns: a view of their features, their blocks written in place
-            return (
-                slice(self.k + idx[0], self.k + idx[-1] + 1),
-                ext.joint_features.columns(slice(idx[0], idx[-1] + 1)),
-                other,
-            )
-        return self.k + idx, ext.joint_features.columns(idx), other
+        cols = slice(self.k + run.start, self.k + run.stop)
+        return cols, ext.joint_features.columns(run), np.r_[0 : cols.start, cols.stop : self.n_cols]
 
     def _lever_parts(self, s: State, ch: _Chunk) -> tuple[np.ndarray, ...]:
-        """A chunk's sums for `_assembled`, M = [J_o r]^T [J_o r] and X = [J_o r]^T C (J_o the Jacobian's other
-        columns, C the lever-gram columns, r the residual), with the rows' levers, whitened residuals (n, 3) and
-        Jacobian rows (3 n, n_cols)."""
-        _, feats, other = self._lever_gram
-        r, jc, lever = self._blocks(s, ch)
+        """A chunk's sums for `_assembled`, M = [J_o r]^T [J_o r], X = [J_o r]^T C and C^T C (J_o the Jacobian's
+        other columns, C the lever-gram columns, r the residual; C^T C from the levers a chunk at a time: the whole
+        table's at once took 1.5x as long), with the rows' whitened residuals (n, 3) and Jacobian rows (3 n, n_cols)."""
+        cols, feats, other = self._lever_gram
+        r, jc, lever = self._blocks(s, ch, skip=slice(cols.start - self.k, cols.stop - self.k))
         jd = self._dense(ch, jc)
         jor = np.concatenate([jd[:, other], r.reshape(-1, 1)], axis=1)
-        return jor.T @ jor, feats.take(ch.take).cross(lever, jor.reshape(len(ch.rows), 3, -1)), lever, r, jd
+        feats = feats.take(ch.take)
+        return jor.T @ jor, feats.cross(lever, jor.reshape(len(ch.rows), 3, -1)), feats.gram(lever), r, jd
 
     def _assembled(self, m: np.ndarray, x: np.ndarray, gcc: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """(J^T J, J^T r, r.r) from `_lever_parts`' sums and the lever-gram columns' own block `gcc`."""
+        """(J^T J, J^T r, r.r) from `_lever_parts`' sums."""
         cols, _, other = self._lever_gram
         gram, rhs = np.empty((self.n_cols, self.n_cols)), np.empty(self.n_cols)
         gram[np.ix_(other, other)] = m[:-1, :-1]
-        if isinstance(cols, slice):  # written through views (np.ix_ scatters of the ~650 x 650 block: 7 % of the pass)
-            gram[other, cols], gram[cols, other], gram[cols, cols] = x[:-1], x[:-1].T, gcc
-        else:
-            gram[np.ix_(other, cols)], gram[np.ix_(cols, other)], gram[np.ix_(cols, cols)] = x[:-1], x[:-1].T, gcc
+        gram[other, cols], gram[cols, other], gram[cols, cols] = x[:-1], x[:-1].T, gcc
         rhs[other], rhs[cols] = m[:-1, -1], x[-1]
         return gram, rhs, float(m[-1, -1])
 

@@ -296,17 +296,18 @@ def test_normal_equations_from_the_levers_are_those_of_the_jacobian(kr270, kr270
     """A joint error map of 72 harmonics (6 joints, order 6: at least LEVER_GRAM_MIN) has its block of the normal
     equations formed from the rows' levers (`JointFeatures.gram`): J^T J, J^T r and r.r are those of the Jacobian's
     rows to rounding, on two stations and three points, whitened or not, beside a backlash (joint features too) and a
-    thermal growth (a column formed from the Jacobian). A fold's part (`normal_rows`, rows scrambled) gives its rows'
-    residual and kept columns as the Jacobian's rows are, bit for bit."""
+    thermal growth (columns formed from the Jacobian). A fold's part (`normal_rows`, rows scrambled) gives its rows'
+    residual and kept columns (not the map's, never formed) as the Jacobian's rows are, bit for bit."""
     _, table = kr270_campaign(kr270, seed=45, n_poses=20)
     q = np.radians(table.q_deg)
     arcs = {j: Arc.covering(q[:, j]) for j in range(kr270.chain.dof)}
     ext = map_extension(q, names=[nm for j in arcs for nm in harmonic_names(j, 6)], arcs=arcs)
     if with_base:
-        base = [build_extension(c, kr270.chain, table) for c in ("backlash", "thermal_drift")]
+        base = [build_extension(c, kr270.chain, table) for c in ("thermal_drift", "backlash")]
         ext = combine([*base, ext], cause="cyclic_error")
     problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, noise, extension=ext)
-    assert problem._lever_gram is not None
+    # the map's columns: not the backlash's beside them (a cause's own run; the base's stay among the others)
+    assert problem._lever_gram[0] == slice(problem.c_st - 72, problem.c_st)
     rng = np.random.default_rng(46)
     state = problem.retract(problem.initial, 1e-5 * rng.normal(size=problem.n_cols))
     r, jm = problem.residual_and_jacobian(state)
@@ -315,13 +316,15 @@ def test_normal_equations_from_the_levers_are_those_of_the_jacobian(kr270, kr270
     assert np.all(np.abs(gram - jm.T @ jm) <= 1e-13 * np.outer(norms, norms))
     assert np.all(np.abs(rhs - jm.T @ r) <= 1e-13 * norms * np.linalg.norm(r))
     assert rr == pytest.approx(float(r @ r), rel=1e-13)
-    rows, keep = rng.permutation(problem.n_rows)[:25], np.arange(0, problem.n_cols, 7)
+    rows, keep = rng.permutation(problem.n_rows)[:25], problem._lever_gram[2][::2]  # the map's columns are not formed
     g_k, b_k, r_k, j_k = problem.normal_rows(state, rows, keep)
     r_rows, j_rows = problem.residual_and_jacobian(state, rows)
     assert np.array_equal(r_k, r_rows) and np.array_equal(j_k, j_rows[:, keep])
     norms = np.linalg.norm(j_rows, axis=0)
     assert np.all(np.abs(g_k - j_rows.T @ j_rows) <= 1e-13 * np.outer(norms, norms))
     assert np.all(np.abs(b_k - j_rows.T @ r_rows) <= 1e-13 * norms * np.linalg.norm(r_rows))
+    with pytest.raises(ValueError, match="not formed"):
+        problem.normal_rows(state, rows, np.array([problem._lever_gram[0].start]))
 
 
 def test_normal_equations_pass_gives_the_residual_cost(kr270, kr270_params, extended):
