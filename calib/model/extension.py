@@ -99,18 +99,14 @@ class ExtensionError(CalibError):
     fit together."""
 
 
-PIECE_ROWS = 64  # rows of joint features made dense at once (64 x 6 x 650 float64: 2 MB for the UR10's map; 256 rows,
-# 8 MB, took 1.5x as long: a piece that stays in cache, issue 41)
-
-
 @dataclass(frozen=True, eq=False)
 class JointFeatures:
     """Joint features Phi (N, n, e) in per-joint block form: every parameter moves one joint (a map harmonic, a
     compliance, a backlash, a wrist coupling), so Phi[r, joint[c], c] = values[r, c] and every other entry is zero.
     The block form holds N e values where the dense array holds N n e, most of them zeros (issue 41: a diagnosis of
-    the UR10's Series B held two dense maps of 650 columns, 62 KB per row). What needs the dense array (the offsets)
-    forms it `PIECE_ROWS` rows at a time and runs on it the products it ran on the whole
-    array, which are computed row by row: the same operations, the same values, bit for bit."""
+    the UR10's Series B held two dense maps of 650 columns, 62 KB per row). What is computed from it is what the dense
+    array gave: the same values (the Jacobian's columns, bit for bit) or the same sums in another order (to
+    rounding)."""
 
     values: np.ndarray  # (N, e): each row's feature of each parameter on the joint it moves
     joint: np.ndarray  # (e,) int: the joint (0-based) each parameter moves
@@ -141,13 +137,6 @@ class JointFeatures:
         out = np.zeros((len(vals), self.n, vals.shape[1]))
         out[:, self.joint, np.arange(vals.shape[1])] = vals
         return out
-
-    def pieces(self, n_rows: int | None = None):
-        """(slice, dense features of its rows) over the rows, `PIECE_ROWS` at a time."""
-        total = len(self.values) if n_rows is None else n_rows
-        for a in range(0, total, PIECE_ROWS):
-            sl = slice(a, min(a + PIECE_ROWS, total))
-            yield sl, self.dense(sl)
 
     def lever_columns(self, lever: np.ndarray, out: np.ndarray) -> None:
         """out (N, 3, e) = lever (N, 3, n) @ Phi row by row (the Jacobian's columns of the parameters through the joint
@@ -190,10 +179,12 @@ class JointFeatures:
         return out
 
     def offsets(self, theta: np.ndarray) -> np.ndarray:
-        """(N, n) joint offsets Phi theta (rad)."""
-        out = np.empty((len(self.values), self.n))
-        for sl, d in self.pieces():
-            out[sl] = np.einsum("rje,e->rj", d, theta)
+        """(N, n) joint offsets Phi theta (rad): each run of parameters on one joint adds its features times their
+        values to that joint's (issue 41: the dense features' product a piece of rows at a time was 6 % of a diagnosis
+        of the UR10's Series B)."""
+        out = np.zeros((len(self.values), self.n))
+        for sa, j in self._runs():
+            out[:, j] += self.values[:, sa] @ theta[sa]
         return out
 
     def moves(self) -> np.ndarray:

@@ -145,7 +145,6 @@ def test_growth_and_joint_columns_equal_the_dense_form(kr270):
     m, grow = state.stations[0].rotation, 1.0 + ext.growth_of(theta)[ch.take]
     before = (m @ (jac.p - ext.pivot)[:, :, None]) * ext.growth[ch.take][:, None, :]
     m_dq = solver._rotated(m, grow * jac.d_q_t)
-    for sl, feats in ext.joint_features.take(ch.take).pieces():
-        before[sl] += m_dq[sl] @ feats
+    before += m_dq @ ext.joint_features.take(ch.take).dense()
     k = len(params)
     assert np.array_equal(jm.reshape(len(table), 3, -1)[ch.order][:, :, k : k + ext.size], before)  # in chunk order
