@@ -582,7 +582,7 @@ class Problem:
             return jd.T @ jd, jd.T @ r, r, jd[:, keep]
         cols = self._lever_gram[0]
         if np.any((keep >= cols.start) & (keep < cols.stop)):
-            raise ValueError("normal_rows: the lever-gram columns' Jacobian is not formed")
+            raise IdentificationError("normal_rows: the lever-gram columns' Jacobian is not formed")
         ch = self.rows.chunk(np.asarray(rows))
         *sums, rb, jd = self._lever_parts(s, ch)
         gram, rhs, _ = self._assembled(*sums)

@@ -323,7 +323,7 @@ def test_normal_equations_from_the_levers_are_those_of_the_jacobian(kr270, kr270
     norms = np.linalg.norm(j_rows, axis=0)
     assert np.all(np.abs(g_k - j_rows.T @ j_rows) <= 1e-13 * np.outer(norms, norms))
     assert np.all(np.abs(b_k - j_rows.T @ r_rows) <= 1e-13 * norms * np.linalg.norm(r_rows))
-    with pytest.raises(ValueError, match="not formed"):
+    with pytest.raises(IdentificationError, match="not formed"):
         problem.normal_rows(state, rows, np.array([problem._lever_gram[0].start]))
 
 
