@@ -45,7 +45,7 @@ from trackcal.calib.diagnose.joint_map import (
     map_extension,
     parse_name,
 )
-from trackcal.calib.diagnose.ridge import ridge_path
+from trackcal.calib.diagnose.ridge import ridge_inverse, ridge_path, ridge_solve
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
     Identification,
@@ -319,12 +319,8 @@ def _cv_scores(
             # an order that keeps every column reads the whole Schur complement, not a copy of it
             gaf, bf = gpf[:, pos], bf_all[pos]
             schur = schur_all if len(pos) == len(kept) else schur_all[np.ix_(pos, pos)]
-            if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
-                h = schur.copy()  # schur + lam I: the ridge added to the diagonal alone (no identity formed)
-                h.flat[:: len(h) + 1] += lam[0]
-                c = np.linalg.solve(h, bf)[:, None]
-            else:
-                c = ridge_path(schur, bf, lam)  # (p, L): every ridge
+            # (p, L): every ridge; one ridge by a solve (Cholesky), a fraction of the path's cost
+            c = ridge_solve(schur, bf, lam[0])[:, None] if len(lam) == 1 else ridge_path(schur, bf, lam)
             solved.append((gaa_inv @ (b[free][:, None] - gaf @ c), c, np.searchsorted(pen_cols, cols)))
         # the held-out errors `PIECE` rows at a time, the map's columns predicted as predict will (clamped to the
         # training rows' arcs) formed once per piece for every order: never the fold's whole (issue 41)
@@ -744,7 +740,7 @@ def _penalised_fit(
         scale[scale == 0] = 1.0
         x = np.zeros(problem.n_cols)
         x[k0 : k0 + n_map] = state.ext[k0 - len(problem.params) :]
-        ds = np.linalg.solve(gram / np.outer(scale, scale) + np.diag(pen / scale**2), (rhs - pen * x) / scale)
+        ds = ridge_solve(gram / np.outer(scale, scale), (rhs - pen * x) / scale, pen / scale**2)
         state = problem.retract(state, ds / scale)
         iterations += 1
         d = ds / scale
@@ -761,7 +757,7 @@ def _penalised_fit(
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)
-    h_inv = np.linalg.inv(gram + np.diag(pen / scale**2))
+    h_inv = ridge_inverse(gram, pen / scale**2)
     hat = np.einsum("ij,ji->i", h_inv, gram)  # diagonal of (G + P)^-1 G: each unknown's share of the fit
     edf = float(hat.sum())
     dof = max(int(round(3 * problem.n_rows - edf)), 1)
