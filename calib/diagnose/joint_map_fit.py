@@ -57,7 +57,7 @@ from trackcal.calib.identify.solver import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import Extension, JointFeatures, combine
+from trackcal.calib.model.extension import Extension, combine
 from trackcal.calib.model.params import Param
 
 ORDERS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidate harmonic orders H
@@ -210,13 +210,14 @@ class HeldOutMap:
     def _training_arcs(self, test: np.ndarray) -> dict[int, Arc]:
         key = test.tobytes()
         if key not in self._arcs:
-            train = np.setdiff1d(np.arange(len(self.q)), test)
+            train = np.ones(len(self.q), dtype=bool)  # a mask: no sort of the rows (setdiff1d's)
+            train[test] = False
             self._arcs[key] = {j: Arc.covering(self.q[train, j]) for j in self.of_joint}
         return self._arcs[key]
 
-    def columns(self, test: np.ndarray, at: slice = slice(None)) -> np.ndarray:
-        """(3 n, e) map columns of the n rows test[at] (`test`: the held-out rows, indices), clamped to the arcs of
-        the rows not in `test`."""
+    def piece(self, test: np.ndarray, at: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """(the n rows test[at] (`test`: the held-out rows, indices), their (n, e) map features clamped to the arcs of
+        the rows not in `test`): what `times` multiplies."""
         test = np.asarray(test)
         rows = test[at]
         values, q = self.feats.values[rows], self.q[rows]
@@ -229,8 +230,21 @@ class HeldOutMap:
                 names, cols = self.of_joint[j]
                 for _, sub, vals in harmonics_by_joint(q[beyond], names, {j: arc}):
                     values[np.ix_(beyond, np.asarray(cols)[sub])] = vals
-        out = np.empty((len(rows), 3, values.shape[1]))
-        JointFeatures(values, self.feats.joint, self.feats.n).lever_columns(self.lever[rows], out)
+        return rows, values
+
+    def times(self, piece: tuple[np.ndarray, np.ndarray], c: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """(3 n, k): the map's columns `idx` of a piece's n rows (`piece`) times c (len(idx), k), joint by joint: a
+        coefficient moves its own joint, so the product is each joint's lever times its features' product with its
+        coefficients, summed over the joints. The columns (3 n x len(idx)) are never formed (issue 41: forming them
+        (`JointFeatures.lever_columns`) and multiplying them cost twice as much)."""
+        rows, values = piece
+        idx = np.asarray(idx)
+        joint = self.feats.joint[idx]
+        lever = self.lever[rows]
+        out = np.zeros((len(rows), 3, c.shape[1]))
+        for j in np.unique(joint):
+            own = joint == j
+            out += lever[:, :, j, None] * (values[:, idx[own]] @ c[own])[:, None, :]
         return out.reshape(3 * len(rows), -1)
 
 
@@ -292,7 +306,8 @@ def _cv_scores(
     residual r; `parts(k, rows)` fold k's (J_k^T J_k, J_k^T r_k, r_k, J_k's unpenalised columns) (`FoldParts`);
     unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm; pen_cols the penalised columns at the largest
     order; orders_cols[i] the subset of them kept at order i; `held` (its coefficients those of pen_cols, in order;
-    needed when an order keeps a column): the held-out rows' map columns clamped to the training rows' arcs. The folds
+    needed when an order keeps a column): the held-out rows' map columns clamped to the training rows' arcs, as a
+    product (`HeldOutMap.piece` and `times`). The folds
     are solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(len(gram)), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
@@ -326,11 +341,11 @@ def _cv_scores(
         # training rows' arcs) formed once per piece for every order: never the fold's whole (issue 41)
         for a0 in range(0, len(rows), PIECE):
             at, at3 = slice(a0, a0 + PIECE), slice(3 * a0, 3 * (a0 + PIECE))
-            jmap = held.columns(rows, at) if held is not None and len(kept) else None
+            piece = held.piece(rows, at) if held is not None and len(kept) else None
             for i, (a, c, idx) in enumerate(solved):
                 e = rk[at3, None] - j_free[at3] @ a  # (3 n, L)
-                if len(idx):  # the columns of an order that keeps them all read in place
-                    e -= (jmap if len(idx) == jmap.shape[1] else jmap[:, idx]) @ c
+                if len(idx):
+                    e -= held.times(piece, c, idx)
                 ss[i] += np.sum(e**2, axis=0)
                 if unwhiten is not None:
                     e = np.einsum("nij,njl->nil", unwhiten[rows[at]], e.reshape(-1, 3, len(lam))).reshape(e.shape)
@@ -589,6 +604,7 @@ class MapEvidence:
         self.n_pen = len(names)
         self.ridge = fit.ridge
         self.pen = self.k + len(self.x_base) + np.arange(self.n_pen)  # the map's columns
+        self.at_pen = np.arange(self.n_pen)  # every coefficient of the held-out map (`HeldOutMap.times`)
         self.free = np.setdiff1d(np.arange(len(self.gram)), self.pen)
         self.base_cols = self.k + np.arange(len(self.x_base))  # the base extension's columns
         # column scaling (the column norms of the Jacobian) keeps the factorisations accurate
@@ -671,7 +687,8 @@ class MapEvidence:
             e = rk - j_free @ step[self.free]
             # the map's columns as predict sees them (clamped to the training rows' arcs), `PIECE` rows at a time
             for a0 in range(0, len(rows), PIECE):
-                e[3 * a0 : 3 * (a0 + PIECE)] -= self.held.columns(rows, slice(a0, a0 + PIECE)) @ step[self.pen]
+                piece = self.held.piece(rows, slice(a0, a0 + PIECE))
+                e[3 * a0 : 3 * (a0 + PIECE)] -= self.held.times(piece, step[self.pen][:, None], self.at_pen)[:, 0]
             if self.unwhiten is not None:
                 e = np.einsum("nij,nj->ni", self.unwhiten[rows], e.reshape(-1, 3)).ravel()
             ss += float(e @ e)
