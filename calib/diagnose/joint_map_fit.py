@@ -421,23 +421,22 @@ def _searched(
     `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
     orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
     n_rows = len(lin.table)
-    parts, n_coord = FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all)), 3 * n_rows
+    # with the map and, last, without it (no order's columns: every ridge the same) in one pass over the folds: each
+    # fold's part of the normal equations formed once and not kept, its downdate and unpenalised block once for both
     ss, ss_mm = _cv_scores(
-        parts,
+        FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all), keep=False),
         n_rows,
         lin.gram,
         lin.rhs,
         lin.unwhiten,
         pen_all,
         fold,
-        orders_cols,
+        [*orders_cols, pen_all[:0]],
         [s2 / t**2 for t in taus_rad],
         lin.held,
         executor,
     )
-    _, without_mm = _cv_scores(
-        parts, n_rows, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, executor
-    )
+    ss, ss_mm, without_mm, n_coord = ss[:-1], ss_mm[:-1], ss_mm[-1, 0], 3 * n_rows
     i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
     cv_table = [
         {"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
@@ -448,7 +447,7 @@ def _searched(
         int(orders[i]),
         float(taus_rad[li]),
         float(np.sqrt(ss_mm[i, li] / n_coord)),
-        float(np.sqrt(without_mm[0, 0] / n_coord)),
+        float(np.sqrt(without_mm / n_coord)),
         cv_table,
     )
 

@@ -105,6 +105,27 @@ def test_fold_parts_formed_once_give_the_same_scores():
     assert np.allclose(g, jm[coords].T @ jm[coords], rtol=1e-12, atol=1e-12 * np.abs(g).max())
 
 
+def test_the_search_without_the_map_in_the_same_pass():
+    # issue 41: the map's search scores the model without the map as one more order (no column) of its own pass over
+    # the folds: the map's orders' scores bit for bit those of a pass without it, and the model without the map's, at
+    # every ridge, the held-out errors of least squares on each fold's training rows (its unpenalised columns alone)
+    rng = np.random.default_rng(8)
+    jm, r = rng.standard_normal((300, 30)), rng.standard_normal(300)
+    fold = np.repeat(np.arange(5), 20)[rng.permutation(100)]
+    pen, gram, rhs = np.arange(10, 30), jm.T @ jm, jm.T @ r
+    orders, rows, free, lams = [pen[:10], pen], DenseRows(jm, r, pen), np.arange(10), [0.1, 1.0, 10.0]
+    args = (100, gram, rhs, None, pen, fold)
+    alone = _cv_scores(FoldParts(rows, free, keep=False), *args, orders, lams, rows)
+    both = _cv_scores(FoldParts(rows, free, keep=False), *args, [*orders, pen[:0]], lams, rows)
+    assert all(np.array_equal(a, b[:-1]) for a, b in zip(alone, both, strict=True))
+    ss = 0.0
+    for k in range(5):
+        test = np.isin(np.arange(300) // 3, np.flatnonzero(fold == k))
+        x = np.linalg.lstsq(jm[~test][:, free], r[~test], rcond=None)[0]
+        ss += float(np.sum((r[test] - jm[test][:, free] @ x) ** 2))
+    assert np.allclose(both[0][-1], ss, rtol=1e-12) and np.array_equal(both[0][-1], both[1][-1])
+
+
 def test_ridge_path_from_the_gram_matrix_equals_the_svd():
     rng = np.random.default_rng(6)
     x = rng.standard_normal((600, 80))
