@@ -236,7 +236,7 @@ class HeldOutMap:
         """(3 n, k): the map's columns `idx` of a piece's n rows (`piece`) times c (len(idx), k), joint by joint: a
         coefficient moves its own joint, so the product is each joint's lever times its features' product with its
         coefficients, summed over the joints. The columns (3 n x len(idx)) are never formed (issue 41: forming them
-        (`JointFeatures.lever_columns`) and multiplying them cost twice as much)."""
+        (`JointFeatures.lever_columns`) and multiplying them took three times as long on Series B)."""
         rows, values = piece
         idx = np.asarray(idx)
         joint = self.feats.joint[idx]
