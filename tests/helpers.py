@@ -85,8 +85,17 @@ class DenseRows:
         r, j = self(rows)
         return j.T @ j, j.T @ r, r, j[:, keep]
 
-    def columns(self, rows, at=slice(None)):
+    def piece(self, rows, at=slice(None)):
         return self(rows[at])[1][:, self.pen]
+
+    def times(self, piece, c, idx):
+        return piece[:, idx] @ c
+
+
+def held_columns(held: HeldOutMap, test: np.ndarray, at: slice = slice(None)) -> np.ndarray:
+    """(3 n, e) the held-out map's columns of the rows test[at]: its product with the identity, which is exact (each
+    sum has one non-zero term, times 1)."""
+    return held.times(held.piece(test, at), np.eye(len(held.names)), np.arange(len(held.names)))
 
 
 def held_out_map(cell: Cell, table: MeasurementTable, geo: Identification, params, arcs: dict, order: int):

@@ -45,7 +45,7 @@ from trackcal.calib.diagnose.joint_map import (
     map_extension,
     parse_name,
 )
-from trackcal.calib.diagnose.ridge import ridge_path
+from trackcal.calib.diagnose.ridge import ridge_inverse, ridge_path, ridge_solve
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
     Identification,
@@ -57,7 +57,7 @@ from trackcal.calib.identify.solver import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import Extension, JointFeatures, combine
+from trackcal.calib.model.extension import Extension, combine
 from trackcal.calib.model.params import Param
 
 ORDERS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidate harmonic orders H
@@ -214,13 +214,14 @@ class HeldOutMap:
     def _training_arcs(self, test: np.ndarray) -> dict[int, Arc]:
         key = test.tobytes()
         if key not in self._arcs:
-            train = np.setdiff1d(np.arange(len(self.q)), test)
+            train = np.ones(len(self.q), dtype=bool)  # a mask: no sort of the rows (setdiff1d's)
+            train[test] = False
             self._arcs[key] = {j: Arc.covering(self.q[train, j]) for j in self.of_joint}
         return self._arcs[key]
 
-    def columns(self, test: np.ndarray, at: slice = slice(None)) -> np.ndarray:
-        """(3 n, e) map columns of the n rows test[at] (`test`: the held-out rows, indices), clamped to the arcs of
-        the rows not in `test`."""
+    def piece(self, test: np.ndarray, at: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """(the n rows test[at] (`test`: the held-out rows, indices), their (n, e) map features clamped to the arcs of
+        the rows not in `test`): what `times` multiplies."""
         test = np.asarray(test)
         rows = test[at]
         values, q = self.feats.values[rows], self.q[rows]
@@ -233,8 +234,21 @@ class HeldOutMap:
                 names, cols = self.of_joint[j]
                 for _, sub, vals in harmonics_by_joint(q[beyond], names, {j: arc}):
                     values[np.ix_(beyond, np.asarray(cols)[sub])] = vals
-        out = np.empty((len(rows), 3, values.shape[1]))
-        JointFeatures(values, self.feats.joint, self.feats.n).lever_columns(self.lever[rows], out)
+        return rows, values
+
+    def times(self, piece: tuple[np.ndarray, np.ndarray], c: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """(3 n, k): the map's columns `idx` of a piece's n rows (`piece`) times c (len(idx), k), joint by joint: a
+        coefficient moves its own joint, so the product is each joint's lever times its features' product with its
+        coefficients, summed over the joints. The columns (3 n x len(idx)) are never formed (issue 41: forming them
+        (`JointFeatures.lever_columns`) and multiplying them took three times as long on Series B)."""
+        rows, values = piece
+        idx = np.asarray(idx)
+        joint = self.feats.joint[idx]
+        lever = self.lever[rows]
+        out = np.zeros((len(rows), 3, c.shape[1]))
+        for j in np.unique(joint):
+            own = joint == j
+            out += lever[:, :, j, None] * (values[:, idx[own]] @ c[own])[:, None, :]
         return out.reshape(3 * len(rows), -1)
 
 
@@ -251,7 +265,7 @@ class FoldParts:
     held-out rows' residual r_k and their Jacobian's unpenalised columns `free`, formed by `rows` (`ProblemRows`, or
     anything whose `normal(rows, keep)` gives them for given rows) `PIECE` rows at a time: the whole Jacobian is
     never held (issue 41). Kept per fold with `keep`: the cross-validations of one linearised problem share their
-    folds (issue 26: the map's search and its comparison without the map; the models of `MapEvidence`)."""
+    folds (the models of `MapEvidence`)."""
 
     def __init__(self, rows, free: np.ndarray, keep: bool = True):
         self.rows, self.free, self.keep = rows, free, keep
@@ -296,7 +310,8 @@ def _cv_scores(
     residual r; `parts(k, rows)` fold k's (J_k^T J_k, J_k^T r_k, r_k, J_k's unpenalised columns) (`FoldParts`);
     unwhiten (N, 3, 3) or None (i.i.d.) turns residuals back into mm; pen_cols the penalised columns at the largest
     order; orders_cols[i] the subset of them kept at order i; `held` (its coefficients those of pen_cols, in order;
-    needed when an order keeps a column): the held-out rows' map columns clamped to the training rows' arcs. The folds
+    needed when an order keeps a column): the held-out rows' map columns clamped to the training rows' arcs, as a
+    product (`HeldOutMap.piece` and `times`). The folds
     are solved in `executor` when given (threads: their LAPACK calls release the GIL), summed in fold order."""
     free = np.setdiff1d(np.arange(len(gram)), pen_cols)
     lam = np.asarray(lambdas, dtype=float)
@@ -323,22 +338,18 @@ def _cv_scores(
             # an order that keeps every column reads the whole Schur complement, not a copy of it
             gaf, bf = gpf[:, pos], bf_all[pos]
             schur = schur_all if len(pos) == len(kept) else schur_all[np.ix_(pos, pos)]
-            if len(lam) == 1:  # one ridge: a solve is a fraction of the path's cost
-                h = schur.copy()  # schur + lam I: the ridge added to the diagonal alone (no identity formed)
-                h.flat[:: len(h) + 1] += lam[0]
-                c = np.linalg.solve(h, bf)[:, None]
-            else:
-                c = ridge_path(schur, bf, lam)  # (p, L): every ridge
+            # (p, L): every ridge; one ridge by a solve (Cholesky), a fraction of the path's cost
+            c = ridge_solve(schur, bf, lam[0])[:, None] if len(lam) == 1 else ridge_path(schur, bf, lam)
             solved.append((gaa_inv @ (b[free][:, None] - gaf @ c), c, np.searchsorted(pen_cols, cols)))
         # the held-out errors `PIECE` rows at a time, the map's columns predicted as predict will (clamped to the
         # training rows' arcs) formed once per piece for every order: never the fold's whole (issue 41)
         for a0 in range(0, len(rows), PIECE):
             at, at3 = slice(a0, a0 + PIECE), slice(3 * a0, 3 * (a0 + PIECE))
-            jmap = held.columns(rows, at) if held is not None and len(kept) else None
+            piece = held.piece(rows, at) if held is not None and len(kept) else None
             for i, (a, c, idx) in enumerate(solved):
                 e = rk[at3, None] - j_free[at3] @ a  # (3 n, L)
-                if len(idx):  # the columns of an order that keeps them all read in place
-                    e -= (jmap if len(idx) == jmap.shape[1] else jmap[:, idx]) @ c
+                if len(idx):
+                    e -= held.times(piece, c, idx)
                 ss[i] += np.sum(e**2, axis=0)
                 if unwhiten is not None:
                     e = np.einsum("nij,njl->nil", unwhiten[rows[at]], e.reshape(-1, 3, len(lam))).reshape(e.shape)
@@ -414,23 +425,22 @@ def _searched(
     `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
     orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
     n_rows = len(lin.table)
-    parts, n_coord = FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all)), 3 * n_rows
+    # with the map and, last, without it (no order's columns: every ridge the same) in one pass over the folds: each
+    # fold's part of the normal equations formed once and not kept, its downdate and unpenalised block once for both
     ss, ss_mm = _cv_scores(
-        parts,
+        FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all), keep=False),
         n_rows,
         lin.gram,
         lin.rhs,
         lin.unwhiten,
         pen_all,
         fold,
-        orders_cols,
+        [*orders_cols, pen_all[:0]],
         [s2 / t**2 for t in taus_rad],
         lin.held,
         executor,
     )
-    _, without_mm = _cv_scores(
-        parts, n_rows, lin.gram, lin.rhs, lin.unwhiten, pen_all, fold, [pen_all[:0]], [1.0], None, executor
-    )
+    ss, ss_mm, without_mm, n_coord = ss[:-1], ss_mm[:-1], ss_mm[-1, 0], 3 * n_rows
     i, li = np.unravel_index(int(np.argmin(ss)), ss.shape)
     cv_table = [
         {"order": int(h), "tau_rad": float(t), "cv_rms_mm": float(np.sqrt(ss_mm[a, b] / n_coord))}
@@ -441,7 +451,7 @@ def _searched(
         int(orders[i]),
         float(taus_rad[li]),
         float(np.sqrt(ss_mm[i, li] / n_coord)),
-        float(np.sqrt(without_mm[0, 0] / n_coord)),
+        float(np.sqrt(without_mm / n_coord)),
         cv_table,
     )
 
@@ -597,6 +607,7 @@ class MapEvidence:
         self.n_pen = len(names)
         self.ridge = fit.ridge
         self.pen = self.k + len(self.x_base) + np.arange(self.n_pen)  # the map's columns
+        self.at_pen = np.arange(self.n_pen)  # every coefficient of the held-out map (`HeldOutMap.times`)
         self.free = np.setdiff1d(np.arange(len(self.gram)), self.pen)
         self.base_cols = self.k + np.arange(len(self.x_base))  # the base extension's columns
         # column scaling (the column norms of the Jacobian) keeps the factorisations accurate
@@ -679,7 +690,8 @@ class MapEvidence:
             e = rk - j_free @ step[self.free]
             # the map's columns as predict sees them (clamped to the training rows' arcs), `PIECE` rows at a time
             for a0 in range(0, len(rows), PIECE):
-                e[3 * a0 : 3 * (a0 + PIECE)] -= self.held.columns(rows, slice(a0, a0 + PIECE)) @ step[self.pen]
+                piece = self.held.piece(rows, slice(a0, a0 + PIECE))
+                e[3 * a0 : 3 * (a0 + PIECE)] -= self.held.times(piece, step[self.pen][:, None], self.at_pen)[:, 0]
             if self.unwhiten is not None:
                 e = np.einsum("nij,nj->ni", self.unwhiten[rows], e.reshape(-1, 3)).ravel()
             ss += float(e @ e)
@@ -748,7 +760,7 @@ def _penalised_fit(
         scale[scale == 0] = 1.0
         x = np.zeros(problem.n_cols)
         x[k0 : k0 + n_map] = state.ext[k0 - len(problem.params) :]
-        ds = np.linalg.solve(gram / np.outer(scale, scale) + np.diag(pen / scale**2), (rhs - pen * x) / scale)
+        ds = ridge_solve(gram / np.outer(scale, scale), (rhs - pen * x) / scale, pen / scale**2)
         state = problem.retract(state, ds / scale)
         iterations += 1
         d = ds / scale
@@ -765,7 +777,7 @@ def _penalised_fit(
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0
     gram = gram / np.outer(scale, scale)  # not in place: it can be the caller's (at_start)
-    h_inv = np.linalg.inv(gram + np.diag(pen / scale**2))
+    h_inv = ridge_inverse(gram, pen / scale**2)
     hat = np.einsum("ij,ji->i", h_inv, gram)  # diagonal of (G + P)^-1 G: each unknown's share of the fit
     edf = float(hat.sum())
     dof = max(int(round(3 * problem.n_rows - edf)), 1)

@@ -13,6 +13,10 @@ lower-stored reduction as dormqr on A(2:p, 1:p-1) and C(2:p, :), which is what `
 
 Should T + lam I be singular for some lam (S singular and lam = 0, or rounding below -lam in a direction of S
 with no information), the path falls back to the eigendecomposition with S's eigenvalues clipped at 0, as before.
+
+One ridge (a scalar, or one per column: `ridge_solve`, `ridge_inverse`): S + diag(lam) is positive definite by
+construction, and a Cholesky factor costs half the flops of LU (issue 41: the single-ridge solves of ~650 columns
+of the map's held-out test, 6 ms each by LU); LU, as before, when rounding leaves it not positive definite.
 """
 
 from __future__ import annotations
@@ -30,6 +34,45 @@ def _apply_q(a: np.ndarray, tau: np.ndarray, c: np.ndarray, trans: str) -> np.nd
         if info != 0:
             raise np.linalg.LinAlgError(f"dormqr: info {info}")
     return out
+
+
+def _ridged(s: np.ndarray, lam) -> np.ndarray:
+    """A copy of s with lam (a scalar or (p,)) added to its diagonal."""
+    h = s.copy()
+    h.flat[:: len(h) + 1] += lam
+    return h
+
+
+def _factor(h: np.ndarray) -> tuple[np.ndarray, int]:
+    """(the upper Cholesky factor of h^T, h (p, p) C-ordered and overwritten: h^T is its Fortran-ordered view, LAPACK
+    factors it in place; info > 0 when h is not positive definite)."""
+    return lapack.dpotrf(h.T, lower=0, overwrite_a=1, clean=0)
+
+
+def ridge_solve(s: np.ndarray, b: np.ndarray, lam) -> np.ndarray:
+    """(s + diag(lam))^-1 b: s (p, p) symmetric positive semi-definite (a Gram matrix or a Schur complement of one),
+    lam >= 0 a scalar or (p,), b (p,) or (p, k). By Cholesky; by LU (`np.linalg.solve`, raising LinAlgError when
+    singular) when s + diag(lam) is not positive definite."""
+    if len(s) == 0:
+        return np.zeros(np.shape(b))
+    c, info = _factor(_ridged(s, lam))
+    if info != 0:
+        return np.linalg.solve(_ridged(s, lam), b)
+    x, info = lapack.dpotrs(c, b, lower=0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dpotrs: info {info}")
+    return x
+
+
+def ridge_inverse(s: np.ndarray, lam) -> np.ndarray:
+    """(s + diag(lam))^-1, symmetric: s and lam as `ridge_solve`'s. By Cholesky (dpotrf and dpotri: half the flops of
+    LU's inverse); by `np.linalg.inv` when s + diag(lam) is not positive definite."""
+    c, info = _factor(_ridged(s, lam))
+    if info == 0:
+        c, info = lapack.dpotri(c, lower=0, overwrite_c=1)
+    if info != 0:
+        return np.linalg.inv(_ridged(s, lam))
+    return np.triu(c) + np.triu(c, 1).T  # dpotri leaves the upper triangle
 
 
 def _eigen_path(s: np.ndarray, b: np.ndarray, lams: np.ndarray) -> np.ndarray:

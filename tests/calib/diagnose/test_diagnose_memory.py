@@ -57,7 +57,7 @@ def test_held_out_map_keeps_nothing_per_fold_but_its_arcs():
 
     def ask_every_fold():
         for k in range(5):
-            held.columns(np.flatnonzero(fold == k))  # the columns returned are dropped: what stays is kept
+            held.piece(np.flatnonzero(fold == k))  # the features returned are dropped: what stays is kept
 
     _, kept, _ = traced(ask_every_fold)
     harmonics = len(table) * len(names) * F64

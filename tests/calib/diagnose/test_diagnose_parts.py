@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import held_columns
 from trackcal.calib.diagnose import crossval, fits
 from trackcal.calib.diagnose.changepoint import rigid_prefix_rss
 from trackcal.calib.diagnose.extensions import build_extension
@@ -128,7 +129,7 @@ def test_map_evidence_matches_direct_penalised_fits(kr270):
             # (HeldOutMap): every visit of a pose can fall in one fold (rows 3, 15, 27 are Q9 here), and a pose
             # beyond the training rows' arc of a joint is predicted from its end
             held = j[test3]
-            held[:, pen] = ev.held.columns(np.flatnonzero(fold == k))
+            held[:, pen] = held_columns(ev.held, np.flatnonzero(fold == k))
             errs.append(r[test3] - held @ solve(np.setdiff1d(everything, test3)))
         assert ev.cv_rms_mm(fold, drop) == pytest.approx(fits.rms(np.concatenate(errs)), rel=1e-6)
 

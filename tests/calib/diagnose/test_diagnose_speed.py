@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from studies.ur10_ipa.study import DATA, SERIES
-from tests.helpers import DenseRows, backlash_twin_case, held_out_map
+from tests.helpers import DenseRows, backlash_twin_case, held_columns, held_out_map
 from trackcal.calib.diagnose import crossval, diagnose, fits
 from trackcal.calib.diagnose.extensions import approach_signs
 from trackcal.calib.diagnose.joint_map import Arc, harmonic_names, map_features, parse_name
@@ -103,6 +103,27 @@ def test_fold_parts_formed_once_give_the_same_scores():
     coords = _coords(held)
     assert np.array_equal(rk, r[coords]) and np.array_equal(j_free, jm[coords][:, free])
     assert np.allclose(g, jm[coords].T @ jm[coords], rtol=1e-12, atol=1e-12 * np.abs(g).max())
+
+
+def test_the_search_without_the_map_in_the_same_pass():
+    # issue 41: the map's search scores the model without the map as one more order (no column) of its own pass over
+    # the folds: the map's orders' scores bit for bit those of a pass without it, and the model without the map's, at
+    # every ridge, the held-out errors of least squares on each fold's training rows (its unpenalised columns alone)
+    rng = np.random.default_rng(8)
+    jm, r = rng.standard_normal((300, 30)), rng.standard_normal(300)
+    fold = np.repeat(np.arange(5), 20)[rng.permutation(100)]
+    pen, gram, rhs = np.arange(10, 30), jm.T @ jm, jm.T @ r
+    orders, rows, free, lams = [pen[:10], pen], DenseRows(jm, r, pen), np.arange(10), [0.1, 1.0, 10.0]
+    args = (100, gram, rhs, None, pen, fold)
+    alone = _cv_scores(FoldParts(rows, free, keep=False), *args, orders, lams, rows)
+    both = _cv_scores(FoldParts(rows, free, keep=False), *args, [*orders, pen[:0]], lams, rows)
+    assert all(np.array_equal(a, b[:-1]) for a, b in zip(alone, both, strict=True))
+    ss = 0.0
+    for k in range(5):
+        test = np.isin(np.arange(300) // 3, np.flatnonzero(fold == k))
+        x = np.linalg.lstsq(jm[~test][:, free], r[~test], rcond=None)[0]
+        ss += float(np.sum((r[test] - jm[test][:, free] @ x) ** 2))
+    assert np.allclose(both[0][-1], ss, rtol=1e-12) and np.array_equal(both[0][-1], both[1][-1])
 
 
 def test_ridge_path_from_the_gram_matrix_equals_the_svd():
@@ -277,9 +298,30 @@ def test_held_out_map_columns_equal_the_dense_features_times_the_levers(twin_cas
     assert any(arc.clamp(q[test, j])[1].any() for j, arc in arcs_train.items())  # rows beyond a training arc
     feats = map_features(q[test], names, arcs_train)
     ref = np.einsum("rcj,rje->rce", held.lever[test], feats).reshape(3 * len(test), -1)
-    assert np.array_equal(held.columns(test), ref)
+    assert np.array_equal(held_columns(held, test), ref)
     # a piece of the held-out rows: its rows of the same columns
-    assert np.array_equal(held.columns(test, slice(5, 17)), ref[15:51])
+    assert np.array_equal(held_columns(held, test, slice(5, 17)), ref[15:51])
+
+
+def test_held_out_map_times_coefficients_equals_its_columns_times_them(twin_case):
+    """`HeldOutMap.times`, joint by joint from the clamped features (issue 41: the columns are not formed), equals the
+    columns times the coefficients to rounding, for every coefficient and for an order's subset (a joint's lower
+    harmonics), several right-hand sides at once, on a piece of the held-out rows."""
+    table, params, geo = twin_case
+    q = np.radians(table.q_deg)
+    held, names = held_out_map(CELL, table, geo, params, {j: Arc.covering(q[:, j]) for j in range(CELL.chain.dof)}, 4)
+    test = np.arange(2, len(table), 3)
+    cols = held_columns(held, test, slice(3, 20))
+    c = np.random.default_rng(7).standard_normal((len(names), 3))
+    low = np.flatnonzero([parse_name(nm)[1] <= 2 for nm in names])
+    piece = held.piece(test, slice(3, 20))
+    for idx in (np.arange(len(names)), low):
+        ref = cols[:, idx] @ c[idx]
+        # float64 sums of len(idx) products: the two orders of summation differ by len(idx) eps of the terms' sum
+        tol = len(idx) * np.finfo(float).eps * (np.abs(cols[:, idx]) @ np.abs(c[idx])).max()
+        got = held.times(piece, c[idx], idx)
+        assert got.shape == ref.shape and np.abs(got - ref).max() <= tol
+    assert np.abs(ref).max() > 1e3 * tol  # the products are not all zero: the comparison can fail
 
 
 def ridge_predict_reference(x_tr, y_tr, x_te, pose_tr):
@@ -369,4 +411,4 @@ def test_held_out_map_columns_of_rows_beyond_the_features_arcs(twin_case):
     arcs_train = {j: Arc.covering(q[train, j]) for j in narrow}
     assert any(narrow[j].clamp(q[test, j])[1].any() for j in narrow)  # rows beyond the features' arcs
     ref = np.einsum("rcj,rje->rce", held.lever[test], map_features(q[test], names, arcs_train))
-    assert np.array_equal(held.columns(test), ref.reshape(3 * len(test), -1))
+    assert np.array_equal(held_columns(held, test), ref.reshape(3 * len(test), -1))
