@@ -24,6 +24,7 @@ from trackcal.calib.identify.solver import (
     Identification,
     IdentificationError,
     Problem,
+    Rows,
     State,
     Station,
     identify,
@@ -57,7 +58,6 @@ class Fit:
     extension: Extension | None
     rss: float  # whitened
     n_cols: int
-    residuals: np.ndarray
     gram: np.ndarray  # J^T J of the whitened Jacobian J at the solution (the identifiability check, cross-validation)
     grad: np.ndarray  # J^T r
     problem: Problem  # forms J's rows on demand (`rows`): the fit holds no (3N, n_cols) array (issue 41)
@@ -69,6 +69,12 @@ class Fit:
         """The whitened residual vector (3N,) at the solution, formed when asked for (the structure tests of the chosen
         model ask; the fits of the other candidates are not held with it)."""
         return self.problem.residual(self.state)
+
+    @property
+    def residuals(self) -> np.ndarray:
+        """(N, 3) measured - predicted, mm, station frames, formed when asked for: a candidate's judgement asks once,
+        a fold's fit (a change point that moved) and thermal_drift's rival forms never (issue 41)."""
+        return self.problem.xyz - self.problem.predicted(self.state)
 
     def rows(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The whitened residuals (3n,) and Jacobian rows (3n, n_cols) of `rows` at the solution, in that order."""
@@ -90,6 +96,7 @@ class Context:
     executor: Executor | None = None  # runs independent pieces (folds) at once when given (threads)
     scans: dict[bytes | None, tuple | None] = field(default_factory=dict)  # change points found, by rows (`scan`)
     combined: dict[tuple, tuple] = field(default_factory=dict)  # extensions combined (`extension_of`)
+    rows: Rows | None = None  # the whole table's layout (solver.Rows), shared by its fits whatever their features
 
 
 def _whole_fit(
@@ -98,7 +105,9 @@ def _whole_fit(
     """Levenberg-Marquardt from `start` (a fit of fewer causes, or of the same causes on more rows; its parameters
     where the model shares them, the others at zero) or from the geometric solution; a moved station starts where
     it was."""
-    problem = Problem(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, ctx.geo.dev, ext)
+    problem = Problem(ctx.chain, table, ctx.geo.points, ctx.params, ctx.noise, ctx.geo.dev, ext, rows=ctx.rows)
+    if table is ctx.table:
+        ctx.rows = problem.rows
     at = ctx.geo if start is None else start
     st, values = at.stations, _ext_values(at.extension, at.ext)
     problem.initial = State(
@@ -121,7 +130,6 @@ def _whole_fit(
         ext,
         rss,
         problem.n_cols,
-        problem.xyz - problem.predicted(state),
         gram=gram,
         grad=grad,
         problem=problem,

@@ -16,6 +16,7 @@ measured from another station).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import NamedTuple
@@ -174,15 +175,18 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return runs[order[starts]], inverse[of_row]
 
 
-def _distinct_poses(q: np.ndarray, feats: JointFeatures | None) -> tuple[np.ndarray, np.ndarray]:
+def _distinct_poses(
+    q: np.ndarray, feats: JointFeatures | None, angles: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(first row of each distinct pose, pose of every row): rows with equal joint angles and, with joint-offset
-    features (N, n, e), equal features, in np.unique's order of the key [q, features].
+    features (N, n, e), equal features, in np.unique's order of the key [q, features]. `angles`: unique_rows(q) if
+    already computed (`Rows.angle_poses`).
 
     The features are usually a function of the angles (a joint error map: hundreds of columns): then the groups of
     the angles alone are those of the whole key and in the same order (the key sorts by the angles first), and the
     sort of a key thousands of columns wide is skipped (issue 26: 5 s of a diagnosis of the UR10's Series B). When
     they are not (backlash follows the direction of motion), the whole key is sorted as before."""
-    first, of_row = unique_rows(q)
+    first, of_row = unique_rows(q) if angles is None else angles
     if feats is not None and len(first) < len(q):  # every row its own pose by its angles: so by the whole key
         flat = feats.values  # equal rows of the block form are equal rows of the dense features
         # compared a piece of rows at a time (issue 41: the whole N x e copy was the peak of a 20k-row diagnosis)
@@ -246,17 +250,37 @@ class Rows:
         self.xyz = table.xyz
         self._chunks: dict[int, list[_Chunk]] = {}
 
+    def of(self, chain: Chain, table: MeasurementTable, tool_points, noise) -> bool:
+        """Were these rows laid out for this table (the same objects, an equal noise model), whatever the features?"""
+        mine, theirs = (self.chain, self.table, self.tool_points), (chain, table, tool_points)
+        return all(a is b for a, b in zip(mine, theirs, strict=True)) and self.noise == noise
+
     def fits(self, chain: Chain, table: MeasurementTable, tool_points, noise, feats: JointFeatures | None) -> bool:
         """Were these rows laid out for this set-up (the same objects, an equal noise model)?"""
-        mine, theirs = (self.chain, self.table, self.tool_points, self.feats), (chain, table, tool_points, feats)
-        return all(a is b for a, b in zip(mine, theirs, strict=True)) and self.noise == noise
+        return self.of(chain, table, tool_points, noise) and self.feats is feats
+
+    def with_features(self, feats: JointFeatures | None) -> Rows:
+        """These rows for other joint-offset features: what the table alone gives (ids, indices, angles, measurements,
+        whitening, the angles' distinct poses) shared, the distinct poses, the stations' start and the chunks made
+        again (a diagnosis's candidates, each with its own features, made it all again: 1 ms a fit of Series B's
+        1495 rows, issue 41)."""
+        out = copy.copy(self)
+        out.feats, out._chunks = feats, {}
+        for name in ("poses", "stations"):  # cached_property values of these features (kept in the instance dict)
+            out.__dict__.pop(name, None)
+        return out
+
+    @cached_property
+    def angle_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """unique_rows of the joint angles: the distinct poses of the angles alone (whatever the features)."""
+        return unique_rows(self.q)
 
     @cached_property
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         """(first row of each distinct pose, pose of every row): rows share poses (several points, several
         stations), so the chain is walked once per distinct pose (and joint-offset features, which make the
         extended joint angles of a row)."""
-        return _distinct_poses(self.q, self.feats)
+        return _distinct_poses(self.q, self.feats, self.angle_poses)
 
     @cached_property
     def w(self) -> np.ndarray | None:
@@ -332,7 +356,8 @@ class Problem:
     3 coordinates. `fixed` removes groups from the unknowns: "robot" (deviations and extension parameters,
     held at dev0 / ext0) and "points" (held at tool_points); `n_cols` counts the free unknowns, and the
     Jacobian and steps have only their columns. `rows`: the table's layout from a Problem of the same table,
-    tool points, noise and joint-offset features (Rows.fits; any other is not used).
+    tool points and noise (Rows.of; any other is not used), its distinct poses too when its joint-offset features are
+    the same objects (else `Rows.with_features`).
     """
 
     def __init__(
@@ -349,8 +374,10 @@ class Problem:
         rows: Rows | None = None,
     ):
         feats = None if extension is None else extension.joint_features
-        if rows is None or not rows.fits(chain, table, tool_points, noise, feats):
+        if rows is None or not rows.of(chain, table, tool_points, noise):
             rows = Rows(chain, table, tool_points, noise, feats)
+        elif rows.feats is not feats:
+            rows = rows.with_features(feats)
         self.rows, source = rows, table.source
         self.chain, self.params, self.noise, self.source = chain, list(params), noise, source
         self.station_ids, self.point_ids = rows.station_ids, rows.point_ids

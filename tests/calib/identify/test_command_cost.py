@@ -13,6 +13,7 @@ from hypothesis.extra import numpy as hnp
 
 from tests.calib.identify.test_determined import UR10_P
 from tests.helpers import README_TABLE_ARGS, README_TABLES, drawn_kr270_campaign, kr270_campaign, readme_table_fit
+from trackcal.calib.diagnose.extensions import build_extension
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
@@ -92,6 +93,29 @@ def test_fits_sharing_the_row_layout_are_the_fits_alone(kr270):
         assert_same_fit(shared, identify(kr270.chain, table, kr270.tool_points, fit_params, noise=noise))
     iid = identify(kr270.chain, table, kr270.tool_points, params, rows=rows)
     assert_same_fit(iid, identify(kr270.chain, table, kr270.tool_points, params))
+
+
+@pytest.mark.parametrize("cause", ["backlash", "encoder_scale"])
+def test_a_layout_shared_across_features_gives_each_problem_its_own(kr270, cause):
+    """A diagnosis's candidates share the table's layout whatever their joint-offset features (Rows.with_features):
+    the distinct poses and the normal equations of a Problem made from the shared layout are those of one made alone,
+    bit for bit, and the shared layout keeps its own poses. backlash's features follow the direction of motion (its
+    poses are not those of the angles alone), encoder_scale's are a function of the angles."""
+    _, table = kr270_campaign(kr270, seed=3, n_poses=30)
+    table = table.subset(np.r_[np.arange(len(table)), np.arange(12)])  # poses measured again, from another side
+    params, noise = campaign_params(kr270.chain), TrackerNoise()
+    rows = Rows(kr270.chain, table, kr270.tool_points, noise, None)
+    first = rows.poses
+    ext = build_extension(cause, kr270.chain, table)
+    shared = Problem(kr270.chain, table, kr270.tool_points, params, noise, extension=ext, rows=rows)
+    alone = Problem(kr270.chain, table, kr270.tool_points, params, noise, extension=ext)
+    assert shared.rows is not rows and shared.rows.q is rows.q and rows.poses is first
+    for a, b in zip(shared.rows.poses, alone.rows.poses, strict=True):
+        np.testing.assert_array_equal(a, b)
+    state = alone.initial
+    state.ext = np.random.default_rng(1).normal(0, 1e-3, ext.size)  # offsets that move the rows' angles
+    for a, b in zip(shared.normal_equations(state), alone.normal_equations(state), strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def qr_covariance(res: Identification, table) -> np.ndarray:

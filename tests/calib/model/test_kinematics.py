@@ -2,12 +2,13 @@
 
 import numpy as np
 import pinocchio as pin
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import ROOT
 from trackcal.calib.model.chain import chain_from_urdf
-from trackcal.calib.model.kinematics import Kinematics, turned
+from trackcal.calib.model.kinematics import Kinematics, cross3, turned
 from trackcal.calib.model.params import complete_params
 from trackcal.calib.model.pinmodel import pinocchio_model
 from trackcal.calib.model.rigid import exp_so3, rot_axis
@@ -113,3 +114,19 @@ def test_a_turn_is_the_product_with_the_axis_rotation(axis, angles, w):
     columns = np.repeat(r.T[:, :, None], len(angles), axis=2)  # r[:, a] of every row: columns[a] (3, rows)
     out = turned(columns, axis, np.cos(angles), np.sin(angles))
     np.testing.assert_allclose(out.transpose(2, 1, 0), r @ rot_axis(axis, angles), atol=1e-15)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_cross3_moved_by_a_transpose_equals_np_cross(axis):
+    """cross3 moves the coordinate axis to the front by a transpose (not np.moveaxis) and writes into `out` when given:
+    bit for bit np.cross's products and differences, broadcast shapes and out alike."""
+    rng = np.random.default_rng(axis)
+    shape_a, shape_b = [4, 1, 5], [1, 2, 5]  # broadcast against each other to (4, 2, 5)
+    shape_a.insert(axis, 3)
+    shape_b.insert(axis, 3)
+    a, b = rng.normal(size=shape_a), rng.normal(size=shape_b)
+    want = np.cross(a, b, axisa=axis, axisb=axis, axisc=axis)
+    np.testing.assert_array_equal(cross3(a, b, axis=axis), want)
+    out = np.full(want.shape, np.nan)
+    assert cross3(a, b, axis=axis, out=out) is out
+    np.testing.assert_array_equal(out, want)
