@@ -57,7 +57,7 @@ from trackcal.calib.identify.solver import (
 )
 from trackcal.calib.io.table import MeasurementTable
 from trackcal.calib.model.chain import Chain
-from trackcal.calib.model.extension import Extension, combine
+from trackcal.calib.model.extension import Extension, JointFeatures, combine
 from trackcal.calib.model.params import Param
 
 ORDERS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidate harmonic orders H
@@ -237,19 +237,14 @@ class HeldOutMap:
         return rows, values
 
     def times(self, piece: tuple[np.ndarray, np.ndarray], c: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """(3 n, k): the map's columns `idx` of a piece's n rows (`piece`) times c (len(idx), k), joint by joint: a
-        coefficient moves its own joint, so the product is each joint's lever times its features' product with its
-        coefficients, summed over the joints. The columns (3 n x len(idx)) are never formed (issue 41: forming them
-        (`JointFeatures.lever_columns`) and multiplying them took three times as long on Series B)."""
+        """(3 n, k): the map's columns `idx` of a piece's n rows (`piece`) times c (len(idx), k): a coefficient moves
+        its own joint, so the product is the rows' levers times the joint offsets of c (`JointFeatures.offsets`). The
+        columns (3 n x len(idx)) are never formed (issue 41: forming them (`JointFeatures.lever_columns`) and
+        multiplying them took three times as long on Series B)."""
         rows, values = piece
         idx = np.asarray(idx)
-        joint = self.feats.joint[idx]
-        lever = self.lever[rows]
-        out = np.zeros((len(rows), 3, c.shape[1]))
-        for j in np.unique(joint):
-            own = joint == j
-            out += lever[:, :, j, None] * (values[:, idx[own]] @ c[own])[:, None, :]
-        return out.reshape(3 * len(rows), -1)
+        offsets = JointFeatures(values[:, idx], self.feats.joint[idx], self.feats.n).offsets(c)  # (n, joints, k)
+        return np.matmul(self.lever[rows], offsets).reshape(3 * len(rows), -1)
 
 
 def _linearised(problem: Problem, state: State, start, base, table, names, normal: tuple) -> Linearised:

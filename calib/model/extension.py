@@ -179,10 +179,10 @@ class JointFeatures:
         return out
 
     def offsets(self, theta: np.ndarray) -> np.ndarray:
-        """(N, n) joint offsets Phi theta (rad): each run of parameters on one joint adds its features times their
-        values to that joint's (issue 41: the dense features' product a piece of rows at a time was 6 % of a diagnosis
-        of the UR10's Series B)."""
-        out = np.zeros((len(self.values), self.n))
+        """(N, n) joint offsets Phi theta (rad), or (N, n, k) for k sets of values theta (e, k): each run of parameters
+        on one joint adds its features times their values to that joint's (issue 41: the dense features' product a
+        piece of rows at a time was 6 % of a diagnosis of the UR10's Series B)."""
+        out = np.zeros((len(self.values), self.n, *np.shape(theta)[1:]))
         for sa, j in self._runs():
             out[:, j] += self.values[:, sa] @ theta[sa]
         return out

@@ -65,6 +65,9 @@ def test_offsets_of_the_block_form_are_the_dense_einsum(case):
     assert np.array_equal(jf.dense(), dense)
     bound = max(len(theta) - 1, 0) * np.finfo(float).eps * np.einsum("rje,e->rj", np.abs(dense), np.abs(theta))
     assert np.all(np.abs(jf.offsets(theta) - np.einsum("rje,e->rj", dense, theta)) <= bound)
+    # several sets of values at once (the held-out map's coefficients at every ridge): each set's own offsets
+    thetas = np.stack([theta, -2.0 * theta], axis=1)
+    assert np.all(np.abs(jf.offsets(thetas) - np.einsum("rje,ek->rjk", dense, thetas)) <= 2.0 * bound[:, :, None])
     rows = np.arange(0, len(dense), 3)
     assert np.array_equal(jf.take(rows).dense(), dense[rows])
     assert np.array_equal(jf.moves(), np.abs(dense).max(axis=0, initial=0.0) > 0)
