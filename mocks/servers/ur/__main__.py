@@ -54,7 +54,7 @@ def parser() -> argparse.ArgumentParser:
         type=int,
         default=0,
         metavar="N",
-        help="a protective stop halfway through the N-th movej (1-based; 0: never)",
+        help="a protective stop halfway through the N-th movej, with it if the arm stands at its target (0: never)",
     )
     p.add_argument(
         "--drop-on-move", type=int, default=0, metavar="N", help="drop every connection halfway through the N-th movej"

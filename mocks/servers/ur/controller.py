@@ -471,7 +471,10 @@ class UrController:
         self.moves += 1
         self._move_args = path
         self.motion.follow(first or path())
-        if self.motion.path is not None and self.moves == self.protective_stop_on_move:
+        if self.moves == self.protective_stop_on_move:
+            if self.motion.path is None:  # the arm stands at the target: the stop comes with the command
+                self.protective_stop(f"injected at move {self.moves}")
+                return
             self._scheduled.append((self.tick + max(1, round(self.motion.path.total / 2 / TICK_S)), "protective_stop"))
         if self.moves in self.fault_on_move and self.motion.path is not None:
             half = max(1, round(self.motion.path.total / 2 / TICK_S))

@@ -11,7 +11,9 @@ the connection, as the real controller drops a client it cannot parse.
 Faults (control port or scheduled by the controller): `drop` closes every client connection at once (the controller
 stays reachable), `unreachable S` closes them and refuses connections for S seconds (a controller gone from the
 network for a while; the robot and its program go on), `stale on|off` stops / restarts the RTDE frames while the
-connections stay open, `protective_stop`, `safeguard_stop`, `safeguard_reset`.
+connections stay open, `protective_stop`, `protective_stop_on_move N` (halfway through the N-th movej counted since
+the mock started, or with its command when the arm already stands at its target), `safeguard_stop`,
+`safeguard_reset`.
 """
 
 from __future__ import annotations
@@ -342,6 +344,13 @@ class UrServer:
             self.stale = False
         elif what == "protective_stop":
             ctl.protective_stop("injected")
+        elif what.startswith("protective_stop_on_move"):
+            try:
+                move = int(what.split()[1])
+            except (IndexError, ValueError):
+                return "protective_stop_on_move needs a move number: protective_stop_on_move 3"
+            with ctl.lock:
+                ctl.protective_stop_on_move = move
         elif what == "safeguard_stop":
             ctl.safeguard_stop()
         elif what == "safeguard_reset":

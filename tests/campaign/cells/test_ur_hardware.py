@@ -203,16 +203,23 @@ def test_kill_9_then_resume_against_the_same_mock_gives_the_sim_rows(plan, ur_mo
     assert abs(got.xyz - sim_table.xyz).max() < 0.2
 
 
-# the stop is injected once two measurements are stored and must find the campaign still running: the 16 of the pose's
-# 18 (two stations, three reflectors, drift checks) left take the operator's prompts at both stations, 1.2 s each at 50x
+# the stop is armed on the mock's third movej before the campaign starts: every measurement follows a move of its own
+# (the one pose, 18 times: two stations, three reflectors, drift checks), so two are stored before it and 15 moves come
+# after it, whatever the machine's load (injected on a measurement count seen by polling, it once came after the last)
+STOP_ON_MOVE = 3
+
+
 def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_mock, tmp_path):
-    """The robot raises a protective stop (injected on the mock's control port, mocks/servers/ur/server.py) during
+    """The robot raises a protective stop (armed on the mock's control port, mocks/servers/ur/server.py) during
     the campaign: it stops safely (exit 2, one line naming the protective stop), nothing measured at a wrong pose;
     `resume` asks the operator to acknowledge, unlocks the stop through the dashboard (the controller refuses until
     5 s after it) and completes the campaign with the rows of `run --sim`."""
     _, hw = ur_mock
     host = yaml.safe_load(hw.read_text())["robot"]["host"]
     d = tmp_path / "s"
+    with socket.create_connection((host, CONTROL_PORT), timeout=10) as s:
+        s.sendall(f"protective_stop_on_move {STOP_ON_MOVE}\n".encode())
+        assert s.recv(100).strip() == b"ok"
     first = subprocess.Popen(
         [
             *TRACKCAL,
@@ -232,19 +239,13 @@ def test_a_protective_stop_stops_the_campaign_and_resume_clears_it(one_pose, ur_
         text=True,
         cwd=ROOT,
     )
-    deadline = time.monotonic() + 120
-    while count_measurements(d / "session.sqlite") < 2 and time.monotonic() < deadline:
-        assert first.poll() is None, first.stderr.read()
-        time.sleep(0.01)
-    with socket.create_connection((host, CONTROL_PORT), timeout=10) as s:
-        s.sendall(b"protective_stop\n")
-        assert s.recv(100).strip() == b"ok"
     _, err = first.communicate(timeout=120)
     # ur_rtde's C++ side may print its own diagnostic ("RTDEControlInterface: RTDE control script is not running!")
     # when the script stops: it goes to the session's robot-native.log, trackcal's one line stays alone
     assert first.returncode == 2 and len(err.splitlines()) == 1 and "protective stop" in err, err
     assert (d / "robot-native.log").exists()
     stored = count_measurements(d / "session.sqlite")
+    assert stored == STOP_ON_MOVE - 1
     out = run("resume", str(d), "--no-analysis")
     assert out.returncode == 0
     with sqlite3.connect(d / "session.sqlite") as db:
