@@ -116,10 +116,12 @@ def _whole_fit(
         np.array([at.points[p] for p in problem.point_ids]),
         np.array([values.get(key, 0.0) for key in _ext_keys(ext)]),
     )
-    state = solve(problem, problem.initial, max_iter).state
+    sol = solve(problem, problem.initial, max_iter)
+    state = sol.state
     # summed over the row chunks: a whole Jacobian (with the joint error map among the causes, 3 x ~900 float64 per
-    # row: 22 KB per row of a KR-270 table) was held by every fit kept in ctx.fits (issue 41)
-    gram, grad, rss = problem.normal_equations(state)
+    # row: 22 KB per row of a KR-270 table) was held by every fit kept in ctx.fits (issue 41); the solver's, moved by
+    # its last step, when it stopped on one below 1e-9 of the noise (a pass over the rows less per fit, issue 41)
+    gram, grad, rss = problem.normal_equations(state) if sol.normal is None else sol.normal
     if not identifiable(gram):
         raise IdentificationError(f"{problem.source}: the model cannot be identified from these rows")
     return Fit(

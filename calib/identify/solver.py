@@ -707,6 +707,10 @@ class Solution:
     nit: int
     converged: bool
     message: str
+    # (J^T J, J^T r, r.r) at `state` to first order in the last step when the solver stopped on a step it took without
+    # forming them there (J^T J kept, r - J d), else None: they differ from those formed at `state` by the model's
+    # curvature times that small step (test_identify: a step from them moves by < 1e-7 of the noise)
+    normal: tuple[np.ndarray, np.ndarray, float] | None = None
 
 
 def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
@@ -749,10 +753,12 @@ def solve(problem: Problem, state: State, max_iter: int = 100) -> Solution:
         # step is taken as the last one (MINPACK's lm likewise stops on the step it takes, xtol).
         rate = step / prev if prev > 0 else 1.0
         if lam <= 1e-6 and (step <= tol or (rate <= 0.5 and rate / (1.0 - rate) * step <= tol)):
-            state = problem.retract(state, ds / scale)
+            d = ds / scale
+            state = problem.retract(state, d)
             iterations += 1
             converged, message = True, "the undamped step, or all steps after it, below the noise and rounding floor"
-            break
+            moved = (info, g - info @ d, cost - 2.0 * float(g @ d) + jd2)  # r - J d: the normal equations there
+            return Solution(state, iterations, converged, message, moved)
         cand = problem.retract(state, ds / scale)
         if fused:  # one pass gives the trial cost and, if the step is taken, the next normal equations
             info_new, g_new, cost_new = problem.normal_equations(cand)

@@ -358,3 +358,25 @@ def test_a_fit_that_did_not_converge_says_so_in_model_json(kr270, kr270_params, 
     write_json(tmp_path / "bad.json", {**doc, "converged": "yes"})
     with pytest.raises(ModelError, match="converged: expected true or false"):
         load_model(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("seed", [3, 17])
+def test_the_solvers_last_step_moves_its_normal_equations_to_first_order(kr270, kr270_params, seed):
+    """A fit that stops on a step taken without forming the normal equations there hands them moved by that step
+    (J^T J kept, J^T r - J^T J d, |r - J d|^2, `Solution.normal`). Against those formed at the returned state they
+    differ by the model's curvature times the last step, which the solver's test bounds (below 1e-9 of the noise
+    divided by the rate of convergence, ~1e-3 on these campaigns): the difference in J^T r would move a Gauss-Newton
+    step (a cross-validation fold's, `calib.diagnose.crossval`) by less than 1e-7 of the noise (measured: 1e-9 to
+    8e-9), J^T J agrees to 1e-7 (measured 1e-9 at most) and r.r to 1e-10 (a few 1e-12)."""
+    table = kr270_campaign(kr270, seed=seed, n_poses=12)[1]
+    ext = combine([build_extension("backlash", kr270.chain, table)])
+    problem = Problem(kr270.chain, table, kr270.tool_points, kr270_params, TrackerNoise(), extension=ext)
+    sol = solve(problem, problem.initial)
+    assert sol.converged and sol.normal is not None
+    gram, grad, cost = problem.normal_equations(sol.state)
+    g_lin, b_lin, c_lin = sol.normal
+    sigma = np.sqrt(cost / (3 * problem.n_rows - problem.n_cols))  # the whitened noise per coordinate
+    d = np.linalg.solve(gram, b_lin - grad)  # the step the difference in J^T r would add
+    assert np.sqrt(d @ gram @ d) < 1e-7 * sigma
+    assert np.abs(g_lin - gram).max() < 1e-7 * np.abs(gram).max()
+    assert c_lin == pytest.approx(cost, rel=1e-10)
