@@ -282,6 +282,12 @@ class FoldParts:
             self.parts[k] = out
         return out
 
+    def whole(self, groups: list[np.ndarray], executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """(J^T J, J^T r, r.r) of the whole table from the parts of `groups` (a partition of its rows, fold k the rows
+        groups[k]; formed in `executor` when given), which are kept."""
+        parts = list((map if executor is None else executor.map)(self, range(len(groups)), groups))
+        return sum(p[0] for p in parts), sum(p[1] for p in parts), float(sum(p[2] @ p[2] for p in parts))
+
 
 def _cv_scores(
     parts,
@@ -413,17 +419,19 @@ def _searched(
     orders: tuple[int, ...],
     taus_rad: tuple[float, ...],
     s2: float,
+    parts: FoldParts,
     executor: Executor | None,
 ) -> tuple:
     """fit_error_map's search: (order, tau, CV RMS with the map, without it, every (order, tau) with its CV RMS) by
-    cross-validation over `fold` on the linearised problem `lin`; `pen_all` the map's columns at the largest order,
-    `s2` the residual variance without the map (a ridge is s2 / tau^2)."""
+    cross-validation over `fold` on the linearised problem `lin`, `parts` the folds' parts of its normal equations;
+    `pen_all` the map's columns at the largest order, `s2` the residual variance without the map (a ridge is
+    s2 / tau^2)."""
     orders_cols = [pen_all[[parse_name(nm)[1] <= h for nm in lin.names]] for h in orders]
     n_rows = len(lin.table)
     # with the map and, last, without it (no order's columns: every ridge the same) in one pass over the folds: each
-    # fold's part of the normal equations formed once and not kept, its downdate and unpenalised block once for both
+    # fold's downdate and unpenalised block once for both
     ss, ss_mm = _cv_scores(
-        FoldParts(lin.rows, np.setdiff1d(np.arange(len(lin.gram)), pen_all), keep=False),
+        parts,
         n_rows,
         lin.gram,
         lin.rhs,
@@ -487,16 +495,20 @@ def fit_error_map(
     ext = _with_base(base, map_extension(q, names=names_max, arcs=arcs))
     problem = Problem(chain, table, geo.points, params, noise, extension=ext)
     state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names_max))]))
-    # the normal equations summed over row chunks: the Jacobian (3N x ~700) is never held whole (issue 41)
-    normal = problem.normal_equations(state)
     pen_all = len(params) + n_base + np.arange(len(names_max))
+    # the normal equations summed over row chunks: the Jacobian (3N x ~700) is never held whole (issue 41); for a
+    # search, the sums of its folds' parts, which it reads (a pass over the rows less: issue 41, CPU)
+    fold = _fold_ids(table, folds, seed)
+    groups = [np.flatnonzero(fold == k) for k in np.unique(fold)]
+    parts = FoldParts(ProblemRows(problem, state), np.setdiff1d(np.arange(problem.n_cols), pen_all)) if search else None
+    normal = problem.normal_equations(state) if parts is None else parts.whole(groups, executor)
     s2 = normal[2] / max(3 * len(table) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
     if search:
         linearised = _linearised(problem, state, geo, base, table, names_max, normal)
         order, tau, cv_rms, cv_without, cv_table = _searched(
-            linearised, pen_all, _fold_ids(table, folds, seed), orders, taus_rad, s2, executor
+            linearised, pen_all, fold, orders, taus_rad, s2, parts, executor
         )
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its normal equations at the start

@@ -100,8 +100,9 @@ def series_b():
 def test_diagnose_of_series_b_stays_under_its_per_row_bound():
     """The peak a diagnosis of the UR10's Series B allocates (1,495 rows, the joint error map up to order 64 on five
     joints: 640 coefficients, a Jacobian row 3 x ~680 float64 = 16 KB) stays under 4 such Jacobian rows per row of
-    the table, 65 KB per row: 53 KB per row measured (a margin of a fifth), most of it what does not grow with the
-    rows (the folds' Gram matrices, 680 x 680 each; pieces of 512 rows of the Jacobian). Before issue 41 it was 272
+    the table, 65 KB per row: 57 KB per row measured (a margin of a tenth; 53 before the map's search kept its five
+    folds' parts, whose sums are its normal equations), most of it what does not grow with the rows (the folds' Gram
+    matrices, 680 x 680 each; pieces of 512 rows of the Jacobian). Before issue 41 it was 272
     KB per row (17 rows); 154 before the joint features' block form; 92 before the Jacobian was never held whole."""
     cell, b, tmac, params = series_b()
     d, _, peak = traced(lambda: diagnose(cell.chain, b, tmac, params, None))
