@@ -748,6 +748,16 @@ def test_faults_scheduled_halfway_through_a_move():
     assert ctl.safety_mode == PROTECTIVE_STOP and ctl.motion.q[0] != HOME[0]
 
 
+def test_a_protective_stop_armed_on_a_move_to_where_the_arm_stands_comes_with_the_command():
+    # a campaign moves to its pose again before every measurement (mocks/servers/ur/controller.py: no path to halve):
+    # the stop armed on such a move ends the program with the command, and the arm does not move
+    ctl = _started()
+    ctl.protective_stop_on_move = 1
+    _command(ctl, MOVEJ, [*HOME, 1.0, 1.4])
+    ctl.step()
+    assert ctl.safety_mode == PROTECTIVE_STOP and ctl.runtime_state != PLAYING and list(ctl.motion.q) == list(HOME)
+
+
 def test_async_stopj_answers_at_once_and_reports_progress():
     ctl = _started()
     _command(ctl, MOVEJ, [HOME[0] + 1.0, *HOME[1:], 1.0, 1.4], async_flag=1)
