@@ -16,7 +16,6 @@ import sys
 from trackcal.calib.errors import CalibError
 from trackcal.campaign.cli.allocator import keep_freed_blocks
 from trackcal.campaign.cli.blas import limited_blas
-from trackcal.campaign.cli.commands import COMMANDS, GROUPS
 from trackcal.campaign.errors import CampaignError, OptionError
 from trackcal.drivers.errors import DeviceError
 
@@ -65,6 +64,9 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> Parser:
+    # lazy: the command table's defaults import numpy, which `main` loads only once the BLAS threads are set
+    from trackcal.campaign.cli.commands import COMMANDS, GROUPS
+
     ap = Parser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
     groups: dict[str, argparse._SubParsersAction] = {}
@@ -83,15 +85,17 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = build_parser()
-    args, unknown = ap.parse_known_args(argv)
-    if unknown:  # argparse would report them for `trackcal`, not for the command they were given to
-        args.parser.error(f"unrecognized arguments: {' '.join(unknown)}")
-    module, _, function = args.handler.partition(":")
-    keep_freed_blocks()
     try:
-        # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)
+        # the BLAS threads before anything imports numpy: its OpenBLAS starts its threads as it loads, and with more
+        # than one a worker spun for about 0.1 s of CPU at every command's start before the limit reached it
         with limited_blas():
+            ap = build_parser()
+            args, unknown = ap.parse_known_args(argv)
+            if unknown:  # argparse would report them for `trackcal`, not for the command they were given to
+                args.parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+            module, _, function = args.handler.partition(":")
+            keep_freed_blocks()
+            # imported here, once the command is known: start-up time (`--help` and `export` need no pinocchio)
             handler = getattr(importlib.import_module(module), function)
             return handler(args)
     except USER_ERRORS as exc:

@@ -7,6 +7,7 @@ import os
 import re
 import socket
 import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -168,6 +169,32 @@ def test_commands_run_blas_on_one_thread_unless_told(monkeypatch, tmp_path, sett
     monkeypatch.setattr(trackcal.campaign.cli.analysis, "cmd_simulate", record)
     assert main(["simulate", "--cell", "kr270", "--poses", "3", "--out", str(tmp_path / "t.csv")]) == 0
     assert seen["blas"] and all(n == threads for n in seen["blas"]) and seen["env"] == str(threads)
+
+
+# a process of its own: this one has numpy loaded, and the BLAS variables set (tests/conftest.py)
+STARTED = """
+import sys
+import threadpoolctl
+from trackcal.campaign.cli import main
+assert "numpy" not in sys.modules  # nothing before main's limit loads it
+main(["simulate", "--cell", "kr270", "--poses", "3", "--out", sys.argv[1]])
+# the limit is lifted as main returns: for a library loaded under it, to the threads it started with
+print(*(lib["num_threads"] for lib in threadpoolctl.threadpool_info() if lib["user_api"] == "blas"))
+"""
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="OpenBLAS starts one thread on one core whatever is set")
+def test_numpys_blas_starts_with_the_commands_threads(tmp_path):
+    """numpy's OpenBLAS starts its threads as numpy is imported: with more than one, a worker spun for about 0.1 s of
+    CPU at every command's start before the command's limit reached it (identify of Series B: 0.39 s CPU for 0.29 s
+    of wall time). A command sets the limit before anything imports numpy, so the library starts with it."""
+    env = {k: v for k, v in os.environ.items() if k != "TRACKCAL_BLAS_THREADS" and not k.endswith("_NUM_THREADS")}
+    out = subprocess.run(
+        [sys.executable, "-c", STARTED, str(tmp_path / "t.csv")], env=env, capture_output=True, text=True, cwd=ROOT
+    )
+    assert out.returncode == 0, out.stderr
+    threads = out.stdout.splitlines()[-1].split()  # after the command's own line
+    assert threads and set(threads) == {"1"}
 
 
 @pytest.mark.parametrize("setting", ["0", "two", "-1"])
