@@ -498,10 +498,12 @@ def fit_error_map(
     pen_all = len(params) + n_base + np.arange(len(names_max))
     # the normal equations summed over row chunks: the Jacobian (3N x ~700) is never held whole (issue 41); for a
     # search, the sums of its folds' parts, which it reads (a pass over the rows less: issue 41, CPU)
-    fold = _fold_ids(table, folds, seed)
-    groups = [np.flatnonzero(fold == k) for k in np.unique(fold)]
-    parts = FoldParts(ProblemRows(problem, state), np.setdiff1d(np.arange(problem.n_cols), pen_all)) if search else None
-    normal = problem.normal_equations(state) if parts is None else parts.whole(groups, executor)
+    if search:
+        fold = _fold_ids(table, folds, seed)
+        parts = FoldParts(ProblemRows(problem, state), np.setdiff1d(np.arange(problem.n_cols), pen_all))
+        normal = parts.whole([np.flatnonzero(fold == k) for k in np.unique(fold)], executor)
+    else:
+        normal = problem.normal_equations(state)
     s2 = normal[2] / max(3 * len(table) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
