@@ -64,8 +64,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> Parser:
-    # lazy: the command table's defaults import numpy, which `main` loads only once the BLAS threads are set
-    from trackcal.campaign.cli.commands import COMMANDS, GROUPS
+    from trackcal.campaign.cli.commands import COMMANDS, GROUPS  # lazy: imports numpy, after main's BLAS threads
 
     ap = Parser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
