@@ -100,17 +100,15 @@ def cross_validate(ctx: Context, causes: tuple[str, ...], folds: list[np.ndarray
     gram, grad = full.gram, full.grad
     # the training rows only for a change point's scan (a set difference per fold was 1 % of a diagnosis of the UR10's
     # Series B, issue 41)
-    moved = [
-        full.shift is not None
-        and scan(ctx, np.setdiff1d(np.arange(n), test)) != (full.shift["station"], full.shift["after_t_s"])
-        for test in folds
-    ]
+    trains = [None] * len(folds) if full.shift is None else [np.setdiff1d(np.arange(n), test) for test in folds]
+    cut = None if full.shift is None else (full.shift["station"], full.shift["after_t_s"])
+    moved = [train is not None and scan(ctx, train) != cut for train in trains]
     held = _held_out_rows(full, [test for test, m in zip(folds, moved, strict=True) if not m], n)
     sq, count = np.zeros(n), np.zeros(n, dtype=int)
-    for test, m in zip(folds, moved, strict=True):
+    for test, train, m in zip(folds, trains, moved, strict=True):
         if m:
             try:
-                fit = fit_model(ctx, causes, np.setdiff1d(np.arange(n), test), FOLD_ITERATIONS)
+                fit = fit_model(ctx, causes, train, FOLD_ITERATIONS)
             except IdentificationError:
                 return None
             pred = predict_rows(ctx, fit, test, extension_of(ctx, causes, test))

@@ -260,7 +260,8 @@ class FoldParts:
     held-out rows' residual r_k and their Jacobian's unpenalised columns `free`, formed by `rows` (`ProblemRows`, or
     anything whose `normal(rows, keep)` gives them for given rows) `PIECE` rows at a time: the whole Jacobian is
     never held (issue 41). Kept per fold with `keep`: the cross-validations of one linearised problem share their
-    folds (the models of `MapEvidence`)."""
+    folds (the models of `MapEvidence`), and the map's search reads the parts whose sums are its normal equations
+    (`whole`)."""
 
     def __init__(self, rows, free: np.ndarray, keep: bool = True):
         self.rows, self.free, self.keep = rows, free, keep

@@ -64,7 +64,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> Parser:
-    from trackcal.campaign.cli.commands import COMMANDS, GROUPS  # lazy: imports numpy, after main's BLAS threads
+    from trackcal.campaign.cli.commands import COMMANDS, GROUPS  # lazy: loads numpy; its BLAS starts under main's limit
 
     ap = Parser(prog="trackcal", description="Robot calibration with a laser tracker.")
     sub = ap.add_subparsers(dest="command", required=True)
