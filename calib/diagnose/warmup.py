@@ -1,14 +1,15 @@
 """The warm-up's time constant: thermal_warmup's growth e_inf (1 - exp(-(t - t0) / tau)) is linear in e_inf at a
 given tau, so tau is profiled: at each tau of a grid over the physical range (`calib.diagnose.plausibility`: 5 min
-to 8 h) e_inf is fitted linearly, and the tau of least residual is kept (refined between its grid neighbours).
+to 8 h) e_inf is fitted linearly, and the tau of least residual is kept (refined by finer grids between its grid
+neighbours).
 
 The profile is taken at the solution of the model without the warm-up, linearised: the residual r and the Jacobian of
 the geometric, station and point columns (and those of the model's other causes) B are those of that fit; the growth
 column of a tau is the reflector's lever about the
 pivot (the Jacobian column of a unit growth) times the row's warm-up shape. The residual sum left by a tau is
 |r_perp|^2 - (c_perp . r_perp)^2 / |c_perp|^2, `_perp` the part orthogonal to B: one Jacobian per pivot form, then
-a few vector products per tau. The effect is small (micrometres against metres), where the model is linear to far
-below the noise (as `calib.diagnose.crossval`'s one-step folds).
+matrix products over a grid's taus at once. The effect is small (micrometres against metres), where the model is
+linear to far below the noise (as `calib.diagnose.crossval`'s one-step folds).
 
 The linear drift (thermal_drift, g = e t) is the warm-up's limit of a tau long against the campaign. The warm-up is a
 candidate only when its curvature is significant: the residual sum at its tau against the linear drift's, an F test
@@ -39,6 +40,12 @@ from trackcal.calib.model.extension import Extension, combine
 
 ALPHA = 1e-3  # the curvature's F test (selection's level for one candidate)
 GRID = 60  # taus of the profile, log-spaced over the physical range
+# taus of each finer grid between the least's neighbours, and how many: the last step is the grid's times
+# (2 / (FINE - 1)) ** REFINE, 7.6e-5 of log tau (scipy's bounded Brent search to 1e-4 took the import of
+# scipy.optimize, 0.12 s of CPU of a diagnosis of the UR10's Series B, issue 41)
+FINE, REFINE = 65, 2
+CI_GRID = 400  # taus of the interval's grid over the physical range
+BLOCK = 2**20  # values of the growth columns formed at once (8 MB)
 CHI2_1_95 = 3.841458820694124  # chi-square quantile, 1 degree of freedom, 0.95 (tables: 3.841)
 
 
@@ -75,40 +82,52 @@ def _orthogonal(chain: Chain, table: MeasurementTable, at: Solution, noise, para
     return r_perp, jm[:, k], q, len(r) - base.shape[1] - 1
 
 
-def _rss(r_perp: np.ndarray, lever: np.ndarray, q: np.ndarray, shape: np.ndarray) -> float:
-    c = lever * np.repeat(shape, 3)
-    c = c - q @ (q.T @ c)
-    cc = float(c @ c)
-    return float(r_perp @ r_perp) - (float(c @ r_perp) ** 2 / cc if cc > 0 else 0.0)
+def _rss(r_perp: np.ndarray, lever: np.ndarray, q: np.ndarray, shapes: np.ndarray) -> np.ndarray:
+    """(g,) the residual sum left by each of g growth shapes (N, g): their growth columns (3 N, g) made orthogonal to
+    Q at once."""
+    c = lever[:, None] * np.repeat(shapes, 3, axis=0)
+    c -= q @ (q.T @ c)
+    cc, cr = np.einsum("ig,ig->g", c, c), r_perp @ c
+    return float(r_perp @ r_perp) - np.divide(cr**2, cc, out=np.zeros_like(cc), where=cc > 0)
 
 
 def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params) -> dict:
     """The profile of tau over the physical range at the fit `geo` (`_orthogonal`): {"form", "tau_s", "tau_ci95_s":
     [lo, hi], "rss", "rss_linear", "dof", "pvalue"} (the curvature's F test against the linear drift of the same
     pivot)."""
-    from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is 0.35 s of every command's start-up
     from scipy.special import fdtrc  # lazy: identify imports this module, not this test (scipy: its start-up)
 
     t = np.asarray(table.t_s, dtype=float)
     t0 = float(t.min()) if len(t) else 0.0
-    taus = np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, GRID)
+    grid = np.log(np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, GRID))
+    fine = np.linspace(grid[0], grid[-1], CI_GRID)
     best = None
     for form in WARMUP_FORMS:
         r_perp, lever, q, dof = _orthogonal(chain, table, geo, noise, params, form)
 
-        def rss(log_tau, r_perp=r_perp, lever=lever, q=q):
-            return _rss(r_perp, lever, q, warmup_growth(t, float(np.exp(log_tau)), t0))
+        def rss(log_taus, r_perp=r_perp, lever=lever, q=q):
+            """(len(log_taus),) the residual sums at the taus exp(log_taus), BLOCK values of their columns at once."""
+            step = max(1, BLOCK // len(r_perp))
+            return np.concatenate(
+                [
+                    _rss(r_perp, lever, q, warmup_growth(t[:, None], np.exp(log_taus[a : a + step])[None, :], t0))
+                    for a in range(0, len(log_taus), step)
+                ]
+            )
 
-        grid = np.array([rss(np.log(tau)) for tau in taus])
-        i = int(np.argmin(grid))
-        lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, GRID - 1)])
-        found = minimize_scalar(rss, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
-        log_tau, least = (found.x, float(found.fun)) if found.fun < grid[i] else (np.log(taus[i]), float(grid[i]))
-        linear = _rss(r_perp, lever, q, t - t0)
+        # the grid's least, then REFINE times a finer grid between the neighbours of the least so far (the profile
+        # between them has one minimum): the last grid's step is 7.6e-5 of log tau
+        xs, values = grid, rss(grid)
+        for _ in range(REFINE):
+            i = int(np.argmin(values))
+            xs = np.linspace(xs[max(i - 1, 0)], xs[min(i + 1, len(xs) - 1)], FINE)
+            values = rss(xs)
+        i = int(np.argmin(values))
+        log_tau, least = float(xs[i]), float(values[i])
+        linear = float(_rss(r_perp, lever, q, (t - t0)[:, None])[0])
         if best is None or least < best["rss"]:
             s2 = least / max(dof, 1)
-            fine = np.linspace(np.log(WARMUP_TAU_MIN_S), np.log(WARMUP_TAU_MAX_S), 400)
-            inside = fine[np.array([rss(x) for x in fine]) <= least + CHI2_1_95 * s2]
+            inside = fine[rss(fine) <= least + CHI2_1_95 * s2]
             ci = [float(np.exp(min(inside.min(), log_tau))), float(np.exp(max(inside.max(), log_tau)))]
             f = (linear - least) / s2 if s2 > 0 else 0.0
             best = {

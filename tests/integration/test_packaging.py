@@ -106,3 +106,29 @@ def test_identify_imports_neither_the_search_nor_scipy(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]
+
+
+def test_the_warmup_profile_imports_no_scipy_optimize():
+    """Start-up (issue 41): diagnose profiles the warm-up's tau on grids (calib.diagnose.warmup), where scipy's bounded
+    search imported scipy.optimize, 0.12 s of CPU of a diagnosis of the UR10's Series B."""
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from trackcal.calib.diagnose.warmup import profile\n"
+        "from trackcal.calib.doe.poses import random_poses\n"
+        "from trackcal.calib.identify.noise import TrackerNoise\n"
+        "from trackcal.calib.identify.solver import identify\n"
+        "from trackcal.calib.model.cell import load_cell\n"
+        "from trackcal.calib.model.params import irreducible_params\n"
+        "from trackcal.mocks.twin import Twin, simulate_campaign\n"
+        "cell = load_cell('kr270')\n"
+        "twin = Twin(cell, seed=1, effects={'thermal_warmup': 0.06})\n"
+        "table = simulate_campaign(twin, np.degrees(random_poses(cell, 12, np.random.default_rng(1))))\n"
+        "params = irreducible_params(cell.chain)[0]\n"
+        "geo = identify(cell.chain, table, cell.tool_points, params, noise=TrackerNoise())\n"
+        "assert profile(cell.chain, table, geo, TrackerNoise(), params)['tau_s'] > 0\n"
+        "print('scipy.optimize' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "False", out.stdout[-500:]

@@ -9,13 +9,20 @@ import json
 
 import numpy as np
 import pytest
+from scipy.optimize import minimize_scalar
 
 from trackcal.calib.compensate import compensate, pose_error
 from trackcal.calib.diagnose import diagnose
-from trackcal.calib.diagnose.extensions import LOAD_COLUMN, build_extension
+from trackcal.calib.diagnose.extensions import LOAD_COLUMN, WARMUP_FORMS, build_extension, warmup_growth
 from trackcal.calib.diagnose.fits import fit_cause
-from trackcal.calib.diagnose.plausibility import COMPLIANCE_MAX, GROWTH_MAX, implausible
-from trackcal.calib.diagnose.warmup import warmup_candidate
+from trackcal.calib.diagnose.plausibility import (
+    COMPLIANCE_MAX,
+    GROWTH_MAX,
+    WARMUP_TAU_MAX_S,
+    WARMUP_TAU_MIN_S,
+    implausible,
+)
+from trackcal.calib.diagnose.warmup import _orthogonal, _rss, profile, warmup_candidate
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
@@ -69,6 +76,36 @@ def test_a_linear_drift_is_not_taken_for_a_warmup(kr270):
     geo = identify(kr270.chain, table, kr270.tool_points, params, noise=TrackerNoise())
     ext, why = warmup_candidate(kr270.chain, table, geo, TrackerNoise(), params)
     assert ext is None and "not significant" in why[0]
+
+
+def test_the_profiles_least_is_brents_to_its_step(kr270):
+    """tau is refined by finer grids between the coarse grid's neighbours (calib.diagnose.warmup): the tau and the
+    residual sum found are those of scipy's bounded Brent search run to 1e-9 of log tau on the same profile (an
+    independent minimiser), within the last grid's step (7.6e-5 of log tau) and the rounding of the sums."""
+    _, table, params = twin_campaign(kr270, "thermal_warmup", 36101)
+    geo = identify(kr270.chain, table, kr270.tool_points, params, noise=TrackerNoise())
+    found = profile(kr270.chain, table, geo, TrackerNoise(), params)
+    t = np.asarray(table.t_s, dtype=float)
+    least = {}
+    for form in WARMUP_FORMS:
+        r_perp, lever, q, _ = _orthogonal(kr270.chain, table, geo, TrackerNoise(), params, form)
+
+        def rss(log_tau, r_perp=r_perp, lever=lever, q=q):
+            return float(_rss(r_perp, lever, q, warmup_growth(t, np.exp(log_tau), t.min())[:, None])[0])
+
+        grid = np.log(np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, 60))
+        i = int(np.argmin([rss(x) for x in grid]))
+        brent = minimize_scalar(
+            rss, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, 59)]), method="bounded", options={"xatol": 1e-9}
+        )
+        least[form] = (float(brent.fun), float(brent.x))
+    form = min(least, key=lambda f: least[f][0])
+    assert found["form"] == form
+    rss_brent, log_tau = least[form]
+    assert abs(np.log(found["tau_s"]) - log_tau) <= 7.6e-5
+    assert rss_brent * (1 - 1e-12) <= found["rss"] <= rss_brent * (1 + 1e-9)
+    lo, hi = found["tau_ci95_s"]
+    assert lo < found["tau_s"] < hi
 
 
 def test_payload_compliance_recovers_the_compliances_within_their_intervals(kr270):
