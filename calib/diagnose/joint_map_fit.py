@@ -504,7 +504,7 @@ def fit_error_map(
         parts = FoldParts(ProblemRows(problem, state), np.setdiff1d(np.arange(problem.n_cols), pen_all))
         normal = parts.whole([np.flatnonzero(fold == k) for k in np.unique(fold)], executor)
     else:
-        normal = problem.normal_equations(state)
+        normal = problem.normal_equations(state, executor)
     s2 = normal[2] / max(3 * len(table) - problem.n_cols + len(names_max), 1)  # residual variance without the map
     cv_table, cv_rms, cv_without, linearised = [], None, None, None
     order, tau = max(orders), float(taus_rad[0])
@@ -515,12 +515,12 @@ def fit_error_map(
         )
     names = [nm for nm in names_max if parse_name(nm)[1] <= order]
     if len(names) == len(names_max):  # the search's problem and its normal equations at the start
-        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, normal)
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, normal, executor)
     else:
         ext = _with_base(base, map_extension(q, names=names, arcs=arcs))
         problem = Problem(chain, table, geo.points, params, noise, extension=ext)
         state = _state_from(problem, geo, np.concatenate([geo.ext, np.zeros(len(names))]))
-        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2)
+        res, edf = _penalised_fit(problem, state, pen_all[0], len(names), s2 / tau**2, executor=executor)
     return ErrorMapFit(
         identification=res,
         names=names,
@@ -750,9 +750,11 @@ def _penalised_fit(
     n_map: int,
     lam: float,
     at_start: tuple[np.ndarray, np.ndarray, float] | None = None,
+    executor: Executor | None = None,
 ) -> tuple[Identification, float]:
     """Gauss-Newton on |r|^2 + lam |c|^2 (c the map coefficients, the `n_map` unknowns from column `k0`) from
-    `state`, the fit without the map (`at_start`: its normal equations (J^T J, J^T r, r.r) if already formed):
+    `state`, the fit without the map (`at_start`: its normal equations (J^T J, J^T r, r.r) if already formed; the
+    row chunks of the others formed in `executor` when given):
     (identification with the posterior covariance s^2 (J^T J + lam P)^-1, effective number of map parameters).
 
     It stops as `calib.identify.solver.solve` does: when a step, or all the steps still to come after it (the rate of
@@ -764,7 +766,7 @@ def _penalised_fit(
     pen = np.zeros(problem.n_cols)
     pen[k0 : k0 + n_map] = lam
     converged, prev, iterations = False, 0.0, 0
-    gram, rhs, rr = problem.normal_equations(state) if at_start is None else at_start
+    gram, rhs, rr = problem.normal_equations(state, executor) if at_start is None else at_start
     for _ in range(GN_ITERATIONS):
         scale = np.sqrt(np.diag(gram))
         scale[scale == 0] = 1.0
@@ -782,7 +784,7 @@ def _penalised_fit(
             # ~700 columns (a third of the fit's time) are not formed again
             converged = True
             break
-        gram, rhs, rr = problem.normal_equations(state)
+        gram, rhs, rr = problem.normal_equations(state, executor)
         prev = step
     scale = np.sqrt(np.diag(gram))
     scale[scale == 0] = 1.0

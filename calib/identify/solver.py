@@ -17,6 +17,7 @@ measured from another station).
 from __future__ import annotations
 
 import copy
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import NamedTuple
@@ -568,17 +569,20 @@ class Problem:
         r[ch.order], jm[ch.order] = rb, self._dense(ch, jc).reshape(-1, 3, self.n_cols)
         return r.ravel(), jm.reshape(-1, self.n_cols)
 
-    def normal_equations(self, s: State) -> tuple[np.ndarray, np.ndarray, float]:
+    def normal_equations(self, s: State, executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(J^T J, J^T r, r.r) of the whitened problem, accumulated over row chunks from the Jacobian's
         non-zero blocks: the rows of one (station, point) pair touch only the robot's, that station's and that
         point's columns (the whole Jacobian is never held). A problem of many joint-feature columns (`_lever_gram`:
-        the joint error map's ~650) forms their block from the rows' levers. Otherwise one whose robot and extension
+        the joint error map's ~650) forms their block from the rows' levers, its chunks in `executor` when given
+        (threads: their products release the GIL), summed in chunk order. Otherwise one whose robot and extension
         columns outnumber the stations' and points' eight times sums each chunk's rows at once: one product, where a
         product and a scatter of a ~700 x 700 block per pair cost more than the few zeros skipped."""
         if self._lever_gram is not None:
             sums = (0.0, 0.0, 0.0)
-            for ch in self.chunks:
-                sums = tuple(a + b for a, b in zip(sums, self._lever_parts(s, ch)[:3], strict=True))
+            for part in (map if executor is None else executor.map)(
+                lambda ch: self._lever_parts(s, ch)[:3], self.chunks
+            ):
+                sums = tuple(a + b for a, b in zip(sums, part, strict=True))
             return self._assembled(*sums)
         if self.c_st > 8 * (6 * self.n_st + 3 * self.n_pt):
             info, grad, cost = np.zeros((self.n_cols, self.n_cols)), np.zeros(self.n_cols), 0.0
