@@ -596,6 +596,7 @@ class MapEvidence:
         base: Extension | None,
         start,
         fit: ErrorMapFit,
+        executor: Executor | None = None,
     ):
         names = [nm for j in fit.arcs for nm in harmonic_names(j, max(fit.orders.values()))]
         lin = fit.linearised
@@ -628,6 +629,7 @@ class MapEvidence:
         self._whole = None  # (Cholesky factor of the whole table's H, its solution, H^-1 E, diag H^-1 on the map)
         self.fold_sets: dict[bytes, list | None] = {}  # per fold assignment: each fold's factor and held-out rows
         self.parts: dict[bytes, FoldParts] = {}  # per fold assignment: each fold's part of the normal equations
+        self.executor = executor  # forms and factors the folds at once when given (threads)
 
     def _factor(self, gram: np.ndarray, rhs: np.ndarray):
         """(Cholesky factor of the scaled penalised H, scaled solution d0, scaled H^-1 E for every base column)."""
@@ -675,17 +677,19 @@ class MapEvidence:
         model."""
         key = fold.tobytes()
         if key not in self.fold_sets:
-            out, parts = [], self._parts(fold)
-            for k in np.unique(fold):
+            parts = self._parts(fold)
+
+            def solved(k):
                 rows = np.flatnonzero(fold == k)
                 g_k, b_k, _, _ = parts(k, rows)
                 try:
                     _, d0, w = self._factor(self.gram - g_k, self.rhs - b_k)
                 except np.linalg.LinAlgError:  # not positive definite: this training set cannot identify it
-                    out = None
-                    break
-                out.append((d0, w, rows, k))
-            self.fold_sets[key] = out
+                    return None
+                return d0, w, rows, k
+
+            out = list((map if self.executor is None else self.executor.map)(solved, np.unique(fold)))
+            self.fold_sets[key] = None if any(f is None for f in out) else out
         return self.fold_sets[key]
 
     def cv_rms_mm(self, fold: np.ndarray, drop: tuple[int, ...] = ()) -> float:

@@ -57,7 +57,9 @@ class Rejudge:
                 if start.shift is None
                 else relabel_shift(ctx.table, start.shift["station"], start.shift["after_t_s"])
             )
-            self.roots[shifted] = MapEvidence(ctx.chain, table, ctx.params, ctx.noise, self.base, start, self.mf)
+            self.roots[shifted] = MapEvidence(
+                ctx.chain, table, ctx.params, ctx.noise, self.base, start, self.mf, ctx.executor
+            )
         return self.roots[shifted]
 
     def figure(self, causes: tuple[str, ...], scheme: str | None = None):
