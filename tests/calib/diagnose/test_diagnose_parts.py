@@ -2,6 +2,7 @@
 against Kabsch per prefix, the linearised folds against full refits, invisible joints, comparable repeats."""
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -220,9 +221,12 @@ def test_map_evidence_reuses_the_searchs_problem_only_where_it_is_the_same(kr270
     own = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, dataclasses.replace(mf, linearised=None))
     assert shared.rows is mf.linearised.rows and own.rows is not mf.linearised.rows
     fold = np.arange(len(ctx.table)) % 5
-    for drop in ((), (0,), tuple(range(base.size))):
-        assert shared.whole(drop) == pytest.approx(own.whole(drop), rel=1e-12)
-        assert shared.cv_rms_mm(fold, drop) == pytest.approx(own.cv_rms_mm(fold, drop), rel=1e-12)
+    with ThreadPoolExecutor(2) as ex:  # its folds formed and factored in threads (a diagnosis's): the same figures
+        threaded = MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, start, mf, ex)
+        for drop in ((), (0,), tuple(range(base.size))):
+            assert shared.whole(drop) == pytest.approx(own.whole(drop), rel=1e-12)
+            assert shared.cv_rms_mm(fold, drop) == pytest.approx(own.cv_rms_mm(fold, drop), rel=1e-12)
+            assert threaded.cv_rms_mm(fold, drop) == shared.cv_rms_mm(fold, drop)
     # another start (the same fit, another object), another base or a lower order: it forms its own
     other = identify(ctx.chain, ctx.table, ctx.geo.points, ctx.params, extension=base)
     assert MapEvidence(ctx.chain, ctx.table, ctx.params, None, base, other, mf).rows is not mf.linearised.rows

@@ -1,5 +1,7 @@
 """Identification: exact recovery, invariances, honest confidence intervals, clear errors."""
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -325,6 +327,12 @@ def test_normal_equations_from_the_levers_are_those_of_the_jacobian(kr270, kr270
     assert np.all(np.abs(b_k - j_rows.T @ r_rows) <= 1e-13 * norms * np.linalg.norm(r_rows))
     with pytest.raises(IdentificationError, match="not formed"):
         problem.normal_rows(state, rows, np.array([problem._lever_gram[0].start]))
+    # the chunks formed in threads (a diagnosis's) and summed in chunk order: the same sums, bit for bit
+    problem.set_chunks(np.array_split(rng.permutation(problem.n_rows), 3))
+    alone = problem.normal_equations(state)
+    with ThreadPoolExecutor(2) as ex:
+        threaded = problem.normal_equations(state, ex)
+    assert all(np.array_equal(a, b) for a, b in zip(alone, threaded, strict=True))
 
 
 def test_normal_equations_pass_gives_the_residual_cost(kr270, kr270_params, extended):
