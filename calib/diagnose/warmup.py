@@ -116,7 +116,7 @@ def profile(chain: Chain, table: MeasurementTable, geo: Solution, noise, params)
             )
 
         # the grid's least, then REFINE times a finer grid between the neighbours of the least so far (the profile
-        # between them has one minimum): the last grid's step is 7.6e-5 of log tau
+        # between them has one minimum)
         xs, values = grid, rss(grid)
         for _ in range(REFINE):
             i = int(np.argmin(values))
