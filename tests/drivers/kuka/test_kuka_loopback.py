@@ -10,6 +10,8 @@ import re
 import socket
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 
 import pytest
 
@@ -26,8 +28,9 @@ from trackcal.drivers.kuka.eki_codec import (
     KIND_STOP,
     Command,
 )
+from trackcal.drivers.kuka.peers import ControllerPeers
 from trackcal.drivers.kuka.rsi_codec import KRC2_CYCLE_S, RobFrame, encode_rob
-from trackcal.drivers.kuka.rsi_link import STALE_CYCLES
+from trackcal.drivers.kuka.rsi_link import STALE_CYCLES, RsiLink
 from trackcal.mocks.clock import VirtualClock
 from trackcal.mocks.servers.kuka.controller import MockKrc2
 
@@ -692,3 +695,39 @@ def test_the_two_channels_must_show_the_same_arm_after_settling(cell, channel):
     cell.mock.misreport(channel, 1, 0.0)
     cell.client.move(HOME, 100.0)
     assert cell.client.wait_settled(tolerance_deg=0.0005, window_s=0.2, timeout_s=5.0) == pytest.approx(HOME, abs=1e-3)
+
+
+def test_joints_reads_every_frame_received_before_the_call():
+    """The answering thread answers a frame before the monitor thread reads it: joints() must return the latest frame
+    received before the call, not the latest the monitor had read (CI once read joint 1 at 8.78 deg after a move to
+    10 deg answered, on a loaded machine). The monitor is held back here by a gate, deterministically: a frame
+    handed on while it is held is what joints() returns once it reads it."""
+    link = RsiLink(
+        "127.0.0.1", 0, "udp", ControllerPeers("127.0.0.1", "test"), passive=False, cycle_s=KRC2_CYCLE_S, stale_s=30.0
+    )
+    gate, read = threading.Event(), link._read
+    gate.set()
+
+    def gated(arrived, item):
+        assert gate.wait(30.0)
+        return read(arrived, item)
+
+    link._read = gated
+    monitor = threading.Thread(target=link._monitor_loop, daemon=True)
+    monitor.start()
+    try:
+        first, second = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0), (10.0, -90.0, 90.0, 0.0, 90.0, 0.0)
+        link._hand_on(time.monotonic(), encode_rob(RobFrame(ipoc=12, aipos=first), tcp=False))
+        assert link.joints() == first
+        gate.clear()  # the monitor falls behind: the next frame is received, not yet read
+        link._hand_on(time.monotonic(), encode_rob(RobFrame(ipoc=24, aipos=second), tcp=False))
+        with ThreadPoolExecutor(1) as ex:
+            asked = ex.submit(link.joints)
+            with pytest.raises(FutureTimeout):
+                asked.result(timeout=0.2)  # waits for the frame received before the call
+            gate.set()
+            assert asked.result(timeout=30.0) == second
+    finally:
+        gate.set()
+        link._stop.set()
+        monitor.join(5.0)
