@@ -22,7 +22,7 @@ from trackcal.calib.diagnose.plausibility import (
     WARMUP_TAU_MIN_S,
     implausible,
 )
-from trackcal.calib.diagnose.warmup import _orthogonal, _rss, profile, warmup_candidate
+from trackcal.calib.diagnose.warmup import GRID, _orthogonal, _rss, profile, warmup_candidate
 from trackcal.calib.doe.poses import random_poses
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import identify
@@ -93,10 +93,10 @@ def test_the_profiles_least_is_brents_to_its_step(kr270):
         def rss(log_tau, r_perp=r_perp, lever=lever, q=q):
             return float(_rss(r_perp, lever, q, warmup_growth(t, np.exp(log_tau), t.min())[:, None])[0])
 
-        grid = np.log(np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, 60))
+        grid = np.log(np.geomspace(WARMUP_TAU_MIN_S, WARMUP_TAU_MAX_S, GRID))
         i = int(np.argmin([rss(x) for x in grid]))
         brent = minimize_scalar(
-            rss, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, 59)]), method="bounded", options={"xatol": 1e-9}
+            rss, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, GRID - 1)]), method="bounded", options={"xatol": 1e-9}
         )
         least[form] = (float(brent.fun), float(brent.x))
     form = min(least, key=lambda f: least[f][0])
