@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from trackcal.calib.diagnose.joint_map import (
     CAUSE,
@@ -45,6 +44,7 @@ from trackcal.calib.diagnose.joint_map import (
     map_extension,
     parse_name,
 )
+from trackcal.calib.diagnose.lapack import dpotrf_in_place, dpotrs, dtrtrs_lower
 from trackcal.calib.diagnose.ridge import ridge_inverse, ridge_path, ridge_solve
 from trackcal.calib.identify.noise import TrackerNoise
 from trackcal.calib.identify.solver import (
@@ -632,13 +632,15 @@ class MapEvidence:
         self.executor = executor  # forms and factors the folds at once when given (threads)
 
     def _factor(self, gram: np.ndarray, rhs: np.ndarray):
-        """(Cholesky factor of the scaled penalised H, scaled solution d0, scaled H^-1 E for every base column)."""
-        h = gram / np.outer(self.scale, self.scale) + np.diag(self.ridge_s)
-        factor = cho_factor(h, lower=True, check_finite=False)
+        """(Cholesky factor of the scaled penalised H (its lower triangle), scaled solution d0, scaled H^-1 E for every
+        base column)."""
+        h = np.asfortranarray(gram / np.outer(self.scale, self.scale) + np.diag(self.ridge_s))
+        if dpotrf_in_place(h, lower=True):  # its lower triangle now the factor (`calib.diagnose.lapack`: no GIL held)
+            raise np.linalg.LinAlgError("the penalised normal matrix is not positive definite")
         e = np.zeros((len(h), len(self.base_cols)))
         e[self.base_cols, np.arange(len(self.base_cols))] = 1.0
-        sol = cho_solve(factor, np.column_stack([rhs / self.scale, e]), check_finite=False)
-        return factor, sol[:, 0], sol[:, 1:]
+        sol = dpotrs(h, np.column_stack([rhs / self.scale, e]), lower=True)[0]
+        return h, sol[:, 0], sol[:, 1:]
 
     def _step(self, d0: np.ndarray, w: np.ndarray, drop: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray | None]:
         """(the unscaled step of the model with base parameters `drop` at zero, the scaled H^-1 E of them and the
@@ -657,7 +659,7 @@ class MapEvidence:
         columns + the map's effective number of parameters) with base parameters `drop` at zero."""
         if self._whole is None:
             factor, d0, w = self._factor(self.gram, self.rhs)
-            l_inv = solve_triangular(factor[0], np.eye(len(d0)), lower=True, check_finite=False)
+            l_inv = dtrtrs_lower(factor, np.eye(len(d0)))[0]
             self._whole = factor, d0, w, np.sum(l_inv[:, self.pen] ** 2, axis=0)  # diag of H^-1 = L^-T L^-1
         _, d0, w, h_inv_diag = self._whole
         step, low = self._step(d0, w, drop)

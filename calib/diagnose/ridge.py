@@ -22,17 +22,15 @@ of the map's held-out test, 6 ms each by LU); LU, as before, when rounding leave
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack
+
+from trackcal.calib.diagnose.lapack import dgtsv, dormqr_left, dpotrf_in_place, dpotri_in_place, dpotrs, dsytrd_lower
 
 
 def _apply_q(a: np.ndarray, tau: np.ndarray, c: np.ndarray, trans: str) -> np.ndarray:
     """Q c (trans "N") or Q^T c (trans "T"), Q from dsytrd(lower=1)'s a and tau; c (p, k)."""
     out = c.copy()
     if len(c) > 1:
-        lwork = 64 * max(c.shape[1], 1)
-        out[1:], _, info = lapack.dormqr("L", trans, a[1:, :-1], tau, c[1:], lwork)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"dormqr: info {info}")
+        out[1:] = dormqr_left(trans, a[1:, :-1], tau, c[1:], 64 * max(c.shape[1], 1))
     return out
 
 
@@ -46,7 +44,7 @@ def _ridged(s: np.ndarray, lam) -> np.ndarray:
 def _factor(h: np.ndarray) -> tuple[np.ndarray, int]:
     """(the upper Cholesky factor of h^T, h (p, p) C-ordered and overwritten: h^T is its Fortran-ordered view, LAPACK
     factors it in place; info > 0 when h is not positive definite)."""
-    return lapack.dpotrf(h.T, lower=0, overwrite_a=1, clean=0)
+    return h.T, dpotrf_in_place(h.T, lower=False)
 
 
 def ridge_solve(s: np.ndarray, b: np.ndarray, lam) -> np.ndarray:
@@ -58,10 +56,7 @@ def ridge_solve(s: np.ndarray, b: np.ndarray, lam) -> np.ndarray:
     c, info = _factor(_ridged(s, lam))
     if info != 0:
         return np.linalg.solve(_ridged(s, lam), b)
-    x, info = lapack.dpotrs(c, b, lower=0)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"dpotrs: info {info}")
-    return x
+    return dpotrs(c, b, lower=False)[0]
 
 
 def ridge_inverse(s: np.ndarray, lam) -> np.ndarray:
@@ -69,7 +64,7 @@ def ridge_inverse(s: np.ndarray, lam) -> np.ndarray:
     LU's inverse); by `np.linalg.inv` when s + diag(lam) is not positive definite."""
     c, info = _factor(_ridged(s, lam))
     if info == 0:
-        c, info = lapack.dpotri(c, lower=0, overwrite_c=1)
+        info = dpotri_in_place(c, lower=False)
     if info != 0:
         return np.linalg.inv(_ridged(s, lam))
     return np.triu(c) + np.triu(c, 1).T  # dpotri leaves the upper triangle
@@ -86,8 +81,7 @@ def ridge_path(s: np.ndarray, b: np.ndarray, lams) -> np.ndarray:
     p = len(s)
     if p == 0:
         return np.zeros((0, len(lams)))
-    lwork = int(lapack.dsytrd_lwork(p, lower=1)[0])
-    a, d, e, tau, info = lapack.dsytrd(s, lower=1, lwork=max(lwork, 1))
+    a, d, e, tau, info = dsytrd_lower(s)
     if info != 0:
         return _eigen_path(s, b, lams)
     y = _apply_q(a, tau, np.asarray(b, dtype=float)[:, None], "T")[:, 0]
@@ -96,7 +90,7 @@ def ridge_path(s: np.ndarray, b: np.ndarray, lams) -> np.ndarray:
             return y[:, None] / (np.maximum(d[:, None], 0.0) + lams[None])
     x = np.empty((p, len(lams)))
     for i, lam in enumerate(lams):
-        *_, xi, info = lapack.dgtsv(e, d + lam, e, y)
+        xi, info = dgtsv(e, d + lam, e, y)
         if info != 0:
             return _eigen_path(s, b, lams)
         x[:, i] = xi
