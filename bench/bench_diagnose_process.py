@@ -28,13 +28,14 @@ from pathlib import Path
 from bench.goals import check
 from studies.ur10_ipa.study import DATA, SERIES
 
-BASELINES = {  # main before issue 26; when stops 30, 31, 52, 53 and 54 landed
+BASELINES = {  # main before issue 26; when stops 30, 31, 52, 53, 54 and 55 landed
     "before issue 26": "c83d06f",
     "stop 30": "123db2d",
     "stop 31": "54ba974",
     "stop 52": "a93e702",
     "stop 53": "db38f9f",
     "stop 54": "06ba924",
+    "stop 55": "3c4bf36",
 }
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = "px1,py1,phix1,dq2,px2,phix2,phiy2,dq3,px3,phix3,phiy3,dq4,px4,py4,phix4,dq5"  # the README's UR10 section

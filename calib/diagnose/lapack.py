@@ -10,7 +10,7 @@ threads.
 
 Each function here is the call the f2py wrapper made, argument for argument: its arrays copied to Fortran order as the
 wrapper copied them, the same triangle and the same workspace, so the results are the wrapper's bit for bit (tests:
-tests/calib/diagnose/test_lapack.py). An illegal argument (info < 0) raises ValueError, as scipy's wrappers report it.
+tests/calib/diagnose/test_lapack.py). An illegal argument (info < 0) raises numpy.linalg.LinAlgError.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _at(a: np.ndarray) -> ctypes.c_void_p:
 
 def _checked(name: str, info: ctypes.c_int) -> int:
     if info.value < 0:
-        raise ValueError(f"LAPACK reported an illegal value in {-info.value}-th argument on entry to {name}")
+        raise np.linalg.LinAlgError(f"LAPACK reported an illegal value in {-info.value}-th argument on entry to {name}")
     return info.value
 
 
@@ -117,7 +117,9 @@ def dgtsv(dl: np.ndarray, d: np.ndarray, du: np.ndarray, b: np.ndarray) -> tuple
 
 def _overwritten(a: np.ndarray, name: str) -> np.ndarray:
     if not a.flags.f_contiguous or a.dtype != np.float64 or a.ndim != 2:
-        raise ValueError(f"{name}: the array must be a Fortran-ordered float64 matrix (it is overwritten in place)")
+        raise np.linalg.LinAlgError(
+            f"{name}: the array must be a Fortran-ordered float64 matrix (it is overwritten in place)"
+        )
     return a
 
 
