@@ -60,10 +60,10 @@ def _checked(name: str, info: ctypes.c_int) -> int:
     return info.value
 
 
-def _fortran(a, ndim: int = 2) -> np.ndarray:
-    """A Fortran-ordered float64 copy of `a` (as f2py copies an argument it overwrites), at least `ndim`-d."""
+def _fortran(a) -> np.ndarray:
+    """A Fortran-ordered float64 copy of `a` (as f2py copies an argument it overwrites), a vector as one column."""
     a = np.asarray(a, dtype=float)
-    return np.array(a.reshape(len(a), -1) if ndim == 2 else a, dtype=float, order="F")
+    return np.array(a.reshape(len(a), -1), order="F")
 
 
 def dsytrd_lower(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:

@@ -22,9 +22,9 @@ from trackcal.campaign.jobs.identify import cell_and_table, choose_params, model
 from trackcal.campaign.report.diagnosis_plots import plots
 from trackcal.campaign.report.tcp import NOT_DERIVED, NotDerived, TcpDifference, tcp_difference, tcp_doc
 
-# threads of one diagnosis: the cross-validation folds of the joint map's search are LAPACK reductions that release
-# the GIL (1.6-1.7x on 2 cores, bench/bench_diagnose_process.py); a batch's processes already fill the cores and
-# run theirs on one
+# threads of one diagnosis: the folds of the joint map's search and held-out test are LAPACK reductions and
+# factorisations called without the GIL (calib.diagnose.lapack; the held-out test 1.8x on 2 cores,
+# docs/design/performance.md); a batch's processes already fill the cores and run theirs on one
 THREADS = min(os.cpu_count() or 1, 2)
 HELD_OUT_TEST = (
     f"a cause joins when its gain on held-out poses (partition and edge folds) passes a one-sided "
