@@ -332,6 +332,15 @@ def parameter_value(pars: dict, p: Param, path: str) -> float:
     return value * (1.0 if p.is_length else np.pi / 180.0)
 
 
+def _half_widths(entry: dict, keys: tuple[str, ...], where: str) -> None:
+    """Each of `keys` the entry has (they are optional: a model written by hand may state none) is three
+    non-negative numbers: the report, locate and the ISO 9283 budget read them as given (a fuzzed model.json whose
+    station half-widths were null made the report fail with a traceback)."""
+    for key in (k for k in keys if k in entry):
+        if np.any(fields.vector(entry[key], f"{where}.{key}", ModelError) < 0):
+            raise ModelError(f"{where}.{key}: a half-width cannot be negative, got {entry[key]!r}")
+
+
 def model_from_doc(doc: dict, source: str = "model") -> Model:
     """A Model from a model.json document; every missing, mistyped or non-finite field is a ModelError naming
     `source` and the key."""
@@ -345,6 +354,10 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
         raise ModelError(f"{path}: converged: expected true or false, got {doc['converged']!r}")
     if "message" in doc and not isinstance(doc["message"], str):
         raise ModelError(f"{path}: message: expected a string, got {doc['message']!r}")
+    order = doc.get("covariance_order", [])
+    if not isinstance(order, list) or not all(isinstance(n, str) for n in order):
+        # found by test_cli_fuzz: a null covariance_order made the report's diagnosis fail with a traceback
+        raise ModelError(f"{path}: covariance_order: expected the list of the covariance's parameter names")
     if "weighting" in doc and doc["weighting"] not in WEIGHTINGS:
         raise ModelError(f"{path}: weighting: expected one of {', '.join(WEIGHTINGS)}, got {doc['weighting']!r}")
     try:
@@ -365,10 +378,12 @@ def model_from_doc(doc: dict, source: str = "model") -> Model:
             fields.matrix(st.get("rotation"), f"{where}.rotation", ModelError, (3, 3)),
             fields.vector(st.get("translation_mm"), f"{where}.translation_mm", ModelError),
         )
+        _half_widths(st, ("ci95_translation_mm", "ci95_rotation_deg"), where)
     points = {}
     for pid, pt in fields.mapping(doc["tool_points"], f"{path}: tool_points", ModelError).items():
         where = f"{path}: tool_points.{pid}"
         points[pid] = fields.vector(fields.mapping(pt, where, ModelError).get("xyz_mm"), f"{where}.xyz_mm", ModelError)
+        _half_widths(pt, ("ci95_mm",), where)
     ext = fields.mapping(doc.get("extension", {"cause": "none"}), f"{path}: extension", ModelError)
     if ext.get("cause", "none") not in ("none", *CAUSES):
         raise ModelError(f"{path}: extension.cause: {ext.get('cause')!r} is not none or one of {', '.join(CAUSES)}")

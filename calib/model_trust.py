@@ -152,8 +152,8 @@ def _check_covariance(model: Model, source: str) -> None:
     doc = model.doc
     if doc.get("covariance") is None:
         return
-    order = doc.get("covariance_order")
-    if not isinstance(order, list) or not all(isinstance(n, str) for n in order):
+    order = doc.get("covariance_order")  # its type checked by model_from_doc
+    if order is None:
         raise ModelError(f"{source}: covariance_order: expected the list of the covariance's parameter names")
     try:
         cov = np.array(doc["covariance"], dtype=float)

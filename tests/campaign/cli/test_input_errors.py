@@ -95,6 +95,17 @@ def model_json(tmp_path_factory):
         (lambda d: d["parameters"]["dq2"].update(ci95=-100), r"parameters\.dq2\.ci95: a half-width cannot be negative"),
         (lambda d: d["parameters"]["dq2"].update(ci95="abc"), r"parameters\.dq2\.ci95: expected a number, got the str"),
         (lambda d: d["parameters"]["dq2"].pop("ci95"), r"parameters\.dq2\.ci95: expected a number, got None"),
+        # found by test_cli_fuzz: a null covariance_order crashed the report's diagnosis, a null station half-width
+        # its table of stations
+        (lambda d: d.update(covariance_order=None), r"covariance_order: expected the list of the covariance's"),
+        (
+            lambda d: d["stations"]["S1"].update(ci95_translation_mm=None),
+            r"stations\.S1\.ci95_translation_mm: expected a list of 3 numbers, got None",
+        ),
+        (
+            lambda d: next(iter(d["tool_points"].values())).update(ci95_mm=[-1.0, 0.0, 0.0]),
+            r"tool_points\.\w+\.ci95_mm: a half-width cannot be negative",
+        ),
     ],
 )
 @pytest.mark.parametrize("command", ["predict", "compensate"])
