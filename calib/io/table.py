@@ -415,7 +415,7 @@ def read_table(
         raise TableError(f"{path}: row 1: missing column(s) {', '.join(missing)}")
     has_xyz = all(c in header for c in XYZ)
     columns = _Columns(path, header, qcols, has_xyz)
-    max_rows = MAX_CELLS // len(header)
+    max_rows = row_limit(len(header))
 
     def check_rows(rows: int) -> None:
         if rows > max_rows:
@@ -508,6 +508,11 @@ def as_written(table: MeasurementTable) -> MeasurementTable:
         q_deg=rounded(table.q_deg, 4),
         xyz=None if table.xyz is None else rounded(table.xyz, 4),
     )
+
+
+def row_limit(columns: int) -> int:
+    """The most rows a table of `columns` columns may hold (MAX_CELLS cells)."""
+    return MAX_CELLS // columns
 
 
 def write_table(table: MeasurementTable, path: str | Path) -> None:

@@ -62,7 +62,7 @@ from trackcal.campaign.engine.documents import (
     WarningDoc,
 )
 from trackcal.campaign.engine.recording import EndOfSegment
-from trackcal.campaign.engine.steps import PROMPTS, Step, StepKind
+from trackcal.campaign.engine.steps import Step, StepKind, next_prompts
 from trackcal.drivers.errors import DeviceError, DeviceFault, TargetNotVisible
 from trackcal.drivers.interfaces import JOINT_RESOLUTION_DEG, CellIO, Clock, Meteo, Operator, Robot, Tracker
 
@@ -299,6 +299,7 @@ class Engine:
         self.drift = replace(self.dev.drift, checks=drift_checks(steps))
         self.undrifted = undrifted_blocks(steps)
         measures = [i for i, s in enumerate(steps) if s.kind == StepKind.MEASURE]
+        following = next_prompts(steps)
         n_done = sum(1 for k in measures if k in done or k < first)
         try:
             if self.history.resumed and first < len(steps):
@@ -311,8 +312,9 @@ class Engine:
                     continue
                 self._execute(i, steps[i])
                 n_done = bisect_right(measures, i)  # measured or skipped
-                nxt = next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "")
-                progress = Progress(len(self.measurements), max(0, n_done - len(self.measurements)), len(measures), nxt)
+                progress = Progress(
+                    len(self.measurements), max(0, n_done - len(self.measurements)), len(measures), following[i]
+                )
                 self._emit("progress", ProgressDoc(**asdict(progress)))
         except _Stop as stop:
             return self._end("stopped", stop.reason, stop.step, n_done, len(measures), stop.code)

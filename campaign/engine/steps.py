@@ -21,6 +21,7 @@ from trackcal.calib.doe.iso_cube import AXES, CYCLE_ORDER, POSE_NAMES
 from trackcal.calib.doe.order import campaign_order, iso9283_order
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.io import fields
+from trackcal.calib.io.table import row_limit
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.campaign.errors import CampaignError
 
@@ -37,6 +38,18 @@ class StepKind(StrEnum):
 
 
 PROMPTS = (StepKind.CHANGE_STATION, StepKind.MOVE_REFLECTOR)  # the steps that ask the operator to act in the cell
+
+
+def next_prompts(steps: list[Step]) -> list[str]:
+    """The label of the first prompt after each step ("" when none follows): what the progress line names next, for
+    every step in one pass from the end (a scan of the steps after each step was quadratic in the campaign's length:
+    a fuzzed plan of 10^6 passes ran for minutes before its first measurement)."""
+    out, label = [""] * len(steps), ""
+    for k in range(len(steps) - 1, -1, -1):
+        out[k] = label
+        if steps[k].kind in PROMPTS:
+            label = steps[k].label
+    return out
 
 
 @dataclass(frozen=True)
@@ -450,4 +463,15 @@ def plan_steps(cell: Cell, plan_doc: dict, approached: bool = True) -> list[Step
     poses, repeat = plan_arrays(plan_doc)
     if poses.shape[1] != cell.chain.dof:
         raise PlanError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
+    # every pose measured from every station at every point on each pass, at most: a campaign whose table could not
+    # be read back (calib.io.table: MAX_CELLS cells of its columns seq, t_s, pose, station, point, the joints and x, y,
+    # z at the least) is refused before its steps are built (a fuzzed `repeat` of 10^6 built 5.5 GB of steps)
+    rows = len(poses) * len(cell.stations) * len(cell.tool_points) * repeat
+    limit = row_limit(8 + cell.chain.dof)
+    if rows > limit:
+        raise PlanError(
+            f"plan: repeat: {repeat} passes of {len(poses)} poses from {len(cell.stations)} stations at "
+            f"{len(cell.tool_points)} points would measure up to {rows} rows, more than a measurement table holds "
+            f"({limit} for {cell.chain.dof} joints)"
+        )
     return list(campaign_steps(cell, poses, repeat, iso_block(plan_doc, cell, len(poses)), approached))

@@ -8,9 +8,10 @@ import pytest
 from tests.helpers import assert_stopped, before_call, feasible_plan, inproc_live
 from trackcal.calib.identify.solver import identify
 from trackcal.calib.model.params import irreducible_params
+from trackcal.campaign.engine import steps as steps_module
 from trackcal.campaign.engine.engine import Live, Progress
 from trackcal.campaign.engine.recording import ReplayDivergence
-from trackcal.campaign.engine.steps import PlanError, StepKind, campaign_steps, plan_steps
+from trackcal.campaign.engine.steps import PROMPTS, PlanError, StepKind, campaign_steps, next_prompts, plan_steps
 from trackcal.campaign.jobs.campaign import new_session, replay, run_stored, stored_campaign
 from trackcal.campaign.jobs.completeness import completeness
 from trackcal.campaign.session.session import APPROACHED, export_table, write_export
@@ -62,6 +63,27 @@ def test_a_point_no_station_sees_is_refused_before_the_start(cell, plan):
     )
     with pytest.raises(PlanError, match="not visible from any station"):
         list(campaign_steps(blind, np.array(plan["poses_deg"]), 1))
+
+
+def test_the_progress_names_the_next_prompt_of_every_step(cell, plan):
+    # one pass from the end gives what a scan of the steps after each step gave (issue 41: the scan was quadratic)
+    steps = plan_steps(cell, plan)
+    brute = [next((s.label for s in steps[i + 1 :] if s.kind in PROMPTS), "") for i in range(len(steps))]
+    assert next_prompts(steps) == brute
+    assert sum(1 for label in brute if label) > len(steps) // 2  # prompts follow most steps: the labels were read
+    assert next_prompts([]) == []
+
+
+def test_a_plan_whose_table_could_not_be_read_back_is_refused_before_its_steps(cell, plan, monkeypatch):
+    # 10 poses from 2 stations at 3 points over 10^5 passes: 6,000,000 rows, where a table of the kr270's 6 joints
+    # holds at most 30,000,000 / 14 = 2,142,857 (calib.io.table.MAX_CELLS); found by test_cli_fuzz: a `repeat` of
+    # 10^6 built 5.5 GB of steps for minutes
+    monkeypatch.setattr(steps_module, "campaign_order", lambda *a, **k: pytest.fail("the steps were built"))
+    with pytest.raises(PlanError, match=r"would measure up to 6000000 rows, more than a measurement table holds "):
+        plan_steps(cell, {**plan, "repeat": 10**5})
+    # the largest number of passes that fits is not refused by the bound (its steps are what is refused here)
+    with pytest.raises(pytest.fail.Exception, match="the steps were built"):
+        plan_steps(cell, {**plan, "repeat": 2_142_857 // 60})
 
 
 def test_full_campaign_then_identification(tmp_path, cell, plan):
