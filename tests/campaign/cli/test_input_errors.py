@@ -120,6 +120,26 @@ def test_a_bad_model_json(model_json, tmp_path, capfd, change, message, command)
     assert not (tmp_path / "out.csv").exists()
 
 
+@pytest.mark.parametrize(
+    "change, message",
+    [  # found by test_cli_fuzz's random draws: each made the report (with a verdict) fail with a traceback
+        (lambda d: d.update(covariance_order=None), r"covariance_order: expected the list of the covariance's"),
+        (lambda d: d["stations"]["S1"].update(ci95_rotation_deg=None), r"stations\.S1\.ci95_rotation_deg: expected"),
+    ],
+)
+def test_a_bad_model_json_in_a_report(model_json, tmp_path, capfd, change, message):
+    verdict = model_json / "verdict.json"
+    if not verdict.exists():
+        assert main(["diagnose", str(model_json / "t.csv"), "--cell", "kr270", "--json", str(verdict)]) == 0
+    doc = json.loads((model_json / "model.json").read_text())
+    change(doc)
+    bad = tmp_path / "model.json"
+    bad.write_text(json.dumps(doc))
+    argv = ["report", "--table", model_json / "t.csv", "--model", bad, "--verdict", verdict, "--out", tmp_path / "r"]
+    err = one_line_error(capfd, argv)
+    assert str(bad) in err and re.search(message, err), err
+
+
 def test_non_utf8_plan_and_hardware_files(model_json, cell_dir, tmp_path, capfd):
     plan = tmp_path / "plan.json"
     plan.write_bytes('{"poses_deg": [], "note": "K\xf6ln"}'.encode("latin-1"))
