@@ -21,7 +21,7 @@ from trackcal.calib.doe.iso_cube import AXES, CYCLE_ORDER, POSE_NAMES
 from trackcal.calib.doe.order import campaign_order, iso9283_order
 from trackcal.calib.doe.poses import points_in_box
 from trackcal.calib.io import fields
-from trackcal.calib.io.table import row_limit
+from trackcal.calib.io.table import IDS, XYZ, joint_columns, row_limit
 from trackcal.calib.model.cell import Cell, usable_limits_deg
 from trackcal.campaign.errors import CampaignError
 
@@ -464,10 +464,10 @@ def plan_steps(cell: Cell, plan_doc: dict, approached: bool = True) -> list[Step
     if poses.shape[1] != cell.chain.dof:
         raise PlanError(f"plan: poses have {poses.shape[1]} joints, robot {cell.chain.name} has {cell.chain.dof}")
     # every pose measured from every station at every point on each pass, at most: a campaign whose table could not
-    # be read back (calib.io.table: MAX_CELLS cells of its columns seq, t_s, pose, station, point, the joints and x, y,
-    # z at the least) is refused before its steps are built (a fuzzed `repeat` of 10^6 built 5.5 GB of steps)
+    # be read back (calib.io.table: MAX_CELLS cells of its columns, those every table has at the least) is refused
+    # before its steps are built (a fuzzed `repeat` of 10^6 built 5.5 GB of steps)
     rows = len(poses) * len(cell.stations) * len(cell.tool_points) * repeat
-    limit = row_limit(8 + cell.chain.dof)
+    limit = row_limit(len(("seq", "t_s", *IDS, *joint_columns(cell.chain.dof), *XYZ)))
     if rows > limit:
         raise PlanError(
             f"plan: repeat: {repeat} passes of {len(poses)} poses from {len(cell.stations)} stations at "

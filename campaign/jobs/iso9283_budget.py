@@ -23,15 +23,11 @@ from trackcal.calib.uncertainty_budget import (
 from trackcal.campaign.errors import InputError
 
 
-def _ci(doc: dict, section: str, key: str, field: str, n: int) -> np.ndarray:
-    """A model.json 95 % half-width vector (zeros when the model states none: a model written by hand)."""
+def _ci(doc: dict, section: str, key: str, field: str) -> np.ndarray:
+    """A model.json 95 % half-width vector, three non-negative numbers as the model's reader checked them
+    (`calib.model_file.model_from_doc`); zeros when the model states none (a model written by hand)."""
     v = ((doc.get(section) or {}).get(key) or {}).get(field)
-    if v is None:
-        return np.zeros(n)
-    a = np.asarray(v, dtype=float)
-    if a.shape != (n,) or not np.isfinite(a).all() or (a < 0).any():
-        raise InputError(f"model {section}.{key}.{field}: expected {n} non-negative numbers, got {v!r}")
-    return a
+    return np.zeros(3) if v is None else np.asarray(v, dtype=float)
 
 
 def centring_mm(tool_doc: dict | None) -> float | None:
@@ -72,13 +68,13 @@ class BudgetContext:
         su = (
             np.concatenate(
                 [
-                    _ci(doc, "stations", self.station, "ci95_translation_mm", 3),
-                    np.radians(_ci(doc, "stations", self.station, "ci95_rotation_deg", 3)),
+                    _ci(doc, "stations", self.station, "ci95_translation_mm"),
+                    np.radians(_ci(doc, "stations", self.station, "ci95_rotation_deg")),
                 ]
             )
             * CI95_TO_SIGMA
         )
-        pu = _ci(doc, "tool_points", self.point, "ci95_mm", 3) * CI95_TO_SIGMA
+        pu = _ci(doc, "tool_points", self.point, "ci95_mm") * CI95_TO_SIGMA
         return PoseSetting(
             y,
             self.model.stations[self.station].rotation,
